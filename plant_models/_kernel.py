@@ -1,0 +1,502 @@
+"""Numba kernel of the electrical plant: six-step inverter, star-connected BLDC, rotor, Hall layer.
+
+Integration: each phase current is advanced with the exact solution of L di/dt = v - R i for
+the step's (held) terminal, neutral and back-EMF voltages; the rotor with constant acceleration
+over the step, so the angle is an exact quadratic inside it. Events that change the physics or
+what an observer sees (a commutation boundary of the oracle, a captured Hall edge) are located
+inside a trial step, and the step is cut back to end exactly on them: edges are exact roots of
+the angle equation, never rounded to the step.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+# parameter vector layout
+P_POLE_PAIRS, P_R, P_L, P_KE, P_FLAT, P_J, P_FRICTION, P_FAN, P_VDC, P_FPWM = range(10)
+P_HYST, P_ARM_SLOPE, P_RISE, P_FALL, P_JIT_T, P_JIT_A, P_JIT_RHO, P_TICK = range(10, 18)
+P_COG_AMP, P_COG_N, P_COG_PHASE, P_DEAD, P_ISAT, P_LMIN, P_HMAX, P_SAMPLE, P_LATENCY = range(18, 27)
+N_PARAMS = 27
+
+# float state layout
+S_T, S_THETA_M, S_OMEGA_M, S_IA, S_IB, S_IC, S_DUTY, S_NEXT_SAMPLE = range(8)
+S_AR_TIME, S_AR_ANGLE, S_E_IN, S_E_CU, S_E_MECH, S_E_LOAD = range(8, 14)
+S_FWD_TARGET = 14  # 3 values: base forward switching angle per sensor (deg_e, unwrapped)
+S_REV_TARGET = 17  # 3 values
+S_SAMPLE_T0 = 20
+N_FSTATE = 21
+
+# int state layout
+I_SECTOR, I_DIR, I_MODE, I_N_EDGES, I_N_IDEAL, I_N_SAMPLES, I_NOISE = range(7)
+I_RAW_REGION = 7  # 3 values
+I_IDEAL_REGION = 10  # 3 values
+I_N_PENDING, I_ORACLE_N, I_CMD_HEAD, I_CMD_COUNT, I_SAMPLE_K = range(13, 18)
+I_SEEN = 18  # 3 values: Hall state as the controller has seen it
+N_ISTATE = 21
+
+MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
+STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
+
+# captured edge record
+E_T_CAPTURE, E_T_COND, E_T_RAW, E_SENSOR, E_RISING, E_BOUNDARY, E_DIR = range(7)
+E_THETA_RAW, E_THETA_CAPTURE, E_SPEED_RPM, E_CURRENT, E_POLE = range(7, 12)
+N_EDGE_COLS = 12
+N_IDEAL_COLS = 4  # t, sensor, boundary, direction
+# samples
+N_SAMPLE_COLS = 15  # t, i_a..c, u_a..c, speed_rpm, theta_m_deg, duty, sector, e_a..c, torque
+MAX_PENDING = 32
+
+SENSOR_POS = np.array([0.0, 120.0, 240.0])
+BEMF_ZERO = np.array([90.0, 210.0, 330.0])
+SECTOR_HIGH = np.array([2, 2, 0, 0, 1, 1])
+SECTOR_LOW = np.array([0, 1, 1, 2, 2, 0])
+SECTOR_OF_CODE = np.array([-1, 5, 3, 4, 1, 0, 2, -1])
+RAD2DEG = 180.0 / math.pi
+
+
+@njit(cache=True, inline="always")
+def _trap(phi, flat):
+    half = (180.0 - flat) * 0.5
+    x = phi + 90.0
+    x = x - 360.0 * math.floor(x / 360.0) - 90.0
+    if x < 90.0:
+        v = x / half
+    else:
+        v = (180.0 - x) / half
+    if v > 1.0:
+        return 1.0
+    if v < -1.0:
+        return -1.0
+    return v
+
+
+@njit(cache=True, inline="always")
+def _root(th0, w0, acc, target, h):
+    """Time tau in [0, h] at which th0 + w0 tau + acc tau^2 / 2 reaches target (stable form)."""
+    d = target - th0
+    disc = w0 * w0 + 2.0 * acc * d
+    if disc < 0.0:
+        disc = 0.0
+    sgn = 1.0 if (w0 > 0.0 or (w0 == 0.0 and d > 0.0)) else -1.0
+    den = w0 + sgn * math.sqrt(disc)
+    tau = 2.0 * d / den if den != 0.0 else 0.0
+    if tau < 0.0:
+        tau = 0.0
+    if tau > h:
+        tau = h
+    return tau
+
+
+@njit(cache=True)
+def _armature(p, arm_i, arm_deg, current):
+    if arm_i.size > 0:
+        return np.interp(current, arm_i, arm_deg)
+    return p[P_ARM_SLOPE] * current
+
+
+@njit(cache=True)
+def _draw(st, ist, noise, slot, rms, rho):
+    """One sample of a stationary AR(1) process with RMS ``rms`` (white when rho = 0)."""
+    if rms == 0.0:
+        return 0.0
+    k = ist[I_NOISE]
+    w = noise[k % noise.size]
+    ist[I_NOISE] = k + 1
+    x = rho * st[slot] + math.sqrt(1.0 - rho * rho) * w
+    st[slot] = x
+    return rms * x
+
+
+@njit(cache=True)
+def set_targets(p, st, ist, sensor_off, pole_off, noise, x):
+    """Base switching angles of sensor x around its current region (installation, pole, jitter)."""
+    m = ist[I_RAW_REGION + x]
+    n_poles = pole_off.size
+    kf = m + 1
+    km = m
+    base = SENSOR_POS[x] + sensor_off[x]
+    st[S_FWD_TARGET + x] = 180.0 * kf + base + pole_off[kf % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    st[S_REV_TARGET + x] = 180.0 * km + base + pole_off[km % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+
+
+@njit(cache=True)
+def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
+    """Terminal voltages u (to ground) and the neutral voltage for the present switch state.
+
+    driven[x] = 1: PWM or low switch sets u; 2: diode-clamped by its own current; 0: open.
+    """
+    vdc = p[P_VDC]
+    for x in range(3):
+        driven[x] = 0
+    if sector >= 0:
+        hi = SECTOR_HIGH[sector]
+        lo = SECTOR_LOW[sector]
+        if drive_dir < 0:
+            hi, lo = lo, hi
+        d = duty - p[P_DEAD] * p[P_FPWM] * (1.0 if i[hi] >= 0.0 else -1.0)
+        d = min(max(d, 0.0), 1.0)
+        u[hi] = d * vdc
+        u[lo] = 0.0
+        driven[hi] = 1
+        driven[lo] = 1
+    for x in range(3):
+        if driven[x] == 0 and i[x] != 0.0:
+            driven[x] = 2
+            u[x] = 0.0 if i[x] > 0.0 else vdc
+    for _ in range(2):
+        n_d = 0
+        s = 0.0
+        for x in range(3):
+            if driven[x] != 0:
+                n_d += 1
+                s += u[x] - e[x]
+        if n_d >= 2:
+            un = s / n_d
+        elif n_d == 1:
+            un = s
+        else:
+            un = -(e[0] + e[1] + e[2]) / 3.0
+        changed = False
+        for x in range(3):
+            if driven[x] == 0:
+                v_open = un + e[x]
+                if v_open > vdc and n_d >= 1:
+                    driven[x] = 2
+                    u[x] = vdc
+                    changed = True
+                elif v_open < 0.0 and n_d >= 1:
+                    driven[x] = 2
+                    u[x] = 0.0
+                    changed = True
+                else:
+                    u[x] = v_open
+        if not changed:
+            return un
+    return un
+
+
+@njit(cache=True)
+def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te):
+    """Advance currents and rotor by h with inputs held at their start values; returns energy terms."""
+    pp = p[P_POLE_PAIRS]
+    theta_m = st[S_THETA_M]
+    w0 = st[S_OMEGA_M]
+    the = pp * theta_m * RAD2DEG
+    ke = p[P_KE]
+    i = np.empty(3)
+    i[0] = st[S_IA]
+    i[1] = st[S_IB]
+    i[2] = st[S_IC]
+    f = np.empty(3)
+    e = np.empty(3)
+    for x in range(3):
+        f[x] = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+        e[x] = ke * w0 * f[x]
+    sector = ist[I_SECTOR]
+    un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
+    R = p[P_R]
+    i1 = np.empty(3)
+    n_d = 0
+    for x in range(3):
+        if tmp_d[x] == 0:
+            i1[x] = 0.0
+            continue
+        n_d += 1
+        L = p[P_L]
+        if p[P_LMIN] < 1.0:
+            L = L * max(p[P_LMIN], 1.0 / (1.0 + (i[x] / p[P_ISAT]) ** 2))
+        v = tmp_u[x] - un - e[x]
+        a = math.exp(-R * h / L)
+        i1[x] = v / R + (i[x] - v / R) * a
+    # a diode-clamped phase whose current reached zero opens; keep sum(i) = 0
+    for x in range(3):
+        if tmp_d[x] == 2 and i1[x] * i[x] < 0.0:
+            i1[x] = 0.0
+    s = i1[0] + i1[1] + i1[2]
+    if s != 0.0:
+        cnt = 0
+        for x in range(3):
+            if i1[x] != 0.0:
+                cnt += 1
+        for x in range(3):
+            if i1[x] != 0.0:
+                i1[x] -= s / cnt
+    te = 0.0
+    e_in = 0.0
+    e_cu = 0.0
+    for x in range(3):
+        ia = 0.5 * (i[x] + i1[x])
+        te += ke * f[x] * ia
+        e_in += tmp_u[x] * ia
+        e_cu += R * (i[x] * i[x] + i[x] * i1[x] + i1[x] * i1[x]) / 3.0
+    t_load = p[P_FAN] * w0 * abs(w0) + p[P_FRICTION] * w0
+    if p[P_COG_AMP] != 0.0:
+        t_load += p[P_COG_AMP] * math.sin(p[P_COG_N] * theta_m + p[P_COG_PHASE])
+    w1 = w0 + h * (te - t_load) / p[P_J]
+    st[S_OMEGA_M] = w1
+    st[S_THETA_M] = theta_m + 0.5 * h * (w0 + w1)
+    st[S_IA] = i1[0]
+    st[S_IB] = i1[1]
+    st[S_IC] = i1[2]
+    st[S_T] += h
+    wa = 0.5 * (w0 + w1)
+    st[S_E_IN] += h * e_in
+    st[S_E_CU] += h * e_cu
+    st[S_E_MECH] += h * te * wa
+    st[S_E_LOAD] += h * t_load * wa
+    for x in range(3):
+        out_u[x] = tmp_u[x]
+        out_e[x] = e[x]
+    out_te[0] = te
+    return w0, w1
+
+
+@njit(cache=True)
+def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
+    delay = p[P_RISE] if rising else p[P_FALL]
+    jitter = 0.0
+    if p[P_JIT_T] > 0.0:
+        if peek:
+            k = ist[I_NOISE]
+            rho = p[P_JIT_RHO]
+            jitter = p[P_JIT_T] * (rho * st[S_AR_TIME] + math.sqrt(1.0 - rho * rho) * noise[k % noise.size])
+        else:
+            jitter = _draw(st, ist, noise, S_AR_TIME, p[P_JIT_T], p[P_JIT_RHO])
+    t_cond = t_raw + delay + jitter
+    return t_cond, max(t_cond, t_raw)
+
+
+@njit(cache=True)
+def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, t_stop):
+    """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
+    pp = p[P_POLE_PAIRS]
+    n_poles = pole_off.size
+    h_max = p[P_HMAX]
+    backup = np.empty(N_FSTATE)
+    ibackup = np.empty(N_ISTATE, dtype=np.int64)
+    tmp_u = np.empty(3)
+    tmp_d = np.empty(3, dtype=np.int64)
+    u_now = np.zeros(3)
+    e_now = np.zeros(3)
+    te_now = np.zeros(1)
+    mode = ist[I_MODE]
+    eps_deg = 1e-9
+    while True:
+        t = st[S_T]
+        # apply due commands
+        while ist[I_CMD_HEAD] < ist[I_CMD_COUNT] and cmds[ist[I_CMD_HEAD], 0] <= t + 1e-12:
+            c = ist[I_CMD_HEAD]
+            if cmds[c, 1] >= -1.0:
+                ist[I_SECTOR] = int(cmds[c, 1])
+            if cmds[c, 2] >= 0.0:
+                st[S_DUTY] = cmds[c, 2]
+            if cmds[c, 3] != 0.0:
+                ist[I_DIR] = int(cmds[c, 3])
+            ist[I_CMD_HEAD] = c + 1
+        # emit due captured edges
+        stop_edge = False
+        while ist[I_N_PENDING] > 0:
+            j = 0
+            for q in range(1, ist[I_N_PENDING]):
+                if pending[q, E_T_CAPTURE] < pending[j, E_T_CAPTURE]:
+                    j = q
+            if pending[j, E_T_CAPTURE] > t + 1e-12:
+                break
+            if ist[I_N_EDGES] >= out_edges.shape[0]:
+                return STOP_FULL
+            row = out_edges[ist[I_N_EDGES]]
+            for c in range(N_EDGE_COLS):
+                row[c] = pending[j, c]
+            # pending[...,E_T_CAPTURE] held the emission time; restore the timer's view
+            t_cond = pending[j, E_T_COND]
+            row[E_T_CAPTURE] = math.floor(t_cond / p[P_TICK]) * p[P_TICK] if p[P_TICK] > 0.0 else t_cond
+            row[E_THETA_CAPTURE] = pp * st[S_THETA_M] * RAD2DEG
+            row[E_SPEED_RPM] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            ist[I_N_EDGES] += 1
+            x = int(row[E_SENSOR])
+            ist[I_SEEN + x] = 1 if row[E_RISING] > 0.5 else 0
+            last = ist[I_N_PENDING] - 1
+            for c in range(N_EDGE_COLS):
+                pending[j, c] = pending[last, c]
+            ist[I_N_PENDING] = last
+            if mode == MODE_RAW_HALL:
+                code = ist[I_SEEN] * 4 + ist[I_SEEN + 1] * 2 + ist[I_SEEN + 2]
+                s = SECTOR_OF_CODE[code]
+                if s >= 0:
+                    if p[P_LATENCY] > 0.0:
+                        k = ist[I_CMD_COUNT]
+                        if k < cmds.shape[0]:
+                            cmds[k, 0] = t + p[P_LATENCY]
+                            cmds[k, 1] = s
+                            cmds[k, 2] = -1.0
+                            cmds[k, 3] = 0.0
+                            ist[I_CMD_COUNT] = k + 1
+                    else:
+                        ist[I_SECTOR] = s
+            elif mode == MODE_EXTERNAL:
+                stop_edge = True
+        # samples
+        if t >= st[S_NEXT_SAMPLE] - 1e-13:
+            if ist[I_N_SAMPLES] >= out_samples.shape[0]:
+                return STOP_FULL
+            the = pp * st[S_THETA_M] * RAD2DEG
+            i3 = np.array([st[S_IA], st[S_IB], st[S_IC]])
+            for x in range(3):
+                e_now[x] = p[P_KE] * st[S_OMEGA_M] * _trap(the - BEMF_ZERO[x], p[P_FLAT])
+            _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
+            te = 0.0
+            for x in range(3):
+                te += p[P_KE] * _trap(the - BEMF_ZERO[x], p[P_FLAT]) * i3[x]
+            r = out_samples[ist[I_N_SAMPLES]]
+            r[0] = t
+            r[1] = i3[0]
+            r[2] = i3[1]
+            r[3] = i3[2]
+            r[4] = u_now[0]
+            r[5] = u_now[1]
+            r[6] = u_now[2]
+            r[7] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            r[8] = st[S_THETA_M] * RAD2DEG
+            r[9] = st[S_DUTY]
+            r[10] = ist[I_SECTOR]
+            r[11] = e_now[0]
+            r[12] = e_now[1]
+            r[13] = e_now[2]
+            r[14] = te
+            ist[I_N_SAMPLES] += 1
+            ist[I_SAMPLE_K] += 1
+            st[S_NEXT_SAMPLE] = st[S_SAMPLE_T0] + ist[I_SAMPLE_K] * p[P_SAMPLE]
+        if stop_edge:
+            return STOP_EDGE
+        if t >= t_stop - 1e-15:
+            return STOP_TIME
+        if ist[I_N_IDEAL] >= out_ideal.shape[0]:
+            return STOP_FULL
+        # step length: never past a known event
+        h = min(h_max, t_stop - t, st[S_NEXT_SAMPLE] - t)
+        if ist[I_CMD_HEAD] < ist[I_CMD_COUNT]:
+            h = min(h, cmds[ist[I_CMD_HEAD], 0] - t)
+        for q in range(ist[I_N_PENDING]):
+            h = min(h, pending[q, E_T_CAPTURE] - t)
+        if h < 1e-13:
+            h = 1e-13
+        for c in range(N_FSTATE):
+            backup[c] = st[c]
+        for c in range(N_ISTATE):
+            ibackup[c] = ist[c]
+        w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now)
+        # first unknown event inside the trial step: oracle boundary or an edge emission
+        th0 = pp * backup[S_THETA_M] * RAD2DEG
+        th1 = pp * st[S_THETA_M] * RAD2DEG
+        we0 = pp * w0 * RAD2DEG
+        acc = pp * (w1 - w0) / h * RAD2DEG
+        t_event = st[S_T]
+        if mode == MODE_ORACLE:
+            n = ist[I_ORACLE_N]
+            if th1 >= 60.0 * (n + 1) - eps_deg and th0 < 60.0 * (n + 1) - eps_deg:
+                t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
+            elif th1 < 60.0 * n - eps_deg:
+                t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
+        i_end = (abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0
+        shift = p[P_HYST] + _armature(p, arm_i, arm_deg, i_end)
+        for x in range(3):
+            m = ist[I_RAW_REGION + x]
+            tf = st[S_FWD_TARGET + x] + shift
+            trv = st[S_REV_TARGET + x] - shift
+            if th1 >= tf - eps_deg:
+                t_raw = backup[S_T] + _root(th0, we0, acc, tf, h)
+                rising = (m + 1) % 2 == 0
+            elif th1 < trv - eps_deg:
+                t_raw = backup[S_T] + _root(th0, we0, acc, trv, h)
+                rising = (m - 1) % 2 == 0
+            else:
+                continue
+            t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, True)
+            t_event = min(t_event, t_emit)
+        if t_event < st[S_T] - 1e-13:
+            for c in range(N_FSTATE):
+                st[c] = backup[c]
+            for c in range(N_ISTATE):
+                ist[c] = ibackup[c]
+            h = t_event - backup[S_T]
+            if h < 1e-13:
+                h = 1e-13
+            w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now)
+            th1 = pp * st[S_THETA_M] * RAD2DEG
+            acc = pp * (w1 - w0) / h * RAD2DEG
+            i_end = (abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0
+            shift = p[P_HYST] + _armature(p, arm_i, arm_deg, i_end)
+        t0 = backup[S_T]
+        # commit: oracle sector
+        if mode == MODE_ORACLE:
+            n = ist[I_ORACLE_N]
+            if th1 >= 60.0 * (n + 1) - eps_deg:
+                n += 1
+            elif th1 < 60.0 * n - eps_deg:
+                n -= 1
+            ist[I_ORACLE_N] = n
+            ist[I_SECTOR] = n % 6
+        # commit: ideal edges (perfect sensor, perfect magnet)
+        for x in range(3):
+            m = ist[I_IDEAL_REGION + x]
+            tf = 180.0 * (m + 1) + SENSOR_POS[x]
+            trv = 180.0 * m + SENSOR_POS[x]
+            if th1 >= tf - eps_deg:
+                k = m + 1
+                d = 1.0
+                target = tf
+                ist[I_IDEAL_REGION + x] = m + 1
+            elif th1 < trv - eps_deg:
+                k = m
+                d = -1.0
+                target = trv
+                ist[I_IDEAL_REGION + x] = m - 1
+            else:
+                continue
+            r = out_ideal[ist[I_N_IDEAL]]
+            r[0] = t0 + _root(th0, we0, acc, target, h)
+            r[1] = x
+            r[2] = k
+            r[3] = d
+            ist[I_N_IDEAL] += 1
+        # commit: raw sensor edges into the pending queue
+        for x in range(3):
+            m = ist[I_RAW_REGION + x]
+            tf = st[S_FWD_TARGET + x] + shift
+            trv = st[S_REV_TARGET + x] - shift
+            if th1 >= tf - eps_deg:
+                k = m + 1
+                d = 1.0
+                target = tf
+                ist[I_RAW_REGION + x] = m + 1
+            elif th1 < trv - eps_deg:
+                k = m
+                d = -1.0
+                target = trv
+                ist[I_RAW_REGION + x] = m - 1
+            else:
+                continue
+            rising = ist[I_RAW_REGION + x] % 2 == 0
+            t_raw = t0 + _root(th0, we0, acc, target, h)
+            t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, False)
+            q = ist[I_N_PENDING]
+            if q >= MAX_PENDING:
+                return STOP_FULL
+            r = pending[q]
+            r[E_T_CAPTURE] = t_emit
+            r[E_T_COND] = t_cond
+            r[E_T_RAW] = t_raw
+            r[E_SENSOR] = x
+            r[E_RISING] = 1.0 if rising else 0.0
+            r[E_BOUNDARY] = k
+            r[E_DIR] = d
+            r[E_THETA_RAW] = target
+            r[E_CURRENT] = i_end
+            r[E_POLE] = k % n_poles
+            ist[I_N_PENDING] = q + 1
+            set_targets(p, st, ist, sensor_off, pole_off, noise, x)
+        if ist[I_NOISE] > noise.size - 64:
+            return STOP_NOISE

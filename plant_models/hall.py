@@ -1,0 +1,63 @@
+"""Hall-sensor geometry and the six-step commutation table (one place for the conventions).
+
+Conventions (``shared/recording-format.md``): in electrical degrees, for forward rotation,
+A rises at 0 and falls at 180, B rises at 120 and falls at 300, C rises at 240 and falls at 60.
+Magnet boundary ``k`` (rotor-fixed, every 180 deg electrical) passes sensor X at
+``theta_e = 180*k + SENSOR_POSITION_DEG_E[X]``; it is caused by the leading edge of magnet pole
+``k mod 2p`` (pole 0 = N1 = the pole whose arrival makes A rise at theta_m = 0).
+Region ``m`` of a sensor lies between its boundaries ``m`` and ``m+1``; the sensor output is
+high in even regions, so entering an even region is a rising edge.
+
+Back-EMF: phase X has a trapezoidal shape ``f(theta_e - BEMF_ZERO_DEG_E[X])`` (rising zero
+crossing at that angle), so that every Hall edge sits exactly on a Line-BEMF zero crossing
+(paper Section 2.2: the A rising edge coincides with the falling zero crossing of e_BC).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+SENSORS = ("A", "B", "C")
+SENSOR_POSITION_DEG_E = np.array([0.0, 120.0, 240.0])
+BEMF_ZERO_DEG_E = np.array([90.0, 210.0, 330.0])
+
+# Six-step table for forward torque: sector s covers theta_e in [60 s, 60 s + 60);
+# (high phase, low phase); the third phase floats.
+SECTOR_PHASES = np.array([[2, 0], [2, 1], [0, 1], [0, 2], [1, 2], [1, 0]], dtype=np.int64)
+
+
+def hall_state(theta_e_deg: np.ndarray | float) -> np.ndarray:
+    """Ideal (A, B, C) outputs at electrical angle(s) theta_e_deg."""
+    th = np.asarray(theta_e_deg, dtype=float)[..., None]
+    return (np.mod(th - SENSOR_POSITION_DEG_E, 360.0) < 180.0).astype(np.int64)
+
+
+def hall_code(bits: np.ndarray) -> np.ndarray:
+    """Hall code A*4 + B*2 + C."""
+    bits = np.asarray(bits)
+    return bits[..., 0] * 4 + bits[..., 1] * 2 + bits[..., 2]
+
+
+# Hall code -> sector for forward rotation; codes 0 (000) and 7 (111) are illegal (-1).
+SECTOR_OF_CODE = np.full(8, -1, dtype=np.int64)
+for _s in range(6):
+    SECTOR_OF_CODE[int(hall_code(hall_state(60.0 * _s + 30.0)))] = _s
+del _s
+
+
+def ideal_edge_angle_deg_e(sensor: np.ndarray, boundary: np.ndarray) -> np.ndarray:
+    """Unwrapped electrical angle at which magnet boundary ``boundary`` passes ``sensor``."""
+    return 180.0 * np.asarray(boundary, dtype=float) + SENSOR_POSITION_DEG_E[np.asarray(sensor)]
+
+
+def pole_of_boundary(boundary: np.ndarray, pole_pairs: int) -> np.ndarray:
+    return np.mod(np.asarray(boundary), 2 * pole_pairs)
+
+
+def trapezoid(phi_deg: np.ndarray | float, flat_top_deg_e: float = 120.0) -> np.ndarray:
+    """Unit trapezoidal back-EMF shape: 0 at phi=0 rising, flat +1 around 90, flat -1 around 270."""
+    half_ramp = (180.0 - flat_top_deg_e) / 2.0
+    x = np.mod(np.asarray(phi_deg, dtype=float) + 90.0, 360.0) - 90.0  # in [-90, 270)
+    rising = np.clip(x / half_ramp, -1.0, 1.0)
+    falling = np.clip((180.0 - x) / half_ramp, -1.0, 1.0)
+    return np.where(x < 90.0, rising, falling)

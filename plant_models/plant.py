@@ -1,0 +1,269 @@
+"""Plant configuration: nominal motor, inverter and current sensors, plus a list of effects."""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import json
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Mapping
+
+import numpy as np
+
+from .effects import EFFECTS, ConditioningCircuit, ConditioningDelay, Effect, effect_from_mapping
+from .params import ConfigError, bounded, from_mapping, validate
+
+
+@dataclass(frozen=True)
+class MotorParameters:
+    """Star-connected three-phase BLDC motor with trapezoidal back-EMF and a fan (pump) load.
+
+    ``ke_v_s_per_rad`` is the flat-top phase back-EMF per mechanical rad/s, so the torque of a
+    two-phase conduction at current I is 2 * ke * I. ``phase_inductance_h`` is L - M.
+    Load torque: T_L = fan_coefficient * w_m^2 + friction * w_m (w_m in mechanical rad/s).
+    """
+
+    pole_pairs: int = bounded(2, low=1, high=64, unit="1", integer=True, doc="pole pairs")
+    phase_resistance_ohm: float = bounded(0.0655, low=0.0, high=100.0, unit="ohm", low_open=True, doc="per phase")
+    phase_inductance_h: float = bounded(60e-6, low=0.0, high=1.0, unit="H", low_open=True, doc="L - M per phase")
+    ke_v_s_per_rad: float = bounded(0.0216, low=0.0, high=10.0, unit="V s/rad", low_open=True, doc="phase BEMF constant (mechanical)")
+    flat_top_deg_e: float = bounded(120.0, low=0.0, high=180.0, unit="deg_e", low_open=True, doc="BEMF flat top width")
+    inertia_kg_m2: float = bounded(0.0039, low=0.0, high=100.0, unit="kg m^2", low_open=True, doc="rotor + pump inertia")
+    friction_n_m_s_per_rad: float = bounded(1e-5, low=0.0, high=10.0, unit="N m s/rad", doc="viscous friction")
+    fan_coefficient_n_m_s2: float = bounded(1.5e-7, low=0.0, high=1.0, unit="N m s^2/rad^2", doc="pump load T = M w^2")
+    supply_v: float = bounded(80.0, low=0.0, high=1000.0, unit="V", low_open=True, doc="DC link voltage")
+
+
+@dataclass(frozen=True)
+class InverterParameters:
+    """Six-step (two-phase, 120 deg) inverter, H_PWM-L_ON with synchronous rectification.
+
+    Averaged over a PWM period: the PWM phase sits at duty * V_dc, the low phase at 0, and the
+    floating phase freewheels through its diodes (0 V for positive current, V_dc for negative)
+    until its current dies, then shows the neutral voltage plus its own back-EMF.
+    """
+
+    pwm_frequency_hz: float = bounded(20e3, low=0.0, high=1e6, unit="Hz", low_open=True, doc="PWM carrier")
+
+
+@dataclass(frozen=True)
+class CurrentSensorParameters:
+    """Phase current transducers (LA25-P: accuracy +-0.65 %); applied to the sampled currents."""
+
+    gain_error: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-0.05, high=0.05, unit="1", length=3, doc="relative gain error A, B, C")
+    offset_a: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-1.0, high=1.0, unit="A", length=3, doc="offset A, B, C")
+    noise_rms_a: float = bounded(0.0, low=0.0, high=1.0, unit="A", doc="white noise RMS per sample")
+
+
+@dataclass(frozen=True)
+class PlantConfig:
+    motor: MotorParameters = field(default_factory=MotorParameters)
+    inverter: InverterParameters = field(default_factory=InverterParameters)
+    current_sensor: CurrentSensorParameters = field(default_factory=CurrentSensorParameters)
+    effects: tuple[Effect, ...] = ()
+    name: str = "custom"
+
+    def __post_init__(self):
+        validate(self.motor, "motor.")
+        validate(self.inverter, "inverter.")
+        validate(self.current_sensor, "current_sensor.")
+        seen: set[str] = set()
+        for i, eff in enumerate(self.effects):
+            prefix = f"effects[{i}]."
+            if not isinstance(eff, Effect):
+                raise ConfigError(f"effects[{i}]", f"not an effect: {eff!r}")
+            if eff.name in seen:
+                raise ConfigError(f"{prefix}name", f"effect {eff.name!r} given twice; combine its parameters")
+            seen.add(eff.name)
+            eff.check(self.motor.pole_pairs, prefix)
+
+    def with_effects(self, *effects: Effect) -> "PlantConfig":
+        """A copy with ``effects`` added (replacing any effect of the same name)."""
+        names = {e.name for e in effects}
+        kept = tuple(e for e in self.effects if e.name not in names)
+        return dataclasses.replace(self, effects=kept + tuple(effects))
+
+    def without(self, *names: str) -> "PlantConfig":
+        return dataclasses.replace(self, effects=tuple(e for e in self.effects if e.name not in names))
+
+    def effect(self, name: str) -> Effect | None:
+        return next((e for e in self.effects if e.name == name), None)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "name": self.name,
+            "motor": dataclasses.asdict(self.motor),
+            "inverter": dataclasses.asdict(self.inverter),
+            "current_sensor": {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self.current_sensor).items()},
+            "effects": [e.to_dict() for e in self.effects],
+        }
+
+    def config_hash(self) -> str:
+        return hashlib.sha256(json.dumps(self.to_dict(), sort_keys=True).encode()).hexdigest()[:16]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "PlantConfig":
+        known = {"name", "motor", "inverter", "current_sensor", "effects", "preset"}
+        for key in data:
+            if key not in known:
+                raise ConfigError(key, f"unknown section (known: {', '.join(sorted(known))})")
+        base = PRESETS[data["preset"]]() if "preset" in data else cls()
+        if "preset" in data and data["preset"] not in PRESETS:
+            raise ConfigError("preset", f"unknown preset {data['preset']!r} (known: {', '.join(PRESETS)})")
+
+        def merged(section: str, current):
+            table = data.get(section, {})
+            if not isinstance(table, Mapping):
+                raise ConfigError(section, "expected a table")
+            return from_mapping(type(current), {**dataclasses.asdict(current), **table}, f"{section}.")
+
+        effects = data.get("effects", None)
+        if effects is None:
+            eff = base.effects
+        else:
+            if not isinstance(effects, list):
+                raise ConfigError("effects", "expected an array of tables [[effects]]")
+            eff = tuple(effect_from_mapping(e, f"effects[{i}].") for i, e in enumerate(effects))
+        return cls(
+            motor=merged("motor", base.motor),
+            inverter=merged("inverter", base.inverter),
+            current_sensor=merged("current_sensor", base.current_sensor),
+            effects=eff,
+            name=str(data.get("name", base.name)),
+        )
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "PlantConfig":
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError(str(path), f"not valid TOML: {exc}") from None
+        except OSError as exc:
+            raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
+        try:
+            return cls.from_dict(data)
+        except ConfigError as exc:
+            raise ConfigError(f"{path}: {exc.field}", str(exc).split(": ", 1)[1]) from None
+
+    def compile(self) -> "CompiledPlant":
+        return CompiledPlant.build(self)
+
+
+@dataclass
+class CompiledPlant:
+    """Flat numeric view of a PlantConfig with every effect folded in (what the kernels read)."""
+
+    pole_pairs: int
+    phase_resistance_ohm: float
+    phase_inductance_h: float
+    ke_v_s_per_rad: float
+    flat_top_deg_e: float
+    inertia_kg_m2: float
+    friction_n_m_s_per_rad: float
+    fan_coefficient_n_m_s2: float
+    supply_v: float
+    pwm_frequency_hz: float
+    sensor_offset_deg_e: np.ndarray
+    pole_offset_deg_e: np.ndarray
+    hysteresis_deg_e: float = 0.0
+    armature_slope_deg_e_per_a: float = 0.0
+    armature_table_current_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    armature_table_offset_deg_e: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    rise_delay_s: float = 0.0
+    fall_delay_s: float = 0.0
+    jitter_time_rms_s: float = 0.0
+    jitter_angle_rms_deg_e: float = 0.0
+    jitter_correlation: float = 0.0
+    timer_tick_s: float = 0.0
+    cogging_amplitude_n_m: float = 0.0
+    cogging_periods_per_rev: int = 12
+    cogging_phase_rad: float = 0.0
+    dead_time_s: float = 0.0
+    saturation_current_a: float = 20.0
+    min_inductance_fraction: float = 1.0
+
+    @classmethod
+    def build(cls, config: PlantConfig) -> "CompiledPlant":
+        m, inv = config.motor, config.inverter
+        plant = cls(
+            pole_pairs=int(m.pole_pairs), phase_resistance_ohm=m.phase_resistance_ohm,
+            phase_inductance_h=m.phase_inductance_h, ke_v_s_per_rad=m.ke_v_s_per_rad,
+            flat_top_deg_e=m.flat_top_deg_e, inertia_kg_m2=m.inertia_kg_m2,
+            friction_n_m_s_per_rad=m.friction_n_m_s_per_rad, fan_coefficient_n_m_s2=m.fan_coefficient_n_m_s2,
+            supply_v=m.supply_v, pwm_frequency_hz=inv.pwm_frequency_hz,
+            sensor_offset_deg_e=np.zeros(3), pole_offset_deg_e=np.zeros(2 * int(m.pole_pairs)),
+        )
+        for eff in config.effects:
+            eff.contribute(plant)
+        return plant
+
+    def armature_offset_deg_e(self, current_a):
+        current_a = np.asarray(current_a, dtype=float)
+        if self.armature_table_current_a.size:
+            return np.interp(current_a, self.armature_table_current_a, self.armature_table_offset_deg_e)
+        return self.armature_slope_deg_e_per_a * current_a
+
+
+# --- presets -------------------------------------------------------------------------------
+
+#: Component values of the paper-bench conditioning circuit (paper Fig. 3a leaves them open).
+PAPER_BENCH_CIRCUIT = ConditioningCircuit()
+
+
+def paper_bench(with_deviations: bool = False) -> PlantConfig:
+    """The paper's hydrogen circulation pump bench (Section 4.1), values documented in docs/plant.md.
+
+    80 V, 2 pole pairs, rated 15,000 rpm, J = 0.0039 kg m^2, fan load; R = 65.5 mOhm (the
+    paper's "65.5 ohm" cannot carry the measured ~4-10 A at 80 V). With ``with_deviations``
+    the Hall deviations are of the size the paper reports (Tables 2-4) plus its conditioning
+    circuit and a LA25-P-like current sensor.
+    """
+    from . import effects as fx
+
+    config = PlantConfig(name="paper-bench")
+    if not with_deviations:
+        return config
+    return dataclasses.replace(
+        config,
+        name="paper-bench+deviations",
+        current_sensor=CurrentSensorParameters(gain_error=(0.004, -0.003, 0.002), offset_a=(0.02, -0.015, 0.01), noise_rms_a=0.02),
+        effects=(
+            fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
+            fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),
+            fx.ConditioningDelay.from_circuit(PAPER_BENCH_CIRCUIT),
+            fx.ArmatureReaction(slope_deg_e_per_a=0.35),
+            fx.EdgeJitter(time_rms_s=1e-6),
+            fx.TimerQuantization(tick_s=1e-7),
+        ),
+    )
+
+
+#: The paper prints Tables 2 and 4 as percentages without naming the base; we read them as
+#: percent of one commutation interval (60 deg electrical), the quantity the controller times.
+PAPER_PERCENT_BASE_DEG_E = 60.0
+#: Table 3, weighted sum: relative deviations phi_min of the rising edges A1, B1, C1 (Eq. 2).
+PAPER_TABLE3_RELATIVE_DEG_E = (-0.930, 0.021, 0.908)
+#: Table 4, weighted sum: A rising edge trails the falling e_BC zero crossing by this percentage.
+PAPER_TABLE4_ABSOLUTE_PERCENT = 4.22
+#: Table 2, weighted sum: phi_N1-f, phi_N2-r, phi_N2-f of Eq. 6 (ideal minus actual, so
+#: positive = the edge leads).
+PAPER_TABLE2_POLE_PERCENT = (1.59, 0.03, 0.22)
+
+
+def paper_installation_offsets_deg_e() -> tuple[float, float, float]:
+    """Installation offsets consistent with Tables 3 and 4 through Eq. 5."""
+    absolute_a = PAPER_TABLE4_ABSOLUTE_PERCENT / 100.0 * PAPER_PERCENT_BASE_DEG_E
+    rel = PAPER_TABLE3_RELATIVE_DEG_E
+    return tuple(absolute_a + rel[x] - rel[0] for x in range(3))  # Eq. 5
+
+
+def paper_pole_offsets_deg_e() -> tuple[float, float, float, float]:
+    """Pole offsets of Table 2 in our convention (positive = trails; pole N1 = 0)."""
+    return (0.0,) + tuple(-pct / 100.0 * PAPER_PERCENT_BASE_DEG_E for pct in PAPER_TABLE2_POLE_PERCENT)
+
+
+PRESETS = {"paper-bench": paper_bench, "paper-bench+deviations": lambda: paper_bench(True)}

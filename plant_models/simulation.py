@@ -1,0 +1,294 @@
+"""The electrical plant in virtual time: run it with a commutation source and read what a bench sees."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable, Iterable, Protocol
+
+import numpy as np
+
+from . import _kernel as K
+from .edgelog import EdgeLog, join_ideal
+from .hall import SENSOR_POSITION_DEG_E
+from .plant import CompiledPlant, PlantConfig
+
+
+@dataclass(frozen=True)
+class Command:
+    """A commutation command for the plant: from ``at_s`` on, energise ``sector`` (0..5, -1 = all
+    switches off) with ``duty`` (None = keep) and torque ``direction`` (+1 / -1, None = keep)."""
+
+    at_s: float
+    sector: int | None = None
+    duty: float | None = None
+    direction: int | None = None
+
+
+class CommutationSource(Protocol):
+    """Decides commutation. Called with each captured edge (as the controller would see it)."""
+
+    def on_edge(self, edge: dict, sim: "Simulation") -> Iterable[Command]: ...
+
+
+class RawHallCommutation:
+    """The naive controller: commutate on every captured Hall edge, from the Hall code."""
+
+    mode = K.MODE_RAW_HALL
+
+    def __init__(self, latency_s: float = 0.0):
+        self.latency_s = latency_s
+
+
+class OracleCommutation:
+    """Ideal commutation from the true rotor angle (the reference no controller can beat)."""
+
+    mode = K.MODE_ORACLE
+    latency_s = 0.0
+
+
+@dataclass
+class Samples:
+    """Fixed-rate signals as a scope or DAQ would record them; true and measured currents."""
+
+    t_s: np.ndarray
+    i_true_a: np.ndarray      #: (n, 3)
+    i_meas_a: np.ndarray      #: (n, 3) through the current sensors
+    u_v: np.ndarray           #: (n, 3) terminal voltages to ground (PWM-averaged)
+    speed_rpm: np.ndarray
+    theta_m_deg: np.ndarray   #: true mechanical angle, unwrapped
+    duty: np.ndarray
+    sector: np.ndarray
+    bemf_v: np.ndarray        #: (n, 3) true phase back-EMF
+    torque_n_m: np.ndarray    #: electromagnetic torque
+
+    @property
+    def theta_e_deg(self) -> np.ndarray:
+        return self._pole_pairs * self.theta_m_deg
+
+    _pole_pairs: int = 2
+
+
+@dataclass
+class Energy:
+    electrical_in_j: float
+    copper_loss_j: float
+    mechanical_j: float
+    load_j: float
+
+
+class Simulation:
+    """One run of the electrical plant, advanced in virtual time by :meth:`run_until`."""
+
+    def __init__(
+        self,
+        config: PlantConfig,
+        source=None,
+        *,
+        duty: float = 0.5,
+        initial_speed_rpm: float = 0.0,
+        initial_angle_deg_m: float = 0.0,
+        direction: int = 1,
+        sample_rate_hz: float = 100e3,
+        max_step_s: float | None = None,
+        seed: int = 0,
+        capacity: int = 1 << 16,
+    ):
+        self.config = config
+        self.plant: CompiledPlant = config.compile()
+        self.source = source if source is not None else OracleCommutation()
+        self.rng = np.random.default_rng(seed)
+        self.seed = seed
+        cp = self.plant
+        p = np.zeros(K.N_PARAMS)
+        p[K.P_POLE_PAIRS] = cp.pole_pairs
+        p[K.P_R] = cp.phase_resistance_ohm
+        p[K.P_L] = cp.phase_inductance_h
+        p[K.P_KE] = cp.ke_v_s_per_rad
+        p[K.P_FLAT] = cp.flat_top_deg_e
+        p[K.P_J] = cp.inertia_kg_m2
+        p[K.P_FRICTION] = cp.friction_n_m_s_per_rad
+        p[K.P_FAN] = cp.fan_coefficient_n_m_s2
+        p[K.P_VDC] = cp.supply_v
+        p[K.P_FPWM] = cp.pwm_frequency_hz
+        p[K.P_HYST] = cp.hysteresis_deg_e
+        p[K.P_ARM_SLOPE] = cp.armature_slope_deg_e_per_a
+        p[K.P_RISE] = cp.rise_delay_s
+        p[K.P_FALL] = cp.fall_delay_s
+        p[K.P_JIT_T] = cp.jitter_time_rms_s
+        p[K.P_JIT_A] = cp.jitter_angle_rms_deg_e
+        p[K.P_JIT_RHO] = cp.jitter_correlation
+        p[K.P_TICK] = cp.timer_tick_s
+        p[K.P_COG_AMP] = cp.cogging_amplitude_n_m
+        p[K.P_COG_N] = cp.cogging_periods_per_rev
+        p[K.P_COG_PHASE] = cp.cogging_phase_rad
+        p[K.P_DEAD] = cp.dead_time_s
+        p[K.P_ISAT] = cp.saturation_current_a
+        p[K.P_LMIN] = cp.min_inductance_fraction
+        sample_period = 1.0 / sample_rate_hz
+        p[K.P_SAMPLE] = sample_period
+        p[K.P_HMAX] = max_step_s if max_step_s is not None else sample_period
+        p[K.P_LATENCY] = getattr(self.source, "latency_s", 0.0)
+        self.p = p
+        self.sample_period_s = sample_period
+        st = np.zeros(K.N_FSTATE)
+        ist = np.zeros(K.N_ISTATE, dtype=np.int64)
+        st[K.S_THETA_M] = math.radians(initial_angle_deg_m)
+        st[K.S_OMEGA_M] = initial_speed_rpm * 2 * math.pi / 60
+        st[K.S_DUTY] = duty
+        st[K.S_NEXT_SAMPLE] = 0.0
+        st[K.S_SAMPLE_T0] = 0.0
+        ist[K.I_DIR] = direction
+        ist[K.I_MODE] = getattr(self.source, "mode", K.MODE_EXTERNAL)
+        self.st, self.ist = st, ist
+        self.noise = self.rng.standard_normal(1 << 16)
+        self.cmds = np.zeros((4096, 4))
+        self.pending = np.zeros((K.MAX_PENDING, K.N_EDGE_COLS))
+        self._edges = np.zeros((capacity, K.N_EDGE_COLS))
+        self._ideal = np.zeros((capacity, K.N_IDEAL_COLS))
+        self._samples = np.zeros((capacity, K.N_SAMPLE_COLS))
+        self._edge_chunks: list[np.ndarray] = []
+        self._ideal_chunks: list[np.ndarray] = []
+        self._sample_chunks: list[np.ndarray] = []
+        self._segment_marks: list[tuple[float, int]] = []
+        self._init_sensors()
+
+    # --- set-up ----------------------------------------------------------------------------
+    def _init_sensors(self):
+        the = self.plant.pole_pairs * math.degrees(self.st[K.S_THETA_M])
+        for x in range(3):
+            m = math.floor((the - SENSOR_POSITION_DEG_E[x]) / 180.0)
+            self.ist[K.I_IDEAL_REGION + x] = m
+            # raw region: the one whose switching angles bracket the present angle
+            for _ in range(4):
+                self.ist[K.I_RAW_REGION + x] = m
+                K.set_targets(self.p, self.st, self.ist, self.plant.sensor_offset_deg_e, self.plant.pole_offset_deg_e, self.noise, x)
+                if the >= self.st[K.S_FWD_TARGET + x]:
+                    m += 1
+                elif the < self.st[K.S_REV_TARGET + x]:
+                    m -= 1
+                else:
+                    break
+            self.ist[K.I_SEEN + x] = 1 if self.ist[K.I_RAW_REGION + x] % 2 == 0 else 0
+        n = math.floor(the / 60.0)
+        self.ist[K.I_ORACLE_N] = n
+        if self.ist[K.I_MODE] == K.MODE_ORACLE:
+            self.ist[K.I_SECTOR] = n % 6
+        else:
+            code = self.ist[K.I_SEEN] * 4 + self.ist[K.I_SEEN + 1] * 2 + self.ist[K.I_SEEN + 2]
+            self.ist[K.I_SECTOR] = K.SECTOR_OF_CODE[code]
+
+    # --- control -----------------------------------------------------------------------------
+    @property
+    def t_s(self) -> float:
+        return float(self.st[K.S_T])
+
+    @property
+    def speed_rpm(self) -> float:
+        return float(self.st[K.S_OMEGA_M] * 60 / (2 * math.pi))
+
+    @property
+    def sector(self) -> int:
+        return int(self.ist[K.I_SECTOR])
+
+    def set_duty(self, duty: float) -> None:
+        if not 0.0 <= duty <= 1.0 or not math.isfinite(duty):
+            raise ValueError(f"duty must be in [0, 1], got {duty!r}")
+        self.st[K.S_DUTY] = duty
+
+    def mark_segment(self, index: int) -> None:
+        """Edges captured from now on belong to operating segment ``index``."""
+        self._segment_marks.append((self.t_s, index))
+
+    def schedule(self, command: Command) -> None:
+        if command.at_s < self.t_s - 1e-12:
+            raise ValueError(f"command at {command.at_s} s is in the past (plant time {self.t_s} s)")
+        head, count = int(self.ist[K.I_CMD_HEAD]), int(self.ist[K.I_CMD_COUNT])
+        live = self.cmds[head:count].copy()
+        row = np.array([[command.at_s, -2 if command.sector is None else command.sector,
+                         -1 if command.duty is None else command.duty, command.direction or 0]])
+        live = np.concatenate([live, row])
+        live = live[np.argsort(live[:, 0], kind="stable")]
+        if live.shape[0] > self.cmds.shape[0]:
+            raise RuntimeError("more than 4096 commands pending")
+        self.cmds[: live.shape[0]] = live
+        self.ist[K.I_CMD_HEAD] = 0
+        self.ist[K.I_CMD_COUNT] = live.shape[0]
+
+    def run_until(self, t_stop_s: float) -> None:
+        while True:
+            reason = K.run(
+                self.p, self.st, self.ist, self.plant.sensor_offset_deg_e, self.plant.pole_offset_deg_e,
+                self.plant.armature_table_current_a, self.plant.armature_table_offset_deg_e, self.noise,
+                self.cmds, self.pending, self._edges, self._ideal, self._samples, float(t_stop_s),
+            )
+            if reason == K.STOP_TIME:
+                self._flush()
+                return
+            if reason == K.STOP_EDGE:
+                n = int(self.ist[K.I_N_EDGES])
+                edge = dict(zip(("t_capture_s", "sensor", "rising"), (self._edges[n - 1, K.E_T_CAPTURE], int(self._edges[n - 1, K.E_SENSOR]), bool(self._edges[n - 1, K.E_RISING]))))
+                if n >= self._edges.shape[0]:
+                    self._flush()
+                for cmd in self.source.on_edge(edge, self) or ():
+                    self.schedule(cmd)
+                continue
+            if reason == K.STOP_NOISE:
+                self.noise[:] = self.rng.standard_normal(self.noise.size)
+                self.ist[K.I_NOISE] = 0
+                continue
+            self._flush()  # STOP_FULL
+
+    def _flush(self):
+        for buf, chunks, idx in ((self._edges, self._edge_chunks, K.I_N_EDGES), (self._ideal, self._ideal_chunks, K.I_N_IDEAL), (self._samples, self._sample_chunks, K.I_N_SAMPLES)):
+            n = int(self.ist[idx])
+            if n:
+                chunks.append(buf[:n].copy())
+                self.ist[idx] = 0
+
+    # --- results -----------------------------------------------------------------------------
+    def edges(self) -> EdgeLog:
+        self._flush()
+        if not self._edge_chunks:
+            return EdgeLog.empty()
+        e = np.concatenate(self._edge_chunks)
+        ideal = np.concatenate(self._ideal_chunks) if self._ideal_chunks else np.zeros((0, 4))
+        t_ideal = join_ideal(e[:, [K.E_BOUNDARY, K.E_SENSOR, K.E_DIR]], e[:, K.E_T_RAW], ideal)
+        segment = np.full(e.shape[0], -1, dtype=np.int64)
+        for t_mark, index in self._segment_marks:
+            segment[e[:, K.E_T_COND] >= t_mark] = index
+        return EdgeLog(
+            t_capture_s=e[:, K.E_T_CAPTURE], t_conditioned_s=e[:, K.E_T_COND], t_raw_s=e[:, K.E_T_RAW],
+            t_ideal_s=t_ideal, sensor=e[:, K.E_SENSOR].astype(np.int64), rising=e[:, K.E_RISING] > 0.5,
+            boundary=e[:, K.E_BOUNDARY].astype(np.int64), pole=e[:, K.E_POLE].astype(np.int64),
+            direction=e[:, K.E_DIR].astype(np.int64), theta_e_switch_deg=e[:, K.E_THETA_RAW],
+            theta_e_capture_deg=e[:, K.E_THETA_CAPTURE], speed_rpm=e[:, K.E_SPEED_RPM],
+            mean_abs_current_a=e[:, K.E_CURRENT], segment=segment,
+        )
+
+    def samples(self) -> Samples:
+        self._flush()
+        s = np.concatenate(self._sample_chunks) if self._sample_chunks else np.zeros((0, K.N_SAMPLE_COLS))
+        cs = self.config.current_sensor
+        i_true = s[:, 1:4]
+        noise_rng = np.random.default_rng([self.seed, 1])
+        i_meas = i_true * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        if cs.noise_rms_a > 0:
+            i_meas = i_meas + cs.noise_rms_a * noise_rng.standard_normal(i_true.shape)
+        out = Samples(
+            t_s=s[:, 0], i_true_a=i_true, i_meas_a=i_meas, u_v=s[:, 4:7], speed_rpm=s[:, 7],
+            theta_m_deg=s[:, 8], duty=s[:, 9], sector=s[:, 10].astype(np.int64), bemf_v=s[:, 11:14],
+            torque_n_m=s[:, 14],
+        )
+        out._pole_pairs = self.plant.pole_pairs
+        return out
+
+    def energy(self) -> Energy:
+        st = self.st
+        return Energy(float(st[K.S_E_IN]), float(st[K.S_E_CU]), float(st[K.S_E_MECH]), float(st[K.S_E_LOAD]))
+
+
+def simulate(config: PlantConfig, duration_s: float, source=None, **kwargs) -> Simulation:
+    sim = Simulation(config, source, **kwargs)
+    sim.run_until(duration_s)
+    return sim
