@@ -267,3 +267,26 @@ def paper_pole_offsets_deg_e() -> tuple[float, float, float, float]:
 
 
 PRESETS = {"paper-bench": paper_bench, "paper-bench+deviations": lambda: paper_bench(True)}
+
+
+def steady_state(motor: MotorParameters, speed_rpm: float, load_scale: float = 1.0) -> dict[str, float]:
+    """Torque balance of ideal six-step commutation with L -> 0 (analytic).
+
+    Two phases conduct on their flat tops: T_e = 2 ke I, and duty * V_dc = 2 R I + 2 ke w_m.
+    Returns the current and duty that hold ``speed_rpm`` against the fan load and friction.
+    """
+    w = speed_rpm * 2 * math.pi / 60
+    torque = load_scale * motor.fan_coefficient_n_m_s2 * w * w + motor.friction_n_m_s_per_rad * w
+    current = torque / (2 * motor.ke_v_s_per_rad)
+    duty = (2 * motor.phase_resistance_ohm * current + 2 * motor.ke_v_s_per_rad * w) / motor.supply_v
+    return {"torque_n_m": torque, "current_a": current, "duty": duty}
+
+
+def steady_speed_rpm(motor: MotorParameters, duty: float, load_scale: float = 1.0) -> float:
+    """Inverse of :func:`steady_state`: the speed at which ``duty`` balances the load (L -> 0)."""
+    ke, r = motor.ke_v_s_per_rad, motor.phase_resistance_ohm
+    a = load_scale * motor.fan_coefficient_n_m_s2
+    b = motor.friction_n_m_s_per_rad + 2 * ke * ke / r
+    c = -ke * duty * motor.supply_v / r
+    w = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a) if a > 0 else -c / b
+    return w * 60 / (2 * math.pi)
