@@ -400,7 +400,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
             elif th1 < 60.0 * n - eps_deg:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
-        i_end = (abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0
+        # the armature shift uses the current at the step start, so a step cut back to an
+        # event sees the same switching angle as the trial step did
+        i_end = (abs(backup[S_IA]) + abs(backup[S_IB]) + abs(backup[S_IC])) / 3.0
         shift = p[P_HYST] + _armature(p, arm_i, arm_deg, i_end)
         for x in range(3):
             m = ist[I_RAW_REGION + x]
@@ -416,7 +418,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
                 continue
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, True)
             t_event = min(t_event, t_emit)
-        if t_event < st[S_T] - 1e-13:
+        # (a cut never shrinks a step below 0.1 ns, so a pathological event cannot stall the
+        # loop; edge times stay exact roots either way)
+        if t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10:
             for c in range(N_FSTATE):
                 st[c] = backup[c]
             for c in range(N_ISTATE):
@@ -427,8 +431,6 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now)
             th1 = pp * st[S_THETA_M] * RAD2DEG
             acc = pp * (w1 - w0) / h * RAD2DEG
-            i_end = (abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0
-            shift = p[P_HYST] + _armature(p, arm_i, arm_deg, i_end)
         t0 = backup[S_T]
         # commit: oracle sector
         if mode == MODE_ORACLE:

@@ -1,0 +1,3 @@
+"""Project-level pytest configuration. The HIL fixtures come from the ``hil`` plugin (pytest11)."""
+
+pytest_plugins = ["pytester"]

@@ -1,0 +1,93 @@
+"""Bad plant configuration is refused with a message naming the field."""
+
+import math
+
+import pytest
+
+from plant_models import ConfigError, MotorParameters, PlantConfig, effect_from_mapping
+from plant_models import effects as fx
+
+
+def refuse(data, field):
+    with pytest.raises(ConfigError) as info:
+        PlantConfig.from_dict(data)
+    assert info.value.field == field, str(info.value)
+    assert field in str(info.value)
+    return str(info.value)
+
+
+def test_unknown_effect_is_named():
+    msg = refuse({"effects": [{"name": "installation_offset"}, {"name": "flux_capacitor"}]}, "effects[1].name")
+    assert "flux_capacitor" in msg and "installation_offset" in msg  # lists the known ones
+
+
+def test_negative_resistance_is_refused():
+    msg = refuse({"motor": {"phase_resistance_ohm": -0.1}}, "motor.phase_resistance_ohm")
+    assert "> 0.0 ohm" in msg
+
+
+def test_nan_is_refused():
+    refuse({"motor": {"inertia_kg_m2": math.nan}}, "motor.inertia_kg_m2")
+    refuse({"effects": [{"name": "hysteresis", "lag_deg_e": math.nan}]}, "effects[0].lag_deg_e")
+
+
+@pytest.mark.parametrize("bad", [0, -2, 2.5, "2", True])
+def test_pole_pairs_must_be_positive_integer(bad):
+    refuse({"motor": {"pole_pairs": bad}}, "motor.pole_pairs")
+
+
+def test_unknown_parameter_and_section():
+    refuse({"motor": {"resistance": 1.0}}, "motor.resistance")
+    refuse({"motr": {}}, "motr")
+    refuse({"effects": [{"name": "hysteresis", "lag_deg": 1.0}]}, "effects[0].lag_deg")
+
+
+def test_out_of_bounds_effect_parameter():
+    msg = refuse({"effects": [{"name": "installation_offset", "offset_deg_e": [0.0, 11.0, 0.0]}]}, "effects[0].offset_deg_e[1]")
+    assert "<= 10.0" in msg
+
+
+def test_pole_offset_length_must_match_pole_pairs():
+    refuse({"motor": {"pole_pairs": 3}, "effects": [{"name": "pole_offset", "offset_deg_e": [0, 1, 2, 3]}]}, "effects[0].offset_deg_e")
+
+
+def test_duplicate_effect_refused():
+    with pytest.raises(ConfigError, match="given twice"):
+        PlantConfig(effects=(fx.Hysteresis(1.0), fx.Hysteresis(0.5)))
+
+
+def test_toml_file_errors_name_file_and_field(tmp_path):
+    path = tmp_path / "plant.toml"
+    path.write_text('preset = "paper-bench"\n[motor]\nphase_resistance_ohm = -1.0\n')
+    with pytest.raises(ConfigError) as info:
+        PlantConfig.from_toml(path)
+    assert str(path) in str(info.value) and "motor.phase_resistance_ohm" in str(info.value)
+    path.write_text("[motor\n")
+    with pytest.raises(ConfigError, match="not valid TOML"):
+        PlantConfig.from_toml(path)
+
+
+def test_toml_round_trip_with_circuit(tmp_path):
+    path = tmp_path / "plant.toml"
+    path.write_text(
+        'preset = "paper-bench"\n'
+        "[motor]\npole_pairs = 2\n"
+        '[[effects]]\nname = "conditioning_delay"\nr2_ohm = 10000.0\nc1_f = 1e-9\n'
+        '[[effects]]\nname = "installation_offset"\noffset_deg_e = [1.0, -0.5, 0.25]\n'
+    )
+    config = PlantConfig.from_toml(path)
+    delay = config.effect("conditioning_delay")
+    assert delay.rise_delay_s > delay.fall_delay_s > 0
+    assert config.effect("installation_offset").offset_deg_e == (1.0, -0.5, 0.25)
+    assert PlantConfig.from_dict(config.to_dict() | {"effects": [
+        {k: v for k, v in e.to_dict().items()} for e in config.effects]}).config_hash() == config.config_hash()
+
+
+def test_circuit_thresholds_checked():
+    with pytest.raises(ConfigError, match="v_ih_v"):
+        effect_from_mapping({"name": "conditioning_delay", "v_ih_v": 4.9}, "effects[0].")
+
+
+def test_defaults_are_valid():
+    PlantConfig()
+    MotorParameters()
