@@ -184,7 +184,9 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te):
     pp = p[P_POLE_PAIRS]
     theta_m = st[S_THETA_M]
     w0 = st[S_OMEGA_M]
-    the = pp * theta_m * RAD2DEG
+    # back-EMF shape at the step midpoint (second order in h; holding the start value lags
+    # the whole electrical model by half a step)
+    the = pp * (theta_m + 0.5 * h * w0) * RAD2DEG
     ke = p[P_KE]
     i = np.empty(3)
     i[0] = st[S_IA]
