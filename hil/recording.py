@@ -162,7 +162,12 @@ def _read_meta(d: Path) -> tuple[dict, list[Segment], float | None, dict]:
         raise RecordingError(path, 1, None, "top level must be a JSON object")
 
     def err(key_path: str, key: str, message: str, nth: int = 0):
-        raise RecordingError(path, _json_line(text, f'"{key}"', nth), key_path, message)
+        # line of the key; for a missing key, the line of the object that should hold it
+        line = _json_line(text, f'"{key}"', nth)
+        if line is None:
+            parent = key_path.rsplit(".", 1)[0].split("[")[0] if "." in key_path else None
+            line = _json_line(text, f'"{parent}"') if parent else 1
+        raise RecordingError(path, line, key_path, message)
 
     if meta.get("format") != FORMAT:
         err("format", "format", f"expected \"{FORMAT}\", got {meta.get('format')!r}")
