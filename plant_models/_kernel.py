@@ -179,8 +179,8 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
 
 
 @njit(cache=True)
-def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te):
-    """Advance currents and rotor by h with inputs held at their start values; returns energy terms."""
+def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
+    """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (12)."""
     pp = p[P_POLE_PAIRS]
     theta_m = st[S_THETA_M]
     w0 = st[S_OMEGA_M]
@@ -188,30 +188,29 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te):
     # the whole electrical model by half a step)
     the = pp * (theta_m + 0.5 * h * w0) * RAD2DEG
     ke = p[P_KE]
-    i = np.empty(3)
+    i = wk[0:3]
+    f = wk[3:6]
+    e = wk[6:9]
+    i1 = wk[9:12]
     i[0] = st[S_IA]
     i[1] = st[S_IB]
     i[2] = st[S_IC]
-    f = np.empty(3)
-    e = np.empty(3)
     for x in range(3):
         f[x] = _trap(the - BEMF_ZERO[x], p[P_FLAT])
         e[x] = ke * w0 * f[x]
     sector = ist[I_SECTOR]
     un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
     R = p[P_R]
-    i1 = np.empty(3)
-    n_d = 0
+    saturating = p[P_LMIN] < 1.0
+    a = math.exp(-R * h / p[P_L])  # shared decay unless saturation makes L differ per phase
     for x in range(3):
         if tmp_d[x] == 0:
             i1[x] = 0.0
             continue
-        n_d += 1
-        L = p[P_L]
-        if p[P_LMIN] < 1.0:
-            L = L * max(p[P_LMIN], 1.0 / (1.0 + (i[x] / p[P_ISAT]) ** 2))
+        if saturating:
+            L = p[P_L] * max(p[P_LMIN], 1.0 / (1.0 + (i[x] / p[P_ISAT]) ** 2))
+            a = math.exp(-R * h / L)
         v = tmp_u[x] - un - e[x]
-        a = math.exp(-R * h / L)
         i1[x] = v / R + (i[x] - v / R) * a
     # a diode-clamped phase whose current reached zero opens; keep sum(i) = 0
     for x in range(3):
@@ -284,6 +283,8 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
     u_now = np.zeros(3)
     e_now = np.zeros(3)
     te_now = np.zeros(1)
+    wk = np.empty(12)
+    i3 = np.empty(3)
     mode = ist[I_MODE]
     eps_deg = 1e-9
     while True:
@@ -345,7 +346,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             if ist[I_N_SAMPLES] >= out_samples.shape[0]:
                 return STOP_FULL
             the = pp * st[S_THETA_M] * RAD2DEG
-            i3 = np.array([st[S_IA], st[S_IB], st[S_IC]])
+            i3[0] = st[S_IA]
+            i3[1] = st[S_IB]
+            i3[2] = st[S_IC]
             for x in range(3):
                 e_now[x] = p[P_KE] * st[S_OMEGA_M] * _trap(the - BEMF_ZERO[x], p[P_FLAT])
             _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
@@ -389,7 +392,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             backup[c] = st[c]
         for c in range(N_ISTATE):
             ibackup[c] = ist[c]
-        w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now)
+        w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now, wk)
         # first unknown event inside the trial step: oracle boundary or an edge emission
         th0 = pp * backup[S_THETA_M] * RAD2DEG
         th1 = pp * st[S_THETA_M] * RAD2DEG
@@ -430,7 +433,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             h = t_event - backup[S_T]
             if h < 1e-13:
                 h = 1e-13
-            w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now)
+            w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now, wk)
             th1 = pp * st[S_THETA_M] * RAD2DEG
             acc = pp * (w1 - w0) / h * RAD2DEG
         t0 = backup[S_T]

@@ -1,0 +1,78 @@
+"""Plant throughput, run on demand (not a test): ``python benchmarks/bench_plant.py``.
+
+Prints the real-time factor of the full electrical plant at 15,000 rpm with 100 kHz sampled
+outputs (bar >= 20x, goal >= 100x) and the edges/s of the edge-only kinematic mode with all
+Hall effects on (bar >= 1,000,000 edges/s), each with the electrical plant's own edge rate
+measured in the same run as the peer. One core: numba runs single-threaded here.
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+
+from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench  # noqa: E402
+from plant_models import effects as fx  # noqa: E402
+from plant_models.kinematic import OperatingPoint, simulate_edges  # noqa: E402
+from plant_models.plant import steady_state  # noqa: E402
+
+ALL_HALL_EFFECTS = (
+    fx.InstallationOffset((1.0, -0.5, 0.7)), fx.PoleOffset((0.0, 0.9, -0.3, 0.4)), fx.ConditioningDelay(6e-6, 1e-6),
+    fx.ArmatureReaction(0.3), fx.Hysteresis(0.4), fx.EdgeJitter(1e-6, 0.05, 0.2), fx.TimerQuantization(1e-7),
+    fx.Eccentricity(0.3, 1.0),
+)
+
+
+def best_of(n, fn):
+    times = []
+    for _ in range(n):
+        t = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t)
+    return min(times), out
+
+
+def electrical(source, sim_s=1.0, speed=15000.0, effects=()):
+    config = paper_bench().with_effects(*effects)
+    duty = steady_state(config.motor, speed)["duty"]
+
+    def run():
+        sim = Simulation(config, source, duty=duty, initial_speed_rpm=speed, sample_rate_hz=100e3, capacity=1 << 17)
+        sim.run_until(sim_s)
+        return sim
+
+    Simulation(config, source, duty=duty, initial_speed_rpm=speed).run_until(1e-3)  # JIT warm-up
+    wall, sim = best_of(3, run)
+    return sim_s / wall, len(sim.edges()) / wall, len(sim.samples().t_s)
+
+
+def kinematic(seconds=60.0, speed=10000.0):
+    config = paper_bench().with_effects(*ALL_HALL_EFFECTS)
+    profile = [OperatingPoint(seconds, speed, 4.0)]
+    simulate_edges(config, [OperatingPoint(0.01, speed, 4.0)])
+    wall, edges = best_of(5, lambda: simulate_edges(config, profile, seed=1))
+    return len(edges) / wall, len(edges)
+
+
+def main():
+    rows = []
+    rtf_o, eps_o, n_o = electrical(OracleCommutation())
+    rows.append(("electrical plant, oracle commutation, 15,000 rpm, 100 kHz samples", f"{rtf_o:8.1f}x real time", f"{eps_o:12,.0f} edges/s", ">= 20x (goal 100x)"))
+    rtf_r, eps_r, _ = electrical(RawHallCommutation(), effects=ALL_HALL_EFFECTS)
+    rows.append(("electrical plant, raw Hall, all Hall effects, 15,000 rpm, 100 kHz", f"{rtf_r:8.1f}x real time", f"{eps_r:12,.0f} edges/s", ">= 20x (goal 100x)"))
+    eps_k, n_k = kinematic()
+    rows.append((f"kinematic edge-only mode, all Hall effects ({n_k:,} edges)", "", f"{eps_k:12,.0f} edges/s", ">= 1,000,000 edges/s"))
+    width = max(len(r[0]) for r in rows)
+    print(f"{'case':<{width}}  {'real-time factor':>22}  {'throughput':>20}  bar")
+    for r in rows:
+        print(f"{r[0]:<{width}}  {r[1]:>22}  {r[2]:>20}  {r[3]}")
+    print(f"\nratio kinematic / electrical (raw Hall) edge rate, same run: {eps_k / eps_r:,.0f}x")
+    print(f"samples per simulated second: {n_o:,}")
+
+
+if __name__ == "__main__":
+    main()
