@@ -48,8 +48,45 @@ def run_demo(speed_rpm: float = 5700.0, duration_s: float = 0.5, out_dir: str | 
     rec = recording_from_edges(motor_meta(config), edges, [seg], timer_tick_s=tick, samples=sample_cols)
     path = write_recording(rec, out_dir)
     e = edges.take(sel)
-    return {"config": config, "edges": e, "table": edge_error_table(e, config.motor.pole_pairs), "recording": path,
-            "speed_rpm": float(e.speed_rpm.mean()), "duty": duty}
+    result = {"config": config, "edges": e, "table": edge_error_table(e, config.motor.pole_pairs), "recording": path,
+              "speed_rpm": float(e.speed_rpm.mean()), "duty": duty}
+    result["plot"] = plot_demo(result, Path(out_dir).parent / "demo-edge-errors.png")
+    return result
+
+
+def plot_demo(result: dict, path: str | Path) -> Path:
+    """Edge-error pattern of the demo run: per edge, coloured by sensor, rising vs falling."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    e = result["edges"]
+    err = e.capture_error_deg_e
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2, 1]})
+    n = np.arange(len(e))
+    for x, name in enumerate(SENSORS):
+        for rising, marker in ((True, "^"), (False, "v")):
+            sel = (e.sensor == x) & (e.rising == rising)
+            ax1.plot(n[sel][:72], err[sel][:72], marker, ms=4, ls="", label=f"{name} {'rise' if rising else 'fall'}")
+    ax1.set_xlabel("captured edge index (first mechanical turns)")
+    ax1.set_ylabel("edge error [deg electrical]\n(+ = trails ideal)")
+    ax1.set_xlim(-1, 6 * 12 + 1)
+    ax1.legend(ncol=3, fontsize=7, loc="lower right")
+    ax1.grid(alpha=0.3)
+    rows = result["table"]
+    labels = [f"{r['sensor']}{'r' if r['edge'] == 'rise' else 'f'}{r['pole']}" for r in rows]
+    ax2.barh(labels, [r["mean_deg_e"] for r in rows], xerr=[r["std_deg_e"] for r in rows], color="tab:blue")
+    ax2.set_xlabel("mean error [deg e] per sensor/edge/pole")
+    ax2.tick_params(axis="y", labelsize=7)
+    ax2.invert_yaxis()
+    fig.suptitle(f"{result['config'].name}: raw Hall commutation at {result['speed_rpm']:.0f} rpm", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def print_demo(result: dict) -> None:
@@ -63,3 +100,5 @@ def print_demo(result: dict) -> None:
         print(f"{r['sensor']:>6} {r['edge']:>5} {r['pole']:>4} {r['n']:>5} {r['mean_deg_e']:>10.3f} {r['std_deg_e']:>8.3f}")
     print(f"all edges: mean {err.mean():.3f}, RMS {np.sqrt(np.mean(err**2)):.3f}, max |err| {np.abs(err).max():.3f} deg_e")
     print(f"recording written to {result['recording']}")
+    if result.get("plot"):
+        print(f"edge-error plot written to {result['plot']}")

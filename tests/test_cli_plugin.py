@@ -80,3 +80,13 @@ def test_plugin_reads_ini_keys(pytester):
     pytester.makeini("[pytest]\nhil_seed = 5\n")
     pytester.makepyfile("def test_seed(hil_seed):\n    assert hil_seed == 5\n")
     pytester.runpytest().assert_outcomes(passed=1)
+
+
+def test_effects_reference_in_docs_is_current():
+    """docs/effects.md is generated from the library; a changed bound must regenerate it."""
+    from pathlib import Path
+
+    from hil.cli import effects_markdown
+
+    doc = Path(__file__).resolve().parents[1] / "docs" / "effects.md"
+    assert doc.read_text().strip() == effects_markdown().strip(), "run: python -m hil effects --markdown > docs/effects.md"
