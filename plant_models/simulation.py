@@ -11,6 +11,7 @@ import numpy as np
 from . import _kernel as K
 from .edgelog import EdgeLog, join_ideal
 from .hall import SENSOR_POSITION_DEG_E
+from .params import ConfigError
 from .plant import CompiledPlant, PlantConfig
 
 
@@ -94,6 +95,17 @@ class Simulation:
         seed: int = 0,
         capacity: int = 1 << 16,
     ):
+        for name, value, ok in (
+            ("duty", duty, 0.0 <= duty <= 1.0),
+            ("initial_speed_rpm", initial_speed_rpm, initial_speed_rpm >= 0.0),
+            ("initial_angle_deg_m", initial_angle_deg_m, True),
+            ("sample_rate_hz", sample_rate_hz, sample_rate_hz > 0.0),
+            ("max_step_s", max_step_s if max_step_s is not None else 1e-6, max_step_s is None or max_step_s > 0.0),
+        ):
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or not ok:
+                raise ConfigError(f"Simulation.{name}", f"invalid value {value!r}")
+        if direction not in (1, -1):
+            raise ConfigError("Simulation.direction", f"must be +1 or -1, got {direction!r}")
         self.config = config
         self.plant: CompiledPlant = config.compile()
         self.source = source if source is not None else OracleCommutation()
@@ -192,8 +204,8 @@ class Simulation:
         return int(self.ist[K.I_SECTOR])
 
     def set_duty(self, duty: float) -> None:
-        if not 0.0 <= duty <= 1.0 or not math.isfinite(duty):
-            raise ValueError(f"duty must be in [0, 1], got {duty!r}")
+        if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:
+            raise ConfigError("duty", f"must be in [0, 1], got {duty!r}")
         self.st[K.S_DUTY] = duty
 
     def mark_segment(self, index: int) -> None:

@@ -91,3 +91,48 @@ def test_circuit_thresholds_checked():
 def test_defaults_are_valid():
     PlantConfig()
     MotorParameters()
+
+
+@pytest.mark.parametrize("kwargs, field", [
+    ({"duty": math.nan}, "Simulation.duty"),
+    ({"duty": 1.5}, "Simulation.duty"),
+    ({"initial_speed_rpm": -5.0}, "Simulation.initial_speed_rpm"),
+    ({"sample_rate_hz": 0.0}, "Simulation.sample_rate_hz"),
+    ({"direction": 0}, "Simulation.direction"),
+])
+def test_simulation_arguments_are_checked(kwargs, field):
+    from plant_models import Simulation
+
+    with pytest.raises(ConfigError) as info:
+        Simulation(PlantConfig(), **kwargs)
+    assert info.value.field == field
+
+
+def test_kinematic_profile_is_checked():
+    from plant_models.kinematic import OperatingPoint, simulate_edges
+
+    with pytest.raises(ConfigError, match=r"profile\[1\].duration_s"):
+        simulate_edges(PlantConfig(), [OperatingPoint(0.1, 1000.0), OperatingPoint(-1.0, 1000.0)])
+    with pytest.raises(ConfigError, match=r"profile\[0\].speed_rpm"):
+        simulate_edges(PlantConfig(), [OperatingPoint(0.1, math.inf)])
+
+
+from hypothesis import given  # noqa: E402
+
+from plant_models import effects_strategy  # noqa: E402
+
+
+@given(effects_strategy(pole_pairs=2))
+def test_drawn_effect_sets_stay_inside_bounds_and_build(effects):
+    """Every strategy draws valid effects; any composition builds a plant (no duplicates)."""
+    config = PlantConfig(effects=tuple(effects))  # validates each effect against its bounds
+    compiled = config.compile()
+    assert compiled.pole_offset_deg_e.shape == (4,)
+    assert len({e.name for e in effects}) == len(effects)
+
+
+@given(effects_strategy(pole_pairs=3, names=("pole_offset", "eccentricity")))
+def test_pole_strategies_follow_pole_count(effects):
+    from plant_models import MotorParameters
+
+    PlantConfig(motor=MotorParameters(pole_pairs=3), effects=tuple(effects))
