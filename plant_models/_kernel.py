@@ -35,7 +35,8 @@ I_RAW_REGION = 7  # 3 values
 I_IDEAL_REGION = 10  # 3 values
 I_N_PENDING, I_ORACLE_N, I_CMD_HEAD, I_CMD_COUNT, I_SAMPLE_K = range(13, 18)
 I_SEEN = 18  # 3 values: Hall state as the controller has seen it
-N_ISTATE = 21
+I_N_COMM = 21
+N_ISTATE = 22
 
 MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
 STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
@@ -88,6 +89,21 @@ def _root(th0, w0, acc, target, h):
     if tau > h:
         tau = h
     return tau
+
+
+@njit(cache=True)
+def _commutate(p, st, ist, out_comm, sector):
+    """Switch to ``sector``, logging (t, sector, true theta_e) when it changes."""
+    if sector == ist[I_SECTOR]:
+        return
+    ist[I_SECTOR] = sector
+    n = ist[I_N_COMM]
+    if n < out_comm.shape[0]:
+        out_comm[n, 0] = st[S_T]
+        out_comm[n, 1] = sector
+        out_comm[n, 2] = p[P_POLE_PAIRS] * st[S_THETA_M] * RAD2DEG
+        out_comm[n, 3] = ist[I_DIR]
+        ist[I_N_COMM] = n + 1
 
 
 @njit(cache=True)
@@ -271,7 +287,7 @@ def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
 
 
 @njit(cache=True)
-def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, t_stop):
+def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
     pp = p[P_POLE_PAIRS]
     n_poles = pole_off.size
@@ -292,12 +308,12 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
         # apply due commands
         while ist[I_CMD_HEAD] < ist[I_CMD_COUNT] and cmds[ist[I_CMD_HEAD], 0] <= t + 1e-12:
             c = ist[I_CMD_HEAD]
-            if cmds[c, 1] >= -1.0:
-                ist[I_SECTOR] = int(cmds[c, 1])
-            if cmds[c, 2] >= 0.0:
-                st[S_DUTY] = cmds[c, 2]
             if cmds[c, 3] != 0.0:
                 ist[I_DIR] = int(cmds[c, 3])
+            if cmds[c, 1] >= -1.0:
+                _commutate(p, st, ist, out_comm, int(cmds[c, 1]))
+            if cmds[c, 2] >= 0.0:
+                st[S_DUTY] = cmds[c, 2]
             ist[I_CMD_HEAD] = c + 1
         # emit due captured edges
         stop_edge = False
@@ -338,7 +354,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
                             cmds[k, 3] = 0.0
                             ist[I_CMD_COUNT] = k + 1
                     else:
-                        ist[I_SECTOR] = s
+                        _commutate(p, st, ist, out_comm, s)
             elif mode == MODE_EXTERNAL:
                 stop_edge = True
         # samples
@@ -378,7 +394,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             return STOP_EDGE
         if t >= t_stop - 1e-15:
             return STOP_TIME
-        if ist[I_N_IDEAL] >= out_ideal.shape[0]:
+        if ist[I_N_IDEAL] >= out_ideal.shape[0] or ist[I_N_COMM] >= out_comm.shape[0]:
             return STOP_FULL
         # step length: never past a known event
         h = min(h_max, t_stop - t, st[S_NEXT_SAMPLE] - t)
@@ -445,7 +461,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             elif th1 < 60.0 * n - eps_deg:
                 n -= 1
             ist[I_ORACLE_N] = n
-            ist[I_SECTOR] = n % 6
+            _commutate(p, st, ist, out_comm, n % 6)
         # commit: ideal edges (perfect sensor, perfect magnet)
         for x in range(3):
             m = ist[I_IDEAL_REGION + x]

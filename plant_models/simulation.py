@@ -71,6 +71,28 @@ class Samples:
 
 
 @dataclass
+class Commutations:
+    """Every sector change the plant executed, with the true rotor angle at that instant."""
+
+    t_s: np.ndarray
+    sector: np.ndarray
+    theta_e_deg: np.ndarray  #: true electrical angle, unwrapped
+    direction: np.ndarray
+
+    @property
+    def error_deg_e(self) -> np.ndarray:
+        """Angle error against the ideal commutation angle, positive = late (trails).
+
+        Forward, sector s starts at 60 s; reverse (rotor turning backwards), sector s is
+        entered at its upper boundary 60 (s + 1)."""
+        ideal = np.where(self.direction > 0, 60.0 * self.sector, 60.0 * (self.sector + 1))
+        return self.direction * (np.mod(self.theta_e_deg - ideal + 180.0, 360.0) - 180.0)
+
+    def __len__(self) -> int:
+        return int(self.t_s.size)
+
+
+@dataclass
 class Energy:
     electrical_in_j: float
     copper_loss_j: float
@@ -159,6 +181,8 @@ class Simulation:
         self._edges = np.zeros((capacity, K.N_EDGE_COLS))
         self._ideal = np.zeros((capacity, K.N_IDEAL_COLS))
         self._samples = np.zeros((capacity, K.N_SAMPLE_COLS))
+        self._comm = np.zeros((capacity, 4))
+        self._comm_chunks: list[np.ndarray] = []
         self._edge_chunks: list[np.ndarray] = []
         self._ideal_chunks: list[np.ndarray] = []
         self._sample_chunks: list[np.ndarray] = []
@@ -232,7 +256,7 @@ class Simulation:
             reason = K.run(
                 self.p, self.st, self.ist, self.plant.sensor_offset_deg_e, self.plant.pole_offset_deg_e,
                 self.plant.armature_table_current_a, self.plant.armature_table_offset_deg_e, self.noise,
-                self.cmds, self.pending, self._edges, self._ideal, self._samples, float(t_stop_s),
+                self.cmds, self.pending, self._edges, self._ideal, self._samples, self._comm, float(t_stop_s),
             )
             if reason == K.STOP_TIME:
                 self._flush()
@@ -252,7 +276,7 @@ class Simulation:
             self._flush()  # STOP_FULL
 
     def _flush(self):
-        for buf, chunks, idx in ((self._edges, self._edge_chunks, K.I_N_EDGES), (self._ideal, self._ideal_chunks, K.I_N_IDEAL), (self._samples, self._sample_chunks, K.I_N_SAMPLES)):
+        for buf, chunks, idx in ((self._edges, self._edge_chunks, K.I_N_EDGES), (self._ideal, self._ideal_chunks, K.I_N_IDEAL), (self._samples, self._sample_chunks, K.I_N_SAMPLES), (self._comm, self._comm_chunks, K.I_N_COMM)):
             n = int(self.ist[idx])
             if n:
                 chunks.append(buf[:n].copy())
@@ -277,6 +301,11 @@ class Simulation:
             theta_e_capture_deg=e[:, K.E_THETA_CAPTURE], speed_rpm=e[:, K.E_SPEED_RPM],
             mean_abs_current_a=e[:, K.E_CURRENT], segment=segment,
         )
+
+    def commutations(self) -> "Commutations":
+        self._flush()
+        c = np.concatenate(self._comm_chunks) if self._comm_chunks else np.zeros((0, 4))
+        return Commutations(t_s=c[:, 0], sector=c[:, 1].astype(np.int64), theta_e_deg=c[:, 2], direction=c[:, 3].astype(np.int64))
 
     def samples(self) -> Samples:
         self._flush()

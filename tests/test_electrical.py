@@ -178,3 +178,17 @@ def test_saturation_speeds_up_current_rise():
     i_lin = np.abs(lin.samples().i_true_a).max()
     i_sat = np.abs(sat.samples().i_true_a).max()
     assert i_sat > 1.2 * i_lin
+
+
+def test_commutation_log_scores_against_true_angle():
+    """Oracle commutations sit on the ideal angle; raw-Hall ones trail by the sensor error."""
+    duty = steady_state(BASE.motor, 8000)["duty"]
+    oracle = Simulation(BASE, OracleCommutation(), duty=duty, initial_speed_rpm=8000)
+    oracle.run_until(0.05)
+    c = oracle.commutations()
+    assert len(c) >= 79  # 8000 rpm * 12 commutations per turn * 0.05 s
+    assert np.max(np.abs(c.error_deg_e)) < 1e-6
+    late = BASE.with_effects(fx.InstallationOffset((2.0, 2.0, 2.0)))
+    raw = Simulation(late, RawHallCommutation(), duty=duty, initial_speed_rpm=8000)
+    raw.run_until(0.05)
+    np.testing.assert_allclose(raw.commutations().error_deg_e, 2.0, atol=1e-6)
