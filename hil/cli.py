@@ -48,6 +48,32 @@ def cmd_plant_simulate(args) -> int:
     return 0
 
 
+def cmd_calibrate(args) -> int:
+    from .calibration import fit_corrections
+    from .calibration.campaign import CalibrationCampaign
+    from .recording import write_recording
+
+    if args.campaign:
+        config = _plant(args)
+        rec = CalibrationCampaign(turns_per_point=args.turns).run(config, seed=args.seed)
+        write_recording(rec, args.recording)
+        print(f"campaign: {len(rec.segments)} operating points, {len(rec)} edges written to {args.recording}")
+    rec = read_recording(args.recording)
+    corr = fit_corrections(rec)
+    fmt = lambda d: ", ".join(f"{k} {v:+.4f}" for k, v in d.items())  # noqa: E731
+    print(f"{args.recording}: {corr.info.get('method')}")
+    print(f"  installation_offset_deg_e: {fmt(corr.installation_offset_deg_e)}")
+    print(f"  pole_offset_deg_e:         {', '.join(f'{v:+.4f}' for v in corr.pole_offset_deg_e)}")
+    print(f"  conditioning_delay_s:      rise {corr.conditioning_delay_s['rise'] * 1e6:.3f} us, fall {corr.conditioning_delay_s['fall'] * 1e6:.3f} us")
+    print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
+    for quantity, why in corr.undetermined.items():
+        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    if args.json:
+        corr.write_json(args.json)
+        print(f"corrections written to {args.json}")
+    return 0
+
+
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
@@ -116,6 +142,17 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("plant")
     q.set_defaults(func=cmd_plant_check)
 
+    p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
+    p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
+    p.add_argument("--json", help="write the corrections here")
+    p.add_argument("--campaign", action="store_true", help="first run the calibration campaign on the plant and record it to RECORDING")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--plant", help="plant TOML for --campaign")
+    g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
+    p.add_argument("--turns", type=int, default=200, help="mechanical turns per operating point (--campaign)")
+    p.add_argument("--seed", type=int, default=0)
+    p.set_defaults(func=cmd_calibrate)
+
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
     p.set_defaults(func=cmd_effects)
@@ -130,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     try:
         return int(args.func(args) or 0)
-    except (ConfigError, RecordingError) as exc:
+    except (ConfigError, RecordingError, ValueError) as exc:
         print(f"hil: error: {exc}", file=sys.stderr)
         return 2
 

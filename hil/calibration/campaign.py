@@ -1,0 +1,42 @@
+"""The calibration campaign: drive the plant through the operating points the procedure needs.
+
+Low speeds without load for the pole offsets (the paper's 960 / 1107 / 1330 rpm), a no-load
+speed sweep for the conditioning delay, and loaded speeds (pump load, plus a throttled load at
+the same speeds so that current moves independently of speed) for the armature reaction.
+Every point runs a fixed number of mechanical turns in the kinematic mode, with the reference
+encoder recorded, and the whole run is one ``hil-recording/1``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from hil.recording import Recording, record_kinematic
+from plant_models import PlantConfig
+from plant_models.kinematic import OperatingPoint
+from plant_models.plant import steady_state
+
+
+@dataclass(frozen=True)
+class CalibrationCampaign:
+    low_speeds_rpm: tuple[float, ...] = (960.0, 1107.0, 1330.0)
+    no_load_sweep_rpm: tuple[float, ...] = (2000.0, 4000.0, 6000.0, 8000.0, 10000.0)
+    loaded_points: tuple[tuple[float, float], ...] = ((5000.0, 1.0), (7000.0, 1.0), (10000.0, 1.0), (7000.0, 0.5), (10000.0, 0.5))
+    turns_per_point: int = 200
+
+    def operating_points(self, config: PlantConfig) -> list[OperatingPoint]:
+        ops = []
+        for rpm in self.low_speeds_rpm:
+            ops.append(self._point(config, rpm, 0.0, f"pole_{rpm:.0f}"))
+        for rpm in self.no_load_sweep_rpm:
+            ops.append(self._point(config, rpm, 0.0, f"noload_{rpm:.0f}"))
+        for rpm, load in self.loaded_points:
+            ops.append(self._point(config, rpm, load, f"load{load:g}_{rpm:.0f}"))
+        return ops
+
+    def _point(self, config: PlantConfig, rpm: float, load_scale: float, name: str) -> OperatingPoint:
+        current = steady_state(config.motor, rpm, load_scale)["current_a"]
+        return OperatingPoint(self.turns_per_point * 60.0 / rpm, rpm, current, load_scale=load_scale, id=name)
+
+    def run(self, config: PlantConfig, seed: int = 0) -> Recording:
+        return record_kinematic(config, self.operating_points(config), seed=seed)

@@ -1,0 +1,95 @@
+"""The correction tables a controller applies at run time (paper Fig. 4), and their JSON form."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SENSORS = ("A", "B", "C")
+
+
+@dataclass
+class Corrections:
+    """Calibrated deviations, positive = the captured edge trails the ideal one.
+
+    Per captured edge of sensor X caused by pole j at electrical speed w_e and mean phase
+    current I, the edge trails its ideal position by
+        installation_offset[X] + pole_offset[j] + w_e * conditioning_delay[polarity] + armature * I
+    and the controller subtracts that angle (:meth:`correction_deg_e`).
+    """
+
+    installation_offset_deg_e: dict[str, float] = field(default_factory=lambda: dict.fromkeys(SENSORS, 0.0))
+    pole_offset_deg_e: list[float] = field(default_factory=lambda: [0.0] * 4)
+    conditioning_delay_s: dict[str, float] = field(default_factory=lambda: {"rise": 0.0, "fall": 0.0})
+    armature_reaction_deg_e_per_a: float = 0.0
+    #: quantities the data could not determine, with the reason (left at 0 in the tables)
+    undetermined: dict[str, str] = field(default_factory=dict)
+    #: one-sigma uncertainties of the fitted quantities (same keys as the JSON)
+    uncertainty: dict[str, Any] = field(default_factory=dict)
+    #: conditioning delay angle versus speed, per polarity, for interpolation (paper Fig. 7a)
+    delay_table: dict[str, list[float]] = field(default_factory=dict)
+    #: extra information (method, residual RMS, segments used)
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def pole_pairs(self) -> int:
+        return len(self.pole_offset_deg_e) // 2
+
+    def static_deg_e(self, sensor: np.ndarray, pole: np.ndarray) -> np.ndarray:
+        inst = np.array([self.installation_offset_deg_e[s] for s in SENSORS])
+        return inst[np.asarray(sensor)] + np.asarray(self.pole_offset_deg_e)[np.asarray(pole)]
+
+    def correction_deg_e(self, sensor, rising, pole, speed_rpm, current_a) -> np.ndarray:
+        """Angle by which each captured edge trails its ideal position (Fig. 4 integration)."""
+        rising = np.asarray(rising, dtype=bool)
+        w_e_deg_s = np.asarray(speed_rpm, dtype=float) * 6.0 * self.pole_pairs
+        delay = np.where(rising, self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"])
+        return self.static_deg_e(sensor, pole) + w_e_deg_s * delay + self.armature_reaction_deg_e_per_a * np.asarray(current_a, dtype=float)
+
+    def to_json_dict(self) -> dict[str, Any]:
+        return {
+            "installation_offset_deg_e": dict(self.installation_offset_deg_e),
+            "pole_offset_deg_e": list(self.pole_offset_deg_e),
+            "conditioning_delay_s": dict(self.conditioning_delay_s),
+            "armature_reaction_deg_e_per_a": self.armature_reaction_deg_e_per_a,
+            "undetermined": dict(self.undetermined),
+            "uncertainty": self.uncertainty,
+            "conditioning_delay_table": self.delay_table,
+            "info": self.info,
+        }
+
+    def write_json(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps(self.to_json_dict(), indent=2) + "\n")
+        return path
+
+    @classmethod
+    def from_json_dict(cls, data: dict[str, Any]) -> "Corrections":
+        return cls(
+            installation_offset_deg_e={s: float(data["installation_offset_deg_e"][s]) for s in SENSORS},
+            pole_offset_deg_e=[float(v) for v in data["pole_offset_deg_e"]],
+            conditioning_delay_s={k: float(data["conditioning_delay_s"][k]) for k in ("rise", "fall")},
+            armature_reaction_deg_e_per_a=float(data["armature_reaction_deg_e_per_a"]),
+            undetermined=dict(data.get("undetermined", {})),
+            uncertainty=dict(data.get("uncertainty", {})),
+            delay_table=dict(data.get("conditioning_delay_table", {})),
+            info=dict(data.get("info", {})),
+        )
+
+    @classmethod
+    def from_plant(cls, config) -> "Corrections":
+        """The true corrections of a plant configuration (for scoring; pole 0 taken as reference)."""
+        cp = config.compile()
+        pole = np.asarray(cp.pole_offset_deg_e, dtype=float)
+        inst = np.asarray(cp.sensor_offset_deg_e, dtype=float) + pole[0]
+        return cls(
+            installation_offset_deg_e=dict(zip(SENSORS, map(float, inst))),
+            pole_offset_deg_e=list(map(float, pole - pole[0])),
+            conditioning_delay_s={"rise": cp.rise_delay_s, "fall": cp.fall_delay_s},
+            armature_reaction_deg_e_per_a=cp.armature_slope_deg_e_per_a,
+        )

@@ -1,0 +1,220 @@
+"""Compute the correction tables from a recording (``hil calibrate``).
+
+With a reference encoder angle (``ref_angle_mech_deg``) every captured edge gives its own angle
+error, and one linear least-squares fit of the issue's model
+
+    error = installation[X] + pole[j] + w_e * delay[polarity] + armature * I + noise
+
+recovers all four quantities at once, with standard errors. Each quantity is fitted only when
+the segments can determine it (several speeds for the delays, current moving independently of
+speed for the armature reaction); otherwise it is reported as undetermined with the reason,
+and the others are still computed. Without an encoder, the paper's own route is taken:
+relative deviations (Eq. 2) and pole offsets (Eq. 6) from capture times, and the absolute
+deviation from the Line-BEMF (Eq. 3-5) when terminal voltages and currents were sampled.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hil.recording import Recording
+from plant_models.hall import SENSOR_POSITION_DEG_E
+
+from .corrections import SENSORS, Corrections
+from .steps import (
+    absolute_deviation, edge_angles_per_turn, line_bemf_absolute_deviation, pole_offsets, relative_deviation,
+    weighted_over_speeds, wrap180,
+)
+
+
+class CalibrationError(ValueError):
+    """The recording cannot give a required quantity; the message says which and why."""
+
+
+def _check_data(rec: Recording) -> None:
+    if len(rec) < 6 * rec.pole_pairs:
+        raise CalibrationError(f"{rec.path or 'recording'}: only {len(rec)} edges; calibration needs at least one mechanical turn ({6 * rec.pole_pairs} edges)")
+
+
+def segment_speed_deg_e_s(rec: Recording) -> np.ndarray:
+    """Mean electrical speed (deg/s) of each segment from the encoder (or the set speed)."""
+    p = rec.pole_pairs
+    out = np.zeros(len(rec.segments))
+    for i, seg in enumerate(rec.segments):
+        sel = rec.segment == i
+        if rec.ref_angle_mech_deg is not None and sel.sum() > 6 * p:
+            ang = np.unwrap(np.radians(rec.ref_angle_mech_deg[sel]))
+            t = rec.t_s[sel]
+            out[i] = abs(np.degrees(ang[-1] - ang[0]) / (t[-1] - t[0])) * p
+        else:
+            out[i] = seg.speed_rpm * 6.0 * p
+    return out
+
+
+def edge_errors_from_encoder(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
+    """Per-edge angle error (deg e, + = trails) and magnet pole, from the reference angle."""
+    p = rec.pole_pairs
+    theta_e = p * rec.ref_angle_mech_deg
+    direction = np.array([s.direction_sign for s in rec.segments])[rec.segment]
+    # ideal angle of each edge (format document): forward A rises at 0, falls at 180; reverse swapped
+    ideal = SENSOR_POSITION_DEG_E[rec.sensor] + np.where(rec.rising == (direction > 0), 0.0, 180.0)
+    err = direction * wrap180(theta_e - ideal)
+    boundary = np.round((theta_e - direction * err - SENSOR_POSITION_DEG_E[rec.sensor]) / 180.0).astype(np.int64)
+    pole = np.mod(boundary, 2 * p)
+    return err, pole
+
+
+def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Corrections:
+    _check_data(rec)
+    if rec.ref_angle_mech_deg is None:
+        return fit_from_times(rec)
+    p = rec.pole_pairs
+    n_poles = 2 * p
+    err, pole = edge_errors_from_encoder(rec)
+    direction = np.array([s.direction_sign for s in rec.segments])[rec.segment].astype(float)
+    w_seg = segment_speed_deg_e_s(rec)
+    w = w_seg[rec.segment]
+    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
+    if rec.timer_tick_s:
+        err = err + w * rec.timer_tick_s / 2.0  # the capture timer floors: undo its mean lag
+    undetermined: dict[str, str] = {}
+
+    cols, names = [], []
+    for x, name in enumerate(SENSORS):
+        if not np.any(rec.sensor == x):
+            raise CalibrationError(f"installation_offset_deg_e: no edges of sensor {name} in the recording")
+        cols.append(direction * (rec.sensor == x))
+        names.append(("inst", x))
+    poles_seen = np.unique(pole)
+    if poles_seen.size < n_poles:
+        undetermined["pole_offset_deg_e"] = f"edges of only {poles_seen.size} of {n_poles} poles; record whole mechanical turns"
+    else:
+        for j in range(1, n_poles):
+            cols.append(direction * (pole == j))
+            names.append(("pole", j))
+    # conditioning delays need several speeds (the delay is the slope of error vs speed)
+    speeds = np.unique(np.round(w_seg[np.unique(rec.segment)], 3))
+    spread = (speeds.max() - speeds.min()) / speeds.max() if speeds.size else 0.0
+    if speeds.size < 2 or spread < min_speed_spread:
+        undetermined["conditioning_delay_s"] = (
+            f"needs segments at several speeds (spread >= {min_speed_spread:.0%} of the highest); "
+            f"got {speeds.size} speed(s), spread {spread:.0%}: a constant delay is indistinguishable from an offset")
+    else:
+        cols += [w * rec.rising, w * ~rec.rising]
+        names += [("rise", 0), ("fall", 0)]
+    # armature reaction needs current that does not just follow speed
+    seg_used = np.unique(rec.segment)
+    i_seg = np.array([rec.segments[k].mean_phase_current_a for k in seg_used])
+    w_used = w_seg[seg_used]
+    reason = None
+    if np.ptp(i_seg) < 0.1:
+        reason = f"mean phase current varies by only {np.ptp(i_seg):.3g} A across segments; add loaded operating points"
+    elif "conditioning_delay_s" not in undetermined:
+        basis = np.column_stack([np.ones_like(w_used), w_used])
+        coef, *_ = np.linalg.lstsq(basis, i_seg, rcond=None)
+        resid = i_seg - basis @ coef
+        if np.sqrt(np.mean(resid**2)) < 0.02 * np.ptp(i_seg):
+            reason = ("current moves together with speed (linearly), so armature reaction and conditioning delay "
+                      "cannot be told apart; add a load change at a fixed speed")
+    if reason:
+        undetermined["armature_reaction_deg_e_per_a"] = reason
+    else:
+        cols.append(current)
+        names.append(("arm", 0))
+
+    a = np.column_stack(cols).astype(float)
+    # two-pass weighted least squares: time jitter makes the angle noise grow with speed, so
+    # each segment is weighted by the inverse of its own residual variance from a first pass
+    coef, *_ = np.linalg.lstsq(a, err, rcond=None)
+    resid = err - a @ coef
+    var_seg = np.array([max(np.var(resid[rec.segment == k]), 1e-12) if np.any(rec.segment == k) else 1.0 for k in range(len(rec.segments))])
+    wt = 1.0 / np.sqrt(var_seg[rec.segment])
+    coef, *_ = np.linalg.lstsq(a * wt[:, None], err * wt, rcond=None)
+    resid = err - a @ coef
+    dof = max(a.shape[0] - a.shape[1], 1)
+    aw = a * wt[:, None]
+    sigma2 = float(((resid * wt) @ (resid * wt))) / dof
+    cov = sigma2 * np.linalg.pinv(aw.T @ aw)
+    se = np.sqrt(np.diag(cov))
+
+    out = Corrections(pole_offset_deg_e=[0.0] * n_poles, undetermined=undetermined)
+    unc: dict = {"installation_offset_deg_e": {}, "pole_offset_deg_e": [0.0] * n_poles}
+    for (kind, k), c, s in zip(names, coef, se):
+        if kind == "inst":
+            out.installation_offset_deg_e[SENSORS[k]] = float(c)
+            unc["installation_offset_deg_e"][SENSORS[k]] = float(s)
+        elif kind == "pole":
+            out.pole_offset_deg_e[k] = float(c)
+            unc["pole_offset_deg_e"][k] = float(s)
+        elif kind in ("rise", "fall"):
+            out.conditioning_delay_s[kind] = float(c)
+            unc.setdefault("conditioning_delay_s", {})[kind] = float(s)
+        else:
+            out.armature_reaction_deg_e_per_a = float(c)
+            unc["armature_reaction_deg_e_per_a"] = float(s)
+    out.uncertainty = unc
+    # the delay versus speed as an interpolation table (paper Fig. 7a), from the fitted residuals
+    if "conditioning_delay_s" not in undetermined:
+        table: dict[str, list[float]] = {"speed_rpm": [], "rise_deg_e": [], "fall_deg_e": []}
+        static = a @ coef - (w * np.where(rec.rising, out.conditioning_delay_s["rise"], out.conditioning_delay_s["fall"]))
+        for k in seg_used:
+            sel = rec.segment == k
+            table["speed_rpm"].append(float(w_seg[k] / (6.0 * p)))
+            for pol, key in ((True, "rise_deg_e"), (False, "fall_deg_e")):
+                s = sel & (rec.rising == pol)
+                table[key].append(float(np.mean(err[s] - static[s])) if s.any() else float("nan"))
+        out.delay_table = table
+    out.info = {"method": "joint least squares on reference-encoder edge errors", "edges": int(len(rec)),
+                "segments": [rec.segments[k].id for k in seg_used], "residual_rms_deg_e": float(np.sqrt(np.mean(resid**2)))}
+    return out
+
+
+def fit_from_times(rec: Recording) -> Corrections:
+    """The paper's route without an encoder: Eq. 2 and Eq. 6 from capture times, Eq. 3-5 from samples."""
+    p = rec.pole_pairs
+    undetermined: dict[str, str] = {
+        "armature_reaction_deg_e_per_a": "needs a reference angle (ref_angle_mech_deg); the paper uses a magneto-electric position sensor for it",
+    }
+    fwd = [k for k, s in enumerate(rec.segments) if s.direction == "forward"]
+    order = sorted(fwd, key=lambda k: rec.segments[k].speed_rpm)
+    rel_by_speed, pole_by_speed, abs_by_speed, speeds = [], [], [], []
+    for k in order:
+        sel = rec.segment == k
+        turns = edge_angles_per_turn(rec.t_s[sel], rec.sensor[sel], rec.rising[sel], p)
+        if turns.shape[0] == 0:
+            continue
+        mean = turns.mean(axis=0)  # edge order: A-r, C-f, B-r, A-f, C-r, B-f, ... per electrical period
+        rel = np.mean([relative_deviation(mean[6 * e], mean[6 * e + 2], mean[6 * e + 4]) for e in range(p)], axis=0)
+        a_edges = mean[0::3][: 2 * p]  # A rise, A fall, A rise, ... (electrical degrees)
+        rel_by_speed.append(rel)
+        pole_by_speed.append(pole_offsets(a_edges / p, p))
+        speeds.append(rec.segments[k].speed_rpm)
+        if rec.samples is not None and all(c in rec.samples for c in ("u_a", "u_b", "u_c", "i_a", "i_b", "i_c")):
+            m = rec.motor
+            ss = rec.samples["segment"] == k
+            if ss.sum() > 100 and "phase_resistance_ohm" in m and "phase_inductance_h" in m:
+                u = np.column_stack([rec.samples[c][ss] for c in ("u_a", "u_b", "u_c")])
+                i = np.column_stack([rec.samples[c][ss] for c in ("i_a", "i_b", "i_c")])
+                a_rise = rec.t_s[sel & (rec.sensor == 0) & rec.rising]
+                dev = line_bemf_absolute_deviation(rec.samples["t_s"][ss], u, i, a_rise, m["phase_resistance_ohm"], m["phase_inductance_h"], rec.segments[k].speed_rpm, p)
+                if dev.size:
+                    abs_by_speed.append(float(np.mean(dev)))
+    if not rel_by_speed:
+        raise CalibrationError("installation_offset_deg_e: no complete mechanical turn in any forward segment")
+    rel = weighted_over_speeds(np.array(rel_by_speed[:3]))
+    poles = weighted_over_speeds(np.array(pole_by_speed[:3]))
+    out = Corrections(pole_offset_deg_e=[float(v) for v in poles], undetermined=undetermined)
+    if abs_by_speed:
+        inst = absolute_deviation(rel, float(weighted_over_speeds(np.array(abs_by_speed[:3]))))
+        method = "paper route: Eq. 2 and Eq. 6 from capture times, Eq. 3-5 Line-BEMF from samples"
+    else:
+        inst = rel
+        undetermined["installation_offset_deg_e"] = (
+            "only relative deviations (Eq. 2, sum zero) could be determined: the absolute reference needs "
+            "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)")
+        method = "paper route: Eq. 2 and Eq. 6 from capture times"
+    out.installation_offset_deg_e = dict(zip(SENSORS, map(float, inst)))
+    undetermined["conditioning_delay_s"] = ("needs a reference angle (encoder) at several speeds, or the raw sensor "
+                                            "channel beside the conditioned one; capture times alone see only rise-fall differences")
+    out.info = {"method": method, "speeds_rpm": speeds[:3], "edges": int(len(rec))}
+    return out
