@@ -21,11 +21,15 @@ def relative_deviation(theta_a_r: float, theta_b_r: float, theta_c_r: float) -> 
     """Relative deviation of the three sensors' rising edges by minimum squared deviation (Eq. 1-2).
 
     phi_minA = (2 th_A - th_B - th_C) / 3, phi_minB = (2 th_B - th_A - th_C - 2 pi) / 3,
-    phi_minC = (2 th_C - th_A - th_B + 2 pi) / 3, with 2 pi = 360 deg electrical and the
-    measured rising-edge angles of one electrical period (B about 120 after A, C about 240).
-    The three deviations sum to zero: a common shift is not observable here (Eq. 5 adds it).
+    phi_minC = (2 th_C - th_A - th_B + 2 pi) / 3, with 2 pi = 360 deg electrical.
+    Eq. 2 as printed holds for angles measured in (-180, 180] from A's rising edge, i.e. B near
+    +120 and C near -120 (Eq. 1: theta'_A - theta'_C = 2 pi / 3); the inputs are wrapped to that
+    convention first. The three deviations sum to zero: a common shift is not observable here
+    (Eq. 5 adds it).
     """
-    a, b, c = theta_a_r, theta_b_r, theta_c_r
+    a = theta_a_r
+    b = a + float(wrap180(theta_b_r - a))
+    c = a + float(wrap180(theta_c_r - a))
     return np.array([(2 * a - b - c) / 3.0, (2 * b - a - c - 360.0) / 3.0, (2 * c - a - b + 360.0) / 3.0])
 
 
