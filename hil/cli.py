@@ -74,6 +74,24 @@ def cmd_calibrate(args) -> int:
     return 0
 
 
+def cmd_compare_correction(args) -> int:
+    from .calibration.headline import PAPER_MEAN_CURRENT_REDUCTION, PAPER_SPEED_MSE_REDUCTION, compare, plot
+
+    raw, cor, _ = compare(speed_rpm=args.speed_rpm, turns=args.turns, seed=args.seed)
+    mse = 1 - cor.speed_mse_rpm2 / raw.speed_mse_rpm2
+    cur = 1 - cor.mean_phase_current_a / raw.mean_phase_current_a
+    print(f"paper bench with paper-sized deviations, {args.speed_rpm:.0f} rpm, PI speed loop, {args.turns} mechanical turns")
+    print(f"{'strategy':<18} {'speed fluct. MSE':>18} {'set-point MSE':>15} {'mean |i|':>10} {'comm. RMS':>10} {'comm. p99':>10}")
+    for r in (raw, cor):
+        print(f"{r.name:<18} {r.speed_mse_rpm2:>14.3g} rpm2 {r.setpoint_mse_rpm2:>11.3g} rpm2 {r.mean_phase_current_a:>8.4f} A "
+              f"{r.rms_deg_e:>7.3f} de {r.p99_deg_e:>7.3f} de")
+    print(f"reduction with correction: speed MSE {mse:.1%} (paper {PAPER_SPEED_MSE_REDUCTION:.1%}), "
+          f"mean phase current {cur:.1%} (paper {PAPER_MEAN_CURRENT_REDUCTION:.1%})")
+    path = plot(raw, cor, args.plot)
+    print(f"speed traces written to {path}")
+    return 0
+
+
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
@@ -152,6 +170,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--turns", type=int, default=200, help="mechanical turns per operating point (--campaign)")
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_calibrate)
+
+    p = sub.add_parser("compare-correction", help="paper Section 4.3: raw versus corrected commutation on the paper bench")
+    p.add_argument("--speed-rpm", type=float, default=5700.0)
+    p.add_argument("--turns", type=int, default=10)
+    p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--plot", default="reports/headline-5700rpm.png")
+    p.set_defaults(func=cmd_compare_correction)
 
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")

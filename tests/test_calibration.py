@@ -175,3 +175,19 @@ def test_non_monotonic_or_non_finite_recording_refused(tmp_path, capsys):
     (path / "edges.csv").write_text("\n".join(lines) + "\n")
     assert main(["calibrate", str(path)]) == 2
     assert "not finite" in capsys.readouterr().err
+
+
+def test_corrected_commutation_meets_angle_budget_at_5700_rpm(capsys, tmp_path):
+    """Paper Section 4.3 scenario: after correction p99 commutation error <= 0.5 deg electrical."""
+    from hil.calibration.headline import compare
+
+    raw, corrected, _ = compare(speed_rpm=5700.0, turns=10)
+    assert len(corrected.commutation_error_deg_e) >= 115
+    assert corrected.p99_deg_e <= 0.5, corrected.p99_deg_e
+    assert raw.p99_deg_e > 2.0  # the paper-sized deviations are really there before correction
+    assert corrected.rms_deg_e < raw.rms_deg_e / 10
+    from hil.cli import main
+
+    assert main(["compare-correction", "--plot", str(tmp_path / "h.png")]) == 0
+    out = capsys.readouterr().out
+    assert "paper 92.0%" in out and (tmp_path / "h.png").stat().st_size > 10_000

@@ -1,0 +1,133 @@
+"""Controller-side commutation strategies that drive the plant through its command interface.
+
+These are the reference behaviours the virtual controller will wrap: commutate on raw Hall
+edges, or on edges corrected by the calibration tables (the paper's "pre-calibration"
+strategy), each with the same PI speed loop on the PWM duty.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant_models.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
+from plant_models.simulation import Command
+
+from .calibration.corrections import Corrections
+
+
+@dataclass
+class SpeedPI:
+    """PI speed loop on the duty (paper Section 4.1 regulates speed by PID on the duty)."""
+
+    setpoint_rpm: float
+    kp_per_rpm: float = 2e-5
+    ki_per_rpm_s: float = 2e-3
+    feedforward: float = 0.0
+    integral: float = 0.0
+
+    def update(self, speed_rpm: float, dt_s: float) -> float:
+        error = self.setpoint_rpm - speed_rpm
+        self.integral += error * dt_s
+        return min(max(self.feedforward + self.kp_per_rpm * error + self.ki_per_rpm_s * self.integral, 0.0), 1.0)
+
+
+@dataclass
+class HallCommutation:
+    """Commutate from captured Hall edges, raw (``corrections=None``) or corrected (Fig. 4).
+
+    Corrected: each edge is moved back by its calibrated deviation at the present speed and
+    current estimate; the commutation it marks is made at once if that instant has passed, and
+    the next one is scheduled 60 deg electrical after the corrected edge. The pole causing an
+    edge is tracked from the Hall sequence (each edge advances 60 deg electrical; the first
+    edge's sensor and polarity fix its angle within the electrical period); which electrical
+    period holds the calibration's pole N1 is found after the first mechanical turn by the
+    alignment whose corrections make the sector times most even.
+    """
+
+    pole_pairs: int
+    speed: SpeedPI
+    corrections: Corrections | None = None
+    current_estimate_a: float = 0.0
+    _last_t: float | None = None
+    _last_corr_t: float | None = None
+    _seen: list[int] = field(default_factory=lambda: [0, 0, 0])
+    _edge_index: int = -1
+    _first_angle_deg_e: float = 0.0
+    _history: list[tuple[float, int, bool, int]] = field(default_factory=list)
+    _pole_shift: int | None = None
+    _scheduled: dict[int, float] = field(default_factory=dict)
+    speed_estimates_rpm: list[tuple[float, float]] = field(default_factory=list)
+
+    def _sync_poles(self) -> None:
+        """Pick the pole alignment whose corrections make one mechanical turn most even."""
+        n = 6 * self.pole_pairs
+        if self._pole_shift is not None or len(self._history) < 2 * n + 1:
+            return
+        t, sensor, rising, count = (np.array(v) for v in zip(*self._history[-(n + 1):]))
+        best, best_var = 0, math.inf
+        for shift in range(0, 2 * self.pole_pairs, 2):  # whole electrical periods
+            pole = (count + shift) % (2 * self.pole_pairs)
+            w = 360.0 * self.pole_pairs / (t[-1] - t[0])
+            corr = self.corrections.static_deg_e(sensor, pole)
+            var = np.var(np.diff(t - corr / w))
+            if var < best_var:
+                best, best_var = shift, var
+        self._pole_shift = best
+
+    def on_edge(self, edge: dict, sim) -> list[Command]:
+        t = edge["t_capture_s"]
+        x = edge["sensor"]
+        rising = edge["rising"]
+        self._seen[x] = 1 if rising else 0
+        self._edge_index += 1
+        if self._edge_index == 0:
+            self._first_angle_deg_e = SENSOR_POSITION_DEG_E[x] + (0.0 if rising else 180.0)
+        # magnet boundary of this edge, from its place in the edge sequence (forward rotation)
+        angle = self._first_angle_deg_e + 60.0 * self._edge_index
+        boundary = int(round((angle - SENSOR_POSITION_DEG_E[x]) / 180.0))
+        self._history.append((t, x, rising, boundary))
+        if len(self._history) > 64:
+            del self._history[:-64]
+        sector = int(SECTOR_OF_CODE[self._seen[0] * 4 + self._seen[1] * 2 + self._seen[2]])
+        if sector < 0:
+            return []
+        commands: list[Command] = []
+        t_corr = t
+        if self.corrections is not None and self._last_t is not None:
+            self._sync_poles()
+            # speed to turn the correction angle into time: over the last mechanical turn (the
+            # same sensor's same edge one turn back), so no deviation distorts it
+            n = 6 * self.pole_pairs
+            if len(self._history) > n:
+                w_e = 360.0 * self.pole_pairs / max(t - self._history[-n - 1][0], 1e-9)
+            else:
+                w_e = 60.0 / max(t - self._last_t, 1e-9)
+            if self._pole_shift is not None:
+                pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
+                speed_rpm = w_e / (6.0 * self.pole_pairs)
+                t_corr = t - float(self.corrections.correction_deg_e(x, rising, pole, speed_rpm, self.current_estimate_a)) / w_e
+        # speed from the (corrected) sector time, as a simple controller measures it
+        duty = None
+        if self._last_corr_t is not None and t_corr > self._last_corr_t:
+            speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
+            self.speed_estimates_rpm.append((t, speed_rpm))
+            duty = self.speed.update(speed_rpm, t - self._last_t)
+        now = sim.t_s
+        if self.corrections is None or self._pole_shift is None or self._last_corr_t is None:
+            commands.append(Command(at_s=now, sector=sector, duty=duty))
+        else:
+            due = self._scheduled.get(sector)
+            if due is None or due <= now:
+                commands.append(Command(at_s=now, sector=sector, duty=duty))
+            elif duty is not None:
+                commands.append(Command(at_s=now, duty=duty))
+            w_e = 60.0 / max(t_corr - self._last_corr_t, 1e-9)
+            nxt = (sector + 1) % 6
+            at = max(t_corr + 60.0 / w_e, now)
+            self._scheduled = {nxt: at}
+            commands.append(Command(at_s=at, sector=nxt))
+        self._last_t, self._last_corr_t = t, t_corr
+        return commands
