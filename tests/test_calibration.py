@@ -191,3 +191,34 @@ def test_corrected_commutation_meets_angle_budget_at_5700_rpm(capsys, tmp_path):
     assert main(["compare-correction", "--plot", str(tmp_path / "h.png")]) == 0
     out = capsys.readouterr().out
     assert "paper 92.0%" in out and (tmp_path / "h.png").stat().st_size > 10_000
+
+
+def test_line_bemf_route_gives_absolute_installation_offsets():
+    """No encoder: Eq. 2 (relative), Eq. 3-5 (Line-BEMF absolute) and Eq. 6 from an electrical run."""
+    from hil.calibration.campaign import record_line_bemf_segments
+
+    inst, pole = (1.4, -0.6, 0.9), (0.0, 0.7, -0.4, 0.2)
+    config = paper_bench().with_effects(fx.InstallationOffset(inst), fx.PoleOffset(pole), *NOISE)
+    rec = record_line_bemf_segments(config, turns=20, seed=3)
+    assert rec.ref_angle_mech_deg is None and rec.samples is not None
+    got = fit_corrections(rec)
+    assert "installation_offset_deg_e" not in got.undetermined
+    assert "Line-BEMF" in got.info["method"]
+    np.testing.assert_allclose([got.installation_offset_deg_e[s] for s in "ABC"], inst, atol=0.05)
+    np.testing.assert_allclose(got.pole_offset_deg_e, pole, atol=0.05)
+
+
+def test_conditioning_delay_table_from_raw_and_conditioned_edges():
+    """Section 2.5: raw sensor channel beside the conditioned one gives the delay versus speed."""
+    from hil.calibration.steps import conditioning_delay_table
+    from plant_models.kinematic import simulate_edges
+
+    circuit = fx.ConditioningCircuit()
+    rise, fall = circuit.delays_s()
+    config = paper_bench().with_effects(fx.ConditioningDelay.from_circuit(circuit), fx.EdgeJitter(time_rms_s=1e-6))
+    e = simulate_edges(config, [OperatingPoint(200 * 60 / rpm, rpm) for rpm in (2000.0, 6000.0, 10000.0)], seed=1)  # 200 turns each
+    table = conditioning_delay_table(e.speed_rpm, e.t_raw_s, e.t_conditioned_s, e.rising, P)
+    assert table["speed_rpm"] == [2000.0, 6000.0, 10000.0]
+    np.testing.assert_allclose(table["rise_s"], rise, atol=0.2e-6)
+    np.testing.assert_allclose(table["fall_s"], fall, atol=0.2e-6)
+    np.testing.assert_allclose(table["rise_deg_e"], np.array(table["speed_rpm"]) * 6 * P * rise, rtol=0.05)

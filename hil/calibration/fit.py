@@ -180,14 +180,23 @@ def fit_from_times(rec: Recording) -> Corrections:
     rel_by_speed, pole_by_speed, abs_by_speed, speeds = [], [], [], []
     for k in order:
         sel = rec.segment == k
-        turns = edge_angles_per_turn(rec.t_s[sel], rec.sensor[sel], rec.rising[sel], p)
-        if turns.shape[0] == 0:
+        # no index pulse: pole N1 is the first segment's first A rise; later segments are
+        # aligned to it by the electrical period whose Eq. 6 pattern matches best
+        candidates = []
+        for start in range(p):
+            turns = edge_angles_per_turn(rec.t_s[sel], rec.sensor[sel], rec.rising[sel], p, start)
+            if turns.shape[0]:
+                mean = turns.mean(axis=0)  # edge order: A-r, C-f, B-r, A-f, C-r, B-f, ... per electrical period
+                candidates.append((start, mean, pole_offsets(mean[0::3][: 2 * p] / p, p)))
+        if not candidates:
             continue
-        mean = turns.mean(axis=0)  # edge order: A-r, C-f, B-r, A-f, C-r, B-f, ... per electrical period
+        if pole_by_speed:
+            start, mean, poles = min(candidates, key=lambda c: float(np.sum((c[2] - pole_by_speed[0]) ** 2)))
+        else:
+            start, mean, poles = candidates[0]
         rel = np.mean([relative_deviation(mean[6 * e], mean[6 * e + 2], mean[6 * e + 4]) for e in range(p)], axis=0)
-        a_edges = mean[0::3][: 2 * p]  # A rise, A fall, A rise, ... (electrical degrees)
         rel_by_speed.append(rel)
-        pole_by_speed.append(pole_offsets(a_edges / p, p))
+        pole_by_speed.append(poles)
         speeds.append(rec.segments[k].speed_rpm)
         if rec.samples is not None and all(c in rec.samples for c in ("u_a", "u_b", "u_c", "i_a", "i_b", "i_c")):
             m = rec.motor
@@ -195,7 +204,7 @@ def fit_from_times(rec: Recording) -> Corrections:
             if ss.sum() > 100 and "phase_resistance_ohm" in m and "phase_inductance_h" in m:
                 u = np.column_stack([rec.samples[c][ss] for c in ("u_a", "u_b", "u_c")])
                 i = np.column_stack([rec.samples[c][ss] for c in ("i_a", "i_b", "i_c")])
-                a_rise = rec.t_s[sel & (rec.sensor == 0) & rec.rising]
+                a_rise = rec.t_s[sel & (rec.sensor == 0) & rec.rising][start::p]  # the reference pole N1's edges
                 dev = line_bemf_absolute_deviation(rec.samples["t_s"][ss], u, i, a_rise, m["phase_resistance_ohm"], m["phase_inductance_h"], rec.segments[k].speed_rpm, p)
                 if dev.size:
                     abs_by_speed.append(float(np.mean(dev)))

@@ -65,17 +65,18 @@ def weighted_over_speeds(values_by_speed: np.ndarray, weights=PAPER_SPEED_WEIGHT
     return np.tensordot(w / w.sum(), v, axes=(0, 0))
 
 
-def edge_angles_per_turn(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, pole_pairs: int) -> np.ndarray:
+def edge_angles_per_turn(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, pole_pairs: int, start: int = 0) -> np.ndarray:
     """Electrical angle of each edge within its mechanical turn, from capture times only.
 
-    The turn starts at an A rising edge (taken as pole N1) and the speed is the mean over that
+    The turn starts at an A rising edge (``start``-th of the recording, taken as pole N1: with no
+    index pulse, which pole is N1 is a convention) and the speed is the mean over that
     turn, measured between the same sensor's same edge one mechanical turn apart, so pole
     offsets cancel from the speed (paper Section 2.1 keeps the 0th and 1st order only).
     Returns an array (turns, 6p) of angles in edge order, NaN where a turn is incomplete.
     """
     n_per_turn = 6 * pole_pairs
     a_rise = np.nonzero((sensor == 0) & rising)[0]
-    starts = a_rise[::pole_pairs]
+    starts = a_rise[start::pole_pairs]
     out = []
     for s0, s1 in zip(starts[:-1], starts[1:]):
         if s1 - s0 != n_per_turn:
