@@ -56,14 +56,11 @@ def run_demo(speed_rpm: float = 5700.0, duration_s: float = 0.5, out_dir: str | 
 
 def plot_demo(result: dict, path: str | Path) -> Path:
     """Edge-error pattern of the demo run: per edge, coloured by sensor, rising vs falling."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+    from .plots import pyplot, save
 
     e = result["edges"]
     err = e.capture_error_deg_e
-    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2, 1]})
+    fig, (ax1, ax2) = pyplot().subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2, 1]})
     n = np.arange(len(e))
     for x, name in enumerate(SENSORS):
         for rising, marker in ((True, "^"), (False, "v")):
@@ -81,12 +78,7 @@ def plot_demo(result: dict, path: str | Path) -> Path:
     ax2.tick_params(axis="y", labelsize=7)
     ax2.invert_yaxis()
     fig.suptitle(f"{result['config'].name}: raw Hall commutation at {result['speed_rpm']:.0f} rpm", fontsize=10)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
 
 
 def print_demo(result: dict) -> None:

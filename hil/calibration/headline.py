@@ -74,21 +74,13 @@ def compare(speed_rpm: float = 5700.0, turns: int = 10, settle_s: float = 4.0, s
 
 
 def plot(raw: RunResult, corrected: RunResult, path: str | Path) -> Path:
-    import matplotlib
+    from ..plots import pyplot, save
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(9, 3.5))
+    fig, ax = pyplot().subplots(figsize=(9, 3.5))
     for r in (raw, corrected):
         ax.plot(r.t_s * 1e3, r.speed_rpm, lw=1, label=f"{r.name}: fluctuation MSE {r.speed_mse_rpm2:.3g} rpm^2, mean |i| {r.mean_phase_current_a:.3f} A")
-    ax.set_xlabel("time [ms] (10 mechanical turns)")
+    ax.set_xlabel("time [ms] (measurement window after settling)")
     ax.set_ylabel("true speed [rpm]")
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
-    fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return save(fig, path)
