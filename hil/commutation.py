@@ -27,10 +27,13 @@ class SpeedPI:
     ki_per_rpm_s: float = 2e-3
     feedforward: float = 0.0
     integral: float = 0.0
+    #: anti-windup: integrate only while the error is within this fraction of the set point
+    integrate_within: float = 0.02
 
     def update(self, speed_rpm: float, dt_s: float) -> float:
         error = self.setpoint_rpm - speed_rpm
-        self.integral += error * dt_s
+        if abs(error) <= self.integrate_within * self.setpoint_rpm:
+            self.integral += error * dt_s
         return min(max(self.feedforward + self.kp_per_rpm * error + self.ki_per_rpm_s * self.integral, 0.0), 1.0)
 
 
@@ -50,7 +53,13 @@ class HallCommutation:
     pole_pairs: int
     speed: SpeedPI
     corrections: Corrections | None = None
+    #: current for the armature-reaction correction when no measurement is available
     current_estimate_a: float = 0.0
+    #: read the phase currents at each edge (the controller's ADC) for the armature correction
+    use_measured_current: bool = True
+    #: current limit enforced on the duty through the motor model: |d V_dc - 2 ke w| <= 2 R I_max
+    current_limit_a: float | None = None
+    motor: object | None = None
     _last_t: float | None = None
     _last_corr_t: float | None = None
     _seen: list[int] = field(default_factory=lambda: [0, 0, 0])
@@ -76,6 +85,15 @@ class HallCommutation:
             if var < best_var:
                 best, best_var = shift, var
         self._pole_shift = best
+
+    def _limit(self, duty: float, speed_rpm: float) -> float:
+        """Keep the conducting-pair current within the limit (steady-state voltage equation)."""
+        if self.current_limit_a is None or self.motor is None:
+            return duty
+        m = self.motor
+        bemf = 2.0 * m.ke_v_s_per_rad * speed_rpm * 2.0 * math.pi / 60.0
+        span = 2.0 * m.phase_resistance_ohm * self.current_limit_a
+        return min(max(duty, (bemf - span) / m.supply_v, 0.0), (bemf + span) / m.supply_v, 1.0)
 
     def on_edge(self, edge: dict, sim) -> list[Command]:
         t = edge["t_capture_s"]
@@ -108,13 +126,14 @@ class HallCommutation:
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
                 speed_rpm = w_e / (6.0 * self.pole_pairs)
-                t_corr = t - float(self.corrections.correction_deg_e(x, rising, pole, speed_rpm, self.current_estimate_a)) / w_e
+                current = sim.measured_mean_abs_current_a() if self.use_measured_current else self.current_estimate_a
+                t_corr = t - float(self.corrections.correction_deg_e(x, rising, pole, speed_rpm, current)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None
         if self._last_corr_t is not None and t_corr > self._last_corr_t:
             speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
             self.speed_estimates_rpm.append((t, speed_rpm))
-            duty = self.speed.update(speed_rpm, t - self._last_t)
+            duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)
         now = sim.t_s
         if self.corrections is None or self._pole_shift is None or self._last_corr_t is None:
             commands.append(Command(at_s=now, sector=sector, duty=duty))

@@ -227,6 +227,13 @@ class Simulation:
     def sector(self) -> int:
         return int(self.ist[K.I_SECTOR])
 
+    def measured_mean_abs_current_a(self) -> float:
+        """Mean |i| over the phases now, through the current sensors' gain and offset (no noise):
+        what a controller's ADC reads at this instant."""
+        cs = self.config.current_sensor
+        i = self.st[K.S_IA:K.S_IC + 1] * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        return float(np.mean(np.abs(i)))
+
     def set_duty(self, duty: float) -> None:
         if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:
             raise ConfigError("duty", f"must be in [0, 1], got {duty!r}")

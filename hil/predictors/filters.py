@@ -88,6 +88,45 @@ def _sym_pd_floor(m, n, floor):
 
 
 @njit(cache=True)
+def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_pred, x_new, phi, x, u):
+    """Eq. 12 for r, R and q: terms accumulated each cycle, applied every interval (paper: every
+    120 commutations) and once at the end of the warm-up, so that R has an estimate before Q
+    starts to adapt (Q adapted against R0 = 0 would absorb the edge noise)."""
+    mask = int(fp[F_ADAPTIVE])
+    b = fp[F_B]
+    s[ACC_R0] += z_theta - hx0                                      # Z - H X_k,k-1
+    s[ACC_R0 + 1] += z_i - hx1
+    s[ACC_RR0] += innov0 * innov0 - p_pred[1, 1]                    # Z~ Z~^T - H P_k,k-1 H^T
+    s[ACC_RR0 + 1] += innov0 * innov1 - p_pred[1, 2]
+    s[ACC_RR0 + 2] += innov1 * innov0 - p_pred[2, 1]
+    s[ACC_RR0 + 3] += innov1 * innov1 - p_pred[2, 2]
+    dq = x_new - (phi @ x + u)                                      # X_k - Phi X_k-1
+    for i in range(3):
+        s[ACC_Q0 + i] += dq[i]
+    s[N_ACC] += 1.0
+    if s[N_ACC] >= fp[F_INTERVAL] or k + 1.0 == fp[F_WARMUP]:
+        n = s[N_ACC]
+        j = s[K_INTERVAL]
+        dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
+        for i in range(2):
+            if mask & ADAPT_SMALL_R:
+                s[SMALLR0 + i] = (1.0 - dj) * s[SMALLR0 + i] + dj * s[ACC_R0 + i] / n
+        rn = np.empty(4)
+        for i in range(4):
+            rn[i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
+        if _sym_pd_floor(rn, 2, fp[F_FLOOR]):
+            guards[GUARD_R_PD] += 1
+        if mask & ADAPT_R:
+            s[R0:R0 + 4] = rn
+        for i in range(3):
+            if mask & ADAPT_SMALL_Q:
+                s[SMALLQ0 + i] = (1.0 - dj) * s[SMALLQ0 + i] + dj * s[ACC_Q0 + i] / n
+        s[ACC_R0:ACC_Q0 + 3] = 0.0
+        s[N_ACC] = 0.0
+        s[K_INTERVAL] = j + 1.0
+
+
+@njit(cache=True)
 def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
     """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
 
@@ -144,10 +183,15 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
     s[LAST_NIS] = nis
     k = s[K_STEP]
     s[K_STEP] = k + 1.0
-    if fp[F_ADAPTIVE] == 0.0 or k < fp[F_WARMUP]:
+    if fp[F_ADAPTIVE] == 0.0:
         return nis
-    if nis > fp[F_GATE]:
+    if k >= fp[F_WARMUP] and nis > fp[F_GATE]:
         guards[GUARD_GATE] += 1
+        return nis
+    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate)
+    if k >= 0.5 * fp[F_WARMUP]:
+        _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_pred, x_new, phi, x, u)
+    if k < fp[F_WARMUP]:
         return nis
     # --- Eq. 12: Q every step ----------------------------------------------------------------
     b = fp[F_B]
@@ -183,37 +227,6 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
         guards[GUARD_Q_BAND] += 1
     if mask & ADAPT_Q:
         s[Q0:Q0 + 9] = qn
-    # --- Eq. 12: r, R, q accumulated and applied every interval -------------------------------
-    s[ACC_R0] += z_theta - hx0                                      # Z - H X_k,k-1
-    s[ACC_R0 + 1] += z_i - hx1
-    s[ACC_RR0] += innov0 * innov0 - p_pred[1, 1]                    # Z~ Z~^T - H P_k,k-1 H^T
-    s[ACC_RR0 + 1] += innov0 * innov1 - p_pred[1, 2]
-    s[ACC_RR0 + 2] += innov1 * innov0 - p_pred[2, 1]
-    s[ACC_RR0 + 3] += innov1 * innov1 - p_pred[2, 2]
-    dq = x_new - (phi @ x + u)                                      # X_k - Phi X_k-1
-    for i in range(3):
-        s[ACC_Q0 + i] += dq[i]
-    s[N_ACC] += 1.0
-    if s[N_ACC] >= fp[F_INTERVAL]:
-        n = s[N_ACC]
-        j = s[K_INTERVAL]
-        dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
-        for i in range(2):
-            if mask & ADAPT_SMALL_R:
-                s[SMALLR0 + i] = (1.0 - dj) * s[SMALLR0 + i] + dj * s[ACC_R0 + i] / n
-        rn = np.empty(4)
-        for i in range(4):
-            rn[i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
-        if _sym_pd_floor(rn, 2, fp[F_FLOOR]):
-            guards[GUARD_R_PD] += 1
-        if mask & ADAPT_R:
-            s[R0:R0 + 4] = rn
-        for i in range(3):
-            if mask & ADAPT_SMALL_Q:
-                s[SMALLQ0 + i] = (1.0 - dj) * s[SMALLQ0 + i] + dj * s[ACC_Q0 + i] / n
-        s[ACC_R0:ACC_Q0 + 3] = 0.0
-        s[N_ACC] = 0.0
-        s[K_INTERVAL] = j + 1.0
     return nis
 
 

@@ -28,7 +28,7 @@ class FilterSettings:
     p0_diag: tuple[float, float, float] = (5e4, 5e4, 5e4)  # paper 4.4
     forgetting_b: float = 0.98                         # design notes: 0.95-0.995
     adapt_interval: int = 120                          # paper 4.4: r, R, q every 120 commutations
-    warmup: int = 60
+    warmup: int = 120
     chi2_gate: float = F.CHI2_2DOF_999
     q_band_factor: float = 100.0
     eig_floor: float = 1e-9
