@@ -26,7 +26,7 @@ F_B, F_INTERVAL, F_WARMUP, F_GATE, F_BAND, F_FLOOR, F_ADAPTIVE, F_POLE_PAIRS, F_
 N_FPARAMS = 10
 # state vector layout
 X0, P0, Q0, R0, QN0, SMALLQ0, SMALLR0, ACC_R0, ACC_RR0, ACC_Q0 = 0, 3, 12, 21, 25, 34, 37, 39, 43, 46
-K_STEP, K_INTERVAL, N_ACC, W_PREV, LAST_NIS = 49, 50, 51, 52, 53
+K_STEP, K_INTERVAL, N_ACC, INITIALISED, LAST_NIS = 49, 50, 51, 52, 53
 N_STATE = 54
 GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD = range(5)
 #: which Eq. 12 estimates adapt (F_ADAPTIVE holds the mask; 0 = plain Kalman filter)
@@ -254,14 +254,13 @@ def run_batch(s, fp, guards, t_edges, current, speed_tab, kt_tab, m_tab, out_pre
     n = t_edges.size
     for k in range(1, n):
         dt = t_edges[k] - t_edges[k - 1]
-        if s[K_STEP] == 0:
+        if s[INITIALISED] == 0.0:
+            # the first cycle initialises speed and current; filtering starts with the next edge
             s[X0] = (math.pi / 3.0) / dt
             s[X0 + 1] = 0.0
             s[X0 + 2] = current[k]
-            s[K_STEP] = 0.0
-            out_w[k] = s[X0]
+            s[INITIALISED] = 1.0
             w_now = s[X0]
-            s[K_STEP] = 0.5  # initialised; the first filter step comes with the next edge
         else:
             w_prev = s[X0]
             n_rpm = w_prev / pp * 60.0 / (2.0 * math.pi)

@@ -125,9 +125,9 @@ class _KalmanCore:
         if not dt > 0:
             raise ValueError(f"edge times must increase: {t_corrected_s!r} after {self._last_t!r}")
         self._last_t = t_corrected_s
-        if self.state[F.K_STEP] == 0:  # the first cycle initialises speed and current
+        if self.state[F.INITIALISED] == 0.0:  # the first cycle initialises speed and current
             self.state[F.X0:F.X0 + 3] = (SECTOR_RAD / dt, 0.0, mean_current_a)
-            self.state[F.K_STEP] = 0.5
+            self.state[F.INITIALISED] = 1.0
         else:
             a, dl = self._coefficients(float(self.state[F.X0]))
             F.step(self.state, self.fp, self.guard_counts, SECTOR_RAD, mean_current_a, dt, a, dl)
