@@ -92,6 +92,21 @@ def cmd_compare_correction(args) -> int:
     return 0
 
 
+def cmd_table5(args) -> int:
+    from .predictors.compare import table5
+
+    tab, run = table5(eval_seed=args.seed, train_seed=args.train_seed)
+    print(f"paper scenario: {len(run.step_times_s)} set points 5000-10000 rpm, {len(run.edges)} edges, calibration applied, "
+          f"type III jitter; KF and Sage-Husa tuned on seed {args.train_seed}, scored on seed {args.seed}")
+    print(tab.format())
+    print(f"KF (tuned): Q0 = diag{tab.kf_settings.q0_diag}, R = diag{tab.kf_settings.r0_diag}")
+    print(f"Sage-Husa: Q0 = diag{tab.sh_settings.q0_diag} (nominal), R0 = diag{tab.sh_settings.r0_diag} (paper), "
+          f"b = {tab.sh_settings.forgetting_b}, Q band x{tab.sh_settings.q_band_factor:g}")
+    sh = next(r for r in tab.rows if r.name == "Sage-Husa")
+    print(f"Sage-Husa guard trips: {sh.guards}")
+    return 0
+
+
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
@@ -177,6 +192,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", default="reports/headline-5700rpm.png")
     p.set_defaults(func=cmd_compare_correction)
+
+    p = sub.add_parser("table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario")
+    p.add_argument("--seed", type=int, default=0, help="evaluation run")
+    p.add_argument("--train-seed", type=int, default=1, help="tuning run for the KF and Sage-Husa settings")
+    p.set_defaults(func=cmd_table5)
 
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
