@@ -50,41 +50,59 @@ def new_state(q0: np.ndarray, r0_diag: tuple[float, float] = (0.0, 0.02), p0_dia
 
 @njit(cache=True)
 def _sym_pd_floor(m, n, floor):
-    """Symmetrise the n x n matrix stored row-major in m; floor its eigenvalues; True if it had to."""
-    a = np.empty((n, n))
+    """Symmetrise the n x n matrix stored row-major in m; floor its eigenvalues; True if it had to.
+
+    The common case (already positive definite) is a scalar Cholesky test with no allocation;
+    only a failing matrix goes through an eigen-decomposition."""
+    for i in range(n):
+        for j in range(i + 1, n):
+            v = 0.5 * (m[i * n + j] + m[j * n + i])
+            m[i * n + j] = v
+            m[j * n + i] = v
+    if n == 2:
+        a, b, d = m[0], m[1], m[3]
+        ok = a > floor and d - b * b / a > floor
+    else:
+        a, b, c, d, e, f = m[0], m[1], m[2], m[4], m[5], m[8]
+        ok = False
+        if a > floor:
+            l10 = b / math.sqrt(a)
+            l20 = c / math.sqrt(a)
+            d1 = d - l10 * l10
+            if d1 > floor:
+                l21 = (e - l20 * l10) / math.sqrt(d1)
+                ok = f - l20 * l20 - l21 * l21 > floor
+    if ok:
+        return False
+    mat = np.empty((n, n))
     for i in range(n):
         for j in range(n):
-            a[i, j] = 0.5 * (m[i * n + j] + m[j * n + i])
-    # cheap positive-definiteness check (Cholesky) before an eigen-decomposition
-    ok = True
-    lo = np.zeros((n, n))
-    for i in range(n):
-        for j in range(i + 1):
-            s = a[i, j]
-            for k in range(j):
-                s -= lo[i, k] * lo[j, k]
-            if i == j:
-                if s <= floor:
-                    ok = False
-                    break
-                lo[i, i] = math.sqrt(s)
-            else:
-                lo[i, j] = s / lo[j, j]
-        if not ok:
-            break
-    if ok:
-        for i in range(n * n):
-            m[i] = a.ravel()[i]
-        return False
-    w, v = np.linalg.eigh(a)
+            mat[i, j] = m[i * n + j]
+    w, v = np.linalg.eigh(mat)
     for i in range(n):
         if w[i] < floor:
             w[i] = floor
-    b = (v * w) @ v.T
+    bm = (v * w) @ v.T
     for i in range(n):
         for j in range(n):
-            m[i * n + j] = 0.5 * (b[i, j] + b[j, i])
+            m[i * n + j] = 0.5 * (bm[i, j] + bm[j, i])
     return True
+
+
+@njit(cache=True, inline="always")
+def _mm3(a, b, out):
+    """out = a @ b for 3 x 3 matrices stored row-major in flat arrays."""
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = a[3 * i] * b[j] + a[3 * i + 1] * b[3 + j] + a[3 * i + 2] * b[6 + j]
+
+
+@njit(cache=True, inline="always")
+def _mm3t(a, b, out):
+    """out = a @ b.T for 3 x 3 matrices stored row-major in flat arrays."""
+    for i in range(3):
+        for j in range(3):
+            out[3 * i + j] = a[3 * i] * b[3 * j] + a[3 * i + 1] * b[3 * j + 1] + a[3 * i + 2] * b[3 * j + 2]
 
 
 @njit(cache=True)
@@ -96,13 +114,12 @@ def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_
     b = fp[F_B]
     s[ACC_R0] += z_theta - hx0                                      # Z - H X_k,k-1
     s[ACC_R0 + 1] += z_i - hx1
-    s[ACC_RR0] += innov0 * innov0 - p_pred[1, 1]                    # Z~ Z~^T - H P_k,k-1 H^T
-    s[ACC_RR0 + 1] += innov0 * innov1 - p_pred[1, 2]
-    s[ACC_RR0 + 2] += innov1 * innov0 - p_pred[2, 1]
-    s[ACC_RR0 + 3] += innov1 * innov1 - p_pred[2, 2]
-    dq = x_new - (phi @ x + u)                                      # X_k - Phi X_k-1
-    for i in range(3):
-        s[ACC_Q0 + i] += dq[i]
+    s[ACC_RR0] += innov0 * innov0 - p_pred[4]                       # Z~ Z~^T - H P_k,k-1 H^T
+    s[ACC_RR0 + 1] += innov0 * innov1 - p_pred[5]
+    s[ACC_RR0 + 2] += innov1 * innov0 - p_pred[7]
+    s[ACC_RR0 + 3] += innov1 * innov1 - p_pred[8]
+    for i in range(3):                                              # X_k - Phi X_k-1
+        s[ACC_Q0 + i] += x_new[i] - (phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i])
     s[N_ACC] += 1.0
     if s[N_ACC] >= fp[F_INTERVAL] or k + 1.0 == fp[F_WARMUP]:
         n = s[N_ACC]
@@ -111,75 +128,101 @@ def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_
         for i in range(2):
             if mask & ADAPT_SMALL_R:
                 s[SMALLR0 + i] = (1.0 - dj) * s[SMALLR0 + i] + dj * s[ACC_R0 + i] / n
-        rn = np.empty(4)
-        for i in range(4):
-            rn[i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
-        if _sym_pd_floor(rn, 2, fp[F_FLOOR]):
-            guards[GUARD_R_PD] += 1
         if mask & ADAPT_R:
-            s[R0:R0 + 4] = rn
+            for i in range(4):
+                s[R0 + i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
+            if _sym_pd_floor(s[R0:R0 + 4], 2, fp[F_FLOOR]):
+                guards[GUARD_R_PD] += 1
         for i in range(3):
             if mask & ADAPT_SMALL_Q:
                 s[SMALLQ0 + i] = (1.0 - dj) * s[SMALLQ0 + i] + dj * s[ACC_Q0 + i] / n
-        s[ACC_R0:ACC_Q0 + 3] = 0.0
+        for i in range(ACC_R0, ACC_Q0 + 3):
+            s[i] = 0.0
         s[N_ACC] = 0.0
         s[K_INTERVAL] = j + 1.0
 
 
+N_WORK = 96
+
+
 @njit(cache=True)
-def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
+def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
 
     The angle is kept relative to the last corrected edge: that edge is at 0, so the edge that
     ends this cycle is measured at z_theta = pi / 3 (Eq. 10, observing angle and current);
     dt is the measured cycle duration; accel_per_amp = p K_T(n) / J and decel_load =
-    p M(n) w_m^2 / J are evaluated at the previous estimate. Returns the normalised innovation
-    squared."""
+    p M(n) w_m^2 / J are evaluated at the previous estimate; wk is scratch (N_WORK), so a step
+    allocates nothing. Returns the normalised innovation squared."""
+    phi = wk[0:9]
+    u = wk[9:12]
+    x = wk[12:15]
+    p = wk[15:24]
+    x_pred = wk[24:27]
+    p_pred = wk[27:36]
+    tmp = wk[36:45]
+    gain = wk[45:51]          # 3 x 2
+    p_new = wk[51:60]
+    ikh = wk[60:69]
+    phi_p_phi = wk[69:78]
+    x_new = wk[78:81]
     # --- Eq. 9: transition and input -------------------------------------------------------
-    phi = np.array([[1.0, 0.0, accel_per_amp * dt], [dt, 1.0, 0.5 * accel_per_amp * dt * dt], [0.0, 0.0, 1.0]])
-    u = np.array([-dt * decel_load, -0.5 * dt * dt * decel_load, 0.0])
-    x = s[X0:X0 + 3].copy()
-    p = s[P0:P0 + 9].reshape(3, 3).copy()
-    q_mat = s[Q0:Q0 + 9].reshape(3, 3)
-    q_bias = s[SMALLQ0:SMALLQ0 + 3]
-    r_mat = s[R0:R0 + 4].reshape(2, 2)
-    r_bias = s[SMALLR0:SMALLR0 + 2]
+    a = accel_per_amp
+    phi[0], phi[1], phi[2] = 1.0, 0.0, a * dt
+    phi[3], phi[4], phi[5] = dt, 1.0, 0.5 * a * dt * dt
+    phi[6], phi[7], phi[8] = 0.0, 0.0, 1.0
+    u[0], u[1], u[2] = -dt * decel_load, -0.5 * dt * dt * decel_load, 0.0
+    for i in range(3):
+        x[i] = s[X0 + i]
+    for i in range(9):
+        p[i] = s[P0 + i]
     # --- Eq. 11: prediction ------------------------------------------------------------------
-    x_pred = phi @ x + u + q_bias                                   # X_k,k-1 = Phi X_k-1 + q_k-1
-    p_pred = phi @ p @ phi.T + q_mat                                # P_k,k-1 = Phi P Phi^T + Q_k-1
+    for i in range(3):                                              # X_k,k-1 = Phi X_k-1 + q_k-1
+        x_pred[i] = phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i] + s[SMALLQ0 + i]
+    _mm3(phi, p, tmp)
+    _mm3t(tmp, phi, phi_p_phi)
+    for i in range(9):                                              # P_k,k-1 = Phi P Phi^T + Q_k-1
+        p_pred[i] = phi_p_phi[i] + s[Q0 + i]
     # H = [[0,1,0],[0,0,1]] (Eq. 10 as we read it: the edge measures the angle): rows 1 and 2
     hx0 = x_pred[1]
     hx1 = x_pred[2]
-    innov0 = z_theta - hx0 - r_bias[0]                              # Z~ = Z - H X_k,k-1 - r
-    innov1 = z_i - hx1 - r_bias[1]
-    s00 = p_pred[1, 1] + r_mat[0, 0]
-    s01 = p_pred[1, 2] + r_mat[0, 1]
-    s10 = p_pred[2, 1] + r_mat[1, 0]
-    s11 = p_pred[2, 2] + r_mat[1, 1]
+    innov0 = z_theta - hx0 - s[SMALLR0]                             # Z~ = Z - H X_k,k-1 - r
+    innov1 = z_i - hx1 - s[SMALLR0 + 1]
+    s00 = p_pred[4] + s[R0]
+    s01 = p_pred[5] + s[R0 + 1]
+    s10 = p_pred[7] + s[R0 + 2]
+    s11 = p_pred[8] + s[R0 + 3]
     det = s00 * s11 - s01 * s10
     i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
-    gain = np.empty((3, 2))                                         # K = P H^T (H P H^T + R)^-1
-    for i in range(3):
-        a0 = p_pred[i, 1]
-        a1 = p_pred[i, 2]
-        gain[i, 0] = a0 * i00 + a1 * i10
-        gain[i, 1] = a0 * i01 + a1 * i11
-    x_new = x_pred.copy()
-    for i in range(3):
-        x_new[i] += gain[i, 0] * innov0 + gain[i, 1] * innov1       # X_k = X_k,k-1 + K Z~
+    for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
+        a0 = p_pred[3 * i + 1]
+        a1 = p_pred[3 * i + 2]
+        gain[2 * i] = a0 * i00 + a1 * i10
+        gain[2 * i + 1] = a0 * i01 + a1 * i11
+    for i in range(3):                                              # X_k = X_k,k-1 + K Z~
+        x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
     # Joseph form of P_k = (I - K H) P_k,k-1 (keeps P symmetric positive semi-definite)
-    ikh = np.eye(3)
     for i in range(3):
-        ikh[i, 1] -= gain[i, 0]
-        ikh[i, 2] -= gain[i, 1]
-    p_new = ikh @ p_pred @ ikh.T + gain @ r_mat @ gain.T
-    pn = p_new.ravel().copy()
-    if _sym_pd_floor(pn, 3, 1e-12):
+        for j in range(3):
+            ikh[3 * i + j] = 1.0 if i == j else 0.0
+        ikh[3 * i + 1] -= gain[2 * i]
+        ikh[3 * i + 2] -= gain[2 * i + 1]
+    _mm3(ikh, p_pred, tmp)
+    _mm3t(tmp, ikh, p_new)
+    r00, r01, r10, r11 = s[R0], s[R0 + 1], s[R0 + 2], s[R0 + 3]
+    for i in range(3):                                              # + K R K^T
+        g0, g1 = gain[2 * i], gain[2 * i + 1]
+        for j in range(3):
+            h0, h1 = gain[2 * j], gain[2 * j + 1]
+            p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
+    if _sym_pd_floor(p_new, 3, 1e-12):
         guards[GUARD_P_PD] += 1
-    s[X0:X0 + 3] = x_new
+    for i in range(3):
+        s[X0 + i] = x_new[i]
     s[X0 + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
-    s[P0:P0 + 9] = pn
+    for i in range(9):
+        s[P0 + i] = p_new[i]
     s[LAST_NIS] = nis
     k = s[K_STEP]
     s[K_STEP] = k + 1.0
@@ -198,19 +241,19 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
     # d_k continues from the true step count: restarting it at 1 after the warm-up would let a
     # single noisy sample replace Q
     d = (1.0 - b) / (1.0 - b ** (k + 1.0))                          # d_k = (1 - b) / (1 - b^(k+1))
-    kz0 = gain[:, 0] * innov0 + gain[:, 1] * innov1
-    term = np.outer(kz0, kz0) + p_new - phi @ p @ phi.T             # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T
     # Q keeps its physical structure: process noise enters speed and current (theta follows
     # from w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its
     # nominal value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R
     # starts too small (R0 = 0 here) and R is then never learned.
     mask = int(fp[F_ADAPTIVE])
-    qn = np.zeros(9)
-    qn[4] = s[QN0 + 4]
+    if not mask & ADAPT_Q:
+        return nis
     band = fp[F_BAND]
     clamped = False
     for i in (0, 2):
-        v = (1.0 - d) * q_mat[i, i] + d * term[i, i]
+        kz = gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
+        term = kz * kz + p_new[4 * i] - phi_p_phi[4 * i]            # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T
+        v = (1.0 - d) * s[Q0 + 4 * i] + d * term
         nominal = s[QN0 + 4 * i]
         lo, hi = nominal / band, nominal * band
         if not v > 0.0:
@@ -222,11 +265,13 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load):
         elif v > hi:
             v = hi
             clamped = True
-        qn[4 * i] = v
+        s[Q0 + 4 * i] = v
+    for i in range(9):
+        if i not in (0, 4, 8):
+            s[Q0 + i] = 0.0
+    s[Q0 + 4] = s[QN0 + 4]
     if clamped:
         guards[GUARD_Q_BAND] += 1
-    if mask & ADAPT_Q:
-        s[Q0:Q0 + 9] = qn
     return nis
 
 
@@ -249,6 +294,7 @@ def predict_next_s(s, accel_per_amp, decel_load):
 @njit(cache=True)
 def run_batch(s, fp, guards, t_edges, current, speed_tab, kt_tab, m_tab, out_pred_t, out_w):
     """Filter a whole sequence of corrected edge times; out_pred_t[k] predicts edge k + 1."""
+    wk = np.empty(N_WORK)
     pp = fp[F_POLE_PAIRS]
     j_inertia = fp[F_J]
     n = t_edges.size
@@ -267,7 +313,7 @@ def run_batch(s, fp, guards, t_edges, current, speed_tab, kt_tab, m_tab, out_pre
             a = pp * np.interp(n_rpm, speed_tab, kt_tab) / j_inertia
             w_m = w_prev / pp
             dl = pp * np.interp(n_rpm, speed_tab, m_tab) * w_m * w_m / j_inertia
-            step(s, fp, guards, math.pi / 3.0, current[k], dt, a, dl)
+            step(s, fp, guards, math.pi / 3.0, current[k], dt, a, dl, wk)
             w_now = s[X0]
         n_rpm = w_now / pp * 60.0 / (2.0 * math.pi)
         w_m = w_now / pp

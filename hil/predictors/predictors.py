@@ -85,6 +85,7 @@ class _KalmanCore:
         s = self.settings
         self.state = F.new_state(np.diag(s.q0_diag), s.r0_diag, s.p0_diag)
         self.guard_counts = np.zeros(F.N_GUARDS, dtype=np.int64)
+        self._work = np.empty(F.N_WORK)
         self._last_t: float | None = None
 
     # --- views for the caller (read-backs a controller would expose) --------------------------
@@ -130,7 +131,7 @@ class _KalmanCore:
             self.state[F.INITIALISED] = 1.0
         else:
             a, dl = self._coefficients(float(self.state[F.X0]))
-            F.step(self.state, self.fp, self.guard_counts, SECTOR_RAD, mean_current_a, dt, a, dl)
+            F.step(self.state, self.fp, self.guard_counts, SECTOR_RAD, mean_current_a, dt, a, dl, self._work)
         a, dl = self._coefficients(float(self.state[F.X0]))
         return t_corrected_s + float(F.predict_next_s(self.state, a, dl))
 
