@@ -1,0 +1,338 @@
+"""Diagnose the sim-to-real gap of a recording (design notes section 6, recording-format output).
+
+Where: per-edge residuals against the model, localised per sensor, polarity, pole, operating
+region and mechanical order, gated against the noise floor estimated inside each residual
+cell (segment x sensor x polarity x pole). Which: every candidate effect is scored by the
+chi-square it removes from the cell means (weighted by effective sample sizes corrected for
+autocorrelation), accepted by forward selection with a BIC penalty and a physical-bounds check;
+pairs that explain the same pattern equally are reported as confounded with the knob that
+separates them; a significant remainder is "unexplained". How far: the accepted effects are
+fitted on all but one operating point and the gap is measured on the one held out, in turn.
+
+The gap metric is the RMS over edges of the systematic residual (the cell means), in degrees
+electrical: per-edge noise cannot be removed by any model and would cap the shrink.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+
+from hil.recording import Recording
+
+from .candidates import CANDIDATES, NO_EDGE_SIGNATURE
+from .residuals import EdgeResiduals, residuals
+
+ALPHA = 1e-3          # significance of a gap against the noise floor
+BIC_MIN = 10.0        # minimum BIC improvement for an effect to earn its place
+CONFOUND_RATIO = 0.9  # a rival explaining >= 90 % as much, with near-collinear columns, is confounded
+
+
+@dataclass
+class Cells:
+    mean: np.ndarray
+    n: np.ndarray
+    n_eff: np.ndarray
+    var: np.ndarray       #: noise variance of one edge in the cell's segment
+    features: dict
+    edge_cell: np.ndarray
+
+    @property
+    def weight(self) -> np.ndarray:
+        return self.n_eff / self.var
+
+
+def build_cells(r: EdgeResiduals) -> Cells:
+    cid = r.cell_index()
+    uniq, inv = np.unique(cid, return_inverse=True)
+    n = np.bincount(inv).astype(float)
+    s1 = np.bincount(inv, r.residual_deg_e)
+    mean = s1 / n
+    dev = r.residual_deg_e - mean[inv]
+    # lag-1 autocorrelation of the deviations, cell by cell in turn order (edges are in time order)
+    order = np.lexsort((np.arange(len(r)), inv))
+    d_sorted, c_sorted = dev[order], inv[order]
+    same = c_sorted[1:] == c_sorted[:-1]
+    num = np.bincount(c_sorted[1:][same], d_sorted[1:][same] * d_sorted[:-1][same], minlength=uniq.size)
+    den = np.bincount(inv, dev * dev, minlength=uniq.size)
+    rho = np.clip(np.divide(num, den, out=np.zeros_like(num), where=den > 0), -0.9, 0.95)
+    # pooled noise variance per segment (the noise floor), from within-cell scatter
+    seg_of_cell = np.zeros(uniq.size, dtype=np.int64)
+    seg_of_cell[inv] = r.segment
+    var_cell = den / np.maximum(n - 1, 1)
+    var = np.empty(uniq.size)
+    for s in np.unique(seg_of_cell):
+        sel = seg_of_cell == s
+        var[sel] = max(np.sum(var_cell[sel] * (n[sel] - 1)) / max(np.sum(n[sel] - 1), 1), 1e-12)
+    rho_seg = np.empty(uniq.size)
+    for s in np.unique(seg_of_cell):
+        sel = seg_of_cell == s
+        rho_seg[sel] = np.sum(num[sel]) / max(np.sum(den[sel]), 1e-300)
+    rho_seg = np.clip(rho_seg, -0.9, 0.95)
+    n_eff = n * (1 - rho_seg) / (1 + rho_seg)
+    first = np.zeros(uniq.size, dtype=np.int64)
+    first[inv[::-1]] = np.arange(len(r))[::-1]
+    feats = {
+        "sensor": r.sensor[first], "rising": r.rising[first], "pole": r.pole[first], "direction": r.direction[first].astype(float),
+        "w_e": r.w_e_deg_s[first], "current": r.current_a[first], "load": r.load_scale[first], "segment": r.segment[first],
+        "pole_pairs": r.pole_pairs,
+    }
+    return Cells(mean, n, np.maximum(n_eff, 1.0), var, feats, inv)
+
+
+def _wls(x: np.ndarray, y: np.ndarray, w: np.ndarray):
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)
+    resid = y - x @ coef
+    chi2 = float(np.sum(w * resid * resid))
+    cov = np.linalg.pinv((x * w[:, None]).T @ x)
+    return coef, np.sqrt(np.maximum(np.diag(cov), 0)), chi2
+
+
+def _design(names, cells):
+    if not names:
+        return np.zeros((cells.mean.size, 0))
+    return np.column_stack([CANDIDATES[n].columns(cells.features) for n in names])
+
+
+def _remove_collinear(x: np.ndarray) -> np.ndarray:
+    """Columns of x reduced to an independent set (QR with pivoting)."""
+    if x.shape[1] == 0:
+        return x
+    from scipy.linalg import qr
+
+    _, r, piv = qr(x, mode="economic", pivoting=True)
+    tol = abs(r[0, 0]) * 1e-9 if r.size else 0
+    rank = int(np.sum(np.abs(np.diag(r)) > tol))
+    return x[:, np.sort(piv[:rank])]
+
+
+@dataclass
+class Diagnosis:
+    significant: bool
+    ranking: list[dict]
+    accepted: list[dict]
+    confounded: list[list[str]]
+    unexplained: bool
+    gap_before: float
+    gap_after_heldout: float | None
+    heldout_shrink: float | None
+    heldout_interval: list[float] | None = None
+    heldout_note: str = ""
+    knobs: dict[str, str] = field(default_factory=dict)
+    localisation: dict = field(default_factory=dict)
+    noise_floor_deg_e: dict = field(default_factory=dict)
+    p_value: float = 1.0
+    reference: str = "encoder"
+    not_assessed: list[str] = field(default_factory=list)
+
+    def to_json(self) -> dict:
+        return {
+            "significant": self.significant, "ranking": self.ranking, "accepted": self.accepted,
+            "confounded": self.confounded, "unexplained": self.unexplained, "gap_before": self.gap_before,
+            "gap_after_heldout": self.gap_after_heldout, "heldout_shrink": self.heldout_shrink,
+            "heldout_interval": self.heldout_interval, "heldout_note": self.heldout_note, "knobs": self.knobs,
+            "gap_metric": "RMS over edges of the systematic edge-angle residual (cell means), deg electrical",
+            "p_value": self.p_value, "reference": self.reference, "noise_floor_deg_e": self.noise_floor_deg_e,
+            "localisation": self.localisation, "not_assessed": self.not_assessed,
+        }
+
+
+def _select(cells: Cells, candidates: list[str]):
+    """Forward selection. Returns (accepted names, ranking rows, chi2 history)."""
+    w, y = cells.weight, cells.mean
+    chi2_0 = float(np.sum(w * y * y))
+    n_cells = y.size
+    accepted: list[str] = []
+    chi2_now = chi2_0
+    first_scores: dict[str, dict] = {}
+    while True:
+        best = None
+        for name in candidates:
+            if name in accepted:
+                continue
+            x_acc = _design(accepted, cells)
+            x_c = CANDIDATES[name].columns(cells.features)
+            x = _remove_collinear(np.column_stack([x_acc, x_c]))
+            k_new = x.shape[1] - _remove_collinear(x_acc).shape[1]
+            if k_new <= 0:
+                continue
+            coef, se, chi2 = _wls(np.column_stack([x_acc, x_c]), y, w)
+            k_c = x_c.shape[1]
+            own, own_se = coef[-k_c:], se[-k_c:]
+            physical = CANDIDATES[name].physical(own, own_se)
+            gain = chi2_now - chi2
+            d_bic = gain - k_new * math.log(n_cells)
+            explained = gain / max(chi2_now - n_cells, 1e-12) if chi2_now > n_cells else 0.0
+            row = {"effect": name, "score": float(max(min(explained, 1.0), 0.0)), "delta_bic": float(d_bic), "physical": physical,
+                   "params": CANDIDATES[name].params(own), "chi2": chi2}
+            if not accepted:
+                first_scores[name] = row
+            if physical and (best is None or d_bic > best["delta_bic"]):
+                best = row
+        if best is None or best["delta_bic"] < BIC_MIN:
+            break
+        accepted.append(best["effect"])
+        chi2_now = best["chi2"]
+        if stats.chi2.sf(chi2_now, max(n_cells - _remove_collinear(_design(accepted, cells)).shape[1], 1)) > ALPHA:
+            break
+    return accepted, first_scores, chi2_0, chi2_now
+
+
+def diagnose(rec: Recording, model_prediction_deg_e: np.ndarray | None = None, candidates: list[str] | None = None) -> Diagnosis:
+    r = residuals(rec, model_prediction_deg_e)
+    if len(r) < 6 * rec.pole_pairs:
+        raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")
+    cells = build_cells(r)
+    names = list(candidates or CANDIDATES)
+    if r.reference == "turn":
+        # relative errors: common shifts and equal lags are invisible without an encoder
+        names = [n for n in names if n not in ("hysteresis", "timer_quantization")]
+    n_cells = cells.mean.size
+    chi2_0 = float(np.sum(cells.weight * cells.mean**2))
+    p0 = float(stats.chi2.sf(chi2_0, n_cells))
+    significant = p0 < ALPHA
+    gap_before = float(np.sqrt(np.sum(cells.n * cells.mean**2) / np.sum(cells.n)))
+    accepted_names, first, _, chi2_end = _select(cells, names) if significant else ([], {}, chi2_0, chi2_0)
+    if not first:
+        for name in names:
+            first[name] = {"effect": name, "score": 0.0, "delta_bic": 0.0, "physical": True, "params": {}}
+    # ranking: accepted first (in order), then by single-effect score
+    rest = sorted((n for n in names if n not in accepted_names), key=lambda n: -first.get(n, {"score": 0})["score"])
+    ranking = [{"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0} for n in accepted_names + rest]
+    # fitted parameters of the accepted set, on all data
+    accepted = []
+    if accepted_names:
+        x = _design(accepted_names, cells)
+        coef, se, _ = _wls(x, cells.mean, cells.weight)
+        col = 0
+        for n in accepted_names:
+            k = CANDIDATES[n].columns(cells.features).shape[1]
+            accepted.append({"effect": n, "params": CANDIDATES[n].params(coef[col:col + k])})
+            col += k
+    dof_end = max(n_cells - _remove_collinear(_design(accepted_names, cells)).shape[1], 1)
+    unexplained = bool(significant and stats.chi2.sf(chi2_end, dof_end) < ALPHA)
+    # confounded: a rival explains nearly as much as an accepted effect on its own, and adding
+    # it after the accepted set earns nothing (the data cannot tell them apart)
+    confounded, knobs = [], {}
+    for n in accepted_names:
+        s_n = first.get(n, {}).get("score", 0.0)
+        for m in names:
+            if m == n or m in accepted_names or s_n <= 0:
+                continue
+            s_m = first.get(m, {}).get("score", 0.0)
+            if s_m >= CONFOUND_RATIO * s_n and first.get(m, {}).get("physical", False):
+                x_acc = _remove_collinear(_design(accepted_names, cells))
+                x_both = _remove_collinear(np.column_stack([x_acc, CANDIDATES[m].columns(cells.features)]))
+                _, _, chi_both = _wls(x_both, cells.mean, cells.weight)
+                if chi2_end - chi_both < BIC_MIN:
+                    pair = sorted([n, m])
+                    if pair not in confounded:
+                        confounded.append(pair)
+                        knobs["/".join(pair)] = _knob(n, m)
+    shrink, after, interval, note = _heldout(cells, accepted_names)
+    return Diagnosis(
+        significant=significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
+        gap_before=gap_before, gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
+        knobs=knobs, localisation=localise(r, cells), p_value=p0, reference=r.reference,
+        noise_floor_deg_e={str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
+                           for s in np.unique(cells.features["segment"])},
+        not_assessed=[f"{n}: no mean edge-angle signature; needs sampled speed/current versus applied voltage" for n in NO_EDGE_SIGNATURE],
+    )
+
+
+def _knob(a: str, b: str) -> str:
+    from .candidates import CANDIDATES as C
+
+    pair = {a, b}
+    if pair == {"conditioning_delay", "armature_reaction"}:
+        return "change the load at a fixed speed (throttle or brake): the delay follows speed, armature reaction follows current"
+    if "hysteresis" in pair and "installation_offset" in pair:
+        return "record both directions: hysteresis lags either way, an installation offset flips with direction"
+    if pair == {"conditioning_delay", "timer_quantization"}:
+        return "vary the capture timer resolution, or compare rising with falling edges"
+    if pair == {"pole_offset", "eccentricity"}:
+        return "more mechanical turns per point: a per-pole pattern that is not a first-order sinusoid is a pole offset"
+    return f"{C[a].fingerprint.get('knob', '-')} / {C[b].fingerprint.get('knob', '-')}"
+
+
+def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0):
+    seg = cells.features["segment"]
+    segments = np.unique(seg)
+    if segments.size < 2:
+        return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
+    if not accepted:
+        return 0.0, None, None, "no effect accepted"
+    x = _design(accepted, cells)
+    pred = np.zeros_like(cells.mean)
+    fitted_ok = np.zeros(cells.mean.size, dtype=bool)
+    for s in segments:
+        test = seg == s
+        train = ~test
+        xt = x[train]
+        keep = np.any(xt != 0, axis=0)
+        if not keep.any():
+            continue
+        coef, _, _ = _wls(xt[:, keep], cells.mean[train], cells.weight[train])
+        # a held-out cell that needs a column never seen in training cannot be predicted
+        if np.any(np.abs(x[test][:, ~keep]).sum(axis=0) > 0):
+            continue
+        pred[test] = x[test][:, keep] @ coef
+        fitted_ok[test] = True
+    if not fitted_ok.any():
+        return None, None, None, "held-out shrink cannot be measured: no operating point can be predicted from the others"
+    n = cells.n * fitted_ok
+
+    def gaps(weights):
+        before = math.sqrt(np.sum(weights * cells.mean**2) / np.sum(weights))
+        after = math.sqrt(np.sum(weights * (cells.mean - pred) ** 2) / np.sum(weights))
+        return before, after
+
+    before, after = gaps(n)
+    rng = np.random.default_rng(seed)
+    boots = []
+    usable = segments[[fitted_ok[seg == s].any() for s in segments]]
+    for _ in range(n_boot):
+        pick = rng.choice(usable, usable.size, replace=True)
+        wts = np.zeros_like(n)
+        for s in pick:
+            wts = wts + n * (seg == s)
+        b, a = gaps(wts)
+        boots.append(1 - a / b if b > 0 else 0.0)
+    shrink = 1 - after / before if before > 0 else 0.0
+    note = f"leave-one-operating-point-out over {usable.size} segments; interval: 5-95 % bootstrap over segments"
+    return float(shrink), float(after), [float(np.percentile(boots, 5)), float(np.percentile(boots, 95))], note
+
+
+def localise(r: EdgeResiduals, cells: Cells) -> dict:
+    out: dict = {}
+    res = r.residual_deg_e
+    out["per_sensor"] = {"ABC"[x]: float(np.mean(res[r.sensor == x])) for x in range(3) if np.any(r.sensor == x)}
+    out["per_polarity"] = {k: float(np.mean(res[r.rising == v])) for k, v in (("rise", 1), ("fall", 0)) if np.any(r.rising == v)}
+    out["per_pole"] = {str(j): float(np.mean(res[r.pole == j])) for j in range(2 * r.pole_pairs) if np.any(r.pole == j)}
+    regions = []
+    for s in np.unique(r.segment):
+        sel = r.segment == s
+        regions.append({"segment": int(s), "speed_rpm": float(r.w_e_deg_s[sel][0] / (6 * r.pole_pairs)), "current_a": float(r.current_a[sel][0]),
+                        "load_scale": float(r.load_scale[sel][0]), "direction": int(r.direction[sel][0]),
+                        "mean_deg_e": float(np.mean(res[sel])), "rms_deg_e": float(np.sqrt(np.mean(res[sel] ** 2)))})
+    out["per_region"] = regions
+    # order spectrum: edges are samples in angle, 6p per mechanical turn; the turn-averaged
+    # pattern's DFT gives mechanical orders 0 .. 3p
+    n = 6 * r.pole_pairs
+    spectra = []
+    for s in np.unique(r.segment):
+        sel = r.segment == s
+        res_s = res[sel]
+        m = (res_s.size // n) * n
+        if m == 0:
+            continue
+        pattern = res_s[:m].reshape(-1, n).mean(axis=0)
+        spectra.append(np.abs(np.fft.rfft(pattern)) / n)
+    if spectra:
+        amp = np.mean(spectra, axis=0)
+        out["order_spectrum"] = {"mechanical_order": list(range(amp.size)), "amplitude_deg_e": [float(v) for v in amp]}
+    return out

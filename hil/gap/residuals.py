@@ -1,0 +1,110 @@
+"""Per-edge residuals of a recording against a model, and the features that localise them.
+
+Edges are samples in rotor angle: each captured edge has a measured angle error (against the
+reference encoder when recorded, otherwise against the same-sensor, same-edge speed over each
+mechanical turn) from which the model's own prediction is subtracted.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from hil.calibration.fit import edge_errors_from_encoder, segment_speed_deg_e_s
+from hil.calibration.steps import wrap180
+from hil.recording import Recording
+from plant_models.hall import SENSOR_POSITION_DEG_E
+
+
+@dataclass
+class EdgeResiduals:
+    """One row per captured edge."""
+
+    residual_deg_e: np.ndarray   #: measured error minus model prediction, + = trails
+    sensor: np.ndarray
+    rising: np.ndarray
+    pole: np.ndarray
+    direction: np.ndarray        #: +1 / -1
+    w_e_deg_s: np.ndarray        #: segment electrical speed
+    current_a: np.ndarray        #: segment mean phase current
+    load_scale: np.ndarray
+    segment: np.ndarray
+    turn: np.ndarray             #: mechanical turn index within the segment
+    reference: str               #: "encoder" or "turn" (relative errors only)
+    pole_pairs: int
+
+    def __len__(self) -> int:
+        return int(self.residual_deg_e.size)
+
+    def take(self, index) -> "EdgeResiduals":
+        return EdgeResiduals(**{k: (v[index] if isinstance(v, np.ndarray) else v) for k, v in self.__dict__.items()})
+
+    def cell_index(self) -> np.ndarray:
+        """Cells whose mean is the systematic part: segment x sensor x polarity x pole."""
+        n_poles = 2 * self.pole_pairs
+        return ((self.segment * 3 + self.sensor) * 2 + self.rising) * n_poles + self.pole
+
+
+def turn_errors(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Without an encoder: each edge's angle within its mechanical turn, from the speed between
+    the same sensor's same edge one turn apart, minus its ideal angle; a common shift per turn
+    (the turn's reference) is removed, so only relative errors remain."""
+    p = rec.pole_pairs
+    n = 6 * p
+    err = np.full(len(rec), np.nan)
+    pole = np.zeros(len(rec), dtype=np.int64)
+    turn = np.zeros(len(rec), dtype=np.int64)
+    for k, seg in enumerate(rec.segments):
+        idx = np.nonzero(rec.segment == k)[0]
+        if idx.size < 2 * n:
+            continue
+        t = rec.t_s[idx]
+        d = seg.direction_sign
+        a_first = np.nonzero((rec.sensor[idx] == 0) & (rec.rising[idx] == (d > 0)))[0]
+        start = a_first[0] if a_first.size else 0
+        theta = np.full(idx.size, np.nan)
+        for j in range(start, idx.size - n):
+            # angle of edge j relative to the turn's start edge, at the turn's mean speed
+            theta[j] = 360.0 * p * (t[j] - t[start + ((j - start) // n) * n]) / (t[start + ((j - start) // n) * n + n] - t[start + ((j - start) // n) * n])
+        seq = np.arange(idx.size) - start
+        ideal = 60.0 * np.mod(seq, n)
+        e = d * wrap180(theta - ideal) if d > 0 else wrap180(theta - ideal)
+        turn_id = np.where(seq >= 0, seq // n, -1)
+        # remove each turn's mean: the reference edge itself is not known to be ideal
+        for tid in np.unique(turn_id[np.isfinite(e)]):
+            sel = (turn_id == tid) & np.isfinite(e)
+            e[sel] -= np.mean(e[sel])
+        err[idx] = e
+        pole[idx] = np.mod(np.round((np.mod(seq, n) * 60.0 + SENSOR_POSITION_DEG_E[0] - SENSOR_POSITION_DEG_E[rec.sensor[idx]]) / 180.0), 2 * p).astype(np.int64)
+        turn[idx] = turn_id
+    return err, pole, turn
+
+
+def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) -> EdgeResiduals:
+    p = rec.pole_pairs
+    if rec.ref_angle_mech_deg is not None:
+        err, pole = edge_errors_from_encoder(rec)
+        reference = "encoder"
+        turn = np.zeros(len(rec), dtype=np.int64)
+        for k in range(len(rec.segments)):
+            idx = np.nonzero(rec.segment == k)[0]
+            turn[idx] = np.arange(idx.size) // (6 * p)
+    else:
+        err, pole, turn = turn_errors(rec)
+        reference = "turn"
+    w = segment_speed_deg_e_s(rec)[rec.segment]
+    if rec.timer_tick_s and reference == "encoder":
+        err = err + w * rec.timer_tick_s / 2.0  # the known timer is part of the model
+    if model_prediction_deg_e is not None:
+        err = err - model_prediction_deg_e
+    seg = rec.segments
+    keep = np.isfinite(err)
+    out = EdgeResiduals(
+        residual_deg_e=err, sensor=rec.sensor.astype(np.int64), rising=rec.rising.astype(np.int64), pole=pole.astype(np.int64),
+        direction=np.array([s.direction_sign for s in seg])[rec.segment], w_e_deg_s=w,
+        current_a=np.array([s.mean_phase_current_a for s in seg])[rec.segment],
+        load_scale=np.array([s.load_scale for s in seg])[rec.segment], segment=rec.segment.astype(np.int64),
+        turn=turn, reference=reference, pole_pairs=p,
+    )
+    return out.take(keep)
