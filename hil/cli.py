@@ -107,6 +107,66 @@ def cmd_table5(args) -> int:
     return 0
 
 
+def cmd_gap_diagnose(args) -> int:
+    from .gap import diagnose
+    from .gap.report import write_html
+
+    rec = read_recording(args.recording)
+    model = PlantConfig.from_toml(args.model) if args.model else None
+    d = diagnose(rec, model)
+    print(f"{args.recording}: gap {d.gap_before:.4f} deg_e (RMS of the systematic edge residual), "
+          f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (p = {d.p_value:.2g})")
+    for i, r in enumerate(d.ranking[:5], 1):
+        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{'   accepted' if any(a['effect'] == r['effect'] for a in d.accepted) else ''}")
+    for a in d.accepted:
+        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
+    for pair in d.confounded:
+        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
+    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
+        lo, hi = d.heldout_interval or (float('nan'), float('nan'))
+        print(f"  held-out: gap {d.gap_after_heldout:.4f} deg_e, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); {d.heldout_note}")
+    else:
+        print(f"  held-out: {d.heldout_note}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(d.to_json(), indent=2) + "\n")
+        print(f"diagnosis written to {args.json}")
+    if args.html:
+        write_html(args.html, str(args.recording), rec, d, model)
+        print(f"report written to {args.html}")
+    return 0
+
+
+def cmd_gap_validate(args) -> int:
+    from .gap.validate import run_validation
+
+    def progress(i, n):
+        if i % 50 == 0 or i == n:
+            print(f"  {i}/{n} recordings diagnosed", file=sys.stderr)
+
+    report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed, progress=progress)
+    for min_snr in (1.0, 3.0):
+        s = report.summary(min_snr)
+        print(f"SNR >= {min_snr:g}: top-1 {s['top1_rate']:.1%}, top-3 {s['top3_rate']:.1%} ({s['single_cases']} single-effect cases); "
+              f"false alarms {s['false_alarm_rate']:.1%} ({s['null_cases']} null); out-of-library unexplained {s['unexplained_rate']:.1%} "
+              f"({s['out_of_library_cases']}); both of two found {s['two_effect_both_found_rate']:.1%} ({s['two_effect_cases']}); "
+              f"parameters within 20 % {s['param_within_20pct_rate']:.1%} (median error {s['median_param_error']:.1%}); "
+              f"median held-out shrink {s['median_heldout_shrink']:.1%}")
+    s = report.summary(3.0)
+    names = sorted(s["confusion"])
+    cols = names + ["none"] + sorted({k for row in s["confusion"].values() for k in row} - set(names) - {"none"})
+    print("confusion matrix at SNR >= 3 (rows: withheld effect, columns: top-1 accepted):")
+    print(" " * 22 + "".join(f"{c[:10]:>11}" for c in cols))
+    for n in names:
+        print(f"{n:<22}" + "".join(f"{s['confusion'][n].get(c, 0):>11}" for c in cols))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps({"summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases}, indent=1) + "\n")
+        print(f"validation written to {args.json}")
+    return 0
+
+
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
@@ -197,6 +257,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, help="evaluation run")
     p.add_argument("--train-seed", type=int, default=1, help="tuning run for the KF and Sage-Husa settings")
     p.set_defaults(func=cmd_table5)
+
+    p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
+    gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
+    q.add_argument("recording")
+    q.add_argument("--model", help="plant TOML with the effects the model already knows (default: nominal motor of meta.json)")
+    q.add_argument("--json")
+    q.add_argument("--html")
+    q.set_defaults(func=cmd_gap_diagnose)
+    q = gs.add_parser("validate", help="inject, withhold, diagnose, score")
+    q.add_argument("--per-effect", type=int, default=60)
+    q.add_argument("--null", type=int, default=100)
+    q.add_argument("--two", type=int, default=60)
+    q.add_argument("--out-of-library", type=int, default=100)
+    q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--json", default="reports/gap-validate.json")
+    q.set_defaults(func=cmd_gap_validate)
 
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")

@@ -58,7 +58,6 @@ def build_cells(r: EdgeResiduals) -> Cells:
     same = c_sorted[1:] == c_sorted[:-1]
     num = np.bincount(c_sorted[1:][same], d_sorted[1:][same] * d_sorted[:-1][same], minlength=uniq.size)
     den = np.bincount(inv, dev * dev, minlength=uniq.size)
-    rho = np.clip(np.divide(num, den, out=np.zeros_like(num), where=den > 0), -0.9, 0.95)
     # pooled noise variance per segment (the noise floor), from within-cell scatter
     seg_of_cell = np.zeros(uniq.size, dtype=np.int64)
     seg_of_cell[inv] = r.segment
@@ -71,7 +70,13 @@ def build_cells(r: EdgeResiduals) -> Cells:
     for s in np.unique(seg_of_cell):
         sel = seg_of_cell == s
         rho_seg[sel] = np.sum(num[sel]) / max(np.sum(den[sel]), 1e-300)
-    rho_seg = np.clip(rho_seg, -0.9, 0.95)
+    # deviations from a cell's own mean carry a lag-1 correlation bias of about -1/n; correct it,
+    # and never let a negative estimate inflate the sample size (stay conservative)
+    n_mean = np.empty(uniq.size)
+    for s in np.unique(seg_of_cell):
+        sel = seg_of_cell == s
+        n_mean[sel] = np.mean(n[sel])
+    rho_seg = np.clip(rho_seg + 1.0 / np.maximum(n_mean - 1.0, 1.0), 0.0, 0.95)
     n_eff = n * (1 - rho_seg) / (1 + rho_seg)
     first = np.zeros(uniq.size, dtype=np.int64)
     first[inv[::-1]] = np.arange(len(r))[::-1]
@@ -182,8 +187,11 @@ def _select(cells: Cells, candidates: list[str]):
     return accepted, first_scores, chi2_0, chi2_now
 
 
-def diagnose(rec: Recording, model_prediction_deg_e: np.ndarray | None = None, candidates: list[str] | None = None) -> Diagnosis:
-    r = residuals(rec, model_prediction_deg_e)
+def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
+    """Diagnose ``rec`` against ``model`` (a PlantConfig; None = the nominal motor, no effects)."""
+    from .residuals import model_prediction
+
+    r = residuals(rec, model_prediction(model, rec) if model is not None else None)
     if len(r) < 6 * rec.pole_pairs:
         raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")
     cells = build_cells(r)

@@ -108,3 +108,22 @@ def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) 
         turn=turn, reference=reference, pole_pairs=p,
     )
     return out.take(keep)
+
+
+def model_prediction(config, rec: Recording) -> np.ndarray:
+    """Per-edge angle error the model itself predicts (its sensor-layer effects), + = trails.
+
+    The timer is taken from meta.json (timer_tick_s), not from the model."""
+    cp = config.compile()
+    if cp.pole_pairs != rec.pole_pairs:
+        raise ValueError(f"model has {cp.pole_pairs} pole pairs, the recording {rec.pole_pairs}")
+    if rec.ref_angle_mech_deg is not None:
+        _, pole = edge_errors_from_encoder(rec)
+    else:
+        _, pole, _ = turn_errors(rec)
+    direction = np.array([s.direction_sign for s in rec.segments])[rec.segment]
+    w = segment_speed_deg_e_s(rec)[rec.segment]
+    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
+    delay = np.where(rec.rising, cp.rise_delay_s, cp.fall_delay_s)
+    return (direction * (cp.sensor_offset_deg_e[rec.sensor] + cp.pole_offset_deg_e[pole]) + cp.hysteresis_deg_e
+            + cp.armature_offset_deg_e(current) + w * delay)
