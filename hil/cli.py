@@ -111,7 +111,15 @@ def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
 
-    rec = read_recording(args.recording)
+    if Path(args.recording).is_dir():
+        rec = read_recording(args.recording)
+    else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
+        from .traces import TraceMapping, read_trace
+
+        if not args.meta:
+            raise ValueError(f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping MAP.toml")
+        mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
+        rec = read_trace(args.recording, mapping, args.meta)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
     print(f"{args.recording}: gap {d.gap_before:.4f} deg_e (RMS of the systematic edge residual), "
@@ -261,8 +269,10 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
-    q.add_argument("recording")
+    q.add_argument("recording", help="hil-recording/1 directory, or a trace file (.mf4, .csv, .parquet) with --meta and --mapping")
     q.add_argument("--model", help="plant TOML with the effects the model already knows (default: nominal motor of meta.json)")
+    q.add_argument("--meta", help="meta.json (motor, segments) for a trace file")
+    q.add_argument("--mapping", help="TOML column mapping for a trace file (docs/gap.md)")
     q.add_argument("--json")
     q.add_argument("--html")
     q.set_defaults(func=cmd_gap_diagnose)

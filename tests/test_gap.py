@@ -118,3 +118,72 @@ def test_validation_meets_the_bars_at_snr_3():
     assert s["unexplained_rate"] >= 0.9
     assert s["param_within_20pct_rate"] >= 0.8
     assert s["median_heldout_shrink"] >= 0.8
+
+
+# --- other trace formats -----------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def delay_case():
+    return make_case(["conditioning_delay"], snr=4.0, seed=3)
+
+
+@pytest.mark.parametrize("ext", ["csv", "parquet", "mf4"])
+def test_trace_formats_give_the_same_diagnosis(tmp_path, delay_case, ext):
+    from hil.traces import TraceMapping, read_trace, write_level_trace, write_meta
+
+    rec, truth = delay_case
+    meta = write_meta(rec, tmp_path / "meta.json")
+    path = write_level_trace(rec, tmp_path / f"trace.{ext}", 500e3)
+    back = read_trace(path, TraceMapping(threshold=2.5, ref_angle_mech_deg="encoder_deg"), meta)
+    assert abs(len(back) - len(rec)) <= 2
+    d = diagnose(back)
+    assert d.accepted[0]["effect"] == "conditioning_delay"
+    assert d.accepted[0]["params"]["rise_delay_s"] == pytest.approx(truth[0].rise_delay_s, rel=0.2)
+
+
+def test_trace_cli_with_mapping_and_errors(tmp_path, delay_case, capsys):
+    from hil.traces import write_level_trace, write_meta
+
+    rec, _ = delay_case
+    meta = write_meta(rec, tmp_path / "meta.json")
+    path = write_level_trace(rec, tmp_path / "t.csv", 200e3, hall_names=("HA", "HB", "HC"), angle_name="ENC", time_name="time_us")
+    # the same trace in microseconds under other names, described by a mapping
+    text = path.read_text().splitlines()
+    rows = [text[0]] + [",".join([repr(float(r.split(",")[0]) * 1e6)] + r.split(",")[1:]) for r in text[1:]]
+    path.write_text("\n".join(rows) + "\n")
+    mapping = tmp_path / "map.toml"
+    mapping.write_text('kind = "levels"\ntime = "time_us"\ntime_scale = 1e-6\nhall = ["HA", "HB", "HC"]\nthreshold = 2.5\nref_angle_mech_deg = "ENC"\n')
+    assert main(["gap", "diagnose", str(path), "--meta", str(meta), "--mapping", str(mapping)]) == 0
+    assert "conditioning_delay" in capsys.readouterr().out
+    mapping.write_text('kind = "levels"\ntime = "time_us"\nhall = ["HA", "HB", "HX"]\n')
+    assert main(["gap", "diagnose", str(path), "--meta", str(meta), "--mapping", str(mapping)]) == 2
+    err = capsys.readouterr().err
+    assert "t.csv" in err and "column HX" in err
+    assert main(["gap", "diagnose", str(path)]) == 2
+    assert "--meta" in capsys.readouterr().err
+
+
+def test_edge_table_mapping(tmp_path, delay_case):
+    import csv
+
+    from hil.traces import TraceMapping, read_trace, write_meta
+
+    rec, _ = delay_case
+    meta = write_meta(rec, tmp_path / "meta.json")
+    path = tmp_path / "edges.csv"
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["stamp", "ch", "pol", "angle"])
+        for t, s, r, a in zip(rec.t_s, rec.sensor, rec.rising, rec.ref_angle_mech_deg):
+            w.writerow([repr(float(t)), s + 1, "R" if r else "F", repr(float(a))])
+    m = TraceMapping(kind="edges", time="stamp", sensor="ch", edge="pol", sensor_values={"A": "1", "B": "2", "C": "3"},
+                     edge_values={"rise": "R", "fall": "F"}, ref_angle_mech_deg="angle")
+    back = read_trace(path, m, meta)
+    np.testing.assert_array_equal(back.sensor, rec.sensor)
+    lines = path.read_text().splitlines()
+    lines[4] = lines[4].replace(",F,", ",X,").replace(",R,", ",X,")
+    path.write_text("\n".join(lines) + "\n")
+    from hil.recording import RecordingError
+
+    with pytest.raises(RecordingError, match=r"edges.csv, line 5, column pol"):
+        read_trace(path, m, meta)
