@@ -8,34 +8,43 @@ import pytest
 from hil.cli import main
 from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
-from hil.gap.validate import _param_error, make_case, run_validation
+from hil.gap.validate import KNOWN_MODEL, _param_error, make_case, run_validation
 from hil.recording import record_kinematic, write_recording
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint
 
 
-@pytest.mark.parametrize("name", sorted(CANDIDATES))
+@pytest.mark.parametrize("name", sorted(CANDIDATES) + ["edge_jitter"])
 def test_withheld_effect_is_found_fitted_and_shrinks_the_gap(name):
     rec, truth = make_case([name], snr=3.0, seed=101)
-    d = diagnose(rec)
+    d = diagnose(rec, KNOWN_MODEL)  # the model knows the bench's base jitter, not the withheld effect
     assert d.significant
     assert d.accepted[0]["effect"] == name, d.ranking[:3]
     assert _param_error(truth[0], d.accepted[0]) < 0.2
-    assert d.heldout_shrink >= 0.8
+    shrink = d.noise_gap["heldout_shrink"] if name == "edge_jitter" else d.heldout_shrink
+    assert shrink >= 0.8
     assert not d.unexplained
+
+
+def test_a_model_without_noise_sees_the_bench_jitter():
+    rec, _ = make_case([], snr=1.0, seed=4)
+    d = diagnose(rec)  # nominal motor: no jitter at all
+    assert d.significant and d.noise_gap["significant"] and not d.heldout_shrink
+    jitter = next(a for a in d.accepted if a["effect"] == "edge_jitter")
+    assert jitter["params"]["time_rms_s"] == pytest.approx(1e-6, rel=0.1)
 
 
 def test_null_recording_is_not_significant():
     for seed in range(5):
         rec, _ = make_case([], snr=1.0, seed=seed)
-        assert not diagnose(rec).significant
+        assert not diagnose(rec, KNOWN_MODEL).significant
 
 
 @pytest.mark.parametrize("kind", ["sensor_delay", "speed_squared"])
 def test_out_of_library_effect_is_called_unexplained(kind):
     rec, _ = make_case([], snr=3.0, seed=7, ool=kind)
-    d = diagnose(rec)
+    d = diagnose(rec, KNOWN_MODEL)
     assert d.significant and d.unexplained
 
 
@@ -47,7 +56,7 @@ def test_model_that_knows_the_effect_leaves_no_gap():
 
     rec = record_kinematic(config, profile(config), seed=3)
     assert diagnose(rec).significant  # the nominal model does not know the delay
-    assert not diagnose(rec, model=paper_bench().with_effects(eff)).significant
+    assert not diagnose(rec, model=KNOWN_MODEL.with_effects(eff)).significant
 
 
 def test_confounded_pair_is_named_with_its_knob():

@@ -67,6 +67,7 @@ CANDIDATES: dict[str, Candidate] = {
     "timer_quantization": Candidate("timer_quantization", _quantization, lambda k: {"tick_s": float(k[0])}, _not_below(0.0)),
 }
 
-#: library effects with no mean edge-angle signature (design notes section 6); they need the
-#: sampled signals (speed or current versus applied voltage), which this version does not model
+#: library effects with no mean edge-angle signature (design notes section 6). edge_jitter is
+#: diagnosed as a variance effect (diagnose._noise_gap); the others need the sampled signals
+#: (speed or current versus applied voltage), which this version does not model yet
 NO_EDGE_SIGNATURE = ("edge_jitter", "cogging_torque", "winding_temperature", "magnet_temperature", "dead_time", "saturation")

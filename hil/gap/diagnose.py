@@ -39,6 +39,7 @@ class Cells:
     var: np.ndarray       #: noise variance of one edge in the cell's segment
     features: dict
     edge_cell: np.ndarray
+    dof: np.ndarray       #: degrees of freedom of the segment's pooled noise variance
 
     @property
     def weight(self) -> np.ndarray:
@@ -85,7 +86,11 @@ def build_cells(r: EdgeResiduals) -> Cells:
         "w_e": r.w_e_deg_s[first], "current": r.current_a[first], "load": r.load_scale[first], "segment": r.segment[first],
         "pole_pairs": r.pole_pairs,
     }
-    return Cells(mean, n, np.maximum(n_eff, 1.0), var, feats, inv)
+    dof = np.zeros(uniq.size)
+    for seg_id in np.unique(seg_of_cell):
+        sel = seg_of_cell == seg_id
+        dof[sel] = max(np.sum(n[sel] - 1), 1)
+    return Cells(mean, n, np.maximum(n_eff, 1.0), var, feats, inv, dof)
 
 
 def _wls(x: np.ndarray, y: np.ndarray, w: np.ndarray):
@@ -133,6 +138,7 @@ class Diagnosis:
     p_value: float = 1.0
     reference: str = "encoder"
     not_assessed: list[str] = field(default_factory=list)
+    noise_gap: dict = field(default_factory=dict)
 
     def to_json(self) -> dict:
         return {
@@ -142,7 +148,7 @@ class Diagnosis:
             "heldout_interval": self.heldout_interval, "heldout_note": self.heldout_note, "knobs": self.knobs,
             "gap_metric": "RMS over edges of the systematic edge-angle residual (cell means), deg electrical",
             "p_value": self.p_value, "reference": self.reference, "noise_floor_deg_e": self.noise_floor_deg_e,
-            "localisation": self.localisation, "not_assessed": self.not_assessed,
+            "localisation": self.localisation, "not_assessed": self.not_assessed, "noise_gap": self.noise_gap,
         }
 
 
@@ -192,10 +198,11 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     from .residuals import model_prediction
 
     r = residuals(rec, model_prediction(model, rec) if model is not None else None)
+    names_all = list(candidates or CANDIDATES)
     if len(r) < 6 * rec.pole_pairs:
         raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")
     cells = build_cells(r)
-    names = list(candidates or CANDIDATES)
+    names = names_all
     if r.reference == "turn":
         # relative errors: common shifts and equal lags are invisible without an encoder
         names = [n for n in names if n not in ("hysteresis", "timer_quantization")]
@@ -242,14 +249,78 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
                         confounded.append(pair)
                         knobs["/".join(pair)] = _knob(n, m)
     shrink, after, interval, note = _heldout(cells, accepted_names)
+    # the noise: edge jitter is a variance effect; accepted quantisation adds its own variance
+    tick_fit = next((a["params"]["tick_s"] for a in accepted if a["effect"] == "timer_quantization"), 0.0)
+    expected = expected_noise_var(cells.features["w_e"], model, rec.timer_tick_s, tick_fit)
+    p_noise, jitter_params, jitter_score, noise_before, noise_after, noise_shrink = _noise_gap(cells, expected)
+    noise_significant = p_noise < ALPHA
+    jitter_row = {"effect": "edge_jitter", "score": round(jitter_score if noise_significant else 0.0, 4)}
+    if noise_significant:
+        accepted.append({"effect": "edge_jitter", "params": jitter_params})
+        ranking.insert(len(accepted_names), jitter_row)
+    else:
+        ranking.append(jitter_row)
+    if not significant and noise_significant and shrink is None and noise_shrink is not None:
+        note = "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
     return Diagnosis(
-        significant=significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
+        significant=significant or noise_significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
         gap_before=gap_before, gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
+        noise_gap={"p_value": p_noise, "significant": noise_significant, "before_deg_e": noise_before,
+                   "after_heldout_deg_e": noise_after, "heldout_shrink": noise_shrink},
         knobs=knobs, localisation=localise(r, cells), p_value=p0, reference=r.reference,
         noise_floor_deg_e={str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
                            for s in np.unique(cells.features["segment"])},
-        not_assessed=[f"{n}: no mean edge-angle signature; needs sampled speed/current versus applied voltage" for n in NO_EDGE_SIGNATURE],
+        not_assessed=[f"{n}: no edge-angle signature; needs sampled speed/current versus applied voltage" for n in NO_EDGE_SIGNATURE if n != "edge_jitter"],
     )
+
+
+def expected_noise_var(w_e: np.ndarray, model, tick_s: float | None, extra_tick_s: float = 0.0) -> np.ndarray:
+    """Per-edge noise variance (deg_e^2) the model expects: its own edge jitter, plus the capture
+    timer (floor quantisation: tick^2 / 12 in time)."""
+    var = np.zeros_like(w_e, dtype=float)
+    if model is not None:
+        cp = model.compile()
+        var = var + (w_e * cp.jitter_time_rms_s) ** 2 + cp.jitter_angle_rms_deg_e**2
+    tick2 = (tick_s or 0.0) ** 2 + extra_tick_s**2
+    return var + (w_e**2) * tick2 / 12.0
+
+
+def _noise_gap(cells: Cells, expected: np.ndarray):
+    """Per-segment measured and expected noise; chi-square test of the excess; jitter fit with
+    leave-one-segment-out shrink of the noise gap (RMS over segments of measured minus
+    expected noise RMS, deg_e)."""
+    seg = cells.features["segment"]
+    segs = np.unique(seg)
+    first = np.array([np.nonzero(seg == s)[0][0] for s in segs])
+    var_m, var_e, dof = cells.var[first], expected[first], cells.dof[first]
+    w = cells.features["w_e"][first]
+    n_edges = np.array([cells.n[seg == s].sum() for s in segs])
+    # pooled test: sum of dof * measured / expected is chi-square with sum(dof) under the model
+    with np.errstate(divide="ignore"):
+        stat = float(np.sum(dof * var_m / np.maximum(var_e, 1e-300)))
+    p = float(stats.chi2.sf(stat, np.sum(dof))) if np.all(var_e > 0) else 0.0
+    excess = var_m - var_e
+
+    def fit(idx):
+        a = np.column_stack([w[idx] ** 2, np.ones(idx.size)])
+        coef, _ = __import__("scipy.optimize", fromlist=["nnls"]).nnls(a * np.sqrt(n_edges[idx])[:, None], excess[idx] * np.sqrt(n_edges[idx]))
+        return coef
+
+    coef = fit(np.arange(segs.size))
+    # the noise gap is the difference in noise RMS (deg_e) between recording and model
+    sd_m, sd_e = np.sqrt(var_m), np.sqrt(np.maximum(var_e, 0.0))
+    before = float(np.sqrt(np.sum(n_edges * (sd_m - sd_e) ** 2) / np.sum(n_edges)))
+    after = shrink = None
+    if segs.size >= 2:
+        resid = np.empty(segs.size)
+        for i in range(segs.size):
+            c = fit(np.delete(np.arange(segs.size), i))
+            resid[i] = sd_m[i] - math.sqrt(max(var_e[i] + c[0] * w[i] ** 2 + c[1], 0.0))
+        after = float(np.sqrt(np.sum(n_edges * resid**2) / np.sum(n_edges)))
+        shrink = 1 - after / before if before > 0 else 0.0
+    explained = 1 - float(np.sum(n_edges * (excess - (coef[0] * w**2 + coef[1])) ** 2)) / max(float(np.sum(n_edges * excess**2)), 1e-300)
+    params = {"time_rms_s": float(np.sqrt(coef[0])), "angle_rms_deg_e": float(np.sqrt(coef[1]))}
+    return p, params, max(min(explained, 1.0), 0.0), before, after, shrink
 
 
 def _knob(a: str, b: str) -> str:

@@ -77,7 +77,7 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     ax.set_ylabel("mean phase current [A]")
     ax.set_title("operating regions (red edge: reverse)", fontsize=9)
     out.append(("Operating-region map", _png(fig)))
-    names = [a["effect"] for a in diagnosis.accepted]
+    names = [a["effect"] for a in diagnosis.accepted if a["effect"] != "edge_jitter"]  # the mean effects
     if names:
         x = _design(names, cells)
         coef, _, _ = _wls(x, cells.mean, cells.weight)
