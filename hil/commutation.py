@@ -27,8 +27,9 @@ class SpeedPI:
     ki_per_rpm_s: float = 2e-3
     feedforward: float = 0.0
     integral: float = 0.0
-    #: anti-windup: integrate only while the error is within this fraction of the set point
-    integrate_within: float = 0.02
+    #: anti-windup: integrate only while the error is within this fraction of the set point (wide
+    #: enough for the per-sector speed noise of raw edges, about +-8 % with paper-sized deviations)
+    integrate_within: float = 0.10
 
     def update(self, speed_rpm: float, dt_s: float) -> float:
         error = self.setpoint_rpm - speed_rpm
@@ -60,6 +61,10 @@ class HallCommutation:
     #: current limit enforced on the duty through the motor model: |d V_dc - 2 ke w| <= 2 R I_max
     current_limit_a: float | None = None
     motor: object | None = None
+    #: a commutation predictor (KF or Sage-Husa, ``update(t_corrected, current) -> next instant``);
+    #: None = the pre-calibration rule
+    predictor: object | None = None
+    last_prediction_s: float = float("nan")
     _last_t: float | None = None
     _last_corr_t: float | None = None
     _seen: list[int] = field(default_factory=lambda: [0, 0, 0])
@@ -95,7 +100,9 @@ class HallCommutation:
         span = 2.0 * m.phase_resistance_ohm * self.current_limit_a
         return min(max(duty, (bemf - span) / m.supply_v, 0.0), (bemf + span) / m.supply_v, 1.0)
 
-    def on_edge(self, edge: dict, sim) -> list[Command]:
+    def on_edge(self, edge: dict, sim=None) -> list[Command]:
+        """``edge``: t_capture_s, sensor, rising; now_s (the controller's clock at the interrupt)
+        and current_a (its ADC's mean |i|) when available."""
         t = edge["t_capture_s"]
         x = edge["sensor"]
         rising = edge["rising"]
@@ -126,7 +133,7 @@ class HallCommutation:
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
                 speed_rpm = w_e / (6.0 * self.pole_pairs)
-                current = sim.measured_mean_abs_current_a() if self.use_measured_current else self.current_estimate_a
+                current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
                 t_corr = t - float(self.corrections.correction_deg_e(x, rising, pole, speed_rpm, current)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None
@@ -134,7 +141,7 @@ class HallCommutation:
             speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
             self.speed_estimates_rpm.append((t, speed_rpm))
             duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)
-        now = sim.t_s
+        now = edge.get("now_s", t)
         if self.corrections is None or self._pole_shift is None or self._last_corr_t is None:
             commands.append(Command(at_s=now, sector=sector, duty=duty))
         else:
@@ -143,9 +150,15 @@ class HallCommutation:
                 commands.append(Command(at_s=now, sector=sector, duty=duty))
             elif duty is not None:
                 commands.append(Command(at_s=now, duty=duty))
-            w_e = 60.0 / max(t_corr - self._last_corr_t, 1e-9)
             nxt = (sector + 1) % 6
-            at = max(t_corr + 60.0 / w_e, now)
+            predicted = self.predictor.update(t_corr, edge.get("current_a", self.current_estimate_a)) if self.predictor is not None else None
+            if predicted is not None and math.isfinite(predicted):
+                self.last_prediction_s = predicted
+            else:  # pre-calibration: 60 deg electrical after the corrected edge, at the last cycle's speed
+                w_e = 60.0 / max(t_corr - self._last_corr_t, 1e-9)
+                predicted = t_corr + 60.0 / w_e
+                self.last_prediction_s = predicted
+            at = max(predicted, now)
             self._scheduled = {nxt: at}
             commands.append(Command(at_s=at, sector=nxt))
         self._last_t, self._last_corr_t = t, t_corr

@@ -270,7 +270,8 @@ class Simulation:
                 return
             if reason == K.STOP_EDGE:
                 n = int(self.ist[K.I_N_EDGES])
-                edge = dict(zip(("t_capture_s", "sensor", "rising"), (self._edges[n - 1, K.E_T_CAPTURE], int(self._edges[n - 1, K.E_SENSOR]), bool(self._edges[n - 1, K.E_RISING]))))
+                edge = {"t_capture_s": float(self._edges[n - 1, K.E_T_CAPTURE]), "sensor": int(self._edges[n - 1, K.E_SENSOR]),
+                        "rising": bool(self._edges[n - 1, K.E_RISING]), "now_s": self.t_s, "current_a": self.measured_mean_abs_current_a()}
                 if n >= self._edges.shape[0]:
                     self._flush()
                 for cmd in self.source.on_edge(edge, self) or ():
