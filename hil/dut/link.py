@@ -1,0 +1,79 @@
+"""One controller interface for the framework; the acceptance suite never knows which one it has."""
+
+from __future__ import annotations
+
+import math
+from typing import Protocol
+
+from plant_models.simulation import Command
+
+from ..calibration.corrections import Corrections
+from .virtual import CalibrationTableError, VirtualController
+
+
+class LinkError(RuntimeError):
+    """The controller misbehaved or refused a request; the message says what and where."""
+
+
+class LinkTimeout(LinkError):
+    """The controller did not answer within the link's timeout."""
+
+
+class ControllerLink(Protocol):
+    name: str
+
+    def identity(self) -> dict: ...
+    def download_calibration(self, corrections: Corrections) -> None: ...
+    def set_strategy(self, strategy: int) -> None: ...
+    def set_speed(self, rpm: float) -> None: ...
+    def edge(self, edge: dict) -> list[Command]: ...
+    def status(self) -> dict: ...
+    def close(self) -> None: ...
+
+
+def verify_calibration(written: Corrections, read_back: Corrections, tolerance: dict[str, float] | None = None) -> None:
+    """Compare a downloaded table with its read-back (within the link's declared scaling)."""
+    tol = {"deg_e": 1e-9, "s": 1e-15, "deg_e_per_a": 1e-9, **(tolerance or {})}
+    pairs = [(f"installation_offset_deg_e.{s}", written.installation_offset_deg_e[s], read_back.installation_offset_deg_e[s], tol["deg_e"]) for s in "ABC"]
+    pairs += [(f"pole_offset_deg_e[{j}]", a, b, tol["deg_e"]) for j, (a, b) in enumerate(zip(written.pole_offset_deg_e, read_back.pole_offset_deg_e))]
+    pairs += [(f"conditioning_delay_s.{k}", written.conditioning_delay_s[k], read_back.conditioning_delay_s[k], tol["s"]) for k in ("rise", "fall")]
+    pairs.append(("armature_reaction_deg_e_per_a", written.armature_reaction_deg_e_per_a, read_back.armature_reaction_deg_e_per_a, tol["deg_e_per_a"]))
+    for name, a, b, t in pairs:
+        if not (math.isfinite(b) and abs(a - b) <= t):
+            raise LinkError(f"calibration read-back mismatch at {name}: wrote {a!r}, read {b!r} (tolerance {t})")
+
+
+class InProcessLink:
+    """The virtual controller called directly (no protocol): the reference for the other links."""
+
+    name = "in-process"
+
+    def __init__(self, controller: VirtualController):
+        self.controller = controller
+
+    def identity(self) -> dict:
+        i = self.controller.identity
+        return {"vendor_id": i.vendor_id, "product_code": i.product_code, "revision": i.revision, "serial": i.serial,
+                "device_type": i.device_type, "firmware": i.firmware}
+
+    def download_calibration(self, corrections: Corrections) -> None:
+        try:
+            self.controller.download_calibration(corrections)
+        except CalibrationTableError as exc:
+            raise LinkError(f"{self.name}: controller refused the calibration table: {exc}") from None
+        verify_calibration(corrections, self.controller.corrections)
+
+    def set_strategy(self, strategy: int) -> None:
+        self.controller.set_strategy(strategy)
+
+    def set_speed(self, rpm: float) -> None:
+        self.controller.set_speed(rpm)
+
+    def edge(self, edge: dict) -> list[Command]:
+        return self.controller.capture(edge)
+
+    def status(self) -> dict:
+        return self.controller.status()
+
+    def close(self) -> None:
+        pass

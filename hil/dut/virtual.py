@@ -1,0 +1,210 @@
+"""The virtual controller: the reference device under test, firmware-like and deterministic.
+
+It captures Hall edges (time stamp from its capture timer, phase current from its ADC), applies
+the downloaded correction tables, predicts commutation with the selected strategy, closes a PI
+speed loop on the duty with a current limit, and raises faults the way a CiA 301 device
+reports them (error code, error register, a history of codes). The protocol faces (CANopen,
+Modbus) and the in-process link all drive this one object.
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from plant_models import MotorParameters
+from plant_models.hall import SECTOR_OF_CODE
+from plant_models.plant import steady_state
+from plant_models.simulation import Command
+
+from ..calibration.corrections import SENSORS, Corrections
+from ..commutation import HallCommutation, SpeedPI
+from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
+
+
+class Strategy(enum.IntEnum):
+    RAW = 0
+    CORRECTED = 1
+    KF = 2
+    SAGE_HUSA = 3
+
+
+class Fault(enum.IntEnum):
+    """EMCY error codes (CiA 301: 0xFF00-0xFFFF manufacturer specific)."""
+
+    ILLEGAL_HALL_CODE = 0xFF01
+    MISSING_EDGE = 0xFF02
+    FILTER_GUARD_TRIP = 0xFF03
+    INVALID_CALIBRATION = 0xFF04
+
+
+class CalibrationTableError(ValueError):
+    """A downloaded table is refused; ``field`` names the entry."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+@dataclass(frozen=True)
+class Identity:
+    vendor_id: int = 0x00000B1D
+    product_code: int = 0x00480001
+    revision: int = 0x00010000
+    serial: int = 0x00000001
+    device_type: int = 0x00000192  # CiA 402-like drive profile number, informative
+    firmware: str = "vc-0.1.0"
+
+
+def validate_corrections(c: Corrections, pole_pairs: int) -> None:
+    """Refuse a calibration table that is not finite, out of the library's bounds or the wrong size."""
+    for s in SENSORS:
+        v = c.installation_offset_deg_e.get(s)
+        if v is None or not math.isfinite(v) or abs(v) > 30.0:
+            raise CalibrationTableError(f"installation_offset_deg_e.{s}", f"must be finite and within +-30 deg_e, got {v!r}")
+    if len(c.pole_offset_deg_e) != 2 * pole_pairs:
+        raise CalibrationTableError("pole_offset_deg_e", f"needs {2 * pole_pairs} entries, got {len(c.pole_offset_deg_e)}")
+    for j, v in enumerate(c.pole_offset_deg_e):
+        if not math.isfinite(v) or abs(v) > 10.0:
+            raise CalibrationTableError(f"pole_offset_deg_e[{j}]", f"must be finite and within +-10 deg_e, got {v!r}")
+    for k in ("rise", "fall"):
+        v = c.conditioning_delay_s.get(k)
+        if v is None or not math.isfinite(v) or not 0.0 <= v <= 100e-6:
+            raise CalibrationTableError(f"conditioning_delay_s.{k}", f"must be within [0, 100e-6] s, got {v!r}")
+    v = c.armature_reaction_deg_e_per_a
+    if not math.isfinite(v) or abs(v) > 5.0:
+        raise CalibrationTableError("armature_reaction_deg_e_per_a", f"must be finite and within +-5 deg_e/A, got {v!r}")
+
+
+@dataclass
+class VirtualController:
+    motor: MotorParameters
+    identity: Identity = field(default_factory=Identity)
+    strategy: Strategy = Strategy.SAGE_HUSA
+    speed_setpoint_rpm: float = 5000.0
+    corrections: Corrections | None = None
+    #: Sage-Husa settings (paper initial values; nominal Q0, b and band as tuned in docs/sage-husa.md)
+    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), adapt_mask=7, forgetting_b=0.995, q_band_factor=10.0))
+    #: the fixed-noise Kalman strategy's Q and R (the tuned baseline of docs/sage-husa.md)
+    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), r0_diag=(1e-3, 1.0)))
+    model: MotorModel | None = None
+    current_limit_a: float = 15.0
+    #: the pump turns one way: a Hall step against it means edges were lost
+    direction: int = 1
+    #: an edge interval longer than this multiple of the previous one means an edge was lost
+    missing_edge_interval_ratio: float = 1.8
+    kp_per_rpm: float = 1e-4
+    ki_per_rpm_s: float = 2e-3
+
+    def __post_init__(self):
+        self.faults: list[tuple[float, int]] = []
+        self.error_register = 0
+        self._fault_listeners = []
+        self.reset()
+
+    # --- configuration (what SDO writes or holding registers set) ---------------------------
+    def download_calibration(self, corrections: Corrections) -> None:
+        try:
+            validate_corrections(corrections, self.motor.pole_pairs)
+        except CalibrationTableError:
+            self.raise_fault(Fault.INVALID_CALIBRATION, 0.0)
+            raise
+        self.corrections = corrections
+        self.reset()
+
+    def set_strategy(self, strategy: int) -> None:
+        self.strategy = Strategy(int(strategy))
+        self.reset()
+
+    def set_speed(self, rpm: float) -> None:
+        if not math.isfinite(rpm) or not 0.0 <= rpm <= 30000.0:
+            raise ValueError(f"speed set point must be within [0, 30000] rpm, got {rpm!r}")
+        self.speed_setpoint_rpm = float(rpm)
+        self._logic.speed.setpoint_rpm = float(rpm)
+        self._logic.speed.feedforward = steady_state(self.motor, rpm)["duty"]
+
+    def reset(self) -> None:
+        """(Re)start the control logic with the present configuration (NMT reset application)."""
+        predictor = None
+        model = self.model or MotorModel.from_plant(self.motor)
+        if self.strategy is Strategy.KF:
+            predictor = KalmanPredictor(model, self.kf_settings)
+        elif self.strategy is Strategy.SAGE_HUSA:
+            predictor = SageHusaPredictor(model, self.filter_settings)
+        corrections = None if self.strategy is Strategy.RAW else (self.corrections or Corrections(pole_offset_deg_e=[0.0] * 2 * self.motor.pole_pairs))
+        pi = SpeedPI(self.speed_setpoint_rpm, kp_per_rpm=self.kp_per_rpm, ki_per_rpm_s=self.ki_per_rpm_s,
+                     feedforward=steady_state(self.motor, self.speed_setpoint_rpm)["duty"])
+        self._logic = HallCommutation(self.motor.pole_pairs, pi, corrections, current_limit_a=self.current_limit_a, motor=self.motor,
+                                      predictor=predictor)
+        self._predictor = predictor
+        self._guards_seen = 0
+        self._sector = None
+        self._sensors_seen: set[int] = set()
+        self._last_t: float | None = None
+        self._last_dt: float | None = None
+
+    # --- run time -------------------------------------------------------------------------------
+    def raise_fault(self, code: int, t_s: float) -> None:
+        """Latch a fault: reported (EMCY) once per code until the faults are cleared."""
+        if any(c == int(code) for _, c in self.faults):
+            return
+        self.faults.append((t_s, int(code)))
+        self.error_register |= 0x01 | 0x80  # generic + manufacturer specific
+        for listener in self._fault_listeners:
+            listener(int(code), t_s)
+
+    def on_fault(self, listener) -> None:
+        self._fault_listeners.append(listener)
+
+    def clear_faults(self) -> None:
+        self.faults.clear()
+        self.error_register = 0
+
+    def capture(self, edge: dict) -> list[Command]:
+        """A captured edge: t_capture_s, sensor (0..2), rising; now_s, current_a. Returns commands."""
+        t = float(edge["t_capture_s"])
+        bits = list(self._logic._seen)
+        bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
+        code = bits[0] * 4 + bits[1] * 2 + bits[2]
+        sector = int(SECTOR_OF_CODE[code])
+        self._sensors_seen.add(int(edge["sensor"]))
+        if len(self._sensors_seen) == 3:  # the Hall state is known once every sensor has switched
+            if sector < 0:
+                self.raise_fault(Fault.ILLEGAL_HALL_CODE, t)
+            elif self._sector is not None and (sector - self._sector) % 6 != (1 if self.direction > 0 else 5):
+                self.raise_fault(Fault.MISSING_EDGE, t)  # a step against the direction of rotation
+            self._sector = sector if sector >= 0 else self._sector
+        if self._last_t is not None:
+            dt = t - self._last_t
+            if self._last_dt is not None and dt > self.missing_edge_interval_ratio * self._last_dt:
+                self.raise_fault(Fault.MISSING_EDGE, t)  # an interval of two or more sectors
+            self._last_dt = dt
+        self._last_t = t
+        commands = self._logic.on_edge(edge)
+        if self._predictor is not None:
+            trips = sum(self._predictor.guards.values()) - self._predictor.guards.get("innovation_gate", 0)
+            if trips > self._guards_seen:
+                self._guards_seen = trips
+                self.raise_fault(Fault.FILTER_GUARD_TRIP, t)
+        return commands
+
+    # --- read-backs -------------------------------------------------------------------------------
+    def status(self) -> dict:
+        p = self._predictor
+        # without a filter: the mean over the last mechanical turn, where edge deviations cancel
+        turn = [v for _, v in self._logic.speed_estimates_rpm[-6 * self.motor.pole_pairs:]]
+        est = len(turn) / sum(1.0 / v for v in turn) if turn else float("nan")
+        return {
+            "strategy": int(self.strategy),
+            "speed_setpoint_rpm": self.speed_setpoint_rpm,
+            "estimated_speed_rpm": float(p.speed_rad_s / (2 * math.pi) * 60 / self.motor.pole_pairs) if p is not None and p.state[0] else float(est),
+            "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
+            "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
+            "guard_trips": int(sum(p.guards.values())) if p is not None else 0,
+            "last_predicted_commutation_s": float(self._logic.last_prediction_s),
+            "error_register": self.error_register,
+            "faults": list(self.faults),
+        }

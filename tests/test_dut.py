@@ -1,0 +1,126 @@
+"""The virtual controller and the in-process link through the lockstep bench (ground truth scoring)."""
+
+import math
+
+import numpy as np
+import pytest
+
+from hil.bench import LockstepBench
+from hil.calibration import Corrections, fit_corrections
+from hil.calibration.campaign import CalibrationCampaign
+from hil.commutation import HallCommutation, SpeedPI
+from hil.dut import Fault, InProcessLink, LinkError, Strategy, VirtualController
+from plant_models import Simulation, paper_bench
+from plant_models import effects as fx
+from plant_models.plant import steady_state
+
+CONFIG = paper_bench(with_deviations=True)
+
+
+@pytest.fixture(scope="module")
+def corrections():
+    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+
+
+def bench(strategy, corrections, speed=6000.0):
+    vc = VirtualController(CONFIG.motor, strategy=strategy, speed_setpoint_rpm=speed)
+    link = InProcessLink(vc)
+    link.download_calibration(corrections)
+    b = LockstepBench(CONFIG, link, initial_speed_rpm=speed, duty=steady_state(CONFIG.motor, speed)["duty"])
+    return b, link, vc
+
+
+def test_in_process_bench_equals_the_controller_logic_called_directly(corrections):
+    """The link and bench add nothing: same commutations, bit for bit, as the logic on its own."""
+    b, link, _ = bench(Strategy.CORRECTED, corrections)
+    b.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
+    direct = HallCommutation(2, SpeedPI(6000.0, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(CONFIG.motor, 6000.0)["duty"]),
+                             corrections, current_limit_a=15.0, motor=CONFIG.motor)
+    sim = Simulation(CONFIG, direct, duty=steady_state(CONFIG.motor, 6000.0)["duty"], initial_speed_rpm=6000.0, sample_rate_hz=50e3, capacity=1 << 18)
+    sim.run_until(b.sim.t_s)
+    a, c = b.sim.commutations(), sim.commutations()
+    assert len(a) > 400
+    np.testing.assert_array_equal(a.t_s, c.t_s)
+    np.testing.assert_array_equal(a.sector, c.sector)
+
+
+@pytest.mark.parametrize("strategy, p99_max", [(Strategy.CORRECTED, 0.5), (Strategy.KF, 0.5), (Strategy.SAGE_HUSA, 0.5), (Strategy.RAW, 99.0)])
+def test_each_strategy_commutates_and_reports(corrections, strategy, p99_max):
+    b, link, vc = bench(strategy, corrections)
+    steps = b.run_setpoints([6000.0, 6500.0], hold_s=0.4, settle_s=0.2)
+    c = b.sim.commutations()
+    steady = (c.t_s > 0.3) & (c.t_s < steps[1])
+    assert np.percentile(np.abs(c.error_deg_e[steady]), 99) <= p99_max  # constant speed
+    step = c.t_s >= steps[1]
+    assert np.percentile(np.abs(c.error_deg_e[step]), 99) <= max(2.0, p99_max)  # a set-point step keeps sync
+    if strategy is Strategy.RAW:
+        assert np.sqrt(np.mean(c.error_deg_e[steady] ** 2)) > 2.0  # the paper-sized deviations are uncorrected
+    st = link.status()
+    assert st["strategy"] == int(strategy)
+    assert abs(st["estimated_speed_rpm"] - b.sim.speed_rpm) < 0.02 * b.sim.speed_rpm
+    assert not any(code in (Fault.MISSING_EDGE, Fault.ILLEGAL_HALL_CODE) for _, code in st["faults"])
+    if strategy in (Strategy.KF, Strategy.SAGE_HUSA):
+        assert len(st["q_diag"]) == 3 and len(st["r_diag"]) == 2 and math.isfinite(st["last_predicted_commutation_s"])
+
+
+def edge(t, sensor, rising):
+    return {"t_capture_s": t, "sensor": sensor, "rising": rising, "now_s": t, "current_a": 1.0}
+
+
+def feed(vc, sequence, t0=0.0, dt=1e-3):
+    for k, (sensor, rising) in enumerate(sequence):
+        vc.capture(edge(t0 + k * dt, sensor, rising))
+
+
+FORWARD = [(0, True), (2, False), (1, True), (0, False), (2, True), (1, False)]
+
+
+def test_illegal_hall_code_and_missing_edge_are_faults():
+    motor = paper_bench().motor
+    vc = VirtualController(motor, strategy=Strategy.RAW)
+    feed(vc, FORWARD * 2)
+    assert vc.faults == [] and vc.error_register == 0
+    # after B falls the code is 001; C falling instead of A rising gives 000
+    feed(vc, [(2, False)], t0=vc._last_t + 1e-3)
+    assert [c for _, c in vc.faults] == [Fault.ILLEGAL_HALL_CODE]
+    assert vc.error_register & 0x01 and vc.error_register & 0x80
+    vc.clear_faults()
+    assert vc.error_register == 0
+    # a step against the direction of rotation: B rises from 001 (sector 5 -> 4)
+    vc2 = VirtualController(motor, strategy=Strategy.RAW)
+    feed(vc2, FORWARD * 2)
+    feed(vc2, [(1, True)], t0=vc2._last_t + 1e-3)
+    assert [c for _, c in vc2.faults] == [Fault.MISSING_EDGE]
+    # a lost edge in timing: the next edge comes after two sector times
+    vc3 = VirtualController(motor, strategy=Strategy.RAW)
+    feed(vc3, FORWARD * 2)
+    feed(vc3, [(0, True)], t0=vc3._last_t + 2.2e-3)
+    assert [c for _, c in vc3.faults] == [Fault.MISSING_EDGE]
+
+
+def test_invalid_calibration_table_is_refused_and_raises_a_fault(corrections):
+    vc = VirtualController(CONFIG.motor)
+    link = InProcessLink(vc)
+    bad = Corrections.from_json_dict(corrections.to_json_dict())
+    bad.pole_offset_deg_e = bad.pole_offset_deg_e[:3]
+    with pytest.raises(LinkError, match="pole_offset_deg_e"):
+        link.download_calibration(bad)
+    assert any(c == Fault.INVALID_CALIBRATION for _, c in vc.faults)
+    nan = Corrections.from_json_dict(corrections.to_json_dict())
+    nan.conditioning_delay_s["rise"] = float("nan")
+    with pytest.raises(LinkError, match="conditioning_delay_s.rise"):
+        link.download_calibration(nan)
+
+
+def test_filter_guard_trip_is_a_fault(corrections):
+    from hil.predictors import FilterSettings
+
+    vc = VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0,
+                           filter_settings=FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7))
+    link = InProcessLink(vc)
+    link.download_calibration(corrections)
+    b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
+    b.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
+    st = link.status()
+    assert st["guard_trips"] > 0
+    assert [c for _, c in st["faults"]].count(Fault.FILTER_GUARD_TRIP) == 1  # latched, reported once
