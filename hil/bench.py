@@ -22,8 +22,13 @@ class LinkSource:
         self.edges = 0
 
     def on_edge(self, edge: dict, sim) -> list:
+        """The controller answers in its own capture-timer time; a command for an instant that has
+        already passed on the plant (the capture stamp precedes the interrupt) applies now."""
+        import dataclasses
+
         self.edges += 1
-        return self.link.edge(edge)
+        now = sim.t_s
+        return [c if c.at_s >= now else dataclasses.replace(c, at_s=now) for c in self.link.edge(edge)]
 
 
 @dataclass

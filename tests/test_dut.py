@@ -30,8 +30,9 @@ def bench(strategy, corrections, speed=6000.0):
     return b, link, vc
 
 
-def test_in_process_bench_equals_the_controller_logic_called_directly(corrections):
-    """The link and bench add nothing: same commutations, bit for bit, as the logic on its own."""
+def test_in_process_bench_matches_the_controller_logic_within_the_message_scaling(corrections):
+    """The link carries 100 ns ticks, mA and a 16-bit duty: the same commutation decisions as the
+    float logic called directly, each instant within a few ticks."""
     b, link, _ = bench(Strategy.CORRECTED, corrections)
     b.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
     direct = HallCommutation(2, SpeedPI(6000.0, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(CONFIG.motor, 6000.0)["duty"]),
@@ -39,9 +40,9 @@ def test_in_process_bench_equals_the_controller_logic_called_directly(correction
     sim = Simulation(CONFIG, direct, duty=steady_state(CONFIG.motor, 6000.0)["duty"], initial_speed_rpm=6000.0, sample_rate_hz=50e3, capacity=1 << 18)
     sim.run_until(b.sim.t_s)
     a, c = b.sim.commutations(), sim.commutations()
-    assert len(a) > 400
-    np.testing.assert_array_equal(a.t_s, c.t_s)
+    assert len(a) > 400 and len(a) == len(c)
     np.testing.assert_array_equal(a.sector, c.sector)
+    assert np.max(np.abs(a.t_s - c.t_s)) < 1e-6
 
 
 @pytest.mark.parametrize("strategy, p99_max", [(Strategy.CORRECTED, 0.5), (Strategy.KF, 0.5), (Strategy.SAGE_HUSA, 0.5), (Strategy.RAW, 99.0)])

@@ -8,6 +8,7 @@ from typing import Protocol
 from plant_models.simulation import Command
 
 from ..calibration.corrections import Corrections
+from .messages import TICK_S, CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, VirtualController
 
 
@@ -43,6 +44,12 @@ def verify_calibration(written: Corrections, read_back: Corrections, tolerance: 
             raise LinkError(f"calibration read-back mismatch at {name}: wrote {a!r}, read {b!r} (tolerance {t})")
 
 
+def edge_epoch(t_s: float) -> int:
+    """Ticks of the capture timer's completed wraps at time t_s (both ends know the plant's
+    time base, so a wrap of the 32-bit timer is undone the same way on every link)."""
+    return (int(round(t_s / TICK_S)) >> 32) << 32
+
+
 class InProcessLink:
     """The virtual controller called directly (no protocol): the reference for the other links."""
 
@@ -50,6 +57,7 @@ class InProcessLink:
 
     def __init__(self, controller: VirtualController):
         self.controller = controller
+        self._seq = 0
 
     def identity(self) -> dict:
         i = self.controller.identity
@@ -70,7 +78,13 @@ class InProcessLink:
         self.controller.set_speed(rpm)
 
     def edge(self, edge: dict) -> list[Command]:
-        return self.controller.capture(edge)
+        # the same 8-byte messages as the protocol links, so all links are bit-identical
+        epoch = edge_epoch(edge["t_capture_s"])
+        msg = EdgeMessage.unpack(EdgeMessage.from_edge(edge, self._seq).pack())
+        commands = self.controller.capture(msg.to_edge(epoch))
+        frames = [CommandMessage.unpack(f.pack()) for f in encode_reply(commands, self._seq)]
+        self._seq = (self._seq + 1) & 0x7F
+        return [f.to_command(epoch) for f in frames if not (f.sector == 0xFF and f.duty_u16 == 0xFFFF)]
 
     def status(self) -> dict:
         return self.controller.status()

@@ -1,0 +1,92 @@
+"""The edge and command messages every link carries, in one 8-byte format (CANopen PDO payload,
+Modbus register block, and the in-process link encodes and decodes them too, so all links give
+the controller bit-identical inputs).
+
+EdgeMessage (plant -> controller, RPDO1):
+    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA,
+    U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence number.
+CommandMessage (controller -> plant, TPDO1):
+    U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
+    0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+
+TICK_S = 1e-7
+WRAP = 1 << 32
+KEEP_SECTOR = 0xFF
+KEEP_DUTY = 0xFFFF
+DUTY_SCALE = 65534.0  # duty 1.0 -> 65534; 0xFFFF means "keep"
+_FMT = "<IHBB"
+
+
+@dataclass(frozen=True)
+class EdgeMessage:
+    ticks: int
+    current_ma: int
+    sensor: int
+    rising: bool
+    seq: int
+
+    def pack(self) -> bytes:
+        return struct.pack(_FMT, self.ticks % WRAP, self.current_ma, (self.sensor & 0x03) | (0x80 if self.rising else 0), self.seq & 0xFF)
+
+    @classmethod
+    def unpack(cls, data: bytes) -> "EdgeMessage":
+        if len(data) != 8:
+            raise ValueError(f"edge message needs 8 bytes, got {len(data)}")
+        ticks, ma, flags, seq = struct.unpack(_FMT, bytes(data))
+        if flags & 0x03 == 3 or flags & 0x7C:
+            raise ValueError(f"edge message flags 0x{flags:02X}: sensor must be 0-2 and bits 2-6 clear")
+        return cls(ticks, ma, flags & 0x03, bool(flags & 0x80), seq)
+
+    @classmethod
+    def from_edge(cls, edge: dict, seq: int) -> "EdgeMessage":
+        current = max(0, min(int(round(edge.get("current_a", 0.0) * 1000.0)), 0xFFFF))
+        return cls(int(round(edge["t_capture_s"] / TICK_S)), current, int(edge["sensor"]), bool(edge["rising"]), seq)
+
+    def to_edge(self, epoch_ticks: int = 0) -> dict:
+        """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the wrap)."""
+        t = (epoch_ticks + self.ticks) * TICK_S
+        return {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t, "current_a": self.current_ma / 1000.0}
+
+
+@dataclass(frozen=True)
+class CommandMessage:
+    ticks: int
+    duty_u16: int
+    sector: int
+    seq: int
+    last: bool
+
+    def pack(self) -> bytes:
+        return struct.pack(_FMT, self.ticks % WRAP, self.duty_u16, self.sector, (self.seq & 0x7F) | (0x80 if self.last else 0))
+
+    @classmethod
+    def unpack(cls, data: bytes) -> "CommandMessage":
+        if len(data) != 8:
+            raise ValueError(f"command message needs 8 bytes, got {len(data)}")
+        ticks, duty, sector, seq = struct.unpack(_FMT, bytes(data))
+        return cls(ticks, duty, sector, seq & 0x7F, bool(seq & 0x80))
+
+    @classmethod
+    def from_command(cls, command, seq: int, last: bool) -> "CommandMessage":
+        duty = KEEP_DUTY if command.duty is None else int(round(min(max(command.duty, 0.0), 1.0) * DUTY_SCALE))
+        sector = KEEP_SECTOR if command.sector is None else int(command.sector)
+        return cls(int(round(command.at_s / TICK_S)), duty, sector, seq, last)
+
+    def to_command(self, epoch_ticks: int = 0):
+        from plant_models.simulation import Command
+
+        return Command(at_s=(epoch_ticks + self.ticks) * TICK_S, sector=None if self.sector == KEEP_SECTOR else self.sector,
+                       duty=None if self.duty_u16 == KEEP_DUTY else self.duty_u16 / DUTY_SCALE)
+
+
+def encode_reply(commands, seq: int) -> list[CommandMessage]:
+    """The frames answering edge ``seq``; an empty reply is one 'keep everything' frame marked last."""
+    if not commands:
+        return [CommandMessage(0, KEEP_DUTY, KEEP_SECTOR, seq, True)]
+    return [CommandMessage.from_command(c, seq, i == len(commands) - 1) for i, c in enumerate(commands)]
