@@ -65,17 +65,22 @@ class InProcessLink:
                 "device_type": i.device_type, "firmware": i.firmware}
 
     def download_calibration(self, corrections: Corrections) -> None:
+        from .canopen_face import corrections_as_float32
+
+        table = corrections_as_float32(corrections)  # IEEE single precision, as on every link
         try:
-            self.controller.download_calibration(corrections)
+            self.controller.download_calibration(table)
         except CalibrationTableError as exc:
             raise LinkError(f"{self.name}: controller refused the calibration table: {exc}") from None
-        verify_calibration(corrections, self.controller.corrections)
+        verify_calibration(table, self.controller.corrections)
+
+    def set_speed(self, rpm: float) -> None:
+        import numpy as np
+
+        self.controller.set_speed(float(np.float32(rpm)))
 
     def set_strategy(self, strategy: int) -> None:
         self.controller.set_strategy(strategy)
-
-    def set_speed(self, rpm: float) -> None:
-        self.controller.set_speed(rpm)
 
     def edge(self, edge: dict) -> list[Command]:
         # the same 8-byte messages as the protocol links, so all links are bit-identical

@@ -23,6 +23,7 @@ from plant_models.simulation import Command
 from ..calibration.corrections import SENSORS, Corrections
 from ..commutation import HallCommutation, SpeedPI
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
+from ..predictors import filters as _filters
 
 
 class Strategy(enum.IntEnum):
@@ -185,8 +186,11 @@ class VirtualController:
         self._last_t = t
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
+            # guards firing while P settles from P0 during the warm-up are expected, not faults
             trips = sum(self._predictor.guards.values()) - self._predictor.guards.get("innovation_gate", 0)
-            if trips > self._guards_seen:
+            if self._predictor.state[_filters.K_STEP] <= self._predictor.settings.warmup:
+                self._guards_seen = trips
+            elif trips > self._guards_seen:
                 self._guards_seen = trips
                 self.raise_fault(Fault.FILTER_GUARD_TRIP, t)
         return commands

@@ -1,0 +1,337 @@
+"""The virtual controller's CANopen face (CiA 301) on a python-can bus, and the CANopen link.
+
+Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
+leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
+boot-up after an NMT reset and echoes stale indexes in some aborts: design notes section 4).
+Edges arrive as RPDO1 (COB-ID 0x200 + node), commands leave as TPDO1 (0x180 + node), both in
+the 8-byte messages of hil.dut.messages.
+"""
+
+from __future__ import annotations
+
+import queue
+import struct
+import threading
+import time
+
+import canopen
+import numpy as np
+from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
+
+from ..calibration.corrections import SENSORS, Corrections
+from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
+from .messages import CommandMessage, EdgeMessage, encode_reply
+from .od import EDS_PATH
+from .virtual import CalibrationTableError, Fault, VirtualController
+
+ABORT_NO_OBJECT = 0x06020000
+ABORT_NO_SUBINDEX = 0x06090011
+ABORT_READ_ONLY = 0x06010002
+ABORT_WRITE_ONLY = 0x06010001
+ABORT_RANGE = 0x06090030
+ABORT_LENGTH = 0x06070010
+ABORT_COMMAND = 0x05040001
+ABORT_STATE = 0x08000022
+
+NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+
+
+def _f32(v: float) -> float:
+    return float(np.float32(v))
+
+
+def corrections_as_float32(c: Corrections) -> Corrections:
+    """The table as every link stores it (IEEE single precision): the declared scaling."""
+    return Corrections(
+        installation_offset_deg_e={s: _f32(c.installation_offset_deg_e[s]) for s in SENSORS},
+        pole_offset_deg_e=[_f32(v) for v in c.pole_offset_deg_e],
+        conditioning_delay_s={k: _f32(c.conditioning_delay_s[k]) for k in ("rise", "fall")},
+        armature_reaction_deg_e_per_a=_f32(c.armature_reaction_deg_e_per_a),
+    )
+
+
+def _cal_vector(c: Corrections) -> list[float]:
+    return ([c.installation_offset_deg_e[s] for s in SENSORS] + list(c.pole_offset_deg_e)
+            + [c.conditioning_delay_s["rise"], c.conditioning_delay_s["fall"], c.armature_reaction_deg_e_per_a])
+
+
+def _cal_from_vector(v: list[float]) -> Corrections:
+    return Corrections(installation_offset_deg_e=dict(zip(SENSORS, v[:3])), pole_offset_deg_e=list(v[3:7]),
+                       conditioning_delay_s={"rise": v[7], "fall": v[8]}, armature_reaction_deg_e_per_a=v[9])
+
+
+class CanopenDevice:
+    """Serves a VirtualController as CANopen node ``node_id`` on a python-can bus."""
+
+    def __init__(self, controller: VirtualController, node_id: int = 5, interface: str = "virtual", channel: str = "hil", **bus_kwargs):
+        if controller.motor.pole_pairs != 2:
+            raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
+        self.controller = controller
+        self.node_id = node_id
+        self.network = canopen.Network()
+        self.network.connect(interface=interface, channel=channel, **bus_kwargs)
+        self.node = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
+        self.network.add_node(self.node)
+        self.od = self.node.object_dictionary
+        self.staged = _cal_vector(controller.corrections or corrections_as_float32(Corrections()))
+        fs = controller.filter_settings
+        self.filter = [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]
+        self.history: list[int] = []
+        self._epoch = 0
+        self._last_ticks: int | None = None
+        self._lock = threading.Lock()
+        self.state = "PRE-OPERATIONAL"
+        # our own SDO front end: index echo, frame length, NMT state
+        self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
+        self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
+        self.network.unsubscribe(0, self.node.nmt.on_command)
+        self.network.subscribe(0, self._on_nmt)
+        self.network.subscribe(0x200 + node_id, self._on_rpdo)
+        self.node.add_read_callback(self._on_read)
+        self.node.add_write_callback(self._on_write)
+        controller.on_fault(self._on_fault)
+        self._heartbeat_ms = 100
+        self._boot()
+
+    # --- NMT -------------------------------------------------------------------------------------
+    def _boot(self) -> None:
+        self.state = "PRE-OPERATIONAL"
+        self.network.send_message(0x700 + self.node_id, b"\x00")  # boot-up
+        self._start_heartbeat()
+
+    def _start_heartbeat(self) -> None:
+        self.node.nmt.state = self.state
+        if self._heartbeat_ms:
+            self.node.nmt.start_heartbeat(self._heartbeat_ms)
+        else:
+            self.node.nmt.stop_heartbeat()
+
+    def _on_nmt(self, can_id, data, timestamp) -> None:
+        if len(data) != 2 or data[1] not in (0, self.node_id):
+            return
+        cmd = data[0]
+        if cmd == NMT_START:
+            self.state = "OPERATIONAL"
+        elif cmd == NMT_STOP:
+            self.state = "STOPPED"
+        elif cmd == NMT_PREOP:
+            self.state = "PRE-OPERATIONAL"
+        elif cmd in (NMT_RESET_NODE, NMT_RESET_COMM):
+            if cmd == NMT_RESET_NODE:
+                with self._lock:
+                    self.controller.clear_faults()
+                    self.history.clear()
+                    self.controller.reset()
+            self._boot()
+            return
+        self._start_heartbeat()
+
+    # --- SDO ------------------------------------------------------------------------------------
+    def _on_sdo(self, can_id, data, timestamp) -> None:
+        sdo = self.node.sdo
+        if self.state == "STOPPED":
+            return  # CiA 301: no SDO in STOPPED
+        if len(data) != 8:
+            if len(data) >= 4:
+                _, sdo._index, sdo._subindex = struct.unpack_from("<BHB", bytes(data))
+            sdo.abort(ABORT_COMMAND)
+            return
+        ccs = data[0] & 0xE0
+        if ccs not in (0x20, 0x40, 0xA0, 0xC0):  # segments and aborts carry no index: the transfer's own
+            with self._lock:
+                sdo.on_request(can_id, data, timestamp)
+            return
+        _, index, subindex = struct.unpack_from("<BHB", bytes(data))
+        sdo._index, sdo._subindex = index, subindex  # aborts echo this request, never a stale one
+        if index not in self.od:
+            sdo.abort(ABORT_NO_OBJECT)
+            return
+        obj = self.od[index]
+        if not isinstance(obj, canopen.objectdictionary.ODVariable) and subindex not in obj:
+            sdo.abort(ABORT_NO_SUBINDEX)
+            return
+        with self._lock:
+            sdo.on_request(can_id, data, timestamp)
+
+    def _on_read(self, index, subindex, od):
+        c = self.controller
+        if index == 0x1001:
+            return c.error_register
+        if index == 0x1003:
+            return len(self.history) if subindex == 0 else (self.history[subindex - 1] if subindex <= len(self.history) else 0)
+        if index == 0x1017:
+            return self._heartbeat_ms
+        if index == 0x2000:
+            return int(c.strategy)
+        if index == 0x2001:
+            return c.speed_setpoint_rpm
+        if index == 0x2010 and subindex >= 1:
+            return self.staged[subindex - 1]
+        if index == 0x2012 and subindex >= 1:
+            return _cal_vector(c.corrections or Corrections())[subindex - 1]
+        if index == 0x2020 and subindex >= 1:
+            return self.filter[subindex - 1]
+        if index == 0x2100 and subindex >= 1:
+            st = c.status()
+            values = [st["estimated_speed_rpm"], *st["q_diag"], *st["r_diag"], st["guard_trips"], st["last_predicted_commutation_s"]]
+            v = values[subindex - 1]
+            return 0.0 if isinstance(v, float) and not np.isfinite(v) else v
+        return None
+
+    def _on_write(self, index, subindex, od, data):
+        value = od.decode_raw(data)
+        limits_low = od.min if od.min is not None else None
+        limits_high = od.max if od.max is not None else None
+        if isinstance(value, float) and not np.isfinite(value):
+            raise SdoAbortedError(ABORT_RANGE)
+        if (limits_low is not None and value < limits_low) or (limits_high is not None and value > limits_high):
+            raise SdoAbortedError(ABORT_RANGE)
+        c = self.controller
+        if index == 0x1003 and subindex == 0:
+            if value != 0:
+                raise SdoAbortedError(ABORT_RANGE)
+            self.history.clear()
+        elif index == 0x1017:
+            self._heartbeat_ms = int(value)
+            self._start_heartbeat()
+        elif index == 0x2000:
+            c.set_strategy(int(value))
+        elif index == 0x2001:
+            c.set_speed(float(value))
+        elif index == 0x2010:
+            self.staged[subindex - 1] = float(value)
+        elif index == 0x2011:
+            try:
+                c.download_calibration(_cal_from_vector(self.staged))
+            except CalibrationTableError:
+                raise SdoAbortedError(ABORT_RANGE) from None
+        elif index == 0x2020:
+            new = list(self.filter)
+            new[subindex - 1] = float(value)
+            if subindex == 1 and not 0.0 < value < 1.0 or subindex > 1 and value < 0.0:
+                raise SdoAbortedError(ABORT_RANGE)
+            self.filter = new
+            from ..predictors import FilterSettings
+
+            base = c.filter_settings
+            c.filter_settings = FilterSettings(q0_diag=tuple(new[1:4]), r0_diag=tuple(new[4:6]), p0_diag=tuple(new[6:9]),
+                                               forgetting_b=new[0], adapt_interval=base.adapt_interval, warmup=base.warmup,
+                                               chi2_gate=base.chi2_gate, q_band_factor=base.q_band_factor, eig_floor=base.eig_floor,
+                                               theta_var_rad2=base.theta_var_rad2, adapt_mask=base.adapt_mask)
+
+    # --- EMCY ------------------------------------------------------------------------------------
+    def _on_fault(self, code: int, t_s: float) -> None:
+        self.history.insert(0, code)
+        del self.history[8:]
+        self.node.emcy.send(code, self.controller.error_register)
+
+    # --- PDO -------------------------------------------------------------------------------------
+    def _on_rpdo(self, can_id, data, timestamp) -> None:
+        if self.state != "OPERATIONAL":
+            return
+        try:
+            msg = EdgeMessage.unpack(bytes(data))
+        except ValueError:
+            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
+        with self._lock:
+            if self._last_ticks is not None and msg.ticks < self._last_ticks:
+                self._epoch += 1 << 32  # the capture timer wrapped
+            self._last_ticks = msg.ticks
+            commands = self.controller.capture(msg.to_edge(self._epoch))
+            frames = encode_reply(commands, msg.seq)
+        for f in frames:
+            self.network.send_message(0x180 + self.node_id, f.pack())
+
+    def close(self) -> None:
+        try:
+            self.node.nmt.stop_heartbeat()
+        finally:
+            self.network.disconnect()
+
+
+class CanopenLink:
+    """The framework's view of a CANopen controller on any python-can interface."""
+
+    name = "canopen"
+
+    def __init__(self, node_id: int = 5, interface: str = "virtual", channel: str = "hil", eds: str | None = None,
+                 timeout_s: float = 1.0, **bus_kwargs):
+        self.node_id, self.timeout_s = node_id, timeout_s
+        self.where = f"CANopen node {node_id} on {interface}:{channel}"
+        self.network = canopen.Network()
+        self.network.connect(interface=interface, channel=channel, **bus_kwargs)
+        self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
+        self.node.sdo.RESPONSE_TIMEOUT = timeout_s
+        # canopen 2.4.1 counts retries down and stops at zero: MAX_RETRIES = 0 would retry forever
+        # (-1 is truthy); 1 means a single attempt, so a silent node fails within timeout_s
+        self.node.sdo.MAX_RETRIES = 1
+        self.replies: queue.Queue = queue.Queue()
+        self.emcy: queue.Queue = queue.Queue()
+        self.network.subscribe(0x180 + node_id, lambda cid, data, ts: self.replies.put(bytes(data)))
+        self.network.subscribe(0x80 + node_id, lambda cid, data, ts: self.emcy.put((ts, bytes(data))))
+        self._seq = 0
+        self.network.send_message(0, bytes([NMT_START, node_id]))
+
+    # --- SDO helpers -----------------------------------------------------------------------------
+    def _sdo(self, what: str, fn):
+        try:
+            return fn()
+        except SdoAbortedError as exc:
+            raise LinkError(f"{self.where}: {what} refused with SDO abort 0x{exc.code:08X}") from None
+        except SdoCommunicationError as exc:
+            raise LinkTimeout(f"{self.where}: no SDO answer to {what} within {self.timeout_s} s ({exc})") from None
+
+    def read(self, index: int, sub: int | None = None):
+        obj = self.node.sdo[index] if sub is None else self.node.sdo[index][sub]
+        return self._sdo(f"read 0x{index:04X}" + ("" if sub is None else f":{sub:02X}"), lambda: obj.raw)
+
+    def write(self, index: int, sub: int | None, value) -> None:
+        obj = self.node.sdo[index] if sub is None else self.node.sdo[index][sub]
+        self._sdo(f"write 0x{index:04X}" + ("" if sub is None else f":{sub:02X}") + f" = {value!r}", lambda: setattr(obj, "raw", value))
+
+    # --- ControllerLink ---------------------------------------------------------------------------
+    def identity(self) -> dict:
+        return {"vendor_id": self.read(0x1018, 1), "product_code": self.read(0x1018, 2), "revision": self.read(0x1018, 3),
+                "serial": self.read(0x1018, 4), "device_type": self.read(0x1000), "firmware": self.read(0x100A)}
+
+    def download_calibration(self, corrections: Corrections) -> None:
+        for k, v in enumerate(_cal_vector(corrections)):
+            self.write(0x2010, k + 1, float(v))
+        self.write(0x2011, None, 1)
+        back = _cal_from_vector([self.read(0x2012, k + 1) for k in range(10)])
+        verify_calibration(corrections_as_float32(corrections), back)
+
+    def set_strategy(self, strategy: int) -> None:
+        self.write(0x2000, None, int(strategy))
+
+    def set_speed(self, rpm: float) -> None:
+        self.write(0x2001, None, float(rpm))
+
+    def edge(self, edge: dict) -> list:
+        epoch = edge_epoch(edge["t_capture_s"])
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0x7F
+        self.network.send_message(0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
+        commands = []
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            try:
+                frame = CommandMessage.unpack(self.replies.get(timeout=max(deadline - time.monotonic(), 0.0)))
+            except queue.Empty:
+                raise LinkTimeout(f"{self.where}: no TPDO reply to edge #{seq} (t = {edge['t_capture_s']:.7f} s) within {self.timeout_s} s") from None
+            if frame.seq != seq:
+                continue  # a late frame of an earlier edge
+            if not (frame.sector == 0xFF and frame.duty_u16 == 0xFFFF):
+                commands.append(frame.to_command(epoch))
+            if frame.last:
+                return commands
+
+    def status(self) -> dict:
+        rb = [self.read(0x2100, k) for k in range(1, 9)]
+        n = self.read(0x1003, 0)
+        return {"strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
+                "q_diag": rb[1:4], "r_diag": rb[4:6], "guard_trips": rb[6], "last_predicted_commutation_s": rb[7],
+                "error_register": self.read(0x1001), "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)]}
+
+    def close(self) -> None:
+        self.network.disconnect()

@@ -1,0 +1,190 @@
+"""CANopen face of the virtual controller (CiA 301 conformance) and the CANopen link, over python-can's
+in-process ``virtual`` bus."""
+
+import itertools
+import struct
+import time
+
+import canopen
+import numpy as np
+import pytest
+from canopen.sdo.exceptions import SdoAbortedError
+
+from hil.bench import LockstepBench
+from hil.calibration import fit_corrections
+from hil.calibration.campaign import CalibrationCampaign
+from hil.dut import Fault, InProcessLink, LinkError, LinkTimeout, Strategy, VirtualController
+from hil.dut.canopen_face import CanopenDevice, CanopenLink
+from hil.dut.od import EDS_PATH, eds_text
+from plant_models import paper_bench
+from plant_models.plant import steady_state
+
+CONFIG = paper_bench(with_deviations=True)
+_channels = itertools.count()
+
+
+@pytest.fixture(scope="module")
+def corrections():
+    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+
+
+@pytest.fixture
+def pair():
+    channel = f"co{next(_channels)}"
+    vc = VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0)
+    dev = CanopenDevice(vc, node_id=5, channel=channel)
+    link = CanopenLink(node_id=5, channel=channel, timeout_s=0.5)
+    yield vc, dev, link
+    link.close()
+    dev.close()
+
+
+def test_shipped_eds_is_generated_from_the_declaration():
+    assert EDS_PATH.read_text() == eds_text(), "regenerate: python -c 'from hil.dut.od import *; EDS_PATH.write_text(eds_text())'"
+
+
+def test_lockstep_over_canopen_is_identical_to_in_process(pair, corrections):
+    vc, dev, link = pair
+    runs = []
+    for lk in (link, InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))):
+        lk.download_calibration(corrections)
+        b = LockstepBench(CONFIG, lk, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
+        b.run_setpoints([6000.0, 6300.0], hold_s=0.1, settle_s=0.05)
+        runs.append(b.sim.commutations())
+    a, c = runs
+    assert len(a) > 200
+    np.testing.assert_array_equal(a.t_s, c.t_s)
+    np.testing.assert_array_equal(a.sector, c.sector)
+
+
+def test_identity_and_every_object_reads_back_with_its_declared_type(pair):
+    _, _, link = pair
+    ident = link.identity()
+    assert ident == {"vendor_id": 0x0B1D, "product_code": 0x00480001, "revision": 0x00010000, "serial": 1, "device_type": 0x192, "firmware": "vc-0.1.0"}
+    od = link.node.object_dictionary
+    checked = 0
+    for obj in od.values():
+        for var in (obj.values() if not isinstance(obj, canopen.objectdictionary.ODVariable) else [obj]):
+            if not var.readable:
+                continue
+            value = link.read(var.index, var.subindex if not isinstance(obj, canopen.objectdictionary.ODVariable) else None)
+            if var.data_type in canopen.objectdictionary.INTEGER_TYPES:
+                assert isinstance(value, int), (hex(var.index), var.subindex)
+            elif var.data_type in canopen.objectdictionary.FLOAT_TYPES:
+                assert isinstance(value, float), (hex(var.index), var.subindex)
+            else:
+                assert isinstance(value, str)
+            checked += 1
+    assert checked > 40
+
+
+def abort_of(link, fn):
+    with pytest.raises(SdoAbortedError) as info:
+        fn()
+    return info.value.code
+
+
+@pytest.mark.parametrize("request_, code", [
+    ("read 0x6000", 0x06020000),
+    ("read 0x2010:0x20", 0x06090011),
+    ("write 0x1000", 0x06010002),
+    ("read 0x2011", 0x06010001),
+    ("write 0x2000 = 7", 0x06090030),
+    ("write 0x2001 = -5", 0x06090030),
+    ("write 0x2000 with 4 bytes", 0x06070010),
+])
+def test_sdo_abort_codes(pair, request_, code):
+    _, _, link = pair
+    sdo = link.node.sdo
+    fns = {
+        "read 0x6000": lambda: sdo.upload(0x6000, 0),
+        "read 0x2010:0x20": lambda: sdo.upload(0x2010, 0x20),
+        "write 0x1000": lambda: sdo.download(0x1000, 0, struct.pack("<I", 1)),
+        "read 0x2011": lambda: sdo.upload(0x2011, 0),
+        "write 0x2000 = 7": lambda: sdo.download(0x2000, 0, bytes([7])),
+        "write 0x2001 = -5": lambda: sdo.download(0x2001, 0, struct.pack("<f", -5.0)),
+        "write 0x2000 with 4 bytes": lambda: sdo.download(0x2000, 0, struct.pack("<I", 1)),
+    }
+    assert abort_of(link, fns[request_]) == code
+    assert link.read(0x2000) == 3  # still serving well-formed requests
+
+
+def test_abort_echoes_the_requested_index(pair):
+    _, _, link = pair
+    frames = []
+    link.network.subscribe(0x585, lambda cid, data, ts: frames.append(bytes(data)))
+    link.read(0x1018, 1)  # leave a previous index behind
+    with pytest.raises(SdoAbortedError):
+        link.node.sdo.upload(0x6000, 3)
+    time.sleep(0.05)
+    cmd, index, sub, code = struct.unpack("<BHBI", frames[-1])
+    assert (cmd, index, sub, code) == (0x80, 0x6000, 3, 0x06020000)
+
+
+def test_heartbeat_period_matches_0x1017(pair):
+    _, _, link = pair
+    link.write(0x1017, None, 50)
+    stamps = []
+    link.network.subscribe(0x705, lambda cid, data, ts: stamps.append(time.monotonic()))
+    time.sleep(1.1)
+    intervals = np.diff(stamps[1:])
+    assert len(intervals) >= 15
+    assert np.median(intervals) == pytest.approx(0.050, rel=0.05)
+
+
+def test_fault_sends_emcy_and_sets_error_register_and_history(pair):
+    vc, dev, link = pair
+    assert link.read(0x1001) == 0
+    vc.raise_fault(Fault.MISSING_EDGE, 1.0)
+    ts, frame = link.emcy.get(timeout=1.0)
+    code, register = struct.unpack_from("<HB", frame)
+    assert code == Fault.MISSING_EDGE and register & 0x01
+    assert link.read(0x1001) & 0x81 == 0x81
+    assert link.read(0x1003, 0) == 1 and link.read(0x1003, 1) == Fault.MISSING_EDGE
+    with pytest.raises(LinkError, match="0x06090030"):
+        link.write(0x1003, 0, 1)
+    link.write(0x1003, 0, 0)
+    assert link.read(0x1003, 0) == 0
+
+
+def test_invalid_calibration_is_refused_with_emcy(pair, corrections):
+    vc, dev, link = pair
+    bad = corrections.__class__.from_json_dict(corrections.to_json_dict())
+    bad.conditioning_delay_s["rise"] = 1e-3  # beyond the 100 us the controller accepts
+    with pytest.raises(LinkError, match="0x06090030"):
+        link.download_calibration(bad)
+    _, frame = link.emcy.get(timeout=1.0)
+    assert struct.unpack_from("<H", frame)[0] == Fault.INVALID_CALIBRATION
+
+
+def test_nmt_states_and_boot_up_after_reset(pair, corrections):
+    vc, dev, link = pair
+    boots = []
+    link.network.subscribe(0x705, lambda cid, data, ts: boots.append(bytes(data)) if bytes(data) == b"\x00" else None)
+    link.network.send_message(0, bytes([0x81, 5]))  # reset node
+    time.sleep(0.1)
+    assert boots, "no boot-up message after NMT reset"
+    assert dev.state == "PRE-OPERATIONAL"
+    with pytest.raises(LinkTimeout, match="no TPDO reply"):  # PDOs are not processed outside OPERATIONAL
+        link.edge({"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0})
+    link.network.send_message(0, bytes([0x01, 5]))
+    time.sleep(0.02)
+    assert link.edge({"t_capture_s": 0.002, "sensor": 0, "rising": True, "current_a": 1.0}) is not None
+    link.network.send_message(0, bytes([0x02, 5]))  # stopped: no SDO either
+    time.sleep(0.02)
+    with pytest.raises(LinkTimeout, match="no SDO answer"):
+        link.read(0x1000)
+
+
+def test_dead_controller_gives_a_precise_error_within_the_timeout(corrections):
+    channel = f"co{next(_channels)}"
+    dev = CanopenDevice(VirtualController(CONFIG.motor), node_id=7, channel=channel)
+    link = CanopenLink(node_id=7, channel=channel, timeout_s=0.3)
+    dev.close()
+    t = time.monotonic()
+    with pytest.raises(LinkTimeout, match="node 7.*within 0.3 s"):
+        link.edge({"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0})
+    with pytest.raises(LinkTimeout, match="no SDO answer"):
+        link.read(0x1000)
+    assert time.monotonic() - t < 1.5
+    link.close()
