@@ -107,8 +107,8 @@ class CanopenDevice:
             self.node.nmt.stop_heartbeat()
 
     def _on_nmt(self, can_id, data, timestamp) -> None:
-        if len(data) != 2 or data[1] not in (0, self.node_id):
-            return
+        if len(data) != 2 or data[1] not in (0, self.node_id) or data[0] not in (NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM):
+            return  # malformed or foreign NMT commands are ignored
         cmd = data[0]
         if cmd == NMT_START:
             self.state = "OPERATIONAL"
@@ -151,7 +151,7 @@ class CanopenDevice:
             sdo.abort(ABORT_NO_SUBINDEX)
             return
         with self._lock:
-            sdo.on_request(can_id, data, timestamp)
+            sdo.on_request(can_id, data, timestamp)  # the library aborts 0x08000000 on our exceptions
 
     def _on_read(self, index, subindex, od):
         c = self.controller
@@ -234,10 +234,14 @@ class CanopenDevice:
         except ValueError:
             return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
         with self._lock:
-            if self._last_ticks is not None and msg.ticks < self._last_ticks:
-                self._epoch += 1 << 32  # the capture timer wrapped
+            if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
+                self._epoch += 1 << 32  # the capture timer wrapped (a small step back is a bad stamp, not a wrap)
             self._last_ticks = msg.ticks
-            commands = self.controller.capture(msg.to_edge(self._epoch))
+            try:
+                commands = self.controller.capture(msg.to_edge(self._epoch))
+            except Exception:  # never let bad input kill the receive thread: report and answer
+                self.controller.raise_fault(Fault.INTERNAL, 0.0)
+                commands = []
             frames = encode_reply(commands, msg.seq)
         for f in frames:
             self.network.send_message(0x180 + self.node_id, f.pack())

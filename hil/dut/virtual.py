@@ -40,6 +40,8 @@ class Fault(enum.IntEnum):
     MISSING_EDGE = 0xFF02
     FILTER_GUARD_TRIP = 0xFF03
     INVALID_CALIBRATION = 0xFF04
+    CAPTURE_TIMING = 0xFF05      #: a capture time that does not increase (edge discarded)
+    INTERNAL = 0x6100            #: CiA 301 internal software error
 
 
 class CalibrationTableError(ValueError):
@@ -167,6 +169,9 @@ class VirtualController:
     def capture(self, edge: dict) -> list[Command]:
         """A captured edge: t_capture_s, sensor (0..2), rising; now_s, current_a. Returns commands."""
         t = float(edge["t_capture_s"])
+        if not math.isfinite(t) or (self._last_t is not None and t <= self._last_t):
+            self.raise_fault(Fault.CAPTURE_TIMING, t if math.isfinite(t) else 0.0)
+            return []  # a capture stamp that does not increase cannot be an edge of this rotor
         bits = list(self._logic._seen)
         bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
         code = bits[0] * 4 + bits[1] * 2 + bits[2]
