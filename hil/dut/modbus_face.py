@@ -1,0 +1,349 @@
+"""The virtual controller's Modbus face (pymodbus, TCP or RTU framer) and the Modbus link.
+
+Register map (holding registers, one unit; FLOAT32 = IEEE single, two registers, high word
+first; docs/controller.md has the table). Edges are exchanged in one transaction: function 23
+(read/write multiple registers) writes the 8-byte edge message to the mailbox at 200 and reads
+the reply at 210 (count, then up to four 8-byte command messages), so a plant step costs one
+round trip.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import struct
+import threading
+
+import numpy as np
+from pymodbus.constants import ExcCodes
+from pymodbus.simulator import DataType, SimData, SimDevice
+
+from ..calibration.corrections import Corrections
+from .canopen_face import _cal_from_vector, _cal_vector, corrections_as_float32
+from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
+from .messages import CommandMessage, EdgeMessage, encode_reply
+from .virtual import CalibrationTableError, Fault, VirtualController
+
+# addresses
+STRATEGY, SPEED = 0, 1
+CAL_STAGED, CAL_APPLY, CAL_APPLIED = 10, 30, 40
+FILTER = 60
+RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
+ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
+IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
+EDGE_IN, REPLY = 200, 210
+REPLY_FRAMES = 4
+LAST = REPLY + 1 + 4 * REPLY_FRAMES  # 227
+
+
+def _f32_regs(v: float) -> list[int]:
+    hi, lo = struct.unpack(">HH", struct.pack(">f", v))
+    return [hi, lo]
+
+
+def _regs_f32(r) -> float:
+    return struct.unpack(">f", struct.pack(">HH", *r))[0]
+
+
+def _bytes_regs(b: bytes) -> list[int]:
+    return list(struct.unpack(">HHHH", b))
+
+
+def _regs_bytes(r) -> bytes:
+    return struct.pack(">HHHH", *r)
+
+
+def simdata() -> list[SimData]:
+    """The register map: everything not listed is an illegal address."""
+    return [
+        SimData(STRATEGY, 1, 3, DataType.UINT16),
+        SimData(SPEED, 1, 5000.0, DataType.FLOAT32),
+        SimData(CAL_STAGED, 10, 0.0, DataType.FLOAT32),
+        SimData(CAL_APPLY, 1, 0, DataType.UINT16),
+        SimData(CAL_APPLIED, 10, 0.0, DataType.FLOAT32, readonly=True),
+        SimData(FILTER, 9, 0.0, DataType.FLOAT32),
+        SimData(RB_SPEED, 7, 0.0, DataType.FLOAT32, readonly=True),
+        SimData(RB_TRIPS, 1, 0, DataType.UINT32, readonly=True),
+        SimData(RB_PRED, 1, 0.0, DataType.FLOAT64, readonly=True),
+        SimData(ERROR_REGISTER, 10, 0, DataType.UINT16, readonly=True),
+        SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
+        SimData(EDGE_IN, 4, 0, DataType.REGISTERS),
+        SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
+    ]
+
+
+SUPPORTED_FUNCTIONS = (3, 6, 16, 23)
+
+
+def request_exception(pdu: bytes) -> bytes | None:
+    """The exception PDU the Modbus application protocol requires for a malformed request, or None.
+
+    01 illegal function: a function code this device does not implement (only holding registers:
+    3, 6, 16, 23); 03 illegal data value: a quantity out of range or a byte count that does not
+    match it. Addresses (02) and values of well-formed requests are judged by the register map.
+    """
+    if not pdu:
+        return None
+    fc = pdu[0]
+    if fc & 0x80 or fc not in SUPPORTED_FUNCTIONS:
+        return bytes([(fc | 0x80) & 0xFF, 0x01])
+    bad = bytes([fc | 0x80, 0x03])
+    try:
+        if fc == 3:
+            _, qty = struct.unpack_from(">HH", pdu, 1)
+            return bad if not 1 <= qty <= 125 or len(pdu) != 5 else None
+        if fc == 6:
+            return bad if len(pdu) != 5 else None
+        if fc == 16:
+            _, qty, nbytes = struct.unpack_from(">HHB", pdu, 1)
+            return bad if not 1 <= qty <= 123 or nbytes != 2 * qty or len(pdu) != 6 + nbytes else None
+        if fc == 23:
+            _, rqty, _, wqty, nbytes = struct.unpack_from(">HHHHB", pdu, 1)
+            ok = 1 <= rqty <= 125 and 1 <= wqty <= 121 and nbytes == 2 * wqty and len(pdu) == 10 + nbytes
+            return None if ok else bad
+    except struct.error:
+        return bad
+    return None
+
+
+class ModbusDevice:
+    """Serves a VirtualController over Modbus TCP on 127.0.0.1 (or another address if asked)."""
+
+    def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1):
+        self.controller, self.host, self.unit = controller, host, unit
+        self.port = port
+        self.history: list[int] = []
+        controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
+        self._epoch = 0
+        self._last_ticks = None
+        self._ready = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(5.0):
+            raise RuntimeError("Modbus device did not start")
+
+    def _run(self):
+        try:
+            asyncio.run(self._serve())
+        except Exception:  # pragma: no cover - reported through _ready never being set
+            import traceback
+
+            traceback.print_exc()
+
+    async def _serve(self):
+        from pymodbus.server import ModbusTcpServer
+
+        self.loop = asyncio.get_running_loop()
+        if self.port == 0:
+            import socket
+
+            with socket.socket() as s:
+                s.bind((self.host, 0))
+                self.port = s.getsockname()[1]
+        device = SimDevice(self.unit, simdata=simdata(), action=self._action)
+        self._expected: dict[int, bytes] = {}
+        # built inside the running loop; trace_packet enforces the exception codes of the
+        # Modbus application protocol where pymodbus's defaults differ (design notes section 4)
+        self.server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=self._trace_packet)
+        task = asyncio.create_task(self.server.serve_forever())
+        await asyncio.sleep(0.05)
+        self._ready.set()
+        await task
+
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        """Incoming ADUs are checked against the protocol's function-code and quantity rules; the
+        answer to a refused request is rewritten to the conformant exception (same transaction)."""
+        if len(data) < 8:
+            return data
+        tid = struct.unpack_from(">H", data, 0)[0]
+        if not sending:
+            # every request resets its transaction's verdict: a verdict left by a request that was
+            # never answered (dropped, foreign unit) must not rewrite a later answer (a stale answer)
+            self._expected.pop(tid, None)
+            exc = request_exception(data[7:])
+            if exc is not None:
+                self._expected[tid] = exc
+                while len(self._expected) > 256:
+                    self._expected.pop(next(iter(self._expected)))
+            return data
+        exc = self._expected.pop(tid, None)
+        if exc is None:
+            return data
+        return data[:4] + struct.pack(">H", 1 + len(exc)) + data[6:7] + exc
+
+    def close(self):
+        if getattr(self, "server", None) is not None:
+            fut = asyncio.run_coroutine_threadsafe(self.server.shutdown(), self.loop)
+            try:
+                fut.result(timeout=5.0)
+            except Exception:  # pragma: no cover
+                pass
+        self._thread.join(timeout=5.0)
+
+    # --- the register map's behaviour --------------------------------------------------------------
+    def _refresh(self, regs: list[int], base: int) -> None:
+        """Read-backs into the block before any read."""
+        c = self.controller
+
+        def put(addr, values):
+            regs[addr - base:addr - base + len(values)] = values
+
+        st = c.status()
+        put(STRATEGY, [int(c.strategy)])
+        put(SPEED, _f32_regs(c.speed_setpoint_rpm))
+        applied = _cal_vector(c.corrections or Corrections())
+        put(CAL_APPLIED, sum((_f32_regs(v) for v in applied), []))
+        fs = c.filter_settings
+        put(FILTER, sum((_f32_regs(v) for v in [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]), []))
+        speed = st["estimated_speed_rpm"] if np.isfinite(st["estimated_speed_rpm"]) else 0.0
+        put(RB_SPEED, sum((_f32_regs(v) for v in [speed, *st["q_diag"], *st["r_diag"]]), []))
+        put(RB_TRIPS, [(st["guard_trips"] >> 16) & 0xFFFF, st["guard_trips"] & 0xFFFF])
+        pred = st["last_predicted_commutation_s"] if np.isfinite(st["last_predicted_commutation_s"]) else 0.0
+        put(RB_PRED, list(struct.unpack(">HHHH", struct.pack(">d", pred))))
+        codes = (self.history + [0] * 8)[:8]
+        put(ERROR_REGISTER, [c.error_register, len(self.history)] + codes)
+        i = c.identity
+        put(IDENTITY, sum(([(v >> 16) & 0xFFFF, v & 0xFFFF] for v in (i.vendor_id, i.product_code, i.revision, i.serial)), []))
+
+    async def _action(self, fc, start, address, count, regs, values):
+        try:
+            if values is None:
+                self._refresh(regs, start)
+                return None
+            return self._write(address, list(values), regs, start)
+        except Exception:  # bad input never stops the server: report and refuse
+            self.controller.raise_fault(Fault.INTERNAL, 0.0)
+            return ExcCodes.DEVICE_FAILURE
+
+    def _write(self, address: int, values: list[int], regs: list[int], base: int):
+        c = self.controller
+        end = address + len(values)
+
+        def covers(a, n=1):
+            return address <= a and a + n <= end
+
+        def part(a, n):
+            return values[a - address:a - address + n]
+
+        # a write must cover whole values (a FLOAT32 is two registers)
+        for a, n, size in ((SPEED, 1, 2), (CAL_STAGED, 10, 2), (FILTER, 9, 2), (EDGE_IN, 1, 4)):
+            for k in range(n):
+                lo, hi = a + size * k, a + size * (k + 1)
+                if address < hi and end > lo and not (address <= lo and end >= hi):
+                    return ExcCodes.ILLEGAL_VALUE
+        if covers(STRATEGY):
+            v = part(STRATEGY, 1)[0]
+            if v > 3:
+                return ExcCodes.ILLEGAL_VALUE
+            c.set_strategy(v)
+        if covers(SPEED, 2):
+            rpm = _regs_f32(part(SPEED, 2))
+            if not (np.isfinite(rpm) and 0.0 <= rpm <= 30000.0):
+                return ExcCodes.ILLEGAL_VALUE
+            c.set_speed(rpm)
+        for k in range(10):
+            if covers(CAL_STAGED + 2 * k, 2) and not np.isfinite(_regs_f32(part(CAL_STAGED + 2 * k, 2))):
+                return ExcCodes.ILLEGAL_VALUE
+        if covers(CAL_APPLY):
+            if part(CAL_APPLY, 1)[0] != 1:
+                return ExcCodes.ILLEGAL_VALUE
+            # the staged table is in the block already (earlier writes) or in this request
+            staged = [_regs_f32(part(CAL_STAGED + 2 * k, 2)) if covers(CAL_STAGED + 2 * k, 2)
+                      else _regs_f32(regs[CAL_STAGED + 2 * k - base:CAL_STAGED + 2 * k - base + 2]) for k in range(10)]
+            try:
+                c.download_calibration(_cal_from_vector(staged))
+            except CalibrationTableError:
+                return ExcCodes.ILLEGAL_VALUE
+            values[CAL_APPLY - address] = 0  # write-only trigger reads back as 0
+        if covers(EDGE_IN, 4):
+            try:
+                msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)))
+            except ValueError:
+                return ExcCodes.ILLEGAL_VALUE
+            if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
+                self._epoch += 1 << 32
+            self._last_ticks = msg.ticks
+            frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
+            reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
+            regs[REPLY - base:REPLY - base + len(reply)] = reply
+        return None
+
+
+class ModbusLink:
+    """The framework's view of a Modbus TCP controller."""
+
+    name = "modbus"
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, unit: int = 1, timeout_s: float = 1.0):
+        from pymodbus.client import ModbusTcpClient
+
+        self.unit, self.timeout_s = unit, timeout_s
+        self.where = f"Modbus unit {unit} at {host}:{port}"
+        self.client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+        if not self.client.connect():
+            raise LinkTimeout(f"{self.where}: cannot connect within {timeout_s} s")
+        self._seq = 0
+
+    def _call(self, what: str, fn):
+        from pymodbus.exceptions import ModbusException
+
+        try:
+            r = fn()
+        except ModbusException as exc:
+            raise LinkTimeout(f"{self.where}: no answer to {what} within {self.timeout_s} s ({exc})") from None
+        if r.isError():
+            code = getattr(r, "exception_code", None)
+            raise LinkError(f"{self.where}: {what} refused with exception code {code:02d}" if code is not None else f"{self.where}: {what} failed: {r}")
+        return r
+
+    def read(self, address: int, count: int) -> list[int]:
+        return self._call(f"read {count} registers at {address}", lambda: self.client.read_holding_registers(address, count=count, device_id=self.unit)).registers
+
+    def write(self, address: int, registers: list[int]) -> None:
+        self._call(f"write {len(registers)} registers at {address}", lambda: self.client.write_registers(address, registers, device_id=self.unit))
+
+    def identity(self) -> dict:
+        r = self.read(IDENTITY, 8)
+        v = [(r[2 * k] << 16) | r[2 * k + 1] for k in range(4)]
+        return {"vendor_id": v[0], "product_code": v[1], "revision": v[2], "serial": v[3], "device_type": None, "firmware": None}
+
+    def download_calibration(self, corrections: Corrections) -> None:
+        table = corrections_as_float32(corrections)
+        self.write(CAL_STAGED, sum((_f32_regs(v) for v in _cal_vector(table)), []))
+        self.write(CAL_APPLY, [1])
+        back = self.read(CAL_APPLIED, 20)
+        verify_calibration(table, _cal_from_vector([_regs_f32(back[2 * k:2 * k + 2]) for k in range(10)]))
+
+    def set_strategy(self, strategy: int) -> None:
+        self.write(STRATEGY, [int(strategy)])
+
+    def set_speed(self, rpm: float) -> None:
+        self.write(SPEED, _f32_regs(rpm))
+
+    def edge(self, edge: dict) -> list:
+        epoch = edge_epoch(edge["t_capture_s"])
+        seq = self._seq
+        self._seq = (self._seq + 1) & 0x7F
+        msg = EdgeMessage.from_edge(edge, seq).pack()
+        r = self._call(f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)", lambda: self.client.readwrite_registers(
+            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=_bytes_regs(msg), device_id=self.unit))
+        regs = r.registers
+        commands = []
+        for k in range(min(regs[0], REPLY_FRAMES)):
+            f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k:5 + 4 * k]))
+            if f.seq != seq & 0x7F:
+                raise LinkError(f"{self.where}: reply to edge #{seq} carries sequence {f.seq} (a stale answer)")
+            if not (f.sector == 0xFF and f.duty_u16 == 0xFFFF):
+                commands.append(f.to_command(epoch))
+        return commands
+
+    def status(self) -> dict:
+        rb = self.read(RB_SPEED, 18)
+        err = self.read(ERROR_REGISTER, 10)
+        f = [_regs_f32(rb[2 * k:2 * k + 2]) for k in range(6)]
+        return {"strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
+                "q_diag": f[1:4], "r_diag": f[4:6], "guard_trips": (rb[12] << 16) | rb[13],
+                "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
+                "error_register": err[0], "faults": [(0.0, code) for code in err[2:2 + err[1]]]}
+
+    def close(self) -> None:
+        self.client.close()

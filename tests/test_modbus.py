@@ -1,0 +1,152 @@
+"""Modbus face of the virtual controller (exception codes, register map, robustness) and the Modbus
+link, over TCP on 127.0.0.1."""
+
+import logging
+import socket
+import struct
+import time
+
+import numpy as np
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from hil.bench import LockstepBench
+from hil.calibration import fit_corrections
+from hil.calibration.campaign import CalibrationCampaign
+from hil.dut import Fault, InProcessLink, LinkError, LinkTimeout, Strategy, VirtualController
+from hil.dut.modbus_face import ModbusDevice, ModbusLink
+from plant_models import paper_bench
+from plant_models.plant import steady_state
+
+logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+CONFIG = paper_bench(with_deviations=True)
+
+
+@pytest.fixture(scope="module")
+def corrections():
+    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+
+
+@pytest.fixture
+def device():
+    dev = ModbusDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))
+    yield dev
+    dev.close()
+
+
+def ask(port, pdu, unit=1, tid=7, timeout=1.0):
+    with socket.create_connection(("127.0.0.1", port), timeout=timeout) as s:
+        s.sendall(struct.pack(">HHHB", tid, 0, len(pdu) + 1, unit) + pdu)
+        data = s.recv(260)
+    return data
+
+
+def test_binds_loopback_by_default(device):
+    assert device.host == "127.0.0.1"
+
+
+def test_lockstep_over_modbus_tcp_is_identical_to_in_process(device, corrections):
+    runs = []
+    for link in (ModbusLink(port=device.port), InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))):
+        link.download_calibration(corrections)
+        b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
+        b.run_setpoints([6000.0, 6300.0], hold_s=0.1, settle_s=0.05)
+        runs.append(b.sim.commutations())
+        link.close()
+    a, c = runs
+    assert len(a) > 200
+    np.testing.assert_array_equal(a.t_s, c.t_s)
+    np.testing.assert_array_equal(a.sector, c.sector)
+
+
+@pytest.mark.parametrize("pdu, answer", [
+    (bytes([0x41, 0, 0]), "c101"),                          # unknown function: 01
+    (bytes([0x01, 0, 0, 0, 1]), "8101"),                    # coils are not implemented: 01
+    (bytes([0x04, 0, 0, 0, 1]), "8401"),                    # input registers are not implemented: 01
+    (struct.pack(">BHH", 3, 0, 0), "8303"),                 # quantity 0: 03
+    (struct.pack(">BHH", 3, 0, 126), "8303"),               # quantity above 125: 03
+    (struct.pack(">BHH", 3, 5000, 1), "8302"),              # no such register: 02
+    (struct.pack(">BHH", 6, 0, 9), "8603"),                 # strategy 9 out of range: 03
+    (struct.pack(">BHH", 6, 40, 1), "8602"),                # applied calibration is read-only: 02
+    (struct.pack(">BHHBH", 16, 0, 1, 4, 1), "9003"),         # byte count does not match: 03
+    (struct.pack(">BHHBI", 16, 1, 1, 2, 0), "9003"),         # half a FLOAT32 (speed): 03 (byte count also off)
+    (struct.pack(">BHHBH", 16, 2, 1, 2, 0), "9003"),         # the low word of the FLOAT32 alone: 03
+    (struct.pack(">BHH", 3, 0, 1), "03020003"),             # a good read: strategy 3
+])
+def test_exception_codes(device, pdu, answer):
+    reply = ask(device.port, pdu)
+    assert struct.unpack_from(">H", reply, 0)[0] == 7  # the transaction of the request, never a stale one
+    assert reply[7:].hex() == answer
+
+
+def test_calibration_download_read_back_and_refusal(device, corrections):
+    link = ModbusLink(port=device.port)
+    link.download_calibration(corrections)
+    assert link.identity()["vendor_id"] == 0x0B1D
+    bad = corrections.__class__.from_json_dict(corrections.to_json_dict())
+    bad.pole_offset_deg_e[2] = 50.0  # beyond the +-10 deg_e the controller accepts
+    with pytest.raises(LinkError, match="exception code 03"):
+        link.download_calibration(bad)
+    st_ = link.status()
+    assert st_["error_register"] & 0x81 == 0x81
+    assert (0.0, Fault.INVALID_CALIBRATION) in st_["faults"]
+    link.close()
+
+
+def test_dead_controller_gives_a_precise_error_within_the_timeout():
+    dev = ModbusDevice(VirtualController(CONFIG.motor))
+    link = ModbusLink(port=dev.port, timeout_s=0.5)
+    assert link.read(0, 1) == [3]
+    dev.close()
+    t = time.monotonic()
+    with pytest.raises(LinkTimeout, match=r"Modbus unit 1 at 127.0.0.1:\d+: no answer"):
+        link.edge({"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0})
+    assert time.monotonic() - t < 2.0
+    link.close()
+
+
+ADUS = st.tuples(
+    st.integers(0, 0xFFFF),                                            # transaction id
+    st.sampled_from([0, 0, 0, 1, 0xFFFF]),                             # protocol id (0 = Modbus)
+    st.sampled_from([1, 1, 1, 1, 0, 2, 255]),                          # unit (mostly ours)
+    st.one_of(st.binary(min_size=0, max_size=40),                      # any PDU
+              st.builds(lambda fc, rest: bytes([fc]) + rest, st.sampled_from([1, 2, 3, 4, 5, 6, 15, 16, 23, 43, 0x41, 0x83]),
+                        st.binary(min_size=0, max_size=12))),
+    st.sampled_from([True, True, True, False]),                        # a truthful MBAP length?
+)
+RESULTS = []
+
+
+@settings(max_examples=2000, deadline=None, derandomize=True, database=None, suppress_health_check=list(HealthCheck))
+@given(ADUS)
+def _fuzz(port, adu):
+    tid, proto, unit, pdu, truthful = adu
+    length = len(pdu) + 1 if truthful else (len(pdu) + 5) & 0xFFFF
+    answer_due = truthful and proto == 0 and unit == 1 and len(pdu) >= 1
+    with socket.create_connection(("127.0.0.1", port), timeout=1.0) as s:
+        s.sendall(struct.pack(">HHHB", tid, proto, length, unit) + pdu)
+        reply = b""
+        if answer_due:  # a frame the protocol answers; the others are sent and left
+            try:
+                reply = s.recv(300)
+            except (socket.timeout, ConnectionResetError):
+                reply = b""
+    if reply:
+        # an answer is to this transaction, and is either the request's function or its exception
+        assert struct.unpack_from(">H", reply, 0)[0] == tid
+        fc = reply[7]
+        assert fc in (pdu[0], pdu[0] | 0x80, (pdu[0] | 0x80) & 0xFF)
+        if fc & 0x80:
+            assert reply[8] in (1, 2, 3, 4)
+    RESULTS.append(bool(reply))
+
+
+def test_two_thousand_malformed_adus_do_not_break_the_device(device):
+    RESULTS.clear()
+    _fuzz(device.port)
+    assert len(RESULTS) >= 2000
+    assert sum(RESULTS) > 300  # a good share of the frames called for (and got) an answer
+    link = ModbusLink(port=device.port)  # still serving well-formed requests, correctly
+    assert link.read(0, 1)[0] in (0, 1, 2, 3) and link.identity()["serial"] == 1
+    link.close()
