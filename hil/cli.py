@@ -175,6 +175,15 @@ def cmd_gap_validate(args) -> int:
     return 0
 
 
+def cmd_dut_serve(args) -> int:
+    from .dut.serve import serve
+
+    if args.canopen_port is None and args.modbus_port is None:
+        raise ValueError("give --canopen-port and/or --modbus-port")
+    serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit, strategy=args.strategy, preset=args.preset)
+    return 0
+
+
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
@@ -284,6 +293,18 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
+
+    p = sub.add_parser("dut", help="the virtual controller (device under test)")
+    ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    q = ds.add_parser("serve", help="run the virtual controller in its own process (CANopen via python-can-remote, Modbus TCP)")
+    q.add_argument("--canopen-port", type=int, help="serve CANopen on ws://HOST:PORT (python-can 'remote' interface)")
+    q.add_argument("--modbus-port", type=int, help="serve Modbus TCP on HOST:PORT")
+    q.add_argument("--host", default="127.0.0.1", help="bind address (default loopback; 0.0.0.0 only if you mean it)")
+    q.add_argument("--node-id", type=int, default=5)
+    q.add_argument("--unit", type=int, default=1)
+    q.add_argument("--strategy", type=int, default=3, choices=[0, 1, 2, 3], help="0 raw, 1 corrected, 2 KF, 3 Sage-Husa")
+    q.add_argument("--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for")
+    q.set_defaults(func=cmd_dut_serve)
 
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")

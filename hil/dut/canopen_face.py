@@ -284,6 +284,8 @@ class CanopenLink:
             raise LinkError(f"{self.where}: {what} refused with SDO abort 0x{exc.code:08X}") from None
         except SdoCommunicationError as exc:
             raise LinkTimeout(f"{self.where}: no SDO answer to {what} within {self.timeout_s} s ({exc})") from None
+        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
+            raise LinkError(f"{self.where}: {what} failed on the bus: {type(exc).__name__}: {exc}") from None
 
     def read(self, index: int, sub: int | None = None):
         obj = self.node.sdo[index] if sub is None else self.node.sdo[index][sub]
@@ -315,7 +317,10 @@ class CanopenLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        self.network.send_message(0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
+        try:
+            self.network.send_message(0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
+        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
+            raise LinkError(f"{self.where}: edge #{seq} could not be sent: {type(exc).__name__}: {exc}") from None
         commands = []
         deadline = time.monotonic() + self.timeout_s
         while True:
@@ -338,4 +343,7 @@ class CanopenLink:
                 "error_register": self.read(0x1001), "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)]}
 
     def close(self) -> None:
-        self.network.disconnect()
+        try:
+            self.network.disconnect()
+        except Exception:  # a bus that is already gone cannot be closed more
+            pass
