@@ -247,9 +247,17 @@ class Simulation:
         if command.at_s < self.t_s - 1e-12:
             raise ValueError(f"command at {command.at_s} s is in the past (plant time {self.t_s} s)")
         head, count = int(self.ist[K.I_CMD_HEAD]), int(self.ist[K.I_CMD_COUNT])
+        values = (command.at_s, -2 if command.sector is None else command.sector,
+                  -1 if command.duty is None else command.duty, command.direction or 0)
+        if head == count:  # queue drained: start again at the top
+            head = count = 0
+            self.ist[K.I_CMD_HEAD] = 0
+        if count < self.cmds.shape[0] and (count == head or command.at_s >= self.cmds[count - 1, 0]):
+            self.cmds[count] = values  # the usual case: commands arrive in time order
+            self.ist[K.I_CMD_COUNT] = count + 1
+            return
         live = self.cmds[head:count].copy()
-        row = np.array([[command.at_s, -2 if command.sector is None else command.sector,
-                         -1 if command.duty is None else command.duty, command.direction or 0]])
+        row = np.array([values])
         live = np.concatenate([live, row])
         live = live[np.argsort(live[:, 0], kind="stable")]
         if live.shape[0] > self.cmds.shape[0]:
