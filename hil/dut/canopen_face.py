@@ -66,6 +66,9 @@ class CanopenDevice:
     def __init__(self, controller: VirtualController, node_id: int = 5, interface: str = "virtual", channel: str = "hil", **bus_kwargs):
         if controller.motor.pole_pairs != 2:
             raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
+        from .virtual import warm_up
+
+        warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
         self.node_id = node_id
         self.network = canopen.Network()

@@ -109,6 +109,9 @@ class ModbusDevice:
     """Serves a VirtualController over Modbus TCP on 127.0.0.1 (or another address if asked)."""
 
     def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1):
+        from .virtual import warm_up
+
+        warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
         self.port = port
         self.history: list[int] = []

@@ -82,6 +82,16 @@ def validate_corrections(c: Corrections, pole_pairs: int) -> None:
         raise CalibrationTableError("armature_reaction_deg_e_per_a", f"must be finite and within +-5 deg_e/A, got {v!r}")
 
 
+def warm_up() -> None:
+    """Compile the filters' numba code before a device announces itself: a first edge must not
+    wait seconds for a compiler (what a fresh machine with a cold numba cache would do)."""
+    t = np.arange(8) * 1e-3
+    for cls in (KalmanPredictor, SageHusaPredictor):
+        p = cls(MotorModel(2, 0.0039), FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), r0_diag=(1e-5, 1.0)))
+        for k in range(t.size):
+            p.update(float(t[k]), 1.0)
+
+
 @dataclass
 class VirtualController:
     motor: MotorParameters
