@@ -108,11 +108,14 @@ def request_exception(pdu: bytes) -> bytes | None:
 class ModbusDevice:
     """Serves a VirtualController over Modbus TCP on 127.0.0.1 (or another address if asked)."""
 
-    def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1):
+    def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1,
+                 serial_port: str | None = None, baudrate: int = 115200):
+        """TCP on host:port, or RTU on ``serial_port`` (a serial device path) when given."""
         from .virtual import warm_up
 
         warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
+        self.serial_port, self.baudrate = serial_port, baudrate
         self.port = port
         self.history: list[int] = []
         controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
@@ -133,9 +136,20 @@ class ModbusDevice:
             traceback.print_exc()
 
     async def _serve(self):
-        from pymodbus.server import ModbusTcpServer
+        from pymodbus.framer import FramerType
+        from pymodbus.server import ModbusSerialServer, ModbusTcpServer
 
         self.loop = asyncio.get_running_loop()
+        self._expected: dict[int, bytes] = {}
+        if self.serial_port is not None:
+            device = SimDevice(self.unit, simdata=simdata(), action=self._action)
+            self.server = ModbusSerialServer(device, framer=FramerType.RTU, port=self.serial_port, baudrate=self.baudrate,
+                                             trace_packet=self._trace_packet_rtu)
+            task = asyncio.create_task(self.server.serve_forever())
+            await asyncio.sleep(0.2)
+            self._ready.set()
+            await task
+            return
         if self.port == 0:
             import socket
 
@@ -143,7 +157,6 @@ class ModbusDevice:
                 s.bind((self.host, 0))
                 self.port = s.getsockname()[1]
         device = SimDevice(self.unit, simdata=simdata(), action=self._action)
-        self._expected: dict[int, bytes] = {}
         # built inside the running loop; trace_packet enforces the exception codes of the
         # Modbus application protocol where pymodbus's defaults differ (design notes section 4)
         self.server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=self._trace_packet)
@@ -172,6 +185,22 @@ class ModbusDevice:
         if exc is None:
             return data
         return data[:4] + struct.pack(">H", 1 + len(exc)) + data[6:7] + exc
+
+    def _trace_packet_rtu(self, sending: bool, data: bytes) -> bytes:
+        """RTU: the same rules as TCP; a serial line is strictly request then answer, so the
+        verdict of the last request is the one to apply (CRC recomputed on a rewrite)."""
+        from pymodbus.framer.rtu import FramerRTU
+
+        if len(data) < 4:
+            return data
+        if not sending:
+            self._expected = {0: exc} if (exc := request_exception(data[1:-2])) is not None else {}
+            return data
+        exc = self._expected.pop(0, None)
+        if exc is None:
+            return data
+        frame = data[:1] + exc
+        return frame + FramerRTU.compute_CRC(frame).to_bytes(2, "big")
 
     def close(self):
         if getattr(self, "server", None) is not None:
@@ -276,12 +305,19 @@ class ModbusLink:
 
     name = "modbus"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, unit: int = 1, timeout_s: float = 1.0):
-        from pymodbus.client import ModbusTcpClient
+    def __init__(self, host: str = "127.0.0.1", port: int = 502, unit: int = 1, timeout_s: float = 1.0,
+                 serial_port: str | None = None, baudrate: int = 115200):
+        """Modbus TCP at host:port, or Modbus RTU on ``serial_port`` when given."""
+        from pymodbus.client import ModbusSerialClient, ModbusTcpClient
+        from pymodbus.framer import FramerType
 
         self.unit, self.timeout_s = unit, timeout_s
-        self.where = f"Modbus unit {unit} at {host}:{port}"
-        self.client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
+        if serial_port is not None:
+            self.where = f"Modbus RTU unit {unit} on {serial_port}"
+            self.client = ModbusSerialClient(serial_port, framer=FramerType.RTU, baudrate=baudrate, timeout=timeout_s, retries=0)
+        else:
+            self.where = f"Modbus unit {unit} at {host}:{port}"
+            self.client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
         if not self.client.connect():
             raise LinkTimeout(f"{self.where}: cannot connect within {timeout_s} s")
         self._seq = 0
