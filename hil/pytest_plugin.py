@@ -13,7 +13,9 @@ def pytest_addoption(parser):
     group = parser.getgroup("hil", "BLDC pump controller HIL")
     group.addoption("--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset")
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
+    group.addoption("--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in")
     parser.addini("hil_plant", "plant TOML used when --hil-plant is not given", default="")
+    parser.addini("hil_budgets", "budgets TOML used when --hil-budgets is not given", default="")
     parser.addini("hil_seed", "base seed used when --hil-seed is not given", default="0")
 
 
@@ -64,3 +66,31 @@ def hil_kinematic(hil_plant_config, hil_seed):
         return simulate_edges(hil_plant_config.with_effects(*effects), profile, seed=hil_seed if seed is None else seed)
 
     return make
+
+
+@pytest.fixture(scope="session")
+def hil_budgets(pytestconfig):
+    """The accuracy budgets: --hil-budgets TOML over the built-in defaults."""
+    from hil.budgets import Budgets
+
+    path = _option(pytestconfig, "budgets")
+    return Budgets.from_toml(path) if path else Budgets.defaults()
+
+
+@pytest.fixture
+def hil_budget(hil_budgets, record_property):
+    """``hil_budget(name, measured)``: check a measurement against its budget, record the verdict
+    (a JUnit property ``budget:<name>`` and ``requirement``), and fail the test on a fail."""
+    import json
+
+    def check(name: str, measured: float):
+        v = hil_budgets.check(name, measured)
+        record_property(f"budget:{name}", json.dumps(v.as_dict()))
+        record_property("requirement", v.requirement)
+        if v.verdict == "fail":
+            from hil.budgets import BudgetExceeded
+
+            raise BudgetExceeded(v)
+        return v
+
+    return check
