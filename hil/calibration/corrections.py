@@ -81,6 +81,27 @@ class Corrections:
             info=dict(data.get("info", {})),
         )
 
+    def as_vector(self) -> list[float]:
+        """The ten table values in protocol order: installation A/B/C, poles 0-3, rise, fall, armature."""
+        return ([self.installation_offset_deg_e[s] for s in SENSORS] + list(self.pole_offset_deg_e)
+                + [self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"], self.armature_reaction_deg_e_per_a])
+
+    @classmethod
+    def from_vector(cls, v: list[float]) -> "Corrections":
+        """Inverse of :meth:`as_vector` (four pole offsets: two pole pairs)."""
+        return cls(installation_offset_deg_e=dict(zip(SENSORS, v[:3])), pole_offset_deg_e=list(v[3:7]),
+                   conditioning_delay_s={"rise": v[7], "fall": v[8]}, armature_reaction_deg_e_per_a=v[9])
+
+    def as_float32(self) -> "Corrections":
+        """The table as every controller link stores it (IEEE single precision): the declared scaling."""
+        f32 = lambda v: float(np.float32(v))  # noqa: E731
+        return Corrections(
+            installation_offset_deg_e={s: f32(self.installation_offset_deg_e[s]) for s in SENSORS},
+            pole_offset_deg_e=[f32(v) for v in self.pole_offset_deg_e],
+            conditioning_delay_s={k: f32(self.conditioning_delay_s[k]) for k in ("rise", "fall")},
+            armature_reaction_deg_e_per_a=f32(self.armature_reaction_deg_e_per_a),
+        )
+
     @classmethod
     def from_plant(cls, config) -> "Corrections":
         """The true corrections of a plant configuration (for scoring; pole 0 taken as reference)."""

@@ -18,7 +18,7 @@ import canopen
 import numpy as np
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from ..calibration.corrections import SENSORS, Corrections
+from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
 from .messages import CommandMessage, EdgeMessage, encode_reply
 from .od import EDS_PATH
@@ -34,30 +34,6 @@ ABORT_COMMAND = 0x05040001
 ABORT_STATE = 0x08000022
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
-
-
-def _f32(v: float) -> float:
-    return float(np.float32(v))
-
-
-def corrections_as_float32(c: Corrections) -> Corrections:
-    """The table as every link stores it (IEEE single precision): the declared scaling."""
-    return Corrections(
-        installation_offset_deg_e={s: _f32(c.installation_offset_deg_e[s]) for s in SENSORS},
-        pole_offset_deg_e=[_f32(v) for v in c.pole_offset_deg_e],
-        conditioning_delay_s={k: _f32(c.conditioning_delay_s[k]) for k in ("rise", "fall")},
-        armature_reaction_deg_e_per_a=_f32(c.armature_reaction_deg_e_per_a),
-    )
-
-
-def _cal_vector(c: Corrections) -> list[float]:
-    return ([c.installation_offset_deg_e[s] for s in SENSORS] + list(c.pole_offset_deg_e)
-            + [c.conditioning_delay_s["rise"], c.conditioning_delay_s["fall"], c.armature_reaction_deg_e_per_a])
-
-
-def _cal_from_vector(v: list[float]) -> Corrections:
-    return Corrections(installation_offset_deg_e=dict(zip(SENSORS, v[:3])), pole_offset_deg_e=list(v[3:7]),
-                       conditioning_delay_s={"rise": v[7], "fall": v[8]}, armature_reaction_deg_e_per_a=v[9])
 
 
 class CanopenDevice:
@@ -76,7 +52,7 @@ class CanopenDevice:
         self.node = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary
-        self.staged = _cal_vector(controller.corrections or corrections_as_float32(Corrections()))
+        self.staged = (controller.corrections or Corrections()).as_float32().as_vector()
         fs = controller.filter_settings
         self.filter = [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]
         self.history: list[int] = []
@@ -171,7 +147,7 @@ class CanopenDevice:
         if index == 0x2010 and subindex >= 1:
             return self.staged[subindex - 1]
         if index == 0x2012 and subindex >= 1:
-            return _cal_vector(c.corrections or Corrections())[subindex - 1]
+            return (c.corrections or Corrections()).as_vector()[subindex - 1]
         if index == 0x2020 and subindex >= 1:
             return self.filter[subindex - 1]
         if index == 0x2100 and subindex >= 1:
@@ -205,7 +181,7 @@ class CanopenDevice:
             self.staged[subindex - 1] = float(value)
         elif index == 0x2011:
             try:
-                c.download_calibration(_cal_from_vector(self.staged))
+                c.download_calibration(Corrections.from_vector(self.staged))
             except CalibrationTableError:
                 raise SdoAbortedError(ABORT_RANGE) from None
         elif index == 0x2020:
@@ -304,11 +280,11 @@ class CanopenLink:
                 "serial": self.read(0x1018, 4), "device_type": self.read(0x1000), "firmware": self.read(0x100A)}
 
     def download_calibration(self, corrections: Corrections) -> None:
-        for k, v in enumerate(_cal_vector(corrections)):
+        for k, v in enumerate(corrections.as_vector()):
             self.write(0x2010, k + 1, float(v))
         self.write(0x2011, None, 1)
-        back = _cal_from_vector([self.read(0x2012, k + 1) for k in range(10)])
-        verify_calibration(corrections_as_float32(corrections), back)
+        back = Corrections.from_vector([self.read(0x2012, k + 1) for k in range(10)])
+        verify_calibration(corrections.as_float32(), back)
 
     def set_strategy(self, strategy: int) -> None:
         self.write(0x2000, None, int(strategy))

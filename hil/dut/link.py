@@ -65,9 +65,7 @@ class InProcessLink:
                 "device_type": i.device_type, "firmware": i.firmware}
 
     def download_calibration(self, corrections: Corrections) -> None:
-        from .canopen_face import corrections_as_float32
-
-        table = corrections_as_float32(corrections)  # IEEE single precision, as on every link
+        table = corrections.as_float32()  # IEEE single precision, as on every link
         try:
             self.controller.download_calibration(table)
         except CalibrationTableError as exc:

@@ -18,7 +18,6 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
-from .canopen_face import _cal_from_vector, _cal_vector, corrections_as_float32
 from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
 from .messages import CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, Fault, VirtualController
@@ -222,7 +221,7 @@ class ModbusDevice:
         st = c.status()
         put(STRATEGY, [int(c.strategy)])
         put(SPEED, _f32_regs(c.speed_setpoint_rpm))
-        applied = _cal_vector(c.corrections or Corrections())
+        applied = (c.corrections or Corrections()).as_vector()
         put(CAL_APPLIED, sum((_f32_regs(v) for v in applied), []))
         fs = c.filter_settings
         put(FILTER, sum((_f32_regs(v) for v in [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]), []))
@@ -282,7 +281,7 @@ class ModbusDevice:
             staged = [_regs_f32(part(CAL_STAGED + 2 * k, 2)) if covers(CAL_STAGED + 2 * k, 2)
                       else _regs_f32(regs[CAL_STAGED + 2 * k - base:CAL_STAGED + 2 * k - base + 2]) for k in range(10)]
             try:
-                c.download_calibration(_cal_from_vector(staged))
+                c.download_calibration(Corrections.from_vector(staged))
             except CalibrationTableError:
                 return ExcCodes.ILLEGAL_VALUE
             values[CAL_APPLY - address] = 0  # write-only trigger reads back as 0
@@ -346,11 +345,11 @@ class ModbusLink:
         return {"vendor_id": v[0], "product_code": v[1], "revision": v[2], "serial": v[3], "device_type": None, "firmware": None}
 
     def download_calibration(self, corrections: Corrections) -> None:
-        table = corrections_as_float32(corrections)
-        self.write(CAL_STAGED, sum((_f32_regs(v) for v in _cal_vector(table)), []))
+        table = corrections.as_float32()
+        self.write(CAL_STAGED, sum((_f32_regs(v) for v in table.as_vector()), []))
         self.write(CAL_APPLY, [1])
         back = self.read(CAL_APPLIED, 20)
-        verify_calibration(table, _cal_from_vector([_regs_f32(back[2 * k:2 * k + 2]) for k in range(10)]))
+        verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k:2 * k + 2]) for k in range(10)]))
 
     def set_strategy(self, strategy: int) -> None:
         self.write(STRATEGY, [int(strategy)])
