@@ -309,7 +309,7 @@ class CanopenLink:
                 raise LinkTimeout(f"{self.where}: no TPDO reply to edge #{seq} (t = {edge['t_capture_s']:.7f} s) within {self.timeout_s} s") from None
             if frame.seq != seq:
                 continue  # a late frame of an earlier edge
-            if not (frame.sector == 0xFF and frame.duty_u16 == 0xFFFF):
+            if not frame.keeps_everything:
                 commands.append(frame.to_command(epoch))
             if frame.last:
                 return commands

@@ -87,7 +87,7 @@ class InProcessLink:
         commands = self.controller.capture(msg.to_edge(epoch))
         frames = [CommandMessage.unpack(f.pack()) for f in encode_reply(commands, self._seq)]
         self._seq = (self._seq + 1) & 0x7F
-        return [f.to_command(epoch) for f in frames if not (f.sector == 0xFF and f.duty_u16 == 0xFFFF)]
+        return [f.to_command(epoch) for f in frames if not f.keeps_everything]
 
     def status(self) -> dict:
         return self.controller.status()

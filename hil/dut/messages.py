@@ -65,6 +65,11 @@ class CommandMessage:
     def pack(self) -> bytes:
         return struct.pack(_FMT, self.ticks % WRAP, self.duty_u16, self.sector, (self.seq & 0x7F) | (0x80 if self.last else 0))
 
+    @property
+    def keeps_everything(self) -> bool:
+        """The frame of an empty reply (see encode_reply): no command for the plant."""
+        return self.sector == KEEP_SECTOR and self.duty_u16 == KEEP_DUTY
+
     @classmethod
     def unpack(cls, data: bytes) -> "CommandMessage":
         if len(data) != 8:

@@ -370,7 +370,7 @@ class ModbusLink:
             f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k:5 + 4 * k]))
             if f.seq != seq & 0x7F:
                 raise LinkError(f"{self.where}: reply to edge #{seq} carries sequence {f.seq} (a stale answer)")
-            if not (f.sector == 0xFF and f.duty_u16 == 0xFFFF):
+            if not f.keeps_everything:
                 commands.append(f.to_command(epoch))
         return commands
 
