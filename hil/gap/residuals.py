@@ -63,18 +63,18 @@ def turn_errors(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         d = seg.direction_sign
         a_first = np.nonzero((rec.sensor[idx] == 0) & (rec.rising[idx] == (d > 0)))[0]
         start = a_first[0] if a_first.size else 0
+        # angle of each edge relative to its turn's start edge, at that turn's mean speed
         theta = np.full(idx.size, np.nan)
-        for j in range(start, idx.size - n):
-            # angle of edge j relative to the turn's start edge, at the turn's mean speed
-            theta[j] = 360.0 * p * (t[j] - t[start + ((j - start) // n) * n]) / (t[start + ((j - start) // n) * n + n] - t[start + ((j - start) // n) * n])
+        j = np.arange(start, idx.size - n)
+        s0 = start + ((j - start) // n) * n
+        theta[j] = 360.0 * p * (t[j] - t[s0]) / (t[s0 + n] - t[s0])
         seq = np.arange(idx.size) - start
-        ideal = 60.0 * np.mod(seq, n)
-        e = d * wrap180(theta - ideal) if d > 0 else wrap180(theta - ideal)
+        e = wrap180(theta - 60.0 * np.mod(seq, n))
         turn_id = np.where(seq >= 0, seq // n, -1)
         # remove each turn's mean: the reference edge itself is not known to be ideal
-        for tid in np.unique(turn_id[np.isfinite(e)]):
-            sel = (turn_id == tid) & np.isfinite(e)
-            e[sel] -= np.mean(e[sel])
+        ok = np.isfinite(e)
+        ids, inv = np.unique(turn_id[ok], return_inverse=True)
+        e[ok] -= (np.bincount(inv, e[ok]) / np.bincount(inv))[inv]
         err[idx] = e
         pole[idx] = np.mod(np.round((np.mod(seq, n) * 60.0 + SENSOR_POSITION_DEG_E[0] - SENSOR_POSITION_DEG_E[rec.sensor[idx]]) / 180.0), 2 * p).astype(np.int64)
         turn[idx] = turn_id
