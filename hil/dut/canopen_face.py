@@ -9,6 +9,7 @@ the 8-byte messages of hil.dut.messages.
 
 from __future__ import annotations
 
+import dataclasses
 import queue
 import struct
 import threading
@@ -190,13 +191,8 @@ class CanopenDevice:
             if subindex == 1 and not 0.0 < value < 1.0 or subindex > 1 and value < 0.0:
                 raise SdoAbortedError(ABORT_RANGE)
             self.filter = new
-            from ..predictors import FilterSettings
-
-            base = c.filter_settings
-            c.filter_settings = FilterSettings(q0_diag=tuple(new[1:4]), r0_diag=tuple(new[4:6]), p0_diag=tuple(new[6:9]),
-                                               forgetting_b=new[0], adapt_interval=base.adapt_interval, warmup=base.warmup,
-                                               chi2_gate=base.chi2_gate, q_band_factor=base.q_band_factor, eig_floor=base.eig_floor,
-                                               theta_var_rad2=base.theta_var_rad2, adapt_mask=base.adapt_mask)
+            c.filter_settings = dataclasses.replace(c.filter_settings, forgetting_b=new[0], q0_diag=tuple(new[1:4]),
+                                                    r0_diag=tuple(new[4:6]), p0_diag=tuple(new[6:9]))
 
     # --- EMCY ------------------------------------------------------------------------------------
     def _on_fault(self, code: int, t_s: float) -> None:
