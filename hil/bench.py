@@ -7,6 +7,7 @@ depend on the host's speed, only on the plant, the controller and the scenario.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 from plant_models import PlantConfig, Simulation
@@ -24,8 +25,6 @@ class LinkSource:
     def on_edge(self, edge: dict, sim) -> list:
         """The controller answers in its own capture-timer time; a command for an instant that has
         already passed on the plant (the capture stamp precedes the interrupt) applies now."""
-        import dataclasses
-
         self.edges += 1
         now = sim.t_s
         return [c if c.at_s >= now else dataclasses.replace(c, at_s=now) for c in self.link.edge(edge)]

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
+from scipy.optimize import nnls
 
 from hil.recording import Recording
 
@@ -198,11 +199,10 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     from .residuals import model_prediction
 
     r = residuals(rec, model_prediction(model, rec) if model is not None else None)
-    names_all = list(candidates or CANDIDATES)
     if len(r) < 6 * rec.pole_pairs:
         raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")
     cells = build_cells(r)
-    names = names_all
+    names = list(candidates or CANDIDATES)
     if r.reference == "turn":
         # relative errors: common shifts and equal lags are invisible without an encoder
         names = [n for n in names if n not in ("hysteresis", "timer_quantization")]
@@ -303,7 +303,7 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
 
     def fit(idx):
         a = np.column_stack([w[idx] ** 2, np.ones(idx.size)])
-        coef, _ = __import__("scipy.optimize", fromlist=["nnls"]).nnls(a * np.sqrt(n_edges[idx])[:, None], excess[idx] * np.sqrt(n_edges[idx]))
+        coef, _ = nnls(a * np.sqrt(n_edges[idx])[:, None], excess[idx] * np.sqrt(n_edges[idx]))
         return coef
 
     coef = fit(np.arange(segs.size))
