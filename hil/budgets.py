@@ -80,6 +80,30 @@ DEFAULTS = {
 }
 
 
+#: the requirement catalogue: what each ID means (budgets add their own descriptions)
+REQUIREMENTS = {
+    "REQ-CAL-001": "Installation deviations of the Hall sensors are removed by the pre-calibration (paper Eq. 1-5)",
+    "REQ-CAL-002": "Magnet-pole deviations are removed by the pre-calibration (paper Eq. 6)",
+    "REQ-CAL-003": "Conditioning-circuit (RC) delays are removed, rising and falling edges apart (paper Eq. 7-8)",
+    "REQ-CAL-004": "Armature-reaction deviation is removed as a function of phase current",
+    "REQ-CAL-005": "The calibration table is downloaded, applied and read back exactly; an invalid table is refused",
+    "REQ-COMM-001": "Corrected commutation lands within the angle budget over the speed range",
+    "REQ-PRED-001": "The Sage-Husa predictor meets the commutation budgets in the paper's speed-step scenario",
+    "REQ-PRED-002": "The Sage-Husa predictor is no worse than the fixed-noise Kalman filter",
+    "REQ-PRED-003": "The Sage-Husa predictor adapts its noise statistics to the measured edge noise",
+    "REQ-PROT-001": "The controller identifies itself (vendor, product, revision, serial, firmware)",
+    "REQ-PROT-002": "CANopen: heartbeat at the period of 0x1017; EMCY and 0x1001/0x1003 on a fault",
+    "REQ-PROT-003": "Bad requests get the standard's answer (SDO abort codes, Modbus exception codes)",
+    "REQ-FLT-001": "An illegal Hall code (000/111) raises fault 0xFF01",
+    "REQ-FLT-002": "A missing edge raises fault 0xFF02",
+    "REQ-FLT-003": "A Hall sensor drop-out is detected as a fault",
+    "REQ-FLT-004": "A filter guard trip raises fault 0xFF03",
+    "REQ-FLT-005": "No fault is raised on a healthy run",
+    "REQ-ROB-001": "Any combination of bounded deviations, once calibrated, meets the commutation budget",
+    "REQ-ROB-002": "Faults switched on and off while running are reported and recovered from",
+}
+
+
 class Budgets:
     def __init__(self, budgets: dict[str, Budget], source: str = "defaults"):
         self.budgets, self.source = budgets, source

@@ -73,6 +73,8 @@ class HallCommutation:
     _history: list[tuple[float, int, bool, int]] = field(default_factory=list)
     _pole_shift: int | None = None
     _scheduled: dict[int, float] = field(default_factory=dict)
+    _last_sector: int = -1
+    _index_at_last_sector: int = -1
     speed_estimates_rpm: list[tuple[float, float]] = field(default_factory=list)
 
     def _sync_poles(self) -> None:
@@ -100,6 +102,11 @@ class HallCommutation:
         span = 2.0 * m.phase_resistance_ohm * self.current_limit_a
         return min(max(duty, (bemf - span) / m.supply_v, 0.0), (bemf + span) / m.supply_v, 1.0)
 
+    def count_lost_edges(self, lost: int) -> None:
+        """Edges the controller knows were lost (their time passed without a capture): counted,
+        so the edge count, and with it every pole assignment, stays right."""
+        self._edge_index += int(lost)
+
     def on_edge(self, edge: dict, sim=None) -> list[Command]:
         """``edge``: t_capture_s, sensor, rising; now_s (the controller's clock at the interrupt)
         and current_a (its ADC's mean |i|) when available."""
@@ -119,6 +126,13 @@ class HallCommutation:
         sector = int(SECTOR_OF_CODE[self._seen[0] * 4 + self._seen[1] * 2 + self._seen[2]])
         if sector < 0:
             return []
+        if sector == self._last_sector:
+            # back in the sector of the last valid edge: the edges since were a glitch (a spike
+            # through an illegal code, or a bounce), not rotor motion; forget them
+            del self._history[len(self._history) - (self._edge_index - self._index_at_last_sector):]
+            self._edge_index = self._index_at_last_sector
+            return []
+        self._last_sector, self._index_at_last_sector = sector, self._edge_index
         commands: list[Command] = []
         t_corr = t
         if self.corrections is not None and self._last_t is not None:

@@ -1,22 +1,53 @@
-"""pytest plugin (entry point ``pytest11: hil``): options and fixtures for HIL tests.
+"""pytest plugin (entry point ``pytest11: hil``): options, fixtures, the requirement marker and reports.
 
-Options: ``--hil-plant`` (plant TOML; default: the paper-bench preset) and ``--hil-seed``;
-both also readable as ini keys ``hil_plant`` / ``hil_seed`` (pytest.ini or pyproject.toml).
+Options (each also an ini key ``hil_<name>`` in pytest.ini or pyproject.toml):
+
+* ``--hil-dut SPEC`` (repeatable): the controller(s) under test, ``virtual`` by default
+  (``hil/dut/spec.py`` lists the forms: CANopen, Modbus TCP/RTU, the virtual controller);
+  tests that use the controller run once per DUT;
+* ``--hil-plant TOML``: motor and circuit (default: the paper-bench preset);
+* ``--hil-budgets TOML``: accuracy budgets over the built-in defaults;
+* ``--hil-report-dir DIR``: write the HTML, JSON and JUnit reports there, test by test;
+* ``--hil-seed N``: the base seed of everything random.
+
+Fixtures: ``hil_plant_config``, ``hil_simulation``, ``hil_kinematic``, ``hil_seed``, ``hil_dut``
+(the opened controller, once per session and DUT), ``hil_link`` (the controller reset for this
+test), ``hil_bench`` (a lockstep bench factory with effect injection), ``hil_budgets``,
+``hil_budget`` (check a measurement and record its verdict), ``hil_evidence`` (attach values,
+tables, figures and text to the current test). Marker: ``requirement("REQ-...", ...)``.
 """
 
 from __future__ import annotations
 
+import datetime
+import json
+import platform
+import re
+import sys
+from pathlib import Path
+
 import pytest
+
+from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256
+
+VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
+             "matplotlib", "jinja2")
 
 
 def pytest_addoption(parser):
     group = parser.getgroup("hil", "BLDC pump controller HIL")
+    group.addoption("--hil-dut", action="append", default=None, metavar="SPEC",
+                    help="controller under test (repeatable): virtual[:canopen|modbus|in-process], canopen:interface=..,channel=..,node=.., "
+                         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual")
     group.addoption("--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset")
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
     group.addoption("--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in")
+    group.addoption("--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test")
+    parser.addini("hil_dut", "controller spec(s), whitespace-separated, used when --hil-dut is not given", default="")
     parser.addini("hil_plant", "plant TOML used when --hil-plant is not given", default="")
     parser.addini("hil_budgets", "budgets TOML used when --hil-budgets is not given", default="")
     parser.addini("hil_seed", "base seed used when --hil-seed is not given", default="0")
+    parser.addini("hil_report_dir", "report directory used when --hil-report-dir is not given", default="")
 
 
 def _option(config, name):
@@ -26,10 +57,74 @@ def _option(config, name):
     return value
 
 
+def dut_specs(config) -> list:
+    from .dut.spec import DutSpecError, parse_dut
+
+    texts = config.getoption("--hil-dut") or (config.getini("hil_dut") or "").split() or ["virtual"]
+    try:
+        return [parse_dut(t) for t in texts]
+    except DutSpecError as exc:
+        raise pytest.UsageError(str(exc)) from None
+
+
+def _plant_config(config):
+    from plant_models import PlantConfig, paper_bench
+
+    path = _option(config, "plant")
+    return PlantConfig.from_toml(path) if path else paper_bench()
+
+
+def _budgets(config):
+    from .budgets import Budgets
+
+    path = _option(config, "budgets")
+    return Budgets.from_toml(path) if path else Budgets.defaults()
+
+
+def hil_settings(**overrides):
+    """The HIL hypothesis profile (no deadline: a plant run is slow and its time says nothing;
+    examples saved in the report directory's database), with per-test overrides."""
+    from hypothesis import settings
+
+    return settings(settings.get_profile("hil"), **overrides)
+
+
+def pytest_configure(config):
+    config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
+    dut_specs(config)  # a bad --hil-dut is a usage error before anything runs
+    from hypothesis import HealthCheck, settings
+    from hypothesis.database import DirectoryBasedExampleDatabase
+
+    report_dir = _option(config, "report_dir")
+    database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
+    settings.register_profile("hil", deadline=None, print_blob=True, database=database,
+                              suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large])
+    if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
+        config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
+
+
 def pytest_report_header(config):
-    return f"hil: plant={_option(config, 'plant') or 'paper-bench (preset)'} seed={_option(config, 'seed')}"
+    specs = ", ".join(s.text for s in dut_specs(config))
+    return f"hil: dut={specs} plant={_option(config, 'plant') or 'paper-bench (preset)'} seed={_option(config, 'seed') or 0}"
 
 
+def pytest_generate_tests(metafunc):
+    if "hil_dut_spec" in metafunc.fixturenames:
+        specs = dut_specs(metafunc.config)
+        metafunc.parametrize("hil_dut_spec", specs, ids=[s.id for s in specs], scope="session")
+
+
+@pytest.hookimpl(tryfirst=True)
+def pytest_runtest_setup(item):
+    for mark in item.iter_markers("requirement"):
+        for rid in mark.args:
+            item.user_properties.append((PROPERTY_PREFIX + "requirement", str(rid)))
+    doc = getattr(getattr(item, "obj", None), "__doc__", None)
+    if doc:
+        item.user_properties.append((PROPERTY_PREFIX + "doc", " ".join(doc.split())))
+
+
+# --- fixtures -------------------------------------------------------------------------------------
 @pytest.fixture(scope="session")
 def hil_seed(pytestconfig) -> int:
     """Base seed for everything random in a HIL run (recorded in reports)."""
@@ -39,10 +134,7 @@ def hil_seed(pytestconfig) -> int:
 @pytest.fixture(scope="session")
 def hil_plant_config(pytestconfig):
     """The nominal plant: --hil-plant TOML if given, else the paper-bench preset."""
-    from plant_models import PlantConfig, paper_bench
-
-    path = _option(pytestconfig, "plant")
-    return PlantConfig.from_toml(path) if path else paper_bench()
+    return _plant_config(pytestconfig)
 
 
 @pytest.fixture
@@ -69,28 +161,221 @@ def hil_kinematic(hil_plant_config, hil_seed):
 
 
 @pytest.fixture(scope="session")
-def hil_budgets(pytestconfig):
-    """The accuracy budgets: --hil-budgets TOML over the built-in defaults."""
-    from hil.budgets import Budgets
+def hil_dut(hil_dut_spec, hil_plant_config):
+    """The controller under test, opened once per session and DUT spec (``virtual``: the built-in
+    controller, served over its protocol in this process; each xdist worker has its own)."""
+    from .dut.spec import open_dut
 
-    path = _option(pytestconfig, "budgets")
-    return Budgets.from_toml(path) if path else Budgets.defaults()
+    dut = open_dut(hil_dut_spec, hil_plant_config.motor)
+    try:
+        dut.identity = dut.link.identity()
+    except Exception:
+        dut.close()
+        raise
+    yield dut
+    dut.close()
 
 
 @pytest.fixture
-def hil_budget(hil_budgets, record_property):
+def hil_link(hil_dut, request):
+    """The controller link, reset for this test (faults cleared, control logic restarted)."""
+    request.node.user_properties.append((PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity}))
+    hil_dut.link.reset()
+    return hil_dut.link
+
+
+@pytest.fixture
+def hil_bench(hil_link, hil_plant_config, hil_seed):
+    """Factory: ``hil_bench(strategy, corrections=None, effects=(), speed_rpm=6000, filter_settings=None)``
+    -> a LockstepBench of the plant (with ``effects`` injected) and the controller, configured through the link."""
+    from plant_models.plant import steady_state
+
+    from .bench import LockstepBench
+
+    def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
+             config=None):
+        config = (config or hil_plant_config).with_effects(*effects)
+        if filter_settings is not None:
+            hil_link.set_filter_settings(filter_settings)
+        if corrections is not None:
+            hil_link.download_calibration(corrections)
+        hil_link.set_strategy(int(strategy))
+        return LockstepBench(config, hil_link, initial_speed_rpm=speed_rpm, duty=steady_state(config.motor, speed_rpm)["duty"],
+                             seed=hil_seed if seed is None else seed)
+
+    return make
+
+
+@pytest.fixture(scope="session")
+def hil_budgets(pytestconfig):
+    """The accuracy budgets: --hil-budgets TOML over the built-in defaults."""
+    return _budgets(pytestconfig)
+
+
+@pytest.fixture
+def hil_budget(hil_budgets, request):
     """``hil_budget(name, measured)``: check a measurement against its budget, record the verdict
-    (a JUnit property ``budget:<name>`` and ``requirement``), and fail the test on a fail."""
-    import json
+    (report and JUnit property), and fail the test on a fail with a message naming the budget."""
 
     def check(name: str, measured: float):
-        v = hil_budgets.check(name, measured)
-        record_property(f"budget:{name}", json.dumps(v.as_dict()))
-        record_property("requirement", v.requirement)
-        if v.verdict == "fail":
-            from hil.budgets import BudgetExceeded
+        from .budgets import BudgetExceeded
 
+        v = hil_budgets.check(name, measured)
+        request.node.user_properties.append((PROPERTY_PREFIX + "measurement", v.as_dict()))
+        if v.verdict == "fail":
             raise BudgetExceeded(v)
         return v
 
     return check
+
+
+class Evidence:
+    """What a test attaches to its record in the report."""
+
+    def __init__(self, node, figure_dir: Path, report_dir: Path | None):
+        self._node, self._figure_dir, self._report_dir = node, figure_dir, report_dir
+
+    def _add(self, item: dict) -> None:
+        self._node.user_properties.append((PROPERTY_PREFIX + "evidence", item))
+
+    def value(self, name: str, value, unit: str = "") -> None:
+        self._add({"kind": "value", "name": name, "value": float(value) if isinstance(value, (int, float)) else str(value), "unit": unit})
+
+    def table(self, name: str, columns, rows) -> None:
+        self._add({"kind": "table", "name": name, "columns": [str(c) for c in columns],
+                   "rows": [[v if isinstance(v, (int, float, str)) else str(v) for v in row] for row in rows]})
+
+    def text(self, name: str, text: str) -> None:
+        self._add({"kind": "text", "name": name, "text": str(text)})
+
+    def figure(self, name: str, fig) -> Path:
+        """Save a matplotlib figure as PNG (embedded in the HTML report) and attach it."""
+        from .plots import save
+
+        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{self._node.nodeid}-{name}")[-150:]
+        path = save(fig, self._figure_dir / f"{slug}.png", dpi=90)
+        rel = path.relative_to(self._report_dir).as_posix() if self._report_dir else str(path)
+        self._add({"kind": "figure", "name": name, "path": rel})
+        return path
+
+
+@pytest.fixture
+def hil_evidence(request, tmp_path):
+    """Attach evidence to the current test: ``.value(name, v, unit)``, ``.table(name, columns, rows)``,
+    ``.text(name, text)``, ``.figure(name, matplotlib_figure)``."""
+    report_dir = _option(request.config, "report_dir")
+    if report_dir:
+        report_dir = Path(report_dir).resolve()
+        return Evidence(request.node, report_dir / "figures", report_dir)
+    return Evidence(request.node, tmp_path, None)
+
+
+# --- reports --------------------------------------------------------------------------------------
+class HilReporter:
+    """Collects phase reports into one record per test and hands it to the ReportWriter."""
+
+    def __init__(self, config, directory: Path):
+        self.config = config
+        self.pending: dict[str, list] = {}
+        budgets = _budgets(config)
+        from .budgets import REQUIREMENTS
+
+        titles = dict(REQUIREMENTS)
+        for b in budgets.budgets.values():
+            titles.setdefault(b.requirement, b.description)
+        self.writer = ReportWriter(directory, session=self._session_info(budgets), requirements=titles)
+        self.writer.render()  # an empty report exists from the start
+
+    def _session_info(self, budgets) -> dict:
+        from importlib import metadata
+
+        config = self.config
+        plant_path = _option(config, "plant")
+        plant = _plant_config(config)
+        versions = {"python": platform.python_version()}
+        for name in VERSIONED:
+            try:
+                versions[name] = metadata.version(name)
+            except metadata.PackageNotFoundError:
+                pass
+        info = {
+            "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+            "host": platform.node(),
+            "dut": ", ".join(s.text for s in dut_specs(config)),
+            "plant": plant_path or "paper-bench (preset)",
+            "plant_sha256": plant.config_hash(),
+            "budgets": budgets.source,
+            "seed": int(_option(config, "seed") or 0),
+            "hypothesis_seed": config.getoption("hypothesis_seed", None),
+            "xdist_workers": getattr(config.option, "numprocesses", None),
+            "versions": versions,
+        }
+        if budgets.source != "defaults":
+            info["budgets_sha256"] = file_sha256(budgets.source)
+        return info
+
+    def pytest_runtest_logreport(self, report):
+        self.pending.setdefault(report.nodeid, []).append(report)
+        if report.when == "teardown" or report.when not in ("setup", "call"):
+            self.writer.add(self._record(report.nodeid, self.pending.pop(report.nodeid)))
+
+    def pytest_sessionfinish(self, session, exitstatus):
+        for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)
+            self.writer.add(self._record(nodeid, reports))
+        self.pending.clear()
+        self.writer.finish({"finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "exit_status": int(exitstatus)})
+
+    def pytest_terminal_summary(self, terminalreporter):
+        terminalreporter.write_sep("-", f"HIL report ({self.writer.content()['verdict']}): {self.writer.paths['html']}")
+
+    @staticmethod
+    def _record(nodeid: str, reports: list) -> dict:
+        outcome, message, details, duration = "passed", "", "", 0.0
+        props: list = []
+        for r in reports:
+            duration += getattr(r, "duration", 0.0)
+            props = list(getattr(r, "user_properties", props)) or props
+            phase = None
+            if hasattr(r, "wasxfail"):
+                phase = "xfailed" if r.skipped else ("xpassed" if r.passed else None)
+                message = message or str(r.wasxfail)
+            if phase is None:
+                if r.failed:
+                    phase = "failed" if r.when == "call" else "error"
+                elif r.skipped:
+                    phase = "skipped"
+                else:
+                    phase = "passed"
+            if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
+                outcome = phase
+                if r.failed or r.skipped:
+                    message, details = _failure_text(r)
+        record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
+                  "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
+                  "worker": getattr(reports[-1], "node", None) and getattr(reports[-1].node, "gateway", None) and reports[-1].node.gateway.id or ""}
+        for key, value in props:
+            if not str(key).startswith(PROPERTY_PREFIX):
+                continue
+            kind = key[len(PROPERTY_PREFIX):]
+            if kind == "requirement" and value not in record["requirements"]:
+                record["requirements"].append(value)
+            elif kind == "measurement":
+                record["measurements"].append(value)
+            elif kind == "evidence":
+                record["evidence"].append(value)
+            elif kind == "dut":
+                record["dut"], record["dut_identity"] = value["id"], value["identity"]
+            elif kind == "doc":
+                record["doc"] = value
+        json.dumps(record)  # everything in a record is plain data
+        return record
+
+
+def _failure_text(report) -> tuple[str, str]:
+    longrepr = report.longrepr
+    if isinstance(longrepr, tuple) and len(longrepr) == 3:  # a skip: (file, line, reason)
+        return str(longrepr[2]).removeprefix("Skipped: "), ""
+    crash = getattr(longrepr, "reprcrash", None)
+    text = str(longrepr) if longrepr is not None else ""
+    return (crash.message if crash is not None else (text.splitlines() or [""])[-1])[:2000], text[-20000:]

@@ -9,7 +9,6 @@ the 8-byte messages of hil.dut.messages.
 
 from __future__ import annotations
 
-import dataclasses
 import queue
 import struct
 import threading
@@ -20,7 +19,7 @@ import numpy as np
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
-from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
+from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
 from .messages import CommandMessage, EdgeMessage, encode_reply
 from .od import EDS_PATH
 from .virtual import CalibrationTableError, Fault, VirtualController
@@ -54,8 +53,7 @@ class CanopenDevice:
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary
         self.staged = (controller.corrections or Corrections()).as_float32().as_vector()
-        fs = controller.filter_settings
-        self.filter = [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]
+        self.filter = filter_vector(controller.filter_settings)
         self.history: list[int] = []
         self._epoch = 0
         self._last_ticks: int | None = None
@@ -102,6 +100,7 @@ class CanopenDevice:
                     self.controller.clear_faults()
                     self.history.clear()
                     self.controller.reset()
+                    self._epoch, self._last_ticks = 0, None
             self._boot()
             return
         self._start_heartbeat()
@@ -188,11 +187,11 @@ class CanopenDevice:
         elif index == 0x2020:
             new = list(self.filter)
             new[subindex - 1] = float(value)
-            if subindex == 1 and not 0.0 < value < 1.0 or subindex > 1 and value < 0.0:
-                raise SdoAbortedError(ABORT_RANGE)
+            try:  # takes effect at the next strategy write or NMT reset, as the filter restarts then
+                c.filter_settings = with_filter_vector(c.filter_settings, new)
+            except ValueError:
+                raise SdoAbortedError(ABORT_RANGE) from None
             self.filter = new
-            c.filter_settings = dataclasses.replace(c.filter_settings, forgetting_b=new[0], q0_diag=tuple(new[1:4]),
-                                                    r0_diag=tuple(new[4:6]), p0_diag=tuple(new[6:9]))
 
     # --- EMCY ------------------------------------------------------------------------------------
     def _on_fault(self, code: int, t_s: float) -> None:
@@ -248,8 +247,28 @@ class CanopenLink:
         self.emcy: queue.Queue = queue.Queue()
         self.network.subscribe(0x180 + node_id, lambda cid, data, ts: self.replies.put(bytes(data)))
         self.network.subscribe(0x80 + node_id, lambda cid, data, ts: self.emcy.put((ts, bytes(data))))
+        self.boot_ups: queue.Queue = queue.Queue()
+        self.network.subscribe(0x700 + node_id, lambda cid, data, ts: bytes(data) == b"\x00" and self.boot_ups.put(ts))
         self._seq = 0
         self.network.send_message(0, bytes([NMT_START, node_id]))
+
+    def reset(self) -> None:
+        """NMT reset node (faults cleared, logic restarted), wait for the boot-up, then start."""
+        for q in (self.boot_ups, self.replies, self.emcy):
+            while not q.empty():
+                q.get_nowait()
+        self.network.send_message(0, bytes([NMT_RESET_NODE, self.node_id]))
+        try:
+            self.boot_ups.get(timeout=self.timeout_s)
+        except queue.Empty:
+            raise LinkTimeout(f"{self.where}: no boot-up within {self.timeout_s} s after NMT reset node") from None
+        self.network.send_message(0, bytes([NMT_START, self.node_id]))
+        self._seq = 0
+
+    def set_filter_settings(self, settings) -> None:
+        for k, v in enumerate(filter_vector(settings)):
+            self.write(0x2020, k + 1, float(v))
+        self.write(0x2000, None, self.read(0x2000))  # the filter restarts with its new settings
 
     # --- SDO helpers -----------------------------------------------------------------------------
     def _sdo(self, what: str, fn):

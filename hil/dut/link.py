@@ -8,6 +8,7 @@ from typing import Protocol
 from plant_models.simulation import Command
 
 from ..calibration.corrections import Corrections
+from ..predictors import FilterSettings
 from .messages import TICK_S, CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, VirtualController
 
@@ -22,9 +23,13 @@ class LinkTimeout(LinkError):
 
 class ControllerLink(Protocol):
     name: str
+    #: where the controller is, for messages ("CANopen node 5 on virtual:hil")
+    where: str
 
     def identity(self) -> dict: ...
+    def reset(self) -> None: ...
     def download_calibration(self, corrections: Corrections) -> None: ...
+    def set_filter_settings(self, settings: FilterSettings) -> None: ...
     def set_strategy(self, strategy: int) -> None: ...
     def set_speed(self, rpm: float) -> None: ...
     def edge(self, edge: dict) -> list[Command]: ...
@@ -44,6 +49,21 @@ def verify_calibration(written: Corrections, read_back: Corrections, tolerance: 
             raise LinkError(f"calibration read-back mismatch at {name}: wrote {a!r}, read {b!r} (tolerance {t})")
 
 
+def filter_vector(settings: FilterSettings) -> list[float]:
+    """The nine filter settings every link carries (CANopen 0x2020, Modbus 60-77), in order."""
+    return [settings.forgetting_b, *settings.q0_diag, *settings.r0_diag, *settings.p0_diag]
+
+
+def with_filter_vector(settings: FilterSettings, vector) -> FilterSettings:
+    """``settings`` with b, Q0, R0 and P0 taken from the nine-value vector (validated)."""
+    import dataclasses
+
+    v = [float(x) for x in vector]
+    new = dataclasses.replace(settings, forgetting_b=v[0], q0_diag=tuple(v[1:4]), r0_diag=tuple(v[4:6]), p0_diag=tuple(v[6:9]))
+    new.check()
+    return new
+
+
 def edge_epoch(t_s: float) -> int:
     """Ticks of the capture timer's completed wraps at time t_s (both ends know the plant's
     time base, so a wrap of the 32-bit timer is undone the same way on every link)."""
@@ -57,7 +77,24 @@ class InProcessLink:
 
     def __init__(self, controller: VirtualController):
         self.controller = controller
+        self.where = "in-process virtual controller"
         self._seq = 0
+
+    def reset(self) -> None:
+        """Clear the faults and restart the control logic (calibration and settings are kept)."""
+        self.controller.clear_faults()
+        self.controller.reset()
+        self._seq = 0
+
+    def set_filter_settings(self, settings: FilterSettings) -> None:
+        import numpy as np
+
+        vector = [float(np.float32(v)) for v in filter_vector(settings)]  # IEEE single, as on every link
+        try:
+            self.controller.filter_settings = with_filter_vector(self.controller.filter_settings, vector)
+        except ValueError as exc:
+            raise LinkError(f"{self.where}: filter settings refused: {exc}") from None
+        self.controller.reset()
 
     def identity(self) -> dict:
         i = self.controller.identity

@@ -18,13 +18,14 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
-from .link import LinkError, LinkTimeout, edge_epoch, verify_calibration
+from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
 from .messages import CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, Fault, VirtualController
 
 # addresses
 STRATEGY, SPEED = 0, 1
-CAL_STAGED, CAL_APPLY, CAL_APPLIED = 10, 30, 40
+CAL_STAGED, CAL_APPLY, COMMAND, CAL_APPLIED = 10, 30, 31, 40
+RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
 FILTER = 60
 RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
 ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
@@ -58,6 +59,7 @@ def simdata() -> list[SimData]:
         SimData(SPEED, 1, 5000.0, DataType.FLOAT32),
         SimData(CAL_STAGED, 10, 0.0, DataType.FLOAT32),
         SimData(CAL_APPLY, 1, 0, DataType.UINT16),
+        SimData(COMMAND, 1, 0, DataType.UINT16),
         SimData(CAL_APPLIED, 10, 0.0, DataType.FLOAT32, readonly=True),
         SimData(FILTER, 9, 0.0, DataType.FLOAT32),
         SimData(RB_SPEED, 7, 0.0, DataType.FLOAT32, readonly=True),
@@ -223,8 +225,7 @@ class ModbusDevice:
         put(SPEED, _f32_regs(c.speed_setpoint_rpm))
         applied = (c.corrections or Corrections()).as_vector()
         put(CAL_APPLIED, sum((_f32_regs(v) for v in applied), []))
-        fs = c.filter_settings
-        put(FILTER, sum((_f32_regs(v) for v in [fs.forgetting_b, *fs.q0_diag, *fs.r0_diag, *fs.p0_diag]), []))
+        put(FILTER, sum((_f32_regs(v) for v in filter_vector(c.filter_settings)), []))
         speed = st["estimated_speed_rpm"] if np.isfinite(st["estimated_speed_rpm"]) else 0.0
         put(RB_SPEED, sum((_f32_regs(v) for v in [speed, *st["q_diag"], *st["r_diag"]]), []))
         put(RB_TRIPS, [(st["guard_trips"] >> 16) & 0xFFFF, st["guard_trips"] & 0xFFFF])
@@ -285,6 +286,23 @@ class ModbusDevice:
             except CalibrationTableError:
                 return ExcCodes.ILLEGAL_VALUE
             values[CAL_APPLY - address] = 0  # write-only trigger reads back as 0
+        if any(covers(FILTER + 2 * k, 2) for k in range(9)):
+            vector = filter_vector(c.filter_settings)
+            for k in range(9):
+                if covers(FILTER + 2 * k, 2):
+                    vector[k] = _regs_f32(part(FILTER + 2 * k, 2))
+            try:  # takes effect at the next strategy write or reset command, as the filter restarts then
+                c.filter_settings = with_filter_vector(c.filter_settings, vector)
+            except ValueError:
+                return ExcCodes.ILLEGAL_VALUE
+        if covers(COMMAND):
+            if part(COMMAND, 1)[0] != RESET_APPLICATION:
+                return ExcCodes.ILLEGAL_VALUE
+            c.clear_faults()
+            self.history.clear()
+            c.reset()
+            self._epoch, self._last_ticks = 0, None
+            values[COMMAND - address] = 0  # a trigger reads back as 0
         if covers(EDGE_IN, 4):
             try:
                 msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)))
@@ -350,6 +368,15 @@ class ModbusLink:
         self.write(CAL_APPLY, [1])
         back = self.read(CAL_APPLIED, 20)
         verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k:2 * k + 2]) for k in range(10)]))
+
+    def reset(self) -> None:
+        """Command register: clear the faults and restart the control logic (calibration kept)."""
+        self.write(COMMAND, [RESET_APPLICATION])
+        self._seq = 0
+
+    def set_filter_settings(self, settings) -> None:
+        self.write(FILTER, sum((_f32_regs(v) for v in filter_vector(settings)), []))
+        self.write(STRATEGY, self.read(STRATEGY, 1))  # the filter restarts with its new settings
 
     def set_strategy(self, strategy: int) -> None:
         self.write(STRATEGY, [int(strategy)])

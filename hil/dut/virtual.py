@@ -139,8 +139,7 @@ class VirtualController:
         self._logic.speed.setpoint_rpm = float(rpm)
         self._logic.speed.feedforward = steady_state(self.motor, rpm)["duty"]
 
-    def reset(self) -> None:
-        """(Re)start the control logic with the present configuration (NMT reset application)."""
+    def _build_logic(self, speed_loop: SpeedPI) -> None:
         predictor = None
         model = self.model or MotorModel.from_plant(self.motor)
         if self.strategy is Strategy.KF:
@@ -148,14 +147,19 @@ class VirtualController:
         elif self.strategy is Strategy.SAGE_HUSA:
             predictor = SageHusaPredictor(model, self.filter_settings)
         corrections = None if self.strategy is Strategy.RAW else (self.corrections or Corrections(pole_offset_deg_e=[0.0] * 2 * self.motor.pole_pairs))
-        pi = SpeedPI(self.speed_setpoint_rpm, kp_per_rpm=self.kp_per_rpm, ki_per_rpm_s=self.ki_per_rpm_s,
-                     feedforward=steady_state(self.motor, self.speed_setpoint_rpm)["duty"])
-        self._logic = HallCommutation(self.motor.pole_pairs, pi, corrections, current_limit_a=self.current_limit_a, motor=self.motor,
+        self._logic = HallCommutation(self.motor.pole_pairs, speed_loop, corrections, current_limit_a=self.current_limit_a, motor=self.motor,
                                       predictor=predictor)
         self._predictor = predictor
         self._guards_seen = 0
+
+    def reset(self) -> None:
+        """(Re)start the control logic with the present configuration (NMT reset application)."""
+        self._build_logic(SpeedPI(self.speed_setpoint_rpm, kp_per_rpm=self.kp_per_rpm, ki_per_rpm_s=self.ki_per_rpm_s,
+                                  feedforward=steady_state(self.motor, self.speed_setpoint_rpm)["duty"]))
         self._sector = None
         self._sensors_seen: set[int] = set()
+        self._bits = [0, 0, 0]
+        self._edges_since_motion = 0
         self._last_t: float | None = None
         self._last_dt: float | None = None
 
@@ -182,23 +186,32 @@ class VirtualController:
         if not math.isfinite(t) or (self._last_t is not None and t <= self._last_t):
             self.raise_fault(Fault.CAPTURE_TIMING, t if math.isfinite(t) else 0.0)
             return []  # a capture stamp that does not increase cannot be an edge of this rotor
-        bits = list(self._logic._seen)
-        bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
-        code = bits[0] * 4 + bits[1] * 2 + bits[2]
-        sector = int(SECTOR_OF_CODE[code])
+        self._bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
+        sector = int(SECTOR_OF_CODE[self._bits[0] * 4 + self._bits[1] * 2 + self._bits[2]])
         self._sensors_seen.add(int(edge["sensor"]))
+        rotor_motion = True
         if len(self._sensors_seen) == 3:  # the Hall state is known once every sensor has switched
             if sector < 0:
                 self.raise_fault(Fault.ILLEGAL_HALL_CODE, t)
+                rotor_motion = False
+            elif sector == self._sector:
+                rotor_motion = False  # back where the last valid edge left it: a spike or a bounce, not motion
             elif self._sector is not None and (sector - self._sector) % 6 != (1 if self.direction > 0 else 5):
-                self.raise_fault(Fault.MISSING_EDGE, t)  # a step against the direction of rotation
+                self.raise_fault(Fault.MISSING_EDGE, t)  # a skipped sector, or a step against the direction of rotation
             self._sector = sector if sector >= 0 else self._sector
-        if self._last_t is not None:
-            dt = t - self._last_t
-            if self._last_dt is not None and dt > self.missing_edge_interval_ratio * self._last_dt:
-                self.raise_fault(Fault.MISSING_EDGE, t)  # an interval of two or more sectors
-            self._last_dt = dt
-        self._last_t = t
+        self._edges_since_motion += 1
+        if rotor_motion:
+            if self._last_t is not None:
+                dt = t - self._last_t
+                if self._last_dt is not None and dt > self.missing_edge_interval_ratio * self._last_dt:
+                    self.raise_fault(Fault.MISSING_EDGE, t)  # an interval of two or more sectors
+                    # keep the edge count (and the pole assignment) right: sectors that passed
+                    # minus the edges that did arrive
+                    self._logic.count_lost_edges(max(round(dt / self._last_dt) - self._edges_since_motion, 0))
+                    dt = self._last_dt  # the interval of one sector stays the reference
+                self._last_dt = dt
+            self._last_t = t
+            self._edges_since_motion = 0
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults

@@ -1,0 +1,172 @@
+"""Which controller a run talks to: ``--hil-dut`` specifications, parsed and opened.
+
+A DUT is configuration (labgrid's idea): one string says where the controller is and how to
+reach it, and ``open_dut`` gives the one ``ControllerLink`` the acceptance suite uses.
+
+    virtual                      the built-in virtual controller over CANopen (python-can ``virtual``)
+    virtual:canopen              the same, said explicitly
+    virtual:modbus               the built-in virtual controller over Modbus TCP on 127.0.0.1
+    virtual:in-process           the built-in virtual controller called directly (no protocol)
+    canopen:interface=pcan,channel=PCAN_USBBUS1,node=5,bitrate=500000,eds=my.eds
+    modbus-tcp:host=192.168.0.10,port=502,unit=1
+    modbus-rtu:port=/dev/ttyUSB0,baud=115200,unit=1
+
+Every form takes ``timeout=SECONDS`` (default 1.0): a controller that stops answering fails
+the test within it, naming the request.
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+from dataclasses import dataclass, field
+
+from plant_models import MotorParameters
+
+KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu")
+VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
+#: keys each kind accepts, with a converter and a default (None: required)
+_KEYS = {
+    "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1)},
+    "canopen": {"interface": (str, None), "channel": (str, None), "node": (int, 5), "bitrate": (int, 0), "eds": (str, ""),
+                "timeout": (float, 1.0)},
+    "modbus-tcp": {"host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0)},
+    "modbus-rtu": {"port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0)},
+}
+_channels = itertools.count()
+
+
+class DutSpecError(ValueError):
+    """A ``--hil-dut`` string that cannot be used; the message quotes it and names the part."""
+
+
+@dataclass(frozen=True)
+class DutSpec:
+    kind: str
+    transport: str = ""                          #: virtual only: canopen, modbus or in-process
+    options: dict = field(default_factory=dict)  #: the kind's keys, converted, defaults filled in
+    text: str = "virtual"
+
+    @property
+    def is_virtual(self) -> bool:
+        return self.kind == "virtual"
+
+    @property
+    def protocol(self) -> str:
+        """``canopen``, ``modbus`` or ``in-process``: which conformance tests apply."""
+        if self.is_virtual:
+            return self.transport
+        return "canopen" if self.kind == "canopen" else "modbus"
+
+    @property
+    def id(self) -> str:
+        """A short name for test ids and reports."""
+        return f"virtual-{self.transport}" if self.is_virtual else self.kind
+
+
+def parse_dut(text: str) -> DutSpec:
+    text = (text or "virtual").strip()
+    head, _, rest = text.partition(":")
+    kind = head.strip().lower()
+    if kind not in KINDS:
+        raise DutSpecError(f"--hil-dut {text!r}: unknown kind {kind!r} (use one of {', '.join(KINDS)})")
+    transport = ""
+    if kind == "virtual":
+        first, _, more = rest.partition(",")
+        if first and "=" not in first:
+            transport, rest = first.strip().lower(), more
+        else:
+            transport = "canopen"
+        if transport not in VIRTUAL_TRANSPORTS:
+            raise DutSpecError(f"--hil-dut {text!r}: unknown virtual transport {transport!r} (use one of {', '.join(VIRTUAL_TRANSPORTS)})")
+    keys = _KEYS[kind]
+    options = {}
+    for part in filter(None, (p.strip() for p in rest.split(","))):
+        key, eq, value = part.partition("=")
+        key = key.strip().lower()
+        if not eq:
+            raise DutSpecError(f"--hil-dut {text!r}: {part!r} is not key=value")
+        if key not in keys:
+            raise DutSpecError(f"--hil-dut {text!r}: unknown key {key!r} for {kind} (known: {', '.join(keys)})")
+        try:
+            options[key] = keys[key][0](value.strip())
+        except ValueError:
+            raise DutSpecError(f"--hil-dut {text!r}: {key}={value!r} is not a valid {keys[key][0].__name__}") from None
+    for key, (_, default) in keys.items():
+        if key not in options:
+            if default is None:
+                raise DutSpecError(f"--hil-dut {text!r}: {kind} needs {key}=...")
+            options[key] = default
+    if not options["timeout"] > 0:
+        raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
+    return DutSpec(kind, transport, options, text)
+
+
+class Dut:
+    """An opened controller: ``link`` for the suite; the virtual device's pieces are kept only to close them."""
+
+    def __init__(self, spec: DutSpec, link, closers=()):
+        self.spec, self.link, self._closers = spec, link, list(closers)
+
+    @property
+    def protocol(self) -> str:
+        return self.spec.protocol
+
+    def close(self) -> None:
+        for close in [self.link.close, *self._closers]:
+            try:
+                close()
+            except Exception:  # closing what already failed must not hide the failure
+                pass
+
+    def __enter__(self) -> "Dut":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+
+def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
+    """Open the controller; for ``virtual`` build the reference controller for ``motor`` and serve it."""
+    spec = parse_dut(spec) if isinstance(spec, str) else spec
+    o = spec.options
+    if spec.kind == "canopen":
+        from .canopen_face import CanopenLink
+
+        bus = {"bitrate": o["bitrate"]} if o["bitrate"] else {}
+        return Dut(spec, CanopenLink(node_id=o["node"], interface=o["interface"], channel=o["channel"], eds=o["eds"] or None,
+                                     timeout_s=o["timeout"], **bus))
+    if spec.kind == "modbus-tcp":
+        from .modbus_face import ModbusLink
+
+        return Dut(spec, ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"]))
+    if spec.kind == "modbus-rtu":
+        from .modbus_face import ModbusLink
+
+        return Dut(spec, ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"]))
+    from .link import InProcessLink
+    from .virtual import VirtualController
+
+    controller = VirtualController(motor)
+    if spec.transport == "in-process":
+        return Dut(spec, InProcessLink(controller))
+    if spec.transport == "canopen":
+        from .canopen_face import CanopenDevice, CanopenLink
+
+        channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
+        device = CanopenDevice(controller, node_id=o["node"], interface="virtual", channel=channel)
+        try:
+            link = CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"])
+        except Exception:
+            device.close()
+            raise
+        return Dut(spec, link, [device.close])
+    from .modbus_face import ModbusDevice, ModbusLink
+
+    device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"])
+    try:
+        link = ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"])
+    except Exception:
+        device.close()
+        raise
+    return Dut(spec, link, [device.close])
