@@ -15,6 +15,24 @@ from plant_models import PlantConfig, Simulation
 from .dut.link import ControllerLink
 
 
+#: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,
+#: which moves fast right after a commutation, and a coarser step would blur it
+ACCEPTANCE_MAX_STEP_S = 2e-6
+
+
+def p99_abs(values) -> float:
+    """99th percentile of |values| (the budgets' p99)."""
+    import numpy as np
+
+    return float(np.percentile(np.abs(values), 99))
+
+
+def rms(values) -> float:
+    import numpy as np
+
+    return float(np.sqrt(np.mean(np.square(values))))
+
+
 class LinkSource:
     """Adapts a ControllerLink to the plant's commutation-source interface."""
 
@@ -38,12 +56,20 @@ class LockstepBench:
     duty: float = 0.3
     seed: int = 0
     sample_rate_hz: float = 50e3
+    #: further Simulation options (max_step_s, ...)
+    sim_options: dict = field(default_factory=dict)
     sim: Simulation = field(init=False)
 
     def __post_init__(self):
         self.source = LinkSource(self.link)
         self.sim = Simulation(self.config, self.source, duty=self.duty, initial_speed_rpm=self.initial_speed_rpm, seed=self.seed,
-                              sample_rate_hz=self.sample_rate_hz, capacity=1 << 18)
+                              sample_rate_hz=self.sample_rate_hz, capacity=1 << 18, **self.sim_options)
+
+    def angle_errors_deg_e(self, since_s: float = 0.0):
+        """Commutation angle error (deg electrical, + = late) of every commutation from ``since_s``,
+        against the plant's true rotor angle."""
+        c = self.sim.commutations()
+        return c.error_deg_e[c.t_s >= since_s]
 
     def run_setpoints(self, setpoints_rpm, hold_s: float, settle_s: float = 0.5) -> list[float]:
         """Hold each set point for ``hold_s`` after ``settle_s`` at the first; returns the step instants."""

@@ -51,7 +51,7 @@ def pytest_addoption(parser):
 
 
 def _option(config, name):
-    value = config.getoption(f"--hil-{name}")
+    value = config.getoption(f"--hil-{name.replace('_', '-')}")
     if value is None or value == "":
         value = config.getini(f"hil_{name}") or None
     return value
@@ -118,7 +118,7 @@ def pytest_generate_tests(metafunc):
 def pytest_runtest_setup(item):
     for mark in item.iter_markers("requirement"):
         for rid in mark.args:
-            item.user_properties.append((PROPERTY_PREFIX + "requirement", str(rid)))
+            item.user_properties.append(("requirement", str(rid)))
     doc = getattr(getattr(item, "obj", None), "__doc__", None)
     if doc:
         item.user_properties.append((PROPERTY_PREFIX + "doc", " ".join(doc.split())))
@@ -190,18 +190,21 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     -> a LockstepBench of the plant (with ``effects`` injected) and the controller, configured through the link."""
     from plant_models.plant import steady_state
 
-    from .bench import LockstepBench
+    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
 
     def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
              config=None):
         config = (config or hil_plant_config).with_effects(*effects)
+        hil_link.reset()
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
         if corrections is not None:
             hil_link.download_calibration(corrections)
         hil_link.set_strategy(int(strategy))
+        # plant steps of at most 2 us: the armature reaction follows the instantaneous current, which
+        # moves fast right after a commutation; a coarser step would blur it (docs/acceptance.md)
         return LockstepBench(config, hil_link, initial_speed_rpm=speed_rpm, duty=steady_state(config.motor, speed_rpm)["duty"],
-                             seed=hil_seed if seed is None else seed)
+                             seed=hil_seed if seed is None else seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
 
     return make
 
@@ -221,7 +224,9 @@ def hil_budget(hil_budgets, request):
         from .budgets import BudgetExceeded
 
         v = hil_budgets.check(name, measured)
-        request.node.user_properties.append((PROPERTY_PREFIX + "measurement", v.as_dict()))
+        # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
+        request.node.user_properties.append((f"budget:{name}", json.dumps(v.as_dict())))
+        request.node.user_properties.append(("requirement", v.requirement))
         if v.verdict == "fail":
             raise BudgetExceeded(v)
         return v
@@ -355,14 +360,15 @@ class HilReporter:
                   "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
                   "worker": getattr(reports[-1], "node", None) and getattr(reports[-1].node, "gateway", None) and reports[-1].node.gateway.id or ""}
         for key, value in props:
-            if not str(key).startswith(PROPERTY_PREFIX):
+            key = str(key)
+            if key == "requirement" and value not in record["requirements"]:
+                record["requirements"].append(value)
+            elif key.startswith("budget:"):
+                record["measurements"].append(json.loads(value))
+            if not key.startswith(PROPERTY_PREFIX):
                 continue
             kind = key[len(PROPERTY_PREFIX):]
-            if kind == "requirement" and value not in record["requirements"]:
-                record["requirements"].append(value)
-            elif kind == "measurement":
-                record["measurements"].append(value)
-            elif kind == "evidence":
+            if kind == "evidence":
                 record["evidence"].append(value)
             elif kind == "dut":
                 record["dut"], record["dut_identity"] = value["id"], value["identity"]

@@ -73,7 +73,7 @@ def test_plugin_options_and_fixtures(pytester):
     )
     result = pytester.runpytest("--hil-plant", "plant.toml", "--hil-seed", "17")
     result.assert_outcomes(passed=1)
-    result.stdout.fnmatch_lines(["hil: plant=plant.toml seed=17"])
+    result.stdout.fnmatch_lines(["hil: dut=virtual plant=plant.toml seed=17"])
 
 
 def test_plugin_reads_ini_keys(pytester):

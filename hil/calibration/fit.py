@@ -147,7 +147,9 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
             out.pole_offset_deg_e[k] = float(c)
             unc["pole_offset_deg_e"][k] = float(s)
         elif kind in ("rise", "fall"):
-            out.conditioning_delay_s[kind] = float(c)
+            # a delay cannot be negative: a fit of a delay-free circuit lands at -1e-16 s, which a
+            # controller rightly refuses; a clearly negative fit is kept so the checks can flag it
+            out.conditioning_delay_s[kind] = 0.0 if -max(3 * s, 1e-12) <= c < 0 else float(c)
             unc.setdefault("conditioning_delay_s", {})[kind] = float(s)
         else:
             out.armature_reaction_deg_e_per_a = float(c)

@@ -1,0 +1,149 @@
+"""Replayable stimuli: what a property-based test drew (effects, wiring-fault steps, seed,
+scenario), saved as JSON when it fails and re-run by ``hil replay FILE``.
+
+The acceptance tests and ``hil replay`` run a stimulus through the same function, ``run``, so a
+replay reproduces the failing check exactly (same plant, same seed, same steps), against the
+virtual controller or any ``--dut``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plant_models import PlantConfig
+from plant_models.effects import effect_from_mapping
+from plant_models.plant import steady_state
+
+FORMAT = "hil-stimulus/1"
+
+
+@dataclass
+class Stimulus:
+    """``kind``: "deviations" (calibrate, then run corrected) or "fault_sequence" (steps of
+    ("run", seconds) / ("on", fault dict) / ("off", fault dict), corrected strategy)."""
+
+    kind: str
+    effects: list[dict] = field(default_factory=list)
+    steps: list[list] = field(default_factory=list)
+    seed: int = 0
+    speed_rpm: float = 6000.0
+    run_s: float = 0.25
+    test: str = ""
+    plant: dict = field(default_factory=dict)  #: the nominal plant (PlantConfig.to_dict), so a replay needs nothing else
+
+    def save(self, path: str | Path) -> Path:
+        path = Path(path)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(json.dumps({"format": FORMAT, **asdict(self)}, indent=1))
+        return path
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Stimulus":
+        path = Path(path)
+        try:
+            data = json.loads(path.read_text())
+        except OSError as exc:
+            raise ValueError(f"{path}: cannot read: {exc.strerror}") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{path}: line {exc.lineno}, column {exc.colno}: not valid JSON: {exc.msg}") from None
+        if data.pop("format", None) != FORMAT:
+            raise ValueError(f"{path}: not a {FORMAT} file (field 'format')")
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ValueError(f"{path}: unknown field(s) {', '.join(sorted(unknown))}")
+        if data.get("kind") not in ("deviations", "fault_sequence"):
+            raise ValueError(f"{path}: field 'kind' must be 'deviations' or 'fault_sequence', got {data.get('kind')!r}")
+        return cls(**data)
+
+    def plant_config(self) -> PlantConfig:
+        base = PlantConfig.from_dict(self.plant) if self.plant else PlantConfig.from_dict({"preset": "paper-bench"})
+        return base.with_effects(*(effect_from_mapping(e, f"effects[{i}].") for i, e in enumerate(self.effects)))
+
+
+@dataclass
+class Outcome:
+    ok: bool
+    message: str
+    values: dict = field(default_factory=dict)
+
+
+def replay_path(report_dir: str | Path | None, nodeid: str) -> Path:
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", nodeid)[-120:]
+    return Path(report_dir or "reports") / "replays" / f"{slug}.json"
+
+
+def run(stimulus: Stimulus, link, budgets) -> Outcome:
+    """Run the stimulus on the lockstep bench through ``link`` and judge it against ``budgets``."""
+    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs
+    from .calibration import fit_corrections
+    from .calibration.campaign import CalibrationCampaign
+    from .dut.virtual import Strategy
+    from .faults import FaultInjector, wiring_fault_from_dict
+
+    config = stimulus.plant_config()
+    link.reset()
+    if stimulus.kind == "deviations":
+        corrections = fit_corrections(CalibrationCampaign().run(config, seed=stimulus.seed))
+        link.download_calibration(corrections)
+        link.set_strategy(int(Strategy.CORRECTED))
+        bench = LockstepBench(config, link, initial_speed_rpm=stimulus.speed_rpm, duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
+                              seed=stimulus.seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+        bench.run_setpoints([stimulus.speed_rpm], hold_s=stimulus.run_s, settle_s=0.1)
+        err = bench.angle_errors_deg_e(0.15)
+        p99 = p99_abs(err)
+        v = budgets.check("commutation_angle_p99", p99)
+        return Outcome(v.verdict != "fail", v.message(), {"commutation_angle_p99_deg_e": p99, "commutations": int(err.size)})
+    # a fault sequence: every switched-on fault must give one of its promised codes, nothing else may appear,
+    # and the commutation must be back within budget once the faults are off
+    nominal = fit_corrections(CalibrationCampaign().run(config, seed=stimulus.seed))
+    link.download_calibration(nominal)
+    link.set_strategy(int(Strategy.CORRECTED))
+    injector = FaultInjector(link)
+    bench = LockstepBench(config, injector, initial_speed_rpm=stimulus.speed_rpm, duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
+                          seed=stimulus.seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+    link.set_speed(stimulus.speed_rpm)
+    bench.sim.run_until(0.1)  # settle and learn the pole alignment before anything is injected
+    quiet_since = bench.sim.t_s
+    acted: set[str] = set()
+    from .faults import WIRING_FAULTS
+
+    for step in stimulus.steps:
+        action, arg = step
+        if action == "run":
+            bench.sim.run_until(bench.sim.t_s + float(arg))
+        elif action == "on":
+            injector.switch_on(wiring_fault_from_dict(arg))
+        elif action == "off":
+            injector.switch_off(wiring_fault_from_dict(arg))
+        if injector.active:
+            quiet_since = None
+        elif quiet_since is None:
+            quiet_since = bench.sim.t_s
+        acted |= {name for _, what, name in injector.log if what == "acted"}
+    for fault in list(injector.active):
+        injector.switch_off(fault)
+    if quiet_since is None:
+        quiet_since = bench.sim.t_s
+    bench.sim.run_until(bench.sim.t_s + 0.06)  # a recovery window with every fault off
+    acted |= {name for _, what, name in injector.log if what == "acted"}
+    codes = {code for _, code in link.status()["faults"]}
+    allowed = set().union(*(WIRING_FAULTS[n].promised for n in acted)) if acted else set()
+    problems = []
+    for name in sorted(acted):
+        if not codes & set(WIRING_FAULTS[name].promised):
+            problems.append(f"{name} acted but none of its fault codes {[hex(c) for c in WIRING_FAULTS[name].promised]} was reported")
+    unexpected = codes - allowed
+    if unexpected:
+        problems.append(f"fault code(s) {[hex(c) for c in sorted(unexpected)]} reported without a cause (acted: {sorted(acted) or 'none'})")
+    recovery = bench.angle_errors_deg_e(bench.sim.t_s - 0.03)
+    p99 = p99_abs(recovery) if recovery.size else float("inf")
+    v = budgets.check("recovered_commutation_angle_p99", p99)
+    if v.verdict == "fail":
+        problems.append(v.message())
+    values = {"acted": sorted(acted), "codes": sorted(hex(x) for x in codes), "recovered_p99_deg_e": p99}
+    return Outcome(not problems, "; ".join(problems) or "every fault reported, none spurious, commutation recovered", values)
