@@ -102,6 +102,16 @@ class HallCommutation:
         span = 2.0 * m.phase_resistance_ohm * self.current_limit_a
         return min(max(duty, (bemf - span) / m.supply_v, 0.0), (bemf + span) / m.supply_v, 1.0)
 
+    def resync(self) -> None:
+        """Count edges afresh from the next one and learn the pole alignment again (one mechanical
+        turn of uncorrected commutation, as at start-up): after edges were lost the count, and with
+        it every pole assignment, may be off."""
+        self._edge_index = -1
+        self._history.clear()
+        self._pole_shift = None
+        self._scheduled = {}
+        self._last_sector = self._index_at_last_sector = -1
+
     def count_lost_edges(self, lost: int) -> None:
         """Edges the controller knows were lost (their time passed without a capture): counted,
         so the edge count, and with it every pole assignment, stays right."""

@@ -21,8 +21,11 @@ from .dut.virtual import Fault
 @dataclass(frozen=True)
 class WiringFault:
     name: ClassVar[str] = ""
-    #: the fault codes a controller must raise for it (any one of them)
+    #: the fault codes a controller must raise for it (at least one of them)
     promised: ClassVar[tuple[int, ...]] = ()
+    #: further codes it may raise as a consequence (a lost edge leaves the Hall state wrong, which
+    #: can read as an illegal code until that sensor switches again)
+    allowed: ClassVar[tuple[int, ...]] = ()
     #: one-shot faults act once and switch themselves off
     one_shot: ClassVar[bool] = False
 
@@ -49,6 +52,7 @@ class LostEdge(WiringFault):
 
     name: ClassVar[str] = "lost_edge"
     promised: ClassVar[tuple[int, ...]] = (Fault.MISSING_EDGE,)
+    allowed: ClassVar[tuple[int, ...]] = (Fault.ILLEGAL_HALL_CODE,)
     one_shot: ClassVar[bool] = True
 
     @classmethod

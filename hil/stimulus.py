@@ -132,7 +132,7 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     bench.sim.run_until(bench.sim.t_s + 0.06)  # a recovery window with every fault off
     acted |= {name for _, what, name in injector.log if what == "acted"}
     codes = {code for _, code in link.status()["faults"]}
-    allowed = set().union(*(WIRING_FAULTS[n].promised for n in acted)) if acted else set()
+    allowed = set().union(*(set(WIRING_FAULTS[n].promised) | set(WIRING_FAULTS[n].allowed) for n in acted)) if acted else set()
     problems = []
     for name in sorted(acted):
         if not codes & set(WIRING_FAULTS[name].promised):

@@ -126,7 +126,9 @@ class CanopenDevice:
             sdo.abort(ABORT_NO_OBJECT)
             return
         obj = self.od[index]
-        if not isinstance(obj, canopen.objectdictionary.ODVariable) and subindex not in obj:
+        # an ARRAY answers any sub-index in the library (it makes them up on demand): only the
+        # declared ones exist
+        if not isinstance(obj, canopen.objectdictionary.ODVariable) and subindex not in obj.subindices:
             sdo.abort(ABORT_NO_SUBINDEX)
             return
         with self._lock:

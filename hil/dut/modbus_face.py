@@ -329,6 +329,7 @@ class ModbusLink:
         from pymodbus.framer import FramerType
 
         self.unit, self.timeout_s = unit, timeout_s
+        self.host, self.port, self.serial_port = host, port, serial_port
         if serial_port is not None:
             self.where = f"Modbus RTU unit {unit} on {serial_port}"
             self.client = ModbusSerialClient(serial_port, framer=FramerType.RTU, baudrate=baudrate, timeout=timeout_s, retries=0)
