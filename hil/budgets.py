@@ -77,6 +77,8 @@ DEFAULTS = {
                                    description="calibrated armature-reaction slope, relative error"),
     "calibrated_fraction_removed": Budget("calibrated_fraction_removed", "REQ-CAL-005", "fraction", 0.90, kind="min", marginal=0.95,
                                           description="share of the raw commutation angle RMS that the downloaded calibration removes"),
+    "any_deviations_commutation_angle_p99": Budget("any_deviations_commutation_angle_p99", "REQ-ROB-001", "deg_e", 1.0, marginal=0.5,
+                                                   description="p99 commutation angle error, corrected, for any drawn set of calibratable deviations (property search)"),
     "recovered_commutation_angle_p99": Budget("recovered_commutation_angle_p99", "REQ-ROB-002", "deg_e", 1.0, marginal=0.8,
                                               description="p99 commutation angle error in the 30 ms before the end of a 60 ms recovery window after a wiring fault"),
     "sage_husa_commutation_angle_rms": Budget("sage_husa_commutation_angle_rms", "REQ-PRED-001", "deg_e", 1.0, marginal=0.8,

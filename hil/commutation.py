@@ -111,6 +111,8 @@ class HallCommutation:
         self._pole_shift = None
         self._scheduled = {}
         self._last_sector = self._index_at_last_sector = -1
+        if self.predictor is not None:
+            self.predictor.reset()  # its angle counted the lost sectors as one
 
     def count_lost_edges(self, lost: int) -> None:
         """Edges the controller knows were lost (their time passed without a capture): counted,

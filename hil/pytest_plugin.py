@@ -92,12 +92,15 @@ def hil_settings(**overrides):
 def pytest_configure(config):
     config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
     dut_specs(config)  # a bad --hil-dut is a usage error before anything runs
-    from hypothesis import HealthCheck, settings
+    from hypothesis import HealthCheck, Phase, settings
     from hypothesis.database import DirectoryBasedExampleDatabase
 
     report_dir = _option(config, "report_dir")
     database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
+    # no shrinking: each example is a closed-loop plant run, and a failing one is saved whole as a
+    # replayable stimulus anyway (hil replay)
     settings.register_profile("hil", deadline=None, print_blob=True, database=database,
+                              phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
                               suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large])
     if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
         config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")

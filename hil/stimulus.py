@@ -96,7 +96,7 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
         bench.run_setpoints([stimulus.speed_rpm], hold_s=stimulus.run_s, settle_s=0.1)
         err = bench.angle_errors_deg_e(0.15)
         p99 = p99_abs(err)
-        v = budgets.check("commutation_angle_p99", p99)
+        v = budgets.check("any_deviations_commutation_angle_p99", p99)
         return Outcome(v.verdict != "fail", v.message(), {"commutation_angle_p99_deg_e": p99, "commutations": int(err.size)})
     # a fault sequence: every switched-on fault must give one of its promised codes, nothing else may appear,
     # and the commutation must be back within budget once the faults are off

@@ -1,0 +1,106 @@
+"""Property-based fault injection (hypothesis): the search for what breaks the controller.
+
+* Deviations: any combination of the calibratable effects of the library, drawn inside their
+  physical bounds, is calibrated by the station and downloaded; the controller's corrected
+  commutation must then meet the angle budget. ``target()`` steers toward the worst p99.
+* Fault sequences (stateful): wiring faults switched on and off while the plant runs; every
+  fault must give a promised code, none may appear without a cause, and the commutation must be
+  back within budget once they are off.
+
+Each failing example is saved as a stimulus file (effects, steps, seed, scenario) in the report
+directory's ``replays/``; ``hil replay FILE`` re-runs it. Settings: the ``hil`` profile (no
+deadline, examples kept in the report directory's database); pass ``--hypothesis-seed`` to fix
+the search (``hil acceptance`` does, and the report records it).
+"""
+
+import pytest
+from hypothesis import given, target
+from hypothesis import strategies as st
+from hypothesis.stateful import RuleBasedStateMachine, initialize, rule, run_state_machine_as_test
+
+from hil.faults import wiring_fault_strategy
+from hil.pytest_plugin import hil_settings
+from hil.stimulus import Stimulus, replay_path, run
+from plant_models import effects as fx
+
+#: up to about 1.5x the paper's deviations (Tables 2-4: installation to 4.4 deg e, poles to 1 deg e,
+#: delays to 6.6 us, armature 0.35 deg e/A). Beyond that, up to the library's bounds, the search
+#: finds plant runs whose Hall edges chatter: two such findings are kept in tests/data/ as open
+#: defects (tests/test_findings.py), to be fixed before the bounds are widened.
+_angle = st.floats(-4.5, 4.5)
+DEVIATIONS = st.tuples(
+    st.builds(fx.InstallationOffset, offset_deg_e=st.tuples(_angle, _angle, _angle)),
+    st.builds(fx.PoleOffset, offset_deg_e=st.tuples(*[st.floats(-1.5, 1.5)] * 4)),
+    st.builds(fx.ArmatureReaction, slope_deg_e_per_a=st.floats(0.0, 0.6)),
+    st.builds(fx.ConditioningDelay, rise_delay_s=st.floats(0.0, 10e-6), fall_delay_s=st.floats(0.0, 10e-6)),
+)
+
+
+
+def judge(stimulus, outcome, request):
+    if not outcome.ok:
+        path = stimulus.save(replay_path(request.config.getoption("--hil-report-dir"), request.node.nodeid))
+        raise AssertionError(f"{outcome.message} (stimulus saved: hil replay {path})")
+
+
+@pytest.mark.requirement("REQ-ROB-001")
+def test_any_calibrated_deviation_set_meets_the_commutation_budget(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
+    worst = {"p99": 0.0, "effects": None}
+
+    @hil_settings(max_examples=8)
+    @given(effects=DEVIATIONS, speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
+    def check(effects, speed_rpm):
+        stim = Stimulus("deviations", effects=[e.to_dict() for e in effects], seed=hil_seed, speed_rpm=speed_rpm,
+                        test=request.node.nodeid, plant=hil_plant_config.to_dict())
+        outcome = run(stim, hil_link, hil_budgets)
+        p99 = outcome.values["commutation_angle_p99_deg_e"]
+        target(p99, label="commutation angle p99 (deg e)")
+        if p99 >= worst["p99"]:
+            worst.update(p99=p99, effects=[e.to_dict() for e in effects], speed=speed_rpm)
+        judge(stim, outcome, request)
+
+    check()
+    hil_evidence.value("worst p99 found", worst["p99"], "deg_e")
+    hil_evidence.text("worst example", f"{worst['speed']:.0f} rpm: {worst['effects']}")
+
+
+@pytest.mark.requirement("REQ-ROB-002")
+def test_fault_sequences_are_reported_and_recovered(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
+    from plant_models.plant import paper_bench
+
+    effects = [e.to_dict() for e in paper_bench(with_deviations=True).effects]
+    runs = []
+
+    class FaultSequence(RuleBasedStateMachine):
+        @initialize()
+        def start(self):
+            self.steps, self.active = [], []
+
+        @rule(seconds=st.sampled_from([0.005, 0.01, 0.02]))
+        def run_plant(self, seconds):
+            self.steps.append(["run", seconds])
+
+        @rule(fault=wiring_fault_strategy())
+        def switch_on(self, fault):
+            self.steps.append(["on", fault.as_dict()])
+            if not fault.one_shot:
+                self.active.append(fault)
+
+        @rule(data=st.data())
+        def switch_off(self, data):
+            if self.active:
+                fault = self.active.pop(data.draw(st.integers(0, len(self.active) - 1)))
+                self.steps.append(["off", fault.as_dict()])
+
+        def teardown(self):
+            if not getattr(self, "steps", None):
+                return
+            stim = Stimulus("fault_sequence", effects=effects, steps=self.steps, seed=hil_seed, test=request.node.nodeid,
+                            plant=hil_plant_config.to_dict())
+            outcome = run(stim, hil_link, hil_budgets)
+            runs.append([len(self.steps), ", ".join(outcome.values["acted"]) or "none", ", ".join(outcome.values["codes"]) or "none",
+                         outcome.values["recovered_p99_deg_e"]])
+            judge(stim, outcome, request)
+
+    run_state_machine_as_test(FaultSequence, settings=hil_settings(max_examples=6, stateful_step_count=6))
+    hil_evidence.table("fault sequences run", ["steps", "faults that acted", "codes reported", "recovered p99 deg e"], runs)
