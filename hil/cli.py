@@ -220,6 +220,48 @@ def cmd_effects(args) -> int:
     return 0
 
 
+def find_suite(path: str | None) -> Path:
+    """The acceptance suite: the given directory, ./test_cases, or the one beside this package."""
+    candidates = [Path(path)] if path else [Path("test_cases"), Path(__file__).resolve().parent.parent / "test_cases"]
+    for c in candidates:
+        if (c / "conftest.py").is_file():
+            return c
+    raise ValueError(f"no acceptance suite at {', '.join(str(c) for c in candidates)} (give --suite DIR)")
+
+
+def cmd_acceptance(args) -> int:
+    import pytest
+
+    suite = find_suite(args.suite)
+    argv = [str(suite), "-p", "no:cacheprovider", "-q", f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}",
+            f"--hypothesis-seed={args.seed}", "-o", "faulthandler_timeout=600"]
+    for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
+        argv.append(f"--hil-dut={dut}")
+    if args.plant:
+        argv.append(f"--hil-plant={args.plant}")
+    if args.budgets:
+        argv.append(f"--hil-budgets={args.budgets}")
+    if args.workers:
+        argv += ["-n", args.workers]
+    return int(pytest.main(argv + list(args.pytest_args)))
+
+
+def cmd_replay(args) -> int:
+    from .budgets import Budgets
+    from .dut.spec import open_dut
+    from .stimulus import Stimulus, run
+
+    stim = Stimulus.load(args.file)
+    budgets = Budgets.from_toml(args.budgets) if args.budgets else Budgets.defaults()
+    with open_dut(args.dut, stim.plant_config().motor) as dut:
+        outcome = run(stim, dut.link, budgets)
+    print(f"{args.file}: {stim.kind} from {stim.test or 'an unnamed test'} against {args.dut}")
+    for k, v in outcome.values.items():
+        print(f"  {k}: {v}")
+    print(("PASS: " if outcome.ok else "FAIL: ") + outcome.message)
+    return 0 if outcome.ok else 1
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="hil", description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
@@ -305,6 +347,23 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--strategy", type=int, default=3, choices=[0, 1, 2, 3], help="0 raw, 1 corrected, 2 KF, 3 Sage-Husa")
     q.add_argument("--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for")
     q.set_defaults(func=cmd_dut_serve)
+
+    p = sub.add_parser("acceptance", help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports")
+    p.add_argument("--dut", action="append", help="controller spec (repeatable; default: virtual:canopen and virtual:modbus)")
+    p.add_argument("--plant", help="plant TOML (default: the paper-bench preset)")
+    p.add_argument("--budgets", help="budgets TOML over the defaults")
+    p.add_argument("--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)")
+    p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)")
+    p.add_argument("-n", "--workers", help="pytest-xdist workers (e.g. auto); each worker opens its own controller")
+    p.add_argument("--suite", help="the acceptance suite directory (default: ./test_cases)")
+    p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
+    p.set_defaults(func=cmd_acceptance)
+
+    p = sub.add_parser("replay", help="re-run a saved stimulus (a failing property-based example)")
+    p.add_argument("file", help="stimulus JSON (reports/replays/*.json)")
+    p.add_argument("--dut", default="virtual:in-process", help="controller spec (default: the virtual controller in-process)")
+    p.add_argument("--budgets", help="budgets TOML over the defaults")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")

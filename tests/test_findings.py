@@ -17,7 +17,7 @@ DATA = Path(__file__).parent / "data"
 
 @pytest.mark.xfail(strict=True, reason="open defect: Hall edges chatter every plant step soon after start-up with large "
                                        "pole/installation offsets or rise/fall delays far apart; commutation is lost")
-@pytest.mark.parametrize("name", ["finding-start-chatter.json", "finding-pole-offset-chatter.json"])
+@pytest.mark.parametrize("name", ["finding-start-chatter.json", "finding-pole-offset-chatter.json", "finding-fault-sequence-recovery.json"])
 def test_finding_replays_within_budget(name):
     stim = Stimulus.load(DATA / name)
     outcome = run(stim, InProcessLink(VirtualController(stim.plant_config().motor)), Budgets.defaults())
