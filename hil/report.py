@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 PROPERTY_PREFIX = "hil:"
-OUTCOME_ORDER = ("failed", "error", "xpassed", "passed", "xfailed", "skipped")
+#: the worst first: a test's outcome is the worst of its phases
+OUTCOME_ORDER = ("failed", "error", "xpassed", "xfailed", "skipped", "passed")
 
 
 def _atomic_write(path: Path, text: str | bytes) -> None:
@@ -164,6 +165,7 @@ def html(content: dict, directory: Path) -> str:
     env = jinja2.Environment(loader=jinja2.PackageLoader("hil", "templates"), autoescape=True, undefined=jinja2.StrictUndefined)
     env.filters["data_uri"] = lambda rel: _data_uri(directory, rel)
     env.filters["num"] = lambda v: f"{v:.4g}" if isinstance(v, (int, float)) else str(v)
+    env.filters["hex"] = lambda v: f"0x{v:08X}" if isinstance(v, int) else ("-" if v is None else str(v))
     return env.get_template("report.html.j2").render(**content)
 
 
