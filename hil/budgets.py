@@ -49,7 +49,7 @@ class Verdict:
         return asdict(self)
 
     def message(self) -> str:
-        rel = "exceeds" if self.verdict == "fail" and self.margin < 0 else "is within"
+        rel = ("exceeds" if self.limit_kind == "max" else "falls short of") if self.verdict == "fail" and self.margin < 0 else "is within"
         side = "at most" if self.limit_kind == "max" else "at least"
         return (f"{self.budget} ({self.requirement}): measured {self.measured:.6g} {self.unit} {rel} the limit of "
                 f"{side} {self.limit:.6g} {self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}")
