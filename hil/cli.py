@@ -372,6 +372,8 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from .dut.link import LinkError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -382,6 +384,9 @@ def main(argv: list[str] | None = None) -> int:
     except (ConfigError, RecordingError, ValueError) as exc:
         print(f"hil: error: {exc}", file=sys.stderr)
         return 2
+    except LinkError as exc:  # a controller that refused, misbehaved or stopped answering
+        print(f"hil: controller: {exc}", file=sys.stderr)
+        return 3
 
 
 if __name__ == "__main__":  # pragma: no cover

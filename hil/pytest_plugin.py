@@ -91,7 +91,14 @@ def hil_settings(**overrides):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
-    dut_specs(config)  # a bad --hil-dut is a usage error before anything runs
+    dut_specs(config)  # a bad --hil-dut, plant or budgets file is a usage error before anything runs
+    from plant_models.params import ConfigError
+
+    try:
+        _plant_config(config)
+        _budgets(config)
+    except ConfigError as exc:
+        raise pytest.UsageError(f"hil: {exc}") from None
     from hypothesis import HealthCheck, Phase, settings
     from hypothesis.database import DirectoryBasedExampleDatabase
 
@@ -361,7 +368,7 @@ class HilReporter:
                     message, details = _failure_text(r)
         record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
                   "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
-                  "worker": getattr(reports[-1], "node", None) and getattr(reports[-1].node, "gateway", None) and reports[-1].node.gateway.id or ""}
+                  "worker": _worker_id(reports[-1])}
         for key, value in props:
             key = str(key)
             if key == "requirement" and value not in record["requirements"]:
@@ -379,6 +386,12 @@ class HilReporter:
                 record["doc"] = value
         json.dumps(record)  # everything in a record is plain data
         return record
+
+
+def _worker_id(report) -> str:
+    """The xdist worker that ran the test ("gw0", ...), or "" without xdist."""
+    gateway = getattr(getattr(report, "node", None), "gateway", None)
+    return getattr(gateway, "id", "") or ""
 
 
 def _failure_text(report) -> tuple[str, str]:

@@ -6,8 +6,7 @@ knows the true rotor angle of every commutation, and every figure is scored agai
 
 import pytest
 
-from hil.calibration import fit_corrections
-from hil.calibration.campaign import CalibrationCampaign
+from hil.calibration.campaign import station_corrections
 
 
 @pytest.fixture(scope="session")
@@ -19,7 +18,7 @@ def calibrate(hil_plant_config, hil_seed):
     def run(effects=()):
         key = tuple(effects)
         if key not in cache:
-            cache[key] = fit_corrections(CalibrationCampaign().run(hil_plant_config.with_effects(*effects), seed=hil_seed))
+            cache[key] = station_corrections(hil_plant_config.with_effects(*effects), seed=hil_seed)
         return cache[key]
 
     return run

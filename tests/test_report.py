@@ -74,3 +74,23 @@ def test_xdist_workers_merge_into_one_report(pytester):
     content = report(pytester)
     assert len(content["tests"]) == 3 and content["complete"]
     assert {t["worker"] for t in content["tests"]} <= {"gw0", "gw1"} and any(t["measurements"] for t in content["tests"])
+
+
+def test_bad_dut_spec_and_bad_budgets_are_usage_errors_naming_the_cause(pytester):
+    pytester.makepyfile("def test_x():\n    pass\n")
+    result = pytester.runpytest("--hil-dut", "modbus-tcp:port=502")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines(["*modbus-tcp needs host=...*"])
+    pytester.makefile(".toml", budgets="[commutation_angle_p99]\nlimit = 'tight'\n")
+    result = pytester.runpytest("--hil-budgets", "budgets.toml")
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines(["*budgets.toml: [[]commutation_angle_p99[]].limit*must be a finite number*"])
+
+
+def test_replay_of_a_dead_controller_names_it(tmp_path, capsys):
+    from hil.cli import main
+    from hil.stimulus import Stimulus
+
+    path = Stimulus("deviations").save(tmp_path / "s.json")
+    assert main(["replay", str(path), "--dut", "modbus-tcp:host=127.0.0.1,port=1,timeout=0.3"]) == 3
+    assert "Modbus unit 1 at 127.0.0.1:1: cannot connect within 0.3 s" in capsys.readouterr().err

@@ -42,6 +42,13 @@ class CalibrationCampaign:
         return record_kinematic(config, self.operating_points(config), seed=seed)
 
 
+def station_corrections(config: PlantConfig, seed: int = 0):
+    """The calibration station end to end: run the campaign on the plant, fit the tables."""
+    from .fit import fit_corrections
+
+    return fit_corrections(CalibrationCampaign().run(config, seed=seed))
+
+
 def record_line_bemf_segments(config: PlantConfig, speeds_rpm=(960.0, 1107.0, 1330.0), turns: int = 20, seed: int = 0,
                               sample_rate_hz: float = 100e3, reference_angle: bool = False) -> Recording:
     """Electrical-plant segments at the paper's calibration speeds, commutating on raw Hall edges,

@@ -155,17 +155,17 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
         device = CanopenDevice(controller, node_id=o["node"], interface="virtual", channel=channel)
-        try:
-            link = CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"])
-        except Exception:
-            device.close()
-            raise
-        return Dut(spec, link, [device.close])
+        return _served(spec, device, lambda: CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"]))
     from .modbus_face import ModbusDevice, ModbusLink
 
     device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"])
+    return _served(spec, device, lambda: ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"]))
+
+
+def _served(spec: DutSpec, device, connect) -> Dut:
+    """A virtual device and the link to it; the device is closed if the link cannot connect."""
     try:
-        link = ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"])
+        link = connect()
     except Exception:
         device.close()
         raise

@@ -160,7 +160,7 @@ class VirtualController:
         self._sensors_seen: set[int] = set()
         self._bits = [0, 0, 0]
         self._edges_since_motion = 0
-        self._normal_steps = 6  # Hall steps in a row without a lost edge (-1: one was just lost)
+        self._normal_steps = 6  # Hall steps in a row since the last lost edge
         self._resync_pending = False
         self._last_t: float | None = None
         self._last_dt: float | None = None
@@ -199,8 +199,7 @@ class VirtualController:
             elif sector == self._sector:
                 rotor_motion = False  # back where the last valid edge left it: a spike or a bounce, not motion
             elif self._sector is not None and (sector - self._sector) % 6 != (1 if self.direction > 0 else 5):
-                self.raise_fault(Fault.MISSING_EDGE, t)  # a skipped sector, or a step against the direction of rotation
-                self._normal_steps = -1
+                self._edge_lost(t)  # a skipped sector, or a step against the direction of rotation
             elif self._sector is not None:
                 self._normal_steps += 1
             self._sector = sector if sector >= 0 else self._sector
@@ -209,8 +208,7 @@ class VirtualController:
             if self._last_t is not None:
                 dt = t - self._last_t
                 if self._last_dt is not None and dt > self.missing_edge_interval_ratio * self._last_dt:
-                    self.raise_fault(Fault.MISSING_EDGE, t)  # an interval of two or more sectors
-                    self._normal_steps = -1
+                    self._edge_lost(t)  # an interval of two or more sectors
                     # keep the edge count (and the pole assignment) right: sectors that passed
                     # minus the edges that did arrive
                     self._logic.count_lost_edges(max(round(dt / self._last_dt) - self._edges_since_motion, 0))
@@ -218,15 +216,11 @@ class VirtualController:
                 self._last_dt = dt
             self._last_t = t
             self._edges_since_motion = 0
-        if self._normal_steps < 0 and sector >= 0:
-            self._normal_steps = 0  # an episode of lost edges began
-        elif self._normal_steps >= 6 and self._resync_pending:
+        if self._resync_pending and self._normal_steps >= 6:
             # a full electrical period of normal Hall steps after lost edges: the edge count is
             # trusted again from here
             self._logic.resync()
             self._resync_pending = False
-        if self._normal_steps == 0:
-            self._resync_pending = True
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
@@ -237,6 +231,10 @@ class VirtualController:
                 self._guards_seen = trips
                 self.raise_fault(Fault.FILTER_GUARD_TRIP, t)
         return commands
+
+    def _edge_lost(self, t_s: float) -> None:
+        self.raise_fault(Fault.MISSING_EDGE, t_s)
+        self._normal_steps, self._resync_pending = 0, True
 
     # --- read-backs -------------------------------------------------------------------------------
     def status(self) -> dict:

@@ -19,8 +19,8 @@ from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog
 from plant_models.plant import steady_state
 
-from ..calibration import Corrections, fit_corrections
-from ..calibration.campaign import CalibrationCampaign
+from ..calibration import Corrections
+from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..commutation import HallCommutation, SpeedPI
 from .model import SECTOR_RAD
@@ -61,7 +61,7 @@ def run_scenario(config: PlantConfig | None = None, corrections: Corrections | N
                  setpoints_rpm=SETPOINTS_RPM, seed: int = 0, settle_band: float = 0.005) -> ScenarioRun:
     config = config or scenario_plant()
     if corrections is None:
-        corrections = fit_corrections(CalibrationCampaign().run(config, seed=seed))
+        corrections = station_corrections(config, seed=seed)
     first = setpoints_rpm[0]
     # duty feed-forward from the motor model plus PI trim (anti-windup), as pump controllers do
     pi = SpeedPI(first, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(config.motor, first)["duty"])
