@@ -7,6 +7,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings, strategies as st
 
 from hil.predictors import FilterSettings, KalmanPredictor, MotorModel, PrecalibrationPredictor, SageHusaPredictor
+from hil.predictors.compare import SH_ADAPT
 from hil.predictors import filters as F
 from plant_models import paper_bench
 from plant_models import effects as fx
@@ -118,7 +119,7 @@ def _run_condition(c):
     q0 = tuple(q * 10 ** c["q_factor_log10"] for q in NOMINAL_Q)
     out = dict(c)
     for name, cls, s in (("kf", KalmanPredictor, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))),
-                         ("sh", SageHusaPredictor, FilterSettings(q0_diag=q0, adapt_mask=7))):
+                         ("sh", SageHusaPredictor, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT))):
         f = cls(MODEL, s)
         run = f.run(e.t_conditioned_s, cur)
         err = angle_error_deg(e, run.pred_t_s)
@@ -141,7 +142,7 @@ def test_covariances_stay_positive_definite_over_1000_drawn_conditions(robustnes
     assert not broken, f"covariance lost positive definiteness or estimate not finite in: {broken[:3]}"
 
 
-@pytest.mark.xfail(strict=True, reason="issue 4 open: Sage-Husa is within 5 % of the KF's commutation RMS in only ~41 % of drawn conditions (docs/sage-husa.md)")
+@pytest.mark.xfail(strict=True, reason="issue 4 open: Sage-Husa is within 5 % of the KF's commutation RMS in only ~47 % of drawn conditions (docs/sage-husa.md)")
 def test_sage_husa_no_worse_than_kf_in_99_percent(robustness_results):
     worse = [r for r in robustness_results if r["sh"] > 1.05 * r["kf"]]
     rate = 1 - len(worse) / len(robustness_results)
@@ -162,16 +163,33 @@ def test_table5_scenario_scored_against_ground_truth(table):
     tab, run = table
     rows = {r.name: r for r in tab.rows}
     assert set(rows) == {"pre-calibration", "KF", "Sage-Husa"}
+    assert len(tab.per_run) == len(tab.eval_seeds) == 3 and not set(tab.eval_seeds) & set(tab.train_seeds)
     # seven set points, each regulation stage ends inside its hold; the ideal instants are exact
     assert len(run.step_times_s) == 7 and np.all(np.isfinite(run.edges.t_ideal_s))
-    # both filters beat the pre-calibration predictor on commutation angle (RMS and p99)
+    # both filters average the edge jitter the pre-calibration predictor passes on: a tenth of
+    # a degree electrical is the budget a commutation predictor should meet on this bench
     for name in ("KF", "Sage-Husa"):
-        assert rows[name].angle_rms_deg_e < 0.8 * rows["pre-calibration"].angle_rms_deg_e
-        assert rows[name].angle_p99_deg_e < 0.6 * rows["pre-calibration"].angle_p99_deg_e
+        assert rows[name].angle_rms_deg_e < 0.1, tab.format()
+        assert rows[name].angle_rms_deg_e < 0.2 * rows["pre-calibration"].angle_rms_deg_e, tab.format()
+        assert rows[name].angle_p99_deg_e < 0.3, tab.format()
     assert rows["Sage-Husa"].guards and all(v >= 0 for v in rows["Sage-Husa"].guards.values())
 
 
-@pytest.mark.xfail(strict=True, reason="issue 4 open: with symmetric honest tuning Sage-Husa ties the KF on commutation and loses on speed metrics (docs/sage-husa.md)")
+def test_scenario_corrects_edges_with_the_current_at_the_edge(table):
+    """The armature correction must use the current the calibration was fitted against: the
+    ADC's mean |i| at the capture. With the commutation cycle's mean instead (30 % larger on
+    this bench) every corrected edge carried a common bias of about -0.55 deg e at 5 A, which no
+    predictor can see (a common offset does not change the edge intervals)."""
+    _, run = table
+    w = run.true_speed_rad_s
+    error_deg = np.degrees((run.t_corrected_s - run.edges.t_ideal_s) * w)[300:]
+    assert abs(float(np.mean(error_deg))) < 0.05, f"corrected edges biased by {np.mean(error_deg):.3f} deg_e"
+    # and the bias does not grow with current either
+    slope = np.polyfit(run.mean_current_a[300:], error_deg, 1)[0]
+    assert abs(slope) < 0.02, f"corrected-edge error moves {slope:.3f} deg_e per ampere"
+
+
+@pytest.mark.xfail(strict=True, reason="issue 4 open: tuned alike on the same runs, Sage-Husa comes within 3-13 % of the KF but does not beat it (docs/sage-husa.md)")
 def test_sage_husa_beats_kf_on_every_table5_metric(table):
     tab, _ = table
     improvement = tab.improvement()

@@ -100,7 +100,7 @@ class VirtualController:
     speed_setpoint_rpm: float = 5000.0
     corrections: Corrections | None = None
     #: Sage-Husa settings (paper initial values; nominal Q0, b and band as tuned in docs/sage-husa.md)
-    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), adapt_mask=7, forgetting_b=0.995, q_band_factor=10.0))
+    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), adapt_mask=3, forgetting_b=0.995, q_band_factor=10.0))
     #: the fixed-noise Kalman strategy's Q and R (the tuned baseline of docs/sage-husa.md)
     kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), r0_diag=(1e-3, 1.0)))
     model: MotorModel | None = None
