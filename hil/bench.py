@@ -7,10 +7,10 @@ depend on the host's speed, only on the plant, the controller and the scenario.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass, field
 
 from plant_models import PlantConfig, Simulation
+from plant_models.simulation import Command
 
 from .dut.link import ControllerLink
 
@@ -45,7 +45,7 @@ class LinkSource:
         already passed on the plant (the capture stamp precedes the interrupt) applies now."""
         self.edges += 1
         now = sim.t_s
-        return [c if c.at_s >= now else dataclasses.replace(c, at_s=now) for c in self.link.edge(edge)]
+        return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
 
 
 @dataclass

@@ -160,7 +160,7 @@ class HallCommutation:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
                 speed_rpm = w_e / (6.0 * self.pole_pairs)
                 current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
-                t_corr = t - float(self.corrections.correction_deg_e(x, rising, pole, speed_rpm, current)) / w_e
+                t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None
         if self._last_corr_t is not None and t_corr > self._last_corr_t:

@@ -222,7 +222,10 @@ def _fuzz(fuzz_pair, frames):
     vc, dev, link, _ = fuzz_pair
     for cob, data in frames:
         link.network.send_message(cob, data)
-    time.sleep(0.002)
+    # let the device answer the malformed requests first: a late abort to a fuzz frame's SDO
+    # request is otherwise taken by the client as the answer to the read below (2 ms was too
+    # short on a loaded 2-core machine; the SDO client does not match the abort's multiplexer)
+    time.sleep(0.03)
     link.network.send_message(0, bytes([0x01, 5]))  # malformed traffic may legitimately have stopped or reset it
     time.sleep(0.002)
     # well-formed requests still answered, each with its own content (no stale answer)

@@ -50,6 +50,12 @@ class Corrections:
         delay = np.where(rising, self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"])
         return self.static_deg_e(sensor, pole) + w_e_deg_s * delay + self.armature_reaction_deg_e_per_a * np.asarray(current_a, dtype=float)
 
+    def correction_one_deg_e(self, sensor: int, rising: bool, pole: int, speed_rpm: float, current_a: float) -> float:
+        """``correction_deg_e`` for one edge in plain floats (the controller's per-edge path)."""
+        delay = self.conditioning_delay_s["rise" if rising else "fall"]
+        return (self.installation_offset_deg_e[SENSORS[sensor]] + self.pole_offset_deg_e[pole]
+                + speed_rpm * 6.0 * self.pole_pairs * delay + self.armature_reaction_deg_e_per_a * current_a)
+
     def to_json_dict(self) -> dict[str, Any]:
         return {
             "installation_offset_deg_e": dict(self.installation_offset_deg_e),

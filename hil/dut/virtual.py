@@ -224,7 +224,7 @@ class VirtualController:
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
-            trips = sum(self._predictor.guards.values()) - self._predictor.guards.get("innovation_gate", 0)
+            trips = self._predictor.covariance_guard_trips
             if self._predictor.state[_filters.K_STEP] <= self._predictor.settings.warmup:
                 self._guards_seen = trips
             elif trips > self._guards_seen:

@@ -8,6 +8,7 @@ sequence in one compiled loop.
 
 from __future__ import annotations
 
+import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -67,6 +68,7 @@ class _KalmanCore:
         settings.check()
         self.model, self.settings = model, settings
         self.speed_tab, self.kt_tab, self.m_tab = model.arrays()
+        self._speed_list, self._kt_list, self._m_list = (list(map(float, a)) for a in (self.speed_tab, self.kt_tab, self.m_tab))
         fp = np.zeros(F.N_FPARAMS)
         fp[F.F_B] = settings.forgetting_b
         fp[F.F_INTERVAL] = settings.adapt_interval
@@ -81,6 +83,19 @@ class _KalmanCore:
         self.fp = fp
         self.reset()
 
+    def _interp(self, n_rpm: float) -> tuple[float, float]:
+        """K_T(n) and M(n) by linear interpolation, clamped at the table ends (as ``np.interp``),
+        in plain floats: the online path runs it twice per edge."""
+        speeds = self._speed_list
+        j = bisect.bisect_right(speeds, n_rpm)
+        if j == 0:
+            return self._kt_list[0], self._m_list[0]
+        if j == len(speeds):
+            return self._kt_list[-1], self._m_list[-1]
+        f = (n_rpm - speeds[j - 1]) / (speeds[j] - speeds[j - 1])
+        return (self._kt_list[j - 1] + f * (self._kt_list[j] - self._kt_list[j - 1]),
+                self._m_list[j - 1] + f * (self._m_list[j] - self._m_list[j - 1]))
+
     def reset(self) -> None:
         s = self.settings
         self.state = F.new_state(np.diag(s.q0_diag), s.r0_diag, s.p0_diag)
@@ -92,6 +107,12 @@ class _KalmanCore:
     @property
     def guards(self) -> dict[str, int]:
         return dict(zip(GUARD_NAMES, map(int, self.guard_counts)))
+
+    @property
+    def covariance_guard_trips(self) -> int:
+        """Guard trips other than the innovation gate (a gated outlier is not a covariance repair)."""
+        c = self.guard_counts.tolist()
+        return sum(c) - c[F.GUARD_GATE]
 
     @property
     def q_matrix(self) -> np.ndarray:
@@ -112,8 +133,7 @@ class _KalmanCore:
     def _coefficients(self, w_e: float) -> tuple[float, float]:
         p = self.model.pole_pairs
         n_rpm = w_e / p * 60 / (2 * math.pi)
-        kt = float(np.interp(n_rpm, self.speed_tab, self.kt_tab))
-        m = float(np.interp(n_rpm, self.speed_tab, self.m_tab))
+        kt, m = self._interp(n_rpm)
         w_m = w_e / p
         return p * kt / self.model.inertia_kg_m2, p * m * w_m * w_m / self.model.inertia_kg_m2
 
