@@ -33,7 +33,6 @@ CAN_FRAMES_PER_S = 8700  # 1 Mbit/s, 8-byte data frames with stuffing
 def rate(link, corrections, hold_s):
     """Steady throughput: a short warm-up run first (numba cache loads, sockets and interpreter
     caches warm), then the measured run, both through the same link."""
-    link.download_calibration(corrections)
     for run_s in (min(0.1, hold_s), hold_s):
         link.reset()
         link.download_calibration(corrections)

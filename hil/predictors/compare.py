@@ -10,6 +10,7 @@ evaluation runs neither filter has seen; the table is their mean, with per-run w
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 from dataclasses import dataclass
 
@@ -73,44 +74,37 @@ class Table5:
         return "\n".join(lines)
 
 
-def _angle_rms(run: ScenarioRun, predictor) -> float:
-    r = predictor.run(run.t_corrected_s, run.mean_current_a)
-    return score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e
+def _mean_angle_rms(runs: list[ScenarioRun], predictor) -> float:
+    """The tuning objective: commutation angle RMS, averaged over the training runs."""
+    rms = []
+    for run in runs:
+        r = predictor.run(run.t_corrected_s, run.mean_current_a)
+        rms.append(score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e)
+    return float(np.mean(rms))
 
 
-def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]], fixed: dict[str, bool]) -> tuple[float, ...]:
-    """Best grid point, then Nelder-Mead in log space around it (``fixed`` entries stay at the
-    grid's choice): the same search for both filters, so neither wins by being tuned harder."""
-    best = min(itertools.product(*grid.values()), key=objective)
-    free = [k for k, name in enumerate(grid) if not fixed.get(name)]
-
-    def in_log(z):
-        x = list(best)
-        for k, v in zip(free, z):
-            x[k] = 10.0 ** v
-        return objective(tuple(x))
-
-    z0 = np.log10([best[k] for k in free])
-    res = minimize(in_log, z0, method="Nelder-Mead", options=dict(maxfev=REFINE_EVALUATIONS, xatol=0.02, fatol=1e-4,
-                                                                   initial_simplex=np.vstack([z0] + [z0 + 0.5 * np.eye(len(z0))[i] for i in range(len(z0))])))
-    if res.fun >= objective(best):
-        return best
-    x = list(best)
-    for k, v in zip(free, res.x):
-        x[k] = float(10.0 ** v)
-    return tuple(x)
+def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]]) -> tuple[float, ...]:
+    """Best grid point, then Nelder-Mead in log space around it: the same search for both
+    filters, so neither wins by being tuned harder."""
+    scored = [(objective(x), x) for x in itertools.product(*grid.values())]
+    best_value, best = min(scored, key=lambda vx: vx[0])
+    z0 = np.log10(best)
+    simplex = np.vstack([z0] + [z0 + 0.5 * row for row in np.eye(len(z0))])
+    res = minimize(lambda z: objective(tuple(10.0 ** z)), z0, method="Nelder-Mead",
+                   options=dict(maxfev=REFINE_EVALUATIONS, xatol=0.02, fatol=1e-4, initial_simplex=simplex))
+    return best if res.fun >= best_value else tuple(float(v) for v in 10.0 ** res.x)
 
 
-def tune_kf(runs: "_Runs", model: MotorModel) -> FilterSettings:
+def tune_kf(runs: list[ScenarioRun], model: MotorModel) -> FilterSettings:
     """Fixed Q = diag(q_w, 1e-9, q_i) and R = diag(r_theta, r_i) minimising commutation angle RMS."""
     def settings(x):
         q_w, q_i, r_t, r_i = x
         return FilterSettings(q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i))
 
-    return settings(_grid_then_refine(lambda x: runs.angle_rms(KalmanPredictor(model, settings(x))), KF_GRID, {}))
+    return settings(_grid_then_refine(lambda x: _mean_angle_rms(runs, KalmanPredictor(model, settings(x))), KF_GRID))
 
 
-def tune_sh(runs: "_Runs", model: MotorModel, q_nominal: tuple[float, float, float]) -> FilterSettings:
+def tune_sh(runs: list[ScenarioRun], model: MotorModel, q_nominal: tuple[float, float, float]) -> FilterSettings:
     """Sage-Husa keeps the paper's R0, P0, q0, r0; its forgetting factor b, Q band and the scale
     of its nominal Q0 (relative to the KF's tuned Q) are searched like the KF's noise."""
     def settings(x):
@@ -119,29 +113,18 @@ def tune_sh(runs: "_Runs", model: MotorModel, q_nominal: tuple[float, float, flo
                               q_band_factor=max(band, 1.0), adapt_mask=SH_ADAPT)
 
     def objective(x):
-        return runs.angle_rms(SageHusaPredictor(model, settings(x)))
+        return _mean_angle_rms(runs, SageHusaPredictor(model, settings(x)))
 
     # 1 - b is the quantity that moves on a log scale (the memory length); refine that
     grid = dict(SH_GRID, forgetting_b=tuple(1.0 - b for b in SH_GRID["forgetting_b"]))
-    best = _grid_then_refine(lambda x: objective((1.0 - x[0], x[1], x[2])), grid, {})
+    best = _grid_then_refine(lambda x: objective((1.0 - x[0], x[1], x[2])), grid)
     return settings((1.0 - best[0], best[1], best[2]))
 
 
 def _mean_row(rows: list[Table5Row]) -> Table5Row:
-    fields = ("regulation_speed_mape_pct", "max_overshoot_pct", "constant_speed_mape_pct", "commutation_time_mape_pct",
-              "angle_rms_deg_e", "angle_p99_deg_e", "angle_max_deg_e", "time_rms_us")
+    metrics = [f.name for f in dataclasses.fields(Table5Row) if f.name not in ("name", "guards")]
     guards = {k: sum(r.guards.get(k, 0) for r in rows) for k in rows[0].guards}
-    return Table5Row(rows[0].name, *(float(np.mean([getattr(r, f) for r in rows])) for f in fields), guards=guards)
-
-
-class _Runs:
-    """Several scenario runs scored together: tuning minimises the mean angle RMS over them."""
-
-    def __init__(self, runs: list[ScenarioRun]):
-        self.runs = runs
-
-    def angle_rms(self, predictor) -> float:
-        return float(np.mean([_angle_rms(r, predictor) for r in self.runs]))
+    return Table5Row(rows[0].name, **{m: float(np.mean([getattr(r, m) for r in rows])) for m in metrics}, guards=guards)
 
 
 def table5(eval_seeds=(0, 3, 4), train_seeds=(1, 2), hold_s: float = 1.0) -> tuple[Table5, ScenarioRun]:
@@ -151,12 +134,11 @@ def table5(eval_seeds=(0, 3, 4), train_seeds=(1, 2), hold_s: float = 1.0) -> tup
         raise ValueError(f"evaluation seeds {sorted(set(eval_seeds) & set(train_seeds))} are also training seeds")
     train = [run_scenario(seed=s, hold_s=hold_s) for s in train_seeds]
     model = identify(train[0].config, seed=train_seeds[0]).model
-    kf_settings = tune_kf(_Runs(train), model)
-    sh_settings = tune_sh(_Runs(train), model, kf_settings.q0_diag)
-    per_run, first = [], None
-    for seed in eval_seeds:
-        run = run_scenario(seed=seed, hold_s=hold_s)
-        first = first or run
+    kf_settings = tune_kf(train, model)
+    sh_settings = tune_sh(train, model, kf_settings.q0_diag)
+    evaluation = [run_scenario(seed=seed, hold_s=hold_s) for seed in eval_seeds]
+    per_run = []
+    for run in evaluation:
         rows = []
         for name, predictor in (("pre-calibration", PrecalibrationPredictor()), ("KF", KalmanPredictor(model, kf_settings)),
                                 ("Sage-Husa", SageHusaPredictor(model, sh_settings))):
@@ -164,4 +146,4 @@ def table5(eval_seeds=(0, 3, 4), train_seeds=(1, 2), hold_s: float = 1.0) -> tup
             rows.append(score(run, name, r.pred_t_s, r.speed_rad_s, r.guards))
         per_run.append(rows)
     mean_rows = [_mean_row([rows[i] for rows in per_run]) for i in range(3)]
-    return Table5(mean_rows, per_run, kf_settings, sh_settings, model, tuple(train_seeds), tuple(eval_seeds)), first
+    return Table5(mean_rows, per_run, kf_settings, sh_settings, model, tuple(train_seeds), tuple(eval_seeds)), evaluation[0]
