@@ -302,7 +302,6 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
     wk = np.empty(12)
     i3 = np.empty(3)
     mode = ist[I_MODE]
-    eps_deg = 1e-9
     while True:
         t = st[S_T]
         # apply due commands
@@ -332,7 +331,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             # pending[...,E_T_CAPTURE] held the emission time; restore the timer's view
             t_cond = pending[j, E_T_COND]
             row[E_T_CAPTURE] = math.floor(t_cond / p[P_TICK]) * p[P_TICK] if p[P_TICK] > 0.0 else t_cond
-            row[E_THETA_CAPTURE] = pp * st[S_THETA_M] * RAD2DEG
+            # a capture that jitter placed before the physical switch is emitted at the switch
+            # (causality); its true angle is the rotor's at the capture instant, not now
+            row[E_THETA_CAPTURE] = pp * (st[S_THETA_M] - st[S_OMEGA_M] * (t - t_cond)) * RAD2DEG
             row[E_SPEED_RPM] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
             ist[I_N_EDGES] += 1
             x = int(row[E_SENSOR])
@@ -414,12 +415,22 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
         th1 = pp * st[S_THETA_M] * RAD2DEG
         we0 = pp * w0 * RAD2DEG
         acc = pp * (w1 - w0) / h * RAD2DEG
+        # an angle is "reached" within the rotation of 0.1 ns: a step cut back to an event is
+        # re-integrated over the shorter span and may end a few nano-degrees short of it, and
+        # steps are never cut below 0.1 ns, so without this margin the event would be committed
+        # one full step late (its time exact, but the rotor's angle at emission not)
+        # The margin applies in the direction of motion only; against it a crossing must be
+        # strict, or an edge just committed would flip straight back (both targets coincide
+        # when there is no hysteresis).
+        eps_deg = 1e-9 + abs(we0) * 1e-10
+        eps_f = eps_deg if we0 >= 0.0 else -1e-9
+        eps_r = eps_deg if we0 < 0.0 else -1e-9
         t_event = st[S_T]
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_deg and th0 < 60.0 * (n + 1) - eps_deg:
+            if th1 >= 60.0 * (n + 1) - eps_f and th0 < 60.0 * (n + 1) - eps_f:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
-            elif th1 < 60.0 * n - eps_deg:
+            elif th1 <= 60.0 * n + eps_r:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
         # the armature shift uses the current at the step start, so a step cut back to an
         # event sees the same switching angle as the trial step did
@@ -429,10 +440,10 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             m = ist[I_RAW_REGION + x]
             tf = st[S_FWD_TARGET + x] + shift
             trv = st[S_REV_TARGET + x] - shift
-            if th1 >= tf - eps_deg:
+            if th1 >= tf - eps_f:
                 t_raw = backup[S_T] + _root(th0, we0, acc, tf, h)
                 rising = (m + 1) % 2 == 0
-            elif th1 < trv - eps_deg:
+            elif th1 <= trv + eps_r:
                 t_raw = backup[S_T] + _root(th0, we0, acc, trv, h)
                 rising = (m - 1) % 2 == 0
             else:
@@ -456,9 +467,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
         # commit: oracle sector
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_deg:
+            if th1 >= 60.0 * (n + 1) - eps_f:
                 n += 1
-            elif th1 < 60.0 * n - eps_deg:
+            elif th1 <= 60.0 * n + eps_r:
                 n -= 1
             ist[I_ORACLE_N] = n
             _commutate(p, st, ist, out_comm, n % 6)
@@ -467,12 +478,12 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             m = ist[I_IDEAL_REGION + x]
             tf = 180.0 * (m + 1) + SENSOR_POS[x]
             trv = 180.0 * m + SENSOR_POS[x]
-            if th1 >= tf - eps_deg:
+            if th1 >= tf - eps_f:
                 k = m + 1
                 d = 1.0
                 target = tf
                 ist[I_IDEAL_REGION + x] = m + 1
-            elif th1 < trv - eps_deg:
+            elif th1 <= trv + eps_r:
                 k = m
                 d = -1.0
                 target = trv
@@ -490,12 +501,12 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             m = ist[I_RAW_REGION + x]
             tf = st[S_FWD_TARGET + x] + shift
             trv = st[S_REV_TARGET + x] - shift
-            if th1 >= tf - eps_deg:
+            if th1 >= tf - eps_f:
                 k = m + 1
                 d = 1.0
                 target = tf
                 ist[I_RAW_REGION + x] = m + 1
-            elif th1 < trv - eps_deg:
+            elif th1 <= trv + eps_r:
                 k = m
                 d = -1.0
                 target = trv

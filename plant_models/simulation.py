@@ -168,7 +168,7 @@ class Simulation:
         st = np.zeros(K.N_FSTATE)
         ist = np.zeros(K.N_ISTATE, dtype=np.int64)
         st[K.S_THETA_M] = math.radians(initial_angle_deg_m)
-        st[K.S_OMEGA_M] = initial_speed_rpm * 2 * math.pi / 60
+        st[K.S_OMEGA_M] = direction * initial_speed_rpm * 2 * math.pi / 60  # a magnitude, turning the driven way
         st[K.S_DUTY] = duty
         st[K.S_NEXT_SAMPLE] = 0.0
         st[K.S_SAMPLE_T0] = 0.0

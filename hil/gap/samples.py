@@ -1,0 +1,600 @@
+"""The sampled signals' part of the gap diagnosis: effects with no edge-angle signature.
+
+Two residuals, each against the model's own physics driven by what was measured:
+
+- **voltage** (V): the line-to-line voltage equation of the star-connected motor between two
+  consecutive samples, ``u_xy = R i_xy + L di_xy/dt + e_xy(theta_e, w)``, trapezoidal in time,
+  for the pairs a-b and b-c (the neutral cancels). Intervals across a commutation or a diode
+  clamp (a terminal-voltage step) are dropped. Winding temperature shows as ``dR * i``, magnet
+  temperature as ``(dk_e / k_e) * e``, saturation as the flux deficit of ``L(i)`` over ``L``.
+- **speed** (rad/s): measured speed minus the speed the model's torque balance integrates from
+  the measured currents (so the commutation torque ripple cancels), detrended per segment (a
+  mean torque mismatch, e.g. unknown friction, is a drift, not a pattern). Cogging torque
+  ``A sin(n theta_m + phi)`` shows as ``A cos(n theta_m + phi) / (n J w)``.
+
+Residuals are averaged into cells (segment x angle bin; electrical bins for the voltage,
+mechanical bins for the speed) with electrical periods or mechanical turns as replicates: the
+noise floor of a cell mean is the scatter of its replicates, so slow drifts and correlated
+noise widen it instead of faking a pattern. Candidates are fitted to the cell means by weighted
+least squares (saturation's knee and cogging's order by a profile over a grid), selected
+forward with the same BIC rule as the edge candidates, and judged on held-out segments.
+
+Dead time leaves no trace here: the recorded terminal voltages already carry its loss and the
+duty is not part of the format.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+from scipy import stats
+from scipy.integrate import cumulative_trapezoid
+from scipy.optimize import minimize_scalar
+
+from hil.recording import Recording
+
+ALPHA = 1e-3
+BIC_MIN = 10.0
+ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
+ALPHA_BR_PER_K = -0.0012     #: NdFeB remanence (the library's default)
+SATURATION_FLOOR = 0.1       #: L(i)/L floor assumed when fitting the knee (the library's lower bound)
+ELECTRICAL_BINS = 12         #: 30 deg_e per voltage cell
+MECHANICAL_BINS = 96         #: speed cells per turn: cogging orders up to 48 are resolved
+MAX_COGGING_ORDER = 48
+JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc marks a switching event
+BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
+SAMPLE_EFFECTS = ("winding_temperature", "magnet_temperature", "saturation", "cogging_torque")
+NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
+                         "and the duty is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"}
+
+
+@dataclass(frozen=True)
+class MotorModel:
+    """What the diagnosis knows of the motor (meta.json's nominal values, or --model)."""
+
+    pole_pairs: int
+    resistance_ohm: float
+    inductance_h: float
+    ke_v_s_per_rad: float
+    flat_top_deg_e: float
+    inertia_kg_m2: float
+    fan_n_m_s2: float
+    friction_n_m_s_per_rad: float
+    supply_v: float
+
+    @classmethod
+    def of(cls, rec: Recording, model=None) -> "MotorModel":
+        if model is not None:
+            cp = model.compile()
+            return cls(cp.pole_pairs, cp.phase_resistance_ohm, cp.phase_inductance_h, cp.ke_v_s_per_rad, cp.flat_top_deg_e,
+                       cp.inertia_kg_m2, cp.fan_coefficient_n_m_s2, cp.friction_n_m_s_per_rad, cp.supply_v)
+        m = rec.motor
+        return cls(int(m["pole_pairs"]), float(m["phase_resistance_ohm"]), float(m["phase_inductance_h"]), float(m["ke_v_s_per_rad"]),
+                   float(m.get("flat_top_deg_e", 120.0)), float(m["inertia_kg_m2"]), float(m["fan_coefficient_n_m_s2"]),
+                   float(m.get("friction_n_m_s_per_rad", 0.0)), float(m["supply_v"]))
+
+
+def trapezoid(phi_deg: np.ndarray, flat_top_deg_e: float) -> np.ndarray:
+    """Unit trapezoidal back-EMF shape, zero rising at phi = 0 (the plant's shape)."""
+    half = (180.0 - flat_top_deg_e) * 0.5
+    x = np.mod(phi_deg + 90.0, 360.0) - 90.0
+    v = np.where(x < 90.0, x / half, (180.0 - x) / half)
+    return np.clip(v, -1.0, 1.0)
+
+
+def flux_deficit(i: np.ndarray, inductance_h: float, knee_a: float, floor: float = SATURATION_FLOOR) -> np.ndarray:
+    """Psi(i) - L i for L(i) = L max(floor, 1 / (1 + (i / knee)^2)) (Psi = integral of L(i) di)."""
+    i_floor = knee_a * math.sqrt(1.0 / floor - 1.0)
+    a = np.abs(i)
+    psi = np.where(a <= i_floor, knee_a * np.arctan(a / knee_a),
+                   knee_a * math.atan(i_floor / knee_a) + floor * (a - i_floor))
+    return inductance_h * (np.sign(i) * psi - i)
+
+
+# --- residuals -----------------------------------------------------------------------------
+
+@dataclass
+class SampleResiduals:
+    """Per-row residuals and candidate regressors of one domain, with their cell coordinates."""
+
+    domain: str                      #: "voltage" or "speed"
+    unit: str
+    y: np.ndarray
+    segment: np.ndarray
+    bin: np.ndarray                  #: angle bin (with the line pair folded in for the voltage)
+    replicate: np.ndarray            #: electrical period or mechanical turn within the segment
+    regressors: dict[str, np.ndarray] = field(default_factory=dict)
+
+
+def _angles(rec: Recording) -> tuple[np.ndarray, np.ndarray, str]:
+    """Unwrapped electrical and mechanical angle (deg) at every sample, NaN outside the edges.
+
+    From the reference encoder when recorded; else from the ideal angles of the Hall edges
+    (the mechanical angle is then only known up to a pole, so the speed domain is skipped)."""
+    s = rec.samples
+    p = rec.pole_pairs
+    th_e = np.full(s["t_s"].size, np.nan)
+    th_m = np.full(s["t_s"].size, np.nan)
+    source = "encoder" if rec.ref_angle_mech_deg is not None else "hall"
+    for k, seg in enumerate(rec.segments):
+        e_sel = rec.segment == k
+        s_sel = s["segment"] == k
+        if e_sel.sum() < 2 or not s_sel.any():
+            continue
+        t = rec.t_s[e_sel]
+        if source == "encoder":
+            mech = np.unwrap(rec.ref_angle_mech_deg[e_sel], period=360.0)
+        else:
+            ideal = _ideal_edge_deg_e(rec.sensor[e_sel], rec.rising[e_sel], seg.direction_sign)
+            mech = np.unwrap(ideal, period=360.0) / p
+        ts = s["t_s"][s_sel]
+        inside = (ts >= t[0]) & (ts <= t[-1])
+        m = np.where(inside, np.interp(ts, t, mech), np.nan)
+        th_m[s_sel] = m
+        th_e[s_sel] = p * m
+    return th_e, (th_m if source == "encoder" else np.full_like(th_m, np.nan)), source
+
+
+def _ideal_edge_deg_e(sensor: np.ndarray, rising: np.ndarray, direction: int) -> np.ndarray:
+    rise_fwd = np.array([0.0, 120.0, 240.0])[sensor]
+    at_rise = rising.astype(bool) if direction > 0 else ~rising.astype(bool)
+    return np.where(at_rise, rise_fwd, rise_fwd + 180.0) % 360.0
+
+
+def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
+    """Signed mechanical speed: the speed column with the segment's direction, else d(theta)/dt."""
+    s = rec.samples
+    sign = np.array([seg.direction_sign for seg in rec.segments])[s["segment"]]
+    if "speed_rpm" in s:
+        return sign * np.abs(s["speed_rpm"]) * 2 * math.pi / 60
+    return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
+
+
+def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_after: int = 2) -> np.ndarray:
+    """Intervals between samples with no switching event inside or just before them.
+
+    A commutation changes which terminal sits highest and lowest; a diode clamp that ends
+    makes a terminal-voltage step. Within the few samples after either, the outgoing phase's
+    current may still reach zero mid-interval, where the held-voltage equation breaks."""
+    pattern = np.argmax(u, axis=1) * 3 + np.argmin(u, axis=1)
+    event = (pattern[1:] != pattern[:-1]) | np.any(np.abs(np.diff(u, axis=0)) > JUMP_FRACTION * supply_v, axis=1)
+    event |= seg[1:] != seg[:-1]
+    bad = event.copy()
+    for k in range(1, guard_after + 1):
+        bad[k:] |= event[:-k]
+    return ~bad
+
+
+def voltage_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+    s = rec.samples
+    if not all(c in s for c in ("i_a", "i_b", "i_c", "u_a", "u_b", "u_c")):
+        return None
+    i = np.column_stack([s["i_a"], s["i_b"], s["i_c"]])
+    u = np.column_stack([s["u_a"], s["u_b"], s["u_c"]])
+    f = np.column_stack([trapezoid(th_e - z, motor.flat_top_deg_e) for z in BEMF_ZERO_DEG_E])
+    e = motor.ke_v_s_per_rad * w[:, None] * f
+    t = s["t_s"]
+    seg = s["segment"]
+    ok = (seg[1:] == seg[:-1]) & np.isfinite(th_e[1:]) & np.isfinite(th_e[:-1])
+    ok &= _steady_intervals(u, seg, motor.supply_v)
+    h = np.diff(t)
+    rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "i0x", "i1x", "i0y", "i1y", "h")}
+    for pair, (x, yy) in enumerate(((0, 1), (1, 2))):
+        ixy = i[:, x] - i[:, yy]
+        uxy = u[:, x] - u[:, yy]
+        exy = e[:, x] - e[:, yy]
+        avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
+        resid = avg(uxy) - motor.resistance_ohm * avg(ixy) - motor.inductance_h * np.diff(ixy) / h - avg(exy)
+        mid = avg(th_e)
+        rel = mid - np.array([np.nanmin(th_e[seg == k]) if np.any(seg == k) else 0.0 for k in range(len(rec.segments))])[seg[1:]]
+        rows["y"].append(resid[ok])
+        rows["segment"].append(seg[1:][ok])
+        rows["bin"].append((np.floor(np.mod(mid[ok], 360.0) / (360.0 / ELECTRICAL_BINS)).astype(np.int64) % ELECTRICAL_BINS) + pair * ELECTRICAL_BINS)
+        rows["replicate"].append(np.floor(rel[ok] / 360.0).astype(np.int64))
+        rows["i"].append(avg(ixy)[ok])
+        rows["e"].append(avg(exy)[ok])
+        rows["i0x"].append(i[:-1, x][ok])
+        rows["i1x"].append(i[1:, x][ok])
+        rows["i0y"].append(i[:-1, yy][ok])
+        rows["i1y"].append(i[1:, yy][ok])
+        rows["h"].append(h[ok])
+    r = {k: np.concatenate(v) for k, v in rows.items()}
+    if r["y"].size == 0:
+        return None
+    regs = {"winding_temperature": r["i"], "magnet_temperature": r["e"],
+            "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]])}
+    return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
+
+
+def speed_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, th_m: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+    s = rec.samples
+    if "speed_rpm" not in s or not all(c in s for c in ("i_a", "i_b", "i_c")) or not np.isfinite(th_m).any():
+        return None
+    i = np.column_stack([s["i_a"], s["i_b"], s["i_c"]])
+    f = np.column_stack([trapezoid(th_e - z, motor.flat_top_deg_e) for z in BEMF_ZERO_DEG_E])
+    ys, segs, bins, reps, wbar_rows, th_rows = [], [], [], [], [], []
+    for k, seg in enumerate(rec.segments):
+        sel = (s["segment"] == k) & np.isfinite(th_m)
+        if sel.sum() < 8:
+            continue
+        t = s["t_s"][sel]
+        wk = w[sel]
+        torque = motor.ke_v_s_per_rad * np.sum(f[sel] * i[sel], axis=1)
+        load = seg.load_scale * motor.fan_n_m_s2 * wk * np.abs(wk) + motor.friction_n_m_s_per_rad * wk
+        pred = wk[0] + cumulative_trapezoid((torque - load) / motor.inertia_kg_m2, t, initial=0.0)
+        resid = wk - pred
+        tc = t - t.mean()
+        resid = resid - np.polyval(np.polyfit(tc, resid, 2), tc)  # a mean torque mismatch is a drift, not a pattern
+        m = th_m[sel]
+        ys.append(resid)
+        segs.append(np.full(resid.size, k))
+        bins.append(np.floor(np.mod(m, 360.0) / (360.0 / MECHANICAL_BINS)).astype(np.int64) % MECHANICAL_BINS)
+        reps.append(np.floor(seg.direction_sign * (m - m[0]) / 360.0).astype(np.int64))
+        wbar_rows.append(np.full(resid.size, np.mean(wk)))
+        th_rows.append(np.deg2rad(m))
+    if not ys:
+        return None
+    regs = {"_theta_m": np.concatenate(th_rows), "_w_mean": np.concatenate(wbar_rows)}
+    return SampleResiduals("speed", "rad/s", np.concatenate(ys), np.concatenate(segs), np.concatenate(bins), np.concatenate(reps), regs)
+
+
+# --- cells ---------------------------------------------------------------------------------
+
+@dataclass
+class SampleCells:
+    mean: np.ndarray
+    var: np.ndarray           #: variance of the cell mean (replicate scatter / replicates)
+    n: np.ndarray             #: rows in the cell
+    n_rep: np.ndarray         #: replicates in the cell
+    segment: np.ndarray
+    row_cell: np.ndarray      #: cell of each row (-1: dropped)
+    row_rep: np.ndarray       #: (cell, replicate) group of each row
+
+    @property
+    def weight(self) -> np.ndarray:
+        return 1.0 / self.var
+
+    def average(self, x: np.ndarray) -> np.ndarray:
+        """Cell means of a per-row regressor, averaged like the residual (replicate means first)."""
+        keep = self.row_cell >= 0
+        g = self.row_rep[keep]
+        n_g = np.bincount(g)
+        rep_mean = np.bincount(g, x[keep]) / np.maximum(n_g, 1)
+        cell_of_g = np.full(n_g.size, -1)
+        cell_of_g[g] = self.row_cell[keep]
+        used = n_g > 0
+        return np.bincount(cell_of_g[used], rep_mean[used], minlength=self.mean.size) / self.n_rep
+
+    def chi2(self, resid: np.ndarray) -> float:
+        return float(np.sum(resid * resid / self.var))
+
+    def significance(self, resid: np.ndarray, n_params: int = 0) -> float:
+        """p-value of the cell means ``resid`` against the noise floor. Each cell's t statistic
+        (replicate variance, n_rep - 1 dof) is mapped to chi-square(1), so small replicate
+        counts do not fake a gap."""
+        t = np.abs(resid) / np.sqrt(self.var)
+        p_cell = np.clip(2 * stats.t.sf(t, np.maximum(self.n_rep - 1, 1)), 1e-300, 1.0)
+        stat = float(np.sum(stats.chi2.isf(p_cell, 1)))
+        return float(stats.chi2.sf(stat, max(resid.size - n_params, 1)))
+
+
+def build_cells(r: SampleResiduals, min_replicates: int = 4) -> SampleCells:
+    key = (r.segment.astype(np.int64) * 10_000 + r.bin) * 1_000_000 + r.replicate
+    g_keys, g = np.unique(key, return_inverse=True)
+    rep_mean = np.bincount(g, r.y) / np.bincount(g)
+    cell_key = g_keys // 1_000_000
+    c_keys, c_of_g = np.unique(cell_key, return_inverse=True)
+    n_rep = np.bincount(c_of_g).astype(float)
+    mean = np.bincount(c_of_g, rep_mean) / n_rep
+    dev = rep_mean - mean[c_of_g]
+    var_rep = np.bincount(c_of_g, dev * dev) / np.maximum(n_rep - 1, 1)
+    good = n_rep >= min_replicates
+    # a cell's replicate variance from few replicates is itself noisy: shrink it towards the
+    # pooled variance of its segment's cells (never below it by more than half)
+    seg_of_cell = c_keys // 10_000
+    var = np.empty_like(var_rep)
+    for sgm in np.unique(seg_of_cell):
+        sel = seg_of_cell == sgm
+        pooled = np.sum(var_rep[sel & good] * (n_rep[sel & good] - 1)) / max(np.sum(n_rep[sel & good] - 1), 1)
+        var[sel] = np.maximum(var_rep[sel], 0.5 * pooled)
+    var = np.maximum(var / n_rep, 1e-30)
+    new_index = np.cumsum(good) - 1
+    row_cell = np.where(good[c_of_g[g]], new_index[c_of_g[g]], -1)
+    n_rows = np.bincount(c_of_g[g], minlength=c_keys.size).astype(float)
+    return SampleCells(mean[good], var[good], n_rows[good], n_rep[good], seg_of_cell[good], row_cell, g)
+
+
+# --- candidates ----------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class SampleCandidate:
+    """An effect as a cell design block, linear given its shape parameter (a grid is profiled)."""
+
+    name: str
+    domain: str
+    columns: Callable[[SampleResiduals, SampleCells, float | None], np.ndarray]
+    params: Callable[[np.ndarray, float | None, MotorModel], dict]
+    physical: Callable[[np.ndarray, np.ndarray, MotorModel], bool]
+    grid: tuple = (None,)
+    fixed: bool = False  #: the column enters with coefficient 1 (only the shape parameter is fitted)
+    #: shape parameters refined by a bounded scalar search around the best grid point
+    refine: bool = False
+
+
+def _winding_columns(r, cells, _):
+    return cells.average(r.regressors["winding_temperature"])[:, None]
+
+
+def _magnet_columns(r, cells, _):
+    return cells.average(r.regressors["magnet_temperature"])[:, None]
+
+
+def _saturation_columns(motor: MotorModel):
+    def columns(r, cells, knee_a):
+        i0x, i1x, i0y, i1y, h = r.regressors["_sat_i"].T
+        d = (flux_deficit(i1x, motor.inductance_h, knee_a) - flux_deficit(i0x, motor.inductance_h, knee_a)
+             - flux_deficit(i1y, motor.inductance_h, knee_a) + flux_deficit(i0y, motor.inductance_h, knee_a)) / h
+        return cells.average(d)[:, None]
+    return columns
+
+
+def _cogging_columns(motor: MotorModel):
+    def columns(r, cells, order):
+        th, wbar = r.regressors["_theta_m"], r.regressors["_w_mean"]
+        scale = 1.0 / (order * motor.inertia_kg_m2 * wbar)
+        return np.column_stack([cells.average(np.cos(order * th) * scale), cells.average(-np.sin(order * th) * scale)])
+    return columns
+
+
+def sample_candidates(motor: MotorModel) -> dict[str, SampleCandidate]:
+    r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
+    return {
+        "winding_temperature": SampleCandidate(
+            "winding_temperature", "voltage", _winding_columns,
+            lambda c, _, m: {"temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)), "alpha_per_k": ALPHA_CU_PER_K,
+                             "resistance_delta_ohm": float(c[0])},
+            lambda c, se, m: bool(-40 - 3 * se[0] / (r0 * ALPHA_CU_PER_K) <= c[0] / (r0 * ALPHA_CU_PER_K) <= 150 + 3 * se[0] / (r0 * ALPHA_CU_PER_K))),
+        "magnet_temperature": SampleCandidate(
+            "magnet_temperature", "voltage", _magnet_columns,
+            lambda c, _, m: {"temperature_rise_k": float(c[0] / ALPHA_BR_PER_K), "alpha_br_per_k": ALPHA_BR_PER_K,
+                             "ke_delta_v_s_per_rad": float(c[0] * ke0)},
+            lambda c, se, m: bool(-40 - 3 * se[0] / abs(ALPHA_BR_PER_K) <= c[0] / ALPHA_BR_PER_K <= 150 + 3 * se[0] / abs(ALPHA_BR_PER_K))),
+        "saturation": SampleCandidate(
+            "saturation", "voltage", _saturation_columns(motor),
+            lambda c, knee, m: {"saturation_current_a": float(knee), "min_inductance_fraction": SATURATION_FLOOR},
+            lambda c, se, m: True, grid=tuple(np.geomspace(0.1, 1000.0, 41)), fixed=True, refine=True),
+        "cogging_torque": SampleCandidate(
+            "cogging_torque", "speed", _cogging_columns(motor),
+            lambda c, n, m: {"amplitude_n_m": float(np.hypot(*c)), "periods_per_rev": int(n),
+                             "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi))},
+            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=tuple(range(1, MAX_COGGING_ORDER + 1))),
+    }
+
+
+# --- fitting and selection -----------------------------------------------------------------
+
+def _wls(x: np.ndarray, y: np.ndarray, w: np.ndarray):
+    if x.shape[1] == 0:
+        return np.zeros(0), np.zeros(0), float(np.sum(w * y * y))
+    sw = np.sqrt(w)
+    coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)
+    resid = y - x @ coef
+    cov = np.linalg.pinv((x * w[:, None]).T @ x)
+    return coef, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(np.sum(w * resid * resid))
+
+
+@dataclass
+class _Fit:
+    names: list[str]
+    shapes: list
+    coef: np.ndarray
+    se: np.ndarray
+    chi2: float
+    resid: np.ndarray
+
+
+def _fit(r, cells, cands, names, shapes, rows=None) -> _Fit:
+    """Fit ``names`` (with their shape parameters) jointly on the cells ``rows`` (default all)."""
+    rows = np.arange(cells.mean.size) if rows is None else rows
+    y = cells.mean.copy()
+    lin = []
+    for n, s in zip(names, shapes):
+        col = cands[n].columns(r, cells, s)
+        if cands[n].fixed:
+            y = y - col[:, 0]
+        else:
+            lin.append(col)
+    x = np.column_stack(lin) if lin else np.zeros((y.size, 0))
+    coef, se, _ = _wls(x[rows], y[rows], cells.weight[rows])
+    resid = y - x @ coef
+    return _Fit(list(names), list(shapes), coef, se, float(np.sum(resid[rows] ** 2 / cells.var[rows])), resid)
+
+
+def _own(fit: _Fit, cands, name):
+    """(coef, se) of ``name`` inside a joint fit."""
+    col = 0
+    for n in fit.names:
+        k = 0 if cands[n].fixed else (2 if n == "cogging_torque" else 1)
+        if n == name:
+            return fit.coef[col:col + k], fit.se[col:col + k]
+        col += k
+    raise KeyError(name)
+
+
+def _best_shape(r, cells, cands, accepted, shapes, name) -> _Fit:
+    cand = cands[name]
+    fits = [_fit(r, cells, cands, accepted + [name], shapes + [s]) for s in cand.grid]
+    best = min(fits, key=lambda f: f.chi2)
+    if cand.refine and len(cand.grid) > 1:
+        k = cand.grid.index(best.shapes[-1])
+        lo, hi = cand.grid[max(k - 1, 0)], cand.grid[min(k + 1, len(cand.grid) - 1)]
+        res = minimize_scalar(lambda lg: _fit(r, cells, cands, accepted + [name], shapes + [math.exp(lg)]).chi2,
+                              bounds=(math.log(lo), math.log(hi)), method="bounded", options={"xatol": 1e-3})
+        refined = _fit(r, cells, cands, accepted + [name], shapes + [math.exp(res.x)])
+        if refined.chi2 < best.chi2:
+            best = refined
+    return best
+
+
+def _n_params(cands, names) -> int:
+    return sum((0 if cands[n].fixed else (2 if n == "cogging_torque" else 1)) + (1 if len(cands[n].grid) > 1 else 0) for n in names)
+
+
+@dataclass
+class DomainDiagnosis:
+    domain: str
+    unit: str
+    significant: bool
+    p_value: float
+    accepted: list[dict]
+    first_scores: dict[str, float]
+    unexplained: bool
+    gap_before: float
+    gap_after_heldout: float | None
+    heldout_shrink: float | None
+    heldout_interval: list[float] | None
+    heldout_note: str
+    localisation: dict
+    chi2_excess: float
+
+    def to_json(self) -> dict:
+        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "unexplained", "gap_before",
+                                               "gap_after_heldout", "heldout_shrink", "heldout_interval", "heldout_note", "localisation")} | {
+            "ranking": [{"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])],
+            "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}"}
+
+
+def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: MotorModel, segment_ids: list[str]) -> DomainDiagnosis | None:
+    cells = build_cells(r)
+    if cells.mean.size < 4:
+        return None
+    names = [n for n, c in cands.items() if c.domain == r.domain]
+    p0 = cells.significance(cells.mean)
+    chi2_0 = cells.chi2(cells.mean)
+    n_cells = cells.mean.size
+    significant = p0 < ALPHA
+    accepted: list[str] = []
+    shapes: list = []
+    firsts: dict[str, float] = {n: 0.0 for n in names}
+    chi2_now = chi2_0
+    current = _fit(r, cells, cands, [], [])
+    while significant:
+        best = None
+        for name in names:
+            if name in accepted:
+                continue
+            f = _best_shape(r, cells, cands, accepted, shapes, name)
+            coef, se = _own(f, cands, name)
+            gain = chi2_now - f.chi2
+            k_new = _n_params(cands, [name])
+            search = math.log(len(cands[name].grid)) * 2 if len(cands[name].grid) > 1 else 0.0
+            d_bic = gain - k_new * math.log(n_cells) - search
+            if not accepted:
+                firsts[name] = float(max(min(gain / max(chi2_0 - n_cells, 1e-12), 1.0), 0.0)) if chi2_0 > n_cells else 0.0
+            if cands[name].physical(coef, se, motor) and (best is None or d_bic > best[0]):
+                best = (d_bic, name, f)
+        if best is None or best[0] < BIC_MIN:
+            break
+        _, name, f = best
+        accepted.append(name)
+        shapes = f.shapes
+        current = f
+        chi2_now = f.chi2
+        if cells.significance(current.resid, _n_params(cands, accepted)) > ALPHA:
+            break
+    unexplained = bool(significant and cells.significance(current.resid, _n_params(cands, accepted)) < ALPHA)
+    accepted_rows = []
+    for n, s in zip(accepted, shapes):
+        coef, _ = _own(current, cands, n)
+        accepted_rows.append({"effect": n, "params": cands[n].params(coef, s, motor)})
+    gap_before = float(np.sqrt(np.sum(cells.n * cells.mean**2) / np.sum(cells.n)))
+    shrink, after, interval, note = _heldout(r, cells, cands, accepted, shapes)
+    return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
+                           _localise(r, cells, segment_ids), chi2_0 - n_cells)
+
+
+def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0):
+    segs = np.unique(cells.segment)
+    if segs.size < 2:
+        return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
+    if not accepted:
+        return 0.0, None, None, "no effect accepted"
+    pred_resid = np.full(cells.mean.size, np.nan)
+    for s in segs:
+        test = cells.segment == s
+        train = np.nonzero(~test)[0]
+        # shape parameters (knee, order) are refitted on the training segments too
+        names, sh = [], []
+        for n, s0 in zip(accepted, shapes):
+            if len(cands[n].grid) > 1:
+                sub = _best_shape_rows(r, cells, cands, names, sh, n, train)
+                sh = sub.shapes
+            else:
+                sh = sh + [s0]
+            names.append(n)
+        f = _fit(r, cells, cands, names, sh, rows=train)
+        pred_resid[test] = f.resid[test]
+    ok = np.isfinite(pred_resid)
+    w = cells.n * ok
+
+    def gaps(wts):
+        before = math.sqrt(np.sum(wts * cells.mean**2) / np.sum(wts))
+        after = math.sqrt(np.sum(wts * np.where(ok, pred_resid, 0.0) ** 2) / np.sum(wts))
+        return before, after
+
+    before, after = gaps(w)
+    rng = np.random.default_rng(seed)
+    boots = []
+    for _ in range(n_boot):
+        pick = rng.choice(segs, segs.size, replace=True)
+        wts = sum(w * (cells.segment == s) for s in pick)
+        b, a = gaps(wts)
+        boots.append(1 - a / b if b > 0 else 0.0)
+    note = f"leave-one-operating-point-out over {segs.size} segments; interval: 5-95 % bootstrap over segments"
+    return float(1 - after / before) if before > 0 else 0.0, float(after), [float(np.percentile(boots, 5)), float(np.percentile(boots, 95))], note
+
+
+def _best_shape_rows(r, cells, cands, accepted, shapes, name, rows) -> _Fit:
+    fits = [_fit(r, cells, cands, accepted + [name], shapes + [s], rows=rows) for s in cands[name].grid]
+    return min(fits, key=lambda f: f.chi2)
+
+
+def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> dict:
+    out = {"per_segment": {}}
+    for s in np.unique(cells.segment):
+        sel = cells.segment == s
+        out["per_segment"][segment_ids[s]] = {"rms": float(np.sqrt(np.sum(cells.n[sel] * cells.mean[sel] ** 2) / np.sum(cells.n[sel]))),
+                                              "cells": int(sel.sum())}
+    if r.domain == "speed":
+        # order spectrum of the turn-averaged speed residual: cogging appears at its periods per turn
+        spectra = []
+        for s in np.unique(cells.segment):
+            sel = (r.segment == s)
+            pattern = np.bincount(r.bin[sel], r.y[sel], minlength=MECHANICAL_BINS) / np.maximum(np.bincount(r.bin[sel], minlength=MECHANICAL_BINS), 1)
+            spectra.append(np.abs(np.fft.rfft(pattern)) / MECHANICAL_BINS * 2)
+        amp = np.mean(spectra, axis=0)
+        out["order_spectrum"] = {"mechanical_order": list(range(amp.size)), "amplitude_rad_s": [float(v) for v in amp]}
+    else:
+        pattern = np.bincount(cells_bin := (r.bin % ELECTRICAL_BINS), r.y, minlength=ELECTRICAL_BINS) / np.maximum(np.bincount(cells_bin, minlength=ELECTRICAL_BINS), 1)
+        out["per_electrical_angle_v"] = {f"{int(k * 360 / ELECTRICAL_BINS)}": float(v) for k, v in enumerate(pattern)}
+    return out
+
+
+def diagnose_samples(rec: Recording, model=None) -> dict[str, DomainDiagnosis]:
+    """Diagnose the sampled signals of ``rec`` (empty when it has none)."""
+    if rec.samples is None:
+        return {}
+    motor = MotorModel.of(rec, model)
+    th_e, th_m, _ = _angles(rec)
+    w = _speed_rad_s(rec, th_m if np.isfinite(th_m).any() else th_e / motor.pole_pairs)
+    cands = sample_candidates(motor)
+    out = {}
+    for r in (voltage_residuals(rec, motor, th_e, w), speed_residuals(rec, motor, th_e, th_m, w)):
+        if r is not None:
+            d = diagnose_domain(r, cands, motor, rec.segment_ids)
+            if d is not None:
+                out[r.domain] = d
+    return out
