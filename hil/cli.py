@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -122,8 +123,12 @@ def cmd_gap_diagnose(args) -> int:
         rec = read_trace(args.recording, mapping, args.meta)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
-    print(f"{args.recording}: gap {d.gap_before:.4f} deg_e (RMS of the systematic edge residual), "
-          f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (p = {d.p_value:.2g})")
+    print(f"{args.recording}: gap {d.gap_before:.4g} ({d.gap_metric}), "
+          f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (edges: p = {d.p_value:.2g})")
+    for name, dom in d.samples.items():
+        shrink = f", held-out shrink {dom['heldout_shrink']:.1%}" if dom["heldout_shrink"] is not None and dom["accepted"] else ""
+        print(f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
+              f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}")
     for i, r in enumerate(d.ranking[:5], 1):
         print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{'   accepted' if any(a['effect'] == r['effect'] for a in d.accepted) else ''}")
     for a in d.accepted:
@@ -133,7 +138,7 @@ def cmd_gap_diagnose(args) -> int:
     print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
     if d.heldout_shrink is not None and d.gap_after_heldout is not None:
         lo, hi = d.heldout_interval or (float('nan'), float('nan'))
-        print(f"  held-out: gap {d.gap_after_heldout:.4f} deg_e, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); {d.heldout_note}")
+        print(f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); {d.heldout_note}")
     else:
         print(f"  held-out: {d.heldout_note}")
     if args.json:
@@ -153,7 +158,8 @@ def cmd_gap_validate(args) -> int:
         if i % 50 == 0 or i == n:
             print(f"  {i}/{n} recordings diagnosed", file=sys.stderr)
 
-    report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed, progress=progress)
+    report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed,
+                            progress=progress, jobs=args.jobs)
     for min_snr in (1.0, 3.0):
         s = report.summary(min_snr)
         print(f"SNR >= {min_snr:g}: top-1 {s['top1_rate']:.1%}, top-3 {s['top3_rate']:.1%} ({s['single_cases']} single-effect cases); "
@@ -161,6 +167,9 @@ def cmd_gap_validate(args) -> int:
               f"({s['out_of_library_cases']}); both of two found {s['two_effect_both_found_rate']:.1%} ({s['two_effect_cases']}); "
               f"parameters within 20 % {s['param_within_20pct_rate']:.1%} (median error {s['median_param_error']:.1%}); "
               f"median held-out shrink {s['median_heldout_shrink']:.1%}")
+        if s["false_alarm_rate_electrical"] is not None:
+            print(f"  false alarms on null recordings with samples {s['false_alarm_rate_electrical']:.1%}; "
+                  f"dead time withheld (no trace in the format's signals) flagged {s['no_trace_alarm_rate']:.1%} ({s['no_trace_cases']})")
     s = report.summary(3.0)
     names = sorted(s["confusion"])
     cols = names + ["none"] + sorted({k for row in s["confusion"].values() for k in row} - set(names) - {"none"})
@@ -333,6 +342,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
+    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per core)")
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
 

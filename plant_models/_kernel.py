@@ -251,7 +251,8 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
         e_cu += R * (i[x] * i[x] + i[x] * i1[x] + i1[x] * i1[x]) / 3.0
     t_load = p[P_FAN] * w0 * abs(w0) + p[P_FRICTION] * w0
     if p[P_COG_AMP] != 0.0:
-        t_load += p[P_COG_AMP] * math.sin(p[P_COG_N] * theta_m + p[P_COG_PHASE])
+        # at the step midpoint, like the back-EMF: the start angle lags the torque by half a step
+        t_load += p[P_COG_AMP] * math.sin(p[P_COG_N] * (theta_m + 0.5 * h * w0) + p[P_COG_PHASE])
     w1 = w0 + h * (te - t_load) / p[P_J]
     st[S_OMEGA_M] = w1
     st[S_THETA_M] = theta_m + 0.5 * h * (w0 + w1)

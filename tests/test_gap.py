@@ -48,6 +48,67 @@ def test_out_of_library_effect_is_called_unexplained(kind):
     assert d.significant and d.unexplained
 
 
+# --- effects seen in the sampled signals (electrical plant: edges plus samples) --------------
+
+SAMPLE_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
+
+
+@pytest.mark.parametrize("name", sorted(SAMPLE_DOMAIN))
+def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name):
+    rec, truth = make_case([name], snr=4.0, seed=202)
+    assert rec.samples is not None and rec.meta_extra["validation_snr"] == pytest.approx(4.0)
+    d = diagnose(rec, KNOWN_MODEL)
+    assert d.significant and not d.unexplained
+    assert [a["effect"] for a in d.accepted] == [name], d.ranking[:3]
+    assert d.ranking[0]["effect"] == name
+    # temperatures, knee and cogging phasor within 5 % (the bar is 20 %): the residuals are exact
+    # physics of the plant, so a larger error means a discretisation or sign slip somewhere
+    assert _param_error(truth[0], d.accepted[0]) < 0.05
+    domain = d.samples[SAMPLE_DOMAIN[name]]
+    assert domain["heldout_shrink"] >= 0.8
+    assert d.heldout_shrink == domain["heldout_shrink"]  # the edges show nothing: the headline is this signal's
+    assert SAMPLE_DOMAIN[name] in d.gap_metric
+
+
+def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace():
+    from hil.gap.validate import JITTER_S, TICK_S, _record_electrical, profile
+
+    for seed in range(3):
+        rec, _ = make_case([], snr=1.0, seed=seed, electrical=True)
+        d = diagnose(rec, KNOWN_MODEL)
+        assert not d.significant, (seed, d.samples["voltage"]["p_value"], d.samples["speed"]["p_value"])
+        assert set(d.samples) == {"voltage", "speed"}
+    config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), fx.DeadTime(3e-6))
+    d = diagnose(_record_electrical(config, profile(config), 5), KNOWN_MODEL)
+    assert not d.significant
+    assert any(n.startswith("dead_time: no trace") for n in d.not_assessed)
+
+
+@pytest.mark.parametrize("kind", ["current_offset", "current_gain"])
+def test_current_sensor_fault_is_called_unexplained(kind):
+    rec, _ = make_case([], snr=4.0, seed=9, ool=kind)
+    d = diagnose(rec, KNOWN_MODEL)
+    assert d.significant and d.unexplained
+
+
+def test_recording_without_samples_says_what_it_cannot_assess():
+    rec, _ = make_case([], snr=1.0, seed=1)
+    d = diagnose(rec, KNOWN_MODEL)
+    assert d.samples == {}
+    missing = {n.split(":")[0] for n in d.not_assessed}
+    assert missing == {"dead_time", "winding_temperature", "magnet_temperature", "saturation", "cogging_torque"}
+
+
+def test_sampled_diagnosis_survives_the_written_format(tmp_path):
+    from hil.recording import read_recording
+
+    rec, _ = make_case(["magnet_temperature"], snr=3.0, seed=4)
+    back = read_recording(write_recording(rec, tmp_path / "rec"))
+    a, b = diagnose(rec, KNOWN_MODEL), diagnose(back, KNOWN_MODEL)
+    assert [x["effect"] for x in b.accepted] == ["magnet_temperature"]
+    assert b.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(a.accepted[0]["params"]["temperature_rise_k"], rel=1e-6)
+
+
 def test_model_that_knows_the_effect_leaves_no_gap():
     eff = fx.ConditioningDelay(8e-6, 2e-6)
     rec, _ = make_case([], snr=1.0, seed=3)

@@ -67,7 +67,6 @@ CANDIDATES: dict[str, Candidate] = {
     "timer_quantization": Candidate("timer_quantization", _quantization, lambda k: {"tick_s": float(k[0])}, _not_below(0.0)),
 }
 
-#: library effects with no mean edge-angle signature (design notes section 6). edge_jitter is
-#: diagnosed as a variance effect (diagnose._noise_gap); the others need the sampled signals
-#: (speed or current versus applied voltage), which this version does not model yet
-NO_EDGE_SIGNATURE = ("edge_jitter", "cogging_torque", "winding_temperature", "magnet_temperature", "dead_time", "saturation")
+#: Library effects with no mean edge-angle signature are diagnosed elsewhere: edge_jitter as a
+#: variance effect (diagnose._noise_gap), the electrical and mechanical ones from the sampled
+#: signals (samples.py); dead_time leaves no trace in the format's signals (samples.NO_TRACE).

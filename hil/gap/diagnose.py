@@ -24,8 +24,9 @@ from scipy.optimize import nnls
 
 from hil.recording import Recording
 
-from .candidates import CANDIDATES, NO_EDGE_SIGNATURE
+from .candidates import CANDIDATES
 from .residuals import EdgeResiduals, residuals
+from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
 
 ALPHA = 1e-3          # significance of a gap against the noise floor
 BIC_MIN = 10.0        # minimum BIC improvement for an effect to earn its place
@@ -84,7 +85,7 @@ def build_cells(r: EdgeResiduals) -> Cells:
     first[inv[::-1]] = np.arange(len(r))[::-1]
     feats = {
         "sensor": r.sensor[first], "rising": r.rising[first], "pole": r.pole[first], "direction": r.direction[first].astype(float),
-        "w_e": r.w_e_deg_s[first], "current": r.current_a[first], "load": r.load_scale[first], "segment": r.segment[first],
+        "w_e": r.w_e_deg_s[first], "current": np.bincount(inv, r.current_a) / n, "load": r.load_scale[first], "segment": r.segment[first],
         "pole_pairs": r.pole_pairs,
     }
     dof = np.zeros(uniq.size)
@@ -140,6 +141,8 @@ class Diagnosis:
     reference: str = "encoder"
     not_assessed: list[str] = field(default_factory=list)
     noise_gap: dict = field(default_factory=dict)
+    samples: dict = field(default_factory=dict)
+    gap_metric: str = "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
 
     def to_json(self) -> dict:
         return {
@@ -147,9 +150,10 @@ class Diagnosis:
             "confounded": self.confounded, "unexplained": self.unexplained, "gap_before": self.gap_before,
             "gap_after_heldout": self.gap_after_heldout, "heldout_shrink": self.heldout_shrink,
             "heldout_interval": self.heldout_interval, "heldout_note": self.heldout_note, "knobs": self.knobs,
-            "gap_metric": "RMS over edges of the systematic edge-angle residual (cell means), deg electrical",
+            "gap_metric": self.gap_metric,
             "p_value": self.p_value, "reference": self.reference, "noise_floor_deg_e": self.noise_floor_deg_e,
             "localisation": self.localisation, "not_assessed": self.not_assessed, "noise_gap": self.noise_gap,
+            "samples": self.samples,
         }
 
 
@@ -262,7 +266,7 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
         ranking.append(jitter_row)
     if not significant and noise_significant and shrink is None and noise_shrink is not None:
         note = "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
-    return Diagnosis(
+    diagnosis = Diagnosis(
         significant=significant or noise_significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
         gap_before=gap_before, gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
         noise_gap={"p_value": p_noise, "significant": noise_significant, "before_deg_e": noise_before,
@@ -270,8 +274,46 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
         knobs=knobs, localisation=localise(r, cells), p_value=p0, reference=r.reference,
         noise_floor_deg_e={str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
                            for s in np.unique(cells.features["segment"])},
-        not_assessed=[f"{n}: no edge-angle signature; needs sampled speed/current versus applied voltage" for n in NO_EDGE_SIGNATURE if n != "edge_jitter"],
     )
+    _add_samples(diagnosis, rec, model)
+    return diagnosis
+
+
+def _add_samples(d: Diagnosis, rec: Recording, model) -> None:
+    """Fold the sampled signals' diagnosis (voltage equation, speed) into ``d``.
+
+    Its accepted effects follow the edge effects; its candidates join the ranking by score.
+    When the edges show no gap but a sampled signal does, the headline gap figures are that
+    signal's (``gap_metric`` says which)."""
+    domains = diagnose_samples(rec, model)
+    d.samples = {k: v.to_json() for k, v in domains.items()}
+    assessed = {n for dom in domains.values() for n in dom.first_scores}
+    d.not_assessed = [f"{n}: {reason}" for n, reason in NO_TRACE.items()]
+    d.not_assessed += [f"{n}: needs samples.csv with phase currents and terminal voltages (speed and the reference encoder for cogging)"
+                       for n in SAMPLE_EFFECTS if n not in assessed]
+    if not domains:
+        return
+    edge_rows = len(d.accepted)
+    extra_rows = []
+    for dom in sorted(domains.values(), key=lambda x: x.p_value):
+        if dom.significant:
+            d.accepted.extend(dom.accepted)
+            d.unexplained = d.unexplained or dom.unexplained
+        for name, score in dom.first_scores.items():
+            extra_rows.append({"effect": name, "score": round(score if dom.significant else 0.0, 4),
+                               "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant})
+    accepted_extra = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if x["accepted"]]
+    rest = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if not x["accepted"]]
+    head = d.ranking[:edge_rows]
+    tail = sorted(d.ranking[edge_rows:] + rest, key=lambda x: -x["score"])
+    d.ranking = head + accepted_extra + tail
+    sampled_gap = [dom for dom in sorted(domains.values(), key=lambda x: x.p_value) if dom.significant]
+    if sampled_gap and d.p_value >= ALPHA:  # no mean edge gap: the headline is the sampled signal's
+        dom = sampled_gap[0]
+        d.gap_metric = f"RMS over samples of the systematic {dom.domain} residual (cell means), {dom.unit}"
+        d.gap_before, d.gap_after_heldout, d.heldout_shrink = dom.gap_before, dom.gap_after_heldout, dom.heldout_shrink
+        d.heldout_interval, d.heldout_note = dom.heldout_interval, dom.heldout_note
+    d.significant = d.significant or bool(sampled_gap)
 
 
 def expected_noise_var(w_e: np.ndarray, model, tick_s: float | None, extra_tick_s: float = 0.0) -> np.ndarray:

@@ -17,8 +17,8 @@ TEMPLATE = """<!doctype html>
 <style>body{font-family:sans-serif;margin:2em;max-width:1100px}table{border-collapse:collapse}td,th{border:1px solid #ccc;padding:3px 8px}
 .bad{color:#b00}.ok{color:#070}img{max-width:100%}</style></head><body>
 <h1>Sim-to-real gap diagnosis</h1>
-<p>Recording <code>{{ name }}</code>, reference: {{ d.reference }}. Gap (RMS of the systematic edge-angle residual):
-<b>{{ "%.4f"|format(d.gap_before) }} deg e</b>,
+<p>Recording <code>{{ name }}</code>, reference: {{ d.reference }}. Gap ({{ d.gap_metric }}):
+<b>{{ "%.4g"|format(d.gap_before) }}</b>,
 {% if d.significant %}<span class="bad">significant</span>{% else %}<span class="ok">within the noise floor</span>{% endif %}
 (p = {{ "%.2g"|format(d.p_value) }}).</p>
 <h2>Which effect</h2>
@@ -29,11 +29,18 @@ TEMPLATE = """<!doctype html>
 {% if d.confounded %}<p>Confounded: {% for pair in d.confounded %}{{ pair|join(" / ") }} (knob: {{ d.knobs[pair|join("/")] }}); {% endfor %}</p>{% endif %}
 <p>Unexplained remainder: <b>{{ "yes" if d.unexplained else "no" }}</b></p>
 <h2>How far it shrinks</h2>
-<p>{% if d.heldout_shrink is not none %}Held-out gap {{ "%.4f"|format(d.gap_after_heldout or 0) }} deg e, shrink <b>{{ "%.1f"|format(100 * d.heldout_shrink) }} %</b>
+<p>{% if d.heldout_shrink is not none %}Held-out gap {{ "%.4g"|format(d.gap_after_heldout or 0) }}, shrink <b>{{ "%.1f"|format(100 * d.heldout_shrink) }} %</b>
 {% if d.heldout_interval %}(interval {{ "%.1f"|format(100 * d.heldout_interval[0]) }}-{{ "%.1f"|format(100 * d.heldout_interval[1]) }} %){% endif %}.{% endif %} {{ d.heldout_note }}</p>
 {% for title, img in figures %}<h2>{{ title }}</h2><img src="data:image/png;base64,{{ img }}" alt="{{ title }}">{% endfor %}
+<h2>Sampled signals</h2>
+{% if d.samples %}<table><tr><th>signal</th><th>p</th><th>gap</th><th>accepted</th><th>held-out gap</th><th>shrink</th><th>unexplained</th></tr>
+{% for k, v in d.samples.items() %}<tr><td>{{ k }} [{{ v.unit }}]</td><td>{{ "%.2g"|format(v.p_value) }}</td><td>{{ "%.3g"|format(v.gap_before) }}</td>
+<td>{% for a in v.accepted %}{{ a.effect }} <code>{{ a.params|tojson }}</code> {% endfor %}</td>
+<td>{{ "%.3g"|format(v.gap_after_heldout) if v.gap_after_heldout is not none else "-" }}</td>
+<td>{{ "%.1f %%"|format(100 * v.heldout_shrink) if v.heldout_shrink is not none else "-" }}</td><td>{{ "yes" if v.unexplained else "no" }}</td></tr>{% endfor %}
+</table>{% else %}<p>The recording has no samples.csv.</p>{% endif %}
 <h2>Localisation</h2><pre>{{ localisation }}</pre>
-<h2>Not assessed from edges</h2><ul>{% for n in d.not_assessed %}<li>{{ n }}</li>{% endfor %}</ul>
+<h2>Not assessed</h2><ul>{% for n in d.not_assessed %}<li>{{ n }}</li>{% endfor %}</ul>
 </body></html>"""
 
 
@@ -43,6 +50,14 @@ def _png(fig) -> str:
     fig.savefig(buf, format="png", dpi=90)
     pyplot().close(fig)
     return base64.b64encode(buf.getvalue()).decode()
+
+
+def _bars(order, amplitude, ylabel: str) -> str:
+    fig, ax = pyplot().subplots(figsize=(6, 3))
+    ax.bar(order, amplitude)
+    ax.set_xlabel("mechanical order")
+    ax.set_ylabel(ylabel)
+    return _png(fig)
 
 
 def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
@@ -63,11 +78,7 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     out.append(("Edge-error pattern", _png(fig)))
     spec = diagnosis.localisation.get("order_spectrum")
     if spec:
-        fig, ax = plt.subplots(figsize=(6, 3))
-        ax.bar(spec["mechanical_order"], spec["amplitude_deg_e"])
-        ax.set_xlabel("mechanical order")
-        ax.set_ylabel("amplitude [deg e]")
-        out.append(("Order spectrum", _png(fig)))
+        out.append(("Order spectrum", _bars(spec["mechanical_order"], spec["amplitude_deg_e"], "amplitude [deg e]")))
     regions = diagnosis.localisation["per_region"]
     fig, ax = plt.subplots(figsize=(6, 3.5))
     sc = ax.scatter([g["speed_rpm"] for g in regions], [g["current_a"] for g in regions], c=[g["mean_deg_e"] for g in regions],
@@ -77,7 +88,9 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     ax.set_ylabel("mean phase current [A]")
     ax.set_title("operating regions (red edge: reverse)", fontsize=9)
     out.append(("Operating-region map", _png(fig)))
-    names = [a["effect"] for a in diagnosis.accepted if a["effect"] != "edge_jitter"]  # the mean effects
+    from .candidates import CANDIDATES
+
+    names = [a["effect"] for a in diagnosis.accepted if a["effect"] in CANDIDATES]  # the mean edge effects
     if names:
         x = _design(names, cells)
         coef, _, _ = _wls(x, cells.mean, cells.weight)
@@ -88,6 +101,17 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
         ax.set_ylabel("residual [deg e]")
         ax.legend(fontsize=8)
         out.append(("Before / after", _png(fig)))
+    speed = diagnosis.samples.get("speed", {}).get("localisation", {}).get("order_spectrum")
+    if speed:
+        out.append(("Speed residual: order spectrum (cogging shows at its periods per turn)",
+                    _bars(speed["mechanical_order"], speed["amplitude_rad_s"], "speed residual [rad/s]")))
+    volt = diagnosis.samples.get("voltage", {}).get("localisation", {}).get("per_electrical_angle_v")
+    if volt:
+        fig, ax = plt.subplots(figsize=(6, 3))
+        ax.plot([float(k) for k in volt], list(volt.values()), "o-")
+        ax.set_xlabel("electrical angle [deg]")
+        ax.set_ylabel("voltage residual [V]")
+        out.append(("Voltage-equation residual over the electrical turn", _png(fig)))
     return out
 
 

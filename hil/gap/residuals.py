@@ -81,6 +81,27 @@ def turn_errors(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return err, pole, turn
 
 
+def edge_currents_a(rec: Recording) -> np.ndarray:
+    """Mean |i| over the phases at each edge: the last sample at or before the capture when
+    samples.csv has the phase currents (armature reaction follows the current at the edge,
+    which under six-step commutation differs from the segment mean), else the segment's
+    ``mean_phase_current_a``."""
+    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment].astype(float)
+    s = rec.samples
+    if s is None or not all(c in s for c in ("i_a", "i_b", "i_c")):
+        return current
+    mean_abs = (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0
+    for k in range(len(rec.segments)):
+        e_sel = np.nonzero(rec.segment == k)[0]
+        s_sel = np.nonzero(s["segment"] == k)[0]
+        if e_sel.size == 0 or s_sel.size == 0:
+            continue
+        j = np.searchsorted(s["t_s"][s_sel], rec.t_s[e_sel], side="right") - 1
+        inside = j >= 0
+        current[e_sel[inside]] = mean_abs[s_sel[j[inside]]]
+    return current
+
+
 def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) -> EdgeResiduals:
     p = rec.pole_pairs
     if rec.ref_angle_mech_deg is not None:
@@ -103,7 +124,7 @@ def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) 
     out = EdgeResiduals(
         residual_deg_e=err, sensor=rec.sensor.astype(np.int64), rising=rec.rising.astype(np.int64), pole=pole.astype(np.int64),
         direction=np.array([s.direction_sign for s in seg])[rec.segment], w_e_deg_s=w,
-        current_a=np.array([s.mean_phase_current_a for s in seg])[rec.segment],
+        current_a=edge_currents_a(rec),
         load_scale=np.array([s.load_scale for s in seg])[rec.segment], segment=rec.segment.astype(np.int64),
         turn=turn, reference=reference, pole_pairs=p,
     )
@@ -123,7 +144,7 @@ def model_prediction(config, rec: Recording) -> np.ndarray:
         _, pole, _ = turn_errors(rec)
     direction = np.array([s.direction_sign for s in rec.segments])[rec.segment]
     w = segment_speed_deg_e_s(rec)[rec.segment]
-    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
+    current = edge_currents_a(rec)
     delay = np.where(rec.rising, cp.rise_delay_s, cp.fall_delay_s)
     return (direction * (cp.sensor_offset_deg_e[rec.sensor] + cp.pole_offset_deg_e[pole]) + cp.hysteresis_deg_e
             + cp.armature_offset_deg_e(current) + w * delay)

@@ -45,6 +45,7 @@ ELECTRICAL_BINS = 12         #: 30 deg_e per voltage cell
 MECHANICAL_BINS = 96         #: speed cells per turn: cogging orders up to 48 are resolved
 MAX_COGGING_ORDER = 48
 JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc marks a switching event
+RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
 BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
 SAMPLE_EFFECTS = ("winding_temperature", "magnet_temperature", "saturation", "cogging_torque")
 NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
@@ -153,18 +154,26 @@ def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
     return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
 
 
-def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_after: int = 2) -> np.ndarray:
-    """Intervals between samples with no switching event inside or just before them.
+def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_before: int = 1, guard_after: int = 2) -> np.ndarray:
+    """Intervals between samples with no switching event in or near them.
 
-    A commutation changes which terminal sits highest and lowest; a diode clamp that ends
-    makes a terminal-voltage step. Within the few samples after either, the outgoing phase's
-    current may still reach zero mid-interval, where the held-voltage equation breaks."""
-    pattern = np.argmax(u, axis=1) * 3 + np.argmin(u, axis=1)
+    A commutation changes which terminals sit at the rails; a diode clamp that ends makes a
+    terminal-voltage step. Around either, a current may reach zero mid-interval, where the
+    held-voltage equation breaks. Terminals are classed against the rails with a tolerance of
+    a few per cent of the terminals' spread, so measurement noise cannot toggle the class (a noise-dependent
+    choice of intervals would bias the residual)."""
+    hi, lo = u.max(axis=1, keepdims=True), u.min(axis=1, keepdims=True)
+    tol = RAIL_TOLERANCE * (hi - lo)
+    top = u >= hi - tol
+    bottom = u <= lo + tol
+    pattern = (2 * top + bottom) @ np.array([1, 4, 16])
     event = (pattern[1:] != pattern[:-1]) | np.any(np.abs(np.diff(u, axis=0)) > JUMP_FRACTION * supply_v, axis=1)
     event |= seg[1:] != seg[:-1]
     bad = event.copy()
     for k in range(1, guard_after + 1):
         bad[k:] |= event[:-k]
+    for k in range(1, guard_before + 1):
+        bad[:-k] |= event[k:]
     return ~bad
 
 
@@ -215,7 +224,7 @@ def speed_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, th_m: n
         return None
     i = np.column_stack([s["i_a"], s["i_b"], s["i_c"]])
     f = np.column_stack([trapezoid(th_e - z, motor.flat_top_deg_e) for z in BEMF_ZERO_DEG_E])
-    ys, segs, bins, reps, wbar_rows, th_rows = [], [], [], [], [], []
+    ys, segs, bins, reps, t_rows, th_rows, err_rows = [], [], [], [], [], [], []
     for k, seg in enumerate(rec.segments):
         sel = (s["segment"] == k) & np.isfinite(th_m)
         if sel.sum() < 8:
@@ -224,20 +233,25 @@ def speed_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, th_m: n
         wk = w[sel]
         torque = motor.ke_v_s_per_rad * np.sum(f[sel] * i[sel], axis=1)
         load = seg.load_scale * motor.fan_n_m_s2 * wk * np.abs(wk) + motor.friction_n_m_s_per_rad * wk
-        pred = wk[0] + cumulative_trapezoid((torque - load) / motor.inertia_kg_m2, t, initial=0.0)
-        resid = wk - pred
-        tc = t - t.mean()
-        resid = resid - np.polyval(np.polyfit(tc, resid, 2), tc)  # a mean torque mismatch is a drift, not a pattern
+        accel = (torque - load) / motor.inertia_kg_m2
+        pred = wk[0] + cumulative_trapezoid(accel, t, initial=0.0)
+        resid = _detrend(t, wk - pred)  # a mean torque mismatch is a drift, not a pattern
+        # the integral is only as good as the sampling of the current transients: the change
+        # from half to full rate (a conservative bound on the full-rate error when transients
+        # are sharper than the sampling, where Richardson's /3 is too hopeful) joins the noise
+        # floor of each cell
+        coarse = np.interp(t, t[::2], wk[0] + cumulative_trapezoid(accel[::2], t[::2], initial=0.0))
+        err_rows.append(_detrend(t, pred - coarse))
         m = th_m[sel]
         ys.append(resid)
         segs.append(np.full(resid.size, k))
         bins.append(np.floor(np.mod(m, 360.0) / (360.0 / MECHANICAL_BINS)).astype(np.int64) % MECHANICAL_BINS)
         reps.append(np.floor(seg.direction_sign * (m - m[0]) / 360.0).astype(np.int64))
-        wbar_rows.append(np.full(resid.size, np.mean(wk)))
+        t_rows.append(t)
         th_rows.append(np.deg2rad(m))
     if not ys:
         return None
-    regs = {"_theta_m": np.concatenate(th_rows), "_w_mean": np.concatenate(wbar_rows)}
+    regs = {"_theta_m": np.concatenate(th_rows), "_t": np.concatenate(t_rows), "_integration_error": np.concatenate(err_rows)}
     return SampleResiduals("speed", "rad/s", np.concatenate(ys), np.concatenate(segs), np.concatenate(bins), np.concatenate(reps), regs)
 
 
@@ -252,6 +266,7 @@ class SampleCells:
     segment: np.ndarray
     row_cell: np.ndarray      #: cell of each row (-1: dropped)
     row_rep: np.ndarray       #: (cell, replicate) group of each row
+    cache: dict = field(default_factory=dict)  #: design columns by (effect, shape parameter)
 
     @property
     def weight(self) -> np.ndarray:
@@ -341,11 +356,24 @@ def _saturation_columns(motor: MotorModel):
     return columns
 
 
+def _detrend(t: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Remove a quadratic in time (what the speed residual has removed per segment)."""
+    tc = t - t.mean()
+    return y - np.polyval(np.polyfit(tc, y, 2), tc)
+
+
 def _cogging_columns(motor: MotorModel):
     def columns(r, cells, order):
-        th, wbar = r.regressors["_theta_m"], r.regressors["_w_mean"]
-        scale = 1.0 / (order * motor.inertia_kg_m2 * wbar)
-        return np.column_stack([cells.average(np.cos(order * th) * scale), cells.average(-np.sin(order * th) * scale)])
+        # the speed the cogging torque A sin(n theta + phi) takes away, integrated along the
+        # measured trajectory exactly as the residual was: -(1/J) int sin / cos, detrended
+        th, t = r.regressors["_theta_m"], r.regressors["_t"]
+        a = np.empty_like(th)
+        b = np.empty_like(th)
+        for k in np.unique(r.segment):
+            sel = r.segment == k
+            a[sel] = _detrend(t[sel], -cumulative_trapezoid(np.sin(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2)
+            b[sel] = _detrend(t[sel], -cumulative_trapezoid(np.cos(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2)
+        return np.column_stack([cells.average(a), cells.average(b)])
     return columns
 
 
@@ -402,7 +430,9 @@ def _fit(r, cells, cands, names, shapes, rows=None) -> _Fit:
     y = cells.mean.copy()
     lin = []
     for n, s in zip(names, shapes):
-        col = cands[n].columns(r, cells, s)
+        col = cells.cache.get((n, s))
+        if col is None:
+            col = cells.cache[(n, s)] = cands[n].columns(r, cells, s)
         if cands[n].fixed:
             y = y - col[:, 0]
         else:
@@ -424,16 +454,20 @@ def _own(fit: _Fit, cands, name):
     raise KeyError(name)
 
 
-def _best_shape(r, cells, cands, accepted, shapes, name) -> _Fit:
+def _best_shape(r, cells, cands, accepted, shapes, name, rows=None) -> _Fit:
+    """Fit ``accepted`` plus ``name`` with the shape parameter of ``name`` that fits best (on
+    ``rows``, default all cells): the grid, then a bounded search around its best point."""
     cand = cands[name]
-    fits = [_fit(r, cells, cands, accepted + [name], shapes + [s]) for s in cand.grid]
-    best = min(fits, key=lambda f: f.chi2)
+
+    def fit(shape):
+        return _fit(r, cells, cands, accepted + [name], shapes + [shape], rows=rows)
+
+    best = min((fit(s) for s in cand.grid), key=lambda f: f.chi2)
     if cand.refine and len(cand.grid) > 1:
         k = cand.grid.index(best.shapes[-1])
         lo, hi = cand.grid[max(k - 1, 0)], cand.grid[min(k + 1, len(cand.grid) - 1)]
-        res = minimize_scalar(lambda lg: _fit(r, cells, cands, accepted + [name], shapes + [math.exp(lg)]).chi2,
-                              bounds=(math.log(lo), math.log(hi)), method="bounded", options={"xatol": 1e-3})
-        refined = _fit(r, cells, cands, accepted + [name], shapes + [math.exp(res.x)])
+        res = minimize_scalar(lambda lg: fit(math.exp(lg)).chi2, bounds=(math.log(lo), math.log(hi)), method="bounded", options={"xatol": 1e-3})
+        refined = fit(math.exp(res.x))
         if refined.chi2 < best.chi2:
             best = refined
     return best
@@ -471,6 +505,8 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     cells = build_cells(r)
     if cells.mean.size < 4:
         return None
+    if "_integration_error" in r.regressors:
+        cells.var = cells.var + cells.average(r.regressors["_integration_error"]) ** 2
     names = [n for n, c in cands.items() if c.domain == r.domain]
     p0 = cells.significance(cells.mean)
     chi2_0 = cells.chi2(cells.mean)
@@ -510,10 +546,16 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     for n, s in zip(accepted, shapes):
         coef, _ = _own(current, cands, n)
         accepted_rows.append({"effect": n, "params": cands[n].params(coef, s, motor)})
-    gap_before = float(np.sqrt(np.sum(cells.n * cells.mean**2) / np.sum(cells.n)))
+    gap_before = _systematic_rms(cells.mean, cells.n)
     shrink, after, interval, note = _heldout(r, cells, cands, accepted, shapes)
     return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
                            _localise(r, cells, segment_ids), chi2_0 - n_cells)
+
+
+def _systematic_rms(cell_mean: np.ndarray, weight: np.ndarray) -> float:
+    """RMS of the cell means (the systematic residual; as for the edges, the noise left in a
+    cell mean is not subtracted, so the shrink is a conservative figure)."""
+    return float(math.sqrt(np.sum(weight * cell_mean**2) / np.sum(weight)))
 
 
 def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0):
@@ -530,7 +572,7 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
         names, sh = [], []
         for n, s0 in zip(accepted, shapes):
             if len(cands[n].grid) > 1:
-                sub = _best_shape_rows(r, cells, cands, names, sh, n, train)
+                sub = _best_shape(r, cells, cands, names, sh, n, rows=train)
                 sh = sub.shapes
             else:
                 sh = sh + [s0]
@@ -541,9 +583,7 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
     w = cells.n * ok
 
     def gaps(wts):
-        before = math.sqrt(np.sum(wts * cells.mean**2) / np.sum(wts))
-        after = math.sqrt(np.sum(wts * np.where(ok, pred_resid, 0.0) ** 2) / np.sum(wts))
-        return before, after
+        return _systematic_rms(cells.mean, wts), _systematic_rms(np.where(ok, pred_resid, 0.0), wts)
 
     before, after = gaps(w)
     rng = np.random.default_rng(seed)
@@ -555,11 +595,6 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
         boots.append(1 - a / b if b > 0 else 0.0)
     note = f"leave-one-operating-point-out over {segs.size} segments; interval: 5-95 % bootstrap over segments"
     return float(1 - after / before) if before > 0 else 0.0, float(after), [float(np.percentile(boots, 5)), float(np.percentile(boots, 95))], note
-
-
-def _best_shape_rows(r, cells, cands, accepted, shapes, name, rows) -> _Fit:
-    fits = [_fit(r, cells, cands, accepted + [name], shapes + [s], rows=rows) for s in cands[name].grid]
-    return min(fits, key=lambda f: f.chi2)
 
 
 def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> dict:
