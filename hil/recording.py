@@ -249,18 +249,24 @@ def _read_table(path: Path, required: tuple[str, ...], optional: tuple[str, ...]
 
 def _floats(path: Path, header: list[str], rows, column: str, low=None, high_open=None) -> np.ndarray:
     j = header.index(column)
-    out = np.empty(len(rows))
-    for n, (line, row) in enumerate(rows):
-        text = row[j].strip()
-        try:
-            v = float(text)
-        except ValueError:
-            raise RecordingError(path, line, column, f"not a number: {text!r}") from None
+    try:  # fast path: numpy parses with float()'s grammar; on failure find the offending line
+        out = np.array([row[j] for _, row in rows], dtype=float)
+    except ValueError:
+        for line, row in rows:
+            try:
+                float(row[j])
+            except ValueError:
+                raise RecordingError(path, line, column, f"not a number: {row[j].strip()!r}") from None
+        raise
+    bad = ~np.isfinite(out)
+    if low is not None:
+        bad |= (out < low) | (out >= high_open)
+    if bad.any():
+        n = int(np.argmax(bad))
+        line, text, v = rows[n][0], rows[n][1][j].strip(), out[n]
         if not math.isfinite(v):
             raise RecordingError(path, line, column, f"not finite: {text!r}")
-        if low is not None and (v < low or v >= high_open):
-            raise RecordingError(path, line, column, f"{v!r} outside [{low}, {high_open})")
-        out[n] = v
+        raise RecordingError(path, line, column, f"{v!r} outside [{low}, {high_open})")
     return out
 
 
@@ -283,6 +289,35 @@ def _choice(path: Path, header, rows, column: str, choices: dict[str, int], what
     return out
 
 
+def _read_samples_fast(path: Path, seg_index: dict[str, int]) -> dict[str, np.ndarray] | None:
+    """samples.csv through pandas' C parser (a million rows in about a second, against some
+    fifteen for the row-by-row reader). Every check of the strict reader is made on the whole
+    columns; on any doubt this returns None and the strict reader runs, so a bad file is still
+    refused with its file, line and column."""
+    try:
+        import pandas as pd
+    except ImportError:
+        return None
+    with open(path, newline="") as fh:
+        header = [h.strip() for h in next(csv.reader(fh), [])]
+    if not all(c in header for c in SAMPLE_REQUIRED) or len(set(header)) != len(header):
+        return None
+    numeric = [c for c in header if c != "segment"]
+    try:
+        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": str},
+                         skipinitialspace=True, engine="c", keep_default_na=False, na_filter=False)
+    except (ValueError, pd.errors.ParserError):
+        return None
+    out = {c: df[c].to_numpy(dtype=float) for c in numeric if c in SAMPLE_REQUIRED or c in SAMPLE_OPTIONAL}
+    if any(not np.all(np.isfinite(v)) for v in out.values()) or (out["t_s"].size > 1 and np.any(np.diff(out["t_s"]) <= 0)):
+        return None
+    segment = df["segment"].str.strip().map(seg_index)
+    if segment.isna().any():
+        return None
+    out["segment"] = segment.to_numpy(dtype=np.int64)
+    return out
+
+
 def read_recording(directory: str | Path, *, with_truth: bool = True) -> Recording:
     d = Path(directory)
     if not d.is_dir():
@@ -302,6 +337,8 @@ def read_recording(directory: str | Path, *, with_truth: bool = True) -> Recordi
     samples = None
     spath = d / "samples.csv"
     if spath.is_file():
+        samples = _read_samples_fast(spath, seg_index)
+    if spath.is_file() and samples is None:
         sh, srows = _read_table(spath, SAMPLE_REQUIRED, SAMPLE_OPTIONAL)
         samples = {"t_s": _floats(spath, sh, srows, "t_s")}
         _increasing(spath, srows, samples["t_s"])

@@ -222,10 +222,8 @@ def _fuzz(fuzz_pair, frames):
     vc, dev, link, _ = fuzz_pair
     for cob, data in frames:
         link.network.send_message(cob, data)
-    # let the device answer the malformed requests first: a late abort to a fuzz frame's SDO
-    # request is otherwise taken by the client as the answer to the read below (2 ms was too
-    # short on a loaded 2-core machine; the SDO client does not match the abort's multiplexer)
-    time.sleep(0.03)
+    # no wait for the device to answer the malformed requests: a late answer to one of them
+    # names another object and the link's SDO client drops it (MuxCheckedSdoClient)
     link.network.send_message(0, bytes([0x01, 5]))  # malformed traffic may legitimately have stopped or reset it
     time.sleep(0.002)
     # well-formed requests still answered, each with its own content (no stale answer)
@@ -242,3 +240,39 @@ def test_ten_thousand_malformed_frames_do_not_break_the_device(fuzz_pair):
     # alive and correct after 10,000 malformed frames: identity, an edge round trip, a download
     assert link.identity()["firmware"] == "vc-0.1.0"
     assert isinstance(link.edge({"t_capture_s": 1e3, "sensor": 1, "rising": True, "current_a": 1.0}), list)
+
+
+def test_a_late_answer_to_another_request_is_not_taken_for_this_one():
+    """canopen 2.4.1 takes the first frame on the response COB-ID; a late abort for another
+    object (here 0x2000:01) must neither be raised for a read of 0x1000:00 nor hide its answer."""
+    from canopen.sdo.client import SdoClient
+    from canopen.sdo.exceptions import SdoAbortedError
+
+    from hil.dut.canopen_face import MuxCheckedSdoClient
+
+    stale_abort = bytes([0x80, 0x00, 0x20, 0x01]) + (0x06020000).to_bytes(4, "little")
+    answer = bytes([0x43, 0x00, 0x10, 0x00]) + (0x192).to_bytes(4, "little")
+    request = bytes([0x40, 0x00, 0x10, 0x00, 0, 0, 0, 0])
+
+    class Net:
+        def send_message(self, cob_id, data):
+            pass
+
+    def client(cls):
+        c = cls(0x605, 0x585, None)
+        c.network = Net()
+        c.RESPONSE_TIMEOUT = 0.2
+        c.send_request(request)
+        c.responses.put(stale_abort)
+        c.responses.put(answer)
+        return c
+
+    with pytest.raises(SdoAbortedError):  # the library as it is: the stale abort is raised
+        client(SdoClient).read_response()
+    assert client(MuxCheckedSdoClient).read_response() == answer
+    own_abort = bytes([0x80, 0x00, 0x10, 0x00]) + (0x06010002).to_bytes(4, "little")
+    c = client(MuxCheckedSdoClient)
+    c.responses = type(c.responses)()
+    c.responses.put(own_abort)
+    with pytest.raises(SdoAbortedError):  # its own abort still raises
+        c.read_response()

@@ -181,3 +181,28 @@ def test_samples_errors(written, recording):
     assert "not a number" in refused(written, "samples.csv", 3, "i_a")
     (written / "samples.csv").write_text("t_s,i_a\n0.0,1.0\n")
     refused(written, "samples.csv", 1, "segment")
+
+
+@pytest.mark.parametrize("body, line, column, message", [
+    ("0.0,low,1.0\n0.1,low,nan\n", 3, "i_a", "not finite"),
+    ("0.0,low,1.0\n\n0.0,low,2.0\n", 4, "t_s", "times must increase"),
+    ("0.0,low,1.0\n0.1,nowhere,2.0\n", 3, "segment", "unknown segment"),
+    ("0.0,low,1.0\n0.1,low\n", 3, None, "expected 3 fields"),
+    ("0.0,low,1.0\n0.1,low,2.0,9\n", 3, None, "expected 3 fields"),
+])
+def test_samples_errors_name_the_line_behind_the_fast_reader(written, body, line, column, message):
+    """samples.csv is parsed in bulk first; a file the bulk parse doubts goes to the strict
+    reader, so the error still names the line (blank lines counted) and the column."""
+    (written / "samples.csv").write_text("t_s,segment,i_a\n" + body)
+    assert message in refused(written, "samples.csv", line, column)
+
+
+def test_a_large_samples_file_reads_exactly(tmp_path, recording):
+    from dataclasses import replace
+
+    n = 50_000
+    rng = np.random.default_rng(0)
+    samples = {"t_s": np.arange(n) * 5e-5, "segment": np.zeros(n, dtype=np.int64), "i_a": rng.normal(size=n), "u_b": rng.normal(size=n) * 40}
+    back = read_recording(write_recording(replace(recording, samples=samples), tmp_path / "big"))
+    for k in samples:
+        np.testing.assert_array_equal(back.samples[k], samples[k])

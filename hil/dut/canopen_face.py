@@ -16,6 +16,7 @@ import time
 
 import canopen
 import numpy as np
+from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
@@ -229,6 +230,39 @@ class CanopenDevice:
             self.network.disconnect()
 
 
+class MuxCheckedSdoClient(SdoClient):
+    """An SDO client that matches each answer's multiplexer to its request.
+
+    canopen 2.4.1 takes the first frame on the response COB-ID as the answer. A device's late
+    answer to an earlier request (a timed-out read, or a malformed request another node sent)
+    would then be taken for this request's answer, or its abort raised for it. Aborts and
+    initiate responses carry the index and sub-index; one for another object is dropped and
+    the wait goes on. Segment responses carry none and are taken as they come."""
+
+    _expected_mux: bytes | None = None
+
+    def send_request(self, request):
+        command = request[0] >> 5
+        # initiate download (1) and upload (2) name the object; segment requests do not
+        self._expected_mux = bytes(request[1:4]) if command in (1, 2) else None
+        super().send_request(request)
+
+    def read_response(self):
+        deadline = time.monotonic() + self.RESPONSE_TIMEOUT
+        while True:
+            try:
+                response = self.responses.get(block=True, timeout=max(deadline - time.monotonic(), 0.0))
+            except queue.Empty:
+                raise SdoCommunicationError("No SDO response received") from None
+            aborted = response[0] == 0x80
+            names_object = aborted or (response[0] >> 5) in (2, 3)  # abort, initiate upload / download response
+            if self._expected_mux is not None and names_object and bytes(response[1:4]) != self._expected_mux:
+                continue  # an answer to another request
+            if aborted:
+                raise SdoAbortedError(struct.unpack_from("<L", response, 4)[0])
+            return response
+
+
 class CanopenLink:
     """The framework's view of a CANopen controller on any python-can interface."""
 
@@ -241,6 +275,9 @@ class CanopenLink:
         self.network = canopen.Network()
         self.network.connect(interface=interface, channel=channel, **bus_kwargs)
         self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
+        # the client is already subscribed to the response COB-ID; swapping its class keeps that
+        # subscription and adds the multiplexer check
+        self.node.sdo.__class__ = MuxCheckedSdoClient
         self.node.sdo.RESPONSE_TIMEOUT = timeout_s
         # canopen 2.4.1 counts retries down and stops at zero: MAX_RETRIES = 0 would retry forever
         # (-1 is truthy); 1 means a single attempt, so a silent node fails within timeout_s
