@@ -145,6 +145,18 @@ def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
     assert d.localisation["order_spectrum"]["mechanical_order"][0] == 0
 
 
+def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
+    from hil.recording import record_electrical
+
+    config = paper_bench().with_effects(fx.MagnetTemperature(20.0), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
+    rec = record_electrical(config, [OperatingPoint(0.3, 6000.0, load_scale=1.0)], seed=2, voltage_noise_v=0.005)
+    d = diagnose(rec, KNOWN_MODEL)
+    assert [a["effect"] for a in d.accepted] == ["magnet_temperature"]
+    assert d.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(20.0, rel=0.05)
+    assert d.heldout_shrink is None and "single segment" in d.heldout_note
+    assert d.samples["voltage"]["localisation"]["per_segment"]
+
+
 def test_without_encoder_relative_pattern_is_still_localised():
     config = paper_bench().with_effects(fx.PoleOffset((0.0, 0.6, -0.3, 0.2)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
     from hil.gap.validate import profile
