@@ -8,9 +8,10 @@ import pytest
 from hil.cli import main
 from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
+from hil.gap.samples import EFFECT_DOMAIN
 from hil.gap.validate import KNOWN_MODEL, _param_error, make_case, run_validation
 from hil.recording import record_kinematic, write_recording
-from plant_models import PlantConfig, paper_bench
+from plant_models import paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint
 
@@ -50,10 +51,7 @@ def test_out_of_library_effect_is_called_unexplained(kind):
 
 # --- effects seen in the sampled signals (electrical plant: edges plus samples) --------------
 
-SAMPLE_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
-
-
-@pytest.mark.parametrize("name", sorted(SAMPLE_DOMAIN))
+@pytest.mark.parametrize("name", sorted(EFFECT_DOMAIN))
 def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name):
     rec, truth = make_case([name], snr=4.0, seed=202)
     assert rec.samples is not None and rec.meta_extra["validation_snr"] == pytest.approx(4.0)
@@ -64,10 +62,10 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
     # temperatures, knee and cogging phasor within 5 % (the bar is 20 %): the residuals are exact
     # physics of the plant, so a larger error means a discretisation or sign slip somewhere
     assert _param_error(truth[0], d.accepted[0]) < 0.05
-    domain = d.samples[SAMPLE_DOMAIN[name]]
+    domain = d.samples[EFFECT_DOMAIN[name]]
     assert domain["heldout_shrink"] >= 0.8
     assert d.heldout_shrink == domain["heldout_shrink"]  # the edges show nothing: the headline is this signal's
-    assert SAMPLE_DOMAIN[name] in d.gap_metric
+    assert EFFECT_DOMAIN[name] in d.gap_metric
 
 
 def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace():

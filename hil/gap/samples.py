@@ -47,13 +47,15 @@ MAX_COGGING_ORDER = 48
 JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc marks a switching event
 RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
 BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
-SAMPLE_EFFECTS = ("winding_temperature", "magnet_temperature", "saturation", "cogging_torque")
+#: the residual in which each sampled-signal effect shows
+EFFECT_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
+SAMPLE_EFFECTS = tuple(EFFECT_DOMAIN)
 NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
                          "and the duty is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"}
 
 
 @dataclass(frozen=True)
-class MotorModel:
+class NominalMotor:
     """What the diagnosis knows of the motor (meta.json's nominal values, or --model)."""
 
     pole_pairs: int
@@ -67,7 +69,7 @@ class MotorModel:
     supply_v: float
 
     @classmethod
-    def of(cls, rec: Recording, model=None) -> "MotorModel":
+    def of(cls, rec: Recording, model=None) -> "NominalMotor":
         if model is not None:
             cp = model.compile()
             return cls(cp.pole_pairs, cp.phase_resistance_ohm, cp.phase_inductance_h, cp.ke_v_s_per_rad, cp.flat_top_deg_e,
@@ -177,7 +179,7 @@ def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_bef
     return ~bad
 
 
-def voltage_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
     s = rec.samples
     if not all(c in s for c in ("i_a", "i_b", "i_c", "u_a", "u_b", "u_c")):
         return None
@@ -218,7 +220,7 @@ def voltage_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, w: np
     return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
 
 
-def speed_residuals(rec: Recording, motor: MotorModel, th_e: np.ndarray, th_m: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+def speed_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, th_m: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
     s = rec.samples
     if "speed_rpm" not in s or not all(c in s for c in ("i_a", "i_b", "i_c")) or not np.isfinite(th_m).any():
         return None
@@ -331,10 +333,10 @@ class SampleCandidate:
     name: str
     domain: str
     columns: Callable[[SampleResiduals, SampleCells, float | None], np.ndarray]
-    params: Callable[[np.ndarray, float | None, MotorModel], dict]
-    physical: Callable[[np.ndarray, np.ndarray, MotorModel], bool]
+    params: Callable[[np.ndarray, float | None, NominalMotor], dict]
+    physical: Callable[[np.ndarray, np.ndarray, NominalMotor], bool]
     grid: tuple = (None,)
-    fixed: bool = False  #: the column enters with coefficient 1 (only the shape parameter is fitted)
+    n_coef: int = 1      #: fitted coefficients (0: the column enters with coefficient 1, only its shape is fitted)
     #: shape parameters refined by a bounded scalar search around the best grid point
     refine: bool = False
 
@@ -347,7 +349,7 @@ def _magnet_columns(r, cells, _):
     return cells.average(r.regressors["magnet_temperature"])[:, None]
 
 
-def _saturation_columns(motor: MotorModel):
+def _saturation_columns(motor: NominalMotor):
     def columns(r, cells, knee_a):
         i0x, i1x, i0y, i1y, h = r.regressors["_sat_i"].T
         d = (flux_deficit(i1x, motor.inductance_h, knee_a) - flux_deficit(i0x, motor.inductance_h, knee_a)
@@ -362,7 +364,7 @@ def _detrend(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     return y - np.polyval(np.polyfit(tc, y, 2), tc)
 
 
-def _cogging_columns(motor: MotorModel):
+def _cogging_columns(motor: NominalMotor):
     def columns(r, cells, order):
         # the speed the cogging torque A sin(n theta + phi) takes away, integrated along the
         # measured trajectory exactly as the residual was: -(1/J) int sin / cos, detrended
@@ -377,28 +379,28 @@ def _cogging_columns(motor: MotorModel):
     return columns
 
 
-def sample_candidates(motor: MotorModel) -> dict[str, SampleCandidate]:
+def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
     r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
     return {
         "winding_temperature": SampleCandidate(
-            "winding_temperature", "voltage", _winding_columns,
+            "winding_temperature", EFFECT_DOMAIN["winding_temperature"], _winding_columns,
             lambda c, _, m: {"temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)), "alpha_per_k": ALPHA_CU_PER_K,
                              "resistance_delta_ohm": float(c[0])},
             lambda c, se, m: bool(-40 - 3 * se[0] / (r0 * ALPHA_CU_PER_K) <= c[0] / (r0 * ALPHA_CU_PER_K) <= 150 + 3 * se[0] / (r0 * ALPHA_CU_PER_K))),
         "magnet_temperature": SampleCandidate(
-            "magnet_temperature", "voltage", _magnet_columns,
+            "magnet_temperature", EFFECT_DOMAIN["magnet_temperature"], _magnet_columns,
             lambda c, _, m: {"temperature_rise_k": float(c[0] / ALPHA_BR_PER_K), "alpha_br_per_k": ALPHA_BR_PER_K,
                              "ke_delta_v_s_per_rad": float(c[0] * ke0)},
             lambda c, se, m: bool(-40 - 3 * se[0] / abs(ALPHA_BR_PER_K) <= c[0] / ALPHA_BR_PER_K <= 150 + 3 * se[0] / abs(ALPHA_BR_PER_K))),
         "saturation": SampleCandidate(
-            "saturation", "voltage", _saturation_columns(motor),
+            "saturation", EFFECT_DOMAIN["saturation"], _saturation_columns(motor),
             lambda c, knee, m: {"saturation_current_a": float(knee), "min_inductance_fraction": SATURATION_FLOOR},
-            lambda c, se, m: True, grid=tuple(np.geomspace(0.1, 1000.0, 41)), fixed=True, refine=True),
+            lambda c, se, m: True, grid=tuple(np.geomspace(0.1, 1000.0, 41)), n_coef=0, refine=True),
         "cogging_torque": SampleCandidate(
-            "cogging_torque", "speed", _cogging_columns(motor),
+            "cogging_torque", EFFECT_DOMAIN["cogging_torque"], _cogging_columns(motor),
             lambda c, n, m: {"amplitude_n_m": float(np.hypot(*c)), "periods_per_rev": int(n),
                              "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi))},
-            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=tuple(range(1, MAX_COGGING_ORDER + 1))),
+            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=tuple(range(1, MAX_COGGING_ORDER + 1)), n_coef=2),
     }
 
 
@@ -433,7 +435,7 @@ def _fit(r, cells, cands, names, shapes, rows=None) -> _Fit:
         col = cells.cache.get((n, s))
         if col is None:
             col = cells.cache[(n, s)] = cands[n].columns(r, cells, s)
-        if cands[n].fixed:
+        if cands[n].n_coef == 0:
             y = y - col[:, 0]
         else:
             lin.append(col)
@@ -447,7 +449,7 @@ def _own(fit: _Fit, cands, name):
     """(coef, se) of ``name`` inside a joint fit."""
     col = 0
     for n in fit.names:
-        k = 0 if cands[n].fixed else (2 if n == "cogging_torque" else 1)
+        k = cands[n].n_coef
         if n == name:
             return fit.coef[col:col + k], fit.se[col:col + k]
         col += k
@@ -474,7 +476,7 @@ def _best_shape(r, cells, cands, accepted, shapes, name, rows=None) -> _Fit:
 
 
 def _n_params(cands, names) -> int:
-    return sum((0 if cands[n].fixed else (2 if n == "cogging_torque" else 1)) + (1 if len(cands[n].grid) > 1 else 0) for n in names)
+    return sum(cands[n].n_coef + (1 if len(cands[n].grid) > 1 else 0) for n in names)
 
 
 @dataclass
@@ -501,7 +503,7 @@ class DomainDiagnosis:
             "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}"}
 
 
-def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: MotorModel, segment_ids: list[str]) -> DomainDiagnosis | None:
+def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: NominalMotor, segment_ids: list[str]) -> DomainDiagnosis | None:
     cells = build_cells(r)
     if cells.mean.size < 4:
         return None
@@ -622,7 +624,7 @@ def diagnose_samples(rec: Recording, model=None) -> dict[str, DomainDiagnosis]:
     """Diagnose the sampled signals of ``rec`` (empty when it has none)."""
     if rec.samples is None:
         return {}
-    motor = MotorModel.of(rec, model)
+    motor = NominalMotor.of(rec, model)
     th_e, th_m, _ = _angles(rec)
     w = _speed_rad_s(rec, th_m if np.isfinite(th_m).any() else th_e / motor.pole_pairs)
     cands = sample_candidates(motor)

@@ -30,7 +30,7 @@ from plant_models.plant import steady_state
 
 from .candidates import CANDIDATES
 from .diagnose import diagnose
-from .samples import SAMPLE_EFFECTS
+from .samples import EFFECT_DOMAIN, SAMPLE_EFFECTS
 
 EDGE_EFFECTS = tuple(CANDIDATES) + ("edge_jitter",)
 EFFECT_NAMES = EDGE_EFFECTS + SAMPLE_EFFECTS
@@ -176,9 +176,9 @@ def _record_electrical(config: PlantConfig, ops, seed: int, noisy: bool = True) 
 
 def _sample_rows(rec: Recording, domain: str) -> np.ndarray:
     """Per-row residual of one sampled domain against the nominal motor (the SNR's yardstick)."""
-    from .samples import MotorModel, _angles, _speed_rad_s, speed_residuals, voltage_residuals
+    from .samples import NominalMotor, _angles, _speed_rad_s, speed_residuals, voltage_residuals
 
-    motor = MotorModel.of(rec)
+    motor = NominalMotor.of(rec)
     th_e, th_m, _ = _angles(rec)
     w = _speed_rad_s(rec, th_m)
     r = voltage_residuals(rec, motor, th_e, w) if domain == "voltage" else speed_residuals(rec, motor, th_e, th_m, w)
@@ -202,7 +202,7 @@ _MAGNITUDE = {"winding_temperature": "temperature_rise_k", "magnet_temperature":
 def _sample_effect(name: str, snr: float, seed: int, base: PlantConfig, ops, rng) -> tuple[fx.Effect, float]:
     """A sampled-signal effect scaled to ``snr`` (the knee of saturation by bisection in log),
     within the library's bounds; returns it with the SNR it actually has."""
-    domain = "speed" if name == "cogging_torque" else "voltage"
+    domain = EFFECT_DOMAIN[name]
     noise = _noise(base, ops, seed, domain)
     if name == "saturation":
         # the signature falls roughly as knee^-2: secant steps in log-log from a 10 A knee
@@ -402,7 +402,7 @@ def _run_case(job) -> dict:
         if truth[0].name == "edge_jitter":
             shrink = d.noise_gap.get("heldout_shrink")
         elif truth[0].name in SAMPLE_EFFECTS:
-            shrink = d.samples.get("speed" if truth[0].name == "cogging_torque" else "voltage", {}).get("heldout_shrink")
+            shrink = d.samples.get(EFFECT_DOMAIN[truth[0].name], {}).get("heldout_shrink")
     return {
         "kind": kind, "truth": [t.name for t in truth] or ([ool] if ool else names), "seed": case_seed,
         "snr_drawn": snr, "snr": float(rec.meta_extra.get("validation_snr", snr)), "electrical": rec.samples is not None,
