@@ -68,6 +68,21 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
     assert EFFECT_DOMAIN[name] in d.gap_metric
 
 
+def test_winding_and_magnet_temperature_are_confounded_when_current_follows_speed():
+    """Pump load only over a narrow speed range: a resistance change (follows current) and a
+    back-EMF change (follows speed) explain nearly the same; the report names the knob."""
+    from hil.recording import record_electrical
+
+    config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0))
+    ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
+    d = diagnose(record_electrical(config, ops, seed=1, voltage_noise_v=0.005), KNOWN_MODEL)
+    assert [a["effect"] for a in d.accepted] == ["winding_temperature"]
+    assert ["magnet_temperature", "winding_temperature"] in d.confounded
+    assert "load at a fixed speed" in d.knobs["magnet_temperature/winding_temperature"]
+    rec, _ = make_case(["winding_temperature"], snr=4.0, seed=202)  # with a load change at 2000/5000/8000 rpm
+    assert diagnose(rec, KNOWN_MODEL).confounded == []
+
+
 def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace():
     from hil.gap.validate import JITTER_S, TICK_S, _record_electrical, profile
 

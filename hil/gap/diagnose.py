@@ -299,6 +299,9 @@ def _add_samples(d: Diagnosis, rec: Recording, model) -> None:
         if dom.significant:
             d.accepted.extend(dom.accepted)
             d.unexplained = d.unexplained or dom.unexplained
+            for pair in dom.confounded:
+                d.confounded.append(pair)
+                d.knobs["/".join(pair)] = _knob(*pair)
         for name, score in dom.first_scores.items():
             extra_rows.append({"effect": name, "score": round(score if dom.significant else 0.0, 4),
                                "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant})
@@ -366,7 +369,7 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
 
 
 def _knob(a: str, b: str) -> str:
-    from .candidates import CANDIDATES as C
+    from plant_models.effects import EFFECTS
 
     pair = {a, b}
     if pair == {"conditioning_delay", "armature_reaction"}:
@@ -375,9 +378,11 @@ def _knob(a: str, b: str) -> str:
         return "record both directions: hysteresis lags either way, an installation offset flips with direction"
     if pair == {"conditioning_delay", "timer_quantization"}:
         return "vary the capture timer resolution, or compare rising with falling edges"
+    if pair == {"winding_temperature", "magnet_temperature"}:
+        return "change the load at a fixed speed: a resistance change follows the current, a back-EMF change follows the speed"
     if pair == {"pole_offset", "eccentricity"}:
         return "more mechanical turns per point: a per-pole pattern that is not a first-order sinusoid is a pole offset"
-    return f"{C[a].fingerprint.get('knob', '-')} / {C[b].fingerprint.get('knob', '-')}"
+    return f"{EFFECTS[a].fingerprint.get('knob', '-')} / {EFFECTS[b].fingerprint.get('knob', '-')}"
 
 
 def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0):

@@ -495,9 +495,10 @@ class DomainDiagnosis:
     heldout_note: str
     localisation: dict
     chi2_excess: float
+    confounded: list[list[str]] = field(default_factory=list)
 
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "unexplained", "gap_before",
+        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "unexplained", "confounded", "gap_before",
                                                "gap_after_heldout", "heldout_shrink", "heldout_interval", "heldout_note", "localisation")} | {
             "ranking": [{"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])],
             "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}"}
@@ -551,7 +552,21 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     gap_before = _systematic_rms(cells.mean, cells.n)
     shrink, after, interval, note = _heldout(r, cells, cands, accepted, shapes)
     return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
-                           _localise(r, cells, segment_ids), chi2_0 - n_cells)
+                           _localise(r, cells, segment_ids), chi2_0 - n_cells,
+                           _confounded(r, cells, cands, names, accepted, shapes, firsts, current.chi2))
+
+
+def _confounded(r, cells, cands, names, accepted, shapes, firsts, chi2_end) -> list[list[str]]:
+    """Rivals the data cannot tell from an accepted effect: alone they explain at least 90 % as
+    much, and added after the accepted set they earn nothing (the edge diagnosis's rule)."""
+    pairs = []
+    for n in accepted:
+        for m in names:
+            if m in accepted or firsts.get(m, 0.0) < 0.9 * firsts.get(n, 0.0) or firsts.get(n, 0.0) <= 0.0:
+                continue
+            if chi2_end - _best_shape(r, cells, cands, accepted, shapes, m).chi2 < BIC_MIN:
+                pairs.append(sorted([n, m]))
+    return pairs
 
 
 def _systematic_rms(cell_mean: np.ndarray, weight: np.ndarray) -> float:
