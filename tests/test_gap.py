@@ -282,3 +282,20 @@ def test_edge_table_mapping(tmp_path, delay_case):
 
     with pytest.raises(RecordingError, match=r"edges.csv, line 5, column pol"):
         read_trace(path, m, meta)
+
+
+def test_sampled_diagnosis_needs_only_the_motor_keys_of_the_format(tmp_path):
+    """A bench elsewhere writes only the format's motor keys (no friction, no flat-top width);
+    an unknown friction is a drift the speed residual removes, and the cogging is still fitted."""
+    from hil.recording import read_recording
+
+    rec, truth = make_case(["cogging_torque"], snr=4.0, seed=11)
+    path = write_recording(rec, tmp_path / "rec")
+    meta = json.loads((path / "meta.json").read_text())
+    for key in ("friction_n_m_s_per_rad", "flat_top_deg_e"):
+        meta["motor"].pop(key)
+    (path / "meta.json").write_text(json.dumps(meta))
+    (path / "ground_truth.csv").unlink(missing_ok=True)
+    d = diagnose(read_recording(path))
+    cogging = next(a for a in d.accepted if a["effect"] == "cogging_torque")
+    assert _param_error(truth[0], cogging) < 0.05 and not d.unexplained
