@@ -54,39 +54,7 @@ def record_line_bemf_segments(config: PlantConfig, speeds_rpm=(960.0, 1107.0, 13
     """Electrical-plant segments at the paper's calibration speeds, commutating on raw Hall edges,
     with terminal voltages and phase currents sampled (through the current sensors): what the
     Line-BEMF step (Eq. 3-5) needs from the bench."""
-    import numpy as np
+    from hil.recording import record_electrical
 
-    from hil.recording import Segment, motor_meta, recording_from_edges
-    from plant_models import RawHallCommutation, Simulation
-    from plant_models.edgelog import EdgeLog
-
-    logs, segments, samples = [], [], {k: [] for k in ("t_s", "segment", "i_a", "i_b", "i_c", "u_a", "u_b", "u_c", "speed_rpm")}
-    t_offset = 0.0
-    for index, rpm in enumerate(speeds_rpm):
-        duty = steady_state(config.motor, rpm)["duty"]
-        sim = Simulation(config, RawHallCommutation(), duty=duty, initial_speed_rpm=rpm, seed=seed + index, sample_rate_hz=sample_rate_hz)
-        settle = 0.05
-        sim.run_until(settle)
-        sim.mark_segment(index)
-        sim.run_until(settle + turns * 60.0 / rpm)
-        e = sim.edges()
-        e = e.take(e.segment == index)
-        s = sim.samples()
-        keep = s.t_s >= settle
-        shift = t_offset - settle
-        for name in ("t_capture_s", "t_conditioned_s", "t_raw_s", "t_ideal_s"):
-            setattr(e, name, getattr(e, name) + shift)
-        logs.append(e)
-        samples["t_s"].append(s.t_s[keep] + shift)
-        samples["segment"].append(np.full(int(keep.sum()), index, dtype=np.int64))
-        for j, c in enumerate("abc"):
-            samples[f"i_{c}"].append(s.i_meas_a[keep, j])
-            samples[f"u_{c}"].append(s.u_v[keep, j])
-        samples["speed_rpm"].append(s.speed_rpm[keep])
-        t_end = t_offset + turns * 60.0 / rpm
-        segments.append(Segment(f"linebemf_{rpm:.0f}", t_offset, t_end, "forward", float(rpm),
-                                float(np.abs(s.i_meas_a[keep]).mean()), 1.0))
-        t_offset = t_end + 1e-3
-    tick = config.compile().timer_tick_s or None
-    return recording_from_edges(motor_meta(config), EdgeLog.concatenate(logs), segments, timer_tick_s=tick,
-                                samples={k: np.concatenate(v) for k, v in samples.items()}, reference_angle=reference_angle)
+    ops = [OperatingPoint(turns * 60.0 / rpm, rpm, load_scale=1.0, id=f"linebemf_{rpm:.0f}") for rpm in speeds_rpm]
+    return record_electrical(config, ops, seed=seed, sample_rate_hz=sample_rate_hz, reference_angle=reference_angle)

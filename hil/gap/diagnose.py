@@ -25,6 +25,8 @@ from scipy.optimize import nnls
 from hil.recording import Recording
 
 from .candidates import CANDIDATES
+from .fitting import cell_rms, heldout_shrink
+from .fitting import wls as _wls
 from .residuals import EdgeResiduals, residuals
 from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
 
@@ -93,15 +95,6 @@ def build_cells(r: EdgeResiduals) -> Cells:
         sel = seg_of_cell == seg_id
         dof[sel] = max(np.sum(n[sel] - 1), 1)
     return Cells(mean, n, np.maximum(n_eff, 1.0), var, feats, inv, dof)
-
-
-def _wls(x: np.ndarray, y: np.ndarray, w: np.ndarray):
-    sw = np.sqrt(w)
-    coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)
-    resid = y - x @ coef
-    chi2 = float(np.sum(w * resid * resid))
-    cov = np.linalg.pinv((x * w[:, None]).T @ x)
-    return coef, np.sqrt(np.maximum(np.diag(cov), 0)), chi2
 
 
 def _design(names, cells):
@@ -214,7 +207,7 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
     p0 = float(stats.chi2.sf(chi2_0, n_cells))
     significant = p0 < ALPHA
-    gap_before = float(np.sqrt(np.sum(cells.n * cells.mean**2) / np.sum(cells.n)))
+    gap_before = cell_rms(cells.mean, cells.n)
     accepted_names, first, _, chi2_end = _select(cells, names) if significant else ([], {}, chi2_0, chi2_0)
     if not first:
         for name in names:
@@ -410,27 +403,7 @@ def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0
         fitted_ok[test] = True
     if not fitted_ok.any():
         return None, None, None, "held-out shrink cannot be measured: no operating point can be predicted from the others"
-    n = cells.n * fitted_ok
-
-    def gaps(weights):
-        before = math.sqrt(np.sum(weights * cells.mean**2) / np.sum(weights))
-        after = math.sqrt(np.sum(weights * (cells.mean - pred) ** 2) / np.sum(weights))
-        return before, after
-
-    before, after = gaps(n)
-    rng = np.random.default_rng(seed)
-    boots = []
-    usable = segments[[fitted_ok[seg == s].any() for s in segments]]
-    for _ in range(n_boot):
-        pick = rng.choice(usable, usable.size, replace=True)
-        wts = np.zeros_like(n)
-        for s in pick:
-            wts = wts + n * (seg == s)
-        b, a = gaps(wts)
-        boots.append(1 - a / b if b > 0 else 0.0)
-    shrink = 1 - after / before if before > 0 else 0.0
-    note = f"leave-one-operating-point-out over {usable.size} segments; interval: 5-95 % bootstrap over segments"
-    return float(shrink), float(after), [float(np.percentile(boots, 5)), float(np.percentile(boots, 95))], note
+    return heldout_shrink(cells.mean, cells.mean - pred, cells.n * fitted_ok, seg, n_boot, seed)
 
 
 def localise(r: EdgeResiduals, cells: Cells) -> dict:

@@ -61,7 +61,8 @@ def _bars(order, amplitude, ylabel: str) -> str:
 
 
 def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
-    from .diagnose import _design, _wls
+    from .diagnose import _design
+    from .fitting import wls as _wls
 
     plt = pyplot()
     out = []

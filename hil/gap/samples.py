@@ -36,6 +36,9 @@ from scipy.optimize import minimize_scalar
 
 from hil.recording import Recording
 
+from .fitting import cell_rms, heldout_shrink
+from .fitting import wls as _wls
+
 ALPHA = 1e-3
 BIC_MIN = 10.0
 ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
@@ -193,14 +196,15 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
     ok &= _steady_intervals(u, seg, motor.supply_v)
     h = np.diff(t)
     rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "i0x", "i1x", "i0y", "i1y", "h")}
+    avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
+    mid = avg(th_e)
+    # electrical periods counted from each segment's lowest angle (either direction)
+    rel = mid - np.array([np.nanmin(th_e[seg == k]) if np.any(seg == k) else 0.0 for k in range(len(rec.segments))])[seg[1:]]
     for pair, (x, yy) in enumerate(((0, 1), (1, 2))):
         ixy = i[:, x] - i[:, yy]
         uxy = u[:, x] - u[:, yy]
         exy = e[:, x] - e[:, yy]
-        avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
         resid = avg(uxy) - motor.resistance_ohm * avg(ixy) - motor.inductance_h * np.diff(ixy) / h - avg(exy)
-        mid = avg(th_e)
-        rel = mid - np.array([np.nanmin(th_e[seg == k]) if np.any(seg == k) else 0.0 for k in range(len(rec.segments))])[seg[1:]]
         rows["y"].append(resid[ok])
         rows["segment"].append(seg[1:][ok])
         rows["bin"].append((np.floor(np.mod(mid[ok], 360.0) / (360.0 / ELECTRICAL_BINS)).astype(np.int64) % ELECTRICAL_BINS) + pair * ELECTRICAL_BINS)
@@ -406,16 +410,6 @@ def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
 
 # --- fitting and selection -----------------------------------------------------------------
 
-def _wls(x: np.ndarray, y: np.ndarray, w: np.ndarray):
-    if x.shape[1] == 0:
-        return np.zeros(0), np.zeros(0), float(np.sum(w * y * y))
-    sw = np.sqrt(w)
-    coef, *_ = np.linalg.lstsq(x * sw[:, None], y * sw, rcond=None)
-    resid = y - x @ coef
-    cov = np.linalg.pinv((x * w[:, None]).T @ x)
-    return coef, np.sqrt(np.maximum(np.diag(cov), 0.0)), float(np.sum(w * resid * resid))
-
-
 @dataclass
 class _Fit:
     names: list[str]
@@ -549,7 +543,7 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     for n, s in zip(accepted, shapes):
         coef, _ = _own(current, cands, n)
         accepted_rows.append({"effect": n, "params": cands[n].params(coef, s, motor)})
-    gap_before = _systematic_rms(cells.mean, cells.n)
+    gap_before = cell_rms(cells.mean, cells.n)
     shrink, after, interval, note = _heldout(r, cells, cands, accepted, shapes)
     return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
                            _localise(r, cells, segment_ids), chi2_0 - n_cells,
@@ -567,12 +561,6 @@ def _confounded(r, cells, cands, names, accepted, shapes, firsts, chi2_end) -> l
             if chi2_end - _best_shape(r, cells, cands, accepted, shapes, m).chi2 < BIC_MIN:
                 pairs.append(sorted([n, m]))
     return pairs
-
-
-def _systematic_rms(cell_mean: np.ndarray, weight: np.ndarray) -> float:
-    """RMS of the cell means (the systematic residual; as for the edges, the noise left in a
-    cell mean is not subtracted, so the shrink is a conservative figure)."""
-    return float(math.sqrt(np.sum(weight * cell_mean**2) / np.sum(weight)))
 
 
 def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0):
@@ -597,28 +585,14 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
         f = _fit(r, cells, cands, names, sh, rows=train)
         pred_resid[test] = f.resid[test]
     ok = np.isfinite(pred_resid)
-    w = cells.n * ok
-
-    def gaps(wts):
-        return _systematic_rms(cells.mean, wts), _systematic_rms(np.where(ok, pred_resid, 0.0), wts)
-
-    before, after = gaps(w)
-    rng = np.random.default_rng(seed)
-    boots = []
-    for _ in range(n_boot):
-        pick = rng.choice(segs, segs.size, replace=True)
-        wts = sum(w * (cells.segment == s) for s in pick)
-        b, a = gaps(wts)
-        boots.append(1 - a / b if b > 0 else 0.0)
-    note = f"leave-one-operating-point-out over {segs.size} segments; interval: 5-95 % bootstrap over segments"
-    return float(1 - after / before) if before > 0 else 0.0, float(after), [float(np.percentile(boots, 5)), float(np.percentile(boots, 95))], note
+    return heldout_shrink(cells.mean, np.where(ok, pred_resid, 0.0), cells.n * ok, cells.segment, n_boot, seed)
 
 
 def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> dict:
     out = {"per_segment": {}}
     for s in np.unique(cells.segment):
         sel = cells.segment == s
-        out["per_segment"][segment_ids[s]] = {"rms": float(np.sqrt(np.sum(cells.n[sel] * cells.mean[sel] ** 2) / np.sum(cells.n[sel]))),
+        out["per_segment"][segment_ids[s]] = {"rms": cell_rms(cells.mean[sel], cells.n[sel]),
                                               "cells": int(sel.sum())}
     if r.domain == "speed":
         # order spectrum of the turn-averaged speed residual: cogging appears at its periods per turn
