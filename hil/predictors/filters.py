@@ -26,13 +26,17 @@ F_B, F_INTERVAL, F_WARMUP, F_GATE, F_BAND, F_FLOOR, F_ADAPTIVE, F_POLE_PAIRS, F_
 N_FPARAMS = 10
 # state vector layout
 X0, P0, Q0, R0, QN0, SMALLQ0, SMALLR0, ACC_R0, ACC_RR0, ACC_Q0 = 0, 3, 12, 21, 25, 34, 37, 39, 43, 46
-K_STEP, K_INTERVAL, N_ACC, INITIALISED, LAST_NIS = 49, 50, 51, 52, 53
-N_STATE = 54
-GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD = range(5)
+K_STEP, K_INTERVAL, N_ACC, INITIALISED, LAST_NIS, GATED_RUN = 49, 50, 51, 52, 53, 54
+DT_PREV, EDGE_N, EDGE_SUM, EDGE_SUMSQ = 55, 56, 57, 58
+Q_RAW_W, Q_RAW_I = 59, 60
+N_STATE = 61
+GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD, GUARD_DIVERGENCE = range(6)
 #: which Eq. 12 estimates adapt (F_ADAPTIVE holds the mask; 0 = plain Kalman filter)
 ADAPT_Q, ADAPT_R, ADAPT_SMALL_R, ADAPT_SMALL_Q = 1, 2, 4, 8
 ADAPT_ALL = 15
-N_GUARDS = 5
+N_GUARDS = 6
+#: consecutive gated innovations that mean divergence (a wrong state), not an outlier
+DIVERGENCE_RUN = 2
 CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom
 
 
@@ -44,6 +48,7 @@ def new_state(q0: np.ndarray, r0_diag: tuple[float, float] = (0.0, 0.02), p0_dia
     s[P0:P0 + 9] = np.diag(p0_diag).ravel()
     s[Q0:Q0 + 9] = np.asarray(q0, dtype=float).reshape(9)
     s[QN0:QN0 + 9] = np.asarray(q0, dtype=float).reshape(9)
+    s[Q_RAW_W], s[Q_RAW_I] = s[Q0], s[Q0 + 8]
     s[R0:R0 + 4] = np.diag(r0_diag).ravel()
     return s
 
@@ -131,6 +136,15 @@ def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_
         if mask & ADAPT_R:
             for i in range(4):
                 s[R0 + i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
+            if j == 0.0 and s[EDGE_N] > 2.0:
+                # the first estimate of the edge-angle variance comes from the edges themselves
+                # (below), not from innovations of a filter that ran on R0 = 0 and so followed
+                # every edge: those innovations carry its own prediction error, not only the
+                # edge noise (measured: R learned 6-10x too large)
+                m = s[EDGE_SUM] / s[EDGE_N]
+                s[R0] = max(s[EDGE_SUMSQ] / s[EDGE_N] - m * m, 0.0) / 6.0
+                s[R0 + 1] = 0.0
+                s[R0 + 2] = 0.0
             if _sym_pd_floor(s[R0:R0 + 4], 2, fp[F_FLOOR]):
                 guards[GUARD_R_PD] += 1
         for i in range(3):
@@ -195,6 +209,24 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     det = s00 * s11 - s01 * s10
     i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
+    k = s[K_STEP]
+    if fp[F_ADAPTIVE] != 0.0 and k >= fp[F_WARMUP]:
+        s[GATED_RUN] = s[GATED_RUN] + 1.0 if nis > fp[F_GATE] else 0.0
+        if s[GATED_RUN] >= DIVERGENCE_RUN:
+            # innovations persistently beyond the gate: the state is wrong, not the edge. P is
+            # overconfident (it claims a precision the innovations refute), so it is faded by the
+            # ratio of the observed to the expected NIS (strong-tracking fading factor) and the
+            # filter re-converges instead of locking onto a wrong speed
+            fade = nis / 2.0
+            for i in range(9):
+                p_pred[i] *= fade
+            guards[GUARD_DIVERGENCE] += 1
+            s00 = p_pred[4] + s[R0]
+            s01 = p_pred[5] + s[R0 + 1]
+            s10 = p_pred[7] + s[R0 + 2]
+            s11 = p_pred[8] + s[R0 + 3]
+            det = s00 * s11 - s01 * s10
+            i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
     for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
         a0 = p_pred[3 * i + 1]
         a1 = p_pred[3 * i + 2]
@@ -224,10 +256,19 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     for i in range(9):
         s[P0 + i] = p_new[i]
     s[LAST_NIS] = nis
-    k = s[K_STEP]
     s[K_STEP] = k + 1.0
     if fp[F_ADAPTIVE] == 0.0:
         return nis
+    if k < fp[F_WARMUP]:
+        # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with
+        # white edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance
+        # 6 sigma^2 whatever the filter does; a steady acceleration only shifts its mean
+        if s[DT_PREV] > 0.0:
+            x2 = (math.pi / 3.0) / dt * (dt - s[DT_PREV])
+            s[EDGE_N] += 1.0
+            s[EDGE_SUM] += x2
+            s[EDGE_SUMSQ] += x2 * x2
+        s[DT_PREV] = dt
     if k >= fp[F_WARMUP] and nis > fp[F_GATE]:
         guards[GUARD_GATE] += 1
         return nis
@@ -250,19 +291,23 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         return nis
     band = fp[F_BAND]
     clamped = False
-    for i in (0, 2):
+    for i, raw in ((0, Q_RAW_W), (2, Q_RAW_I)):
         kz = gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
         term = kz * kz + p_new[4 * i] - phi_p_phi[4 * i]            # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T
-        v = (1.0 - d) * s[Q0 + 4 * i] + d * term
         nominal = s[QN0 + 4 * i]
         lo, hi = nominal / band, nominal * band
+        # the Eq. 12 recursion runs on its own, unclamped: truncating each step's estimate at
+        # the floor and feeding it back biases Q upward (the negative half of a noisy term is
+        # cut, the positive half kept; measured: Q settled 40x above a true Q near zero).
+        # The filter uses the estimate projected onto the band.
+        v = min(max((1.0 - d) * s[raw] + d * term, -hi), hi)
+        s[raw] = v
         if not v > 0.0:
             guards[GUARD_Q_PD] += 1
-            v = lo
         if v < lo:
             v = lo
             clamped = True
-        elif v > hi:
+        elif v >= hi:
             v = hi
             clamped = True
         s[Q0 + 4 * i] = v

@@ -49,7 +49,7 @@ class FilterSettings:
             raise ValueError("adapt_interval must be >= 1")
 
 
-GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd")
+GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence")
 
 
 @dataclass
@@ -112,7 +112,7 @@ class _KalmanCore:
     def covariance_guard_trips(self) -> int:
         """Guard trips other than the innovation gate (a gated outlier is not a covariance repair)."""
         c = self.guard_counts.tolist()
-        return sum(c) - c[F.GUARD_GATE]
+        return sum(c) - c[F.GUARD_GATE] - c[F.GUARD_DIVERGENCE]
 
     @property
     def q_matrix(self) -> np.ndarray:
