@@ -125,3 +125,27 @@ def test_filter_guard_trip_is_a_fault(corrections):
     st = link.status()
     assert st["guard_trips"] > 0
     assert [c for _, c in st["faults"]].count(Fault.FILTER_GUARD_TRIP) == 1  # latched, reported once
+
+
+# --- the in-process link's quantisation equals the 8-byte messages of the protocol links -----
+
+from hypothesis import given, settings, strategies as st  # noqa: E402
+
+from hil.dut.link import edge_epoch  # noqa: E402
+from hil.dut.messages import CommandMessage, EdgeMessage, commands_as_received, edge_as_received, encode_reply  # noqa: E402
+from plant_models.simulation import Command  # noqa: E402
+
+_times = st.floats(0.0, 2000.0, allow_nan=False)  # beyond the 429 s wrap of the capture timer
+
+
+@settings(max_examples=3000, deadline=None, derandomize=True, database=None)
+@given(t=_times, sensor=st.integers(0, 2), rising=st.booleans(), current=st.floats(-5.0, 80.0, allow_nan=False),
+       seq=st.integers(0, 127), offsets=st.lists(st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(),
+                                                           st.floats(-0.5, 1.5) | st.none()), max_size=3))
+def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, current, seq, offsets):
+    edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "current_a": current}
+    epoch = edge_epoch(t)
+    assert edge_as_received(edge, epoch) == EdgeMessage.unpack(EdgeMessage.from_edge(edge, seq).pack()).to_edge(epoch)
+    commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
+    via_bytes = [f.to_command(epoch) for f in (CommandMessage.unpack(m.pack()) for m in encode_reply(commands, seq)) if not f.keeps_everything]
+    assert commands_as_received(commands, epoch) == via_bytes

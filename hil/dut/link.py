@@ -9,7 +9,7 @@ from plant_models.simulation import Command
 
 from ..calibration.corrections import Corrections
 from ..predictors import FilterSettings
-from .messages import TICK_S, CommandMessage, EdgeMessage, encode_reply
+from .messages import TICK_S, commands_as_received, edge_as_received
 from .virtual import CalibrationTableError, VirtualController
 
 
@@ -78,13 +78,11 @@ class InProcessLink:
     def __init__(self, controller: VirtualController):
         self.controller = controller
         self.where = "in-process virtual controller"
-        self._seq = 0
 
     def reset(self) -> None:
         """Clear the faults and restart the control logic (calibration and settings are kept)."""
         self.controller.clear_faults()
         self.controller.reset()
-        self._seq = 0
 
     def set_filter_settings(self, settings: FilterSettings) -> None:
         import numpy as np
@@ -118,13 +116,11 @@ class InProcessLink:
         self.controller.set_strategy(strategy)
 
     def edge(self, edge: dict) -> list[Command]:
-        # the same 8-byte messages as the protocol links, so all links are bit-identical
+        # quantised exactly as the 8-byte messages of the protocol links, so all links are
+        # bit-identical, without building the bytes (messages.edge_as_received)
         epoch = edge_epoch(edge["t_capture_s"])
-        msg = EdgeMessage.unpack(EdgeMessage.from_edge(edge, self._seq).pack())
-        commands = self.controller.capture(msg.to_edge(epoch))
-        frames = [CommandMessage.unpack(f.pack()) for f in encode_reply(commands, self._seq)]
-        self._seq = (self._seq + 1) & 0x7F
-        return [f.to_command(epoch) for f in frames if not f.keeps_everything]
+        commands = self.controller.capture(edge_as_received(edge, epoch))
+        return commands_as_received(commands, epoch)
 
     def status(self) -> dict:
         return self.controller.status()

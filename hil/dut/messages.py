@@ -90,6 +90,32 @@ class CommandMessage:
                        duty=None if self.duty_u16 == KEEP_DUTY else self.duty_u16 / DUTY_SCALE)
 
 
+def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
+    """What the controller receives for ``edge``: ``EdgeMessage.unpack(EdgeMessage.from_edge(edge,
+    seq).pack()).to_edge(epoch_ticks)`` without building the bytes (the in-process link's hot
+    path; tests/test_dut.py holds the two equal)."""
+    if int(edge["sensor"]) not in (0, 1, 2):
+        raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
+    current = max(0, min(int(round(edge.get("current_a", 0.0) * 1000.0)), 0xFFFF))
+    t = (epoch_ticks + int(round(edge["t_capture_s"] / TICK_S)) % WRAP) * TICK_S
+    return {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t, "current_a": current / 1000.0}
+
+
+def commands_as_received(commands, epoch_ticks: int) -> list:
+    """What the plant receives for a reply: the commands through ``encode_reply``, pack, unpack
+    and ``to_command`` without building the bytes (the in-process link's hot path)."""
+    from plant_models.simulation import Command
+
+    out = []
+    for c in commands:
+        if c.sector is None and c.duty is None:
+            continue  # a "keep everything" frame: nothing for the plant
+        duty = None if c.duty is None else int(round(min(max(c.duty, 0.0), 1.0) * DUTY_SCALE)) / DUTY_SCALE
+        out.append(Command(at_s=(epoch_ticks + int(round(c.at_s / TICK_S)) % WRAP) * TICK_S,
+                           sector=None if c.sector is None else int(c.sector), duty=duty))
+    return out
+
+
 def encode_reply(commands, seq: int) -> list[CommandMessage]:
     """The frames answering edge ``seq``; an empty reply is one 'keep everything' frame marked last."""
     if not commands:

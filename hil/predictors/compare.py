@@ -109,7 +109,7 @@ def tune_sh(runs: list[ScenarioRun], model: MotorModel, q_nominal: tuple[float, 
     of its nominal Q0 (relative to the KF's tuned Q) are searched like the KF's noise."""
     def settings(x):
         b, band, scale = x
-        return FilterSettings(q0_diag=tuple(scale * q for q in q_nominal), forgetting_b=min(b, 0.99999),
+        return FilterSettings(q0_diag=tuple(scale * q for q in q_nominal), forgetting_b=min(max(b, 0.5), 0.99999),
                               q_band_factor=max(band, 1.0), adapt_mask=SH_ADAPT)
 
     def objective(x):

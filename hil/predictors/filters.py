@@ -6,10 +6,14 @@ runs online (one call per commutation) and in batch (a whole edge sequence in on
 
 Guards (shared/design.md section 5), each counted in ``guards``:
   GUARD_GATE     innovation failed the chi-square gate: no adaptation from this step;
-  GUARD_Q_PD     the Q update was not positive definite: eigenvalues floored;
+  GUARD_Q_PD     the Eq. 12 Q recursion was not positive: the filter uses the band's floor;
   GUARD_Q_BAND   a diagonal of Q left its band around nominal (band_factor) and was clamped;
   GUARD_R_PD     the R update (residual form) was not positive definite: eigenvalues floored;
-  GUARD_P_PD     P lost positive definiteness after the Joseph update: eigenvalues floored.
+  GUARD_P_PD     P lost positive definiteness after the Joseph update: eigenvalues floored;
+  GUARD_DIVERGENCE  innovations beyond the gate on ``divergence_run`` consecutive cycles: the
+                 state, not the edge, is wrong; P is faded by NIS / 2 (strong tracking).
+The first edge-angle variance comes from the edges themselves (second differences of the edge
+intervals) rather than from innovations of a filter that ran on the paper's R0 = 0.
 Q adapts every step after a warm-up; r, R and q at intervals (paper: every 120 commutations),
 from the mean of their Eq. 12 terms over the interval.
 """
@@ -22,21 +26,25 @@ import numpy as np
 from numba import njit
 
 # parameter vector
-F_B, F_INTERVAL, F_WARMUP, F_GATE, F_BAND, F_FLOOR, F_ADAPTIVE, F_POLE_PAIRS, F_J, F_THETA_VAR = range(10)
+F_B, F_INTERVAL, F_WARMUP, F_GATE, F_BAND, F_FLOOR, F_ADAPTIVE, F_POLE_PAIRS, F_J, F_DIVERGENCE_RUN = range(10)
 N_FPARAMS = 10
 # state vector layout
 X0, P0, Q0, R0, QN0, SMALLQ0, SMALLR0, ACC_R0, ACC_RR0, ACC_Q0 = 0, 3, 12, 21, 25, 34, 37, 39, 43, 46
 K_STEP, K_INTERVAL, N_ACC, INITIALISED, LAST_NIS, GATED_RUN = 49, 50, 51, 52, 53, 54
 DT_PREV, EDGE_N, EDGE_SUM, EDGE_SUMSQ = 55, 56, 57, 58
 Q_RAW_W, Q_RAW_I = 59, 60
-N_STATE = 61
+PREV_INNOV, ACC_C1, ACC_C0 = 61, 62, 63
+N_STATE = 64
 GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD, GUARD_DIVERGENCE = range(6)
 #: which Eq. 12 estimates adapt (F_ADAPTIVE holds the mask; 0 = plain Kalman filter)
 ADAPT_Q, ADAPT_R, ADAPT_SMALL_R, ADAPT_SMALL_Q = 1, 2, 4, 8
 ADAPT_ALL = 15
+#: option, not the paper's: the speed entry of Q steered by innovation whiteness (Mehra 1970)
+#: instead of the Eq. 12 recursion, see docs/sage-husa.md
+ADAPT_Q_WHITE = 16
+#: log-step of Q_w per unit of lag-1 innovation correlation, applied once per interval
+WHITENESS_GAIN = 4.0
 N_GUARDS = 6
-#: consecutive gated innovations that mean divergence (a wrong state), not an outlier
-DIVERGENCE_RUN = 2
 CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom
 
 
@@ -212,7 +220,7 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     k = s[K_STEP]
     if fp[F_ADAPTIVE] != 0.0 and k >= fp[F_WARMUP]:
         s[GATED_RUN] = s[GATED_RUN] + 1.0 if nis > fp[F_GATE] else 0.0
-        if s[GATED_RUN] >= DIVERGENCE_RUN:
+        if fp[F_DIVERGENCE_RUN] > 0.0 and s[GATED_RUN] >= fp[F_DIVERGENCE_RUN]:
             # innovations persistently beyond the gate: the state is wrong, not the edge. P is
             # overconfident (it claims a precision the innovations refute), so it is faded by the
             # ratio of the observed to the expected NIS (strong-tracking fading factor) and the
@@ -257,6 +265,18 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         s[P0 + i] = p_new[i]
     s[LAST_NIS] = nis
     s[K_STEP] = k + 1.0
+    if int(fp[F_ADAPTIVE]) & ADAPT_Q_WHITE and k >= fp[F_WARMUP]:
+        # innovation whiteness (Mehra): lag-1 correlation of the angle innovations is zero for
+        # the optimal gain, positive when the filter lags (Q too small), negative when it
+        # chases the noise (Q too large)
+        s[ACC_C1] += innov0 * s[PREV_INNOV]
+        s[ACC_C0] += innov0 * innov0
+        if s[ACC_C0] > 0.0 and (k + 1.0 - fp[F_WARMUP]) % fp[F_INTERVAL] == 0.0:
+            c1 = s[ACC_C1] / s[ACC_C0]
+            s[Q0] = min(max(s[Q0] * math.exp(WHITENESS_GAIN * c1), s[QN0] / fp[F_BAND]), s[QN0] * fp[F_BAND])
+            s[ACC_C1] = 0.0
+            s[ACC_C0] = 0.0
+    s[PREV_INNOV] = innov0
     if fp[F_ADAPTIVE] == 0.0:
         return nis
     if k < fp[F_WARMUP]:
@@ -292,6 +312,8 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     band = fp[F_BAND]
     clamped = False
     for i, raw in ((0, Q_RAW_W), (2, Q_RAW_I)):
+        if i == 0 and mask & ADAPT_Q_WHITE:
+            continue
         kz = gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
         term = kz * kz + p_new[4 * i] - phi_p_phi[4 * i]            # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T
         nominal = s[QN0 + 4 * i]

@@ -33,8 +33,10 @@ class FilterSettings:
     chi2_gate: float = F.CHI2_2DOF_999
     q_band_factor: float = 100.0
     eig_floor: float = 1e-9
-    theta_var_rad2: float = 1e-6
-    #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter)
+    #: consecutive innovations beyond the gate taken as divergence (P faded); 0 = never
+    divergence_run: int = 2
+    #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
+    #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
     adapt_mask: int = F.ADAPT_ALL
 
     def check(self) -> None:
@@ -47,6 +49,8 @@ class FilterSettings:
             raise ValueError(f"r0_diag must be >= 0 and finite, got {self.r0_diag!r}")
         if self.adapt_interval < 1:
             raise ValueError("adapt_interval must be >= 1")
+        if self.divergence_run < 0:
+            raise ValueError(f"divergence_run must be >= 0 (0 = off), got {self.divergence_run!r}")
 
 
 GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence")
@@ -79,7 +83,7 @@ class _KalmanCore:
         fp[F.F_ADAPTIVE] = float(settings.adapt_mask) if self.adaptive else 0.0
         fp[F.F_POLE_PAIRS] = model.pole_pairs
         fp[F.F_J] = model.inertia_kg_m2
-        fp[F.F_THETA_VAR] = settings.theta_var_rad2
+        fp[F.F_DIVERGENCE_RUN] = settings.divergence_run
         self.fp = fp
         self.reset()
 
