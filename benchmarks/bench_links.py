@@ -67,6 +67,9 @@ def main():
         link = CanopenLink(interface="remote", channel=f"ws://127.0.0.1:{ports[0]}/", timeout_s=2.0)
         rows.append(("CANopen cross-process (python-can-remote)", *rate(link, corrections, 0.2), "-"))
         link.close()
+        link = ModbusLink(port=ports[1])
+        rows.append(("Modbus TCP cross-process (hil dut serve)", *rate(link, corrections, 0.5), "-"))
+        link.close()
     finally:
         proc.kill()
     mdev = ModbusDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA))
