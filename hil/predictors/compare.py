@@ -27,6 +27,8 @@ KF_GRID = dict(q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r
 SH_GRID = dict(forgetting_b=(0.98, 0.995, 0.999), q_band_factor=(3.0, 30.0, 300.0), q_scale=(0.1, 1.0, 10.0))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
+#: forgetting factor searched within the design notes' 0.95 (section 5) and a memory of 10,000 cycles
+B_RANGE = (0.95, 0.9999)
 SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, see docs
 
 
@@ -109,7 +111,7 @@ def tune_sh(runs: list[ScenarioRun], model: MotorModel, q_nominal: tuple[float, 
     of its nominal Q0 (relative to the KF's tuned Q) are searched like the KF's noise."""
     def settings(x):
         b, band, scale = x
-        return FilterSettings(q0_diag=tuple(scale * q for q in q_nominal), forgetting_b=min(max(b, 0.5), 0.99999),
+        return FilterSettings(q0_diag=tuple(scale * q for q in q_nominal), forgetting_b=min(max(b, B_RANGE[0]), B_RANGE[1]),
                               q_band_factor=max(band, 1.0), adapt_mask=SH_ADAPT)
 
     def objective(x):

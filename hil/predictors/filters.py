@@ -10,8 +10,9 @@ Guards (shared/design.md section 5), each counted in ``guards``:
   GUARD_Q_BAND   a diagonal of Q left its band around nominal (band_factor) and was clamped;
   GUARD_R_PD     the R update (residual form) was not positive definite: eigenvalues floored;
   GUARD_P_PD     P lost positive definiteness after the Joseph update: eigenvalues floored;
-  GUARD_DIVERGENCE  innovations beyond the gate on ``divergence_run`` consecutive cycles: the
-                 state, not the edge, is wrong; P is faded by NIS / 2 (strong tracking).
+  GUARD_DIVERGENCE  innovations beyond the gate and of one sign on ``divergence_run``
+                 consecutive cycles: the state, not the edge, is wrong; P is faded by NIS / 2
+                 (strong tracking).
 The first edge-angle variance comes from the edges themselves (second differences of the edge
 intervals) rather than from innovations of a filter that ran on the paper's R0 = 0.
 Q adapts every step after a warm-up; r, R and q at intervals (paper: every 120 commutations),
@@ -219,12 +220,21 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
     k = s[K_STEP]
     if fp[F_ADAPTIVE] != 0.0 and k >= fp[F_WARMUP]:
-        s[GATED_RUN] = s[GATED_RUN] + 1.0 if nis > fp[F_GATE] else 0.0
-        if fp[F_DIVERGENCE_RUN] > 0.0 and s[GATED_RUN] >= fp[F_DIVERGENCE_RUN]:
-            # innovations persistently beyond the gate: the state is wrong, not the edge. P is
-            # overconfident (it claims a precision the innovations refute), so it is faded by the
-            # ratio of the observed to the expected NIS (strong-tracking fading factor) and the
-            # filter re-converges instead of locking onto a wrong speed
+        # signed run length of gated innovations of one sign: a wrong state pushes every edge
+        # the same way, a burst of edge noise scatters both ways (and must not fade P)
+        run = s[GATED_RUN]
+        if nis <= fp[F_GATE]:
+            run = 0.0
+        elif innov0 >= 0.0:
+            run = run + 1.0 if run > 0.0 else 1.0
+        else:
+            run = run - 1.0 if run < 0.0 else -1.0
+        s[GATED_RUN] = run
+        if fp[F_DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[F_DIVERGENCE_RUN]:
+            # innovations persistently beyond the gate, all one way: the state is wrong, not the
+            # edge. P is overconfident (it claims a precision the innovations refute), so it is
+            # faded by the ratio of the observed to the expected NIS (strong-tracking fading
+            # factor) and the filter re-converges instead of locking onto a wrong speed
             fade = nis / 2.0
             for i in range(9):
                 p_pred[i] *= fade
