@@ -23,6 +23,21 @@ DUTY_SCALE = 65534.0  # duty 1.0 -> 65534; 0xFFFF means "keep"
 _FMT = "<IHBB"
 
 
+def _ticks(t_s: float) -> int:
+    """Capture-timer ticks of an instant, before the 32-bit wrap."""
+    return int(round(t_s / TICK_S))
+
+
+def _current_ma(current_a: float) -> int:
+    """The edge message's U16 mean |i| in mA (clamped to its range)."""
+    return max(0, min(int(round(current_a * 1000.0)), 0xFFFF))
+
+
+def _duty_u16(duty: float) -> int:
+    """The command message's duty, clamped to 0..1 and scaled (KEEP_DUTY is never produced)."""
+    return int(round(min(max(duty, 0.0), 1.0) * DUTY_SCALE))
+
+
 @dataclass(frozen=True)
 class EdgeMessage:
     ticks: int
@@ -45,8 +60,7 @@ class EdgeMessage:
 
     @classmethod
     def from_edge(cls, edge: dict, seq: int) -> "EdgeMessage":
-        current = max(0, min(int(round(edge.get("current_a", 0.0) * 1000.0)), 0xFFFF))
-        return cls(int(round(edge["t_capture_s"] / TICK_S)), current, int(edge["sensor"]), bool(edge["rising"]), seq)
+        return cls(_ticks(edge["t_capture_s"]), _current_ma(edge.get("current_a", 0.0)), int(edge["sensor"]), bool(edge["rising"]), seq)
 
     def to_edge(self, epoch_ticks: int = 0) -> dict:
         """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the wrap)."""
@@ -79,9 +93,9 @@ class CommandMessage:
 
     @classmethod
     def from_command(cls, command, seq: int, last: bool) -> "CommandMessage":
-        duty = KEEP_DUTY if command.duty is None else int(round(min(max(command.duty, 0.0), 1.0) * DUTY_SCALE))
+        duty = KEEP_DUTY if command.duty is None else _duty_u16(command.duty)
         sector = KEEP_SECTOR if command.sector is None else int(command.sector)
-        return cls(int(round(command.at_s / TICK_S)), duty, sector, seq, last)
+        return cls(_ticks(command.at_s), duty, sector, seq, last)
 
     def to_command(self, epoch_ticks: int = 0):
         from plant_models.simulation import Command
@@ -96,9 +110,9 @@ def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
     path; tests/test_dut.py holds the two equal)."""
     if int(edge["sensor"]) not in (0, 1, 2):
         raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
-    current = max(0, min(int(round(edge.get("current_a", 0.0) * 1000.0)), 0xFFFF))
-    t = (epoch_ticks + int(round(edge["t_capture_s"] / TICK_S)) % WRAP) * TICK_S
-    return {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t, "current_a": current / 1000.0}
+    t = (epoch_ticks + _ticks(edge["t_capture_s"]) % WRAP) * TICK_S
+    return {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t,
+            "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0}
 
 
 def commands_as_received(commands, epoch_ticks: int) -> list:
@@ -110,8 +124,8 @@ def commands_as_received(commands, epoch_ticks: int) -> list:
     for c in commands:
         if c.sector is None and c.duty is None:
             continue  # a "keep everything" frame: nothing for the plant
-        duty = None if c.duty is None else int(round(min(max(c.duty, 0.0), 1.0) * DUTY_SCALE)) / DUTY_SCALE
-        out.append(Command(at_s=(epoch_ticks + int(round(c.at_s / TICK_S)) % WRAP) * TICK_S,
+        duty = None if c.duty is None else _duty_u16(c.duty) / DUTY_SCALE
+        out.append(Command(at_s=(epoch_ticks + _ticks(c.at_s) % WRAP) * TICK_S,
                            sector=None if c.sector is None else int(c.sector), duty=duty))
     return out
 

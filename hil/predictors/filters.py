@@ -168,6 +168,17 @@ def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_
 N_WORK = 96
 
 
+@njit(cache=True, inline="always")
+def _innovation_inverse(p_pred, s):
+    """(H P_k,k-1 H^T + R)^-1 with H = [[0,1,0],[0,0,1]], as its four entries row-major."""
+    s00 = p_pred[4] + s[R0]
+    s01 = p_pred[5] + s[R0 + 1]
+    s10 = p_pred[7] + s[R0 + 2]
+    s11 = p_pred[8] + s[R0 + 3]
+    det = s00 * s11 - s01 * s10
+    return s11 / det, -s01 / det, -s10 / det, s00 / det
+
+
 @njit(cache=True)
 def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
@@ -211,12 +222,7 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     hx1 = x_pred[2]
     innov0 = z_theta - hx0 - s[SMALLR0]                             # Z~ = Z - H X_k,k-1 - r
     innov1 = z_i - hx1 - s[SMALLR0 + 1]
-    s00 = p_pred[4] + s[R0]
-    s01 = p_pred[5] + s[R0 + 1]
-    s10 = p_pred[7] + s[R0 + 2]
-    s11 = p_pred[8] + s[R0 + 3]
-    det = s00 * s11 - s01 * s10
-    i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+    i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
     k = s[K_STEP]
     if fp[F_ADAPTIVE] != 0.0 and k >= fp[F_WARMUP]:
@@ -239,12 +245,7 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
             for i in range(9):
                 p_pred[i] *= fade
             guards[GUARD_DIVERGENCE] += 1
-            s00 = p_pred[4] + s[R0]
-            s01 = p_pred[5] + s[R0 + 1]
-            s10 = p_pred[7] + s[R0 + 2]
-            s11 = p_pred[8] + s[R0 + 3]
-            det = s00 * s11 - s01 * s10
-            i00, i01, i10, i11 = s11 / det, -s01 / det, -s10 / det, s00 / det
+            i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
     for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
         a0 = p_pred[3 * i + 1]
         a1 = p_pred[3 * i + 2]

@@ -33,7 +33,7 @@ class FilterSettings:
     chi2_gate: float = F.CHI2_2DOF_999
     q_band_factor: float = 100.0
     eig_floor: float = 1e-9
-    #: consecutive innovations beyond the gate taken as divergence (P faded); 0 = never
+    #: consecutive innovations beyond the gate, all of one sign, taken as divergence (P faded); 0 = never
     divergence_run: int = 2
     #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
     #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
@@ -114,7 +114,8 @@ class _KalmanCore:
 
     @property
     def covariance_guard_trips(self) -> int:
-        """Guard trips other than the innovation gate (a gated outlier is not a covariance repair)."""
+        """Guard trips other than the innovation gate and the divergence fade (a gated outlier or a
+        faded P is not a covariance repair)."""
         c = self.guard_counts.tolist()
         return sum(c) - c[F.GUARD_GATE] - c[F.GUARD_DIVERGENCE]
 
