@@ -154,12 +154,15 @@ def cmd_gap_diagnose(args) -> int:
 def cmd_gap_validate(args) -> int:
     from .gap.validate import run_validation
 
-    def progress(i, n):
-        if i % 50 == 0 or i == n:
-            print(f"  {i}/{n} recordings diagnosed", file=sys.stderr)
-
     report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed,
-                            progress=progress, jobs=args.jobs)
+                            jobs=args.jobs, scheduler=args.scheduler, bar=not args.no_progress)
+    if report.dispatch.get("interrupted"):
+        print(f"interrupted: {len(report.cases)} recordings diagnosed (the summary below covers those)", file=sys.stderr)
+    print(f"ran on {report.dispatch['scheduler']}"
+          f"{' (' + report.dispatch['scheduler_address'] + ')' if report.dispatch.get('scheduler_address') else ''}: "
+          f"{report.dispatch['workers_used']} worker(s) used, {report.dispatch['elapsed_s']:.1f} s")
+    for e in report.errors:
+        print(f"ERROR in case {e['index']} ({e['kind']} {e['truth']}, seed {e['seed']}): {e['message']}", file=sys.stderr)
     for min_snr in (1.0, 3.0):
         s = report.summary(min_snr)
         print(f"SNR >= {min_snr:g}: top-1 {s['top1_rate']:.1%}, top-3 {s['top3_rate']:.1%} ({s['single_cases']} single-effect cases); "
@@ -179,9 +182,30 @@ def cmd_gap_validate(args) -> int:
         print(f"{n:<22}" + "".join(f"{s['confusion'][n].get(c, 0):>11}" for c in cols))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases}, indent=1) + "\n")
+        Path(args.json).write_text(json.dumps({"scheduler": report.dispatch["scheduler"], "workers_used": report.dispatch["workers_used"],
+                                                "dispatch": report.dispatch, "errors": report.errors, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s,
+                                                "cases": report.cases}, indent=1) + "\n")
         print(f"validation written to {args.json}")
-    return 0
+    return 130 if report.dispatch.get("interrupted") else (1 if report.errors else 0)
+
+
+def cmd_campaign(args) -> int:
+    import re
+
+    from .campaign import load_spec, run_campaign
+
+    spec = load_spec(args.spec)
+    out = args.out or f"reports/campaign-{re.sub(r'[^A-Za-z0-9_.-]+', '_', spec.name)}"
+    result = run_campaign(spec, out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    s = result.summary()
+    print(f"campaign {spec.name}: {s['points_done']}/{s['points_planned']} points{' (INTERRUPTED)' if s['interrupted'] else ''}: "
+          f"{s['pass']} pass, {s['marginal']} marginal, {s['fail']} fail, {s['error']} error; on {s['scheduler']}, "
+          f"{s['workers_used']} worker(s), {s['elapsed_s']:.1f} s ({s['points_per_s'] or 0:.2f} points/s)")
+    for key, path in result.paths.items():
+        print(f"  {key}: {path}")
+    if s["fail"]:
+        print(f"  {s['fail']} failing point(s) saved for hil replay in {Path(out) / 'replays'}")
+    return 130 if s["interrupted"] else (1 if s["error"] else 0)
 
 
 def cmd_dut_serve(args) -> int:
@@ -342,9 +366,19 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per core)")
+    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="local worker processes (default: one per core; 1: in this process)")
+    q.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --jobs workers)")
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
+
+    p = sub.add_parser("campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)")
+    p.add_argument("spec", help="campaign SPEC TOML")
+    p.add_argument("--out", help="output directory (default: reports/campaign-NAME)")
+    p.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' (default) or 'serial'")
+    p.add_argument("--workers", type=int, help="workers of the local cluster (default: one per core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_campaign)
 
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)

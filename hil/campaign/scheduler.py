@@ -1,0 +1,183 @@
+"""Where the work runs: this process, a local Dask cluster, or an existing Dask scheduler.
+
+``dispatch(fn, jobs, scheduler=...)`` runs ``fn(job)`` for every job and hands each result to
+``on_result(index, result)`` as soon as it arrives (in completion order; the caller orders by
+index, which is what makes the output independent of the scheduler). The scheduler is
+
+    "serial"          this process, one job after the other (no Dask)
+    "local" / None    a Dask LocalCluster on 127.0.0.1, one single-threaded worker process per core
+    "tcp://host:port" an existing Dask scheduler (``dask scheduler`` plus ``dask worker``)
+
+Failure handling:
+
+* a job that raises is returned as ``TaskError`` (its traceback as text), never re-raised: the
+  run goes on;
+* a worker that dies loses nothing already received here; Dask reschedules its running and
+  queued tasks on the other workers (a task that kills ``distributed.scheduler.allowed-failures``
+  workers in a row, 3 by default, comes back as a ``TaskError`` naming ``KilledWorker``);
+* Ctrl-C (KeyboardInterrupt) cancels what is left and returns with ``interrupted = True``; every
+  result received so far has been handed to ``on_result``.
+
+The progress bar (tqdm, on stderr) shows count, rate and time left and is redrawn every half
+second whether or not a job finished, so it never sits still while work goes on.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+import time
+import traceback
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+#: how long a remote scheduler may take to show a first worker before the run is refused
+WORKER_WAIT_S = 60.0
+#: progress-bar redraw period: the bar moves (elapsed, rate, time left) even between results
+REFRESH_S = 0.5
+
+
+@dataclass(frozen=True)
+class TaskError:
+    """A job that raised (or killed its workers): the error and its traceback, as text."""
+
+    message: str
+    traceback: str
+
+
+@dataclass
+class DispatchInfo:
+    scheduler: str                 #: "serial", "local" or the address given
+    address: str | None = None     #: the Dask scheduler actually used (a LocalCluster's own address)
+    workers: list[str] = field(default_factory=list)  #: addresses of the workers that ran jobs
+    interrupted: bool = False
+    elapsed_s: float = 0.0
+
+    @property
+    def workers_used(self) -> int:
+        return len(self.workers)
+
+    def as_dict(self) -> dict:
+        return {"scheduler": self.scheduler, "scheduler_address": self.address, "workers_used": self.workers_used,
+                "workers": sorted(self.workers), "interrupted": self.interrupted, "elapsed_s": self.elapsed_s}
+
+
+def _call(fn: Callable, index: int, job: Any) -> tuple[int, Any, str]:
+    """Runs on the worker: the job's result or its error, and which worker ran it."""
+    try:
+        from distributed import get_worker
+
+        where = get_worker().address
+    except (ImportError, ValueError):
+        where = "this process"
+    try:
+        return index, fn(job), where
+    except Exception as exc:  # noqa: BLE001 - recorded, not fatal
+        return index, TaskError(f"{type(exc).__name__}: {exc}", traceback.format_exc()), where
+
+
+def _bar(total: int, label: str, enabled: bool):
+    from tqdm import tqdm
+
+    tty = sys.stderr.isatty()
+    return tqdm(total=total, desc=label, unit=" " + label.split()[-1].rstrip("s"), disable=not enabled, file=sys.stderr,
+                mininterval=REFRESH_S if tty else 5.0, smoothing=0.05, dynamic_ncols=tty, ncols=None if tty else 100)
+
+
+def local_workers(requested: int | None = None) -> int:
+    """``requested``, or the cores this process may run on."""
+    if requested:
+        return max(1, requested)
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *, scheduler: str | None = None,
+             workers: int | None = None, label: str = "jobs", progress: bool = True) -> DispatchInfo:
+    """Run ``fn`` over ``jobs`` on ``scheduler``; ``workers`` sizes a local cluster (default: the cores)."""
+    scheduler = scheduler or "local"
+    info = DispatchInfo(scheduler)
+    t0 = time.perf_counter()
+    bar = _bar(len(jobs), label, progress)
+    try:
+        if scheduler == "serial":
+            _serial(fn, jobs, on_result, info, bar)
+        else:
+            _dask(fn, jobs, on_result, info, bar, scheduler, workers)
+    finally:
+        bar.close()
+        info.elapsed_s = time.perf_counter() - t0
+    return info
+
+
+def _serial(fn, jobs, on_result, info: DispatchInfo, bar) -> None:
+    try:
+        for i, job in enumerate(jobs):
+            _, value, where = _call(fn, i, job)
+            if where not in info.workers:
+                info.workers.append(where)
+            on_result(i, value)
+            bar.update(1)
+    except KeyboardInterrupt:
+        info.interrupted = True
+
+
+def _connect(scheduler: str, workers: int | None):
+    """(client, cluster or None) for ``scheduler``; a clear error when it cannot be reached."""
+    from distributed import Client, LocalCluster
+
+    if scheduler == "local":
+        cluster = LocalCluster(n_workers=local_workers(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
+                               dashboard_address=None, silence_logs=logging.ERROR)
+        return Client(cluster), cluster
+    if "://" not in scheduler:
+        raise ValueError(f"--scheduler {scheduler!r}: give 'local', 'serial' or a Dask scheduler address such as tcp://host:8786")
+    try:
+        client = Client(scheduler, timeout="10s")
+    except (OSError, TimeoutError) as exc:
+        raise ValueError(f"--scheduler {scheduler}: cannot reach the Dask scheduler ({exc})") from None
+    try:
+        client.wait_for_workers(1, timeout=WORKER_WAIT_S)
+    except TimeoutError:
+        client.close()
+        raise ValueError(f"--scheduler {scheduler}: no worker attached within {WORKER_WAIT_S:g} s (start one: dask worker {scheduler})") from None
+    return client, None
+
+
+def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers: int | None) -> None:
+    from distributed import as_completed
+
+    client, cluster = _connect(scheduler, workers)
+    info.address = client.scheduler.address
+    futures = []
+    try:
+        # one task per job, unique keys (pure=False): a re-run never reuses a cached result
+        futures = [client.submit(_call, fn, i, job, pure=False, key=f"{label.replace(' ', '-')}-{i}-{os.urandom(4).hex()}")
+                   for i, job in enumerate(jobs)]
+        index_of = {f.key: i for i, f in enumerate(futures)}
+        done = as_completed(futures, with_results=True, raise_errors=False)
+        while not done.is_empty():
+            batch = done.next_batch(block=False)
+            if not batch:
+                time.sleep(0.1)
+                bar.refresh()
+                continue
+            for future, result in batch:
+                if future.status != "finished":  # the task never returned (KilledWorker, cancelled)
+                    exc = result[1] if isinstance(result, tuple) and len(result) == 3 else result
+                    value = TaskError(f"{type(exc).__name__}: {exc}", "".join(traceback.format_exception(exc)))
+                    i = index_of[future.key]
+                else:
+                    i, value, where = result
+                    if where not in info.workers:
+                        info.workers.append(where)
+                future.release()
+                on_result(i, value)
+                bar.update(1)
+    except KeyboardInterrupt:
+        info.interrupted = True
+        client.cancel(futures)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
