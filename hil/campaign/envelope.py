@@ -41,7 +41,7 @@ def margin_grid(table, x: str, y: str, budget: str, x_values: list, y_values: li
     return grid
 
 
-def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values: list, unit: str, title: str):
+def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values: list, unit: str, limit: float, title: str):
     from matplotlib.colors import TwoSlopeNorm
 
     plt = pyplot()
@@ -49,16 +49,16 @@ def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values
     finite = np.where(np.isinf(grid), np.nan, grid)
     xc, xe, xlab = _positions(x_values)
     yc, ye, ylab = _positions(y_values)
-    lo = np.nanmin(finite) if np.isfinite(finite).any() else -1.0
-    hi = np.nanmax(finite) if np.isfinite(finite).any() else 1.0
-    span = max(abs(lo), abs(hi), 1e-12)
-    norm = TwoSlopeNorm(vmin=min(lo, -1e-3 * span), vcenter=0.0, vmax=max(hi, 1e-3 * span))
+    # colours span +-|limit|: a margin of one limit either way is already far from the boundary,
+    # and a lost-synchronisation point (margins of -180 deg) must not wash out the near misses
+    scale = abs(limit) if limit else (np.nanmax(np.abs(finite)) if np.isfinite(finite).any() else 1.0)
+    norm = TwoSlopeNorm(vmin=-scale, vcenter=0.0, vmax=scale)
     fig, ax = plt.subplots(figsize=(7.2, 4.8))
-    # a -inf margin (nothing measured, e.g. no commutation) is the worst failure: clamp it to the scale's end
-    shown = np.where(np.isneginf(grid), norm.vmin, grid)
-    mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(shown), cmap="RdYlGn", norm=norm, shading="flat")
-    cb = fig.colorbar(mesh, ax=ax)
-    cb.set_label(f"{budget} margin ({unit}); > 0 passes", fontsize=8)
+    # a -inf margin (nothing measured, e.g. no commutation) is the worst failure: shown at the scale's end
+    shown = np.where(np.isneginf(grid), -scale, grid)
+    mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(np.clip(shown, -scale, scale)), cmap="RdYlGn", norm=norm, shading="flat")
+    cb = fig.colorbar(mesh, ax=ax, extend="both")
+    cb.set_label(f"{budget} margin ({unit}); > 0 passes, colours clipped at +-{scale:g}", fontsize=8)
     empty = np.isnan(grid)
     for iy, ix in zip(*np.nonzero(empty)):
         ax.plot(xc[ix], yc[iy], "x", color="0.35", ms=8)
@@ -86,5 +86,6 @@ def write_envelope(table, spec, path: str | Path) -> Path | None:
     title = f"{spec.name}: {m.budget} ({spec.budgets[m.budget].limit:g} {spec.budgets[m.budget].unit})"
     if others:
         title += f", worst over {', '.join(others)}"
-    fig = envelope_figure(table, m.x, m.y, m.budget, axes[m.x], axes[m.y], spec.budgets[m.budget].unit, title)
+    fig = envelope_figure(table, m.x, m.y, m.budget, axes[m.x], axes[m.y], spec.budgets[m.budget].unit,
+                          spec.budgets[m.budget].limit, title)
     return save(fig, path)

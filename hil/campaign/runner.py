@@ -48,7 +48,8 @@ class CampaignResult:
         return {"campaign": self.spec.name, "spec": self.spec.path, "seed": self.spec.seed, "kind": self.spec.kind,
                 "points_planned": self.spec.size, "points_done": n, "complete": n == self.spec.size and not self.info.interrupted,
                 **self.counts(), **self.info.as_dict(),
-                "points_per_s": n / self.info.elapsed_s if self.info.elapsed_s > 0 else None,
+                # throughput once the workers are up (the cluster's start is a fixed cost, in startup_s)
+                "points_per_s": n / (self.info.elapsed_s - self.info.startup_s) if self.info.elapsed_s > self.info.startup_s else None,
                 "budgets": {b: {"metric": m, **dataclasses.asdict(self.spec.budgets[b])} for b, m in self.spec.checked.items()},
                 "axes": {a.name: list(a.values) for a in self.spec.axes},
                 "failures": [{"index": r["index"], "replay": r["replay"]} for r in self.rows if r["verdict"] == "fail"],
@@ -130,9 +131,11 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, scheduler: str | No
             write_table(rows, table)
             last_flush[0] = time.monotonic()
 
-    info = dispatch(run_point, jobs, on_result, scheduler=scheduler, workers=workers, label="campaign points", progress=progress)
-    rows.sort(key=lambda r: r["index"])
-    write_table(rows, table)
+    try:
+        info = dispatch(run_point, jobs, on_result, scheduler=scheduler, workers=workers, label="campaign points", progress=progress)
+    finally:  # whatever stopped the run, the table holds every point received
+        rows.sort(key=lambda r: r["index"])
+        write_table(rows, table)
     result = CampaignResult(spec, out, rows, info, {"table": str(table)})
     if rows:
         from .envelope import write_envelope

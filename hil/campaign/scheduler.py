@@ -24,12 +24,14 @@ second whether or not a job finished, so it never sits still while work goes on.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import sys
 import time
 import traceback
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Callable
 
 #: how long a remote scheduler may take to show a first worker before the run is refused
@@ -52,7 +54,8 @@ class DispatchInfo:
     address: str | None = None     #: the Dask scheduler actually used (a LocalCluster's own address)
     workers: list[str] = field(default_factory=list)  #: addresses of the workers that ran jobs
     interrupted: bool = False
-    elapsed_s: float = 0.0
+    elapsed_s: float = 0.0         #: the whole dispatch, cluster start included
+    startup_s: float = 0.0         #: of which starting or reaching the cluster
 
     @property
     def workers_used(self) -> int:
@@ -60,11 +63,28 @@ class DispatchInfo:
 
     def as_dict(self) -> dict:
         return {"scheduler": self.scheduler, "scheduler_address": self.address, "workers_used": self.workers_used,
-                "workers": sorted(self.workers), "interrupted": self.interrupted, "elapsed_s": self.elapsed_s}
+                "workers": sorted(self.workers), "interrupted": self.interrupted, "elapsed_s": self.elapsed_s,
+                "startup_s": self.startup_s}
 
 
-def _call(fn: Callable, index: int, job: Any) -> tuple[int, Any, str]:
-    """Runs on the worker: the job's result or its error, and which worker ran it."""
+@functools.lru_cache(maxsize=1)
+def code_fingerprint() -> str:
+    """SHA-256 over the sources of hil and plant_models as this process imports them: a worker
+    running other code (an older checkout on a cluster node) would give other results."""
+    import hashlib
+
+    import plant_models
+
+    h = hashlib.sha256()
+    for root in (Path(__file__).resolve().parent.parent, Path(plant_models.__file__).resolve().parent):
+        for f in sorted(root.rglob("*.py")):
+            h.update(f.relative_to(root.parent).as_posix().encode())
+            h.update(f.read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _call(fn: Callable, index: int, job: Any) -> tuple[int, Any, str, str]:
+    """Runs on the worker: the job's result or its error, which worker ran it, and its code."""
     try:
         from distributed import get_worker
 
@@ -72,9 +92,14 @@ def _call(fn: Callable, index: int, job: Any) -> tuple[int, Any, str]:
     except (ImportError, ValueError):
         where = "this process"
     try:
-        return index, fn(job), where
+        return index, fn(job), where, code_fingerprint()
     except Exception as exc:  # noqa: BLE001 - recorded, not fatal
-        return index, TaskError(f"{type(exc).__name__}: {exc}", traceback.format_exc()), where
+        return index, TaskError(f"{type(exc).__name__}: {exc}", traceback.format_exc()), where, code_fingerprint()
+
+
+def _redraw_s() -> float:
+    """A terminal redraws in place; a log file gets a line every few seconds, not a flood."""
+    return REFRESH_S if sys.stderr.isatty() else 5.0
 
 
 def _bar(total: int, label: str, enabled: bool):
@@ -82,7 +107,7 @@ def _bar(total: int, label: str, enabled: bool):
 
     tty = sys.stderr.isatty()
     return tqdm(total=total, desc=label, unit=" " + label.split()[-1].rstrip("s"), disable=not enabled, file=sys.stderr,
-                mininterval=REFRESH_S if tty else 5.0, smoothing=0.05, dynamic_ncols=tty, ncols=None if tty else 100)
+                mininterval=_redraw_s(), smoothing=0.05, dynamic_ncols=tty, ncols=None if tty else 100)
 
 
 def local_workers(requested: int | None = None) -> int:
@@ -103,7 +128,7 @@ def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *,
         if scheduler == "serial":
             _serial(fn, jobs, on_result, info, bar)
         else:
-            _dask(fn, jobs, on_result, info, bar, scheduler, workers)
+            _dask(fn, jobs, on_result, info, bar, scheduler, workers, label)
     finally:
         bar.close()
         info.elapsed_s = time.perf_counter() - t0
@@ -113,7 +138,7 @@ def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *,
 def _serial(fn, jobs, on_result, info: DispatchInfo, bar) -> None:
     try:
         for i, job in enumerate(jobs):
-            _, value, where = _call(fn, i, job)
+            _, value, where, _ = _call(fn, i, job)
             if where not in info.workers:
                 info.workers.append(where)
             on_result(i, value)
@@ -128,7 +153,7 @@ def _connect(scheduler: str, workers: int | None):
 
     if scheduler == "local":
         cluster = LocalCluster(n_workers=local_workers(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.ERROR)
         return Client(cluster), cluster
     if "://" not in scheduler:
         raise ValueError(f"--scheduler {scheduler!r}: give 'local', 'serial' or a Dask scheduler address such as tcp://host:8786")
@@ -144,10 +169,12 @@ def _connect(scheduler: str, workers: int | None):
     return client, None
 
 
-def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers: int | None) -> None:
+def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers: int | None, label: str) -> None:
     from distributed import as_completed
 
+    t0 = time.perf_counter()
     client, cluster = _connect(scheduler, workers)
+    info.startup_s = time.perf_counter() - t0
     info.address = client.scheduler.address
     futures = []
     try:
@@ -156,11 +183,14 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
                    for i, job in enumerate(jobs)]
         index_of = {f.key: i for i, f in enumerate(futures)}
         done = as_completed(futures, with_results=True, raise_errors=False)
+        drawn = time.monotonic()
         while not done.is_empty():
             batch = done.next_batch(block=False)
             if not batch:
                 time.sleep(0.1)
-                bar.refresh()
+                if time.monotonic() - drawn >= _redraw_s():  # elapsed, rate and time left move between results
+                    bar.refresh()
+                    drawn = time.monotonic()
                 continue
             for future, result in batch:
                 if future.status != "finished":  # the task never returned (KilledWorker, cancelled)
@@ -168,7 +198,10 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
                     value = TaskError(f"{type(exc).__name__}: {exc}", "".join(traceback.format_exception(exc)))
                     i = index_of[future.key]
                 else:
-                    i, value, where = result
+                    i, value, where, code = result
+                    if code != code_fingerprint():
+                        value = TaskError(f"worker {where} runs other hil/plant_models code (fingerprint {code}, here "
+                                          f"{code_fingerprint()}): install the same checkout on every worker", "")
                     if where not in info.workers:
                         info.workers.append(where)
                 future.release()

@@ -267,7 +267,7 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     if not isinstance(effects, list):
         raise ConfigError("fixed.effects", "must be a list of effect tables")
     for i, e in enumerate(effects):
-        effect_from_mapping(_table(f"fixed.effects[{i}]", e), f"fixed.effects[{i}].")
+        effect_from_mapping(_table(f"fixed.effects[{i}]", e), f"fixed.effects[{i}].").check(plant.motor.pole_pairs, f"fixed.effects[{i}].")
     names = [e["name"] for e in effects]
     if len(set(names)) != len(names):
         raise ConfigError("fixed.effects", "an effect appears twice")

@@ -1,0 +1,42 @@
+"""Campaign scaling, run on demand: ``python benchmarks/bench_campaign.py [SPEC] [--workers 1 2]``.
+
+The same campaign (default examples/campaign.toml) on a local Dask cluster of 1, then 2 worker
+processes, in one run: points per second once the workers are up (cluster start reported
+apart), and the ratio against the 1-worker run, the named peer. The tables must be identical
+apart from timings: a scaling figure of a run that changed its results would mean nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import tempfile
+from pathlib import Path
+
+from hil.campaign import load_spec, read_table, run_campaign
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("spec", nargs="?", default=str(Path(__file__).resolve().parent.parent / "examples" / "campaign.toml"))
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    args = ap.parse_args()
+    spec = load_spec(args.spec)
+    print(f"{spec.name}: {spec.size} points; {os.cpu_count()} cores; load average before: {os.getloadavg()[0]:.1f}")
+    rates, tables = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for n in args.workers:
+            r = run_campaign(spec, Path(tmp) / f"w{n}", workers=n, progress=False)
+            s = r.summary()
+            rates[n] = s["points_per_s"]
+            tables[n] = read_table(r.paths["table"]).drop(columns=["duration_s", "replay"])
+            print(f"  {n} worker(s): {s['points_done']} points in {s['elapsed_s']:.1f} s (cluster start {s['startup_s']:.1f} s), "
+                  f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; load average now {os.getloadavg()[0]:.1f}")
+    first = args.workers[0]
+    for n in args.workers[1:]:
+        same = tables[n].equals(tables[first])
+        print(f"  {n} vs {first} worker(s): x{rates[n] / rates[first]:.2f} points/s; tables identical: {same}")
+
+
+if __name__ == "__main__":
+    main()
