@@ -20,11 +20,13 @@ def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("spec", nargs="?", default=str(Path(__file__).resolve().parent.parent / "examples" / "campaign.toml"))
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--keep", help="keep the campaign outputs in this directory (default: a temporary one)")
     args = ap.parse_args()
     spec = load_spec(args.spec)
     print(f"{spec.name}: {spec.size} points; {os.cpu_count()} cores; load average before: {os.getloadavg()[0]:.1f}")
     rates, tables = {}, {}
-    with tempfile.TemporaryDirectory() as tmp:
+    with tempfile.TemporaryDirectory() as scratch:
+        tmp = args.keep or scratch
         for n in args.workers:
             r = run_campaign(spec, Path(tmp) / f"w{n}", workers=n, progress=False)
             s = r.summary()
@@ -34,8 +36,11 @@ def main() -> None:
                   f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; load average now {os.getloadavg()[0]:.1f}")
     first = args.workers[0]
     for n in args.workers[1:]:
-        same = tables[n].equals(tables[first])
+        diff = tables[n].compare(tables[first]) if tables[n].shape == tables[first].shape else "shapes differ"
+        same = isinstance(diff, str) is False and diff.empty
         print(f"  {n} vs {first} worker(s): x{rates[n] / rates[first]:.2f} points/s; tables identical: {same}")
+        if not same:
+            print(diff)
 
 
 if __name__ == "__main__":

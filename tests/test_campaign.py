@@ -195,6 +195,7 @@ def test_a_point_that_raises_is_an_error_row_and_the_campaign_goes_on(tmp_path, 
     row = table.loc[3]
     assert row["verdict"] == "error" and "controller firmware assertion" in row["message"] and "Traceback" in row["error"]
     assert np.isnan(row["angle_p99_deg_e"]) and row["commutation_angle_p99.verdict"] == "error"
+    assert Stimulus.load(row["replay"]).seed == bad_seed  # an erroring point replays too
     assert (table.drop(index=3)["error"].isna()).all()
 
 

@@ -6,7 +6,7 @@ Outputs in the campaign directory (``--out``, default ``reports/campaign-<name>`
   atomically (temporary file, then rename) every few seconds and at the end, so it is a valid
   table at every moment, also after Ctrl-C or a killed run, holding every point finished so far.
 * ``envelope.png``: the envelope map of ``[map]``.
-* ``replays/point-NNNNN.json``: every failing point as a ``hil-stimulus/1`` file (``hil replay``).
+* ``replays/point-NNNNN.json``: every failing (or erroring) point as a ``hil-stimulus/1`` file (``hil replay``).
 * ``campaign.json``: the summary (counts, scheduler, workers used, timings, paths).
 * ``campaign-report.html``: the summary, the envelope map, the failures and the errors.
 """
@@ -123,7 +123,7 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, scheduler: str | No
 
     def on_result(i: int, result) -> None:
         row = _row(spec, grid[i], stimuli[i], result)
-        if row["verdict"] == "fail":
+        if row["verdict"] in ("fail", "error"):  # an error replays too: it re-raises where the campaign saw it
             path = stimuli[i].save(out / "replays" / f"point-{i:05d}.json")
             row["replay"] = str(path)
         rows.append(row)

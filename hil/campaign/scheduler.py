@@ -129,6 +129,8 @@ def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *,
             _serial(fn, jobs, on_result, info, bar)
         else:
             _dask(fn, jobs, on_result, info, bar, scheduler, workers, label)
+    except KeyboardInterrupt:  # while the cluster started or stopped: nothing more to keep than what arrived
+        info.interrupted = True
     finally:
         bar.close()
         info.elapsed_s = time.perf_counter() - t0
@@ -153,7 +155,7 @@ def _connect(scheduler: str, workers: int | None):
 
     if scheduler == "local":
         cluster = LocalCluster(n_workers=local_workers(workers), threads_per_worker=1, processes=True, host="127.0.0.1",
-                               dashboard_address=":0", silence_logs=logging.ERROR)
+                               dashboard_address=":0", silence_logs=logging.CRITICAL)
         return Client(cluster), cluster
     if "://" not in scheduler:
         raise ValueError(f"--scheduler {scheduler!r}: give 'local', 'serial' or a Dask scheduler address such as tcp://host:8786")
