@@ -22,7 +22,8 @@ from hil.stimulus import Stimulus
 from plant_models.params import ConfigError
 
 #: raw Hall commutation with installation offsets: the commutation lands where the sensor's edge
-#: is, so its error against the plant's true rotor angle is the offset itself (deg e)
+#: is, so its error against the plant's true rotor angle is the offset itself (deg e), plus the
+#: edge jitter (0.1 us: 0.011 deg e RMS at 9000 rpm), which makes every figure depend on the seed
 SPEC = """
 [campaign]
 name = "unit"
@@ -32,6 +33,7 @@ run_s = 0.1
 commutation_angle_p99 = "angle_p99"
 [fixed]
 strategy = "raw"
+effects = [{ name = "edge_jitter", time_rms_s = 1e-7 }]
 [[axis]]
 name = "installation_offset.offset_deg_e"
 values = [0.0, 0.3, 0.8]
@@ -84,7 +86,8 @@ BAD_SPECS = [
     (SPEC + '[map]\nx = "speed_rpm"\ny = "load_scale"\n', "map.y"),
     (SPEC.replace('values = [4000.0, 9000.0]', 'linspace = [4000.0, 9000.0]'), "axis[1].linspace"),
     (SPEC + '[[axis]]\nname = "fault.sensor"\nvalues = [0.0]\n', "axis[2].name"),
-    (SPEC.replace('[fixed]', '[fixed]\neffects = [{ name = "pole_offset", offset_deg_e = [1.0, 2.0] }]'), "fixed.effects[0].offset_deg_e"),
+    (SPEC.replace('effects = [{ name = "edge_jitter"', 'effects = [{ name = "pole_offset", offset_deg_e = [1.0, 2.0] }, { name = "edge_jitter"'),
+     "fixed.effects[0].offset_deg_e"),
     ("[campaign\n", "not valid TOML"),
 ]
 
@@ -108,7 +111,7 @@ def test_grid_order_and_seeds(tmp_path):
     assert seeds == [point_seed(5, i) for i in range(len(grid))]
     assert point_seed(6, 0) != point_seed(5, 0)
     stim = point_stimulus(spec, grid[5])
-    assert stim.effects == [{"name": "installation_offset", "offset_deg_e": [0.3, -0.15, 0.075]}] and stim.strategy == "raw"
+    assert stim.effects[1:] == [{"name": "installation_offset", "offset_deg_e": [0.3, -0.15, 0.075]}] and stim.strategy == "raw"
 
 
 def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
@@ -116,7 +119,7 @@ def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
     assert len(table) == 6 and set(table["verdict"]) <= {"pass", "marginal", "fail"}
     for _, row in table.iterrows():
         offset = row["installation_offset.offset_deg_e"]  # sensor A's, the largest of the pattern
-        assert abs(row["angle_p99_deg_e"] - offset) < 0.02, row
+        assert abs(row["angle_p99_deg_e"] - offset) < 0.05, row
         assert row["commutation_angle_p99.margin"] == pytest.approx(0.5 - row["angle_p99_deg_e"])
         assert row["verdict"] == ("fail" if offset > 0.5 else "pass")
     failing = table[table["verdict"] == "fail"]
