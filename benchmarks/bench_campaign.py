@@ -2,7 +2,9 @@
 
 The same campaign (default examples/campaign.toml) on a local Dask cluster of 1, then 2 worker
 processes, in one run: points per second once the workers are up (cluster start reported
-apart), and the ratio against the 1-worker run, the named peer. The tables must be identical
+apart), and the ratio against the 1-worker run, the named peer. How many cores the workers
+actually got (their CPU seconds per wall second) is printed beside it: on a shared machine
+that, not the scheduler, bounds the ratio. The tables must be identical
 apart from timings: a scaling figure of a run that changed its results would mean nothing.
 """
 
@@ -31,9 +33,13 @@ def main() -> None:
             r = run_campaign(spec, Path(tmp) / f"w{n}", workers=n, progress=False)
             s = r.summary()
             rates[n] = s["points_per_s"]
-            tables[n] = read_table(r.paths["table"]).drop(columns=["duration_s", "replay"])
+            table = read_table(r.paths["table"])
+            tables[n] = table.drop(columns=["duration_s", "cpu_s", "replay"])
+            # CPU seconds the workers got per wall second of the run: n on an idle machine
+            cores = table["cpu_s"].sum() / (s["elapsed_s"] - s["startup_s"])
             print(f"  {n} worker(s): {s['points_done']} points in {s['elapsed_s']:.1f} s (cluster start {s['startup_s']:.1f} s), "
-                  f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; load average now {os.getloadavg()[0]:.1f}")
+                  f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; {table['cpu_s'].mean():.3f} CPU s per point, "
+                  f"the workers got {cores:.2f} cores; load average now {os.getloadavg()[0]:.1f}")
     first = args.workers[0]
     for n in args.workers[1:]:
         diff = tables[n].compare(tables[first]) if tables[n].shape == tables[first].shape else "shapes differ"

@@ -43,7 +43,7 @@ name = "speed_rpm"
 values = [4000.0, 9000.0]
 """
 #: columns that are timings or paths, not results
-NOT_RESULTS = ["duration_s", "replay"]
+NOT_RESULTS = ["duration_s", "cpu_s", "replay"]
 
 
 def write_spec(tmp_path: Path, text: str = SPEC, name: str = "spec.toml") -> Path:
@@ -239,3 +239,31 @@ def test_a_worker_running_other_code_gives_an_error_not_a_result(loopback_cluste
     got = {}
     dispatch(math.sqrt, [4.0], got.__setitem__, scheduler=loopback_cluster.scheduler_address, progress=False)
     assert isinstance(got[0], TaskError) and f"fingerprint {here}" in got[0].message, got
+
+
+FAULT_SPEC = """
+[campaign]
+name = "spikes"
+seed = 2
+kind = "fault_sequence"
+[fixed]
+fault = { name = "hall_spike" }
+fault_hold_s = 0.02
+[[axis]]
+name = "fault.width_s"
+values = [2e-6, 8e-6]
+[[axis]]
+name = "speed_rpm"
+values = [3000.0, 9000.0]
+"""
+
+
+def test_fault_sweep_records_what_acted_and_what_was_reported(tmp_path):
+    spec = load_spec(write_spec(tmp_path, FAULT_SPEC))
+    assert [point_stimulus(spec, p).steps[0] for p in points(spec)][1] == ["on", {"name": "hall_spike", "width_s": 2e-6}]
+    table = read_table(run_campaign(spec, tmp_path / "out", scheduler="serial", progress=False).paths["table"])
+    assert len(table) == 4 and list(table["faults_acted"]) == ["hall_spike"] * 4
+    # a spike to 000 or 111 must be reported as the illegal-Hall-code fault (0xFF01), recovery within budget
+    assert all("0xff01" in codes.split(",") for codes in table["fault_codes"]), table["fault_codes"].tolist()
+    assert (table["recovered_commutation_angle_p99.measured"] == table["recovered_p99_deg_e"]).all()
+    assert set(table["verdict"]) <= {"pass", "marginal"}, table[["verdict", "message"]].to_string()

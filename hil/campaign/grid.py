@@ -103,7 +103,7 @@ def run_point(job: tuple) -> dict:
     dict); returns the measured row fields, or the error and its traceback: a point that raises
     is an error row, never the end of the campaign."""
     stim_dict, budgets_table = job
-    t0 = time.perf_counter()
+    t0, cpu0 = time.perf_counter(), time.process_time()
     try:
         from ..budgets import Budget, Budgets
         from ..dut.link import InProcessLink
@@ -119,4 +119,5 @@ def run_point(job: tuple) -> dict:
     except Exception as exc:  # noqa: BLE001 - recorded with its traceback, the campaign goes on
         row = {"ok": False, "message": f"{type(exc).__name__}: {exc}", "values": {}, "verdicts": [], "error": traceback.format_exc()}
     row["duration_s"] = time.perf_counter() - t0
+    row["cpu_s"] = time.process_time() - cpu0  # with duration_s: the share of a core the worker got
     return row

@@ -64,7 +64,8 @@ def _row(spec: CampaignSpec, point: dict, stim, result) -> dict:
     row.setdefault("load_scale", spec.fixed_load_scale)
     row.setdefault("strategy", stim.strategy if spec.kind == "deviations" else "corrected")
     if isinstance(result, TaskError):  # the task itself never returned (e.g. it killed its workers)
-        result = {"ok": False, "message": result.message, "values": {}, "verdicts": [], "error": result.traceback, "duration_s": float("nan")}
+        result = {"ok": False, "message": result.message, "values": {}, "verdicts": [], "error": result.traceback, "duration_s": float("nan"),
+                  "cpu_s": float("nan")}
     v = result["values"]
     nan = float("nan")
     if spec.kind == "deviations":
@@ -87,7 +88,7 @@ def _row(spec: CampaignSpec, point: dict, stim, result) -> dict:
     else:
         row["verdict"] = "marginal" if any(d["verdict"] == "marginal" for d in result["verdicts"]) else "pass"
     row.update(message=result["message"], error=result["error"], replay=None,
-               effects=json.dumps(stim.effects, sort_keys=True), duration_s=result["duration_s"])
+               effects=json.dumps(stim.effects, sort_keys=True), duration_s=result["duration_s"], cpu_s=result["cpu_s"])
     return row
 
 

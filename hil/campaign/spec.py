@@ -53,7 +53,7 @@ from ..stimulus import DEFAULT_BUDGETS, METRICS, STRATEGIES
 
 #: operating-point axes (not effect parameters)
 OPERATING_AXES = ("speed_rpm", "load_scale", "strategy", "fault_hold_s")
-#: the wiring faults a fault_sequence campaign can switch on
+#: what a point runs: a deviation set judged on its commutation, or a wiring fault switched on and off
 KINDS = ("deviations", "fault_sequence")
 
 
