@@ -234,6 +234,25 @@ def test_a_skip_that_does_not_apply_to_this_dut_leaves_a_pass_standing(pytester)
     assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-PROT-003"] == "pass" and content["verdict"] == "PASS"
 
 
+def test_a_traced_requirement_that_no_test_answered_for_fails_the_run(pytester):
+    pytester.makepyfile(test_two="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-PROT-001")
+        def test_identity():
+            pass
+
+        @pytest.mark.requirement("REQ-PROT-002")
+        def test_heartbeat():
+            pytest.skip("the DUT speaks modbus")
+    """)
+    pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, skipped=1)
+    content = report(pytester)
+    req = {r["id"]: r["verdict"] for r in content["traceability"]}
+    assert req["REQ-PROT-001"] == "pass" and req["REQ-PROT-002"] == req["REQ-CAL-001"] == "not tested"
+    assert content["verdict"] == "FAIL" and content["verdict_reasons"] == ["REQ-PROT-002: not tested"]  # REQ-CAL-001: not traced
+
+
 WAIVED_SUITE = """
 import pytest
 
