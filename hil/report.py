@@ -221,7 +221,7 @@ class ReportWriter:
             reasons.append(f"incomplete: {self.incomplete_reason}")
         ran = [t for t in tests if t["outcome"] != "skipped"]
         if not ran and self.complete:
-            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected")
+            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected (or every one was deselected)")
         failing = any(t["verdict"] in ("fail", "error") for t in tests) or any(
             r["traced"] and r["verdict"] in ("fail", "error") for r in matrix)
         if failing:

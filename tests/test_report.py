@@ -315,8 +315,7 @@ def test_a_usage_error_is_never_a_complete_pass(pytester):
 def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdict(pytester, capsys):
     from hil.cli import main
 
-    pytester.makeconftest("")
-    pytester.makepyfile(test_cal=CAL_SUITE)
+    pytester.makepyfile(test_cal=CAL_SUITE)  # a suite needs no conftest.py
     common = ["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]
     assert main(common + ["--", "-k", "no_such_test"]) == pytest.ExitCode.NO_TESTS_COLLECTED
     assert report(pytester)["verdict"] == "NO TESTS"
@@ -326,3 +325,4 @@ def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdic
     assert report(pytester)["verdict"] == "FAIL"
     assert main(common + ["--", "--no-such-option"]) == pytest.ExitCode.USAGE_ERROR
     assert not (pytester.path / "rep" / "hil-report.json").exists()  # the previous run's report is gone, not left to be read
+    assert main(["acceptance", "--suite", "no_such_dir"]) == 2 and "--suite no_such_dir: no such directory" in capsys.readouterr().err
