@@ -163,10 +163,14 @@ def armature_shift(p, ist, arm_i, arm_deg, current):
 
 
 @njit(cache=True, inline="always")
-def sensor_crossing(p, st, ist, x, th1, arm, eps_f, eps_r):
-    """Whether the rotor at th1 (deg e) has switched sensor x: (+1 forward, -1 backward or 0, the
-    switching angle crossed). The one place the raw Hall outputs switch; ``arm`` is the armature
-    shift at the present current.
+def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
+    """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
+
+    Returns (+1 forward, -1 backward or 0; the switching angle at the step start; its rate in
+    deg e/s over the step). The one place the raw Hall outputs switch. ``arm0`` is the armature
+    shift at the step start and ``arm_rate`` its rate over the step (the current's, taken
+    linear within the step): an edge sits at the current of its own instant, not at the
+    current of the step it fell in.
 
     The hysteresis opens a band around the switching point: forward the rotor must pass it by
     the hysteresis, backward fall short of it by as much, so the band is never negative. The
@@ -179,15 +183,19 @@ def sensor_crossing(p, st, ist, x, th1, arm, eps_f, eps_r):
     after a commutation dragged the boundary just crossed back over the rotor.)
     """
     last = ist[I_LAST_CROSS + x]
-    arm_f = st[S_HELD_ARM + x] if last < 0 else arm
-    arm_r = st[S_HELD_ARM + x] if last > 0 else arm
-    tf = st[S_FWD_TARGET + x] + (p[P_HYST] + arm_f)
-    if th1 >= tf - eps_f:
-        return 1, tf
-    trv = st[S_REV_TARGET + x] - (p[P_HYST] - arm_r)
-    if th1 <= trv + eps_r:
-        return -1, trv
-    return 0, 0.0
+    if last < 0:
+        lag_f, rate_f = p[P_HYST] + st[S_HELD_ARM + x], 0.0
+    else:
+        lag_f, rate_f = p[P_HYST] + arm0, arm_rate
+    if th1 >= st[S_FWD_TARGET + x] + (lag_f + rate_f * h) - eps_f:
+        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
+    if last > 0:
+        lag_r, rate_r = p[P_HYST] - st[S_HELD_ARM + x], 0.0
+    else:
+        lag_r, rate_r = p[P_HYST] - arm0, arm_rate
+    if th1 <= st[S_REV_TARGET + x] - (lag_r - rate_r * h) + eps_r:
+        return -1, st[S_REV_TARGET + x] - lag_r, rate_r
+    return 0, 0.0, 0.0
 
 
 @njit(cache=True, inline="always")
@@ -503,15 +511,17 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
             elif th1 <= 60.0 * n + eps_r:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
-        # the armature shift uses the current at the step start, so a step cut back to an
-        # event sees the same switching angle as the trial step did
-        i_end = (abs(backup[S_IA]) + abs(backup[S_IB]) + abs(backup[S_IC])) / 3.0
-        arm = armature_shift(p, ist, arm_i, arm_deg, i_end)
+        # mean |i| and the armature shift run linearly over the trial step; a step cut back to
+        # an event keeps this trial's line, so it sees the switching angle the trial located
+        i_start = (abs(backup[S_IA]) + abs(backup[S_IB]) + abs(backup[S_IC])) / 3.0
+        i_rate = ((abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0 - i_start) / h
+        arm0 = armature_shift(p, ist, arm_i, arm_deg, i_start)
+        arm_rate = (armature_shift(p, ist, arm_i, arm_deg, i_start + i_rate * h) - arm0) / h
         for x in range(3):
-            d, target = sensor_crossing(p, st, ist, x, th1, arm, eps_f, eps_r)
+            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
             if d == 0:
                 continue
-            t_raw = backup[S_T] + _root(th0, we0, acc, target, h)
+            t_raw = backup[S_T] + _root(th0, we0 - rate, acc, target, h)
             rising = (ist[I_RAW_REGION + x] + d) % 2 == 0
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, True)
             t_event = min(t_event, t_emit)
@@ -563,15 +573,17 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             ist[I_N_IDEAL] += 1
         # commit: raw sensor edges into the pending queue
         for x in range(3):
-            d, target = sensor_crossing(p, st, ist, x, th1, arm, eps_f, eps_r)
+            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
             if d == 0:
                 continue
-            hold_crossing(st, ist, x, d, arm)
+            tau = _root(th0, we0 - rate, acc, target, h)
+            target += rate * tau
+            hold_crossing(st, ist, x, d, arm0 + arm_rate * tau)
             m = ist[I_RAW_REGION + x]
             k = m + 1 if d > 0 else m
             ist[I_RAW_REGION + x] = m + d
             rising = ist[I_RAW_REGION + x] % 2 == 0
-            t_raw = t0 + _root(th0, we0, acc, target, h)
+            t_raw = t0 + tau
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, False)
             set_targets(p, st, ist, sensor_off, pole_off, noise, x, d)
             # the conditioning circuit is a state (its capacitor), not a delay per edge: a raw
@@ -598,7 +610,7 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             r[E_BOUNDARY] = k
             r[E_DIR] = d
             r[E_THETA_RAW] = target
-            r[E_CURRENT] = i_end
+            r[E_CURRENT] = i_start + i_rate * tau
             r[E_POLE] = k % n_poles
             ist[I_N_PENDING] = q + 1
         if ist[I_NOISE] > noise.size - 64:
