@@ -161,11 +161,19 @@ class HallCommutation:
                 w_e = 360.0 * self.pole_pairs / max(t - self._history[-n - 1][0], 1e-9)
             else:
                 w_e = 60.0 / max(t - self._last_t, 1e-9)
+            speed_rpm = w_e / (6.0 * self.pole_pairs)
+            current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
-                speed_rpm = w_e / (6.0 * self.pole_pairs)
-                current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
                 t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e
+            else:
+                # the pole alignment is learned over the first turns; until then every correction
+                # but the pole's applies, with the poles' mean for it (the installation offset,
+                # the delays and above all the armature lag, which left uncorrected grows with
+                # the current it causes)
+                offsets = self.corrections.pole_offset_deg_e
+                static = self.corrections.correction_one_deg_e(x, rising, 0, speed_rpm, float(current)) - offsets[0]
+                t_corr = t - (static + sum(offsets) / len(offsets)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None
         if self._last_corr_t is not None and t_corr > self._last_corr_t:
@@ -184,7 +192,7 @@ class HallCommutation:
                 self.speed_estimates_rpm.append((t, speed_rpm))
                 duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)
         now = edge.get("now_s", t)
-        if self.corrections is None or self._pole_shift is None or self._last_corr_t is None:
+        if self.corrections is None or self._last_corr_t is None:
             commands.append(Command(at_s=now, sector=sector, duty=duty))
         else:
             due = self._scheduled.get(sector)
