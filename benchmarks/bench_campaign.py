@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import os
 import tempfile
+import time
 from pathlib import Path
 
 from hil.campaign import load_spec, read_table, run_campaign
@@ -30,7 +31,9 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as scratch:
         tmp = args.keep or scratch
         for n in args.workers:
+            c0 = time.process_time()
             r = run_campaign(spec, Path(tmp) / f"w{n}", workers=n, progress=False)
+            client_cpu = time.process_time() - c0  # this process: the client, the local scheduler, the table
             s = r.summary()
             rates[n] = s["points_per_s"]
             table = read_table(r.paths["table"])
@@ -39,7 +42,8 @@ def main() -> None:
             cores = table["cpu_s"].sum() / (s["elapsed_s"] - s["startup_s"])
             print(f"  {n} worker(s): {s['points_done']} points in {s['elapsed_s']:.1f} s (cluster start {s['startup_s']:.1f} s), "
                   f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; {table['cpu_s'].mean():.3f} CPU s per point, "
-                  f"the workers got {cores:.2f} cores; load average now {os.getloadavg()[0]:.1f}")
+                  f"the workers got {cores:.2f} cores, the client and scheduler used {client_cpu:.1f} CPU s; "
+                  f"load average now {os.getloadavg()[0]:.1f}")
     first = args.workers[0]
     for n in args.workers[1:]:
         diff = tables[n].compare(tables[first]) if tables[n].shape == tables[first].shape else "shapes differ"
