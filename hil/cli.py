@@ -163,6 +163,14 @@ def cmd_gap_validate(args) -> int:
           f"{report.dispatch['workers_used']} worker(s) used, {report.dispatch['elapsed_s']:.1f} s")
     for e in report.errors:
         print(f"ERROR in case {e['index']} ({e['kind']} {e['truth']}, seed {e['seed']}): {e['message']}", file=sys.stderr)
+    ran = {"scheduler": report.dispatch["scheduler"], "workers_used": report.dispatch["workers_used"], "dispatch": report.dispatch,
+           "errors": report.errors}
+    if not report.cases:  # every case raised, or Ctrl-C came before the first result: nothing to score
+        print("no recording was diagnosed", file=sys.stderr)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps({**ran, "cases": []}, indent=1) + "\n")
+        return 130 if report.dispatch.get("interrupted") else 1
     for min_snr in (1.0, 3.0):
         s = report.summary(min_snr)
         print(f"SNR >= {min_snr:g}: top-1 {s['top1_rate']:.1%}, top-3 {s['top3_rate']:.1%} ({s['single_cases']} single-effect cases); "
@@ -182,9 +190,8 @@ def cmd_gap_validate(args) -> int:
         print(f"{n:<22}" + "".join(f"{s['confusion'][n].get(c, 0):>11}" for c in cols))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"scheduler": report.dispatch["scheduler"], "workers_used": report.dispatch["workers_used"],
-                                                "dispatch": report.dispatch, "errors": report.errors, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s,
-                                                "cases": report.cases}, indent=1) + "\n")
+        Path(args.json).write_text(json.dumps({**ran, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases},
+                                              indent=1) + "\n")
         print(f"validation written to {args.json}")
     return 130 if report.dispatch.get("interrupted") else (1 if report.errors else 0)
 

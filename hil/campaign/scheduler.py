@@ -38,6 +38,8 @@ from typing import Any, Callable
 WORKER_WAIT_S = 60.0
 #: progress-bar redraw period: the bar moves (elapsed, rate, time left) even between results
 REFRESH_S = 0.5
+#: submission order of the jobs on Dask: index * SPREAD mod 1 (the golden ratio's fraction)
+SPREAD = (5 ** 0.5 - 1) / 2
 
 
 @dataclass(frozen=True)
@@ -180,10 +182,14 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
     info.address = client.scheduler.address
     futures = []
     try:
-        # one task per job, unique keys (pure=False): a re-run never reuses a cached result
-        futures = [client.submit(_call, fn, i, job, pure=False, key=f"{label.replace(' ', '-')}-{i}-{os.urandom(4).hex()}")
-                   for i, job in enumerate(jobs)]
-        index_of = {f.key: i for i, f in enumerate(futures)}
+        # one task per job, unique keys (pure=False): a re-run never reuses a cached result. Dask
+        # starts tasks in submission order; neighbouring jobs cost alike (a grid row, a block of
+        # electrical recordings), so they are submitted spread out (golden-ratio order): cheap and
+        # dear jobs mix, the count moves evenly, and a partial table covers the whole grid
+        order = sorted(range(len(jobs)), key=lambda i: (i * SPREAD) % 1.0)
+        futures = [client.submit(_call, fn, i, jobs[i], pure=False, key=f"{label.replace(' ', '-')}-{i}-{os.urandom(4).hex()}")
+                   for i in order]
+        index_of = {f.key: i for i, f in zip(order, futures)}
         done = as_completed(futures, with_results=True, raise_errors=False)
         drawn = time.monotonic()
         while not done.is_empty():
