@@ -1,0 +1,302 @@
+"""IEEE 1364 Value Change Dump: a streaming writer and a streaming reader.
+
+Both work on integer time ticks of the file's ``$timescale``. The writer takes batches of
+changes in time order and writes only those (a wire that does not change costs nothing); the
+reader yields the changes of the variables asked for in bounded chunks. Scalars (``0!``),
+vectors (``b101 !``) and reals (``r1.25 !``) are read; ``x`` and ``z`` read as 0.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import SignalError
+
+_UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15}
+_UNIT_NAMES = ("s", "ms", "us", "ns", "ps", "fs")
+
+
+def _id_code(index: int) -> str:
+    """Short identifier of variable ``index`` from the printable range VCD allows (! to ~)."""
+    chars = []
+    index += 1
+    while index:
+        index, r = divmod(index - 1, 94)
+        chars.append(chr(33 + r))
+    return "".join(chars)
+
+
+@dataclass(frozen=True)
+class Timescale:
+    """A VCD time unit: ``multiplier`` (1, 10 or 100) times ``unit`` ("s" ... "fs")."""
+
+    multiplier: int
+    unit: str
+
+    @property
+    def seconds(self) -> float:
+        return self.multiplier * _UNITS[self.unit]
+
+    def __str__(self) -> str:
+        return f"{self.multiplier} {self.unit}"
+
+    @classmethod
+    def parse(cls, text: str, where: str) -> "Timescale":
+        m = re.fullmatch(r"\s*(1|10|100)\s*(s|ms|us|ns|ps|fs)\s*", text)
+        if not m:
+            raise SignalError(where, f"$timescale {text.strip()!r} is not 1|10|100 followed by s, ms, us, ns, ps or fs")
+        return cls(int(m.group(1)), m.group(2))
+
+    @classmethod
+    def for_sample_rate(cls, sample_rate_hz: float) -> tuple["Timescale", int]:
+        """The coarsest VCD unit in which one sample period is a whole number of ticks, and that
+        number. A power-of-ten rate gets a unit of exactly one sample (1 MHz: ``1 us``), which is
+        also the rate a logic-analyser tool imports the file at."""
+        if not (math.isfinite(sample_rate_hz) and sample_rate_hz > 0):
+            raise SignalError("sample_rate_hz", f"must be a positive number, got {sample_rate_hz!r}")
+        period = 1.0 / sample_rate_hz
+        for unit in _UNIT_NAMES:  # coarse to fine
+            for mult in (100, 10, 1):
+                ticks = period / (mult * _UNITS[unit])
+                if ticks >= 1 - 1e-9 and abs(ticks - round(ticks)) <= 1e-9 * ticks:
+                    return cls(mult, unit), int(round(ticks))
+        raise SignalError("sample_rate_hz", f"{sample_rate_hz!r} Hz has no sample period that is a whole number of femtoseconds")
+
+
+class VcdWriter:
+    """Streams a VCD: declare variables, give the initial values, then batches of changes."""
+
+    def __init__(self, path: str | Path, timescale: Timescale, wires: list[str], reals: list[str] = (), scope: str = "hil",
+                 comment: str = "", real_format: str = "%.6g"):
+        self.path = Path(path)
+        self._f = open(self.path, "w", encoding="ascii", newline="\n")
+        self.names = list(wires) + list(reals)
+        self.n_wires = len(wires)
+        self.codes = [_id_code(i) for i in range(len(self.names))]
+        self.real_format = real_format
+        self._last_tick = -1
+        f = self._f
+        f.write("$date\n   bldc-hil\n$end\n$version\n   bldc-hil signals\n$end\n")
+        if comment:
+            f.write("$comment\n   " + comment.replace("$end", "$ end") + "\n$end\n")
+        f.write(f"$timescale {timescale} $end\n$scope module {scope} $end\n")
+        for i, name in enumerate(self.names):
+            kind, size = ("wire", 1) if i < self.n_wires else ("real", 64)
+            f.write(f"$var {kind} {size} {self.codes[i]} {name} $end\n")
+        f.write("$upscope $end\n$enddefinitions $end\n")
+
+    def _value(self, index: int, value: float) -> str:
+        if index < self.n_wires:
+            return f"{int(value)}{self.codes[index]}"
+        return f"r{self.real_format % value} {self.codes[index]}"
+
+    def initial(self, values: list[float]) -> None:
+        """Values of every variable at tick 0 (the ``$dumpvars`` block)."""
+        self._f.write("#0\n$dumpvars\n" + "\n".join(self._value(i, v) for i, v in enumerate(values)) + "\n$end\n")
+        self._last_tick = 0
+
+    def changes(self, ticks: np.ndarray, index: np.ndarray, values: np.ndarray) -> None:
+        """A batch of changes, sorted by tick (stable: a later change at one tick wins)."""
+        if ticks.size == 0:
+            return
+        if ticks[0] < self._last_tick:
+            raise ValueError(f"VCD changes out of order: tick {int(ticks[0])} after {self._last_tick}")
+        lines = []
+        last = self._last_tick
+        codes, n_wires, fmt = self.codes, self.n_wires, self.real_format
+        for t, i, v in zip(ticks.tolist(), index.tolist(), values.tolist()):
+            if t != last:
+                lines.append(f"#{t}")
+                last = t
+            lines.append(f"{int(v)}{codes[i]}" if i < n_wires else f"r{fmt % v} {codes[i]}")
+        self._last_tick = last
+        self._f.write("\n".join(lines) + "\n")
+
+    def close(self, end_tick: int | None = None) -> None:
+        """Close the file; ``end_tick`` marks where the recording ends (a bare timestamp)."""
+        if end_tick is not None and end_tick > self._last_tick:
+            self._f.write(f"#{int(end_tick)}\n")
+        self._f.close()
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        if not self._f.closed:
+            self._f.close()
+
+
+@dataclass(frozen=True)
+class VcdVariable:
+    code: str
+    name: str        #: reference name as declared (``AH``, ``gates[0]``)
+    path: str        #: dotted scope path and name (``top.dut.AH``)
+    kind: str        #: wire, reg, real, ...
+    size: int
+
+
+class VcdReader:
+    """Reads a VCD's header at once and its value changes in chunks (bounded memory)."""
+
+    BLOCK_BYTES = 8 << 20
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        if not self.path.is_file():
+            raise SignalError(str(path), "missing file")
+        self.variables: list[VcdVariable] = []
+        self.timescale: Timescale | None = None
+        self._header_end = 0
+        self._read_header()
+
+    def _tokens(self, start: int = 0) -> Iterator[tuple[bytes, int]]:
+        """Whitespace-separated tokens with the byte offset just after each block."""
+        with open(self.path, "rb") as f:
+            f.seek(start)
+            offset = start
+            carry = b""
+            while True:
+                block = f.read(self.BLOCK_BYTES)
+                if not block:
+                    break
+                offset += len(block)
+                block = carry + block
+                parts = block.split()
+                if block[-1:].isspace() or not parts:
+                    carry = b""
+                else:
+                    carry = parts.pop()
+                for tok in parts:
+                    yield tok
+            if carry:
+                yield carry
+
+    def _read_header(self) -> None:
+        where = str(self.path)
+        scope: list[str] = []
+        with open(self.path, "rb") as f:
+            head = b""
+            while b"$enddefinitions" not in head:
+                block = f.read(1 << 16)
+                if not block:
+                    raise SignalError(where, "no $enddefinitions: not a VCD file, or a truncated header")
+                head += block
+                if len(head) > 64 << 20:
+                    raise SignalError(where, "header longer than 64 MB without $enddefinitions")
+        end = head.index(b"$enddefinitions")
+        after = head.index(b"$end", end + len(b"$enddefinitions"))
+        self._header_end = after + len(b"$end")
+        try:
+            text = head[:end].decode("ascii", errors="replace")
+        except Exception:  # pragma: no cover - decode with replace cannot fail
+            raise SignalError(where, "header is not text") from None
+        for m in re.finditer(r"\$(\w+)(.*?)\$end", text, flags=re.S):
+            key, body = m.group(1), m.group(2).split()
+            line = text.count("\n", 0, m.start()) + 1
+            if key == "timescale":
+                self.timescale = Timescale.parse(" ".join(body), f"{where}, line {line}")
+            elif key == "scope":
+                scope.append(body[1] if len(body) > 1 else (body[0] if body else ""))
+            elif key == "upscope":
+                if scope:
+                    scope.pop()
+            elif key == "var":
+                if len(body) < 4:
+                    raise SignalError(f"{where}, line {line}", f"$var needs type, size, id and name, got {' '.join(body)!r}")
+                name = body[3] + ("".join(body[4:]) if len(body) > 4 else "")
+                try:
+                    size = int(body[1])
+                except ValueError:
+                    raise SignalError(f"{where}, line {line}", f"$var size {body[1]!r} is not a number") from None
+                self.variables.append(VcdVariable(body[2], name, ".".join([*scope, name]), body[0], size))
+        if self.timescale is None:
+            raise SignalError(where, "no $timescale in the header (the time unit must be stated)")
+
+    def find(self, name: str) -> VcdVariable:
+        """A variable by reference name, bit-indexed name or dotted path; the name must be unique."""
+        hits = [v for v in self.variables if name in (v.name, v.path) or v.path.endswith("." + name)]
+        if not hits:
+            raise SignalError(str(self.path), f"no variable {name!r} (have: {', '.join(v.path for v in self.variables)})")
+        if len({v.code for v in hits}) > 1:
+            raise SignalError(str(self.path), f"variable name {name!r} is ambiguous ({', '.join(v.path for v in hits)}); give the dotted path")
+        return hits[0]
+
+    def changes(self, names: list[str], chunk: int = 1 << 20) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """Yields ``(ticks, slot, value)`` arrays: the changes of ``names`` (slot = index into
+        ``names``) in file order, at most ``chunk`` per batch. After the iteration
+        :attr:`end_tick` is the last timestamp in the file."""
+        slots: dict[bytes, list[int]] = {}
+        for i, n in enumerate(names):
+            slots.setdefault(self.find(n).code.encode(), []).append(i)
+        ticks: list[int] = []
+        slot_out: list[int] = []
+        vals: list[float] = []
+        t = 0
+        last_t = -1
+        pending: bytes | None = None
+        skipping = False
+        where = str(self.path)
+        for tok in self._tokens(self._header_end):
+            if skipping:
+                if tok == b"$end":
+                    skipping = False
+                continue
+            if pending is not None:
+                s = slots.get(tok)
+                if s is not None:
+                    v = _vector_value(pending, where)
+                    for k in s:
+                        ticks.append(t)
+                        slot_out.append(k)
+                        vals.append(v)
+                pending = None
+                continue
+            c = tok[0]
+            if c == 35:  # '#'
+                try:
+                    t = int(tok[1:])
+                except ValueError:
+                    raise SignalError(where, f"bad timestamp {tok.decode(errors='replace')!r}") from None
+                if t < last_t:
+                    raise SignalError(where, f"timestamp #{t} goes back in time (after #{last_t})")
+                last_t = t
+                if len(ticks) >= chunk:
+                    yield np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals)
+                    ticks, slot_out, vals = [], [], []
+            elif c == 48 or c == 49 or c in b"xXzZ":
+                s = slots.get(tok[1:])
+                if s is not None:
+                    for k in s:
+                        ticks.append(t)
+                        slot_out.append(k)
+                        vals.append(1.0 if c == 49 else 0.0)
+            elif c in b"bBrR":
+                pending = tok
+            elif c == 36:  # '$'
+                if tok in (b"$comment", b"$date", b"$version"):
+                    skipping = True
+            else:
+                raise SignalError(where, f"unexpected token {tok[:40].decode(errors='replace')!r} after #{t}")
+        self.end_tick = max(last_t, 0)
+        if ticks:
+            yield np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals)
+
+
+def _vector_value(tok: bytes, where: str) -> float:
+    body = tok[1:]
+    if tok[:1] in b"rR":
+        try:
+            return float(body)
+        except ValueError:
+            raise SignalError(where, f"bad real value {tok.decode(errors='replace')!r}") from None
+    bits = body.replace(b"x", b"0").replace(b"X", b"0").replace(b"z", b"0").replace(b"Z", b"0")
+    try:
+        return float(int(bits, 2))
+    except ValueError:
+        raise SignalError(where, f"bad vector value {tok.decode(errors='replace')!r}") from None
