@@ -375,6 +375,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.set_defaults(func=cmd_replay)
 
+    from .signals.cli import add_parser as add_signals_parser  # real-bench signals (docs/signals.md)
+
+    add_signals_parser(sub)
+
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
     p.set_defaults(func=cmd_effects)
