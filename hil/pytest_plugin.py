@@ -30,6 +30,9 @@ import pytest
 
 from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256
 
+#: the signal-injection fixture (hil_signals) and its options live in their own plugin module
+pytest_plugins = ["hil.signals.fixtures"]
+
 VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
              "matplotlib", "jinja2")
 

@@ -155,25 +155,31 @@ class VcdReader:
         self._header_end = 0
         self._read_header()
 
-    def _tokens(self, start: int = 0) -> Iterator[tuple[bytes, int]]:
-        """Whitespace-separated tokens with the byte offset just after each block."""
+    def _blocks(self, start: int = 0) -> Iterator[list[bytes]]:
+        """Whitespace-separated tokens, a block at a time; a vector or real value never ends a
+        block without the identifier that follows it."""
         with open(self.path, "rb") as f:
             f.seek(start)
-            offset = start
-            carry = b""
+            carry: list[bytes] = []
             while True:
                 block = f.read(self.BLOCK_BYTES)
                 if not block:
                     break
-                offset += len(block)
-                block = carry + block
                 parts = block.split()
-                if block[-1:].isspace() or not parts:
-                    carry = b""
-                else:
-                    carry = parts.pop()
-                for tok in parts:
-                    yield tok
+                if parts and carry:
+                    if block[:1].isspace():
+                        parts = carry + parts
+                    else:  # a token cut by the block boundary
+                        parts = carry[:-1] + [carry[-1] + parts[0]] + parts[1:]
+                elif carry:
+                    parts = carry
+                carry = []
+                if parts and not block[-1:].isspace():
+                    carry.append(parts.pop())
+                if parts and parts[-1][:1] in (b"b", b"B", b"r", b"R"):
+                    carry.insert(0, parts.pop())
+                if parts:
+                    yield parts
             if carry:
                 yield carry
 
@@ -229,32 +235,91 @@ class VcdReader:
 
     def changes(self, names: list[str], chunk: int = 1 << 20) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """Yields ``(ticks, slot, value)`` arrays: the changes of ``names`` (slot = index into
-        ``names``) in file order, at most ``chunk`` per batch. After the iteration
+        ``names``) in file order, one batch per block of the file. After the iteration
         :attr:`end_tick` is the last timestamp in the file."""
+        del chunk  # batches follow the file's blocks (BLOCK_BYTES), which bound the memory
         slots: dict[bytes, list[int]] = {}
         for i, n in enumerate(names):
             slots.setdefault(self.find(n).code.encode(), []).append(i)
+        self._t = 0
+        self._last_t = -1
+        self._skipping = False
+        where = str(self.path)
+        for tokens in self._blocks(self._header_end):
+            if self._skipping or _ambiguous(tokens) or any(t[:1] == b"$" and t not in (b"$end", b"$dumpvars", b"$dumpall", b"$dumpon", b"$dumpoff") for t in tokens):
+                out = self._slow(tokens, slots, where)
+            else:
+                out = self._fast(tokens, slots, where)
+            if out[0].size:
+                yield out
+        self.end_tick = max(self._last_t, 0)
+
+    def _fast(self, tokens: list[bytes], slots: dict[bytes, list[int]], where: str):
+        """A block of tokens, classified in numpy (the common case: no comments inside)."""
+        arr = np.array(tokens)
+        first = arr.astype("S1")
+        n = arr.size
+        is_vec = np.isin(first, [b"b", b"B", b"r", b"R"])
+        after_vec = np.zeros(n, dtype=bool)
+        after_vec[1:] = is_vec[:-1]
+        is_ts = (first == b"#") & ~after_vec
+        known = is_ts | is_vec | after_vec | np.isin(first, [b"0", b"1", b"x", b"X", b"z", b"Z", b"$"])
+        if not known.all():
+            bad = int(np.nonzero(~known)[0][0])
+            raise SignalError(where, f"unexpected token {tokens[bad][:40].decode(errors='replace')!r}")
+        ts_pos = np.nonzero(is_ts)[0]
+        try:
+            ts_val = np.char.lstrip(arr[ts_pos], b"#").astype(np.int64)
+        except ValueError:
+            raise SignalError(where, "bad timestamp in the value changes") from None
+        seq = np.concatenate([[self._last_t], ts_val])
+        back = np.nonzero(np.diff(seq) < 0)[0]
+        if back.size:
+            raise SignalError(where, f"timestamp #{int(seq[back[0] + 1])} goes back in time (after #{int(seq[back[0]])})")
+        last_ts = np.where(is_ts, np.arange(n), -1)
+        np.maximum.accumulate(last_ts, out=last_ts)
+        time_of = np.where(last_ts >= 0, np.concatenate([ts_val, [0]])[np.searchsorted(ts_pos, np.maximum(last_ts, 0))], self._t)
+        pos, slot, val = [], [], []
+        for code, ss in slots.items():
+            for prefix, v in ((b"1", 1.0), (b"0", 0.0), (b"x", 0.0), (b"X", 0.0), (b"z", 0.0), (b"Z", 0.0)):
+                hit = np.nonzero((arr == prefix + code) & ~after_vec)[0]
+                for k in ss:
+                    pos.append(hit)
+                    slot.append(np.full(hit.size, k))
+                    val.append(np.full(hit.size, v))
+            hit = np.nonzero(after_vec & (arr == code))[0]
+            if hit.size:
+                values = np.array([_vector_value(tokens[i - 1], where) for i in hit]) if hit.size < 64 or first[hit[0] - 1] not in (b"r", b"R") \
+                    else _reals(arr[hit - 1], tokens, hit, where)
+                for k in ss:
+                    pos.append(hit)
+                    slot.append(np.full(hit.size, k))
+                    val.append(values)
+        if ts_val.size:
+            self._t = int(ts_val[-1])
+            self._last_t = int(ts_val[-1])
+        if not pos:
+            return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
+        p = np.concatenate(pos)
+        order = np.argsort(p, kind="stable")
+        return time_of[p[order]].astype(np.int64), np.concatenate(slot)[order].astype(np.int64), np.concatenate(val)[order]
+
+    def _slow(self, tokens: list[bytes], slots: dict[bytes, list[int]], where: str):
+        """A block token by token (comments inside the value changes)."""
         ticks: list[int] = []
         slot_out: list[int] = []
         vals: list[float] = []
-        t = 0
-        last_t = -1
-        pending: bytes | None = None
-        skipping = False
-        where = str(self.path)
-        for tok in self._tokens(self._header_end):
-            if skipping:
+        pending = None
+        for tok in tokens:
+            if self._skipping:
                 if tok == b"$end":
-                    skipping = False
+                    self._skipping = False
                 continue
             if pending is not None:
-                s = slots.get(tok)
-                if s is not None:
-                    v = _vector_value(pending, where)
-                    for k in s:
-                        ticks.append(t)
-                        slot_out.append(k)
-                        vals.append(v)
+                for k in slots.get(tok, ()):
+                    ticks.append(self._t)
+                    slot_out.append(k)
+                    vals.append(_vector_value(pending, where))
                 pending = None
                 continue
             c = tok[0]
@@ -263,29 +328,36 @@ class VcdReader:
                     t = int(tok[1:])
                 except ValueError:
                     raise SignalError(where, f"bad timestamp {tok.decode(errors='replace')!r}") from None
-                if t < last_t:
-                    raise SignalError(where, f"timestamp #{t} goes back in time (after #{last_t})")
-                last_t = t
-                if len(ticks) >= chunk:
-                    yield np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals)
-                    ticks, slot_out, vals = [], [], []
-            elif c == 48 or c == 49 or c in b"xXzZ":
-                s = slots.get(tok[1:])
-                if s is not None:
-                    for k in s:
-                        ticks.append(t)
-                        slot_out.append(k)
-                        vals.append(1.0 if c == 49 else 0.0)
+                if t < self._last_t:
+                    raise SignalError(where, f"timestamp #{t} goes back in time (after #{self._last_t})")
+                self._t = self._last_t = t
+            elif c in b"01xXzZ":
+                for k in slots.get(tok[1:], ()):
+                    ticks.append(self._t)
+                    slot_out.append(k)
+                    vals.append(1.0 if c == 49 else 0.0)
             elif c in b"bBrR":
                 pending = tok
             elif c == 36:  # '$'
                 if tok in (b"$comment", b"$date", b"$version"):
-                    skipping = True
+                    self._skipping = True
             else:
-                raise SignalError(where, f"unexpected token {tok[:40].decode(errors='replace')!r} after #{t}")
-        self.end_tick = max(last_t, 0)
-        if ticks:
-            yield np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals)
+                raise SignalError(where, f"unexpected token {tok[:40].decode(errors='replace')!r} after #{self._t}")
+        return np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals, dtype=float)
+
+
+def _ambiguous(tokens: list[bytes]) -> bool:
+    """An identifier that itself starts like a vector or real value right after one (legal, rare):
+    the block is read token by token."""
+    vec = [t[:1] in (b"b", b"B", b"r", b"R") for t in tokens]
+    return any(a and b for a, b in zip(vec, vec[1:]))
+
+
+def _reals(values: np.ndarray, tokens: list[bytes], hit: np.ndarray, where: str) -> np.ndarray:
+    try:
+        return np.char.lstrip(values, b"rR").astype(float)
+    except ValueError:  # a vector among them, or a bad number: one by one, with the message
+        return np.array([_vector_value(tokens[i - 1], where) for i in hit])
 
 
 def _vector_value(tok: bytes, where: str) -> float:
