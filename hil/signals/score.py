@@ -10,7 +10,8 @@ commutation.
 A commutation that matches no ideal one, or one already matched, is ``extra``; an ideal
 commutation inside the scored span that none matches is ``missed``. The scored span runs from
 the first energised pair the gates show (the controller's start, not itself a commutation) to
-the end of the capture less the hold-off (a commutation there could not be confirmed).
+the end of the capture less the hold-off and half a sector (a commutation there could not be
+confirmed).
 """
 
 from __future__ import annotations
@@ -213,7 +214,10 @@ def score_extracted(truth: Truth, ex: Extracted, hold_off_s: float = DEFAULT_HOL
     rows = match[first]
     dt = t_c[first] - truth.t_ideal_s[rows]
     angle = dt * truth.omega_e_deg_s[rows]
-    expected = np.nonzero((truth.t_ideal_s > start) & (truth.t_ideal_s <= end))[0]
+    # expected: ideal commutations after the start whose commutation, up to half a sector late,
+    # still has a whole hold-off window inside the capture
+    half_sector_s = 30.0 / np.maximum(truth.omega_e_deg_s, 1e-9)
+    expected = np.nonzero((truth.t_ideal_s > start) & (truth.t_ideal_s + half_sector_s <= end))[0]
     missed_rows = np.setdiff1d(expected, rows)
     res = truth.sample_rate_hz
     bound = 0.5 / res + (ex.resolution_s or 0.0)
