@@ -423,3 +423,18 @@ def test_bad_inputs_name_the_file_and_place(tmp_path, ideal_stimulus, capsys):
     csv.write_text("t_s,AH,AL,BH,BL,CH,CL\n0,0,0,0,0,0,0\n1e-6,0,1,0,0,0,0\n0.5e-6,1,1,0,0,0,0\n")
     assert hil_main(["signals", "score", str(ideal_stimulus), str(csv)]) == 2
     assert f"{csv}, line 4: time goes back" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("block_bytes", [113, 4093])
+def test_vcd_reader_blocks_do_not_change_the_changes(ideal_stimulus, monkeypatch, block_bytes):
+    """Reading in small blocks (tokens and value/identifier pairs cut at every place) gives the
+    same changes as reading the file whole."""
+    from hil.signals.vcd import VcdReader
+
+    names = ["HA", "HB", "HC", "IA", "IB", "IC"]
+    whole = [np.concatenate(a) for a in zip(*VcdReader(ideal_stimulus / "stimulus.vcd").changes(names))]
+    monkeypatch.setattr(VcdReader, "BLOCK_BYTES", block_bytes)
+    small = [np.concatenate(a) for a in zip(*VcdReader(ideal_stimulus / "stimulus.vcd").changes(names))]
+    assert whole[0].size > 10000
+    for a, b in zip(whole, small):
+        assert np.array_equal(a, b)

@@ -161,20 +161,20 @@ class VcdReader:
         with open(self.path, "rb") as f:
             f.seek(start)
             carry: list[bytes] = []
+            cut = False  # the previous block ended inside a token (its last piece is carry[-1])
             while True:
                 block = f.read(self.BLOCK_BYTES)
                 if not block:
                     break
                 parts = block.split()
-                if parts and carry:
-                    if block[:1].isspace():
-                        parts = carry + parts
-                    else:  # a token cut by the block boundary
+                if carry:
+                    if cut and parts and not block[:1].isspace():
                         parts = carry[:-1] + [carry[-1] + parts[0]] + parts[1:]
-                elif carry:
-                    parts = carry
+                    else:
+                        parts = carry + parts
                 carry = []
-                if parts and not block[-1:].isspace():
+                cut = not block[-1:].isspace()
+                if parts and cut:
                     carry.append(parts.pop())
                 if parts and parts[-1][:1] in (b"b", b"B", b"r", b"R"):
                     carry.insert(0, parts.pop())
