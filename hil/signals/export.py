@@ -238,12 +238,8 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
             batch = batch[~((batch[:, 0] == 0) & (batch[:, 1] >= 3))]
         vcd.changes((batch[:, 0] * ticks_per_sample).astype(np.int64), batch[:, 1].astype(np.int64), batch[:, 2])
         if csv_file is not None and limit > written_until:
+            # (updates hall_now and analog_now to the values at `limit`)
             _write_csv_rows(csv_file, written_until, limit, batch, hall_now, analog_now if settings.currents else None, decim, fs, tfmt)
-        elif settings.currents:
-            for b in batch[batch[:, 1] >= 3]:
-                analog_now[int(b[1]) - 3] = b[2]
-        for b in batch[batch[:, 1] < 3]:
-            hall_now[int(b[1])] = int(b[2])
         written_until = max(written_until, limit)
         # truth rows whose ideal instant is written
         if carry_truth:

@@ -50,6 +50,9 @@ class GateTimeline:
     carrier_origin_s: float = 0.0
     changes: int = 0
     _state: int = 0
+    _pend_t: list = field(default_factory=list)
+    _pend_s: list = field(default_factory=list)
+    _pend_n: int = 0
 
     def apply(self, at_s: float, sector: int | None, duty: float | None) -> None:
         """Close the running interval at ``at_s`` and start the new one."""
@@ -77,19 +80,30 @@ class GateTimeline:
             self.since_s = max(self.since_s, until_s)
             return
         period = 1.0 / self.pwm_frequency_hz
-        k0 = math.floor((self.since_s - self.carrier_origin_s) / period)
-        k1 = math.ceil((until_s - self.carrier_origin_s) / period)
-        k = np.arange(k0, k1 + 1)
+        hi, lo = SECTOR_PHASES[self.sector]
+        k = np.arange(math.floor((self.since_s - self.carrier_origin_s) / period), math.ceil((until_s - self.carrier_origin_s) / period) + 1)
         rise = self.carrier_origin_s + k * period
-        fall = rise + self.duty * period
-        t = np.concatenate([rise, fall])
+        t = np.concatenate([rise, rise + self.duty * period])
+        state = np.concatenate([np.full(k.size, (1 << (2 * lo + 1)) | (1 << (2 * hi))), np.full(k.size, 1 << (2 * lo + 1))])
         keep = (t > self.since_s) & (t < until_s)
-        t = np.sort(t[keep])
-        if t.size:
-            self._emit(t, np.array([self._pattern(x) for x in t.tolist()]))
+        order = np.argsort(t[keep], kind="stable")
+        self._emit(t[keep][order], state[keep][order])
         self.since_s = until_s
 
     def _emit(self, t_s: np.ndarray, states: np.ndarray) -> None:
+        if t_s.size:
+            self._pend_t.append(t_s)
+            self._pend_s.append(states)
+            self._pend_n += t_s.size
+            if self._pend_n >= 1 << 16:
+                self.flush()
+
+    def flush(self) -> None:
+        """Write the gate changes collected so far (each gate's own changes, on the sample grid)."""
+        if not self._pend_t:
+            return
+        t_s, states = np.concatenate(self._pend_t), np.concatenate(self._pend_s).astype(np.int64)
+        self._pend_t, self._pend_s, self._pend_n = [], [], 0
         ticks = np.rint(t_s / self.tick_s).astype(np.int64)
         prev = np.concatenate([[self._state], states[:-1]])
         out_t, out_i, out_v = [], [], []
@@ -166,6 +180,7 @@ def run_loopback(stimulus_dir: str | Path, link, out_vcd: str | Path, pwm_freque
             run_due(t_pin)
     end_s = reader.end_tick * scale
     run_due(end_s)
+    gates.flush()
     writer.close(reader.end_tick)
     res.gate_changes = gates.changes
     return res

@@ -22,13 +22,18 @@ _UNITS = {"s": 1.0, "ms": 1e-3, "us": 1e-6, "ns": 1e-9, "ps": 1e-12, "fs": 1e-15
 _UNIT_NAMES = ("s", "ms", "us", "ns", "ps", "fs")
 
 
+#: identifier characters: VCD allows ! to ~; '#' and '$' are left out so that no identifier
+#: looks like a timestamp or a keyword to a simple reader
+_ID_CHARS = [chr(c) for c in range(33, 127) if chr(c) not in "#$"]
+
+
 def _id_code(index: int) -> str:
-    """Short identifier of variable ``index`` from the printable range VCD allows (! to ~)."""
+    """Short identifier of variable ``index``."""
     chars = []
     index += 1
     while index:
-        index, r = divmod(index - 1, 94)
-        chars.append(chr(33 + r))
+        index, r = divmod(index - 1, len(_ID_CHARS))
+        chars.append(_ID_CHARS[r])
     return "".join(chars)
 
 
@@ -246,7 +251,7 @@ class VcdReader:
         self._skipping = False
         where = str(self.path)
         for tokens in self._blocks(self._header_end):
-            if self._skipping or _ambiguous(tokens) or any(t[:1] == b"$" and t not in (b"$end", b"$dumpvars", b"$dumpall", b"$dumpon", b"$dumpoff") for t in tokens):
+            if self._skipping or _ambiguous(tokens) or not _SKIPPED_BLOCKS.isdisjoint(tokens):
                 out = self._slow(tokens, slots, where)
             else:
                 out = self._fast(tokens, slots, where)
@@ -344,6 +349,9 @@ class VcdReader:
             else:
                 raise SignalError(where, f"unexpected token {tok[:40].decode(errors='replace')!r} after #{self._t}")
         return np.array(ticks, dtype=np.int64), np.array(slot_out, dtype=np.int64), np.array(vals, dtype=float)
+
+
+_SKIPPED_BLOCKS = frozenset((b"$comment", b"$date", b"$version"))
 
 
 def _ambiguous(tokens: list[bytes]) -> bool:
