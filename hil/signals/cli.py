@@ -16,6 +16,18 @@ def _plant(args):
     return PlantConfig.from_toml(args.plant) if args.plant else PRESETS[args.preset]()
 
 
+def _command(args) -> str:
+    """The export's options as a command line (recorded in meta.json)."""
+    parts = ["python", "-m", "hil", "signals", "export"]
+    for key, value in vars(args).items():
+        if key in ("func", "command", "sub", "progress") or value is None or value is False:
+            continue
+        parts.append("--" + key.replace("_", "-"))
+        if value is not True:
+            parts.append(shlex.quote(str(value)))
+    return " ".join(parts)
+
+
 def cmd_export(args) -> int:
     from .errors import SignalError
     from .export import ExportSettings, export, ideal, load_effects
@@ -37,7 +49,7 @@ def cmd_export(args) -> int:
     settings = ExportSettings(config=config, breakpoints=points, duration_s=duration, sample_rate_hz=args.sample_rate_hz, seed=args.seed,
                               current_v_per_a=args.current_v_per_a, current_zero_v=args.current_zero_v, analog_rate_hz=args.analog_rate_hz,
                               analog_lsb_v=args.analog_lsb_v, currents=not args.no_currents, csv_max_bytes=args.csv_max_bytes,
-                              write_csv=not args.no_csv, command=" ".join(map(shlex.quote, ["hil", *sys.argv[1:]])),
+                              write_csv=not args.no_csv, command=_command(args),
                               effects_source=args.effects or "", deviations=not args.no_deviations)
 
     def progress(i, n):
