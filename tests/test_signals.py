@@ -491,3 +491,19 @@ def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_h
     assert sc.tolist() == sectors[1:]
     assert np.allclose(tc, starts[1:], atol=1e-12)
     assert got.glitches == 0
+
+
+def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
+    """A capture that dumps the six gates as one bus (``gates[5:0]``, bit 0 = AH) scores the
+    same as six wires, mapped as gates[0] ... gates[5]."""
+    from hil.signals.capture import GATES, Capture
+
+    lines = ["$timescale 1 us $end", "$scope module dut $end", "$var wire 6 ! gates [5:0] $end", "$upscope $end", "$enddefinitions $end"]
+    for t, s in Capture(loopback_gates).states():
+        for ti, si in zip(t.tolist(), s.tolist()):
+            lines += [f"#{round(ti * 1e6)}", f"b{si:b} !"]
+    bus = tmp_path / "bus.vcd"
+    bus.write_text("\n".join(lines) + "\n#500000\n")
+    channels = ",".join(f"{g}=gates[{j}]" for j, g in enumerate(GATES))
+    a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, bus, "--channels", channels)
+    assert a == b

@@ -130,10 +130,20 @@ class Capture:
         r = VcdReader(self.path)
         scale = r.timescale.seconds
         self.sample_period_s = scale
-        names = [self.mapping.channels[g] for g in GATES]
+        names, bit_of = [], []
+        for g in GATES:
+            name, bit = _vcd_channel(r, self.mapping.channels[g])
+            names.append(name)
+            bit_of.append(bit)
         bits = np.zeros(6, dtype=np.int64)
         first = True
         for ticks, slot, val in r.changes(names, chunk):
+            if any(b is not None for b in bit_of):  # one bit of a vector (a gate bus)
+                val = val.copy()
+                for j, b in enumerate(bit_of):
+                    if b is not None:
+                        mine = slot == j
+                        val[mine] = (val[mine].astype(np.int64) >> b) & 1
             n = ticks.size
             state = np.empty(n, dtype=np.int64)
             # each gate's value after every change: forward fill of its own changes
@@ -278,6 +288,29 @@ class Capture:
                 raise
             raise SignalError(where, f"not a readable CSV capture: {exc}") from None
         self.end_s = float(t_last) if t_last is not None else 0.0
+
+
+def _vcd_channel(reader: VcdReader, channel: str) -> tuple[str, int | None]:
+    """A gate's VCD variable: a 1-bit variable by name, or bit ``k`` of a vector as ``name[k]``."""
+    try:
+        reader.find(channel)
+        return channel, None
+    except SignalError:
+        m = re.fullmatch(r"(.+)\[(\d+)\]", channel)
+        if not m:
+            raise
+        base, bit = m.group(1), int(m.group(2))
+        hits = [v for v in reader.variables if v.size > 1 and re.sub(r"\[.*\]$", "", v.name) == base]
+        if len(hits) != 1:
+            raise
+        v = hits[0]
+        lsb = 0
+        rng = re.search(r"\[(\d+):(\d+)\]$", v.name)
+        if rng:
+            lsb = min(int(rng.group(1)), int(rng.group(2)))
+        if not 0 <= bit - lsb < v.size:
+            raise SignalError(str(reader.path), f"{channel!r}: bit {bit} is outside {v.name} ({v.size} bits)") from None
+        return v.path, bit - lsb
 
 
 def _csv_header(path: Path) -> tuple[int, list[str], list[str]]:
