@@ -263,6 +263,76 @@ class MuxCheckedSdoClient(SdoClient):
             return response
 
 
+def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kwargs: dict):
+    """A python-can bus for the link, or a one-line LinkError naming what is wrong.
+
+    For ``socketcand`` the server is reached first with our own timeout (python-can's client
+    retries a refused connection in a busy loop for 10 s, logging each attempt), and the bus is
+    fenced: when the server closes the connection the client would spin on the empty socket and
+    later raise BrokenPipeError; instead its sends raise CanOperationError, which the link
+    reports as a LinkError naming the node and the request."""
+    import socket
+
+    import can
+
+    if interface not in can.interfaces.VALID_INTERFACES:
+        raise LinkError(f"{where}: python-can has no interface {interface!r} "
+                        f"(installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})")
+    if interface == "socketcand":
+        host, port = bus_kwargs.get("host"), bus_kwargs.get("port")
+        if not host or not port:
+            raise LinkError(f"{where}: the socketcand interface needs host=... and port=...")
+        try:
+            socket.create_connection((host, port), timeout=timeout_s).close()
+        except OSError as exc:
+            raise LinkError(f"{where}: cannot reach the socketcand server at {host}:{port}: {exc}") from None
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+    except Exception as exc:  # a missing driver, a wrong channel, a refused handshake
+        raise LinkError(f"{where}: cannot open the bus: {type(exc).__name__}: {' '.join(str(exc).split())}") from None
+    if interface == "socketcand":
+        _fence_socketcand(bus)
+    return bus
+
+
+def _fence_socketcand(bus) -> None:
+    """python-can 4.6.1's socketcand client: a closed connection becomes CanOperationError."""
+    import socket
+
+    import can
+
+    sock = bus._SocketCanDaemonBus__socket
+    recv, send = bus._recv_internal, bus.send
+    closed = threading.Event()
+
+    def _recv_internal(timeout):
+        if closed.is_set():
+            time.sleep(timeout or 0.1)  # nothing will come; do not spin the notifier
+            return None, False
+        msg, filtered = recv(timeout)
+        if msg is None:
+            try:
+                closed_now = sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+            except BlockingIOError:
+                closed_now = False
+            except OSError:
+                closed_now = True
+            if closed_now:
+                closed.set()
+        return msg, filtered
+
+    def _send(msg, timeout=None):
+        if closed.is_set():
+            raise can.CanOperationError("the socketcand server closed the connection")
+        try:
+            send(msg, timeout)
+        except OSError as exc:
+            closed.set()
+            raise can.CanOperationError(f"the socketcand server closed the connection ({exc})") from None
+
+    bus._recv_internal, bus.send = _recv_internal, _send
+
+
 class CanopenLink:
     """The framework's view of a CANopen controller on any python-can interface."""
 
@@ -271,9 +341,11 @@ class CanopenLink:
     def __init__(self, node_id: int = 5, interface: str = "virtual", channel: str = "hil", eds: str | None = None,
                  timeout_s: float = 1.0, **bus_kwargs):
         self.node_id, self.timeout_s = node_id, timeout_s
-        self.where = f"CANopen node {node_id} on {interface}:{channel}"
+        where = f"{interface}:{channel}" + (f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else "")
+        self.where = f"CANopen node {node_id} on {where}"
         self.network = canopen.Network()
-        self.network.connect(interface=interface, channel=channel, **bus_kwargs)
+        self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
+        self.network.connect()
         self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
         # the client is already subscribed to the response COB-ID; swapping its class keeps that
         # subscription and adds the multiplexer check
@@ -289,19 +361,25 @@ class CanopenLink:
         self.boot_ups: queue.Queue = queue.Queue()
         self.network.subscribe(0x700 + node_id, lambda cid, data, ts: bytes(data) == b"\x00" and self.boot_ups.put(ts))
         self._seq = 0
-        self.network.send_message(0, bytes([NMT_START, node_id]))
+        self._send("NMT start", 0, bytes([NMT_START, node_id]))
+
+    def _send(self, what: str, can_id: int, data: bytes) -> None:
+        try:
+            self.network.send_message(can_id, data)
+        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
+            raise LinkError(f"{self.where}: {what} could not be sent: {type(exc).__name__}: {exc}") from None
 
     def reset(self) -> None:
         """NMT reset node (faults cleared, logic restarted), wait for the boot-up, then start."""
         for q in (self.boot_ups, self.replies, self.emcy):
             while not q.empty():
                 q.get_nowait()
-        self.network.send_message(0, bytes([NMT_RESET_NODE, self.node_id]))
+        self._send("NMT reset node", 0, bytes([NMT_RESET_NODE, self.node_id]))
         try:
             self.boot_ups.get(timeout=self.timeout_s)
         except queue.Empty:
             raise LinkTimeout(f"{self.where}: no boot-up within {self.timeout_s} s after NMT reset node") from None
-        self.network.send_message(0, bytes([NMT_START, self.node_id]))
+        self._send("NMT start", 0, bytes([NMT_START, self.node_id]))
         self._seq = 0
 
     def set_filter_settings(self, settings) -> None:
@@ -350,10 +428,7 @@ class CanopenLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        try:
-            self.network.send_message(0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
-        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
-            raise LinkError(f"{self.where}: edge #{seq} could not be sent: {type(exc).__name__}: {exc}") from None
+        self._send(f"edge #{seq}", 0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
         commands = []
         deadline = time.monotonic() + self.timeout_s
         while True:
