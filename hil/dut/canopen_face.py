@@ -13,6 +13,7 @@ import queue
 import struct
 import threading
 import time
+from dataclasses import dataclass
 
 import canopen
 import numpy as np
@@ -33,8 +34,154 @@ ABORT_RANGE = 0x06090030
 ABORT_LENGTH = 0x06070010
 ABORT_COMMAND = 0x05040001
 ABORT_STATE = 0x08000022
+ABORT_TOGGLE = 0x05030000
+ABORT_LENGTH_HIGH = 0x06070012
+ABORT_LENGTH_LOW = 0x06070013
+ABORT_GENERAL = 0x08000000
+#: the longest value any object of the shipped EDS holds (VISIBLE_STRINGs are short); a
+#: segmented download without a declared size is refused past this
+SDO_MAX_DOWNLOAD_BYTES = 256
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+
+
+@dataclass
+class _Transfer:
+    """A segmented transfer in progress: which object, which way, how far."""
+
+    index: int
+    subindex: int
+    upload: bool
+    data: bytearray
+    declared: int | None = None   #: download: the size the client announced
+    limit: int = 0                #: download: bytes beyond this are refused (declared, or the type's size)
+    toggle: int = 0               #: the toggle bit the next segment must carry
+
+
+class SdoServer:
+    """A CiA 301 SDO server (expedited and segmented, both ways) on a ``canopen.LocalNode``'s
+    object dictionary and read/write callbacks.
+
+    canopen 2.4.1's own server keeps the last transfer's state and index around: a segment
+    request after a finished upload, or after an expedited read of another object, is answered
+    from what was left; an invalid command is aborted with the previous request's index; a
+    segmented download runs on past its declared size. Here the state is explicit: at most one
+    transfer is open; any initiate or abort ends it; a segment without an open transfer of its
+    direction, or with the wrong toggle bit, is aborted and ends it; a download is aborted with
+    0x06070012 the moment it passes its declared size (without one: the type's size, or
+    SDO_MAX_DOWNLOAD_BYTES).
+    Every abort names the object of the request it answers (a segment: the object of its
+    transfer, or of the last transfer when none is open). Block transfers are not offered:
+    aborted with 0x05040001 as CiA 301 allows.
+    """
+
+    def __init__(self, node: canopen.LocalNode):
+        self.node, self.od = node, node.object_dictionary
+        self.transfer: _Transfer | None = None
+        self._last_mux = (0, 0)
+
+    def request(self, data: bytes) -> bytes | None:
+        """The answer to one request frame (None: no answer, after a client's abort)."""
+        mux = struct.unpack_from("<HB", data, 1) if len(data) >= 4 else self._last_mux
+        if len(data) != 8:
+            self.transfer = None
+            return self._abort(*mux, ABORT_COMMAND)
+        ccs = data[0] >> 5
+        if ccs == 4:  # the client aborts: the transfer ends, nothing is answered
+            self.transfer = None
+            return None
+        if ccs in (0, 3):  # segments carry no multiplexer: they belong to the open transfer
+            transfer, upload = self.transfer, ccs == 3
+            if transfer is None or transfer.upload != upload:
+                self.transfer = None
+                return self._abort(*self._last_mux, ABORT_COMMAND)
+            if (data[0] >> 4) & 1 != transfer.toggle:
+                self.transfer = None
+                return self._abort(transfer.index, transfer.subindex, ABORT_TOGGLE)
+            return self._upload_segment(transfer) if upload else self._download_segment(transfer, data)
+        index, subindex = mux
+        self.transfer = None  # any initiate ends the transfer before it
+        self._last_mux = (index, subindex)
+        if ccs not in (1, 2):  # 5, 6: block transfers; 7: no such command
+            return self._abort(index, subindex, ABORT_COMMAND)
+        try:
+            var = self._variable(index, subindex)
+            return self._initiate_upload(var, index, subindex) if ccs == 2 else self._initiate_download(var, index, subindex, data)
+        except SdoAbortedError as exc:
+            self.transfer = None
+            return self._abort(index, subindex, exc.code)
+        except Exception:  # a callback failed: a general error, and the device lives on
+            self.transfer = None
+            return self._abort(index, subindex, ABORT_GENERAL)
+
+    def _variable(self, index: int, subindex: int):
+        if index not in self.od:
+            raise SdoAbortedError(ABORT_NO_OBJECT)
+        obj = self.od[index]
+        if isinstance(obj, canopen.objectdictionary.ODVariable):
+            if subindex != 0:
+                raise SdoAbortedError(ABORT_NO_SUBINDEX)
+            return obj
+        # an ARRAY answers any sub-index in the library (it makes them up): only declared ones exist
+        if subindex not in obj.subindices:
+            raise SdoAbortedError(ABORT_NO_SUBINDEX)
+        return obj[subindex]
+
+    def _initiate_upload(self, var, index: int, subindex: int) -> bytes:
+        if not var.readable:
+            raise SdoAbortedError(ABORT_WRITE_ONLY)
+        value = self.node.get_data(index, subindex)
+        if len(value) <= 4:
+            return struct.pack("<BHB", 0x43 | ((4 - len(value)) << 2), index, subindex) + value.ljust(4, b"\0")
+        self.transfer = _Transfer(index, subindex, True, bytearray(value))
+        return struct.pack("<BHBL", 0x41, index, subindex, len(value))
+
+    def _upload_segment(self, t: _Transfer) -> bytes:
+        chunk, t.data = bytes(t.data[:7]), t.data[7:]
+        last = not t.data
+        answer = bytes([(t.toggle << 4) | ((7 - len(chunk)) << 1) | last]) + chunk.ljust(7, b"\0")
+        t.toggle ^= 1
+        if last:
+            self.transfer = None
+        return answer
+
+    def _initiate_download(self, var, index: int, subindex: int, data: bytes) -> bytes:
+        if not var.writable:
+            raise SdoAbortedError(ABORT_READ_ONLY)
+        expedited, sized = data[0] & 0x02, data[0] & 0x01
+        if expedited:
+            self.node.set_data(index, subindex, data[4:8 - ((data[0] >> 2) & 3)] if sized else data[4:8])
+        else:
+            declared = struct.unpack_from("<L", data, 4)[0] if sized else None
+            if declared is not None and var.data_type in canopen.objectdictionary.NUMBER_TYPES and declared != len(var) // 8:
+                raise SdoAbortedError(ABORT_LENGTH_HIGH if declared > len(var) // 8 else ABORT_LENGTH_LOW)
+            numeric = var.data_type in canopen.objectdictionary.NUMBER_TYPES
+            limit = declared if declared is not None else (len(var) // 8 if numeric else SDO_MAX_DOWNLOAD_BYTES)
+            self.transfer = _Transfer(index, subindex, False, bytearray(), declared, limit)
+        return struct.pack("<BHBL", 0x60, index, subindex, 0)
+
+    def _download_segment(self, t: _Transfer, data: bytes) -> bytes:
+        t.data += data[1:8 - ((data[0] >> 1) & 7)]
+        if len(t.data) > t.limit:
+            self.transfer = None
+            return self._abort(t.index, t.subindex, ABORT_LENGTH_HIGH)
+        answer = bytes([0x20 | (t.toggle << 4)]) + bytes(7)
+        t.toggle ^= 1
+        if data[0] & 0x01:  # the last segment: the value is complete
+            self.transfer = None
+            if t.declared is not None and len(t.data) < t.declared:
+                return self._abort(t.index, t.subindex, ABORT_LENGTH_LOW)
+            try:
+                self.node.set_data(t.index, t.subindex, bytes(t.data))
+            except SdoAbortedError as exc:
+                return self._abort(t.index, t.subindex, exc.code)
+            except Exception:
+                return self._abort(t.index, t.subindex, ABORT_GENERAL)
+        return answer
+
+    @staticmethod
+    def _abort(index: int, subindex: int, code: int) -> bytes:
+        return struct.pack("<BHBL", 0x80, index, subindex, code)
 
 
 class CanopenDevice:
@@ -60,7 +207,8 @@ class CanopenDevice:
         self._last_ticks: int | None = None
         self._lock = threading.Lock()
         self.state = "PRE-OPERATIONAL"
-        # our own SDO front end: index echo, frame length, NMT state
+        # our own SDO server (SdoServer below) on the library's object dictionary and callbacks
+        self.sdo_server = SdoServer(self.node)
         self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
         self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
         self.network.unsubscribe(0, self.node.nmt.on_command)
@@ -108,32 +256,12 @@ class CanopenDevice:
 
     # --- SDO ------------------------------------------------------------------------------------
     def _on_sdo(self, can_id, data, timestamp) -> None:
-        sdo = self.node.sdo
         if self.state == "STOPPED":
             return  # CiA 301: no SDO in STOPPED
-        if len(data) != 8:
-            if len(data) >= 4:
-                _, sdo._index, sdo._subindex = struct.unpack_from("<BHB", bytes(data))
-            sdo.abort(ABORT_COMMAND)
-            return
-        ccs = data[0] & 0xE0
-        if ccs not in (0x20, 0x40, 0xA0, 0xC0):  # segments and aborts carry no index: the transfer's own
-            with self._lock:
-                sdo.on_request(can_id, data, timestamp)
-            return
-        _, index, subindex = struct.unpack_from("<BHB", bytes(data))
-        sdo._index, sdo._subindex = index, subindex  # aborts echo this request, never a stale one
-        if index not in self.od:
-            sdo.abort(ABORT_NO_OBJECT)
-            return
-        obj = self.od[index]
-        # an ARRAY answers any sub-index in the library (it makes them up on demand): only the
-        # declared ones exist
-        if not isinstance(obj, canopen.objectdictionary.ODVariable) and subindex not in obj.subindices:
-            sdo.abort(ABORT_NO_SUBINDEX)
-            return
         with self._lock:
-            sdo.on_request(can_id, data, timestamp)  # the library aborts 0x08000000 on our exceptions
+            answer = self.sdo_server.request(bytes(data))
+        if answer is not None:
+            self.network.send_message(0x580 + self.node_id, answer)
 
     def _on_read(self, index, subindex, od):
         c = self.controller
