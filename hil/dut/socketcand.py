@@ -167,8 +167,10 @@ class SocketcandServer:
                 words = await self._command(reader, buffer, handshake)
                 if words is None:
                     return
+                if words[0] == "open" and expected.startswith("open") and words[1:] != [self.bus_name]:
+                    raise ProtocolError(f"no bus {' '.join(words[1:])[:32]} (this server has {self.bus_name})")
                 if " ".join(words) != expected:
-                    raise ProtocolError(f"expected '< {expected} >'" + (f" (this server has bus {self.bus_name})" if words[0] == "open" else ""))
+                    raise ProtocolError(f"expected {expected} here")
                 writer.write(b"< ok >")
             self.clients.add(client)
             sender = asyncio.create_task(self._send_frames(client))
@@ -249,7 +251,8 @@ class SocketcandServer:
 
     async def _refuse(self, writer: asyncio.StreamWriter, reason: str) -> None:
         try:
-            writer.write(f"< error {reason} >".encode("ascii", "replace"))
+            text = reason.replace("<", "(").replace(">", ")").encode("ascii", "replace")  # one frame, whatever it quotes
+            writer.write(b"< error " + text + b" >")
             await asyncio.wait_for(writer.drain(), 1.0)
         except (asyncio.TimeoutError, ConnectionError, OSError):
             pass
