@@ -75,6 +75,8 @@ def test_cross_process_links_match_in_process(server, corrections):
 
 
 def test_killing_the_controller_process_gives_a_precise_error(server, corrections):
+    """Every request after the kill fails with LinkError or LinkTimeout naming the node or unit
+    and the request, within the timeout: never a raw transport exception, never a hang."""
     proc, (co_port, mb_port) = server
     co = CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=co_port, timeout_s=0.5)
     mb = ModbusLink(port=mb_port, timeout_s=0.5)
@@ -82,9 +84,17 @@ def test_killing_the_controller_process_gives_a_precise_error(server, correction
     proc.kill()
     proc.wait(timeout=10)
     edge = {"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0}
-    for link, pattern in ((co, r"CANopen node 5 on socketcand:can0@127.0.0.1:\d+"), (mb, r"Modbus unit 1 at 127.0.0.1:\d+")):
-        t = time.monotonic()
-        with pytest.raises((LinkTimeout, LinkError), match=pattern):
-            link.edge(edge)
-        assert time.monotonic() - t < 3.0
+    requests = [(lambda link: link.edge(edge), r"edge #\d+"), (lambda link: link.identity(), r"read"),
+                (lambda link: link.set_speed(3000.0), r"write"), (lambda link: link.set_strategy(2), r"write"),
+                (lambda link: link.status(), r"read"), (lambda link: link.reset(), r"(NMT reset node|write 1 registers at 31)"),
+                (lambda link: link.download_calibration(corrections), r"write"), (lambda link: link.edge(edge), r"edge #\d+")]
+    failures = 0
+    for link, where in ((co, r"CANopen node 5 on socketcand:can0@127.0.0.1:\d+"), (mb, r"Modbus unit 1 at 127.0.0.1:\d+")):
+        for call, what in requests:
+            t = time.monotonic()
+            with pytest.raises((LinkTimeout, LinkError), match=f"^{where}: .*{what}"):
+                call(link)
+            assert time.monotonic() - t < 3.0
+            failures += 1
         link.close()
+    assert failures == 2 * len(requests)

@@ -433,6 +433,8 @@ class ModbusLink:
             r = fn()
         except ModbusException as exc:
             raise LinkTimeout(f"{self.where}: no answer to {what} within {self.timeout_s} s ({exc})") from None
+        except Exception as exc:  # the transport itself failed (a reset connection, a closed port)
+            raise LinkError(f"{self.where}: {what} failed: {type(exc).__name__}: {exc}") from None
         if r.isError():
             code = getattr(r, "exception_code", None)
             raise LinkError(f"{self.where}: {what} refused with exception code {code:02d}" if code is not None else f"{self.where}: {what} failed: {r}")
@@ -479,6 +481,8 @@ class ModbusLink:
         r = self._call(f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)", lambda: self.client.readwrite_registers(
             read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=_bytes_regs(msg), device_id=self.unit))
         regs = r.registers
+        if len(regs) != 1 + 4 * REPLY_FRAMES or regs[0] > REPLY_FRAMES:
+            raise LinkError(f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)")
         commands = []
         for k in range(min(regs[0], REPLY_FRAMES)):
             f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k:5 + 4 * k]))
