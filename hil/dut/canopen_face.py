@@ -403,9 +403,10 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
 
     import can
 
-    if interface not in can.interfaces.VALID_INTERFACES:
-        raise LinkError(f"{where}: python-can has no interface {interface!r} "
-                        f"(installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})")
+    from .spec import unknown_can_interface
+
+    if why := unknown_can_interface(interface):
+        raise LinkError(f"{where}: {why}")
     if interface == "socketcand":
         host, port = bus_kwargs.get("host"), bus_kwargs.get("port")
         if not host or not port:

@@ -65,6 +65,15 @@ class DutSpec:
         return f"virtual-{self.transport}" if self.is_virtual else self.kind
 
 
+def unknown_can_interface(interface: str) -> str | None:
+    """Why python-can cannot open ``interface`` (one line listing the ones it has), or None."""
+    import can
+
+    if interface in can.interfaces.VALID_INTERFACES:
+        return None
+    return f"python-can has no interface {interface!r} (installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})"
+
+
 def parse_dut(text: str) -> DutSpec:
     text = (text or "virtual").strip()
     head, _, rest = text.partition(":")
@@ -100,6 +109,8 @@ def parse_dut(text: str) -> DutSpec:
             options[key] = default
     if not options["timeout"] > 0:
         raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
+    if kind == "canopen" and (why := unknown_can_interface(options["interface"])):
+        raise DutSpecError(f"--hil-dut {text!r}: {why}")
     return DutSpec(kind, transport, options, text)
 
 
