@@ -22,6 +22,7 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
+from .tcp import close_handlers
 from .messages import CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, Fault, VirtualController
 
@@ -186,11 +187,13 @@ class ModbusDevice:
 
         self._context, self._decoder = SimCore(device), DecodePDU(True)
         self._stopped = asyncio.Event()
+        self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
         server = await asyncio.start_server(self._connection, self.host, self.port)
         self.port = server.sockets[0].getsockname()[1]
         self._ready.set()
         async with server:
             await self._stopped.wait()
+        await close_handlers(self._handlers)
 
     # --- Modbus TCP: framing, pipelining, limits ----------------------------------------------------
     async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
@@ -199,7 +202,7 @@ class ModbusDevice:
             writer.close()
             return
         self.connections += 1
-        loop = asyncio.get_running_loop()
+        self._handlers[asyncio.current_task()] = writer
         buffer = bytearray()
         try:
             while True:
@@ -236,6 +239,7 @@ class ModbusDevice:
             pass
         finally:
             self.connections -= 1
+            self._handlers.pop(asyncio.current_task(), None)
             writer.close()
 
     async def _answer(self, unit: int, pdu: bytes) -> bytes:

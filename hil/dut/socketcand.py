@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import can
 
+from .tcp import close_handlers
+
 log = logging.getLogger(__name__)
 
 
@@ -120,14 +122,14 @@ class SocketcandServer:
     async def _main(self) -> None:
         self.loop = asyncio.get_running_loop()
         self._closed = asyncio.Event()
+        self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
         server = await asyncio.start_server(self._serve_client, self.host, self._requested_port,
                                             limit=self.limits.max_command_bytes * 4)
         self.port = server.sockets[0].getsockname()[1]
         self._ready.set()
         async with server:
             await self._closed.wait()
-        for client in list(self.clients):
-            client.writer.close()
+        await close_handlers(self._handlers)
 
     def _read_bus(self) -> None:
         """Frames on the bus (from the device) go to every raw-mode client."""
@@ -157,6 +159,7 @@ class SocketcandServer:
             await self._refuse(writer, "too many clients")
             return
         self.connections += 1
+        self._handlers[asyncio.current_task()] = writer
         client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames))
         sender = None
         buffer = bytearray()
@@ -193,6 +196,7 @@ class SocketcandServer:
             pass
         finally:
             self.connections -= 1
+            self._handlers.pop(asyncio.current_task(), None)
             self.clients.discard(client)
             client.queue.clear()
             if sender is not None:
