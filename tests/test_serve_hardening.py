@@ -156,17 +156,18 @@ def test_memory_stays_flat_over_50000_frames_after_a_killed_client(served):
     stalled = Cand(co_port)  # and one that stays, alive, reading nothing
     stalled.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 4096)
     client = Cand(co_port)
+    client.sock.settimeout(30.0)
     request = bytes([0x40, 0x18, 0x10, 0x04, 0, 0, 0, 0])  # upload 0x1018:04 (serial number)
 
     def traffic(n):
-        """n SDO requests, 64 in flight: each answered with the serial number."""
-        sent = got = 0
-        while got < n:
-            while sent < n and sent - got < 64:
-                client.send(0x605, request)
-                sent += 1
+        """n SDO requests sent as fast as the connection takes them (a second thread reads):
+        each answered with the serial number."""
+        blast = threading.Thread(target=lambda: client.sock.sendall(
+            f"< send 605 8 {' '.join(f'{b:02X}' for b in request)} >".encode() * n))
+        blast.start()
+        for _ in range(n):
             assert client.sdo_answer() == bytes([0x43, 0x18, 0x10, 0x04, 1, 0, 0, 0])
-            got += 1
+        blast.join()
 
     traffic(5000)
     victim.kill()
@@ -252,11 +253,15 @@ def test_ten_thousand_random_sdo_frames_then_correct_answers(served):
     c.send(0x605, bytes([0x80, 0, 0, 0, 0, 0, 0, 0]))  # end any transfer a random frame began
     c.close()
     c = Cand(co_port)
-    for index, sub, expected in ((0x1018, 1, 0xB1D), (0x1000, 0, 0x192), (0x1018, 4, 1)):
-        c.send(0x605, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]))
-        answer = c.sdo_answer()
-        assert answer[1:4] == bytes([index & 0xFF, index >> 8, sub]) and struct.unpack_from("<I", answer, 4)[0] == expected
-    c.close()
+    try:
+        for index, sub, expected in ((0x1018, 1, 0xB1D), (0x1000, 0, 0x192), (0x1018, 4, 1)):
+            c.send(0x605, bytes([0x40, index & 0xFF, index >> 8, sub, 0, 0, 0, 0]))
+            answer = c.sdo_answer()
+            while answer[1:4] != bytes([index & 0xFF, index >> 8, sub]):
+                answer = c.sdo_answer()  # a late answer to one of the random frames: an SDO client matches the object
+            assert answer[0] == 0x43 and struct.unpack_from("<I", answer, 4)[0] == expected
+    finally:
+        c.close()
     assert proc.poll() is None
 
 
@@ -353,4 +358,26 @@ def test_a_dead_client_is_forgotten_and_a_stalled_one_holds_a_bounded_queue():
         stalled.close()
     finally:
         device_side.shutdown()
+        server.close()
+
+
+def test_a_client_faster_than_the_device_waits_instead_of_growing_its_queue():
+    import can
+
+    from hil.dut.socketcand import SocketcandServer
+
+    server = SocketcandServer(port=0, channel="harden-backlog")
+    asleep = can.Bus(interface="virtual", channel="harden-backlog")  # a device that takes nothing
+    try:
+        c = Cand(server.port)
+        line = b"< send 605 8 40 00 10 00 00 00 00 00 >"
+        blast = threading.Thread(target=lambda: c.sock.sendall(line * 20_000), daemon=True)
+        blast.start()
+        time.sleep(1.5)  # some 20,000 frames would have reached the device's queue by now (14k/s)
+        waiting = asleep.queue.qsize()
+        assert waiting <= 257, waiting  # the documented bound: 256 frames waiting, plus the one in hand
+        assert len(server.clients) == 1  # the client is kept, and waits
+        c.close()
+    finally:
+        asleep.shutdown()
         server.close()

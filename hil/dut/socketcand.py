@@ -18,7 +18,9 @@ against the clients it may meet on a shared port:
 - a raw-mode client that sends nothing for ``idle_timeout_s`` is closed (TCP keepalive also on);
 - every client has a bounded frame queue: a client that does not read loses its oldest frames,
   as a CAN controller overruns, and one that reads nothing for ``idle_timeout_s`` is closed;
-- a client that leaves, or is killed, is forgotten at once (its queue goes with it).
+- a client that leaves, or is killed, is forgotten at once (its queue goes with it);
+- a client that sends faster than the device takes frames waits (``max_backlog_frames``): the
+  backlog stays in its TCP connection, not in this process's memory.
 """
 
 from __future__ import annotations
@@ -46,6 +48,7 @@ class SocketcandLimits:
     partial_timeout_s: float = 5.0      #: a command begun must end within this
     idle_timeout_s: float = 300.0       #: raw mode: no command, or nothing read, for this long closes
     max_command_bytes: int = 128        #: '< send 1FFFFFFF 8 ff ff ff ff ff ff ff ff >' is 41
+    max_backlog_frames: int = 256       #: frames the device has not yet taken; a sender waits beyond this
 
 
 class ProtocolError(Exception):
@@ -144,6 +147,14 @@ class SocketcandServer:
                 except RuntimeError:  # the loop is closed: we are stopping
                     return
 
+    def _backlog(self) -> int:
+        """Frames queued for the slowest receiver on a python-can ``virtual`` channel (0 elsewhere):
+        its queues are unbounded, so a client sending faster than the device reads would grow them."""
+        queues = getattr(self.bus, "channel", None)
+        if not isinstance(queues, list):
+            return 0
+        return max((q.qsize() for q in queues if q is not self.bus.queue), default=0)
+
     def _fanout(self, line: bytes, sender: _Client | None) -> None:
         for client in self.clients:
             if client is not sender:
@@ -183,6 +194,8 @@ class SocketcandServer:
                     return
                 if words[0] == "send":
                     msg = parse_send(words)
+                    while self._backlog() > self.limits.max_backlog_frames:
+                        await asyncio.sleep(0.001)  # backpressure: the client waits, not the device's memory
                     self.bus.send(msg)
                     msg.timestamp = time.time()
                     self._fanout(frame_line(msg), client)  # a bus: the other clients see it too
