@@ -114,6 +114,15 @@ def test_a_wrong_length_frame_is_aborted_and_ends_the_transfer(device):
     assert abort_of(p.ask(bytes([0x60]) + bytes(7)))[2] == COMMAND
 
 
+def test_expedited_download_with_and_without_a_size(device):
+    _, p = device
+    strategy = (0x2000, 0)  # U8, 0..3
+    assert p.ask(bytes([0x22]) + mux(*strategy) + bytes([2, 0xEE, 0xEE, 0xEE])) == bytes([0x60]) + mux(*strategy) + bytes(4)
+    assert p.ask(bytes([0x40]) + mux(*strategy) + bytes(4))[:5] == bytes([0x4F]) + mux(*strategy) + bytes([2])
+    assert abort_of(p.ask(bytes([0x27]) + mux(*strategy) + bytes([1, 0, 0, 0]))) == (*strategy, 0x06070010)  # 3 bytes for a U8
+    assert p.ask(bytes([0x2F]) + mux(*strategy) + bytes([3, 0, 0, 0]))[0] == 0x60
+
+
 # --- stateful fuzzing ----------------------------------------------------------------------------
 
 class SdoProtocol(RuleBasedStateMachine):

@@ -149,13 +149,15 @@ class SdoServer:
         if not var.writable:
             raise SdoAbortedError(ABORT_READ_ONLY)
         expedited, sized = data[0] & 0x02, data[0] & 0x01
+        numeric = var.data_type in canopen.objectdictionary.NUMBER_TYPES
         if expedited:
-            self.node.set_data(index, subindex, data[4:8 - ((data[0] >> 2) & 3)] if sized else data[4:8])
+            # size not indicated: the object's own size (a number), else all four bytes
+            unsized = data[4:4 + min(len(var) // 8, 4)] if numeric else data[4:8]
+            self.node.set_data(index, subindex, data[4:8 - ((data[0] >> 2) & 3)] if sized else unsized)
         else:
             declared = struct.unpack_from("<L", data, 4)[0] if sized else None
-            if declared is not None and var.data_type in canopen.objectdictionary.NUMBER_TYPES and declared != len(var) // 8:
+            if declared is not None and numeric and declared != len(var) // 8:
                 raise SdoAbortedError(ABORT_LENGTH_HIGH if declared > len(var) // 8 else ABORT_LENGTH_LOW)
-            numeric = var.data_type in canopen.objectdictionary.NUMBER_TYPES
             limit = declared if declared is not None else (len(var) // 8 if numeric else SDO_MAX_DOWNLOAD_BYTES)
             self.transfer = _Transfer(index, subindex, False, bytearray(), declared, limit)
         return struct.pack("<BHBL", 0x60, index, subindex, 0)
