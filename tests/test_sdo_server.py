@@ -267,6 +267,7 @@ def test_stateful_sdo_sequences(device):
     SdoProtocol.probe = probe
     before = probe.sent
     SdoProtocol.TestCase().runTest()
+    print(f"\nstateful SDO probe: {probe.sent - before} request frames")
     assert probe.silent(), "an answer nobody asked for (a client abort must not be answered)"
     assert probe.sent - before > 3000  # the sequences are long enough to mean something
     assert not dev.network.notifier.stopped
