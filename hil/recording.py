@@ -399,7 +399,7 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int], max_bytes: int = M
         return None
     numeric = [c for c in header if c != "segment"]
     try:
-        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": str}, encoding="utf-8-sig",
+        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": object}, encoding="utf-8-sig",
                          skipinitialspace=True, engine="c", keep_default_na=False, na_filter=False)
     except (ValueError, pd.errors.ParserError):  # UnicodeDecodeError is a ValueError
         return None
