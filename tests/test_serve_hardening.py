@@ -190,19 +190,23 @@ def test_slow_loris_connections_are_closed_and_capped(served):
     c.sock.sendall(b"< send 60")
     t = closed_within(c.sock, 10.0)
     c.close()
+    print(f"\nsocketcand: half-sent command closed after {t:.1f} s")
     assert t is not None and 4.0 <= t <= 7.0, t
     # a raw-mode client that sends nothing: closed after the idle timeout
     c = Cand(co_port)
     t = closed_within(c.sock, IDLE_S + 4.0)
     c.close()
+    print(f"socketcand: idle raw-mode client closed after {t:.1f} s (idle timeout {IDLE_S} s)")
     assert t is not None and t <= IDLE_S + 2.0, t
     # the same for Modbus: half an ADU, then silence
     with socket.create_connection(("127.0.0.1", mb_port)) as s:
         s.sendall(mbap(struct.pack(">BHH", 3, 0, 1))[:5])
         t = closed_within(s, 10.0)
+        print(f"Modbus: half-sent ADU closed after {t:.1f} s")
         assert t is not None and t <= 7.0, t
     with socket.create_connection(("127.0.0.1", mb_port)) as s:
         t = closed_within(s, IDLE_S + 4.0)
+        print(f"Modbus: idle connection closed after {t:.1f} s")
         assert t is not None and t <= IDLE_S + 2.0, t
 
 
