@@ -189,7 +189,8 @@ def cmd_dut_serve(args) -> int:
 
     if args.canopen_port is None and args.modbus_port is None:
         raise ValueError("give --canopen-port and/or --modbus-port")
-    serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit, strategy=args.strategy, preset=args.preset)
+    serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit, strategy=args.strategy, preset=args.preset,
+          bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
     return 0
 
 
@@ -375,8 +376,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
-    q = ds.add_parser("serve", help="run the virtual controller in its own process (CANopen via python-can-remote, Modbus TCP)")
-    q.add_argument("--canopen-port", type=int, help="serve CANopen on ws://HOST:PORT (python-can 'remote' interface)")
+    q = ds.add_parser("serve", help="run the virtual controller in its own process (CANopen over the socketcand protocol, Modbus TCP)")
+    q.add_argument("--canopen-port", type=int, help="serve the CAN bus on HOST:PORT with the socketcand protocol (python-can 'socketcand' interface; 0: any free port)")
+    q.add_argument("--bus-name", default="can0", help="the socketcand bus name clients open (default can0)")
+    q.add_argument("--idle-timeout", type=float, default=300.0, help="close a client that sends or reads nothing for this many seconds (default 300)")
     q.add_argument("--modbus-port", type=int, help="serve Modbus TCP on HOST:PORT")
     q.add_argument("--host", default="127.0.0.1", help="bind address (default loopback; 0.0.0.0 only if you mean it)")
     q.add_argument("--node-id", type=int, default=5)

@@ -101,7 +101,7 @@ def test_waivers_load_with_their_reason_owner_scope_and_expiry(tmp_path):
 
     path = tmp_path / "b.toml"
     path.write_text(WAIVER + 'tests = ["test_fault_sequences"]\nexpires = 2027-06-30\n\n' + WAIVER.replace("ROB-002", "ROB-001"))
-    b = Budgets.from_toml(path, today=datetime.date(2027, 6, 30))  # still valid on its last day
+    b = Budgets.from_toml(path, base=Budgets({}), today=datetime.date(2027, 6, 30))  # still valid on its last day
     w = b.waivers[0]
     assert (w.requirement, w.reason, w.owner, w.tests, w.expires) == (
         "REQ-ROB-002", "recovery needs 80 ms", "controls team", ("test_fault_sequences",), datetime.date(2027, 6, 30))
