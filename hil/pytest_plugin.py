@@ -390,7 +390,8 @@ class HilReporter:
         for reason in content["verdict_reasons"]:
             terminalreporter.write_line(f"  {reason}")
         for w in content["waivers"]:
-            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}")
+            unused = "" if w["tests_waived"] else " [waives nothing in this run]"
+            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
