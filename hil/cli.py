@@ -94,18 +94,30 @@ def cmd_compare_correction(args) -> int:
 
 
 def cmd_table5(args) -> int:
-    from .predictors.compare import table5
+    if args.closed_loop:
+        from .predictors.closed_loop import closed_loop
 
-    tab, run = table5(eval_seeds=tuple(args.seed), train_seeds=tuple(args.train_seed))
-    print(f"paper scenario: {len(run.step_times_s)} set points 5000-10000 rpm, ~{len(run.edges)} edges per run, calibration applied, "
-          f"type III jitter; KF and Sage-Husa tuned on seeds {tab.train_seeds}, scored on seeds {tab.eval_seeds} (mean)")
-    print(tab.format())
-    print(f"KF (tuned): Q0 = diag{tab.kf_settings.q0_diag}, R = diag{tab.kf_settings.r0_diag}")
-    print(f"Sage-Husa: Q0 = diag{tab.sh_settings.q0_diag} (nominal), R0 = diag{tab.sh_settings.r0_diag} (paper), "
-          f"b = {tab.sh_settings.forgetting_b}, Q band x{tab.sh_settings.q_band_factor:g}")
-    sh = next(r for r in tab.rows if r.name == "Sage-Husa")
-    print(f"Sage-Husa guard trips: {sh.guards}")
+        result = closed_loop(seed=args.seed[0] if args.seed else 0)
+        print(result.format())
+        if args.json:
+            _write_json(args.json, result.to_json())
+        return 0
+    from .predictors.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
+
+    result = run_protocol(args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS))
+    print(f"protocol {result.protocol}:")
+    for line in result.statement:
+        print(f"  {line}")
+    print(result.format())
+    if args.json:
+        _write_json(args.json, result.to_json())
     return 0
+
+
+def _write_json(path: str, data: dict) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(data, indent=2) + "\n")
+    print(f"wrote {path}")
 
 
 def cmd_gap_diagnose(args) -> int:
@@ -322,8 +334,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_compare_correction)
 
     p = sub.add_parser("table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario")
-    p.add_argument("--seed", type=int, nargs="+", default=[0, 3, 4], help="evaluation runs (default: 0 3 4)")
-    p.add_argument("--train-seed", type=int, nargs="+", default=[1, 2], help="tuning runs for the KF and Sage-Husa settings (default: 1 2)")
+    p.add_argument("--protocol", default="tuned", choices=["paper", "tuned", "misspecified", "bursts"],
+                   help="how the KF and Sage-Husa are set up and what disturbs the edges (docs/sage-husa.md; default: tuned)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="run the paper scenario through the controller on every link, then replay its edges offline")
+    p.add_argument("--seed", type=int, nargs="+", help="evaluation seeds (default: 0 3 4 ... 11; closed loop: 0)")
+    p.add_argument("--train-seed", type=int, nargs="+", help="tuning seeds (default: 1 2)")
+    p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
 
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")

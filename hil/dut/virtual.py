@@ -23,7 +23,7 @@ from plant_models.simulation import Command
 from ..calibration.corrections import SENSORS, Corrections
 from ..commutation import HallCommutation, SpeedPI
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
-from ..predictors import filters as _filters
+from ..predictors.predictors import COUNTER_NAMES
 
 
 class Strategy(enum.IntEnum):
@@ -224,8 +224,8 @@ class VirtualController:
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
-            trips = self._predictor.covariance_guard_trips
-            if self._predictor.state[_filters.K_STEP] <= self._predictor.settings.warmup:
+            trips = self._predictor.covariance_repairs
+            if self._predictor.steps <= self._predictor.settings.warmup:
                 self._guards_seen = trips
             elif trips > self._guards_seen:
                 self._guards_seen = trips
@@ -249,6 +249,7 @@ class VirtualController:
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
             "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
             "guard_trips": int(sum(p.guards.values())) if p is not None else 0,
+            **(p.counters if p is not None else dict.fromkeys(COUNTER_NAMES, 0)),
             "last_predicted_commutation_s": float(self._logic.last_prediction_s),
             "error_register": self.error_register,
             "faults": list(self.faults),
