@@ -16,6 +16,7 @@ import numpy as np
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
+from ..dut.link import filter_vector, with_filter_vector
 from .model import MotorModel
 from .predictors import SageHusaPredictor
 from .scenario import SETPOINTS_RPM, edge_inputs, scenario_plant
@@ -61,9 +62,11 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     from ..dut.virtual import Strategy, VirtualController
 
     link.reset()
+    # the settings are written every time (a controller keeps the last ones written); the offline
+    # filter gets them as the link carries them, in IEEE single precision
     settings = filter_settings or VirtualController(config.motor).filter_settings
-    if filter_settings is not None:
-        link.set_filter_settings(filter_settings)
+    link.set_filter_settings(settings)
+    settings = with_filter_vector(settings, [float(np.float32(v)) for v in filter_vector(settings)])
     link.download_calibration(corrections)
     link.set_strategy(int(Strategy.SAGE_HUSA))
     first = SETPOINTS_RPM[0]

@@ -53,12 +53,12 @@ SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, s
 SH_DESIGN = dict(adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.9, forgetting_b=0.98, q_band_factor=100.0)
 #: coarse grids (log-spaced) from which both filters' refinement starts: 144 points each
 KF_GRID = dict(q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r_theta=(1e-6, 1e-5, 1e-4, 1e-3), r_i=(1e-2, 1.0))
-SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.3, 0.05))
+SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
 #: Q's forgetting factor within the design notes' 0.95 and a memory of 10,000 cycles; R's per interval
 B_RANGE = (0.95, 0.9999)
-B_R_RANGE = (0.5, 0.999)
+B_R_RANGE = (0.05, 0.999)
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the profile (oracle schedule reference)
 
 

@@ -39,6 +39,7 @@ STATE_TABLE = (
     ("N_ACC", 1, "cycles in the r, q interval"),
     ("K_INTERVAL", 1, "r, q intervals completed (j of d_j)"),
     ("ACC_R", 4, "R interval accumulator: sum of Huber-weighted Z~ Z~^T / kappa - H P H^T"),
+    ("ACC_R_MEAN", 2, "R interval accumulator: sum of sqrt(weight) Z~ (the innovations' mean is taken out)"),
     ("N_ACC_R", 1, "cycles in the R interval"),
     ("K_INTERVAL_R", 1, "R intervals completed"),
     ("Q_RAW", 2, "unclamped Eq. 12 recursion of Q_w and Q_i"),
@@ -68,6 +69,7 @@ PARAM_TABLE = (
     ("HUBER_C", "Huber threshold on sqrt(NIS)"),
     ("HUBER_KAPPA", "consistency factor E[w NIS] / 2 of the Huber weight"),
     ("GATE_STATE", "1: a gated innovation leaves the state at its prediction"),
+    ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
 )
 
 
@@ -241,6 +243,9 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     s[ST.ACC_R + 1] += g * innov0 * innov1 - p_pred[5]
     s[ST.ACC_R + 2] += g * innov1 * innov0 - p_pred[7]
     s[ST.ACC_R + 3] += g * innov1 * innov1 - p_pred[8]
+    sg = math.sqrt(g)
+    s[ST.ACC_R_MEAN] += sg * innov0
+    s[ST.ACC_R_MEAN + 1] += sg * innov1
     s[ST.N_ACC_R] += 1.0
     warm = k < fp[FP.WARMUP]
     # during the warm-up R is set once, at its end (the first R_INTERVAL cycles after P0 would
@@ -251,8 +256,17 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     j = s[ST.K_INTERVAL_R]
     b = fp[FP.R_B]
     dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
+    # the innovations' own mean over the interval is taken out (Eq. 12's Z~ - r): a state that is
+    # off pushes every innovation one way, and R must not absorb that error (it would lower the
+    # gain, the error would grow, and R with it); the one-signed run then fades P instead
+    m0, m1 = s[ST.ACC_R_MEAN] / n, s[ST.ACC_R_MEAN + 1] / n
+    unbias = n / (n - 1.0) if n > 1.0 else 1.0
+    s[ST.ACC_R] -= n * m0 * m0
+    s[ST.ACC_R + 1] -= n * m0 * m1
+    s[ST.ACC_R + 2] -= n * m1 * m0
+    s[ST.ACC_R + 3] -= n * m1 * m1
     for i in range(4):                                              # R = (1 - d) R + d mean(term)
-        s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * s[ST.ACC_R + i] / n
+        s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * unbias * s[ST.ACC_R + i] / n
     if j == 0.0 and s[ST.EDGE_STATS] > 2.0:
         # the first estimate of the edge-angle variance comes from the edges themselves (below),
         # not from innovations of a filter that ran on R0 = 0 and so followed every edge: those
@@ -263,8 +277,14 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         s[ST.R + 2] = 0.0
     if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
         guards[GUARD_R_PD] += 1
+    # an exactly repeated current would drive its variance to the eigenvalue floor, and the
+    # smallest drift of the current estimate would then be gated as an outlier; no measurement
+    # is finer than its quantisation (raising a diagonal keeps R positive definite)
+    s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
     for i in range(4):
         s[ST.ACC_R + i] = 0.0
+    s[ST.ACC_R_MEAN] = 0.0
+    s[ST.ACC_R_MEAN + 1] = 0.0
     s[ST.N_ACC_R] = 0.0
     s[ST.K_INTERVAL_R] = j + 1.0
 
@@ -330,9 +350,14 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
     k = s[ST.K_STEP]
     warm = k < fp[FP.WARMUP]
+    mask = int(fp[FP.ADAPTIVE])
+    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
+    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
+    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
+    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
     gated = False
     faded = False
-    if fp[FP.GATE_STATE] != 0.0 and not warm and nis > fp[FP.GATE]:
+    if fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]:
         # signed run length of gated innovations of one sign: a wrong state pushes every edge
         # the same way, a burst of edge noise scatters both ways
         run = s[ST.GATED_RUN]
@@ -393,7 +418,6 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         s[ST.P + i] = p_new[i]
     s[ST.LAST_NIS] = nis
     s[ST.K_STEP] = k + 1.0
-    mask = int(fp[FP.ADAPTIVE])
     if mask == 0:
         return nis
     if mask & ADAPT_Q_WHITE and not warm:

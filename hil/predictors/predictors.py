@@ -40,6 +40,9 @@ class FilterSettings:
     huber_c: float = F.HUBER_C_95
     q_band_factor: float = 100.0
     eig_floor: float = 1e-9
+    #: resolution of the current measurement (the edge messages carry mA): R's current variance
+    #: never goes below its quantisation variance, resolution^2 / 12
+    current_resolution_a: float = 1e-3
     #: consecutive innovations beyond the gate, all of one sign, taken as divergence (P faded);
     #: 0 = never. 3 = ``filters.divergence_run_for(chi2_gate, 2400 edges/s)``: a chance trigger
     #: of consistent Gaussian innovations is rarer than once per 1000 s at 12,000 rpm, 2 pole pairs
@@ -62,6 +65,8 @@ class FilterSettings:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if self.divergence_run < 0:
             raise ValueError(f"divergence_run must be >= 0 (0 = off), got {self.divergence_run!r}")
+        if not self.current_resolution_a >= 0:
+            raise ValueError(f"current_resolution_a must be >= 0, got {self.current_resolution_a!r}")
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
 
@@ -83,6 +88,7 @@ class FilterSettings:
         fp[F.FP.HUBER_C] = self.huber_c
         fp[F.FP.HUBER_KAPPA] = F.huber_kappa(self.huber_c)
         fp[F.FP.GATE_STATE] = 1.0 if self.gate_state_update else 0.0
+        fp[F.FP.R_I_FLOOR] = self.current_resolution_a ** 2 / 12.0
         return fp
 
 
