@@ -99,10 +99,12 @@ class VirtualController:
     strategy: Strategy = Strategy.SAGE_HUSA
     speed_setpoint_rpm: float = 5000.0
     corrections: Corrections | None = None
-    #: Sage-Husa settings (paper initial values; nominal Q0, b and band as tuned in docs/sage-husa.md)
-    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), adapt_mask=3, forgetting_b=0.995, q_band_factor=10.0))
-    #: the fixed-noise Kalman strategy's Q and R (the tuned baseline of docs/sage-husa.md)
-    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), r0_diag=(1e-3, 1.0)))
+    #: Sage-Husa settings: the paper's initial R0, P0, q0, r0; nominal Q0, b and b_R as tuned by
+    #: the ``tuned`` protocol of docs/sage-husa.md (rounded)
+    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(
+        q0_diag=(1e-5, 1e-9, 1e-3), adapt_mask=3, forgetting_b=0.98, r_forgetting_b=0.89, r_interval=30, q_band_factor=100.0))
+    #: the fixed-noise Kalman strategy's Q and R (the ``tuned`` protocol's KF, rounded)
+    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(4.6e-6, 1e-9, 1.2e-5), r0_diag=(1.5e-5, 1.0)))
     model: MotorModel | None = None
     current_limit_a: float = 15.0
     #: the pump turns one way: a Hall step against it means edges were lost

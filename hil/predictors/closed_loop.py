@@ -64,9 +64,12 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     link.reset()
     # the settings are written every time (a controller keeps the last ones written); the offline
     # filter gets them as the link carries them, in IEEE single precision
+    # the link carries b, Q0, R0 and P0; the rest of the filter's design is the controller's own
+    # (the virtual controller's, which this replay assumes)
     settings = filter_settings or VirtualController(config.motor).filter_settings
     link.set_filter_settings(settings)
-    settings = with_filter_vector(settings, [float(np.float32(v)) for v in filter_vector(settings)])
+    settings = with_filter_vector(VirtualController(config.motor).filter_settings,
+                                  [float(np.float32(v)) for v in filter_vector(settings)])
     link.download_calibration(corrections)
     link.set_strategy(int(Strategy.SAGE_HUSA))
     first = SETPOINTS_RPM[0]
