@@ -51,6 +51,7 @@ STATE_TABLE = (
     ("EDGE_STATS", 3, "warm-up edge-noise analysis: n, sum, sum of squares"),
     ("PREV_INNOV", 1, "last angle innovation (whiteness option)"),
     ("ACC_WHITE", 2, "whiteness option: sum of lag-1 products, sum of squares"),
+    ("COEF", 2, "Eq. 8 coefficients at the present speed estimate (the next step's, too)"),
 )
 #: the parameter vector, in order: (name, meaning)
 PARAM_TABLE = (
@@ -510,18 +511,18 @@ def predict_next_s(s, accel_per_amp, decel_load):
 
 
 @njit(cache=True)
-def coefficients(w_e, fp, speed_tab, kt_tab, m_tab):
+def coefficients(w_e, fp, tables):
     """Eq. 8 in electrical speed at w_e: (p K_T(n) / J, p M(n) w_m^2 / J), K_T and M interpolated
-    in the identified tables (clamped at their ends)."""
+    in the identified tables (rows: speed rpm, K_T, M; clamped at their ends)."""
     pp = fp[FP.POLE_PAIRS]
     n_rpm = w_e / pp * 60.0 / (2.0 * math.pi)
     w_m = w_e / pp
-    return (pp * np.interp(n_rpm, speed_tab, kt_tab) / fp[FP.J],
-            pp * np.interp(n_rpm, speed_tab, m_tab) * w_m * w_m / fp[FP.J])
+    return (pp * np.interp(n_rpm, tables[0], tables[1]) / fp[FP.J],
+            pp * np.interp(n_rpm, tables[0], tables[2]) * w_m * w_m / fp[FP.J])
 
 
 @njit(cache=True)
-def edge(s, fp, guards, dt, current, speed_tab, kt_tab, m_tab, wk):
+def edge(s, fp, guards, dt, current, tables, wk):
     """One corrected edge that ended a cycle of ``dt`` seconds with mean |i| ``current``: the
     whole online update (Eq. 8 coefficients, step, Eq. 7 prediction) in one compiled call.
     Returns the time from this edge to the predicted next commutation."""
@@ -532,19 +533,21 @@ def edge(s, fp, guards, dt, current, speed_tab, kt_tab, m_tab, wk):
         s[ST.X + 2] = current
         s[ST.INITIALISED] = 1.0
     else:
-        a, dl = coefficients(s[ST.X], fp, speed_tab, kt_tab, m_tab)
-        step(s, fp, guards, math.pi / 3.0, current, dt, a, dl, wk)
-    a, dl = coefficients(s[ST.X], fp, speed_tab, kt_tab, m_tab)
+        # the coefficients at the previous estimate: computed for the last prediction already
+        step(s, fp, guards, math.pi / 3.0, current, dt, s[ST.COEF], s[ST.COEF + 1], wk)
+    a, dl = coefficients(s[ST.X], fp, tables)
+    s[ST.COEF] = a
+    s[ST.COEF + 1] = dl
     return predict_next_s(s, a, dl)
 
 
 @njit(cache=True)
-def run_batch(s, fp, guards, t_edges, current, speed_tab, kt_tab, m_tab, out_pred_t, out_w):
+def run_batch(s, fp, guards, t_edges, current, tables, out_pred_t, out_w):
     """Filter a whole sequence of corrected edge times; out_pred_t[k] predicts edge k + 1."""
     wk = np.empty(N_WORK)
     n = t_edges.size
     for k in range(1, n):
-        tau = edge(s, fp, guards, t_edges[k] - t_edges[k - 1], current[k], speed_tab, kt_tab, m_tab, wk)
+        tau = edge(s, fp, guards, t_edges[k] - t_edges[k - 1], current[k], tables, wk)
         out_pred_t[k] = t_edges[k] + tau
         out_w[k] = s[ST.X]
     return n - 1

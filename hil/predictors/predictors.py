@@ -123,6 +123,8 @@ class _KalmanCore:
         settings.check()
         self.model, self.settings = model, settings
         self.speed_tab, self.kt_tab, self.m_tab = model.arrays()
+        #: rows speed (rpm), K_T, M: one array, one argument of the compiled call
+        self.tables = np.ascontiguousarray(np.vstack((self.speed_tab, self.kt_tab, self.m_tab)), dtype=float)
         self.fp = settings.params(self.adaptive, model.pole_pairs, model.inertia_kg_m2)
         self.reset()
 
@@ -179,8 +181,7 @@ class _KalmanCore:
         if not t_corrected_s > last:
             self._last_t = last
             raise ValueError(f"edge times must increase: {t_corrected_s!r} after {last!r}")
-        return t_corrected_s + F.edge(self.state, self.fp, self.guard_counts, t_corrected_s - last, mean_current_a,
-                                      self.speed_tab, self.kt_tab, self.m_tab, self._work)
+        return t_corrected_s + F.edge(self.state, self.fp, self.guard_counts, t_corrected_s - last, mean_current_a, self.tables, self._work)
 
     def run(self, t_corrected_s: np.ndarray, mean_current_a: np.ndarray) -> PredictionRun:
         t = np.ascontiguousarray(t_corrected_s, dtype=float)
@@ -193,7 +194,7 @@ class _KalmanCore:
         self.reset()
         pred = np.full(t.size, np.nan)
         w = np.full(t.size, np.nan)
-        F.run_batch(self.state, self.fp, self.guard_counts, t, cur, self.speed_tab, self.kt_tab, self.m_tab, pred, w)
+        F.run_batch(self.state, self.fp, self.guard_counts, t, cur, self.tables, pred, w)
         return PredictionRun(pred, w, self.guards)
 
 
