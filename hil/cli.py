@@ -105,9 +105,11 @@ def cmd_table5(args) -> int:
     from .predictors.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
 
     result = run_protocol(args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS))
+    import textwrap
+
     print(f"protocol {result.protocol}:")
-    for line in result.statement:
-        print(f"  {line}")
+    for line in result.statement:  # the whole output fits 100 columns
+        print(textwrap.fill(line, 100, initial_indent="  ", subsequent_indent="    "))
     print(result.format())
     if args.json:
         _write_json(args.json, result.to_json())

@@ -45,8 +45,9 @@ class ClosedLoopResult:
                                  "covariance_repairs": r.covariance_repairs} for name, r in self.links.items()}}
 
     def format(self) -> str:
-        lines = [f"{'link':<12}{'commutations':>13}{'closed loop':>12}{'offline':>9}{'ratio':>7}"
-                 f"{'gated':>7}{'repairs':>8}{'fades':>7}{'band':>7}  (angle RMS deg e)"]
+        lines = ["commutation angle RMS (deg e) through the controller and in the offline replay; filter counters",
+                 f"{'link':<12}{'commutations':>13}{'closed loop':>12}{'offline':>9}{'ratio':>7}"
+                 f"{'gated':>7}{'repairs':>8}{'fades':>7}{'band':>7}"]
         for name, r in self.links.items():
             c = r.counters
             lines.append(f"{name:<12}{r.commutations:>13}{r.sage_husa_angle_rms_deg_e:>12.4f}{r.offline_angle_rms_deg_e:>9.4f}"
