@@ -127,15 +127,17 @@ def _draw(st, ist, noise, slot, rms, rho):
 
 
 @njit(cache=True)
-def set_targets(p, st, ist, sensor_off, pole_off, noise, x):
-    """Base switching angles of sensor x around its current region (installation, pole, jitter)."""
+def set_targets(p, st, ist, switch_off, noise, x):
+    """Base switching angles of sensor x around its current region, from the switching-angle
+    table ``switch_off[sensor, pole, 0 forward / 1 reverse]`` (installation and pole offsets and
+    the field-level sensor model, CompiledPlant.switch_table_deg_e), plus angle jitter."""
     m = ist[I_RAW_REGION + x]
-    n_poles = pole_off.size
+    n_poles = switch_off.shape[1]
     kf = m + 1
     km = m
-    base = SENSOR_POS[x] + sensor_off[x]
-    st[S_FWD_TARGET + x] = 180.0 * kf + base + pole_off[kf % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
-    st[S_REV_TARGET + x] = 180.0 * km + base + pole_off[km % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    base = SENSOR_POS[x]
+    st[S_FWD_TARGET + x] = 180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    st[S_REV_TARGET + x] = 180.0 * km + base + switch_off[x, km % n_poles, 1] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
 
 
 @njit(cache=True)
@@ -288,10 +290,10 @@ def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
 
 
 @njit(cache=True)
-def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
+def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
     pp = p[P_POLE_PAIRS]
-    n_poles = pole_off.size
+    n_poles = switch_off.shape[1]
     h_max = p[P_HMAX]
     backup = np.empty(N_FSTATE)
     ibackup = np.empty(N_ISTATE, dtype=np.int64)
@@ -532,6 +534,6 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             r[E_CURRENT] = i_end
             r[E_POLE] = k % n_poles
             ist[I_N_PENDING] = q + 1
-            set_targets(p, st, ist, sensor_off, pole_off, noise, x)
+            set_targets(p, st, ist, switch_off, noise, x)
         if ist[I_NOISE] > noise.size - 64:
             return STOP_NOISE

@@ -148,5 +148,6 @@ def model_prediction(config, rec: Recording) -> np.ndarray:
     w = segment_speed_deg_e_s(rec)[rec.segment]
     current = edge_currents_a(rec)
     delay = np.where(rec.rising, cp.rise_delay_s, cp.fall_delay_s)
-    return (direction * (cp.sensor_offset_deg_e[rec.sensor] + cp.pole_offset_deg_e[pole]) + cp.hysteresis_deg_e
+    offsets = cp.switch_table_deg_e()[rec.sensor, pole, np.where(direction > 0, 0, 1)]
+    return (direction * offsets + cp.hysteresis_deg_e
             + cp.armature_offset_deg_e(current) + w * delay)
