@@ -52,6 +52,8 @@ JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc
 RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
 BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
 #: the residual in which each sampled-signal effect shows
+#: nuisance of the voltage residual without an encoder: the Hall reference's common angle offset
+REFERENCE = "hall_reference_offset"
 EFFECT_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
 SAMPLE_EFFECTS = tuple(EFFECT_DOMAIN)
 NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
@@ -187,7 +189,11 @@ def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_bef
     return ~bad
 
 
-def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray,
+                      hall_reference: bool = False) -> SampleResiduals | None:
+    """The voltage equation's residual. ``hall_reference``: the angle comes from the Hall edges
+    (no encoder), whose common offset no edge can show; its back-EMF signature (de/dtheta per
+    deg_e) is then a nuisance column every fit carries (``REFERENCE``)."""
     s = rec.samples
     if not all(c in s for c in ("i_a", "i_b", "i_c", "u_a", "u_b", "u_c")):
         return None
@@ -200,7 +206,10 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
     ok = (seg[1:] == seg[:-1]) & np.isfinite(th_e[1:]) & np.isfinite(th_e[:-1])
     ok &= _steady_intervals(u, seg, motor.supply_v)
     h = np.diff(t)
-    rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "i0x", "i1x", "i0y", "i1y", "h")}
+    f_d = np.column_stack([trapezoid(th_e - z + 0.5, motor.flat_top_deg_e) - trapezoid(th_e - z - 0.5, motor.flat_top_deg_e)
+                           for z in BEMF_ZERO_DEG_E])
+    e_d = motor.ke_v_s_per_rad * w[:, None] * f_d  # V per deg_e of angle error
+    rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "ed", "i0x", "i1x", "i0y", "i1y", "h")}
     avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
     mid = avg(th_e)
     # electrical periods counted from each segment's lowest angle (either direction)
@@ -216,6 +225,7 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
         rows["replicate"].append(np.floor(rel[ok] / 360.0).astype(np.int64))
         rows["i"].append(avg(ixy)[ok])
         rows["e"].append(avg(exy)[ok])
+        rows["ed"].append(avg(e_d[:, x] - e_d[:, yy])[ok])
         rows["i0x"].append(i[:-1, x][ok])
         rows["i1x"].append(i[1:, x][ok])
         rows["i0y"].append(i[:-1, yy][ok])
@@ -226,6 +236,8 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
         return None
     regs = {"winding_temperature": r["i"], "magnet_temperature": r["e"],
             "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]])}
+    if hall_reference:
+        regs[REFERENCE] = r["ed"]
     return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
 
 
@@ -391,6 +403,9 @@ def _cogging_columns(motor: NominalMotor):
 def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
     r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
     return {
+        REFERENCE: SampleCandidate(
+            REFERENCE, "voltage", lambda r, cells, _: cells.average(r.regressors[REFERENCE])[:, None],
+            lambda c, _, m: {"offset_deg_e": float(c[0])}, lambda c, se, m: True),
         "winding_temperature": SampleCandidate(
             "winding_temperature", EFFECT_DOMAIN["winding_temperature"], _winding_columns,
             lambda c, _, m: {"temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)), "alpha_per_k": ALPHA_CU_PER_K,
@@ -512,16 +527,17 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
         return None
     if "_integration_error" in r.regressors:
         cells.var = cells.var + cells.average(r.regressors["_integration_error"]) ** 2
-    names = [n for n, c in cands.items() if c.domain == r.domain]
-    p0 = cells.significance(cells.mean)
-    chi2_0 = cells.chi2(cells.mean)
+    names = [n for n, c in cands.items() if c.domain == r.domain and n != REFERENCE]
+    # without an encoder every fit carries the Hall reference's unknown common angle offset
+    accepted: list[str] = [REFERENCE] if REFERENCE in r.regressors else []
+    shapes: list = [None] * len(accepted)
+    current = _fit(r, cells, cands, accepted, shapes)
+    p0 = cells.significance(current.resid, len(accepted))
+    chi2_0 = current.chi2
     n_cells = cells.mean.size
     significant = p0 < ALPHA
-    accepted: list[str] = []
-    shapes: list = []
     firsts: dict[str, float] = {n: 0.0 for n in names}
     chi2_now = chi2_0
-    current = _fit(r, cells, cands, [], [])
     while significant:
         best = None
         for name in names:
@@ -551,6 +567,8 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     # (its pattern is explained, not unexplained) but is reported apart, not accepted
     accepted_rows, below = [], []
     for n, s in zip(accepted, shapes):
+        if n == REFERENCE:
+            continue
         coef, _ = _own(current, cands, n)
         row = {"effect": n, "params": cands[n].params(coef, s, motor)}
         if env is not None:
@@ -564,7 +582,7 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     kept_shapes = [s for n, s in zip(accepted, shapes) if n in kept]
     gap_before = cell_rms(cells.mean, cells.n)
     shrink, after, interval, note = _heldout(r, cells, cands, kept, kept_shapes)
-    if below and not kept:
+    if below and not [n for n in kept if n != REFERENCE]:
         note = "every detected effect is below practical relevance"
     return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
                            _localise(r, cells, segment_ids), chi2_0 - n_cells,
@@ -588,7 +606,7 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
     segs = np.unique(cells.segment)
     if segs.size < 2:
         return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
-    if not accepted:
+    if not [n for n in accepted if n != REFERENCE]:
         return 0.0, None, None, "no effect accepted"
     pred_resid = np.full(cells.mean.size, np.nan)
     for s in segs:
@@ -658,7 +676,8 @@ def diagnose_samples(rec: Recording, model=None, edge_error_deg_e: np.ndarray | 
     cands = sample_candidates(motor)
     env = envelope(rec, motor)
     out = {}
-    for r in (voltage_residuals(rec, motor, th_e, w), speed_residuals(rec, motor, th_e, th_m, w)):
+    hall = rec.ref_angle_mech_deg is None
+    for r in (voltage_residuals(rec, motor, th_e, w, hall_reference=hall), speed_residuals(rec, motor, th_e, th_m, w)):
         if r is not None:
             d = diagnose_domain(r, cands, motor, rec.segment_ids, env)
             if d is not None:
