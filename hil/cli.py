@@ -231,6 +231,10 @@ def effects_markdown() -> str:
         lines += ["| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
         for row in describe(cls):
             lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
+        for part, kind in getattr(cls, "parts", {}).items():  # nested tables (hall_field)
+            lines += ["", f"Table `{part}` ({kind.__name__}):", "", "| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
+            for row in describe(kind):
+                lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
         lines.append("")
     return "\n".join(lines)
 

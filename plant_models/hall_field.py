@@ -107,6 +107,9 @@ class HallField(Effect):
     the rotor field crosses; the output's pull-up, RC filter and MCU thresholds delay the
     captured edge. Defaults are an ideal ring, ideal sensors, no stator field and no output
     filter: the ideal edges.
+    Parameters: ``temperature_rise_k`` and four sub-tables, ``ring``, ``sensors``, ``stator`` and
+    ``output`` (the open-collector circuit; absent = no filter), e.g. in TOML
+    ``ring = { eccentricity_mm = 0.05 }``.
     Fingerprint: whatever the mechanism makes; docs/gap.md maps each cause to the library effect
     that explains it.
     """
@@ -118,6 +121,9 @@ class HallField(Effect):
         "scales_with": "geometry, temperature and phase current",
         "knob": "-",
     }
+    #: nested parameter tables (TOML sub-tables of the effect)
+    parts: ClassVar[Mapping[str, type]] = {"ring": MagnetRing, "sensors": HallSwitches, "stator": StatorCoupling,
+                                           "output": ConditioningCircuit}
     ring: MagnetRing = field(default_factory=MagnetRing)
     sensors: HallSwitches = field(default_factory=HallSwitches)
     stator: StatorCoupling = field(default_factory=StatorCoupling)

@@ -78,7 +78,7 @@ def test_winding_and_magnet_temperature_are_confounded_when_current_follows_spee
     d = diagnose(record_electrical(config, ops, seed=1, voltage_noise_v=0.005), KNOWN_MODEL)
     assert [a["effect"] for a in d.accepted] == ["winding_temperature"]
     assert ["magnet_temperature", "winding_temperature"] in d.confounded
-    assert "load at a fixed speed" in d.knobs["magnet_temperature/winding_temperature"]
+    assert "two loads at one speed" in d.knobs["magnet_temperature/winding_temperature"]
     rec, _ = make_case(["winding_temperature"], snr=4.0, seed=202)  # with a load change at 2000/5000/8000 rpm
     assert diagnose(rec, KNOWN_MODEL).confounded == []
 
@@ -416,3 +416,18 @@ def test_gap_html_has_no_horizontal_overflow_at_1400_px(tmp_path):
                           (tmp_path / "probe.html").as_uri()], capture_output=True, text=True, timeout=120)
     overflow = int(__import__("re").search(r'data-overflow="(-?\d+)"', out.stdout).group(1))
     assert overflow <= 0, f"page is {overflow} px wider than the 1400 px window"
+
+
+def test_progress_moves_smoothly_on_a_file():
+    import io
+
+    from hil.gap.progress import Progress
+
+    out = io.StringIO()
+    progress = Progress("recordings diagnosed", stream=out)
+    for i in range(1, 101):
+        progress(i, 100)
+    progress.close()
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 11 and lines[-1].startswith("  100/100 recordings diagnosed (100%)")  # one line per 10 %
+    assert "left" in lines[5]
