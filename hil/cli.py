@@ -130,9 +130,14 @@ def cmd_gap_diagnose(args) -> int:
         print(f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
               f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}")
     for i, r in enumerate(d.ranking[:5], 1):
-        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{'   accepted' if any(a['effect'] == r['effect'] for a in d.accepted) else ''}")
+        verdict = "   accepted" if any(a["effect"] == r["effect"] for a in d.accepted) else ("   below relevance" if r.get("below_relevance") else "")
+        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{verdict}")
     for a in d.accepted:
         print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
+    for b in d.below_relevance:
+        rel = b.get("relevance", {})
+        print(f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor {rel.get('floor', float('nan')):.3g} "
+              f"{rel.get('unit', '')}: {rel.get('meaning', '')})")
     for pair in d.confounded:
         print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
     print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")

@@ -242,7 +242,59 @@ def _select(cells: Cells, candidates: list[str]) -> Selection:
         chi2_now, pred_now = best["chi2"], best["pred"]
         if stats.chi2.sf(chi2_now, max(n_cells - _remove_collinear(_design(fitted, cells)).shape[1], 1)) > ALPHA:
             break
+    chi2_now = _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now)
     return Selection(fitted, below, relevance, first, ties, chi2_0, chi2_now)
+
+
+def _rank(names: list[str], cells: Cells) -> int:
+    return _remove_collinear(_design(names, cells)).shape[1]
+
+
+def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now) -> float:
+    """After forward selection: replace a kept effect by a rival with fewer parameters when the
+    whole set then explains the same within noise. Forward selection can take the bigger model
+    first when it also soaks up part of another cause (a per-pole pattern absorbs the rising /
+    falling split of a delay at one speed, because rising and falling edges alternate with the
+    poles), and the smaller one never earns its place once the bigger is in. Edits ``fitted``,
+    ``below``, ``relevance`` and ``ties``; returns the new remainder chi-square."""
+    w, y = cells.weight, cells.mean
+    swapped = True
+    while swapped:
+        swapped = False
+        k_full = _rank(fitted, cells)
+        for i, a in enumerate(list(fitted)):
+            for b in candidates:
+                if b in fitted:
+                    continue
+                alt = fitted[:i] + [b] + fitted[i + 1:]
+                k_alt = _rank(alt, cells)
+                if k_alt >= k_full:
+                    continue
+                x_alt = _design(alt, cells)
+                coef, se, chi2_alt = _wls(x_alt, y, w)
+                col = sum(CANDIDATES[n].columns(cells.features).shape[1] for n in alt[:i])
+                k_b = CANDIDATES[b].columns(cells.features).shape[1]
+                if not CANDIDATES[b].physical(coef[col:col + k_b], se[col:col + k_b]):
+                    continue
+                if not equal_within_noise(chi2_0 - chi2_now, k_full, chi2_0 - chi2_alt, k_alt):
+                    continue
+                # what b adds to the set without it: its practical relevance
+                rest = alt[:i] + alt[i + 1:]
+                pred_rest = _design(rest, cells) @ _wls(_design(rest, cells), y, w)[0] if rest else np.zeros_like(y)
+                rel = edge_relevance(x_alt @ coef - pred_rest, cells.n)
+                fitted[i] = b
+                below.pop(a, None)
+                relevance.pop(a, None)
+                relevance[b] = rel.to_json()
+                if not rel.relevant:
+                    below[b] = rel.to_json()
+                ties.append([b, a])
+                chi2_now = chi2_alt
+                swapped = True
+                break
+            if swapped:
+                break
+    return chi2_now
 
 
 def _n_params(name: str, cells: Cells) -> int:
