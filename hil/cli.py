@@ -363,7 +363,7 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--html")
     q.set_defaults(func=cmd_gap_diagnose)
     q = gs.add_parser("validate", help="inject, withhold, diagnose, score")
-    q.add_argument("--per-effect", type=int, default=60)
+    q.add_argument("--per-effect", type=int, default=60, help="draws per effect (per physical cause with --generator field)")
     q.add_argument("--null", type=int, default=100)
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
