@@ -256,8 +256,12 @@ def cmd_effects(args) -> int:
 
 
 def find_suite(path: str | None) -> Path:
-    """The acceptance suite: the given directory, ./test_cases, or the one beside this package."""
-    candidates = [Path(path)] if path else [Path("test_cases"), Path(__file__).resolve().parent.parent / "test_cases"]
+    """The acceptance suite: the given directory or test file, ./test_cases, or the one beside this package."""
+    if path:
+        if not Path(path).exists():
+            raise ValueError(f"--suite {path}: no such directory or file")
+        return Path(path)
+    candidates = [Path("test_cases"), Path(__file__).resolve().parent.parent / "test_cases"]
     for c in candidates:
         if (c / "conftest.py").is_file():
             return c
@@ -266,6 +270,8 @@ def find_suite(path: str | None) -> Path:
 
 def cmd_acceptance(args) -> int:
     import pytest
+
+    from .report import ReportWriter
 
     suite = find_suite(args.suite)
     argv = [str(suite), "-p", "no:cacheprovider", "-q", f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}",
@@ -278,7 +284,28 @@ def cmd_acceptance(args) -> int:
         argv.append(f"--hil-budgets={args.budgets}")
     if args.workers:
         argv += ["-n", args.workers]
-    return int(pytest.main(argv + list(args.pytest_args)))
+    extra = list(args.pytest_args)
+    if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
+        extra = extra[1:]
+    ReportWriter.clear(Path(args.report_dir))  # pytest may refuse the arguments before the plugin can
+    status = int(pytest.main(argv + extra))
+    return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
+
+
+def acceptance_exit(pytest_status: int, report_json: Path) -> int:
+    """The exit status of ``hil acceptance``: 0 only for a PASS verdict. pytest's own status is kept
+    when it says more (interrupted 2, internal error 3, usage error 4, no tests collected 5, failed
+    tests 1); a run whose only failures are waived exits 0; any other non-PASS verdict exits 1."""
+    try:
+        content = json.loads(report_json.read_text())
+    except (OSError, ValueError):
+        print(f"hil acceptance: no report at {report_json} (pytest exit status {pytest_status})", file=sys.stderr)
+        return pytest_status or 1
+    verdict = content.get("verdict")
+    print(f"hil acceptance: {verdict}" + "".join(f"\n  {r}" for r in content.get("verdict_reasons", [])))
+    if verdict == "PASS" and pytest_status in (0, 1):
+        return 0
+    return pytest_status or 1
 
 
 def cmd_replay(args) -> int:
@@ -393,7 +420,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)")
     p.add_argument("-n", "--workers", help="pytest-xdist workers (e.g. auto); each worker opens its own controller")
-    p.add_argument("--suite", help="the acceptance suite directory (default: ./test_cases)")
+    p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
 
