@@ -76,8 +76,10 @@ def _unit_cause(name: str, rng: np.random.Generator, pole_pairs: int) -> tuple[H
             return HallField(sensors=HallSwitches(operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=THRESHOLD_TC_PER_K),
                              temperature_rise_k=dt)
     elif name == "stator_field":
+        sign = float(rng.choice([-1.0, 1.0]))  # a sensor on the phase axis's far side sees the field reversed: it leads
+
         def make(s):
-            return HallField(stator=StatorCoupling(float(np.clip(1.0 * s, 0.0, 20.0))))
+            return HallField(stator=StatorCoupling(float(np.clip(sign * s, -20.0, 20.0))))
     elif name == "output_filter":
         r2 = float(rng.uniform(2.2e3, 10e3))
         ratio = float(rng.uniform(0.3, 1.0))
