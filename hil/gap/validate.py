@@ -342,12 +342,25 @@ class ValidationReport:
         }
 
 
+GENERATORS = ("library", "field")
+
+
 def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_library: int = 24, seed: int = 0, progress=None,
-                   jobs: int = 1, scheduler: str | None = None, bar: bool = False) -> ValidationReport:
+                   jobs: int = 1, generator: str = "library", scheduler: str | None = None, bar: bool = False) -> ValidationReport:
     """Draw the cases (all randomness from ``seed``), diagnose each: in this process (``jobs`` 1),
     on a local Dask cluster of ``jobs`` workers, or on the Dask ``scheduler`` at an address
-    (hil.campaign.scheduler); ``bar`` draws the progress bar."""
+    (hil.campaign.scheduler); ``bar`` draws the progress bar.
+
+    ``generator``: "library" withholds the library's effects (kinematic and electrical plant);
+    "field" withholds physical causes of the field-level Hall model (hil.gap.field_causes),
+    ``per_effect`` cases per cause (there is no out-of-library set)."""
+    if generator not in GENERATORS:
+        raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
     rng = np.random.default_rng(seed)
+    if generator == "field":
+        from .field_causes import plan_field_cases, run_field_case
+
+        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler, bar)
     plan = []
     for name in EFFECT_NAMES:
         plan += [("single", [name], None)] * per_effect
@@ -360,6 +373,11 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
     # dead time leaves no trace in the format's signals: withheld, it must not raise a gap
     plan += [("no_trace", ["dead_time"], None)] * max(null // 4, 1)
     cases = [(i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31))) for i, (kind, names, ool) in enumerate(plan)]
+    return _run(cases, _run_case, progress, jobs, scheduler, bar)
+
+
+def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar: bool) -> ValidationReport:
+    """Diagnose every case (see run_validation for where), kept in plan order, reporting each as it ends."""
     report = ValidationReport()
     # one task per case, results kept in case order: the report is the same on any scheduler
     from hil.campaign.scheduler import TaskError, dispatch
@@ -368,14 +386,13 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
 
     def on_result(i: int, case) -> None:
         if isinstance(case, TaskError):  # kept out of the rates, reported with its traceback
-            report.errors.append({"index": i, "kind": cases[i][1], "truth": cases[i][2] or [cases[i][3]], "seed": cases[i][5],
-                                  "message": case.message, "traceback": case.traceback})
+            report.errors.append({"index": i, "case": list(cases[i]), "message": case.message, "traceback": case.traceback})
         else:
             results[i] = case
         if progress:
             progress(len(results) + len(report.errors), len(cases))
 
-    report.dispatch = dispatch(_run_case, cases, on_result, scheduler=scheduler or ("serial" if jobs <= 1 else "local"), workers=jobs,
+    report.dispatch = dispatch(run_case, cases, on_result, scheduler=scheduler or ("serial" if jobs <= 1 else "local"), workers=jobs,
                                label="recordings", progress=bar).as_dict()
     report.cases = [results[i] for i in sorted(results)]
     report.errors.sort(key=lambda e: e["index"])
