@@ -239,11 +239,13 @@ def find_suite(path: str | None) -> Path:
 
 
 def cmd_acceptance(args) -> int:
-    import pytest
+    import subprocess
 
     suite = find_suite(args.suite)
-    argv = [str(suite), "-p", "no:cacheprovider", "-q", f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}",
-            f"--hypothesis-seed={args.seed}", "-o", "faulthandler_timeout=600"]
+    # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
+    argv = [str(suite), "-p", "no:cacheprovider", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
+            f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}", f"--hypothesis-seed={args.seed}",
+            "-o", "faulthandler_timeout=600"]
     for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
         argv.append(f"--hil-dut={dut}")
     if args.plant:
@@ -252,7 +254,15 @@ def cmd_acceptance(args) -> int:
         argv.append(f"--hil-budgets={args.budgets}")
     if args.workers:
         argv += ["-n", args.workers]
-    return int(pytest.main(argv + list(args.pytest_args)))
+    extra = list(args.pytest_args)
+    if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER
+        extra = extra[1:]
+    # pytest runs in a fresh interpreter: here hil and plant_models are imported already, and
+    # pytest would warn that it cannot rewrite the asserts of its plugin's packages
+    try:
+        return subprocess.run([sys.executable, "-m", "pytest", *argv, *extra]).returncode
+    except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
+        return 130
 
 
 def cmd_replay(args) -> int:

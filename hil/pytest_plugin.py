@@ -267,11 +267,20 @@ class Evidence:
         """Save a matplotlib figure as PNG (embedded in the HTML report) and attach it."""
         from .plots import save
 
-        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{self._node.nodeid}-{name}")[-150:]
-        path = save(fig, self._figure_dir / f"{slug}.png", dpi=90)
+        path = save(fig, self._figure_dir / figure_file_name(self._node.nodeid, name), dpi=90)
         rel = path.relative_to(self._report_dir).as_posix() if self._report_dir else str(path)
         self._add({"kind": "figure", "name": name, "path": rel})
         return path
+
+
+def figure_file_name(nodeid: str, name: str) -> str:
+    """A figure's file name that reads from its start (test function, parameters, figure name;
+    shortened at the end, never at the front) and is unique (a hash of node id and name)."""
+    import hashlib
+
+    func = nodeid.rpartition("::")[2].removeprefix("test_")
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{func}-{name}").strip("_")[:96]
+    return f"{slug}-{hashlib.sha1(f'{nodeid}|{name}'.encode()).hexdigest()[:8]}.png"
 
 
 @pytest.fixture

@@ -26,23 +26,26 @@ def run_scenario(hil_bench, corrections, strategy, filter_settings=None):
     steps = bench.run_setpoints(list(SETPOINTS_RPM), hold_s=HOLD_S, settle_s=0.3)
     c = bench.sim.commutations()
     keep = c.t_s >= steps[0]
-    t, err = c.t_s[keep], c.error_deg_e[keep]
+    err = c.error_deg_e[keep]
     # commutation time error over the ideal commutation interval: (err / w) / (60 deg / w), at any speed
-    return bench, t, err, float(np.mean(np.abs(err) / 60.0) * 100)
+    return bench, (c.t_s, c.error_deg_e), steps[0], err, float(np.mean(np.abs(err) / 60.0) * 100)
 
 
 @pytest.mark.requirement("REQ-PRED-001", "REQ-PRED-002")
-def test_sage_husa_meets_its_budgets_and_beats_no_worse_than_kf(calibrate, hil_bench, hil_link, hil_budget, hil_evidence):
+def test_sage_husa_meets_its_budgets_and_beats_no_worse_than_kf(calibrate, hil_bench, hil_link, hil_budget, hil_budgets, hil_evidence):
     corrections = calibrate(SCENARIO_EFFECTS)
     rows, traces, status = [], {}, {}
     for strategy in (Strategy.SAGE_HUSA, Strategy.KF, Strategy.CORRECTED):
-        bench, t, err, mape = run_scenario(hil_bench, corrections, strategy)
+        bench, trace, judged_from_s, err, mape = run_scenario(hil_bench, corrections, strategy)
         rows.append([strategy.name, err.size, rms(err), p99_abs(err), float(np.max(np.abs(err))), mape])
-        traces[strategy.name] = (t, err)
+        traces[strategy.name] = trace
         status[strategy] = hil_link.status()
     hil_evidence.table("paper scenario: commutation error against the true rotor angle",
                        ["strategy", "commutations", "RMS deg e", "p99 deg e", "max deg e", "commutation time MAPE %"], rows)
-    hil_evidence.figure("commutation error through the seven set points", commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm"))
+    hil_evidence.figure("commutation error through the seven set points",
+                        commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm", judged_from_s=judged_from_s,
+                                                 budget_deg_e=hil_budgets["sage_husa_commutation_angle_p99"].limit,
+                                                 budget_label="Sage-Husa p99 budget"))
     sh, kf = rows[0], rows[1]
     hil_evidence.value("Sage-Husa guard trips", status[Strategy.SAGE_HUSA]["guard_trips"])
     hil_budget("sage_husa_commutation_angle_rms", sh[2])
