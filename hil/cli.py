@@ -112,11 +112,17 @@ def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
 
-    if Path(args.recording).is_dir():
+    path = Path(args.recording)
+    if path.is_dir():
         rec = read_recording(args.recording)
     else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        from .traces import TraceMapping, read_trace
+        from .traces import TRACE_SUFFIXES, TraceMapping, read_trace
 
+        if not path.exists():
+            raise ValueError(f"{path}: no such file or directory")
+        if path.suffix.lower() not in TRACE_SUFFIXES:
+            raise ValueError(f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
+                             f"{', '.join(TRACE_SUFFIXES)})")
         if not args.meta:
             raise ValueError(f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping MAP.toml")
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()

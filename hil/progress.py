@@ -12,6 +12,7 @@ the controlling process as the workers report; notes from workers are not shown.
 
 from __future__ import annotations
 
+import contextlib
 import time
 
 import pytest
@@ -51,10 +52,12 @@ class Progress:
         tr = self.terminal
         if tr is None:
             return
-        if self.running is not None:  # the first note of a test names it
-            tr.write_line(f"{self.count(self.done + 1)} running  {test_label(self.running)}")
-            self.running = None
-        tr.write_line(f"{'':>{len(self.count(0))}}   ... {text}", cyan=True)
+        capture = self.config.pluginmanager.get_plugin("capturemanager")
+        with capture.global_and_fixture_disabled() if capture else contextlib.nullcontext():  # a test's output is captured
+            if self.running is not None:  # the first note of a test names it
+                tr.write_line(f"{self.count(self.done + 1)} running  {test_label(self.running)}")
+                self.running = None
+            tr.write_line(f"{'':>{len(self.count(0))}}   ... {text}", cyan=True)
 
     def pytest_runtest_logstart(self, nodeid, location):
         self.running = nodeid

@@ -201,10 +201,14 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from plant_models.plant import steady_state
 
     from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
+    from .dut import Strategy
+    from .progress import note
 
     def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
              config=None):
         config = (config or hil_plant_config).with_effects(*effects)
+        note(f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from {speed_rpm:.0f} rpm"
+             f"{', calibration downloaded' if corrections is not None else ''}, effects: {', '.join(e.name for e in effects) or 'none'}")
         hil_link.reset()
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
