@@ -1,6 +1,7 @@
-"""Accuracy budgets: named limits with units, an optional marginal band, traced to requirement IDs.
+"""Accuracy budgets: named limits with units, an optional marginal bound, traced to requirement IDs;
+and waivers: explicit, owned acceptances of a requirement that is not met.
 
-A budgets TOML file holds one table per budget:
+A budgets TOML file holds one table per budget and any number of ``[[waiver]]`` entries:
 
     [commutation_angle_p99]
     requirement = "REQ-COMM-001"
@@ -10,12 +11,21 @@ A budgets TOML file holds one table per budget:
     kind = "max"           # or "min": the measured value must reach the limit
     description = "..."
 
-Checking a measurement gives a Verdict (measured, limit, margin, pass / marginal / fail);
-asserting it raises BudgetExceeded with a message a person understands.
+    [[waiver]]
+    requirement = "REQ-ROB-002"
+    reason = "why this is accepted"
+    owner = "name or role"
+    tests = ["test_fault_sequences"]   # optional: node-id substrings it is limited to
+    expires = "2027-06-30"             # optional: an expired waiver is refused
+
+The built-in defaults are ``default_budgets.toml`` beside this module. Checking a measurement
+gives a Verdict (measured, limit, margin, pass / marginal / fail); asserting it raises
+BudgetExceeded with a message a person understands.
 """
 
 from __future__ import annotations
 
+import datetime
 import math
 import tomllib
 from dataclasses import asdict, dataclass
@@ -63,39 +73,6 @@ class BudgetExceeded(AssertionError):
         super().__init__(verdict.message())
 
 
-#: defaults derived from the paper and the issues' acceptance bounds
-DEFAULTS = {
-    "commutation_angle_p99": Budget("commutation_angle_p99", "REQ-COMM-001", "deg_e", 0.5, marginal=0.4,
-                                    description="p99 commutation angle error after calibration (paper 4.3 scenario)"),
-    "installation_offset_error": Budget("installation_offset_error", "REQ-CAL-001", "deg_e", 0.05, marginal=0.04,
-                                        description="calibrated installation offsets against truth"),
-    "pole_offset_error": Budget("pole_offset_error", "REQ-CAL-002", "deg_e", 0.05, marginal=0.04,
-                                description="calibrated pole offsets against truth"),
-    "conditioning_delay_error": Budget("conditioning_delay_error", "REQ-CAL-003", "s", 0.5e-6, marginal=0.4e-6,
-                                       description="calibrated rise and fall delays against truth"),
-    "armature_slope_error": Budget("armature_slope_error", "REQ-CAL-004", "fraction", 0.05, marginal=0.04,
-                                   description="calibrated armature-reaction slope, relative error"),
-    "calibrated_fraction_removed": Budget("calibrated_fraction_removed", "REQ-CAL-005", "fraction", 0.90, kind="min", marginal=0.95,
-                                          description="share of the raw commutation angle RMS that the downloaded calibration removes"),
-    "any_deviations_commutation_angle_p99": Budget("any_deviations_commutation_angle_p99", "REQ-ROB-001", "deg_e", 1.0, marginal=0.5,
-                                                   description="p99 commutation angle error, corrected, for any drawn set of calibratable deviations (property search)"),
-    "recovered_commutation_angle_p99": Budget("recovered_commutation_angle_p99", "REQ-ROB-002", "deg_e", 1.0, marginal=0.8,
-                                              description="p99 commutation angle error in the 30 ms before the end of a 60 ms recovery window after a wiring fault"),
-    "sage_husa_commutation_angle_rms": Budget("sage_husa_commutation_angle_rms", "REQ-PRED-001", "deg_e", 1.0, marginal=0.8,
-                                              description="RMS commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"),
-    "sage_husa_commutation_angle_p99": Budget("sage_husa_commutation_angle_p99", "REQ-PRED-001", "deg_e", 2.5, marginal=2.0,
-                                              description="p99 commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"),
-    "sage_husa_over_kf_angle_rms": Budget("sage_husa_over_kf_angle_rms", "REQ-PRED-002", "ratio", 1.05, marginal=1.0,
-                                          description="Sage-Husa commutation angle RMS over the tuned Kalman filter's, same scenario (issue 4: no worse by more than 5 %)"),
-    "learned_edge_noise_ratio": Budget("learned_edge_noise_ratio", "REQ-PRED-003", "ratio", 0.25, kind="min", marginal=0.5,
-                                       description="edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects (a filter that adapts nothing stays at R0 = 0)"),
-    "heartbeat_period_error": Budget("heartbeat_period_error", "REQ-PROT-002", "fraction", 0.05, marginal=0.03,
-                                     description="mean heartbeat period against 0x1017 (CiA 301), relative"),
-    "commutation_time_mape": Budget("commutation_time_mape", "REQ-PRED-001", "percent", 1.0, marginal=0.9,
-                                    description="MAPE of the predicted commutation instant over the ideal interval (paper Table 5 scenario)"),
-}
-
-
 #: the requirement catalogue: what each ID means (budgets add their own descriptions)
 REQUIREMENTS = {
     "REQ-CAL-001": "Installation deviations of the Hall sensors are removed by the pre-calibration (paper Eq. 1-5)",
@@ -120,9 +97,95 @@ REQUIREMENTS = {
 }
 
 
+
+DEFAULTS_TOML = Path(__file__).with_name("default_budgets.toml")
+_BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description"}
+_WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
+
+
+@dataclass(frozen=True)
+class Waiver:
+    """An explicit acceptance of a requirement that is not met: the report shows it as WAIVED
+    with its reason and owner, never as pass."""
+
+    requirement: str
+    reason: str
+    owner: str
+    tests: tuple[str, ...] = ()            #: node-id substrings it is limited to (empty: every test of the requirement)
+    expires: datetime.date | None = None
+    source: str = ""                       #: where it was declared ("file: [[waiver]][i]")
+
+    def covers(self, nodeid: str) -> bool:
+        return not self.tests or any(s in nodeid for s in self.tests)
+
+    def as_dict(self) -> dict:
+        return {"requirement": self.requirement, "reason": self.reason, "owner": self.owner, "tests": list(self.tests),
+                "expires": self.expires.isoformat() if self.expires else None, "source": self.source}
+
+
+def _check_table(table, where: str, what: str, known: set[str]) -> None:
+    if not isinstance(table, dict):
+        raise ConfigError(where, f"each {what} is a table")
+    for key in table:
+        if key not in known:
+            raise ConfigError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(known))})")
+
+
+def _waiver(table, where: str, today: datetime.date) -> Waiver:
+    _check_table(table, where, "[[waiver]]", _WAIVER_KEYS)
+    for key in ("requirement", "reason", "owner"):
+        v = table.get(key)
+        if not isinstance(v, str) or not v.strip():
+            raise ConfigError(f"{where}.{key}", "required: a non-empty string (a waiver without its " + key + " is not a waiver)")
+    tests = table.get("tests", [])
+    if not isinstance(tests, list) or not all(isinstance(s, str) and s.strip() for s in tests):
+        raise ConfigError(f"{where}.tests", f"must be a list of non-empty node-id substrings, got {tests!r}")
+    expires = table.get("expires")
+    if expires is not None:
+        if isinstance(expires, str):
+            try:
+                expires = datetime.date.fromisoformat(expires)
+            except ValueError:
+                raise ConfigError(f"{where}.expires", f"must be an ISO date (YYYY-MM-DD), got {expires!r}") from None
+        elif isinstance(expires, datetime.datetime) or not isinstance(expires, datetime.date):
+            raise ConfigError(f"{where}.expires", f"must be an ISO date (YYYY-MM-DD), got {expires!r}")
+        if expires < today:
+            raise ConfigError(f"{where}.expires", f"the waiver of {table['requirement']} expired on {expires.isoformat()}: "
+                                                  "fix the defect or renew the waiver with a current reason")
+    return Waiver(table["requirement"].strip(), table["reason"].strip(), table["owner"].strip(), tuple(s.strip() for s in tests),
+                  expires, where)
+
+
+def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
+    _check_table(table, where, "budget", _BUDGET_KEYS)
+    for key in ("requirement", "unit", "limit"):
+        if key not in table and inherited is None:
+            raise ConfigError(f"{where}.{key}", "required")
+    merged = asdict(inherited) if inherited is not None else {}
+    if "limit" in table and "marginal" not in table:
+        merged.pop("marginal", None)  # a marginal bound belongs to the limit it was set with
+    merged = {**merged, **table, "name": name}
+    for key in ("limit", "marginal"):
+        v = merged.get(key)
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
+            raise ConfigError(f"{where}.{key}", f"must be a finite number, got {v!r}")
+    kind = merged.setdefault("kind", "max")
+    if kind not in ("max", "min"):
+        raise ConfigError(f"{where}.kind", f"must be 'max' or 'min', got {kind!r}")
+    # every budget bounds a magnitude (an error, a ratio, a fraction, a percentage): a negative
+    # limit is a typo or a sign convention the comparator does not know
+    lim, m = merged["limit"], merged.get("marginal")
+    if lim < 0:
+        raise ConfigError(f"{where}.limit", f"a budget limits a magnitude and must be >= 0, got {lim!r}")
+    if m is not None and not ((0 <= m <= lim) if kind == "max" else (m >= lim)):
+        inside = f"between 0 and the limit {lim!r}" if kind == "max" else f"at or above the limit {lim!r} (kind = \"min\")"
+        raise ConfigError(f"{where}.marginal", f"the marginal bound must lie on the passing side of the limit, {inside}; got {m!r}")
+    return Budget(**merged)
+
+
 class Budgets:
-    def __init__(self, budgets: dict[str, Budget], source: str = "defaults"):
-        self.budgets, self.source = budgets, source
+    def __init__(self, budgets: dict[str, Budget], source: str = "defaults", waivers: tuple[Waiver, ...] = ()):
+        self.budgets, self.source, self.waivers = budgets, source, tuple(waivers)
 
     def __contains__(self, name: str) -> bool:
         return name in self.budgets
@@ -135,10 +198,14 @@ class Budgets:
 
     @classmethod
     def defaults(cls) -> "Budgets":
-        return cls(dict(DEFAULTS))
+        b = cls.from_toml(DEFAULTS_TOML, base=cls({}))
+        b.source = "defaults"
+        return b
 
     @classmethod
-    def from_toml(cls, path: str | Path, base: "Budgets | None" = None) -> "Budgets":
+    def from_toml(cls, path: str | Path, base: "Budgets | None" = None, today: datetime.date | None = None) -> "Budgets":
+        """``path`` laid over ``base`` (default: the built-in defaults): its budgets override or add,
+        its waivers add to the base's."""
         path = Path(path)
         try:
             data = tomllib.loads(path.read_text())
@@ -146,39 +213,25 @@ class Budgets:
             raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
         except tomllib.TOMLDecodeError as exc:
             raise ConfigError(str(path), f"not valid TOML: {exc}") from None
-        budgets = dict((base or cls.defaults()).budgets)
-        known = {"requirement", "unit", "limit", "marginal", "kind", "description"}
+        base = base if base is not None else cls.defaults()
+        today = today or datetime.date.today()
+        budgets, waivers = dict(base.budgets), list(base.waivers)
         for name, table in data.items():
-            where = f"{path}: [{name}]"
-            if not isinstance(table, dict):
-                raise ConfigError(where, "each budget is a table")
-            for key in table:
-                if key not in known:
-                    raise ConfigError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(known))})")
-            for key in ("requirement", "unit", "limit"):
-                if key not in table and name not in budgets:
-                    raise ConfigError(f"{where}.{key}", "required")
-            inherited = asdict(budgets[name]) if name in budgets else {}
-            if "limit" in table and "marginal" not in table:
-                inherited.pop("marginal", None)  # a marginal band belongs to the limit it was set with
-            merged = {**inherited, **table, "name": name}
-            for key in ("limit", "marginal"):
-                v = merged.get(key)
-                if v is not None and (isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v)):
-                    raise ConfigError(f"{where}.{key}", f"must be a finite number, got {v!r}")
-            if merged.get("kind", "max") not in ("max", "min"):
-                raise ConfigError(f"{where}.kind", f"must be 'max' or 'min', got {merged['kind']!r}")
-            m, lim = merged.get("marginal"), merged["limit"]
-            if m is not None and ((merged.get("kind", "max") == "max" and m > lim) or (merged.get("kind") == "min" and m < lim)):
-                raise ConfigError(f"{where}.marginal", "the marginal band must lie on the passing side of the limit")
-            budgets[name] = Budget(**merged)
-        return cls(budgets, str(path))
+            if name == "waiver":
+                if not isinstance(table, list):
+                    raise ConfigError(f"{path}: waiver", "waivers are an array of tables: write [[waiver]]")
+                waivers += [_waiver(t, f"{path}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
+            else:
+                budgets[name] = _budget(name, table, budgets.get(name), f"{path}: [{name}]")
+        return cls(budgets, str(path), tuple(waivers))
 
     def check(self, name: str, measured: float) -> Verdict:
         b = self[name]
         if not isinstance(measured, (int, float)) or not math.isfinite(measured):
             return Verdict(b.name, b.requirement, float("nan"), b.limit, b.unit, float("-inf"), "fail", b.kind)
         margin = (b.limit - measured) if b.kind == "max" else (measured - b.limit)
+        # exactly at the limit is inside it (a limit is "at most" / "at least"); exactly at the
+        # marginal bound is a plain pass (the band lies beyond the bound)
         if margin < 0:
             verdict = "fail"
         elif b.marginal is not None and ((b.kind == "max" and measured > b.marginal) or (b.kind == "min" and measured < b.marginal)):
@@ -193,3 +246,10 @@ class Budgets:
         if v.verdict == "fail":
             raise BudgetExceeded(v)
         return v
+
+    def requirement_titles(self) -> dict[str, str]:
+        """Every requirement this run knows of: the catalogue, then the budgets' own descriptions."""
+        titles = dict(REQUIREMENTS)
+        for b in self.budgets.values():
+            titles.setdefault(b.requirement, b.description)
+        return titles

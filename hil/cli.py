@@ -247,6 +247,8 @@ def find_suite(path: str | None) -> Path:
 def cmd_acceptance(args) -> int:
     import subprocess
 
+    from .report import ReportWriter
+
     suite = find_suite(args.suite)
     # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
     argv = [str(suite), "-p", "no:cacheprovider", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
@@ -261,14 +263,35 @@ def cmd_acceptance(args) -> int:
     if args.workers:
         argv += ["-n", args.workers]
     extra = list(args.pytest_args)
-    if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER
+    if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
         extra = extra[1:]
+    ReportWriter.clear(Path(args.report_dir))  # pytest may refuse the arguments before the plugin can
     # pytest runs in a fresh interpreter: here hil and plant_models are imported already, and
     # pytest would warn that it cannot rewrite the asserts of its plugin's packages
+    # the same hil (and plant_models) as this command, wherever the interpreter would find another
+    root = str(Path(__file__).resolve().parent.parent)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
     try:
-        return subprocess.run([sys.executable, "-m", "pytest", *argv, *extra]).returncode
+        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
-        return 130
+        status = 2
+    return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
+
+
+def acceptance_exit(pytest_status: int, report_json: Path) -> int:
+    """The exit status of ``hil acceptance``: 0 only for a PASS verdict. pytest's own status is kept
+    when it says more (interrupted 2, internal error 3, usage error 4, no tests collected 5, failed
+    tests 1); a run whose only failures are waived exits 0; any other non-PASS verdict exits 1."""
+    try:
+        content = json.loads(report_json.read_text())
+    except (OSError, ValueError):
+        print(f"hil acceptance: no report at {report_json} (pytest exit status {pytest_status})", file=sys.stderr)
+        return pytest_status or 1
+    verdict = content.get("verdict")
+    print(f"hil acceptance: {verdict}" + "".join(f"\n  {r}" for r in content.get("verdict_reasons", [])))
+    if verdict == "PASS" and pytest_status in (0, 1):
+        return 0
+    return pytest_status or 1
 
 
 def cmd_replay(args) -> int:

@@ -91,6 +91,9 @@ def hil_settings(**overrides):
 
 def pytest_configure(config):
     config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
+    report_dir = _option(config, "report_dir")
+    if report_dir and not hasattr(config, "workerinput"):
+        ReportWriter.clear(Path(report_dir))  # a run refused below must not leave the last run's verdict behind
     dut_specs(config)  # a bad --hil-dut, plant or budgets file is a usage error before anything runs
     from plant_models.params import ConfigError
 
@@ -102,7 +105,6 @@ def pytest_configure(config):
     from hypothesis import HealthCheck, Phase, settings
     from hypothesis.database import DirectoryBasedExampleDatabase
 
-    report_dir = _option(config, "report_dir")
     database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
     # no shrinking: each example is a closed-loop plant run, and a failing one is saved whole as a
     # replayable stimulus anyway (hil replay)
@@ -122,6 +124,42 @@ def pytest_generate_tests(metafunc):
     if "hil_dut_spec" in metafunc.fixturenames:
         specs = dut_specs(metafunc.config)
         metafunc.parametrize("hil_dut_spec", specs, ids=[s.id for s in specs], scope="session")
+
+
+@pytest.hookimpl(wrapper=True, tryfirst=True)
+def pytest_runtest_makereport(item, call):
+    """Outermost, so it sees pytest's xfail handling: a setup or teardown that raised under an
+    xfail mark is an error (the test never judged the controller), and a skip raised while a
+    controller link or socket error was being handled is an error too (an unreachable controller
+    is not "not applicable")."""
+    rep = yield
+    exc = call.excinfo.value if call.excinfo is not None else None
+    if exc is None:
+        return rep
+    if rep.skipped and hasattr(rep, "wasxfail") and call.when != "call" and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception)):
+        rep.outcome = "failed"
+        del rep.wasxfail
+        rep.sections.append(("hil", f"{call.when} raised under an xfail mark: an error, not a known failure"))
+    elif rep.skipped and not hasattr(rep, "wasxfail") and isinstance(exc, pytest.skip.Exception) and (hidden := _unreachable(exc)):
+        reason = getattr(exc, "msg", "") or str(exc)
+        rep.outcome = "failed"
+        rep.longrepr = (f"skipped ({reason}) while the controller could not be reached: an error, not a skip\n"
+                        f"{type(hidden).__name__}: {hidden}")
+        rep.user_properties.append((PROPERTY_PREFIX + "unreachable", f"{type(hidden).__name__}: {hidden}"))
+    return rep
+
+
+def _unreachable(exc: BaseException):
+    """The controller link or socket error a skip was raised while handling, if any."""
+    from .dut.link import LinkError
+
+    seen, cause = set(), exc.__cause__ or exc.__context__
+    while cause is not None and id(cause) not in seen:
+        if isinstance(cause, (LinkError, OSError)):
+            return cause
+        seen.add(id(cause))
+        cause = cause.__cause__ or cause.__context__
+    return None
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -306,12 +344,8 @@ class HilReporter:
         self.config = config
         self.pending: dict[str, list] = {}
         budgets = _budgets(config)
-        from .budgets import REQUIREMENTS
-
-        titles = dict(REQUIREMENTS)
-        for b in budgets.budgets.values():
-            titles.setdefault(b.requirement, b.description)
-        self.writer = ReportWriter(directory, session=self._session_info(budgets), requirements=titles)
+        self.writer = ReportWriter(directory, session=self._session_info(budgets), requirements=budgets.requirement_titles(),
+                                   waivers=budgets.waivers)
         self.writer.render()  # an empty report exists from the start
 
     def _session_info(self, budgets) -> dict:
@@ -343,6 +377,13 @@ class HilReporter:
             info["budgets_sha256"] = file_sha256(budgets.source)
         return info
 
+    def pytest_collection_finish(self, session):
+        self.writer.expect(item.nodeid for item in session.items)
+
+    @pytest.hookimpl(optionalhook=True)
+    def pytest_xdist_node_collection_finished(self, node, ids):
+        self.writer.expect(ids)
+
     def pytest_runtest_logreport(self, report):
         self.pending.setdefault(report.nodeid, []).append(report)
         if report.when == "teardown" or report.when not in ("setup", "call"):
@@ -355,11 +396,16 @@ class HilReporter:
         self.writer.finish({"finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "exit_status": int(exitstatus)})
 
     def pytest_terminal_summary(self, terminalreporter):
-        terminalreporter.write_sep("-", f"HIL report ({self.writer.content()['verdict']}): {self.writer.paths['html']}")
+        content = self.writer.content()
+        terminalreporter.write_sep("-", f"HIL verdict {content['verdict']}: {self.writer.paths['html']}")
+        for reason in content["verdict_reasons"]:
+            terminalreporter.write_line(f"  {reason}")
+        for w in content["waivers"]:
+            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}")
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
-        outcome, message, details, duration = "passed", "", "", 0.0
+        outcome, message, details, duration, xfail_reason = "passed", "", "", 0.0, ""
         props: list = []
         for r in reports:
             duration += getattr(r, "duration", 0.0)
@@ -367,10 +413,12 @@ class HilReporter:
             phase = None
             if hasattr(r, "wasxfail"):
                 phase = "xfailed" if r.skipped else ("xpassed" if r.passed else None)
-                message = message or str(r.wasxfail)
+                xfail_reason = str(r.wasxfail).removeprefix("reason: ")
+                message = message or xfail_reason
             if phase is None:
                 if r.failed:
-                    phase = "failed" if r.when == "call" else "error"
+                    unreachable = any(str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ()))
+                    phase = "failed" if r.when == "call" and not unreachable else "error"
                 elif r.skipped:
                     phase = "skipped"
                 else:
@@ -381,7 +429,7 @@ class HilReporter:
                     message, details = _failure_text(r)
         record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
                   "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
-                  "worker": _worker_id(reports[-1])}
+                  "worker": _worker_id(reports[-1]), "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else ""}
         for key, value in props:
             key = str(key)
             if key == "requirement" and value not in record["requirements"]:

@@ -16,6 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,22 +31,73 @@ OUTCOME_ORDER = ("failed", "error", "xpassed", "xfailed", "skipped", "passed")
 def _atomic_write(path: Path, text: str | bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as f:
-        f.write(text.encode() if isinstance(text, str) else text)
+        f.write(text.encode("utf-8", "replace") if isinstance(text, str) else text)
         f.flush()
         os.fsync(f.fileno())
     os.replace(tmp, path)
 
 
-def requirement_verdict(tests: list[dict]) -> str:
-    """fail: a test failed or a budget failed; marginal: a budget marginal; pass; or not tested."""
-    ran = [t for t in tests if t["outcome"] not in ("skipped",)]
-    if not ran:
-        return "not tested"
-    if any(t["outcome"] in ("failed", "error", "xpassed") for t in ran) or any(m["verdict"] == "fail" for t in ran for m in t["measurements"]):
+#: pytest exit statuses after which every collected test has had its say
+_FINISHED_EXIT = {0: "ok", 1: "tests failed", 5: "no tests collected"}
+_EXIT_NAMES = {2: "interrupted", 3: "internal error", 4: "usage error"}
+#: outcomes that are evidence of a defect: a failure, a known failure (xfail), an unexpected pass
+_FAILING = ("failed", "xfailed", "xpassed")
+#: test and requirement verdicts, the worst first
+VERDICTS = ("fail", "error", "waived", "not tested", "marginal", "pass")
+
+
+def _relevant(test: dict, rid: str | None) -> list[dict]:
+    """A test's measurements of ``rid``'s budgets; a test tied to ``rid`` by its marker only
+    answers for it with all of its measurements."""
+    ms = test["measurements"]
+    return ([m for m in ms if m["requirement"] == rid] or ms) if rid else ms
+
+
+def test_status(test: dict, rid: str | None = None) -> str:
+    """One test's verdict (for requirement ``rid``, or overall): fail, error, not tested, marginal or pass.
+
+    A known failure (xfail) and an unexpected pass (xpass) are ``fail``; a skip is ``not tested``
+    (the plugin turns a skip that hides an unreachable controller into an error)."""
+    if test["outcome"] == "error":
+        return "error"
+    if test["outcome"] in _FAILING:
         return "fail"
-    if any(m["verdict"] == "marginal" for t in ran for m in t["measurements"]):
-        return "marginal"
-    return "pass"
+    if test["outcome"] == "skipped":
+        return "not tested"
+    verdicts = {m["verdict"] for m in _relevant(test, rid)}
+    return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
+
+
+def find_waiver(waivers, rid: str, nodeid: str | None):
+    """The first waiver of ``rid`` covering the test ``nodeid`` (None: the requirement as a whole,
+    which only a waiver not limited to tests covers)."""
+    for w in waivers:
+        if w.requirement == rid and (w.covers(nodeid) if nodeid is not None else not w.tests):
+            return w
+    return None
+
+
+def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, object]:
+    """(verdict, waiver or None) of requirement ``rid`` from the tests traced to it.
+
+    pass only when every traced test passed (skips aside) and at least one did; marginal when one
+    is marginal; a failing test (failure, xfail, xpass, failed budget) gives fail unless a waiver of
+    ``rid`` covers that test (then waived); an error gives error (an error is never waived: it is
+    no evidence either way); no test that ran gives not tested, or waived under a waiver of the
+    whole requirement."""
+    statuses, used = [], None
+    for t in tests:
+        s = test_status(t, rid)
+        if s == "fail" and (w := find_waiver(waivers, rid, t["nodeid"])) is not None:
+            s, used = "waived", used or w
+        statuses.append(s)
+    if not any(s in ("pass", "marginal", "waived") for s in statuses) and "fail" not in statuses and "error" not in statuses:
+        w = find_waiver(waivers, rid, None)
+        return ("waived", w) if w is not None else ("not tested", None)
+    worst = min(statuses, key=VERDICTS.index)
+    if worst == "not tested":  # skipped beside passing ones: the skips do not apply to this DUT
+        worst = "marginal" if "marginal" in statuses else "pass"
+    return worst, (used if worst == "waived" else None)
 
 
 @dataclass
@@ -54,6 +106,7 @@ class ReportWriter:
     session: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)  #: id -> title (budgets and the catalogue)
     basename: str = "hil-report"
+    waivers: tuple = ()                                #: hil.budgets.Waiver, from the budgets in force
 
     def __post_init__(self):
         self.directory = Path(self.directory)
@@ -62,6 +115,15 @@ class ReportWriter:
         self.jsonl = self.directory / "results.jsonl"
         self.jsonl.write_text("")  # a new run starts a new log
         self.complete = False
+        self.incomplete_reason = "the run has not finished (still running, or stopped before its end)"
+        self.collected: set[str] | None = None
+
+    @classmethod
+    def clear(cls, directory: Path, basename: str = "hil-report") -> None:
+        """Remove a previous run's reports, so that a run that stops before writing its own
+        (a usage error) cannot leave an old verdict in place."""
+        for name in (f"{basename}.html", f"{basename}.json", f"{basename}-junit.xml", "results.jsonl"):
+            (Path(directory) / name).unlink(missing_ok=True)
 
     @property
     def paths(self) -> dict[str, Path]:
@@ -76,9 +138,24 @@ class ReportWriter:
             os.fsync(f.fileno())
         self.render()
 
+    def expect(self, nodeids) -> None:
+        """The tests this run collected (called again per xdist worker: the union counts)."""
+        self.collected = (self.collected or set()) | set(nodeids)
+        self.session["collected"] = len(self.collected)
+
     def finish(self, summary: dict) -> None:
-        self.complete = True
+        """The session ended with ``summary["exit_status"]``: complete when pytest finished normally
+        and every collected test reported."""
         self.session = {**self.session, **summary}
+        status = int(summary.get("exit_status", 0))
+        missing = sorted((self.collected or set()) - {r["nodeid"] for r in self.records})
+        if status not in _FINISHED_EXIT:
+            self.incomplete_reason = f"pytest stopped with exit status {status} ({_EXIT_NAMES.get(status, 'unknown')})"
+        elif missing:
+            self.incomplete_reason = (f"{len(missing)} of {len(self.collected)} collected tests never reported "
+                                      f"(first: {missing[0]})")
+        else:
+            self.complete, self.incomplete_reason = True, ""
         self.render()
 
     # --- content ---------------------------------------------------------------------------------
@@ -86,6 +163,7 @@ class ReportWriter:
         counts = {k: 0 for k in OUTCOME_ORDER}
         for r in self.records:
             counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
+        tests = [self._judged(r) for r in self.records]
         reqs: dict[str, dict] = {rid: {"id": rid, "title": title, "tests": []} for rid, title in self.requirements.items()}
         for r in self.records:
             ids = set(r["requirements"]) | {m["requirement"] for m in r["measurements"]}
@@ -93,21 +171,69 @@ class ReportWriter:
                 reqs.setdefault(rid, {"id": rid, "title": "", "tests": []})["tests"].append(r)
         matrix = []
         for rid in sorted(reqs):
-            tests = reqs[rid]["tests"]
-            # a test's measurements of this requirement's budgets; a test tied by its marker only
-            # proves the requirement with all of its measurements
-            rows = [{"nodeid": t["nodeid"], "dut": t.get("dut", ""), "outcome": t["outcome"],
-                     "measurements": [m for m in t["measurements"] if m["requirement"] == rid] or t["measurements"]}
-                    for t in tests]
-            matrix.append({"id": rid, "title": reqs[rid]["title"], "verdict": requirement_verdict(tests), "tests": rows})
+            traced = reqs[rid]["tests"]
+            verdict, waiver = requirement_verdict(rid, traced, self.waivers)
+            rows = []
+            for t in traced:
+                status = test_status(t, rid)
+                w = find_waiver(self.waivers, rid, t["nodeid"]) if status == "fail" else None
+                rows.append({"nodeid": t["nodeid"], "dut": t.get("dut", ""), "outcome": t["outcome"],
+                             "verdict": "waived" if w else status, "message": t["message"],
+                             "measurements": _relevant(t, rid), "waiver": w.as_dict() if w else None})
+            matrix.append({"id": rid, "title": reqs[rid]["title"], "verdict": verdict, "traced": bool(traced),
+                           "waiver": waiver.as_dict() if waiver else None, "tests": rows})
         duts = {}
         for r in self.records:
             if r.get("dut") and r.get("dut_identity"):
                 duts.setdefault(r["dut"], r["dut_identity"])
-        failed = counts["failed"] + counts["error"] + counts["xpassed"]
-        verdict = "FAIL" if failed or any(m["verdict"] == "fail" for m in matrix) else ("INCOMPLETE" if not self.complete else "PASS")
-        return {"format": "hil-report/1", "complete": self.complete, "verdict": verdict, "counts": counts,
-                "session": self.session, "duts": duts, "traceability": matrix, "tests": self.records}
+        verdict, reasons = self._overall(tests, matrix)
+        counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
+        waivers = [{**w.as_dict(), "tests_waived": [t["nodeid"] for t in tests if t["waiver"] and t["waiver"]["source"] == w.source]
+                    + [f"{r['id']} (not tested)" for r in matrix if r["waiver"] and r["waiver"]["source"] == w.source
+                       and not any(row["waiver"] for row in r["tests"])]}
+                   for w in self.waivers]
+        return {"format": "hil-report/1", "complete": self.complete, "incomplete_reason": self.incomplete_reason,
+                "verdict": verdict, "verdict_reasons": reasons, "counts": counts, "session": self.session, "duts": duts,
+                "waivers": waivers, "traceability": matrix, "tests": tests}
+
+    def _judged(self, record: dict) -> dict:
+        """The record with its verdict: a failing test is waived only when a waiver covers it under
+        every requirement it traces to (a test tied to an unwaived requirement still fails)."""
+        status, waiver = test_status(record), None
+        if status == "fail":
+            rids = sorted(set(record["requirements"]) | {m["requirement"] for m in record["measurements"]})
+            found = [find_waiver(self.waivers, rid, record["nodeid"]) for rid in rids]
+            if rids and all(found):
+                status, waiver = "waived", found[0]
+        return {**record, "verdict": status, "waiver": waiver.as_dict() if waiver else None}
+
+    def _overall(self, tests: list[dict], matrix: list[dict]) -> tuple[str, list[str]]:
+        """PASS only when at least one test ran, the run is complete and every traced requirement
+        is pass, marginal or waived; otherwise FAIL, INCOMPLETE or NO TESTS, each with its reasons."""
+        reasons = []
+        for t in tests:
+            if t["verdict"] in ("fail", "error"):
+                what = {"xfailed": "known failure (xfail)", "xpassed": "unexpected pass (xpass)"}.get(t["outcome"], t["outcome"])
+                reasons.append(f"{t['nodeid']}: {what}" + (f": {t['message'].splitlines()[0][:200]}" if t["message"] else ""))
+        for r in matrix:
+            if r["traced"] and r["verdict"] in ("fail", "error", "not tested"):
+                reasons.append(f"{r['id']}: {r['verdict']}")
+        if not self.complete:
+            reasons.append(f"incomplete: {self.incomplete_reason}")
+        ran = [t for t in tests if t["outcome"] != "skipped"]
+        if not ran and self.complete:
+            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected")
+        failing = any(t["verdict"] in ("fail", "error") for t in tests) or any(
+            r["traced"] and r["verdict"] in ("fail", "error") for r in matrix)
+        if failing:
+            return "FAIL", reasons
+        if not self.complete:
+            return "INCOMPLETE", reasons
+        if not ran:
+            return "NO TESTS", reasons
+        if reasons:  # a traced requirement that no test answered for
+            return "FAIL", reasons
+        return "PASS", reasons
 
     # --- rendering -------------------------------------------------------------------------------
     def render(self) -> None:
@@ -117,37 +243,85 @@ class ReportWriter:
         _atomic_write(self.paths["html"], html(content, self.directory))
 
 
+#: characters XML 1.0 does not allow (section 2.2), lone surrogates included
+_XML_FORBIDDEN = re.compile("[^\u0009\u000a\u000d\u0020-\ud7ff\ue000-\ufffd\U00010000-\U0010ffff]")
+
+
+def xml_safe(text) -> str:
+    """``text`` with every character XML 1.0 forbids written out as ``\\xNN`` / ``\\uNNNN``, so a
+    test message holding terminal colours or NUL bytes still gives a well-formed file."""
+    def escape(m: re.Match) -> str:
+        c = ord(m.group())
+        return f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
+
+    return _XML_FORBIDDEN.sub(escape, str(text))
+
+
+def _element(parent, tag: str, text: str | None = None, **attrs) -> ET.Element:
+    el = ET.SubElement(parent, tag, {k: xml_safe(v) for k, v in attrs.items()})
+    if text:
+        el.text = xml_safe(text)
+    return el
+
+
 def junit_xml(content: dict) -> bytes:
-    c = content["counts"]
-    suite = ET.Element("testsuite", name="hil", tests=str(len(content["tests"])), failures=str(c["failed"] + c["xpassed"]),
-                       errors=str(c["error"]), skipped=str(c["skipped"] + c["xfailed"]),
-                       time=f"{sum(t['duration_s'] for t in content['tests']):.3f}",
-                       timestamp=str(content["session"].get("started", "")))
+    tests = content["tests"]
+    n = {v: sum(t["verdict"] == v for t in tests) for v in VERDICTS}
+    incomplete = not content["complete"]
+    suite = ET.Element("testsuite", {"name": "hil", "tests": str(len(tests) + incomplete), "failures": str(n["fail"]),
+                                     "errors": str(n["error"] + incomplete), "skipped": str(n["waived"] + n["not tested"]),
+                                     "time": f"{sum(t['duration_s'] for t in tests):.3f}",
+                                     "timestamp": xml_safe(content["session"].get("started", ""))})
     props = ET.SubElement(suite, "properties")
+    _element(props, "property", name="hil.verdict", value=content["verdict"])
+    _element(props, "property", name="hil.complete", value=str(content["complete"]).lower())
+    if incomplete:
+        _element(props, "property", name="hil.incomplete_reason", value=content["incomplete_reason"])
+    for reason in content["verdict_reasons"]:
+        _element(props, "property", name="hil.verdict_reason", value=reason)
     for key in ("plant", "plant_sha256", "seed", "hypothesis_seed", "budgets"):
         if key in content["session"]:
-            ET.SubElement(props, "property", name=f"hil.{key}", value=str(content["session"][key]))
-    for t in content["tests"]:
+            _element(props, "property", name=f"hil.{key}", value=content["session"][key])
+    for w in content["waivers"]:
+        _element(props, "property", name=f"hil.waiver:{w['requirement']}", value=f"{w['reason']} (owner {w['owner']})")
+    for r in content["traceability"]:
+        if r["traced"]:
+            _element(props, "property", name=f"hil.requirement:{r['id']}", value=r["verdict"])
+    for t in tests:
         module, _, name = t["nodeid"].rpartition("::")
-        case = ET.SubElement(suite, "testcase", classname=module.replace("/", ".").removesuffix(".py"), name=name,
-                             time=f"{t['duration_s']:.3f}")
+        case = _element(suite, "testcase", classname=module.replace("/", ".").removesuffix(".py"), name=name,
+                        time=f"{t['duration_s']:.3f}")
         cp = ET.SubElement(case, "properties")
         for rid in t["requirements"]:
-            ET.SubElement(cp, "property", name="requirement", value=rid)
+            _element(cp, "property", name="requirement", value=rid)
         if t.get("dut"):
-            ET.SubElement(cp, "property", name="dut", value=t["dut"])
+            _element(cp, "property", name="dut", value=t["dut"])
         for m in t["measurements"]:
-            ET.SubElement(cp, "property", name=f"measurement:{m['budget']}",
-                          value=f"{m['measured']:.6g} {m['unit']} (limit {m['limit']:.6g}, {m['verdict']}, {m['requirement']})")
+            _element(cp, "property", name=f"measurement:{m['budget']}",
+                     value=f"{m['measured']:.6g} {m['unit']} (limit {m['limit']:.6g}, {m['verdict']}, {m['requirement']})")
         for e in t["evidence"]:
             if e["kind"] == "value":
-                ET.SubElement(cp, "property", name=f"value:{e['name']}", value=f"{e['value']} {e.get('unit', '')}".strip())
-        if t["outcome"] in ("failed", "xpassed"):
-            ET.SubElement(case, "failure", message=t["message"][:500]).text = t["details"]
-        elif t["outcome"] == "error":
-            ET.SubElement(case, "error", message=t["message"][:500]).text = t["details"]
-        elif t["outcome"] in ("skipped", "xfailed"):
-            ET.SubElement(case, "skipped", message=t["message"][:500])
+                _element(cp, "property", name=f"value:{e['name']}", value=f"{e['value']} {e.get('unit', '')}".strip())
+        message = t["message"][:500]
+        if t["verdict"] == "waived":
+            w = t["waiver"]
+            _element(case, "skipped", f"{t['outcome']}: {t['message']}\n\n{t['details']}".strip(),
+                     message=f"WAIVED ({w['requirement']}, owner {w['owner']}): {w['reason']}"[:1000])
+        elif t["verdict"] == "fail" and t["outcome"] == "xfailed":
+            why = f" ({t['xfail_reason']})" if t.get("xfail_reason") else ""
+            _element(case, "failure", t["details"], message=f"known failure, marked xfail{why}: {message}"[:1000], type="xfail")
+        elif t["verdict"] == "fail" and t["outcome"] == "xpassed":
+            _element(case, "failure", message=f"unexpected pass of a test marked as a known failure (xfail: {t.get('xfail_reason', '')}); "
+                                              "the mark no longer matches the controller"[:1000], type="xpass")
+        elif t["verdict"] == "fail":
+            _element(case, "failure", t["details"], message=message or "failed")
+        elif t["verdict"] == "error":
+            _element(case, "error", t["details"], message=message or "error")
+        elif t["verdict"] == "not tested":
+            _element(case, "skipped", message=message)
+    if incomplete:
+        case = _element(suite, "testcase", classname="hil", name="run incomplete", time="0")
+        _element(case, "error", message=f"the HIL run is incomplete: {content['incomplete_reason']}", type="incomplete")
     ET.indent(suite)
     return ET.tostring(suite, encoding="utf-8", xml_declaration=True)
 

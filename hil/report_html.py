@@ -16,8 +16,6 @@ import re
 from collections import Counter
 from pathlib import Path
 
-#: requirement verdicts in the order a reviewer wants them: the bad news first
-REQUIREMENT_VERDICTS = ("fail", "error", "marginal", "waived", "not tested", "pass")
 #: a message longer than this folds into <details> with its first line as the summary
 FOLD_CHARS = 240
 
@@ -65,9 +63,11 @@ def relative_margin(m: dict) -> float:
 
 def summary(content: dict, worst: int = 5) -> dict:
     """The summary block: requirements by verdict, the worst margins, the test outcome counts."""
+    from .report import VERDICTS  # the bad news first
+
     by_verdict = Counter(r.get("verdict", "not tested") for r in content["traceability"])
-    ordered = [(v, by_verdict[v]) for v in REQUIREMENT_VERDICTS if by_verdict.get(v)]
-    ordered += [(v, n) for v, n in by_verdict.items() if v not in REQUIREMENT_VERDICTS]
+    ordered = [(v, by_verdict[v]) for v in VERDICTS if by_verdict.get(v)]
+    ordered += [(v, n) for v, n in by_verdict.items() if v not in VERDICTS]
     # one entry per (budget, DUT): the worst measurement of each, then the worst of those
     seen: dict[tuple, dict] = {}
     for t in content["tests"]:
@@ -78,8 +78,7 @@ def summary(content: dict, worst: int = 5) -> dict:
             if key not in seen or entry["relative"] < seen[key]["relative"]:
                 seen[key] = entry
     margins = sorted(seen.values(), key=lambda e: e["relative"])[:worst]
-    waivers = [r for r in content["traceability"] if r.get("verdict") == "waived"]
-    return {"requirements": ordered, "requirement_count": len(content["traceability"]), "worst_margins": margins, "waivers": waivers}
+    return {"requirements": ordered, "requirement_count": len(content["traceability"]), "worst_margins": margins}
 
 
 def matrix_rows(content: dict) -> list[dict]:
