@@ -270,7 +270,9 @@ def cmd_acceptance(args) -> int:
     # pytest would warn that it cannot rewrite the asserts of its plugin's packages
     # the same hil (and plant_models) as this command, wherever the interpreter would find another
     root = str(Path(__file__).resolve().parent.parent)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])])}
+    program = "python -m hil" if Path(sys.argv[0]).name == "__main__.py" else Path(sys.argv[0]).name
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
+           "HIL_COMMAND": " ".join([program, *sys.argv[1:]])}  # what the report names as the run's command
     try:
         status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports

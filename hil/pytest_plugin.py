@@ -362,7 +362,7 @@ class HilReporter:
                 pass
         info = {
             "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+            "command": _command(),
             "host": platform.node(),
             "dut": ", ".join(s.text for s in dut_specs(config)),
             "plant": plant_path or "paper-bench (preset)",
@@ -447,6 +447,18 @@ class HilReporter:
                 record["doc"] = value
         json.dumps(record)  # everything in a record is plain data
         return record
+
+
+def _command() -> str:
+    """The command that started this run: the ``hil`` command line when ``hil acceptance`` started
+    it (``HIL_COMMAND``), else pytest's own (``python -m pytest`` for its ``__main__``)."""
+    import os
+
+    if os.environ.get("HIL_COMMAND"):
+        return os.environ["HIL_COMMAND"]
+    program = Path(sys.argv[0])
+    head = f"python -m {program.parent.name}" if program.name == "__main__.py" else program.name
+    return " ".join([head, *sys.argv[1:]])
 
 
 def _worker_id(report) -> str:

@@ -20,16 +20,19 @@ from pathlib import Path
 FOLD_CHARS = 240
 
 
-def test_label(nodeid: str) -> str:
+def test_label(nodeid: str, dut: str = "") -> str:
     """A short human label for a node id: the test function in words and its parameters.
 
     ``test_cases/test_faults.py::test_wiring_fault_gives_the_promised_fault[virtual-canopen-missing-edge]``
-    reads ``wiring fault gives the promised fault · virtual-canopen-missing-edge``."""
+    reads ``wiring fault gives the promised fault · virtual-canopen-missing-edge``; with ``dut``
+    given (a DUT column beside it) ``wiring fault gives the promised fault · missing-edge``."""
     path, _, name = nodeid.rpartition("::")
     name = name or path
     func, bracket, params = name.partition("[")
     words = func.removeprefix("test_").replace("_", " ").strip() or func
     params = params.removesuffix("]") if bracket else ""
+    if dut and (params == dut or params.startswith(dut + "-")):
+        params = params[len(dut) + 1:]
     return f"{words} · {printable(params)}" if params else words
 
 
@@ -43,6 +46,19 @@ def printable(text: str) -> str:
     """Text with control and escaped raw bytes shown as hex (``\\x03\\xff`` -> ``03 ff``), never as an id."""
     text = re.sub(r"(?:\\x[0-9a-fA-F]{2})+", lambda m: " ".join(m.group(0)[i + 2:i + 4] for i in range(0, len(m.group(0)), 4)), text)
     return "".join(c if c.isprintable() else f"{ord(c):02x}" for c in text)
+
+
+def reason(text: str, limit: int = 220) -> "markupsafe.Markup":
+    """A verdict reason for the summary: a leading node id becomes its label (the node id on
+    hover), the rest is cut at ``limit`` characters (the whole text is in the JSON report)."""
+    import markupsafe
+
+    found = re.match(r"(\S+::\S+?): (.*)", text, re.S)
+    rest = found.group(2) if found else text
+    rest = rest if len(rest) <= limit else rest[:limit].rstrip() + " …"
+    if not found:
+        return markupsafe.escape(printable(rest))
+    return markupsafe.Markup('<span title="{}">{}</span>: {}').format(found.group(1), test_label(found.group(1)), printable(rest))
 
 
 def anchor(nodeid: str) -> str:
@@ -96,7 +112,7 @@ def matrix_rows(content: dict) -> list[dict]:
             for i, m in enumerate(ms):
                 rows.append({"req": req if first_req else None, "req_span": span,
                              "test": t if i == 0 else None, "test_span": len(ms), "m": m,
-                             "label": test_label(t["nodeid"]), "anchor": anchor(t["nodeid"])})
+                             "label": test_label(t["nodeid"], t.get("dut", "")), "anchor": anchor(t["nodeid"])})
                 first_req = False
     return rows
 
@@ -129,6 +145,7 @@ def html(content: dict, directory: Path) -> str:
     env.filters["module"] = module_label
     env.filters["anchor"] = anchor
     env.filters["printable"] = printable
+    env.filters["reason"] = reason
     env.filters["cls"] = lambda v: re.sub(r"[^a-z]", "", str(v).lower())
     # identifiers may break after an underscore or a dot, nowhere else
     env.filters["soft"] = lambda v: markupsafe.Markup("<wbr>").join(re.split(r"(?<=[_.])", str(v)))
