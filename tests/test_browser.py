@@ -111,7 +111,7 @@ def test_default_acceptance_prints_no_warning_and_shows_progress(acceptance_run)
 
 def test_gap_report_fits_1400_px_and_gives_the_readme_screenshot(tmp_path):
     page = tmp_path / "gap.html"
-    run = hil("gap", "diagnose", str(ROOT / "examples" / "bench-recording"), "--html", str(page), cwd=tmp_path)
+    run = hil("gap", "diagnose", "examples/bench-recording", "--html", str(page), cwd=ROOT)  # as the README says
     assert run.returncode == 0, run.stderr
     assert_no_horizontal_overflow(page, tmp_path)
     screenshot(page, IMG / "gap-report.png", tmp_path)
