@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from .report_html import test_label
+from .report_html import short_label
 
 _active: "Progress | None" = None
 
@@ -55,7 +55,7 @@ class Progress:
         capture = self.config.pluginmanager.get_plugin("capturemanager")
         with capture.global_and_fixture_disabled() if capture else contextlib.nullcontext():  # a test's output is captured
             if self.running is not None:  # the first note of a test names it
-                tr.write_line(f"{self.count(self.done + 1)} running  {test_label(self.running)}")
+                tr.write_line(f"{self.count(self.done + 1)} running  {short_label(self.running)}")
                 self.running = None
             tr.write_line(f"{'':>{len(self.count(0))}}   ... {text}", cyan=True)
 
@@ -90,7 +90,7 @@ class Progress:
                   "skipped": {"yellow": True}, "xfailed": {"yellow": True}}.get(outcome, {})
         tr = self.terminal
         if tr is not None:
-            tr.write_line(f"{self.count(self.done)} {outcome:<8} {test_label(report.nodeid)}  ({duration:.1f} s)", **colour)
+            tr.write_line(f"{self.count(self.done)} {outcome:<8} {short_label(report.nodeid)}  ({duration:.1f} s)", **colour)
 
 
 def _outcome(reports) -> str:

@@ -20,7 +20,7 @@ from pathlib import Path
 FOLD_CHARS = 240
 
 
-def test_label(nodeid: str, dut: str = "") -> str:
+def short_label(nodeid: str, dut: str = "") -> str:
     """A short human label for a node id: the test function in words and its parameters.
 
     ``test_cases/test_faults.py::test_wiring_fault_gives_the_promised_fault[virtual-canopen-missing-edge]``
@@ -58,7 +58,7 @@ def reason(text: str, limit: int = 220) -> "markupsafe.Markup":
     rest = rest if len(rest) <= limit else rest[:limit].rstrip() + " …"
     if not found:
         return markupsafe.escape(printable(rest))
-    return markupsafe.Markup('<span title="{}">{}</span>: {}').format(found.group(1), test_label(found.group(1)), printable(rest))
+    return markupsafe.Markup('<span title="{}">{}</span>: {}').format(found.group(1), short_label(found.group(1)), printable(rest))
 
 
 def anchor(nodeid: str) -> str:
@@ -89,7 +89,7 @@ def summary(content: dict, worst: int = 5) -> dict:
     for t in content["tests"]:
         for m in t.get("measurements", []):
             key = (m["budget"], t.get("dut", ""))
-            entry = {**m, "dut": t.get("dut", ""), "nodeid": t["nodeid"], "label": test_label(t["nodeid"]), "anchor": anchor(t["nodeid"]),
+            entry = {**m, "dut": t.get("dut", ""), "nodeid": t["nodeid"], "label": short_label(t["nodeid"]), "anchor": anchor(t["nodeid"]),
                      "relative": relative_margin(m)}
             if key not in seen or entry["relative"] < seen[key]["relative"]:
                 seen[key] = entry
@@ -112,7 +112,7 @@ def matrix_rows(content: dict) -> list[dict]:
             for i, m in enumerate(ms):
                 rows.append({"req": req if first_req else None, "req_span": span,
                              "test": t if i == 0 else None, "test_span": len(ms), "m": m,
-                             "label": test_label(t["nodeid"], t.get("dut", "")), "anchor": anchor(t["nodeid"])})
+                             "label": short_label(t["nodeid"], t.get("dut", "")), "anchor": anchor(t["nodeid"])})
                 first_req = False
     return rows
 
@@ -141,7 +141,7 @@ def html(content: dict, directory: Path) -> str:
     env.filters["data_uri"] = lambda rel: _data_uri(Path(directory), rel)
     env.filters["num"] = _num
     env.filters["hex"] = lambda v: f"0x{v:08X}" if isinstance(v, int) else ("-" if v is None else str(v))
-    env.filters["label"] = test_label
+    env.filters["label"] = short_label
     env.filters["module"] = module_label
     env.filters["anchor"] = anchor
     env.filters["printable"] = printable
