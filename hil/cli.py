@@ -251,7 +251,8 @@ def cmd_acceptance(args) -> int:
 
     suite = find_suite(args.suite)
     # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
-    argv = [str(suite), "-p", "no:cacheprovider", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
+    # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
+    argv = [str(suite), "-p", "no:cacheprovider", "-p", "no:benchmark", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
             f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}", f"--hypothesis-seed={args.seed}",
             "-o", "faulthandler_timeout=600"]
     for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:

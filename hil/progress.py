@@ -66,6 +66,7 @@ class Progress:
     def pytest_collection_finish(self, session):
         self.total = len(session.items)
 
+    @pytest.hookimpl(optionalhook=True)
     def pytest_xdist_node_collection_finished(self, node, ids):  # under xdist the controller collects nothing itself
         self.total = len(ids)
 
