@@ -107,7 +107,8 @@ def matrix_rows(content: dict) -> list[dict]:
             rows.append({"req": req, "req_span": 1, "test": None, "test_span": 1, "m": None})
             continue
         first_req = True
-        for t in tests:
+        # the same test on each controller side by side
+        for t in sorted(tests, key=lambda t: (short_label(t["nodeid"], t.get("dut", "")), t.get("dut", ""))):
             ms = t.get("measurements") or [None]
             for i, m in enumerate(ms):
                 rows.append({"req": req if first_req else None, "req_span": span,
