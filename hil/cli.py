@@ -236,8 +236,12 @@ def cmd_effects(args) -> int:
 
 
 def find_suite(path: str | None) -> Path:
-    """The acceptance suite: the given directory, ./test_cases, or the one beside this package."""
-    candidates = [Path(path)] if path else [Path("test_cases"), Path(__file__).resolve().parent.parent / "test_cases"]
+    """The acceptance suite: the given directory or test file, ./test_cases, or the one beside this package."""
+    if path:
+        if not Path(path).exists():
+            raise ValueError(f"--suite {path}: no such directory or file")
+        return Path(path)
+    candidates = [Path("test_cases"), Path(__file__).resolve().parent.parent / "test_cases"]
     for c in candidates:
         if (c / "conftest.py").is_file():
             return c
@@ -407,7 +411,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)")
     p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)")
     p.add_argument("-n", "--workers", help="pytest-xdist workers (e.g. auto); each worker opens its own controller")
-    p.add_argument("--suite", help="the acceptance suite directory (default: ./test_cases)")
+    p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
 

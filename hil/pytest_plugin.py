@@ -130,8 +130,8 @@ def pytest_generate_tests(metafunc):
 def pytest_runtest_makereport(item, call):
     """Outermost, so it sees pytest's xfail handling: a setup or teardown that raised under an
     xfail mark is an error (the test never judged the controller), and a skip raised while a
-    controller link or socket error was being handled is an error too (an unreachable controller
-    is not "not applicable")."""
+    controller link error was being handled is an error too (an unreachable controller is not
+    "not applicable"). docs/acceptance.md, Verdicts."""
     rep = yield
     exc = call.excinfo.value if call.excinfo is not None else None
     if exc is None:
@@ -150,12 +150,17 @@ def pytest_runtest_makereport(item, call):
 
 
 def _unreachable(exc: BaseException):
-    """The controller link or socket error a skip was raised while handling, if any."""
+    """The controller link, connection, CAN or serial error a skip was raised while handling, if any
+    (not any OSError: a skip because an optional file is missing is a real "not applicable")."""
+    import can
+    import serial
+
     from .dut.link import LinkError
 
+    unreachable = (LinkError, ConnectionError, TimeoutError, can.CanError, serial.SerialException)
     seen, cause = set(), exc.__cause__ or exc.__context__
     while cause is not None and id(cause) not in seen:
-        if isinstance(cause, (LinkError, OSError)):
+        if isinstance(cause, unreachable):
             return cause
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__

@@ -9,6 +9,11 @@ reach it inside the test reports (``user_properties``), so the reports merge by 
 A test's record: node id, outcome, duration, requirement IDs (``requirement`` marker), the DUT
 it ran against, budget verdicts (``hil_budget``) and evidence (``hil_evidence``: values, tables,
 figures, text).
+
+The verdicts (each test's, each requirement's, the run's) are computed here once, from the
+records and the waivers in force, and the three formats only present them (docs/acceptance.md,
+Verdicts): a known failure is a failure, a waiver is explicit, and PASS needs a complete run in
+which at least one test ran.
 """
 
 from __future__ import annotations
@@ -214,7 +219,8 @@ class ReportWriter:
         for t in tests:
             if t["verdict"] in ("fail", "error"):
                 what = {"xfailed": "known failure (xfail)", "xpassed": "unexpected pass (xpass)"}.get(t["outcome"], t["outcome"])
-                reasons.append(f"{t['nodeid']}: {what}" + (f": {t['message'].splitlines()[0][:200]}" if t["message"] else ""))
+                # control characters written out: a reason is printed on terminals and shown in HTML
+                reasons.append(xml_safe(f"{t['nodeid']}: {what}" + (f": {t['message'].splitlines()[0][:200]}" if t["message"] else "")))
         for r in matrix:
             if r["traced"] and r["verdict"] in ("fail", "error", "not tested"):
                 reasons.append(f"{r['id']}: {r['verdict']}")
@@ -222,7 +228,7 @@ class ReportWriter:
             reasons.append(f"incomplete: {self.incomplete_reason}")
         ran = [t for t in tests if t["outcome"] != "skipped"]
         if not ran and self.complete:
-            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected")
+            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected (or every one was deselected)")
         failing = any(t["verdict"] in ("fail", "error") for t in tests) or any(
             r["traced"] and r["verdict"] in ("fail", "error") for r in matrix)
         if failing:

@@ -37,6 +37,98 @@ def test_toml_overrides_and_min_budgets(tmp_path):
     assert "installation_offset_error" in b  # defaults kept
 
 
+BOUNDARY_BUDGETS = ('[err_max]\nrequirement = "REQ-B-001"\nunit = "deg_e"\nlimit = 0.5\nmarginal = 0.4\n\n'
+                    '[share_min]\nrequirement = "REQ-B-002"\nunit = "fraction"\nlimit = 0.9\nmarginal = 0.95\nkind = "min"\n')
+
+
+@pytest.mark.parametrize("name, measured, verdict, margin", [
+    # "at most 0.5, marginal beyond 0.4"
+    ("err_max", 0.5, "marginal", 0.0),                           # exactly at the limit: inside it
+    ("err_max", math.nextafter(0.5, math.inf), "fail", None),    # the least step beyond it
+    ("err_max", 0.4, "pass", 0.1),                               # exactly at the marginal bound: a plain pass
+    ("err_max", math.nextafter(0.4, math.inf), "marginal", None),
+    # "at least 0.9, marginal below 0.95"
+    ("share_min", 0.9, "marginal", 0.0),
+    ("share_min", math.nextafter(0.9, -math.inf), "fail", None),
+    ("share_min", 0.95, "pass", 0.05),
+    ("share_min", math.nextafter(0.95, -math.inf), "marginal", None),
+])
+def test_verdicts_exactly_at_the_limit_and_at_the_marginal_bound(tmp_path, name, measured, verdict, margin):
+    path = tmp_path / "b.toml"
+    path.write_text(BOUNDARY_BUDGETS)
+    v = Budgets.from_toml(path).check(name, measured)
+    assert v.verdict == verdict
+    if margin is not None:
+        assert v.margin == pytest.approx(margin, abs=1e-15)
+    else:
+        assert (v.margin < 0) == (verdict == "fail")
+
+
+def test_a_budget_without_marginal_bound_passes_at_its_limit():
+    b = Budgets.defaults()
+    b.budgets["bare"] = type(b["commutation_angle_p99"])("bare", "REQ-B-003", "A", 2.0)
+    assert b.check("bare", 2.0).verdict == "pass" and b.check("bare", math.nextafter(2.0, 3.0)).verdict == "fail"
+
+
+@pytest.mark.parametrize("text, field, words", [
+    ('[x]\nrequirement = "R"\nunit = "A"\nlimit = -0.1\n', "[x].limit", "must be >= 0"),
+    ('[commutation_angle_p99]\nlimit = -0.5\nmarginal = -0.6\n', "[commutation_angle_p99].limit", "must be >= 0"),
+    ('[commutation_angle_p99]\nlimit = 0.3\nmarginal = 0.35\n', "[commutation_angle_p99].marginal", "passing side"),
+    ('[commutation_angle_p99]\nmarginal = -0.1\n', "[commutation_angle_p99].marginal", "passing side"),
+    ('[calibrated_fraction_removed]\nmarginal = 0.85\n', "[calibrated_fraction_removed].marginal", "passing side"),
+    ('[x]\nrequirement = "R"\nunit = "A"\nlimit = 1.0\nkind = "min"\nmarginal = 0.5\n', "[x].marginal", "at or above the limit"),
+])
+def test_inconsistent_budgets_are_refused_naming_file_and_key(tmp_path, text, field, words):
+    path = tmp_path / "b.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        Budgets.from_toml(path)
+    assert f"{path}: {field}" in str(info.value) and words in str(info.value)
+
+
+def test_the_defaults_are_consistent():
+    b = Budgets.defaults()
+    assert b.source == "defaults" and len(b.budgets) >= 14
+    for budget in b.budgets.values():
+        assert budget.limit >= 0 and budget.requirement.startswith("REQ-")
+
+
+WAIVER = '[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms"\nowner = "controls team"\n'
+
+
+def test_waivers_load_with_their_reason_owner_scope_and_expiry(tmp_path):
+    import datetime
+
+    path = tmp_path / "b.toml"
+    path.write_text(WAIVER + 'tests = ["test_fault_sequences"]\nexpires = 2027-06-30\n\n' + WAIVER.replace("ROB-002", "ROB-001"))
+    b = Budgets.from_toml(path, today=datetime.date(2027, 6, 30))  # still valid on its last day
+    w = b.waivers[0]
+    assert (w.requirement, w.reason, w.owner, w.tests, w.expires) == (
+        "REQ-ROB-002", "recovery needs 80 ms", "controls team", ("test_fault_sequences",), datetime.date(2027, 6, 30))
+    assert w.covers("test_cases/x.py::test_fault_sequences[virtual]") and not w.covers("test_cases/x.py::test_other")
+    assert b.waivers[1].covers("anything") and f"{path}: [[waiver]][1]" == b.waivers[1].source
+    layered = tmp_path / "more.toml"
+    layered.write_text(WAIVER.replace("ROB-002", "CAL-001"))
+    assert [w.requirement for w in Budgets.from_toml(layered, base=b).waivers] == ["REQ-ROB-002", "REQ-ROB-001", "REQ-CAL-001"]
+
+
+@pytest.mark.parametrize("text, field, words", [
+    (WAIVER.replace('reason = "recovery needs 80 ms"\n', ""), "[[waiver]][0].reason", "required"),
+    (WAIVER.replace('"controls team"', '"  "'), "[[waiver]][0].owner", "required"),
+    (WAIVER + 'expires = "2001-01-31"\n', "[[waiver]][0].expires", "expired on 2001-01-31"),
+    (WAIVER + 'expires = "next year"\n', "[[waiver]][0].expires", "ISO date"),
+    (WAIVER + 'tests = "test_x"\n', "[[waiver]][0].tests", "list"),
+    (WAIVER + 'because = "x"\n', "[[waiver]][0].because", "unknown key"),
+    ('[waiver]\nrequirement = "REQ-ROB-002"\n', "waiver", "[[waiver]]"),
+])
+def test_bad_waivers_are_refused_naming_file_and_key(tmp_path, text, field, words):
+    path = tmp_path / "b.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        Budgets.from_toml(path)
+    assert f"{path}: {field}" in str(info.value) and words in str(info.value)
+
+
 @pytest.mark.parametrize("text, field", [
     ('[x]\nunit = "A"\nlimit = 1.0\n', "[x].requirement"),
     ('[x]\nrequirement = "R"\nunit = "A"\nlimit = nan\n', "[x].limit"),

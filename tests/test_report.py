@@ -142,7 +142,8 @@ def test_a_known_failure_is_never_a_pass_and_hostile_messages_keep_the_junit_wel
     req = {r["id"]: r for r in content["traceability"]}
     assert req["REQ-CAL-001"]["verdict"] == "fail" and req["REQ-CAL-002"]["verdict"] == "pass"
     assert content["complete"] and content["verdict"] == "FAIL"
-    assert any("known failure (xfail)" in r for r in content["verdict_reasons"]) and "REQ-CAL-001: fail" in content["verdict_reasons"]
+    assert "REQ-CAL-001: fail" in content["verdict_reasons"]
+    assert any("known failure (xfail)" in r and "\\x1b[31mred" in r and "\x1b" not in r for r in content["verdict_reasons"])
     suite = junit(pytester)
     props = {p.get("name"): p.get("value") for p in suite.find("properties")}
     assert props["hil.verdict"] == "FAIL" and props["hil.complete"] == "true" and props["hil.requirement:REQ-CAL-001"] == "fail"
@@ -234,6 +235,25 @@ def test_a_skip_that_does_not_apply_to_this_dut_leaves_a_pass_standing(pytester)
     assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-PROT-003"] == "pass" and content["verdict"] == "PASS"
 
 
+def test_a_traced_requirement_that_no_test_answered_for_fails_the_run(pytester):
+    pytester.makepyfile(test_two="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-PROT-001")
+        def test_identity():
+            pass
+
+        @pytest.mark.requirement("REQ-PROT-002")
+        def test_heartbeat():
+            pytest.skip("the DUT speaks modbus")
+    """)
+    pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, skipped=1)
+    content = report(pytester)
+    req = {r["id"]: r["verdict"] for r in content["traceability"]}
+    assert req["REQ-PROT-001"] == "pass" and req["REQ-PROT-002"] == req["REQ-CAL-001"] == "not tested"
+    assert content["verdict"] == "FAIL" and content["verdict_reasons"] == ["REQ-PROT-002: not tested"]  # REQ-CAL-001: not traced
+
+
 WAIVED_SUITE = """
 import pytest
 
@@ -296,8 +316,7 @@ def test_a_usage_error_is_never_a_complete_pass(pytester):
 def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdict(pytester, capsys):
     from hil.cli import main
 
-    pytester.makeconftest("")
-    pytester.makepyfile(test_cal=CAL_SUITE)
+    pytester.makepyfile(test_cal=CAL_SUITE)  # a suite needs no conftest.py
     common = ["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]
     assert main(common + ["--", "-k", "no_such_test"]) == pytest.ExitCode.NO_TESTS_COLLECTED
     assert report(pytester)["verdict"] == "NO TESTS"
@@ -307,3 +326,4 @@ def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdic
     assert report(pytester)["verdict"] == "FAIL"
     assert main(common + ["--", "--no-such-option"]) == pytest.ExitCode.USAGE_ERROR
     assert not (pytester.path / "rep" / "hil-report.json").exists()  # the previous run's report is gone, not left to be read
+    assert main(["acceptance", "--suite", "no_such_dir"]) == 2 and "--suite no_such_dir: no such directory" in capsys.readouterr().err
