@@ -326,7 +326,7 @@ def figure_file_name(nodeid: str, name: str) -> str:
     import hashlib
 
     func = nodeid.rpartition("::")[2].removeprefix("test_")
-    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{func}-{name}").strip("_")[:96]
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{func}-{name}").strip("_")[:150]
     return f"{slug}-{hashlib.sha1(f'{nodeid}|{name}'.encode()).hexdigest()[:8]}.png"
 
 
