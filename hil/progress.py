@@ -17,6 +17,7 @@ import time
 
 import pytest
 
+from .report import OUTCOME_ORDER
 from .report_html import short_label
 
 _active: "Progress | None" = None
@@ -96,7 +97,7 @@ class Progress:
 
 def _outcome(reports) -> str:
     """One word for a test from its phase reports: the worst phase wins."""
-    order = ("error", "failed", "xpassed", "xfailed", "skipped", "passed")
+    order = OUTCOME_ORDER  # the report's order: a test's outcome is the worst of its phases
     worst = "passed"
     for r in reports:
         if hasattr(r, "wasxfail"):
