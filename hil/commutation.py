@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant_models.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
+from plant_models.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
 from plant_models.simulation import Command
 
 from .calibration.corrections import Corrections
@@ -129,6 +129,11 @@ class HallCommutation:
         self._edge_index += 1
         if self._edge_index == 0:
             self._first_angle_deg_e = SENSOR_POSITION_DEG_E[x] + (0.0 if rising else 180.0)
+            if self._last_t is None:
+                # start-up: only this sensor's level is known from an edge; the other two follow
+                # from which edge it was (the rotor turns forward), so the first commutation is
+                # right and not one built from two assumed-low sensors (a sector 60 deg e ahead)
+                self._seen = [int(b) for b in hall_state(self._first_angle_deg_e + 30.0)]
         # magnet boundary of this edge, from its place in the edge sequence (forward rotation)
         angle = self._first_angle_deg_e + 60.0 * self._edge_index
         boundary = int(round((angle - SENSOR_POSITION_DEG_E[x]) / 180.0))
@@ -156,19 +161,38 @@ class HallCommutation:
                 w_e = 360.0 * self.pole_pairs / max(t - self._history[-n - 1][0], 1e-9)
             else:
                 w_e = 60.0 / max(t - self._last_t, 1e-9)
+            speed_rpm = w_e / (6.0 * self.pole_pairs)
+            current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
-                speed_rpm = w_e / (6.0 * self.pole_pairs)
-                current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
                 t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e
+            else:
+                # the pole alignment is learned over the first turns; until then every correction
+                # but the pole's applies, with the poles' mean for it (the installation offset,
+                # the delays and above all the armature lag, which left uncorrected grows with
+                # the current it causes)
+                offsets = self.corrections.pole_offset_deg_e
+                static = self.corrections.correction_one_deg_e(x, rising, 0, speed_rpm, float(current)) - offsets[0]
+                t_corr = t - (static + sum(offsets) / len(offsets)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None
         if self._last_corr_t is not None and t_corr > self._last_corr_t:
-            speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
-            self.speed_estimates_rpm.append((t, speed_rpm))
-            duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)
+            if self.corrections is not None and self._pole_shift is None:
+                # before the pole alignment is known the edges are uncorrected, and one sector's
+                # time carries the whole installation, pole and delay deviation (tens of percent
+                # at the effect library's bounds); the current limit turns that speed error into
+                # a duty far off the back-EMF, hence tens of amperes, which the armature reaction
+                # turns into more lag. Whole electrical periods (same sensor, same edge) cancel
+                # the installation offsets and delays; until one has passed the duty is kept.
+                periods = min(len(self._history) - 1, 6 * self.pole_pairs) // 6
+                speed_rpm = 60.0 * periods / self.pole_pairs / (t - self._history[-6 * periods - 1][0]) if periods else 0.0
+            else:
+                speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
+            if speed_rpm > 0.0:
+                self.speed_estimates_rpm.append((t, speed_rpm))
+                duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)
         now = edge.get("now_s", t)
-        if self.corrections is None or self._pole_shift is None or self._last_corr_t is None:
+        if self.corrections is None or self._last_corr_t is None:
             commands.append(Command(at_s=now, sector=sector, duty=duty))
         else:
             due = self._scheduled.get(sector)

@@ -27,7 +27,8 @@ S_AR_TIME, S_AR_ANGLE, S_E_IN, S_E_CU, S_E_MECH, S_E_LOAD = range(8, 14)
 S_FWD_TARGET = 14  # 3 values: base forward switching angle per sensor (deg_e, unwrapped)
 S_REV_TARGET = 17  # 3 values
 S_SAMPLE_T0 = 20
-N_FSTATE = 21
+S_HELD_ARM = 21  # 3 values: armature shift (deg_e) held by the boundary behind each sensor
+N_FSTATE = 24
 
 # int state layout
 I_SECTOR, I_DIR, I_MODE, I_N_EDGES, I_N_IDEAL, I_N_SAMPLES, I_NOISE = range(7)
@@ -36,7 +37,8 @@ I_IDEAL_REGION = 10  # 3 values
 I_N_PENDING, I_ORACLE_N, I_CMD_HEAD, I_CMD_COUNT, I_SAMPLE_K = range(13, 18)
 I_SEEN = 18  # 3 values: Hall state as the controller has seen it
 I_N_COMM = 21
-N_ISTATE = 22
+I_LAST_CROSS = 22  # 3 values: direction of each sensor's last switch (+1, -1; 0 = none yet)
+N_ISTATE = 25
 
 MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
 STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
@@ -127,15 +129,82 @@ def _draw(st, ist, noise, slot, rms, rho):
 
 
 @njit(cache=True)
-def set_targets(p, st, ist, sensor_off, pole_off, noise, x):
-    """Base switching angles of sensor x around its current region (installation, pole, jitter)."""
+def set_targets(p, st, ist, sensor_off, pole_off, noise, x, crossed=0):
+    """Base switching angles of sensor x around its current region (installation, pole, jitter).
+
+    ``crossed`` = +1 (-1): the sensor has just entered this region forward (backward), so the
+    boundary behind it is the one it crossed, at the angle it crossed it: the field is the same
+    field, and its angle noise has not moved in between. A fresh draw there would put the way
+    back in front of the rotor half the time, and the sensor would flip back at once. Both
+    sides are still drawn, so the noise stream, and every run that never turns back, stays the
+    same whichever way the last crossing went.
+    """
     m = ist[I_RAW_REGION + x]
     n_poles = pole_off.size
     kf = m + 1
     km = m
     base = SENSOR_POS[x] + sensor_off[x]
+    kept = st[S_FWD_TARGET + x] if crossed > 0 else st[S_REV_TARGET + x]
     st[S_FWD_TARGET + x] = 180.0 * kf + base + pole_off[kf % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
     st[S_REV_TARGET + x] = 180.0 * km + base + pole_off[km % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    if crossed > 0:
+        st[S_REV_TARGET + x] = kept
+    elif crossed < 0:
+        st[S_FWD_TARGET + x] = kept
+
+
+@njit(cache=True, inline="always")
+def armature_shift(p, ist, arm_i, arm_deg, current):
+    """Armature-reaction shift of the Hall switching angles at mean |i| = ``current`` (deg e).
+
+    Its sign follows the torque (the stator MMF reverses with the drive direction), so a
+    positive slope lags in motoring whichever way the rotor turns."""
+    return ist[I_DIR] * _armature(p, arm_i, arm_deg, current)
+
+
+@njit(cache=True, inline="always")
+def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
+    """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
+
+    Returns (+1 forward, -1 backward or 0; the switching angle at the step start; its rate in
+    deg e/s over the step). The one place the raw Hall outputs switch. ``arm0`` is the armature
+    shift at the step start and ``arm_rate`` its rate over the step (the current's, taken
+    linear within the step): an edge sits at the current of its own instant, not at the
+    current of the step it fell in.
+
+    The hysteresis opens a band around the switching point: forward the rotor must pass it by
+    the hysteresis, backward fall short of it by as much, so the band is never negative. The
+    armature reaction is the edge's lag at the current of its edge, not a band: it moves the
+    switching point ahead of the sensor with the current, while the boundary the sensor has just
+    crossed stays where it was crossed (``S_HELD_ARM``), so the way back is the crossing angle
+    less twice the hysteresis. (Applied like the hysteresis, in whichever way the rotor
+    crosses, a leading shift made the band negative and the sensor flipped back on every step
+    after an edge; applied to both sides live, a current that moves faster than the rotor
+    after a commutation dragged the boundary just crossed back over the rotor.)
+    """
+    last = ist[I_LAST_CROSS + x]
+    if last < 0:
+        lag_f, rate_f = p[P_HYST] + st[S_HELD_ARM + x], 0.0
+    else:
+        lag_f, rate_f = p[P_HYST] + arm0, arm_rate
+    if th1 >= st[S_FWD_TARGET + x] + (lag_f + rate_f * h) - eps_f:
+        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
+    if last > 0:
+        lag_r, rate_r = p[P_HYST] - st[S_HELD_ARM + x], 0.0
+    else:
+        lag_r, rate_r = p[P_HYST] - arm0, arm_rate
+    if th1 <= st[S_REV_TARGET + x] - (lag_r - rate_r * h) + eps_r:
+        return -1, st[S_REV_TARGET + x] - lag_r, rate_r
+    return 0, 0.0, 0.0
+
+
+@njit(cache=True, inline="always")
+def hold_crossing(st, ist, x, d, arm):
+    """Sensor x has just switched going ``d`` (present armature shift ``arm``): the boundary
+    behind it keeps the shift it was crossed with."""
+    if d * ist[I_LAST_CROSS + x] >= 0:  # crossed on the live side (the held one is behind)
+        st[S_HELD_ARM + x] = arm
+    ist[I_LAST_CROSS + x] = d
 
 
 @njit(cache=True)
@@ -287,6 +356,15 @@ def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
     return t_cond, max(t_cond, t_raw)
 
 
+@njit(cache=True, inline="always")
+def _pending_of(pending, ist, x):
+    """Row of sensor x's edge still on its way through the conditioning circuit, or -1."""
+    for q in range(ist[I_N_PENDING]):
+        if pending[q, E_SENSOR] == x:
+            return q
+    return -1
+
+
 @njit(cache=True)
 def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
@@ -433,22 +511,18 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
             elif th1 <= 60.0 * n + eps_r:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
-        # the armature shift uses the current at the step start, so a step cut back to an
-        # event sees the same switching angle as the trial step did
-        i_end = (abs(backup[S_IA]) + abs(backup[S_IB]) + abs(backup[S_IC])) / 3.0
-        shift = p[P_HYST] + _armature(p, arm_i, arm_deg, i_end)
+        # mean |i| and the armature shift run linearly over the trial step; a step cut back to
+        # an event keeps this trial's line, so it sees the switching angle the trial located
+        i_start = (abs(backup[S_IA]) + abs(backup[S_IB]) + abs(backup[S_IC])) / 3.0
+        i_rate = ((abs(st[S_IA]) + abs(st[S_IB]) + abs(st[S_IC])) / 3.0 - i_start) / h
+        arm0 = armature_shift(p, ist, arm_i, arm_deg, i_start)
+        arm_rate = (armature_shift(p, ist, arm_i, arm_deg, i_start + i_rate * h) - arm0) / h
         for x in range(3):
-            m = ist[I_RAW_REGION + x]
-            tf = st[S_FWD_TARGET + x] + shift
-            trv = st[S_REV_TARGET + x] - shift
-            if th1 >= tf - eps_f:
-                t_raw = backup[S_T] + _root(th0, we0, acc, tf, h)
-                rising = (m + 1) % 2 == 0
-            elif th1 <= trv + eps_r:
-                t_raw = backup[S_T] + _root(th0, we0, acc, trv, h)
-                rising = (m - 1) % 2 == 0
-            else:
+            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            if d == 0:
                 continue
+            t_raw = backup[S_T] + _root(th0, we0 - rate, acc, target, h)
+            rising = (ist[I_RAW_REGION + x] + d) % 2 == 0
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, True)
             t_event = min(t_event, t_emit)
         # (a cut never shrinks a step below 0.1 ns, so a pathological event cannot stall the
@@ -499,24 +573,31 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             ist[I_N_IDEAL] += 1
         # commit: raw sensor edges into the pending queue
         for x in range(3):
-            m = ist[I_RAW_REGION + x]
-            tf = st[S_FWD_TARGET + x] + shift
-            trv = st[S_REV_TARGET + x] - shift
-            if th1 >= tf - eps_f:
-                k = m + 1
-                d = 1.0
-                target = tf
-                ist[I_RAW_REGION + x] = m + 1
-            elif th1 <= trv + eps_r:
-                k = m
-                d = -1.0
-                target = trv
-                ist[I_RAW_REGION + x] = m - 1
-            else:
+            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            if d == 0:
                 continue
+            tau = _root(th0, we0 - rate, acc, target, h)
+            target += rate * tau
+            hold_crossing(st, ist, x, d, arm0 + arm_rate * tau)
+            m = ist[I_RAW_REGION + x]
+            k = m + 1 if d > 0 else m
+            ist[I_RAW_REGION + x] = m + d
             rising = ist[I_RAW_REGION + x] % 2 == 0
-            t_raw = t0 + _root(th0, we0, acc, target, h)
+            t_raw = t0 + tau
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, False)
+            set_targets(p, st, ist, sensor_off, pole_off, noise, x, d)
+            # the conditioning circuit is a state (its capacitor), not a delay per edge: a raw
+            # pulse that ends before the capacitor crossed the MCU threshold never reaches the
+            # MCU, and its end does not either (inertial delay). Delayed independently, the two
+            # could swap places (rise and fall delays far apart) and the MCU would see the same
+            # level twice.
+            q = _pending_of(pending, ist, x)
+            if q >= 0:
+                last = ist[I_N_PENDING] - 1
+                for c in range(N_EDGE_COLS):
+                    pending[q, c] = pending[last, c]
+                ist[I_N_PENDING] = last
+                continue
             q = ist[I_N_PENDING]
             if q >= MAX_PENDING:
                 return STOP_FULL
@@ -529,9 +610,8 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             r[E_BOUNDARY] = k
             r[E_DIR] = d
             r[E_THETA_RAW] = target
-            r[E_CURRENT] = i_end
+            r[E_CURRENT] = i_start + i_rate * tau
             r[E_POLE] = k % n_poles
             ist[I_N_PENDING] = q + 1
-            set_targets(p, st, ist, sensor_off, pole_off, noise, x)
         if ist[I_NOISE] > noise.size - 64:
             return STOP_NOISE

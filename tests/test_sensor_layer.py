@@ -222,3 +222,112 @@ def test_electrical_and_kinematic_modes_agree_on_sensor_layer():
     dt = e.t_conditioned_s - e.t_raw_s
     np.testing.assert_allclose(dt[e.rising], 6e-6, atol=1e-12)
     np.testing.assert_allclose(dt[~e.rising], 1e-6, atol=1e-12)
+
+
+# --- the Hall chatter defect (issue 15): each cause pinned on the electrical plant ---------------
+
+def _steady_raw_hall(effects, speed_rpm, duration_s=0.05, seed=0):
+    from plant_models.plant import steady_state
+
+    sim = Simulation(BASE.with_effects(*effects), RawHallCommutation(), duty=steady_state(BASE.motor, speed_rpm)["duty"],
+                     initial_speed_rpm=speed_rpm, seed=seed, max_step_s=2e-6)
+    sim.run_until(duration_s)
+    return sim
+
+
+def assert_no_chatter(sim, max_current_a=10.0):
+    """One forward Hall step per 60 deg e of rotor travel, each sensor alternating, and the phase
+    currents at their steady size (a chattering plant ran away to hundreds of amperes)."""
+    e, s = sim.edges(), sim.samples()
+    assert np.all(e.direction == 1)
+    assert abs(len(e) - (s.theta_e_deg[-1] - s.theta_e_deg[0]) / 60.0) <= 1.0, len(e)
+    for x in range(3):
+        r = e.rising[e.sensor == x]
+        assert np.all(r[1:] != r[:-1])
+    assert np.abs(s.i_true_a).max() < max_current_a
+
+
+@pytest.mark.parametrize("slope", [-2.0, -0.5, 2.0])
+def test_armature_reaction_of_either_sign_keeps_raw_hall_commutation(slope):
+    """A leading armature shift (negative slope) used to act as a negative hysteresis band: the
+    sensor flipped back on the step after each edge, and raw-Hall commutation ran away (tens of
+    amperes). Now every edge is one forward Hall step, one per 60 deg e of rotor travel."""
+    sim = _steady_raw_hall([fx.ArmatureReaction(slope)], 10000.0)
+    assert_no_chatter(sim)  # about 2 A in steady state at 10,000 rpm
+    e = sim.edges()
+    np.testing.assert_allclose(e.switch_error_deg_e, slope * e.mean_abs_current_a, atol=1e-6)
+
+
+def test_angle_jitter_does_not_flip_a_sensor_back():
+    """The boundary a sensor has just crossed keeps the jitter it was crossed with: a fresh draw
+    behind the rotor put the way back ahead of it half the time (76 edges where 36 were due)."""
+    cfg = BASE.with_effects(fx.EdgeJitter(angle_rms_deg_e=1.0, time_rms_s=1e-6), fx.TimerQuantization(1e-6))
+    sim = Simulation(cfg, OracleCommutation(), duty=0.4, initial_speed_rpm=6000, seed=5, max_step_s=2e-6)
+    sim.run_until(0.03)
+    assert_no_chatter(sim, max_current_a=100.0)  # commutated on the true angle; accelerating at 0.4 duty
+
+
+def _swinging_rotor(rise_s, fall_s):
+    """A light rotor released 4 deg e from a cogging rest on Hall C's boundary (moved 2 deg e by
+    its installation offset), unpowered: it swings about the rest with a slowly decaying
+    amplitude, so C's pulses past its boundary shrink through every width down to zero."""
+    import dataclasses
+
+    motor = dataclasses.replace(BASE.motor, inertia_kg_m2=1e-8, friction_n_m_s_per_rad=1.5e-7, fan_coefficient_n_m_s2=0.0)
+    cfg = dataclasses.replace(BASE, motor=motor).with_effects(
+        fx.ConditioningDelay(rise_delay_s=rise_s, fall_delay_s=fall_s), fx.InstallationOffset((0.0, 0.0, 2.0)),
+        fx.CoggingTorque(amplitude_n_m=0.1, periods_per_rev=12, phase_rad=0.0))
+
+    class Unpowered:
+        def on_edge(self, edge, sim):
+            return []
+
+    from plant_models.simulation import Command
+
+    sim = Simulation(cfg, Unpowered(), duty=0.0, initial_speed_rpm=0.0, initial_angle_deg_m=28.0, seed=0, max_step_s=1e-6)
+    sim.schedule(Command(0.0, sector=-1))
+    sim.run_until(0.12)
+    return sim.edges()
+
+
+def test_a_pulse_shorter_than_the_conditioning_delay_never_reaches_the_mcu():
+    """The conditioning circuit is a state (its capacitor), not a delay per edge: a raw pulse that
+    ends before the capacitor reached the MCU threshold is not seen, nor is its end. Delayed one
+    by one, a short low pulse's rising end (2 us) overtook its falling start (40 us), and the MCU
+    saw the same level twice, then the wrong one until the next edge."""
+    fast = _swinging_rotor(2e-6, 2e-6)
+    slow = _swinging_rotor(2e-6, 40e-6)
+    assert len(fast) > 300 and np.all(fast.sensor == 2)
+    # the same swing, less the pulses too short for the 40 us fall (their two edges each)
+    swallowed = len(fast) - len(slow)
+    assert swallowed > 0 and swallowed % 2 == 0
+    r, t = slow.rising, slow.t_capture_s
+    assert np.all(r[1:] != r[:-1]) and np.all(np.diff(t) > 0)
+    low = np.nonzero(~r[:-1])[0]  # every low pulse the MCU saw lasted at least its leading (fall) delay
+    assert np.all(slow.t_raw_s[low + 1] - slow.t_raw_s[low] >= 40e-6)
+
+
+def test_edge_current_is_the_current_at_the_crossing():
+    """The armature shift follows the current within the plant step: an edge's current (and so
+    its lag) is the current at its own instant. Taken at the step start it was up to a step of
+    commutation transient stale (0.6 A on a finding), which cost 2 deg e of commutation there."""
+    from plant_models.plant import steady_state
+
+    # commutation on the true angle, edges 1 deg e later: each edge falls in a commutation transient
+    cfg = BASE.with_effects(fx.ArmatureReaction(1.0), fx.InstallationOffset((1.0, 1.0, 1.0)))
+    duty = steady_state(BASE.motor, 9000.0)["duty"] + 0.1  # driven hard: tens of amperes, fast transients
+
+    def run(sample_rate_hz):
+        sim = Simulation(cfg, OracleCommutation(), duty=duty, initial_speed_rpm=9000.0, seed=0, max_step_s=2e-6,
+                         sample_rate_hz=sample_rate_hz)
+        sim.run_until(0.02)
+        return sim
+
+    e = run(100e3).edges()  # plant steps of 2 us
+    f = run(20e6).samples()  # the same run seen every 50 ns
+    mean_abs = np.abs(f.i_true_a).mean(axis=1)
+    at_crossing = np.interp(e.t_raw_s, f.t_s, mean_abs)
+    step_start = np.interp(np.floor(e.t_raw_s / 2e-6) * 2e-6, f.t_s, mean_abs)
+    assert np.max(np.abs(step_start - at_crossing)) > 0.03  # the step start is stale here
+    np.testing.assert_allclose(e.mean_abs_current_a, at_crossing, atol=0.003)
+    np.testing.assert_allclose(e.switch_error_deg_e, 1.0 + 1.0 * e.mean_abs_current_a, atol=1e-6)

@@ -213,6 +213,12 @@ class VirtualController:
                     # minus the edges that did arrive
                     self._logic.count_lost_edges(max(round(dt / self._last_dt) - self._edges_since_motion, 0))
                     dt = self._last_dt  # the interval of one sector stays the reference
+                elif self._last_dt is not None and dt * self.missing_edge_interval_ratio < self._last_dt:
+                    # far shorter than the last sector (the rotor cannot speed up that much in one
+                    # sector): a glitch that read as a step, e.g. a spike on a Hall state left
+                    # wrong by a lost edge. Taken as the reference, it made every later sector
+                    # read as lost edges, the edge count ran away and the corrections with it
+                    dt = self._last_dt
                 self._last_dt = dt
             self._last_t = t
             self._edges_since_motion = 0

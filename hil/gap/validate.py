@@ -139,11 +139,6 @@ def make_case(effects_withheld: list[str], snr: float, seed: int, base: PlantCon
             snr_achieved = min(snr_achieved, achieved)
             continue
         unit = _unit_effect(name, rng, p)
-        if electrical and name == "armature_reaction":
-            # a leading armature shift (negative slope) feeds back through raw-Hall commutation
-            # into a current runaway on the electrical plant (tens of amperes instead of about
-            # one; the plant's open Hall-chatter defect): draw the trailing sign there
-            unit = fx.ArmatureReaction(abs(unit.slope_deg_e_per_a))
         if name == "timer_quantization":
             eff = fx.TimerQuantization(min(1e-5, 2 * snr * _noise_rms(ops, p) / (np.mean([op.speed_rpm for op in ops]) * 6 * p) * math.sqrt(3)))
         else:
