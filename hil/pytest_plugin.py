@@ -152,12 +152,9 @@ def pytest_runtest_makereport(item, call):
 def _unreachable(exc: BaseException):
     """The controller link, connection, CAN or serial error a skip was raised while handling, if any
     (not any OSError: a skip because an optional file is missing is a real "not applicable")."""
-    import can
-    import serial
-
-    from .dut.link import LinkError
-
-    unreachable = (LinkError, ConnectionError, TimeoutError, can.CanError, serial.SerialException)
+    # an exception of a library's type exists only if that library was imported: look, do not import
+    unreachable = (ConnectionError, TimeoutError, *(getattr(sys.modules[m], name) for m, name in (
+        ("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException")) if m in sys.modules))
     seen, cause = set(), exc.__cause__ or exc.__context__
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, unreachable):
@@ -406,7 +403,8 @@ class HilReporter:
         for reason in content["verdict_reasons"]:
             terminalreporter.write_line(f"  {reason}")
         for w in content["waivers"]:
-            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}")
+            unused = "" if w["tests_waived"] else " [waives nothing in this run]"
+            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:

@@ -2,6 +2,8 @@
 
 import json
 
+import can  # noqa: F401  imported before any in-process pytester run: its snapshot of sys.modules would
+            # otherwise drop python-can and the pandas it pulls in, and pandas cannot be imported twice
 import pytest
 
 pytest_plugins = ["pytester"]
@@ -291,7 +293,8 @@ def test_a_waiver_shows_as_waived_with_reason_and_owner_never_as_pass(pytester):
 def test_a_waiver_limited_to_other_tests_waives_nothing(pytester):
     pytester.makefile(".toml", budgets='[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "r"\nowner = "o"\ntests = ["test_other"]\n')
     pytester.makepyfile(test_w=WAIVED_SUITE)
-    pytester.runpytest("--hil-report-dir", "rep", "--hil-budgets", "budgets.toml")
+    result = pytester.runpytest("--hil-report-dir", "rep", "--hil-budgets", "budgets.toml")
+    result.stdout.fnmatch_lines(["*WAIVED REQ-ROB-002 (owner o): r [[]waives nothing in this run[]]"])
     content = report(pytester)
     assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-ROB-002"] == "fail" and content["verdict"] == "FAIL"
     assert content["waivers"][0]["tests_waived"] == []
@@ -327,3 +330,29 @@ def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdic
     assert main(common + ["--", "--no-such-option"]) == pytest.ExitCode.USAGE_ERROR
     assert not (pytester.path / "rep" / "hil-report.json").exists()  # the previous run's report is gone, not left to be read
     assert main(["acceptance", "--suite", "no_such_dir"]) == 2 and "--suite no_such_dir: no such directory" in capsys.readouterr().err
+
+
+def _t(nodeid, outcome, *measured):
+    return {"nodeid": nodeid, "outcome": outcome, "requirements": ["REQ-R-001"],
+            "measurements": [{"requirement": "REQ-R-001", "verdict": v} for v in measured]}
+
+
+@pytest.mark.parametrize("tests, waiver_tests, verdict", [
+    ([_t("a", "passed", "pass"), _t("b", "passed", "marginal")], None, "marginal"),
+    ([_t("a", "passed", "pass"), _t("b", "skipped")], None, "pass"),
+    ([_t("a", "passed", "fail")], None, "fail"),                       # a budget failed in a test that passed
+    ([_t("a", "failed"), _t("b", "error")], None, "fail"),             # fail outranks error
+    ([_t("a", "failed"), _t("b", "passed")], ["a"], "waived"),
+    ([_t("a", "failed"), _t("b", "failed")], ["a"], "fail"),           # the waiver does not reach b
+    ([_t("a", "error")], [], "error"),                                 # an error is never waived
+    ([_t("a", "skipped")], [], "waived"),                              # a waiver of the whole requirement
+    ([_t("a", "skipped")], ["a"], "not tested"),                       # ... but not one limited to tests
+    ([], None, "not tested"),
+])
+def test_requirement_verdict_table(tests, waiver_tests, verdict):
+    from hil.budgets import Waiver
+    from hil.report import requirement_verdict
+
+    waivers = [] if waiver_tests is None else [Waiver("REQ-R-001", "reason", "owner", tuple(waiver_tests))]
+    got, waiver = requirement_verdict("REQ-R-001", tests, waivers)
+    assert got == verdict and (waiver is not None) == (verdict == "waived")
