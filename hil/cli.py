@@ -288,7 +288,7 @@ def cmd_acceptance(args) -> int:
 def acceptance_exit(pytest_status: int, report_json: Path) -> int:
     """The exit status of ``hil acceptance``: 0 only for a PASS verdict. pytest's own status is kept
     when it says more (interrupted 2, internal error 3, usage error 4, no tests collected 5, failed
-    tests 1); a run whose only failures are waived exits 0; any other non-PASS verdict exits 1."""
+    tests 1); any other non-PASS verdict (a known failure, a requirement no test answered) exits 1."""
     try:
         content = json.loads(report_json.read_text())
     except (OSError, ValueError):
@@ -296,7 +296,7 @@ def acceptance_exit(pytest_status: int, report_json: Path) -> int:
         return pytest_status or 1
     verdict = content.get("verdict")
     print(f"hil acceptance: {verdict}" + "".join(f"\n  {r}" for r in content.get("verdict_reasons", [])))
-    if verdict == "PASS" and pytest_status in (0, 1):
+    if verdict == "PASS" and pytest_status == 0:
         return 0
     return pytest_status or 1
 

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256
+from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256, test_waiver
 
 VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
              "matplotlib", "jinja2")
@@ -74,11 +74,17 @@ def _plant_config(config):
     return PlantConfig.from_toml(path) if path else paper_bench()
 
 
+_BUDGETS = pytest.StashKey()
+
+
 def _budgets(config):
+    """The budgets in force (--hil-budgets over the defaults), read once per session."""
     from .budgets import Budgets
 
-    path = _option(config, "budgets")
-    return Budgets.from_toml(path) if path else Budgets.defaults()
+    if _BUDGETS not in config.stash:
+        path = _option(config, "budgets")
+        config.stash[_BUDGETS] = Budgets.from_toml(path) if path else Budgets.defaults()
+    return config.stash[_BUDGETS]
 
 
 def hil_settings(**overrides):
@@ -136,6 +142,8 @@ def pytest_runtest_makereport(item, call):
     exc = call.excinfo.value if call.excinfo is not None else None
     if exc is None:
         return rep
+    if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
+        _apply_waiver(item, rep)
     if rep.skipped and hasattr(rep, "wasxfail") and call.when != "call" and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception)):
         rep.outcome = "failed"
         del rep.wasxfail
@@ -147,6 +155,22 @@ def pytest_runtest_makereport(item, call):
                         f"{type(hidden).__name__}: {hidden}")
         rep.user_properties.append((PROPERTY_PREFIX + "unreachable", f"{type(hidden).__name__}: {hidden}"))
     return rep
+
+
+def _apply_waiver(item, rep) -> None:
+    """A failure that a waiver in the budgets covers under every requirement the test traces to
+    becomes a skip whose reason is the waiver (pytest's exit status, its own JUnit and the HIL
+    report then agree); the failure itself travels on to the HIL report, which shows it beside
+    the waiver. Docs: docs/budgets.md, Waivers."""
+    rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    waiver = test_waiver(_budgets(item.config).waivers, rids, item.nodeid)
+    if waiver is None:
+        return
+    message, details = _failure_text(rep)
+    rep.user_properties.append((PROPERTY_PREFIX + "waived_failure", {"message": message, "details": details}))
+    path, line, _ = item.reportinfo()
+    rep.outcome = "skipped"
+    rep.longrepr = (str(path), (line or 0) + 1, f"WAIVED ({waiver.requirement}, owner {waiver.owner}): {waiver.reason}")
 
 
 def _unreachable(exc: BaseException):
@@ -426,9 +450,14 @@ class HilReporter:
                     phase = "skipped"
                 else:
                     phase = "passed"
+            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(PROPERTY_PREFIX + "waived_failure")
+            if waived is not None:  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
+                phase = "failed"
             if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
                 outcome = phase
-                if r.failed or r.skipped:
+                if waived is not None:
+                    message, details = waived["message"], waived["details"]
+                elif r.failed or r.skipped:
                     message, details = _failure_text(r)
         record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
                   "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
