@@ -17,7 +17,7 @@ import time
 
 import pytest
 
-from .report import OUTCOME_ORDER
+from .report import OUTCOME_ORDER, PROPERTY_PREFIX
 from .report_html import short_label
 
 _active: "Progress | None" = None
@@ -87,9 +87,11 @@ class Progress:
         reports = self.pending.pop(report.nodeid)
         self.done += 1
         outcome = _outcome(reports)
+        if any(str(k) == PROPERTY_PREFIX + "waived_failure" for r in reports for k, _ in getattr(r, "user_properties", ())):
+            outcome = "waived"  # a failure a waiver in the budgets covers (pytest counts it as a skip)
         duration = sum(getattr(r, "duration", 0.0) for r in reports)
         colour = {"passed": {"green": True}, "failed": {"red": True}, "error": {"red": True}, "xpassed": {"red": True},
-                  "skipped": {"yellow": True}, "xfailed": {"yellow": True}}.get(outcome, {})
+                  "skipped": {"yellow": True}, "xfailed": {"yellow": True}, "waived": {"purple": True}}.get(outcome, {})
         tr = self.terminal
         if tr is not None:
             tr.write_line(f"{self.count(self.done)} {outcome:<8} {short_label(report.nodeid)}  ({duration:.1f} s)", **colour)

@@ -57,3 +57,18 @@ def test_labels_are_short_and_readable():
     assert short_label(nodeid, "virtual-canopen") == "wiring fault gives the promised fault · missing-edge"
     assert short_label("t.py::test_x[\\x03\\xff\\xf0\\x00\\x01]") == "x · 03 ff f0 00 01"
     assert printable("a\x00b") == "a00b"
+
+
+def test_a_waived_failure_reads_waived(pytester):
+    budgets = pytester.path.parent / "waiver.toml"
+    budgets.write_text('[[waiver]]\nrequirement = "REQ-X-009"\nreason = "known, fix in 2.1"\nowner = "lead"\n')
+    pytester.makepyfile(test_w="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-X-009")
+        def test_known_defect():
+            assert False
+    """)
+    result = pytester.runpytest("-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider",
+                                "--hil-budgets", str(budgets))
+    assert re.search(r"^\[1/1 +\d+:\d\d\] waived +known defect", result.stdout.str(), re.M), result.stdout.str()
