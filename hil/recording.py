@@ -304,7 +304,7 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int]) -> dict[str, np.nd
         return None
     numeric = [c for c in header if c != "segment"]
     try:
-        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": str},
+        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": object},
                          skipinitialspace=True, engine="c", keep_default_na=False, na_filter=False)
     except (ValueError, pd.errors.ParserError):
         return None
