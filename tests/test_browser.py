@@ -105,7 +105,7 @@ def test_default_acceptance_prints_no_warning_and_shows_progress(acceptance_run)
     # pytest's warnings summary, or any Python warning category (PytestAssertRewriteWarning, ...)
     assert not re.search(r"warnings summary|\b\w*Warning\b", output), f"hil acceptance printed a warning:\n{output[-4000:]}"
     n = len(json.loads((reports / "hil-report.json").read_text())["tests"])
-    progress = re.findall(rf"^\[ *(\d+)/{n} +\d+:\d\d\] (passed|failed|skipped|xfailed|xpassed|error) +\S", run.stdout, re.M)
+    progress = re.findall(rf"^\[ *(\d+)/{n} +\d+:\d\d\] (passed|failed|skipped|xfailed|xpassed|error|waived) +\S", run.stdout, re.M)
     assert [int(k) for k, _ in progress] == list(range(1, n + 1)), f"expected one progress line per test, 1 to {n}:\n{run.stdout[:3000]}"
     assert re.search(r"^ +\.\.\. calibration campaign", run.stdout, re.M), "the calibration campaign does not say what it does"
 
