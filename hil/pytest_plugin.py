@@ -30,6 +30,9 @@ import pytest
 
 from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256, test_waiver
 
+#: the signal-injection fixture (hil_signals) and its options live in their own plugin module
+pytest_plugins = ["hil.signals.fixtures"]
+
 VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
              "matplotlib", "jinja2")
 
@@ -238,11 +241,18 @@ def hil_kinematic(hil_plant_config, hil_seed):
 def hil_dut(hil_dut_spec, hil_plant_config):
     """The controller under test, opened once per session and DUT spec (``virtual``: the built-in
     controller, served over its protocol in this process; each xdist worker has its own)."""
+    from .dut.link import LinkError
     from .dut.spec import open_dut
 
-    dut = open_dut(hil_dut_spec, hil_plant_config.motor)
+    try:  # a controller that cannot be reached ends the session in one line, not one error per test
+        dut = open_dut(hil_dut_spec, hil_plant_config.motor)
+    except LinkError as exc:
+        pytest.exit(f"hil: {exc}", returncode=3)
     try:
         dut.identity = dut.link.identity()
+    except LinkError as exc:
+        dut.close()
+        pytest.exit(f"hil: {exc}", returncode=3)
     except Exception:
         dut.close()
         raise

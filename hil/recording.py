@@ -11,6 +11,7 @@ from __future__ import annotations
 import csv
 import json
 import math
+from array import array
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -140,6 +141,75 @@ def write_recording(rec: Recording, directory: str | Path) -> Path:
 
 # --- reading --------------------------------------------------------------------------------
 
+#: what a reader takes in; past these a file is refused with one line (memory stays bounded
+#: whatever is handed in: a table's columns are held as packed arrays, some 14-22 bytes per edge)
+MAX_META_BYTES = 1 << 20
+MAX_TABLE_BYTES = 256 << 20
+MAX_LINE_BYTES = 4096
+MAX_JSON_DEPTH = 64
+MAX_JSON_NUMBER_CHARS = 100
+BOM = b"\xef\xbb\xbf"
+
+
+def _checked_size(path: Path, limit: int) -> int:
+    size = path.stat().st_size
+    if size > limit:
+        raise RecordingError(path, None, None, f"{size} bytes, above the reader's limit of {limit} bytes")
+    return size
+
+
+def _line_column(data: bytes, offset: int) -> tuple[int, int]:
+    """1-based line and column (in characters of the line read as UTF-8) of a byte offset."""
+    start = data.rfind(b"\n", 0, offset) + 1
+    return data.count(b"\n", 0, offset) + 1, len(data[start:offset].decode("utf-8", "replace")) + 1
+
+
+def _decode(path: Path, data: bytes, line: int | None = None) -> str:
+    """UTF-8 text of ``data`` (a leading byte-order mark is dropped); a bad byte is named by line and column."""
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        offset = exc.start + (len(BOM) if data.startswith(BOM) else 0)
+        row, col = _line_column(data, offset)
+        raise RecordingError(path, line or row, f"{col} (character)", f"not valid UTF-8 (byte 0x{data[offset]:02X})") from None
+
+
+def _json_limits(path: Path, text: str) -> None:
+    """Nesting deeper than MAX_JSON_DEPTH or a number longer than MAX_JSON_NUMBER_CHARS is refused
+    at its line and column before the JSON parser sees it (it would recurse, or convert a
+    5000-digit integer, with no position in its error)."""
+    depth, in_string, escape, number_start, line, line_start = 0, False, False, -1, 1, 0
+    for i, ch in enumerate(text):
+        if in_string:
+            if escape:
+                escape = False
+            elif ch == "\\":
+                escape = True
+            elif ch == '"':
+                in_string = False
+            elif ch == "\n":
+                line, line_start = line + 1, i + 1
+            continue
+        if ch in "-+.eE0123456789":
+            if number_start < 0:
+                number_start = i
+            elif i - number_start >= MAX_JSON_NUMBER_CHARS:
+                raise RecordingError(path, line, f"{number_start - line_start + 1} (character)",
+                                     f"a number longer than {MAX_JSON_NUMBER_CHARS} characters")
+            continue
+        number_start = -1
+        if ch == '"':
+            in_string = True
+        elif ch in "[{":
+            depth += 1
+            if depth > MAX_JSON_DEPTH:
+                raise RecordingError(path, line, f"{i - line_start + 1} (character)", f"nested deeper than {MAX_JSON_DEPTH} levels")
+        elif ch in "]}":
+            depth -= 1
+        elif ch == "\n":
+            line, line_start = line + 1, i + 1
+
+
 def _json_line(text: str, needle: str, nth: int = 0) -> int | None:
     pos = -1
     for _ in range(nth + 1):
@@ -150,14 +220,23 @@ def _json_line(text: str, needle: str, nth: int = 0) -> int | None:
 
 
 def _read_meta(d: Path) -> tuple[dict, list[Segment], float | None, dict]:
-    path = d / "meta.json"
+    return read_meta_file(d / "meta.json")
+
+
+def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]:
+    """The motor, segments, timer tick and extra keys of a hil-recording/1 meta.json."""
+    path = Path(path)
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file (a recording needs meta.json and edges.csv)")
-    text = path.read_text()
+    _checked_size(path, MAX_META_BYTES)
+    text = _decode(path, path.read_bytes())
+    _json_limits(path, text)
     try:
         meta = json.loads(text)
     except json.JSONDecodeError as exc:
         raise RecordingError(path, exc.lineno, f"{exc.colno} (character)", f"not valid JSON: {exc.msg}") from None
+    except (ValueError, RecursionError) as exc:  # after _json_limits: a safety net, never a traceback
+        raise RecordingError(path, None, None, f"not readable JSON: {exc}") from None
     if not isinstance(meta, dict):
         raise RecordingError(path, 1, None, "top level must be a JSON object")
 
@@ -221,75 +300,91 @@ def _read_meta(d: Path) -> tuple[dict, list[Segment], float | None, dict]:
     return motor, segments, tick, extra
 
 
-def _read_table(path: Path, required: tuple[str, ...], optional: tuple[str, ...]):
-    """Rows of a CSV with a header; returns (columns present, list of (line, row))."""
-    with open(path, newline="") as fh:
-        reader = csv.reader(fh)
+class _Column:
+    """How one column is read: ``float`` (finite, optionally within [low, high_open)) or a choice."""
+
+    def __init__(self, name: str, choices: dict[str, int] | None = None, what: str = "", low: float | None = None,
+                 high_open: float | None = None, increasing: bool = False):
+        self.name, self.choices, self.what, self.low, self.high_open, self.increasing = name, choices, what, low, high_open, increasing
+        self.values = array("d") if choices is None else array("q")
+
+    def add(self, path: Path, line: int, text: str, last: float | None) -> float | None:
+        v = text.strip()
+        if self.choices is not None:
+            if v not in self.choices:
+                raise RecordingError(path, line, self.name, f"unknown {self.what} {v[:40]!r} (expected one of: {', '.join(list(self.choices)[:12])})")
+            self.values.append(self.choices[v])
+            return None
         try:
-            header = next(reader)
-        except StopIteration:
-            raise RecordingError(path, 1, None, "empty file (a header line is required)") from None
-        header = [h.strip() for h in header]
-        for col in required:
-            if col not in header:
-                raise RecordingError(path, 1, col, f"missing column (header has: {', '.join(header)})")
-        if len(set(header)) != len(header):
-            dup = next(h for h in header if header.count(h) > 1)
-            raise RecordingError(path, 1, dup, "duplicate column")
-        rows = []
-        for row in reader:
-            line = reader.line_num
-            if not row or (len(row) == 1 and not row[0].strip()):
-                continue
-            if len(row) != len(header):
-                raise RecordingError(path, line, None, f"expected {len(header)} fields, found {len(row)}")
-            rows.append((line, row))
-    return header, rows
+            x = float(v)
+        except ValueError:
+            raise RecordingError(path, line, self.name, f"not a number: {v[:40]!r}") from None
+        if not math.isfinite(x):
+            raise RecordingError(path, line, self.name, f"not finite: {v[:40]!r}")
+        if self.low is not None and not self.low <= x < self.high_open:
+            raise RecordingError(path, line, self.name, f"{x!r} outside [{self.low}, {self.high_open})")
+        if self.increasing and last is not None and not x > last:
+            raise RecordingError(path, line, self.name, f"times must increase: {x!r} after {last!r}")
+        self.values.append(x)
+        return x
 
 
-def _floats(path: Path, header: list[str], rows, column: str, low=None, high_open=None) -> np.ndarray:
-    j = header.index(column)
-    try:  # fast path: numpy parses with float()'s grammar; on failure find the offending line
-        out = np.array([row[j] for _, row in rows], dtype=float)
-    except ValueError:
-        for line, row in rows:
-            try:
-                float(row[j])
-            except ValueError:
-                raise RecordingError(path, line, column, f"not a number: {row[j].strip()!r}") from None
-        raise
-    bad = ~np.isfinite(out)
-    if low is not None:
-        bad |= (out < low) | (out >= high_open)
-    if bad.any():
-        n = int(np.argmax(bad))
-        line, text, v = rows[n][0], rows[n][1][j].strip(), out[n]
-        if not math.isfinite(v):
-            raise RecordingError(path, line, column, f"not finite: {text!r}")
-        raise RecordingError(path, line, column, f"{v!r} outside [{low}, {high_open})")
-    return out
+def _lines(path: Path, max_bytes: int):
+    """(line number, text) of a CSV file, read line by line in binary: a line longer than
+    MAX_LINE_BYTES, a NUL byte or invalid UTF-8 is refused where it is; memory is one line."""
+    _checked_size(path, max_bytes)
+    with open(path, "rb") as fh:
+        for number, raw in enumerate(iter(lambda: fh.readline(MAX_LINE_BYTES + 1), b""), start=1):
+            if len(raw) > MAX_LINE_BYTES:
+                raise RecordingError(path, number, None, f"line longer than {MAX_LINE_BYTES} bytes")
+            if number == 1 and raw.startswith(BOM):
+                raw = raw[len(BOM):]
+            nul = raw.find(b"\0")
+            if nul >= 0:
+                raise RecordingError(path, number, f"{nul + 1} (byte)", "NUL byte (not a text file)")
+            yield number, _decode(path, raw, number)
 
 
-def _increasing(path: Path, rows, t: np.ndarray):
-    if t.size > 1:
-        bad = np.nonzero(np.diff(t) <= 0)[0]
-        if bad.size:
-            n = int(bad[0]) + 1
-            raise RecordingError(path, rows[n][0], "t_s", f"times must increase: {t[n]!r} after {t[n - 1]!r}")
+def _read_columns(path: Path, required: tuple[str, ...], columns: list[_Column], max_bytes: int = MAX_TABLE_BYTES):
+    """Stream a CSV with a header: every value checked as it is read (the error names its line
+    and column), kept in packed arrays. Returns (header, {name: numpy array}); columns the
+    header lacks are left out."""
+    lines = _lines(path, max_bytes)
+    header_line = next(lines, None)
+    if header_line is None:
+        raise RecordingError(path, 1, None, "empty file (a header line is required)")
+    header = [h.strip() for h in _split(path, *header_line)]
+    for col in required:
+        if col not in header:
+            raise RecordingError(path, 1, col, f"missing column (header has: {', '.join(h[:40] for h in header[:20])})")
+    if len(set(header)) != len(header):
+        dup = next(h for h in header if header.count(h) > 1)
+        raise RecordingError(path, 1, dup, "duplicate column")
+    wanted = [(header.index(c.name), c) for c in columns if c.name in header]
+    last = {c.name: None for _, c in wanted}
+    for line, text in lines:
+        if not text.strip():
+            continue
+        row = _split(path, line, text)
+        if len(row) != len(header):
+            raise RecordingError(path, line, None, f"expected {len(header)} fields, found {len(row)}")
+        for j, c in wanted:
+            last[c.name] = c.add(path, line, row[j], last[c.name])
+    out = {}
+    for _, c in wanted:  # one column at a time, so the copy costs one column at most
+        out[c.name] = np.array(c.values, dtype=np.float64 if c.choices is None else np.int64)
+        c.values = None
+    return header, out
 
 
-def _choice(path: Path, header, rows, column: str, choices: dict[str, int], what: str) -> np.ndarray:
-    j = header.index(column)
-    out = np.empty(len(rows), dtype=np.int64)
-    for n, (line, row) in enumerate(rows):
-        v = row[j].strip()
-        if v not in choices:
-            raise RecordingError(path, line, column, f"unknown {what} {v!r} (expected one of: {', '.join(choices)})")
-        out[n] = choices[v]
-    return out
+def _split(path: Path, line: int, text: str) -> list[str]:
+    try:
+        return next(csv.reader([text], strict=True))
+    except csv.Error as exc:
+        raise RecordingError(path, line, None, f"not valid CSV: {exc}") from None
 
 
-def _read_samples_fast(path: Path, seg_index: dict[str, int]) -> dict[str, np.ndarray] | None:
+def _read_samples_fast(path: Path, seg_index: dict[str, int], max_bytes: int = MAX_TABLE_BYTES) -> dict[str, np.ndarray] | None:
     """samples.csv through pandas' C parser (a million rows in about a second, against some
     fifteen for the row-by-row reader). Every check of the strict reader is made on the whole
     columns; on any doubt this returns None and the strict reader runs, so a bad file is still
@@ -298,15 +393,15 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int]) -> dict[str, np.nd
         import pandas as pd
     except ImportError:
         return None
-    with open(path, newline="") as fh:
-        header = [h.strip() for h in next(csv.reader(fh), [])]
+    first = next(_lines(path, max_bytes), None)  # the header, checked like every line (BOM, UTF-8, length)
+    header = [h.strip() for h in _split(path, *first)] if first else []
     if not all(c in header for c in SAMPLE_REQUIRED) or len(set(header)) != len(header):
         return None
     numeric = [c for c in header if c != "segment"]
     try:
-        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": object},
+        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": object}, encoding="utf-8-sig",
                          skipinitialspace=True, engine="c", keep_default_na=False, na_filter=False)
-    except (ValueError, pd.errors.ParserError):
+    except (ValueError, pd.errors.ParserError):  # UnicodeDecodeError is a ValueError
         return None
     out = {c: df[c].to_numpy(dtype=float) for c in numeric if c in SAMPLE_REQUIRED or c in SAMPLE_OPTIONAL}
     if any(not np.all(np.isfinite(v)) for v in out.values()) or (out["t_s"].size > 1 and np.any(np.diff(out["t_s"]) <= 0)):
@@ -318,7 +413,7 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int]) -> dict[str, np.nd
     return out
 
 
-def read_recording(directory: str | Path, *, with_truth: bool = True) -> Recording:
+def read_recording(directory: str | Path, *, with_truth: bool = True, max_table_bytes: int = MAX_TABLE_BYTES) -> Recording:
     d = Path(directory)
     if not d.is_dir():
         raise RecordingError(d, None, None, "not a directory (a recording is a directory with meta.json and edges.csv)")
@@ -327,36 +422,30 @@ def read_recording(directory: str | Path, *, with_truth: bool = True) -> Recordi
     path = d / "edges.csv"
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file")
-    header, rows = _read_table(path, EDGE_COLUMNS, EDGE_OPTIONAL)
-    t = _floats(path, header, rows, "t_s")
-    _increasing(path, rows, t)
-    sensor = _choice(path, header, rows, "sensor", {"A": 0, "B": 1, "C": 2}, "sensor")
-    rising = _choice(path, header, rows, "edge", {"fall": 0, "rise": 1}, "edge").astype(bool)
-    segment = _choice(path, header, rows, "segment", seg_index, "segment")
-    ref = _floats(path, header, rows, "ref_angle_mech_deg", 0.0, 360.0) if "ref_angle_mech_deg" in header else None
+    header, cols = _read_columns(path, EDGE_COLUMNS, [
+        _Column("t_s", increasing=True), _Column("sensor", {"A": 0, "B": 1, "C": 2}, "sensor"),
+        _Column("edge", {"fall": 0, "rise": 1}, "edge"), _Column("segment", seg_index, "segment"),
+        _Column("ref_angle_mech_deg", low=0.0, high_open=360.0)], max_table_bytes)
+    t = cols["t_s"]
     samples = None
     spath = d / "samples.csv"
     if spath.is_file():
-        samples = _read_samples_fast(spath, seg_index)
+        samples = _read_samples_fast(spath, seg_index, max_table_bytes)
     if spath.is_file() and samples is None:
-        sh, srows = _read_table(spath, SAMPLE_REQUIRED, SAMPLE_OPTIONAL)
-        samples = {"t_s": _floats(spath, sh, srows, "t_s")}
-        _increasing(spath, srows, samples["t_s"])
-        samples["segment"] = _choice(spath, sh, srows, "segment", seg_index, "segment")
-        for c in SAMPLE_OPTIONAL:
-            if c in sh:
-                samples[c] = _floats(spath, sh, srows, c)
+        _, samples = _read_columns(spath, SAMPLE_REQUIRED, [_Column("t_s", increasing=True), _Column("segment", seg_index, "segment")] +
+                                   [_Column(c) for c in SAMPLE_OPTIONAL], max_table_bytes)
     truth = None
     tpath = d / "ground_truth.csv"
     if with_truth and tpath.is_file():
-        th, trows = _read_table(tpath, (), TRUTH_COLUMNS)
-        if len(trows) != t.size:
-            raise RecordingError(tpath, None, None, f"{len(trows)} rows for {t.size} edges")
-        truth = {c: _floats(tpath, th, trows, c) for c in th if c in TRUTH_COLUMNS}
+        _, truth = _read_columns(tpath, (), [_Column(c) for c in TRUTH_COLUMNS], max_table_bytes)
+        n = next(iter(truth.values())).size if truth else 0
+        if n != t.size:
+            raise RecordingError(tpath, None, None, f"{n} rows for {t.size} edges")
         if "pole" in truth:
             truth["pole"] = truth["pole"].astype(np.int64)
-    return Recording(motor=motor, segments=segments, t_s=t, sensor=sensor, rising=rising, segment=segment,
-                     ref_angle_mech_deg=ref, timer_tick_s=tick, samples=samples, truth=truth, meta_extra=extra, path=d)
+    return Recording(motor=motor, segments=segments, t_s=t, sensor=cols["sensor"], rising=cols["edge"].astype(bool), segment=cols["segment"],
+                     ref_angle_mech_deg=cols.get("ref_angle_mech_deg"), timer_tick_s=tick, samples=samples, truth=truth,
+                     meta_extra=extra, path=d)
 
 
 def recording_from_edges(motor: dict, edges, segments: list[Segment], *, timer_tick_s: float | None = None,

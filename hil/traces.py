@@ -29,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from .recording import Recording, RecordingError, _read_meta
+from .recording import MAX_TABLE_BYTES, Recording, RecordingError, _checked_size, _lines, read_meta_file
 
 
 @dataclass(frozen=True)
@@ -48,8 +48,8 @@ class TraceMapping:
     @classmethod
     def from_toml(cls, path: str | Path) -> "TraceMapping":
         try:
-            data = tomllib.loads(Path(path).read_text())
-        except tomllib.TOMLDecodeError as exc:
+            data = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
+        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
             raise RecordingError(path, None, None, f"mapping is not valid TOML: {exc}") from None
         known = set(cls.__dataclass_fields__)
         for key in data:
@@ -103,6 +103,7 @@ def _open(path: Path) -> _Table:
     suffix = path.suffix.lower()
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file")
+    _checked_size(path, MAX_TABLE_BYTES)
     if suffix in (".mf4", ".mdf", ".dat"):
         from asammdf import MDF
 
@@ -115,10 +116,12 @@ def _open(path: Path) -> _Table:
     if suffix in (".csv", ".txt"):
         import pandas as pd
 
+        for _ in _lines(path, MAX_TABLE_BYTES):  # line length, NUL bytes, UTF-8: refused at their line
+            pass
         try:
-            frame = pd.read_csv(path, skipinitialspace=True)
-        except (pd.errors.ParserError, UnicodeDecodeError) as exc:
-            raise RecordingError(path, None, None, f"not a readable CSV: {exc}") from None
+            frame = pd.read_csv(path, skipinitialspace=True, encoding="utf-8-sig")
+        except (pd.errors.ParserError, ValueError) as exc:
+            raise RecordingError(path, None, None, f"not a readable CSV: {' '.join(str(exc).split())[:200]}") from None
         frame.columns = [str(c).strip() for c in frame.columns]
         return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
     raise RecordingError(path, None, None, f"unknown trace format {suffix!r} (MDF4 .mf4, Parquet .parquet, CSV .csv)")
@@ -170,12 +173,7 @@ def read_trace(path: str | Path, mapping: TraceMapping, meta_path: str | Path) -
     segment whose time span holds them, edges outside every segment are dropped."""
     path = Path(path)
     meta_path = Path(meta_path)
-    with tempfile.TemporaryDirectory() as tmp:  # reuse the strict meta.json reader
-        (Path(tmp) / "meta.json").write_text(meta_path.read_text())
-        try:
-            motor, segments, tick, extra = _read_meta(Path(tmp))
-        except RecordingError as exc:
-            raise RecordingError(meta_path, exc.line, exc.column, str(exc).split(": ", 1)[1]) from None
+    motor, segments, tick, extra = read_meta_file(meta_path)
     table = _open(path)
     t, sensor, rising = (_edges_from_levels if mapping.kind == "levels" else _edges_from_table)(table, mapping)
     ref = None

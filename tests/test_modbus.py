@@ -19,7 +19,6 @@ from hil.dut.modbus_face import ModbusDevice, ModbusLink
 from plant_models import paper_bench
 from plant_models.plant import steady_state
 
-logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 CONFIG = paper_bench(with_deviations=True)
 
 

@@ -206,3 +206,84 @@ def test_a_large_samples_file_reads_exactly(tmp_path, recording):
     back = read_recording(write_recording(replace(recording, samples=samples), tmp_path / "big"))
     for k in samples:
         np.testing.assert_array_equal(back.samples[k], samples[k])
+
+
+# --- files that must not eat the machine, and encodings -------------------------------------------
+
+def one_line(path, file, line, column=None):
+    """Refused with a RecordingError of one line naming file, line (and column)."""
+    msg = refused(path, file, line, column)
+    assert "\n" not in msg
+    return msg
+
+
+def sparse(path, size):
+    with open(path, "wb") as fh:
+        fh.truncate(size)  # a hole: costs no disk and no time to make
+
+
+def test_a_2_gib_edges_file_is_refused_by_its_size(written):
+    sparse(written / "edges.csv", 2 << 30)
+    assert "above the reader's limit" in one_line(written, "edges.csv", None)
+
+
+def test_a_2_gib_edges_file_streams_in_bounded_memory_when_the_cap_is_lifted(written):
+    """The size cap is not what keeps memory bounded: with it lifted, the reader still holds
+    one line at a time and refuses the first line of NULs (peak RSS growth of a fresh process)."""
+    import subprocess
+    import sys
+
+    sparse(written / "edges.csv", 2 << 30)
+    code = ("import resource, sys\nfrom hil.recording import RecordingError, read_recording\n"
+            "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024\nbefore = peak()\n"
+            "try:\n    read_recording(sys.argv[1], max_table_bytes=1 << 40)\nexcept RecordingError as e:\n    print(e)\n"
+            "print(peak() - before)\n")
+    out = subprocess.run([sys.executable, "-c", code, str(written)], capture_output=True, text=True, timeout=120)
+    message, growth_mb = out.stdout.strip().splitlines()
+    assert "edges.csv, line 1: line longer than 4096 bytes" in message, out.stdout + out.stderr
+    assert int(growth_mb) < 20, f"peak RSS grew by {growth_mb} MB reading it"
+
+
+def test_a_5_mb_field_is_refused_at_its_line(written):
+    lines = (written / "edges.csv").read_text().splitlines(keepends=True)
+    lines[4] = "1.0,A,rise," + "x" * (5 << 20) + "\n"
+    (written / "edges.csv").write_text("".join(lines))
+    assert "line longer than" in one_line(written, "edges.csv", 5)
+
+
+def test_nul_bytes_and_broken_quotes_are_refused_at_their_line(written):
+    lines = (written / "edges.csv").read_text().splitlines(keepends=True)
+    (written / "edges.csv").write_text("".join(lines[:3] + ["0.1,A\0,rise,low\n"] + lines[3:]))
+    assert "NUL byte" in one_line(written, "edges.csv", 4, "6 (byte)")
+    (written / "edges.csv").write_text("".join(lines[:3] + ['0.1,"A,rise,low\n'] + lines[3:]))
+    assert "not valid CSV" in one_line(written, "edges.csv", 4)
+
+
+def test_invalid_utf8_is_named_by_line_and_column(written):
+    data = (written / "edges.csv").read_bytes().split(b"\n")
+    data[5] = data[5].replace(b",A,", b",\xff,", 1).replace(b",B,", b",\xff,", 1).replace(b",C,", b",\xff,", 1)
+    (written / "edges.csv").write_bytes(b"\n".join(data))
+    column = f"{data[5].index(bytes([0xFF])) + 1} (character)"
+    assert "not valid UTF-8 (byte 0xFF)" in one_line(written, "edges.csv", 6, column)
+    meta = (written / "meta.json").read_bytes().split(b"\n")
+    meta[2] = meta[2] + b" \xc3\x28"
+    (written / "meta.json").write_bytes(b"\n".join(meta))
+    assert "not valid UTF-8" in one_line(written, "meta.json", 3, f"{len(meta[2]) - 1} (character)")
+
+
+def test_deep_json_and_huge_numbers_are_refused_at_their_position(written):
+    text = (written / "meta.json").read_text()
+    (written / "meta.json").write_text(text[:-2] + ',\n "deep": ' + "[" * 100_000 + "]" * 100_000 + "\n}\n")
+    assert "nested deeper than 64 levels" in one_line(written, "meta.json", text.count("\n") + 1, "73 (character)")  # the object counts
+    (written / "meta.json").write_text(text[:-2] + ',\n "big": ' + "9" * 5000 + "\n}\n")
+    assert "a number longer than 100 characters" in one_line(written, "meta.json", text.count("\n") + 1, "9 (character)")
+    (written / "meta.json").write_text("x" * (2 << 20))
+    assert "above the reader's limit" in one_line(written, "meta.json", None)
+
+
+def test_a_byte_order_mark_is_accepted(written, recording):
+    for name in ("meta.json", "edges.csv", "ground_truth.csv"):
+        (written / name).write_bytes(b"\xef\xbb\xbf" + (written / name).read_bytes())
+    back = read_recording(written)
+    np.testing.assert_array_equal(back.t_s, recording.t_s)
+    assert back.motor == recording.motor

@@ -3,8 +3,9 @@
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
 boot-up after an NMT reset and echoes stale indexes in some aborts: design notes section 4).
-Edges arrive as RPDO1 (COB-ID 0x200 + node), commands leave as TPDO1 (0x180 + node), both in
-the 8-byte messages of hil.dut.messages.
+Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
+(0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
+hil.dut.messages.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import queue
 import struct
 import threading
 import time
+from dataclasses import dataclass
 
 import canopen
 import numpy as np
@@ -21,7 +23,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import CommandMessage, EdgeMessage, encode_reply
+from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
 from .od import EDS_PATH
 from .virtual import CalibrationTableError, Fault, VirtualController
 
@@ -33,8 +35,156 @@ ABORT_RANGE = 0x06090030
 ABORT_LENGTH = 0x06070010
 ABORT_COMMAND = 0x05040001
 ABORT_STATE = 0x08000022
+ABORT_TOGGLE = 0x05030000
+ABORT_LENGTH_HIGH = 0x06070012
+ABORT_LENGTH_LOW = 0x06070013
+ABORT_GENERAL = 0x08000000
+#: the longest value any object of the shipped EDS holds (VISIBLE_STRINGs are short); a
+#: segmented download without a declared size is refused past this
+SDO_MAX_DOWNLOAD_BYTES = 256
 
 NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM = 0x01, 0x02, 0x80, 0x81, 0x82
+
+
+@dataclass
+class _Transfer:
+    """A segmented transfer in progress: which object, which way, how far."""
+
+    index: int
+    subindex: int
+    upload: bool
+    data: bytearray
+    declared: int | None = None   #: download: the size the client announced
+    limit: int = 0                #: download: bytes beyond this are refused (declared, or the type's size)
+    toggle: int = 0               #: the toggle bit the next segment must carry
+
+
+class SdoServer:
+    """A CiA 301 SDO server (expedited and segmented, both ways) on a ``canopen.LocalNode``'s
+    object dictionary and read/write callbacks.
+
+    canopen 2.4.1's own server keeps the last transfer's state and index around: a segment
+    request after a finished upload, or after an expedited read of another object, is answered
+    from what was left; an invalid command is aborted with the previous request's index; a
+    segmented download runs on past its declared size. Here the state is explicit: at most one
+    transfer is open; any initiate or abort ends it; a segment without an open transfer of its
+    direction, or with the wrong toggle bit, is aborted and ends it; a download is aborted with
+    0x06070012 the moment it passes its declared size (without one: the type's size, or
+    SDO_MAX_DOWNLOAD_BYTES).
+    Every abort names the object of the request it answers (a segment: the object of its
+    transfer, or of the last transfer when none is open). Block transfers are not offered:
+    aborted with 0x05040001 as CiA 301 allows.
+    """
+
+    def __init__(self, node: canopen.LocalNode):
+        self.node, self.od = node, node.object_dictionary
+        self.transfer: _Transfer | None = None
+        self._last_mux = (0, 0)
+
+    def request(self, data: bytes) -> bytes | None:
+        """The answer to one request frame (None: no answer, after a client's abort)."""
+        mux = struct.unpack_from("<HB", data, 1) if len(data) >= 4 else self._last_mux
+        if len(data) != 8:
+            self.transfer = None
+            return self._abort(*mux, ABORT_COMMAND)
+        ccs = data[0] >> 5
+        if ccs == 4:  # the client aborts: the transfer ends, nothing is answered
+            self.transfer = None
+            return None
+        if ccs in (0, 3):  # segments carry no multiplexer: they belong to the open transfer
+            transfer, upload = self.transfer, ccs == 3
+            if transfer is None or transfer.upload != upload:
+                self.transfer = None
+                return self._abort(*self._last_mux, ABORT_COMMAND)
+            if (data[0] >> 4) & 1 != transfer.toggle:
+                self.transfer = None
+                return self._abort(transfer.index, transfer.subindex, ABORT_TOGGLE)
+            return self._upload_segment(transfer) if upload else self._download_segment(transfer, data)
+        index, subindex = mux
+        self.transfer = None  # any initiate ends the transfer before it
+        self._last_mux = (index, subindex)
+        if ccs not in (1, 2):  # 5, 6: block transfers; 7: no such command
+            return self._abort(index, subindex, ABORT_COMMAND)
+        try:
+            var = self._variable(index, subindex)
+            return self._initiate_upload(var, index, subindex) if ccs == 2 else self._initiate_download(var, index, subindex, data)
+        except SdoAbortedError as exc:
+            self.transfer = None
+            return self._abort(index, subindex, exc.code)
+        except Exception:  # a callback failed: a general error, and the device lives on
+            self.transfer = None
+            return self._abort(index, subindex, ABORT_GENERAL)
+
+    def _variable(self, index: int, subindex: int):
+        if index not in self.od:
+            raise SdoAbortedError(ABORT_NO_OBJECT)
+        obj = self.od[index]
+        if isinstance(obj, canopen.objectdictionary.ODVariable):
+            if subindex != 0:
+                raise SdoAbortedError(ABORT_NO_SUBINDEX)
+            return obj
+        # an ARRAY answers any sub-index in the library (it makes them up): only declared ones exist
+        if subindex not in obj.subindices:
+            raise SdoAbortedError(ABORT_NO_SUBINDEX)
+        return obj[subindex]
+
+    def _initiate_upload(self, var, index: int, subindex: int) -> bytes:
+        if not var.readable:
+            raise SdoAbortedError(ABORT_WRITE_ONLY)
+        value = self.node.get_data(index, subindex)
+        if len(value) <= 4:
+            return struct.pack("<BHB", 0x43 | ((4 - len(value)) << 2), index, subindex) + value.ljust(4, b"\0")
+        self.transfer = _Transfer(index, subindex, True, bytearray(value))
+        return struct.pack("<BHBL", 0x41, index, subindex, len(value))
+
+    def _upload_segment(self, t: _Transfer) -> bytes:
+        chunk, t.data = bytes(t.data[:7]), t.data[7:]
+        last = not t.data
+        answer = bytes([(t.toggle << 4) | ((7 - len(chunk)) << 1) | last]) + chunk.ljust(7, b"\0")
+        t.toggle ^= 1
+        if last:
+            self.transfer = None
+        return answer
+
+    def _initiate_download(self, var, index: int, subindex: int, data: bytes) -> bytes:
+        if not var.writable:
+            raise SdoAbortedError(ABORT_READ_ONLY)
+        expedited, sized = data[0] & 0x02, data[0] & 0x01
+        numeric = var.data_type in canopen.objectdictionary.NUMBER_TYPES
+        if expedited:
+            # size not indicated: the object's own size (a number), else all four bytes
+            unsized = data[4:4 + min(len(var) // 8, 4)] if numeric else data[4:8]
+            self.node.set_data(index, subindex, data[4:8 - ((data[0] >> 2) & 3)] if sized else unsized)
+        else:
+            declared = struct.unpack_from("<L", data, 4)[0] if sized else None
+            if declared is not None and numeric and declared != len(var) // 8:
+                raise SdoAbortedError(ABORT_LENGTH_HIGH if declared > len(var) // 8 else ABORT_LENGTH_LOW)
+            limit = declared if declared is not None else (len(var) // 8 if numeric else SDO_MAX_DOWNLOAD_BYTES)
+            self.transfer = _Transfer(index, subindex, False, bytearray(), declared, limit)
+        return struct.pack("<BHBL", 0x60, index, subindex, 0)
+
+    def _download_segment(self, t: _Transfer, data: bytes) -> bytes:
+        t.data += data[1:8 - ((data[0] >> 1) & 7)]
+        if len(t.data) > t.limit:
+            self.transfer = None
+            return self._abort(t.index, t.subindex, ABORT_LENGTH_HIGH)
+        answer = bytes([0x20 | (t.toggle << 4)]) + bytes(7)
+        t.toggle ^= 1
+        if data[0] & 0x01:  # the last segment: the value is complete
+            self.transfer = None
+            if t.declared is not None and len(t.data) < t.declared:
+                return self._abort(t.index, t.subindex, ABORT_LENGTH_LOW)
+            try:
+                self.node.set_data(t.index, t.subindex, bytes(t.data))
+            except SdoAbortedError as exc:
+                return self._abort(t.index, t.subindex, exc.code)
+            except Exception:
+                return self._abort(t.index, t.subindex, ABORT_GENERAL)
+        return answer
+
+    @staticmethod
+    def _abort(index: int, subindex: int, code: int) -> bytes:
+        return struct.pack("<BHBL", 0x80, index, subindex, code)
 
 
 class CanopenDevice:
@@ -60,12 +210,17 @@ class CanopenDevice:
         self._last_ticks: int | None = None
         self._lock = threading.Lock()
         self.state = "PRE-OPERATIONAL"
-        # our own SDO front end: index echo, frame length, NMT state
+        # our own SDO server (SdoServer below) on the library's object dictionary and callbacks
+        self.sdo_server = SdoServer(self.node)
         self.network.unsubscribe(self.node.sdo.rx_cobid, self.node.sdo.on_request)
         self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
         self.network.unsubscribe(0, self.node.nmt.on_command)
         self.network.subscribe(0, self._on_nmt)
         self.network.subscribe(0x200 + node_id, self._on_rpdo)
+        self.network.subscribe(0x300 + node_id, self._on_rpdo2)
+        self._last_edge = EdgeMessage(0, 0, 0, False, 0)
+        self._cycle = CycleCurrentMessage(NO_CURRENT, 0)  # the last RPDO2; used by the edge of its sequence
+        self._cycle_pending = False
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -108,32 +263,12 @@ class CanopenDevice:
 
     # --- SDO ------------------------------------------------------------------------------------
     def _on_sdo(self, can_id, data, timestamp) -> None:
-        sdo = self.node.sdo
         if self.state == "STOPPED":
             return  # CiA 301: no SDO in STOPPED
-        if len(data) != 8:
-            if len(data) >= 4:
-                _, sdo._index, sdo._subindex = struct.unpack_from("<BHB", bytes(data))
-            sdo.abort(ABORT_COMMAND)
-            return
-        ccs = data[0] & 0xE0
-        if ccs not in (0x20, 0x40, 0xA0, 0xC0):  # segments and aborts carry no index: the transfer's own
-            with self._lock:
-                sdo.on_request(can_id, data, timestamp)
-            return
-        _, index, subindex = struct.unpack_from("<BHB", bytes(data))
-        sdo._index, sdo._subindex = index, subindex  # aborts echo this request, never a stale one
-        if index not in self.od:
-            sdo.abort(ABORT_NO_OBJECT)
-            return
-        obj = self.od[index]
-        # an ARRAY answers any sub-index in the library (it makes them up on demand): only the
-        # declared ones exist
-        if not isinstance(obj, canopen.objectdictionary.ODVariable) and subindex not in obj.subindices:
-            sdo.abort(ABORT_NO_SUBINDEX)
-            return
         with self._lock:
-            sdo.on_request(can_id, data, timestamp)  # the library aborts 0x08000000 on our exceptions
+            answer = self.sdo_server.request(bytes(data))
+        if answer is not None:
+            self.network.send_message(0x580 + self.node_id, answer)
 
     def _on_read(self, index, subindex, od):
         c = self.controller
@@ -153,6 +288,14 @@ class CanopenDevice:
             return (c.corrections or Corrections()).as_vector()[subindex - 1]
         if index == 0x2020 and subindex >= 1:
             return self.filter[subindex - 1]
+        if index == 0x2101 and subindex >= 1:
+            st = c.status()
+            return int(st[("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")[subindex - 1]])
+        if index == 0x2200 and subindex >= 1:
+            e = self._last_edge
+            return (e.ticks, e.current_ma, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq)[subindex - 1]
+        if index == 0x2201 and subindex >= 1:
+            return (self._cycle.current_ma, self._cycle.seq)[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [st["estimated_speed_rpm"], *st["q_diag"], *st["r_diag"], st["guard_trips"], st["last_predicted_commutation_s"]]
@@ -214,14 +357,28 @@ class CanopenDevice:
             if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
                 self._epoch += 1 << 32  # the capture timer wrapped (a small step back is a bad stamp, not a wrap)
             self._last_ticks = msg.ticks
+            self._last_edge = msg
+            cycle = self._cycle.current_ma if self._cycle_pending and self._cycle.seq == msg.seq else None
+            self._cycle_pending = False
             try:
-                commands = self.controller.capture(msg.to_edge(self._epoch))
+                commands = self.controller.capture(with_cycle_current(msg.to_edge(self._epoch), cycle))
             except Exception:  # never let bad input kill the receive thread: report and answer
                 self.controller.raise_fault(Fault.INTERNAL, 0.0)
                 commands = []
             frames = encode_reply(commands, msg.seq)
         for f in frames:
             self.network.send_message(0x180 + self.node_id, f.pack())
+
+    def _on_rpdo2(self, can_id, data, timestamp) -> None:
+        """The cycle-mean current of the edge with the same sequence number (RPDO1 that follows)."""
+        if self.state != "OPERATIONAL":
+            return
+        try:
+            msg = CycleCurrentMessage.unpack(bytes(data))
+        except ValueError:
+            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
+        with self._lock:
+            self._cycle, self._cycle_pending = msg, True
 
     def close(self) -> None:
         try:
@@ -263,6 +420,77 @@ class MuxCheckedSdoClient(SdoClient):
             return response
 
 
+def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kwargs: dict):
+    """A python-can bus for the link, or a one-line LinkError naming what is wrong.
+
+    For ``socketcand`` the server is reached first with our own timeout (python-can's client
+    retries a refused connection in a busy loop for 10 s, logging each attempt), and the bus is
+    fenced: when the server closes the connection the client would spin on the empty socket and
+    later raise BrokenPipeError; instead its sends raise CanOperationError, which the link
+    reports as a LinkError naming the node and the request."""
+    import socket
+
+    import can
+
+    from .spec import unknown_can_interface
+
+    if why := unknown_can_interface(interface):
+        raise LinkError(f"{where}: {why}")
+    if interface == "socketcand":
+        host, port = bus_kwargs.get("host"), bus_kwargs.get("port")
+        if not host or not port:
+            raise LinkError(f"{where}: the socketcand interface needs host=... and port=...")
+        try:
+            socket.create_connection((host, port), timeout=timeout_s).close()
+        except OSError as exc:
+            raise LinkError(f"{where}: cannot reach the socketcand server at {host}:{port}: {exc}") from None
+    try:
+        bus = can.Bus(interface=interface, channel=channel, **bus_kwargs)
+    except Exception as exc:  # a missing driver, a wrong channel, a refused handshake
+        raise LinkError(f"{where}: cannot open the bus: {type(exc).__name__}: {' '.join(str(exc).split())}") from None
+    if interface == "socketcand":
+        _fence_socketcand(bus)
+    return bus
+
+
+def _fence_socketcand(bus) -> None:
+    """python-can 4.6.1's socketcand client: a closed connection becomes CanOperationError."""
+    import socket
+
+    import can
+
+    sock = bus._SocketCanDaemonBus__socket
+    recv, send = bus._recv_internal, bus.send
+    closed = threading.Event()
+
+    def _recv_internal(timeout):
+        if closed.is_set():
+            time.sleep(timeout or 0.1)  # nothing will come; do not spin the notifier
+            return None, False
+        msg, filtered = recv(timeout)
+        if msg is None:
+            try:
+                closed_now = sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+            except BlockingIOError:
+                closed_now = False
+            except OSError:
+                closed_now = True
+            if closed_now:
+                closed.set()
+        return msg, filtered
+
+    def _send(msg, timeout=None):
+        if closed.is_set():
+            raise can.CanOperationError("the socketcand server closed the connection")
+        try:
+            send(msg, timeout)
+        except OSError as exc:
+            closed.set()
+            raise can.CanOperationError(f"the socketcand server closed the connection ({exc})") from None
+
+    bus._recv_internal, bus.send = _recv_internal, _send
+
+
 class CanopenLink:
     """The framework's view of a CANopen controller on any python-can interface."""
 
@@ -271,9 +499,11 @@ class CanopenLink:
     def __init__(self, node_id: int = 5, interface: str = "virtual", channel: str = "hil", eds: str | None = None,
                  timeout_s: float = 1.0, **bus_kwargs):
         self.node_id, self.timeout_s = node_id, timeout_s
-        self.where = f"CANopen node {node_id} on {interface}:{channel}"
+        where = f"{interface}:{channel}" + (f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else "")
+        self.where = f"CANopen node {node_id} on {where}"
         self.network = canopen.Network()
-        self.network.connect(interface=interface, channel=channel, **bus_kwargs)
+        self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
+        self.network.connect()
         self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
         # the client is already subscribed to the response COB-ID; swapping its class keeps that
         # subscription and adds the multiplexer check
@@ -289,19 +519,25 @@ class CanopenLink:
         self.boot_ups: queue.Queue = queue.Queue()
         self.network.subscribe(0x700 + node_id, lambda cid, data, ts: bytes(data) == b"\x00" and self.boot_ups.put(ts))
         self._seq = 0
-        self.network.send_message(0, bytes([NMT_START, node_id]))
+        self._send("NMT start", 0, bytes([NMT_START, node_id]))
+
+    def _send(self, what: str, can_id: int, data: bytes) -> None:
+        try:
+            self.network.send_message(can_id, data)
+        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
+            raise LinkError(f"{self.where}: {what} could not be sent: {type(exc).__name__}: {exc}") from None
 
     def reset(self) -> None:
         """NMT reset node (faults cleared, logic restarted), wait for the boot-up, then start."""
         for q in (self.boot_ups, self.replies, self.emcy):
             while not q.empty():
                 q.get_nowait()
-        self.network.send_message(0, bytes([NMT_RESET_NODE, self.node_id]))
+        self._send("NMT reset node", 0, bytes([NMT_RESET_NODE, self.node_id]))
         try:
             self.boot_ups.get(timeout=self.timeout_s)
         except queue.Empty:
             raise LinkTimeout(f"{self.where}: no boot-up within {self.timeout_s} s after NMT reset node") from None
-        self.network.send_message(0, bytes([NMT_START, self.node_id]))
+        self._send("NMT start", 0, bytes([NMT_START, self.node_id]))
         self._seq = 0
 
     def set_filter_settings(self, settings) -> None:
@@ -350,10 +586,10 @@ class CanopenLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        try:
-            self.network.send_message(0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
-        except Exception as exc:  # the transport itself failed (a closed remote bus, a dead adapter)
-            raise LinkError(f"{self.where}: edge #{seq} could not be sent: {type(exc).__name__}: {exc}") from None
+        cycle = CycleCurrentMessage.from_edge(edge, seq)
+        if cycle is not None:  # RPDO2 before its edge: the edge triggers the controller
+            self._send(f"cycle current of edge #{seq}", 0x300 + self.node_id, cycle.pack())
+        self._send(f"edge #{seq}", 0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
         commands = []
         deadline = time.monotonic() + self.timeout_s
         while True:
@@ -371,7 +607,9 @@ class CanopenLink:
     def status(self) -> dict:
         rb = [self.read(0x2100, k) for k in range(1, 9)]
         n = self.read(0x1003, 0)
-        return {"strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
+        counters = dict(zip(("gated_edges", "covariance_repairs", "divergence_fades", "band_projections"),
+                            (self.read(0x2101, k) for k in range(1, 5))))
+        return {**counters, "strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
                 "q_diag": rb[1:4], "r_diag": rb[4:6], "guard_trips": rb[6], "last_predicted_commutation_s": rb[7],
                 "error_register": self.read(0x1001), "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)]}
 

@@ -10,8 +10,11 @@ round trip.
 from __future__ import annotations
 
 import asyncio
+import logging
 import struct
 import threading
+import time
+from dataclasses import dataclass
 
 import numpy as np
 from pymodbus.constants import ExcCodes
@@ -19,7 +22,8 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import CommandMessage, EdgeMessage, encode_reply
+from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
+from .tcp import close_handlers
 from .virtual import CalibrationTableError, Fault, VirtualController
 
 # addresses
@@ -29,8 +33,13 @@ RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
 FILTER = 60
 RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
 ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
+#: gated edges, covariance repairs, divergence fades, band projections: UINT32 each
+RB_COUNTERS = 130
+COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
 IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
 EDGE_IN, REPLY = 200, 210
+#: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
+EDGE_CYCLE_CURRENT = 204
 REPLY_FRAMES = 4
 LAST = REPLY + 1 + 4 * REPLY_FRAMES  # 227
 
@@ -67,7 +76,9 @@ def simdata() -> list[SimData]:
         SimData(RB_PRED, 1, 0.0, DataType.FLOAT64, readonly=True),
         SimData(ERROR_REGISTER, 10, 0, DataType.UINT16, readonly=True),
         SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
+        SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
         SimData(EDGE_IN, 4, 0, DataType.REGISTERS),
+        SimData(EDGE_CYCLE_CURRENT, 1, NO_CURRENT, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -106,44 +117,71 @@ def request_exception(pdu: bytes) -> bytes | None:
     return None
 
 
+UNIT_ANY = 0xFF  #: Modbus TCP's "unit identifier not used" value: this device answers it as its own
+GATEWAY_NO_RESPONSE = 0x0B
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class TcpLimits:
+    max_clients: int = 16
+    partial_timeout_s: float = 5.0   #: an ADU begun must be complete within this (slow-loris)
+    idle_timeout_s: float = 300.0    #: a connection that sends nothing, or reads nothing, for this long is closed
+
+
 class ModbusDevice:
-    """Serves a VirtualController over Modbus TCP on 127.0.0.1 (or another address if asked)."""
+    """Serves a VirtualController over Modbus TCP on 127.0.0.1 (or another address if asked).
+
+    TCP framing is ours (the MBAP header is seven bytes): pipelined requests in one segment are
+    each answered, in order; a malformed request is one log line at debug level and its
+    conformant exception; a connection that stalls mid-request or sits idle is closed. The PDUs
+    are decoded and executed by pymodbus against the register map (the same ``SimDevice`` the
+    RTU framer serves).
+
+    Unit-id rule: the device answers its own unit and 0xFF (Modbus TCP's "not used" value); any
+    other unit gets exception 0x0B (gateway target device failed to respond), so a client with
+    a wrong unit id learns it at once instead of timing out.
+    """
 
     def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1,
-                 serial_port: str | None = None, baudrate: int = 115200):
+                 serial_port: str | None = None, baudrate: int = 115200, idle_timeout_s: float | None = None):
         """TCP on host:port, or RTU on ``serial_port`` (a serial device path) when given."""
         from .virtual import warm_up
 
         warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
         self.serial_port, self.baudrate = serial_port, baudrate
+        self.limits = TcpLimits() if idle_timeout_s is None else TcpLimits(idle_timeout_s=idle_timeout_s)
         self.port = port
+        self.connections = 0
+        self.refused = 0  #: malformed requests answered with an exception or dropped connections
+        self._last_summary = 0.0
         self.history: list[int] = []
         controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
         self._epoch = 0
         self._last_ticks = None
         self._ready = threading.Event()
+        self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
         self._thread.start()
-        if not self._ready.wait(5.0):
-            raise RuntimeError("Modbus device did not start")
+        if not self._ready.wait(5.0) or self._error is not None:
+            raise OSError(f"Modbus device on {host}:{port} did not start: {self._error}")
 
     def _run(self):
         try:
             asyncio.run(self._serve())
-        except Exception:  # pragma: no cover - reported through _ready never being set
-            import traceback
-
-            traceback.print_exc()
+        except BaseException as exc:  # reported to the constructor (a port in use)
+            self._error = exc
+            self._ready.set()
 
     async def _serve(self):
-        from pymodbus.framer import FramerType
-        from pymodbus.server import ModbusSerialServer, ModbusTcpServer
-
         self.loop = asyncio.get_running_loop()
-        self._expected: dict[int, bytes] = {}
+        device = SimDevice(self.unit, simdata=simdata(), action=self._action)
         if self.serial_port is not None:
-            device = SimDevice(self.unit, simdata=simdata(), action=self._action)
+            from pymodbus.framer import FramerType
+            from pymodbus.server import ModbusSerialServer
+
+            self._expected: dict[int, bytes] = {}
             self.server = ModbusSerialServer(device, framer=FramerType.RTU, port=self.serial_port, baudrate=self.baudrate,
                                              trace_packet=self._trace_packet_rtu)
             task = asyncio.create_task(self.server.serve_forever())
@@ -151,41 +189,96 @@ class ModbusDevice:
             self._ready.set()
             await task
             return
-        if self.port == 0:
-            import socket
+        from pymodbus.pdu import DecodePDU
+        from pymodbus.simulator.simcore import SimCore
 
-            with socket.socket() as s:
-                s.bind((self.host, 0))
-                self.port = s.getsockname()[1]
-        device = SimDevice(self.unit, simdata=simdata(), action=self._action)
-        # built inside the running loop; trace_packet enforces the exception codes of the
-        # Modbus application protocol where pymodbus's defaults differ (design notes section 4)
-        self.server = ModbusTcpServer(device, address=(self.host, self.port), trace_packet=self._trace_packet)
-        task = asyncio.create_task(self.server.serve_forever())
-        await asyncio.sleep(0.05)
+        self._context, self._decoder = SimCore(device), DecodePDU(True)
+        self._stopped = asyncio.Event()
+        self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
+        server = await asyncio.start_server(self._connection, self.host, self.port)
+        self.port = server.sockets[0].getsockname()[1]
         self._ready.set()
-        await task
+        async with server:
+            await self._stopped.wait()
+        await close_handlers(self._handlers)
 
-    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """Incoming ADUs are checked against the protocol's function-code and quantity rules; the
-        answer to a refused request is rewritten to the conformant exception (same transaction)."""
-        if len(data) < 8:
-            return data
-        tid = struct.unpack_from(">H", data, 0)[0]
-        if not sending:
-            # every request resets its transaction's verdict: a verdict left by a request that was
-            # never answered (dropped, foreign unit) must not rewrite a later answer (a stale answer)
-            self._expected.pop(tid, None)
-            exc = request_exception(data[7:])
-            if exc is not None:
-                self._expected[tid] = exc
-                while len(self._expected) > 256:
-                    self._expected.pop(next(iter(self._expected)))
-            return data
-        exc = self._expected.pop(tid, None)
-        if exc is None:
-            return data
-        return data[:4] + struct.pack(">H", 1 + len(exc)) + data[6:7] + exc
+    # --- Modbus TCP: framing, pipelining, limits ----------------------------------------------------
+    async def _connection(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        if self.connections >= self.limits.max_clients:
+            self._refuse("connection refused: %d clients already", self.limits.max_clients)
+            writer.close()
+            return
+        self.connections += 1
+        self._handlers[asyncio.current_task()] = writer
+        buffer = bytearray()
+        try:
+            while True:
+                answers = []
+                while len(buffer) >= 7:  # every complete ADU in the buffer, in order
+                    tid, protocol, length, unit = struct.unpack_from(">HHHB", buffer)
+                    if not 2 <= length <= 254:
+                        self._refuse("MBAP length %d outside 2..254 (transaction %d): connection closed", length, tid)
+                        return
+                    if len(buffer) < 6 + length:
+                        break
+                    pdu = bytes(buffer[7:6 + length])
+                    del buffer[:6 + length]
+                    if protocol != 0:
+                        self._refuse("protocol id %d is not Modbus (transaction %d): request dropped", protocol, tid)
+                        continue
+                    answer = await self._answer(unit, pdu)
+                    answers.append(struct.pack(">HHHB", tid, 0, len(answer) + 1, unit) + answer)
+                if answers:
+                    writer.write(b"".join(answers))
+                    await asyncio.wait_for(writer.drain(), self.limits.idle_timeout_s)
+                timeout = self.limits.partial_timeout_s if buffer else self.limits.idle_timeout_s
+                try:
+                    chunk = await asyncio.wait_for(reader.read(4096), timeout)
+                except asyncio.TimeoutError:
+                    if buffer:
+                        self._refuse("request incomplete after %.1f s: connection closed", timeout)
+                    return
+                if not chunk:
+                    return
+                buffer += chunk
+                del chunk
+        except (ConnectionError, OSError, asyncio.TimeoutError):
+            pass
+        finally:
+            self.connections -= 1
+            self._handlers.pop(asyncio.current_task(), None)
+            writer.close()
+
+    async def _answer(self, unit: int, pdu: bytes) -> bytes:
+        """The response PDU to one request PDU."""
+        from pymodbus.pdu import ExceptionResponse
+
+        fc = pdu[0] if pdu else 0
+        if unit not in (self.unit, UNIT_ANY):
+            return bytes([(fc | 0x80) & 0xFF, GATEWAY_NO_RESPONSE])
+        exc = request_exception(pdu)
+        if exc is not None:
+            self._refuse("function %d: malformed request %s answered with exception %02X", fc, pdu[:16].hex(), exc[1])
+            return exc
+        request = self._decoder.decode(pdu)
+        if request is None:  # request_exception passed it, pymodbus could not: a value it refuses
+            self._refuse("function %d: request %s not decodable", fc, pdu[:16].hex())
+            return bytes([fc | 0x80, 0x03])
+        try:
+            response = await request.datastore_update(self._context, self.unit)
+        except Exception as exc:  # the register map failed: the device reports it, the server lives on
+            self._refuse("function %d: %s: %s", fc, type(exc).__name__, exc)
+            response = ExceptionResponse(fc, ExcCodes.DEVICE_FAILURE)
+        return bytes([response.function_code]) + response.encode()
+
+    def _refuse(self, message: str, *args) -> None:
+        """One debug line per refused request; a one-line summary at most every 10 s at info."""
+        self.refused += 1
+        log.debug(message, *args)
+        now = time.monotonic()
+        if now - self._last_summary > 10.0:
+            self._last_summary = now
+            log.info("Modbus unit %d: %d malformed requests refused so far (last: %s)", self.unit, self.refused, message % args)
 
     def _trace_packet_rtu(self, sending: bool, data: bytes) -> bytes:
         """RTU: the same rules as TCP; a serial line is strictly request then answer, so the
@@ -204,12 +297,16 @@ class ModbusDevice:
         return frame + FramerRTU.compute_CRC(frame).to_bytes(2, "big")
 
     def close(self):
-        if getattr(self, "server", None) is not None:
+        if not self._thread.is_alive():
+            return
+        if getattr(self, "server", None) is not None:  # RTU: pymodbus's server
             fut = asyncio.run_coroutine_threadsafe(self.server.shutdown(), self.loop)
             try:
                 fut.result(timeout=5.0)
             except Exception:  # pragma: no cover
                 pass
+        else:
+            self.loop.call_soon_threadsafe(self._stopped.set)
         self._thread.join(timeout=5.0)
 
     # --- the register map's behaviour --------------------------------------------------------------
@@ -231,6 +328,7 @@ class ModbusDevice:
         put(RB_TRIPS, [(st["guard_trips"] >> 16) & 0xFFFF, st["guard_trips"] & 0xFFFF])
         pred = st["last_predicted_commutation_s"] if np.isfinite(st["last_predicted_commutation_s"]) else 0.0
         put(RB_PRED, list(struct.unpack(">HHHH", struct.pack(">d", pred))))
+        put(RB_COUNTERS, sum(([(st[k] >> 16) & 0xFFFF, st[k] & 0xFFFF] for k in COUNTER_KEYS), []))
         codes = (self.history + [0] * 8)[:8]
         put(ERROR_REGISTER, [c.error_register, len(self.history)] + codes)
         i = c.identity
@@ -311,7 +409,8 @@ class ModbusDevice:
             if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
                 self._epoch += 1 << 32
             self._last_ticks = msg.ticks
-            frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
+            cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
+            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[:REPLY_FRAMES]
             reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
             regs[REPLY - base:REPLY - base + len(reply)] = reply
         return None
@@ -347,6 +446,8 @@ class ModbusLink:
             r = fn()
         except ModbusException as exc:
             raise LinkTimeout(f"{self.where}: no answer to {what} within {self.timeout_s} s ({exc})") from None
+        except Exception as exc:  # the transport itself failed (a reset connection, a closed port)
+            raise LinkError(f"{self.where}: {what} failed: {type(exc).__name__}: {exc}") from None
         if r.isError():
             code = getattr(r, "exception_code", None)
             raise LinkError(f"{self.where}: {what} refused with exception code {code:02d}" if code is not None else f"{self.where}: {what} failed: {r}")
@@ -389,10 +490,15 @@ class ModbusLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        msg = EdgeMessage.from_edge(edge, seq).pack()
+        values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
+        cycle = CycleCurrentMessage.from_edge(edge, seq)
+        if cycle is not None:  # register 204 in the same transaction
+            values.append(cycle.current_ma)
         r = self._call(f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)", lambda: self.client.readwrite_registers(
-            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=_bytes_regs(msg), device_id=self.unit))
+            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=values, device_id=self.unit))
         regs = r.registers
+        if len(regs) != 1 + 4 * REPLY_FRAMES or regs[0] > REPLY_FRAMES:
+            raise LinkError(f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)")
         commands = []
         for k in range(min(regs[0], REPLY_FRAMES)):
             f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k:5 + 4 * k]))
@@ -405,8 +511,10 @@ class ModbusLink:
     def status(self) -> dict:
         rb = self.read(RB_SPEED, 18)
         err = self.read(ERROR_REGISTER, 10)
+        cn = self.read(RB_COUNTERS, 8)
+        counters = {k: (cn[2 * i] << 16) | cn[2 * i + 1] for i, k in enumerate(COUNTER_KEYS)}
         f = [_regs_f32(rb[2 * k:2 * k + 2]) for k in range(6)]
-        return {"strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
+        return {**counters, "strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
                 "q_diag": f[1:4], "r_diag": f[4:6], "guard_trips": (rb[12] << 16) | rb[13],
                 "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
                 "error_register": err[0], "faults": [(0.0, code) for code in err[2:2 + err[1]]]}

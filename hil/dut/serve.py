@@ -1,8 +1,9 @@
 """``hil dut serve``: the virtual controller in its own process, on loopback by default.
 
 CANopen: the device sits on an in-process python-can ``virtual`` channel, exposed to other
-processes by python-can-remote's server bound to the given host (127.0.0.1 unless asked);
-clients connect with ``CanopenLink(interface="remote", channel="ws://127.0.0.1:PORT/")``.
+processes by a socketcand-protocol server (hil.dut.socketcand) bound to the given host
+(127.0.0.1 unless asked); clients use python-can's own ``socketcand`` interface:
+``CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=PORT)``.
 Modbus: TCP on host:port. Never all interfaces unless asked (``--host 0.0.0.0``).
 """
 
@@ -14,38 +15,46 @@ import threading
 
 from plant_models import PRESETS
 
+from .socketcand import SocketcandLimits
 from .virtual import Strategy, VirtualController
 
 
 def serve(canopen_port: int | None, modbus_port: int | None, host: str = "127.0.0.1", node_id: int = 5, unit: int = 1,
-          strategy: int = int(Strategy.SAGE_HUSA), preset: str = "paper-bench", stop: threading.Event | None = None) -> None:
+          strategy: int = int(Strategy.SAGE_HUSA), preset: str = "paper-bench", stop: threading.Event | None = None,
+          bus_name: str = "can0", limits: SocketcandLimits = SocketcandLimits(), idle_timeout_s: float | None = None) -> None:
     controller = VirtualController(PRESETS[preset]().motor, strategy=Strategy(strategy))
     closers = []
-    if canopen_port is not None:
-        from can_remote.server import RemoteServer
+    if idle_timeout_s is not None:
+        import dataclasses
 
-        from .canopen_face import CanopenDevice
+        limits = dataclasses.replace(limits, idle_timeout_s=idle_timeout_s)
+    try:
+        if canopen_port is not None:
+            from .canopen_face import CanopenDevice
+            from .socketcand import SocketcandServer
 
-        channel = f"hil-dut-{canopen_port}"
-        device = CanopenDevice(controller, node_id=node_id, interface="virtual", channel=channel)
-        server = RemoteServer(host, canopen_port, interface="virtual", channel=channel)
-        threading.Thread(target=server.serve_forever, name="can-remote", daemon=True).start()
-        closers += [server.shutdown, device.close]
-        print(f"CANopen node {node_id}: interface=remote channel=ws://{host}:{canopen_port}/", flush=True)
-    if modbus_port is not None:
-        from .modbus_face import ModbusDevice
+            channel = f"hil-dut-{id(controller)}"
+            device = CanopenDevice(controller, node_id=node_id, interface="virtual", channel=channel)
+            closers.append(device.close)
+            server = SocketcandServer(host, canopen_port, bus_name=bus_name, interface="virtual", channel=channel, limits=limits)
+            closers.insert(0, server.close)
+            print(f"CANopen node {node_id}: interface=socketcand channel={bus_name} host={host} port={server.port}", flush=True)
+        if modbus_port is not None:
+            from .modbus_face import ModbusDevice
 
-        mdev = ModbusDevice(controller, host=host, port=modbus_port, unit=unit)
-        closers.append(mdev.close)
-        print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)
-    print("ready", flush=True)
-    stop = stop or threading.Event()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        signal.signal(sig, lambda *_: stop.set())
-    stop.wait()
-    for close in closers:
-        try:
-            close()
-        except Exception:  # pragma: no cover - best effort on the way out
-            pass
-    sys.stdout.flush()
+            mdev = ModbusDevice(controller, host=host, port=modbus_port, unit=unit, idle_timeout_s=limits.idle_timeout_s)
+            closers.append(mdev.close)
+            print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)
+        print("ready", flush=True)
+        stop = stop or threading.Event()
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                signal.signal(sig, lambda *_: stop.set())
+        stop.wait()
+    finally:
+        for close in closers:
+            try:
+                close()
+            except Exception:  # pragma: no cover - best effort on the way out
+                pass
+        sys.stdout.flush()

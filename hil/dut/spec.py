@@ -8,6 +8,7 @@ reach it, and ``open_dut`` gives the one ``ControllerLink`` the acceptance suite
     virtual:modbus               the built-in virtual controller over Modbus TCP on 127.0.0.1
     virtual:in-process           the built-in virtual controller called directly (no protocol)
     canopen:interface=pcan,channel=PCAN_USBBUS1,node=5,bitrate=500000,eds=my.eds
+    canopen:interface=socketcand,channel=can0,host=127.0.0.1,port=29536,node=5   (hil dut serve, or a socketcand daemon)
     modbus-tcp:host=192.168.0.10,port=502,unit=1
     modbus-rtu:port=/dev/ttyUSB0,baud=115200,unit=1
 
@@ -29,7 +30,7 @@ VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
 _KEYS = {
     "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1)},
     "canopen": {"interface": (str, None), "channel": (str, None), "node": (int, 5), "bitrate": (int, 0), "eds": (str, ""),
-                "timeout": (float, 1.0)},
+                "host": (str, ""), "port": (int, 0), "timeout": (float, 1.0)},
     "modbus-tcp": {"host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0)},
     "modbus-rtu": {"port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0)},
 }
@@ -62,6 +63,15 @@ class DutSpec:
     def id(self) -> str:
         """A short name for test ids and reports."""
         return f"virtual-{self.transport}" if self.is_virtual else self.kind
+
+
+def unknown_can_interface(interface: str) -> str | None:
+    """Why python-can cannot open ``interface`` (one line listing the ones it has), or None."""
+    import can
+
+    if interface in can.interfaces.VALID_INTERFACES:
+        return None
+    return f"python-can has no interface {interface!r} (installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})"
 
 
 def parse_dut(text: str) -> DutSpec:
@@ -99,6 +109,8 @@ def parse_dut(text: str) -> DutSpec:
             options[key] = default
     if not options["timeout"] > 0:
         raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
+    if kind == "canopen" and (why := unknown_can_interface(options["interface"])):
+        raise DutSpecError(f"--hil-dut {text!r}: {why}")
     return DutSpec(kind, transport, options, text)
 
 
@@ -133,7 +145,7 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
     if spec.kind == "canopen":
         from .canopen_face import CanopenLink
 
-        bus = {"bitrate": o["bitrate"]} if o["bitrate"] else {}
+        bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
         return Dut(spec, CanopenLink(node_id=o["node"], interface=o["interface"], channel=o["channel"], eds=o["eds"] or None,
                                      timeout_s=o["timeout"], **bus))
     if spec.kind == "modbus-tcp":

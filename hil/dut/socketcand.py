@@ -1,0 +1,285 @@
+"""A socketcand-protocol server: an in-process python-can bus reachable from other processes.
+
+``hil dut serve`` puts the virtual controller on a python-can ``virtual`` channel and exposes
+that bus with the socketcand raw-mode protocol (https://github.com/linux-can/socketcand), so
+python-can's own ``socketcand`` interface is the client, and the same client reaches a real
+socketcand daemon on a bench PC with a real adapter:
+
+    can.Bus(interface="socketcand", channel="can0", host="127.0.0.1", port=PORT)
+
+The server speaks only what a raw-mode client needs (``< hi >``, ``< open BUS >``,
+``< rawmode >``, ``< send ID DLC B.. >``, ``< echo >``; frames go out as
+``< frame ID SEC.USEC HEX >``) and serves nothing else: no files, no HTTP. It is hardened
+against the clients it may meet on a shared port:
+
+- a connection cap (``max_clients``); the next client is told ``< error too many clients >``;
+- the handshake must finish within ``handshake_timeout_s``; a command once begun must end
+  within ``partial_timeout_s`` and ``max_command_bytes`` (slow-loris);
+- a raw-mode client that sends nothing for ``idle_timeout_s`` is closed (TCP keepalive also on);
+- every client has a bounded frame queue: a client that does not read loses its oldest frames,
+  as a CAN controller overruns, and one that reads nothing for ``idle_timeout_s`` is closed;
+- a client that leaves, or is killed, is forgotten at once (its queue goes with it);
+- a client that sends faster than the device takes frames waits (``max_backlog_frames``): the
+  backlog stays in its TCP connection, not in this process's memory.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import socket
+import threading
+import time
+from dataclasses import dataclass, field
+
+import can
+
+from .tcp import close_handlers
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SocketcandLimits:
+    max_clients: int = 16
+    queue_frames: int = 4096            #: per client; the oldest is dropped beyond this (an overrun)
+    handshake_timeout_s: float = 5.0    #: hi -> open -> rawmode
+    partial_timeout_s: float = 5.0      #: a command begun must end within this
+    idle_timeout_s: float = 300.0       #: raw mode: no command, or nothing read, for this long closes
+    max_command_bytes: int = 128        #: '< send 1FFFFFFF 8 ff ff ff ff ff ff ff ff >' is 41
+    max_backlog_frames: int = 256       #: frames the device has not yet taken; a sender waits beyond this
+
+
+class ProtocolError(Exception):
+    """The client broke the protocol; it is told so (one line) and disconnected."""
+
+
+@dataclass(eq=False)
+class _Client:
+    writer: asyncio.StreamWriter
+    queue: collections.deque
+    ready: asyncio.Event = field(default_factory=asyncio.Event)
+    dropped: int = 0
+
+    def put(self, line: bytes) -> None:
+        if len(self.queue) == self.queue.maxlen:
+            self.dropped += 1
+        self.queue.append(line)
+        self.ready.set()
+
+
+def frame_line(msg: can.Message) -> bytes:
+    """A received frame as socketcand sends it: 3 hex digits for a standard id, 8 for extended."""
+    can_id = f"{msg.arbitration_id:08X}" if msg.is_extended_id else f"{msg.arbitration_id:03X}"
+    return f"< frame {can_id} {msg.timestamp:.6f} {bytes(msg.data).hex().upper()} >".encode("ascii")
+
+
+def parse_send(words: list[str]) -> can.Message:
+    """``send ID DLC B0 .. B(DLC-1)`` (hex) -> a Message; ProtocolError names what is wrong."""
+    if len(words) < 3:
+        raise ProtocolError("send needs an id and a length")
+    ident, dlc_text, data_words = words[1], words[2], words[3:]
+    try:
+        can_id, dlc, data = int(ident, 16), int(dlc_text, 16), bytes(int(b, 16) for b in data_words)
+    except ValueError:
+        raise ProtocolError("send: id, length and data bytes must be hexadecimal") from None
+    extended = len(ident) > 3
+    if can_id < 0 or can_id > (0x1FFFFFFF if extended else 0x7FF) or len(ident) > 8:
+        raise ProtocolError(f"send: id {ident} out of range")
+    if not 0 <= dlc <= 8 or len(data_words) != dlc or any(len(b) > 2 for b in data_words):
+        raise ProtocolError(f"send: {len(data_words)} data bytes for length {dlc_text}")
+    return can.Message(arbitration_id=can_id, is_extended_id=extended, data=data, dlc=dlc)
+
+
+class SocketcandServer:
+    """Serves the python-can bus ``interface``/``channel`` as socketcand bus ``bus_name`` on host:port."""
+
+    def __init__(self, host: str = "127.0.0.1", port: int = 0, bus_name: str = "can0", interface: str = "virtual",
+                 channel: str = "hil", limits: SocketcandLimits = SocketcandLimits()):
+        self.host, self.bus_name, self.limits = host, bus_name, limits
+        self.bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+        self.clients: set[_Client] = set()
+        self.connections = 0  #: open TCP connections, in handshake or raw mode
+        self._stop = threading.Event()
+        self._ready = threading.Event()
+        self._error: BaseException | None = None
+        self._requested_port = port
+        self.port = port
+        self._thread = threading.Thread(target=self._run, name="socketcand-server", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(10.0) or self._error is not None:
+            self.bus.shutdown()
+            raise OSError(f"socketcand server on {host}:{port} did not start: {self._error}")
+        self._reader = threading.Thread(target=self._read_bus, name="socketcand-bus", daemon=True)
+        self._reader.start()
+
+    # --- the event loop ---------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._main())
+        except BaseException as exc:  # reported to the constructor (bind failures)
+            self._error = exc
+            self._ready.set()
+
+    async def _main(self) -> None:
+        self.loop = asyncio.get_running_loop()
+        self._closed = asyncio.Event()
+        self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
+        server = await asyncio.start_server(self._serve_client, self.host, self._requested_port,
+                                            limit=self.limits.max_command_bytes * 4)
+        self.port = server.sockets[0].getsockname()[1]
+        self._ready.set()
+        async with server:
+            await self._closed.wait()
+        await close_handlers(self._handlers)
+
+    def _read_bus(self) -> None:
+        """Frames on the bus (from the device) go to every raw-mode client."""
+        while not self._stop.is_set():
+            try:
+                msg = self.bus.recv(timeout=0.2)
+            except Exception:  # the bus was shut down under us
+                return
+            if msg is not None and not msg.is_error_frame:
+                try:
+                    self.loop.call_soon_threadsafe(self._fanout, frame_line(msg), None)
+                except RuntimeError:  # the loop is closed: we are stopping
+                    return
+
+    def _backlog(self) -> int:
+        """Frames queued for the slowest receiver on a python-can ``virtual`` channel (0 elsewhere):
+        its queues are unbounded, so a client sending faster than the device reads would grow them."""
+        queues = getattr(self.bus, "channel", None)
+        if not isinstance(queues, list):
+            return 0
+        return max((q.qsize() for q in queues if q is not self.bus.queue), default=0)
+
+    def _fanout(self, line: bytes, sender: _Client | None) -> None:
+        for client in self.clients:
+            if client is not sender:
+                client.put(line)
+
+    # --- one client -------------------------------------------------------------------------------
+    async def _serve_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        sock = writer.get_extra_info("socket")
+        if sock is not None:
+            sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
+            sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if self.connections >= self.limits.max_clients:
+            await self._refuse(writer, "too many clients")
+            return
+        self.connections += 1
+        self._handlers[asyncio.current_task()] = writer
+        client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames))
+        sender = None
+        buffer = bytearray()
+        try:
+            writer.write(b"< hi >")
+            handshake = asyncio.get_running_loop().time() + self.limits.handshake_timeout_s
+            for expected in (f"open {self.bus_name}", "rawmode"):
+                words = await self._command(reader, buffer, handshake)
+                if words is None:
+                    return
+                if words[0] == "open" and expected.startswith("open") and words[1:] != [self.bus_name]:
+                    raise ProtocolError(f"no bus {' '.join(words[1:])[:32]} (this server has {self.bus_name})")
+                if " ".join(words) != expected:
+                    raise ProtocolError(f"expected {expected} here")
+                writer.write(b"< ok >")
+            self.clients.add(client)
+            sender = asyncio.create_task(self._send_frames(client))
+            while True:
+                words = await self._command(reader, buffer, None)
+                if words is None:
+                    return
+                if words[0] == "send":
+                    msg = parse_send(words)
+                    while self._backlog() > self.limits.max_backlog_frames:
+                        await asyncio.sleep(0.001)  # backpressure: the client waits, not the device's memory
+                    self.bus.send(msg)
+                    msg.timestamp = time.time()
+                    self._fanout(frame_line(msg), client)  # a bus: the other clients see it too
+                elif words == ["echo"]:
+                    client.put(b"< echo >")
+                else:
+                    client.put(b"< error unknown command >")
+        except ProtocolError as exc:
+            await self._refuse(writer, str(exc))
+        except (ConnectionError, OSError, asyncio.IncompleteReadError):
+            pass
+        finally:
+            self.connections -= 1
+            self._handlers.pop(asyncio.current_task(), None)
+            self.clients.discard(client)
+            client.queue.clear()
+            if sender is not None:
+                sender.cancel()
+            writer.close()
+
+    async def _command(self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None) -> list[str] | None:
+        """The next ``< ... >`` command as words, or None when the client has gone (EOF or timeout)."""
+        loop = asyncio.get_running_loop()
+        lim = self.limits
+        started = None
+        while True:
+            start = buffer.find(b"<")
+            if start < 0 and buffer.strip():
+                raise ProtocolError("a command starts with '<'")
+            end = buffer.find(b">", max(start, 0))
+            if start >= 0 and end >= 0:
+                text = bytes(buffer[start + 1:end])
+                del buffer[:end + 1]
+                try:
+                    words = text.decode("ascii").split()
+                except UnicodeDecodeError:
+                    raise ProtocolError("commands are ASCII") from None
+                if not words:
+                    raise ProtocolError("empty command")
+                return words
+            if start > 0:
+                del buffer[:start]  # whitespace before the '<'
+            elif start < 0:
+                buffer.clear()
+            if len(buffer) > lim.max_command_bytes:
+                raise ProtocolError(f"command longer than {lim.max_command_bytes} bytes")
+            if buffer and started is None:
+                started = loop.time()
+            limit = deadline if deadline is not None else (started + lim.partial_timeout_s if buffer else loop.time() + lim.idle_timeout_s)
+            try:
+                chunk = await asyncio.wait_for(reader.read(4096), max(limit - loop.time(), 0.0))
+            except asyncio.TimeoutError:
+                return None
+            if not chunk:
+                return None
+            buffer += chunk
+
+    async def _send_frames(self, client: _Client) -> None:
+        """Writes the client's queued frames; a client that takes nothing for idle_timeout_s is closed."""
+        try:
+            while True:
+                await client.ready.wait()
+                client.ready.clear()
+                while client.queue:
+                    batch = [client.queue.popleft() for _ in range(min(len(client.queue), 256))]
+                    client.writer.write(b"".join(batch))
+                    await asyncio.wait_for(client.writer.drain(), self.limits.idle_timeout_s)
+        except (asyncio.TimeoutError, ConnectionError, OSError):
+            client.writer.close()
+
+    async def _refuse(self, writer: asyncio.StreamWriter, reason: str) -> None:
+        try:
+            text = reason.replace("<", "(").replace(">", ")").encode("ascii", "replace")  # one frame, whatever it quotes
+            writer.write(b"< error " + text + b" >")
+            await asyncio.wait_for(writer.drain(), 1.0)
+        except (asyncio.TimeoutError, ConnectionError, OSError):
+            pass
+        writer.close()
+
+    # --- stopping ---------------------------------------------------------------------------------
+    def close(self) -> None:
+        self._stop.set()
+        if self._thread.is_alive():
+            self.loop.call_soon_threadsafe(self._closed.set)
+            self._thread.join(timeout=5.0)
+        self._reader.join(timeout=2.0)
+        self.bus.shutdown()

@@ -1,0 +1,206 @@
+"""Commutations from the six gate signals, with PWM never taken for one.
+
+Six-step drive energises a pair of phases: one high (its high-side switch on, possibly chopped
+by PWM), one low (its low-side switch on, possibly chopped), the third floating (both of its
+switches off). PWM, complementary switching and dead time only ever toggle switches of the
+two energised phases. So:
+
+* **evidence**: a switch of the floating phase turns on. That instant is the candidate
+  commutation (the earliest moment the gates show the controller left the old pair);
+* **hold-off**: over the hold-off window that follows, the switches' on-times decide the new
+  pair (the two phases with the longest on-time; the high one is the one whose high side is
+  on longer than its low side). If that is a different pair, the commutation is accepted at
+  the evidence instant; if it is the old pair, the evidence was a glitch and is rejected.
+
+The window must span at least one PWM period (so a chopped switch shows) and be shorter than
+the shortest sector. A commutation that changes only the chopped phase at an instant when the
+chopped switch is in its off-time becomes visible when it next turns on (an unobservable
+delay of at most the off-time, unless the controller restarts its PWM period at commutation).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from plant_models.hall import SECTOR_PHASES
+
+#: default hold-off: two periods of a 20 kHz PWM, a third of a sector at 15,000 rpm (2 pole pairs)
+DEFAULT_HOLD_OFF_S = 100e-6
+
+_SECTOR_OF_PAIR = np.full(9, -1, dtype=np.int64)
+for _s, (_hi, _lo) in enumerate(SECTOR_PHASES):
+    _SECTOR_OF_PAIR[_hi * 3 + _lo] = _s
+_HI = SECTOR_PHASES[:, 0].copy()
+_LO = SECTOR_PHASES[:, 1].copy()
+
+# carried state (floats, ints)
+F_PREV_T, F_T_E, F_ACC = 0, 1, 2          # F_ACC..F_ACC+5: on-time of each switch in the window
+N_F = 8
+I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED = range(6)
+N_I = 6
+
+
+@njit(cache=True)
+def _floating_on(state, sector):
+    x = 3 - _HI[sector] - _LO[sector]
+    return (state >> (2 * x)) & 3
+
+
+@njit(cache=True)
+def _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out):
+    """Close the window opened at fs[F_T_E]: the new pair from the switches' on-times."""
+    phase_on = np.zeros(3)
+    role = np.zeros(3)
+    for x in range(3):
+        phase_on[x] = fs[F_ACC + 2 * x] + fs[F_ACC + 2 * x + 1]
+        role[x] = fs[F_ACC + 2 * x] - fs[F_ACC + 2 * x + 1]
+    order = np.argsort(-phase_on)
+    a, b, c = order[0], order[1], order[2]
+    cur = ist[I_SECTOR]
+    new = -1
+    if phase_on[c] > 0.25 * hold_s:
+        ist[I_AMBIG] += 1
+    if phase_on[b] > 0.0:
+        hi, lo = (a, b) if role[a] >= role[b] else (b, a)
+        new = _SECTOR_OF_PAIR[hi * 3 + lo]
+    elif phase_on[a] > 0.0 and cur >= 0:
+        # one phase seen (the other's switch chopped to nothing): the neighbouring sector that has it in that role
+        for step in (1, 5):
+            s = (cur + step) % 6
+            if (role[a] > 0 and _HI[s] == a) or (role[a] <= 0 and _LO[s] == a):
+                new = s
+                break
+    ist[I_PENDING] = 0
+    if new < 0 or new == cur:
+        if cur >= 0:
+            ist[I_GLITCH] += 1
+        return n_out
+    out_t[n_out] = fs[F_T_E]
+    out_s[n_out] = new
+    out_k[n_out] = 1 if cur >= 0 else 0
+    ist[I_SECTOR] = new
+    return n_out + 1
+
+
+@njit(cache=True)
+def _integrate(fs, state, t_from, t_to, hold_s):
+    a = max(t_from, fs[F_T_E])
+    b = min(t_to, fs[F_T_E] + hold_s)
+    if b > a:
+        for j in range(6):
+            if (state >> j) & 1:
+                fs[F_ACC + j] += b - a
+
+
+@njit(cache=True)
+def _open(fs, ist, t):
+    ist[I_PENDING] = 1
+    fs[F_T_E] = t
+    for j in range(6):
+        fs[F_ACC + j] = 0.0
+
+
+@njit(cache=True)
+def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
+    n_out = 0
+    for k in range(t.size):
+        tk = t[k]
+        prev = ist[I_PREV_S]
+        if ist[I_STARTED]:
+            if ist[I_PENDING]:
+                _integrate(fs, prev, fs[F_PREV_T], tk, hold_s)
+                if tk >= fs[F_T_E] + hold_s:
+                    t_close = fs[F_T_E] + hold_s
+                    n_out = _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out)
+                    # the state that ran past the window may already contradict the new pair
+                    if prev != 0 and (ist[I_SECTOR] < 0 or _floating_on(prev, ist[I_SECTOR]) != 0):
+                        _open(fs, ist, max(fs[F_PREV_T], t_close))
+                        _integrate(fs, prev, fs[F_PREV_T], tk, hold_s)
+        ist[I_STARTED] = 1
+        sk = s[k]
+        if not ist[I_PENDING] and sk != 0:
+            if ist[I_SECTOR] < 0 or _floating_on(sk, ist[I_SECTOR]) != 0:
+                _open(fs, ist, tk)
+        ist[I_PREV_S] = sk
+        fs[F_PREV_T] = tk
+    return n_out
+
+
+@njit(cache=True)
+def _finish(end_t, fs, ist, hold_s, out_t, out_s, out_k):
+    if ist[I_PENDING] and ist[I_STARTED]:
+        _integrate(fs, ist[I_PREV_S], fs[F_PREV_T], end_t, hold_s)
+        if end_t >= fs[F_T_E] + hold_s:
+            return _decide(fs, ist, hold_s, out_t, out_s, out_k, 0)
+    return 0
+
+
+@dataclass
+class Extracted:
+    t_s: np.ndarray            #: evidence instant of each accepted change of pair
+    sector: np.ndarray         #: sector entered (six-step table of plant_models.hall)
+    initial: np.ndarray        #: True for the first pair (the start, not a commutation)
+    glitches: int = 0          #: evidence rejected by the hold-off (the old pair came back)
+    ambiguous: int = 0         #: windows where all three phases conducted noticeably
+    start_s: float = 0.0
+    end_s: float = 0.0
+    resolution_s: float | None = None
+
+    @property
+    def commutations(self) -> tuple[np.ndarray, np.ndarray]:
+        keep = ~self.initial
+        return self.t_s[keep], self.sector[keep]
+
+    @property
+    def established_s(self) -> float:
+        """When the first pair was established (NaN if never)."""
+        return float(self.t_s[self.initial][0]) if self.initial.any() else float("nan")
+
+
+@dataclass
+class Extractor:
+    """Streaming extraction: feed change chunks, then :meth:`finish` with the capture's end."""
+
+    hold_off_s: float = DEFAULT_HOLD_OFF_S
+    _fs: np.ndarray = field(default_factory=lambda: np.zeros(N_F))
+    _is: np.ndarray = field(default_factory=lambda: np.array([-1, 0, 0, 0, 0, 0], dtype=np.int64))
+    _t: list = field(default_factory=list)
+    _s: list = field(default_factory=list)
+    _k: list = field(default_factory=list)
+
+    def __post_init__(self):
+        if not self.hold_off_s > 0:
+            raise ValueError(f"hold-off must be > 0 s, got {self.hold_off_s!r}")
+
+    def feed(self, t_s: np.ndarray, state: np.ndarray) -> None:
+        n = t_s.size + 1
+        out_t, out_s, out_k = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        m = _run(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(state, dtype=np.int64), self._fs, self._is,
+                 float(self.hold_off_s), out_t, out_s, out_k)
+        self._keep(out_t, out_s, out_k, m)
+
+    def _keep(self, out_t, out_s, out_k, m):
+        if m:
+            self._t.append(out_t[:m].copy())
+            self._s.append(out_s[:m].copy())
+            self._k.append(out_k[:m].copy())
+
+    def finish(self, end_s: float, start_s: float = 0.0, resolution_s: float | None = None) -> Extracted:
+        out_t, out_s, out_k = np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64)
+        m = _finish(float(end_s), self._fs, self._is, float(self.hold_off_s), out_t, out_s, out_k)
+        self._keep(out_t, out_s, out_k, m)
+        cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dtype=dt))  # noqa: E731
+        return Extracted(cat(self._t, float), cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]),
+                         int(self._is[I_AMBIG]), start_s, float(end_s), resolution_s)
+
+
+def extract(capture, hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Extracted:
+    """Commutations of a :class:`~hil.signals.capture.Capture` (streamed)."""
+    ex = Extractor(hold_off_s)
+    for t, s in capture.states():
+        ex.feed(t, s)
+    end = capture.end_s if capture.end_s is not None else 0.0
+    return ex.finish(end, capture.start_s or 0.0, capture.sample_period_s)

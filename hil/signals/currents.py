@@ -1,0 +1,90 @@
+"""Phase currents of the stimulus, from the electrical plant.
+
+For each speed of a grid spanning the profile, the electrical plant (with the plant file's
+effects) runs at the duty that holds that speed against the pump load, commutated ideally
+(the oracle: the current shape a correct controller would draw), until the winding currents
+have settled; one mechanical turn of its three phase currents is tabulated against the
+mechanical angle. At export time the current at any instant is the table of the true
+mechanical angle, interpolated linearly between the two nearest grid speeds. This is
+quasi-static: the extra torque current of an acceleration is not included.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from plant_models import OracleCommutation, PlantConfig, Simulation
+from plant_models.plant import steady_state
+
+#: table resolution over one mechanical turn
+TABLE_POINTS = 1440
+#: grid spacing of the tabulated speeds
+SPEED_STEP_RPM = 500.0
+#: below this speed the motor is taken as standing (no current)
+MIN_SPEED_RPM = 30.0
+
+
+@dataclass
+class CurrentTables:
+    speeds_rpm: np.ndarray      #: (k,) grid speeds, increasing
+    tables_a: np.ndarray        #: (k, 3, TABLE_POINTS) phase currents against mechanical angle
+    duty: np.ndarray            #: (k,) duty that held each speed
+
+    def currents_a(self, theta_m_deg: np.ndarray, speed_rpm: np.ndarray) -> np.ndarray:
+        """(3, n) phase currents at mechanical angles and speeds."""
+        pos = np.mod(theta_m_deg, 360.0) * (TABLE_POINTS / 360.0)
+        j0 = np.floor(pos).astype(np.int64) % TABLE_POINTS
+        j1 = (j0 + 1) % TABLE_POINTS
+        fa = pos - np.floor(pos)
+        k = np.clip(np.searchsorted(self.speeds_rpm, speed_rpm, side="right") - 1, 0, max(self.speeds_rpm.size - 2, 0))
+        if self.speeds_rpm.size == 1:
+            tab = self.tables_a[0]
+            return tab[:, j0] * (1 - fa) + tab[:, j1] * fa
+        s0, s1 = self.speeds_rpm[k], self.speeds_rpm[k + 1]
+        fs = np.clip((speed_rpm - s0) / (s1 - s0), 0.0, 1.0)
+        out = np.empty((3, theta_m_deg.size))
+        for x in range(3):
+            lo = self.tables_a[k, x, j0] * (1 - fa) + self.tables_a[k, x, j1] * fa
+            hi = self.tables_a[k + 1, x, j0] * (1 - fa) + self.tables_a[k + 1, x, j1] * fa
+            out[x] = lo * (1 - fs) + hi * fs
+        return out
+
+    def mean_abs_current_a(self, speed_rpm: float) -> float:
+        """Mean |i| over phases and one turn at ``speed_rpm`` (the armature-reaction current)."""
+        i = np.mean(np.abs(self.tables_a), axis=(1, 2))
+        return float(np.interp(speed_rpm, self.speeds_rpm, i))
+
+
+def speed_grid(speeds_rpm) -> np.ndarray:
+    lo, hi = float(np.min(speeds_rpm)), float(np.max(speeds_rpm))
+    n = max(int(np.ceil((hi - lo) / SPEED_STEP_RPM)), 0) + 1
+    return np.unique(np.concatenate([np.linspace(lo, hi, n), np.asarray(speeds_rpm, dtype=float)]))
+
+
+def tabulate(config: PlantConfig, speeds_rpm, seed: int = 0) -> CurrentTables:
+    grid = speed_grid(speeds_rpm)
+    tables = np.zeros((grid.size, 3, TABLE_POINTS))
+    duties = np.zeros(grid.size)
+    angles = (np.arange(TABLE_POINTS) + 0.0) * 360.0 / TABLE_POINTS
+    for k, rpm in enumerate(grid):
+        if rpm < MIN_SPEED_RPM:
+            continue
+        duty = min(steady_state(config.motor, rpm)["duty"], 1.0)
+        turn_s = 60.0 / rpm
+        rate = max(200e3, 4.0 * TABLE_POINTS / turn_s)
+        motor = config.motor
+        settle_s = max(20.0 * motor.phase_inductance_h / motor.phase_resistance_ohm, 3.0 * turn_s / motor.pole_pairs, 0.01)
+        sim = Simulation(config, OracleCommutation(), duty=duty, initial_speed_rpm=rpm, sample_rate_hz=rate,
+                         max_step_s=min(2e-6, 1.0 / rate), seed=seed)
+        sim.run_until(settle_s + 1.05 * turn_s)
+        s = sim.samples()
+        keep = s.t_s >= settle_s
+        theta = s.theta_m_deg[keep] - s.theta_m_deg[keep][0]
+        for x in range(3):
+            # one turn against the angle relative to where the turn started, then placed absolutely
+            base = s.theta_m_deg[keep][0]
+            tables[k, x] = np.interp(np.mod(angles - base, 360.0), theta[theta < 360.0], s.i_true_a[keep][theta < 360.0, x], period=360.0)
+        duties[k] = duty
+    return CurrentTables(grid, tables, duties)
