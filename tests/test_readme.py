@@ -32,10 +32,14 @@ def test_every_hil_command_in_the_readme_parses():
     parser = build_parser()
     for command in commands:
         args = shlex.split(command.split("&&")[0])
-        try:
-            parser.parse_args(args)
-        except SystemExit:
-            pytest.fail(f"README: `python -m hil {command}` is not a valid command")
+        # "a|b|c" in a command is a choice: each alternative must parse
+        choices = next((i for i, a in enumerate(args) if "|" in a), None)
+        variants = [args] if choices is None else [args[:choices] + [alt] + args[choices + 1:] for alt in args[choices].split("|")]
+        for variant in variants:
+            try:
+                parser.parse_args(variant)
+            except SystemExit:
+                pytest.fail(f"README: `python -m hil {' '.join(variant)}` is not a valid command")
 
 
 def test_files_and_pictures_named_in_the_readme_exist():
