@@ -126,11 +126,17 @@ def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
 
-    if Path(args.recording).is_dir():
+    path = Path(args.recording)
+    if path.is_dir():
         rec = read_recording(args.recording)
     else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        from .traces import TraceMapping, read_trace
+        from .traces import TRACE_SUFFIXES, TraceMapping, read_trace
 
+        if not path.exists():
+            raise ValueError(f"{path}: no such file or directory")
+        if path.suffix.lower() not in TRACE_SUFFIXES:
+            raise ValueError(f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
+                             f"{', '.join(TRACE_SUFFIXES)})")
         if not args.meta:
             raise ValueError(f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping MAP.toml")
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
@@ -324,13 +330,16 @@ def find_suite(path: str | None) -> Path:
 
 
 def cmd_acceptance(args) -> int:
-    import pytest
+    import subprocess
 
     from .report import ReportWriter
 
     suite = find_suite(args.suite)
-    argv = [str(suite), "-p", "no:cacheprovider", "-q", f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}",
-            f"--hypothesis-seed={args.seed}", "-o", "faulthandler_timeout=600"]
+    # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
+    # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
+    argv = [str(suite), "-p", "no:cacheprovider", "-p", "no:benchmark", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
+            f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}", f"--hypothesis-seed={args.seed}",
+            "-o", "faulthandler_timeout=600"]
     for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
         argv.append(f"--hil-dut={dut}")
     if args.plant:
@@ -343,7 +352,17 @@ def cmd_acceptance(args) -> int:
     if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
         extra = extra[1:]
     ReportWriter.clear(Path(args.report_dir))  # pytest may refuse the arguments before the plugin can
-    status = int(pytest.main(argv + extra))
+    # pytest runs in a fresh interpreter: here hil and plant_models are imported already, and
+    # pytest would warn that it cannot rewrite the asserts of its plugin's packages
+    # the same hil (and plant_models) as this command, wherever the interpreter would find another
+    root = str(Path(__file__).resolve().parent.parent)
+    program = "python -m hil" if Path(sys.argv[0]).name == "__main__.py" else Path(sys.argv[0]).name
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
+           "HIL_COMMAND": " ".join([program, *sys.argv[1:]])}  # what the report names as the run's command
+    try:
+        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
+    except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
+        status = 2
     return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
 
 
