@@ -65,8 +65,9 @@ def read_hall_changes(path: Path):
 
 
 def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty: float = 0.5, carrier: str = "restart",
-                           complementary: bool = False, dead_time_s: float = 0.0) -> list[tuple[float, int]]:
-    """Commutates 20 us + 4 us per sector after each Hall change; chops its high side at ``pwm_hz``
+                           complementary: bool = False, dead_time_s: float = 0.0, chopped: str = "high") -> list[tuple[float, int]]:
+    """Commutates 20 us + 4 us per sector after each Hall change; chops its ``chopped`` ("high" or
+    "low") side at ``pwm_hz``
     with ``carrier`` "restart" (period restarted at each commutation, on-time first), "free"
     (free-running edge-aligned timer from t = 0: on at the period start) or "center" (free-running
     center-aligned: the on-time centred in each period); writes its six gates as a VCD with a
@@ -83,6 +84,8 @@ def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty
     for k, (t0, s) in enumerate(plan):
         t1 = plan[k + 1][0] if k + 1 < len(plan) else end_s
         hi, lo = PAIR_OF_SECTOR[s]
+        # the chopped switch, its complement, and the switch held on
+        sw, comp, held = (hi + "H", hi + "L", lo + "L") if chopped == "high" else (lo + "L", lo + "H", hi + "H")
         # the carrier in whole nanoseconds (the VCD's timescale), so that a commutation on a
         # carrier edge sees the same edge as the carrier
         t0_ns, t1_ns, period_ns = round(t0 * 1e9), round(t1 * 1e9), round(period * 1e9)
@@ -98,23 +101,23 @@ def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty
         level = 1 if lead_ns <= (t0_ns - origin_ns) % period_ns < lead_ns + on_ns else 0
         t0, t1 = t0_ns * 1e-9, t1_ns * 1e-9
         state = {g: 0 for g in ("AH", "AL", "BH", "BL", "CH", "CL")}
-        state[lo + "L"] = 1
-        state[hi + "H"] = level
+        state[held] = 1
+        state[sw] = level
         if complementary:
-            state[hi + "L"] = 1 - level
+            state[comp] = 1 - level
         for g, v in state.items():
             events.append((round(t0 * 1e9), g, v))
         for te, v in edges:
             if t0 < te < t1:
                 if complementary:  # the complement turns off first, turns on after the dead time
                     if v:
-                        events.append((round(te * 1e9), hi + "L", 0))
-                        events.append((round((te + dead_time_s) * 1e9), hi + "H", 1))
+                        events.append((round(te * 1e9), comp, 0))
+                        events.append((round((te + dead_time_s) * 1e9), sw, 1))
                     else:
-                        events.append((round(te * 1e9), hi + "H", 0))
-                        events.append((round((te + dead_time_s) * 1e9), hi + "L", 1))
+                        events.append((round(te * 1e9), sw, 0))
+                        events.append((round((te + dead_time_s) * 1e9), comp, 1))
                 else:
-                    events.append((round(te * 1e9), hi + "H", v))
+                    events.append((round(te * 1e9), sw, v))
     events.sort(key=lambda e: e[0])
     code = {"AH": "a", "AL": "b", "BH": "c", "BL": "d", "CH": "e", "CL": "f"}
     lines = ["$timescale 1ns $end", "$scope module ctl $end"] + [f"$var wire 1 {c} {g} $end" for g, c in code.items()]
@@ -218,8 +221,8 @@ def test_free_running_carrier_at_a_locked_speed_is_within_the_documented_bound(i
     assert abs(got["angle_error_deg_e"]["mean"] - delays_s.mean() * OMEGA_E_DEG_S) <= bound_deg + sampling_deg
 
 
-def _hidden_in_off_time(plan, pwm_hz, duty, carrier):
-    """Which commutations change the high phase while the free-running carrier is in its off-time,
+def _hidden_in_off_time(plan, pwm_hz, duty, carrier, chopped="high"):
+    """Which commutations change the chopped phase while the free-running carrier is in its off-time,
     or exactly at its turn-on (the gates cannot tell these apart), in the controller's own
     whole-nanosecond carrier; and the off-interval (start, end) in seconds that holds each."""
     period_ns = round(1e9 / pwm_hz)
@@ -229,36 +232,42 @@ def _hidden_in_off_time(plan, pwm_hz, duty, carrier):
     for (_, s_prev), (t, s) in zip(plan, plan[1:]):
         t_ns = round(t * 1e9)
         rel = (t_ns - lead_ns) % period_ns  # time since the last turn-on
-        hidden.append(PAIR_OF_SECTOR[s][0] != PAIR_OF_SECTOR[s_prev][0] and (rel == 0 or rel >= on_ns))
+        role = 0 if chopped == "high" else 1
+        hidden.append(PAIR_OF_SECTOR[s][role] != PAIR_OF_SECTOR[s_prev][role] and (rel == 0 or rel >= on_ns))
         end_ns = t_ns + (period_ns - rel) % period_ns
         spans.append(((end_ns - (period_ns - on_ns)) * 1e-9, end_ns * 1e-9))
     return np.array(hidden), np.array(spans)
 
 
 @pytest.mark.parametrize("duty", [0.1, 0.3, 0.5, 0.8, 0.95])
-@pytest.mark.parametrize("carrier", ["free", "center", "restart"])
-def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(unlocked_stimulus, tmp_path, carrier, duty):
-    """Each change of the chopped phase hidden in a free-running off-time is reported at the
-    midpoint of that off-interval (so within half the off-time of the true instant) and counted;
-    every other commutation (the low side's, the high side's during an on-time, any commutation
-    of a carrier restarted at commutation) stays exact."""
+@pytest.mark.parametrize("carrier,chopped,complementary", [("free", "high", False), ("center", "high", False), ("restart", "high", False),
+                                                           ("free", "low", False), ("center", "low", False), ("free", "high", True)],
+                         ids=["free-high", "center-high", "restart-high", "free-low", "center-low", "free-complementary"])
+def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(unlocked_stimulus, tmp_path, carrier, chopped, complementary, duty):
+    """Each change of the chopped phase hidden in a free-running off-time (high or low side
+    chopped) is reported at the midpoint of that off-interval, so within half the off-time of the
+    true instant, and counted; every other commutation (of the unchopped side, during an on-time,
+    of a carrier restarted at commutation, of complementary PWM with dead time) stays exact."""
     from hil.signals.capture import Capture
     from hil.signals.commutations import extract
 
     pwm_hz = 20e3
-    plan = independent_controller(unlocked_stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier=carrier)
+    plan = independent_controller(unlocked_stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier=carrier, chopped=chopped,
+                                  complementary=complementary, dead_time_s=0.5e-6)
     ex = extract(Capture(tmp_path / "gates.vcd"))
     t_c, s_c = ex.commutations
     made = np.array([t for t, _ in plan[1:]])
     assert np.array_equal(s_c, [s for _, s in plan[1:]])
-    hidden, spans = _hidden_in_off_time(plan, pwm_hz, duty, carrier)
-    if carrier == "restart":
-        hidden[:] = False
-    assert hidden.sum() > 0 or carrier == "restart"
+    assert ex.glitches == 0
+    hidden, spans = _hidden_in_off_time(plan, pwm_hz, duty, carrier, chopped)
+    if carrier == "restart" or complementary:
+        hidden[:] = False  # the new phase conducts at once
+    else:
+        assert hidden.sum() > 0
     assert ex.located_in_off_time == hidden.sum()
     ns = 1e-9  # the VCD's timescale
     assert np.all(np.abs(t_c[~hidden] - made[~hidden]) <= ns)
-    assert np.allclose(t_c[hidden], spans[hidden].mean(axis=1), atol=ns)
+    assert np.allclose(t_c[hidden], spans[hidden].mean(axis=1), atol=ns, rtol=0)
     assert np.all(np.abs(t_c[hidden] - made[hidden]) <= (1 - duty) / pwm_hz / 2 + ns)
 
 
