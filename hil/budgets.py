@@ -198,31 +198,33 @@ class Budgets:
 
     @classmethod
     def defaults(cls) -> "Budgets":
-        b = cls.from_toml(DEFAULTS_TOML, base=cls({}))
+        b = cls.from_toml(DEFAULTS_TOML, base=cls({}), name="hil/default_budgets.toml")
         b.source = "defaults"
         return b
 
     @classmethod
-    def from_toml(cls, path: str | Path, base: "Budgets | None" = None, today: datetime.date | None = None) -> "Budgets":
+    def from_toml(cls, path: str | Path, base: "Budgets | None" = None, today: datetime.date | None = None,
+                  name: str | None = None) -> "Budgets":
         """``path`` laid over ``base`` (default: the built-in defaults): its budgets override or add,
-        its waivers add to the base's."""
+        its waivers add to the base's. Errors and waiver sources name the file as ``name`` (default: ``path``)."""
         path = Path(path)
+        where = name or str(path)
         try:
             data = tomllib.loads(path.read_text())
         except OSError as exc:
-            raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
+            raise ConfigError(where, f"cannot read: {exc.strerror}") from None
         except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(str(path), f"not valid TOML: {exc}") from None
+            raise ConfigError(where, f"not valid TOML: {exc}") from None
         base = base if base is not None else cls.defaults()
         today = today or datetime.date.today()
         budgets, waivers = dict(base.budgets), list(base.waivers)
-        for name, table in data.items():
-            if name == "waiver":
+        for key, table in data.items():
+            if key == "waiver":
                 if not isinstance(table, list):
-                    raise ConfigError(f"{path}: waiver", "waivers are an array of tables: write [[waiver]]")
-                waivers += [_waiver(t, f"{path}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
+                    raise ConfigError(f"{where}: waiver", "waivers are an array of tables: write [[waiver]]")
+                waivers += [_waiver(t, f"{where}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
             else:
-                budgets[name] = _budget(name, table, budgets.get(name), f"{path}: [{name}]")
+                budgets[key] = _budget(key, table, budgets.get(key), f"{where}: [{key}]")
         return cls(budgets, str(path), tuple(waivers))
 
     def check(self, name: str, measured: float) -> Verdict:

@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pytest
 
-from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256
+from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
@@ -77,11 +77,17 @@ def _plant_config(config):
     return PlantConfig.from_toml(path) if path else paper_bench()
 
 
+_BUDGETS = pytest.StashKey()
+
+
 def _budgets(config):
+    """The budgets in force (--hil-budgets over the defaults), read once per session."""
     from .budgets import Budgets
 
-    path = _option(config, "budgets")
-    return Budgets.from_toml(path) if path else Budgets.defaults()
+    if _BUDGETS not in config.stash:
+        path = _option(config, "budgets")
+        config.stash[_BUDGETS] = Budgets.from_toml(path) if path else Budgets.defaults()
+    return config.stash[_BUDGETS]
 
 
 def hil_settings(**overrides):
@@ -139,6 +145,8 @@ def pytest_runtest_makereport(item, call):
     exc = call.excinfo.value if call.excinfo is not None else None
     if exc is None:
         return rep
+    if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
+        _apply_waiver(item, rep)
     if rep.skipped and hasattr(rep, "wasxfail") and call.when != "call" and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception)):
         rep.outcome = "failed"
         del rep.wasxfail
@@ -152,15 +160,28 @@ def pytest_runtest_makereport(item, call):
     return rep
 
 
+def _apply_waiver(item, rep) -> None:
+    """A failure that a waiver in the budgets covers under every requirement the test traces to
+    becomes a skip whose reason is the waiver (pytest's exit status, its own JUnit and the HIL
+    report then agree); the failure itself travels on to the HIL report, which shows it beside
+    the waiver. Docs: docs/budgets.md, Waivers."""
+    rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    waiver = test_waiver(_budgets(item.config).waivers, rids, item.nodeid)
+    if waiver is None:
+        return
+    message, details = _failure_text(rep)
+    rep.user_properties.append((PROPERTY_PREFIX + "waived_failure", {"message": message, "details": details}))
+    path, line, _ = item.reportinfo()
+    rep.outcome = "skipped"
+    rep.longrepr = (str(path), (line or 0) + 1, f"WAIVED ({waiver.requirement}, owner {waiver.owner}): {waiver.reason}")
+
+
 def _unreachable(exc: BaseException):
     """The controller link, connection, CAN or serial error a skip was raised while handling, if any
     (not any OSError: a skip because an optional file is missing is a real "not applicable")."""
-    import can
-    import serial
-
-    from .dut.link import LinkError
-
-    unreachable = (LinkError, ConnectionError, TimeoutError, can.CanError, serial.SerialException)
+    # an exception of a library's type exists only if that library was imported: look, do not import
+    unreachable = (ConnectionError, TimeoutError, *(getattr(sys.modules[m], name) for m, name in (
+        ("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException")) if m in sys.modules))
     seen, cause = set(), exc.__cause__ or exc.__context__
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, unreachable):
@@ -403,7 +424,8 @@ class HilReporter:
         for reason in content["verdict_reasons"]:
             terminalreporter.write_line(f"  {reason}")
         for w in content["waivers"]:
-            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}")
+            unused = "" if w["tests_waived"] else " [waives nothing in this run]"
+            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
@@ -425,9 +447,14 @@ class HilReporter:
                     phase = "skipped"
                 else:
                     phase = "passed"
+            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(PROPERTY_PREFIX + "waived_failure")
+            if waived is not None:  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
+                phase = "failed"
             if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
                 outcome = phase
-                if r.failed or r.skipped:
+                if waived is not None:
+                    message, details = waived["message"], waived["details"]
+                elif r.failed or r.skipped:
                     message, details = _failure_text(r)
         record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
                   "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",

@@ -81,6 +81,13 @@ def find_waiver(waivers, rid: str, nodeid: str | None):
     return None
 
 
+def test_waiver(waivers, requirements, nodeid: str):
+    """The waiver that waives a failing test: one that covers it under every requirement it
+    traces to (a test tied to an unwaived requirement still fails), or None."""
+    found = [find_waiver(waivers, rid, nodeid) for rid in sorted(set(requirements))]
+    return found[0] if found and all(found) else None
+
+
 def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, object]:
     """(verdict, waiver or None) of requirement ``rid`` from the tests traced to it.
 
@@ -201,14 +208,12 @@ class ReportWriter:
                 "waivers": waivers, "traceability": matrix, "tests": tests}
 
     def _judged(self, record: dict) -> dict:
-        """The record with its verdict: a failing test is waived only when a waiver covers it under
-        every requirement it traces to (a test tied to an unwaived requirement still fails)."""
+        """The record with its verdict (``test_status``, or waived under ``test_waiver``)."""
         status, waiver = test_status(record), None
         if status == "fail":
-            rids = sorted(set(record["requirements"]) | {m["requirement"] for m in record["measurements"]})
-            found = [find_waiver(self.waivers, rid, record["nodeid"]) for rid in rids]
-            if rids and all(found):
-                status, waiver = "waived", found[0]
+            rids = set(record["requirements"]) | {m["requirement"] for m in record["measurements"]}
+            if (waiver := test_waiver(self.waivers, rids, record["nodeid"])) is not None:
+                status = "waived"
         return {**record, "verdict": status, "waiver": waiver.as_dict() if waiver else None}
 
     def _overall(self, tests: list[dict], matrix: list[dict]) -> tuple[str, list[str]]:

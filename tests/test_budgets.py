@@ -93,6 +93,18 @@ def test_the_defaults_are_consistent():
         assert budget.limit >= 0 and budget.requirement.startswith("REQ-")
 
 
+def test_every_built_in_waiver_names_a_test_of_the_acceptance_suite():
+    """A renamed test must not leave a waiver behind that waives nothing (or, worse, something else)."""
+    from pathlib import Path
+
+    suite = "\n".join(p.read_text() for p in (Path(__file__).resolve().parents[1] / "test_cases").glob("test_*.py"))
+    for w in Budgets.defaults().waivers:
+        assert w.tests, f"{w.source}: a built-in waiver is limited to the tests it is meant for"
+        for name in w.tests:
+            assert f"def {name}(" in suite, f"{w.source}: no test {name} in test_cases/"
+        assert w.source.startswith("hil/default_budgets.toml: [[waiver]]") and len(w.reason) > 40
+
+
 WAIVER = '[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms"\nowner = "controls team"\n'
 
 
