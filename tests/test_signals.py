@@ -331,12 +331,16 @@ def deterministic_plant():
     return config, station_corrections(config)
 
 
+@pytest.mark.parametrize("rpm", [SPEED_RPM, 12000.0])
 @pytest.mark.parametrize("strategy", ["RAW", "CORRECTED", "SAGE_HUSA"])
-def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, strategy):
+def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, strategy, rpm):
     """The same controller with the same deterministic effects (and, corrected, the same
     calibration): once closed-loop on the lockstep bench, once through a stimulus VCD and its
     gate VCD. Mean, RMS and per-sector mean commutation error agree within the sample-rate
-    bound."""
+    bound. The speeds are ones where no commutation of the gates is ambiguous: where a sector
+    lasts a whole number of PWM periods (10,000 rpm at 20 kHz; some raw sectors at 3000 rpm) a
+    carrier restarted at commutation cannot be told from a hidden off-time commutation, the score
+    places it at the off-time's midpoint, and the loopback's figure is not the plant's."""
     from plant_models.plant import steady_state
 
     from hil.bench import LockstepBench
@@ -350,12 +354,12 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     fs = 1e6
 
     def link():
-        lk = InProcessLink(VirtualController(config.motor, strategy=Strategy[strategy], speed_setpoint_rpm=SPEED_RPM))
+        lk = InProcessLink(VirtualController(config.motor, strategy=Strategy[strategy], speed_setpoint_rpm=rpm))
         if strategy != "RAW":
             lk.download_calibration(corrections)
         return lk
 
-    bench = LockstepBench(config, link(), initial_speed_rpm=SPEED_RPM, duty=steady_state(config.motor, SPEED_RPM)["duty"],
+    bench = LockstepBench(config, link(), initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"],
                           sim_options={"max_step_s": 2e-6})
     bench.sim.run_until(0.6)
     c = bench.sim.commutations()
@@ -363,13 +367,14 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     lock_err, lock_sector = c.error_deg_e[keep], c.sector[keep]
     s = bench.sim.samples()
     speed = float(np.mean(s.speed_rpm[s.t_s >= 0.1]))
-    assert abs(speed - SPEED_RPM) < 0.01 * SPEED_RPM
+    assert abs(speed - rpm) < 0.01 * rpm
 
     export(tmp_path / "stim", ExportSettings(config=config, breakpoints=[(0.0, speed)], duration_s=0.6, sample_rate_hz=fs, write_csv=False))
     run_loopback(tmp_path / "stim", link(), tmp_path / "gates.vcd", pwm_frequency_hz=config.inverter.pwm_frequency_hz,
                  capture_tick_s=config.compile().timer_tick_s)
     sc = score(tmp_path / "stim", tmp_path / "gates.vcd")
     assert sc.missed == 0 and sc.extra == 0
+    assert sc.extracted.located_in_off_time == 0  # every commutation seen where the gates made it
     late = sc.t_ideal_s >= 0.1
     err, sector = sc.angle_error_deg_e[late], sc.sector[late]
     assert abs(err.size - lock_err.size) <= 2
