@@ -6,6 +6,12 @@ over the step, so the angle is an exact quadratic inside it. Events that change 
 what an observer sees (a commutation boundary of the oracle, a captured Hall edge) are located
 inside a trial step, and the step is cut back to end exactly on them: edges are exact roots of
 the angle equation, never rounded to the step.
+
+Speed: the step loop allocates nothing and is compiled without numba's reference-counting
+runtime (``_nrt=False``, the ``_kernel_jit`` decorator below). With it, numba wrapped every
+array argument, view and row in atomic increments and decrements that were about a third of the
+step's cost and kept LLVM from holding the state in registers; the one allocation, the step
+loop's scratch, is made once per :func:`run` call by that thin wrapper.
 """
 
 from __future__ import annotations
@@ -59,8 +65,12 @@ SECTOR_LOW = np.array([0, 1, 1, 2, 2, 0])
 SECTOR_OF_CODE = np.array([-1, 5, 3, 4, 1, 0, 2, -1])
 RAD2DEG = 180.0 / math.pi
 
+# every function the step loop calls: no allocation, no reference counting (module docstring)
+_kernel_jit = njit(cache=True, _nrt=False)
+_kernel_inline = njit(cache=True, inline="always", _nrt=False)
 
-@njit(cache=True, inline="always")
+
+@_kernel_inline
 def _trap(phi, flat):
     half = (180.0 - flat) * 0.5
     x = phi + 90.0
@@ -76,7 +86,7 @@ def _trap(phi, flat):
     return v
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def _root(th0, w0, acc, target, h):
     """Time tau in [0, h] at which th0 + w0 tau + acc tau^2 / 2 reaches target (stable form)."""
     d = target - th0
@@ -93,7 +103,7 @@ def _root(th0, w0, acc, target, h):
     return tau
 
 
-@njit(cache=True)
+@_kernel_jit
 def _commutate(p, st, ist, out_comm, sector):
     """Switch to ``sector``, logging (t, sector, true theta_e) when it changes."""
     if sector == ist[I_SECTOR]:
@@ -108,14 +118,41 @@ def _commutate(p, st, ist, out_comm, sector):
         ist[I_N_COMM] = n + 1
 
 
-@njit(cache=True)
+@_kernel_jit
 def _armature(p, arm_i, arm_deg, current):
     if arm_i.size > 0:
-        return np.interp(current, arm_i, arm_deg)
+        return _interp(current, arm_i, arm_deg)
     return p[P_ARM_SLOPE] * current
 
 
-@njit(cache=True)
+@_kernel_inline
+def _interp(x, xp, fp):
+    """np.interp for one point (xp increasing, >= 2 points), without its array allocation:
+    numba's own np.interp allocates its result even for a scalar. Same arithmetic, same
+    result bit for bit (NumPy's arr_interp: clamped ends, exact at a table point, the slope
+    taken from the other end of the interval if the first gives NaN)."""
+    n = xp.size
+    if math.isnan(x):
+        return x
+    if x < xp[0]:
+        return fp[0]
+    if x > xp[n - 1]:
+        return fp[n - 1]
+    j = 0
+    while j < n - 1 and xp[j + 1] <= x:
+        j += 1
+    if j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if math.isnan(y):
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if math.isnan(y) and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
+@_kernel_jit
 def _draw(st, ist, noise, slot, rms, rho):
     """One sample of a stationary AR(1) process with RMS ``rms`` (white when rho = 0)."""
     if rms == 0.0:
@@ -128,7 +165,7 @@ def _draw(st, ist, noise, slot, rms, rho):
     return rms * x
 
 
-@njit(cache=True)
+@_kernel_jit
 def set_targets(p, st, ist, sensor_off, pole_off, noise, x, crossed=0):
     """Base switching angles of sensor x around its current region (installation, pole, jitter).
 
@@ -153,7 +190,7 @@ def set_targets(p, st, ist, sensor_off, pole_off, noise, x, crossed=0):
         st[S_FWD_TARGET + x] = kept
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def armature_shift(p, ist, arm_i, arm_deg, current):
     """Armature-reaction shift of the Hall switching angles at mean |i| = ``current`` (deg e).
 
@@ -162,7 +199,7 @@ def armature_shift(p, ist, arm_i, arm_deg, current):
     return ist[I_DIR] * _armature(p, arm_i, arm_deg, current)
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
     """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
 
@@ -198,7 +235,7 @@ def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
     return 0, 0.0, 0.0
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def hold_crossing(st, ist, x, d, arm):
     """Sensor x has just switched going ``d`` (present armature shift ``arm``): the boundary
     behind it keeps the shift it was crossed with."""
@@ -207,7 +244,7 @@ def hold_crossing(st, ist, x, d, arm):
     ist[I_LAST_CROSS + x] = d
 
 
-@njit(cache=True)
+@_kernel_jit
 def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     """Terminal voltages u (to ground) and the neutral voltage for the present switch state.
 
@@ -263,7 +300,7 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     return un
 
 
-@njit(cache=True)
+@_kernel_jit
 def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (12)."""
     pp = p[P_POLE_PAIRS]
@@ -341,7 +378,7 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     return w0, w1
 
 
-@njit(cache=True)
+@_kernel_jit
 def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
     delay = p[P_RISE] if rising else p[P_FALL]
     jitter = 0.0
@@ -356,7 +393,7 @@ def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
     return t_cond, max(t_cond, t_raw)
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def _pending_of(pending, ist, x):
     """Row of sensor x's edge still on its way through the conditioning circuit, or -1."""
     for q in range(ist[I_N_PENDING]):
@@ -365,21 +402,34 @@ def _pending_of(pending, ist, x):
     return -1
 
 
+# step-loop scratch (float): the trial step's starting state, then small per-phase vectors
+W_BACKUP = 0
+W_U, W_U_NOW, W_E_NOW, W_TE, W_I3, W_STEP = N_FSTATE, N_FSTATE + 3, N_FSTATE + 6, N_FSTATE + 9, N_FSTATE + 10, N_FSTATE + 13
+W_CROSS = W_STEP + 12  # 3 x (direction, switching angle, rate) of the trial step's sensor crossings
+N_WORK = W_CROSS + 9
+
+
 @njit(cache=True)
 def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
+    return _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
+                    out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
+
+
+@_kernel_jit
+def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
+             t_stop, work, tmp_d):
+    """:func:`run`'s step loop, on the scratch ``work`` (N_WORK floats) and ``tmp_d`` (3 ints)."""
     pp = p[P_POLE_PAIRS]
     n_poles = pole_off.size
     h_max = p[P_HMAX]
-    backup = np.empty(N_FSTATE)
-    ibackup = np.empty(N_ISTATE, dtype=np.int64)
-    tmp_u = np.empty(3)
-    tmp_d = np.empty(3, dtype=np.int64)
-    u_now = np.zeros(3)
-    e_now = np.zeros(3)
-    te_now = np.zeros(1)
-    wk = np.empty(12)
-    i3 = np.empty(3)
+    backup = work[W_BACKUP:W_BACKUP + N_FSTATE]
+    tmp_u = work[W_U:W_U + 3]
+    u_now = work[W_U_NOW:W_U_NOW + 3]
+    e_now = work[W_E_NOW:W_E_NOW + 3]
+    te_now = work[W_TE:W_TE + 1]
+    i3 = work[W_I3:W_I3 + 3]
+    wk = work[W_STEP:W_STEP + 12]
     mode = ist[I_MODE]
     while True:
         t = st[S_T]
@@ -445,12 +495,12 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             i3[0] = st[S_IA]
             i3[1] = st[S_IB]
             i3[2] = st[S_IC]
-            for x in range(3):
-                e_now[x] = p[P_KE] * st[S_OMEGA_M] * _trap(the - BEMF_ZERO[x], p[P_FLAT])
-            _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
             te = 0.0
             for x in range(3):
-                te += p[P_KE] * _trap(the - BEMF_ZERO[x], p[P_FLAT]) * i3[x]
+                f = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+                e_now[x] = p[P_KE] * st[S_OMEGA_M] * f
+                te += p[P_KE] * f * i3[x]
+            _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
             r = out_samples[ist[I_N_SAMPLES]]
             r[0] = t
             r[1] = i3[0]
@@ -484,10 +534,9 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
             h = min(h, pending[q, E_T_CAPTURE] - t)
         if h < 1e-13:
             h = 1e-13
+        # (the integer state is not backed up: a step moves only the float state)
         for c in range(N_FSTATE):
             backup[c] = st[c]
-        for c in range(N_ISTATE):
-            ibackup[c] = ist[c]
         w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now, wk)
         # first unknown event inside the trial step: oracle boundary or an edge emission
         th0 = pp * backup[S_THETA_M] * RAD2DEG
@@ -530,8 +579,6 @@ def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, 
         if t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10:
             for c in range(N_FSTATE):
                 st[c] = backup[c]
-            for c in range(N_ISTATE):
-                ist[c] = ibackup[c]
             h = t_event - backup[S_T]
             if h < 1e-13:
                 h = 1e-13
