@@ -244,7 +244,7 @@ def hold_crossing(st, ist, x, d, arm):
     ist[I_LAST_CROSS + x] = d
 
 
-@_kernel_jit
+@_kernel_inline
 def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     """Terminal voltages u (to ground) and the neutral voltage for the present switch state.
 
@@ -300,7 +300,7 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     return un
 
 
-@_kernel_jit
+@_kernel_inline
 def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (12)."""
     pp = p[P_POLE_PAIRS]
