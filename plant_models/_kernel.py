@@ -430,6 +430,7 @@ def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pend
     te_now = work[W_TE:W_TE + 1]
     i3 = work[W_I3:W_I3 + 3]
     wk = work[W_STEP:W_STEP + 12]
+    crossing = work[W_CROSS:W_CROSS + 9]
     mode = ist[I_MODE]
     while True:
         t = st[S_T]
@@ -568,6 +569,8 @@ def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pend
         arm_rate = (armature_shift(p, ist, arm_i, arm_deg, i_start + i_rate * h) - arm0) / h
         for x in range(3):
             d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            # kept for the commit below, which sees the same crossing unless the step is cut
+            crossing[3 * x], crossing[3 * x + 1], crossing[3 * x + 2] = d, target, rate
             if d == 0:
                 continue
             t_raw = backup[S_T] + _root(th0, we0 - rate, acc, target, h)
@@ -576,7 +579,8 @@ def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pend
             t_event = min(t_event, t_emit)
         # (a cut never shrinks a step below 0.1 ns, so a pathological event cannot stall the
         # loop; edge times stay exact roots either way)
-        if t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10:
+        cut = t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10
+        if cut:
             for c in range(N_FSTATE):
                 st[c] = backup[c]
             h = t_event - backup[S_T]
@@ -620,7 +624,10 @@ def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pend
             ist[I_N_IDEAL] += 1
         # commit: raw sensor edges into the pending queue
         for x in range(3):
-            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            if cut:
+                d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            else:  # sensor x's switching angles and last crossing are as the trial saw them
+                d, target, rate = int(crossing[3 * x]), crossing[3 * x + 1], crossing[3 * x + 2]
             if d == 0:
                 continue
             tau = _root(th0, we0 - rate, acc, target, h)
