@@ -297,11 +297,21 @@ class Simulation:
             self._flush()  # STOP_FULL
 
     def _flush(self):
-        for buf, chunks, idx in ((self._edges, self._edge_chunks, K.I_N_EDGES), (self._ideal, self._ideal_chunks, K.I_N_IDEAL), (self._samples, self._sample_chunks, K.I_N_SAMPLES), (self._comm, self._comm_chunks, K.I_N_COMM)):
+        for name, chunks, idx in (("_edges", self._edge_chunks, K.I_N_EDGES), ("_ideal", self._ideal_chunks, K.I_N_IDEAL),
+                                  ("_samples", self._sample_chunks, K.I_N_SAMPLES), ("_comm", self._comm_chunks, K.I_N_COMM)):
             n = int(self.ist[idx])
-            if n:
+            if not n:
+                continue
+            buf = getattr(self, name)
+            if 2 * n >= buf.shape[0]:
+                # at least half full: hand the buffer over and write on into a new one (copying
+                # 100 kHz samples out was a third of the plant's run time); a short tail is
+                # copied, so many small flushes never pin a whole buffer each
+                chunks.append(buf[:n])
+                setattr(self, name, np.empty_like(buf))
+            else:
                 chunks.append(buf[:n].copy())
-                self.ist[idx] = 0
+            self.ist[idx] = 0
 
     # --- results -----------------------------------------------------------------------------
     def edges(self) -> EdgeLog:
