@@ -26,6 +26,19 @@ P_POLE_PAIRS, P_R, P_L, P_KE, P_FLAT, P_J, P_FRICTION, P_FAN, P_VDC, P_FPWM = ra
 P_HYST, P_ARM_SLOPE, P_RISE, P_FALL, P_JIT_T, P_JIT_A, P_JIT_RHO, P_TICK = range(10, 18)
 P_COG_AMP, P_COG_N, P_COG_PHASE, P_DEAD, P_ISAT, P_LMIN, P_HMAX, P_SAMPLE, P_LATENCY = range(18, 27)
 N_PARAMS = 27
+#: the parameter vector, declared once: slot <- CompiledPlant field (Simulation packs the plant
+#: from this table alone), then the three slots the run itself sets
+PLANT_PARAMS = (
+    (P_POLE_PAIRS, "pole_pairs"), (P_R, "phase_resistance_ohm"), (P_L, "phase_inductance_h"), (P_KE, "ke_v_s_per_rad"),
+    (P_FLAT, "flat_top_deg_e"), (P_J, "inertia_kg_m2"), (P_FRICTION, "friction_n_m_s_per_rad"),
+    (P_FAN, "fan_coefficient_n_m_s2"), (P_VDC, "supply_v"), (P_FPWM, "pwm_frequency_hz"), (P_HYST, "hysteresis_deg_e"),
+    (P_ARM_SLOPE, "armature_slope_deg_e_per_a"), (P_RISE, "rise_delay_s"), (P_FALL, "fall_delay_s"),
+    (P_JIT_T, "jitter_time_rms_s"), (P_JIT_A, "jitter_angle_rms_deg_e"), (P_JIT_RHO, "jitter_correlation"),
+    (P_TICK, "timer_tick_s"), (P_COG_AMP, "cogging_amplitude_n_m"), (P_COG_N, "cogging_periods_per_rev"),
+    (P_COG_PHASE, "cogging_phase_rad"), (P_DEAD, "dead_time_s"), (P_ISAT, "saturation_current_a"),
+    (P_LMIN, "min_inductance_fraction"),
+)
+RUN_PARAMS = ((P_SAMPLE, "sample_period_s"), (P_HMAX, "max_step_s"), (P_LATENCY, "latency_s"))
 
 # float state layout
 S_T, S_THETA_M, S_OMEGA_M, S_IA, S_IB, S_IC, S_DUTY, S_NEXT_SAMPLE = range(8)
