@@ -9,6 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from plant_models import PlantConfig, Simulation
 from plant_models.simulation import Command
 
@@ -39,11 +41,28 @@ class LinkSource:
     def __init__(self, link: ControllerLink):
         self.link = link
         self.edges = 0
+        self._sample_from = 0
+
+    def _cycle_mean_current_a(self, sim) -> float | None:
+        """Mean |i| over the phases and the plant samples since the last edge, through the current
+        sensors' gain and offset: what the controller's ADC averages over the commutation cycle
+        (the current Eq. 8's K_T is defined for). None when no sample fell in the cycle."""
+        from plant_models import _kernel as K
+
+        n = int(sim.ist[K.I_N_SAMPLES])
+        start = self._sample_from if self._sample_from <= n else 0  # the buffer was flushed since
+        self._sample_from = n
+        if n <= start:
+            return None
+        cs = sim.config.current_sensor
+        i = sim._samples[start:n, 1:4] * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        return float(np.mean(np.abs(i)))
 
     def on_edge(self, edge: dict, sim) -> list:
         """The controller answers in its own capture-timer time; a command for an instant that has
         already passed on the plant (the capture stamp precedes the interrupt) applies now."""
         self.edges += 1
+        edge["cycle_current_a"] = self._cycle_mean_current_a(sim)
         now = sim.t_s
         return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
 

@@ -94,18 +94,32 @@ def cmd_compare_correction(args) -> int:
 
 
 def cmd_table5(args) -> int:
-    from .predictors.compare import table5
+    if args.closed_loop:
+        from .predictors.closed_loop import closed_loop
 
-    tab, run = table5(eval_seeds=tuple(args.seed), train_seeds=tuple(args.train_seed))
-    print(f"paper scenario: {len(run.step_times_s)} set points 5000-10000 rpm, ~{len(run.edges)} edges per run, calibration applied, "
-          f"type III jitter; KF and Sage-Husa tuned on seeds {tab.train_seeds}, scored on seeds {tab.eval_seeds} (mean)")
-    print(tab.format())
-    print(f"KF (tuned): Q0 = diag{tab.kf_settings.q0_diag}, R = diag{tab.kf_settings.r0_diag}")
-    print(f"Sage-Husa: Q0 = diag{tab.sh_settings.q0_diag} (nominal), R0 = diag{tab.sh_settings.r0_diag} (paper), "
-          f"b = {tab.sh_settings.forgetting_b}, Q band x{tab.sh_settings.q_band_factor:g}")
-    sh = next(r for r in tab.rows if r.name == "Sage-Husa")
-    print(f"Sage-Husa guard trips: {sh.guards}")
+        result = closed_loop(seed=args.seed[0] if args.seed else 0)
+        print(result.format())
+        if args.json:
+            _write_json(args.json, result.to_json())
+        return 0
+    from .predictors.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
+
+    result = run_protocol(args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS))
+    import textwrap
+
+    print(f"protocol {result.protocol}:")
+    for line in result.statement:  # the whole output fits 100 columns
+        print(textwrap.fill(line, 100, initial_indent="  ", subsequent_indent="    "))
+    print(result.format())
+    if args.json:
+        _write_json(args.json, result.to_json())
     return 0
+
+
+def _write_json(path: str, data: dict) -> None:
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    Path(path).write_text(json.dumps(data, indent=2) + "\n")
+    print(f"wrote {path}")
 
 
 def cmd_gap_diagnose(args) -> int:
@@ -130,9 +144,14 @@ def cmd_gap_diagnose(args) -> int:
         print(f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
               f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}")
     for i, r in enumerate(d.ranking[:5], 1):
-        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{'   accepted' if any(a['effect'] == r['effect'] for a in d.accepted) else ''}")
+        verdict = "   accepted" if any(a["effect"] == r["effect"] for a in d.accepted) else ("   below relevance" if r.get("below_relevance") else "")
+        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{verdict}")
     for a in d.accepted:
         print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
+    for b in d.below_relevance:
+        rel = b.get("relevance", {})
+        print(f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor {rel.get('floor', float('nan')):.3g} "
+              f"{rel.get('unit', '')}: {rel.get('meaning', '')})")
     for pair in d.confounded:
         print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
     print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
@@ -153,24 +172,28 @@ def cmd_gap_diagnose(args) -> int:
 
 def cmd_gap_validate(args) -> int:
     from .gap.validate import run_validation
+    from .gap.progress import Progress
 
-    def progress(i, n):
-        if i % 50 == 0 or i == n:
-            print(f"  {i}/{n} recordings diagnosed", file=sys.stderr)
-
+    progress = Progress("recordings diagnosed")
     report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed,
-                            progress=progress, jobs=args.jobs)
+                            progress=progress, jobs=args.jobs, generator=args.generator)
+    progress.close()
+    def pct(v) -> str:
+        return "-" if v is None else f"{v:.1%}"
+
     for min_snr in (1.0, 3.0):
         s = report.summary(min_snr)
-        print(f"SNR >= {min_snr:g}: top-1 {s['top1_rate']:.1%}, top-3 {s['top3_rate']:.1%} ({s['single_cases']} single-effect cases); "
-              f"false alarms {s['false_alarm_rate']:.1%} ({s['null_cases']} null); out-of-library unexplained {s['unexplained_rate']:.1%} "
-              f"({s['out_of_library_cases']}); both of two found {s['two_effect_both_found_rate']:.1%} ({s['two_effect_cases']}); "
-              f"parameters within 20 % {s['param_within_20pct_rate']:.1%} (median error {s['median_param_error']:.1%}); "
-              f"median held-out shrink {s['median_heldout_shrink']:.1%}")
+        print(f"SNR >= {min_snr:g}: top-1 {pct(s['top1_rate'])}, top-3 {pct(s['top3_rate'])} ({s['single_cases']} single-effect cases); "
+              f"false alarms {pct(s['false_alarm_rate'])} ({s['null_cases']} null); out-of-library unexplained {pct(s['unexplained_rate'])} "
+              f"({s['out_of_library_cases']}); both of two found {pct(s['two_effect_both_found_rate'])} ({s['two_effect_cases']}); "
+              f"parameters within 20 % {pct(s['param_within_20pct_rate'])} (median error {pct(s['median_param_error'])}); "
+              f"median held-out shrink {pct(s['median_heldout_shrink'])}")
         if s["false_alarm_rate_electrical"] is not None:
             print(f"  false alarms on null recordings with samples {s['false_alarm_rate_electrical']:.1%}; "
-                  f"dead time withheld (no trace in the format's signals) flagged {s['no_trace_alarm_rate']:.1%} ({s['no_trace_cases']})")
+                  f"dead time withheld (no trace in the format's signals) flagged {pct(s['no_trace_alarm_rate'])} ({s['no_trace_cases']})")
     s = report.summary(3.0)
+    if args.generator == "field":
+        _print_cause_confusion(report, 3.0)
     names = sorted(s["confusion"])
     cols = names + ["none"] + sorted({k for row in s["confusion"].values() for k in row} - set(names) - {"none"})
     print("confusion matrix at SNR >= 3 (rows: withheld effect, columns: top-1 accepted):")
@@ -182,6 +205,19 @@ def cmd_gap_validate(args) -> int:
         Path(args.json).write_text(json.dumps({"summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases}, indent=1) + "\n")
         print(f"validation written to {args.json}")
     return 0
+
+
+def _print_cause_confusion(report, min_snr: float) -> None:
+    """Field generator: rows are the physical causes (with the effect that should explain them)."""
+    from .gap.field_causes import CAUSE_EFFECT
+
+    single = [c for c in report.cases if c["kind"] == "single" and c["snr"] >= min_snr]
+    cols = sorted({c["top1"] for c in single} | set(CAUSE_EFFECT.values()))
+    print(f"field causes at SNR >= {min_snr:g} (rows: withheld cause -> expected effect; columns: top-1 accepted):")
+    print(" " * 44 + "".join(f"{c[:10]:>11}" for c in cols))
+    for cause, effect in CAUSE_EFFECT.items():
+        row = [c["top1"] for c in single if c["cause"][0] == cause]
+        print(f"{cause + ' -> ' + effect:<44}" + "".join(f"{row.count(c):>11}" for c in cols))
 
 
 def cmd_dut_serve(args) -> int:
@@ -215,6 +251,10 @@ def effects_markdown() -> str:
         lines += ["| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
         for row in describe(cls):
             lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
+        for part, kind in getattr(cls, "parts", {}).items():  # nested tables (hall_field)
+            lines += ["", f"Table `{part}` ({kind.__name__}):", "", "| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
+            for row in describe(kind):
+                lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -350,8 +390,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_compare_correction)
 
     p = sub.add_parser("table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario")
-    p.add_argument("--seed", type=int, nargs="+", default=[0, 3, 4], help="evaluation runs (default: 0 3 4)")
-    p.add_argument("--train-seed", type=int, nargs="+", default=[1, 2], help="tuning runs for the KF and Sage-Husa settings (default: 1 2)")
+    p.add_argument("--protocol", default="tuned", choices=["paper", "tuned", "misspecified", "bursts"],
+                   help="how the KF and Sage-Husa are set up and what disturbs the edges (docs/sage-husa.md; default: tuned)")
+    p.add_argument("--closed-loop", action="store_true",
+                   help="run the paper scenario through the controller on every link, then replay its edges offline")
+    p.add_argument("--seed", type=int, nargs="+", help="evaluation seeds (default: 0 3 4 ... 11; closed loop: 0)")
+    p.add_argument("--train-seed", type=int, nargs="+", help="tuning seeds (default: 1 2)")
+    p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
 
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
@@ -365,12 +410,14 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--html")
     q.set_defaults(func=cmd_gap_diagnose)
     q = gs.add_parser("validate", help="inject, withhold, diagnose, score")
-    q.add_argument("--per-effect", type=int, default=60)
+    q.add_argument("--per-effect", type=int, default=60, help="draws per effect (per physical cause with --generator field)")
     q.add_argument("--null", type=int, default=100)
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
     q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per core)")
+    q.add_argument("--generator", choices=("library", "field"), default="library",
+                   help="library: withhold the library's effects; field: withhold physical causes of the field-level Hall model")
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
 

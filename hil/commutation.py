@@ -120,8 +120,9 @@ class HallCommutation:
         self._edge_index += int(lost)
 
     def on_edge(self, edge: dict, sim=None) -> list[Command]:
-        """``edge``: t_capture_s, sensor, rising; now_s (the controller's clock at the interrupt)
-        and current_a (its ADC's mean |i|) when available."""
+        """``edge``: t_capture_s, sensor, rising; now_s (the controller's clock at the interrupt),
+        current_a (its ADC's mean |i| at the edge) and cycle_current_a (mean |i| over the cycle
+        the edge ends) when available."""
         t = edge["t_capture_s"]
         x = edge["sensor"]
         rising = edge["rising"]
@@ -201,7 +202,12 @@ class HallCommutation:
             elif duty is not None:
                 commands.append(Command(at_s=now, duty=duty))
             nxt = (sector + 1) % 6
-            predicted = self.predictor.update(t_corr, edge.get("current_a", self.current_estimate_a)) if self.predictor is not None else None
+            # the predictor's K_T is per ampere of the cycle mean (Eq. 8): the edge message's
+            # cycle-mean current when the plant sends it, else the current at the edge
+            current = edge.get("cycle_current_a")
+            if current is None:
+                current = edge.get("current_a", self.current_estimate_a)
+            predicted = self.predictor.update(t_corr, current) if self.predictor is not None else None
             if predicted is not None and math.isfinite(predicted):
                 self.last_prediction_s = predicted
             else:  # pre-calibration: 60 deg electrical after the corrected edge, at the last cycle's speed

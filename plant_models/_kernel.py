@@ -179,8 +179,10 @@ def _draw(st, ist, noise, slot, rms, rho):
 
 
 @_kernel_jit
-def set_targets(p, st, ist, sensor_off, pole_off, noise, x, crossed=0):
-    """Base switching angles of sensor x around its current region (installation, pole, jitter).
+def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
+    """Base switching angles of sensor x around its current region, from the switching-angle
+    table ``switch_off[sensor, pole, 0 forward / 1 reverse]`` (installation and pole offsets and
+    the field-level sensor model, CompiledPlant.switch_table_deg_e), plus angle jitter.
 
     ``crossed`` = +1 (-1): the sensor has just entered this region forward (backward), so the
     boundary behind it is the one it crossed, at the angle it crossed it: the field is the same
@@ -190,13 +192,13 @@ def set_targets(p, st, ist, sensor_off, pole_off, noise, x, crossed=0):
     same whichever way the last crossing went.
     """
     m = ist[I_RAW_REGION + x]
-    n_poles = pole_off.size
+    n_poles = switch_off.shape[1]
     kf = m + 1
     km = m
-    base = SENSOR_POS[x] + sensor_off[x]
+    base = SENSOR_POS[x]
     kept = st[S_FWD_TARGET + x] if crossed > 0 else st[S_REV_TARGET + x]
-    st[S_FWD_TARGET + x] = 180.0 * kf + base + pole_off[kf % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
-    st[S_REV_TARGET + x] = 180.0 * km + base + pole_off[km % n_poles] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    st[S_FWD_TARGET + x] = 180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    st[S_REV_TARGET + x] = 180.0 * km + base + switch_off[x, km % n_poles, 1] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
     if crossed > 0:
         st[S_REV_TARGET + x] = kept
     elif crossed < 0:
@@ -423,18 +425,18 @@ N_WORK = W_CROSS + 9
 
 
 @njit(cache=True)
-def run(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
+def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
-    return _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
-                    out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
+    return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
+                    t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
 
 
 @_kernel_jit
-def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
-             t_stop, work, tmp_d):
+def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop,
+             work, tmp_d):
     """:func:`run`'s step loop, on the scratch ``work`` (N_WORK floats) and ``tmp_d`` (3 ints)."""
     pp = p[P_POLE_PAIRS]
-    n_poles = pole_off.size
+    n_poles = switch_off.shape[1]
     h_max = p[P_HMAX]
     backup = work[W_BACKUP:W_BACKUP + N_FSTATE]
     tmp_u = work[W_U:W_U + 3]
@@ -652,7 +654,7 @@ def _advance(p, st, ist, sensor_off, pole_off, arm_i, arm_deg, noise, cmds, pend
             rising = ist[I_RAW_REGION + x] % 2 == 0
             t_raw = t0 + tau
             t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, False)
-            set_targets(p, st, ist, sensor_off, pole_off, noise, x, d)
+            set_targets(p, st, ist, switch_off, noise, x, d)
             # the conditioning circuit is a state (its capacitor), not a delay per edge: a raw
             # pulse that ends before the capacitor crossed the MCU threshold never reaches the
             # MCU, and its end does not either (inertial delay). Delayed independently, the two

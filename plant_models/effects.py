@@ -262,9 +262,9 @@ class Hysteresis(Effect):
     name: ClassVar[str] = "hysteresis"
     layer: ClassVar[str] = "sensor"
     fingerprint: ClassVar[Mapping[str, str]] = {
-        "signature": "common lag, rise and fall alike",
-        "scales_with": "constant in angle",
-        "knob": "flips sign with direction",
+        "signature": "common lag, rise and fall alike, in either direction of rotation",
+        "scales_with": "nothing (constant in angle)",
+        "knob": "a segment in reverse (hysteresis lags both ways; an installation offset flips)",
     }
     lag_deg_e: float = bounded(0.0, low=0.0, high=5.0, unit="deg_e", doc="switching lag after the field zero")
 
@@ -286,7 +286,7 @@ class EdgeJitter(Effect):
     layer: ClassVar[str] = "timing"
     fingerprint: ClassVar[Mapping[str, str]] = {
         "signature": "zero-mean scatter, white or coloured",
-        "scales_with": "constant in angle or in time",
+        "scales_with": "nothing in angle (angle jitter) or speed (time jitter)",
         "knob": "-",
     }
     time_rms_s: float = bounded(0.0, low=0.0, high=20e-6, unit="s", doc="RMS of the time-domain jitter")
@@ -486,6 +486,8 @@ def effect_from_mapping(data: Mapping[str, Any], prefix: str = "effects[0].") ->
     if cls is ConditioningDelay and set(data) & _CIRCUIT_KEYS:
         circuit = from_mapping(ConditioningCircuit, data, prefix)
         return ConditioningDelay.from_circuit(circuit)
+    if hasattr(cls, "from_mapping"):  # an effect with nested tables (hall_field)
+        return cls.from_mapping(data, prefix)
     return from_mapping(cls, data, prefix)
 
 

@@ -56,6 +56,7 @@ def simulate_edges(
 ) -> EdgeLog:
     """Captured edges (with ground truth) of ``profile`` run back to back."""
     cp = config.compile()
+    table = cp.switch_table_deg_e()
     rng = np.random.default_rng(seed)
     p = cp.pole_pairs
     n_poles = 2 * p
@@ -77,7 +78,7 @@ def simulate_edges(
             base = SENSOR_POSITION_DEG_E[x] + cp.sensor_offset_deg_e[x]
             # deterministic switching angles decide membership; jitter is added afterwards
             k = np.arange(math.floor((lo - base - 60.0) / 180.0), math.ceil((hi - base + 60.0) / 180.0) + 1)
-            switch = 180.0 * k + base + cp.pole_offset_deg_e[k % n_poles] + shift
+            switch = 180.0 * k + SENSOR_POSITION_DEG_E[x] + table[x, k % n_poles, 0 if d > 0 else 1] + shift
             inside = (d * (switch - theta0) >= 0) & (d * (switch - theta1) < 0)
             k, switch = k[inside], switch[inside]
             parts.append((np.full(k.size, x), k, switch))

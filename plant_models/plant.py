@@ -185,6 +185,12 @@ class CompiledPlant:
     dead_time_s: float = 0.0
     saturation_current_a: float = 20.0
     min_inductance_fraction: float = 1.0
+    #: switching-angle offsets [sensor, pole, forward / reverse] beyond sensor and pole offsets
+    #: (deg_e, absolute; the field-level Hall model writes it, plant_models.hall_field)
+    switch_offset_deg_e: np.ndarray = field(default_factory=lambda: np.zeros((3, 0, 2)))
+    #: the field model's current-dependent lag: mean |i| (A) -> deg_e, interpolated, clamped
+    field_current_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    field_lag_deg_e: np.ndarray = field(default_factory=lambda: np.zeros(0))
 
     @classmethod
     def build(cls, config: PlantConfig) -> "CompiledPlant":
@@ -196,16 +202,38 @@ class CompiledPlant:
             friction_n_m_s_per_rad=m.friction_n_m_s_per_rad, fan_coefficient_n_m_s2=m.fan_coefficient_n_m_s2,
             supply_v=m.supply_v, pwm_frequency_hz=inv.pwm_frequency_hz,
             sensor_offset_deg_e=np.zeros(3), pole_offset_deg_e=np.zeros(2 * int(m.pole_pairs)),
+            switch_offset_deg_e=np.zeros((3, 2 * int(m.pole_pairs), 2)),
         )
         for eff in config.effects:
             eff.contribute(plant)
         return plant
 
     def armature_offset_deg_e(self, current_a):
+        """Current-dependent lag (deg_e): armature reaction plus the field model's stator field."""
         current_a = np.asarray(current_a, dtype=float)
         if self.armature_table_current_a.size:
-            return np.interp(current_a, self.armature_table_current_a, self.armature_table_offset_deg_e)
-        return self.armature_slope_deg_e_per_a * current_a
+            out = np.interp(current_a, self.armature_table_current_a, self.armature_table_offset_deg_e)
+        else:
+            out = self.armature_slope_deg_e_per_a * current_a
+        if self.field_lag_deg_e.size:
+            out = out + np.interp(current_a, self.field_current_a, self.field_lag_deg_e)
+        return out
+
+    def armature_table(self) -> tuple[np.ndarray, np.ndarray]:
+        """The current-dependent lag as one (current, lag) table for the kernel (empty: the
+        linear slope alone, which the kernel applies itself)."""
+        if not self.armature_table_current_a.size and not self.field_lag_deg_e.size:
+            return self.armature_table_current_a, self.armature_table_offset_deg_e
+        grid = np.union1d(self.armature_table_current_a, self.field_current_a)
+        if not self.armature_table_current_a.size:  # a slope becomes exact on a grid reaching far enough
+            grid = np.union1d(grid, [1e4])
+        return grid, self.armature_offset_deg_e(grid)
+
+    def switch_table_deg_e(self) -> np.ndarray:
+        """Every zero-current switching-angle offset as one table [sensor, pole, forward / reverse]
+        (deg_e): installation and pole offsets plus the field model's. What the kernel reads."""
+        t = self.sensor_offset_deg_e[:, None, None] + self.pole_offset_deg_e[None, :, None]
+        return np.broadcast_to(t, (3, self.pole_offset_deg_e.size, 2)) + self.switch_offset_deg_e
 
 
 # --- presets -------------------------------------------------------------------------------

@@ -144,6 +144,10 @@ class Simulation:
             p[index] = run[name]
         self.p = p
         self.sample_period_s = sample_period
+        # the sensor layer's narrow interface to the kernel: one switching-angle table and one
+        # current -> lag table (hall_field.py writes both alongside the library's effects)
+        self.switch_table = np.ascontiguousarray(cp.switch_table_deg_e())
+        self.arm_table = tuple(np.ascontiguousarray(a, dtype=float) for a in cp.armature_table())
         st = np.zeros(K.N_FSTATE)
         ist = np.zeros(K.N_ISTATE, dtype=np.int64)
         st[K.S_THETA_M] = math.radians(initial_angle_deg_m)
@@ -177,7 +181,7 @@ class Simulation:
             # raw region: the one whose switching angles bracket the present angle
             for _ in range(4):
                 self.ist[K.I_RAW_REGION + x] = m
-                K.set_targets(self.p, self.st, self.ist, self.plant.sensor_offset_deg_e, self.plant.pole_offset_deg_e, self.noise, x)
+                K.set_targets(self.p, self.st, self.ist, self.switch_table, self.noise, x)
                 if the >= self.st[K.S_FWD_TARGET + x]:
                     m += 1
                 elif the < self.st[K.S_REV_TARGET + x]:
@@ -253,8 +257,7 @@ class Simulation:
     def run_until(self, t_stop_s: float) -> None:
         while True:
             reason = K.run(
-                self.p, self.st, self.ist, self.plant.sensor_offset_deg_e, self.plant.pole_offset_deg_e,
-                self.plant.armature_table_current_a, self.plant.armature_table_offset_deg_e, self.noise,
+                self.p, self.st, self.ist, self.switch_table, self.arm_table[0], self.arm_table[1], self.noise,
                 self.cmds, self.pending, self._edges, self._ideal, self._samples, self._comm, float(t_stop_s),
             )
             if reason == K.STOP_TIME:

@@ -13,8 +13,6 @@ Sage-Husa's adaptation can win.
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 from scipy.optimize import minimize
 
@@ -22,7 +20,7 @@ from hil.predictors import filters as F
 from hil.predictors.compare import tune_kf
 from hil.predictors.identify import identify
 from hil.predictors.predictors import FilterSettings, KalmanPredictor
-from hil.predictors.scenario import run_scenario, score
+from hil.predictors.scenario import Bursts, run_scenario, score
 
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the scenario
 METRICS = ("MAPE reg. %", "overshoot %", "MAPE const. %", "MAPE comm. time %", "angle RMS", "p99", "max")
@@ -36,12 +34,12 @@ def run_scheduled(run, model, x, r_scale, q_scale):
     pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
     for k in range(t.size):
         s = kf.state
-        if s[F.INITIALISED]:
-            s[F.R0] = r_t * r_scale(k, s[F.X0])
-            s[F.Q0] = q_w * q_scale(k, s[F.X0])
+        if s[F.ST.INITIALISED]:
+            s[F.ST.R] = r_t * r_scale(k, s[F.ST.X])
+            s[F.ST.Q] = q_w * q_scale(k, s[F.ST.X])
         p = kf.update(t[k], cur[k])
         if p is not None:
-            pred[k], w[k] = p, s[F.X0]
+            pred[k], w[k] = p, s[F.ST.X]
     return score(run, "", pred, w)
 
 
@@ -51,22 +49,6 @@ def tune_and_score(train, evaluation, model, start, r_scale, q_scale):
 
     z = minimize(objective, np.log10(start), method="Nelder-Mead", options=dict(maxfev=60)).x
     return np.mean([run_scheduled(r, model, 10.0 ** z, r_scale, q_scale).all_values() for r in evaluation], axis=0)
-
-
-def with_bursts(run, seed, burst_time_rms_s=12e-6, quiet_mean_s=1.5, burst_mean_s=0.4):
-    """Intermittent interference added to the corrected edges: a two-state process, quiet and
-    burst, with exponential dwell times; returns the run and the true burst state per edge."""
-    rng = np.random.default_rng(seed)
-    t = run.edges.t_capture_s
-    burst = np.zeros(t.size, dtype=bool)
-    now, on = t[0], False
-    while now < t[-1]:
-        dwell = rng.exponential(burst_mean_s if on else quiet_mean_s)
-        if on:
-            burst |= (t >= now) & (t < now + dwell)
-        now, on = now + dwell, not on
-    noisy = run.t_corrected_s + burst_time_rms_s * burst * rng.standard_normal(t.size)
-    return dataclasses.replace(run, t_corrected_s=noisy), burst
 
 
 def score_fixed(kf_settings, model, evaluation):
@@ -100,7 +82,7 @@ def main():
                                           lambda k, w, p=qp: (w / W_REF_RAD_S) ** p)))
     table("paper scenario (stationary 3 us jitter): oracle schedules against the fixed tuned KF", rows)
 
-    bursty = {s: with_bursts(runs[s], 100 + s) for s in runs}
+    bursty = {s: Bursts(time_rms_s=12e-6).apply(runs[s], 100 + s) for s in runs}
     b_train, b_eval = [bursty[1][0], bursty[2][0]], [bursty[s][0] for s in (0, 3, 4)]
     kf_b = tune_kf(b_train, model)
     fixed_b = score_fixed(kf_b, model, b_eval)

@@ -3,8 +3,9 @@
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
 boot-up after an NMT reset and echoes stale indexes in some aborts: design notes section 4).
-Edges arrive as RPDO1 (COB-ID 0x200 + node), commands leave as TPDO1 (0x180 + node), both in
-the 8-byte messages of hil.dut.messages.
+Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
+(0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
+hil.dut.messages.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import CommandMessage, EdgeMessage, encode_reply
+from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
 from .od import EDS_PATH
 from .virtual import CalibrationTableError, Fault, VirtualController
 
@@ -216,6 +217,10 @@ class CanopenDevice:
         self.network.unsubscribe(0, self.node.nmt.on_command)
         self.network.subscribe(0, self._on_nmt)
         self.network.subscribe(0x200 + node_id, self._on_rpdo)
+        self.network.subscribe(0x300 + node_id, self._on_rpdo2)
+        self._last_edge = EdgeMessage(0, 0, 0, False, 0)
+        self._cycle = CycleCurrentMessage(NO_CURRENT, 0)  # the last RPDO2; used by the edge of its sequence
+        self._cycle_pending = False
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -283,6 +288,14 @@ class CanopenDevice:
             return (c.corrections or Corrections()).as_vector()[subindex - 1]
         if index == 0x2020 and subindex >= 1:
             return self.filter[subindex - 1]
+        if index == 0x2101 and subindex >= 1:
+            st = c.status()
+            return int(st[("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")[subindex - 1]])
+        if index == 0x2200 and subindex >= 1:
+            e = self._last_edge
+            return (e.ticks, e.current_ma, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq)[subindex - 1]
+        if index == 0x2201 and subindex >= 1:
+            return (self._cycle.current_ma, self._cycle.seq)[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [st["estimated_speed_rpm"], *st["q_diag"], *st["r_diag"], st["guard_trips"], st["last_predicted_commutation_s"]]
@@ -344,14 +357,28 @@ class CanopenDevice:
             if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
                 self._epoch += 1 << 32  # the capture timer wrapped (a small step back is a bad stamp, not a wrap)
             self._last_ticks = msg.ticks
+            self._last_edge = msg
+            cycle = self._cycle.current_ma if self._cycle_pending and self._cycle.seq == msg.seq else None
+            self._cycle_pending = False
             try:
-                commands = self.controller.capture(msg.to_edge(self._epoch))
+                commands = self.controller.capture(with_cycle_current(msg.to_edge(self._epoch), cycle))
             except Exception:  # never let bad input kill the receive thread: report and answer
                 self.controller.raise_fault(Fault.INTERNAL, 0.0)
                 commands = []
             frames = encode_reply(commands, msg.seq)
         for f in frames:
             self.network.send_message(0x180 + self.node_id, f.pack())
+
+    def _on_rpdo2(self, can_id, data, timestamp) -> None:
+        """The cycle-mean current of the edge with the same sequence number (RPDO1 that follows)."""
+        if self.state != "OPERATIONAL":
+            return
+        try:
+            msg = CycleCurrentMessage.unpack(bytes(data))
+        except ValueError:
+            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
+        with self._lock:
+            self._cycle, self._cycle_pending = msg, True
 
     def close(self) -> None:
         try:
@@ -559,6 +586,9 @@ class CanopenLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
+        cycle = CycleCurrentMessage.from_edge(edge, seq)
+        if cycle is not None:  # RPDO2 before its edge: the edge triggers the controller
+            self._send(f"cycle current of edge #{seq}", 0x300 + self.node_id, cycle.pack())
         self._send(f"edge #{seq}", 0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
         commands = []
         deadline = time.monotonic() + self.timeout_s
@@ -577,7 +607,9 @@ class CanopenLink:
     def status(self) -> dict:
         rb = [self.read(0x2100, k) for k in range(1, 9)]
         n = self.read(0x1003, 0)
-        return {"strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
+        counters = dict(zip(("gated_edges", "covariance_repairs", "divergence_fades", "band_projections"),
+                            (self.read(0x2101, k) for k in range(1, 5))))
+        return {**counters, "strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
                 "q_diag": rb[1:4], "r_diag": rb[4:6], "guard_trips": rb[6], "last_predicted_commutation_s": rb[7],
                 "error_register": self.read(0x1001), "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)]}
 

@@ -5,6 +5,10 @@ the controller bit-identical inputs).
 EdgeMessage (plant -> controller, RPDO1):
     U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA,
     U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence number.
+CycleCurrentMessage (plant -> controller, RPDO2, sent before its edge; Modbus register 204):
+    U16 mean |i| over the commutation cycle the edge ends, in mA (0xFFFF: not measured), U8
+    sequence number of that edge. The predictor's K_T is per ampere of this cycle mean (Eq. 8);
+    without it the controller falls back to the current at the edge.
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
@@ -68,6 +72,43 @@ class EdgeMessage:
         return {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t, "current_a": self.current_ma / 1000.0}
 
 
+NO_CURRENT = 0xFFFF
+
+
+@dataclass(frozen=True)
+class CycleCurrentMessage:
+    current_ma: int
+    seq: int
+
+    def pack(self) -> bytes:
+        return struct.pack("<HB", self.current_ma, self.seq & 0xFF)
+
+    @classmethod
+    def unpack(cls, data: bytes) -> "CycleCurrentMessage":
+        if len(data) != 3:
+            raise ValueError(f"cycle-current message needs 3 bytes, got {len(data)}")
+        ma, seq = struct.unpack("<HB", bytes(data))
+        return cls(ma, seq)
+
+    @classmethod
+    def from_edge(cls, edge: dict, seq: int) -> "CycleCurrentMessage | None":
+        """The message for ``edge``'s cycle-mean current, or None when the edge has none."""
+        if edge.get("cycle_current_a") is None:
+            return None
+        return cls(min(_current_ma(edge["cycle_current_a"]), NO_CURRENT - 1), seq)
+
+    @property
+    def current_a(self) -> float | None:
+        return None if self.current_ma == NO_CURRENT else self.current_ma / 1000.0
+
+
+def with_cycle_current(edge: dict, current_ma: int | None) -> dict:
+    """The received edge with its cycle-mean current (mA as carried; None or NO_CURRENT: none)."""
+    if current_ma is not None and current_ma != NO_CURRENT:
+        edge["cycle_current_a"] = current_ma / 1000.0
+    return edge
+
+
 @dataclass(frozen=True)
 class CommandMessage:
     ticks: int
@@ -111,8 +152,10 @@ def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
     if int(edge["sensor"]) not in (0, 1, 2):
         raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
     t = (epoch_ticks + _ticks(edge["t_capture_s"]) % WRAP) * TICK_S
-    return {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t,
-            "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0}
+    out = {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t,
+           "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0}
+    cycle = edge.get("cycle_current_a")
+    return with_cycle_current(out, None if cycle is None else min(_current_ma(cycle), NO_CURRENT - 1))
 
 
 def commands_as_received(commands, epoch_ticks: int) -> list:

@@ -22,8 +22,8 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
+from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
 from .tcp import close_handlers
-from .messages import CommandMessage, EdgeMessage, encode_reply
 from .virtual import CalibrationTableError, Fault, VirtualController
 
 # addresses
@@ -33,8 +33,13 @@ RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
 FILTER = 60
 RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
 ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
+#: gated edges, covariance repairs, divergence fades, band projections: UINT32 each
+RB_COUNTERS = 130
+COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
 IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
 EDGE_IN, REPLY = 200, 210
+#: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
+EDGE_CYCLE_CURRENT = 204
 REPLY_FRAMES = 4
 LAST = REPLY + 1 + 4 * REPLY_FRAMES  # 227
 
@@ -71,7 +76,9 @@ def simdata() -> list[SimData]:
         SimData(RB_PRED, 1, 0.0, DataType.FLOAT64, readonly=True),
         SimData(ERROR_REGISTER, 10, 0, DataType.UINT16, readonly=True),
         SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
+        SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
         SimData(EDGE_IN, 4, 0, DataType.REGISTERS),
+        SimData(EDGE_CYCLE_CURRENT, 1, NO_CURRENT, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -321,6 +328,7 @@ class ModbusDevice:
         put(RB_TRIPS, [(st["guard_trips"] >> 16) & 0xFFFF, st["guard_trips"] & 0xFFFF])
         pred = st["last_predicted_commutation_s"] if np.isfinite(st["last_predicted_commutation_s"]) else 0.0
         put(RB_PRED, list(struct.unpack(">HHHH", struct.pack(">d", pred))))
+        put(RB_COUNTERS, sum(([(st[k] >> 16) & 0xFFFF, st[k] & 0xFFFF] for k in COUNTER_KEYS), []))
         codes = (self.history + [0] * 8)[:8]
         put(ERROR_REGISTER, [c.error_register, len(self.history)] + codes)
         i = c.identity
@@ -401,7 +409,8 @@ class ModbusDevice:
             if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
                 self._epoch += 1 << 32
             self._last_ticks = msg.ticks
-            frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
+            cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
+            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[:REPLY_FRAMES]
             reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
             regs[REPLY - base:REPLY - base + len(reply)] = reply
         return None
@@ -481,9 +490,12 @@ class ModbusLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        msg = EdgeMessage.from_edge(edge, seq).pack()
+        values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
+        cycle = CycleCurrentMessage.from_edge(edge, seq)
+        if cycle is not None:  # register 204 in the same transaction
+            values.append(cycle.current_ma)
         r = self._call(f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)", lambda: self.client.readwrite_registers(
-            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=_bytes_regs(msg), device_id=self.unit))
+            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=values, device_id=self.unit))
         regs = r.registers
         if len(regs) != 1 + 4 * REPLY_FRAMES or regs[0] > REPLY_FRAMES:
             raise LinkError(f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)")
@@ -499,8 +511,10 @@ class ModbusLink:
     def status(self) -> dict:
         rb = self.read(RB_SPEED, 18)
         err = self.read(ERROR_REGISTER, 10)
+        cn = self.read(RB_COUNTERS, 8)
+        counters = {k: (cn[2 * i] << 16) | cn[2 * i + 1] for i, k in enumerate(COUNTER_KEYS)}
         f = [_regs_f32(rb[2 * k:2 * k + 2]) for k in range(6)]
-        return {"strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
+        return {**counters, "strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
                 "q_diag": f[1:4], "r_diag": f[4:6], "guard_trips": (rb[12] << 16) | rb[13],
                 "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
                 "error_register": err[0], "faults": [(0.0, code) for code in err[2:2 + err[1]]]}

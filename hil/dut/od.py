@@ -3,7 +3,8 @@ shipped in the package (hil/dut/virtual_controller.eds) and drives the SDO valid
 
 Manufacturer objects: 0x2000 strategy, 0x2001 speed set point, 0x2010 calibration (staged),
 0x2011 apply calibration (write 1), 0x2012 applied calibration (read-back), 0x2020 filter
-settings, 0x2100 read-backs. PDO payloads are documented in hil/dut/messages.py.
+settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200 / 0x2201 the
+last edge message (RPDO1) and cycle-mean current (RPDO2) received. PDO payloads are documented in hil/dut/messages.py.
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ class Entry:
     default: str = "0"
     low: str | None = None
     high: str | None = None
+    pdo: bool = False  #: mapped into a PDO
 
 
 @dataclass(frozen=True)
@@ -37,6 +39,11 @@ class Group:
 CAL_NAMES = ("installation A deg_e", "installation B deg_e", "installation C deg_e", "pole 0 deg_e", "pole 1 deg_e",
              "pole 2 deg_e", "pole 3 deg_e", "rise delay s", "fall delay s", "armature deg_e per A")
 FILTER_NAMES = ("forgetting b", "Q0 w", "Q0 theta", "Q0 I", "R0 theta", "R0 I", "P0 w", "P0 theta", "P0 I")
+#: the split filter counters (0x2101), in order (hil.predictors.COUNTER_NAMES)
+COUNTERS = ("gated edges", "covariance repairs", "divergence fades", "band projections")
+#: the edge message's fields (0x2200, mapped by RPDO1) and the cycle-mean current (0x2201, RPDO2)
+EDGE_FIELDS = (("capture time 100 ns ticks", U32, 32), ("mean abs current at the edge mA", U16, 16), ("flags", U8, 8), ("sequence", U8, 8))
+CYCLE_FIELDS = (("mean abs current over the cycle mA (0xFFFF: none)", U16, 16), ("sequence of its edge", U8, 8))
 READBACK = (("estimated speed rpm", REAL32), ("Q w", REAL32), ("Q theta", REAL32), ("Q I", REAL32), ("R theta", REAL32),
             ("R I", REAL32), ("guard trips", U32), ("last predicted commutation s", REAL64))
 
@@ -65,15 +72,38 @@ def objects(node_id: int = 1) -> list:
               tuple(Entry(0x2012, k + 1, n, REAL32, "ro", "0") for k, n in enumerate(CAL_NAMES))),
         Group(0x2020, "Filter settings", 9, (Entry(0x2020, 0, "Highest sub-index supported", U8, "const", str(len(FILTER_NAMES))),) +
               tuple(Entry(0x2020, k + 1, n, REAL32, "rw", "0") for k, n in enumerate(FILTER_NAMES))),
+        *_rpdo(0, 0x200, 0x2200, EDGE_FIELDS), *_rpdo(1, 0x300, 0x2201, CYCLE_FIELDS),
         Group(0x2100, "Read-backs", 9, (Entry(0x2100, 0, "Highest sub-index supported", U8, "const", str(len(READBACK))),) +
               tuple(Entry(0x2100, k + 1, n, t, "ro", "0") for k, (n, t) in enumerate(READBACK))),
+        Group(0x2101, "Filter counters", 9, (Entry(0x2101, 0, "Highest sub-index supported", U8, "const", str(len(COUNTERS))),) +
+              tuple(Entry(0x2101, k + 1, n, U32, "ro", "0") for k, n in enumerate(COUNTERS))),
+        _mapped(0x2200, "Edge message (RPDO1)", EDGE_FIELDS), _mapped(0x2201, "Cycle-mean current (RPDO2)", CYCLE_FIELDS),
     ]
-    return items
+    return sorted(items, key=lambda o: o.index)
+
+
+def _mapped(index: int, name: str, fields) -> Group:
+    """A record the plant writes by PDO; read back by SDO it gives the last one received."""
+    return Group(index, name, 9, (Entry(index, 0, "Highest sub-index supported", U8, "const", str(len(fields))),) +
+                 tuple(Entry(index, k + 1, n, t, "ro", "0", pdo=True) for k, (n, t, _) in enumerate(fields)))
+
+
+def _rpdo(number: int, cob_base: int, target: int, fields) -> tuple[Group, Group]:
+    """CiA 301 RPDO communication (0x1400 + n) and mapping (0x1600 + n) parameters, fixed."""
+    comm = Group(0x1400 + number, f"RPDO{number + 1} communication parameter", 9, (
+        Entry(0x1400 + number, 0, "Highest sub-index supported", U8, "const", "2"),
+        Entry(0x1400 + number, 1, "COB-ID used by RPDO", U32, "ro", f"$NODEID+0x{cob_base:X}"),
+        Entry(0x1400 + number, 2, "Transmission type", U8, "ro", "0xFE")))
+    mapping = Group(0x1600 + number, f"RPDO{number + 1} mapping parameter", 9, (
+        Entry(0x1600 + number, 0, "Number of mapped objects", U8, "const", str(len(fields))),) +
+        tuple(Entry(0x1600 + number, k + 1, f"Mapped object {k + 1}", U32, "const", f"0x{target:04X}{k + 1:02X}{bits:02X}")
+              for k, (_, _, bits) in enumerate(fields)))
+    return comm, mapping
 
 
 def _entry_lines(e: Entry) -> list[str]:
     lines = [f"ParameterName={e.name}", "ObjectType=0x7", f"DataType=0x{e.data_type:04X}", f"AccessType={e.access}",
-             f"DefaultValue={e.default}", "PDOMapping=0"]
+             f"DefaultValue={e.default}", f"PDOMapping={int(e.pdo)}"]
     if e.low is not None:
         lines.insert(4, f"LowLimit={e.low}")
     if e.high is not None:
@@ -89,7 +119,7 @@ def eds_text() -> str:
     out = ["[FileInfo]", "FileName=virtual_controller.eds", "FileVersion=1", "FileRevision=0", "EDSVersion=4.0",
            "Description=bldc-hil virtual pump controller (Hall calibration, Sage-Husa commutation)", "CreatedBy=bldc-hil", "",
            "[DeviceInfo]", "VendorName=bldc-hil", "VendorNumber=0x00000B1D", "ProductName=Virtual pump controller", "ProductNumber=0x00480001",
-           "RevisionNumber=0x00010000", "BaudRate_1000=1", "SimpleBootUpSlave=1", "Granularity=0", "NrOfRXPDO=1", "NrOfTXPDO=1", "",
+           "RevisionNumber=0x00010000", "BaudRate_1000=1", "SimpleBootUpSlave=1", "Granularity=0", "NrOfRXPDO=2", "NrOfTXPDO=1", "",
            "[MandatoryObjects]", f"SupportedObjects={len(mandatory)}"]
     out += [f"{k + 1}=0x{i:04X}" for k, i in enumerate(mandatory)]
     out += ["", "[OptionalObjects]", f"SupportedObjects={len(optional)}"] + [f"{k + 1}=0x{i:04X}" for k, i in enumerate(optional)]

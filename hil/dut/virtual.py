@@ -23,7 +23,7 @@ from plant_models.simulation import Command
 from ..calibration.corrections import SENSORS, Corrections
 from ..commutation import HallCommutation, SpeedPI
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
-from ..predictors import filters as _filters
+from ..predictors.predictors import COUNTER_NAMES
 
 
 class Strategy(enum.IntEnum):
@@ -99,10 +99,12 @@ class VirtualController:
     strategy: Strategy = Strategy.SAGE_HUSA
     speed_setpoint_rpm: float = 5000.0
     corrections: Corrections | None = None
-    #: Sage-Husa settings (paper initial values; nominal Q0, b and band as tuned in docs/sage-husa.md)
-    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), adapt_mask=3, forgetting_b=0.995, q_band_factor=10.0))
-    #: the fixed-noise Kalman strategy's Q and R (the tuned baseline of docs/sage-husa.md)
-    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(0.1, 1e-9, 1e-6), r0_diag=(1e-3, 1.0)))
+    #: Sage-Husa settings: the paper's initial R0, P0, q0, r0; nominal Q0, b and b_R as tuned by
+    #: the ``tuned`` protocol of docs/sage-husa.md (rounded)
+    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(
+        q0_diag=(1e-5, 1e-9, 1e-3), adapt_mask=3, forgetting_b=0.98, r_forgetting_b=0.89, r_interval=30, q_band_factor=100.0))
+    #: the fixed-noise Kalman strategy's Q and R (the ``tuned`` protocol's KF, rounded)
+    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(4.6e-6, 1e-9, 1.2e-5), r0_diag=(1.5e-5, 1.0)))
     model: MotorModel | None = None
     current_limit_a: float = 15.0
     #: the pump turns one way: a Hall step against it means edges were lost
@@ -230,8 +232,8 @@ class VirtualController:
         commands = self._logic.on_edge(edge)
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
-            trips = self._predictor.covariance_guard_trips
-            if self._predictor.state[_filters.K_STEP] <= self._predictor.settings.warmup:
+            trips = self._predictor.covariance_repairs
+            if self._predictor.steps <= self._predictor.settings.warmup:
                 self._guards_seen = trips
             elif trips > self._guards_seen:
                 self._guards_seen = trips
@@ -255,6 +257,7 @@ class VirtualController:
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
             "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
             "guard_trips": int(sum(p.guards.values())) if p is not None else 0,
+            **(p.counters if p is not None else dict.fromkeys(COUNTER_NAMES, 0)),
             "last_predicted_commutation_s": float(self._logic.last_prediction_s),
             "error_register": self.error_register,
             "faults": list(self.faults),

@@ -27,6 +27,7 @@ from hil.recording import Recording
 from .candidates import CANDIDATES
 from .fitting import cell_rms, heldout_shrink
 from .fitting import wls as _wls
+from .relevance import edge_relevance, jitter_relevance
 from .residuals import EdgeResiduals, residuals
 from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
 
@@ -135,6 +136,7 @@ class Diagnosis:
     not_assessed: list[str] = field(default_factory=list)
     noise_gap: dict = field(default_factory=dict)
     samples: dict = field(default_factory=dict)
+    below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, too small to matter
     gap_metric: str = "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
 
     def to_json(self) -> dict:
@@ -146,49 +148,163 @@ class Diagnosis:
             "gap_metric": self.gap_metric,
             "p_value": self.p_value, "reference": self.reference, "noise_floor_deg_e": self.noise_floor_deg_e,
             "localisation": self.localisation, "not_assessed": self.not_assessed, "noise_gap": self.noise_gap,
-            "samples": self.samples,
+            "samples": self.samples, "below_relevance": self.below_relevance,
         }
 
 
-def _select(cells: Cells, candidates: list[str]):
-    """Forward selection. Returns (accepted names, ranking rows, chi2 history)."""
+def explained_noise_sd(gain: float, k: int) -> float:
+    """Standard deviation of an explained chi-square: under noise it is non-central chi-square
+    with k degrees of freedom and non-centrality about ``gain``, variance 2 (k + 2 gain)."""
+    return math.sqrt(2.0 * (k + 2.0 * max(gain, 0.0)))
+
+
+def equal_within_noise(gain_a: float, k_a: int, gain_b: float, k_b: int) -> bool:
+    """Two candidates explain the same within noise: their explained chi-squares differ by less
+    than twice the larger one's standard deviation."""
+    return abs(gain_a - gain_b) <= 2.0 * max(explained_noise_sd(gain_a, k_a), explained_noise_sd(gain_b, k_b))
+
+
+@dataclass
+class Selection:
+    fitted: list[str]                 #: every effect the forward selection kept (fit and remainder)
+    below: dict[str, dict]            #: of those, the ones below practical relevance (name -> relevance)
+    relevance: dict[str, dict]        #: relevance of every fitted effect
+    first: dict[str, dict]            #: single-effect rows (score, delta_bic, physical, params, k)
+    ties: list[list[str]]             #: (chosen, rival) equal within noise, the chosen has fewer parameters
+    chi2_0: float
+    chi2_end: float
+
+    @property
+    def accepted(self) -> list[str]:
+        return [n for n in self.fitted if n not in self.below]
+
+
+def _select(cells: Cells, candidates: list[str]) -> Selection:
+    """Forward selection with parsimony and practical significance.
+
+    Each step fits every remaining candidate after the effects already kept. Among those that
+    earn their place (BIC gain >= BIC_MIN, physical parameters), the ones whose explained
+    chi-square is equal within noise to the best are tied, and the tie goes to the candidate
+    with the fewest new parameters (then the larger gain): BIC's own penalty only separates
+    candidates whose gains differ by a few units, while at a high SNR the noise in a gain of
+    thousands is tens of units. The chosen effect's predicted angle shift (what it adds to the
+    fit) is tested against its practical floor; below it, the effect stays in the fit but is
+    not accepted."""
     w, y = cells.weight, cells.mean
     chi2_0 = float(np.sum(w * y * y))
     n_cells = y.size
-    accepted: list[str] = []
+    fitted: list[str] = []
+    below: dict[str, dict] = {}
+    relevance: dict[str, dict] = {}
+    ties: list[list[str]] = []
     chi2_now = chi2_0
-    first_scores: dict[str, dict] = {}
+    pred_now = np.zeros_like(y)
+    first: dict[str, dict] = {}
     while True:
-        best = None
+        rows = []
+        x_acc = _design(fitted, cells)
+        k_acc = _remove_collinear(x_acc).shape[1]
         for name in candidates:
-            if name in accepted:
+            if name in fitted:
                 continue
-            x_acc = _design(accepted, cells)
             x_c = CANDIDATES[name].columns(cells.features)
-            x = _remove_collinear(np.column_stack([x_acc, x_c]))
-            k_new = x.shape[1] - _remove_collinear(x_acc).shape[1]
+            k_new = _remove_collinear(np.column_stack([x_acc, x_c])).shape[1] - k_acc
             if k_new <= 0:
                 continue
-            coef, se, chi2 = _wls(np.column_stack([x_acc, x_c]), y, w)
+            x = np.column_stack([x_acc, x_c])
+            coef, se, chi2 = _wls(x, y, w)
             k_c = x_c.shape[1]
             own, own_se = coef[-k_c:], se[-k_c:]
-            physical = CANDIDATES[name].physical(own, own_se)
             gain = chi2_now - chi2
             d_bic = gain - k_new * math.log(n_cells)
             explained = gain / max(chi2_now - n_cells, 1e-12) if chi2_now > n_cells else 0.0
-            row = {"effect": name, "score": float(max(min(explained, 1.0), 0.0)), "delta_bic": float(d_bic), "physical": physical,
-                   "params": CANDIDATES[name].params(own), "chi2": chi2}
-            if not accepted:
-                first_scores[name] = row
-            if physical and (best is None or d_bic > best["delta_bic"]):
-                best = row
-        if best is None or best["delta_bic"] < BIC_MIN:
+            row = {"effect": name, "score": float(max(min(explained, 1.0), 0.0)), "delta_bic": float(d_bic),
+                   "physical": CANDIDATES[name].physical(own, own_se), "params": CANDIDATES[name].params(own), "chi2": chi2,
+                   "gain": gain, "k": k_new, "pred": x @ coef}
+            if not fitted:
+                first[name] = row
+            rows.append(row)
+        eligible = [r for r in rows if r["physical"] and r["delta_bic"] >= BIC_MIN]
+        if not eligible:
             break
-        accepted.append(best["effect"])
-        chi2_now = best["chi2"]
-        if stats.chi2.sf(chi2_now, max(n_cells - _remove_collinear(_design(accepted, cells)).shape[1], 1)) > ALPHA:
+        top = max(eligible, key=lambda r: r["gain"])
+        tied = [r for r in eligible if equal_within_noise(top["gain"], top["k"], r["gain"], r["k"])]
+        best = min(tied, key=lambda r: (r["k"], -r["gain"]))
+        for r in tied:
+            if r is not best and r["k"] > best["k"]:
+                ties.append([best["effect"], r["effect"]])
+        shift = best["pred"] - pred_now
+        rel = edge_relevance(shift, cells.n)
+        relevance[best["effect"]] = rel.to_json()
+        if not rel.relevant:
+            below[best["effect"]] = rel.to_json()
+        fitted.append(best["effect"])
+        chi2_now, pred_now = best["chi2"], best["pred"]
+        if stats.chi2.sf(chi2_now, max(n_cells - _remove_collinear(_design(fitted, cells)).shape[1], 1)) > ALPHA:
             break
-    return accepted, first_scores, chi2_0, chi2_now
+    chi2_now = _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now)
+    return Selection(fitted, below, relevance, first, ties, chi2_0, chi2_now)
+
+
+def _rank(names: list[str], cells: Cells) -> int:
+    return _remove_collinear(_design(names, cells)).shape[1]
+
+
+def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now) -> float:
+    """After forward selection: replace a kept effect by a rival with fewer parameters when the
+    whole set then explains the same within noise. Forward selection can take the bigger model
+    first when it also soaks up part of another cause (a per-pole pattern absorbs the rising /
+    falling split of a delay at one speed, because rising and falling edges alternate with the
+    poles), and the smaller one never earns its place once the bigger is in. Edits ``fitted``,
+    ``below``, ``relevance`` and ``ties``; returns the new remainder chi-square."""
+    w, y = cells.weight, cells.mean
+    swapped = True
+    while swapped:
+        swapped = False
+        k_full = _rank(fitted, cells)
+        for i, a in enumerate(list(fitted)):
+            for b in candidates:
+                if b in fitted:
+                    continue
+                alt = fitted[:i] + [b] + fitted[i + 1:]
+                k_alt = _rank(alt, cells)
+                if k_alt >= k_full:
+                    continue
+                x_alt = _design(alt, cells)
+                coef, se, chi2_alt = _wls(x_alt, y, w)
+                col = sum(CANDIDATES[n].columns(cells.features).shape[1] for n in alt[:i])
+                k_b = CANDIDATES[b].columns(cells.features).shape[1]
+                if not CANDIDATES[b].physical(coef[col:col + k_b], se[col:col + k_b]):
+                    continue
+                if not equal_within_noise(chi2_0 - chi2_now, k_full, chi2_0 - chi2_alt, k_alt):
+                    continue
+                # what b adds to the set without it: its practical relevance
+                rest = alt[:i] + alt[i + 1:]
+                pred_rest = _design(rest, cells) @ _wls(_design(rest, cells), y, w)[0] if rest else np.zeros_like(y)
+                rel = edge_relevance(x_alt @ coef - pred_rest, cells.n)
+                fitted[i] = b
+                below.pop(a, None)
+                relevance.pop(a, None)
+                relevance[b] = rel.to_json()
+                if not rel.relevant:
+                    below[b] = rel.to_json()
+                ties.append([b, a])
+                chi2_now = chi2_alt
+                swapped = True
+                break
+            if swapped:
+                break
+    return chi2_now
+
+
+def _n_params(name: str, cells: Cells) -> int:
+    return _remove_collinear(CANDIDATES[name].columns(cells.features)).shape[1]
+
+
+def edge_features(r: EdgeResiduals) -> dict:
+    """Per-edge features in the form the candidates' columns take (one row per edge)."""
+    return {"sensor": r.sensor, "rising": r.rising, "pole": r.pole, "direction": r.direction.astype(float), "w_e": r.w_e_deg_s,
+            "current": r.current_a, "load": r.load_scale, "segment": r.segment, "pole_pairs": r.pole_pairs}
 
 
 def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
@@ -207,78 +323,107 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
     p0 = float(stats.chi2.sf(chi2_0, n_cells))
     significant = p0 < ALPHA
-    gap_before = cell_rms(cells.mean, cells.n)
-    accepted_names, first, _, chi2_end = _select(cells, names) if significant else ([], {}, chi2_0, chi2_0)
-    if not first:
-        for name in names:
-            first[name] = {"effect": name, "score": 0.0, "delta_bic": 0.0, "physical": True, "params": {}}
-    # ranking: accepted first (in order), then by single-effect score
-    rest = sorted((n for n in names if n not in accepted_names), key=lambda n: -first.get(n, {"score": 0})["score"])
-    ranking = [{"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0} for n in accepted_names + rest]
-    # fitted parameters of the accepted set, on all data
-    accepted = []
-    if accepted_names:
-        x = _design(accepted_names, cells)
+    sel = _select(cells, names) if significant else Selection([], {}, {}, {}, [], chi2_0, chi2_0)
+    first = sel.first
+    accepted_names = sel.accepted
+    below_names = [n for n in sel.fitted if n in sel.below]
+    k_of = {n: _n_params(n, cells) for n in names}
+    # ranking: accepted first (in order), then the ones detected below practical relevance, then
+    # by single-effect score (scores equal to three decimals: fewer parameters first)
+    rest = sorted((n for n in names if n not in sel.fitted), key=lambda n: (-round(first.get(n, {"score": 0.0})["score"], 3), k_of[n]))
+    ranking = [{"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0} for n in accepted_names + below_names + rest]
+    for row in ranking:
+        if row["effect"] in sel.below:
+            row["below_relevance"] = True
+    # fitted parameters of every kept effect, jointly on all data
+    accepted, below = [], []
+    if sel.fitted:
+        x = _design(sel.fitted, cells)
         coef, se, _ = _wls(x, cells.mean, cells.weight)
         col = 0
-        for n in accepted_names:
+        for n in sel.fitted:
             k = CANDIDATES[n].columns(cells.features).shape[1]
-            accepted.append({"effect": n, "params": CANDIDATES[n].params(coef[col:col + k])})
+            row = {"effect": n, "params": CANDIDATES[n].params(coef[col:col + k]), "relevance": sel.relevance[n]}
+            (below if n in sel.below else accepted).append(row)
             col += k
-    dof_end = max(n_cells - _remove_collinear(_design(accepted_names, cells)).shape[1], 1)
-    unexplained = bool(significant and stats.chi2.sf(chi2_end, dof_end) < ALPHA)
-    # confounded: a rival explains nearly as much as an accepted effect on its own, and adding
-    # it after the accepted set earns nothing (the data cannot tell them apart)
+    dof_end = max(n_cells - _remove_collinear(_design(sel.fitted, cells)).shape[1], 1)
+    unexplained = bool(significant and stats.chi2.sf(sel.chi2_end, dof_end) < ALPHA)
     confounded, knobs = [], {}
+
+    def confound(a: str, b: str) -> None:
+        pair = sorted([a, b])
+        if pair not in confounded:
+            confounded.append(pair)
+            knobs["/".join(pair)] = knob(a, b)
+
+    # equal within noise at selection: the smaller model was kept, the rival stays named
+    for chosen, rival in sel.ties:
+        confound(chosen, rival)
+    # a rival explains nearly as much as an accepted effect on its own, and adding it after the
+    # accepted set earns nothing (the data cannot tell them apart)
     for n in accepted_names:
         s_n = first.get(n, {}).get("score", 0.0)
         for m in names:
-            if m == n or m in accepted_names or s_n <= 0:
+            if m == n or m in sel.fitted or s_n <= 0:
                 continue
             s_m = first.get(m, {}).get("score", 0.0)
             if s_m >= CONFOUND_RATIO * s_n and first.get(m, {}).get("physical", False):
-                x_acc = _remove_collinear(_design(accepted_names, cells))
+                x_acc = _remove_collinear(_design(sel.fitted, cells))
                 x_both = _remove_collinear(np.column_stack([x_acc, CANDIDATES[m].columns(cells.features)]))
                 _, _, chi_both = _wls(x_both, cells.mean, cells.weight)
-                if chi2_end - chi_both < BIC_MIN:
-                    pair = sorted([n, m])
-                    if pair not in confounded:
-                        confounded.append(pair)
-                        knobs["/".join(pair)] = _knob(n, m)
+                if sel.chi2_end - chi_both < BIC_MIN:
+                    confound(n, m)
     shrink, after, interval, note = _heldout(cells, accepted_names)
+    if below_names and not accepted_names:
+        note = "every detected edge effect is below practical relevance"
     # the noise: edge jitter is a variance effect; accepted quantisation adds its own variance
-    tick_fit = next((a["params"]["tick_s"] for a in accepted if a["effect"] == "timer_quantization"), 0.0)
+    tick_fit = next((a["params"]["tick_s"] for a in accepted + below if a["effect"] == "timer_quantization"), 0.0)
     expected = expected_noise_var(cells.features["w_e"], model, rec.timer_tick_s, tick_fit)
     p_noise, jitter_params, jitter_score, noise_before, noise_after, noise_shrink = _noise_gap(cells, expected)
     noise_significant = p_noise < ALPHA
     jitter_row = {"effect": "edge_jitter", "score": round(jitter_score if noise_significant else 0.0, 4)}
     if noise_significant:
-        accepted.append({"effect": "edge_jitter", "params": jitter_params})
-        ranking.insert(len(accepted_names), jitter_row)
+        rel = jitter_relevance(jitter_params["time_rms_s"], jitter_params["angle_rms_deg_e"], cells.features["w_e"], cells.n)
+        row = {"effect": "edge_jitter", "params": jitter_params, "relevance": rel.to_json()}
+        if rel.relevant:
+            accepted.append(row)
+            ranking.insert(len(accepted_names), jitter_row)
+        else:
+            below.append(row)
+            jitter_row["below_relevance"] = True
+            ranking.insert(len(accepted_names) + len(below_names), jitter_row)
     else:
         ranking.append(jitter_row)
     if not significant and noise_significant and shrink is None and noise_shrink is not None:
         note = "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
     diagnosis = Diagnosis(
         significant=significant or noise_significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
-        gap_before=gap_before, gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
+        gap_before=cell_rms(cells.mean, cells.n), gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
         noise_gap={"p_value": p_noise, "significant": noise_significant, "before_deg_e": noise_before,
                    "after_heldout_deg_e": noise_after, "heldout_shrink": noise_shrink},
         knobs=knobs, localisation=localise(r, cells), p_value=p0, reference=r.reference,
         noise_floor_deg_e={str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
                            for s in np.unique(cells.features["segment"])},
+        below_relevance=below,
     )
-    _add_samples(diagnosis, rec, model)
+    edge_error = None
+    if r.reference == "turn" and sel.fitted:
+        # without an encoder the sampled signals' angle comes from these very edges: what the
+        # kept edge effects predict for each edge moves it to where the rotor was
+        xe = np.column_stack([CANDIDATES[n].columns(edge_features(r)) for n in sel.fitted])
+        edge_error = np.zeros(len(rec))
+        edge_error[r.edge_index] = xe @ coef
+    _add_samples(diagnosis, rec, model, edge_error)
     return diagnosis
 
 
-def _add_samples(d: Diagnosis, rec: Recording, model) -> None:
+def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarray | None = None) -> None:
     """Fold the sampled signals' diagnosis (voltage equation, speed) into ``d``.
 
     Its accepted effects follow the edge effects; its candidates join the ranking by score.
     When the edges show no gap but a sampled signal does, the headline gap figures are that
     signal's (``gap_metric`` says which)."""
-    domains = diagnose_samples(rec, model)
+    domains = diagnose_samples(rec, model, edge_error_deg_e)
     d.samples = {k: v.to_json() for k, v in domains.items()}
     assessed = {n for dom in domains.values() for n in dom.first_scores}
     d.not_assessed = [f"{n}: {reason}" for n, reason in NO_TRACE.items()]
@@ -286,23 +431,27 @@ def _add_samples(d: Diagnosis, rec: Recording, model) -> None:
                        for n in SAMPLE_EFFECTS if n not in assessed]
     if not domains:
         return
-    edge_rows = len(d.accepted)
+    edge_rows = len(d.accepted) + len(d.below_relevance)
     extra_rows = []
     for dom in sorted(domains.values(), key=lambda x: x.p_value):
         if dom.significant:
             d.accepted.extend(dom.accepted)
+            d.below_relevance.extend(dom.below_relevance)
             d.unexplained = d.unexplained or dom.unexplained
             for pair in dom.confounded:
                 d.confounded.append(pair)
-                d.knobs["/".join(pair)] = _knob(*pair)
+                d.knobs["/".join(pair)] = knob(*pair)
         for name, score in dom.first_scores.items():
             extra_rows.append({"effect": name, "score": round(score if dom.significant else 0.0, 4),
-                               "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant})
+                               "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant,
+                               "below": any(a["effect"] == name for a in dom.below_relevance) and dom.significant})
     accepted_extra = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if x["accepted"]]
-    rest = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if not x["accepted"]]
-    head = d.ranking[:edge_rows]
+    below_extra = [{"effect": x["effect"], "score": x["score"], "below_relevance": True} for x in extra_rows if x["below"]]
+    rest = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if not (x["accepted"] or x["below"])]
+    n_acc = sum(1 for r in d.ranking[:edge_rows] if not r.get("below_relevance"))
+    head, head_below = d.ranking[:n_acc], d.ranking[n_acc:edge_rows]
     tail = sorted(d.ranking[edge_rows:] + rest, key=lambda x: -x["score"])
-    d.ranking = head + accepted_extra + tail
+    d.ranking = head + accepted_extra + head_below + below_extra + tail
     sampled_gap = [dom for dom in sorted(domains.values(), key=lambda x: x.p_value) if dom.significant]
     if sampled_gap and d.p_value >= ALPHA:  # no mean edge gap: the headline is the sampled signal's
         dom = sampled_gap[0]
@@ -361,21 +510,66 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
     return p, params, max(min(explained, 1.0), 0.0), before, after, shrink
 
 
-def _knob(a: str, b: str) -> str:
-    from plant_models.effects import EFFECTS
+#: per effect: what to record to expose it, and how it shows there (the two halves of a knob)
+KNOB_RECORD = {
+    "installation_offset": "a segment in reverse",
+    "hysteresis": "a segment in reverse",
+    "pole_offset": "at least 30 mechanical turns per operating point",
+    "eccentricity": "at least 30 mechanical turns per operating point",
+    "conditioning_delay": "three or more speeds at one load",
+    "armature_reaction": "two loads (pump load and throttled or braked) at one speed",
+    "timer_quantization": "the capture timer's tick in meta.json, or a run at a finer timer resolution",
+    "edge_jitter": "a run at a second speed",
+    "winding_temperature": "two loads at one speed",
+    "magnet_temperature": "two speeds at one load",
+    "saturation": "one operating point at high load",
+    "cogging_torque": "the lowest speed the pump holds, with the reference encoder",
+}
+KNOB_SHOWS = {
+    "installation_offset": "an installation offset is a fixed place on the stator, so each sensor's error changes sign in the trailing frame when the rotor turns the other way",
+    "hysteresis": "hysteresis lags the switching in either direction of rotation, alike for every sensor",
+    "pole_offset": "a pole offset is any per-pole pattern repeating every mechanical turn",
+    "eccentricity": "an eccentricity is a first-order sinusoid over the mechanical turn, whose two parameters the per-pole pattern must match",
+    "conditioning_delay": "a delay constant in time grows in angle with speed, and rising and falling edges differ",
+    "armature_reaction": "armature reaction follows the phase current, not the speed",
+    "timer_quantization": "a capture timer makes every edge lead by half a tick, rising and falling alike",
+    "edge_jitter": "jitter in time grows in angle with speed while jitter in angle does not",
+    "winding_temperature": "a resistance change shows in proportion to the current",
+    "magnet_temperature": "a back-EMF change shows in proportion to the speed",
+    "saturation": "saturation shows only above its knee current",
+    "cogging_torque": "cogging's speed ripple grows as the speed falls and sits at a fixed number of periods per turn",
+}
+_PAIR_KNOBS = {
+    frozenset({"conditioning_delay", "armature_reaction"}): (
+        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed and stays, "
+        "armature reaction follows the phase current and moves; under a pump load alone speed and current rise together."),
+    frozenset({"hysteresis", "installation_offset"}): (
+        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation offset is a fixed "
+        "place on the stator and changes sign in the trailing frame when the rotor reverses."),
+    frozenset({"conditioning_delay", "timer_quantization"}): (
+        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising with falling "
+        "edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and differs between the edges."),
+    frozenset({"winding_temperature", "magnet_temperature"}): (
+        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF change "
+        "(magnet temperature) follows the speed; under a pump load alone current and speed move together."),
+    frozenset({"pole_offset", "eccentricity"}): (
+        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid over the turn "
+        "(two parameters), a pole offset any per-pole pattern; only the pattern's departure from a sinusoid, resolved by more "
+        "turns, separates them, and while they are equal within noise the eccentricity is kept for having fewer parameters."),
+}
 
-    pair = {a, b}
-    if pair == {"conditioning_delay", "armature_reaction"}:
-        return "change the load at a fixed speed (throttle or brake): the delay follows speed, armature reaction follows current"
-    if "hysteresis" in pair and "installation_offset" in pair:
-        return "record both directions: hysteresis lags either way, an installation offset flips with direction"
-    if pair == {"conditioning_delay", "timer_quantization"}:
-        return "vary the capture timer resolution, or compare rising with falling edges"
-    if pair == {"winding_temperature", "magnet_temperature"}:
-        return "change the load at a fixed speed: a resistance change follows the current, a back-EMF change follows the speed"
-    if pair == {"pole_offset", "eccentricity"}:
-        return "more mechanical turns per point: a per-pole pattern that is not a first-order sinusoid is a pole offset"
-    return f"{EFFECTS[a].fingerprint.get('knob', '-')} / {EFFECTS[b].fingerprint.get('knob', '-')}"
+
+def knob(a: str, b: str) -> str:
+    """The experiment that separates ``a`` from ``b``, as a full sentence: what to record and
+    why it tells them apart."""
+    pair = _PAIR_KNOBS.get(frozenset({a, b}))
+    if pair:
+        return pair
+    rec_a, rec_b = KNOB_RECORD.get(a, "more operating points"), KNOB_RECORD.get(b, "more operating points")
+    record = rec_a if rec_a == rec_b else f"{rec_a} and {rec_b}"
+    shows_a = KNOB_SHOWS.get(a, f"{a} has its own fingerprint")
+    shows_b = KNOB_SHOWS.get(b, f"{b} has its own fingerprint")
+    return f"Record {record}: {shows_a}, while {shows_b}."
 
 
 def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0):

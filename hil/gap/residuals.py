@@ -33,6 +33,8 @@ class EdgeResiduals:
     turn: np.ndarray             #: mechanical turn index within the segment
     reference: str               #: "encoder" or "turn" (relative errors only)
     pole_pairs: int
+    edge_index: np.ndarray | None = None  #: row of the recording's edge table
+
 
     def __len__(self) -> int:
         return int(self.residual_deg_e.size)
@@ -126,7 +128,7 @@ def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) 
         direction=np.array([s.direction_sign for s in seg])[rec.segment], w_e_deg_s=w,
         current_a=edge_currents_a(rec),
         load_scale=np.array([s.load_scale for s in seg])[rec.segment], segment=rec.segment.astype(np.int64),
-        turn=turn, reference=reference, pole_pairs=p,
+        turn=turn, reference=reference, pole_pairs=p, edge_index=np.arange(len(rec)),
     )
     return out.take(keep)
 
@@ -146,5 +148,6 @@ def model_prediction(config, rec: Recording) -> np.ndarray:
     w = segment_speed_deg_e_s(rec)[rec.segment]
     current = edge_currents_a(rec)
     delay = np.where(rec.rising, cp.rise_delay_s, cp.fall_delay_s)
-    return (direction * (cp.sensor_offset_deg_e[rec.sensor] + cp.pole_offset_deg_e[pole]) + cp.hysteresis_deg_e
+    offsets = cp.switch_table_deg_e()[rec.sensor, pole, np.where(direction > 0, 0, 1)]
+    return (direction * offsets + cp.hysteresis_deg_e
             + cp.armature_offset_deg_e(current) + w * delay)

@@ -38,6 +38,7 @@ from hil.recording import Recording
 
 from .fitting import cell_rms, heldout_shrink
 from .fitting import wls as _wls
+from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
 
 ALPHA = 1e-3
 BIC_MIN = 10.0
@@ -51,6 +52,8 @@ JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc
 RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
 BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
 #: the residual in which each sampled-signal effect shows
+#: nuisance of the voltage residual without an encoder: the Hall reference's common angle offset
+REFERENCE = "hall_reference_offset"
 EFFECT_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
 SAMPLE_EFFECTS = tuple(EFFECT_DOMAIN)
 NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
@@ -115,11 +118,13 @@ class SampleResiduals:
     regressors: dict[str, np.ndarray] = field(default_factory=dict)
 
 
-def _angles(rec: Recording) -> tuple[np.ndarray, np.ndarray, str]:
+def _angles(rec: Recording, edge_error_deg_e: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, str]:
     """Unwrapped electrical and mechanical angle (deg) at every sample, NaN outside the edges.
 
     From the reference encoder when recorded; else from the ideal angles of the Hall edges
-    (the mechanical angle is then only known up to a pole, so the speed domain is skipped)."""
+    (the mechanical angle is then only known up to a pole, so the speed domain is skipped),
+    each moved by ``edge_error_deg_e`` (per edge, + = trails) when given: the edge errors the
+    accepted edge effects predict are where the rotor really was."""
     s = rec.samples
     p = rec.pole_pairs
     th_e = np.full(s["t_s"].size, np.nan)
@@ -135,6 +140,8 @@ def _angles(rec: Recording) -> tuple[np.ndarray, np.ndarray, str]:
             mech = np.unwrap(rec.ref_angle_mech_deg[e_sel], period=360.0)
         else:
             ideal = _ideal_edge_deg_e(rec.sensor[e_sel], rec.rising[e_sel], seg.direction_sign)
+            if edge_error_deg_e is not None:
+                ideal = ideal + seg.direction_sign * edge_error_deg_e[e_sel]
             mech = np.unwrap(ideal, period=360.0) / p
         ts = s["t_s"][s_sel]
         inside = (ts >= t[0]) & (ts <= t[-1])
@@ -182,7 +189,11 @@ def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_bef
     return ~bad
 
 
-def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray,
+                      hall_reference: bool = False) -> SampleResiduals | None:
+    """The voltage equation's residual. ``hall_reference``: the angle comes from the Hall edges
+    (no encoder), whose common offset no edge can show; its back-EMF signature (de/dtheta per
+    deg_e) is then a nuisance column every fit carries (``REFERENCE``)."""
     s = rec.samples
     if not all(c in s for c in ("i_a", "i_b", "i_c", "u_a", "u_b", "u_c")):
         return None
@@ -195,7 +206,10 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
     ok = (seg[1:] == seg[:-1]) & np.isfinite(th_e[1:]) & np.isfinite(th_e[:-1])
     ok &= _steady_intervals(u, seg, motor.supply_v)
     h = np.diff(t)
-    rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "i0x", "i1x", "i0y", "i1y", "h")}
+    f_d = np.column_stack([trapezoid(th_e - z + 0.5, motor.flat_top_deg_e) - trapezoid(th_e - z - 0.5, motor.flat_top_deg_e)
+                           for z in BEMF_ZERO_DEG_E])
+    e_d = motor.ke_v_s_per_rad * w[:, None] * f_d  # V per deg_e of angle error
+    rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "ed", "i0x", "i1x", "i0y", "i1y", "h")}
     avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
     mid = avg(th_e)
     # electrical periods counted from each segment's lowest angle (either direction)
@@ -211,6 +225,7 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
         rows["replicate"].append(np.floor(rel[ok] / 360.0).astype(np.int64))
         rows["i"].append(avg(ixy)[ok])
         rows["e"].append(avg(exy)[ok])
+        rows["ed"].append(avg(e_d[:, x] - e_d[:, yy])[ok])
         rows["i0x"].append(i[:-1, x][ok])
         rows["i1x"].append(i[1:, x][ok])
         rows["i0y"].append(i[:-1, yy][ok])
@@ -221,6 +236,8 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
         return None
     regs = {"winding_temperature": r["i"], "magnet_temperature": r["e"],
             "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]])}
+    if hall_reference:
+        regs[REFERENCE] = r["ed"]
     return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
 
 
@@ -386,6 +403,9 @@ def _cogging_columns(motor: NominalMotor):
 def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
     r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
     return {
+        REFERENCE: SampleCandidate(
+            REFERENCE, "voltage", lambda r, cells, _: cells.average(r.regressors[REFERENCE])[:, None],
+            lambda c, _, m: {"offset_deg_e": float(c[0])}, lambda c, se, m: True),
         "winding_temperature": SampleCandidate(
             "winding_temperature", EFFECT_DOMAIN["winding_temperature"], _winding_columns,
             lambda c, _, m: {"temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)), "alpha_per_k": ALPHA_CU_PER_K,
@@ -404,7 +424,8 @@ def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
             "cogging_torque", EFFECT_DOMAIN["cogging_torque"], _cogging_columns(motor),
             lambda c, n, m: {"amplitude_n_m": float(np.hypot(*c)), "periods_per_rev": int(n),
                              "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi))},
-            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=tuple(range(1, MAX_COGGING_ORDER + 1)), n_coef=2),
+            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=possible_cogging_orders(motor.pole_pairs, MAX_COGGING_ORDER),
+            n_coef=2),
     }
 
 
@@ -490,30 +511,33 @@ class DomainDiagnosis:
     localisation: dict
     chi2_excess: float
     confounded: list[list[str]] = field(default_factory=list)
+    below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, but too small to matter
 
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "unexplained", "confounded", "gap_before",
+        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "below_relevance", "unexplained", "confounded", "gap_before",
                                                "gap_after_heldout", "heldout_shrink", "heldout_interval", "heldout_note", "localisation")} | {
             "ranking": [{"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])],
             "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}"}
 
 
-def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: NominalMotor, segment_ids: list[str]) -> DomainDiagnosis | None:
+def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: NominalMotor, segment_ids: list[str],
+                    env: OperatingEnvelope | None = None) -> DomainDiagnosis | None:
     cells = build_cells(r)
     if cells.mean.size < 4:
         return None
     if "_integration_error" in r.regressors:
         cells.var = cells.var + cells.average(r.regressors["_integration_error"]) ** 2
-    names = [n for n, c in cands.items() if c.domain == r.domain]
-    p0 = cells.significance(cells.mean)
-    chi2_0 = cells.chi2(cells.mean)
+    names = [n for n, c in cands.items() if c.domain == r.domain and n != REFERENCE]
+    # without an encoder every fit carries the Hall reference's unknown common angle offset
+    accepted: list[str] = [REFERENCE] if REFERENCE in r.regressors else []
+    shapes: list = [None] * len(accepted)
+    current = _fit(r, cells, cands, accepted, shapes)
+    p0 = cells.significance(current.resid, len(accepted))
+    chi2_0 = current.chi2
     n_cells = cells.mean.size
     significant = p0 < ALPHA
-    accepted: list[str] = []
-    shapes: list = []
     firsts: dict[str, float] = {n: 0.0 for n in names}
     chi2_now = chi2_0
-    current = _fit(r, cells, cands, [], [])
     while significant:
         best = None
         for name in names:
@@ -539,15 +563,30 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
         if cells.significance(current.resid, _n_params(cands, accepted)) > ALPHA:
             break
     unexplained = bool(significant and cells.significance(current.resid, _n_params(cands, accepted)) < ALPHA)
-    accepted_rows = []
+    # practical significance: an effect whose fitted magnitude does not matter stays in the fit
+    # (its pattern is explained, not unexplained) but is reported apart, not accepted
+    accepted_rows, below = [], []
     for n, s in zip(accepted, shapes):
+        if n == REFERENCE:
+            continue
         coef, _ = _own(current, cands, n)
-        accepted_rows.append({"effect": n, "params": cands[n].params(coef, s, motor)})
+        row = {"effect": n, "params": cands[n].params(coef, s, motor)}
+        if env is not None:
+            rel = sample_relevance(n, row["params"], motor, env)
+            row["relevance"] = rel.to_json()
+            if not rel.relevant:
+                below.append(row)
+                continue
+        accepted_rows.append(row)
+    kept = [n for n in accepted if n not in {b["effect"] for b in below}]
+    kept_shapes = [s for n, s in zip(accepted, shapes) if n in kept]
     gap_before = cell_rms(cells.mean, cells.n)
-    shrink, after, interval, note = _heldout(r, cells, cands, accepted, shapes)
+    shrink, after, interval, note = _heldout(r, cells, cands, kept, kept_shapes)
+    if below and not [n for n in kept if n != REFERENCE]:
+        note = "every detected effect is below practical relevance"
     return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
                            _localise(r, cells, segment_ids), chi2_0 - n_cells,
-                           _confounded(r, cells, cands, names, accepted, shapes, firsts, current.chi2))
+                           _confounded(r, cells, cands, names, kept, kept_shapes, firsts, current.chi2), below)
 
 
 def _confounded(r, cells, cands, names, accepted, shapes, firsts, chi2_end) -> list[list[str]]:
@@ -567,7 +606,7 @@ def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0
     segs = np.unique(cells.segment)
     if segs.size < 2:
         return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
-    if not accepted:
+    if not [n for n in accepted if n != REFERENCE]:
         return 0.0, None, None, "no effect accepted"
     pred_resid = np.full(cells.mean.size, np.nan)
     for s in segs:
@@ -609,18 +648,38 @@ def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) ->
     return out
 
 
-def diagnose_samples(rec: Recording, model=None) -> dict[str, DomainDiagnosis]:
-    """Diagnose the sampled signals of ``rec`` (empty when it has none)."""
+def envelope(rec: Recording, motor: NominalMotor) -> OperatingEnvelope:
+    """Per operating point: mean |phase current| (measured), speed and load torque."""
+    s = rec.samples
+    mean_abs = (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0 if all(c in s for c in ("i_a", "i_b", "i_c")) else None
+    cur, spd, load = [], [], []
+    for k, seg in enumerate(rec.segments):
+        sel = s["segment"] == k
+        w = seg.speed_rpm * 2 * math.pi / 60
+        cur.append(float(np.mean(mean_abs[sel])) if mean_abs is not None and sel.any() else seg.mean_phase_current_a)
+        spd.append(w)
+        load.append(seg.load_scale * motor.fan_n_m_s2 * w * w + motor.friction_n_m_s_per_rad * w)
+    i_max = float(np.max(np.abs(np.column_stack([s["i_a"], s["i_b"], s["i_c"]])))) if mean_abs is not None else max(cur, default=0.0)
+    return OperatingEnvelope(np.array(cur), np.array(spd), np.array(load), i_max)
+
+
+def diagnose_samples(rec: Recording, model=None, edge_error_deg_e: np.ndarray | None = None) -> dict[str, DomainDiagnosis]:
+    """Diagnose the sampled signals of ``rec`` (empty when it has none). Without an encoder the
+    electrical angle comes from the Hall edges: ``edge_error_deg_e`` (per edge, what the accepted
+    edge effects predict) puts each edge where the rotor really was, so a sampled-signal effect
+    is only accepted for what the edge errors do not already produce through the same angle."""
     if rec.samples is None:
         return {}
     motor = NominalMotor.of(rec, model)
-    th_e, th_m, _ = _angles(rec)
+    th_e, th_m, _ = _angles(rec, edge_error_deg_e if rec.ref_angle_mech_deg is None else None)
     w = _speed_rad_s(rec, th_m if np.isfinite(th_m).any() else th_e / motor.pole_pairs)
     cands = sample_candidates(motor)
+    env = envelope(rec, motor)
     out = {}
-    for r in (voltage_residuals(rec, motor, th_e, w), speed_residuals(rec, motor, th_e, th_m, w)):
+    hall = rec.ref_angle_mech_deg is None
+    for r in (voltage_residuals(rec, motor, th_e, w, hall_reference=hall), speed_residuals(rec, motor, th_e, th_m, w)):
         if r is not None:
-            d = diagnose_domain(r, cands, motor, rec.segment_ids)
+            d = diagnose_domain(r, cands, motor, rec.segment_ids, env)
             if d is not None:
                 out[r.domain] = d
     return out

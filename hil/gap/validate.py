@@ -340,10 +340,23 @@ class ValidationReport:
         }
 
 
+GENERATORS = ("library", "field")
+
+
 def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_library: int = 24, seed: int = 0, progress=None,
-                   jobs: int = 1) -> ValidationReport:
-    """Draw the cases (all randomness from ``seed``), diagnose each; ``jobs`` worker processes."""
+                   jobs: int = 1, generator: str = "library") -> ValidationReport:
+    """Draw the cases (all randomness from ``seed``), diagnose each; ``jobs`` worker processes.
+
+    ``generator``: "library" withholds the library's effects (kinematic and electrical plant);
+    "field" withholds physical causes of the field-level Hall model (hil.gap.field_causes),
+    ``per_effect`` cases per cause (there is no out-of-library set)."""
+    if generator not in GENERATORS:
+        raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
     rng = np.random.default_rng(seed)
+    if generator == "field":
+        from .field_causes import plan_field_cases, run_field_case
+
+        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs)
     plan = []
     for name in EFFECT_NAMES:
         plan += [("single", [name], None)] * per_effect
@@ -356,18 +369,24 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
     # dead time leaves no trace in the format's signals: withheld, it must not raise a gap
     plan += [("no_trace", ["dead_time"], None)] * max(null // 4, 1)
     cases = [(i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31))) for i, (kind, names, ool) in enumerate(plan)]
+    return _run(cases, _run_case, progress, jobs)
+
+
+def _run(cases: list, run_case, progress, jobs: int) -> ValidationReport:
+    """Diagnose every case (in ``jobs`` processes), in plan order, reporting each as it ends."""
     report = ValidationReport()
     if jobs > 1:
         from concurrent.futures import ProcessPoolExecutor
 
         with ProcessPoolExecutor(jobs) as pool:
-            for done, case in enumerate(pool.map(_run_case, cases, chunksize=4), 1):
+            # chunks of one: progress moves with every case, not in bursts of a chunk
+            for done, case in enumerate(pool.map(run_case, cases, chunksize=1), 1):
                 report.cases.append(case)
                 if progress:
                     progress(done, len(cases))
     else:
         for done, job in enumerate(cases, 1):
-            report.cases.append(_run_case(job))
+            report.cases.append(run_case(job))
             if progress:
                 progress(done, len(cases))
     return report

@@ -1,43 +1,94 @@
 """Sage-Husa adaptive Kalman filter (paper Eq. 11-12) and the fixed-noise Kalman baseline.
 
-One numba step function serves both: with ``adaptive`` off it is the plain Kalman filter
-(Eq. 11 with fixed Q, R). The filter state lives in flat float64 arrays so that the same code
-runs online (one call per commutation) and in batch (a whole edge sequence in one call).
+One numba step function serves both: with adaptation off it is the plain Kalman filter (Eq. 11
+with fixed Q, R). The filter state lives in one flat float64 array whose named layout is
+generated from ``STATE_TABLE`` (``ST.P`` is the offset of P, and so on), so the same code runs
+online (one call per commutation) and in batch (a whole edge sequence in one call), and each
+update line reads like its equation.
 
-Guards (shared/design.md section 5), each counted in ``guards``:
-  GUARD_GATE     innovation failed the chi-square gate: no adaptation from this step;
-  GUARD_Q_PD     the Eq. 12 Q recursion was not positive: the filter uses the band's floor;
-  GUARD_Q_BAND   a diagonal of Q left its band around nominal (band_factor) and was clamped;
-  GUARD_R_PD     the R update (residual form) was not positive definite: eigenvalues floored;
-  GUARD_P_PD     P lost positive definiteness after the Joseph update: eigenvalues floored;
+Guards (design of the filter: docs/sage-husa.md), each counted in ``guards``:
+  GUARD_GATE        innovation beyond the chi-square gate: the state keeps its prediction (the
+                    edge still teaches R, with a Huber weight);
+  GUARD_Q_PD        the unclamped Eq. 12 Q recursion was not positive (the filter uses the band);
+  GUARD_Q_BAND      a diagonal of Q was projected onto its band around nominal (band_factor);
+  GUARD_R_PD        the R estimate was not positive definite: eigenvalues floored (a repair);
+  GUARD_P_PD        P lost positive definiteness after the Joseph update: eigenvalues floored;
   GUARD_DIVERGENCE  innovations beyond the gate and of one sign on ``divergence_run``
-                 consecutive cycles: the state, not the edge, is wrong; P is faded by NIS / 2
-                 (strong tracking).
-The first edge-angle variance comes from the edges themselves (second differences of the edge
-intervals) rather than from innovations of a filter that ran on the paper's R0 = 0.
-Q adapts every step after a warm-up; r, R and q at intervals (paper: every 120 commutations),
-from the mean of their Eq. 12 terms over the interval.
+                    consecutive cycles: the state, not the edge, is wrong; P is faded by NIS / 2.
 """
 
 from __future__ import annotations
 
 import math
+from collections import namedtuple
 
 import numpy as np
 from numba import njit
 
-# parameter vector
-F_B, F_INTERVAL, F_WARMUP, F_GATE, F_BAND, F_FLOOR, F_ADAPTIVE, F_POLE_PAIRS, F_J, F_DIVERGENCE_RUN = range(10)
-N_FPARAMS = 10
-# state vector layout
-X0, P0, Q0, R0, QN0, SMALLQ0, SMALLR0, ACC_R0, ACC_RR0, ACC_Q0 = 0, 3, 12, 21, 25, 34, 37, 39, 43, 46
-K_STEP, K_INTERVAL, N_ACC, INITIALISED, LAST_NIS, GATED_RUN = 49, 50, 51, 52, 53, 54
-DT_PREV, EDGE_N, EDGE_SUM, EDGE_SUMSQ = 55, 56, 57, 58
-Q_RAW_W, Q_RAW_I = 59, 60
-PREV_INNOV, ACC_C1, ACC_C0 = 61, 62, 63
-N_STATE = 64
+#: the filter state, in order: (name, size, meaning); offsets are generated from this table
+STATE_TABLE = (
+    ("X", 3, "state estimate [w (rad/s), theta (rad, from the last corrected edge), I (A)]"),
+    ("P", 9, "state covariance, row-major"),
+    ("Q", 9, "process-noise covariance in use (Eq. 12 projected onto its band)"),
+    ("R", 4, "measurement-noise covariance [angle, current], row-major"),
+    ("Q_NOMINAL", 9, "nominal Q0, centre of the band"),
+    ("SMALL_Q", 3, "process-noise mean q (Eq. 12)"),
+    ("SMALL_R", 2, "measurement-noise mean r (Eq. 12)"),
+    ("ACC_SMALL_R", 2, "r interval accumulator: sum of Z - H X_k,k-1"),
+    ("ACC_SMALL_Q", 3, "q interval accumulator: sum of X_k - Phi X_k-1"),
+    ("N_ACC", 1, "cycles in the r, q interval"),
+    ("K_INTERVAL", 1, "r, q intervals completed (j of d_j)"),
+    ("ACC_R", 4, "R interval accumulator: sum of Huber-weighted Z~ Z~^T / kappa - H P H^T"),
+    ("ACC_R_MEAN", 2, "R interval accumulator: sum of sqrt(weight) Z~ (the innovations' mean is taken out)"),
+    ("N_ACC_R", 1, "cycles in the R interval"),
+    ("K_INTERVAL_R", 1, "R intervals completed"),
+    ("Q_RAW", 2, "unclamped Eq. 12 recursion of Q_w and Q_i"),
+    ("K_STEP", 1, "filter steps taken"),
+    ("INITIALISED", 1, "1 once the first cycle set speed and current"),
+    ("LAST_NIS", 1, "normalised innovation squared of the last step"),
+    ("GATED_RUN", 1, "signed count of consecutive gated innovations of one sign"),
+    ("DT_PREV", 1, "last cycle duration (s), warm-up edge-noise analysis"),
+    ("EDGE_STATS", 3, "warm-up edge-noise analysis: n, sum, sum of squares"),
+    ("PREV_INNOV", 1, "last angle innovation (whiteness option)"),
+    ("ACC_WHITE", 2, "whiteness option: sum of lag-1 products, sum of squares"),
+    ("COEF", 2, "Eq. 8 coefficients at the present speed estimate (the next step's, too)"),
+)
+#: the parameter vector, in order: (name, meaning)
+PARAM_TABLE = (
+    ("B", "Q forgetting factor b (Eq. 12, d_k per step)"),
+    ("INTERVAL", "r and q adaptation interval (cycles)"),
+    ("WARMUP", "cycles before Q adapts and the gate acts"),
+    ("GATE", "chi-square gate on the NIS"),
+    ("BAND", "Q band factor around nominal"),
+    ("FLOOR", "eigenvalue floor of R"),
+    ("ADAPTIVE", "mask of adapted estimates (0 = plain Kalman filter)"),
+    ("POLE_PAIRS", "pole pairs"),
+    ("J", "inertia (kg m^2)"),
+    ("DIVERGENCE_RUN", "one-signed gated run taken as divergence (0 = never)"),
+    ("R_B", "R forgetting factor (per R interval)"),
+    ("R_INTERVAL", "R adaptation interval (cycles)"),
+    ("HUBER_C", "Huber threshold on sqrt(NIS)"),
+    ("HUBER_KAPPA", "consistency factor E[w NIS] / 2 of the Huber weight"),
+    ("GATE_STATE", "1: a gated innovation leaves the state at its prediction"),
+    ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
+)
+
+
+def _layout(name: str, table) -> tuple:
+    offsets, at = [], 0
+    for row in table:
+        offsets.append(at)
+        at += row[1] if len(row) == 3 else 1
+    return namedtuple(name, [row[0] for row in table] + ["SIZE"])(*offsets, at)
+
+
+ST = _layout("StateLayout", STATE_TABLE)
+FP = _layout("ParamLayout", PARAM_TABLE)
+N_STATE, N_FPARAMS = ST.SIZE, FP.SIZE
+
 GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD, GUARD_DIVERGENCE = range(6)
-#: which Eq. 12 estimates adapt (F_ADAPTIVE holds the mask; 0 = plain Kalman filter)
+N_GUARDS = 6
+#: which Eq. 12 estimates adapt (FP.ADAPTIVE holds the mask; 0 = plain Kalman filter)
 ADAPT_Q, ADAPT_R, ADAPT_SMALL_R, ADAPT_SMALL_Q = 1, 2, 4, 8
 ADAPT_ALL = 15
 #: option, not the paper's: the speed entry of Q steered by innovation whiteness (Mehra 1970)
@@ -45,26 +96,52 @@ ADAPT_ALL = 15
 ADAPT_Q_WHITE = 16
 #: log-step of Q_w per unit of lag-1 innovation correlation, applied once per interval
 WHITENESS_GAIN = 4.0
-N_GUARDS = 6
-CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom
+CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom: P(NIS > gate) = 1e-3
+HUBER_C_95 = math.sqrt(-2.0 * math.log(0.05))  # sqrt of the 95 % quantile of chi-square, 2 dof
+
+
+def huber_kappa(c: float) -> float:
+    """E[w(m) m^2] / 2 for m^2 ~ chi-square(2) and the Huber weight w = min(1, c / m): the factor
+    that makes the weighted outer product Z~ Z~^T an unbiased estimate of S = H P H^T + R when
+    the innovations are Gaussian. With the Rayleigh density of m:
+    E = int_0^c m^3 e^(-m^2/2) dm + c int_c^inf m^2 e^(-m^2/2) dm
+      = 2 - 2 e^(-c^2/2) + c sqrt(2 pi) (1 - Phi(c))."""
+    if not c > 0:
+        return 1.0
+    tail = 0.5 * math.erfc(c / math.sqrt(2.0))
+    return (2.0 - 2.0 * math.exp(-0.5 * c * c) + c * math.sqrt(2.0 * math.pi) * tail) / 2.0
+
+
+def divergence_run_for(gate: float, edge_rate_hz: float, horizon_s: float = 1000.0) -> int:
+    """Shortest run of one-signed gated innovations that chance produces less than once per
+    ``horizon_s`` of edges. With consistent Gaussian innovations an edge is gated with
+    probability p = exp(-gate / 2) (chi-square, 2 dof) and its sign is even, so a given edge
+    starts a one-signed run of n with probability p (p / 2)^(n - 1); the expected number over
+    the horizon is edge_rate_hz horizon_s p (p / 2)^(n - 1), which must stay below 1."""
+    p = math.exp(-0.5 * gate)
+    n = 1
+    while edge_rate_hz * horizon_s * p * (0.5 * p) ** (n - 1) >= 1.0:
+        n += 1
+    return n
 
 
 def new_state(q0: np.ndarray, r0_diag: tuple[float, float] = (0.0, 0.02), p0_diag=(5e4, 5e4, 5e4),
               x0: tuple[float, float, float] = (0.0, 0.0, 0.0)) -> np.ndarray:
     """Initial filter state with the paper's values: q0 = 0, r0 = 0, R0 = diag(0, 0.02), P0 = diag(5e4, ...)."""
     s = np.zeros(N_STATE)
-    s[X0:X0 + 3] = x0
-    s[P0:P0 + 9] = np.diag(p0_diag).ravel()
-    s[Q0:Q0 + 9] = np.asarray(q0, dtype=float).reshape(9)
-    s[QN0:QN0 + 9] = np.asarray(q0, dtype=float).reshape(9)
-    s[Q_RAW_W], s[Q_RAW_I] = s[Q0], s[Q0 + 8]
-    s[R0:R0 + 4] = np.diag(r0_diag).ravel()
+    s[ST.X:ST.X + 3] = x0
+    s[ST.P:ST.P + 9] = np.diag(p0_diag).ravel()
+    s[ST.Q:ST.Q + 9] = np.asarray(q0, dtype=float).reshape(9)
+    s[ST.Q_NOMINAL:ST.Q_NOMINAL + 9] = np.asarray(q0, dtype=float).reshape(9)
+    s[ST.Q_RAW], s[ST.Q_RAW + 1] = s[ST.Q], s[ST.Q + 8]
+    s[ST.R:ST.R + 4] = np.diag(r0_diag).ravel()
     return s
 
 
 @njit(cache=True)
 def _sym_pd_floor(m, n, floor):
-    """Symmetrise the n x n matrix stored row-major in m; floor its eigenvalues; True if it had to.
+    """Symmetrise the n x n matrix stored row-major in m; floor its eigenvalues; True if it was
+    indefinite (a repair).
 
     The common case (already positive definite) is a scalar Cholesky test with no allocation;
     only a failing matrix goes through an eigen-decomposition."""
@@ -93,6 +170,10 @@ def _sym_pd_floor(m, n, floor):
         for j in range(n):
             mat[i, j] = m[i * n + j]
     w, v = np.linalg.eigh(mat)
+    # a repair only if the matrix was indefinite beyond rounding: an exactly singular P (the
+    # paper's R_theta = 0 leaves no angle uncertainty after an update) is positive semi-definite,
+    # a valid covariance, and lifting its zero eigenvalue to the floor is not a repair
+    repaired = w[0] < -1e-12 * max(abs(w[n - 1]), 1.0)
     for i in range(n):
         if w[i] < floor:
             w[i] = floor
@@ -100,7 +181,7 @@ def _sym_pd_floor(m, n, floor):
     for i in range(n):
         for j in range(n):
             m[i * n + j] = 0.5 * (bm[i, j] + bm[j, i])
-    return True
+    return repaired
 
 
 @njit(cache=True, inline="always")
@@ -120,49 +201,93 @@ def _mm3t(a, b, out):
 
 
 @njit(cache=True)
-def _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_pred, x_new, phi, x, u):
-    """Eq. 12 for r, R and q: terms accumulated each cycle, applied every interval (paper: every
-    120 commutations) and once at the end of the warm-up, so that R has an estimate before Q
-    starts to adapt (Q adapted against R0 = 0 would absorb the edge noise)."""
-    mask = int(fp[F_ADAPTIVE])
-    b = fp[F_B]
-    s[ACC_R0] += z_theta - hx0                                      # Z - H X_k,k-1
-    s[ACC_R0 + 1] += z_i - hx1
-    s[ACC_RR0] += innov0 * innov0 - p_pred[4]                       # Z~ Z~^T - H P_k,k-1 H^T
-    s[ACC_RR0 + 1] += innov0 * innov1 - p_pred[5]
-    s[ACC_RR0 + 2] += innov1 * innov0 - p_pred[7]
-    s[ACC_RR0 + 3] += innov1 * innov1 - p_pred[8]
+def _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u):
+    """Eq. 12 for the noise means r and q: terms accumulated each (ungated) cycle, applied every
+    interval (paper: every 120 commutations) from their mean."""
+    mask = int(fp[FP.ADAPTIVE])
+    s[ST.ACC_SMALL_R] += z_theta - hx0                              # Z - H X_k,k-1
+    s[ST.ACC_SMALL_R + 1] += z_i - hx1
     for i in range(3):                                              # X_k - Phi X_k-1
-        s[ACC_Q0 + i] += x_new[i] - (phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i])
-    s[N_ACC] += 1.0
-    if s[N_ACC] >= fp[F_INTERVAL] or k + 1.0 == fp[F_WARMUP]:
-        n = s[N_ACC]
-        j = s[K_INTERVAL]
-        dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
+        s[ST.ACC_SMALL_Q + i] += x_new[i] - (phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i])
+    s[ST.N_ACC] += 1.0
+    if s[ST.N_ACC] >= fp[FP.INTERVAL] or k + 1.0 == fp[FP.WARMUP]:
+        n = s[ST.N_ACC]
+        b = fp[FP.B]
+        j = s[ST.K_INTERVAL]
+        dj = (1.0 - b) / (1.0 - b ** (j + 1.0))                       # d_j = (1 - b) / (1 - b^(j+1))
+        if mask & ADAPT_SMALL_R:
+            for i in range(2):                                      # r = (1 - d) r + d mean(Z - H X_k,k-1)
+                s[ST.SMALL_R + i] = (1.0 - dj) * s[ST.SMALL_R + i] + dj * s[ST.ACC_SMALL_R + i] / n
+        if mask & ADAPT_SMALL_Q:
+            for i in range(3):                                      # q = (1 - d) q + d mean(X_k - Phi X_k-1)
+                s[ST.SMALL_Q + i] = (1.0 - dj) * s[ST.SMALL_Q + i] + dj * s[ST.ACC_SMALL_Q + i] / n
         for i in range(2):
-            if mask & ADAPT_SMALL_R:
-                s[SMALLR0 + i] = (1.0 - dj) * s[SMALLR0 + i] + dj * s[ACC_R0 + i] / n
-        if mask & ADAPT_R:
-            for i in range(4):
-                s[R0 + i] = (1.0 - dj) * s[R0 + i] + dj * s[ACC_RR0 + i] / n
-            if j == 0.0 and s[EDGE_N] > 2.0:
-                # the first estimate of the edge-angle variance comes from the edges themselves
-                # (below), not from innovations of a filter that ran on R0 = 0 and so followed
-                # every edge: those innovations carry its own prediction error, not only the
-                # edge noise (measured: R learned 6-10x too large)
-                m = s[EDGE_SUM] / s[EDGE_N]
-                s[R0] = max(s[EDGE_SUMSQ] / s[EDGE_N] - m * m, 0.0) / 6.0
-                s[R0 + 1] = 0.0
-                s[R0 + 2] = 0.0
-            if _sym_pd_floor(s[R0:R0 + 4], 2, fp[F_FLOOR]):
-                guards[GUARD_R_PD] += 1
+            s[ST.ACC_SMALL_R + i] = 0.0
         for i in range(3):
-            if mask & ADAPT_SMALL_Q:
-                s[SMALLQ0 + i] = (1.0 - dj) * s[SMALLQ0 + i] + dj * s[ACC_Q0 + i] / n
-        for i in range(ACC_R0, ACC_Q0 + 3):
-            s[i] = 0.0
-        s[N_ACC] = 0.0
-        s[K_INTERVAL] = j + 1.0
+            s[ST.ACC_SMALL_Q + i] = 0.0
+        s[ST.N_ACC] = 0.0
+        s[ST.K_INTERVAL] = j + 1.0
+
+
+@njit(cache=True)
+def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
+    """Eq. 12 for R from every innovation, gated or not, with a Huber weight: an outlier moves R
+    by c sqrt(S) at most instead of its full square, and a burst of edge noise still raises R
+    (it is the edge noise R stands for). The weight is made unbiased for Gaussian innovations by
+    kappa (``huber_kappa``). R has its own forgetting factor and interval: it is applied every
+    R_INTERVAL cycles from the mean term, d_j = (1 - b_R) / (1 - b_R^(j+1))."""
+    c = fp[FP.HUBER_C]
+    m = math.sqrt(nis) if nis > 0.0 else 0.0
+    w = 1.0 if m <= c else c / m
+    g = w / fp[FP.HUBER_KAPPA]
+    s[ST.ACC_R] += g * innov0 * innov0 - p_pred[4]                  # w Z~ Z~^T / kappa - H P_k,k-1 H^T
+    s[ST.ACC_R + 1] += g * innov0 * innov1 - p_pred[5]
+    s[ST.ACC_R + 2] += g * innov1 * innov0 - p_pred[7]
+    s[ST.ACC_R + 3] += g * innov1 * innov1 - p_pred[8]
+    sg = math.sqrt(g)
+    s[ST.ACC_R_MEAN] += sg * innov0
+    s[ST.ACC_R_MEAN + 1] += sg * innov1
+    s[ST.N_ACC_R] += 1.0
+    warm = k < fp[FP.WARMUP]
+    # during the warm-up R is set once, at its end (the first R_INTERVAL cycles after P0 would
+    # otherwise swamp it); then every R_INTERVAL cycles
+    if (warm and k + 1.0 != fp[FP.WARMUP]) or (not warm and s[ST.N_ACC_R] < fp[FP.R_INTERVAL]):
+        return
+    n = s[ST.N_ACC_R]
+    j = s[ST.K_INTERVAL_R]
+    b = fp[FP.R_B]
+    dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
+    # the innovations' own mean over the interval is taken out (Eq. 12's Z~ - r): a state that is
+    # off pushes every innovation one way, and R must not absorb that error (it would lower the
+    # gain, the error would grow, and R with it); the one-signed run then fades P instead
+    m0, m1 = s[ST.ACC_R_MEAN] / n, s[ST.ACC_R_MEAN + 1] / n
+    unbias = n / (n - 1.0) if n > 1.0 else 1.0
+    s[ST.ACC_R] -= n * m0 * m0
+    s[ST.ACC_R + 1] -= n * m0 * m1
+    s[ST.ACC_R + 2] -= n * m1 * m0
+    s[ST.ACC_R + 3] -= n * m1 * m1
+    for i in range(4):                                              # R = (1 - d) R + d mean(term)
+        s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * unbias * s[ST.ACC_R + i] / n
+    if j == 0.0 and s[ST.EDGE_STATS] > 2.0:
+        # the first estimate of the edge-angle variance comes from the edges themselves (below),
+        # not from innovations of a filter that ran on R0 = 0 and so followed every edge: those
+        # innovations carry its own prediction error, not only the edge noise (R 6-10x too large)
+        mean = s[ST.EDGE_STATS + 1] / s[ST.EDGE_STATS]
+        s[ST.R] = max(s[ST.EDGE_STATS + 2] / s[ST.EDGE_STATS] - mean * mean, 0.0) / 6.0
+        s[ST.R + 1] = 0.0
+        s[ST.R + 2] = 0.0
+    if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
+        guards[GUARD_R_PD] += 1
+    # an exactly repeated current would drive its variance to the eigenvalue floor, and the
+    # smallest drift of the current estimate would then be gated as an outlier; no measurement
+    # is finer than its quantisation (raising a diagonal keeps R positive definite)
+    s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
+    for i in range(4):
+        s[ST.ACC_R + i] = 0.0
+    s[ST.ACC_R_MEAN] = 0.0
+    s[ST.ACC_R_MEAN + 1] = 0.0
+    s[ST.N_ACC_R] = 0.0
+    s[ST.K_INTERVAL_R] = j + 1.0
 
 
 N_WORK = 96
@@ -171,10 +296,10 @@ N_WORK = 96
 @njit(cache=True, inline="always")
 def _innovation_inverse(p_pred, s):
     """(H P_k,k-1 H^T + R)^-1 with H = [[0,1,0],[0,0,1]], as its four entries row-major."""
-    s00 = p_pred[4] + s[R0]
-    s01 = p_pred[5] + s[R0 + 1]
-    s10 = p_pred[7] + s[R0 + 2]
-    s11 = p_pred[8] + s[R0 + 3]
+    s00 = p_pred[4] + s[ST.R]
+    s01 = p_pred[5] + s[ST.R + 1]
+    s10 = p_pred[7] + s[ST.R + 2]
+    s11 = p_pred[8] + s[ST.R + 3]
     det = s00 * s11 - s01 * s10
     return s11 / det, -s01 / det, -s10 / det, s00 / det
 
@@ -200,116 +325,137 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     ikh = wk[60:69]
     phi_p_phi = wk[69:78]
     x_new = wk[78:81]
-    # --- Eq. 9: transition and input -------------------------------------------------------
+    # --- Eq. 9: transition Phi and input ------------------------------------------------------
     a = accel_per_amp
     phi[0], phi[1], phi[2] = 1.0, 0.0, a * dt
     phi[3], phi[4], phi[5] = dt, 1.0, 0.5 * a * dt * dt
     phi[6], phi[7], phi[8] = 0.0, 0.0, 1.0
     u[0], u[1], u[2] = -dt * decel_load, -0.5 * dt * dt * decel_load, 0.0
     for i in range(3):
-        x[i] = s[X0 + i]
+        x[i] = s[ST.X + i]
     for i in range(9):
-        p[i] = s[P0 + i]
+        p[i] = s[ST.P + i]
     # --- Eq. 11: prediction ------------------------------------------------------------------
     for i in range(3):                                              # X_k,k-1 = Phi X_k-1 + q_k-1
-        x_pred[i] = phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i] + s[SMALLQ0 + i]
+        x_pred[i] = phi[3 * i] * x[0] + phi[3 * i + 1] * x[1] + phi[3 * i + 2] * x[2] + u[i] + s[ST.SMALL_Q + i]
     _mm3(phi, p, tmp)
     _mm3t(tmp, phi, phi_p_phi)
     for i in range(9):                                              # P_k,k-1 = Phi P Phi^T + Q_k-1
-        p_pred[i] = phi_p_phi[i] + s[Q0 + i]
+        p_pred[i] = phi_p_phi[i] + s[ST.Q + i]
     # H = [[0,1,0],[0,0,1]] (Eq. 10 as we read it: the edge measures the angle): rows 1 and 2
     hx0 = x_pred[1]
     hx1 = x_pred[2]
-    innov0 = z_theta - hx0 - s[SMALLR0]                             # Z~ = Z - H X_k,k-1 - r
-    innov1 = z_i - hx1 - s[SMALLR0 + 1]
+    innov0 = z_theta - hx0 - s[ST.SMALL_R]                          # Z~ = Z - H X_k,k-1 - r
+    innov1 = z_i - hx1 - s[ST.SMALL_R + 1]
     i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
     nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
-    k = s[K_STEP]
-    if fp[F_ADAPTIVE] != 0.0 and k >= fp[F_WARMUP]:
+    k = s[ST.K_STEP]
+    warm = k < fp[FP.WARMUP]
+    mask = int(fp[FP.ADAPTIVE])
+    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
+    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
+    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
+    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
+    gated = False
+    faded = False
+    if fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]:
         # signed run length of gated innovations of one sign: a wrong state pushes every edge
-        # the same way, a burst of edge noise scatters both ways (and must not fade P)
-        run = s[GATED_RUN]
-        if nis <= fp[F_GATE]:
-            run = 0.0
-        elif innov0 >= 0.0:
+        # the same way, a burst of edge noise scatters both ways
+        run = s[ST.GATED_RUN]
+        if innov0 >= 0.0:
             run = run + 1.0 if run > 0.0 else 1.0
         else:
             run = run - 1.0 if run < 0.0 else -1.0
-        s[GATED_RUN] = run
-        if fp[F_DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[F_DIVERGENCE_RUN]:
+        s[ST.GATED_RUN] = run
+        if fp[FP.DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[FP.DIVERGENCE_RUN]:
             # innovations persistently beyond the gate, all one way: the state is wrong, not the
-            # edge. P is overconfident (it claims a precision the innovations refute), so it is
-            # faded by the ratio of the observed to the expected NIS (strong-tracking fading
-            # factor) and the filter re-converges instead of locking onto a wrong speed
+            # edge. P is overconfident, so it is faded by the ratio of the observed to the
+            # expected NIS (strong-tracking fading factor) and the filter takes the edge
             fade = nis / 2.0
             for i in range(9):
                 p_pred[i] *= fade
             guards[GUARD_DIVERGENCE] += 1
+            faded = True
             i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
-    for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
-        a0 = p_pred[3 * i + 1]
-        a1 = p_pred[3 * i + 2]
-        gain[2 * i] = a0 * i00 + a1 * i10
-        gain[2 * i + 1] = a0 * i01 + a1 * i11
-    for i in range(3):                                              # X_k = X_k,k-1 + K Z~
-        x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
-    # Joseph form of P_k = (I - K H) P_k,k-1 (keeps P symmetric positive semi-definite)
+        else:
+            gated = True
+            guards[GUARD_GATE] += 1
+    else:
+        s[ST.GATED_RUN] = 0.0
+    if gated:
+        # an outlier edge: the state keeps its prediction, P its predicted covariance
+        for i in range(3):
+            x_new[i] = x_pred[i]
+        for i in range(9):
+            p_new[i] = p_pred[i]
+    else:
+        for i in range(3):                                          # K = P H^T (H P H^T + R)^-1
+            a0 = p_pred[3 * i + 1]
+            a1 = p_pred[3 * i + 2]
+            gain[2 * i] = a0 * i00 + a1 * i10
+            gain[2 * i + 1] = a0 * i01 + a1 * i11
+        for i in range(3):                                          # X_k = X_k,k-1 + K Z~
+            x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
+        # Joseph form of P_k = (I - K H) P_k,k-1 (I - K H)^T + K R K^T (symmetric, PSD)
+        for i in range(3):
+            for j in range(3):
+                ikh[3 * i + j] = 1.0 if i == j else 0.0
+            ikh[3 * i + 1] -= gain[2 * i]
+            ikh[3 * i + 2] -= gain[2 * i + 1]
+        _mm3(ikh, p_pred, tmp)
+        _mm3t(tmp, ikh, p_new)
+        r00, r01, r10, r11 = s[ST.R], s[ST.R + 1], s[ST.R + 2], s[ST.R + 3]
+        for i in range(3):                                          # + K R K^T
+            g0, g1 = gain[2 * i], gain[2 * i + 1]
+            for j in range(3):
+                h0, h1 = gain[2 * j], gain[2 * j + 1]
+                p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
+        if _sym_pd_floor(p_new, 3, 1e-12):
+            guards[GUARD_P_PD] += 1
     for i in range(3):
-        for j in range(3):
-            ikh[3 * i + j] = 1.0 if i == j else 0.0
-        ikh[3 * i + 1] -= gain[2 * i]
-        ikh[3 * i + 2] -= gain[2 * i + 1]
-    _mm3(ikh, p_pred, tmp)
-    _mm3t(tmp, ikh, p_new)
-    r00, r01, r10, r11 = s[R0], s[R0 + 1], s[R0 + 2], s[R0 + 3]
-    for i in range(3):                                              # + K R K^T
-        g0, g1 = gain[2 * i], gain[2 * i + 1]
-        for j in range(3):
-            h0, h1 = gain[2 * j], gain[2 * j + 1]
-            p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
-    if _sym_pd_floor(p_new, 3, 1e-12):
-        guards[GUARD_P_PD] += 1
-    for i in range(3):
-        s[X0 + i] = x_new[i]
-    s[X0 + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
+        s[ST.X + i] = x_new[i]
+    s[ST.X + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
     for i in range(9):
-        s[P0 + i] = p_new[i]
-    s[LAST_NIS] = nis
-    s[K_STEP] = k + 1.0
-    if int(fp[F_ADAPTIVE]) & ADAPT_Q_WHITE and k >= fp[F_WARMUP]:
+        s[ST.P + i] = p_new[i]
+    s[ST.LAST_NIS] = nis
+    s[ST.K_STEP] = k + 1.0
+    if mask == 0:
+        return nis
+    if mask & ADAPT_Q_WHITE and not warm:
         # innovation whiteness (Mehra): lag-1 correlation of the angle innovations is zero for
         # the optimal gain, positive when the filter lags (Q too small), negative when it
         # chases the noise (Q too large)
-        s[ACC_C1] += innov0 * s[PREV_INNOV]
-        s[ACC_C0] += innov0 * innov0
-        if s[ACC_C0] > 0.0 and (k + 1.0 - fp[F_WARMUP]) % fp[F_INTERVAL] == 0.0:
-            c1 = s[ACC_C1] / s[ACC_C0]
-            s[Q0] = min(max(s[Q0] * math.exp(WHITENESS_GAIN * c1), s[QN0] / fp[F_BAND]), s[QN0] * fp[F_BAND])
-            s[ACC_C1] = 0.0
-            s[ACC_C0] = 0.0
-    s[PREV_INNOV] = innov0
-    if fp[F_ADAPTIVE] == 0.0:
-        return nis
-    if k < fp[F_WARMUP]:
+        s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
+        s[ST.ACC_WHITE + 1] += innov0 * innov0
+        if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
+            c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
+            s[ST.Q] = min(max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]), s[ST.Q_NOMINAL] * fp[FP.BAND])
+            s[ST.ACC_WHITE] = 0.0
+            s[ST.ACC_WHITE + 1] = 0.0
+    s[ST.PREV_INNOV] = innov0
+    if warm:
         # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with
         # white edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance
         # 6 sigma^2 whatever the filter does; a steady acceleration only shifts its mean
-        if s[DT_PREV] > 0.0:
-            x2 = (math.pi / 3.0) / dt * (dt - s[DT_PREV])
-            s[EDGE_N] += 1.0
-            s[EDGE_SUM] += x2
-            s[EDGE_SUMSQ] += x2 * x2
-        s[DT_PREV] = dt
-    if k >= fp[F_WARMUP] and nis > fp[F_GATE]:
-        guards[GUARD_GATE] += 1
+        if s[ST.DT_PREV] > 0.0:
+            x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
+            s[ST.EDGE_STATS] += 1.0
+            s[ST.EDGE_STATS + 1] += x2
+            s[ST.EDGE_STATS + 2] += x2 * x2
+        s[ST.DT_PREV] = dt
+    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
+    # faded step's innovation is the state's error, not the edge noise R stands for
+    settled = k >= 0.5 * fp[FP.WARMUP]
+    if mask & ADAPT_R and settled and not faded:
+        _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred)
+    if gated:
         return nis
-    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate)
-    if k >= 0.5 * fp[F_WARMUP]:
-        _adapt_interval(s, fp, guards, k, z_theta, z_i, hx0, hx1, innov0, innov1, p_pred, x_new, phi, x, u)
-    if k < fp[F_WARMUP]:
+    if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
+        _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
+    if warm or not mask & ADAPT_Q:
         return nis
     # --- Eq. 12: Q every step ----------------------------------------------------------------
-    b = fp[F_B]
+    b = fp[FP.B]
     # d_k continues from the true step count: restarting it at 1 after the warm-up would let a
     # single noisy sample replace Q
     d = (1.0 - b) / (1.0 - b ** (k + 1.0))                          # d_k = (1 - b) / (1 - b^(k+1))
@@ -317,23 +463,19 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     # from w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its
     # nominal value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R
     # starts too small (R0 = 0 here) and R is then never learned.
-    mask = int(fp[F_ADAPTIVE])
-    if not mask & ADAPT_Q:
-        return nis
-    band = fp[F_BAND]
+    band = fp[FP.BAND]
     clamped = False
-    for i, raw in ((0, Q_RAW_W), (2, Q_RAW_I)):
+    for i, raw in ((0, ST.Q_RAW), (2, ST.Q_RAW + 1)):
         if i == 0 and mask & ADAPT_Q_WHITE:
             continue
         kz = gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
         term = kz * kz + p_new[4 * i] - phi_p_phi[4 * i]            # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T
-        nominal = s[QN0 + 4 * i]
+        nominal = s[ST.Q_NOMINAL + 4 * i]
         lo, hi = nominal / band, nominal * band
         # the Eq. 12 recursion runs on its own, unclamped: truncating each step's estimate at
         # the floor and feeding it back biases Q upward (the negative half of a noisy term is
-        # cut, the positive half kept; measured: Q settled 40x above a true Q near zero).
-        # The filter uses the estimate projected onto the band.
-        v = min(max((1.0 - d) * s[raw] + d * term, -hi), hi)
+        # cut, the positive half kept). The filter uses the estimate projected onto the band.
+        v = min(max((1.0 - d) * s[raw] + d * term, -hi), hi)        # Q = (1 - d) Q + d term
         s[raw] = v
         if not v > 0.0:
             guards[GUARD_Q_PD] += 1
@@ -343,11 +485,10 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         elif v >= hi:
             v = hi
             clamped = True
-        s[Q0 + 4 * i] = v
-    for i in range(9):
-        if i not in (0, 4, 8):
-            s[Q0 + i] = 0.0
-    s[Q0 + 4] = s[QN0 + 4]
+        s[ST.Q + 4 * i] = v
+    for i in (1, 2, 3, 5, 6, 7):
+        s[ST.Q + i] = 0.0
+    s[ST.Q + 4] = s[ST.Q_NOMINAL + 4]
     if clamped:
         guards[GUARD_Q_BAND] += 1
     return nis
@@ -357,9 +498,9 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
 def predict_next_s(s, accel_per_amp, decel_load):
     """Time from the last corrected edge until the predicted angle reaches the next commutation
     angle: theta + w tau + eps tau^2 / 2 = pi / 3 (Eq. 7, with eps from Eq. 8)."""
-    w = s[X0]
-    theta = s[X0 + 1]
-    eps = accel_per_amp * s[X0 + 2] - decel_load
+    w = s[ST.X]
+    theta = s[ST.X + 1]
+    eps = accel_per_amp * s[ST.X + 2] - decel_load
     d = math.pi / 3.0 - theta
     disc = w * w + 2.0 * eps * d
     if w <= 0.0 or d <= 0.0:
@@ -370,32 +511,43 @@ def predict_next_s(s, accel_per_amp, decel_load):
 
 
 @njit(cache=True)
-def run_batch(s, fp, guards, t_edges, current, speed_tab, kt_tab, m_tab, out_pred_t, out_w):
+def coefficients(w_e, fp, tables):
+    """Eq. 8 in electrical speed at w_e: (p K_T(n) / J, p M(n) w_m^2 / J), K_T and M interpolated
+    in the identified tables (rows: speed rpm, K_T, M; clamped at their ends)."""
+    pp = fp[FP.POLE_PAIRS]
+    n_rpm = w_e / pp * 60.0 / (2.0 * math.pi)
+    w_m = w_e / pp
+    return (pp * np.interp(n_rpm, tables[0], tables[1]) / fp[FP.J],
+            pp * np.interp(n_rpm, tables[0], tables[2]) * w_m * w_m / fp[FP.J])
+
+
+@njit(cache=True)
+def edge(s, fp, guards, dt, current, tables, wk):
+    """One corrected edge that ended a cycle of ``dt`` seconds with mean |i| ``current``: the
+    whole online update (Eq. 8 coefficients, step, Eq. 7 prediction) in one compiled call.
+    Returns the time from this edge to the predicted next commutation."""
+    if s[ST.INITIALISED] == 0.0:
+        # the first cycle initialises speed and current; filtering starts with the next edge
+        s[ST.X] = (math.pi / 3.0) / dt
+        s[ST.X + 1] = 0.0
+        s[ST.X + 2] = current
+        s[ST.INITIALISED] = 1.0
+    else:
+        # the coefficients at the previous estimate: computed for the last prediction already
+        step(s, fp, guards, math.pi / 3.0, current, dt, s[ST.COEF], s[ST.COEF + 1], wk)
+    a, dl = coefficients(s[ST.X], fp, tables)
+    s[ST.COEF] = a
+    s[ST.COEF + 1] = dl
+    return predict_next_s(s, a, dl)
+
+
+@njit(cache=True)
+def run_batch(s, fp, guards, t_edges, current, tables, out_pred_t, out_w):
     """Filter a whole sequence of corrected edge times; out_pred_t[k] predicts edge k + 1."""
     wk = np.empty(N_WORK)
-    pp = fp[F_POLE_PAIRS]
-    j_inertia = fp[F_J]
     n = t_edges.size
     for k in range(1, n):
-        dt = t_edges[k] - t_edges[k - 1]
-        if s[INITIALISED] == 0.0:
-            # the first cycle initialises speed and current; filtering starts with the next edge
-            s[X0] = (math.pi / 3.0) / dt
-            s[X0 + 1] = 0.0
-            s[X0 + 2] = current[k]
-            s[INITIALISED] = 1.0
-            w_now = s[X0]
-        else:
-            w_prev = s[X0]
-            n_rpm = w_prev / pp * 60.0 / (2.0 * math.pi)
-            a = pp * np.interp(n_rpm, speed_tab, kt_tab) / j_inertia
-            w_m = w_prev / pp
-            dl = pp * np.interp(n_rpm, speed_tab, m_tab) * w_m * w_m / j_inertia
-            step(s, fp, guards, math.pi / 3.0, current[k], dt, a, dl, wk)
-            w_now = s[X0]
-        n_rpm = w_now / pp * 60.0 / (2.0 * math.pi)
-        w_m = w_now / pp
-        out_pred_t[k] = t_edges[k] + predict_next_s(s, pp * np.interp(n_rpm, speed_tab, kt_tab) / j_inertia,
-                                                     pp * np.interp(n_rpm, speed_tab, m_tab) * w_m * w_m / j_inertia)
-        out_w[k] = w_now
+        tau = edge(s, fp, guards, t_edges[k] - t_edges[k - 1], current[k], tables, wk)
+        out_pred_t[k] = t_edges[k] + tau
+        out_w[k] = s[ST.X]
     return n - 1

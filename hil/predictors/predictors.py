@@ -8,7 +8,6 @@ sequence in one compiled loop.
 
 from __future__ import annotations
 
-import bisect
 import math
 from dataclasses import dataclass, field
 
@@ -27,33 +26,85 @@ class FilterSettings:
     #: because pre-calibration removed the deterministic edge errors; the guards floor it
     r0_diag: tuple[float, float] = (0.0, 0.02)
     p0_diag: tuple[float, float, float] = (5e4, 5e4, 5e4)  # paper 4.4
-    forgetting_b: float = 0.98                         # design notes: 0.95-0.995
-    adapt_interval: int = 120                          # paper 4.4: r, R, q every 120 commutations
+    forgetting_b: float = 0.98                         # Q's b (Eq. 12, per step); design notes: 0.95-0.995
+    adapt_interval: int = 120                          # paper 4.4: r and q every 120 commutations
+    #: R's own forgetting factor (per R interval) and interval (paper 4.4: 120 commutations)
+    r_forgetting_b: float = 0.98
+    r_interval: int = 120
     warmup: int = 120
     chi2_gate: float = F.CHI2_2DOF_999
+    #: a gated innovation leaves the state at its prediction (and still teaches R); off = every
+    #: edge updates the state at full gain, as a textbook Kalman filter does
+    gate_state_update: bool = True
+    #: Huber threshold on sqrt(NIS) for the R update (default: 95 % of chi-square, 2 dof)
+    huber_c: float = F.HUBER_C_95
     q_band_factor: float = 100.0
     eig_floor: float = 1e-9
-    #: consecutive innovations beyond the gate, all of one sign, taken as divergence (P faded); 0 = never
-    divergence_run: int = 2
+    #: resolution of the current measurement (the edge messages carry mA): R's current variance
+    #: never goes below its quantisation variance, resolution^2 / 12
+    current_resolution_a: float = 1e-3
+    #: consecutive innovations beyond the gate, all of one sign, taken as divergence (P faded);
+    #: 0 = never. 3 = ``filters.divergence_run_for(chi2_gate, 2400 edges/s)``: a chance trigger
+    #: of consistent Gaussian innovations is rarer than once per 1000 s at 12,000 rpm, 2 pole pairs
+    divergence_run: int = 3
     #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
     #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
     adapt_mask: int = F.ADAPT_ALL
 
     def check(self) -> None:
-        if not 0.0 < self.forgetting_b < 1.0:
-            raise ValueError(f"forgetting_b must be in (0, 1), got {self.forgetting_b!r}")
+        for name in ("forgetting_b", "r_forgetting_b"):
+            if not 0.0 < getattr(self, name) < 1.0:
+                raise ValueError(f"{name} must be in (0, 1), got {getattr(self, name)!r}")
         for name in ("q0_diag", "p0_diag"):
             if any(not math.isfinite(v) or v <= 0 for v in getattr(self, name)):
                 raise ValueError(f"{name} must be positive and finite, got {getattr(self, name)!r}")
         if any(not math.isfinite(v) or v < 0 for v in self.r0_diag):
             raise ValueError(f"r0_diag must be >= 0 and finite, got {self.r0_diag!r}")
-        if self.adapt_interval < 1:
-            raise ValueError("adapt_interval must be >= 1")
+        for name in ("adapt_interval", "r_interval"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)!r}")
         if self.divergence_run < 0:
             raise ValueError(f"divergence_run must be >= 0 (0 = off), got {self.divergence_run!r}")
+        if not self.current_resolution_a >= 0:
+            raise ValueError(f"current_resolution_a must be >= 0, got {self.current_resolution_a!r}")
+        if not self.huber_c > 0:
+            raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
+
+    def params(self, adaptive: bool, pole_pairs: int, inertia_kg_m2: float) -> np.ndarray:
+        """The filter's parameter vector (layout ``filters.PARAM_TABLE``)."""
+        fp = np.zeros(F.N_FPARAMS)
+        fp[F.FP.B] = self.forgetting_b
+        fp[F.FP.INTERVAL] = self.adapt_interval
+        fp[F.FP.WARMUP] = self.warmup
+        fp[F.FP.GATE] = self.chi2_gate
+        fp[F.FP.BAND] = self.q_band_factor
+        fp[F.FP.FLOOR] = self.eig_floor
+        fp[F.FP.ADAPTIVE] = float(self.adapt_mask) if adaptive else 0.0
+        fp[F.FP.POLE_PAIRS] = pole_pairs
+        fp[F.FP.J] = inertia_kg_m2
+        fp[F.FP.DIVERGENCE_RUN] = self.divergence_run
+        fp[F.FP.R_B] = self.r_forgetting_b
+        fp[F.FP.R_INTERVAL] = self.r_interval
+        fp[F.FP.HUBER_C] = self.huber_c
+        fp[F.FP.HUBER_KAPPA] = F.huber_kappa(self.huber_c)
+        fp[F.FP.GATE_STATE] = 1.0 if self.gate_state_update else 0.0
+        fp[F.FP.R_I_FLOOR] = self.current_resolution_a ** 2 / 12.0
+        return fp
 
 
 GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence")
+#: the four counters a controller exposes (docs/controller.md), from the guard counts
+COUNTER_NAMES = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
+
+
+def split_counters(guards: dict[str, int]) -> dict[str, int]:
+    """Gated edges, covariance repairs (eigenvalue floors on R or P: a matrix in use had to be
+    repaired), divergence fades and band projections (Q's Eq. 12 estimate projected onto its
+    band, including a non-positive estimate)."""
+    return {"gated_edges": guards.get("innovation_gate", 0),
+            "covariance_repairs": guards.get("r_not_pd", 0) + guards.get("p_not_pd", 0),
+            "divergence_fades": guards.get("divergence", 0),
+            "band_projections": guards.get("q_band", 0)}
 
 
 @dataclass
@@ -72,33 +123,10 @@ class _KalmanCore:
         settings.check()
         self.model, self.settings = model, settings
         self.speed_tab, self.kt_tab, self.m_tab = model.arrays()
-        self._speed_list, self._kt_list, self._m_list = (list(map(float, a)) for a in (self.speed_tab, self.kt_tab, self.m_tab))
-        fp = np.zeros(F.N_FPARAMS)
-        fp[F.F_B] = settings.forgetting_b
-        fp[F.F_INTERVAL] = settings.adapt_interval
-        fp[F.F_WARMUP] = settings.warmup
-        fp[F.F_GATE] = settings.chi2_gate
-        fp[F.F_BAND] = settings.q_band_factor
-        fp[F.F_FLOOR] = settings.eig_floor
-        fp[F.F_ADAPTIVE] = float(settings.adapt_mask) if self.adaptive else 0.0
-        fp[F.F_POLE_PAIRS] = model.pole_pairs
-        fp[F.F_J] = model.inertia_kg_m2
-        fp[F.F_DIVERGENCE_RUN] = settings.divergence_run
-        self.fp = fp
+        #: rows speed (rpm), K_T, M: one array, one argument of the compiled call
+        self.tables = np.ascontiguousarray(np.vstack((self.speed_tab, self.kt_tab, self.m_tab)), dtype=float)
+        self.fp = settings.params(self.adaptive, model.pole_pairs, model.inertia_kg_m2)
         self.reset()
-
-    def _interp(self, n_rpm: float) -> tuple[float, float]:
-        """K_T(n) and M(n) by linear interpolation, clamped at the table ends (as ``np.interp``),
-        in plain floats: the online path runs it twice per edge."""
-        speeds = self._speed_list
-        j = bisect.bisect_right(speeds, n_rpm)
-        if j == 0:
-            return self._kt_list[0], self._m_list[0]
-        if j == len(speeds):
-            return self._kt_list[-1], self._m_list[-1]
-        f = (n_rpm - speeds[j - 1]) / (speeds[j] - speeds[j - 1])
-        return (self._kt_list[j - 1] + f * (self._kt_list[j] - self._kt_list[j - 1]),
-                self._m_list[j - 1] + f * (self._m_list[j] - self._m_list[j - 1]))
 
     def reset(self) -> None:
         s = self.settings
@@ -113,52 +141,47 @@ class _KalmanCore:
         return dict(zip(GUARD_NAMES, map(int, self.guard_counts)))
 
     @property
-    def covariance_guard_trips(self) -> int:
-        """Guard trips other than the innovation gate and the divergence fade (a gated outlier or a
-        faded P is not a covariance repair)."""
-        c = self.guard_counts.tolist()
-        return sum(c) - c[F.GUARD_GATE] - c[F.GUARD_DIVERGENCE]
+    def counters(self) -> dict[str, int]:
+        """Gated edges, covariance repairs, divergence fades, band projections (``split_counters``)."""
+        return split_counters(self.guards)
+
+    @property
+    def covariance_repairs(self) -> int:
+        """Eigenvalue floors on R or P (a gated outlier, a faded P or a Q projected onto its band
+        is not a covariance repair)."""
+        return int(self.guard_counts[F.GUARD_R_PD] + self.guard_counts[F.GUARD_P_PD])
 
     @property
     def q_matrix(self) -> np.ndarray:
-        return self.state[F.Q0:F.Q0 + 9].reshape(3, 3).copy()
+        return self.state[F.ST.Q:F.ST.Q + 9].reshape(3, 3).copy()
 
     @property
     def r_matrix(self) -> np.ndarray:
-        return self.state[F.R0:F.R0 + 4].reshape(2, 2).copy()
+        return self.state[F.ST.R:F.ST.R + 4].reshape(2, 2).copy()
 
     @property
     def p_matrix(self) -> np.ndarray:
-        return self.state[F.P0:F.P0 + 9].reshape(3, 3).copy()
+        return self.state[F.ST.P:F.ST.P + 9].reshape(3, 3).copy()
 
     @property
     def speed_rad_s(self) -> float:
-        return float(self.state[F.X0])
+        return float(self.state[F.ST.X])
 
-    def _coefficients(self, w_e: float) -> tuple[float, float]:
-        p = self.model.pole_pairs
-        n_rpm = w_e / p * 60 / (2 * math.pi)
-        kt, m = self._interp(n_rpm)
-        w_m = w_e / p
-        return p * kt / self.model.inertia_kg_m2, p * m * w_m * w_m / self.model.inertia_kg_m2
+    @property
+    def steps(self) -> int:
+        """Filter steps taken (the first edge initialises and is not a step)."""
+        return int(self.state[F.ST.K_STEP])
 
     def update(self, t_corrected_s: float, mean_current_a: float) -> float | None:
         """Feed one corrected edge (end of a commutation cycle); returns the predicted next instant."""
-        if self._last_t is None:
-            self._last_t = t_corrected_s
-            return None
-        dt = t_corrected_s - self._last_t
-        if not dt > 0:
-            raise ValueError(f"edge times must increase: {t_corrected_s!r} after {self._last_t!r}")
+        last = self._last_t
         self._last_t = t_corrected_s
-        if self.state[F.INITIALISED] == 0.0:  # the first cycle initialises speed and current
-            self.state[F.X0:F.X0 + 3] = (SECTOR_RAD / dt, 0.0, mean_current_a)
-            self.state[F.INITIALISED] = 1.0
-        else:
-            a, dl = self._coefficients(float(self.state[F.X0]))
-            F.step(self.state, self.fp, self.guard_counts, SECTOR_RAD, mean_current_a, dt, a, dl, self._work)
-        a, dl = self._coefficients(float(self.state[F.X0]))
-        return t_corrected_s + float(F.predict_next_s(self.state, a, dl))
+        if last is None:
+            return None
+        if not t_corrected_s > last:
+            self._last_t = last
+            raise ValueError(f"edge times must increase: {t_corrected_s!r} after {last!r}")
+        return t_corrected_s + F.edge(self.state, self.fp, self.guard_counts, t_corrected_s - last, mean_current_a, self.tables, self._work)
 
     def run(self, t_corrected_s: np.ndarray, mean_current_a: np.ndarray) -> PredictionRun:
         t = np.ascontiguousarray(t_corrected_s, dtype=float)
@@ -171,7 +194,7 @@ class _KalmanCore:
         self.reset()
         pred = np.full(t.size, np.nan)
         w = np.full(t.size, np.nan)
-        F.run_batch(self.state, self.fp, self.guard_counts, t, cur, self.speed_tab, self.kt_tab, self.m_tab, pred, w)
+        F.run_batch(self.state, self.fp, self.guard_counts, t, cur, self.tables, pred, w)
         return PredictionRun(pred, w, self.guards)
 
 
