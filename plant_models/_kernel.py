@@ -116,7 +116,7 @@ def _root(th0, w0, acc, target, h):
     return tau
 
 
-@_kernel_jit
+@_kernel_inline
 def _commutate(p, st, ist, out_comm, sector):
     """Switch to ``sector``, logging (t, sector, true theta_e) when it changes."""
     if sector == ist[I_SECTOR]:
@@ -131,7 +131,7 @@ def _commutate(p, st, ist, out_comm, sector):
         ist[I_N_COMM] = n + 1
 
 
-@_kernel_jit
+@_kernel_inline
 def _armature(p, arm_i, arm_deg, current):
     if arm_i.size > 0:
         return _interp(current, arm_i, arm_deg)
@@ -317,7 +317,7 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
 
 @_kernel_inline
 def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
-    """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (12)."""
+    """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (14)."""
     pp = p[P_POLE_PAIRS]
     theta_m = st[S_THETA_M]
     w0 = st[S_OMEGA_M]
@@ -339,7 +339,14 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
     R = p[P_R]
     saturating = p[P_LMIN] < 1.0
-    a = math.exp(-R * h / p[P_L])  # shared decay unless saturation makes L differ per phase
+    # shared decay unless saturation makes L differ per phase; most steps are h_max long, so
+    # the last step's decay is kept (wk[12], wk[13]) instead of calling exp on every step
+    if h == wk[12]:
+        a = wk[13]
+    else:
+        a = math.exp(-R * h / p[P_L])
+        wk[12] = h
+        wk[13] = a
     for x in range(3):
         if tmp_d[x] == 0:
             i1[x] = 0.0
@@ -420,7 +427,7 @@ def _pending_of(pending, ist, x):
 # step-loop scratch (float): the trial step's starting state, then small per-phase vectors
 W_BACKUP = 0
 W_U, W_U_NOW, W_E_NOW, W_TE, W_I3, W_STEP = N_FSTATE, N_FSTATE + 3, N_FSTATE + 6, N_FSTATE + 9, N_FSTATE + 10, N_FSTATE + 13
-W_CROSS = W_STEP + 12  # 3 x (direction, switching angle, rate) of the trial step's sensor crossings
+W_CROSS = W_STEP + 14  # 3 x (direction, switching angle, rate) of the trial step's sensor crossings
 N_WORK = W_CROSS + 9
 
 
@@ -444,7 +451,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
     e_now = work[W_E_NOW:W_E_NOW + 3]
     te_now = work[W_TE:W_TE + 1]
     i3 = work[W_I3:W_I3 + 3]
-    wk = work[W_STEP:W_STEP + 12]
+    wk = work[W_STEP:W_STEP + 14]
     crossing = work[W_CROSS:W_CROSS + 9]
     mode = ist[I_MODE]
     while True:
