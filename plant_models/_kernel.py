@@ -215,6 +215,19 @@ def armature_shift(p, ist, arm_i, arm_deg, current):
 
 
 @_kernel_inline
+def _crossed(th1, ahead, behind, eps_f, eps_r):
+    """+1 if the rotor, now at th1 (deg e), has reached the angle ``ahead``, -1 if it has fallen
+    back to ``behind``, else 0: the one crossing test of the kernel (oracle sectors, ideal and
+    raw Hall edges). The margins ``eps_f``/``eps_r`` are positive in the direction of motion
+    and negative against it (see the step loop)."""
+    if th1 >= ahead - eps_f:
+        return 1
+    if th1 <= behind + eps_r:
+        return -1
+    return 0
+
+
+@_kernel_inline
 def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
     """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
 
@@ -239,13 +252,15 @@ def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
         lag_f, rate_f = p[P_HYST] + st[S_HELD_ARM + x], 0.0
     else:
         lag_f, rate_f = p[P_HYST] + arm0, arm_rate
-    if th1 >= st[S_FWD_TARGET + x] + (lag_f + rate_f * h) - eps_f:
-        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
     if last > 0:
         lag_r, rate_r = p[P_HYST] - st[S_HELD_ARM + x], 0.0
     else:
         lag_r, rate_r = p[P_HYST] - arm0, arm_rate
-    if th1 <= st[S_REV_TARGET + x] - (lag_r - rate_r * h) + eps_r:
+    # the switching angles at the step's end, the lag moving at its rate over the step
+    d = _crossed(th1, st[S_FWD_TARGET + x] + (lag_f + rate_f * h), st[S_REV_TARGET + x] - (lag_r - rate_r * h), eps_f, eps_r)
+    if d > 0:
+        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
+    if d < 0:
         return -1, st[S_REV_TARGET + x] - lag_r, rate_r
     return 0, 0.0, 0.0
 
@@ -579,9 +594,10 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         t_event = st[S_T]
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_f and th0 < 60.0 * (n + 1) - eps_f:
+            d = _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
+            if d > 0 and th0 < 60.0 * (n + 1) - eps_f:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
-            elif th1 <= 60.0 * n + eps_r:
+            elif d < 0:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
         # mean |i| and the armature shift run linearly over the trial step; a step cut back to
         # an event keeps this trial's line, so it sees the switching angle the trial located
@@ -615,10 +631,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         # commit: oracle sector
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_f:
-                n += 1
-            elif th1 <= 60.0 * n + eps_r:
-                n -= 1
+            n += _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
             ist[I_ORACLE_N] = n
             _commutate(p, st, ist, out_comm, n % 6)
         # commit: ideal edges (perfect sensor, perfect magnet)
@@ -626,18 +639,12 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             m = ist[I_IDEAL_REGION + x]
             tf = 180.0 * (m + 1) + SENSOR_POS[x]
             trv = 180.0 * m + SENSOR_POS[x]
-            if th1 >= tf - eps_f:
-                k = m + 1
-                d = 1.0
-                target = tf
-                ist[I_IDEAL_REGION + x] = m + 1
-            elif th1 <= trv + eps_r:
-                k = m
-                d = -1.0
-                target = trv
-                ist[I_IDEAL_REGION + x] = m - 1
-            else:
+            d = _crossed(th1, tf, trv, eps_f, eps_r)
+            if d == 0:
                 continue
+            k = m + 1 if d > 0 else m
+            target = tf if d > 0 else trv
+            ist[I_IDEAL_REGION + x] = m + d
             r = out_ideal[ist[I_N_IDEAL]]
             r[0] = t0 + _root(th0, we0, acc, target, h)
             r[1] = x
