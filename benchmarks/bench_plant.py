@@ -21,8 +21,6 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 # measure the checkout this file sits in, not whichever plant_models happens to be installed
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-import numpy as np  # noqa: E402
-
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench  # noqa: E402
 from plant_models import effects as fx  # noqa: E402
 from plant_models.kinematic import OperatingPoint, simulate_edges  # noqa: E402
@@ -71,11 +69,11 @@ def kinematic(seconds=60.0, speed=10000.0):
 def main():
     rows = []
     rtf_o, cpu_o, eps_o, n_o = electrical(OracleCommutation())
-    rows.append(("electrical plant, oracle commutation, 15,000 rpm, 100 kHz samples", f"{rtf_o:6.1f}x ({cpu_o:.1f}x CPU)",
-                 f"{eps_o:12,.0f} edges/s", ">= 50x (goal 100x)"))
+    rows.append(("electrical plant, oracle commutation, 15,000 rpm, 100 kHz samples",
+                 f"{rtf_o:6.1f}x ({cpu_o:.1f}x CPU)", f"{eps_o:12,.0f} edges/s", ">= 50x (goal 100x)"))
     rtf_r, cpu_r, eps_r, _ = electrical(RawHallCommutation(), effects=ALL_HALL_EFFECTS)
-    rows.append(("electrical plant, raw Hall, all Hall effects, 15,000 rpm, 100 kHz", f"{rtf_r:6.1f}x ({cpu_r:.1f}x CPU)",
-                 f"{eps_r:12,.0f} edges/s", ">= 50x (goal 100x)"))
+    rows.append(("electrical plant, raw Hall, all Hall effects, 15,000 rpm, 100 kHz",
+                 f"{rtf_r:6.1f}x ({cpu_r:.1f}x CPU)", f"{eps_r:12,.0f} edges/s", ">= 50x (goal 100x)"))
     eps_k, cpu_k, n_k = kinematic()
     rows.append((f"kinematic edge-only mode, all Hall effects ({n_k:,} edges)", "",
                  f"{eps_k:12,.0f} edges/s", f">= 10,000,000 edges/s ({cpu_k:,.0f}/s CPU)"))

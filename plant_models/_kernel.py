@@ -257,7 +257,9 @@ def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
     else:
         lag_r, rate_r = p[P_HYST] - arm0, arm_rate
     # the switching angles at the step's end, the lag moving at its rate over the step
-    d = _crossed(th1, st[S_FWD_TARGET + x] + (lag_f + rate_f * h), st[S_REV_TARGET + x] - (lag_r - rate_r * h), eps_f, eps_r)
+    ahead = st[S_FWD_TARGET + x] + (lag_f + rate_f * h)
+    behind = st[S_REV_TARGET + x] - (lag_r - rate_r * h)
+    d = _crossed(th1, ahead, behind, eps_f, eps_r)
     if d > 0:
         return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
     if d < 0:
@@ -441,7 +443,8 @@ def _pending_of(pending, ist, x):
 
 # step-loop scratch (float): the trial step's starting state, then small per-phase vectors
 W_BACKUP = 0
-W_U, W_U_NOW, W_E_NOW, W_TE, W_I3, W_STEP = N_FSTATE, N_FSTATE + 3, N_FSTATE + 6, N_FSTATE + 9, N_FSTATE + 10, N_FSTATE + 13
+W_U, W_U_NOW, W_E_NOW = N_FSTATE, N_FSTATE + 3, N_FSTATE + 6
+W_TE, W_I3, W_STEP = N_FSTATE + 9, N_FSTATE + 10, N_FSTATE + 13
 W_CROSS = W_STEP + 14  # 3 x (direction, switching angle, rate) of the trial step's sensor crossings
 N_WORK = W_CROSS + 9
 
@@ -449,13 +452,13 @@ N_WORK = W_CROSS + 9
 @njit(cache=True)
 def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
-    return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
-                    t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
+    return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
+                    out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
 
 
 @_kernel_jit
-def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop,
-             work, tmp_d):
+def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
+             t_stop, work, tmp_d):
     """:func:`run`'s step loop, on the scratch ``work`` (N_WORK floats) and ``tmp_d`` (3 ints)."""
     pp = p[P_POLE_PAIRS]
     n_poles = switch_off.shape[1]

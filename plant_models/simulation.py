@@ -279,8 +279,10 @@ class Simulation:
             self._flush()  # STOP_FULL
 
     def _flush(self):
-        for name, chunks, idx in (("_edges", self._edge_chunks, K.I_N_EDGES), ("_ideal", self._ideal_chunks, K.I_N_IDEAL),
-                                  ("_samples", self._sample_chunks, K.I_N_SAMPLES), ("_comm", self._comm_chunks, K.I_N_COMM)):
+        for name, chunks, idx in (
+            ("_edges", self._edge_chunks, K.I_N_EDGES), ("_ideal", self._ideal_chunks, K.I_N_IDEAL),
+            ("_samples", self._sample_chunks, K.I_N_SAMPLES), ("_comm", self._comm_chunks, K.I_N_COMM),
+        ):
             n = int(self.ist[idx])
             if not n:
                 continue
