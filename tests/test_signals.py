@@ -65,8 +65,9 @@ def read_hall_changes(path: Path):
 
 
 def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty: float = 0.5, carrier: str = "restart",
-                           complementary: bool = False, dead_time_s: float = 0.0, chopped: str = "high") -> list[tuple[float, int]]:
-    """Commutates 20 us + 4 us per sector after each Hall change; chops its ``chopped`` ("high" or
+                           complementary: bool = False, dead_time_s: float = 0.0, chopped: str = "high",
+                           delay_per_sector_s: float = 4e-6) -> list[tuple[float, int]]:
+    """Commutates 20 us + ``delay_per_sector_s`` (4 us) per sector after each Hall change; chops its ``chopped`` ("high" or
     "low") side at ``pwm_hz``
     with ``carrier`` "restart" (period restarted at each commutation, on-time first), "free"
     (free-running edge-aligned timer from t = 0: on at the period start) or "center" (free-running
@@ -77,8 +78,8 @@ def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty
     plan = []
     for t, code in changes[1:]:  # the first entry is the state at t = 0, not a change
         s = SECTOR_OF_CODE[code]
-        if t + 20e-6 + 4e-6 * s < end_s:
-            plan.append((t + 20e-6 + 4e-6 * s, s))
+        if t + 20e-6 + delay_per_sector_s * s < end_s:
+            plan.append((t + 20e-6 + delay_per_sector_s * s, s))
     period = 1.0 / pwm_hz
     events: list[tuple[int, str, int]] = []
     for k, (t0, s) in enumerate(plan):
@@ -219,6 +220,62 @@ def test_free_running_carrier_at_a_locked_speed_is_within_the_documented_bound(i
     bound_deg = hidden.sum() / delays_s.size * (1 - duty) / pwm_hz / 2 * OMEGA_E_DEG_S
     sampling_deg = 0.5e-6 * OMEGA_E_DEG_S  # Hall edges quantised to the 1 MHz stimulus rate
     assert abs(got["angle_error_deg_e"]["mean"] - delays_s.mean() * OMEGA_E_DEG_S) <= bound_deg + sampling_deg
+
+
+def _stimulus(tmp_path_factory, rpm: float, name: str) -> Path:
+    out = tmp_path_factory.mktemp("stimulus") / name
+    assert hil_main(["signals", "export", "--out", str(out), "--speed-rpm", repr(rpm), "--duration-s", "0.3", "--no-deviations"]) == 0
+    return out
+
+
+@pytest.mark.parametrize("chopped", ["high", "low"])
+@pytest.mark.parametrize("duty", [0.3, 0.5, 0.8])
+@pytest.mark.parametrize("rpm,delay_per_sector_s,carrier", [
+    # 500 us sectors = 10 periods of 20 kHz, one delay: every commutation on the old grid
+    (10000.0, 0.0, "undetermined"),
+    # 546 us sectors: 5 of 6 commutations 550 us = 11 periods apart, the sixth (26 us less) off the grid
+    (60.0 / (6 * POLE_PAIRS * 546e-6), 4e-6, "restarted")], ids=["10000rpm-one-delay", "9157rpm-delay-per-sector"])
+def test_restarted_carrier_on_whole_periods_is_scored_at_its_turn_on(tmp_path_factory, tmp_path, rpm, delay_per_sector_s, carrier,
+                                                                     duty, chopped, capsys):
+    """A carrier restarted at each commutation, commutations a whole number of carrier periods
+    apart: the restart's turn-on of a changed chopped phase lands on the old carrier's grid,
+    exactly where a free-running carrier would show a change hidden in its off-time. Either no
+    commutation tells the carrier mode (all on the grid) or those that do show its phase reset at
+    commutation: none is moved to an off-time midpoint, and the delay is recovered within the
+    sample-rate bound (Hall edges quantised to the 1 MHz stimulus; the gates are exact)."""
+    stimulus = _stimulus(tmp_path_factory, rpm, "whole")
+    pwm_hz = 20e3
+    plan = independent_controller(stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier="restart", chopped=chopped,
+                                  delay_per_sector_s=delay_per_sector_s)
+    got = score_json(stimulus, tmp_path / "gates.vcd")
+    omega_e_deg_s = rpm * 6.0 * POLE_PAIRS
+    delays_s = np.array([20e-6 + delay_per_sector_s * s for _, s in plan])[1:]
+    assert got["missed"] == 0 and got["extra"] == 0 and got["commutations"] == len(plan) - 1
+    sampling_deg = 0.5e-6 * omega_e_deg_s
+    assert abs(got["angle_error_deg_e"]["mean"] - delays_s.mean() * omega_e_deg_s) <= sampling_deg
+    assert abs(got["angle_error_deg_e"]["rms"] - np.sqrt(np.mean(delays_s ** 2)) * omega_e_deg_s) <= sampling_deg
+    out = capsys.readouterr().out
+    assert "; 0 located in an off-time" in out
+    assert f"carrier: {carrier} (" in out
+
+
+def test_carrier_mode_without_evidence_reports_the_turn_on():
+    """Every commutation on the carrier grid (a restarted carrier, every sector 10 periods, the
+    chopped phase changing each time): no commutation tells the carrier mode, so none is moved to
+    an off-time midpoint; each is reported where the gates show it, and the summary says so."""
+    from hil.signals.commutations import Extractor
+
+    sectors = [0, 1, 2, 3, 4, 5, 0, 1]
+    starts = np.arange(len(sectors)) * 500e-6
+    t, s = _six_step_states(sectors, starts, starts[-1] + 500e-6, 20e3, 0.5, "high")
+    ex = Extractor(100e-6)
+    ex.feed(t, s)
+    got = ex.finish(starts[-1] + 500e-6)
+    tc, sc = got.commutations
+    assert sc.tolist() == sectors[1:]
+    assert np.allclose(tc, starts[1:], atol=1e-12)
+    assert got.carrier == "undetermined" and got.carrier_free_evidence == got.carrier_restart_evidence == 0
+    assert got.off_time_candidates > 0 and got.located_in_off_time == 0
 
 
 def _hidden_in_off_time(plan, pwm_hz, duty, carrier, chopped="high"):
@@ -619,18 +676,18 @@ from hypothesis import assume, given, settings, strategies as st  # noqa: E402
 @settings(deadline=None, max_examples=60, derandomize=True, database=None)
 @given(first=st.integers(0, 5), steps=st.lists(st.sampled_from([1, 1, 1, 5]), min_size=3, max_size=30),
        gaps_us=st.lists(st.floats(150.0, 2000.0), min_size=30, max_size=30), pwm_hz=st.floats(10e3, 40e3),
-       duty=st.floats(0.05, 0.95), scheme=st.sampled_from(["high", "low", "complementary"]))
-def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_hz, duty, scheme):
+       duty=st.floats(0.05, 0.95), scheme=st.sampled_from(["high", "low", "complementary"]),
+       whole_periods=st.lists(st.booleans(), min_size=30, max_size=30))
+def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_hz, duty, scheme, whole_periods):
     """Random six-step runs (either direction of stepping, sector lengths down to 1.5 hold-offs),
     PWM on the high side, the low side or complementary, any duty: the extractor finds exactly
-    the commutations, at their instants, with their sectors (derandomized: reproducible). A
-    sector a whole number of PWM periods long is left out: its restarted carrier turns on exactly
-    where a free-running one would, and the gates are then those of a commutation hidden in the
-    off-time (docs/signals.md, located at its midpoint; tested with free-running carriers below)."""
+    the commutations, at their instants, with their sectors (derandomized: reproducible). Some
+    sectors are a whole number of PWM periods long: the restart's turn-on then lies on the old
+    carrier's grid, as a change hidden in a free-running off-time would, and stays exact because
+    the run never shows a free-running carrier (docs/signals.md)."""
     from hil.signals.commutations import Extractor
 
-    periods = np.array(gaps_us[:len(steps)]) * 1e-6 * pwm_hz
-    assume(np.all(np.abs(periods - np.round(periods)) > 1e-6))
+    gaps_us = [math.ceil(g * 1e-6 * pwm_hz) / pwm_hz * 1e6 if whole else g for g, whole in zip(gaps_us, whole_periods)]
 
     sectors = [first]
     for d in steps:
@@ -647,6 +704,7 @@ def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_h
     assert sc.tolist() == sectors[1:]
     assert np.allclose(tc, starts[1:], atol=1e-12)
     assert got.glitches == 0
+    assert got.located_in_off_time == 0 and got.carrier_free_evidence == 0
 
 
 def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
@@ -714,6 +772,15 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
     tc, sc = got.commutations
     assert sc.tolist() == sectors[1:]
     assert got.glitches == 0
+    # where the gates show each commutation: its instant, or the carrier's next turn-on when the
+    # chopped phase changed in an off-time; and whether the run tells the carrier mode: some
+    # commutation seen at its instant, off the grid (kept so above), after two grid turn-ons of the
+    # old chopped switch in the old pair's time (docs/signals.md)
+    hidden = [i > 0 and hi_lo[sectors[i - 1]][role] != hi_lo[sectors[i]][role] and not pwm_on(starts[i]) for i in range(len(sectors))]
+    shown = [on_edges[on_edges > starts[i]].min() if hidden[i] else starts[i] for i in range(len(sectors))]
+    free_shown = any(not hidden[i] and ((on_edges >= shown[i - 1]) & (on_edges < starts[i])).sum() >= 2 for i in range(1, len(sectors)))
+    assert got.carrier == ("free-running" if free_shown else "undetermined")
+    assert got.carrier_restart_evidence == 0
     located = 0
     for i in range(1, len(sectors)):
         tk = starts[i]
@@ -727,7 +794,7 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
         while j > 0 and hi_lo[sectors[j - 1]][role] == chopped_old:
             j -= 1
         turn_ons = on_edges[(on_edges > starts[j]) & (on_edges < tk)]
-        if turn_ons.size >= 2:
+        if turn_ons.size >= 2 and free_shown:
             located += 1
             assert tc[i - 1] == pytest.approx(0.5 * (t_off + t_on), abs=1e-12)
         else:

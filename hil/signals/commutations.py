@@ -17,6 +17,11 @@ the shortest sector. A commutation that changes only the chopped phase while a f
 carrier holds the chopped switch off becomes visible when it next turns on; the instant is then
 only known to lie in that off-interval and is reported at its midpoint (:func:`_in_off_time`,
 docs/signals.md: within half the off-time, unbiased for an instant uniform over the carrier).
+
+For one such commutation the gates of a carrier restarted at commutation on a whole number of
+periods are identical, so the carrier mode is decided once for the whole capture
+(:func:`carrier_mode`) from the commutations that do tell it (:func:`_classify_carrier`), and the
+midpoint is used only when they show a free-running carrier.
 """
 
 from __future__ import annotations
@@ -43,9 +48,15 @@ F_T_REP = 8                               # the instant reported for the open wi
 F_CHG_T = 9                               # when the state before the current sample began
 F_ON1, F_ON2 = 10, 16                     # last and last-but-one turn-on of each switch
 F_TOL = 22                                # carrier-grid tolerance: capture resolution (s)
-N_F = 23
-I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED, I_PP, I_HIDDEN, I_OFF_TIME = range(9)
-N_I = 9
+F_SNAP1, F_SNAP2 = 23, 29                 # F_ON1, F_ON2 as they were when the window opened
+F_NEXT = 35                               # first turn-on of each switch after the window opened
+F_SEC_T = 41                              # evidence instant of the current pair
+N_F = 42
+I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED, I_PP, I_HIDDEN, I_OFF_TIME, I_FREE, I_RESTART = range(11)
+N_I = 11
+
+#: the carrier mode is taken as shown when at least this share of the commutations that tell it agree
+CARRIER_SHARE = 0.9
 
 
 @njit(cache=True)
@@ -55,7 +66,7 @@ def _floating_on(state, sector):
 
 
 @njit(cache=True)
-def _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out):
+def _decide(fs, ist, hold_s, out_t, out_m, out_s, out_k, n_out):
     """Close the window opened at fs[F_T_E]: the new pair from the switches' on-times."""
     phase_on = np.zeros(3)
     role = np.zeros(3)
@@ -83,13 +94,68 @@ def _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out):
         if cur >= 0:
             ist[I_GLITCH] += 1
         return n_out
-    out_t[n_out] = fs[F_T_REP]
+    out_t[n_out] = fs[F_T_E]
+    out_m[n_out] = fs[F_T_REP] if ist[I_HIDDEN] and cur >= 0 else np.nan
     out_s[n_out] = new
     out_k[n_out] = 1 if cur >= 0 else 0
-    if ist[I_HIDDEN] and cur >= 0:
-        ist[I_OFF_TIME] += 1
+    if cur >= 0:
+        if ist[I_HIDDEN]:
+            ist[I_OFF_TIME] += 1
+        _classify_carrier(fs, ist, cur, new, hold_s)
     ist[I_SECTOR] = new
+    fs[F_SEC_T] = fs[F_T_E]
     return n_out + 1
+
+
+@njit(cache=True)
+def _grid_tol(fs, period, n_periods):
+    """How far from the carrier grid a turn-on may lie and still be on it: the capture's
+    quantisation of both turn-ons and of the period (which grows with the periods extrapolated),
+    capped so that a carrier restarted off the grid is rarely taken for it (a change-list CSV's
+    resolution is only bounded)."""
+    return (min(2.5 * fs[F_TOL], 0.02 * period) + 1e-6 * period) * max(1.0, n_periods)
+
+
+@njit(cache=True)
+def _off_grid_s(t, on1, period):
+    """Distance of ``t`` from the grid of turn-ons ``on1 + k period``, and ``k``."""
+    k = np.round((t - on1) / period)
+    return abs(t - on1 - k * period), k
+
+
+@njit(cache=True)
+def _classify_carrier(fs, ist, old, new, hold_s):
+    """Count an accepted commutation (from sector ``old`` to ``new``, evidence at fs[F_T_E]) as
+    evidence of the carrier mode, where it holds any.
+
+    The chopped role r is the one whose old switch was turning on periodically: its last two
+    turn-ons both within the old pair's time (one carrier phase in either mode), their period
+    within the hold-off, the last within two periods of the evidence. If the evidence instant is clearly
+    off that old carrier grid (twice the grid tolerance), the first turn-on after it of the new
+    pair's switch in role r tells the mode: on the old grid, the carrier ran on across the
+    commutation (free-running); off it, its phase was reset there (restarted at commutation).
+    Evidence on the grid tells nothing: both modes turn on there."""
+    t_c = fs[F_T_E]
+    for r in range(2):
+        old_ph = _HI[old] if r == 0 else _LO[old]
+        new_ph = _HI[new] if r == 0 else _LO[new]
+        jo, jn = 2 * old_ph + r, 2 * new_ph + r
+        on1 = fs[F_SNAP1 + jo]
+        period = on1 - fs[F_SNAP2 + jo]
+        if not (0.0 < period <= hold_s and t_c - on1 < 2.0 * period and fs[F_SNAP2 + jo] >= fs[F_SEC_T]):
+            continue
+        t_next = fs[F_NEXT + jn]
+        if np.isnan(t_next):
+            return
+        d_c, k_c = _off_grid_s(t_c, on1, period)
+        if d_c <= 2.0 * _grid_tol(fs, period, k_c):
+            return
+        d_n, k_n = _off_grid_s(t_next, on1, period)
+        if d_n <= _grid_tol(fs, period, k_n):
+            ist[I_FREE] += 1
+        else:
+            ist[I_RESTART] += 1
+        return
 
 
 @njit(cache=True)
@@ -110,6 +176,9 @@ def _open(fs, ist, t):
     fs[F_T_REP] = t
     for j in range(6):
         fs[F_ACC + j] = 0.0
+        fs[F_SNAP1 + j] = fs[F_ON1 + j]
+        fs[F_SNAP2 + j] = fs[F_ON2 + j]
+        fs[F_NEXT + j] = np.nan
 
 
 @njit(cache=True)
@@ -124,7 +193,8 @@ def _in_off_time(fs, ist, new_state, prev, t_on, hold_s):
     controller then changed the chopped phase somewhere inside ``[t_off, t_on]`` and a
     free-running carrier held it off; without further evidence the midpoint is the estimate
     that is unbiased for an instant uniform in the interval (error within +-half the off-time).
-    A turn-on off the carrier grid (carrier restarted at commutation) is the commutation itself."""
+    A turn-on off the carrier grid (carrier restarted at commutation) is the commutation itself;
+    one on it is only a candidate, used if the capture shows a free-running carrier."""
     cur = ist[I_SECTOR]
     if cur < 0:
         return np.nan
@@ -140,16 +210,13 @@ def _in_off_time(fs, ist, new_state, prev, t_on, hold_s):
         period = on1 - on2
         if not (0.0 < period <= hold_s and on1 < t_off < t_on):
             continue
-        # quantisation of both turn-ons and of the period, capped so that a carrier restarted at
-        # commutation is rarely taken for the grid (a change-list CSV's resolution is only bounded)
-        tol = min(2.5 * fs[F_TOL], 0.02 * period) + 1e-6 * period
-        if abs(t_on - (on1 + period)) <= tol:
+        if abs(t_on - (on1 + period)) <= _grid_tol(fs, period, 1.0):
             return 0.5 * (t_off + t_on)
     return np.nan
 
 
 @njit(cache=True)
-def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
+def _run(t, s, fs, ist, hold_s, out_t, out_m, out_s, out_k):
     n_out = 0
     for k in range(t.size):
         tk = t[k]
@@ -159,7 +226,7 @@ def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
                 _integrate(fs, prev, fs[F_PREV_T], tk, hold_s)
                 if tk >= fs[F_T_E] + hold_s:
                     t_close = fs[F_T_E] + hold_s
-                    n_out = _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out)
+                    n_out = _decide(fs, ist, hold_s, out_t, out_m, out_s, out_k, n_out)
                     # the state that ran past the window may already contradict the new pair
                     if prev != 0 and (ist[I_SECTOR] < 0 or _floating_on(prev, ist[I_SECTOR]) != 0):
                         _open(fs, ist, max(fs[F_PREV_T], t_close))
@@ -177,6 +244,8 @@ def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
             rising = sk & ~prev
             for j in range(6):
                 if (rising >> j) & 1:
+                    if ist[I_PENDING] and tk > fs[F_T_E] and np.isnan(fs[F_NEXT + j]):
+                        fs[F_NEXT + j] = tk
                     fs[F_ON2 + j] = fs[F_ON1 + j]
                     fs[F_ON1 + j] = tk
             ist[I_PP] = prev
@@ -187,17 +256,29 @@ def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
 
 
 @njit(cache=True)
-def _finish(end_t, fs, ist, hold_s, out_t, out_s, out_k):
+def _finish(end_t, fs, ist, hold_s, out_t, out_m, out_s, out_k):
     if ist[I_PENDING] and ist[I_STARTED]:
         _integrate(fs, ist[I_PREV_S], fs[F_PREV_T], end_t, hold_s)
         if end_t >= fs[F_T_E] + hold_s:
-            return _decide(fs, ist, hold_s, out_t, out_s, out_k, 0)
+            return _decide(fs, ist, hold_s, out_t, out_m, out_s, out_k, 0)
     return 0
+
+
+def carrier_mode(free: int, restart: int) -> str:
+    """The capture's carrier mode from its commutations that tell it (docs/signals.md): a mode is
+    shown when at least :data:`CARRIER_SHARE` of them agree; none, or no such majority, is
+    "undetermined"."""
+    told = free + restart
+    if told and free >= CARRIER_SHARE * told:
+        return "free-running"
+    if told and restart >= CARRIER_SHARE * told:
+        return "restarted"
+    return "undetermined"
 
 
 @dataclass
 class Extracted:
-    t_s: np.ndarray            #: evidence instant of each accepted change of pair
+    t_s: np.ndarray            #: reported instant of each accepted change of pair
     sector: np.ndarray         #: sector entered (six-step table of plant_models.hall)
     initial: np.ndarray        #: True for the first pair (the start, not a commutation)
     glitches: int = 0          #: evidence rejected by the hold-off (the old pair came back)
@@ -207,6 +288,13 @@ class Extracted:
     start_s: float = 0.0
     end_s: float = 0.0
     resolution_s: float | None = None
+    #: the capture's carrier: "free-running", "restarted" (at commutation) or "undetermined"
+    carrier: str = "undetermined"
+    carrier_free_evidence: int = 0      #: commutations whose carrier grid ran on across them
+    carrier_restart_evidence: int = 0   #: commutations whose carrier phase was reset at them
+    #: commutations whose gates fit a change hidden in a free-running off-time (only located at its
+    #: midpoint when the carrier is free-running; else reported at the turn-on)
+    off_time_candidates: int = 0
 
     @property
     def commutations(self) -> tuple[np.ndarray, np.ndarray]:
@@ -226,9 +314,11 @@ class Extractor:
     hold_off_s: float = DEFAULT_HOLD_OFF_S
     #: time resolution of the capture (s): the tolerance of the carrier-grid test is 2.5 of it
     resolution_s: float = 0.0
-    _fs: np.ndarray = field(default_factory=lambda: np.concatenate([np.zeros(F_ON1), np.full(12, np.nan), np.zeros(1)]))
-    _is: np.ndarray = field(default_factory=lambda: np.array([-1, 0, 0, 0, 0, 0, 0, 0, 0], dtype=np.int64))
+    _fs: np.ndarray = field(default_factory=lambda: np.concatenate([np.zeros(F_ON1), np.full(12, np.nan), np.zeros(1),
+                                                                    np.full(N_F - F_SNAP1, np.nan)]))
+    _is: np.ndarray = field(default_factory=lambda: np.array([-1] + [0] * (N_I - 1), dtype=np.int64))
     _t: list = field(default_factory=list)
+    _m: list = field(default_factory=list)
     _s: list = field(default_factory=list)
     _k: list = field(default_factory=list)
 
@@ -236,27 +326,37 @@ class Extractor:
         if not self.hold_off_s > 0:
             raise ValueError(f"hold-off must be > 0 s, got {self.hold_off_s!r}")
 
+    @staticmethod
+    def _out(n: int):
+        return np.empty(n), np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+
     def feed(self, t_s: np.ndarray, state: np.ndarray) -> None:
         self._fs[F_TOL] = self.resolution_s or 0.0
-        n = t_s.size + 1
-        out_t, out_s, out_k = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
+        out = self._out(t_s.size + 1)
         m = _run(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(state, dtype=np.int64), self._fs, self._is,
-                 float(self.hold_off_s), out_t, out_s, out_k)
-        self._keep(out_t, out_s, out_k, m)
+                 float(self.hold_off_s), *out)
+        self._keep(out, m)
 
-    def _keep(self, out_t, out_s, out_k, m):
+    def _keep(self, out, m):
         if m:
-            self._t.append(out_t[:m].copy())
-            self._s.append(out_s[:m].copy())
-            self._k.append(out_k[:m].copy())
+            for acc, x in zip((self._t, self._m, self._s, self._k), out):
+                acc.append(x[:m].copy())
 
     def finish(self, end_s: float, start_s: float = 0.0, resolution_s: float | None = None) -> Extracted:
-        out_t, out_s, out_k = np.empty(1), np.empty(1, dtype=np.int64), np.empty(1, dtype=np.int64)
-        m = _finish(float(end_s), self._fs, self._is, float(self.hold_off_s), out_t, out_s, out_k)
-        self._keep(out_t, out_s, out_k, m)
+        out = self._out(1)
+        m = _finish(float(end_s), self._fs, self._is, float(self.hold_off_s), *out)
+        self._keep(out, m)
         cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dtype=dt))  # noqa: E731
-        return Extracted(cat(self._t, float), cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]),
-                         int(self._is[I_AMBIG]), int(self._is[I_OFF_TIME]), start_s, float(end_s), resolution_s)
+        t_on, t_mid = cat(self._t, float), cat(self._m, float)
+        free, restart = int(self._is[I_FREE]), int(self._is[I_RESTART])
+        mode = carrier_mode(free, restart)
+        # the midpoint only where the capture shows a free-running carrier; otherwise the turn-on,
+        # which is where a restarted carrier commutates (docs/signals.md)
+        located = mode == "free-running"
+        t = np.where(np.isnan(t_mid), t_on, t_mid) if located else t_on
+        candidates = int(self._is[I_OFF_TIME])
+        return Extracted(t, cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]), int(self._is[I_AMBIG]),
+                         candidates if located else 0, start_s, float(end_s), resolution_s, mode, free, restart, candidates)
 
 
 def extract(capture, hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Extracted:

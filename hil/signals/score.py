@@ -140,6 +140,7 @@ class Score:
             f"commutations {j['commutations']}, missed {j['missed']}, extra {j['extra']} (scored span {self.span_s[0]:.6f}-{self.span_s[1]:.6f} s, "
             f"hold-off {self.hold_off_s * 1e6:g} us; {ex.glitches} glitches rejected, {ex.ambiguous} ambiguous windows; "
             f"{ex.located_in_off_time} located in an off-time of a free-running carrier, at its midpoint)",
+            _carrier_line(ex),
             f"angle error (deg e, + = late): mean {fmt(a['mean'])}, RMS {fmt(a['rms'], '{:.4f}')}, p99 |e| {fmt(a['p99'], '{:.4f}')}, "
             f"max |e| {fmt(a['max_abs'], '{:.4f}')}",
             f"time error: mean {fmt(None if t['mean'] is None else t['mean'] * 1e6, '{:+.3f}')} us, "
@@ -157,6 +158,17 @@ class Score:
             lines.append(f"                      {r['t0_s']:>8.4f}  {r['t1_s']:>10.4f} {r['n']:>6} {fmt(r['mean'])} {fmt(r['rms'], '{:9.4f}')} "
                          f"{fmt(r['max_abs'], '{:9.4f}')} {r['missed']:>6} {r['extra']:>5}")
         return "\n".join(lines)
+
+
+def _carrier_line(ex: Extracted) -> str:
+    told = (f"{ex.carrier_free_evidence} commutations show the carrier grid running on across them, "
+            f"{ex.carrier_restart_evidence} show its phase reset at them")
+    if ex.carrier == "free-running":
+        return f"carrier: free-running ({told}); {ex.off_time_candidates} off-time commutations located at the midpoint"
+    why = "no commutation tells the carrier mode" if not ex.carrier_free_evidence + ex.carrier_restart_evidence else told
+    return (f"carrier: {ex.carrier} ({why}); {ex.off_time_candidates} commutations that fit an off-time one reported at "
+            f"the turn-on" + ("" if ex.carrier == "restarted" or not ex.off_time_candidates else
+                              ", each late by at most its off-time if the carrier runs freely"))
 
 
 def _sector_map(truth: Truth, t_c: np.ndarray, s_c: np.ndarray) -> np.ndarray | None:
