@@ -126,11 +126,17 @@ def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
 
-    if Path(args.recording).is_dir():
+    path = Path(args.recording)
+    if path.is_dir():
         rec = read_recording(args.recording)
     else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        from .traces import TraceMapping, read_trace
+        from .traces import TRACE_SUFFIXES, TraceMapping, read_trace
 
+        if not path.exists():
+            raise ValueError(f"{path}: no such file or directory")
+        if path.suffix.lower() not in TRACE_SUFFIXES:
+            raise ValueError(f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
+                             f"{', '.join(TRACE_SUFFIXES)})")
         if not args.meta:
             raise ValueError(f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping MAP.toml")
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
@@ -174,10 +180,30 @@ def cmd_gap_validate(args) -> int:
     from .gap.validate import run_validation
     from .gap.progress import Progress
 
-    progress = Progress("recordings diagnosed")
+    # a terminal gets the live bar (count, rate, time left, redrawn between results); a log file or
+    # pipe gets one line per tenth of the work
+    live = not args.no_progress and sys.stderr.isatty()
+    progress = Progress("recordings diagnosed") if not args.no_progress and not live else None
     report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed,
-                            progress=progress, jobs=args.jobs, generator=args.generator)
-    progress.close()
+                            progress=progress, jobs=args.jobs, generator=args.generator, scheduler=args.scheduler, bar=live)
+    if progress:
+        progress.close()
+    if report.dispatch.get("interrupted"):
+        print(f"interrupted: {len(report.cases)} recordings diagnosed (the summary below covers those)", file=sys.stderr)
+    print(f"ran on {report.dispatch['scheduler']}"
+          f"{' (' + report.dispatch['scheduler_address'] + ')' if report.dispatch.get('scheduler_address') else ''}: "
+          f"{report.dispatch['workers_used']} worker(s) used, {report.dispatch['elapsed_s']:.1f} s")
+    for e in report.errors:
+        print(f"ERROR in case {e['index']} {e['case']}: {e['message']}", file=sys.stderr)
+    ran = {"scheduler": report.dispatch["scheduler"], "workers_used": report.dispatch["workers_used"], "dispatch": report.dispatch,
+           "errors": report.errors}
+    if not report.cases:  # every case raised, or Ctrl-C came before the first result: nothing to score
+        print("no recording was diagnosed", file=sys.stderr)
+        if args.json:
+            Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.json).write_text(json.dumps({**ran, "cases": []}, indent=1) + "\n")
+        return 130 if report.dispatch.get("interrupted") else 1
+
     def pct(v) -> str:
         return "-" if v is None else f"{v:.1%}"
 
@@ -202,9 +228,29 @@ def cmd_gap_validate(args) -> int:
         print(f"{n:<22}" + "".join(f"{s['confusion'][n].get(c, 0):>11}" for c in cols))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({"summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases}, indent=1) + "\n")
+        Path(args.json).write_text(json.dumps({**ran, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases},
+                                              indent=1) + "\n")
         print(f"validation written to {args.json}")
-    return 0
+    return 130 if report.dispatch.get("interrupted") else (1 if report.errors else 0)
+
+
+def cmd_campaign(args) -> int:
+    import re
+
+    from .campaign import load_spec, run_campaign
+
+    spec = load_spec(args.spec)
+    out = args.out or f"reports/campaign-{re.sub(r'[^A-Za-z0-9_.-]+', '_', spec.name)}"
+    result = run_campaign(spec, out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    s = result.summary()
+    print(f"campaign {spec.name}: {s['points_done']}/{s['points_planned']} points{' (INTERRUPTED)' if s['interrupted'] else ''}: "
+          f"{s['pass']} pass, {s['marginal']} marginal, {s['fail']} fail, {s['error']} error; on {s['scheduler']}, "
+          f"{s['workers_used']} worker(s), {s['elapsed_s']:.1f} s ({s['points_per_s'] or 0:.2f} points/s)")
+    for key, path in result.paths.items():
+        print(f"  {key}: {path}")
+    if s["fail"]:
+        print(f"  {s['fail']} failing point(s) saved for hil replay in {Path(out) / 'replays'}")
+    return 130 if s["interrupted"] else (1 if s["error"] else 0)
 
 
 def _print_cause_confusion(report, min_snr: float) -> None:
@@ -284,13 +330,16 @@ def find_suite(path: str | None) -> Path:
 
 
 def cmd_acceptance(args) -> int:
-    import pytest
+    import subprocess
 
     from .report import ReportWriter
 
     suite = find_suite(args.suite)
-    argv = [str(suite), "-p", "no:cacheprovider", "-q", f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}",
-            f"--hypothesis-seed={args.seed}", "-o", "faulthandler_timeout=600"]
+    # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
+    # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
+    argv = [str(suite), "-p", "no:cacheprovider", "-p", "no:benchmark", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
+            f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}", f"--hypothesis-seed={args.seed}",
+            "-o", "faulthandler_timeout=600"]
     for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
         argv.append(f"--hil-dut={dut}")
     if args.plant:
@@ -303,7 +352,17 @@ def cmd_acceptance(args) -> int:
     if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
         extra = extra[1:]
     ReportWriter.clear(Path(args.report_dir))  # pytest may refuse the arguments before the plugin can
-    status = int(pytest.main(argv + extra))
+    # pytest runs in a fresh interpreter: here hil and plant_models are imported already, and
+    # pytest would warn that it cannot rewrite the asserts of its plugin's packages
+    # the same hil (and plant_models) as this command, wherever the interpreter would find another
+    root = str(Path(__file__).resolve().parent.parent)
+    program = "python -m hil" if Path(sys.argv[0]).name == "__main__.py" else Path(sys.argv[0]).name
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
+           "HIL_COMMAND": " ".join([program, *sys.argv[1:]])}  # what the report names as the run's command
+    try:
+        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
+    except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
+        status = 2
     return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
 
 
@@ -415,11 +474,21 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="worker processes (default: one per core)")
+    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="local worker processes (default: one per core; 1: in this process)")
+    q.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --jobs workers)")
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
     q.add_argument("--generator", choices=("library", "field"), default="library",
                    help="library: withhold the library's effects; field: withhold physical causes of the field-level Hall model")
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
+
+    p = sub.add_parser("campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)")
+    p.add_argument("spec", help="campaign SPEC TOML")
+    p.add_argument("--out", help="output directory (default: reports/campaign-NAME)")
+    p.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' (default) or 'serial'")
+    p.add_argument("--workers", type=int, help="workers of the local cluster (default: one per core)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_campaign)
 
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)

@@ -275,10 +275,14 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from plant_models.plant import steady_state
 
     from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
+    from .dut import Strategy
+    from .progress import note
 
     def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
              config=None):
         config = (config or hil_plant_config).with_effects(*effects)
+        note(f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from {speed_rpm:.0f} rpm"
+             f"{', calibration downloaded' if corrections is not None else ''}, effects: {', '.join(e.name for e in effects) or 'none'}")
         hil_link.reset()
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
@@ -341,11 +345,20 @@ class Evidence:
         """Save a matplotlib figure as PNG (embedded in the HTML report) and attach it."""
         from .plots import save
 
-        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{self._node.nodeid}-{name}")[-150:]
-        path = save(fig, self._figure_dir / f"{slug}.png", dpi=90)
+        path = save(fig, self._figure_dir / figure_file_name(self._node.nodeid, name), dpi=90)
         rel = path.relative_to(self._report_dir).as_posix() if self._report_dir else str(path)
         self._add({"kind": "figure", "name": name, "path": rel})
         return path
+
+
+def figure_file_name(nodeid: str, name: str) -> str:
+    """A figure's file name that reads from its start (test function, parameters, figure name;
+    shortened at the end, never at the front) and is unique (a hash of node id and name)."""
+    import hashlib
+
+    func = nodeid.rpartition("::")[2].removeprefix("test_")
+    slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", f"{func}-{name}").strip("_")[:150]
+    return f"{slug}-{hashlib.sha1(f'{nodeid}|{name}'.encode()).hexdigest()[:8]}.png"
 
 
 @pytest.fixture
@@ -385,7 +398,7 @@ class HilReporter:
                 pass
         info = {
             "started": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
-            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+            "command": _command(),
             "host": platform.node(),
             "dut": ", ".join(s.text for s in dut_specs(config)),
             "plant": plant_path or "paper-bench (preset)",
@@ -476,6 +489,18 @@ class HilReporter:
                 record["doc"] = value
         json.dumps(record)  # everything in a record is plain data
         return record
+
+
+def _command() -> str:
+    """The command that started this run: the ``hil`` command line when ``hil acceptance`` started
+    it (``HIL_COMMAND``), else pytest's own (``python -m pytest`` for its ``__main__``)."""
+    import os
+
+    if os.environ.get("HIL_COMMAND"):
+        return os.environ["HIL_COMMAND"]
+    program = Path(sys.argv[0])
+    head = f"python -m {program.parent.name}" if program.name == "__main__.py" else program.name
+    return " ".join([head, *sys.argv[1:]])
 
 
 def _worker_id(report) -> str:

@@ -18,7 +18,6 @@ which at least one test ran.
 
 from __future__ import annotations
 
-import base64
 import hashlib
 import json
 import os
@@ -26,6 +25,8 @@ import re
 import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
+
+from .report_html import html  # the HTML report's presentation (labels, summary, matrix rows)
 
 PROPERTY_PREFIX = "hil:"
 #: the worst first: a test's outcome is the worst of its phases
@@ -334,24 +335,6 @@ def junit_xml(content: dict) -> bytes:
         _element(case, "error", message=f"the HIL run is incomplete: {content['incomplete_reason']}", type="incomplete")
     ET.indent(suite)
     return ET.tostring(suite, encoding="utf-8", xml_declaration=True)
-
-
-def _data_uri(directory: Path, relpath: str) -> str:
-    try:
-        data = (directory / relpath).read_bytes()
-    except OSError:
-        return ""
-    return "data:image/png;base64," + base64.b64encode(data).decode()
-
-
-def html(content: dict, directory: Path) -> str:
-    import jinja2
-
-    env = jinja2.Environment(loader=jinja2.PackageLoader("hil", "templates"), autoescape=True, undefined=jinja2.StrictUndefined)
-    env.filters["data_uri"] = lambda rel: _data_uri(directory, rel)
-    env.filters["num"] = lambda v: f"{v:.4g}" if isinstance(v, (int, float)) else str(v)
-    env.filters["hex"] = lambda v: f"0x{v:08X}" if isinstance(v, int) else ("-" if v is None else str(v))
-    return env.get_template("report.html.j2").render(**content)
 
 
 def file_sha256(path: str | Path) -> str:

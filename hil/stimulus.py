@@ -20,6 +20,13 @@ from plant_models.effects import effect_from_mapping
 from plant_models.plant import steady_state
 
 FORMAT = "hil-stimulus/1"
+#: strategy names of a stimulus (the controller's Strategy register values)
+STRATEGIES = {"raw": 0, "corrected": 1, "kf": 2, "sage-husa": 3}
+#: what a run measures, per kind (deg electrical): the commutation angle error's p99, RMS and
+#: maximum of |error| over the judged window; after a fault sequence, p99 in the recovery window
+METRICS = {"deviations": ("angle_p99", "angle_rms", "angle_max"), "fault_sequence": ("recovered_p99",)}
+DEFAULT_BUDGETS = {"deviations": {"any_deviations_commutation_angle_p99": "angle_p99"},
+                   "fault_sequence": {"recovered_commutation_angle_p99": "recovered_p99"}}
 
 
 @dataclass
@@ -35,6 +42,10 @@ class Stimulus:
     run_s: float = 0.25
     test: str = ""
     plant: dict = field(default_factory=dict)  #: the nominal plant (PlantConfig.to_dict), so a replay needs nothing else
+    #: the controller's commutation strategy (raw, corrected, kf, sage-husa); faults always run corrected
+    strategy: str = "corrected"
+    #: budget name -> the measured metric it judges (METRICS); empty: the acceptance suite's budget of the kind
+    budgets: dict = field(default_factory=dict)
 
     def save(self, path: str | Path) -> Path:
         path = Path(path)
@@ -58,6 +69,11 @@ class Stimulus:
             raise ValueError(f"{path}: unknown field(s) {', '.join(sorted(unknown))}")
         if data.get("kind") not in ("deviations", "fault_sequence"):
             raise ValueError(f"{path}: field 'kind' must be 'deviations' or 'fault_sequence', got {data.get('kind')!r}")
+        if data.get("strategy", "corrected") not in STRATEGIES:
+            raise ValueError(f"{path}: field 'strategy' must be one of {', '.join(STRATEGIES)}, got {data.get('strategy')!r}")
+        for name, metric in dict(data.get("budgets") or {}).items():
+            if metric not in METRICS[data["kind"]]:
+                raise ValueError(f"{path}: field 'budgets.{name}': metric must be one of {', '.join(METRICS[data['kind']])}, got {metric!r}")
         return cls(**data)
 
     def plant_config(self) -> PlantConfig:
@@ -70,6 +86,7 @@ class Outcome:
     ok: bool
     message: str
     values: dict = field(default_factory=dict)
+    verdicts: list = field(default_factory=list)  #: one budgets.Verdict per judged budget
 
 
 def replay_path(report_dir: str | Path | None, nodeid: str) -> Path:
@@ -79,7 +96,7 @@ def replay_path(report_dir: str | Path | None, nodeid: str) -> Path:
 
 def run(stimulus: Stimulus, link, budgets) -> Outcome:
     """Run the stimulus on the lockstep bench through ``link`` and judge it against ``budgets``."""
-    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs
+    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs, rms
     from .calibration.campaign import station_corrections
     from .dut.virtual import Strategy
     from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
@@ -88,16 +105,22 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     # both kinds commutate on corrected edges with the station's tables for this plant
     link.reset()
     link.download_calibration(station_corrections(config, seed=stimulus.seed))
-    link.set_strategy(int(Strategy.CORRECTED))
+    link.set_strategy(int(STRATEGIES[stimulus.strategy]) if stimulus.kind == "deviations" else int(Strategy.CORRECTED))
     injector = FaultInjector(link)
     bench = LockstepBench(config, injector, initial_speed_rpm=stimulus.speed_rpm, duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
                           seed=stimulus.seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
     if stimulus.kind == "deviations":
         bench.run_setpoints([stimulus.speed_rpm], hold_s=stimulus.run_s, settle_s=0.1)
         err = bench.angle_errors_deg_e(0.15)
-        p99 = p99_abs(err)
-        v = budgets.check("any_deviations_commutation_angle_p99", p99)
-        return Outcome(v.verdict != "fail", v.message(), {"commutation_angle_p99_deg_e": p99, "commutations": int(err.size)})
+        nan = float("nan")
+        metrics = {"angle_p99": p99_abs(err) if err.size else nan, "angle_rms": rms(err) if err.size else nan,
+                   "angle_max": float(np.max(np.abs(err))) if err.size else nan}
+        verdicts = [budgets.check(name, metrics[metric]) for name, metric in (stimulus.budgets or DEFAULT_BUDGETS["deviations"]).items()]
+        failed = [v for v in verdicts if v.verdict == "fail"]
+        values = {"commutation_angle_p99_deg_e": metrics["angle_p99"], "commutations": int(err.size)}
+        if stimulus.budgets:
+            values.update(commutation_angle_rms_deg_e=metrics["angle_rms"], commutation_angle_max_deg_e=metrics["angle_max"])
+        return Outcome(not failed, "; ".join(v.message() for v in (failed or verdicts)), values, verdicts)
     # a fault sequence: every switched-on fault must give one of its promised codes, nothing else may appear,
     # and the commutation must be back within budget once the faults are off
     link.set_speed(stimulus.speed_rpm)
@@ -127,8 +150,7 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
         problems.append(f"fault code(s) {[hex(c) for c in sorted(unexpected)]} reported without a cause (acted: {sorted(acted) or 'none'})")
     recovery = bench.angle_errors_deg_e(bench.sim.t_s - 0.03)
     p99 = p99_abs(recovery) if recovery.size else float("inf")
-    v = budgets.check("recovered_commutation_angle_p99", p99)
-    if v.verdict == "fail":
-        problems.append(v.message())
+    verdicts = [budgets.check(name, p99) for name in (stimulus.budgets or DEFAULT_BUDGETS["fault_sequence"])]
+    problems += [v.message() for v in verdicts if v.verdict == "fail"]
     values = {"acted": sorted(acted), "codes": sorted(hex(x) for x in codes), "recovered_p99_deg_e": p99}
-    return Outcome(not problems, "; ".join(problems) or "every fault reported, none spurious, commutation recovered", values)
+    return Outcome(not problems, "; ".join(problems) or "every fault reported, none spurious, commutation recovered", values, verdicts)

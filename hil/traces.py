@@ -95,6 +95,10 @@ class _Table:
         return values, stamps
 
 
+#: the file types read as traces (anything else is neither a trace nor a recording directory)
+TRACE_SUFFIXES = (".mf4", ".mdf", ".dat", ".parquet", ".pq", ".csv", ".txt")
+
+
 def _open(path: Path) -> _Table:
     suffix = path.suffix.lower()
     if not path.is_file():

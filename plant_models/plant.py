@@ -110,9 +110,9 @@ class PlantConfig:
         for key in data:
             if key not in known:
                 raise ConfigError(key, f"unknown section (known: {', '.join(sorted(known))})")
-        base = PRESETS[data["preset"]]() if "preset" in data else cls()
         if "preset" in data and data["preset"] not in PRESETS:
             raise ConfigError("preset", f"unknown preset {data['preset']!r} (known: {', '.join(PRESETS)})")
+        base = PRESETS[data["preset"]]() if "preset" in data else cls()
 
         def merged(section: str, current):
             table = data.get(section, {})

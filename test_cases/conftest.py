@@ -7,6 +7,7 @@ knows the true rotor angle of every commutation, and every figure is scored agai
 import pytest
 
 from hil.calibration.campaign import station_corrections
+from hil.progress import note
 
 
 @pytest.fixture(scope="session")
@@ -18,6 +19,7 @@ def calibrate(hil_plant_config, hil_seed):
     def run(effects=()):
         key = tuple(effects)
         if key not in cache:
+            note(f"calibration campaign on the plant with {', '.join(e.name for e in effects) or 'no deviations'} (station recording, fit)")
             cache[key] = station_corrections(hil_plant_config.with_effects(*effects), seed=hil_seed)
         return cache[key]
 

@@ -21,6 +21,7 @@ from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, rule, run_state_machine_as_test
 
 from hil.faults import wiring_fault_strategy
+from hil.progress import note
 from hil.pytest_plugin import hil_settings
 from hil.stimulus import Stimulus, replay_path, run
 from plant_models import effects as fx
@@ -47,6 +48,7 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(hil_link, hil
     @hil_settings(max_examples=8)
     @given(effects=deviations(hil_plant_config.motor.pole_pairs), speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
     def check(effects, speed_rpm):
+        note(f"search example: calibrated deviation set at {speed_rpm:.0f} rpm")
         stim = Stimulus("deviations", effects=[e.to_dict() for e in effects], seed=hil_seed, speed_rpm=speed_rpm,
                         test=request.node.nodeid, plant=hil_plant_config.to_dict())
         outcome = run(stim, hil_link, hil_budgets)
@@ -92,6 +94,7 @@ def test_fault_sequences_are_reported_and_recovered(hil_link, hil_plant_config, 
         def teardown(self):
             if not getattr(self, "steps", None):
                 return
+            note(f"search example: fault sequence of {len(self.steps)} steps")
             stim = Stimulus("fault_sequence", effects=effects, steps=self.steps, seed=hil_seed, test=request.node.nodeid,
                             plant=hil_plant_config.to_dict())
             outcome = run(stim, hil_link, hil_budgets)

@@ -32,7 +32,7 @@ def test_wiring_fault_gives_the_promised_fault(fault, requirement, request, hil_
     stim = Stimulus("fault_sequence", effects=[e.to_dict() for e in DEVIATIONS], steps=sequence(fault), seed=hil_seed,
                     test=request.node.nodeid, plant=hil_plant_config.to_dict())
     outcome = run(stim, hil_link, hil_budgets)
-    hil_evidence.table("fault run", ["quantity", "value"], [[k, str(v)] for k, v in outcome.values.items()])
+    hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     hil_evidence.value("promised fault codes", ", ".join(f"0x{c:04X}" for c in fault.promised))
     assert outcome.ok, outcome.message
     hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
@@ -43,14 +43,14 @@ def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hi
     stim = Stimulus("fault_sequence", effects=[e.to_dict() for e in DEVIATIONS], steps=[["run", 0.1]], seed=hil_seed,
                     test=request.node.nodeid, plant=hil_plant_config.to_dict())
     outcome = run(stim, hil_link, hil_budgets)
-    hil_evidence.table("healthy run", ["quantity", "value"], [[k, str(v)] for k, v in outcome.values.items()])
+    hil_evidence.table("healthy run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     assert outcome.ok and not outcome.values["codes"], outcome.message
 
 
 @pytest.mark.requirement("REQ-FLT-004")
 def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_evidence):
     """Q0 a hundred times too large for a filter told to adapt Q, R and r: the guards must fire
-    (design notes section 5), and the controller must say so."""
+    (the divergence guard, docs/sage-husa.md), and the controller must say so."""
     settings = FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7)
     bench = hil_bench(Strategy.SAGE_HUSA, corrections=calibrate(DEVIATIONS), effects=DEVIATIONS, filter_settings=settings)
     bench.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)

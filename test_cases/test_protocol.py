@@ -74,7 +74,7 @@ def _probe(od, kind):
 
 
 @pytest.mark.requirement("REQ-PROT-003")
-@pytest.mark.parametrize("kind", list(ABORT))
+@pytest.mark.parametrize("kind", list(ABORT), ids=[k.replace(" ", "-") for k in ABORT])
 def test_sdo_abort_codes(kind, hil_dut, hil_link, hil_evidence):
     _need(hil_dut, "canopen")
     what, request = _probe(hil_link.node.object_dictionary, kind)
@@ -135,10 +135,10 @@ def _modbus_ask(link, pdu: bytes) -> bytes:
 
 @pytest.mark.requirement("REQ-PROT-003")
 @pytest.mark.parametrize("name, pdu, code", [
-    ("unknown function code 0x41", bytes([0x41, 0, 0]), 0x01),
-    ("read 1 register at 0xFFF0", struct.pack(">BHH", 3, 0xFFF0, 1), 0x02),
-    ("read quantity 0", struct.pack(">BHH", 3, 0, 0), 0x03),
-    ("read quantity 126", struct.pack(">BHH", 3, 0, 126), 0x03),
+    pytest.param("unknown function code 0x41", bytes([0x41, 0, 0]), 0x01, id="function-0x41"),
+    pytest.param("read 1 register at 0xFFF0", struct.pack(">BHH", 3, 0xFFF0, 1), 0x02, id="register-0xFFF0"),
+    pytest.param("read quantity 0", struct.pack(">BHH", 3, 0, 0), 0x03, id="quantity-0"),
+    pytest.param("read quantity 126", struct.pack(">BHH", 3, 0, 126), 0x03, id="quantity-126"),
 ])
 def test_modbus_exception_codes(name, pdu, code, hil_dut, hil_link, hil_evidence):
     _need(hil_dut, "modbus")

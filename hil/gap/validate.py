@@ -295,6 +295,8 @@ def _params_vector(name, params) -> np.ndarray:
 @dataclass
 class ValidationReport:
     cases: list[dict] = field(default_factory=list)
+    dispatch: dict = field(default_factory=dict)  #: where the cases ran (scheduler, workers_used, ...)
+    errors: list[dict] = field(default_factory=list)  #: cases that raised: never scored, always reported
 
     def summary(self, min_snr: float = 3.0) -> dict:
         single = [c for c in self.cases if c["kind"] == "single" and c["snr"] >= min_snr]
@@ -344,8 +346,10 @@ GENERATORS = ("library", "field")
 
 
 def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_library: int = 24, seed: int = 0, progress=None,
-                   jobs: int = 1, generator: str = "library") -> ValidationReport:
-    """Draw the cases (all randomness from ``seed``), diagnose each; ``jobs`` worker processes.
+                   jobs: int = 1, generator: str = "library", scheduler: str | None = None, bar: bool = False) -> ValidationReport:
+    """Draw the cases (all randomness from ``seed``), diagnose each: in this process (``jobs`` 1),
+    on a local Dask cluster of ``jobs`` workers, or on the Dask ``scheduler`` at an address
+    (hil.campaign.scheduler); ``bar`` draws the progress bar.
 
     ``generator``: "library" withholds the library's effects (kinematic and electrical plant);
     "field" withholds physical causes of the field-level Hall model (hil.gap.field_causes),
@@ -356,7 +360,7 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
     if generator == "field":
         from .field_causes import plan_field_cases, run_field_case
 
-        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs)
+        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler, bar)
     plan = []
     for name in EFFECT_NAMES:
         plan += [("single", [name], None)] * per_effect
@@ -369,26 +373,29 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
     # dead time leaves no trace in the format's signals: withheld, it must not raise a gap
     plan += [("no_trace", ["dead_time"], None)] * max(null // 4, 1)
     cases = [(i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31))) for i, (kind, names, ool) in enumerate(plan)]
-    return _run(cases, _run_case, progress, jobs)
+    return _run(cases, _run_case, progress, jobs, scheduler, bar)
 
 
-def _run(cases: list, run_case, progress, jobs: int) -> ValidationReport:
-    """Diagnose every case (in ``jobs`` processes), in plan order, reporting each as it ends."""
+def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar: bool) -> ValidationReport:
+    """Diagnose every case (see run_validation for where), kept in plan order, reporting each as it ends."""
     report = ValidationReport()
-    if jobs > 1:
-        from concurrent.futures import ProcessPoolExecutor
+    # one task per case, results kept in case order: the report is the same on any scheduler
+    from hil.campaign.scheduler import TaskError, dispatch
 
-        with ProcessPoolExecutor(jobs) as pool:
-            # chunks of one: progress moves with every case, not in bursts of a chunk
-            for done, case in enumerate(pool.map(run_case, cases, chunksize=1), 1):
-                report.cases.append(case)
-                if progress:
-                    progress(done, len(cases))
-    else:
-        for done, job in enumerate(cases, 1):
-            report.cases.append(run_case(job))
-            if progress:
-                progress(done, len(cases))
+    results: dict[int, dict] = {}
+
+    def on_result(i: int, case) -> None:
+        if isinstance(case, TaskError):  # kept out of the rates, reported with its traceback
+            report.errors.append({"index": i, "case": list(cases[i]), "message": case.message, "traceback": case.traceback})
+        else:
+            results[i] = case
+        if progress:
+            progress(len(results) + len(report.errors), len(cases))
+
+    report.dispatch = dispatch(run_case, cases, on_result, scheduler=scheduler or ("serial" if jobs <= 1 else "local"), workers=jobs,
+                               label="recordings", progress=bar).as_dict()
+    report.cases = [results[i] for i in sorted(results)]
+    report.errors.sort(key=lambda e: e["index"])
     return report
 
 

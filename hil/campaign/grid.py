@@ -1,0 +1,123 @@
+"""The point grid: every combination of the axes' values, its seed, its stimulus, and one run.
+
+A point is a ``hil.stimulus.Stimulus``: the campaign runs it through ``hil.stimulus.run`` on the
+lockstep bench against a fresh in-process virtual controller, and a failing point is saved as
+that very stimulus, so ``hil replay`` re-runs exactly what the campaign ran.
+
+Seeds: point ``i`` of a campaign with seed ``s`` gets ``SeedSequence(s, spawn_key=(i,))``'s first
+32-bit word. It depends on the campaign seed and the point's place in the grid only, never on
+which worker runs it or when, so results are identical under any scheduler.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import time
+import traceback
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from plant_models import PlantConfig
+from plant_models.effects import effect_from_mapping
+from plant_models.plant import steady_state
+
+from ..stimulus import Stimulus
+
+if TYPE_CHECKING:  # pragma: no cover
+    from .spec import CampaignSpec
+
+
+def point_seed(campaign_seed: int, index: int) -> int:
+    return int(np.random.SeedSequence(campaign_seed, spawn_key=(index,)).generate_state(1, np.uint32)[0])
+
+
+def points(spec: "CampaignSpec") -> list[dict[str, Any]]:
+    """The grid in order (last axis fastest, repeats innermost): one dict of axis values per point,
+    plus ``index``, ``repeat`` and ``seed``."""
+    out = []
+    grids = itertools.product(*(a.values for a in spec.axes), range(spec.repeats))
+    for index, combo in enumerate(grids):
+        coords = {a.name: v for a, v in zip(spec.axes, combo[:-1])}
+        out.append({"index": index, "repeat": combo[-1], "seed": point_seed(spec.seed, index), **coords})
+    return out
+
+
+def _effect_tables(spec: "CampaignSpec", coords: dict) -> list[dict]:
+    tables = {e["name"]: dict(e) for e in spec.fixed_effects}
+    for a in spec.axes:
+        if a.effect is None or a.name not in coords:
+            continue
+        param = a.name.partition(".")[2]
+        v = coords[a.name]
+        table = tables.setdefault(a.effect, {"name": a.effect})
+        table[param] = [v * p for p in a.pattern] if a.pattern is not None else v
+    return list(tables.values())
+
+
+def point_plant(spec: "CampaignSpec", coords: dict) -> PlantConfig:
+    """The point's plant: the campaign plant with its pump load scaled and the effects applied."""
+    load = coords.get("load_scale", spec.fixed_load_scale)
+    base = spec.plant
+    if load != 1.0:
+        base = dataclasses.replace(base, motor=dataclasses.replace(base.motor, fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * load))
+    effects = [effect_from_mapping(t, f"effects.{t['name']}.") for t in _effect_tables(spec, coords)]
+    config = base.with_effects(*effects)
+    for e in config.effects:
+        e.check(config.motor.pole_pairs, f"effects.{e.name}.")
+    return config
+
+
+def point_fault(spec: "CampaignSpec", coords: dict) -> dict:
+    """The point's wiring fault (a table for ``wiring_fault_from_dict``)."""
+    from ..faults import WIRING_FAULTS
+
+    fault = dict(spec.fixed_fault or {})
+    fields = {f.name: f for f in dataclasses.fields(WIRING_FAULTS[fault["name"]])}
+    for a in spec.axes:
+        if a.name.startswith("fault.") and a.name in coords:
+            param = a.name.partition(".")[2]
+            if param not in fields:
+                raise KeyError(f"no parameter {param!r} (has: {', '.join(fields) or 'none'})")
+            fault[param] = int(coords[a.name]) if isinstance(fields[param].default, int) else coords[a.name]
+    return fault
+
+
+def point_stimulus(spec: "CampaignSpec", point: dict) -> Stimulus:
+    config = point_plant(spec, point)
+    speed = float(point.get("speed_rpm", spec.fixed_speed_rpm))
+    steady_state(config.motor, speed)  # raises on a speed the motor cannot hold
+    common = dict(seed=point["seed"], speed_rpm=speed, test=f"campaign {spec.name} point {point['index']}",
+                  plant=dataclasses.replace(config, effects=()).to_dict(), budgets=dict(spec.checked))
+    effects = [e.to_dict() for e in config.effects]
+    if spec.kind == "fault_sequence":
+        fault = point_fault(spec, point)
+        hold = float(point.get("fault_hold_s", spec.fixed_fault_hold_s))
+        return Stimulus("fault_sequence", effects=effects, steps=[["on", fault], ["run", hold], ["off", fault]], **common)
+    return Stimulus("deviations", effects=effects, run_s=spec.run_s, strategy=str(point.get("strategy", spec.fixed_strategy)), **common)
+
+
+def run_point(job: tuple) -> dict:
+    """One point on the lockstep bench (runs on a worker). ``job`` = (stimulus dict, budgets
+    dict); returns the measured row fields, or the error and its traceback: a point that raises
+    is an error row, never the end of the campaign."""
+    stim_dict, budgets_table = job
+    t0, cpu0 = time.perf_counter(), time.process_time()
+    try:
+        from ..budgets import Budget, Budgets
+        from ..dut.link import InProcessLink
+        from ..dut.virtual import VirtualController
+        from ..stimulus import run
+
+        stim = Stimulus(**stim_dict)
+        budgets = Budgets({k: Budget(**v) for k, v in budgets_table.items()}, "campaign")
+        link = InProcessLink(VirtualController(stim.plant_config().motor))
+        outcome = run(stim, link, budgets)
+        row = {"ok": outcome.ok, "message": outcome.message, "values": outcome.values,
+               "verdicts": [v.as_dict() for v in outcome.verdicts], "error": None}
+    except Exception as exc:  # noqa: BLE001 - recorded with its traceback, the campaign goes on
+        row = {"ok": False, "message": f"{type(exc).__name__}: {exc}", "values": {}, "verdicts": [], "error": traceback.format_exc()}
+    row["duration_s"] = time.perf_counter() - t0
+    row["cpu_s"] = time.process_time() - cpu0  # with duration_s: the share of a core the worker got
+    return row

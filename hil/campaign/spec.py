@@ -1,0 +1,335 @@
+"""The campaign SPEC (TOML): what is swept, what stays fixed, which budgets judge each point.
+
+    [campaign]
+    name = "offset-by-speed"
+    seed = 7                      # every point's seed is drawn from it (see grid.point_seed)
+    kind = "deviations"           # or "fault_sequence"
+    plant = "paper-bench"         # a preset, or a plant TOML file (relative to the SPEC)
+    budgets_file = "limits.toml"  # optional: budgets over the defaults (relative to the SPEC)
+    run_s = 0.1                   # judged hold after the 0.1 s settle (deviations)
+    repeats = 1                   # seeds per grid cell
+
+    [campaign.budgets]            # budget name = metric it judges (hil.stimulus.METRICS)
+    commutation_angle_p99 = "angle_p99"
+
+    [fixed]                       # what every point shares
+    speed_rpm = 6000.0
+    load_scale = 1.0
+    strategy = "corrected"
+    effects = [{ name = "conditioning_delay", rise_delay_s = 6.6e-6, fall_delay_s = 2.0e-6 }]
+
+    [[axis]]
+    name = "installation_offset.offset_deg_e"   # an effect parameter ...
+    linspace = [0.0, 8.0, 9]                    # ... or values = [...]
+    pattern = [1.0, -0.6, 0.3]                  # list parameters: the point's value times this
+
+    [[axis]]
+    name = "speed_rpm"                          # or load_scale, strategy, fault_hold_s, fault.<param>
+    values = [2000.0, 6000.0, 10000.0]
+
+    [map]
+    x = "installation_offset.offset_deg_e"
+    y = "speed_rpm"
+    budget = "commutation_angle_p99"            # default: the first budget
+
+Every error names the file and the key (``spec.toml: axis[1].linspace: ...``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from plant_models import PRESETS, PlantConfig
+from plant_models.effects import EFFECTS, effect_from_mapping
+from plant_models.params import ConfigError
+
+from ..budgets import Budgets
+from ..stimulus import DEFAULT_BUDGETS, METRICS, STRATEGIES
+
+#: operating-point axes (not effect parameters)
+OPERATING_AXES = ("speed_rpm", "load_scale", "strategy", "fault_hold_s")
+#: what a point runs: a deviation set judged on its commutation, or a wiring fault switched on and off
+KINDS = ("deviations", "fault_sequence")
+
+
+@dataclass(frozen=True)
+class Axis:
+    name: str
+    values: tuple                          #: the swept values (numbers, or strategy names)
+    pattern: tuple[float, ...] | None = None  #: list parameters: value * pattern
+
+    @property
+    def effect(self) -> str | None:
+        """The effect this axis sweeps a parameter of (None for operating-point axes)."""
+        head, _, _ = self.name.partition(".")
+        return None if self.name in OPERATING_AXES or head == "fault" else head
+
+    @property
+    def categorical(self) -> bool:
+        return any(isinstance(v, str) for v in self.values)
+
+
+@dataclass(frozen=True)
+class MapSpec:
+    x: str
+    y: str
+    budget: str
+
+
+@dataclass(frozen=True)
+class CampaignSpec:
+    path: str
+    name: str
+    seed: int
+    kind: str
+    plant: PlantConfig
+    budgets: Budgets
+    checked: dict[str, str]                 #: budget name -> metric
+    fixed_speed_rpm: float
+    fixed_load_scale: float
+    fixed_strategy: str
+    fixed_effects: tuple[dict, ...]         #: effect tables (name + parameters)
+    fixed_fault: dict | None
+    fixed_fault_hold_s: float
+    axes: tuple[Axis, ...]
+    map: MapSpec | None
+    run_s: float = 0.1
+    repeats: int = 1
+    budgets_file: str | None = None
+    raw: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def size(self) -> int:
+        return math.prod(len(a.values) for a in self.axes) * self.repeats
+
+
+def _number(where: str, v: Any, low: float = -math.inf, high: float = math.inf) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or not low <= v <= high:
+        bounds = f" within [{low:g}, {high:g}]" if math.isfinite(low) or math.isfinite(high) else ""
+        raise ConfigError(where, f"must be a finite number{bounds}, got {v!r}")
+    return float(v)
+
+
+def _table(where: str, v: Any) -> dict:
+    if not isinstance(v, dict):
+        raise ConfigError(where, "must be a table")
+    return v
+
+
+def _only(where: str, table: dict, known: set[str]) -> None:
+    for key in table:
+        if key not in known:
+            raise ConfigError(f"{where}.{key}" if where else key, f"unknown key (known: {', '.join(sorted(known))})")
+
+
+def _strategy(where: str, v: Any) -> str:
+    if v not in STRATEGIES:
+        raise ConfigError(where, f"unknown strategy {v!r} (known: {', '.join(STRATEGIES)})")
+    return v
+
+
+def _axis(where: str, t: dict, kind: str) -> Axis:
+    _only(where, t, {"name", "values", "linspace", "pattern"})
+    name = t.get("name")
+    if not isinstance(name, str) or not name:
+        raise ConfigError(f"{where}.name", "required (an effect parameter such as installation_offset.offset_deg_e, or one of "
+                          f"{', '.join(OPERATING_AXES)}, or fault.<param>)")
+    if ("values" in t) == ("linspace" in t):
+        raise ConfigError(where, "give exactly one of 'values' or 'linspace'")
+    if "linspace" in t:
+        ls = t["linspace"]
+        if not isinstance(ls, list) or len(ls) != 3 or isinstance(ls[2], bool) or not isinstance(ls[2], int) or ls[2] < 1:
+            raise ConfigError(f"{where}.linspace", f"must be [start, stop, count >= 1], got {ls!r}")
+        a, b = _number(f"{where}.linspace[0]", ls[0]), _number(f"{where}.linspace[1]", ls[1])
+        n = ls[2]
+        values = tuple(a + (b - a) * i / (n - 1) if n > 1 else a for i in range(n))
+    else:
+        vs = t["values"]
+        if not isinstance(vs, list) or not vs:
+            raise ConfigError(f"{where}.values", "must be a non-empty list")
+        if name == "strategy":
+            values = tuple(_strategy(f"{where}.values[{i}]", v) for i, v in enumerate(vs))
+        else:
+            values = tuple(_number(f"{where}.values[{i}]", v) for i, v in enumerate(vs))
+    if len(set(values)) != len(values):
+        raise ConfigError(where, "repeated values (use [campaign] repeats for more seeds per point)")
+    if name == "strategy" and "linspace" in t:
+        raise ConfigError(f"{where}.linspace", "strategy takes values = [names]")
+    if name == "speed_rpm":
+        for i, v in enumerate(values):
+            _number(f"{where}.values[{i}]", v, 100.0, 30000.0)
+    if name in ("load_scale",):
+        for i, v in enumerate(values):
+            _number(f"{where}.values[{i}]", v, 0.0, 10.0)
+    if name.startswith("fault") and kind != "fault_sequence":
+        raise ConfigError(f"{where}.name", f"{name!r} sweeps a wiring fault: set [campaign] kind = \"fault_sequence\"")
+    pattern = None
+    if "pattern" in t:
+        p = t["pattern"]
+        if not isinstance(p, list) or not p:
+            raise ConfigError(f"{where}.pattern", "must be a non-empty list of numbers")
+        pattern = tuple(_number(f"{where}.pattern[{i}]", v) for i, v in enumerate(p))
+    axis = Axis(name, values, pattern)
+    if axis.effect is not None:
+        effect, _, param = name.partition(".")
+        cls = EFFECTS.get(effect)
+        if cls is None:
+            raise ConfigError(f"{where}.name", f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
+                              f"({', '.join(OPERATING_AXES)})")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        if param not in fields:
+            raise ConfigError(f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})")
+        is_list = "tuple" in str(fields[param].type)
+        if is_list and pattern is None:
+            raise ConfigError(f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)")
+        if not is_list and pattern is not None:
+            raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
+    elif pattern is not None:
+        raise ConfigError(f"{where}.pattern", f"{name} is not a list parameter: no pattern")
+    return axis
+
+
+def load_spec(path: str | Path) -> CampaignSpec:
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ConfigError(str(path), f"not valid TOML: {exc}") from None
+    try:
+        return parse_spec(data, path)
+    except ConfigError as exc:
+        if str(exc).startswith(str(path)):
+            raise
+        raise ConfigError(f"{path}: {exc.field}", str(exc)[len(exc.field) + 2:]) from None
+
+
+def parse_spec(data: dict, path: Path) -> CampaignSpec:
+    """Validate the parsed TOML; errors name the key (``load_spec`` prefixes the file)."""
+    from .grid import point_plant  # the grid builds each point's plant: checked here for every point
+
+    _only("", data, {"campaign", "fixed", "axis", "map"})
+    c = _table("campaign", data.get("campaign", {}))
+    _only("campaign", c, {"name", "seed", "kind", "plant", "budgets_file", "budgets", "run_s", "repeats"})
+    name = c.get("name", path.stem)
+    if not isinstance(name, str):
+        raise ConfigError("campaign.name", "must be a string")
+    seed = c.get("seed", 0)
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ConfigError("campaign.seed", f"must be a non-negative integer, got {seed!r}")
+    kind = c.get("kind", "deviations")
+    if kind not in KINDS:
+        raise ConfigError("campaign.kind", f"must be one of {', '.join(KINDS)}, got {kind!r}")
+    plant_ref = c.get("plant", "paper-bench")
+    if not isinstance(plant_ref, str):
+        raise ConfigError("campaign.plant", "must be a preset name or a plant TOML path")
+    if plant_ref in PRESETS:
+        plant = PRESETS[plant_ref]()
+    else:
+        plant_path = path.parent / plant_ref
+        if not plant_path.is_file():
+            raise ConfigError("campaign.plant", f"neither a preset ({', '.join(PRESETS)}) nor a file: {plant_path}")
+        plant = PlantConfig.from_toml(plant_path)
+    budgets_file = c.get("budgets_file")
+    if budgets_file is not None:
+        if not isinstance(budgets_file, str) or not (path.parent / budgets_file).is_file():
+            raise ConfigError("campaign.budgets_file", f"no such file: {path.parent / str(budgets_file)}")
+        budgets_file = str(path.parent / budgets_file)
+        budgets = Budgets.from_toml(budgets_file)
+    else:
+        budgets = Budgets.defaults()
+    checked = c.get("budgets", DEFAULT_BUDGETS[kind])
+    _table("campaign.budgets", checked)
+    if not checked:
+        raise ConfigError("campaign.budgets", "name at least one budget")
+    for b, metric in checked.items():
+        if b not in budgets:
+            raise ConfigError(f"campaign.budgets.{b}", f"no such budget (have: {', '.join(sorted(budgets.budgets))})")
+        if metric not in METRICS[kind]:
+            raise ConfigError(f"campaign.budgets.{b}", f"metric must be one of {', '.join(METRICS[kind])} for kind {kind!r}, got {metric!r}")
+    run_s = _number("campaign.run_s", c.get("run_s", 0.1), 0.06, 10.0)
+    repeats = c.get("repeats", 1)
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ConfigError("campaign.repeats", f"must be an integer >= 1, got {repeats!r}")
+
+    f = _table("fixed", data.get("fixed", {}))
+    _only("fixed", f, {"speed_rpm", "load_scale", "strategy", "effects", "fault", "fault_hold_s"})
+    speed = _number("fixed.speed_rpm", f.get("speed_rpm", 6000.0), 100.0, 30000.0)
+    load = _number("fixed.load_scale", f.get("load_scale", 1.0), 0.0, 10.0)
+    strategy = _strategy("fixed.strategy", f.get("strategy", "corrected"))
+    effects = f.get("effects", [])
+    if not isinstance(effects, list):
+        raise ConfigError("fixed.effects", "must be a list of effect tables")
+    for i, e in enumerate(effects):
+        effect_from_mapping(_table(f"fixed.effects[{i}]", e), f"fixed.effects[{i}].").check(plant.motor.pole_pairs, f"fixed.effects[{i}].")
+    names = [e["name"] for e in effects]
+    if len(set(names)) != len(names):
+        raise ConfigError("fixed.effects", "an effect appears twice")
+    fault = f.get("fault")
+    if fault is not None:
+        from ..faults import wiring_fault_from_dict
+
+        if kind != "fault_sequence":
+            raise ConfigError("fixed.fault", "a wiring fault needs [campaign] kind = \"fault_sequence\"")
+        if isinstance(fault, str):
+            fault = {"name": fault}
+        try:
+            wiring_fault_from_dict(_table("fixed.fault", fault))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError("fixed.fault", f"not a wiring fault: {exc}") from None
+    elif kind == "fault_sequence":
+        raise ConfigError("fixed.fault", "a fault_sequence campaign names its fault, e.g. fault = { name = \"hall_spike\" }")
+    hold = _number("fixed.fault_hold_s", f.get("fault_hold_s", 0.02), 0.0, 10.0)
+
+    raw_axes = data.get("axis", [])
+    if not isinstance(raw_axes, list) or not raw_axes:
+        raise ConfigError("axis", "at least one [[axis]] table")
+    axes = tuple(_axis(f"axis[{i}]", _table(f"axis[{i}]", t), kind) for i, t in enumerate(raw_axes))
+    seen = [a.name for a in axes]
+    for i, n in enumerate(seen):
+        if n in seen[:i]:
+            raise ConfigError(f"axis[{i}].name", f"{n!r} is swept twice")
+
+    m = data.get("map")
+    mapspec = None
+    if m is not None:
+        _table("map", m)
+        _only("map", m, {"x", "y", "budget"})
+        for key in ("x", "y"):
+            if m.get(key) not in seen:
+                raise ConfigError(f"map.{key}", f"must name a swept axis ({', '.join(seen)}), got {m.get(key)!r}")
+        if m["x"] == m["y"]:
+            raise ConfigError("map.y", "x and y must differ")
+        mb = m.get("budget", next(iter(checked)))
+        if mb not in checked:
+            raise ConfigError("map.budget", f"must be one of the checked budgets ({', '.join(checked)}), got {mb!r}")
+        mapspec = MapSpec(m["x"], m["y"], mb)
+    elif len(axes) >= 2:
+        mapspec = MapSpec(axes[0].name, axes[1].name, next(iter(checked)))
+
+    spec = CampaignSpec(str(path), name, seed, kind, plant, budgets, dict(checked), speed, load, strategy, tuple(effects), fault,
+                        hold, axes, mapspec, run_s, repeats, budgets_file, data)
+    # every axis value must give a valid plant or fault: out-of-bounds values fail here, naming the axis
+    for i, a in enumerate(axes):
+        if a.name.startswith("fault."):
+            from ..faults import wiring_fault_from_dict
+            from .grid import point_fault
+
+            for j, v in enumerate(a.values):
+                try:
+                    wiring_fault_from_dict(point_fault(spec, {a.name: v}))
+                except (KeyError, TypeError, ValueError) as exc:
+                    raise ConfigError(f"axis[{i}].name", f"{a.name} = {v:g} is not a parameter of fault {fault['name']!r}: {exc}") from None
+        if a.effect is not None:
+            for j, v in enumerate(a.values):
+                try:
+                    point_plant(spec, {a.name: v})
+                except ConfigError as exc:
+                    raise ConfigError(f"axis[{i}].values[{j}]", f"{a.name} = {v:g}: {exc}") from None
+    return spec

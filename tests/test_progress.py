@@ -1,0 +1,74 @@
+"""Progress of a long run (hil.progress) and the acceptance command's fresh pytest process."""
+
+import re
+
+from hil.cli import main
+from hil.report_html import printable, short_label
+
+pytest_plugins = ["pytester"]
+
+
+def test_each_finished_test_prints_count_elapsed_outcome_and_label(pytester):
+    pytester.makepyfile(test_run="""
+        import pytest
+        from hil.progress import note
+
+        def test_long_one():
+            note("calibration campaign: step one")
+            note("lockstep bench: step two")
+
+        @pytest.mark.parametrize("pdu", [b"\\x03\\xff"])
+        def test_bytes(pdu):
+            assert False
+
+        @pytest.mark.skip(reason="not this DUT")
+        def test_skipped():
+            pass
+    """)
+    result = pytester.runpytest("-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider")
+    out = result.stdout.str()
+    lines = [line for line in out.splitlines() if re.match(r"\[\d/3 +\d+:\d\d\]", line)]
+    assert [re.sub(r"\[(\d)/3 +\d+:\d\d\]", r"[\1/3]", line).rsplit("  (", 1)[0] for line in lines] == [
+        "[1/3] running  long one",
+        "[1/3] passed   long one",
+        "[2/3] failed   bytes · 03 ff",
+        "[3/3] skipped  skipped",
+    ], out
+    assert re.search(r"^ +\.\.\. calibration campaign: step one\n +\.\.\. lockstep bench: step two$", out, re.M), out
+    result.assert_outcomes(passed=1, failed=1, skipped=1)  # pytest's own summary still counts
+
+
+def test_acceptance_runs_pytest_in_a_fresh_interpreter(pytester):
+    """The cause of 'Module already imported so cannot be rewritten: hil' (with a regular, not
+    editable, install): pytest ran inside the hil command, which had imported hil and plant_models."""
+    pytester.makeconftest("")
+    pytester.makepyfile(test_fresh="""
+        import sys
+
+        def test_fresh():
+            assert "hil.cli" not in sys.modules, "pytest runs inside the hil command"
+    """)
+    assert main(["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]) == 0
+
+
+def test_labels_are_short_and_readable():
+    nodeid = "test_cases/test_faults.py::test_wiring_fault_gives_the_promised_fault[virtual-canopen-missing-edge]"
+    assert short_label(nodeid) == "wiring fault gives the promised fault · virtual-canopen-missing-edge"
+    assert short_label(nodeid, "virtual-canopen") == "wiring fault gives the promised fault · missing-edge"
+    assert short_label("t.py::test_x[\\x03\\xff\\xf0\\x00\\x01]") == "x · 03 ff f0 00 01"
+    assert printable("a\x00b") == "a00b"
+
+
+def test_a_waived_failure_reads_waived(pytester):
+    budgets = pytester.path.parent / "waiver.toml"
+    budgets.write_text('[[waiver]]\nrequirement = "REQ-X-009"\nreason = "known, fix in 2.1"\nowner = "lead"\n')
+    pytester.makepyfile(test_w="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-X-009")
+        def test_known_defect():
+            assert False
+    """)
+    result = pytester.runpytest("-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider",
+                                "--hil-budgets", str(budgets))
+    assert re.search(r"^\[1/1 +\d+:\d\d\] waived +known defect", result.stdout.str(), re.M), result.stdout.str()
