@@ -778,7 +778,7 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
     # old chopped switch in the old pair's time (docs/signals.md)
     hidden = [i > 0 and hi_lo[sectors[i - 1]][role] != hi_lo[sectors[i]][role] and not pwm_on(starts[i]) for i in range(len(sectors))]
     shown = [on_edges[on_edges > starts[i]].min() if hidden[i] else starts[i] for i in range(len(sectors))]
-    free_shown = any(not hidden[i] and ((on_edges >= shown[i - 1]) & (on_edges < starts[i])).sum() >= 2 for i in range(1, len(sectors)))
+    free_shown = any(not hidden[i] and ((on_edges > shown[i - 1]) & (on_edges < starts[i])).sum() >= 2 for i in range(1, len(sectors)))
     assert got.carrier == ("free-running" if free_shown else "undetermined")
     assert got.carrier_restart_evidence == 0
     located = 0

@@ -50,8 +50,9 @@ F_ON1, F_ON2 = 10, 16                     # last and last-but-one turn-on of eac
 F_TOL = 22                                # carrier-grid tolerance: capture resolution (s)
 F_SNAP1, F_SNAP2 = 23, 29                 # F_ON1, F_ON2 as they were when the window opened
 F_NEXT = 35                               # first turn-on of each switch after the window opened
-F_SEC_T = 41                              # evidence instant of the current pair
-N_F = 42
+F_RUN0, F_RUNN = 41, 47                   # first turn-on of each switch after the window opened, and how many
+F_SRUN0, F_SRUNN = 53, 59                 # the same as they were when the window opened
+N_F = 65
 I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED, I_PP, I_HIDDEN, I_OFF_TIME, I_FREE, I_RESTART = range(11)
 N_I = 11
 
@@ -103,17 +104,20 @@ def _decide(fs, ist, hold_s, out_t, out_m, out_s, out_k, n_out):
             ist[I_OFF_TIME] += 1
         _classify_carrier(fs, ist, cur, new, hold_s)
     ist[I_SECTOR] = new
-    fs[F_SEC_T] = fs[F_T_E]
     return n_out + 1
 
 
 @njit(cache=True)
-def _grid_tol(fs, period, n_periods):
-    """How far from the carrier grid a turn-on may lie and still be on it: the capture's
-    quantisation of both turn-ons and of the period (which grows with the periods extrapolated),
-    capped so that a carrier restarted off the grid is rarely taken for it (a change-list CSV's
-    resolution is only bounded)."""
-    return (min(2.5 * fs[F_TOL], 0.02 * period) + 1e-6 * period) * max(1.0, n_periods)
+def _grid_tol(fs, period):
+    """How far from the next carrier turn-on one may lie and still be it: quantisation of both
+    turn-ons and of the period, capped so that a carrier restarted at commutation is rarely taken
+    for the grid (a change-list CSV's resolution is only bounded)."""
+    return min(2.5 * fs[F_TOL], 0.02 * period) + 1e-6 * period
+
+
+@njit(cache=True)
+def _run_tol(fs, period, k, n):
+    return 2.5 * fs[F_TOL] * (1.0 + k / (n - 1.0)) + 1e-6 * period * max(1.0, k)
 
 
 @njit(cache=True)
@@ -128,30 +132,34 @@ def _classify_carrier(fs, ist, old, new, hold_s):
     """Count an accepted commutation (from sector ``old`` to ``new``, evidence at fs[F_T_E]) as
     evidence of the carrier mode, where it holds any.
 
-    The chopped role r is the one whose old switch was turning on periodically: its last two
-    turn-ons both within the old pair's time (one carrier phase in either mode), their period
-    within the hold-off, the last within two periods of the evidence. If the evidence instant is clearly
-    off that old carrier grid (twice the grid tolerance), the first turn-on after it of the new
-    pair's switch in role r tells the mode: on the old grid, the carrier ran on across the
-    commutation (free-running); off it, its phase was reset there (restarted at commutation).
-    Evidence on the grid tells nothing: both modes turn on there."""
+    The chopped role r is the one whose old switch was turning on periodically: at least two
+    turn-ons after the previous evidence (one carrier phase in either mode), their mean period
+    within the hold-off, the last within two periods of the evidence. If the evidence instant is
+    clearly off that old carrier grid (twice the grid tolerance), the first turn-on after it of
+    the new pair's switch in role r tells the mode: on the old grid, the carrier ran on across
+    the commutation (free-running); off it, its phase was reset there (restarted at commutation).
+    Evidence on the grid tells nothing: both modes turn on there. The tolerance is 2.5 capture
+    samples for the two turn-ons compared plus the period's share extrapolated over k periods
+    (the period is measured over the n - 1 periods of the run, so its quantisation shrinks)."""
     t_c = fs[F_T_E]
     for r in range(2):
         old_ph = _HI[old] if r == 0 else _LO[old]
         new_ph = _HI[new] if r == 0 else _LO[new]
         jo, jn = 2 * old_ph + r, 2 * new_ph + r
-        on1 = fs[F_SNAP1 + jo]
-        period = on1 - fs[F_SNAP2 + jo]
-        if not (0.0 < period <= hold_s and t_c - on1 < 2.0 * period and fs[F_SNAP2 + jo] >= fs[F_SEC_T]):
+        on1, n = fs[F_SNAP1 + jo], fs[F_SRUNN + jo]
+        if not n >= 2.0:
+            continue
+        period = (on1 - fs[F_SRUN0 + jo]) / (n - 1.0)
+        if not (0.0 < period <= hold_s and t_c - on1 < 2.0 * period):
             continue
         t_next = fs[F_NEXT + jn]
         if np.isnan(t_next):
             return
         d_c, k_c = _off_grid_s(t_c, on1, period)
-        if d_c <= 2.0 * _grid_tol(fs, period, k_c):
+        if d_c <= 2.0 * _run_tol(fs, period, k_c, n):
             return
         d_n, k_n = _off_grid_s(t_next, on1, period)
-        if d_n <= _grid_tol(fs, period, k_n):
+        if d_n <= _run_tol(fs, period, k_n, n):
             ist[I_FREE] += 1
         else:
             ist[I_RESTART] += 1
@@ -179,6 +187,10 @@ def _open(fs, ist, t):
         fs[F_SNAP1 + j] = fs[F_ON1 + j]
         fs[F_SNAP2 + j] = fs[F_ON2 + j]
         fs[F_NEXT + j] = np.nan
+        fs[F_SRUN0 + j] = fs[F_RUN0 + j]
+        fs[F_SRUNN + j] = fs[F_RUNN + j]
+        fs[F_RUN0 + j] = np.nan
+        fs[F_RUNN + j] = 0.0
 
 
 @njit(cache=True)
@@ -210,7 +222,7 @@ def _in_off_time(fs, ist, new_state, prev, t_on, hold_s):
         period = on1 - on2
         if not (0.0 < period <= hold_s and on1 < t_off < t_on):
             continue
-        if abs(t_on - (on1 + period)) <= _grid_tol(fs, period, 1.0):
+        if abs(t_on - (on1 + period)) <= _grid_tol(fs, period):
             return 0.5 * (t_off + t_on)
     return np.nan
 
@@ -246,6 +258,14 @@ def _run(t, s, fs, ist, hold_s, out_t, out_m, out_s, out_k):
                 if (rising >> j) & 1:
                     if ist[I_PENDING] and tk > fs[F_T_E] and np.isnan(fs[F_NEXT + j]):
                         fs[F_NEXT + j] = tk
+                    # the run starts after the evidence: a switch turned on at the commutation
+                    # itself is off the grid of a free-running carrier
+                    if tk > fs[F_T_E]:
+                        if np.isnan(fs[F_RUN0 + j]):
+                            fs[F_RUN0 + j] = tk
+                            fs[F_RUNN + j] = 1.0
+                        else:
+                            fs[F_RUNN + j] += 1.0
                     fs[F_ON2 + j] = fs[F_ON1 + j]
                     fs[F_ON1 + j] = tk
             ist[I_PP] = prev
