@@ -117,7 +117,9 @@ def _grid_tol(fs, period):
 
 @njit(cache=True)
 def _run_tol(fs, period, k, n):
-    return 2.5 * fs[F_TOL] * (1.0 + k / (n - 1.0)) + 1e-6 * period * max(1.0, k)
+    # each turn-on within half a sample, the mean period within a sample over its n - 1 periods;
+    # 1.5 samples, not 1, leave room for a carrier clock's own jitter
+    return 1.5 * fs[F_TOL] * (1.0 + k / (n - 1.0)) + 1e-6 * period * max(1.0, k)
 
 
 @njit(cache=True)
@@ -134,11 +136,12 @@ def _classify_carrier(fs, ist, old, new, hold_s):
 
     The chopped role r is the one whose old switch was turning on periodically: at least two
     turn-ons after the previous evidence (one carrier phase in either mode), their mean period
-    within the hold-off, the last within two periods of the evidence. If the evidence instant is
+    within the hold-off and equal to the last interval (a regular run), the last within two
+    periods of the evidence. If the evidence instant is
     clearly off that old carrier grid (twice the grid tolerance), the first turn-on after it of
     the new pair's switch in role r tells the mode: on the old grid, the carrier ran on across
     the commutation (free-running); off it, its phase was reset there (restarted at commutation).
-    Evidence on the grid tells nothing: both modes turn on there. The tolerance is 2.5 capture
+    Evidence on the grid tells nothing: both modes turn on there. The tolerance is 1.5 capture
     samples for the two turn-ons compared plus the period's share extrapolated over k periods
     (the period is measured over the n - 1 periods of the run, so its quantisation shrinks)."""
     t_c = fs[F_T_E]
@@ -152,6 +155,8 @@ def _classify_carrier(fs, ist, old, new, hold_s):
         period = (on1 - fs[F_SRUN0 + jo]) / (n - 1.0)
         if not (0.0 < period <= hold_s and t_c - on1 < 2.0 * period):
             continue
+        if abs(on1 - fs[F_SNAP2 + jo] - period) > _run_tol(fs, period, 1.0, n):
+            return  # an irregular run (the carrier's period or phase changed inside it) tells nothing
         t_next = fs[F_NEXT + jn]
         if np.isnan(t_next):
             return
