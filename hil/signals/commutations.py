@@ -137,9 +137,9 @@ def _classify_carrier(fs, ist, old, new, hold_s):
     The chopped role r is the one whose old switch was turning on periodically: at least two
     turn-ons after the previous evidence (one carrier phase in either mode), their mean period
     within the hold-off and equal to the last interval (a regular run), the last within two
-    periods of the evidence. If the evidence instant is
-    clearly off that old carrier grid (twice the grid tolerance), the first turn-on after it of
-    the new pair's switch in role r tells the mode: on the old grid, the carrier ran on across
+    periods of the evidence. If the evidence instant is clearly off that old carrier grid (twice
+    the grid tolerance), the first turn-on after it of the new pair's switch in role r tells the
+    mode: on the old grid, the carrier ran on across
     the commutation (free-running); off it, its phase was reset there (restarted at commutation).
     Evidence on the grid tells nothing: both modes turn on there. The tolerance is 1.5 capture
     samples for the two turn-ons compared plus the period's share extrapolated over k periods
