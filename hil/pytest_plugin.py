@@ -10,6 +10,11 @@ Options (each also an ini key ``hil_<name>`` in pytest.ini or pyproject.toml):
 * ``--hil-report-dir DIR``: write the HTML, JSON and JUnit reports there, test by test;
 * ``--hil-seed N``: the base seed of everything random.
 
+The plugin costs nothing until a session uses it (an option or ini key given, a test requesting
+one of its fixtures or carrying a ``requirement`` marker): only then does it import the plant, the
+controller links and the budgets, and print its header line. Ini paths are relative to the ini
+file. ``-n`` (xdist) with a real controller is refused: every worker would open it.
+
 Fixtures: ``hil_plant_config``, ``hil_simulation``, ``hil_kinematic``, ``hil_seed``, ``hil_dut``
 (the opened controller, once per session and DUT), ``hil_link`` (the controller reset for this
 test), ``hil_bench`` (a lockstep bench factory with effect injection), ``hil_budgets``,
@@ -28,7 +33,8 @@ from pathlib import Path
 
 import pytest
 
-from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256, test_waiver
+# the report's record format: standard library only (the plant, links and budgets load on use)
+from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
@@ -46,45 +52,79 @@ def pytest_addoption(parser):
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
     group.addoption("--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in")
     group.addoption("--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test")
-    parser.addini("hil_dut", "controller spec(s), whitespace-separated, used when --hil-dut is not given", default="")
-    parser.addini("hil_plant", "plant TOML used when --hil-plant is not given", default="")
-    parser.addini("hil_budgets", "budgets TOML used when --hil-budgets is not given", default="")
-    parser.addini("hil_seed", "base seed used when --hil-seed is not given", default="0")
-    parser.addini("hil_report_dir", "report directory used when --hil-report-dir is not given", default="")
+    parser.addini("hil_dut", "controller spec(s), shell-separated, used when --hil-dut is not given", type="args", default=[])
+    parser.addini("hil_plant", "plant TOML (relative to the ini file) used when --hil-plant is not given", type="paths", default=[])
+    parser.addini("hil_budgets", "budgets TOML (relative to the ini file) used when --hil-budgets is not given", type="paths", default=[])
+    parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="int", default=0)
+    parser.addini("hil_report_dir", "report directory (relative to the ini file) used when --hil-report-dir is not given", type="paths",
+                  default=[])
 
 
-def _option(config, name):
+_PATH_KEYS = ("plant", "budgets", "report_dir")
+_PLANT = pytest.StashKey()    #: the parsed plant configuration (the TOML is read once per session)
+_BUDGETS = pytest.StashKey()  #: the budgets in force, read once per session
+_EXPLICIT = pytest.StashKey[bool]()  #: an option or ini key of the plugin was given
+
+
+def _option(config, name: str):
+    """A path option (``plant``, ``budgets``, ``report_dir``) as a Path, or the seed as an int:
+    the command line (relative to the invocation directory) over the ini key (relative to the
+    ini file); None for a path neither gives."""
     value = config.getoption(f"--hil-{name.replace('_', '-')}")
-    if value is None or value == "":
-        value = config.getini(f"hil_{name}") or None
-    return value
+    if name == "seed":
+        return int(value) if value is not None else config.getini("hil_seed")
+    if value not in (None, ""):
+        return config.invocation_params.dir / value
+    paths = config.getini(f"hil_{name}")
+    if len(paths) > 1:
+        raise pytest.UsageError(f"hil: ini key hil_{name} in {config.inipath} takes one path, got {len(paths)}: "
+                                f"{' '.join(map(str, paths))}")
+    return paths[0] if paths else None
+
+
+def _dut_texts(config) -> list[str]:
+    return config.getoption("--hil-dut") or config.getini("hil_dut") or ["virtual"]
+
+
+def _explicit(config) -> bool:
+    """Whether the run configures the plugin (any --hil-* option or hil_* ini key given)."""
+    if _EXPLICIT not in config.stash:
+        given = [config.getoption("--hil-dut"), config.getini("hil_dut"), _option(config, "seed") != 0,
+                 *(_option(config, name) for name in _PATH_KEYS)]
+        config.stash[_EXPLICIT] = any(given)
+    return config.stash[_EXPLICIT]
+
+
+def _uses_plugin(item) -> bool:
+    """Whether a test uses the plugin: it requests one of its fixtures or carries a requirement mark."""
+    names = getattr(item, "fixturenames", ())
+    return any(name.startswith("hil_") for name in names) or item.get_closest_marker("requirement") is not None
 
 
 def dut_specs(config) -> list:
     from .dut.spec import DutSpecError, parse_dut
 
-    texts = config.getoption("--hil-dut") or (config.getini("hil_dut") or "").split() or ["virtual"]
     try:
-        return [parse_dut(t) for t in texts]
+        return [parse_dut(t) for t in _dut_texts(config)]
     except DutSpecError as exc:
         raise pytest.UsageError(str(exc)) from None
 
 
 def _plant_config(config):
-    from plant_models import PlantConfig, paper_bench
+    """The plant in force (--hil-plant TOML or the paper-bench preset), parsed once per session."""
+    if _PLANT not in config.stash:
+        from plant_models import PlantConfig, paper_bench
 
-    path = _option(config, "plant")
-    return PlantConfig.from_toml(path) if path else paper_bench()
-
-
-_BUDGETS = pytest.StashKey()
+        path = _option(config, "plant")
+        config.stash[_PLANT] = PlantConfig.from_toml(path) if path else paper_bench()
+    return config.stash[_PLANT]
 
 
 def _budgets(config):
     """The budgets in force (--hil-budgets over the defaults), read once per session."""
-    from .budgets import Budgets
-
     if _BUDGETS not in config.stash:
+        from .budgets import Budgets
+
         path = _option(config, "budgets")
         config.stash[_BUDGETS] = Budgets.from_toml(path) if path else Budgets.defaults()
     return config.stash[_BUDGETS]
@@ -101,16 +141,9 @@ def hil_settings(**overrides):
 def pytest_configure(config):
     config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
     report_dir = _option(config, "report_dir")
-    if report_dir and not hasattr(config, "workerinput"):
-        ReportWriter.clear(Path(report_dir))  # a run refused below must not leave the last run's verdict behind
-    dut_specs(config)  # a bad --hil-dut, plant or budgets file is a usage error before anything runs
-    from plant_models.params import ConfigError
-
-    try:
-        _plant_config(config)
-        _budgets(config)
-    except ConfigError as exc:
-        raise pytest.UsageError(f"hil: {exc}") from None
+    if _explicit(config):
+        _check_configuration(config, report_dir)
+    # hypothesis is loaded by its own pytest plugin already: registering the profile costs nothing
     from hypothesis import HealthCheck, Phase, settings
     from hypothesis.database import DirectoryBasedExampleDatabase
 
@@ -124,9 +157,53 @@ def pytest_configure(config):
         config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
 
 
-def pytest_report_header(config):
+def _check_configuration(config, report_dir) -> None:
+    """A configured run: a bad --hil-dut, plant or budgets file, or -n against a real controller,
+    is a usage error before anything runs."""
+    controller = not hasattr(config, "workerinput")
+    if report_dir and controller:
+        ReportWriter.clear(Path(report_dir))  # a run refused below must not leave the last run's verdict behind
+    specs = dut_specs(config)
+    workers = config.getoption("numprocesses", None)
+    real = [s.text for s in specs if not s.is_virtual]
+    if controller and workers and real:
+        raise pytest.UsageError(f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
+                                "a real controller serves one session: run without -n")
+    from plant_models.params import ConfigError
+
+    try:
+        _plant_config(config)
+        _budgets(config)
+    except ConfigError as exc:
+        raise pytest.UsageError(f"hil: {exc}") from None
+
+
+def _plant_label(config) -> str:
+    """The plant file as the user knows it (relative to where pytest started, when it is below)."""
+    path = _option(config, "plant")
+    if path is None:
+        return "paper-bench (preset)"
+    start = config.invocation_params.dir
+    return str(path.relative_to(start)) if path.is_relative_to(start) else str(path)
+
+
+def _header(config) -> str:
     specs = ", ".join(s.text for s in dut_specs(config))
-    return f"hil: dut={specs} plant={_option(config, 'plant') or 'paper-bench (preset)'} seed={_option(config, 'seed') or 0}"
+    return f"hil: dut={specs} plant={_plant_label(config)} seed={_option(config, 'seed')}"
+
+
+def pytest_report_header(config):
+    if _explicit(config):
+        return _header(config)
+    return None
+
+
+def pytest_report_collectionfinish(config, items):
+    """The header of a run that uses the plugin without configuring it (printed after collection,
+    once it is known that a test uses it)."""
+    if not _explicit(config) and not config.option.no_header and config.get_verbosity() >= 0 and any(map(_uses_plugin, items)):
+        return _header(config)
+    return None
 
 
 def pytest_generate_tests(metafunc):
@@ -143,7 +220,7 @@ def pytest_runtest_makereport(item, call):
     "not applicable"). docs/acceptance.md, Verdicts."""
     rep = yield
     exc = call.excinfo.value if call.excinfo is not None else None
-    if exc is None:
+    if exc is None or not (_explicit(item.config) or _uses_plugin(item)):
         return rep
     if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
         _apply_waiver(item, rep)
@@ -166,6 +243,8 @@ def _apply_waiver(item, rep) -> None:
     report then agree); the failure itself travels on to the HIL report, which shows it beside
     the waiver. Docs: docs/budgets.md, Waivers."""
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    if not rids:  # a waiver covers a test under the requirements it traces to: none, no waiver
+        return
     waiver = test_waiver(_budgets(item.config).waivers, rids, item.nodeid)
     if waiver is None:
         return
@@ -193,6 +272,8 @@ def _unreachable(exc: BaseException):
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
+    if not (_explicit(item.config) or _uses_plugin(item)):
+        return
     for mark in item.iter_markers("requirement"):
         for rid in mark.args:
             item.user_properties.append(("requirement", str(rid)))
@@ -205,7 +286,7 @@ def pytest_runtest_setup(item):
 @pytest.fixture(scope="session")
 def hil_seed(pytestconfig) -> int:
     """Base seed for everything random in a HIL run (recorded in reports)."""
-    return int(_option(pytestconfig, "seed") or 0)
+    return _option(pytestconfig, "seed")
 
 
 @pytest.fixture(scope="session")
@@ -278,12 +359,17 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from .dut import Strategy
     from .progress import note
 
+    benches = 0
+
     def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
              config=None):
+        nonlocal benches
         config = (config or hil_plant_config).with_effects(*effects)
         note(f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from {speed_rpm:.0f} rpm"
              f"{', calibration downloaded' if corrections is not None else ''}, effects: {', '.join(e.name for e in effects) or 'none'}")
-        hil_link.reset()
+        if benches:  # hil_link reset the controller for the first bench; each later one starts from a reset too
+            hil_link.reset()
+        benches += 1
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
         if corrections is not None:
@@ -388,7 +474,6 @@ class HilReporter:
         from importlib import metadata
 
         config = self.config
-        plant_path = _option(config, "plant")
         plant = _plant_config(config)
         versions = {"python": platform.python_version()}
         for name in VERSIONED:
@@ -401,10 +486,10 @@ class HilReporter:
             "command": _command(),
             "host": platform.node(),
             "dut": ", ".join(s.text for s in dut_specs(config)),
-            "plant": plant_path or "paper-bench (preset)",
+            "plant": _plant_label(config),
             "plant_sha256": plant.config_hash(),
             "budgets": budgets.source,
-            "seed": int(_option(config, "seed") or 0),
+            "seed": _option(config, "seed"),
             "hypothesis_seed": config.getoption("hypothesis_seed", None),
             "xdist_workers": getattr(config.option, "numprocesses", None),
             "versions": versions,
@@ -504,9 +589,9 @@ def _command() -> str:
 
 
 def _worker_id(report) -> str:
-    """The xdist worker that ran the test ("gw0", ...), or "" without xdist."""
-    gateway = getattr(getattr(report, "node", None), "gateway", None)
-    return getattr(gateway, "id", "") or ""
+    """The xdist worker that ran the test ("gw0", ...; xdist puts it on every report it forwards),
+    or "" without xdist."""
+    return getattr(report, "worker_id", "") or ""
 
 
 def _failure_text(report) -> tuple[str, str]:
