@@ -1,4 +1,4 @@
-"""Bench recordings in the ``hil-recording/1`` format (shared/recording-format.md), read strictly.
+"""Bench recordings in the ``hil-recording/1`` format (docs/recording-format.md), read strictly.
 
 A recording that breaks the format is refused with :class:`RecordingError`, which names the
 file, the line and the column (for meta.json: the JSON line and the key path). Nothing is

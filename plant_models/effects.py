@@ -31,7 +31,7 @@ class Effect:
     name: ClassVar[str] = ""
     #: where the effect acts: "sensor" (edge angle), "timing" (edge time), "electrical", "mechanical"
     layer: ClassVar[str] = ""
-    #: fingerprint for the gap diagnosis (design notes section 6)
+    #: fingerprint for the gap diagnosis (docs/gap.md, Fingerprints)
     fingerprint: ClassVar[Mapping[str, str]] = {}
 
     def contribute(self, plant: "CompiledPlant") -> None:  # pragma: no cover - abstract

@@ -1,6 +1,6 @@
 """Hall-sensor geometry and the six-step commutation table (one place for the conventions).
 
-Conventions (``shared/recording-format.md``): in electrical degrees, for forward rotation,
+Conventions (``docs/recording-format.md``): in electrical degrees, for forward rotation,
 A rises at 0 and falls at 180, B rises at 120 and falls at 300, C rises at 240 and falls at 60.
 Magnet boundary ``k`` (rotor-fixed, every 180 deg electrical) passes sensor X at
 ``theta_e = 180*k + SENSOR_POSITION_DEG_E[X]``; it is caused by the leading edge of magnet pole

@@ -90,7 +90,7 @@ def test_whiteness_option_steers_q_where_the_eq12_recursion_does_not(end_rpm, q_
 
 
 def test_guards_fire_and_are_visible_when_q_starts_100x_too_large():
-    """design notes section 5: the textbook update loses positive definiteness from Q0 x 100."""
+    """docs/sage-husa.md, What adapts, and the guards: the textbook update loses positive definiteness from Q0 x 100."""
     e, cur = edges_and_currents([OperatingPoint(1.0, 7000.0)], 2e-6, 0.0, 1.0, 3)
     sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=tuple(100 * q for q in NOMINAL_Q)))
     run = sh.run(e.t_conditioned_s, cur)

@@ -2,7 +2,7 @@
 
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
-boot-up after an NMT reset and echoes stale indexes in some aborts: design notes section 4).
+boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
 (0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
 hil.dut.messages.

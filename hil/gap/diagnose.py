@@ -1,4 +1,4 @@
-"""Diagnose the sim-to-real gap of a recording (design notes section 6, recording-format output).
+"""Diagnose the sim-to-real gap of a recording (docs/gap.md; the output keys are in docs/recording-format.md).
 
 Where: per-edge residuals against the model, localised per sensor, polarity, pole, operating
 region and mechanical order, gated against the noise floor estimated inside each residual
