@@ -50,10 +50,6 @@ def ideal_edge_angle_deg_e(sensor: np.ndarray, boundary: np.ndarray) -> np.ndarr
     return 180.0 * np.asarray(boundary, dtype=float) + SENSOR_POSITION_DEG_E[np.asarray(sensor)]
 
 
-def pole_of_boundary(boundary: np.ndarray, pole_pairs: int) -> np.ndarray:
-    return np.mod(np.asarray(boundary), 2 * pole_pairs)
-
-
 def trapezoid(phi_deg: np.ndarray | float, flat_top_deg_e: float = 120.0) -> np.ndarray:
     """Unit trapezoidal back-EMF shape: 0 at phi=0 rising, flat +1 around 90, flat -1 around 270."""
     half_ramp = (180.0 - flat_top_deg_e) / 2.0

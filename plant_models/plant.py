@@ -86,9 +86,6 @@ class PlantConfig:
         kept = tuple(e for e in self.effects if e.name not in names)
         return dataclasses.replace(self, effects=kept + tuple(effects))
 
-    def without(self, *names: str) -> "PlantConfig":
-        return dataclasses.replace(self, effects=tuple(e for e in self.effects if e.name not in names))
-
     def effect(self, name: str) -> Effect | None:
         return next((e for e in self.effects if e.name == name), None)
 

@@ -124,13 +124,3 @@ def conditioning_delay_table(speed_rpm: np.ndarray, t_raw_s: np.ndarray, t_condi
             table["rise_deg_e"].append(float(d[r].mean() * s * 6 * pole_pairs))
             table["fall_deg_e"].append(float(d[~r].mean() * s * 6 * pole_pairs))
     return table
-
-
-def armature_regression(mean_phase_current_a: np.ndarray, offset_deg_e: np.ndarray) -> tuple[float, float, float]:
-    """Armature-reaction offset versus mean phase current by linear regression (Section 2.4).
-
-    Returns (slope deg_e/A, intercept deg_e, one-sigma slope uncertainty)."""
-    from scipy.stats import linregress
-
-    res = linregress(np.asarray(mean_phase_current_a, dtype=float), np.asarray(offset_deg_e, dtype=float))
-    return float(res.slope), float(res.intercept), float(res.stderr)

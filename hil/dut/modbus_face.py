@@ -31,8 +31,10 @@ STRATEGY, SPEED = 0, 1
 CAL_STAGED, CAL_APPLY, COMMAND, CAL_APPLIED = 10, 30, 31, 40
 RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
 FILTER = 60
-RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
-ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
+#: read-back block from 100: speed, Q diagonal (3), R diagonal (2) as FLOAT32 (100..113)
+RB_SPEED, RB_TRIPS, RB_PRED = 100, 112, 114
+#: fault block from 120: error register, fault count, then the fault history's codes
+ERROR_REGISTER = 120
 #: gated edges, covariance repairs, divergence fades, band projections: UINT32 each
 RB_COUNTERS = 130
 COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
@@ -41,7 +43,6 @@ EDGE_IN, REPLY = 200, 210
 #: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
 EDGE_CYCLE_CURRENT = 204
 REPLY_FRAMES = 4
-LAST = REPLY + 1 + 4 * REPLY_FRAMES  # 227
 
 
 def _f32_regs(v: float) -> list[int]:
