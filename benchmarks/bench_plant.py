@@ -13,7 +13,6 @@ import time
 
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
 
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench  # noqa: E402
 from plant_models import effects as fx  # noqa: E402
@@ -61,11 +60,32 @@ def kinematic(seconds=60.0, speed=10000.0):
 def main():
     rows = []
     rtf_o, eps_o, n_o = electrical(OracleCommutation())
-    rows.append(("electrical plant, oracle commutation, 15,000 rpm, 100 kHz samples", f"{rtf_o:8.1f}x real time", f"{eps_o:12,.0f} edges/s", ">= 20x (goal 100x)"))
+    rows.append(
+        (
+            "electrical plant, oracle commutation, 15,000 rpm, 100 kHz samples",
+            f"{rtf_o:8.1f}x real time",
+            f"{eps_o:12,.0f} edges/s",
+            ">= 20x (goal 100x)",
+        )
+    )
     rtf_r, eps_r, _ = electrical(RawHallCommutation(), effects=ALL_HALL_EFFECTS)
-    rows.append(("electrical plant, raw Hall, all Hall effects, 15,000 rpm, 100 kHz", f"{rtf_r:8.1f}x real time", f"{eps_r:12,.0f} edges/s", ">= 20x (goal 100x)"))
+    rows.append(
+        (
+            "electrical plant, raw Hall, all Hall effects, 15,000 rpm, 100 kHz",
+            f"{rtf_r:8.1f}x real time",
+            f"{eps_r:12,.0f} edges/s",
+            ">= 20x (goal 100x)",
+        )
+    )
     eps_k, n_k = kinematic()
-    rows.append((f"kinematic edge-only mode, all Hall effects ({n_k:,} edges)", "", f"{eps_k:12,.0f} edges/s", ">= 1,000,000 edges/s"))
+    rows.append(
+        (
+            f"kinematic edge-only mode, all Hall effects ({n_k:,} edges)",
+            "",
+            f"{eps_k:12,.0f} edges/s",
+            ">= 1,000,000 edges/s",
+        )
+    )
     width = max(len(r[0]) for r in rows)
     print(f"{'case':<{width}}  {'real-time factor':>22}  {'throughput':>20}  bar")
     for r in rows:

@@ -33,8 +33,13 @@ def main() -> None:
         for _ in range(args.runs):
             for name, extra in variants.items():
                 t0 = time.perf_counter()
-                subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *extra], cwd=tmp, env=env,
-                               check=True, capture_output=True)
+                subprocess.run(
+                    [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *extra],
+                    cwd=tmp,
+                    env=env,
+                    check=True,
+                    capture_output=True,
+                )
                 best[name] = min(best[name], time.perf_counter() - t0)
     for name, seconds in best.items():
         print(f"{name:>20}: best of {args.runs} {seconds:.3f} s")

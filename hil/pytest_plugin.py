@@ -39,29 +39,69 @@ from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, t
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
 
-VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
-             "matplotlib", "jinja2")
+VERSIONED = (
+    "bldc-hil",
+    "numpy",
+    "scipy",
+    "numba",
+    "python-can",
+    "canopen",
+    "pymodbus",
+    "hypothesis",
+    "pytest",
+    "pytest-xdist",
+    "matplotlib",
+    "jinja2",
+)
 
 
 def pytest_addoption(parser):
     group = parser.getgroup("hil", "BLDC pump controller HIL")
-    group.addoption("--hil-dut", action="append", default=None, metavar="SPEC",
-                    help="controller under test (repeatable): virtual[:canopen|modbus|in-process], canopen:interface=..,channel=..,node=.., "
-                         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual")
-    group.addoption("--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset")
+    group.addoption(
+        "--hil-dut",
+        action="append",
+        default=None,
+        metavar="SPEC",
+        help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
+        "canopen:interface=..,channel=..,node=.., "
+        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual",
+    )
+    group.addoption(
+        "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
+    )
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
-    group.addoption("--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in")
-    group.addoption("--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test")
-    parser.addini("hil_dut", "controller spec(s), shell-separated, used when --hil-dut is not given", type="args", default=[])
-    parser.addini("hil_plant", "plant TOML (relative to the ini file) used when --hil-plant is not given", type="paths", default=[])
-    parser.addini("hil_budgets", "budgets TOML (relative to the ini file) used when --hil-budgets is not given", type="paths", default=[])
+    group.addoption(
+        "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
+    )
+    group.addoption(
+        "--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test"
+    )
+    parser.addini(
+        "hil_dut", "controller spec(s), shell-separated, used when --hil-dut is not given", type="args", default=[]
+    )
+    parser.addini(
+        "hil_plant",
+        "plant TOML (relative to the ini file) used when --hil-plant is not given",
+        type="paths",
+        default=[],
+    )
+    parser.addini(
+        "hil_budgets",
+        "budgets TOML (relative to the ini file) used when --hil-budgets is not given",
+        type="paths",
+        default=[],
+    )
     parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="int", default=0)
-    parser.addini("hil_report_dir", "report directory (relative to the ini file) used when --hil-report-dir is not given", type="paths",
-                  default=[])
+    parser.addini(
+        "hil_report_dir",
+        "report directory (relative to the ini file) used when --hil-report-dir is not given",
+        type="paths",
+        default=[],
+    )
 
 
 _PATH_KEYS = ("plant", "budgets", "report_dir")
-_PLANT = pytest.StashKey()    #: the parsed plant configuration (the TOML is read once per session)
+_PLANT = pytest.StashKey()  #: the parsed plant configuration (the TOML is read once per session)
 _BUDGETS = pytest.StashKey()  #: the budgets in force, read once per session
 _EXPLICIT = pytest.StashKey[bool]()  #: an option or ini key of the plugin was given
 
@@ -77,8 +117,9 @@ def _option(config, name: str):
         return config.invocation_params.dir / value
     paths = config.getini(f"hil_{name}")
     if len(paths) > 1:
-        raise pytest.UsageError(f"hil: ini key hil_{name} in {config.inipath} takes one path, got {len(paths)}: "
-                                f"{' '.join(map(str, paths))}")
+        raise pytest.UsageError(
+            f"hil: ini key hil_{name} in {config.inipath} takes one path, got {len(paths)}: {' '.join(map(str, paths))}"
+        )
     return paths[0] if paths else None
 
 
@@ -89,8 +130,12 @@ def _dut_texts(config) -> list[str]:
 def _explicit(config) -> bool:
     """Whether the run configures the plugin (any --hil-* option or hil_* ini key given)."""
     if _EXPLICIT not in config.stash:
-        given = [config.getoption("--hil-dut"), config.getini("hil_dut"), _option(config, "seed") != 0,
-                 *(_option(config, name) for name in _PATH_KEYS)]
+        given = [
+            config.getoption("--hil-dut"),
+            config.getini("hil_dut"),
+            _option(config, "seed") != 0,
+            *(_option(config, name) for name in _PATH_KEYS),
+        ]
         config.stash[_EXPLICIT] = any(given)
     return config.stash[_EXPLICIT]
 
@@ -139,7 +184,9 @@ def hil_settings(**overrides):
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
+    config.addinivalue_line(
+        "markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)"
+    )
     report_dir = _option(config, "report_dir")
     if _explicit(config):
         _check_configuration(config, report_dir)
@@ -150,9 +197,14 @@ def pytest_configure(config):
     database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
     # no shrinking: each example is a closed-loop plant run, and a failing one is saved whole as a
     # replayable stimulus anyway (hil replay)
-    settings.register_profile("hil", deadline=None, print_blob=True, database=database,
-                              phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
-                              suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large])
+    settings.register_profile(
+        "hil",
+        deadline=None,
+        print_blob=True,
+        database=database,
+        phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
+    )
     if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
         config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
 
@@ -167,8 +219,10 @@ def _check_configuration(config, report_dir) -> None:
     workers = config.getoption("numprocesses", None)
     real = [s.text for s in specs if not s.is_virtual]
     if controller and workers and real:
-        raise pytest.UsageError(f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
-                                "a real controller serves one session: run without -n")
+        raise pytest.UsageError(
+            f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
+            "a real controller serves one session: run without -n"
+        )
     from plant_models.params import ConfigError
 
     try:
@@ -201,7 +255,12 @@ def pytest_report_header(config):
 def pytest_report_collectionfinish(config, items):
     """The header of a run that uses the plugin without configuring it (printed after collection,
     once it is known that a test uses it)."""
-    if not _explicit(config) and not config.option.no_header and config.get_verbosity() >= 0 and any(map(_uses_plugin, items)):
+    if (
+        not _explicit(config)
+        and not config.option.no_header
+        and config.get_verbosity() >= 0
+        and any(map(_uses_plugin, items))
+    ):
         return _header(config)
     return None
 
@@ -224,15 +283,27 @@ def pytest_runtest_makereport(item, call):
         return rep
     if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
         _apply_waiver(item, rep)
-    if rep.skipped and hasattr(rep, "wasxfail") and call.when != "call" and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception)):
+    if (
+        rep.skipped
+        and hasattr(rep, "wasxfail")
+        and call.when != "call"
+        and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception))
+    ):
         rep.outcome = "failed"
         del rep.wasxfail
         rep.sections.append(("hil", f"{call.when} raised under an xfail mark: an error, not a known failure"))
-    elif rep.skipped and not hasattr(rep, "wasxfail") and isinstance(exc, pytest.skip.Exception) and (hidden := _unreachable(exc)):
+    elif (
+        rep.skipped
+        and not hasattr(rep, "wasxfail")
+        and isinstance(exc, pytest.skip.Exception)
+        and (hidden := _unreachable(exc))
+    ):
         reason = getattr(exc, "msg", "") or str(exc)
         rep.outcome = "failed"
-        rep.longrepr = (f"skipped ({reason}) while the controller could not be reached: an error, not a skip\n"
-                        f"{type(hidden).__name__}: {hidden}")
+        rep.longrepr = (
+            f"skipped ({reason}) while the controller could not be reached: an error, not a skip\n"
+            f"{type(hidden).__name__}: {hidden}"
+        )
         rep.user_properties.append((PROPERTY_PREFIX + "unreachable", f"{type(hidden).__name__}: {hidden}"))
     return rep
 
@@ -259,8 +330,15 @@ def _unreachable(exc: BaseException):
     """The controller link, connection, CAN or serial error a skip was raised while handling, if any
     (not any OSError: a skip because an optional file is missing is a real "not applicable")."""
     # an exception of a library's type exists only if that library was imported: look, do not import
-    unreachable = (ConnectionError, TimeoutError, *(getattr(sys.modules[m], name) for m, name in (
-        ("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException")) if m in sys.modules))
+    unreachable = (
+        ConnectionError,
+        TimeoutError,
+        *(
+            getattr(sys.modules[m], name)
+            for m, name in (("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException"))
+            if m in sys.modules
+        ),
+    )
     seen, cause = set(), exc.__cause__ or exc.__context__
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, unreachable):
@@ -344,7 +422,9 @@ def hil_dut(hil_dut_spec, hil_plant_config):
 @pytest.fixture
 def hil_link(hil_dut, request):
     """The controller link, reset for this test (faults cleared, control logic restarted)."""
-    request.node.user_properties.append((PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity}))
+    request.node.user_properties.append(
+        (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity})
+    )
     hil_dut.link.reset()
     return hil_dut.link
 
@@ -361,12 +441,23 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
 
     benches = 0
 
-    def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
-             config=None):
+    def make(
+        strategy,
+        corrections=None,
+        effects=(),
+        speed_rpm: float = 6000.0,
+        filter_settings=None,
+        seed: int | None = None,
+        config=None,
+    ):
         nonlocal benches
         config = (config or hil_plant_config).with_effects(*effects)
-        note(f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from {speed_rpm:.0f} rpm"
-             f"{', calibration downloaded' if corrections is not None else ''}, effects: {', '.join(e.name for e in effects) or 'none'}")
+        note(
+            f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from "
+            f"{speed_rpm:.0f} rpm"
+            f"{', calibration downloaded' if corrections is not None else ''}, effects: "
+            f"{', '.join(e.name for e in effects) or 'none'}"
+        )
         if benches:  # hil_link reset the controller for the first bench; each later one starts from a reset too
             hil_link.reset()
         benches += 1
@@ -377,8 +468,14 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
         hil_link.set_strategy(int(strategy))
         # plant steps of at most 2 us: the armature reaction follows the instantaneous current, which
         # moves fast right after a commutation; a coarser step would blur it (docs/acceptance.md)
-        return LockstepBench(config, hil_link, initial_speed_rpm=speed_rpm, duty=steady_state(config.motor, speed_rpm)["duty"],
-                             seed=hil_seed if seed is None else seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+        return LockstepBench(
+            config,
+            hil_link,
+            initial_speed_rpm=speed_rpm,
+            duty=steady_state(config.motor, speed_rpm)["duty"],
+            seed=hil_seed if seed is None else seed,
+            sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+        )
 
     return make
 
@@ -418,11 +515,24 @@ class Evidence:
         self._node.user_properties.append((PROPERTY_PREFIX + "evidence", item))
 
     def value(self, name: str, value, unit: str = "") -> None:
-        self._add({"kind": "value", "name": name, "value": float(value) if isinstance(value, (int, float)) else str(value), "unit": unit})
+        self._add(
+            {
+                "kind": "value",
+                "name": name,
+                "value": float(value) if isinstance(value, (int, float)) else str(value),
+                "unit": unit,
+            }
+        )
 
     def table(self, name: str, columns, rows) -> None:
-        self._add({"kind": "table", "name": name, "columns": [str(c) for c in columns],
-                   "rows": [[v if isinstance(v, (int, float, str)) else str(v) for v in row] for row in rows]})
+        self._add(
+            {
+                "kind": "table",
+                "name": name,
+                "columns": [str(c) for c in columns],
+                "rows": [[v if isinstance(v, (int, float, str)) else str(v) for v in row] for row in rows],
+            }
+        )
 
     def text(self, name: str, text: str) -> None:
         self._add({"kind": "text", "name": name, "text": str(text)})
@@ -466,8 +576,12 @@ class HilReporter:
         self.config = config
         self.pending: dict[str, list] = {}
         budgets = _budgets(config)
-        self.writer = ReportWriter(directory, session=self._session_info(budgets), requirements=budgets.requirement_titles(),
-                                   waivers=budgets.waivers)
+        self.writer = ReportWriter(
+            directory,
+            session=self._session_info(budgets),
+            requirements=budgets.requirement_titles(),
+            waivers=budgets.waivers,
+        )
         self.writer.render()  # an empty report exists from the start
 
     def _session_info(self, budgets) -> dict:
@@ -514,7 +628,12 @@ class HilReporter:
         for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)
             self.writer.add(self._record(nodeid, reports))
         self.pending.clear()
-        self.writer.finish({"finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "exit_status": int(exitstatus)})
+        self.writer.finish(
+            {
+                "finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+                "exit_status": int(exitstatus),
+            }
+        )
 
     def pytest_terminal_summary(self, terminalreporter):
         content = self.writer.content()
@@ -539,14 +658,20 @@ class HilReporter:
                 message = message or xfail_reason
             if phase is None:
                 if r.failed:
-                    unreachable = any(str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ()))
+                    unreachable = any(
+                        str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ())
+                    )
                     phase = "failed" if r.when == "call" and not unreachable else "error"
                 elif r.skipped:
                     phase = "skipped"
                 else:
                     phase = "passed"
-            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(PROPERTY_PREFIX + "waived_failure")
-            if waived is not None:  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
+            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(
+                PROPERTY_PREFIX + "waived_failure"
+            )
+            if (
+                waived is not None
+            ):  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
                 phase = "failed"
             if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
                 outcome = phase
@@ -554,9 +679,21 @@ class HilReporter:
                     message, details = waived["message"], waived["details"]
                 elif r.failed or r.skipped:
                     message, details = _failure_text(r)
-        record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
-                  "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
-                  "worker": _worker_id(reports[-1]), "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else ""}
+        record = {
+            "nodeid": nodeid,
+            "outcome": outcome,
+            "duration_s": round(duration, 3),
+            "message": message,
+            "details": details,
+            "requirements": [],
+            "measurements": [],
+            "evidence": [],
+            "dut": "",
+            "dut_identity": {},
+            "doc": "",
+            "worker": _worker_id(reports[-1]),
+            "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
+        }
         for key, value in props:
             key = str(key)
             if key == "requirement" and value not in record["requirements"]:
@@ -565,7 +702,7 @@ class HilReporter:
                 record["measurements"].append(json.loads(value))
             if not key.startswith(PROPERTY_PREFIX):
                 continue
-            kind = key[len(PROPERTY_PREFIX):]
+            kind = key[len(PROPERTY_PREFIX) :]
             if kind == "evidence":
                 record["evidence"].append(value)
             elif kind == "dut":

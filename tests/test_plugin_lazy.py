@@ -51,7 +51,9 @@ def test_a_session_that_does_not_use_the_plugin_loads_nothing_heavy_and_prints_n
 
 
 def test_a_session_that_requests_a_fixture_loads_the_plant_and_prints_the_header(pytester, monkeypatch):
-    pytester.makepyfile(test_uses="def test_uses(hil_plant_config):\n    assert hil_plant_config.motor.pole_pairs > 0\n")
+    pytester.makepyfile(
+        test_uses="def test_uses(hil_plant_config):\n    assert hil_plant_config.motor.pole_pairs > 0\n"
+    )
     result, out, heavy = _run_and_list_modules(pytester, monkeypatch)
     assert result.ret == 0, out
     assert "plant_models" in heavy
@@ -67,11 +69,15 @@ def test_a_requirement_marker_alone_makes_the_session_use_the_plugin(pytester, m
 
 def test_ini_paths_are_relative_to_the_ini_file_and_the_seed_is_an_int(pytester, monkeypatch):
     (pytester.path / "conf").mkdir()
-    (pytester.path / "conf" / "plant.toml").write_text('preset = "paper-bench"\n[[effects]]\nname = "hysteresis"\nlag_deg_e = 0.7\n')
+    (pytester.path / "conf" / "plant.toml").write_text(
+        'preset = "paper-bench"\n[[effects]]\nname = "hysteresis"\nlag_deg_e = 0.7\n'
+    )
     pytester.makeini("[pytest]\nhil_plant = conf/plant.toml\nhil_seed = 7\n")
-    pytester.makepyfile(test_ini="def test_ini(hil_plant_config, hil_seed):\n"
-                                 "    assert [e.name for e in hil_plant_config.effects] == ['hysteresis']\n"
-                                 "    assert hil_seed == 7 and type(hil_seed) is int\n")
+    pytester.makepyfile(
+        test_ini="def test_ini(hil_plant_config, hil_seed):\n"
+        "    assert [e.name for e in hil_plant_config.effects] == ['hysteresis']\n"
+        "    assert hil_seed == 7 and type(hil_seed) is int\n"
+    )
     elsewhere = pytester.path / "sub"
     elsewhere.mkdir()
     monkeypatch.chdir(elsewhere)  # the current directory is not where the paths are relative to
@@ -105,7 +111,9 @@ def test_xdist_against_a_real_controller_is_refused_in_one_line(pytester):
 
 def test_xdist_against_the_virtual_controller_runs_and_records_the_worker(pytester, monkeypatch):
     _this_checkout(monkeypatch)
-    pytester.makepyfile(test_w="import pytest\n\n@pytest.mark.parametrize('i', range(4))\ndef test_w(hil_seed, i):\n    pass\n")
+    pytester.makepyfile(
+        test_w="import pytest\n\n@pytest.mark.parametrize('i', range(4))\ndef test_w(hil_seed, i):\n    pass\n"
+    )
     result = pytester.runpytest_subprocess("-n", "2", "--hil-report-dir", "rep")
     result.assert_outcomes(passed=4)
     records = json.loads((pytester.path / "rep" / "hil-report.json").read_text())["tests"]
@@ -120,14 +128,18 @@ def test_the_controller_is_reset_once_per_test_and_once_more_per_further_bench(p
         "    count = []\n"
         "    real = hil_dut.link.reset\n"
         "    monkeypatch.setattr(hil_dut.link, 'reset', lambda: (count.append(1), real())[1])\n"
-        "    return count\n")
-    pytester.makepyfile(test_r=(
-        "from hil.dut import Strategy\n\n"
-        "def test_one_bench(resets, hil_bench):\n"
-        "    hil_bench(Strategy.RAW)\n"
-        "    assert len(resets) == 1\n\n"
-        "def test_two_benches(resets, hil_bench):\n"
-        "    hil_bench(Strategy.RAW)\n"
-        "    hil_bench(Strategy.RAW)\n"
-        "    assert len(resets) == 2\n"))
+        "    return count\n"
+    )
+    pytester.makepyfile(
+        test_r=(
+            "from hil.dut import Strategy\n\n"
+            "def test_one_bench(resets, hil_bench):\n"
+            "    hil_bench(Strategy.RAW)\n"
+            "    assert len(resets) == 1\n\n"
+            "def test_two_benches(resets, hil_bench):\n"
+            "    hil_bench(Strategy.RAW)\n"
+            "    hil_bench(Strategy.RAW)\n"
+            "    assert len(resets) == 2\n"
+        )
+    )
     pytester.runpytest("--hil-dut", "virtual:in-process").assert_outcomes(passed=2)

@@ -127,7 +127,22 @@ def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty
 @pytest.fixture(scope="module")
 def ideal_stimulus(tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("stimulus") / "ideal"
-    assert hil_main(["signals", "export", "--out", str(out), "--speed-rpm", str(SPEED_RPM), "--duration-s", "0.5", "--no-deviations"]) == 0
+    assert (
+        hil_main(
+            [
+                "signals",
+                "export",
+                "--out",
+                str(out),
+                "--speed-rpm",
+                str(SPEED_RPM),
+                "--duration-s",
+                "0.5",
+                "--no-deviations",
+            ]
+        )
+        == 0
+    )
     return out
 
 
@@ -142,10 +157,15 @@ def test_independent_controller_delay_is_recovered(ideal_stimulus, tmp_path, com
     """The judged case: 20 us + 4 us per sector after each Hall change, high side chopped at
     20 kHz, ideal stimulus at 6000 rpm: mean within 0.05 deg e of the delay, RMS within 3 %,
     nothing missed, no PWM edge taken for a commutation."""
-    plan = independent_controller(ideal_stimulus, tmp_path / "gates.vcd", complementary=complementary, dead_time_s=0.5e-6)
+    plan = independent_controller(
+        ideal_stimulus, tmp_path / "gates.vcd", complementary=complementary, dead_time_s=0.5e-6
+    )
     got = score_json(ideal_stimulus, tmp_path / "gates.vcd")
     assert set(got) == {"commutations", "missed", "extra", "angle_error_deg_e", "time_error_s"}
-    assert set(got["angle_error_deg_e"]) == {"mean", "rms", "p99", "max_abs"} and set(got["time_error_s"]) == {"mean", "rms"}
+    assert set(got["angle_error_deg_e"]) == {"mean", "rms", "p99", "max_abs"} and set(got["time_error_s"]) == {
+        "mean",
+        "rms",
+    }
     delays_s = np.array([20e-6 + 4e-6 * s for _, s in plan])
     # the first Hall change only starts the controller (its first pair is not a commutation)
     expected_deg = delays_s[1:] * OMEGA_E_DEG_S
@@ -153,7 +173,7 @@ def test_independent_controller_delay_is_recovered(ideal_stimulus, tmp_path, com
     assert got["extra"] == 0
     assert got["commutations"] == len(plan) - 1
     assert abs(got["angle_error_deg_e"]["mean"] - expected_deg.mean()) <= 0.05
-    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg ** 2)) - 1.0) <= 0.03
+    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg**2)) - 1.0) <= 0.03
     assert abs(got["time_error_s"]["mean"] - delays_s[1:].mean()) <= 1e-6
 
 
@@ -203,9 +223,12 @@ def deterministic_plant():
 
     from hil.calibration.campaign import station_corrections
 
-    config = paper_bench().with_effects(fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
-                                        fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),
-                                        fx.ConditioningDelay.from_circuit(PAPER_BENCH_CIRCUIT), fx.TimerQuantization(tick_s=1e-7))
+    config = paper_bench().with_effects(
+        fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
+        fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),
+        fx.ConditioningDelay.from_circuit(PAPER_BENCH_CIRCUIT),
+        fx.TimerQuantization(tick_s=1e-7),
+    )
     return config, station_corrections(config)
 
 
@@ -233,8 +256,13 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
             lk.download_calibration(corrections)
         return lk
 
-    bench = LockstepBench(config, link(), initial_speed_rpm=SPEED_RPM, duty=steady_state(config.motor, SPEED_RPM)["duty"],
-                          sim_options={"max_step_s": 2e-6})
+    bench = LockstepBench(
+        config,
+        link(),
+        initial_speed_rpm=SPEED_RPM,
+        duty=steady_state(config.motor, SPEED_RPM)["duty"],
+        sim_options={"max_step_s": 2e-6},
+    )
     bench.sim.run_until(0.6)
     c = bench.sim.commutations()
     keep = c.t_s >= 0.1  # past the controller's start and pole alignment on both paths
@@ -243,9 +271,17 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     speed = float(np.mean(s.speed_rpm[s.t_s >= 0.1]))
     assert abs(speed - SPEED_RPM) < 0.01 * SPEED_RPM
 
-    export(tmp_path / "stim", ExportSettings(config=config, breakpoints=[(0.0, speed)], duration_s=0.6, sample_rate_hz=fs, write_csv=False))
-    run_loopback(tmp_path / "stim", link(), tmp_path / "gates.vcd", pwm_frequency_hz=config.inverter.pwm_frequency_hz,
-                 capture_tick_s=config.compile().timer_tick_s)
+    export(
+        tmp_path / "stim",
+        ExportSettings(config=config, breakpoints=[(0.0, speed)], duration_s=0.6, sample_rate_hz=fs, write_csv=False),
+    )
+    run_loopback(
+        tmp_path / "stim",
+        link(),
+        tmp_path / "gates.vcd",
+        pwm_frequency_hz=config.inverter.pwm_frequency_hz,
+        capture_tick_s=config.compile().timer_tick_s,
+    )
     sc = score(tmp_path / "stim", tmp_path / "gates.vcd")
     assert sc.missed == 0 and sc.extra == 0
     late = sc.t_ideal_s >= 0.1
@@ -254,7 +290,7 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     # pin quantisation (half a sample) plus gate quantisation (half a sample), as an angle
     bound_deg = 1.0 / fs * speed * 6.0 * POLE_PAIRS
     assert abs(np.mean(err) - np.mean(lock_err)) <= bound_deg
-    assert abs(np.sqrt(np.mean(err ** 2)) - np.sqrt(np.mean(lock_err ** 2))) <= bound_deg
+    assert abs(np.sqrt(np.mean(err**2)) - np.sqrt(np.mean(lock_err**2))) <= bound_deg
     for q in range(6):
         assert abs(np.mean(err[sector == q]) - np.mean(lock_err[lock_sector == q])) <= bound_deg, q
 
@@ -270,15 +306,20 @@ def loopback_gates(ideal_stimulus, tmp_path_factory) -> Path:
 def _sigrok() -> str:
     exe = shutil.which("sigrok-cli")
     if exe is None:
-        pytest.skip("sigrok-cli is not installed (Debian package sigrok-cli; .ci/run installs it): the .sr reader is not checked "
-                    "against the real tool's files in this run")
+        pytest.skip(
+            "sigrok-cli is not installed (Debian package sigrok-cli; .ci/run installs it): the .sr reader is not "
+            "checked "
+            "against the real tool's files in this run"
+        )
     return exe
 
 
 def test_sigrok_session_scores_the_same_as_its_vcd(ideal_stimulus, loopback_gates, tmp_path):
     exe = _sigrok()
     sr = tmp_path / "gates.sr"
-    subprocess.run([exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300
+    )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, sr)
     assert a["commutations"] == b["commutations"] > 500 and a["missed"] == b["missed"] and a["extra"] == b["extra"]
     for group in ("angle_error_deg_e", "time_error_s"):
@@ -291,10 +332,14 @@ def test_sigrok_csv_export_scores_the_same_as_its_vcd(ideal_stimulus, loopback_g
     are read from its header comments."""
     exe = _sigrok()
     sr = tmp_path / "gates.sr"
-    subprocess.run([exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300
+    )
     csv = tmp_path / "gates.csv"
     with open(csv, "w") as f:
-        subprocess.run([exe, "-i", str(sr), "-O", "csv:time=true:label=channel:dedup=true"], check=True, stdout=f, timeout=300)
+        subprocess.run(
+            [exe, "-i", str(sr), "-O", "csv:time=true:label=channel:dedup=true"], check=True, stdout=f, timeout=300
+        )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, csv)
     assert a["commutations"] == b["commutations"] and a["missed"] == b["missed"] and a["extra"] == b["extra"]
     assert b["angle_error_deg_e"]["mean"] == pytest.approx(a["angle_error_deg_e"]["mean"], abs=1e-9)
@@ -313,7 +358,9 @@ def test_csv_capture_with_mapping_and_inverted_channels(ideal_stimulus, loopback
     csv = tmp_path / "gates.csv"
     csv.write_text("Time [s]," + ",".join(f"Channel {j}" for j in range(6)) + "\n" + "\n".join(rows) + "\n")
     mapping = tmp_path / "map.toml"
-    mapping.write_text("active_low = [\"AL\"]\n[channels]\n" + "".join(f'{g} = "Channel {j}"\n' for j, g in enumerate(GATES)))
+    mapping.write_text(
+        'active_low = ["AL"]\n[channels]\n' + "".join(f'{g} = "Channel {j}"\n' for j, g in enumerate(GATES))
+    )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, csv, "--mapping", str(mapping))
     assert a["commutations"] == b["commutations"] and b["missed"] == 0 and b["extra"] == 0
     assert b["angle_error_deg_e"]["rms"] == pytest.approx(a["angle_error_deg_e"]["rms"], rel=1e-6)
@@ -327,8 +374,11 @@ def _gates_vcd(path: Path, events: list[tuple[float, str, int]], end_s: float) -
     w = VcdWriter(path, Timescale(1, "ns"), list(GATES))
     w.initial([0] * 6)
     events = sorted(events)
-    w.changes(np.array([round(t * 1e9) for t, _, _ in events]), np.array([GATES.index(g) for _, g, _ in events]),
-              np.array([v for _, _, v in events], dtype=float))
+    w.changes(
+        np.array([round(t * 1e9) for t, _, _ in events]),
+        np.array([GATES.index(g) for _, g, _ in events]),
+        np.array([v for _, _, v in events], dtype=float),
+    )
     w.close(round(end_s * 1e9))
     return path
 
@@ -337,10 +387,10 @@ def test_glitch_on_the_floating_phase_is_not_a_commutation(tmp_path):
     from hil.signals.capture import Capture
     from hil.signals.commutations import extract
 
-    ev = [(0.0, "CL", 1), (0.0, "BH", 1)]          # sector 4: B high, C low
-    ev += [(300e-6, "AH", 1), (302e-6, "AH", 0)]     # 2 us spike on the floating phase A
-    ev += [(600e-6, "CL", 0), (600e-6, "AL", 1)]     # commutation to sector 5: B high, A low
-    for k in range(40):                              # B's high side chopped at 20 kHz throughout
+    ev = [(0.0, "CL", 1), (0.0, "BH", 1)]  # sector 4: B high, C low
+    ev += [(300e-6, "AH", 1), (302e-6, "AH", 0)]  # 2 us spike on the floating phase A
+    ev += [(600e-6, "CL", 0), (600e-6, "AL", 1)]  # commutation to sector 5: B high, A low
+    for k in range(40):  # B's high side chopped at 20 kHz throughout
         ev += [(k * 50e-6 + 25e-6, "BH", 0), (k * 50e-6 + 50e-6 - 1e-9, "BH", 1)]
     ex = extract(Capture(_gates_vcd(tmp_path / "g.vcd", ev, 2e-3)))
     t, s = ex.commutations
@@ -367,7 +417,9 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     fs = 250e3
     config = paper_bench(True)
     points = [(0.0, 2000.0), (0.3, 9000.0)]
-    settings = ExportSettings(config=config, breakpoints=points, duration_s=0.3, sample_rate_hz=fs, seed=7, currents=False, write_csv=False)
+    settings = ExportSettings(
+        config=config, breakpoints=points, duration_s=0.3, sample_rate_hz=fs, seed=7, currents=False, write_csv=False
+    )
     export(tmp_path, settings)
     r = VcdReader(tmp_path / "stimulus.vcd")
     ticks, slot, val = (np.concatenate(a) for a in zip(*r.changes(["HA", "HB", "HC"])))
@@ -375,8 +427,16 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     traj = Trajectory(points, 0.3, config.motor.pole_pairs)
     from hil.signals import export as ex_mod
 
-    plant_t = np.sort(np.concatenate([_chunk_edges(config, traj, k * ex_mod.CHUNK_S, min((k + 1) * ex_mod.CHUNK_S, 0.3), settings, None,
-                                                   chunk=k).t_conditioned_s for k in range(math.ceil(0.3 / ex_mod.CHUNK_S))]))
+    plant_t = np.sort(
+        np.concatenate(
+            [
+                _chunk_edges(
+                    config, traj, k * ex_mod.CHUNK_S, min((k + 1) * ex_mod.CHUNK_S, 0.3), settings, None, chunk=k
+                ).t_conditioned_s
+                for k in range(math.ceil(0.3 / ex_mod.CHUNK_S))
+            ]
+        )
+    )
     plant_t = plant_t[(plant_t > 0.5 / fs) & (plant_t < 0.3 - 0.5 / fs)]
     assert t_vcd.size == plant_t.size
     assert np.max(np.abs(np.sort(t_vcd) - plant_t)) <= 0.5 / fs + 1e-12
@@ -391,7 +451,23 @@ def test_csv_is_the_vcd_sampled(tmp_path):
 
     from hil.signals.vcd import VcdReader
 
-    assert hil_main(["signals", "export", "--out", str(tmp_path), "--duration-s", "0.05", "--sample-rate-hz", "200000", "--seed", "3"]) == 0
+    assert (
+        hil_main(
+            [
+                "signals",
+                "export",
+                "--out",
+                str(tmp_path),
+                "--duration-s",
+                "0.05",
+                "--sample-rate-hz",
+                "200000",
+                "--seed",
+                "3",
+            ]
+        )
+        == 0
+    )
     csv = pd.read_csv(tmp_path / "stimulus.csv")
     r = VcdReader(tmp_path / "stimulus.vcd")
     names = ["HA", "HB", "HC", "IA", "IB", "IC"]
@@ -412,10 +488,17 @@ def test_chunk_seams_do_not_change_the_stimulus(tmp_path, monkeypatch):
 
     def run(chunk_s, out):
         monkeypatch.setattr(ex_mod, "CHUNK_S", chunk_s)
-        s = ex_mod.ExportSettings(config=ex_mod.ideal(paper_bench()), breakpoints=[(0, 3000.0)], duration_s=0.2, currents=False,
-                                  write_csv=False)
+        s = ex_mod.ExportSettings(
+            config=ex_mod.ideal(paper_bench()),
+            breakpoints=[(0, 3000.0)],
+            duration_s=0.2,
+            currents=False,
+            write_csv=False,
+        )
         ex_mod.export(out, s)
-        return (out / "truth.csv").read_text(), [l for l in (out / "stimulus.vcd").read_text().splitlines() if not l.startswith(" ")]
+        return (out / "truth.csv").read_text(), [
+            ln for ln in (out / "stimulus.vcd").read_text().splitlines() if not ln.startswith(" ")
+        ]
 
     a, b = run(0.2, tmp_path / "one"), run(0.03, tmp_path / "many")
     assert a[0] == b[0]
@@ -490,9 +573,14 @@ from hypothesis import given, settings, strategies as st  # noqa: E402
 
 
 @settings(deadline=None, max_examples=60, derandomize=True, database=None)
-@given(first=st.integers(0, 5), steps=st.lists(st.sampled_from([1, 1, 1, 5]), min_size=3, max_size=30),
-       gaps_us=st.lists(st.floats(150.0, 2000.0), min_size=30, max_size=30), pwm_hz=st.floats(10e3, 40e3),
-       duty=st.floats(0.05, 0.95), scheme=st.sampled_from(["high", "low", "complementary"]))
+@given(
+    first=st.integers(0, 5),
+    steps=st.lists(st.sampled_from([1, 1, 1, 5]), min_size=3, max_size=30),
+    gaps_us=st.lists(st.floats(150.0, 2000.0), min_size=30, max_size=30),
+    pwm_hz=st.floats(10e3, 40e3),
+    duty=st.floats(0.05, 0.95),
+    scheme=st.sampled_from(["high", "low", "complementary"]),
+)
 def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_hz, duty, scheme):
     """Random six-step runs (either direction of stepping, sector lengths down to 1.5 hold-offs),
     PWM on the high side, the low side or complementary, any duty: the extractor finds exactly
@@ -502,7 +590,7 @@ def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_h
     sectors = [first]
     for d in steps:
         sectors.append((sectors[-1] + d) % 6)
-    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[:len(steps)]) * 1e-6)])
+    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[: len(steps)]) * 1e-6)])
     end = starts[-1] + 1e-3
     t, s = _six_step_states(sectors, starts, end, pwm_hz, duty, scheme)
     ex = Extractor(100e-6)
@@ -521,7 +609,13 @@ def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
     same as six wires, mapped as gates[0] ... gates[5]."""
     from hil.signals.capture import GATES, Capture
 
-    lines = ["$timescale 1 us $end", "$scope module dut $end", "$var wire 6 ! gates [5:0] $end", "$upscope $end", "$enddefinitions $end"]
+    lines = [
+        "$timescale 1 us $end",
+        "$scope module dut $end",
+        "$var wire 6 ! gates [5:0] $end",
+        "$upscope $end",
+        "$enddefinitions $end",
+    ]
     for t, s in Capture(loopback_gates).states():
         for ti, si in zip(t.tolist(), s.tolist()):
             lines += [f"#{round(ti * 1e6)}", f"b{si:b} !"]
