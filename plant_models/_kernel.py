@@ -6,6 +6,12 @@ over the step, so the angle is an exact quadratic inside it. Events that change 
 what an observer sees (a commutation boundary of the oracle, a captured Hall edge) are located
 inside a trial step, and the step is cut back to end exactly on them: edges are exact roots of
 the angle equation, never rounded to the step.
+
+Speed: the step loop allocates nothing and is compiled without numba's reference-counting
+runtime (``_nrt=False``, the ``_kernel_jit`` decorator below). With it, numba wrapped every
+array argument, view and row in atomic increments and decrements that were about a third of the
+step's cost and kept LLVM from holding the state in registers; the one allocation, the step
+loop's scratch, is made once per :func:`run` call by that thin wrapper.
 """
 
 from __future__ import annotations
@@ -20,6 +26,19 @@ P_POLE_PAIRS, P_R, P_L, P_KE, P_FLAT, P_J, P_FRICTION, P_FAN, P_VDC, P_FPWM = ra
 P_HYST, P_ARM_SLOPE, P_RISE, P_FALL, P_JIT_T, P_JIT_A, P_JIT_RHO, P_TICK = range(10, 18)
 P_COG_AMP, P_COG_N, P_COG_PHASE, P_DEAD, P_ISAT, P_LMIN, P_HMAX, P_SAMPLE, P_LATENCY = range(18, 27)
 N_PARAMS = 27
+#: the parameter vector, declared once: slot <- CompiledPlant field (Simulation packs the plant
+#: from this table alone), then the three slots the run itself sets
+PLANT_PARAMS = (
+    (P_POLE_PAIRS, "pole_pairs"), (P_R, "phase_resistance_ohm"), (P_L, "phase_inductance_h"), (P_KE, "ke_v_s_per_rad"),
+    (P_FLAT, "flat_top_deg_e"), (P_J, "inertia_kg_m2"), (P_FRICTION, "friction_n_m_s_per_rad"),
+    (P_FAN, "fan_coefficient_n_m_s2"), (P_VDC, "supply_v"), (P_FPWM, "pwm_frequency_hz"), (P_HYST, "hysteresis_deg_e"),
+    (P_ARM_SLOPE, "armature_slope_deg_e_per_a"), (P_RISE, "rise_delay_s"), (P_FALL, "fall_delay_s"),
+    (P_JIT_T, "jitter_time_rms_s"), (P_JIT_A, "jitter_angle_rms_deg_e"), (P_JIT_RHO, "jitter_correlation"),
+    (P_TICK, "timer_tick_s"), (P_COG_AMP, "cogging_amplitude_n_m"), (P_COG_N, "cogging_periods_per_rev"),
+    (P_COG_PHASE, "cogging_phase_rad"), (P_DEAD, "dead_time_s"), (P_ISAT, "saturation_current_a"),
+    (P_LMIN, "min_inductance_fraction"),
+)
+RUN_PARAMS = ((P_SAMPLE, "sample_period_s"), (P_HMAX, "max_step_s"), (P_LATENCY, "latency_s"))
 
 # float state layout
 S_T, S_THETA_M, S_OMEGA_M, S_IA, S_IB, S_IC, S_DUTY, S_NEXT_SAMPLE = range(8)
@@ -59,8 +78,12 @@ SECTOR_LOW = np.array([0, 1, 1, 2, 2, 0])
 SECTOR_OF_CODE = np.array([-1, 5, 3, 4, 1, 0, 2, -1])
 RAD2DEG = 180.0 / math.pi
 
+# every function the step loop calls: no allocation, no reference counting (module docstring)
+_kernel_jit = njit(cache=True, _nrt=False)
+_kernel_inline = njit(cache=True, inline="always", _nrt=False)
 
-@njit(cache=True, inline="always")
+
+@_kernel_inline
 def _trap(phi, flat):
     half = (180.0 - flat) * 0.5
     x = phi + 90.0
@@ -76,7 +99,7 @@ def _trap(phi, flat):
     return v
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def _root(th0, w0, acc, target, h):
     """Time tau in [0, h] at which th0 + w0 tau + acc tau^2 / 2 reaches target (stable form)."""
     d = target - th0
@@ -93,7 +116,7 @@ def _root(th0, w0, acc, target, h):
     return tau
 
 
-@njit(cache=True)
+@_kernel_inline
 def _commutate(p, st, ist, out_comm, sector):
     """Switch to ``sector``, logging (t, sector, true theta_e) when it changes."""
     if sector == ist[I_SECTOR]:
@@ -108,14 +131,41 @@ def _commutate(p, st, ist, out_comm, sector):
         ist[I_N_COMM] = n + 1
 
 
-@njit(cache=True)
+@_kernel_inline
 def _armature(p, arm_i, arm_deg, current):
     if arm_i.size > 0:
-        return np.interp(current, arm_i, arm_deg)
+        return _interp(current, arm_i, arm_deg)
     return p[P_ARM_SLOPE] * current
 
 
-@njit(cache=True)
+@_kernel_inline
+def _interp(x, xp, fp):
+    """np.interp for one point (xp increasing, >= 2 points), without its array allocation:
+    numba's own np.interp allocates its result even for a scalar. Same arithmetic, same
+    result bit for bit (NumPy's arr_interp: clamped ends, exact at a table point, the slope
+    taken from the other end of the interval if the first gives NaN)."""
+    n = xp.size
+    if math.isnan(x):
+        return x
+    if x < xp[0]:
+        return fp[0]
+    if x > xp[n - 1]:
+        return fp[n - 1]
+    j = 0
+    while j < n - 1 and xp[j + 1] <= x:
+        j += 1
+    if j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    y = slope * (x - xp[j]) + fp[j]
+    if math.isnan(y):
+        y = slope * (x - xp[j + 1]) + fp[j + 1]
+        if math.isnan(y) and fp[j] == fp[j + 1]:
+            y = fp[j]
+    return y
+
+
+@_kernel_jit
 def _draw(st, ist, noise, slot, rms, rho):
     """One sample of a stationary AR(1) process with RMS ``rms`` (white when rho = 0)."""
     if rms == 0.0:
@@ -128,7 +178,7 @@ def _draw(st, ist, noise, slot, rms, rho):
     return rms * x
 
 
-@njit(cache=True)
+@_kernel_jit
 def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
     """Base switching angles of sensor x around its current region, from the switching-angle
     table ``switch_off[sensor, pole, 0 forward / 1 reverse]`` (installation and pole offsets and
@@ -155,7 +205,7 @@ def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
         st[S_FWD_TARGET + x] = kept
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def armature_shift(p, ist, arm_i, arm_deg, current):
     """Armature-reaction shift of the Hall switching angles at mean |i| = ``current`` (deg e).
 
@@ -164,7 +214,20 @@ def armature_shift(p, ist, arm_i, arm_deg, current):
     return ist[I_DIR] * _armature(p, arm_i, arm_deg, current)
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
+def _crossed(th1, ahead, behind, eps_f, eps_r):
+    """+1 if the rotor, now at th1 (deg e), has reached the angle ``ahead``, -1 if it has fallen
+    back to ``behind``, else 0: the one crossing test of the kernel (oracle sectors, ideal and
+    raw Hall edges). The margins ``eps_f``/``eps_r`` are positive in the direction of motion
+    and negative against it (see the step loop)."""
+    if th1 >= ahead - eps_f:
+        return 1
+    if th1 <= behind + eps_r:
+        return -1
+    return 0
+
+
+@_kernel_inline
 def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
     """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
 
@@ -189,18 +252,22 @@ def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
         lag_f, rate_f = p[P_HYST] + st[S_HELD_ARM + x], 0.0
     else:
         lag_f, rate_f = p[P_HYST] + arm0, arm_rate
-    if th1 >= st[S_FWD_TARGET + x] + (lag_f + rate_f * h) - eps_f:
-        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
     if last > 0:
         lag_r, rate_r = p[P_HYST] - st[S_HELD_ARM + x], 0.0
     else:
         lag_r, rate_r = p[P_HYST] - arm0, arm_rate
-    if th1 <= st[S_REV_TARGET + x] - (lag_r - rate_r * h) + eps_r:
+    # the switching angles at the step's end, the lag moving at its rate over the step
+    ahead = st[S_FWD_TARGET + x] + (lag_f + rate_f * h)
+    behind = st[S_REV_TARGET + x] - (lag_r - rate_r * h)
+    d = _crossed(th1, ahead, behind, eps_f, eps_r)
+    if d > 0:
+        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
+    if d < 0:
         return -1, st[S_REV_TARGET + x] - lag_r, rate_r
     return 0, 0.0, 0.0
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def hold_crossing(st, ist, x, d, arm):
     """Sensor x has just switched going ``d`` (present armature shift ``arm``): the boundary
     behind it keeps the shift it was crossed with."""
@@ -209,7 +276,7 @@ def hold_crossing(st, ist, x, d, arm):
     ist[I_LAST_CROSS + x] = d
 
 
-@njit(cache=True)
+@_kernel_inline
 def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     """Terminal voltages u (to ground) and the neutral voltage for the present switch state.
 
@@ -265,9 +332,9 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     return un
 
 
-@njit(cache=True)
+@_kernel_inline
 def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
-    """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (12)."""
+    """Advance currents and rotor by h with inputs held over the step; ``wk`` is scratch (14)."""
     pp = p[P_POLE_PAIRS]
     theta_m = st[S_THETA_M]
     w0 = st[S_OMEGA_M]
@@ -289,7 +356,14 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
     R = p[P_R]
     saturating = p[P_LMIN] < 1.0
-    a = math.exp(-R * h / p[P_L])  # shared decay unless saturation makes L differ per phase
+    # shared decay unless saturation makes L differ per phase; most steps are h_max long, so
+    # the last step's decay is kept (wk[12], wk[13]) instead of calling exp on every step
+    if h == wk[12]:
+        a = wk[13]
+    else:
+        a = math.exp(-R * h / p[P_L])
+        wk[12] = h
+        wk[13] = a
     for x in range(3):
         if tmp_d[x] == 0:
             i1[x] = 0.0
@@ -343,7 +417,7 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     return w0, w1
 
 
-@njit(cache=True)
+@_kernel_jit
 def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
     delay = p[P_RISE] if rising else p[P_FALL]
     jitter = 0.0
@@ -358,7 +432,7 @@ def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
     return t_cond, max(t_cond, t_raw)
 
 
-@njit(cache=True, inline="always")
+@_kernel_inline
 def _pending_of(pending, ist, x):
     """Row of sensor x's edge still on its way through the conditioning circuit, or -1."""
     for q in range(ist[I_N_PENDING]):
@@ -367,21 +441,36 @@ def _pending_of(pending, ist, x):
     return -1
 
 
+# step-loop scratch (float): the trial step's starting state, then small per-phase vectors
+W_BACKUP = 0
+W_U, W_U_NOW, W_E_NOW = N_FSTATE, N_FSTATE + 3, N_FSTATE + 6
+W_TE, W_I3, W_STEP = N_FSTATE + 9, N_FSTATE + 10, N_FSTATE + 13
+W_CROSS = W_STEP + 14  # 3 x (direction, switching angle, rate) of the trial step's sensor crossings
+N_WORK = W_CROSS + 9
+
+
 @njit(cache=True)
 def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
+    return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
+                    out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
+
+
+@_kernel_jit
+def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
+             t_stop, work, tmp_d):
+    """:func:`run`'s step loop, on the scratch ``work`` (N_WORK floats) and ``tmp_d`` (3 ints)."""
     pp = p[P_POLE_PAIRS]
     n_poles = switch_off.shape[1]
     h_max = p[P_HMAX]
-    backup = np.empty(N_FSTATE)
-    ibackup = np.empty(N_ISTATE, dtype=np.int64)
-    tmp_u = np.empty(3)
-    tmp_d = np.empty(3, dtype=np.int64)
-    u_now = np.zeros(3)
-    e_now = np.zeros(3)
-    te_now = np.zeros(1)
-    wk = np.empty(12)
-    i3 = np.empty(3)
+    backup = work[W_BACKUP:W_BACKUP + N_FSTATE]
+    tmp_u = work[W_U:W_U + 3]
+    u_now = work[W_U_NOW:W_U_NOW + 3]
+    e_now = work[W_E_NOW:W_E_NOW + 3]
+    te_now = work[W_TE:W_TE + 1]
+    i3 = work[W_I3:W_I3 + 3]
+    wk = work[W_STEP:W_STEP + 14]
+    crossing = work[W_CROSS:W_CROSS + 9]
     mode = ist[I_MODE]
     while True:
         t = st[S_T]
@@ -447,12 +536,12 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
             i3[0] = st[S_IA]
             i3[1] = st[S_IB]
             i3[2] = st[S_IC]
-            for x in range(3):
-                e_now[x] = p[P_KE] * st[S_OMEGA_M] * _trap(the - BEMF_ZERO[x], p[P_FLAT])
-            _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
             te = 0.0
             for x in range(3):
-                te += p[P_KE] * _trap(the - BEMF_ZERO[x], p[P_FLAT]) * i3[x]
+                f = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+                e_now[x] = p[P_KE] * st[S_OMEGA_M] * f
+                te += p[P_KE] * f * i3[x]
+            _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
             r = out_samples[ist[I_N_SAMPLES]]
             r[0] = t
             r[1] = i3[0]
@@ -486,10 +575,9 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
             h = min(h, pending[q, E_T_CAPTURE] - t)
         if h < 1e-13:
             h = 1e-13
+        # (the integer state is not backed up: a step moves only the float state)
         for c in range(N_FSTATE):
             backup[c] = st[c]
-        for c in range(N_ISTATE):
-            ibackup[c] = ist[c]
         w0, w1 = _step(p, st, ist, h, tmp_u, tmp_d, u_now, e_now, te_now, wk)
         # first unknown event inside the trial step: oracle boundary or an edge emission
         th0 = pp * backup[S_THETA_M] * RAD2DEG
@@ -509,9 +597,10 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
         t_event = st[S_T]
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_f and th0 < 60.0 * (n + 1) - eps_f:
+            d = _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
+            if d > 0 and th0 < 60.0 * (n + 1) - eps_f:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
-            elif th1 <= 60.0 * n + eps_r:
+            elif d < 0:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * n, h))
         # mean |i| and the armature shift run linearly over the trial step; a step cut back to
         # an event keeps this trial's line, so it sees the switching angle the trial located
@@ -521,6 +610,8 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
         arm_rate = (armature_shift(p, ist, arm_i, arm_deg, i_start + i_rate * h) - arm0) / h
         for x in range(3):
             d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            # kept for the commit below, which sees the same crossing unless the step is cut
+            crossing[3 * x], crossing[3 * x + 1], crossing[3 * x + 2] = d, target, rate
             if d == 0:
                 continue
             t_raw = backup[S_T] + _root(th0, we0 - rate, acc, target, h)
@@ -529,11 +620,10 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
             t_event = min(t_event, t_emit)
         # (a cut never shrinks a step below 0.1 ns, so a pathological event cannot stall the
         # loop; edge times stay exact roots either way)
-        if t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10:
+        cut = t_event < st[S_T] - 1e-13 and t_event - backup[S_T] >= 1e-10
+        if cut:
             for c in range(N_FSTATE):
                 st[c] = backup[c]
-            for c in range(N_ISTATE):
-                ist[c] = ibackup[c]
             h = t_event - backup[S_T]
             if h < 1e-13:
                 h = 1e-13
@@ -544,10 +634,7 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
         # commit: oracle sector
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            if th1 >= 60.0 * (n + 1) - eps_f:
-                n += 1
-            elif th1 <= 60.0 * n + eps_r:
-                n -= 1
+            n += _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
             ist[I_ORACLE_N] = n
             _commutate(p, st, ist, out_comm, n % 6)
         # commit: ideal edges (perfect sensor, perfect magnet)
@@ -555,18 +642,12 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
             m = ist[I_IDEAL_REGION + x]
             tf = 180.0 * (m + 1) + SENSOR_POS[x]
             trv = 180.0 * m + SENSOR_POS[x]
-            if th1 >= tf - eps_f:
-                k = m + 1
-                d = 1.0
-                target = tf
-                ist[I_IDEAL_REGION + x] = m + 1
-            elif th1 <= trv + eps_r:
-                k = m
-                d = -1.0
-                target = trv
-                ist[I_IDEAL_REGION + x] = m - 1
-            else:
+            d = _crossed(th1, tf, trv, eps_f, eps_r)
+            if d == 0:
                 continue
+            k = m + 1 if d > 0 else m
+            target = tf if d > 0 else trv
+            ist[I_IDEAL_REGION + x] = m + d
             r = out_ideal[ist[I_N_IDEAL]]
             r[0] = t0 + _root(th0, we0, acc, target, h)
             r[1] = x
@@ -575,7 +656,10 @@ def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges,
             ist[I_N_IDEAL] += 1
         # commit: raw sensor edges into the pending queue
         for x in range(3):
-            d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            if cut:
+                d, target, rate = sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r)
+            else:  # sensor x's switching angles and last crossing are as the trial saw them
+                d, target, rate = int(crossing[3 * x]), crossing[3 * x + 1], crossing[3 * x + 2]
             if d == 0:
                 continue
             tau = _root(th0, we0 - rate, acc, target, h)

@@ -128,35 +128,14 @@ class Simulation:
         self.rng = np.random.default_rng(seed)
         self.seed = seed
         cp = self.plant
-        p = np.zeros(K.N_PARAMS)
-        p[K.P_POLE_PAIRS] = cp.pole_pairs
-        p[K.P_R] = cp.phase_resistance_ohm
-        p[K.P_L] = cp.phase_inductance_h
-        p[K.P_KE] = cp.ke_v_s_per_rad
-        p[K.P_FLAT] = cp.flat_top_deg_e
-        p[K.P_J] = cp.inertia_kg_m2
-        p[K.P_FRICTION] = cp.friction_n_m_s_per_rad
-        p[K.P_FAN] = cp.fan_coefficient_n_m_s2
-        p[K.P_VDC] = cp.supply_v
-        p[K.P_FPWM] = cp.pwm_frequency_hz
-        p[K.P_HYST] = cp.hysteresis_deg_e
-        p[K.P_ARM_SLOPE] = cp.armature_slope_deg_e_per_a
-        p[K.P_RISE] = cp.rise_delay_s
-        p[K.P_FALL] = cp.fall_delay_s
-        p[K.P_JIT_T] = cp.jitter_time_rms_s
-        p[K.P_JIT_A] = cp.jitter_angle_rms_deg_e
-        p[K.P_JIT_RHO] = cp.jitter_correlation
-        p[K.P_TICK] = cp.timer_tick_s
-        p[K.P_COG_AMP] = cp.cogging_amplitude_n_m
-        p[K.P_COG_N] = cp.cogging_periods_per_rev
-        p[K.P_COG_PHASE] = cp.cogging_phase_rad
-        p[K.P_DEAD] = cp.dead_time_s
-        p[K.P_ISAT] = cp.saturation_current_a
-        p[K.P_LMIN] = cp.min_inductance_fraction
         sample_period = 1.0 / sample_rate_hz
-        p[K.P_SAMPLE] = sample_period
-        p[K.P_HMAX] = max_step_s if max_step_s is not None else sample_period
-        p[K.P_LATENCY] = getattr(self.source, "latency_s", 0.0)
+        p = np.zeros(K.N_PARAMS)
+        for index, name in K.PLANT_PARAMS:
+            p[index] = getattr(cp, name)
+        run = {"sample_period_s": sample_period, "max_step_s": max_step_s if max_step_s is not None else sample_period,
+               "latency_s": getattr(self.source, "latency_s", 0.0)}
+        for index, name in K.RUN_PARAMS:
+            p[index] = run[name]
         self.p = p
         self.sample_period_s = sample_period
         # the sensor layer's narrow interface to the kernel: one switching-angle table and one
@@ -294,11 +273,23 @@ class Simulation:
             self._flush()  # STOP_FULL
 
     def _flush(self):
-        for buf, chunks, idx in ((self._edges, self._edge_chunks, K.I_N_EDGES), (self._ideal, self._ideal_chunks, K.I_N_IDEAL), (self._samples, self._sample_chunks, K.I_N_SAMPLES), (self._comm, self._comm_chunks, K.I_N_COMM)):
+        for name, chunks, idx in (
+            ("_edges", self._edge_chunks, K.I_N_EDGES), ("_ideal", self._ideal_chunks, K.I_N_IDEAL),
+            ("_samples", self._sample_chunks, K.I_N_SAMPLES), ("_comm", self._comm_chunks, K.I_N_COMM),
+        ):
             n = int(self.ist[idx])
-            if n:
+            if not n:
+                continue
+            buf = getattr(self, name)
+            if 2 * n >= buf.shape[0]:
+                # at least half full: hand the buffer over and write on into a new one (copying
+                # 100 kHz samples out was a third of the plant's run time); a short tail is
+                # copied, so many small flushes never pin a whole buffer each
+                chunks.append(buf[:n])
+                setattr(self, name, np.empty_like(buf))
+            else:
                 chunks.append(buf[:n].copy())
-                self.ist[idx] = 0
+            self.ist[idx] = 0
 
     # --- results -----------------------------------------------------------------------------
     def edges(self) -> EdgeLog:

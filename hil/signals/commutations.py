@@ -13,9 +13,10 @@ two energised phases. So:
   the evidence instant; if it is the old pair, the evidence was a glitch and is rejected.
 
 The window must span at least one PWM period (so a chopped switch shows) and be shorter than
-the shortest sector. A commutation that changes only the chopped phase at an instant when the
-chopped switch is in its off-time becomes visible when it next turns on (an unobservable
-delay of at most the off-time, unless the controller restarts its PWM period at commutation).
+the shortest sector. A commutation that changes only the chopped phase while a free-running
+carrier holds the chopped switch off becomes visible when it next turns on; the instant is then
+only known to lie in that off-interval and is reported at its midpoint (:func:`_in_off_time`,
+docs/signals.md: within half the off-time, unbiased for an instant uniform over the carrier).
 """
 
 from __future__ import annotations
@@ -38,9 +39,13 @@ _LO = SECTOR_PHASES[:, 1].copy()
 
 # carried state (floats, ints)
 F_PREV_T, F_T_E, F_ACC = 0, 1, 2          # F_ACC..F_ACC+5: on-time of each switch in the window
-N_F = 8
-I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED = range(6)
-N_I = 6
+F_T_REP = 8                               # the instant reported for the open window
+F_CHG_T = 9                               # when the state before the current sample began
+F_ON1, F_ON2 = 10, 16                     # last and last-but-one turn-on of each switch
+F_TOL = 22                                # carrier-grid tolerance: capture resolution (s)
+N_F = 23
+I_SECTOR, I_PREV_S, I_PENDING, I_GLITCH, I_AMBIG, I_STARTED, I_PP, I_HIDDEN, I_OFF_TIME = range(9)
+N_I = 9
 
 
 @njit(cache=True)
@@ -78,9 +83,11 @@ def _decide(fs, ist, hold_s, out_t, out_s, out_k, n_out):
         if cur >= 0:
             ist[I_GLITCH] += 1
         return n_out
-    out_t[n_out] = fs[F_T_E]
+    out_t[n_out] = fs[F_T_REP]
     out_s[n_out] = new
     out_k[n_out] = 1 if cur >= 0 else 0
+    if ist[I_HIDDEN] and cur >= 0:
+        ist[I_OFF_TIME] += 1
     ist[I_SECTOR] = new
     return n_out + 1
 
@@ -98,9 +105,47 @@ def _integrate(fs, state, t_from, t_to, hold_s):
 @njit(cache=True)
 def _open(fs, ist, t):
     ist[I_PENDING] = 1
+    ist[I_HIDDEN] = 0
     fs[F_T_E] = t
+    fs[F_T_REP] = t
     for j in range(6):
         fs[F_ACC + j] = 0.0
+
+
+@njit(cache=True)
+def _in_off_time(fs, ist, new_state, prev, t_on, hold_s):
+    """The off-interval of the chopped switch that hid a commutation, as its midpoint; NaN if the
+    evidence at ``t_on`` is not that pattern.
+
+    Pattern (chopped role r: 0 = high side, 1 = low side): the old pair's chopped switch turned
+    off and left only the other (unchopped) switch on at ``t_off``; at ``t_on`` the floating
+    phase's switch of the same role turned on, ``t_on`` being the carrier's next turn-on (one
+    period, measured between the old switch's last two turn-ons, after its last one). The
+    controller then changed the chopped phase somewhere inside ``[t_off, t_on]`` and a
+    free-running carrier held it off; without further evidence the midpoint is the estimate
+    that is unbiased for an instant uniform in the interval (error within +-half the off-time).
+    A turn-on off the carrier grid (carrier restarted at commutation) is the commutation itself."""
+    cur = ist[I_SECTOR]
+    if cur < 0:
+        return np.nan
+    hi, lo = _HI[cur], _LO[cur]
+    x = 3 - hi - lo
+    for r in range(2):
+        stay, gone = (lo, hi) if r == 0 else (hi, lo)
+        stay_bit = 1 << (2 * stay + 1 - r)
+        j = 2 * gone + r
+        if prev != stay_bit or ist[I_PP] != (stay_bit | (1 << j)) or new_state != (stay_bit | (1 << (2 * x + r))):
+            continue
+        on1, on2, t_off = fs[F_ON1 + j], fs[F_ON2 + j], fs[F_CHG_T]
+        period = on1 - on2
+        if not (0.0 < period <= hold_s and on1 < t_off < t_on):
+            continue
+        # quantisation of both turn-ons and of the period, capped so that a carrier restarted at
+        # commutation is rarely taken for the grid (a change-list CSV's resolution is only bounded)
+        tol = min(2.5 * fs[F_TOL], 0.02 * period) + 1e-6 * period
+        if abs(t_on - (on1 + period)) <= tol:
+            return 0.5 * (t_off + t_on)
+    return np.nan
 
 
 @njit(cache=True)
@@ -124,6 +169,18 @@ def _run(t, s, fs, ist, hold_s, out_t, out_s, out_k):
         if not ist[I_PENDING] and sk != 0:
             if ist[I_SECTOR] < 0 or _floating_on(sk, ist[I_SECTOR]) != 0:
                 _open(fs, ist, tk)
+                t_hidden = _in_off_time(fs, ist, sk, prev, tk, hold_s)
+                if not np.isnan(t_hidden):
+                    fs[F_T_REP] = t_hidden
+                    ist[I_HIDDEN] = 1
+        if sk != prev:
+            rising = sk & ~prev
+            for j in range(6):
+                if (rising >> j) & 1:
+                    fs[F_ON2 + j] = fs[F_ON1 + j]
+                    fs[F_ON1 + j] = tk
+            ist[I_PP] = prev
+            fs[F_CHG_T] = tk
         ist[I_PREV_S] = sk
         fs[F_PREV_T] = tk
     return n_out
@@ -145,6 +202,8 @@ class Extracted:
     initial: np.ndarray        #: True for the first pair (the start, not a commutation)
     glitches: int = 0          #: evidence rejected by the hold-off (the old pair came back)
     ambiguous: int = 0         #: windows where all three phases conducted noticeably
+    #: commutations hidden in an off-time of a free-running carrier, located at its midpoint
+    located_in_off_time: int = 0
     start_s: float = 0.0
     end_s: float = 0.0
     resolution_s: float | None = None
@@ -165,8 +224,10 @@ class Extractor:
     """Streaming extraction: feed change chunks, then :meth:`finish` with the capture's end."""
 
     hold_off_s: float = DEFAULT_HOLD_OFF_S
-    _fs: np.ndarray = field(default_factory=lambda: np.zeros(N_F))
-    _is: np.ndarray = field(default_factory=lambda: np.array([-1, 0, 0, 0, 0, 0], dtype=np.int64))
+    #: time resolution of the capture (s): the tolerance of the carrier-grid test is 2.5 of it
+    resolution_s: float = 0.0
+    _fs: np.ndarray = field(default_factory=lambda: np.concatenate([np.zeros(F_ON1), np.full(12, np.nan), np.zeros(1)]))
+    _is: np.ndarray = field(default_factory=lambda: np.array([-1, 0, 0, 0, 0, 0, 0, 0, 0], dtype=np.int64))
     _t: list = field(default_factory=list)
     _s: list = field(default_factory=list)
     _k: list = field(default_factory=list)
@@ -176,6 +237,7 @@ class Extractor:
             raise ValueError(f"hold-off must be > 0 s, got {self.hold_off_s!r}")
 
     def feed(self, t_s: np.ndarray, state: np.ndarray) -> None:
+        self._fs[F_TOL] = self.resolution_s or 0.0
         n = t_s.size + 1
         out_t, out_s, out_k = np.empty(n), np.empty(n, dtype=np.int64), np.empty(n, dtype=np.int64)
         m = _run(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(state, dtype=np.int64), self._fs, self._is,
@@ -194,13 +256,14 @@ class Extractor:
         self._keep(out_t, out_s, out_k, m)
         cat = (lambda xs, dt: np.concatenate(xs) if xs else np.zeros(0, dtype=dt))  # noqa: E731
         return Extracted(cat(self._t, float), cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]),
-                         int(self._is[I_AMBIG]), start_s, float(end_s), resolution_s)
+                         int(self._is[I_AMBIG]), int(self._is[I_OFF_TIME]), start_s, float(end_s), resolution_s)
 
 
 def extract(capture, hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Extracted:
     """Commutations of a :class:`~hil.signals.capture.Capture` (streamed)."""
     ex = Extractor(hold_off_s)
     for t, s in capture.states():
+        ex.resolution_s = capture.sample_period_s or 0.0  # known once the reader has started
         ex.feed(t, s)
     end = capture.end_s if capture.end_s is not None else 0.0
     return ex.finish(end, capture.start_s or 0.0, capture.sample_period_s)

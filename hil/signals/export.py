@@ -382,7 +382,7 @@ def _write_meta(out: Path, s: ExportSettings, res: ExportResult, timescale: Time
             "names": list(CURRENT_NAMES), "unit": "V", "v_per_a": s.current_v_per_a, "zero_v": s.current_zero_v,
             "gain_error": list(s.config.current_sensor.gain_error), "offset_a": list(s.config.current_sensor.offset_a),
             "noise_rms_a": s.config.current_sensor.noise_rms_a, "update_rate_hz": analog_rate, "lsb_v": s.analog_lsb_v,
-            "model": "electrical plant, ideal commutation, tabulated per mechanical angle at a speed grid (quasi-static)",
+            "model": "electrical plant, ideal commutation, at the duty of its torque balance, tabulated per mechanical angle at a speed grid (quasi-static)",
             "grid_rpm": tables.speeds_rpm.tolist() if tables is not None else [],
         },
         "truth": {"columns": list(TRUTH_COLUMNS),

@@ -146,18 +146,33 @@ def run_loopback(stimulus_dir: str | Path, link, out_vcd: str | Path, pwm_freque
             gates.apply(c.at_s, c.sector, c.duty)
         gates.render(until_s)
 
+    # the cycle-mean |i| the lockstep bench gives the controller (hil/bench.py): the integral of the
+    # phases' mean |i| over time, carried across chunks, differenced between consecutive Hall edges
+    integral_as, integral_t_s, last_abs_a = 0.0, 0.0, 0.0
+    edge_integral_as, edge_t_s = 0.0, 0.0
+
     for ticks, slot, val in reader.changes(names):
         hall = np.nonzero(slot < 3)[0]
-        # the analog values at each Hall change: forward fill of each channel within the chunk
+        t_chunk = ticks * scale
         ana_at = []
         if cur:
+            # the analog value in force after each change of the chunk: forward fill of each channel
+            every = np.arange(slot.size)
+            abs_a = np.zeros(slot.size)
             for x in range(3):
                 mine = np.nonzero(slot == 3 + x)[0]
-                j = np.searchsorted(mine, hall, side="right") - 1
-                before = np.where(j >= 0, val[mine[np.maximum(j, 0)]] if mine.size else volts[x], volts[x])
-                ana_at.append(before)
+                j = np.searchsorted(mine, every, side="right") - 1
+                filled = np.where(j >= 0, val[mine[np.maximum(j, 0)]] if mine.size else volts[x], volts[x])
+                ana_at.append(filled[hall])
+                abs_a += np.abs((filled - cur["zero_v"]) / cur["v_per_a"]) / 3.0
                 if mine.size:
                     volts[x] = float(val[mine[-1]])
+            # integral up to each change, the value before it held since the previous change
+            held = np.concatenate(([last_abs_a], abs_a[:-1]))
+            steps = np.diff(np.concatenate(([integral_t_s], t_chunk)))
+            running = integral_as + np.cumsum(held * steps)
+            if slot.size:
+                integral_as, integral_t_s, last_abs_a = float(running[-1]), float(t_chunk[-1]), float(abs_a[-1])
         for n, i in enumerate(hall.tolist()):
             x, v = int(slot[i]), int(val[i])
             if levels[x] < 0 or levels[x] == v:  # the initial level, or no change: not an edge
@@ -167,8 +182,13 @@ def run_loopback(stimulus_dir: str | Path, link, out_vcd: str | Path, pwm_freque
             t_pin = int(ticks[i]) * scale
             t_cap = math.floor(t_pin / capture_tick_s + 1e-9) * capture_tick_s if capture_tick_s > 0 else t_pin
             current = float(np.mean([abs((ana_at[k][n] - cur["zero_v"]) / cur["v_per_a"]) for k in range(3)])) if cur else 0.0
+            cycle_current = None
+            if cur and t_pin > edge_t_s:
+                cycle_current = (float(running[i]) - edge_integral_as) / (t_pin - edge_t_s)
+                edge_integral_as, edge_t_s = float(running[i]), t_pin
             run_due(t_pin)
-            edge = {"t_capture_s": t_cap, "sensor": x, "rising": v == 1, "now_s": t_pin, "current_a": current}
+            edge = {"t_capture_s": t_cap, "sensor": x, "rising": v == 1, "now_s": t_pin, "current_a": current,
+                    "cycle_current_a": cycle_current}
             res.edges += 1
             if record:
                 res.captured.append((t_pin, t_cap, x, v == 1, current))

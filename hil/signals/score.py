@@ -138,7 +138,8 @@ class Score:
         ex = self.extracted
         lines = [
             f"commutations {j['commutations']}, missed {j['missed']}, extra {j['extra']} (scored span {self.span_s[0]:.6f}-{self.span_s[1]:.6f} s, "
-            f"hold-off {self.hold_off_s * 1e6:g} us; {ex.glitches} glitches rejected, {ex.ambiguous} ambiguous windows)",
+            f"hold-off {self.hold_off_s * 1e6:g} us; {ex.glitches} glitches rejected, {ex.ambiguous} ambiguous windows; "
+            f"{ex.located_in_off_time} located in an off-time of a free-running carrier, at its midpoint)",
             f"angle error (deg e, + = late): mean {fmt(a['mean'])}, RMS {fmt(a['rms'], '{:.4f}')}, p99 |e| {fmt(a['p99'], '{:.4f}')}, "
             f"max |e| {fmt(a['max_abs'], '{:.4f}')}",
             f"time error: mean {fmt(None if t['mean'] is None else t['mean'] * 1e6, '{:+.3f}')} us, "
