@@ -120,7 +120,8 @@ def test_xdist_against_the_virtual_controller_runs_and_records_the_worker(pytest
     assert sorted({r["worker"] for r in records}) == ["gw0", "gw1"]
 
 
-def test_the_controller_is_reset_once_per_test_and_once_more_per_further_bench(pytester):
+def test_the_controller_is_reset_once_per_test_and_once_more_per_further_bench(pytester, monkeypatch):
+    _this_checkout(monkeypatch)  # in a subprocess: the bench compiles numba code, which pytester could not unload
     pytester.makeconftest(
         "import pytest\n\n"
         "@pytest.fixture\n"
@@ -142,4 +143,4 @@ def test_the_controller_is_reset_once_per_test_and_once_more_per_further_bench(p
             "    assert len(resets) == 2\n"
         )
     )
-    pytester.runpytest("--hil-dut", "virtual:in-process").assert_outcomes(passed=2)
+    pytester.runpytest_subprocess("--hil-dut", "virtual:in-process").assert_outcomes(passed=2)
