@@ -76,7 +76,11 @@ def _locked_case():
     kf_rms = np.sqrt(np.mean(angle_error_deg(e, kf.pred_t_s) ** 2))
     rms = {}
     for run_length in (0, FilterSettings().divergence_run):
-        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length))
+        # the variance match off: it sets R from the edges right after the warm-up and the filter
+        # no longer locks here (1.37 deg e); the test isolates the fade
+        sh = SageHusaPredictor(
+            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length, r_match_horizon_s=0.0)
+        )
         run = sh.run(e.t_conditioned_s, cur)
         rms[run_length] = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
         assert (run.guards["divergence"] > 0) == (run_length > 0)
@@ -92,7 +96,8 @@ def test_divergence_guard_recovers_a_filter_locked_on_a_wrong_speed():
 @pytest.mark.xfail(
     strict=True,
     reason="issue 14: the freed filter ends at 1.9 deg e RMS against the KF's 0.37 on this condition "
-    "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade",
+    "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade (1.4 with the "
+    "variance match on, which keeps it from locking)",
 )
 def test_divergence_guard_brings_the_locked_filter_back_to_the_kf():
     rms, kf_rms = _locked_case()
@@ -266,14 +271,20 @@ def test_r_has_its_own_forgetting_factor_and_interval():
 
 
 def test_divergence_run_makes_a_chance_trigger_rarer_than_once_per_1000_s():
-    """P(gated) = exp(-gate / 2) = 1e-3 at the stated gate; a one-signed run of n starts on an edge
-    with p (p / 2)^(n - 1). At 12,000 rpm with 2 pole pairs (2400 edges/s), n = 2 gives 1.2 chance
-    triggers per 1000 s, n = 3 gives 6e-4."""
+    """A one-signed run of n gated edges starts on an edge with p (p / 2)^(n - 1), p the
+    probability of a gated edge. With consistent innovations p = exp(-gate / 2) = 1e-3 and n = 3
+    would do; inside a burst of edge noise R has not learned, every edge is gated (p = 1) and only
+    the sign test is left: at 12,000 rpm with 2 pole pairs (2400 edges/s), 2.4e6 / 2^(n - 1) < 1
+    needs n = 23 (n = 22 gives 1.1 chance triggers per 1000 s)."""
     p = math.exp(-F.CHI2_2DOF_999 / 2)
     assert p == pytest.approx(1e-3)
     rate = 12000 / 60 * 6 * MODEL.pole_pairs
+    assert rate == F.MAX_EDGE_RATE_HZ
     assert rate * 1000 * p * (p / 2) >= 1.0 > rate * 1000 * p * (p / 2) ** 2
-    assert F.divergence_run_for(F.CHI2_2DOF_999, rate) == 3 == FilterSettings().divergence_run
+    assert F.divergence_run_for(F.CHI2_2DOF_999, rate) == 3
+    assert rate * 1000 * 0.5**21 >= 1.0 > rate * 1000 * 0.5**22
+    assert F.divergence_run_for(F.CHI2_2DOF_999, rate) == FilterSettings().divergence_run
+    assert F.divergence_run_for(F.CHI2_2DOF_999, rate, p_gated=1.0) == 23 == compare.BURSTS_SH["divergence_run"]
     # the formula against a Monte-Carlo draw of consistent Gaussian innovations at a looser gate
     rng = np.random.default_rng(3)
     gate = 4.0
@@ -285,20 +296,90 @@ def test_divergence_run_makes_a_chance_trigger_rarer_than_once_per_1000_s():
     assert starts.mean() == pytest.approx(expected, rel=0.05)
 
 
-def test_q_w_and_q_i_are_tuned_independently_for_both_filters(monkeypatch):
-    """Both tuners search Q_w and Q_i on their own: with an objective whose best Q_w / Q_i ratio is
-    not the KF's, Sage-Husa must still find its own (it used to scale the KF's Q as one scalar)."""
+def test_divergence_fade_does_not_fire_inside_a_burst_of_edge_noise():
+    """Inside a burst R has not learned yet, most edges are gated and their signs are random: a
+    run of 3 (the bound for consistent innovations) fired there by chance and took burst edges
+    at full gain; the bursts protocol's run (23, derived for p_gated = 1) does not. The variance match is
+    off: the test isolates the fade while R is still learning the burst."""
+    e, t, cur, burst = _burst_edges()
+    fades = {}
+    for run_length in (3, compare.BURSTS_SH["divergence_run"]):
+        sh = SageHusaPredictor(
+            MODEL,
+            FilterSettings(
+                q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "divergence_run": run_length, "r_match_horizon_s": 0.0}
+            ),
+        )
+        fades[run_length] = sh.run(t, cur).guards["divergence"]
+    assert fades[3] > 0 and fades[23] == 0, fades
 
-    def objective(runs, predictor):
-        q_w, _, q_i = predictor.settings.q0_diag
-        best = (3e-3, 2e-4) if isinstance(predictor, SageHusaPredictor) else (3e-4, 1e-2)
-        return (math.log10(q_w / best[0])) ** 2 + (math.log10(q_i / best[1])) ** 2
 
-    monkeypatch.setattr(compare, "_mean_angle_rms", objective)
-    kf = compare.tune_kf([], MODEL)
-    sh = compare.tune_sh([], MODEL)
-    assert kf.q0_diag[0] == pytest.approx(3e-4, rel=0.1) and kf.q0_diag[2] == pytest.approx(1e-2, rel=0.1)
-    assert sh.q0_diag[0] == pytest.approx(3e-3, rel=0.1) and sh.q0_diag[2] == pytest.approx(2e-4, rel=0.1)
+def test_variance_match_bounds_hold_chance_crossings_below_once_per_1000_s():
+    """The edge noise of an R interval is measured from second differences of white edge noise,
+    n_k - 2 n_k-1 + n_k-2 (variance 6 sigma^2, correlated over two lags): their sample variance
+    is close to chi-square with (n - 1) / 1.944 dof. Each bound may be crossed with probability
+    interval / (2 x 2400 edges/s x 1000 s) per interval; a Monte-Carlo draw checks the
+    approximation at a looser horizon, where crossings are frequent enough to count."""
+    hi, lo = F.variance_match_bounds(30)
+    assert lo < 1.0 < hi
+    rng = np.random.default_rng(11)
+    noise = rng.standard_normal((400_000, 32))
+    x2 = noise[:, 2:] - 2 * noise[:, 1:-1] + noise[:, :-2]
+    ratio = x2.var(axis=1, ddof=1) / 6.0
+    alpha = 0.5 * 30 / (F.MAX_EDGE_RATE_HZ * 1000.0)
+    assert np.mean(ratio > hi) < 5 * alpha and np.mean(ratio < lo) < 5 * alpha
+    hi1, lo1 = F.variance_match_bounds(30, horizon_s=0.1)
+    alpha1 = 0.5 * 30 / (F.MAX_EDGE_RATE_HZ * 0.1)
+    assert np.mean(ratio > hi1) == pytest.approx(alpha1, rel=0.3) and np.mean(ratio < lo1) == pytest.approx(
+        alpha1, rel=0.3
+    )
+    # treating the second differences as independent (n - 1 dof) would put the bounds too close
+    from scipy.stats import chi2
+
+    assert np.mean(ratio > chi2.isf(alpha1, 29) / 29) > 2 * alpha1
+
+
+def test_variance_match_follows_a_burst_in_and_out_within_two_r_intervals():
+    """The Eq. 12 recursion blends a burst into R over 1 / d_j intervals with each edge capped by
+    the Huber weight: R_theta reached a fraction of the burst variance only after the burst had
+    half passed, and stayed high long after it. The variance match replaces R_theta as soon as an
+    interval's innovations are inconsistent with it."""
+    e, t, cur, burst = _burst_edges()
+    first, last = np.nonzero(burst)[0][[0, -1]]
+    w = 8000 / 60 * 2 * math.pi * MODEL.pole_pairs
+    burst_var = (30e-6 * w) ** 2
+    r = {}
+    for horizon in (0.0, 1000.0):
+        sh = SageHusaPredictor(
+            MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "r_match_horizon_s": horizon})
+        )
+        r_theta = []
+        for tk, ck in zip(t, cur):
+            sh.update(tk, ck)
+            r_theta.append(sh.r_matrix[0, 0])
+        r[horizon] = np.array(r_theta)
+    quiet = r[1000.0][first - 1]
+    for horizon, ok in ((1000.0, True), (0.0, False)):
+        into = r[horizon][first + 2 * 30 + 1] > 0.3 * burst_var
+        out = r[horizon][last + 2 * 30 + 1] < 3 * quiet
+        assert (into and out) == ok, (horizon, r[horizon][first + 61] / burst_var, r[horizon][last + 61] / quiet)
+
+
+def test_q_current_option_adapts_q_i_and_leaves_q_w_at_nominal():
+    """dt^2 Q_w is about 1/200 of R_theta, so a one-step innovation says almost nothing about Q_w:
+    on edges whose speed model is exact (the current makes the equation of motion true, no
+    process noise at all) the Eq. 12 recursion still moves Q_w by a factor of 5 (to 1/5 with the
+    variance match on, to 10x without). With ADAPT_Q_CURRENT only Q_i adapts."""
+    e, cur = edges_and_currents([OperatingPoint(2.0, 6000.0)], 3e-6, 0.0, 1.0, 7)
+    q0 = (1e-4, 1e-9, 0.1)
+    q = {}
+    for mask in (SH_ADAPT, F.ADAPT_R | F.ADAPT_Q_CURRENT):
+        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, adapt_mask=mask))
+        sh.run(e.t_conditioned_s, cur)
+        q[mask] = (sh.q_matrix[0, 0], sh.q_matrix[2, 2])
+    assert not q0[0] / 4 < q[SH_ADAPT][0] < 4 * q0[0], q  # Eq. 12 on Q_w: drifts
+    assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][0] == q0[0], q
+    assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][1] < 0.1 * q0[2], q  # Q_i learns the exact current
 
 
 # --- robustness over drawn conditions ------------------------------------------------------
@@ -334,8 +415,8 @@ def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 14: Sage-Husa under 2x the KF in 94.2 % of 1000 drawn conditions (bar 100 %), "
-    "worst 11.5x (model off, Q0 1/80 nominal); docs/sage-husa.md",
+    reason="issue 14: Sage-Husa under 2x the KF in 94.5 % of 1000 drawn conditions (bar 100 %), "
+    "worst 10.9x (model off, Q0 1/80 nominal); docs/sage-husa.md",
 )
 def test_sage_husa_under_twice_the_kf_in_every_condition(robustness_results):
     worse = [r for r in robustness_results if not r["sh"] < 2.0 * r["kf"]]
@@ -346,7 +427,7 @@ def test_sage_husa_under_twice_the_kf_in_every_condition(robustness_results):
 
 @pytest.mark.xfail(
     strict=True,
-    reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 78.2 % of drawn conditions (bar 95 %); docs/sage-husa.md",
+    reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 79.6 % of drawn conditions (bar 95 %); docs/sage-husa.md",
 )
 def test_sage_husa_no_worse_than_kf_in_95_percent(robustness_results):
     ok = [r["sh"] <= 1.05 * r["kf"] + 0.01 for r in robustness_results]

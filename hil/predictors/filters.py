@@ -47,7 +47,9 @@ STATE_TABLE = (
     ("INITIALISED", 1, "1 once the first cycle set speed and current"),
     ("LAST_NIS", 1, "normalised innovation squared of the last step"),
     ("GATED_RUN", 1, "signed count of consecutive gated innovations of one sign"),
-    ("DT_PREV", 1, "last cycle duration (s), warm-up edge-noise analysis"),
+    ("DT_PREV", 1, "last cycle duration (s), edge-noise analysis"),
+    ("ACC_Z0", 3, "R interval, angle channel, unweighted: sum of Z~, sum of Z~^2, sum of H P_k,k-1 H^T"),
+    ("ACC_EDGE", 3, "edge-noise analysis over the R interval: n, sum, sum of squares"),
     ("EDGE_STATS", 3, "warm-up edge-noise analysis: n, sum, sum of squares"),
     ("PREV_INNOV", 1, "last angle innovation (whiteness option)"),
     ("ACC_WHITE", 2, "whiteness option: sum of lag-1 products, sum of squares"),
@@ -71,6 +73,8 @@ PARAM_TABLE = (
     ("HUBER_KAPPA", "consistency factor E[w NIS] / 2 of the Huber weight"),
     ("GATE_STATE", "1: a gated innovation leaves the state at its prediction"),
     ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
+    ("R_MATCH_HI", "variance match: interval variance / S of the angle above this replaces R_theta (0 = off)"),
+    ("R_MATCH_LO", "variance match: interval variance / S of the angle below this replaces R_theta"),
 )
 
 
@@ -94,10 +98,38 @@ ADAPT_ALL = 15
 #: option, not the paper's: the speed entry of Q steered by innovation whiteness (Mehra 1970)
 #: instead of the Eq. 12 recursion, see docs/sage-husa.md
 ADAPT_Q_WHITE = 16
+#: option: only the current entry of Q by Eq. 12; Q_w stays at nominal (dt^2 Q_w is about 1/200 of
+#: R_theta, so a one-step innovation carries almost nothing about Q_w and its recursion drifts)
+ADAPT_Q_CURRENT = 32
 #: log-step of Q_w per unit of lag-1 innovation correlation, applied once per interval
 WHITENESS_GAIN = 4.0
 CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom: P(NIS > gate) = 1e-3
 HUBER_C_95 = math.sqrt(-2.0 * math.log(0.05))  # sqrt of the 95 % quantile of chi-square, 2 dof
+#: the fastest edges the chance-trigger bounds are stated for: 12,000 rpm, 2 pole pairs, 6 edges
+#: per electrical revolution
+MAX_EDGE_RATE_HZ = 2400.0
+
+
+#: sum over lags of the squared autocorrelation of the edge second difference n_k - 2 n_k-1 +
+#: n_k-2 of white edge noise: autocovariance (6, -4, 1) sigma^2, so (36 + 2 16 + 2 1) / 36
+EDGE_DIFF_RHO2_SUM = 70.0 / 36.0
+
+
+def variance_match_bounds(interval: int, edge_rate_hz: float = MAX_EDGE_RATE_HZ, horizon_s: float = 1000.0) -> tuple[float, float]:
+    """Bounds on the ratio of an R interval's measured edge-noise variance (sample variance of the
+    edge second differences / 6) to the R_theta in use, beyond which the edge noise changed.
+    For white Gaussian edge noise the sample variance of n second differences is close to
+    chi-square with nu = (n - 1) / EDGE_DIFF_RHO2_SUM degrees of freedom (they are correlated
+    over two lags; Bartlett's variance of a sample variance, 2 sigma^4 sum(rho^2) / n), and each
+    bound is crossed by chance less than once per ``horizon_s`` of edges at ``edge_rate_hz``
+    (half the budget on each side)."""
+    from scipy.stats import chi2
+
+    dof = (interval - 1) / EDGE_DIFF_RHO2_SUM
+    if interval < 3:
+        return 0.0, 0.0
+    alpha = 0.5 * interval / (edge_rate_hz * horizon_s)
+    return float(chi2.isf(alpha, dof)) / dof, float(chi2.ppf(alpha, dof)) / dof
 
 
 def huber_kappa(c: float) -> float:
@@ -112,13 +144,17 @@ def huber_kappa(c: float) -> float:
     return (2.0 - 2.0 * math.exp(-0.5 * c * c) + c * math.sqrt(2.0 * math.pi) * tail) / 2.0
 
 
-def divergence_run_for(gate: float, edge_rate_hz: float, horizon_s: float = 1000.0) -> int:
+def divergence_run_for(gate: float, edge_rate_hz: float, horizon_s: float = 1000.0, p_gated: float | None = None) -> int:
     """Shortest run of one-signed gated innovations that chance produces less than once per
-    ``horizon_s`` of edges. With consistent Gaussian innovations an edge is gated with
-    probability p = exp(-gate / 2) (chi-square, 2 dof) and its sign is even, so a given edge
-    starts a one-signed run of n with probability p (p / 2)^(n - 1); the expected number over
-    the horizon is edge_rate_hz horizon_s p (p / 2)^(n - 1), which must stay below 1."""
-    p = math.exp(-0.5 * gate)
+    ``horizon_s`` of edges. An edge is gated with probability p and its sign is even, so a given
+    edge starts a one-signed run of n with probability p (p / 2)^(n - 1); the expected number
+    over the horizon is edge_rate_hz horizon_s p (p / 2)^(n - 1), which must stay below 1.
+
+    With consistent Gaussian innovations p = exp(-gate / 2) (chi-square, 2 dof; the default).
+    Inside a burst of edge noise that R has not learned yet, every edge is gated: p_gated = 1,
+    and only the sign test is left, which holds whatever the noise's scale (zero-mean noise of
+    any variance gives either sign with probability 1/2)."""
+    p = math.exp(-0.5 * gate) if p_gated is None else p_gated
     n = 1
     while edge_rate_hz * horizon_s * p * (0.5 * p) ** (n - 1) >= 1.0:
         n += 1
@@ -248,6 +284,9 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     s[ST.ACC_R_MEAN] += sg * innov0
     s[ST.ACC_R_MEAN + 1] += sg * innov1
     s[ST.N_ACC_R] += 1.0
+    s[ST.ACC_Z0] += innov0                                          # unweighted, for the variance match
+    s[ST.ACC_Z0 + 1] += innov0 * innov0
+    s[ST.ACC_Z0 + 2] += p_pred[4]
     warm = k < fp[FP.WARMUP]
     # during the warm-up R is set once, at its end (the first R_INTERVAL cycles after P0 would
     # otherwise swamp it); then every R_INTERVAL cycles
@@ -266,8 +305,36 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     s[ST.ACC_R + 1] -= n * m0 * m1
     s[ST.ACC_R + 2] -= n * m1 * m0
     s[ST.ACC_R + 3] -= n * m1 * m1
+    # variance match: the edge noise of this interval, measured from the edges themselves (the
+    # second differences in ``step``, variance 6 sigma^2 whatever the filter does), against the
+    # R_theta the filter used. Beyond a bound that chance crosses less than once per 1000 s
+    # (``variance_match_bounds``) the edge noise changed (a burst began or ended): R_theta is
+    # replaced by the measured value now instead of being blended in over 1 / d_j intervals with
+    # each burst edge capped by the Huber weight. Measured from the edges, not the innovations,
+    # so a lagging state cannot raise R (a larger R would lower the gain and the lag grow).
+    matched = False
+    r_edge = 0.0
+    ne = s[ST.ACC_EDGE]
+    if not warm and fp[FP.R_MATCH_HI] > 0.0 and ne > 2.0 and s[ST.R] > 0.0:
+        mean = s[ST.ACC_EDGE + 1] / ne
+        r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
+        ratio = r_edge / s[ST.R]
+        matched = r_edge > 0.0 and (ratio > fp[FP.R_MATCH_HI] or ratio < fp[FP.R_MATCH_LO])
     for i in range(4):                                              # R = (1 - d) R + d mean(term)
         s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * unbias * s[ST.ACC_R + i] / n
+    if matched:
+        # the new R_theta is what the innovations show beyond H P H^T over the interval (it
+        # holds what the filter needs, e.g. edge noise that is not white), the edges' own
+        # measure where P already explains them
+        var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
+        r_innov = var0 - s[ST.ACC_Z0 + 2] / n
+        if r_innov > 0.0:
+            r_edge = r_innov
+        # the cross terms are kept within a correlation of 0.99, so R stays positive definite
+        s[ST.R] = r_edge
+        bound = 0.99 * math.sqrt(r_edge * max(s[ST.R + 3], 0.0))
+        for i in (1, 2):
+            s[ST.R + i] = min(max(s[ST.R + i], -bound), bound)
     if j == 0.0 and s[ST.EDGE_STATS] > 2.0:
         # the first estimate of the edge-angle variance comes from the edges themselves (below),
         # not from innovations of a filter that ran on R0 = 0 and so followed every edge: those
@@ -286,6 +353,9 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         s[ST.ACC_R + i] = 0.0
     s[ST.ACC_R_MEAN] = 0.0
     s[ST.ACC_R_MEAN + 1] = 0.0
+    for i in range(3):
+        s[ST.ACC_EDGE + i] = 0.0
+        s[ST.ACC_Z0 + i] = 0.0
     s[ST.N_ACC_R] = 0.0
     s[ST.K_INTERVAL_R] = j + 1.0
 
@@ -433,16 +503,17 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
             s[ST.ACC_WHITE] = 0.0
             s[ST.ACC_WHITE + 1] = 0.0
     s[ST.PREV_INNOV] = innov0
-    if warm:
-        # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with
-        # white edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance
-        # 6 sigma^2 whatever the filter does; a steady acceleration only shifts its mean
-        if s[ST.DT_PREV] > 0.0:
-            x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
-            s[ST.EDGE_STATS] += 1.0
-            s[ST.EDGE_STATS + 1] += x2
-            s[ST.EDGE_STATS + 2] += x2 * x2
-        s[ST.DT_PREV] = dt
+    # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with white
+    # edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
+    # whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
+    # gives R's first estimate; over each R interval, the variance match's
+    if s[ST.DT_PREV] > 0.0:
+        x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
+        at = ST.EDGE_STATS if warm else ST.ACC_EDGE
+        s[at] += 1.0
+        s[at + 1] += x2
+        s[at + 2] += x2 * x2
+    s[ST.DT_PREV] = dt
     # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
     # faded step's innovation is the state's error, not the edge noise R stands for
     settled = k >= 0.5 * fp[FP.WARMUP]
@@ -452,7 +523,7 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         return nis
     if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
         _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
-    if warm or not mask & ADAPT_Q:
+    if warm or not mask & (ADAPT_Q | ADAPT_Q_CURRENT):
         return nis
     # --- Eq. 12: Q every step ----------------------------------------------------------------
     b = fp[FP.B]
@@ -466,7 +537,7 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     band = fp[FP.BAND]
     clamped = False
     for i, raw in ((0, ST.Q_RAW), (2, ST.Q_RAW + 1)):
-        if i == 0 and mask & ADAPT_Q_WHITE:
+        if i == 0 and (mask & ADAPT_Q_WHITE or not mask & ADAPT_Q):
             continue
         kz = gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
         term = kz * kz + p_new[4 * i] - phi_p_phi[4 * i]            # K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T

@@ -45,8 +45,14 @@ class FilterSettings:
     current_resolution_a: float = 1e-3
     #: consecutive innovations beyond the gate, all of one sign, taken as divergence (P faded);
     #: 0 = never. 3 = ``filters.divergence_run_for(chi2_gate, 2400 edges/s)``: a chance trigger
-    #: of consistent Gaussian innovations is rarer than once per 1000 s at 12,000 rpm, 2 pole pairs
+    #: of consistent Gaussian innovations is rarer than once per 1000 s at 12,000 rpm, 2 pole
+    #: pairs. Where bursts of edge noise are stated, every edge may be gated inside one before R
+    #: learns it, and the run is ``divergence_run_for(..., p_gated=1)`` = 23 (compare.BURSTS_SH)
     divergence_run: int = 3
+    #: variance match of R_theta (filters.variance_match_bounds): an R interval whose edges show
+    #: an edge noise inconsistent with R_theta beyond what chance gives once per this many
+    #: seconds of edges at 12,000 rpm replaces R_theta at once; 0 = off (R by Eq. 12 only)
+    r_match_horizon_s: float = 1000.0
     #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
     #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
     adapt_mask: int = F.ADAPT_ALL
@@ -67,6 +73,8 @@ class FilterSettings:
             raise ValueError(f"divergence_run must be >= 0 (0 = off), got {self.divergence_run!r}")
         if not self.current_resolution_a >= 0:
             raise ValueError(f"current_resolution_a must be >= 0, got {self.current_resolution_a!r}")
+        if not self.r_match_horizon_s >= 0:
+            raise ValueError(f"r_match_horizon_s must be >= 0 (0 = off), got {self.r_match_horizon_s!r}")
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
 
@@ -89,6 +97,8 @@ class FilterSettings:
         fp[F.FP.HUBER_KAPPA] = F.huber_kappa(self.huber_c)
         fp[F.FP.GATE_STATE] = 1.0 if self.gate_state_update else 0.0
         fp[F.FP.R_I_FLOOR] = self.current_resolution_a ** 2 / 12.0
+        if self.r_match_horizon_s > 0:
+            fp[F.FP.R_MATCH_HI], fp[F.FP.R_MATCH_LO] = F.variance_match_bounds(self.r_interval, horizon_s=self.r_match_horizon_s)
         return fp
 
 

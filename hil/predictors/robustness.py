@@ -18,6 +18,7 @@ from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
+from .compare import SH_DESIGN
 from .model import MotorModel
 from .predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
 
@@ -27,8 +28,8 @@ MIN_SCORED_EDGES = 500
 MIN_DURATION_S = 1.0
 #: the KF's fixed edge-angle variance: (3.2 mrad)^2, the scale of a few us of jitter at mid speed
 KF_R0 = (1e-5, 1.0)
-#: Sage-Husa as shipped outside the paper protocol (hil.predictors.compare.SH_DESIGN)
-SH_SETTINGS = dict(adapt_mask=3, r_interval=30, r_forgetting_b=0.9, forgetting_b=0.98, q_band_factor=100.0)
+#: Sage-Husa as shipped outside the paper protocol (no bursts in these conditions)
+SH_SETTINGS = SH_DESIGN
 
 
 @dataclass(frozen=True)
