@@ -21,7 +21,9 @@ from hil.campaign import load_spec, read_table, run_campaign
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("spec", nargs="?", default=str(Path(__file__).resolve().parent.parent / "examples" / "campaign.toml"))
+    ap.add_argument(
+        "spec", nargs="?", default=str(Path(__file__).resolve().parent.parent / "examples" / "campaign.toml")
+    )
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--keep", help="keep the campaign outputs in this directory (default: a temporary one)")
     args = ap.parse_args()
@@ -40,10 +42,14 @@ def main() -> None:
             tables[n] = table.drop(columns=["duration_s", "cpu_s", "replay"])
             # CPU seconds the workers got per wall second of the run: n on an idle machine
             cores = table["cpu_s"].sum() / (s["elapsed_s"] - s["startup_s"])
-            print(f"  {n} worker(s): {s['points_done']} points in {s['elapsed_s']:.1f} s (cluster start {s['startup_s']:.1f} s), "
-                  f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; {table['cpu_s'].mean():.3f} CPU s per point, "
-                  f"the workers got {cores:.2f} cores, the client and scheduler used {client_cpu:.1f} CPU s; "
-                  f"load average now {os.getloadavg()[0]:.1f}")
+            print(
+                f"  {n} worker(s): {s['points_done']} points in {s['elapsed_s']:.1f} s (cluster start "
+                f"{s['startup_s']:.1f} s), "
+                f"{rates[n]:.3f} points/s, {s['workers_used']} worker(s) used; {table['cpu_s'].mean():.3f} CPU s per "
+                "point, "
+                f"the workers got {cores:.2f} cores, the client and scheduler used {client_cpu:.1f} CPU s; "
+                f"load average now {os.getloadavg()[0]:.1f}"
+            )
     first = args.workers[0]
     for n in args.workers[1:]:
         diff = tables[n].compare(tables[first]) if tables[n].shape == tables[first].shape else "shapes differ"

@@ -47,11 +47,25 @@ def main():
            for i, (rpm, load) in enumerate(((10000.0, 1.0), (9800.0, 0.5), (10200.0, 1.0), (10000.0, 0.0)))]
     _read_and_diagnose(record_kinematic(config, ops, seed=1), "edges only")
     warm = config.with_effects(fx.WindingTemperature(60.0))
-    _read_and_diagnose(record_electrical(warm, ops, seed=1, sample_rate_hz=20e3, voltage_noise_v=0.005, speed_noise_rpm=0.002),
-                       "electrical plant, samples at 20 kHz, a warm winding withheld")
+    _read_and_diagnose(
+        record_electrical(warm, ops, seed=1, sample_rate_hz=20e3, voltage_noise_v=0.005, speed_noise_rpm=0.002),
+        "electrical plant, samples at 20 kHz, a warm winding withheld",
+    )
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "hil", "gap", "validate", "--json", str(Path(tempfile.gettempdir()) / "gap-validate.json")],
-                   check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "hil",
+            "gap",
+            "validate",
+            "--json",
+            str(Path(tempfile.gettempdir()) / "gap-validate.json"),
+        ],
+        check=True,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+    )
     print(f"hil gap validate (default size): {time.perf_counter() - t:6.1f} s   (bar 600 s)")
 
 

@@ -52,15 +52,22 @@ def free_port():
 def main():
     corrections = fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
     rows = []
-    rows.append(("in-process", *rate(InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA)), corrections, 2.0), ">= 20,000"))
+    rows.append(
+        (
+            "in-process",
+            *rate(InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA)), corrections, 2.0),
+            ">= 20,000",
+        )
+    )
     dev = CanopenDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA), node_id=5, channel="bench")
     link = CanopenLink(node_id=5, channel="bench")
     rows.append(("CANopen, python-can virtual bus", *rate(link, corrections, 0.5), ">= 3,000"))
     link.close()
     dev.close()
     ports = free_port(), free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", str(ports[0]), "--modbus-port", str(ports[1]),
-                             "--preset", "paper-bench+deviations"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", str(ports[0]),
+                             "--modbus-port", str(ports[1]), "--preset", "paper-bench+deviations"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     while proc.stdout.readline().strip() != "ready":
         pass
     try:
@@ -80,7 +87,10 @@ def main():
     print(f"{'link':<44} {'edges/s':>10} {'commutations/s':>16}  goal (commutations/s)")
     for name, e, c, goal in rows:
         print(f"{name:<44} {e:>10,.0f} {c:>16,.0f}  {goal}")
-    print(f"{'CAN 1 Mbit/s physical bound (2 frames/edge)':<44} {CAN_FRAMES_PER_S / 2:>10,.0f} {CAN_FRAMES_PER_S / 2:>16,.0f}")
+    print(
+        f"{'CAN 1 Mbit/s physical bound (2 frames/edge)':<44} {CAN_FRAMES_PER_S / 2:>10,.0f} "
+        f"{CAN_FRAMES_PER_S / 2:>16,.0f}"
+    )
     base = rows[0][2]
     print("ratios to in-process: " + ", ".join(f"{n}: {c / base:.2f}" for n, _, c, _ in rows[1:]))
 

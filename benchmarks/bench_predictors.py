@@ -85,11 +85,20 @@ def main():
     theirs = min(per_step_filterpy(t, cur, n) for _ in range(3))
     rate = batch_rate(t, cur)
     print(f"{'case':<58} {'per step':>12} {'ratio':>10}")
-    print(f"{'ours: Sage-Husa online update (predict+update+adapt+guards)':<58} {ours * 1e6:>9.2f} us {theirs / ours:>9.1f}x faster")
+    print(
+        f"{'ours: Sage-Husa online update (predict+update+adapt+guards)':<58} {ours * 1e6:>9.2f} us "
+        f"{theirs / ours:>9.1f}x faster"
+    )
     import filterpy
 
-    print(f"{'filterpy ' + filterpy.__version__ + ' KalmanFilter.predict() + update(), same model':<58} {theirs * 1e6:>9.2f} us {'1.0x':>10}")
-    print(f"{'ours: batch mode over ' + format(t.size, ',') + ' recorded edges':<58} {1e6 / rate:>9.3f} us {rate:>12,.0f} steps/s (bar >= 1,000,000)")
+    print(
+        f"{'filterpy ' + filterpy.__version__ + ' KalmanFilter.predict() + update(), same model':<58} "
+        f"{theirs * 1e6:>9.2f} us {'1.0x':>10}"
+    )
+    print(
+        f"{'ours: batch mode over ' + format(t.size, ',') + ' recorded edges':<58} {1e6 / rate:>9.3f} us "
+        f"{rate:>12,.0f} steps/s (bar >= 1,000,000)"
+    )
 
 
 if __name__ == "__main__":

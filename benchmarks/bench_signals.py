@@ -27,7 +27,7 @@ print("BENCH", rc, time.perf_counter() - t, resource.getrusage(resource.RUSAGE_S
 
 def phase(args: list[str]) -> dict:
     out = subprocess.run([sys.executable, "-c", CHILD, *args], capture_output=True, text=True, check=True)
-    line = next(l for l in out.stdout.splitlines() if l.startswith("BENCH"))
+    line = next(ln for ln in out.stdout.splitlines() if ln.startswith("BENCH"))
     _, rc, wall, rss = line.split()
     if int(rc) != 0:
         raise SystemExit(f"{' '.join(args)} failed:\n{out.stdout}\n{out.stderr}")
@@ -36,7 +36,11 @@ def phase(args: list[str]) -> dict:
 
 def pipeline(out: Path, duration_s: float, speed_rpm: float) -> dict:
     out.mkdir(parents=True, exist_ok=True)
-    res = {"export": phase(["signals", "export", "--out", str(out), "--duration-s", str(duration_s), "--speed-rpm", str(speed_rpm)])}
+    res = {
+        "export": phase(
+            ["signals", "export", "--out", str(out), "--duration-s", str(duration_s), "--speed-rpm", str(speed_rpm)]
+        )
+    }
     res["loopback"] = phase(["signals", "loopback", str(out), "--out", str(out / "gates.vcd")])
     res["score"] = phase(["signals", "score", str(out), str(out / "gates.vcd"), "--json", str(out / "score.json")])
     res["files_mb"] = {p.name: round(p.stat().st_size / 1e6, 1) for p in sorted(out.iterdir()) if p.is_file()}
@@ -58,7 +62,10 @@ def main() -> None:
     print(f"{'phase':<9} {'wall (s)':>9} {'peak RSS (MB)':>14} {'wall ratio':>11} {'RSS ratio':>10}")
     for name in ("export", "loopback", "score"):
         r, p = run[name], peer[name]
-        print(f"{name:<9} {r['wall_s']:>9.1f} {r['peak_rss_mb']:>14.0f} {r['wall_s'] / p['wall_s']:>11.2f} {r['peak_rss_mb'] / p['peak_rss_mb']:>10.2f}")
+        print(
+            f"{name:<9} {r['wall_s']:>9.1f} {r['peak_rss_mb']:>14.0f} {r['wall_s'] / p['wall_s']:>11.2f} "
+            f"{r['peak_rss_mb'] / p['peak_rss_mb']:>10.2f}"
+        )
     print(f"files ({long_s:g} s): {run['files_mb']}")
     print(f"export says: {run['export']['stdout'].splitlines()[1:3]}")
     print(f"score: {json.dumps(run['score_json'])}")

@@ -16,7 +16,9 @@ from plant_models import effects as fx
 
 
 def worst_errors(jitter_s: float, turns: int, seeds=range(5)):
-    base = paper_bench(with_deviations=True).with_effects(fx.EdgeJitter(time_rms_s=jitter_s), fx.TimerQuantization(1e-7))
+    base = paper_bench(with_deviations=True).with_effects(
+        fx.EdgeJitter(time_rms_s=jitter_s), fx.TimerQuantization(1e-7)
+    )
     true = Corrections.from_plant(base)
     out = np.zeros(5)
     for seed in seeds:
@@ -31,11 +33,17 @@ def worst_errors(jitter_s: float, turns: int, seeds=range(5)):
 
 
 def main():
-    print(f"{'jitter':>8} {'turns':>6} {'inst [de]':>10} {'pole [de]':>10} {'rise [us]':>10} {'fall [us]':>10} {'armature [%]':>13}")
+    print(
+        f"{'jitter':>8} {'turns':>6} {'inst [de]':>10} {'pole [de]':>10} {'rise [us]':>10} {'fall [us]':>10} "
+        f"{'armature [%]':>13}"
+    )
     for jitter in (0.5e-6, 1e-6, 2e-6, 5e-6):
         for turns in (20, 50, 200):
             e = worst_errors(jitter, turns)
-            print(f"{jitter * 1e6:>6.1f}us {turns:>6d} {e[0]:>10.4f} {e[1]:>10.4f} {e[2]:>10.3f} {e[3]:>10.3f} {e[4]:>13.2f}")
+            print(
+                f"{jitter * 1e6:>6.1f}us {turns:>6d} {e[0]:>10.4f} {e[1]:>10.4f} {e[2]:>10.3f} {e[3]:>10.3f} "
+                f"{e[4]:>13.2f}"
+            )
     print("bounds of the acceptance: 0.05 de, 0.05 de, 0.5 us, 0.5 us, 5 % (1 us jitter, 200 turns)")
 
 

@@ -16,7 +16,13 @@ from plant_models.kinematic import OperatingPoint
 
 #: (duration s, speed rpm, mean phase current A, direction): forward and reverse, so that the
 #: diagnosis can tell spatial offsets (they flip with direction) from delays (they do not)
-PROFILE = [(0.24, 1500.0, 1.0, 1), (0.12, 4000.0, 3.0, 1), (0.08, 8000.0, 6.0, 1), (0.12, 4000.0, 3.0, -1), (0.08, 8000.0, 6.0, -1)]
+PROFILE = [
+    (0.24, 1500.0, 1.0, 1),
+    (0.12, 4000.0, 3.0, 1),
+    (0.08, 8000.0, 6.0, 1),
+    (0.12, 4000.0, 3.0, -1),
+    (0.08, 8000.0, 6.0, -1),
+]
 SEED = 7
 
 

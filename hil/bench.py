@@ -81,8 +81,16 @@ class LockstepBench:
 
     def __post_init__(self):
         self.source = LinkSource(self.link)
-        self.sim = Simulation(self.config, self.source, duty=self.duty, initial_speed_rpm=self.initial_speed_rpm, seed=self.seed,
-                              sample_rate_hz=self.sample_rate_hz, capacity=1 << 18, **self.sim_options)
+        self.sim = Simulation(
+            self.config,
+            self.source,
+            duty=self.duty,
+            initial_speed_rpm=self.initial_speed_rpm,
+            seed=self.seed,
+            sample_rate_hz=self.sample_rate_hz,
+            capacity=1 << 18,
+            **self.sim_options,
+        )
 
     def angle_errors_deg_e(self, since_s: float = 0.0):
         """Commutation angle error (deg electrical, + = late) of every commutation from ``since_s``,

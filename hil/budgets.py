@@ -59,10 +59,16 @@ class Verdict:
         return asdict(self)
 
     def message(self) -> str:
-        rel = ("exceeds" if self.limit_kind == "max" else "falls short of") if self.verdict == "fail" and self.margin < 0 else "is within"
+        rel = (
+            ("exceeds" if self.limit_kind == "max" else "falls short of")
+            if self.verdict == "fail" and self.margin < 0
+            else "is within"
+        )
         side = "at most" if self.limit_kind == "max" else "at least"
-        return (f"{self.budget} ({self.requirement}): measured {self.measured:.6g} {self.unit} {rel} the limit of "
-                f"{side} {self.limit:.6g} {self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}")
+        return (
+            f"{self.budget} ({self.requirement}): measured {self.measured:.6g} {self.unit} {rel} the limit of "
+            f"{side} {self.limit:.6g} {self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}"
+        )
 
     limit_kind: str = "max"
 
@@ -97,7 +103,6 @@ REQUIREMENTS = {
 }
 
 
-
 DEFAULTS_TOML = Path(__file__).with_name("default_budgets.toml")
 _BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description"}
 _WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
@@ -111,16 +116,22 @@ class Waiver:
     requirement: str
     reason: str
     owner: str
-    tests: tuple[str, ...] = ()            #: node-id substrings it is limited to (empty: every test of the requirement)
+    tests: tuple[str, ...] = ()  #: node-id substrings it is limited to (empty: every test of the requirement)
     expires: datetime.date | None = None
-    source: str = ""                       #: where it was declared ("file: [[waiver]][i]")
+    source: str = ""  #: where it was declared ("file: [[waiver]][i]")
 
     def covers(self, nodeid: str) -> bool:
         return not self.tests or any(s in nodeid for s in self.tests)
 
     def as_dict(self) -> dict:
-        return {"requirement": self.requirement, "reason": self.reason, "owner": self.owner, "tests": list(self.tests),
-                "expires": self.expires.isoformat() if self.expires else None, "source": self.source}
+        return {
+            "requirement": self.requirement,
+            "reason": self.reason,
+            "owner": self.owner,
+            "tests": list(self.tests),
+            "expires": self.expires.isoformat() if self.expires else None,
+            "source": self.source,
+        }
 
 
 def _check_table(table, where: str, what: str, known: set[str]) -> None:
@@ -136,7 +147,9 @@ def _waiver(table, where: str, today: datetime.date) -> Waiver:
     for key in ("requirement", "reason", "owner"):
         v = table.get(key)
         if not isinstance(v, str) or not v.strip():
-            raise ConfigError(f"{where}.{key}", "required: a non-empty string (a waiver without its " + key + " is not a waiver)")
+            raise ConfigError(
+                f"{where}.{key}", "required: a non-empty string (a waiver without its " + key + " is not a waiver)"
+            )
     tests = table.get("tests", [])
     if not isinstance(tests, list) or not all(isinstance(s, str) and s.strip() for s in tests):
         raise ConfigError(f"{where}.tests", f"must be a list of non-empty node-id substrings, got {tests!r}")
@@ -150,10 +163,19 @@ def _waiver(table, where: str, today: datetime.date) -> Waiver:
         elif isinstance(expires, datetime.datetime) or not isinstance(expires, datetime.date):
             raise ConfigError(f"{where}.expires", f"must be an ISO date (YYYY-MM-DD), got {expires!r}")
         if expires < today:
-            raise ConfigError(f"{where}.expires", f"the waiver of {table['requirement']} expired on {expires.isoformat()}: "
-                                                  "fix the defect or renew the waiver with a current reason")
-    return Waiver(table["requirement"].strip(), table["reason"].strip(), table["owner"].strip(), tuple(s.strip() for s in tests),
-                  expires, where)
+            raise ConfigError(
+                f"{where}.expires",
+                f"the waiver of {table['requirement']} expired on {expires.isoformat()}: "
+                "fix the defect or renew the waiver with a current reason",
+            )
+    return Waiver(
+        table["requirement"].strip(),
+        table["reason"].strip(),
+        table["owner"].strip(),
+        tuple(s.strip() for s in tests),
+        expires,
+        where,
+    )
 
 
 def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
@@ -178,8 +200,12 @@ def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
     if lim < 0:
         raise ConfigError(f"{where}.limit", f"a budget limits a magnitude and must be >= 0, got {lim!r}")
     if m is not None and not ((0 <= m <= lim) if kind == "max" else (m >= lim)):
-        inside = f"between 0 and the limit {lim!r}" if kind == "max" else f"at or above the limit {lim!r} (kind = \"min\")"
-        raise ConfigError(f"{where}.marginal", f"the marginal bound must lie on the passing side of the limit, {inside}; got {m!r}")
+        inside = (
+            f"between 0 and the limit {lim!r}" if kind == "max" else f'at or above the limit {lim!r} (kind = "min")'
+        )
+        raise ConfigError(
+            f"{where}.marginal", f"the marginal bound must lie on the passing side of the limit, {inside}; got {m!r}"
+        )
     return Budget(**merged)
 
 
@@ -194,7 +220,9 @@ class Budgets:
         try:
             return self.budgets[name]
         except KeyError:
-            raise KeyError(f"no budget named {name!r} in {self.source} (have: {', '.join(sorted(self.budgets))})") from None
+            raise KeyError(
+                f"no budget named {name!r} in {self.source} (have: {', '.join(sorted(self.budgets))})"
+            ) from None
 
     @classmethod
     def defaults(cls) -> "Budgets":
@@ -203,8 +231,13 @@ class Budgets:
         return b
 
     @classmethod
-    def from_toml(cls, path: str | Path, base: "Budgets | None" = None, today: datetime.date | None = None,
-                  name: str | None = None) -> "Budgets":
+    def from_toml(
+        cls,
+        path: str | Path,
+        base: "Budgets | None" = None,
+        today: datetime.date | None = None,
+        name: str | None = None,
+    ) -> "Budgets":
         """``path`` laid over ``base`` (default: the built-in defaults): its budgets override or add,
         its waivers add to the base's. Errors and waiver sources name the file as ``name`` (default: ``path``)."""
         path = Path(path)
@@ -236,7 +269,9 @@ class Budgets:
         # marginal bound is a plain pass (the band lies beyond the bound)
         if margin < 0:
             verdict = "fail"
-        elif b.marginal is not None and ((b.kind == "max" and measured > b.marginal) or (b.kind == "min" and measured < b.marginal)):
+        elif b.marginal is not None and (
+            (b.kind == "max" and measured > b.marginal) or (b.kind == "min" and measured < b.marginal)
+        ):
             verdict = "marginal"
         else:
             verdict = "pass"

@@ -29,10 +29,13 @@ def cmd_demo(args) -> int:
 
 def cmd_recording_check(args) -> int:
     rec = read_recording(args.recording)
-    print(f"{args.recording}: hil-recording/1, {len(rec)} edges, {len(rec.segments)} segments "
-          f"({', '.join(rec.segment_ids)}), pole_pairs {rec.pole_pairs}, "
-          f"reference angle {'yes' if rec.ref_angle_mech_deg is not None else 'no'}, "
-          f"samples {'yes (' + ', '.join(k for k in rec.samples if k not in ('t_s', 'segment')) + ')' if rec.samples else 'no'}")
+    channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
+    print(
+        f"{args.recording}: hil-recording/1, {len(rec)} edges, {len(rec.segments)} segments "
+        f"({', '.join(rec.segment_ids)}), pole_pairs {rec.pole_pairs}, "
+        f"reference angle {'yes' if rec.ref_angle_mech_deg is not None else 'no'}, "
+        f"samples {f'yes ({channels})' if rec.samples else 'no'}"
+    )
     return 0
 
 
@@ -65,7 +68,10 @@ def cmd_calibrate(args) -> int:
     print(f"{args.recording}: {corr.info.get('method')}")
     print(f"  installation_offset_deg_e: {fmt(corr.installation_offset_deg_e)}")
     print(f"  pole_offset_deg_e:         {', '.join(f'{v:+.4f}' for v in corr.pole_offset_deg_e)}")
-    print(f"  conditioning_delay_s:      rise {corr.conditioning_delay_s['rise'] * 1e6:.3f} us, fall {corr.conditioning_delay_s['fall'] * 1e6:.3f} us")
+    print(
+        f"  conditioning_delay_s:      rise {corr.conditioning_delay_s['rise'] * 1e6:.3f} us, fall "
+        f"{corr.conditioning_delay_s['fall'] * 1e6:.3f} us"
+    )
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
     for quantity, why in corr.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
@@ -81,13 +87,24 @@ def cmd_compare_correction(args) -> int:
     raw, cor, _ = compare(speed_rpm=args.speed_rpm, turns=args.turns, seed=args.seed)
     mse = 1 - cor.speed_mse_rpm2 / raw.speed_mse_rpm2
     cur = 1 - cor.mean_phase_current_a / raw.mean_phase_current_a
-    print(f"paper bench with paper-sized deviations, {args.speed_rpm:.0f} rpm, PI speed loop, {args.turns} mechanical turns")
-    print(f"{'strategy':<18} {'speed fluct. MSE':>18} {'set-point MSE':>15} {'mean |i|':>10} {'comm. RMS':>10} {'comm. p99':>10}")
+    print(
+        f"paper bench with paper-sized deviations, {args.speed_rpm:.0f} rpm, PI speed loop, {args.turns} mechanical "
+        "turns"
+    )
+    print(
+        f"{'strategy':<18} {'speed fluct. MSE':>18} {'set-point MSE':>15} {'mean |i|':>10} {'comm. RMS':>10} "
+        f"{'comm. p99':>10}"
+    )
     for r in (raw, cor):
-        print(f"{r.name:<18} {r.speed_mse_rpm2:>14.3g} rpm2 {r.setpoint_mse_rpm2:>11.3g} rpm2 {r.mean_phase_current_a:>8.4f} A "
-              f"{r.rms_deg_e:>7.3f} de {r.p99_deg_e:>7.3f} de")
-    print(f"reduction with correction: speed MSE {mse:.1%} (paper {PAPER_SPEED_MSE_REDUCTION:.1%}), "
-          f"mean phase current {cur:.1%} (paper {PAPER_MEAN_CURRENT_REDUCTION:.1%})")
+        print(
+            f"{r.name:<18} {r.speed_mse_rpm2:>14.3g} rpm2 {r.setpoint_mse_rpm2:>11.3g} rpm2 "
+            f"{r.mean_phase_current_a:>8.4f} A "
+            f"{r.rms_deg_e:>7.3f} de {r.p99_deg_e:>7.3f} de"
+        )
+    print(
+        f"reduction with correction: speed MSE {mse:.1%} (paper {PAPER_SPEED_MSE_REDUCTION:.1%}), "
+        f"mean phase current {cur:.1%} (paper {PAPER_MEAN_CURRENT_REDUCTION:.1%})"
+    )
     path = plot(raw, cor, args.plot)
     print(f"speed traces written to {path}")
     return 0
@@ -104,7 +121,9 @@ def cmd_table5(args) -> int:
         return 0
     from .predictors.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
 
-    result = run_protocol(args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS))
+    result = run_protocol(
+        args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS)
+    )
     import textwrap
 
     print(f"protocol {result.protocol}:")
@@ -135,35 +154,58 @@ def cmd_gap_diagnose(args) -> int:
         if not path.exists():
             raise ValueError(f"{path}: no such file or directory")
         if path.suffix.lower() not in TRACE_SUFFIXES:
-            raise ValueError(f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
-                             f"{', '.join(TRACE_SUFFIXES)})")
+            raise ValueError(
+                f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
+                f"{', '.join(TRACE_SUFFIXES)})"
+            )
         if not args.meta:
-            raise ValueError(f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping MAP.toml")
+            raise ValueError(
+                f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping "
+                "MAP.toml"
+            )
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
         rec = read_trace(args.recording, mapping, args.meta)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
-    print(f"{args.recording}: gap {d.gap_before:.4g} ({d.gap_metric}), "
-          f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (edges: p = {d.p_value:.2g})")
+    print(
+        f"{args.recording}: gap {d.gap_before:.4g} ({d.gap_metric}), "
+        f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (edges: p = {d.p_value:.2g})"
+    )
     for name, dom in d.samples.items():
-        shrink = f", held-out shrink {dom['heldout_shrink']:.1%}" if dom["heldout_shrink"] is not None and dom["accepted"] else ""
-        print(f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
-              f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}")
+        shrink = (
+            f", held-out shrink {dom['heldout_shrink']:.1%}"
+            if dom["heldout_shrink"] is not None and dom["accepted"]
+            else ""
+        )
+        print(
+            f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
+            f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}"
+        )
     for i, r in enumerate(d.ranking[:5], 1):
-        verdict = "   accepted" if any(a["effect"] == r["effect"] for a in d.accepted) else ("   below relevance" if r.get("below_relevance") else "")
+        verdict = (
+            "   accepted"
+            if any(a["effect"] == r["effect"] for a in d.accepted)
+            else ("   below relevance" if r.get("below_relevance") else "")
+        )
         print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{verdict}")
     for a in d.accepted:
         print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
     for b in d.below_relevance:
         rel = b.get("relevance", {})
-        print(f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor {rel.get('floor', float('nan')):.3g} "
-              f"{rel.get('unit', '')}: {rel.get('meaning', '')})")
+        print(
+            f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor "
+            f"{rel.get('floor', float('nan')):.3g} "
+            f"{rel.get('unit', '')}: {rel.get('meaning', '')})"
+        )
     for pair in d.confounded:
         print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
     print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
     if d.heldout_shrink is not None and d.gap_after_heldout is not None:
-        lo, hi = d.heldout_interval or (float('nan'), float('nan'))
-        print(f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); {d.heldout_note}")
+        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
+        print(
+            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
+            f"{d.heldout_note}"
+        )
     else:
         print(f"  held-out: {d.heldout_note}")
     if args.json:
@@ -184,19 +226,37 @@ def cmd_gap_validate(args) -> int:
     # pipe gets one line per tenth of the work
     live = not args.no_progress and sys.stderr.isatty()
     progress = Progress("recordings diagnosed") if not args.no_progress and not live else None
-    report = run_validation(per_effect=args.per_effect, null=args.null, two=args.two, out_of_library=args.out_of_library, seed=args.seed,
-                            progress=progress, jobs=args.jobs, generator=args.generator, scheduler=args.scheduler, bar=live)
+    report = run_validation(
+        per_effect=args.per_effect,
+        null=args.null,
+        two=args.two,
+        out_of_library=args.out_of_library,
+        seed=args.seed,
+        progress=progress,
+        jobs=args.jobs,
+        generator=args.generator,
+        scheduler=args.scheduler,
+        bar=live,
+    )
     if progress:
         progress.close()
     if report.dispatch.get("interrupted"):
-        print(f"interrupted: {len(report.cases)} recordings diagnosed (the summary below covers those)", file=sys.stderr)
-    print(f"ran on {report.dispatch['scheduler']}"
-          f"{' (' + report.dispatch['scheduler_address'] + ')' if report.dispatch.get('scheduler_address') else ''}: "
-          f"{report.dispatch['workers_used']} worker(s) used, {report.dispatch['elapsed_s']:.1f} s")
+        print(
+            f"interrupted: {len(report.cases)} recordings diagnosed (the summary below covers those)", file=sys.stderr
+        )
+    print(
+        f"ran on {report.dispatch['scheduler']}"
+        f"{' (' + report.dispatch['scheduler_address'] + ')' if report.dispatch.get('scheduler_address') else ''}: "
+        f"{report.dispatch['workers_used']} worker(s) used, {report.dispatch['elapsed_s']:.1f} s"
+    )
     for e in report.errors:
         print(f"ERROR in case {e['index']} {e['case']}: {e['message']}", file=sys.stderr)
-    ran = {"scheduler": report.dispatch["scheduler"], "workers_used": report.dispatch["workers_used"], "dispatch": report.dispatch,
-           "errors": report.errors}
+    ran = {
+        "scheduler": report.dispatch["scheduler"],
+        "workers_used": report.dispatch["workers_used"],
+        "dispatch": report.dispatch,
+        "errors": report.errors,
+    }
     if not report.cases:  # every case raised, or Ctrl-C came before the first result: nothing to score
         print("no recording was diagnosed", file=sys.stderr)
         if args.json:
@@ -209,14 +269,23 @@ def cmd_gap_validate(args) -> int:
 
     for min_snr in (1.0, 3.0):
         s = report.summary(min_snr)
-        print(f"SNR >= {min_snr:g}: top-1 {pct(s['top1_rate'])}, top-3 {pct(s['top3_rate'])} ({s['single_cases']} single-effect cases); "
-              f"false alarms {pct(s['false_alarm_rate'])} ({s['null_cases']} null); out-of-library unexplained {pct(s['unexplained_rate'])} "
-              f"({s['out_of_library_cases']}); both of two found {pct(s['two_effect_both_found_rate'])} ({s['two_effect_cases']}); "
-              f"parameters within 20 % {pct(s['param_within_20pct_rate'])} (median error {pct(s['median_param_error'])}); "
-              f"median held-out shrink {pct(s['median_heldout_shrink'])}")
+        print(
+            f"SNR >= {min_snr:g}: top-1 {pct(s['top1_rate'])}, top-3 {pct(s['top3_rate'])} ({s['single_cases']} "
+            "single-effect cases); "
+            f"false alarms {pct(s['false_alarm_rate'])} ({s['null_cases']} null); out-of-library unexplained "
+            f"{pct(s['unexplained_rate'])} "
+            f"({s['out_of_library_cases']}); both of two found {pct(s['two_effect_both_found_rate'])} "
+            f"({s['two_effect_cases']}); "
+            f"parameters within 20 % {pct(s['param_within_20pct_rate'])} (median error "
+            f"{pct(s['median_param_error'])}); "
+            f"median held-out shrink {pct(s['median_heldout_shrink'])}"
+        )
         if s["false_alarm_rate_electrical"] is not None:
-            print(f"  false alarms on null recordings with samples {s['false_alarm_rate_electrical']:.1%}; "
-                  f"dead time withheld (no trace in the format's signals) flagged {pct(s['no_trace_alarm_rate'])} ({s['no_trace_cases']})")
+            print(
+                f"  false alarms on null recordings with samples {s['false_alarm_rate_electrical']:.1%}; "
+                f"dead time withheld (no trace in the format's signals) flagged {pct(s['no_trace_alarm_rate'])} "
+                f"({s['no_trace_cases']})"
+            )
     s = report.summary(3.0)
     if args.generator == "field":
         _print_cause_confusion(report, 3.0)
@@ -228,8 +297,12 @@ def cmd_gap_validate(args) -> int:
         print(f"{n:<22}" + "".join(f"{s['confusion'][n].get(c, 0):>11}" for c in cols))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps({**ran, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases},
-                                              indent=1) + "\n")
+        Path(args.json).write_text(
+            json.dumps(
+                {**ran, "summary_snr_ge_1": report.summary(1.0), "summary_snr_ge_3": s, "cases": report.cases}, indent=1
+            )
+            + "\n"
+        )
         print(f"validation written to {args.json}")
     return 130 if report.dispatch.get("interrupted") else (1 if report.errors else 0)
 
@@ -243,9 +316,12 @@ def cmd_campaign(args) -> int:
     out = args.out or f"reports/campaign-{re.sub(r'[^A-Za-z0-9_.-]+', '_', spec.name)}"
     result = run_campaign(spec, out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
     s = result.summary()
-    print(f"campaign {spec.name}: {s['points_done']}/{s['points_planned']} points{' (INTERRUPTED)' if s['interrupted'] else ''}: "
-          f"{s['pass']} pass, {s['marginal']} marginal, {s['fail']} fail, {s['error']} error; on {s['scheduler']}, "
-          f"{s['workers_used']} worker(s), {s['elapsed_s']:.1f} s ({s['points_per_s'] or 0:.2f} points/s)")
+    print(
+        f"campaign {spec.name}: {s['points_done']}/{s['points_planned']} "
+        f"points{' (INTERRUPTED)' if s['interrupted'] else ''}: "
+        f"{s['pass']} pass, {s['marginal']} marginal, {s['fail']} fail, {s['error']} error; on {s['scheduler']}, "
+        f"{s['workers_used']} worker(s), {s['elapsed_s']:.1f} s ({s['points_per_s'] or 0:.2f} points/s)"
+    )
     for key, path in result.paths.items():
         print(f"  {key}: {path}")
     if s["fail"]:
@@ -271,15 +347,17 @@ def cmd_dut_serve(args) -> int:
 
     if args.canopen_port is None and args.modbus_port is None:
         raise ValueError("give --canopen-port and/or --modbus-port")
-    serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit, strategy=args.strategy, preset=args.preset,
-          bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
+    serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
+          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
     return 0
 
 
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
-    print(f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
-          f"{', '.join(e.name for e in config.effects) or 'none'}; hash {config.config_hash()}")
+    print(
+        f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
+        f"{', '.join(e.name for e in config.effects) or 'none'}; hash {config.config_hash()}"
+    )
     return 0
 
 
@@ -287,20 +365,41 @@ def effects_markdown() -> str:
     """The effect library as a Markdown reference (docs/effects.md is generated from this)."""
     import inspect
 
-    lines = ["# The effect library", "", "Generated by `hil effects --markdown`; do not edit by hand. "
-             "Sign convention: a positive angle means the captured edge trails the ideal one (forward rotation).", ""]
+    lines = [
+        "# The effect library",
+        "",
+        "Generated by `hil effects --markdown`; do not edit by hand. "
+        "Sign convention: a positive angle means the captured edge trails the ideal one (forward rotation).",
+        "",
+    ]
     for name, cls in EFFECTS.items():
         doc = inspect.cleandoc(cls.__doc__ or "")
         lines += [f"## `{name}` ({cls.layer})", "", doc, ""]
         fp = cls.fingerprint
-        lines += [f"Fingerprint: {fp.get('signature', '-')}; scales with {fp.get('scales_with', '-')}; knob: {fp.get('knob', '-')}.", ""]
+        lines += [
+            f"Fingerprint: {fp.get('signature', '-')}; scales with {fp.get('scales_with', '-')}; knob: "
+            f"{fp.get('knob', '-')}.",
+            "",
+        ]
         lines += ["| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
         for row in describe(cls):
-            lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
+            lines.append(
+                f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | "
+                f"{row['doc']} |"
+            )
         for part, kind in getattr(cls, "parts", {}).items():  # nested tables (hall_field)
-            lines += ["", f"Table `{part}` ({kind.__name__}):", "", "| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
+            lines += [
+                "",
+                f"Table `{part}` ({kind.__name__}):",
+                "",
+                "| parameter | unit | bounds | default | meaning |",
+                "|---|---|---|---|---|",
+            ]
             for row in describe(kind):
-                lines.append(f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | {row['doc']} |")
+                lines.append(
+                    f"| `{row['name']}` | {row['unit']} | [{row['low']}, {row['high']}] | `{row['default']!r}` | "
+                    f"{row['doc']} |"
+                )
         lines.append("")
     return "\n".join(lines)
 
@@ -312,7 +411,10 @@ def cmd_effects(args) -> int:
     for name, cls in EFFECTS.items():
         print(f"{name}  [{cls.layer}]  {cls.fingerprint.get('signature', '')}")
         for row in describe(cls):
-            print(f"    {row['name']:<26} {row['unit']:<10} [{row['low']}, {row['high']}]  default {row['default']!r}  {row['doc']}")
+            print(
+                f"    {row['name']:<26} {row['unit']:<10} [{row['low']}, {row['high']}]  default {row['default']!r}  "
+                f"{row['doc']}"
+            )
     return 0
 
 
@@ -337,9 +439,23 @@ def cmd_acceptance(args) -> int:
     suite = find_suite(args.suite)
     # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
     # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
-    argv = [str(suite), "-p", "no:cacheprovider", "-p", "no:benchmark", "-p", "hil.progress", "-q", "-o", "console_output_style=classic",
-            f"--hil-report-dir={args.report_dir}", f"--hil-seed={args.seed}", f"--hypothesis-seed={args.seed}",
-            "-o", "faulthandler_timeout=600"]
+    argv = [
+        str(suite),
+        "-p",
+        "no:cacheprovider",
+        "-p",
+        "no:benchmark",
+        "-p",
+        "hil.progress",
+        "-q",
+        "-o",
+        "console_output_style=classic",
+        f"--hil-report-dir={args.report_dir}",
+        f"--hil-seed={args.seed}",
+        f"--hypothesis-seed={args.seed}",
+        "-o",
+        "faulthandler_timeout=600",
+    ]
     for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
         argv.append(f"--hil-dut={dut}")
     if args.plant:
@@ -357,8 +473,11 @@ def cmd_acceptance(args) -> int:
     # the same hil (and plant_models) as this command, wherever the interpreter would find another
     root = str(Path(__file__).resolve().parent.parent)
     program = "python -m hil" if Path(sys.argv[0]).name == "__main__.py" else Path(sys.argv[0]).name
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
-           "HIL_COMMAND": " ".join([program, *sys.argv[1:]])}  # what the report names as the run's command
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
+        "HIL_COMMAND": " ".join([program, *sys.argv[1:]]),
+    }  # what the report names as the run's command
     try:
         status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
@@ -399,7 +518,10 @@ def cmd_replay(args) -> int:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="hil", description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.")
+    parser = argparse.ArgumentParser(
+        prog="hil",
+        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
 
     p = sub.add_parser("demo", help="paper-bench run with paper-sized deviations; prints the edge errors")
@@ -433,7 +555,11 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
     p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
     p.add_argument("--json", help="write the corrections here")
-    p.add_argument("--campaign", action="store_true", help="first run the calibration campaign on the plant and record it to RECORDING")
+    p.add_argument(
+        "--campaign",
+        action="store_true",
+        help="first run the calibration campaign on the plant and record it to RECORDING",
+    )
     g = p.add_mutually_exclusive_group()
     g.add_argument("--plant", help="plant TOML for --campaign")
     g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
@@ -441,18 +567,29 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0)
     p.set_defaults(func=cmd_calibrate)
 
-    p = sub.add_parser("compare-correction", help="paper Section 4.3: raw versus corrected commutation on the paper bench")
+    p = sub.add_parser(
+        "compare-correction", help="paper Section 4.3: raw versus corrected commutation on the paper bench"
+    )
     p.add_argument("--speed-rpm", type=float, default=5700.0)
     p.add_argument("--turns", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--plot", default="reports/headline-5700rpm.png")
     p.set_defaults(func=cmd_compare_correction)
 
-    p = sub.add_parser("table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario")
-    p.add_argument("--protocol", default="tuned", choices=["paper", "tuned", "misspecified", "bursts"],
-                   help="how the KF and Sage-Husa are set up and what disturbs the edges (docs/sage-husa.md; default: tuned)")
-    p.add_argument("--closed-loop", action="store_true",
-                   help="run the paper scenario through the controller on every link, then replay its edges offline")
+    p = sub.add_parser(
+        "table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario"
+    )
+    p.add_argument(
+        "--protocol",
+        default="tuned",
+        choices=["paper", "tuned", "misspecified", "bursts"],
+        help="how the KF and Sage-Husa are set up and what disturbs the edges (docs/sage-husa.md; default: tuned)",
+    )
+    p.add_argument(
+        "--closed-loop",
+        action="store_true",
+        help="run the paper scenario through the controller on every link, then replay its edges offline",
+    )
     p.add_argument("--seed", type=int, nargs="+", help="evaluation seeds (default: 0 3 4 ... 11; closed loop: 0)")
     p.add_argument("--train-seed", type=int, nargs="+", help="tuning seeds (default: 1 2)")
     p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
@@ -461,55 +598,103 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
-    q.add_argument("recording", help="hil-recording/1 directory, or a trace file (.mf4, .csv, .parquet) with --meta and --mapping")
-    q.add_argument("--model", help="plant TOML with the effects the model already knows (default: nominal motor of meta.json)")
+    q.add_argument(
+        "recording", help="hil-recording/1 directory, or a trace file (.mf4, .csv, .parquet) with --meta and --mapping"
+    )
+    q.add_argument(
+        "--model", help="plant TOML with the effects the model already knows (default: nominal motor of meta.json)"
+    )
     q.add_argument("--meta", help="meta.json (motor, segments) for a trace file")
     q.add_argument("--mapping", help="TOML column mapping for a trace file (docs/gap.md)")
     q.add_argument("--json")
     q.add_argument("--html")
     q.set_defaults(func=cmd_gap_diagnose)
     q = gs.add_parser("validate", help="inject, withhold, diagnose, score")
-    q.add_argument("--per-effect", type=int, default=60, help="draws per effect (per physical cause with --generator field)")
+    q.add_argument(
+        "--per-effect", type=int, default=60, help="draws per effect (per physical cause with --generator field)"
+    )
     q.add_argument("--null", type=int, default=100)
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--jobs", type=int, default=os.cpu_count() or 1, help="local worker processes (default: one per core; 1: in this process)")
-    q.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --jobs workers)")
+    q.add_argument(
+        "--jobs",
+        type=int,
+        default=os.cpu_count() or 1,
+        help="local worker processes (default: one per core; 1: in this process)",
+    )
+    q.add_argument(
+        "--scheduler",
+        help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --jobs "
+        "workers)",
+    )
     q.add_argument("--no-progress", action="store_true", help="no progress bar")
-    q.add_argument("--generator", choices=("library", "field"), default="library",
-                   help="library: withhold the library's effects; field: withhold physical causes of the field-level Hall model")
+    q.add_argument(
+        "--generator",
+        choices=("library", "field"),
+        default="library",
+        help="library: withhold the library's effects; field: withhold physical causes of the field-level Hall model",
+    )
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
 
-    p = sub.add_parser("campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)")
+    p = sub.add_parser(
+        "campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)"
+    )
     p.add_argument("spec", help="campaign SPEC TOML")
     p.add_argument("--out", help="output directory (default: reports/campaign-NAME)")
-    p.add_argument("--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' (default) or 'serial'")
+    p.add_argument(
+        "--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' (default) or 'serial'"
+    )
     p.add_argument("--workers", type=int, help="workers of the local cluster (default: one per core)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
 
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
-    q = ds.add_parser("serve", help="run the virtual controller in its own process (CANopen over the socketcand protocol, Modbus TCP)")
-    q.add_argument("--canopen-port", type=int, help="serve the CAN bus on HOST:PORT with the socketcand protocol (python-can 'socketcand' interface; 0: any free port)")
+    q = ds.add_parser(
+        "serve", help="run the virtual controller in its own process (CANopen over the socketcand protocol, Modbus TCP)"
+    )
+    q.add_argument(
+        "--canopen-port",
+        type=int,
+        help="serve the CAN bus on HOST:PORT with the socketcand protocol (python-can 'socketcand' interface; 0: any "
+        "free port)",
+    )
     q.add_argument("--bus-name", default="can0", help="the socketcand bus name clients open (default can0)")
-    q.add_argument("--idle-timeout", type=float, default=300.0, help="close a client that sends or reads nothing for this many seconds (default 300)")
+    q.add_argument(
+        "--idle-timeout",
+        type=float,
+        default=300.0,
+        help="close a client that sends or reads nothing for this many seconds (default 300)",
+    )
     q.add_argument("--modbus-port", type=int, help="serve Modbus TCP on HOST:PORT")
     q.add_argument("--host", default="127.0.0.1", help="bind address (default loopback; 0.0.0.0 only if you mean it)")
     q.add_argument("--node-id", type=int, default=5)
     q.add_argument("--unit", type=int, default=1)
-    q.add_argument("--strategy", type=int, default=3, choices=[0, 1, 2, 3], help="0 raw, 1 corrected, 2 KF, 3 Sage-Husa")
-    q.add_argument("--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for")
+    q.add_argument(
+        "--strategy", type=int, default=3, choices=[0, 1, 2, 3], help="0 raw, 1 corrected, 2 KF, 3 Sage-Husa"
+    )
+    q.add_argument(
+        "--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for"
+    )
     q.set_defaults(func=cmd_dut_serve)
 
-    p = sub.add_parser("acceptance", help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports")
-    p.add_argument("--dut", action="append", help="controller spec (repeatable; default: virtual:canopen and virtual:modbus)")
+    p = sub.add_parser(
+        "acceptance",
+        help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports",
+    )
+    p.add_argument(
+        "--dut", action="append", help="controller spec (repeatable; default: virtual:canopen and virtual:modbus)"
+    )
     p.add_argument("--plant", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
-    p.add_argument("--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)")
-    p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)")
+    p.add_argument(
+        "--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)"
+    )
+    p.add_argument(
+        "--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)"
+    )
     p.add_argument("-n", "--workers", help="pytest-xdist workers (e.g. auto); each worker opens its own controller")
     p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
@@ -517,7 +702,9 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("replay", help="re-run a saved stimulus (a failing property-based example)")
     p.add_argument("file", help="stimulus JSON (reports/replays/*.json)")
-    p.add_argument("--dut", default="virtual:in-process", help="controller spec (default: the virtual controller in-process)")
+    p.add_argument(
+        "--dut", default="virtual:in-process", help="controller spec (default: the virtual controller in-process)"
+    )
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.set_defaults(func=cmd_replay)
 

@@ -163,7 +163,9 @@ class HallCommutation:
             else:
                 w_e = 60.0 / max(t - self._last_t, 1e-9)
             speed_rpm = w_e / (6.0 * self.pole_pairs)
-            current = edge.get("current_a", self.current_estimate_a) if self.use_measured_current else self.current_estimate_a
+            current = self.current_estimate_a
+            if self.use_measured_current:
+                current = edge.get("current_a", current)
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
                 t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e
@@ -186,7 +188,9 @@ class HallCommutation:
                 # turns into more lag. Whole electrical periods (same sensor, same edge) cancel
                 # the installation offsets and delays; until one has passed the duty is kept.
                 periods = min(len(self._history) - 1, 6 * self.pole_pairs) // 6
-                speed_rpm = 60.0 * periods / self.pole_pairs / (t - self._history[-6 * periods - 1][0]) if periods else 0.0
+                speed_rpm = (
+                    60.0 * periods / self.pole_pairs / (t - self._history[-6 * periods - 1][0]) if periods else 0.0
+                )
             else:
                 speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
             if speed_rpm > 0.0:

@@ -22,12 +22,22 @@ def edge_error_table(edges, pole_pairs: int) -> list[dict]:
             for pole in range(2 * pole_pairs):
                 sel = (edges.sensor == x) & (edges.rising == rising) & (edges.pole == pole)
                 if sel.any():
-                    rows.append({"sensor": name, "edge": "rise" if rising else "fall", "pole": pole, "n": int(sel.sum()),
-                                 "mean_deg_e": float(err[sel].mean()), "std_deg_e": float(err[sel].std())})
+                    rows.append(
+                        {
+                            "sensor": name,
+                            "edge": "rise" if rising else "fall",
+                            "pole": pole,
+                            "n": int(sel.sum()),
+                            "mean_deg_e": float(err[sel].mean()),
+                            "std_deg_e": float(err[sel].std()),
+                        }
+                    )
     return rows
 
 
-def run_demo(speed_rpm: float = 5700.0, duration_s: float = 0.5, out_dir: str | Path = "reports/demo-recording", seed: int = 1) -> dict:
+def run_demo(
+    speed_rpm: float = 5700.0, duration_s: float = 0.5, out_dir: str | Path = "reports/demo-recording", seed: int = 1
+) -> dict:
     config = paper_bench(with_deviations=True)
     duty = steady_state(config.motor, speed_rpm)["duty"]
     sim = Simulation(config, RawHallCommutation(), duty=duty, initial_speed_rpm=speed_rpm, seed=seed)
@@ -38,18 +48,33 @@ def run_demo(speed_rpm: float = 5700.0, duration_s: float = 0.5, out_dir: str | 
     edges = sim.edges()
     samples = sim.samples()
     sel = edges.segment == 0
-    seg = Segment("op01", t0, sim.t_s, "forward", speed_rpm, float(np.abs(samples.i_true_a[samples.t_s >= t0]).mean()), 1.0)
+    seg = Segment(
+        "op01", t0, sim.t_s, "forward", speed_rpm, float(np.abs(samples.i_true_a[samples.t_s >= t0]).mean()), 1.0
+    )
     tick = config.compile().timer_tick_s
     ks = samples.t_s >= t0
-    sample_cols = {"t_s": samples.t_s[ks], "segment": np.zeros(int(ks.sum()), dtype=np.int64),
-                   "i_a": samples.i_meas_a[ks, 0], "i_b": samples.i_meas_a[ks, 1], "i_c": samples.i_meas_a[ks, 2],
-                   "u_a": samples.u_v[ks, 0], "u_b": samples.u_v[ks, 1], "u_c": samples.u_v[ks, 2],
-                   "speed_rpm": samples.speed_rpm[ks]}
+    sample_cols = {
+        "t_s": samples.t_s[ks],
+        "segment": np.zeros(int(ks.sum()), dtype=np.int64),
+        "i_a": samples.i_meas_a[ks, 0],
+        "i_b": samples.i_meas_a[ks, 1],
+        "i_c": samples.i_meas_a[ks, 2],
+        "u_a": samples.u_v[ks, 0],
+        "u_b": samples.u_v[ks, 1],
+        "u_c": samples.u_v[ks, 2],
+        "speed_rpm": samples.speed_rpm[ks],
+    }
     rec = recording_from_edges(motor_meta(config), edges, [seg], timer_tick_s=tick, samples=sample_cols)
     path = write_recording(rec, out_dir)
     e = edges.take(sel)
-    result = {"config": config, "edges": e, "table": edge_error_table(e, config.motor.pole_pairs), "recording": path,
-              "speed_rpm": float(e.speed_rpm.mean()), "duty": duty}
+    result = {
+        "config": config,
+        "edges": e,
+        "table": edge_error_table(e, config.motor.pole_pairs),
+        "recording": path,
+        "speed_rpm": float(e.speed_rpm.mean()),
+        "duty": duty,
+    }
     result["plot"] = plot_demo(result, Path(out_dir).parent / "demo-edge-errors.png")
     return result
 
@@ -84,13 +109,23 @@ def plot_demo(result: dict, path: str | Path) -> Path:
 def print_demo(result: dict) -> None:
     e = result["edges"]
     err = e.capture_error_deg_e
-    print(f"paper-bench demo: {result['config'].name}, raw Hall commutation, duty {result['duty']:.3f}, "
-          f"mean speed {result['speed_rpm']:.0f} rpm, {len(e)} captured edges")
+    print(
+        f"paper-bench demo: {result['config'].name}, raw Hall commutation, duty {result['duty']:.3f}, "
+        f"mean speed {result['speed_rpm']:.0f} rpm, {len(e)} captured edges"
+    )
     print("effects:", ", ".join(f.name for f in result["config"].effects))
-    print(f"{'sensor':>6} {'edge':>5} {'pole':>4} {'n':>5} {'mean err':>10} {'std':>8}   (deg electrical, + = trails ideal)")
+    print(
+        f"{'sensor':>6} {'edge':>5} {'pole':>4} {'n':>5} {'mean err':>10} {'std':>8}   (deg electrical, + = trails "
+        "ideal)"
+    )
     for r in result["table"]:
-        print(f"{r['sensor']:>6} {r['edge']:>5} {r['pole']:>4} {r['n']:>5} {r['mean_deg_e']:>10.3f} {r['std_deg_e']:>8.3f}")
-    print(f"all edges: mean {err.mean():.3f}, RMS {np.sqrt(np.mean(err**2)):.3f}, max |err| {np.abs(err).max():.3f} deg_e")
+        print(
+            f"{r['sensor']:>6} {r['edge']:>5} {r['pole']:>4} {r['n']:>5} {r['mean_deg_e']:>10.3f} "
+            f"{r['std_deg_e']:>8.3f}"
+        )
+    print(
+        f"all edges: mean {err.mean():.3f}, RMS {np.sqrt(np.mean(err**2)):.3f}, max |err| {np.abs(err).max():.3f} deg_e"
+    )
     print(f"recording written to {result['recording']}")
     if result.get("plot"):
         print(f"edge-error plot written to {result['plot']}")

@@ -149,7 +149,8 @@ class FaultInjector:
             sensor = next(s for s in range(3) if bits[s] == (1 if ones == 1 else 0))
             t0 = edges[-1]["t_capture_s"] + fault.delay_s
             toward = {**edges[-1], "sensor": sensor, "rising": not bits[sensor], "t_capture_s": t0, "now_s": t0}
-            back = {**toward, "rising": bool(bits[sensor]), "t_capture_s": t0 + fault.width_s, "now_s": t0 + fault.width_s}
+            t1 = t0 + fault.width_s
+            back = {**toward, "rising": bool(bits[sensor]), "t_capture_s": t1, "now_s": t1}
             self._acted(fault)
             return edges + [toward, back]
         return edges

@@ -8,7 +8,9 @@ from scipy.stats import siegelslopes
 PAIRS = {"AB": (0, 1), "BC": (1, 2), "CA": (2, 0)}
 
 
-def line_bemf(t_s: np.ndarray, u_v: np.ndarray, i_a: np.ndarray, resistance_ohm: float, inductance_h: float) -> dict[str, np.ndarray]:
+def line_bemf(
+    t_s: np.ndarray, u_v: np.ndarray, i_a: np.ndarray, resistance_ohm: float, inductance_h: float
+) -> dict[str, np.ndarray]:
     """Paper Eq. 3: e_XY = (u_X - u_Y) - R (i_X - i_Y) - L_M p (i_X - i_Y), with equal phases.
 
     ``u_v`` and ``i_a`` are (n, 3) arrays of terminal voltages to ground and phase currents;
@@ -17,7 +19,9 @@ def line_bemf(t_s: np.ndarray, u_v: np.ndarray, i_a: np.ndarray, resistance_ohm:
     di = np.gradient(i_a, t_s, axis=0)
     out = {}
     for name, (x, y) in PAIRS.items():
-        out[name] = (u_v[:, x] - u_v[:, y]) - resistance_ohm * (i_a[:, x] - i_a[:, y]) - inductance_h * (di[:, x] - di[:, y])
+        out[name] = (
+            (u_v[:, x] - u_v[:, y]) - resistance_ohm * (i_a[:, x] - i_a[:, y]) - inductance_h * (di[:, x] - di[:, y])
+        )
     return out
 
 

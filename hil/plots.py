@@ -53,8 +53,13 @@ def judged_range(values: list[np.ndarray], budget: float | None = None, coverage
     return a - pad, b + pad
 
 
-def commutation_error_figure(runs: dict, title: str, judged_from_s: float | None = None, budget_deg_e: float | None = None,
-                             budget_label: str = "p99 budget"):
+def commutation_error_figure(
+    runs: dict,
+    title: str,
+    judged_from_s: float | None = None,
+    budget_deg_e: float | None = None,
+    budget_label: str = "p99 budget",
+):
     """Commutation angle error against plant time, one trace per run: ``runs[name] = (t_s, err_deg_e)``.
 
 
@@ -75,7 +80,16 @@ def commutation_error_figure(runs: dict, title: str, judged_from_s: float | None
         keep = t >= judged_from_s if judged_from_s is not None else np.ones(t.size, dtype=bool)
         judged[name] = err[keep]
         median = float(np.median(err[keep])) if keep.any() else float("nan")
-        ax.plot(t[keep], err[keep], marker, ms=2.2, color=colour, alpha=0.75, linestyle="none", label=f"{name} (median {median:+.2f})")
+        ax.plot(
+            t[keep],
+            err[keep],
+            marker,
+            ms=2.2,
+            color=colour,
+            alpha=0.75,
+            linestyle="none",
+            label=f"{name} (median {median:+.2f})",
+        )
         if keep.any():
             ax.axhline(median, color=colour, linestyle="--", linewidth=1.0)
         if split:
@@ -83,13 +97,28 @@ def commutation_error_figure(runs: dict, title: str, judged_from_s: float | None
     if budget_deg_e is not None:
         for sign in (1, -1):
             ax.axhline(sign * budget_deg_e, color="#444", linewidth=1.1, linestyle="-")
-        ax.annotate(f"{budget_label} ±{budget_deg_e:g} deg e", xy=(0.0, budget_deg_e), xycoords=("axes fraction", "data"), xytext=(4, 3),
-                    textcoords="offset points", fontsize=7.5, color="#444")
+        ax.annotate(
+            f"{budget_label} ±{budget_deg_e:g} deg e",
+            xy=(0.0, budget_deg_e),
+            xycoords=("axes fraction", "data"),
+            xytext=(4, 3),
+            textcoords="offset points",
+            fontsize=7.5,
+            color="#444",
+        )
     lo, hi = judged_range(list(judged.values()), budget_deg_e)
     ax.set_ylim(lo, hi + 0.2 * (hi - lo))  # a band at the top for the legend
     outside = sum(int(np.sum((e < lo) | (e > hi))) for e in judged.values())
     if outside:
-        ax.text(0.99, 0.02, f"{outside} points outside the shown range", transform=ax.transAxes, ha="right", fontsize=7, color="#666")
+        ax.text(
+            0.99,
+            0.02,
+            f"{outside} points outside the shown range",
+            transform=ax.transAxes,
+            ha="right",
+            fontsize=7,
+            color="#666",
+        )
     ax.set_xlabel("plant time (s)")
     ax.set_ylabel("commutation error (deg e)")
     ax.set_title(title + (" (judged window)" if split else ""), fontsize=10)

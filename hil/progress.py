@@ -54,7 +54,9 @@ class Progress:
         if tr is None:
             return
         capture = self.config.pluginmanager.get_plugin("capturemanager")
-        with capture.global_and_fixture_disabled() if capture else contextlib.nullcontext():  # a test's output is captured
+        with (
+            capture.global_and_fixture_disabled() if capture else contextlib.nullcontext()
+        ):  # a test's output is captured
             if self.running is not None:  # the first note of a test names it
                 tr.write_line(f"{self.count(self.done + 1)} running  {short_label(self.running)}")
                 self.running = None
@@ -87,14 +89,25 @@ class Progress:
         reports = self.pending.pop(report.nodeid)
         self.done += 1
         outcome = _outcome(reports)
-        if any(str(k) == PROPERTY_PREFIX + "waived_failure" for r in reports for k, _ in getattr(r, "user_properties", ())):
+        if any(
+            str(k) == PROPERTY_PREFIX + "waived_failure" for r in reports for k, _ in getattr(r, "user_properties", ())
+        ):
             outcome = "waived"  # a failure a waiver in the budgets covers (pytest counts it as a skip)
         duration = sum(getattr(r, "duration", 0.0) for r in reports)
-        colour = {"passed": {"green": True}, "failed": {"red": True}, "error": {"red": True}, "xpassed": {"red": True},
-                  "skipped": {"yellow": True}, "xfailed": {"yellow": True}, "waived": {"purple": True}}.get(outcome, {})
+        colour = {
+            "passed": {"green": True},
+            "failed": {"red": True},
+            "error": {"red": True},
+            "xpassed": {"red": True},
+            "skipped": {"yellow": True},
+            "xfailed": {"yellow": True},
+            "waived": {"purple": True},
+        }.get(outcome, {})
         tr = self.terminal
         if tr is not None:
-            tr.write_line(f"{self.count(self.done)} {outcome:<8} {short_label(report.nodeid)}  ({duration:.1f} s)", **colour)
+            tr.write_line(
+                f"{self.count(self.done)} {outcome:<8} {short_label(report.nodeid)}  ({duration:.1f} s)", **colour
+            )
 
 
 def _outcome(reports) -> str:

@@ -10,6 +10,11 @@ Options (each also an ini key ``hil_<name>`` in pytest.ini or pyproject.toml):
 * ``--hil-report-dir DIR``: write the HTML, JSON and JUnit reports there, test by test;
 * ``--hil-seed N``: the base seed of everything random.
 
+The plugin costs nothing until a session uses it (an option or ini key given, a test requesting
+one of its fixtures or carrying a ``requirement`` marker): only then does it import the plant, the
+controller links and the budgets, and print its header line. Ini paths are relative to the ini
+file. ``-n`` (xdist) with a real controller is refused: every worker would open it.
+
 Fixtures: ``hil_plant_config``, ``hil_simulation``, ``hil_kinematic``, ``hil_seed``, ``hil_dut``
 (the opened controller, once per session and DUT), ``hil_link`` (the controller reset for this
 test), ``hil_bench`` (a lockstep bench factory with effect injection), ``hil_budgets``,
@@ -28,63 +33,143 @@ from pathlib import Path
 
 import pytest
 
-from .report import PROPERTY_PREFIX, OUTCOME_ORDER, ReportWriter, file_sha256, test_waiver
+# the report's record format: standard library only (the plant, links and budgets load on use)
+from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
 
-VERSIONED = ("bldc-hil", "numpy", "scipy", "numba", "python-can", "canopen", "pymodbus", "hypothesis", "pytest", "pytest-xdist",
-             "matplotlib", "jinja2")
+VERSIONED = (
+    "bldc-hil",
+    "numpy",
+    "scipy",
+    "numba",
+    "python-can",
+    "canopen",
+    "pymodbus",
+    "hypothesis",
+    "pytest",
+    "pytest-xdist",
+    "matplotlib",
+    "jinja2",
+)
 
 
 def pytest_addoption(parser):
     group = parser.getgroup("hil", "BLDC pump controller HIL")
-    group.addoption("--hil-dut", action="append", default=None, metavar="SPEC",
-                    help="controller under test (repeatable): virtual[:canopen|modbus|in-process], canopen:interface=..,channel=..,node=.., "
-                         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual")
-    group.addoption("--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset")
+    group.addoption(
+        "--hil-dut",
+        action="append",
+        default=None,
+        metavar="SPEC",
+        help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
+        "canopen:interface=..,channel=..,node=.., "
+        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual",
+    )
+    group.addoption(
+        "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
+    )
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
-    group.addoption("--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in")
-    group.addoption("--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test")
-    parser.addini("hil_dut", "controller spec(s), whitespace-separated, used when --hil-dut is not given", default="")
-    parser.addini("hil_plant", "plant TOML used when --hil-plant is not given", default="")
-    parser.addini("hil_budgets", "budgets TOML used when --hil-budgets is not given", default="")
-    parser.addini("hil_seed", "base seed used when --hil-seed is not given", default="0")
-    parser.addini("hil_report_dir", "report directory used when --hil-report-dir is not given", default="")
+    group.addoption(
+        "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
+    )
+    group.addoption(
+        "--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test"
+    )
+    parser.addini(
+        "hil_dut", "controller spec(s), shell-separated, used when --hil-dut is not given", type="args", default=[]
+    )
+    parser.addini(
+        "hil_plant",
+        "plant TOML (relative to the ini file) used when --hil-plant is not given",
+        type="paths",
+        default=[],
+    )
+    parser.addini(
+        "hil_budgets",
+        "budgets TOML (relative to the ini file) used when --hil-budgets is not given",
+        type="paths",
+        default=[],
+    )
+    parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="int", default=0)
+    parser.addini(
+        "hil_report_dir",
+        "report directory (relative to the ini file) used when --hil-report-dir is not given",
+        type="paths",
+        default=[],
+    )
 
 
-def _option(config, name):
+_PATH_KEYS = ("plant", "budgets", "report_dir")
+_PLANT = pytest.StashKey()  #: the parsed plant configuration (the TOML is read once per session)
+_BUDGETS = pytest.StashKey()  #: the budgets in force, read once per session
+_EXPLICIT = pytest.StashKey[bool]()  #: an option or ini key of the plugin was given
+
+
+def _option(config, name: str):
+    """A path option (``plant``, ``budgets``, ``report_dir``) as a Path, or the seed as an int:
+    the command line (relative to the invocation directory) over the ini key (relative to the
+    ini file); None for a path neither gives."""
     value = config.getoption(f"--hil-{name.replace('_', '-')}")
-    if value is None or value == "":
-        value = config.getini(f"hil_{name}") or None
-    return value
+    if name == "seed":
+        return int(value) if value is not None else config.getini("hil_seed")
+    if value not in (None, ""):
+        return config.invocation_params.dir / value
+    paths = config.getini(f"hil_{name}")
+    if len(paths) > 1:
+        raise pytest.UsageError(
+            f"hil: ini key hil_{name} in {config.inipath} takes one path, got {len(paths)}: {' '.join(map(str, paths))}"
+        )
+    return paths[0] if paths else None
+
+
+def _dut_texts(config) -> list[str]:
+    return config.getoption("--hil-dut") or config.getini("hil_dut") or ["virtual"]
+
+
+def _explicit(config) -> bool:
+    """Whether the run configures the plugin (any --hil-* option or hil_* ini key given)."""
+    if _EXPLICIT not in config.stash:
+        given = [
+            config.getoption("--hil-dut"),
+            config.getini("hil_dut"),
+            _option(config, "seed") != 0,
+            *(_option(config, name) for name in _PATH_KEYS),
+        ]
+        config.stash[_EXPLICIT] = any(given)
+    return config.stash[_EXPLICIT]
+
+
+def _uses_plugin(item) -> bool:
+    """Whether a test uses the plugin: it requests one of its fixtures or carries a requirement mark."""
+    names = getattr(item, "fixturenames", ())
+    return any(name.startswith("hil_") for name in names) or item.get_closest_marker("requirement") is not None
 
 
 def dut_specs(config) -> list:
     from .dut.spec import DutSpecError, parse_dut
 
-    texts = config.getoption("--hil-dut") or (config.getini("hil_dut") or "").split() or ["virtual"]
     try:
-        return [parse_dut(t) for t in texts]
+        return [parse_dut(t) for t in _dut_texts(config)]
     except DutSpecError as exc:
         raise pytest.UsageError(str(exc)) from None
 
 
 def _plant_config(config):
-    from plant_models import PlantConfig, paper_bench
+    """The plant in force (--hil-plant TOML or the paper-bench preset), parsed once per session."""
+    if _PLANT not in config.stash:
+        from plant_models import PlantConfig, paper_bench
 
-    path = _option(config, "plant")
-    return PlantConfig.from_toml(path) if path else paper_bench()
-
-
-_BUDGETS = pytest.StashKey()
+        path = _option(config, "plant")
+        config.stash[_PLANT] = PlantConfig.from_toml(path) if path else paper_bench()
+    return config.stash[_PLANT]
 
 
 def _budgets(config):
     """The budgets in force (--hil-budgets over the defaults), read once per session."""
-    from .budgets import Budgets
-
     if _BUDGETS not in config.stash:
+        from .budgets import Budgets
+
         path = _option(config, "budgets")
         config.stash[_BUDGETS] = Budgets.from_toml(path) if path else Budgets.defaults()
     return config.stash[_BUDGETS]
@@ -99,11 +184,45 @@ def hil_settings(**overrides):
 
 
 def pytest_configure(config):
-    config.addinivalue_line("markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)")
+    config.addinivalue_line(
+        "markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)"
+    )
     report_dir = _option(config, "report_dir")
-    if report_dir and not hasattr(config, "workerinput"):
+    if _explicit(config):
+        _check_configuration(config, report_dir)
+    # hypothesis is loaded by its own pytest plugin already: registering the profile costs nothing
+    from hypothesis import HealthCheck, Phase, settings
+    from hypothesis.database import DirectoryBasedExampleDatabase
+
+    database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
+    # no shrinking: each example is a closed-loop plant run, and a failing one is saved whole as a
+    # replayable stimulus anyway (hil replay)
+    settings.register_profile(
+        "hil",
+        deadline=None,
+        print_blob=True,
+        database=database,
+        phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
+        suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
+    )
+    if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
+        config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
+
+
+def _check_configuration(config, report_dir) -> None:
+    """A configured run: a bad --hil-dut, plant or budgets file, or -n against a real controller,
+    is a usage error before anything runs."""
+    controller = not hasattr(config, "workerinput")
+    if report_dir and controller:
         ReportWriter.clear(Path(report_dir))  # a run refused below must not leave the last run's verdict behind
-    dut_specs(config)  # a bad --hil-dut, plant or budgets file is a usage error before anything runs
+    specs = dut_specs(config)
+    workers = config.getoption("numprocesses", None)
+    real = [s.text for s in specs if not s.is_virtual]
+    if controller and workers and real:
+        raise pytest.UsageError(
+            f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
+            "a real controller serves one session: run without -n"
+        )
     from plant_models.params import ConfigError
 
     try:
@@ -111,22 +230,39 @@ def pytest_configure(config):
         _budgets(config)
     except ConfigError as exc:
         raise pytest.UsageError(f"hil: {exc}") from None
-    from hypothesis import HealthCheck, Phase, settings
-    from hypothesis.database import DirectoryBasedExampleDatabase
 
-    database = DirectoryBasedExampleDatabase(str(Path(report_dir) / "hypothesis-db")) if report_dir else None
-    # no shrinking: each example is a closed-loop plant run, and a failing one is saved whole as a
-    # replayable stimulus anyway (hil replay)
-    settings.register_profile("hil", deadline=None, print_blob=True, database=database,
-                              phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
-                              suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large])
-    if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
-        config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
+
+def _plant_label(config) -> str:
+    """The plant file as the user knows it (relative to where pytest started, when it is below)."""
+    path = _option(config, "plant")
+    if path is None:
+        return "paper-bench (preset)"
+    start = config.invocation_params.dir
+    return str(path.relative_to(start)) if path.is_relative_to(start) else str(path)
+
+
+def _header(config) -> str:
+    specs = ", ".join(s.text for s in dut_specs(config))
+    return f"hil: dut={specs} plant={_plant_label(config)} seed={_option(config, 'seed')}"
 
 
 def pytest_report_header(config):
-    specs = ", ".join(s.text for s in dut_specs(config))
-    return f"hil: dut={specs} plant={_option(config, 'plant') or 'paper-bench (preset)'} seed={_option(config, 'seed') or 0}"
+    if _explicit(config):
+        return _header(config)
+    return None
+
+
+def pytest_report_collectionfinish(config, items):
+    """The header of a run that uses the plugin without configuring it (printed after collection,
+    once it is known that a test uses it)."""
+    if (
+        not _explicit(config)
+        and not config.option.no_header
+        and config.get_verbosity() >= 0
+        and any(map(_uses_plugin, items))
+    ):
+        return _header(config)
+    return None
 
 
 def pytest_generate_tests(metafunc):
@@ -143,19 +279,31 @@ def pytest_runtest_makereport(item, call):
     "not applicable"). docs/acceptance.md, Verdicts."""
     rep = yield
     exc = call.excinfo.value if call.excinfo is not None else None
-    if exc is None:
+    if exc is None or not (_explicit(item.config) or _uses_plugin(item)):
         return rep
     if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
         _apply_waiver(item, rep)
-    if rep.skipped and hasattr(rep, "wasxfail") and call.when != "call" and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception)):
+    if (
+        rep.skipped
+        and hasattr(rep, "wasxfail")
+        and call.when != "call"
+        and not isinstance(exc, (pytest.xfail.Exception, pytest.skip.Exception))
+    ):
         rep.outcome = "failed"
         del rep.wasxfail
         rep.sections.append(("hil", f"{call.when} raised under an xfail mark: an error, not a known failure"))
-    elif rep.skipped and not hasattr(rep, "wasxfail") and isinstance(exc, pytest.skip.Exception) and (hidden := _unreachable(exc)):
+    elif (
+        rep.skipped
+        and not hasattr(rep, "wasxfail")
+        and isinstance(exc, pytest.skip.Exception)
+        and (hidden := _unreachable(exc))
+    ):
         reason = getattr(exc, "msg", "") or str(exc)
         rep.outcome = "failed"
-        rep.longrepr = (f"skipped ({reason}) while the controller could not be reached: an error, not a skip\n"
-                        f"{type(hidden).__name__}: {hidden}")
+        rep.longrepr = (
+            f"skipped ({reason}) while the controller could not be reached: an error, not a skip\n"
+            f"{type(hidden).__name__}: {hidden}"
+        )
         rep.user_properties.append((PROPERTY_PREFIX + "unreachable", f"{type(hidden).__name__}: {hidden}"))
     return rep
 
@@ -166,6 +314,8 @@ def _apply_waiver(item, rep) -> None:
     report then agree); the failure itself travels on to the HIL report, which shows it beside
     the waiver. Docs: docs/budgets.md, Waivers."""
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    if not rids:  # a waiver covers a test under the requirements it traces to: none, no waiver
+        return
     waiver = test_waiver(_budgets(item.config).waivers, rids, item.nodeid)
     if waiver is None:
         return
@@ -180,8 +330,15 @@ def _unreachable(exc: BaseException):
     """The controller link, connection, CAN or serial error a skip was raised while handling, if any
     (not any OSError: a skip because an optional file is missing is a real "not applicable")."""
     # an exception of a library's type exists only if that library was imported: look, do not import
-    unreachable = (ConnectionError, TimeoutError, *(getattr(sys.modules[m], name) for m, name in (
-        ("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException")) if m in sys.modules))
+    unreachable = (
+        ConnectionError,
+        TimeoutError,
+        *(
+            getattr(sys.modules[m], name)
+            for m, name in (("hil.dut.link", "LinkError"), ("can", "CanError"), ("serial", "SerialException"))
+            if m in sys.modules
+        ),
+    )
     seen, cause = set(), exc.__cause__ or exc.__context__
     while cause is not None and id(cause) not in seen:
         if isinstance(cause, unreachable):
@@ -193,6 +350,8 @@ def _unreachable(exc: BaseException):
 
 @pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
+    if not (_explicit(item.config) or _uses_plugin(item)):
+        return
     for mark in item.iter_markers("requirement"):
         for rid in mark.args:
             item.user_properties.append(("requirement", str(rid)))
@@ -205,7 +364,7 @@ def pytest_runtest_setup(item):
 @pytest.fixture(scope="session")
 def hil_seed(pytestconfig) -> int:
     """Base seed for everything random in a HIL run (recorded in reports)."""
-    return int(_option(pytestconfig, "seed") or 0)
+    return _option(pytestconfig, "seed")
 
 
 @pytest.fixture(scope="session")
@@ -263,7 +422,9 @@ def hil_dut(hil_dut_spec, hil_plant_config):
 @pytest.fixture
 def hil_link(hil_dut, request):
     """The controller link, reset for this test (faults cleared, control logic restarted)."""
-    request.node.user_properties.append((PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity}))
+    request.node.user_properties.append(
+        (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity})
+    )
     hil_dut.link.reset()
     return hil_dut.link
 
@@ -278,12 +439,28 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from .dut import Strategy
     from .progress import note
 
-    def make(strategy, corrections=None, effects=(), speed_rpm: float = 6000.0, filter_settings=None, seed: int | None = None,
-             config=None):
+    benches = 0
+
+    def make(
+        strategy,
+        corrections=None,
+        effects=(),
+        speed_rpm: float = 6000.0,
+        filter_settings=None,
+        seed: int | None = None,
+        config=None,
+    ):
+        nonlocal benches
         config = (config or hil_plant_config).with_effects(*effects)
-        note(f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from {speed_rpm:.0f} rpm"
-             f"{', calibration downloaded' if corrections is not None else ''}, effects: {', '.join(e.name for e in effects) or 'none'}")
-        hil_link.reset()
+        note(
+            f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from "
+            f"{speed_rpm:.0f} rpm"
+            f"{', calibration downloaded' if corrections is not None else ''}, effects: "
+            f"{', '.join(e.name for e in effects) or 'none'}"
+        )
+        if benches:  # hil_link reset the controller for the first bench; each later one starts from a reset too
+            hil_link.reset()
+        benches += 1
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
         if corrections is not None:
@@ -291,8 +468,14 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
         hil_link.set_strategy(int(strategy))
         # plant steps of at most 2 us: the armature reaction follows the instantaneous current, which
         # moves fast right after a commutation; a coarser step would blur it (docs/acceptance.md)
-        return LockstepBench(config, hil_link, initial_speed_rpm=speed_rpm, duty=steady_state(config.motor, speed_rpm)["duty"],
-                             seed=hil_seed if seed is None else seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+        return LockstepBench(
+            config,
+            hil_link,
+            initial_speed_rpm=speed_rpm,
+            duty=steady_state(config.motor, speed_rpm)["duty"],
+            seed=hil_seed if seed is None else seed,
+            sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+        )
 
     return make
 
@@ -332,11 +515,24 @@ class Evidence:
         self._node.user_properties.append((PROPERTY_PREFIX + "evidence", item))
 
     def value(self, name: str, value, unit: str = "") -> None:
-        self._add({"kind": "value", "name": name, "value": float(value) if isinstance(value, (int, float)) else str(value), "unit": unit})
+        self._add(
+            {
+                "kind": "value",
+                "name": name,
+                "value": float(value) if isinstance(value, (int, float)) else str(value),
+                "unit": unit,
+            }
+        )
 
     def table(self, name: str, columns, rows) -> None:
-        self._add({"kind": "table", "name": name, "columns": [str(c) for c in columns],
-                   "rows": [[v if isinstance(v, (int, float, str)) else str(v) for v in row] for row in rows]})
+        self._add(
+            {
+                "kind": "table",
+                "name": name,
+                "columns": [str(c) for c in columns],
+                "rows": [[v if isinstance(v, (int, float, str)) else str(v) for v in row] for row in rows],
+            }
+        )
 
     def text(self, name: str, text: str) -> None:
         self._add({"kind": "text", "name": name, "text": str(text)})
@@ -380,15 +576,18 @@ class HilReporter:
         self.config = config
         self.pending: dict[str, list] = {}
         budgets = _budgets(config)
-        self.writer = ReportWriter(directory, session=self._session_info(budgets), requirements=budgets.requirement_titles(),
-                                   waivers=budgets.waivers)
+        self.writer = ReportWriter(
+            directory,
+            session=self._session_info(budgets),
+            requirements=budgets.requirement_titles(),
+            waivers=budgets.waivers,
+        )
         self.writer.render()  # an empty report exists from the start
 
     def _session_info(self, budgets) -> dict:
         from importlib import metadata
 
         config = self.config
-        plant_path = _option(config, "plant")
         plant = _plant_config(config)
         versions = {"python": platform.python_version()}
         for name in VERSIONED:
@@ -401,10 +600,10 @@ class HilReporter:
             "command": _command(),
             "host": platform.node(),
             "dut": ", ".join(s.text for s in dut_specs(config)),
-            "plant": plant_path or "paper-bench (preset)",
+            "plant": _plant_label(config),
             "plant_sha256": plant.config_hash(),
             "budgets": budgets.source,
-            "seed": int(_option(config, "seed") or 0),
+            "seed": _option(config, "seed"),
             "hypothesis_seed": config.getoption("hypothesis_seed", None),
             "xdist_workers": getattr(config.option, "numprocesses", None),
             "versions": versions,
@@ -429,7 +628,12 @@ class HilReporter:
         for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)
             self.writer.add(self._record(nodeid, reports))
         self.pending.clear()
-        self.writer.finish({"finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"), "exit_status": int(exitstatus)})
+        self.writer.finish(
+            {
+                "finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
+                "exit_status": int(exitstatus),
+            }
+        )
 
     def pytest_terminal_summary(self, terminalreporter):
         content = self.writer.content()
@@ -454,14 +658,20 @@ class HilReporter:
                 message = message or xfail_reason
             if phase is None:
                 if r.failed:
-                    unreachable = any(str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ()))
+                    unreachable = any(
+                        str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ())
+                    )
                     phase = "failed" if r.when == "call" and not unreachable else "error"
                 elif r.skipped:
                     phase = "skipped"
                 else:
                     phase = "passed"
-            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(PROPERTY_PREFIX + "waived_failure")
-            if waived is not None:  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
+            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(
+                PROPERTY_PREFIX + "waived_failure"
+            )
+            if (
+                waived is not None
+            ):  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
                 phase = "failed"
             if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
                 outcome = phase
@@ -469,9 +679,21 @@ class HilReporter:
                     message, details = waived["message"], waived["details"]
                 elif r.failed or r.skipped:
                     message, details = _failure_text(r)
-        record = {"nodeid": nodeid, "outcome": outcome, "duration_s": round(duration, 3), "message": message, "details": details,
-                  "requirements": [], "measurements": [], "evidence": [], "dut": "", "dut_identity": {}, "doc": "",
-                  "worker": _worker_id(reports[-1]), "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else ""}
+        record = {
+            "nodeid": nodeid,
+            "outcome": outcome,
+            "duration_s": round(duration, 3),
+            "message": message,
+            "details": details,
+            "requirements": [],
+            "measurements": [],
+            "evidence": [],
+            "dut": "",
+            "dut_identity": {},
+            "doc": "",
+            "worker": _worker_id(reports[-1]),
+            "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
+        }
         for key, value in props:
             key = str(key)
             if key == "requirement" and value not in record["requirements"]:
@@ -480,7 +702,7 @@ class HilReporter:
                 record["measurements"].append(json.loads(value))
             if not key.startswith(PROPERTY_PREFIX):
                 continue
-            kind = key[len(PROPERTY_PREFIX):]
+            kind = key[len(PROPERTY_PREFIX) :]
             if kind == "evidence":
                 record["evidence"].append(value)
             elif kind == "dut":
@@ -504,9 +726,9 @@ def _command() -> str:
 
 
 def _worker_id(report) -> str:
-    """The xdist worker that ran the test ("gw0", ...), or "" without xdist."""
-    gateway = getattr(getattr(report, "node", None), "gateway", None)
-    return getattr(gateway, "id", "") or ""
+    """The xdist worker that ran the test ("gw0", ...; xdist puts it on every report it forwards),
+    or "" without xdist."""
+    return getattr(report, "worker_id", "") or ""
 
 
 def _failure_text(report) -> tuple[str, str]:

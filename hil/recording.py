@@ -1,4 +1,4 @@
-"""Bench recordings in the ``hil-recording/1`` format (shared/recording-format.md), read strictly.
+"""Bench recordings in the ``hil-recording/1`` format (docs/recording-format.md), read strictly.
 
 A recording that breaks the format is refused with :class:`RecordingError`, which names the
 file, the line and the column (for meta.json: the JSON line and the key path). Nothing is
@@ -97,14 +97,27 @@ def write_recording(rec: Recording, directory: str | Path) -> Path:
     d.mkdir(parents=True, exist_ok=True)
     if rec.t_s.size > 1 and np.any(np.diff(rec.t_s) <= 0):
         n = int(np.nonzero(np.diff(rec.t_s) <= 0)[0][0])
-        raise RecordingError(d / "edges.csv", n + 3, "t_s", "capture times must increase; refusing to write a recording our own reader would refuse")
+        raise RecordingError(
+            d / "edges.csv",
+            n + 3,
+            "t_s",
+            "capture times must increase; refusing to write a recording our own reader would refuse",
+        )
     meta = {
         "format": FORMAT,
         "motor": rec.motor,
         "timer_tick_s": rec.timer_tick_s if rec.timer_tick_s is not None else 0,
         "segments": [
-            {"id": s.id, "t_start_s": s.t_start_s, "t_end_s": s.t_end_s, "direction": s.direction,
-             "speed_rpm": s.speed_rpm, "mean_phase_current_a": s.mean_phase_current_a, "load_scale": s.load_scale, **s.extra}
+            {
+                "id": s.id,
+                "t_start_s": s.t_start_s,
+                "t_end_s": s.t_end_s,
+                "direction": s.direction,
+                "speed_rpm": s.speed_rpm,
+                "mean_phase_current_a": s.mean_phase_current_a,
+                "load_scale": s.load_scale,
+                **s.extra,
+            }
             for s in rec.segments
         ],
         **rec.meta_extra,
@@ -171,7 +184,9 @@ def _decode(path: Path, data: bytes, line: int | None = None) -> str:
     except UnicodeDecodeError as exc:
         offset = exc.start + (len(BOM) if data.startswith(BOM) else 0)
         row, col = _line_column(data, offset)
-        raise RecordingError(path, line or row, f"{col} (character)", f"not valid UTF-8 (byte 0x{data[offset]:02X})") from None
+        raise RecordingError(
+            path, line or row, f"{col} (character)", f"not valid UTF-8 (byte 0x{data[offset]:02X})"
+        ) from None
 
 
 def _json_limits(path: Path, text: str) -> None:
@@ -194,8 +209,12 @@ def _json_limits(path: Path, text: str) -> None:
             if number_start < 0:
                 number_start = i
             elif i - number_start >= MAX_JSON_NUMBER_CHARS:
-                raise RecordingError(path, line, f"{number_start - line_start + 1} (character)",
-                                     f"a number longer than {MAX_JSON_NUMBER_CHARS} characters")
+                raise RecordingError(
+                    path,
+                    line,
+                    f"{number_start - line_start + 1} (character)",
+                    f"a number longer than {MAX_JSON_NUMBER_CHARS} characters",
+                )
             continue
         number_start = -1
         if ch == '"':
@@ -203,7 +222,9 @@ def _json_limits(path: Path, text: str) -> None:
         elif ch in "[{":
             depth += 1
             if depth > MAX_JSON_DEPTH:
-                raise RecordingError(path, line, f"{i - line_start + 1} (character)", f"nested deeper than {MAX_JSON_DEPTH} levels")
+                raise RecordingError(
+                    path, line, f"{i - line_start + 1} (character)", f"nested deeper than {MAX_JSON_DEPTH} levels"
+                )
         elif ch in "]}":
             depth -= 1
         elif ch == "\n":
@@ -249,7 +270,7 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
         raise RecordingError(path, line, key_path, message)
 
     if meta.get("format") != FORMAT:
-        err("format", "format", f"expected \"{FORMAT}\", got {meta.get('format')!r}")
+        err("format", "format", f'expected "{FORMAT}", got {meta.get("format")!r}')
     motor = meta.get("motor")
     if not isinstance(motor, dict):
         err("motor", "motor", "missing or not an object")
@@ -257,7 +278,12 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
     if isinstance(pp, bool) or not isinstance(pp, (int, float)) or not float(pp).is_integer() or pp < 1:
         err("motor.pole_pairs", "pole_pairs", f"must be a positive integer, got {pp!r}")
     for key, value in motor.items():
-        if key != "pole_pairs" and isinstance(value, (int, float)) and not isinstance(value, bool) and not math.isfinite(value):
+        if (
+            key != "pole_pairs"
+            and isinstance(value, (int, float))
+            and not isinstance(value, bool)
+            and not math.isfinite(value)
+        ):
             err(f"motor.{key}", key, "must be finite")
     tick = meta.get("timer_tick_s")
     if tick is not None:
@@ -295,7 +321,12 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
     order = sorted(range(len(segments)), key=lambda i: segments[i].t_start_s)
     for a, b in zip(order, order[1:]):
         if segments[b].t_start_s < segments[a].t_end_s:
-            err(f"segments[{b}].t_start_s", "t_start_s", f"segments {segments[a].id!r} and {segments[b].id!r} overlap in time (they must be disjoint)", b)
+            err(
+                f"segments[{b}].t_start_s",
+                "t_start_s",
+                f"segments {segments[a].id!r} and {segments[b].id!r} overlap in time (they must be disjoint)",
+                b,
+            )
     extra = {k: v for k, v in meta.items() if k not in ("format", "motor", "timer_tick_s", "segments")}
     return motor, segments, tick, extra
 
@@ -303,16 +334,35 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
 class _Column:
     """How one column is read: ``float`` (finite, optionally within [low, high_open)) or a choice."""
 
-    def __init__(self, name: str, choices: dict[str, int] | None = None, what: str = "", low: float | None = None,
-                 high_open: float | None = None, increasing: bool = False):
-        self.name, self.choices, self.what, self.low, self.high_open, self.increasing = name, choices, what, low, high_open, increasing
+    def __init__(
+        self,
+        name: str,
+        choices: dict[str, int] | None = None,
+        what: str = "",
+        low: float | None = None,
+        high_open: float | None = None,
+        increasing: bool = False,
+    ):
+        self.name, self.choices, self.what, self.low, self.high_open, self.increasing = (
+            name,
+            choices,
+            what,
+            low,
+            high_open,
+            increasing,
+        )
         self.values = array("d") if choices is None else array("q")
 
     def add(self, path: Path, line: int, text: str, last: float | None) -> float | None:
         v = text.strip()
         if self.choices is not None:
             if v not in self.choices:
-                raise RecordingError(path, line, self.name, f"unknown {self.what} {v[:40]!r} (expected one of: {', '.join(list(self.choices)[:12])})")
+                raise RecordingError(
+                    path,
+                    line,
+                    self.name,
+                    f"unknown {self.what} {v[:40]!r} (expected one of: {', '.join(list(self.choices)[:12])})",
+                )
             self.values.append(self.choices[v])
             return None
         try:
@@ -338,7 +388,7 @@ def _lines(path: Path, max_bytes: int):
             if len(raw) > MAX_LINE_BYTES:
                 raise RecordingError(path, number, None, f"line longer than {MAX_LINE_BYTES} bytes")
             if number == 1 and raw.startswith(BOM):
-                raw = raw[len(BOM):]
+                raw = raw[len(BOM) :]
             nul = raw.find(b"\0")
             if nul >= 0:
                 raise RecordingError(path, number, f"{nul + 1} (byte)", "NUL byte (not a text file)")
@@ -384,7 +434,9 @@ def _split(path: Path, line: int, text: str) -> list[str]:
         raise RecordingError(path, line, None, f"not valid CSV: {exc}") from None
 
 
-def _read_samples_fast(path: Path, seg_index: dict[str, int], max_bytes: int = MAX_TABLE_BYTES) -> dict[str, np.ndarray] | None:
+def _read_samples_fast(
+    path: Path, seg_index: dict[str, int], max_bytes: int = MAX_TABLE_BYTES
+) -> dict[str, np.ndarray] | None:
     """samples.csv through pandas' C parser (a million rows in about a second, against some
     fifteen for the row-by-row reader). Every check of the strict reader is made on the whole
     columns; on any doubt this returns None and the strict reader runs, so a bad file is still
@@ -399,12 +451,23 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int], max_bytes: int = M
         return None
     numeric = [c for c in header if c != "segment"]
     try:
-        df = pd.read_csv(path, header=0, names=header, dtype={**{c: "float64" for c in numeric}, "segment": object}, encoding="utf-8-sig",
-                         skipinitialspace=True, engine="c", keep_default_na=False, na_filter=False)
+        df = pd.read_csv(
+            path,
+            header=0,
+            names=header,
+            dtype={**{c: "float64" for c in numeric}, "segment": object},
+            encoding="utf-8-sig",
+            skipinitialspace=True,
+            engine="c",
+            keep_default_na=False,
+            na_filter=False,
+        )
     except (ValueError, pd.errors.ParserError):  # UnicodeDecodeError is a ValueError
         return None
     out = {c: df[c].to_numpy(dtype=float) for c in numeric if c in SAMPLE_REQUIRED or c in SAMPLE_OPTIONAL}
-    if any(not np.all(np.isfinite(v)) for v in out.values()) or (out["t_s"].size > 1 and np.any(np.diff(out["t_s"]) <= 0)):
+    if any(not np.all(np.isfinite(v)) for v in out.values()) or (
+        out["t_s"].size > 1 and np.any(np.diff(out["t_s"]) <= 0)
+    ):
         return None
     segment = df["segment"].str.strip().map(seg_index)
     if segment.isna().any():
@@ -413,7 +476,9 @@ def _read_samples_fast(path: Path, seg_index: dict[str, int], max_bytes: int = M
     return out
 
 
-def read_recording(directory: str | Path, *, with_truth: bool = True, max_table_bytes: int = MAX_TABLE_BYTES) -> Recording:
+def read_recording(
+    directory: str | Path, *, with_truth: bool = True, max_table_bytes: int = MAX_TABLE_BYTES
+) -> Recording:
     d = Path(directory)
     if not d.is_dir():
         raise RecordingError(d, None, None, "not a directory (a recording is a directory with meta.json and edges.csv)")
@@ -422,18 +487,31 @@ def read_recording(directory: str | Path, *, with_truth: bool = True, max_table_
     path = d / "edges.csv"
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file")
-    header, cols = _read_columns(path, EDGE_COLUMNS, [
-        _Column("t_s", increasing=True), _Column("sensor", {"A": 0, "B": 1, "C": 2}, "sensor"),
-        _Column("edge", {"fall": 0, "rise": 1}, "edge"), _Column("segment", seg_index, "segment"),
-        _Column("ref_angle_mech_deg", low=0.0, high_open=360.0)], max_table_bytes)
+    header, cols = _read_columns(
+        path,
+        EDGE_COLUMNS,
+        [
+            _Column("t_s", increasing=True),
+            _Column("sensor", {"A": 0, "B": 1, "C": 2}, "sensor"),
+            _Column("edge", {"fall": 0, "rise": 1}, "edge"),
+            _Column("segment", seg_index, "segment"),
+            _Column("ref_angle_mech_deg", low=0.0, high_open=360.0),
+        ],
+        max_table_bytes,
+    )
     t = cols["t_s"]
     samples = None
     spath = d / "samples.csv"
     if spath.is_file():
         samples = _read_samples_fast(spath, seg_index, max_table_bytes)
     if spath.is_file() and samples is None:
-        _, samples = _read_columns(spath, SAMPLE_REQUIRED, [_Column("t_s", increasing=True), _Column("segment", seg_index, "segment")] +
-                                   [_Column(c) for c in SAMPLE_OPTIONAL], max_table_bytes)
+        _, samples = _read_columns(
+            spath,
+            SAMPLE_REQUIRED,
+            [_Column("t_s", increasing=True), _Column("segment", seg_index, "segment")]
+            + [_Column(c) for c in SAMPLE_OPTIONAL],
+            max_table_bytes,
+        )
     truth = None
     tpath = d / "ground_truth.csv"
     if with_truth and tpath.is_file():
@@ -443,13 +521,31 @@ def read_recording(directory: str | Path, *, with_truth: bool = True, max_table_
             raise RecordingError(tpath, None, None, f"{n} rows for {t.size} edges")
         if "pole" in truth:
             truth["pole"] = truth["pole"].astype(np.int64)
-    return Recording(motor=motor, segments=segments, t_s=t, sensor=cols["sensor"], rising=cols["edge"].astype(bool), segment=cols["segment"],
-                     ref_angle_mech_deg=cols.get("ref_angle_mech_deg"), timer_tick_s=tick, samples=samples, truth=truth,
-                     meta_extra=extra, path=d)
+    return Recording(
+        motor=motor,
+        segments=segments,
+        t_s=t,
+        sensor=cols["sensor"],
+        rising=cols["edge"].astype(bool),
+        segment=cols["segment"],
+        ref_angle_mech_deg=cols.get("ref_angle_mech_deg"),
+        timer_tick_s=tick,
+        samples=samples,
+        truth=truth,
+        meta_extra=extra,
+        path=d,
+    )
 
 
-def recording_from_edges(motor: dict, edges, segments: list[Segment], *, timer_tick_s: float | None = None,
-                         samples: dict[str, np.ndarray] | None = None, reference_angle: bool = True) -> Recording:
+def recording_from_edges(
+    motor: dict,
+    edges,
+    segments: list[Segment],
+    *,
+    timer_tick_s: float | None = None,
+    samples: dict[str, np.ndarray] | None = None,
+    reference_angle: bool = True,
+) -> Recording:
     """A Recording of simulated edges (a :class:`plant_models.EdgeLog`), with ground truth kept."""
     pp = int(motor["pole_pairs"])
     keep = edges.segment >= 0
@@ -460,22 +556,40 @@ def recording_from_edges(motor: dict, edges, segments: list[Segment], *, timer_t
     angle_mech = np.mod(theta_cap / pp, 360.0)
     angle_mech[angle_mech >= 360.0] = 0.0
     truth = {
-        "t_ideal_s": e.t_ideal_s, "t_raw_s": e.t_raw_s, "t_conditioned_s": e.t_conditioned_s,
-        "true_angle_mech_deg": angle_mech, "pole": e.pole, "mean_abs_current_a": e.mean_abs_current_a,
+        "t_ideal_s": e.t_ideal_s,
+        "t_raw_s": e.t_raw_s,
+        "t_conditioned_s": e.t_conditioned_s,
+        "true_angle_mech_deg": angle_mech,
+        "pole": e.pole,
+        "mean_abs_current_a": e.mean_abs_current_a,
     }
-    return Recording(motor=dict(motor), segments=segments, t_s=e.t_capture_s, sensor=e.sensor, rising=e.rising,
-                     segment=e.segment, ref_angle_mech_deg=angle_mech if reference_angle else None,
-                     timer_tick_s=timer_tick_s, samples=samples, truth=truth)
+    return Recording(
+        motor=dict(motor),
+        segments=segments,
+        t_s=e.t_capture_s,
+        sensor=e.sensor,
+        rising=e.rising,
+        segment=e.segment,
+        ref_angle_mech_deg=angle_mech if reference_angle else None,
+        timer_tick_s=timer_tick_s,
+        samples=samples,
+        truth=truth,
+    )
 
 
 def motor_meta(config) -> dict[str, Any]:
     """The meta.json ``motor`` block of a PlantConfig's nominal motor."""
     m = config.motor
     return {
-        "pole_pairs": int(m.pole_pairs), "phase_resistance_ohm": m.phase_resistance_ohm,
-        "phase_inductance_h": m.phase_inductance_h, "ke_v_s_per_rad": m.ke_v_s_per_rad,
-        "inertia_kg_m2": m.inertia_kg_m2, "fan_coefficient_n_m_s2": m.fan_coefficient_n_m_s2,
-        "supply_v": m.supply_v, "friction_n_m_s_per_rad": m.friction_n_m_s_per_rad, "flat_top_deg_e": m.flat_top_deg_e,
+        "pole_pairs": int(m.pole_pairs),
+        "phase_resistance_ohm": m.phase_resistance_ohm,
+        "phase_inductance_h": m.phase_inductance_h,
+        "ke_v_s_per_rad": m.ke_v_s_per_rad,
+        "inertia_kg_m2": m.inertia_kg_m2,
+        "fan_coefficient_n_m_s2": m.fan_coefficient_n_m_s2,
+        "supply_v": m.supply_v,
+        "friction_n_m_s_per_rad": m.friction_n_m_s_per_rad,
+        "flat_top_deg_e": m.flat_top_deg_e,
     }
 
 
@@ -486,15 +600,33 @@ def record_kinematic(config, profile, seed: int = 0, reference_angle: bool = Tru
     edges = simulate_edges(config, profile, seed=seed)
     segments, t = [], 0.0
     for i, op in enumerate(profile):
-        segments.append(Segment(op.id or f"op{i + 1:02d}", t, t + op.duration_s, "forward" if op.direction > 0 else "reverse",
-                                float(op.speed_rpm), float(op.mean_phase_current_a), float(op.load_scale)))
+        segments.append(
+            Segment(
+                op.id or f"op{i + 1:02d}",
+                t,
+                t + op.duration_s,
+                "forward" if op.direction > 0 else "reverse",
+                float(op.speed_rpm),
+                float(op.mean_phase_current_a),
+                float(op.load_scale),
+            )
+        )
         t += op.duration_s
     tick = config.compile().timer_tick_s or None
     return recording_from_edges(motor_meta(config), edges, segments, timer_tick_s=tick, reference_angle=reference_angle)
 
 
-def record_electrical(config, profile, seed: int = 0, *, sample_rate_hz: float = 20e3, settle_s: float = 0.05,
-                      voltage_noise_v: float = 0.0, speed_noise_rpm: float = 0.0, reference_angle: bool = True) -> Recording:
+def record_electrical(
+    config,
+    profile,
+    seed: int = 0,
+    *,
+    sample_rate_hz: float = 20e3,
+    settle_s: float = 0.05,
+    voltage_noise_v: float = 0.0,
+    speed_noise_rpm: float = 0.0,
+    reference_angle: bool = True,
+) -> Recording:
     """Simulate ``profile`` (OperatingPoints) on the electrical plant, commutating on the raw Hall
     edges at the duty that holds each set speed (a speed loop's steady state, computed from the
     plant's true resistance, back-EMF constant and dead time), and return edges plus samples
@@ -508,15 +640,27 @@ def record_electrical(config, profile, seed: int = 0, *, sample_rate_hz: float =
     from plant_models.plant import steady_state
 
     cp = config.compile()
-    true_motor = dataclasses.replace(config.motor, phase_resistance_ohm=cp.phase_resistance_ohm, ke_v_s_per_rad=cp.ke_v_s_per_rad)
+    true_motor = dataclasses.replace(
+        config.motor, phase_resistance_ohm=cp.phase_resistance_ohm, ke_v_s_per_rad=cp.ke_v_s_per_rad
+    )
     noise = np.random.default_rng(seed + 7919)
     logs, segments = [], []
     samples: dict[str, list] = {k: [] for k in ("t_s", "segment", *SAMPLE_OPTIONAL)}
     t_offset = 0.0
     for index, op in enumerate(profile):
-        duty = steady_state(true_motor, op.speed_rpm, op.load_scale)["duty"] + cp.dead_time_s * config.inverter.pwm_frequency_hz
-        sim = Simulation(config, RawHallCommutation(), duty=min(duty, 1.0), initial_speed_rpm=op.speed_rpm, direction=op.direction,
-                         seed=seed + index, sample_rate_hz=sample_rate_hz)
+        duty = (
+            steady_state(true_motor, op.speed_rpm, op.load_scale)["duty"]
+            + cp.dead_time_s * config.inverter.pwm_frequency_hz
+        )
+        sim = Simulation(
+            config,
+            RawHallCommutation(),
+            duty=min(duty, 1.0),
+            initial_speed_rpm=op.speed_rpm,
+            direction=op.direction,
+            seed=seed + index,
+            sample_rate_hz=sample_rate_hz,
+        )
         sim.run_until(settle_s)
         sim.mark_segment(index)
         sim.run_until(settle_s + op.duration_s)
@@ -536,8 +680,23 @@ def record_electrical(config, profile, seed: int = 0, *, sample_rate_hz: float =
             samples[f"u_{c}"].append(s.u_v[keep, j] + voltage_noise_v * noise.standard_normal(n))
         samples["speed_rpm"].append(s.speed_rpm[keep] + speed_noise_rpm * noise.standard_normal(n))
         t_end = t_offset + op.duration_s
-        segments.append(Segment(op.id or f"op{index + 1:02d}", t_offset, t_end, "forward" if op.direction > 0 else "reverse",
-                                float(op.speed_rpm), float(np.abs(s.i_meas_a[keep]).mean()), float(op.load_scale)))
+        segments.append(
+            Segment(
+                op.id or f"op{index + 1:02d}",
+                t_offset,
+                t_end,
+                "forward" if op.direction > 0 else "reverse",
+                float(op.speed_rpm),
+                float(np.abs(s.i_meas_a[keep]).mean()),
+                float(op.load_scale),
+            )
+        )
         t_offset = t_end + 1e-3
-    return recording_from_edges(motor_meta(config), EdgeLog.concatenate(logs), segments, timer_tick_s=cp.timer_tick_s or None,
-                                samples={k: np.concatenate(v) for k, v in samples.items()}, reference_angle=reference_angle)
+    return recording_from_edges(
+        motor_meta(config),
+        EdgeLog.concatenate(logs),
+        segments,
+        timer_tick_s=cp.timer_tick_s or None,
+        samples={k: np.concatenate(v) for k, v in samples.items()},
+        reference_angle=reference_angle,
+    )

@@ -103,7 +103,11 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
         if s == "fail" and (w := find_waiver(waivers, rid, t["nodeid"])) is not None:
             s, used = "waived", used or w
         statuses.append(s)
-    if not any(s in ("pass", "marginal", "waived") for s in statuses) and "fail" not in statuses and "error" not in statuses:
+    if (
+        not any(s in ("pass", "marginal", "waived") for s in statuses)
+        and "fail" not in statuses
+        and "error" not in statuses
+    ):
         w = find_waiver(waivers, rid, None)
         return ("waived", w) if w is not None else ("not tested", None)
     worst = min(statuses, key=VERDICTS.index)
@@ -118,7 +122,7 @@ class ReportWriter:
     session: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)  #: id -> title (budgets and the catalogue)
     basename: str = "hil-report"
-    waivers: tuple = ()                                #: hil.budgets.Waiver, from the budgets in force
+    waivers: tuple = ()  #: hil.budgets.Waiver, from the budgets in force
 
     def __post_init__(self):
         self.directory = Path(self.directory)
@@ -139,8 +143,11 @@ class ReportWriter:
 
     @property
     def paths(self) -> dict[str, Path]:
-        return {"html": self.directory / f"{self.basename}.html", "json": self.directory / f"{self.basename}.json",
-                "junit": self.directory / f"{self.basename}-junit.xml"}
+        return {
+            "html": self.directory / f"{self.basename}.html",
+            "json": self.directory / f"{self.basename}.json",
+            "junit": self.directory / f"{self.basename}-junit.xml",
+        }
 
     def add(self, record: dict) -> None:
         self.records.append(record)
@@ -164,8 +171,9 @@ class ReportWriter:
         if status not in _FINISHED_EXIT:
             self.incomplete_reason = f"pytest stopped with exit status {status} ({_EXIT_NAMES.get(status, 'unknown')})"
         elif missing:
-            self.incomplete_reason = (f"{len(missing)} of {len(self.collected)} collected tests never reported "
-                                      f"(first: {missing[0]})")
+            self.incomplete_reason = (
+                f"{len(missing)} of {len(self.collected)} collected tests never reported (first: {missing[0]})"
+            )
         else:
             self.complete, self.incomplete_reason = True, ""
         self.render()
@@ -176,7 +184,9 @@ class ReportWriter:
         for r in self.records:
             counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
         tests = [self._judged(r) for r in self.records]
-        reqs: dict[str, dict] = {rid: {"id": rid, "title": title, "tests": []} for rid, title in self.requirements.items()}
+        reqs: dict[str, dict] = {
+            rid: {"id": rid, "title": title, "tests": []} for rid, title in self.requirements.items()
+        }
         for r in self.records:
             ids = set(r["requirements"]) | {m["requirement"] for m in r["measurements"]}
             for rid in sorted(ids):
@@ -189,24 +199,60 @@ class ReportWriter:
             for t in traced:
                 status = test_status(t, rid)
                 w = find_waiver(self.waivers, rid, t["nodeid"]) if status == "fail" else None
-                rows.append({"nodeid": t["nodeid"], "dut": t.get("dut", ""), "outcome": t["outcome"],
-                             "verdict": "waived" if w else status, "message": t["message"],
-                             "measurements": _relevant(t, rid), "waiver": w.as_dict() if w else None})
-            matrix.append({"id": rid, "title": reqs[rid]["title"], "verdict": verdict, "traced": bool(traced),
-                           "waiver": waiver.as_dict() if waiver else None, "tests": rows})
+                rows.append(
+                    {
+                        "nodeid": t["nodeid"],
+                        "dut": t.get("dut", ""),
+                        "outcome": t["outcome"],
+                        "verdict": "waived" if w else status,
+                        "message": t["message"],
+                        "measurements": _relevant(t, rid),
+                        "waiver": w.as_dict() if w else None,
+                    }
+                )
+            matrix.append(
+                {
+                    "id": rid,
+                    "title": reqs[rid]["title"],
+                    "verdict": verdict,
+                    "traced": bool(traced),
+                    "waiver": waiver.as_dict() if waiver else None,
+                    "tests": rows,
+                }
+            )
         duts = {}
         for r in self.records:
             if r.get("dut") and r.get("dut_identity"):
                 duts.setdefault(r["dut"], r["dut_identity"])
         verdict, reasons = self._overall(tests, matrix)
         counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
-        waivers = [{**w.as_dict(), "tests_waived": [t["nodeid"] for t in tests if t["waiver"] and t["waiver"]["source"] == w.source]
-                    + [f"{r['id']} (not tested)" for r in matrix if r["waiver"] and r["waiver"]["source"] == w.source
-                       and not any(row["waiver"] for row in r["tests"])]}
-                   for w in self.waivers]
-        return {"format": "hil-report/1", "complete": self.complete, "incomplete_reason": self.incomplete_reason,
-                "verdict": verdict, "verdict_reasons": reasons, "counts": counts, "session": self.session, "duts": duts,
-                "waivers": waivers, "traceability": matrix, "tests": tests}
+        waivers = [
+            {
+                **w.as_dict(),
+                "tests_waived": [t["nodeid"] for t in tests if t["waiver"] and t["waiver"]["source"] == w.source]
+                + [
+                    f"{r['id']} (not tested)"
+                    for r in matrix
+                    if r["waiver"]
+                    and r["waiver"]["source"] == w.source
+                    and not any(row["waiver"] for row in r["tests"])
+                ],
+            }
+            for w in self.waivers
+        ]
+        return {
+            "format": "hil-report/1",
+            "complete": self.complete,
+            "incomplete_reason": self.incomplete_reason,
+            "verdict": verdict,
+            "verdict_reasons": reasons,
+            "counts": counts,
+            "session": self.session,
+            "duts": duts,
+            "waivers": waivers,
+            "traceability": matrix,
+            "tests": tests,
+        }
 
     def _judged(self, record: dict) -> dict:
         """The record with its verdict (``test_status``, or waived under ``test_waiver``)."""
@@ -223,9 +269,15 @@ class ReportWriter:
         reasons = []
         for t in tests:
             if t["verdict"] in ("fail", "error"):
-                what = {"xfailed": "known failure (xfail)", "xpassed": "unexpected pass (xpass)"}.get(t["outcome"], t["outcome"])
+                what = {"xfailed": "known failure (xfail)", "xpassed": "unexpected pass (xpass)"}.get(
+                    t["outcome"], t["outcome"]
+                )
                 # control characters written out: a reason is printed on terminals and shown in HTML
-                reasons.append(xml_safe(f"{t['nodeid']}: {what}" + (f": {t['message'].splitlines()[0][:200]}" if t["message"] else "")))
+                reasons.append(
+                    xml_safe(
+                        f"{t['nodeid']}: {what}" + (f": {t['message'].splitlines()[0][:200]}" if t["message"] else "")
+                    )
+                )
         for r in matrix:
             if r["traced"] and r["verdict"] in ("fail", "error", "not tested"):
                 reasons.append(f"{r['id']}: {r['verdict']}")
@@ -233,9 +285,14 @@ class ReportWriter:
             reasons.append(f"incomplete: {self.incomplete_reason}")
         ran = [t for t in tests if t["outcome"] != "skipped"]
         if not ran and self.complete:
-            reasons.append(f"no test ran ({len(tests)} reported, all skipped)" if tests else "no test was collected (or every one was deselected)")
+            reasons.append(
+                f"no test ran ({len(tests)} reported, all skipped)"
+                if tests
+                else "no test was collected (or every one was deselected)"
+            )
         failing = any(t["verdict"] in ("fail", "error") for t in tests) or any(
-            r["traced"] and r["verdict"] in ("fail", "error") for r in matrix)
+            r["traced"] and r["verdict"] in ("fail", "error") for r in matrix
+        )
         if failing:
             return "FAIL", reasons
         if not self.complete:
@@ -261,6 +318,7 @@ _XML_FORBIDDEN = re.compile("[^\u0009\u000a\u000d\u0020-\ud7ff\ue000-\ufffd\U000
 def xml_safe(text) -> str:
     """``text`` with every character XML 1.0 forbids written out as ``\\xNN`` / ``\\uNNNN``, so a
     test message holding terminal colours or NUL bytes still gives a well-formed file."""
+
     def escape(m: re.Match) -> str:
         c = ord(m.group())
         return f"\\x{c:02x}" if c < 0x100 else f"\\u{c:04x}"
@@ -279,10 +337,18 @@ def junit_xml(content: dict) -> bytes:
     tests = content["tests"]
     n = {v: sum(t["verdict"] == v for t in tests) for v in VERDICTS}
     incomplete = not content["complete"]
-    suite = ET.Element("testsuite", {"name": "hil", "tests": str(len(tests) + incomplete), "failures": str(n["fail"]),
-                                     "errors": str(n["error"] + incomplete), "skipped": str(n["waived"] + n["not tested"]),
-                                     "time": f"{sum(t['duration_s'] for t in tests):.3f}",
-                                     "timestamp": xml_safe(content["session"].get("started", ""))})
+    suite = ET.Element(
+        "testsuite",
+        {
+            "name": "hil",
+            "tests": str(len(tests) + incomplete),
+            "failures": str(n["fail"]),
+            "errors": str(n["error"] + incomplete),
+            "skipped": str(n["waived"] + n["not tested"]),
+            "time": f"{sum(t['duration_s'] for t in tests):.3f}",
+            "timestamp": xml_safe(content["session"].get("started", "")),
+        },
+    )
     props = ET.SubElement(suite, "properties")
     _element(props, "property", name="hil.verdict", value=content["verdict"])
     _element(props, "property", name="hil.complete", value=str(content["complete"]).lower())
@@ -300,30 +366,54 @@ def junit_xml(content: dict) -> bytes:
             _element(props, "property", name=f"hil.requirement:{r['id']}", value=r["verdict"])
     for t in tests:
         module, _, name = t["nodeid"].rpartition("::")
-        case = _element(suite, "testcase", classname=module.replace("/", ".").removesuffix(".py"), name=name,
-                        time=f"{t['duration_s']:.3f}")
+        case = _element(
+            suite,
+            "testcase",
+            classname=module.replace("/", ".").removesuffix(".py"),
+            name=name,
+            time=f"{t['duration_s']:.3f}",
+        )
         cp = ET.SubElement(case, "properties")
         for rid in t["requirements"]:
             _element(cp, "property", name="requirement", value=rid)
         if t.get("dut"):
             _element(cp, "property", name="dut", value=t["dut"])
         for m in t["measurements"]:
-            _element(cp, "property", name=f"measurement:{m['budget']}",
-                     value=f"{m['measured']:.6g} {m['unit']} (limit {m['limit']:.6g}, {m['verdict']}, {m['requirement']})")
+            _element(
+                cp,
+                "property",
+                name=f"measurement:{m['budget']}",
+                value=f"{m['measured']:.6g} {m['unit']} (limit {m['limit']:.6g}, {m['verdict']}, {m['requirement']})",
+            )
         for e in t["evidence"]:
             if e["kind"] == "value":
                 _element(cp, "property", name=f"value:{e['name']}", value=f"{e['value']} {e.get('unit', '')}".strip())
         message = t["message"][:500]
         if t["verdict"] == "waived":
             w = t["waiver"]
-            _element(case, "skipped", f"{t['outcome']}: {t['message']}\n\n{t['details']}".strip(),
-                     message=f"WAIVED ({w['requirement']}, owner {w['owner']}): {w['reason']}"[:1000])
+            _element(
+                case,
+                "skipped",
+                f"{t['outcome']}: {t['message']}\n\n{t['details']}".strip(),
+                message=f"WAIVED ({w['requirement']}, owner {w['owner']}): {w['reason']}"[:1000],
+            )
         elif t["verdict"] == "fail" and t["outcome"] == "xfailed":
             why = f" ({t['xfail_reason']})" if t.get("xfail_reason") else ""
-            _element(case, "failure", t["details"], message=f"known failure, marked xfail{why}: {message}"[:1000], type="xfail")
+            _element(
+                case,
+                "failure",
+                t["details"],
+                message=f"known failure, marked xfail{why}: {message}"[:1000],
+                type="xfail",
+            )
         elif t["verdict"] == "fail" and t["outcome"] == "xpassed":
-            _element(case, "failure", message=f"unexpected pass of a test marked as a known failure (xfail: {t.get('xfail_reason', '')}); "
-                                              "the mark no longer matches the controller"[:1000], type="xpass")
+            _element(
+                case,
+                "failure",
+                message=f"unexpected pass of a test marked as a known failure (xfail: {t.get('xfail_reason', '')}); "
+                "the mark no longer matches the controller"[:1000],
+                type="xpass",
+            )
         elif t["verdict"] == "fail":
             _element(case, "failure", t["details"], message=message or "failed")
         elif t["verdict"] == "error":

@@ -15,6 +15,10 @@ import math
 import re
 from collections import Counter
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # imported on use: the plugin loads this module in every pytest run
+    import markupsafe
 
 #: a message longer than this folds into <details> with its first line as the summary
 FOLD_CHARS = 240
@@ -44,11 +48,15 @@ def module_label(nodeid: str) -> str:
 
 def printable(text: str) -> str:
     """Text with control and escaped raw bytes shown as hex (``\\x03\\xff`` -> ``03 ff``), never as an id."""
-    text = re.sub(r"(?:\\x[0-9a-fA-F]{2})+", lambda m: " ".join(m.group(0)[i + 2:i + 4] for i in range(0, len(m.group(0)), 4)), text)
+    text = re.sub(
+        r"(?:\\x[0-9a-fA-F]{2})+",
+        lambda m: " ".join(m.group(0)[i + 2 : i + 4] for i in range(0, len(m.group(0)), 4)),
+        text,
+    )
     return "".join(c if c.isprintable() else f"{ord(c):02x}" for c in text)
 
 
-def reason(text: str, limit: int = 220) -> "markupsafe.Markup":
+def reason(text: str, limit: int = 220) -> markupsafe.Markup:
     """A verdict reason for the summary: a leading node id becomes its label (the node id on
     hover), the rest is cut at ``limit`` characters (the whole text is in the JSON report)."""
     import markupsafe
@@ -58,7 +66,9 @@ def reason(text: str, limit: int = 220) -> "markupsafe.Markup":
     rest = rest if len(rest) <= limit else rest[:limit].rstrip() + " …"
     if not found:
         return markupsafe.escape(printable(rest))
-    return markupsafe.Markup('<span title="{}">{}</span>: {}').format(found.group(1), short_label(found.group(1)), printable(rest))
+    return markupsafe.Markup('<span title="{}">{}</span>: {}').format(
+        found.group(1), short_label(found.group(1)), printable(rest)
+    )
 
 
 def anchor(nodeid: str) -> str:
@@ -89,8 +99,14 @@ def summary(content: dict, worst: int = 5) -> dict:
     for t in content["tests"]:
         for m in t.get("measurements", []):
             key = (m["budget"], t.get("dut", ""))
-            entry = {**m, "dut": t.get("dut", ""), "nodeid": t["nodeid"], "label": short_label(t["nodeid"]), "anchor": anchor(t["nodeid"]),
-                     "relative": relative_margin(m)}
+            entry = {
+                **m,
+                "dut": t.get("dut", ""),
+                "nodeid": t["nodeid"],
+                "label": short_label(t["nodeid"]),
+                "anchor": anchor(t["nodeid"]),
+                "relative": relative_margin(m),
+            }
             if key not in seen or entry["relative"] < seen[key]["relative"]:
                 seen[key] = entry
     margins = sorted(seen.values(), key=lambda e: e["relative"])[:worst]
@@ -111,9 +127,17 @@ def matrix_rows(content: dict) -> list[dict]:
         for t in sorted(tests, key=lambda t: (short_label(t["nodeid"], t.get("dut", "")), t.get("dut", ""))):
             ms = t.get("measurements") or [None]
             for i, m in enumerate(ms):
-                rows.append({"req": req if first_req else None, "req_span": span,
-                             "test": t if i == 0 else None, "test_span": len(ms), "m": m,
-                             "label": short_label(t["nodeid"], t.get("dut", "")), "anchor": anchor(t["nodeid"])})
+                rows.append(
+                    {
+                        "req": req if first_req else None,
+                        "req_span": span,
+                        "test": t if i == 0 else None,
+                        "test_span": len(ms),
+                        "m": m,
+                        "label": short_label(t["nodeid"], t.get("dut", "")),
+                        "anchor": anchor(t["nodeid"]),
+                    }
+                )
                 first_req = False
     return rows
 
@@ -138,7 +162,9 @@ def html(content: dict, directory: Path) -> str:
     import jinja2
     import markupsafe
 
-    env = jinja2.Environment(loader=jinja2.PackageLoader("hil", "templates"), autoescape=True, undefined=jinja2.StrictUndefined)
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("hil", "templates"), autoescape=True, undefined=jinja2.StrictUndefined
+    )
     env.filters["data_uri"] = lambda rel: _data_uri(Path(directory), rel)
     env.filters["num"] = _num
     env.filters["hex"] = lambda v: f"0x{v:08X}" if isinstance(v, int) else ("-" if v is None else str(v))

@@ -41,7 +41,9 @@ class Stimulus:
     speed_rpm: float = 6000.0
     run_s: float = 0.25
     test: str = ""
-    plant: dict = field(default_factory=dict)  #: the nominal plant (PlantConfig.to_dict), so a replay needs nothing else
+    plant: dict = field(
+        default_factory=dict
+    )  #: the nominal plant (PlantConfig.to_dict), so a replay needs nothing else
     #: the controller's commutation strategy (raw, corrected, kf, sage-husa); faults always run corrected
     strategy: str = "corrected"
     #: budget name -> the measured metric it judges (METRICS); empty: the acceptance suite's budget of the kind
@@ -70,10 +72,15 @@ class Stimulus:
         if data.get("kind") not in ("deviations", "fault_sequence"):
             raise ValueError(f"{path}: field 'kind' must be 'deviations' or 'fault_sequence', got {data.get('kind')!r}")
         if data.get("strategy", "corrected") not in STRATEGIES:
-            raise ValueError(f"{path}: field 'strategy' must be one of {', '.join(STRATEGIES)}, got {data.get('strategy')!r}")
+            raise ValueError(
+                f"{path}: field 'strategy' must be one of {', '.join(STRATEGIES)}, got {data.get('strategy')!r}"
+            )
         for name, metric in dict(data.get("budgets") or {}).items():
             if metric not in METRICS[data["kind"]]:
-                raise ValueError(f"{path}: field 'budgets.{name}': metric must be one of {', '.join(METRICS[data['kind']])}, got {metric!r}")
+                raise ValueError(
+                    f"{path}: field 'budgets.{name}': metric must be one of {', '.join(METRICS[data['kind']])}, got "
+                    f"{metric!r}"
+                )
         return cls(**data)
 
     def plant_config(self) -> PlantConfig:
@@ -107,19 +114,33 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     link.download_calibration(station_corrections(config, seed=stimulus.seed))
     link.set_strategy(int(STRATEGIES[stimulus.strategy]) if stimulus.kind == "deviations" else int(Strategy.CORRECTED))
     injector = FaultInjector(link)
-    bench = LockstepBench(config, injector, initial_speed_rpm=stimulus.speed_rpm, duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
-                          seed=stimulus.seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+    bench = LockstepBench(
+        config,
+        injector,
+        initial_speed_rpm=stimulus.speed_rpm,
+        duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
+        seed=stimulus.seed,
+        sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+    )
     if stimulus.kind == "deviations":
         bench.run_setpoints([stimulus.speed_rpm], hold_s=stimulus.run_s, settle_s=0.1)
         err = bench.angle_errors_deg_e(0.15)
         nan = float("nan")
-        metrics = {"angle_p99": p99_abs(err) if err.size else nan, "angle_rms": rms(err) if err.size else nan,
-                   "angle_max": float(np.max(np.abs(err))) if err.size else nan}
-        verdicts = [budgets.check(name, metrics[metric]) for name, metric in (stimulus.budgets or DEFAULT_BUDGETS["deviations"]).items()]
+        metrics = {
+            "angle_p99": p99_abs(err) if err.size else nan,
+            "angle_rms": rms(err) if err.size else nan,
+            "angle_max": float(np.max(np.abs(err))) if err.size else nan,
+        }
+        verdicts = [
+            budgets.check(name, metrics[metric])
+            for name, metric in (stimulus.budgets or DEFAULT_BUDGETS["deviations"]).items()
+        ]
         failed = [v for v in verdicts if v.verdict == "fail"]
         values = {"commutation_angle_p99_deg_e": metrics["angle_p99"], "commutations": int(err.size)}
         if stimulus.budgets:
-            values.update(commutation_angle_rms_deg_e=metrics["angle_rms"], commutation_angle_max_deg_e=metrics["angle_max"])
+            values.update(
+                commutation_angle_rms_deg_e=metrics["angle_rms"], commutation_angle_max_deg_e=metrics["angle_max"]
+            )
         return Outcome(not failed, "; ".join(v.message() for v in (failed or verdicts)), values, verdicts)
     # a fault sequence: every switched-on fault must give one of its promised codes, nothing else may appear,
     # and the commutation must be back within budget once the faults are off
@@ -144,13 +165,24 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     problems = []
     for name in sorted(acted):
         if not codes & set(WIRING_FAULTS[name].promised):
-            problems.append(f"{name} acted but none of its fault codes {[hex(c) for c in WIRING_FAULTS[name].promised]} was reported")
+            problems.append(
+                f"{name} acted but none of its fault codes {[hex(c) for c in WIRING_FAULTS[name].promised]} was "
+                "reported"
+            )
     unexpected = codes - allowed
     if unexpected:
-        problems.append(f"fault code(s) {[hex(c) for c in sorted(unexpected)]} reported without a cause (acted: {sorted(acted) or 'none'})")
+        problems.append(
+            f"fault code(s) {[hex(c) for c in sorted(unexpected)]} reported without a cause (acted: "
+            f"{sorted(acted) or 'none'})"
+        )
     recovery = bench.angle_errors_deg_e(bench.sim.t_s - 0.03)
     p99 = p99_abs(recovery) if recovery.size else float("inf")
     verdicts = [budgets.check(name, p99) for name in (stimulus.budgets or DEFAULT_BUDGETS["fault_sequence"])]
     problems += [v.message() for v in verdicts if v.verdict == "fail"]
     values = {"acted": sorted(acted), "codes": sorted(hex(x) for x in codes), "recovered_p99_deg_e": p99}
-    return Outcome(not problems, "; ".join(problems) or "every fault reported, none spurious, commutation recovered", values, verdicts)
+    return Outcome(
+        not problems,
+        "; ".join(problems) or "every fault reported, none spurious, commutation recovered",
+        values,
+        verdicts,
+    )

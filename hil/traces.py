@@ -19,8 +19,6 @@ hil-recording/1 form. The mapping is a TOML table (docs/gap.md):
 from __future__ import annotations
 
 import csv
-import json
-import math
 import tempfile
 import tomllib
 from dataclasses import dataclass, field
@@ -179,10 +177,15 @@ def read_trace(path: str | Path, mapping: TraceMapping, meta_path: str | Path) -
     ref = None
     if mapping.ref_angle_mech_deg:
         angle, stamps = table.channel(mapping.ref_angle_mech_deg)
-        t_angle = stamps * mapping.time_scale if stamps is not None else table.channel(mapping.time)[0] * mapping.time_scale
+        t_angle = (stamps if stamps is not None else table.channel(mapping.time)[0]) * mapping.time_scale
         if np.any((angle < 0) | (angle >= 360)):
             k = int(np.nonzero((angle < 0) | (angle >= 360))[0][0])
-            raise RecordingError(path, k + 2 if table.signals is None else None, mapping.ref_angle_mech_deg, f"{angle[k]!r} outside [0, 360)")
+            raise RecordingError(
+                path,
+                k + 2 if table.signals is None else None,
+                mapping.ref_angle_mech_deg,
+                f"{angle[k]!r} outside [0, 360)",
+            )
         # angle at each edge time, interpolated on the unwrapped encoder angle
         unwrapped = np.degrees(np.unwrap(np.radians(angle)))
         ref = np.mod(np.interp(t, t_angle, unwrapped), 360.0)
@@ -192,12 +195,28 @@ def read_trace(path: str | Path, mapping: TraceMapping, meta_path: str | Path) -
     keep = segment >= 0
     if not keep.any():
         raise RecordingError(path, None, mapping.time, "no edge falls inside any segment of the meta.json")
-    return Recording(motor=motor, segments=segments, t_s=t[keep], sensor=sensor[keep], rising=rising[keep], segment=segment[keep],
-                     ref_angle_mech_deg=None if ref is None else ref[keep], timer_tick_s=None, meta_extra=extra, path=path)
+    return Recording(
+        motor=motor,
+        segments=segments,
+        t_s=t[keep],
+        sensor=sensor[keep],
+        rising=rising[keep],
+        segment=segment[keep],
+        ref_angle_mech_deg=None if ref is None else ref[keep],
+        timer_tick_s=None,
+        meta_extra=extra,
+        path=path,
+    )
 
 
-def write_level_trace(rec: Recording, path: str | Path, sample_rate_hz: float, hall_names=("hall_a", "hall_b", "hall_c"),
-                      angle_name: str | None = "encoder_deg", time_name: str = "t_s") -> Path:
+def write_level_trace(
+    rec: Recording,
+    path: str | Path,
+    sample_rate_hz: float,
+    hall_names=("hall_a", "hall_b", "hall_c"),
+    angle_name: str | None = "encoder_deg",
+    time_name: str = "t_s",
+) -> Path:
     """Sample a recording's Hall levels (and encoder angle) as a logger would, to CSV, Parquet
     or MDF4 by extension: the reverse of read_trace, used to check the readers."""
     path = Path(path)
@@ -239,8 +258,18 @@ def write_meta(rec: Recording, path: str | Path) -> Path:
     from .recording import write_recording
 
     with tempfile.TemporaryDirectory() as tmp:
-        write_recording(Recording(motor=rec.motor, segments=rec.segments, t_s=rec.t_s[:2], sensor=rec.sensor[:2], rising=rec.rising[:2],
-                                  segment=rec.segment[:2], timer_tick_s=None), tmp)
+        write_recording(
+            Recording(
+                motor=rec.motor,
+                segments=rec.segments,
+                t_s=rec.t_s[:2],
+                sensor=rec.sensor[:2],
+                rising=rec.rising[:2],
+                segment=rec.segment[:2],
+                timer_tick_s=None,
+            ),
+            tmp,
+        )
         text = (Path(tmp) / "meta.json").read_text()
     Path(path).write_text(text)
     return Path(path)

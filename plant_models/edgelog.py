@@ -48,7 +48,7 @@ class EdgeLog:
 
     @classmethod
     def concatenate(cls, logs: list["EdgeLog"]) -> "EdgeLog":
-        return cls(**{f.name: np.concatenate([getattr(l, f.name) for l in logs]) for f in fields(cls)})
+        return cls(**{f.name: np.concatenate([getattr(log, f.name) for log in logs]) for f in fields(cls)})
 
     @classmethod
     def empty(cls) -> "EdgeLog":
@@ -75,4 +75,6 @@ def join_ideal(boundary_sensor_dir: np.ndarray, t_emit: np.ndarray, ideal: np.nd
 
 
 def _key(boundary, sensor, direction):
-    return (np.asarray(boundary, dtype=np.int64) * 3 + np.asarray(sensor, dtype=np.int64)) * 2 + (np.asarray(direction) > 0)
+    return (np.asarray(boundary, dtype=np.int64) * 3 + np.asarray(sensor, dtype=np.int64)) * 2 + (
+        np.asarray(direction) > 0
+    )

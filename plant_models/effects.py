@@ -31,7 +31,7 @@ class Effect:
     name: ClassVar[str] = ""
     #: where the effect acts: "sensor" (edge angle), "timing" (edge time), "electrical", "mechanical"
     layer: ClassVar[str] = ""
-    #: fingerprint for the gap diagnosis (design notes section 6)
+    #: fingerprint for the gap diagnosis (docs/gap.md, Fingerprints)
     fingerprint: ClassVar[Mapping[str, str]] = {}
 
     def contribute(self, plant: "CompiledPlant") -> None:  # pragma: no cover - abstract
@@ -343,7 +343,8 @@ class Eccentricity(Effect):
 
     def contribute(self, plant):
         k = np.arange(2 * plant.pole_pairs)
-        plant.pole_offset_deg_e += self.amplitude_deg_e * np.sin(2 * np.pi * k / (2 * plant.pole_pairs) + self.phase_rad)
+        pole_angle_rad = 2 * np.pi * k / (2 * plant.pole_pairs)
+        plant.pole_offset_deg_e += self.amplitude_deg_e * np.sin(pole_angle_rad + self.phase_rad)
 
 
 @dataclass(frozen=True)
@@ -465,9 +466,19 @@ class Saturation(Effect):
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (
-        InstallationOffset, PoleOffset, ConditioningDelay, ArmatureReaction, Hysteresis, EdgeJitter,
-        TimerQuantization, Eccentricity, CoggingTorque, WindingTemperature, MagnetTemperature,
-        DeadTime, Saturation,
+        InstallationOffset,
+        PoleOffset,
+        ConditioningDelay,
+        ArmatureReaction,
+        Hysteresis,
+        EdgeJitter,
+        TimerQuantization,
+        Eccentricity,
+        CoggingTorque,
+        WindingTemperature,
+        MagnetTemperature,
+        DeadTime,
+        Saturation,
     )
 }
 

@@ -1,6 +1,6 @@
 """Hall-sensor geometry and the six-step commutation table (one place for the conventions).
 
-Conventions (``shared/recording-format.md``): in electrical degrees, for forward rotation,
+Conventions (``docs/recording-format.md``): in electrical degrees, for forward rotation,
 A rises at 0 and falls at 180, B rises at 120 and falls at 300, C rises at 240 and falls at 60.
 Magnet boundary ``k`` (rotor-fixed, every 180 deg electrical) passes sensor X at
 ``theta_e = 180*k + SENSOR_POSITION_DEG_E[X]``; it is caused by the leading edge of magnet pole
@@ -48,10 +48,6 @@ del _s
 def ideal_edge_angle_deg_e(sensor: np.ndarray, boundary: np.ndarray) -> np.ndarray:
     """Unwrapped electrical angle at which magnet boundary ``boundary`` passes ``sensor``."""
     return 180.0 * np.asarray(boundary, dtype=float) + SENSOR_POSITION_DEG_E[np.asarray(sensor)]
-
-
-def pole_of_boundary(boundary: np.ndarray, pole_pairs: int) -> np.ndarray:
-    return np.mod(np.asarray(boundary), 2 * pole_pairs)
 
 
 def trapezoid(phi_deg: np.ndarray | float, flat_top_deg_e: float = 120.0) -> np.ndarray:

@@ -62,12 +62,25 @@ class MagnetRing:
     alpha_br_per_k: float = bounded(-0.0012, low=-0.005, high=0.0, unit="1/K", doc="remanence temperature coefficient")
     pole_remanence: tuple[float, ...] = bounded((), low=0.8, high=1.2, unit="1",
                                                 doc="remanence factor of each pole (empty = all 1; else length 2 p)")
-    boundary_error_deg_m: tuple[float, ...] = bounded((), low=-2.0, high=2.0, unit="deg_m",
-                                                      doc="placement error of the boundary starting each pole (empty = none; else 2 p)")
-    eccentricity_mm: float = bounded(0.0, low=0.0, high=0.5, unit="mm", doc="ring centre off the rotation axis (dynamic, rotor-fixed)")
-    eccentricity_angle_deg: float = bounded(0.0, low=0.0, high=360.0, unit="deg_m", doc="ring angle towards which the centre is off")
-    static_offset_mm: float = bounded(0.0, low=0.0, high=0.5, unit="mm", doc="rotation axis off the stator centre (static, stator-fixed)")
-    static_offset_angle_deg: float = bounded(0.0, low=0.0, high=360.0, unit="deg_m", doc="stator angle towards which the axis is off")
+    boundary_error_deg_m: tuple[float, ...] = bounded(
+        (),
+        low=-2.0,
+        high=2.0,
+        unit="deg_m",
+        doc="placement error of the boundary starting each pole (empty = none; else 2 p)",
+    )
+    eccentricity_mm: float = bounded(
+        0.0, low=0.0, high=0.5, unit="mm", doc="ring centre off the rotation axis (dynamic, rotor-fixed)"
+    )
+    eccentricity_angle_deg: float = bounded(
+        0.0, low=0.0, high=360.0, unit="deg_m", doc="ring angle towards which the centre is off"
+    )
+    static_offset_mm: float = bounded(
+        0.0, low=0.0, high=0.5, unit="mm", doc="rotation axis off the stator centre (static, stator-fixed)"
+    )
+    static_offset_angle_deg: float = bounded(
+        0.0, low=0.0, high=360.0, unit="deg_m", doc="stator angle towards which the axis is off"
+    )
 
 
 @dataclass(frozen=True)
@@ -75,13 +88,23 @@ class HallSwitches:
     """The three Hall switches: gap, placement, switching points (latch: operate > 0 > release)."""
 
     air_gap_mm: float = bounded(1.0, low=0.1, high=20.0, unit="mm", doc="sensor to magnet surface")
-    position_error_deg_m: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-3.0, high=3.0, unit="deg_m", length=3,
-                                                               doc="placement error of A, B, C along the bore; + = later")
-    operate_mt: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=0.0, high=50.0, unit="mT", length=3,
-                                                     doc="switching point on a rising field (B_op)")
-    release_mt: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-50.0, high=0.0, unit="mT", length=3,
-                                                     doc="switching point on a falling field (B_rp)")
-    threshold_tc_per_k: float = bounded(0.0, low=-0.005, high=0.005, unit="1/K", doc="temperature coefficient of B_op and B_rp")
+    position_error_deg_m: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0),
+        low=-3.0,
+        high=3.0,
+        unit="deg_m",
+        length=3,
+        doc="placement error of A, B, C along the bore; + = later",
+    )
+    operate_mt: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0), low=0.0, high=50.0, unit="mT", length=3, doc="switching point on a rising field (B_op)"
+    )
+    release_mt: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0), low=-50.0, high=0.0, unit="mT", length=3, doc="switching point on a falling field (B_rp)"
+    )
+    threshold_tc_per_k: float = bounded(
+        0.0, low=-0.005, high=0.005, unit="1/K", doc="temperature coefficient of B_op and B_rp"
+    )
 
 
 @dataclass(frozen=True)
@@ -89,8 +112,13 @@ class StatorCoupling:
     """Field of the phase currents at the sensors: sensor X on phase X's axis sees
     ``coupling * (i_x - (i_y + i_z) / 2) = 1.5 coupling i_x``."""
 
-    coupling_mt_per_a: float = bounded(0.0, low=-20.0, high=20.0, unit="mT/A",
-                                       doc="field at a sensor per ampere along its phase axis; + opposes the rotor field at the edge")
+    coupling_mt_per_a: float = bounded(
+        0.0,
+        low=-20.0,
+        high=20.0,
+        unit="mT/A",
+        doc="field at a sensor per ampere along its phase axis; + opposes the rotor field at the edge",
+    )
 
 
 def _is_neutral(obj) -> bool:
@@ -122,13 +150,19 @@ class HallField(Effect):
         "knob": "-",
     }
     #: nested parameter tables (TOML sub-tables of the effect)
-    parts: ClassVar[Mapping[str, type]] = {"ring": MagnetRing, "sensors": HallSwitches, "stator": StatorCoupling,
-                                           "output": ConditioningCircuit}
+    parts: ClassVar[Mapping[str, type]] = {
+        "ring": MagnetRing,
+        "sensors": HallSwitches,
+        "stator": StatorCoupling,
+        "output": ConditioningCircuit,
+    }
     ring: MagnetRing = field(default_factory=MagnetRing)
     sensors: HallSwitches = field(default_factory=HallSwitches)
     stator: StatorCoupling = field(default_factory=StatorCoupling)
     output: ConditioningCircuit | None = None
-    temperature_rise_k: float = bounded(0.0, low=-40.0, high=150.0, unit="K", doc="sensor and magnet temperature above the reference")
+    temperature_rise_k: float = bounded(
+        0.0, low=-40.0, high=150.0, unit="K", doc="sensor and magnet temperature above the reference"
+    )
 
     def check(self, pole_pairs, prefix):
         validate(self, prefix)
@@ -138,20 +172,31 @@ class HallField(Effect):
         for name in ("pole_remanence", "boundary_error_deg_m"):
             v = getattr(self.ring, name)
             if v and len(v) != 2 * pole_pairs:
-                raise ConfigError(f"{prefix}ring.{name}", f"expected {2 * pole_pairs} values (one per magnet pole) or none, got {len(v)}")
+                raise ConfigError(
+                    f"{prefix}ring.{name}",
+                    f"expected {2 * pole_pairs} values (one per magnet pole) or none, got {len(v)}",
+                )
         if self.output is not None:
             validate(self.output, f"{prefix}output.")
             self.output.delays_s()  # thresholds inside the swing
         g_min = self.sensors.air_gap_mm - self.ring.eccentricity_mm - self.ring.static_offset_mm
         if g_min <= 0.05:
-            raise ConfigError(f"{prefix}sensors.air_gap_mm", f"the eccentricities close the gap to {g_min:.3g} mm; the ring would touch a sensor")
+            raise ConfigError(
+                f"{prefix}sensors.air_gap_mm",
+                f"the eccentricities close the gap to {g_min:.3g} mm; the ring would touch a sensor",
+            )
 
     def to_dict(self) -> dict[str, Any]:
         def plain(obj):
             return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(obj).items()}
 
-        out = {"name": self.name, "ring": plain(self.ring), "sensors": plain(self.sensors), "stator": plain(self.stator),
-               "temperature_rise_k": self.temperature_rise_k}
+        out = {
+            "name": self.name,
+            "ring": plain(self.ring),
+            "sensors": plain(self.sensors),
+            "stator": plain(self.stator),
+            "temperature_rise_k": self.temperature_rise_k,
+        }
         if self.output is not None:
             out["output"] = plain(self.output)
         return out
@@ -160,7 +205,12 @@ class HallField(Effect):
     def from_mapping(cls, data: Mapping[str, Any], prefix: str) -> "HallField":
         data = dict(data)
         parts = {}
-        for key, kind in (("ring", MagnetRing), ("sensors", HallSwitches), ("stator", StatorCoupling), ("output", ConditioningCircuit)):
+        for key, kind in (
+            ("ring", MagnetRing),
+            ("sensors", HallSwitches),
+            ("stator", StatorCoupling),
+            ("output", ConditioningCircuit),
+        ):
             if key in data:
                 table = data.pop(key)
                 if not isinstance(table, Mapping):
@@ -175,12 +225,25 @@ class HallField(Effect):
         def f(lo, hi):
             return st.floats(lo, hi, allow_nan=False)
 
-        ring = st.builds(MagnetRing, eccentricity_mm=f(0.0, 0.2), eccentricity_angle_deg=f(0.0, 360.0), static_offset_mm=f(0.0, 0.2),
-                         pole_remanence=st.tuples(*([f(0.9, 1.1)] * (2 * pole_pairs))))
-        sensors = st.builds(HallSwitches, operate_mt=st.tuples(f(0.0, 10.0), f(0.0, 10.0), f(0.0, 10.0)),
-                            release_mt=st.tuples(f(-10.0, 0.0), f(-10.0, 0.0), f(-10.0, 0.0)))
-        return st.builds(cls, ring=ring, sensors=sensors, stator=st.builds(StatorCoupling, coupling_mt_per_a=f(0.0, 2.0)),
-                         temperature_rise_k=f(-20.0, 80.0))
+        ring = st.builds(
+            MagnetRing,
+            eccentricity_mm=f(0.0, 0.2),
+            eccentricity_angle_deg=f(0.0, 360.0),
+            static_offset_mm=f(0.0, 0.2),
+            pole_remanence=st.tuples(*([f(0.9, 1.1)] * (2 * pole_pairs))),
+        )
+        sensors = st.builds(
+            HallSwitches,
+            operate_mt=st.tuples(f(0.0, 10.0), f(0.0, 10.0), f(0.0, 10.0)),
+            release_mt=st.tuples(f(-10.0, 0.0), f(-10.0, 0.0), f(-10.0, 0.0)),
+        )
+        return st.builds(
+            cls,
+            ring=ring,
+            sensors=sensors,
+            stator=st.builds(StatorCoupling, coupling_mt_per_a=f(0.0, 2.0)),
+            temperature_rise_k=f(-20.0, 80.0),
+        )
 
     # --- the physics -------------------------------------------------------------------------
     def model(self, pole_pairs: int) -> "FieldModel":
@@ -280,8 +343,11 @@ class FieldModel:
         s = (b[near] - target) * (1.0 if boundary % 2 == 0 else -1.0)
         cross = np.nonzero((s[:-1] < 0) & (s[1:] >= 0))[0]
         if cross.size == 0:
-            raise ConfigError("hall_field", f"sensor {'ABC'[x]} never reaches {target:.3g} mT near boundary {boundary}: "
-                                            "thresholds beyond the field at this gap")
+            raise ConfigError(
+                "hall_field",
+                f"sensor {'ABC'[x]} never reaches {target:.3g} mT near boundary {boundary}: "
+                "thresholds beyond the field at this gap",
+            )
         i = cross[np.argmin(np.abs(grid[cross] - nominal))]
         fa, fb = f(grid[i]), f(grid[i + 1])
         if fa * fb > 0.0:  # a crossing at a grid point, within rounding

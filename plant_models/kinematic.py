@@ -94,7 +94,9 @@ def simulate_edges(
         tau_ideal = _time_at(d * (ideal - theta0), w0, acc)
         rising = ((boundary if d > 0 else boundary - 1) % 2) == 0
         order = np.argsort(tau_raw, kind="stable")
-        sensor, boundary, switch, tau_raw, tau_ideal, rising = (a[order] for a in (sensor, boundary, switch, tau_raw, tau_ideal, rising))
+        sensor, boundary, switch, tau_raw, tau_ideal, rising = (
+            a[order] for a in (sensor, boundary, switch, tau_raw, tau_ideal, rising)
+        )
         delay = np.where(rising, cp.rise_delay_s, cp.fall_delay_s)
         tau_cond = tau_raw + delay
         if cp.jitter_time_rms_s > 0:
@@ -103,13 +105,24 @@ def simulate_edges(
         t_cap = np.floor(t_cond / cp.timer_tick_s) * cp.timer_tick_s if cp.timer_tick_s > 0 else t_cond.copy()
         theta_cap = theta0 + d * (w0 * tau_cond + 0.5 * acc * tau_cond**2)
         n = sensor.size
-        logs.append(EdgeLog(
-            t_capture_s=t_cap, t_conditioned_s=t_cond, t_raw_s=t0 + tau_raw, t_ideal_s=t0 + tau_ideal,
-            sensor=sensor, rising=rising, boundary=boundary, pole=boundary % n_poles,
-            direction=np.full(n, d, dtype=np.int64), theta_e_switch_deg=switch, theta_e_capture_deg=theta_cap,
-            speed_rpm=(w0 + acc * tau_cond) / (6.0 * p), mean_abs_current_a=np.full(n, op.mean_phase_current_a),
-            segment=np.full(n, index, dtype=np.int64),
-        ))
+        logs.append(
+            EdgeLog(
+                t_capture_s=t_cap,
+                t_conditioned_s=t_cond,
+                t_raw_s=t0 + tau_raw,
+                t_ideal_s=t0 + tau_ideal,
+                sensor=sensor,
+                rising=rising,
+                boundary=boundary,
+                pole=boundary % n_poles,
+                direction=np.full(n, d, dtype=np.int64),
+                theta_e_switch_deg=switch,
+                theta_e_capture_deg=theta_cap,
+                speed_rpm=(w0 + acc * tau_cond) / (6.0 * p),
+                mean_abs_current_a=np.full(n, op.mean_phase_current_a),
+                segment=np.full(n, index, dtype=np.int64),
+            )
+        )
         theta0, t0 = theta1, t0 + op.duration_s
     log = EdgeLog.concatenate(logs) if logs else EdgeLog.empty()
     # a conditioned edge may overtake its neighbour across a segment seam; keep time order

@@ -13,7 +13,7 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from .effects import EFFECTS, ConditioningCircuit, ConditioningDelay, Effect, effect_from_mapping
+from .effects import ConditioningCircuit, Effect, effect_from_mapping
 from .params import ConfigError, bounded, from_mapping, validate
 
 
@@ -29,9 +29,13 @@ class MotorParameters:
     pole_pairs: int = bounded(2, low=1, high=64, unit="1", integer=True, doc="pole pairs")
     phase_resistance_ohm: float = bounded(0.0655, low=0.0, high=100.0, unit="ohm", low_open=True, doc="per phase")
     phase_inductance_h: float = bounded(60e-6, low=0.0, high=1.0, unit="H", low_open=True, doc="L - M per phase")
-    ke_v_s_per_rad: float = bounded(0.0216, low=0.0, high=10.0, unit="V s/rad", low_open=True, doc="phase BEMF constant (mechanical)")
+    ke_v_s_per_rad: float = bounded(
+        0.0216, low=0.0, high=10.0, unit="V s/rad", low_open=True, doc="phase BEMF constant (mechanical)"
+    )
     flat_top_deg_e: float = bounded(120.0, low=0.0, high=180.0, unit="deg_e", low_open=True, doc="BEMF flat top width")
-    inertia_kg_m2: float = bounded(0.0039, low=0.0, high=100.0, unit="kg m^2", low_open=True, doc="rotor + pump inertia")
+    inertia_kg_m2: float = bounded(
+        0.0039, low=0.0, high=100.0, unit="kg m^2", low_open=True, doc="rotor + pump inertia"
+    )
     friction_n_m_s_per_rad: float = bounded(1e-5, low=0.0, high=10.0, unit="N m s/rad", doc="viscous friction")
     fan_coefficient_n_m_s2: float = bounded(1.5e-7, low=0.0, high=1.0, unit="N m s^2/rad^2", doc="pump load T = M w^2")
     supply_v: float = bounded(80.0, low=0.0, high=1000.0, unit="V", low_open=True, doc="DC link voltage")
@@ -53,8 +57,12 @@ class InverterParameters:
 class CurrentSensorParameters:
     """Phase current transducers (LA25-P: accuracy +-0.65 %); applied to the sampled currents."""
 
-    gain_error: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-0.05, high=0.05, unit="1", length=3, doc="relative gain error A, B, C")
-    offset_a: tuple[float, float, float] = bounded((0.0, 0.0, 0.0), low=-1.0, high=1.0, unit="A", length=3, doc="offset A, B, C")
+    gain_error: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0), low=-0.05, high=0.05, unit="1", length=3, doc="relative gain error A, B, C"
+    )
+    offset_a: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0), low=-1.0, high=1.0, unit="A", length=3, doc="offset A, B, C"
+    )
     noise_rms_a: float = bounded(0.0, low=0.0, high=1.0, unit="A", doc="white noise RMS per sample")
 
 
@@ -86,9 +94,6 @@ class PlantConfig:
         kept = tuple(e for e in self.effects if e.name not in names)
         return dataclasses.replace(self, effects=kept + tuple(effects))
 
-    def without(self, *names: str) -> "PlantConfig":
-        return dataclasses.replace(self, effects=tuple(e for e in self.effects if e.name not in names))
-
     def effect(self, name: str) -> Effect | None:
         return next((e for e in self.effects if e.name == name), None)
 
@@ -97,7 +102,9 @@ class PlantConfig:
             "name": self.name,
             "motor": dataclasses.asdict(self.motor),
             "inverter": dataclasses.asdict(self.inverter),
-            "current_sensor": {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self.current_sensor).items()},
+            "current_sensor": {
+                k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self.current_sensor).items()
+            },
             "effects": [e.to_dict() for e in self.effects],
         }
 
@@ -196,12 +203,18 @@ class CompiledPlant:
     def build(cls, config: PlantConfig) -> "CompiledPlant":
         m, inv = config.motor, config.inverter
         plant = cls(
-            pole_pairs=int(m.pole_pairs), phase_resistance_ohm=m.phase_resistance_ohm,
-            phase_inductance_h=m.phase_inductance_h, ke_v_s_per_rad=m.ke_v_s_per_rad,
-            flat_top_deg_e=m.flat_top_deg_e, inertia_kg_m2=m.inertia_kg_m2,
-            friction_n_m_s_per_rad=m.friction_n_m_s_per_rad, fan_coefficient_n_m_s2=m.fan_coefficient_n_m_s2,
-            supply_v=m.supply_v, pwm_frequency_hz=inv.pwm_frequency_hz,
-            sensor_offset_deg_e=np.zeros(3), pole_offset_deg_e=np.zeros(2 * int(m.pole_pairs)),
+            pole_pairs=int(m.pole_pairs),
+            phase_resistance_ohm=m.phase_resistance_ohm,
+            phase_inductance_h=m.phase_inductance_h,
+            ke_v_s_per_rad=m.ke_v_s_per_rad,
+            flat_top_deg_e=m.flat_top_deg_e,
+            inertia_kg_m2=m.inertia_kg_m2,
+            friction_n_m_s_per_rad=m.friction_n_m_s_per_rad,
+            fan_coefficient_n_m_s2=m.fan_coefficient_n_m_s2,
+            supply_v=m.supply_v,
+            pwm_frequency_hz=inv.pwm_frequency_hz,
+            sensor_offset_deg_e=np.zeros(3),
+            pole_offset_deg_e=np.zeros(2 * int(m.pole_pairs)),
             switch_offset_deg_e=np.zeros((3, 2 * int(m.pole_pairs), 2)),
         )
         for eff in config.effects:
@@ -258,7 +271,9 @@ def paper_bench(with_deviations: bool = False) -> PlantConfig:
     return dataclasses.replace(
         config,
         name="paper-bench+deviations",
-        current_sensor=CurrentSensorParameters(gain_error=(0.004, -0.003, 0.002), offset_a=(0.02, -0.015, 0.01), noise_rms_a=0.02),
+        current_sensor=CurrentSensorParameters(
+            gain_error=(0.004, -0.003, 0.002), offset_a=(0.02, -0.015, 0.01), noise_rms_a=0.02
+        ),
         effects=(
             fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
             fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Callable, Iterable, Protocol
+from typing import Callable
 
 import numpy as np
 
@@ -24,12 +24,6 @@ class Command:
     sector: int | None = None
     duty: float | None = None
     direction: int | None = None
-
-
-class CommutationSource(Protocol):
-    """Decides commutation. Called with each captured edge (as the controller would see it)."""
-
-    def on_edge(self, edge: dict, sim: "Simulation") -> Iterable[Command]: ...
 
 
 class RawHallCommutation:

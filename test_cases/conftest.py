@@ -19,7 +19,10 @@ def calibrate(hil_plant_config, hil_seed):
     def run(effects=()):
         key = tuple(effects)
         if key not in cache:
-            note(f"calibration campaign on the plant with {', '.join(e.name for e in effects) or 'no deviations'} (station recording, fit)")
+            note(
+                f"calibration campaign on the plant with {', '.join(e.name for e in effects) or 'no deviations'} "
+                "(station recording, fit)"
+            )
             cache[key] = station_corrections(hil_plant_config.with_effects(*effects), seed=hil_seed)
         return cache[key]
 

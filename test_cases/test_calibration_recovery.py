@@ -40,12 +40,21 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
         c = bench.sim.commutations()
         figures[strategy.name.lower()] = (c.t_s, c.error_deg_e)
     raw, corrected = runs["raw"], runs["corrected"]
-    hil_evidence.table("commutation angle error against the true rotor angle (deg e)", ["strategy", "commutations", "mean", "RMS", "p99"],
-                       [[name, e.size, float(e.mean()), rms(e), p99(e)] for name, e in runs.items()])
-    hil_evidence.figure(f"{deviation}: raw and corrected commutation error",
-                        commutation_error_figure(figures, f"{deviation} at {SPEED_RPM:.0f} rpm", judged_from_s=JUDGED_FROM_S,
-                                                 budget_deg_e=hil_budgets["commutation_angle_p99"].limit,
-                                                 budget_label="p99 budget of the corrected run"))
+    hil_evidence.table(
+        "commutation angle error against the true rotor angle (deg e)",
+        ["strategy", "commutations", "mean", "RMS", "p99"],
+        [[name, e.size, float(e.mean()), rms(e), p99(e)] for name, e in runs.items()],
+    )
+    hil_evidence.figure(
+        f"{deviation}: raw and corrected commutation error",
+        commutation_error_figure(
+            figures,
+            f"{deviation} at {SPEED_RPM:.0f} rpm",
+            judged_from_s=JUDGED_FROM_S,
+            budget_deg_e=hil_budgets["commutation_angle_p99"].limit,
+            budget_label="p99 budget of the corrected run",
+        ),
+    )
     hil_evidence.value("raw commutation RMS (what calibration has to remove)", rms(raw), "deg_e")
     hil_budget("commutation_angle_p99", p99(corrected))
     hil_budget("calibrated_fraction_removed", 1.0 - rms(corrected) / rms(raw))

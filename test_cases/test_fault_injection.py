@@ -41,7 +41,9 @@ def judge(stimulus, outcome, request):
 
 
 @pytest.mark.requirement("REQ-ROB-001")
-def test_any_calibrated_deviation_set_meets_the_commutation_budget(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
+def test_any_calibrated_deviation_set_meets_the_commutation_budget(
+    hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request
+):
     worst = {"p99": 0.0, "effects": None}
 
     @seed(hil_seed)
@@ -49,8 +51,14 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(hil_link, hil
     @given(effects=deviations(hil_plant_config.motor.pole_pairs), speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
     def check(effects, speed_rpm):
         note(f"search example: calibrated deviation set at {speed_rpm:.0f} rpm")
-        stim = Stimulus("deviations", effects=[e.to_dict() for e in effects], seed=hil_seed, speed_rpm=speed_rpm,
-                        test=request.node.nodeid, plant=hil_plant_config.to_dict())
+        stim = Stimulus(
+            "deviations",
+            effects=[e.to_dict() for e in effects],
+            seed=hil_seed,
+            speed_rpm=speed_rpm,
+            test=request.node.nodeid,
+            plant=hil_plant_config.to_dict(),
+        )
         outcome = run(stim, hil_link, hil_budgets)
         p99 = outcome.values["commutation_angle_p99_deg_e"]
         target(p99, label="commutation angle p99 (deg e)")
@@ -64,7 +72,9 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(hil_link, hil
 
 
 @pytest.mark.requirement("REQ-ROB-002")
-def test_fault_sequences_are_reported_and_recovered(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
+def test_fault_sequences_are_reported_and_recovered(
+    hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request
+):
     from plant_models.plant import paper_bench
 
     effects = [e.to_dict() for e in paper_bench(with_deviations=True).effects]
@@ -95,12 +105,28 @@ def test_fault_sequences_are_reported_and_recovered(hil_link, hil_plant_config, 
             if not getattr(self, "steps", None):
                 return
             note(f"search example: fault sequence of {len(self.steps)} steps")
-            stim = Stimulus("fault_sequence", effects=effects, steps=self.steps, seed=hil_seed, test=request.node.nodeid,
-                            plant=hil_plant_config.to_dict())
+            stim = Stimulus(
+                "fault_sequence",
+                effects=effects,
+                steps=self.steps,
+                seed=hil_seed,
+                test=request.node.nodeid,
+                plant=hil_plant_config.to_dict(),
+            )
             outcome = run(stim, hil_link, hil_budgets)
-            runs.append([len(self.steps), ", ".join(outcome.values["acted"]) or "none", ", ".join(outcome.values["codes"]) or "none",
-                         outcome.values["recovered_p99_deg_e"]])
+            runs.append(
+                [
+                    len(self.steps),
+                    ", ".join(outcome.values["acted"]) or "none",
+                    ", ".join(outcome.values["codes"]) or "none",
+                    outcome.values["recovered_p99_deg_e"],
+                ]
+            )
             judge(stim, outcome, request)
 
-    run_state_machine_as_test(seed(hil_seed)(FaultSequence), settings=hil_settings(max_examples=6, stateful_step_count=6))
-    hil_evidence.table("fault sequences run", ["steps", "faults that acted", "codes reported", "recovered p99 deg e"], runs)
+    run_state_machine_as_test(
+        seed(hil_seed)(FaultSequence), settings=hil_settings(max_examples=6, stateful_step_count=6)
+    )
+    hil_evidence.table(
+        "fault sequences run", ["steps", "faults that acted", "codes reported", "recovered p99 deg e"], runs
+    )

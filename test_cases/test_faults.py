@@ -26,11 +26,18 @@ def sequence(fault) -> list:
     pytest.param(LostEdge(), "REQ-FLT-002", id="missing-edge"),
     pytest.param(SensorDropout(sensor=1), "REQ-FLT-003", id="sensor-dropout"),
 ])
-def test_wiring_fault_gives_the_promised_fault(fault, requirement, request, hil_link, hil_plant_config, hil_budgets, hil_budget,
-                                               hil_evidence, hil_seed):
+def test_wiring_fault_gives_the_promised_fault(
+    fault, requirement, request, hil_link, hil_plant_config, hil_budgets, hil_budget, hil_evidence, hil_seed
+):
     request.node.user_properties.append(("requirement", requirement))
-    stim = Stimulus("fault_sequence", effects=[e.to_dict() for e in DEVIATIONS], steps=sequence(fault), seed=hil_seed,
-                    test=request.node.nodeid, plant=hil_plant_config.to_dict())
+    stim = Stimulus(
+        "fault_sequence",
+        effects=[e.to_dict() for e in DEVIATIONS],
+        steps=sequence(fault),
+        seed=hil_seed,
+        test=request.node.nodeid,
+        plant=hil_plant_config.to_dict(),
+    )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     hil_evidence.value("promised fault codes", ", ".join(f"0x{c:04X}" for c in fault.promised))
@@ -40,8 +47,14 @@ def test_wiring_fault_gives_the_promised_fault(fault, requirement, request, hil_
 
 @pytest.mark.requirement("REQ-FLT-005")
 def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
-    stim = Stimulus("fault_sequence", effects=[e.to_dict() for e in DEVIATIONS], steps=[["run", 0.1]], seed=hil_seed,
-                    test=request.node.nodeid, plant=hil_plant_config.to_dict())
+    stim = Stimulus(
+        "fault_sequence",
+        effects=[e.to_dict() for e in DEVIATIONS],
+        steps=[["run", 0.1]],
+        seed=hil_seed,
+        test=request.node.nodeid,
+        plant=hil_plant_config.to_dict(),
+    )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("healthy run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     assert outcome.ok and not outcome.values["codes"], outcome.message
@@ -52,14 +65,18 @@ def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_
     """Q0 a hundred times too large for a filter told to adapt Q, R and r: the guards must fire
     (the divergence guard, docs/sage-husa.md), and the controller must say so."""
     settings = FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7)
-    bench = hil_bench(Strategy.SAGE_HUSA, corrections=calibrate(DEVIATIONS), effects=DEVIATIONS, filter_settings=settings)
+    bench = hil_bench(
+        Strategy.SAGE_HUSA, corrections=calibrate(DEVIATIONS), effects=DEVIATIONS, filter_settings=settings
+    )
     bench.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
     st = hil_link.status()
     codes = [code for _, code in st["faults"]]
     hil_evidence.value("guard trips read back", st["guard_trips"])
     hil_evidence.value("fault codes", ", ".join(f"0x{c:04X}" for c in codes) or "none")
     assert st["guard_trips"] > 0, "the guards never fired with Q0 100x too large: the scenario did not provoke them"
-    assert Fault.FILTER_GUARD_TRIP in codes, f"{st['guard_trips']} guard trips but no fault 0x{Fault.FILTER_GUARD_TRIP:04X} (faults: {codes})"
+    assert Fault.FILTER_GUARD_TRIP in codes, (
+        f"{st['guard_trips']} guard trips but no fault 0x{Fault.FILTER_GUARD_TRIP:04X} (faults: {codes})"
+    )
 
 
 @pytest.mark.requirement("REQ-CAL-005")
@@ -71,5 +88,7 @@ def test_invalid_calibration_is_refused(calibrate, hil_link, hil_evidence):
         hil_link.download_calibration(bad)
     hil_evidence.text("the link's error", str(info.value))
     codes = [code for _, code in hil_link.status()["faults"]]
-    assert Fault.INVALID_CALIBRATION in codes, f"a refused table must raise 0x{Fault.INVALID_CALIBRATION:04X} (faults: {codes})"
+    assert Fault.INVALID_CALIBRATION in codes, (
+        f"a refused table must raise 0x{Fault.INVALID_CALIBRATION:04X} (faults: {codes})"
+    )
     hil_link.download_calibration(good)  # and a good table is still accepted afterwards

@@ -26,7 +26,9 @@ def test_controller_identifies_itself(hil_link, hil_evidence):
     hil_evidence.table("identity read from the device", ["field", "value"],
                        [[k, f"0x{v:08X}" if isinstance(v, int) else str(v)] for k, v in ident.items()])
     for key in ("vendor_id", "product_code", "revision", "serial"):
-        assert isinstance(ident[key], int) and ident[key] != 0, f"identity {key} reads {ident[key]!r}: a device must identify itself"
+        assert isinstance(ident[key], int) and ident[key] != 0, (
+            f"identity {key} reads {ident[key]!r}: a device must identify itself"
+        )
 
 
 def _need(hil_dut, protocol):
@@ -55,21 +57,33 @@ def _probe(od, kind):
         return f"read 0x{obj.index:04X}:{sub:02X}", lambda sdo: sdo.upload(obj.index, sub)
     if kind == "read-only":
         var, sub = next((v, s) for v, s in variables if v.access_type == "ro")
-        return f"write 0x{var.index:04X}", lambda sdo: sdo.download(var.index, sub or 0, var.encode_raw(0) if var.data_type != 0x0009 else b"x")
+        return f"write 0x{var.index:04X}", lambda sdo: sdo.download(
+            var.index, sub or 0, var.encode_raw(0) if var.data_type != 0x0009 else b"x"
+        )
     if kind == "write-only":
         var, sub = next(((v, s) for v, s in variables if v.access_type == "wo"), (None, None))
         if var is None:
             pytest.skip("the EDS declares no write-only object")
         return f"read 0x{var.index:04X}", lambda sdo: sdo.upload(var.index, sub or 0)
     if kind == "value range":
-        var, sub = next(((v, s) for v, s in variables if "w" in v.access_type and v.max is not None
-                         and v.data_type in canopen.objectdictionary.INTEGER_TYPES), (None, None))
+        var, sub = next(
+            (
+                (v, s)
+                for v, s in variables
+                if "w" in v.access_type and v.max is not None and v.data_type in canopen.objectdictionary.INTEGER_TYPES
+            ),
+            (None, None),
+        )
         if var is None:
             pytest.skip("the EDS declares no writable integer with a high limit")
-        return f"write 0x{var.index:04X} = {var.max + 1}", lambda sdo: sdo.download(var.index, sub or 0, var.encode_raw(var.max + 1))
+        return f"write 0x{var.index:04X} = {var.max + 1}", lambda sdo: sdo.download(
+            var.index, sub or 0, var.encode_raw(var.max + 1)
+        )
     if kind == "length":
         var, sub = next((v, s) for v, s in variables if "w" in v.access_type and v.data_type == 0x0005)  # a writable U8
-        return f"write 0x{var.index:04X} with 4 bytes", lambda sdo: sdo.download(var.index, sub or 0, struct.pack("<I", 1))
+        return f"write 0x{var.index:04X} with 4 bytes", lambda sdo: sdo.download(
+            var.index, sub or 0, struct.pack("<I", 1)
+        )
     raise ValueError(kind)
 
 
@@ -81,7 +95,9 @@ def test_sdo_abort_codes(kind, hil_dut, hil_link, hil_evidence):
     with pytest.raises(SdoAbortedError) as info:
         request(hil_link.node.sdo)
     hil_evidence.value(f"abort code for '{what}'", f"0x{info.value.code:08X}")
-    assert info.value.code == ABORT[kind], (f"{what}: SDO abort 0x{info.value.code:08X}, CiA 301 requires 0x{ABORT[kind]:08X} ({kind})")
+    assert info.value.code == ABORT[kind], (
+        f"{what}: SDO abort 0x{info.value.code:08X}, CiA 301 requires 0x{ABORT[kind]:08X} ({kind})"
+    )
     assert hil_link.read(0x1000) is not None  # still serving well-formed requests
 
 
@@ -91,6 +107,7 @@ def test_heartbeat_period_matches_0x1017(hil_dut, hil_link, hil_budget, hil_evid
     period_ms = 50
     stamps = []
     hil_link.write(0x1017, None, period_ms)
+
     def on_heartbeat(cid, data, ts):
         if bytes(data) != b"\x00":
             stamps.append(time.monotonic())
@@ -121,8 +138,12 @@ def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_dut, hil_link, calib
     code, register = struct.unpack_from("<HB", frame)
     hil_evidence.value("EMCY error code", f"0x{code:04X}")
     hil_evidence.value("error register (0x1001)", f"0x{hil_link.read(0x1001):02X}")
-    assert register & 0x01 and hil_link.read(0x1001) & 0x01, "the error register's generic bit must be set with the EMCY"
-    assert hil_link.read(0x1003, 0) >= 1 and hil_link.read(0x1003, 1) == code, "0x1003:1 must hold the newest error code"
+    assert register & 0x01 and hil_link.read(0x1001) & 0x01, (
+        "the error register's generic bit must be set with the EMCY"
+    )
+    assert hil_link.read(0x1003, 0) >= 1 and hil_link.read(0x1003, 1) == code, (
+        "0x1003:1 must hold the newest error code"
+    )
 
 
 def _modbus_ask(link, pdu: bytes) -> bytes:
@@ -134,12 +155,15 @@ def _modbus_ask(link, pdu: bytes) -> bytes:
 
 
 @pytest.mark.requirement("REQ-PROT-003")
-@pytest.mark.parametrize("name, pdu, code", [
-    pytest.param("unknown function code 0x41", bytes([0x41, 0, 0]), 0x01, id="function-0x41"),
-    pytest.param("read 1 register at 0xFFF0", struct.pack(">BHH", 3, 0xFFF0, 1), 0x02, id="register-0xFFF0"),
-    pytest.param("read quantity 0", struct.pack(">BHH", 3, 0, 0), 0x03, id="quantity-0"),
-    pytest.param("read quantity 126", struct.pack(">BHH", 3, 0, 126), 0x03, id="quantity-126"),
-])
+@pytest.mark.parametrize(
+    "name, pdu, code",
+    [
+        pytest.param("unknown function code 0x41", bytes([0x41, 0, 0]), 0x01, id="function-0x41"),
+        pytest.param("read 1 register at 0xFFF0", struct.pack(">BHH", 3, 0xFFF0, 1), 0x02, id="register-0xFFF0"),
+        pytest.param("read quantity 0", struct.pack(">BHH", 3, 0, 0), 0x03, id="quantity-0"),
+        pytest.param("read quantity 126", struct.pack(">BHH", 3, 0, 126), 0x03, id="quantity-126"),
+    ],
+)
 def test_modbus_exception_codes(name, pdu, code, hil_dut, hil_link, hil_evidence):
     _need(hil_dut, "modbus")
     if hil_link.serial_port is not None:
@@ -147,5 +171,6 @@ def test_modbus_exception_codes(name, pdu, code, hil_dut, hil_link, hil_evidence
     answer = _modbus_ask(hil_link, pdu)
     hil_evidence.value(f"answer to {name}", answer.hex())
     assert answer[0] == (pdu[0] | 0x80) and answer[1] == code, (
-        f"{name}: answered {answer.hex()}, the Modbus application protocol requires exception {code:02d}")
+        f"{name}: answered {answer.hex()}, the Modbus application protocol requires exception {code:02d}"
+    )
     assert hil_link.identity()["vendor_id"]  # still serving

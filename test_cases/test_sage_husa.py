@@ -26,7 +26,13 @@ SH_SETTINGS = FilterSettings(q0_diag=(1e-5, 1e-9, 1e-3), forgetting_b=0.98)
 
 
 def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS):
-    bench = hil_bench(strategy, corrections=corrections, effects=SCENARIO_EFFECTS, speed_rpm=SETPOINTS_RPM[0], filter_settings=filter_settings)
+    bench = hil_bench(
+        strategy,
+        corrections=corrections,
+        effects=SCENARIO_EFFECTS,
+        speed_rpm=SETPOINTS_RPM[0],
+        filter_settings=filter_settings,
+    )
     steps = bench.run_setpoints(list(SETPOINTS_RPM), hold_s=HOLD_S, settle_s=0.3)
     c = bench.sim.commutations()
     keep = c.t_s >= steps[0]
@@ -54,14 +60,27 @@ ROW_COLUMNS = ["strategy", "commutations", "RMS deg e", "p99 deg e", "max deg e"
 
 @pytest.mark.requirement("REQ-PRED-001")
 def test_sage_husa_meets_its_budgets(calibrate, hil_bench, hil_link, hil_budget, hil_budgets, hil_evidence):
-    rows, traces, judged_from_s, counters = run_strategies(calibrate, hil_bench, hil_link, (Strategy.SAGE_HUSA, Strategy.CORRECTED))
-    hil_evidence.table("paper scenario: commutation error against the true rotor angle", ROW_COLUMNS, list(rows.values()))
-    hil_evidence.figure("commutation error through the seven set points",
-                        commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm", judged_from_s=judged_from_s,
-                                                 budget_deg_e=hil_budgets["sage_husa_commutation_angle_p99"].limit,
-                                                 budget_label="Sage-Husa p99 budget"))
-    hil_evidence.table("Sage-Husa filter counters read back from the controller", ["counter", "count"],
-                       [[k, v] for k, v in counters[Strategy.SAGE_HUSA].items()])
+    rows, traces, judged_from_s, counters = run_strategies(
+        calibrate, hil_bench, hil_link, (Strategy.SAGE_HUSA, Strategy.CORRECTED)
+    )
+    hil_evidence.table(
+        "paper scenario: commutation error against the true rotor angle", ROW_COLUMNS, list(rows.values())
+    )
+    hil_evidence.figure(
+        "commutation error through the seven set points",
+        commutation_error_figure(
+            traces,
+            "paper scenario, 5000 to 10,000 rpm",
+            judged_from_s=judged_from_s,
+            budget_deg_e=hil_budgets["sage_husa_commutation_angle_p99"].limit,
+            budget_label="Sage-Husa p99 budget",
+        ),
+    )
+    hil_evidence.table(
+        "Sage-Husa filter counters read back from the controller",
+        ["counter", "count"],
+        [[k, v] for k, v in counters[Strategy.SAGE_HUSA].items()],
+    )
     sh = rows[Strategy.SAGE_HUSA]
     hil_budget("sage_husa_commutation_angle_rms", sh[2])
     hil_budget("sage_husa_commutation_angle_p99", sh[3])
@@ -74,8 +93,10 @@ def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_link,
     bound of what noise adaptation can win here (docs/sage-husa.md, protocol ``tuned``)."""
     rows, traces, judged_from_s, _ = run_strategies(calibrate, hil_bench, hil_link, (Strategy.SAGE_HUSA, Strategy.KF))
     hil_evidence.table("paper scenario: Sage-Husa against the tuned Kalman filter", ROW_COLUMNS, list(rows.values()))
-    hil_evidence.figure("commutation error: Sage-Husa and Kalman filter",
-                        commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm", judged_from_s=judged_from_s))
+    hil_evidence.figure(
+        "commutation error: Sage-Husa and Kalman filter",
+        commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm", judged_from_s=judged_from_s),
+    )
     hil_budget("sage_husa_over_kf_angle_rms", rows[Strategy.SAGE_HUSA][2] / rows[Strategy.KF][2])
 
 
@@ -86,17 +107,25 @@ def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, h
     (3 us jitter at the running speed), where a filter that adapts nothing keeps R0."""
     corrections = calibrate(SCENARIO_EFFECTS)
     nominal = FilterSettings(q0_diag=(0.1, 1e-9, 1e-6))
-    wrong = FilterSettings(q0_diag=tuple(100.0 * q for q in nominal.q0_diag), r0_diag=(0.0, 0.02), forgetting_b=0.995,
-                           q_band_factor=10.0)
-    bench = hil_bench(Strategy.SAGE_HUSA, corrections=corrections, effects=SCENARIO_EFFECTS, speed_rpm=8000.0, filter_settings=wrong)
+    wrong = FilterSettings(
+        q0_diag=tuple(100.0 * q for q in nominal.q0_diag), r0_diag=(0.0, 0.02), forgetting_b=0.995, q_band_factor=10.0
+    )
+    bench = hil_bench(
+        Strategy.SAGE_HUSA, corrections=corrections, effects=SCENARIO_EFFECTS, speed_rpm=8000.0, filter_settings=wrong
+    )
     bench.run_setpoints([8000.0], hold_s=0.5, settle_s=0.2)
     st = hil_link.status()
     w_e = 8000.0 / 60.0 * 2 * np.pi * bench.config.motor.pole_pairs
     injected_rad2 = (JITTER_S * w_e) ** 2
     learned = st["r_diag"][0]
-    hil_evidence.table("noise statistics read back from the controller", ["quantity", "start (R0 / Q0)", "read back", "plant truth"],
-                       [["R theta (rad^2)", wrong.r0_diag[0], learned, injected_rad2],
-                        ["Q w ((rad/s)^2)", wrong.q0_diag[0], st["q_diag"][0], ""]])
+    hil_evidence.table(
+        "noise statistics read back from the controller",
+        ["quantity", "start (R0 / Q0)", "read back", "plant truth"],
+        [
+            ["R theta (rad^2)", wrong.r0_diag[0], learned, injected_rad2],
+            ["Q w ((rad/s)^2)", wrong.q0_diag[0], st["q_diag"][0], ""],
+        ],
+    )
     err = bench.angle_errors_deg_e(0.4)
     hil_evidence.value("commutation RMS with the wrong start", rms(err), "deg_e")
     hil_budget("learned_edge_noise_ratio", learned / injected_rad2)
@@ -104,17 +133,37 @@ def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, h
 
 
 @pytest.mark.requirement("REQ-PRED-001")
-def test_sage_husa_through_the_controller_is_as_accurate_as_offline(calibrate, hil_link, hil_plant_config, hil_seed, hil_evidence):
+def test_sage_husa_through_the_controller_is_as_accurate_as_offline(
+    calibrate, hil_link, hil_plant_config, hil_seed, hil_evidence
+):
     """The controller's Sage-Husa on the paper scenario, against the same filter replaying the
     run's captured edges offline: within 1.25x (goal 1.05x) and with no covariance repair. The
     predictor gets the cycle-mean current its K_T is defined for (RPDO2, register 204)."""
     from hil.predictors.closed_loop import run_link
 
     corrections = calibrate(SCENARIO_EFFECTS)
-    r = run_link(hil_link, hil_plant_config.with_effects(*SCENARIO_EFFECTS), corrections, seed=hil_seed, filter_settings=SH_SETTINGS)
-    hil_evidence.table("closed loop against offline replay", ["quantity", "value"],
-                       [["commutations", r.commutations], ["closed loop angle RMS deg e", r.sage_husa_angle_rms_deg_e],
-                        ["offline replay angle RMS deg e", r.offline_angle_rms_deg_e], *[[k, v] for k, v in r.counters.items()]])
+    r = run_link(
+        hil_link,
+        hil_plant_config.with_effects(*SCENARIO_EFFECTS),
+        corrections,
+        seed=hil_seed,
+        filter_settings=SH_SETTINGS,
+    )
+    hil_evidence.table(
+        "closed loop against offline replay",
+        ["quantity", "value"],
+        [
+            ["commutations", r.commutations],
+            ["closed loop angle RMS deg e", r.sage_husa_angle_rms_deg_e],
+            ["offline replay angle RMS deg e", r.offline_angle_rms_deg_e],
+            *[[k, v] for k, v in r.counters.items()],
+        ],
+    )
     ratio = r.sage_husa_angle_rms_deg_e / r.offline_angle_rms_deg_e
-    assert ratio <= 1.25, f"closed loop {r.sage_husa_angle_rms_deg_e:.4f} deg e is {ratio:.2f}x the offline replay's {r.offline_angle_rms_deg_e:.4f}"
-    assert r.covariance_repairs == 0, f"{r.covariance_repairs} covariance repairs read back from the controller ({r.counters})"
+    assert ratio <= 1.25, (
+        f"closed loop {r.sage_husa_angle_rms_deg_e:.4f} deg e is {ratio:.2f}x the offline replay's "
+        f"{r.offline_angle_rms_deg_e:.4f}"
+    )
+    assert r.covariance_repairs == 0, (
+        f"{r.covariance_repairs} covariance repairs read back from the controller ({r.counters})"
+    )

@@ -25,14 +25,25 @@ SETTLE_S = 0.05
 
 @pytest.mark.requirement("REQ-COMM-001")
 def test_corrected_commutation_through_the_pins(calibrate, hil_signals, hil_budget, hil_evidence):
-    run = hil_signals.run(effects=EFFECTS, speed_rpm=SPEED_RPM, duration_s=0.5, strategy=Strategy.CORRECTED, corrections=calibrate(EFFECTS))
+    run = hil_signals.run(
+        effects=EFFECTS,
+        speed_rpm=SPEED_RPM,
+        duration_s=0.5,
+        strategy=Strategy.CORRECTED,
+        corrections=calibrate(EFFECTS),
+    )
     sc = run.score
     hil_evidence.text("source", f"{run.source}; stimulus {run.stimulus_dir}; gates {run.capture}")
     hil_evidence.text("score (hil signals score --json)", str(sc.to_json()))
-    hil_evidence.table("angle error per sector entered (deg e, + = late)", ["sector", "n", "mean", "RMS", "max |e|"],
-                       [[r["sector"], r["n"], r["mean"], r["rms"], r["max_abs"]] for r in sc.per_sector()])
-    assert sc.missed == 0 and sc.extra == 0, (f"{run.source}: {sc.missed} commutations missed, {sc.extra} extra "
-                                               f"(at {sc.missed_t_s[:5].tolist()} / {sc.extra_t_s[:5].tolist()} s)")
+    hil_evidence.table(
+        "angle error per sector entered (deg e, + = late)",
+        ["sector", "n", "mean", "RMS", "max |e|"],
+        [[r["sector"], r["n"], r["mean"], r["rms"], r["max_abs"]] for r in sc.per_sector()],
+    )
+    assert sc.missed == 0 and sc.extra == 0, (
+        f"{run.source}: {sc.missed} commutations missed, {sc.extra} extra "
+        f"(at {sc.missed_t_s[:5].tolist()} / {sc.extra_t_s[:5].tolist()} s)"
+    )
     err = sc.angle_error_deg_e[sc.t_ideal_s >= SETTLE_S]
     hil_evidence.value("commutations scored after the pole alignment", err.size)
     hil_evidence.value("angle error RMS through the pins", rms(err), "deg_e")

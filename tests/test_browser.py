@@ -26,8 +26,11 @@ ROOT = Path(__file__).resolve().parent.parent
 IMG = ROOT / "docs" / "img"
 WIDTH_PX = 1400
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
-pytestmark = pytest.mark.skipif(CHROMIUM is None, reason="headless Chromium is not installed (Debian: apt-get install chromium; "
-                                                         ".ci/run installs it): the reports' layout in a browser is NOT checked")
+pytestmark = pytest.mark.skipif(
+    CHROMIUM is None,
+    reason="headless Chromium is not installed (Debian: apt-get install chromium; "
+    ".ci/run installs it): the reports' layout in a browser is NOT checked",
+)
 
 #: appended to a copy of the page: after load, the layout figures go into a <pre> that --dump-dom prints
 PROBE = """<script>
@@ -36,7 +39,8 @@ addEventListener('load', () => {
   const wide = [...document.body.querySelectorAll('*')]
     .filter(e => e.getBoundingClientRect().right > width + 0.5)
     .slice(0, 8)
-    .map(e => e.tagName.toLowerCase() + (e.className ? '.' + e.className : '') + ' "' + (e.textContent || '').trim().slice(0, 60) + '"');
+    .map(e => e.tagName.toLowerCase() + (e.className ? '.' + e.className : '')
+              + ' "' + (e.textContent || '').trim().slice(0, 60) + '"');
   const out = document.createElement('pre');
   out.id = 'hil-layout-probe';
   out.textContent = JSON.stringify({scrollWidth: document.documentElement.scrollWidth, clientWidth: width, wide: wide});
@@ -47,8 +51,17 @@ addEventListener('load', () => {
 
 def chromium(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     profile = cwd / "chromium-profile"  # its own profile: no lock shared with another browser
-    cmd = [CHROMIUM, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars", f"--user-data-dir={profile}",
-           "--no-first-run", "--disable-extensions", *args]
+    cmd = [
+        CHROMIUM,
+        "--headless",
+        "--no-sandbox",
+        "--disable-gpu",
+        "--hide-scrollbars",
+        f"--user-data-dir={profile}",
+        "--no-first-run",
+        "--disable-extensions",
+        *args,
+    ]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=120, cwd=cwd)
 
 
@@ -57,7 +70,9 @@ def layout(page: Path, tmp_path: Path) -> dict:
     probe = tmp_path / f"probe-{page.name}"
     text = page.read_text()
     probe.write_text(text.replace("</body>", PROBE + "</body>") if "</body>" in text else text + PROBE)
-    run = chromium(f"--window-size={WIDTH_PX},1000", "--virtual-time-budget=10000", "--dump-dom", probe.as_uri(), cwd=tmp_path)
+    run = chromium(
+        f"--window-size={WIDTH_PX},1000", "--virtual-time-budget=10000", "--dump-dom", probe.as_uri(), cwd=tmp_path
+    )
     found = re.search(r'<pre id="hil-layout-probe">(.*?)</pre>', run.stdout, re.S)
     assert found, f"Chromium did not run the layout probe on {page} (exit {run.returncode}): {run.stderr[-800:]}"
     return json.loads(htmllib.unescape(found.group(1)))
@@ -65,22 +80,35 @@ def layout(page: Path, tmp_path: Path) -> dict:
 
 def assert_no_horizontal_overflow(page: Path, tmp_path: Path) -> None:
     figures = layout(page, tmp_path)
-    assert figures["clientWidth"] >= WIDTH_PX - 20, f"the window is {figures['clientWidth']} px wide, not about {WIDTH_PX}"
+    assert figures["clientWidth"] >= WIDTH_PX - 20, (
+        f"the window is {figures['clientWidth']} px wide, not about {WIDTH_PX}"
+    )
     assert figures["scrollWidth"] <= figures["clientWidth"], (
-        f"{page.name} scrolls sideways at {WIDTH_PX} px: content {figures['scrollWidth']} px in a {figures['clientWidth']} px window; "
-        f"past the edge: {figures['wide']}")
+        f"{page.name} scrolls sideways at {WIDTH_PX} px: content {figures['scrollWidth']} px in a "
+        f"{figures['clientWidth']} px window; "
+        f"past the edge: {figures['wide']}"
+    )
 
 
 def screenshot(page: Path, png: Path, tmp_path: Path, height_px: int = 1000) -> None:
     png.parent.mkdir(parents=True, exist_ok=True)
-    run = chromium(f"--window-size={WIDTH_PX},{height_px}", "--virtual-time-budget=10000", f"--screenshot={png}", page.as_uri(),
-                   cwd=tmp_path)
-    assert png.is_file() and png.stat().st_size > 10_000, f"no screenshot of {page} (exit {run.returncode}): {run.stderr[-800:]}"
+    run = chromium(
+        f"--window-size={WIDTH_PX},{height_px}",
+        "--virtual-time-budget=10000",
+        f"--screenshot={png}",
+        page.as_uri(),
+        cwd=tmp_path,
+    )
+    assert png.is_file() and png.stat().st_size > 10_000, (
+        f"no screenshot of {page} (exit {run.returncode}): {run.stderr[-800:]}"
+    )
 
 
 def hil(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=900)
+    return subprocess.run(
+        [sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=900
+    )
 
 
 @pytest.fixture(scope="module")
@@ -88,7 +116,9 @@ def acceptance_run(tmp_path_factory):
     """The default ``hil acceptance`` (both virtual links), run once from the repository."""
     reports = tmp_path_factory.mktemp("acceptance")
     run = hil("acceptance", "--report-dir", str(reports), cwd=ROOT)
-    assert (reports / "hil-report.html").is_file(), f"no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
+    assert (reports / "hil-report.html").is_file(), (
+        f"no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
+    )
     return run, reports
 
 
@@ -103,11 +133,19 @@ def test_default_acceptance_prints_no_warning_and_shows_progress(acceptance_run)
     run, reports = acceptance_run
     output = run.stdout + run.stderr
     # pytest's warnings summary, or any Python warning category (PytestAssertRewriteWarning, ...)
-    assert not re.search(r"warnings summary|\b\w*Warning\b", output), f"hil acceptance printed a warning:\n{output[-4000:]}"
+    assert not re.search(r"warnings summary|\b\w*Warning\b", output), (
+        f"hil acceptance printed a warning:\n{output[-4000:]}"
+    )
     n = len(json.loads((reports / "hil-report.json").read_text())["tests"])
-    progress = re.findall(rf"^\[ *(\d+)/{n} +\d+:\d\d\] (passed|failed|skipped|xfailed|xpassed|error|waived) +\S", run.stdout, re.M)
-    assert [int(k) for k, _ in progress] == list(range(1, n + 1)), f"expected one progress line per test, 1 to {n}:\n{run.stdout[:3000]}"
-    assert re.search(r"^ +\.\.\. calibration campaign", run.stdout, re.M), "the calibration campaign does not say what it does"
+    progress = re.findall(
+        rf"^\[ *(\d+)/{n} +\d+:\d\d\] (passed|failed|skipped|xfailed|xpassed|error|waived) +\S", run.stdout, re.M
+    )
+    assert [int(k) for k, _ in progress] == list(range(1, n + 1)), (
+        f"expected one progress line per test, 1 to {n}:\n{run.stdout[:3000]}"
+    )
+    assert re.search(r"^ +\.\.\. calibration campaign", run.stdout, re.M), (
+        "the calibration campaign does not say what it does"
+    )
 
 
 def test_gap_report_fits_1400_px_and_gives_the_readme_screenshot(tmp_path):
@@ -119,14 +157,15 @@ def test_gap_report_fits_1400_px_and_gives_the_readme_screenshot(tmp_path):
 
 
 #: everything that once ran past the card edge: unbroken blobs, raw bytes as parameters, long ids
-HOSTILE_SUITE = '''
+HOSTILE_SUITE = """
 import pytest
 
 BLOB = "AXicY2BgYGBkZGJmYWVjZ2Dk4ubh5eMXEBQSFhEVE5eQlJKWkZWTV1BUUlZRVVPX0NTS1tHV0zcwNDI2MTUzt7C0sra"  * 6
 
 @pytest.mark.requirement("REQ-X-001")
 @pytest.mark.parametrize("pdu", [b"\\x03\\xff\\xf0\\x00\\x01", "a" * 180])
-def test_a_rather_long_test_name_that_goes_on_and_on_to_see_whether_the_matrix_column_wraps_it(pdu, hil_budget, hil_evidence):
+def test_a_rather_long_test_name_that_goes_on_and_on_to_see_whether_the_matrix_column_wraps_it(
+        pdu, hil_budget, hil_evidence):
     hil_evidence.text("a long line", BLOB)
     hil_evidence.table("a wide table", ["column_" + str(i) for i in range(14)], [[BLOB[:40]] * 14])
     hil_budget("a_budget_with_a_rather_long_name_for_the_traceability_matrix", 0.1)
@@ -134,19 +173,20 @@ def test_a_rather_long_test_name_that_goes_on_and_on_to_see_whether_the_matrix_c
 @pytest.mark.requirement("REQ-X-002")
 @pytest.mark.xfail(reason="known: " + BLOB)
 def test_known_failure():
-    raise AssertionError("You can reproduce this example by temporarily adding @reproduce_failure('6.1', b'" + BLOB + "')")
+    raise AssertionError("You can reproduce this example by temporarily adding "
+                         "@reproduce_failure('6.1', b'" + BLOB + "')")
 
 @pytest.mark.requirement("REQ-X-002")
 def test_failure_with_a_long_message():
     assert False, BLOB
-'''
-HOSTILE_BUDGETS = '''
+"""
+HOSTILE_BUDGETS = """
 [a_budget_with_a_rather_long_name_for_the_traceability_matrix]
 requirement = "REQ-X-001"
 unit = "deg_e"
 limit = 0.5
 description = "a budget only for this test"
-'''
+"""
 
 
 def test_a_report_built_to_overflow_still_fits_1400_px(tmp_path):
@@ -154,8 +194,26 @@ def test_a_report_built_to_overflow_still_fits_1400_px(tmp_path):
     (tmp_path / "suite" / "test_hostile.py").write_text(HOSTILE_SUITE)
     (tmp_path / "budgets.toml").write_text(HOSTILE_BUDGETS)
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    subprocess.run([sys.executable, "-m", "pytest", "suite", "-q", "-p", "no:cacheprovider", "--hil-report-dir", "rep",
-                    "--hil-budgets", "budgets.toml"], cwd=tmp_path, env=env, capture_output=True, text=True, timeout=300)
+    subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "pytest",
+            "suite",
+            "-q",
+            "-p",
+            "no:cacheprovider",
+            "--hil-report-dir",
+            "rep",
+            "--hil-budgets",
+            "budgets.toml",
+        ],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
     page = tmp_path / "rep" / "hil-report.html"
     text = page.read_text()
     # a raw-bytes parameter reads as hex in the matrix, never as \x03\xff
@@ -166,7 +224,9 @@ def test_a_report_built_to_overflow_still_fits_1400_px(tmp_path):
 def test_printing_gives_a_document_to_sign(acceptance_run, tmp_path):
     _, reports = acceptance_run
     pdf = tmp_path / "report.pdf"
-    run = chromium("--no-pdf-header-footer", f"--print-to-pdf={pdf}", (reports / "hil-report.html").as_uri(), cwd=tmp_path)
+    run = chromium(
+        "--no-pdf-header-footer", f"--print-to-pdf={pdf}", (reports / "hil-report.html").as_uri(), cwd=tmp_path
+    )
     assert pdf.is_file() and pdf.read_bytes()[:5] == b"%PDF-", f"no PDF (exit {run.returncode}): {run.stderr[-800:]}"
     if shutil.which("pdftotext") is None:
         pytest.skip("pdftotext (poppler-utils) is not installed: the PDF's text is NOT checked")

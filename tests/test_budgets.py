@@ -37,22 +37,27 @@ def test_toml_overrides_and_min_budgets(tmp_path):
     assert "installation_offset_error" in b  # defaults kept
 
 
-BOUNDARY_BUDGETS = ('[err_max]\nrequirement = "REQ-B-001"\nunit = "deg_e"\nlimit = 0.5\nmarginal = 0.4\n\n'
-                    '[share_min]\nrequirement = "REQ-B-002"\nunit = "fraction"\nlimit = 0.9\nmarginal = 0.95\nkind = "min"\n')
+BOUNDARY_BUDGETS = (
+    '[err_max]\nrequirement = "REQ-B-001"\nunit = "deg_e"\nlimit = 0.5\nmarginal = 0.4\n\n'
+    '[share_min]\nrequirement = "REQ-B-002"\nunit = "fraction"\nlimit = 0.9\nmarginal = 0.95\nkind = "min"\n'
+)
 
 
-@pytest.mark.parametrize("name, measured, verdict, margin", [
-    # "at most 0.5, marginal beyond 0.4"
-    ("err_max", 0.5, "marginal", 0.0),                           # exactly at the limit: inside it
-    ("err_max", math.nextafter(0.5, math.inf), "fail", None),    # the least step beyond it
-    ("err_max", 0.4, "pass", 0.1),                               # exactly at the marginal bound: a plain pass
-    ("err_max", math.nextafter(0.4, math.inf), "marginal", None),
-    # "at least 0.9, marginal below 0.95"
-    ("share_min", 0.9, "marginal", 0.0),
-    ("share_min", math.nextafter(0.9, -math.inf), "fail", None),
-    ("share_min", 0.95, "pass", 0.05),
-    ("share_min", math.nextafter(0.95, -math.inf), "marginal", None),
-])
+@pytest.mark.parametrize(
+    "name, measured, verdict, margin",
+    [
+        # "at most 0.5, marginal beyond 0.4"
+        ("err_max", 0.5, "marginal", 0.0),  # exactly at the limit: inside it
+        ("err_max", math.nextafter(0.5, math.inf), "fail", None),  # the least step beyond it
+        ("err_max", 0.4, "pass", 0.1),  # exactly at the marginal bound: a plain pass
+        ("err_max", math.nextafter(0.4, math.inf), "marginal", None),
+        # "at least 0.9, marginal below 0.95"
+        ("share_min", 0.9, "marginal", 0.0),
+        ("share_min", math.nextafter(0.9, -math.inf), "fail", None),
+        ("share_min", 0.95, "pass", 0.05),
+        ("share_min", math.nextafter(0.95, -math.inf), "marginal", None),
+    ],
+)
 def test_verdicts_exactly_at_the_limit_and_at_the_marginal_bound(tmp_path, name, measured, verdict, margin):
     path = tmp_path / "b.toml"
     path.write_text(BOUNDARY_BUDGETS)
@@ -70,14 +75,21 @@ def test_a_budget_without_marginal_bound_passes_at_its_limit():
     assert b.check("bare", 2.0).verdict == "pass" and b.check("bare", math.nextafter(2.0, 3.0)).verdict == "fail"
 
 
-@pytest.mark.parametrize("text, field, words", [
-    ('[x]\nrequirement = "R"\nunit = "A"\nlimit = -0.1\n', "[x].limit", "must be >= 0"),
-    ('[commutation_angle_p99]\nlimit = -0.5\nmarginal = -0.6\n', "[commutation_angle_p99].limit", "must be >= 0"),
-    ('[commutation_angle_p99]\nlimit = 0.3\nmarginal = 0.35\n', "[commutation_angle_p99].marginal", "passing side"),
-    ('[commutation_angle_p99]\nmarginal = -0.1\n', "[commutation_angle_p99].marginal", "passing side"),
-    ('[calibrated_fraction_removed]\nmarginal = 0.85\n', "[calibrated_fraction_removed].marginal", "passing side"),
-    ('[x]\nrequirement = "R"\nunit = "A"\nlimit = 1.0\nkind = "min"\nmarginal = 0.5\n', "[x].marginal", "at or above the limit"),
-])
+@pytest.mark.parametrize(
+    "text, field, words",
+    [
+        ('[x]\nrequirement = "R"\nunit = "A"\nlimit = -0.1\n', "[x].limit", "must be >= 0"),
+        ("[commutation_angle_p99]\nlimit = -0.5\nmarginal = -0.6\n", "[commutation_angle_p99].limit", "must be >= 0"),
+        ("[commutation_angle_p99]\nlimit = 0.3\nmarginal = 0.35\n", "[commutation_angle_p99].marginal", "passing side"),
+        ("[commutation_angle_p99]\nmarginal = -0.1\n", "[commutation_angle_p99].marginal", "passing side"),
+        ("[calibrated_fraction_removed]\nmarginal = 0.85\n", "[calibrated_fraction_removed].marginal", "passing side"),
+        (
+            '[x]\nrequirement = "R"\nunit = "A"\nlimit = 1.0\nkind = "min"\nmarginal = 0.5\n',
+            "[x].marginal",
+            "at or above the limit",
+        ),
+    ],
+)
 def test_inconsistent_budgets_are_refused_naming_file_and_key(tmp_path, text, field, words):
     path = tmp_path / "b.toml"
     path.write_text(text)
@@ -112,27 +124,41 @@ def test_waivers_load_with_their_reason_owner_scope_and_expiry(tmp_path):
     import datetime
 
     path = tmp_path / "b.toml"
-    path.write_text(WAIVER + 'tests = ["test_fault_sequences"]\nexpires = 2027-06-30\n\n' + WAIVER.replace("ROB-002", "ROB-001"))
+    path.write_text(
+        WAIVER + 'tests = ["test_fault_sequences"]\nexpires = 2027-06-30\n\n' + WAIVER.replace("ROB-002", "ROB-001")
+    )
     b = Budgets.from_toml(path, base=Budgets({}), today=datetime.date(2027, 6, 30))  # still valid on its last day
     w = b.waivers[0]
     assert (w.requirement, w.reason, w.owner, w.tests, w.expires) == (
-        "REQ-ROB-002", "recovery needs 80 ms", "controls team", ("test_fault_sequences",), datetime.date(2027, 6, 30))
+        "REQ-ROB-002",
+        "recovery needs 80 ms",
+        "controls team",
+        ("test_fault_sequences",),
+        datetime.date(2027, 6, 30),
+    )
     assert w.covers("test_cases/x.py::test_fault_sequences[virtual]") and not w.covers("test_cases/x.py::test_other")
     assert b.waivers[1].covers("anything") and f"{path}: [[waiver]][1]" == b.waivers[1].source
     layered = tmp_path / "more.toml"
     layered.write_text(WAIVER.replace("ROB-002", "CAL-001"))
-    assert [w.requirement for w in Budgets.from_toml(layered, base=b).waivers] == ["REQ-ROB-002", "REQ-ROB-001", "REQ-CAL-001"]
+    assert [w.requirement for w in Budgets.from_toml(layered, base=b).waivers] == [
+        "REQ-ROB-002",
+        "REQ-ROB-001",
+        "REQ-CAL-001",
+    ]
 
 
-@pytest.mark.parametrize("text, field, words", [
-    (WAIVER.replace('reason = "recovery needs 80 ms"\n', ""), "[[waiver]][0].reason", "required"),
-    (WAIVER.replace('"controls team"', '"  "'), "[[waiver]][0].owner", "required"),
-    (WAIVER + 'expires = "2001-01-31"\n', "[[waiver]][0].expires", "expired on 2001-01-31"),
-    (WAIVER + 'expires = "next year"\n', "[[waiver]][0].expires", "ISO date"),
-    (WAIVER + 'tests = "test_x"\n', "[[waiver]][0].tests", "list"),
-    (WAIVER + 'because = "x"\n', "[[waiver]][0].because", "unknown key"),
-    ('[waiver]\nrequirement = "REQ-ROB-002"\n', "waiver", "[[waiver]]"),
-])
+@pytest.mark.parametrize(
+    "text, field, words",
+    [
+        (WAIVER.replace('reason = "recovery needs 80 ms"\n', ""), "[[waiver]][0].reason", "required"),
+        (WAIVER.replace('"controls team"', '"  "'), "[[waiver]][0].owner", "required"),
+        (WAIVER + 'expires = "2001-01-31"\n', "[[waiver]][0].expires", "expired on 2001-01-31"),
+        (WAIVER + 'expires = "next year"\n', "[[waiver]][0].expires", "ISO date"),
+        (WAIVER + 'tests = "test_x"\n', "[[waiver]][0].tests", "list"),
+        (WAIVER + 'because = "x"\n', "[[waiver]][0].because", "unknown key"),
+        ('[waiver]\nrequirement = "REQ-ROB-002"\n', "waiver", "[[waiver]]"),
+    ],
+)
 def test_bad_waivers_are_refused_naming_file_and_key(tmp_path, text, field, words):
     path = tmp_path / "b.toml"
     path.write_text(text)
@@ -141,13 +167,16 @@ def test_bad_waivers_are_refused_naming_file_and_key(tmp_path, text, field, word
     assert f"{path}: {field}" in str(info.value) and words in str(info.value)
 
 
-@pytest.mark.parametrize("text, field", [
-    ('[x]\nunit = "A"\nlimit = 1.0\n', "[x].requirement"),
-    ('[x]\nrequirement = "R"\nunit = "A"\nlimit = nan\n', "[x].limit"),
-    ('[commutation_angle_p99]\nlimt = 1.0\n', "[commutation_angle_p99].limt"),
-    ('[commutation_angle_p99]\nkind = "avg"\n', "[commutation_angle_p99].kind"),
-    ('[commutation_angle_p99]\nmarginal = 0.9\n', "[commutation_angle_p99].marginal"),
-])
+@pytest.mark.parametrize(
+    "text, field",
+    [
+        ('[x]\nunit = "A"\nlimit = 1.0\n', "[x].requirement"),
+        ('[x]\nrequirement = "R"\nunit = "A"\nlimit = nan\n', "[x].limit"),
+        ("[commutation_angle_p99]\nlimt = 1.0\n", "[commutation_angle_p99].limt"),
+        ('[commutation_angle_p99]\nkind = "avg"\n', "[commutation_angle_p99].kind"),
+        ("[commutation_angle_p99]\nmarginal = 0.9\n", "[commutation_angle_p99].marginal"),
+    ],
+)
 def test_bad_budget_files_name_the_field(tmp_path, text, field):
     path = tmp_path / "b.toml"
     path.write_text(text)
@@ -157,7 +186,7 @@ def test_bad_budget_files_name_the_field(tmp_path, text, field):
 
 
 def test_plugin_fixture_records_verdicts_as_junit_properties(pytester):
-    pytester.makefile(".toml", budgets='[commutation_angle_p99]\nlimit = 0.3\n')
+    pytester.makefile(".toml", budgets="[commutation_angle_p99]\nlimit = 0.3\n")
     pytester.makepyfile(
         """
         def test_good(hil_budget):
@@ -169,6 +198,8 @@ def test_plugin_fixture_records_verdicts_as_junit_properties(pytester):
     )
     result = pytester.runpytest("--hil-budgets", "budgets.toml", "--junitxml", "out.xml")
     result.assert_outcomes(passed=1, failed=1)
-    result.stdout.fnmatch_lines(["*commutation_angle_p99 (REQ-COMM-001): measured 0.42 deg_e exceeds the limit of at most 0.3 deg_e*FAIL*"])
+    result.stdout.fnmatch_lines(
+        ["*commutation_angle_p99 (REQ-COMM-001): measured 0.42 deg_e exceeds the limit of at most 0.3 deg_e*FAIL*"]
+    )
     xml = (pytester.path / "out.xml").read_text()
     assert 'name="budget:commutation_angle_p99"' in xml and 'name="requirement" value="REQ-COMM-001"' in xml

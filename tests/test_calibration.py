@@ -4,12 +4,12 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import assume, given, settings, strategies as st
+from hypothesis import given, settings, strategies as st
 
 from hil.calibration import CalibrationError, Corrections, fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.steps import pole_offsets, relative_deviation, weighted_over_speeds
-from hil.recording import read_recording, record_kinematic, write_recording
+from hil.recording import record_kinematic, write_recording
 from plant_models import paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint
@@ -73,7 +73,13 @@ def test_recovers_armature_slope(eff, seed):
     assert_recovered(got, true, ("arm", "inst"))
 
 
-@given(fx.InstallationOffset.strategy(), fx.PoleOffset.strategy(P), fx.ConditioningDelay.strategy(), significant_slope, st.integers(0, 2**16))
+@given(
+    fx.InstallationOffset.strategy(),
+    fx.PoleOffset.strategy(P),
+    fx.ConditioningDelay.strategy(),
+    significant_slope,
+    st.integers(0, 2**16),
+)
 @settings(max_examples=40)
 def test_recovers_all_four_at_once(inst, pole, delay, arm, seed):
     got, true = calibrate(inst, pole, delay, arm, seed=seed)
@@ -97,7 +103,9 @@ def test_paper_tables_come_back_at_their_printed_precision():
 
 def test_paper_route_from_capture_times_matches_eq2_and_eq6():
     """Without an encoder: Eq. 2 and Eq. 6 from times at the three calibration speeds, weighted 0.5/0.3/0.2."""
-    config = paper_bench().with_effects(fx.InstallationOffset((0.9, -0.3, 0.4)), fx.PoleOffset((0.0, 0.8, -0.5, 0.3)), *NOISE)
+    config = paper_bench().with_effects(
+        fx.InstallationOffset((0.9, -0.3, 0.4)), fx.PoleOffset((0.0, 0.8, -0.5, 0.3)), *NOISE
+    )
     ops = [OperatingPoint(200 * 60 / rpm, rpm) for rpm in (960.0, 1107.0, 1330.0)]
     rec = record_kinematic(config, ops, seed=2, reference_angle=False)
     got = fit_corrections(rec)
@@ -119,13 +127,20 @@ def test_step_functions_against_hand_computed_values():
 
 def test_correction_table_removes_the_deviation_per_edge():
     """Fig. 4 integration: applying the calibrated correction leaves only noise."""
-    config = paper_bench().with_effects(fx.InstallationOffset((1.0, -0.5, 0.2)), fx.PoleOffset((0.0, 0.6, -0.4, 0.1)),
-                                        fx.ConditioningDelay(6e-6, 1e-6), fx.ArmatureReaction(0.3), *NOISE)
+    config = paper_bench().with_effects(
+        fx.InstallationOffset((1.0, -0.5, 0.2)),
+        fx.PoleOffset((0.0, 0.6, -0.4, 0.1)),
+        fx.ConditioningDelay(6e-6, 1e-6),
+        fx.ArmatureReaction(0.3),
+        *NOISE,
+    )
     got = fit_corrections(CAMPAIGN.run(config, seed=4))
     from plant_models.kinematic import simulate_edges
 
     e = simulate_edges(config, [OperatingPoint(0.2, 8000.0, 3.0)], seed=9)
-    residual = e.capture_error_deg_e - got.correction_deg_e(e.sensor, e.rising, e.pole, e.speed_rpm, e.mean_abs_current_a)
+    residual = e.capture_error_deg_e - got.correction_deg_e(
+        e.sensor, e.rising, e.pole, e.speed_rpm, e.mean_abs_current_a
+    )
     w = 8000 * 6 * P
     assert abs(residual.mean()) < 0.01
     assert residual.std() == pytest.approx(1e-6 * w, rel=0.1)  # only the 1 us jitter is left
@@ -143,7 +158,12 @@ def test_missing_segments_name_the_quantity(tmp_path):
     path = write_recording(one_speed, tmp_path / "one")
     assert main(["calibrate", str(path), "--json", str(tmp_path / "out.json")]) == 0
     data = json.loads((tmp_path / "out.json").read_text())
-    assert set(data) >= {"installation_offset_deg_e", "pole_offset_deg_e", "conditioning_delay_s", "armature_reaction_deg_e_per_a"}
+    assert set(data) >= {
+        "installation_offset_deg_e",
+        "pole_offset_deg_e",
+        "conditioning_delay_s",
+        "armature_reaction_deg_e_per_a",
+    }
     assert "conditioning_delay_s" in data["undetermined"]
 
 
@@ -216,7 +236,9 @@ def test_conditioning_delay_table_from_raw_and_conditioned_edges():
     circuit = fx.ConditioningCircuit()
     rise, fall = circuit.delays_s()
     config = paper_bench().with_effects(fx.ConditioningDelay.from_circuit(circuit), fx.EdgeJitter(time_rms_s=1e-6))
-    e = simulate_edges(config, [OperatingPoint(200 * 60 / rpm, rpm) for rpm in (2000.0, 6000.0, 10000.0)], seed=1)  # 200 turns each
+    e = simulate_edges(
+        config, [OperatingPoint(200 * 60 / rpm, rpm) for rpm in (2000.0, 6000.0, 10000.0)], seed=1
+    )  # 200 turns each
     table = conditioning_delay_table(e.speed_rpm, e.t_raw_s, e.t_conditioned_s, e.rising, P)
     assert table["speed_rpm"] == [2000.0, 6000.0, 10000.0]
     np.testing.assert_allclose(table["rise_s"], rise, atol=0.2e-6)
@@ -226,11 +248,18 @@ def test_conditioning_delay_table_from_raw_and_conditioned_edges():
 
 def test_one_edge_correction_equals_the_vectorised_one():
     """The controller's per-edge path (plain floats) and the batch path compute the same angle."""
-    c = Corrections(installation_offset_deg_e={"A": 2.5, "B": 3.5, "C": 4.4}, pole_offset_deg_e=[0.0, -0.95, -0.02, -0.13],
-                    conditioning_delay_s={"rise": 6.5e-6, "fall": 0.9e-6}, armature_reaction_deg_e_per_a=0.35)
+    c = Corrections(
+        installation_offset_deg_e={"A": 2.5, "B": 3.5, "C": 4.4},
+        pole_offset_deg_e=[0.0, -0.95, -0.02, -0.13],
+        conditioning_delay_s={"rise": 6.5e-6, "fall": 0.9e-6},
+        armature_reaction_deg_e_per_a=0.35,
+    )
     rng = np.random.default_rng(3)
     sensor, rising, pole = rng.integers(0, 3, 50), rng.integers(0, 2, 50).astype(bool), rng.integers(0, 4, 50)
     speed, current = rng.uniform(500, 12000, 50), rng.uniform(0, 15, 50)
     batch = c.correction_deg_e(sensor, rising, pole, speed, current)
-    one = [c.correction_one_deg_e(int(s), bool(r), int(p), float(n), float(i)) for s, r, p, n, i in zip(sensor, rising, pole, speed, current)]
+    one = [
+        c.correction_one_deg_e(int(s), bool(r), int(p), float(n), float(i))
+        for s, r, p, n, i in zip(sensor, rising, pole, speed, current)
+    ]
     assert np.allclose(one, batch, rtol=0, atol=1e-12)

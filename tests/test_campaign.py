@@ -75,19 +75,30 @@ def loopback_cluster():
 
 
 BAD_SPECS = [
-    (SPEC.replace('pattern = [1.0, -0.5, 0.25]\n', ''), "axis[0].pattern"),
-    (SPEC.replace('values = [0.0, 0.3, 0.8]', 'values = [0.0, 30.0]'), "axis[0].values[1]"),
+    (SPEC.replace("pattern = [1.0, -0.5, 0.25]\n", ""), "axis[0].pattern"),
+    (SPEC.replace("values = [0.0, 0.3, 0.8]", "values = [0.0, 30.0]"), "axis[0].values[1]"),
     (SPEC.replace('name = "speed_rpm"', 'name = "sped_rpm"'), "axis[1].name"),
     (SPEC.replace('strategy = "raw"', 'strategy = "fast"'), "fixed.strategy"),
-    (SPEC.replace('commutation_angle_p99 = "angle_p99"', 'commutation_angle_p99 = "p95"'), "campaign.budgets.commutation_angle_p99"),
-    (SPEC.replace('commutation_angle_p99 = "angle_p99"', 'no_such_budget = "angle_p99"'), "campaign.budgets.no_such_budget"),
-    (SPEC.replace('seed = 5', 'seed = -5'), "campaign.seed"),
-    (SPEC.replace('run_s = 0.1', 'run_s = 0.1\nworkers = 3'), "campaign.workers"),
+    (
+        SPEC.replace('commutation_angle_p99 = "angle_p99"', 'commutation_angle_p99 = "p95"'),
+        "campaign.budgets.commutation_angle_p99",
+    ),
+    (
+        SPEC.replace('commutation_angle_p99 = "angle_p99"', 'no_such_budget = "angle_p99"'),
+        "campaign.budgets.no_such_budget",
+    ),
+    (SPEC.replace("seed = 5", "seed = -5"), "campaign.seed"),
+    (SPEC.replace("run_s = 0.1", "run_s = 0.1\nworkers = 3"), "campaign.workers"),
     (SPEC + '[map]\nx = "speed_rpm"\ny = "load_scale"\n', "map.y"),
-    (SPEC.replace('values = [4000.0, 9000.0]', 'linspace = [4000.0, 9000.0]'), "axis[1].linspace"),
+    (SPEC.replace("values = [4000.0, 9000.0]", "linspace = [4000.0, 9000.0]"), "axis[1].linspace"),
     (SPEC + '[[axis]]\nname = "fault.sensor"\nvalues = [0.0]\n', "axis[2].name"),
-    (SPEC.replace('effects = [{ name = "edge_jitter"', 'effects = [{ name = "pole_offset", offset_deg_e = [1.0, 2.0] }, { name = "edge_jitter"'),
-     "fixed.effects[0].offset_deg_e"),
+    (
+        SPEC.replace(
+            'effects = [{ name = "edge_jitter"',
+            'effects = [{ name = "pole_offset", offset_deg_e = [1.0, 2.0] }, { name = "edge_jitter"',
+        ),
+        "fixed.effects[0].offset_deg_e",
+    ),
     ("[campaign\n", "not valid TOML"),
 ]
 
@@ -105,13 +116,20 @@ def test_grid_order_and_seeds(tmp_path):
     assert spec.size == len(grid) == 3 * 2 * 2
     # last axis fastest, repeats innermost
     assert [(p["installation_offset.offset_deg_e"], p["speed_rpm"], p["repeat"]) for p in grid[:4]] == [
-        (0.0, 4000.0, 0), (0.0, 4000.0, 1), (0.0, 9000.0, 0), (0.0, 9000.0, 1)]
+        (0.0, 4000.0, 0),
+        (0.0, 4000.0, 1),
+        (0.0, 9000.0, 0),
+        (0.0, 9000.0, 1),
+    ]
     seeds = [p["seed"] for p in grid]
     assert len(set(seeds)) == len(seeds)
     assert seeds == [point_seed(5, i) for i in range(len(grid))]
     assert point_seed(6, 0) != point_seed(5, 0)
     stim = point_stimulus(spec, grid[5])
-    assert stim.effects[1:] == [{"name": "installation_offset", "offset_deg_e": [0.3, -0.15, 0.075]}] and stim.strategy == "raw"
+    assert (
+        stim.effects[1:] == [{"name": "installation_offset", "offset_deg_e": [0.3, -0.15, 0.075]}]
+        and stim.strategy == "raw"
+    )
 
 
 def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
@@ -143,9 +161,12 @@ def test_same_table_on_a_loopback_cluster_of_two_workers(serial_run, loopback_cl
     spec = load_spec(write_spec(tmp_path))
     remote = run_campaign(spec, tmp_path / "out", scheduler=loopback_cluster.scheduler_address, progress=False)
     assert remote.info.scheduler == loopback_cluster.scheduler_address and remote.info.workers_used == 2
-    pd.testing.assert_frame_equal(results(read_table(remote.paths["table"])), results(read_table(serial_run.paths["table"])))
+    pd.testing.assert_frame_equal(
+        results(read_table(remote.paths["table"])), results(read_table(serial_run.paths["table"]))
+    )
     assert sorted(p.name for p in (tmp_path / "out" / "replays").iterdir()) == sorted(
-        Path(r).name for r in read_table(serial_run.paths["table"])["replay"].dropna())
+        Path(r).name for r in read_table(serial_run.paths["table"])["replay"].dropna()
+    )
 
 
 def test_a_killed_worker_loses_no_finished_point(serial_run, loopback_cluster, tmp_path):
@@ -153,7 +174,10 @@ def test_a_killed_worker_loses_no_finished_point(serial_run, loopback_cluster, t
 
     spec = load_spec(write_spec(tmp_path))
     grid = points(spec)
-    jobs = [(vars(point_stimulus(spec, p)), {"commutation_angle_p99": vars(spec.budgets["commutation_angle_p99"])}) for p in grid]
+    jobs = [
+        (vars(point_stimulus(spec, p)), {"commutation_angle_p99": vars(spec.budgets["commutation_angle_p99"])})
+        for p in grid
+    ]
     with Client(loopback_cluster.scheduler_address) as client:
         pids = client.run(os.getpid)
     got: dict[int, object] = {}
@@ -174,7 +198,9 @@ def test_a_killed_worker_loses_no_finished_point(serial_run, loopback_cluster, t
 
 def test_a_raising_job_comes_back_with_its_traceback_on_the_cluster(loopback_cluster):
     got = {}
-    info = dispatch(math.sqrt, [4.0, -1.0, 9.0], got.__setitem__, scheduler=loopback_cluster.scheduler_address, progress=False)
+    info = dispatch(
+        math.sqrt, [4.0, -1.0, 9.0], got.__setitem__, scheduler=loopback_cluster.scheduler_address, progress=False
+    )
     assert got[0] == 2.0 and got[2] == 3.0 and not info.interrupted
     assert isinstance(got[1], TaskError) and "math domain error" in got[1].message and "Traceback" in got[1].traceback
 
@@ -196,7 +222,9 @@ def test_a_point_that_raises_is_an_error_row_and_the_campaign_goes_on(tmp_path, 
     table = read_table(result.paths["table"])
     assert len(table) == 6 and list(table["verdict"]).count("error") == 1
     row = table.loc[3]
-    assert row["verdict"] == "error" and "controller firmware assertion" in row["message"] and "Traceback" in row["error"]
+    assert (
+        row["verdict"] == "error" and "controller firmware assertion" in row["message"] and "Traceback" in row["error"]
+    )
     assert np.isnan(row["angle_p99_deg_e"]) and row["commutation_angle_p99.verdict"] == "error"
     assert Stimulus.load(row["replay"]).seed == bad_seed  # an erroring point replays too
     assert (table.drop(index=3)["error"].isna()).all()
@@ -224,8 +252,14 @@ def test_ctrl_c_leaves_a_valid_partial_table(tmp_path, monkeypatch):
 
 
 def test_envelope_cell_is_the_worst_margin_over_the_other_axes():
-    table = pd.DataFrame({"x": [0, 0, 1, 1, 0, 1], "y": [5, 5, 5, 5, 6, 6], "z": [0, 1, 0, 1, 0, 0],
-                          "b.margin": [0.3, -0.1, 0.2, 0.4, np.nan, 0.1]})
+    table = pd.DataFrame(
+        {
+            "x": [0, 0, 1, 1, 0, 1],
+            "y": [5, 5, 5, 5, 6, 6],
+            "z": [0, 1, 0, 1, 0, 0],
+            "b.margin": [0.3, -0.1, 0.2, 0.4, np.nan, 0.1],
+        }
+    )
     grid = margin_grid(table, "x", "y", "b", [0, 1], [5, 6])
     assert grid[0, 0] == -0.1 and grid[0, 1] == 0.2 and np.isnan(grid[1, 0]) and grid[1, 1] == 0.1
 
@@ -260,7 +294,10 @@ values = [3000.0, 9000.0]
 
 def test_fault_sweep_records_what_acted_and_what_was_reported(tmp_path):
     spec = load_spec(write_spec(tmp_path, FAULT_SPEC))
-    assert [point_stimulus(spec, p).steps[0] for p in points(spec)][1] == ["on", {"name": "hall_spike", "width_s": 2e-6}]
+    assert [point_stimulus(spec, p).steps[0] for p in points(spec)][1] == [
+        "on",
+        {"name": "hall_spike", "width_s": 2e-6},
+    ]
     table = read_table(run_campaign(spec, tmp_path / "out", scheduler="serial", progress=False).paths["table"])
     assert len(table) == 4 and list(table["faults_acted"]) == ["hall_spike"] * 4
     # a spike to 000 or 111 must be reported as the illegal-Hall-code fault (0xFF01), recovery within budget

@@ -40,13 +40,18 @@ def pair():
 
 
 def test_shipped_eds_is_generated_from_the_declaration():
-    assert EDS_PATH.read_text() == eds_text(), "regenerate: python -c 'from hil.dut.od import *; EDS_PATH.write_text(eds_text())'"
+    assert EDS_PATH.read_text() == eds_text(), (
+        "regenerate: python -c 'from hil.dut.od import *; EDS_PATH.write_text(eds_text())'"
+    )
 
 
 def test_lockstep_over_canopen_is_identical_to_in_process(pair, corrections):
     vc, dev, link = pair
     runs = []
-    for lk in (link, InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))):
+    for lk in (
+        link,
+        InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0)),
+    ):
         lk.download_calibration(corrections)
         b = LockstepBench(CONFIG, lk, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
         b.run_setpoints([6000.0, 6300.0], hold_s=0.1, settle_s=0.05)
@@ -60,14 +65,23 @@ def test_lockstep_over_canopen_is_identical_to_in_process(pair, corrections):
 def test_identity_and_every_object_reads_back_with_its_declared_type(pair):
     _, _, link = pair
     ident = link.identity()
-    assert ident == {"vendor_id": 0x0B1D, "product_code": 0x00480001, "revision": 0x00010000, "serial": 1, "device_type": 0x192, "firmware": "vc-0.1.0"}
+    assert ident == {
+        "vendor_id": 0x0B1D,
+        "product_code": 0x00480001,
+        "revision": 0x00010000,
+        "serial": 1,
+        "device_type": 0x192,
+        "firmware": "vc-0.1.0",
+    }
     od = link.node.object_dictionary
     checked = 0
     for obj in od.values():
-        for var in (obj.values() if not isinstance(obj, canopen.objectdictionary.ODVariable) else [obj]):
+        for var in obj.values() if not isinstance(obj, canopen.objectdictionary.ODVariable) else [obj]:
             if not var.readable:
                 continue
-            value = link.read(var.index, var.subindex if not isinstance(obj, canopen.objectdictionary.ODVariable) else None)
+            value = link.read(
+                var.index, var.subindex if not isinstance(obj, canopen.objectdictionary.ODVariable) else None
+            )
             if var.data_type in canopen.objectdictionary.INTEGER_TYPES:
                 assert isinstance(value, int), (hex(var.index), var.subindex)
             elif var.data_type in canopen.objectdictionary.FLOAT_TYPES:
@@ -84,15 +98,18 @@ def abort_of(link, fn):
     return info.value.code
 
 
-@pytest.mark.parametrize("request_, code", [
-    ("read 0x6000", 0x06020000),
-    ("read 0x2010:0x20", 0x06090011),
-    ("write 0x1000", 0x06010002),
-    ("read 0x2011", 0x06010001),
-    ("write 0x2000 = 7", 0x06090030),
-    ("write 0x2001 = -5", 0x06090030),
-    ("write 0x2000 with 4 bytes", 0x06070010),
-])
+@pytest.mark.parametrize(
+    "request_, code",
+    [
+        ("read 0x6000", 0x06020000),
+        ("read 0x2010:0x20", 0x06090011),
+        ("write 0x1000", 0x06010002),
+        ("read 0x2011", 0x06010001),
+        ("write 0x2000 = 7", 0x06090030),
+        ("write 0x2001 = -5", 0x06090030),
+        ("write 0x2000 with 4 bytes", 0x06070010),
+    ],
+)
 def test_sdo_abort_codes(pair, request_, code):
     _, _, link = pair
     sdo = link.node.sdo
@@ -195,8 +212,11 @@ def test_dead_controller_gives_a_precise_error_within_the_timeout(corrections):
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-FRAMES = st.lists(st.tuples(st.sampled_from([0x000, 0x205, 0x605, 0x185, 0x705, 0x085]), st.binary(min_size=0, max_size=8)),
-                  min_size=100, max_size=100)
+FRAMES = st.lists(
+    st.tuples(st.sampled_from([0x000, 0x205, 0x605, 0x185, 0x705, 0x085]), st.binary(min_size=0, max_size=8)),
+    min_size=100,
+    max_size=100,
+)
 
 
 @pytest.fixture(scope="module")
@@ -209,7 +229,9 @@ def fuzz_pair():
     import logging
 
     level = logging.getLogger("canopen").level
-    logging.getLogger("canopen").setLevel(logging.CRITICAL)  # malformed segments are logged by the library, then aborted
+    logging.getLogger("canopen").setLevel(
+        logging.CRITICAL
+    )  # malformed segments are logged by the library, then aborted
     yield vc, dev, link, errors
     logging.getLogger("canopen").setLevel(level)
     link.close()

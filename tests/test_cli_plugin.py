@@ -3,7 +3,6 @@
 import subprocess
 import sys
 
-import pytest
 
 from hil.cli import main
 
@@ -89,4 +88,6 @@ def test_effects_reference_in_docs_is_current():
     from hil.cli import effects_markdown
 
     doc = Path(__file__).resolve().parents[1] / "docs" / "effects.md"
-    assert doc.read_text().strip() == effects_markdown().strip(), "run: python -m hil effects --markdown > docs/effects.md"
+    assert doc.read_text().strip() == effects_markdown().strip(), (
+        "run: python -m hil effects --markdown > docs/effects.md"
+    )

@@ -43,12 +43,17 @@ def test_unknown_parameter_and_section():
 
 
 def test_out_of_bounds_effect_parameter():
-    msg = refuse({"effects": [{"name": "installation_offset", "offset_deg_e": [0.0, 11.0, 0.0]}]}, "effects[0].offset_deg_e[1]")
+    msg = refuse(
+        {"effects": [{"name": "installation_offset", "offset_deg_e": [0.0, 11.0, 0.0]}]}, "effects[0].offset_deg_e[1]"
+    )
     assert "<= 10.0" in msg
 
 
 def test_pole_offset_length_must_match_pole_pairs():
-    refuse({"motor": {"pole_pairs": 3}, "effects": [{"name": "pole_offset", "offset_deg_e": [0, 1, 2, 3]}]}, "effects[0].offset_deg_e")
+    refuse(
+        {"motor": {"pole_pairs": 3}, "effects": [{"name": "pole_offset", "offset_deg_e": [0, 1, 2, 3]}]},
+        "effects[0].offset_deg_e",
+    )
 
 
 def test_duplicate_effect_refused():
@@ -79,8 +84,12 @@ def test_toml_round_trip_with_circuit(tmp_path):
     delay = config.effect("conditioning_delay")
     assert delay.rise_delay_s > delay.fall_delay_s > 0
     assert config.effect("installation_offset").offset_deg_e == (1.0, -0.5, 0.25)
-    assert PlantConfig.from_dict(config.to_dict() | {"effects": [
-        {k: v for k, v in e.to_dict().items()} for e in config.effects]}).config_hash() == config.config_hash()
+    assert (
+        PlantConfig.from_dict(
+            config.to_dict() | {"effects": [{k: v for k, v in e.to_dict().items()} for e in config.effects]}
+        ).config_hash()
+        == config.config_hash()
+    )
 
 
 def test_circuit_thresholds_checked():
@@ -93,13 +102,16 @@ def test_defaults_are_valid():
     MotorParameters()
 
 
-@pytest.mark.parametrize("kwargs, field", [
-    ({"duty": math.nan}, "Simulation.duty"),
-    ({"duty": 1.5}, "Simulation.duty"),
-    ({"initial_speed_rpm": -5.0}, "Simulation.initial_speed_rpm"),
-    ({"sample_rate_hz": 0.0}, "Simulation.sample_rate_hz"),
-    ({"direction": 0}, "Simulation.direction"),
-])
+@pytest.mark.parametrize(
+    "kwargs, field",
+    [
+        ({"duty": math.nan}, "Simulation.duty"),
+        ({"duty": 1.5}, "Simulation.duty"),
+        ({"initial_speed_rpm": -5.0}, "Simulation.initial_speed_rpm"),
+        ({"sample_rate_hz": 0.0}, "Simulation.sample_rate_hz"),
+        ({"direction": 0}, "Simulation.direction"),
+    ],
+)
 def test_simulation_arguments_are_checked(kwargs, field):
     from plant_models import Simulation
 

@@ -2,7 +2,6 @@
 Modbus TCP on loopback give the same commutations as in-process; a killed controller is a precise
 error within the timeout, never a hang."""
 
-import logging
 import socket
 import subprocess
 import sys
@@ -32,8 +31,9 @@ def free_port():
 @pytest.fixture
 def server():
     ports = free_port(), free_port()
-    proc = subprocess.Popen([sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", str(ports[0]), "--modbus-port", str(ports[1]),
-                             "--preset", "paper-bench+deviations"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    proc = subprocess.Popen([sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", str(ports[0]),
+                             "--modbus-port", str(ports[1]), "--preset", "paper-bench+deviations"],
+                            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     deadline = time.monotonic() + 60
     lines = []
     while time.monotonic() < deadline:
@@ -65,7 +65,10 @@ def commutations(link, corrections, hold_s=0.05):
 def test_cross_process_links_match_in_process(server, corrections):
     proc, (co_port, mb_port) = server
     reference = commutations(InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA)), corrections)
-    for link in (CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=co_port, timeout_s=2.0), ModbusLink(port=mb_port, timeout_s=2.0)):
+    for link in (
+        CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=co_port, timeout_s=2.0),
+        ModbusLink(port=mb_port, timeout_s=2.0),
+    ):
         link.set_strategy(int(Strategy.SAGE_HUSA))  # a fresh controller state for each link
         c = commutations(link, corrections)
         np.testing.assert_array_equal(c.t_s, reference.t_s)
@@ -83,12 +86,21 @@ def test_killing_the_controller_process_gives_a_precise_error(server, correction
     proc.kill()
     proc.wait(timeout=10)
     edge = {"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0}
-    requests = [(lambda link: link.edge(edge), r"edge #\d+"), (lambda link: link.identity(), r"read"),
-                (lambda link: link.set_speed(3000.0), r"write"), (lambda link: link.set_strategy(2), r"write"),
-                (lambda link: link.status(), r"read"), (lambda link: link.reset(), r"(NMT reset node|write 1 registers at 31)"),
-                (lambda link: link.download_calibration(corrections), r"write"), (lambda link: link.edge(edge), r"edge #\d+")]
+    requests = [
+        (lambda link: link.edge(edge), r"edge #\d+"),
+        (lambda link: link.identity(), r"read"),
+        (lambda link: link.set_speed(3000.0), r"write"),
+        (lambda link: link.set_strategy(2), r"write"),
+        (lambda link: link.status(), r"read"),
+        (lambda link: link.reset(), r"(NMT reset node|write 1 registers at 31)"),
+        (lambda link: link.download_calibration(corrections), r"write"),
+        (lambda link: link.edge(edge), r"edge #\d+"),
+    ]
     failures = 0
-    for link, where in ((co, r"CANopen node 5 on socketcand:can0@127.0.0.1:\d+"), (mb, r"Modbus unit 1 at 127.0.0.1:\d+")):
+    for link, where in (
+        (co, r"CANopen node 5 on socketcand:can0@127.0.0.1:\d+"),
+        (mb, r"Modbus unit 1 at 127.0.0.1:\d+"),
+    ):
         for call, what in requests:
             t = time.monotonic()
             with pytest.raises((LinkTimeout, LinkError), match=f"^{where}: .*{what}"):

@@ -11,7 +11,6 @@ from hil.calibration.campaign import CalibrationCampaign
 from hil.commutation import HallCommutation, SpeedPI
 from hil.dut import Fault, InProcessLink, LinkError, Strategy, VirtualController
 from plant_models import Simulation, paper_bench
-from plant_models import effects as fx
 from plant_models.plant import steady_state
 
 CONFIG = paper_bench(with_deviations=True)
@@ -35,9 +34,21 @@ def test_in_process_bench_matches_the_controller_logic_within_the_message_scalin
     float logic called directly, each instant within a few ticks."""
     b, link, _ = bench(Strategy.CORRECTED, corrections)
     b.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
-    direct = HallCommutation(2, SpeedPI(6000.0, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(CONFIG.motor, 6000.0)["duty"]),
-                             corrections, current_limit_a=15.0, motor=CONFIG.motor)
-    sim = Simulation(CONFIG, direct, duty=steady_state(CONFIG.motor, 6000.0)["duty"], initial_speed_rpm=6000.0, sample_rate_hz=50e3, capacity=1 << 18)
+    direct = HallCommutation(
+        2,
+        SpeedPI(6000.0, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(CONFIG.motor, 6000.0)["duty"]),
+        corrections,
+        current_limit_a=15.0,
+        motor=CONFIG.motor,
+    )
+    sim = Simulation(
+        CONFIG,
+        direct,
+        duty=steady_state(CONFIG.motor, 6000.0)["duty"],
+        initial_speed_rpm=6000.0,
+        sample_rate_hz=50e3,
+        capacity=1 << 18,
+    )
     sim.run_until(b.sim.t_s)
     a, c = b.sim.commutations(), sim.commutations()
     assert len(a) > 400 and len(a) == len(c)
@@ -45,7 +56,10 @@ def test_in_process_bench_matches_the_controller_logic_within_the_message_scalin
     assert np.max(np.abs(a.t_s - c.t_s)) < 1e-6
 
 
-@pytest.mark.parametrize("strategy, p99_max", [(Strategy.CORRECTED, 0.5), (Strategy.KF, 0.5), (Strategy.SAGE_HUSA, 0.5), (Strategy.RAW, 99.0)])
+@pytest.mark.parametrize(
+    "strategy, p99_max",
+    [(Strategy.CORRECTED, 0.5), (Strategy.KF, 0.5), (Strategy.SAGE_HUSA, 0.5), (Strategy.RAW, 99.0)],
+)
 def test_each_strategy_commutates_and_reports(corrections, strategy, p99_max):
     b, link, vc = bench(strategy, corrections)
     steps = b.run_setpoints([6000.0, 6500.0], hold_s=0.4, settle_s=0.2)
@@ -118,8 +132,12 @@ def test_filter_guard_trip_is_a_fault(corrections):
 
     # the textbook filter from Q0 x100 loses positive definiteness; the variance match (on by
     # default) sets R from the edges and keeps it from doing so, so it is off here
-    vc = VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0,
-                           filter_settings=FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7, r_match_horizon_s=0.0))
+    vc = VirtualController(
+        CONFIG.motor,
+        strategy=Strategy.SAGE_HUSA,
+        speed_setpoint_rpm=6000.0,
+        filter_settings=FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7, r_match_horizon_s=0.0),
+    )
     link = InProcessLink(vc)
     link.download_calibration(corrections)
     b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
@@ -141,13 +159,24 @@ _times = st.floats(0.0, 2000.0, allow_nan=False)  # beyond the 429 s wrap of the
 
 
 @settings(max_examples=3000, deadline=None, derandomize=True, database=None)
-@given(t=_times, sensor=st.integers(0, 2), rising=st.booleans(), current=st.floats(-5.0, 80.0, allow_nan=False),
-       seq=st.integers(0, 127), offsets=st.lists(st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(),
-                                                           st.floats(-0.5, 1.5) | st.none()), max_size=3))
+@given(
+    t=_times,
+    sensor=st.integers(0, 2),
+    rising=st.booleans(),
+    current=st.floats(-5.0, 80.0, allow_nan=False),
+    seq=st.integers(0, 127),
+    offsets=st.lists(
+        st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(), st.floats(-0.5, 1.5) | st.none()), max_size=3
+    ),
+)
 def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, current, seq, offsets):
     edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "current_a": current}
     epoch = edge_epoch(t)
     assert edge_as_received(edge, epoch) == EdgeMessage.unpack(EdgeMessage.from_edge(edge, seq).pack()).to_edge(epoch)
     commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
-    via_bytes = [f.to_command(epoch) for f in (CommandMessage.unpack(m.pack()) for m in encode_reply(commands, seq)) if not f.keeps_everything]
+    via_bytes = [
+        f.to_command(epoch)
+        for f in (CommandMessage.unpack(m.pack()) for m in encode_reply(commands, seq))
+        if not f.keeps_everything
+    ]
     assert commands_as_received(commands, epoch) == via_bytes

@@ -26,8 +26,12 @@ def test_an_unreachable_socketcand_server_is_one_line():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     spec = f"canopen:interface=socketcand,channel=can0,host=127.0.0.1,port={port},node=5,timeout=0.5"
-    out = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_cases", f"--hil-dut={spec}"],
-                         capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_cases", f"--hil-dut={spec}"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     lines = [line for line in (out.stdout + out.stderr).splitlines() if line.strip()]
     assert out.returncode == 3 and len(lines) <= 3 and "Traceback" not in out.stderr, lines
     assert any(f"cannot reach the socketcand server at 127.0.0.1:{port}" in line for line in lines), lines

@@ -131,11 +131,18 @@ def test_current_sensor_gain_offset_noise():
     assert resid.std() == pytest.approx(0.02, rel=0.05)
 
 
-@pytest.mark.parametrize("effect, motor_change", [
-    (fx.WindingTemperature(temperature_rise_k=100.0), {"phase_resistance_ohm": BASE.motor.phase_resistance_ohm * 1.393}),
-    (fx.MagnetTemperature(temperature_rise_k=100.0), {"ke_v_s_per_rad": BASE.motor.ke_v_s_per_rad * 0.88}),
-    (fx.DeadTime(dead_time_s=2e-6), None),
-], ids=["winding_temperature", "magnet_temperature", "dead_time"])
+@pytest.mark.parametrize(
+    "effect, motor_change",
+    [
+        (
+            fx.WindingTemperature(temperature_rise_k=100.0),
+            {"phase_resistance_ohm": BASE.motor.phase_resistance_ohm * 1.393},
+        ),
+        (fx.MagnetTemperature(temperature_rise_k=100.0), {"ke_v_s_per_rad": BASE.motor.ke_v_s_per_rad * 0.88}),
+        (fx.DeadTime(dead_time_s=2e-6), None),
+    ],
+    ids=["winding_temperature", "magnet_temperature", "dead_time"],
+)
 def test_electrical_effects_move_the_operating_point(effect, motor_change):
     """Each no-edge-signature effect moves the steady speed as the analytic balance predicts."""
     duty = steady_state(BASE.motor, 6000)["duty"]
@@ -152,7 +159,9 @@ def test_electrical_effects_move_the_operating_point(effect, motor_change):
         assert reduced.speed_rpm < base.speed_rpm - 300
         return
     else:
-        predicted = steady_speed_rpm(dataclasses.replace(BASE.motor, **motor_change), duty) - steady_speed_rpm(BASE.motor, duty)
+        predicted = steady_speed_rpm(dataclasses.replace(BASE.motor, **motor_change), duty) - steady_speed_rpm(
+            BASE.motor, duty
+        )
     assert moved.speed_rpm - base.speed_rpm == pytest.approx(predicted, rel=0.2)
 
 
@@ -172,7 +181,12 @@ def test_cogging_torque_shows_as_speed_ripple_at_its_order():
 def test_saturation_speeds_up_current_rise():
     duty = 0.9
     lin = Simulation(BASE, OracleCommutation(), duty=duty, initial_speed_rpm=500)
-    sat = Simulation(BASE.with_effects(fx.Saturation(saturation_current_a=5.0, min_inductance_fraction=0.3)), OracleCommutation(), duty=duty, initial_speed_rpm=500)
+    sat = Simulation(
+        BASE.with_effects(fx.Saturation(saturation_current_a=5.0, min_inductance_fraction=0.3)),
+        OracleCommutation(),
+        duty=duty,
+        initial_speed_rpm=500,
+    )
     for sim in (lin, sat):
         sim.run_until(200e-6)
     i_lin = np.abs(lin.samples().i_true_a).max()
@@ -201,8 +215,15 @@ def test_edge_is_emitted_at_its_own_angle_whatever_the_step(source, sample_rate_
     """Ground truth: at a captured edge (no delay, no jitter) the rotor sits on the switching
     angle. A step cut back to an edge once ended a few nano-degrees short of it, and the edge was
     then committed one whole step late: 4.5 deg_e at 8000 rpm with 50 us steps."""
-    sim = Simulation(BASE, source, duty=steady_state(BASE.motor, 8000.0)["duty"], initial_speed_rpm=8000.0,
-                     sample_rate_hz=sample_rate_hz, direction=direction, initial_angle_deg_m=7.0)
+    sim = Simulation(
+        BASE,
+        source,
+        duty=steady_state(BASE.motor, 8000.0)["duty"],
+        initial_speed_rpm=8000.0,
+        sample_rate_hz=sample_rate_hz,
+        direction=direction,
+        initial_angle_deg_m=7.0,
+    )
     sim.run_until(0.1)
     assert direction * sim.speed_rpm > 7000.0  # the initial speed is a magnitude, turning the driven way
     e = sim.edges()
@@ -214,8 +235,14 @@ def test_a_capture_jittered_before_the_switch_carries_the_angle_at_capture():
     """Jitter can place a capture before the physical switch; the edge is emitted at the switch,
     but its true angle is the rotor's at the capture time (it was the angle at emission)."""
     config = BASE.with_effects(fx.EdgeJitter(time_rms_s=5e-6))
-    sim = Simulation(config, OracleCommutation(), duty=steady_state(BASE.motor, 8000.0)["duty"], initial_speed_rpm=8000.0,
-                     sample_rate_hz=100e3, initial_angle_deg_m=7.0)
+    sim = Simulation(
+        config,
+        OracleCommutation(),
+        duty=steady_state(BASE.motor, 8000.0)["duty"],
+        initial_speed_rpm=8000.0,
+        sample_rate_hz=100e3,
+        initial_angle_deg_m=7.0,
+    )
     sim.run_until(0.1)
     e = sim.edges()
     w_e = e.speed_rpm * 6.0 * P

@@ -6,7 +6,6 @@ import runpy
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from hil.cli import main
 
@@ -40,13 +39,21 @@ def test_example_budgets_waive_the_known_defect_and_loosen_a_limit(pytester):
         def test_commutation(hil_budget):
             hil_budget("commutation_angle_p99", 0.55)  # fails the default 0.5 deg e, marginal under the example's 0.6
     """)
-    result = pytester.runpytest("--hil-budgets", str(EXAMPLES / "budgets.toml"), "--hil-report-dir", "rep", "-p", "no:cacheprovider")
+    result = pytester.runpytest(
+        "--hil-budgets", str(EXAMPLES / "budgets.toml"), "--hil-report-dir", "rep", "-p", "no:cacheprovider"
+    )
     result.assert_outcomes(passed=1, skipped=1)  # pytest sees the waived failure as a skip carrying the waiver
     content = json.loads((pytester.path / "rep" / "hil-report.json").read_text())
     req = {r["id"]: r for r in content["traceability"]}
     assert req["REQ-ROB-002"]["verdict"] == "waived" and req["REQ-ROB-002"]["tests"][0]["outcome"] == "failed"
-    assert req["REQ-ROB-002"]["waiver"]["owner"] == "controls team lead" and "60 ms" in req["REQ-ROB-002"]["waiver"]["reason"]
-    assert req["REQ-COMM-001"]["verdict"] == "marginal" and req["REQ-COMM-001"]["tests"][0]["measurements"][0]["limit"] == 0.6
+    assert (
+        req["REQ-ROB-002"]["waiver"]["owner"] == "controls team lead"
+        and "60 ms" in req["REQ-ROB-002"]["waiver"]["reason"]
+    )
+    assert (
+        req["REQ-COMM-001"]["verdict"] == "marginal"
+        and req["REQ-COMM-001"]["tests"][0]["measurements"][0]["limit"] == 0.6
+    )
     html = (pytester.path / "rep" / "hil-report.html").read_text()
     assert "WAIVED" in html and "controls team lead" in html
 
@@ -61,10 +68,15 @@ def test_example_recording_is_read_diagnosed_and_reproducible(tmp_path, capsys):
     d = json.loads((tmp_path / "d.json").read_text())
     accepted = {a["effect"]: a["params"] for a in d["accepted"]}
     # recorded with the paper's installation offsets: the diagnosis finds them back (deg e)
-    found, truth = np.array(accepted["installation_offset"]["offset_deg_e"]), np.array(paper_installation_offsets_deg_e())
+    found, truth = (
+        np.array(accepted["installation_offset"]["offset_deg_e"]),
+        np.array(paper_installation_offsets_deg_e()),
+    )
     assert np.max(np.abs((found - found[0]) - (truth - truth[0]))) < 0.1, (found, truth)
     maker = runpy.run_path(str(EXAMPLES / "make_bench_recording.py"))
     again = maker["write"](tmp_path / "again")
     for name in ("meta.json", "edges.csv"):
-        assert (again / name).read_bytes() == (rec / name).read_bytes(), f"examples/bench-recording/{name} is not what the script writes"
+        assert (again / name).read_bytes() == (rec / name).read_bytes(), (
+            f"examples/bench-recording/{name} is not what the script writes"
+        )
     assert sorted(p.name for p in again.iterdir()) == sorted(p.name for p in rec.iterdir())

@@ -52,7 +52,14 @@ def test_first_commutation_follows_the_first_edge():
     follows from which edge it was (the pump turns forward), not from two assumed-low sensors."""
     from plant_models.hall import SECTOR_OF_CODE, hall_code, hall_state
 
-    for sensor, rising, angle in [(0, True, 0.0), (2, False, 60.0), (1, True, 120.0), (0, False, 180.0), (2, True, 240.0), (1, False, 300.0)]:
+    for sensor, rising, angle in [
+        (0, True, 0.0),
+        (2, False, 60.0),
+        (1, True, 120.0),
+        (0, False, 180.0),
+        (2, True, 240.0),
+        (1, False, 300.0),
+    ]:
         logic = HallCommutation(2, SpeedPI(6000.0))
         (command,) = logic.on_edge({"t_capture_s": 1e-3, "sensor": sensor, "rising": rising})
         assert command.sector == SECTOR_OF_CODE[int(hall_code(hall_state(angle + 30.0)))] == angle // 60

@@ -73,7 +73,9 @@ def test_winding_and_magnet_temperature_are_confounded_when_current_follows_spee
     back-EMF change (follows speed) explain nearly the same; the report names the knob."""
     from hil.recording import record_electrical
 
-    config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0))
+    config = paper_bench().with_effects(
+        fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0)
+    )
     ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
     d = diagnose(record_electrical(config, ops, seed=1, voltage_noise_v=0.005), KNOWN_MODEL)
     assert [a["effect"] for a in d.accepted] == ["winding_temperature"]
@@ -91,7 +93,9 @@ def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace
         d = diagnose(rec, KNOWN_MODEL)
         assert not d.significant, (seed, d.samples["voltage"]["p_value"], d.samples["speed"]["p_value"])
         assert set(d.samples) == {"voltage", "speed"}
-    config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), fx.DeadTime(3e-6))
+    config = paper_bench().with_effects(
+        fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), fx.DeadTime(3e-6)
+    )
     d = diagnose(_record_electrical(config, profile(config), 5), KNOWN_MODEL)
     assert not d.significant
     assert any(n.startswith("dead_time: no trace") for n in d.not_assessed)
@@ -119,7 +123,9 @@ def test_sampled_diagnosis_survives_the_written_format(tmp_path):
     back = read_recording(write_recording(rec, tmp_path / "rec"))
     a, b = diagnose(rec, KNOWN_MODEL), diagnose(back, KNOWN_MODEL)
     assert [x["effect"] for x in b.accepted] == ["magnet_temperature"]
-    assert b.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(a.accepted[0]["params"]["temperature_rise_k"], rel=1e-6)
+    assert b.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(
+        a.accepted[0]["params"]["temperature_rise_k"], rel=1e-6
+    )
 
 
 def test_model_that_knows_the_effect_leaves_no_gap():
@@ -140,8 +146,13 @@ def test_confounded_pair_is_named_with_its_knob():
     from plant_models.plant import steady_state
 
     m = paper_bench().motor
-    ops = [OperatingPoint(30 * 60 / rpm, rpm, steady_state(m, rpm)["current_a"] * 2 / 3) for rpm in (8000.0, 8500.0, 9000.0)]
-    config = paper_bench().with_effects(fx.ArmatureReaction(0.2), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
+    ops = [
+        OperatingPoint(30 * 60 / rpm, rpm, steady_state(m, rpm)["current_a"] * 2 / 3)
+        for rpm in (8000.0, 8500.0, 9000.0)
+    ]
+    config = paper_bench().with_effects(
+        fx.ArmatureReaction(0.2), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
+    )
     d = diagnose(record_kinematic(config, ops, seed=2))
     assert d.significant
     pairs = [set(p) for p in d.confounded]
@@ -150,7 +161,9 @@ def test_confounded_pair_is_named_with_its_knob():
 
 
 def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
-    config = paper_bench().with_effects(fx.InstallationOffset((0.5, -0.3, 0.1)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
+    config = paper_bench().with_effects(
+        fx.InstallationOffset((0.5, -0.3, 0.1)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
+    )
     d = diagnose(record_kinematic(config, [OperatingPoint(0.2, 4000.0)], seed=1))
     assert d.heldout_shrink is None and "single segment" in d.heldout_note
     assert d.accepted[0]["effect"] == "installation_offset"
@@ -161,7 +174,9 @@ def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
 def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
     from hil.recording import record_electrical
 
-    config = paper_bench().with_effects(fx.MagnetTemperature(20.0), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
+    config = paper_bench().with_effects(
+        fx.MagnetTemperature(20.0), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
+    )
     rec = record_electrical(config, [OperatingPoint(0.3, 6000.0, load_scale=1.0)], seed=2, voltage_noise_v=0.005)
     d = diagnose(rec, KNOWN_MODEL)
     assert [a["effect"] for a in d.accepted] == ["magnet_temperature"]
@@ -171,7 +186,9 @@ def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
 
 
 def test_without_encoder_relative_pattern_is_still_localised():
-    config = paper_bench().with_effects(fx.PoleOffset((0.0, 0.6, -0.3, 0.2)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
+    config = paper_bench().with_effects(
+        fx.PoleOffset((0.0, 0.6, -0.3, 0.2)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
+    )
     from hil.gap.validate import profile
 
     rec = record_kinematic(config, profile(config), seed=4, reference_angle=False)
@@ -183,9 +200,21 @@ def test_without_encoder_relative_pattern_is_still_localised():
 def test_json_holds_what_the_format_document_lists(tmp_path, capsys):
     rec, _ = make_case(["armature_reaction"], snr=4.0, seed=5)
     path = write_recording(rec, tmp_path / "rec")
-    assert main(["gap", "diagnose", str(path), "--json", str(tmp_path / "d.json"), "--html", str(tmp_path / "d.html")]) == 0
+    assert (
+        main(["gap", "diagnose", str(path), "--json", str(tmp_path / "d.json"), "--html", str(tmp_path / "d.html")])
+        == 0
+    )
     data = json.loads((tmp_path / "d.json").read_text())
-    for key in ("significant", "ranking", "accepted", "confounded", "unexplained", "gap_before", "gap_after_heldout", "heldout_shrink"):
+    for key in (
+        "significant",
+        "ranking",
+        "accepted",
+        "confounded",
+        "unexplained",
+        "gap_before",
+        "gap_after_heldout",
+        "heldout_shrink",
+    ):
         assert key in data
     assert data["ranking"][0]["effect"] == "armature_reaction" and "score" in data["ranking"][0]
     assert data["accepted"][0]["params"]["slope_deg_e_per_a"] != 0
@@ -217,6 +246,7 @@ def test_validation_meets_the_bars_at_snr_3():
 
 # --- other trace formats -----------------------------------------------------------------------
 
+
 @pytest.fixture(scope="module")
 def delay_case():
     return make_case(["conditioning_delay"], snr=4.0, seed=3)
@@ -241,13 +271,18 @@ def test_trace_cli_with_mapping_and_errors(tmp_path, delay_case, capsys):
 
     rec, _ = delay_case
     meta = write_meta(rec, tmp_path / "meta.json")
-    path = write_level_trace(rec, tmp_path / "t.csv", 200e3, hall_names=("HA", "HB", "HC"), angle_name="ENC", time_name="time_us")
+    path = write_level_trace(
+        rec, tmp_path / "t.csv", 200e3, hall_names=("HA", "HB", "HC"), angle_name="ENC", time_name="time_us"
+    )
     # the same trace in microseconds under other names, described by a mapping
     text = path.read_text().splitlines()
     rows = [text[0]] + [",".join([repr(float(r.split(",")[0]) * 1e6)] + r.split(",")[1:]) for r in text[1:]]
     path.write_text("\n".join(rows) + "\n")
     mapping = tmp_path / "map.toml"
-    mapping.write_text('kind = "levels"\ntime = "time_us"\ntime_scale = 1e-6\nhall = ["HA", "HB", "HC"]\nthreshold = 2.5\nref_angle_mech_deg = "ENC"\n')
+    mapping.write_text(
+        'kind = "levels"\ntime = "time_us"\ntime_scale = 1e-6\nhall = ["HA", "HB", "HC"]\nthreshold = '
+        '2.5\nref_angle_mech_deg = "ENC"\n'
+    )
     assert main(["gap", "diagnose", str(path), "--meta", str(meta), "--mapping", str(mapping)]) == 0
     assert "conditioning_delay" in capsys.readouterr().out
     mapping.write_text('kind = "levels"\ntime = "time_us"\nhall = ["HA", "HB", "HX"]\n')
@@ -271,8 +306,15 @@ def test_edge_table_mapping(tmp_path, delay_case):
         w.writerow(["stamp", "ch", "pol", "angle"])
         for t, s, r, a in zip(rec.t_s, rec.sensor, rec.rising, rec.ref_angle_mech_deg):
             w.writerow([repr(float(t)), s + 1, "R" if r else "F", repr(float(a))])
-    m = TraceMapping(kind="edges", time="stamp", sensor="ch", edge="pol", sensor_values={"A": "1", "B": "2", "C": "3"},
-                     edge_values={"rise": "R", "fall": "F"}, ref_angle_mech_deg="angle")
+    m = TraceMapping(
+        kind="edges",
+        time="stamp",
+        sensor="ch",
+        edge="pol",
+        sensor_values={"A": "1", "B": "2", "C": "3"},
+        edge_values={"rise": "R", "fall": "F"},
+        ref_angle_mech_deg="angle",
+    )
     back = read_trace(path, m, meta)
     np.testing.assert_array_equal(back.sensor, rec.sensor)
     lines = path.read_text().splitlines()
@@ -302,6 +344,7 @@ def test_sampled_diagnosis_needs_only_the_motor_keys_of_the_format(tmp_path):
 
 
 # --- parsimony, practical significance, the field-level generator, the readable report ---------
+
 
 def test_demo_recording_accepts_only_effects_the_demo_has(tmp_path):
     """The demo (paper deviations, LA25-P-like current sensors with offsets) has no cogging: the
@@ -333,7 +376,7 @@ def test_rotor_fixed_eccentricity_ranks_first_over_pole_offset_by_parsimony():
 def test_equal_within_noise_uses_the_explained_chi_square_spread():
     from hil.gap.diagnose import equal_within_noise
 
-    assert equal_within_noise(10000.0, 2, 10150.0, 3)      # sd of a gain of 1e4 is about 200
+    assert equal_within_noise(10000.0, 2, 10150.0, 3)  # sd of a gain of 1e4 is about 200
     assert not equal_within_noise(10000.0, 2, 11000.0, 3)
     assert not equal_within_noise(100.0, 2, 160.0, 3)
 
@@ -357,9 +400,11 @@ def test_every_knob_is_a_full_sentence():
 
     names = list(CANDIDATES) + ["edge_jitter", *SAMPLE_EFFECTS]
     for i, a in enumerate(names):
-        for b in names[i + 1:]:
+        for b in names[i + 1 :]:
             text = knob(a, b)
-            assert text.startswith("Record ") and text.endswith(".") and " / " not in text and len(text.split()) >= 12, (a, b, text)
+            assert (
+                text.startswith("Record ") and text.endswith(".") and " / " not in text and len(text.split()) >= 12
+            ), (a, b, text)
 
 
 def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
@@ -382,7 +427,9 @@ def test_field_generator_validation_meets_the_bars():
     s = report.summary(3.0)
     assert s["single_cases"] >= 12
     assert s["top1_rate"] >= 0.9 and s["false_alarm_rate"] <= 0.05 and s["param_within_20pct_rate"] >= 0.8
-    assert {c["cause"][0] for c in report.cases if c["kind"] == "single"} == set(__import__("hil.gap.field_causes", fromlist=["CAUSES"]).CAUSES)
+    assert {c["cause"][0] for c in report.cases if c["kind"] == "single"} == set(
+        __import__("hil.gap.field_causes", fromlist=["CAUSES"]).CAUSES
+    )
 
 
 def test_gap_html_localisation_is_tables_of_four_significant_digits(tmp_path):
@@ -392,7 +439,7 @@ def test_gap_html_localisation_is_tables_of_four_significant_digits(tmp_path):
     path = write_recording(rec, tmp_path / "rec")
     assert main(["gap", "diagnose", str(path), "--html", str(tmp_path / "d.html")]) == 0
     html = (tmp_path / "d.html").read_text()
-    loc = html[html.index("<h2>Localisation</h2>"):html.index("<h2>Not assessed</h2>")]
+    loc = html[html.index("<h2>Localisation</h2>") : html.index("<h2>Not assessed</h2>")]
     assert "<pre>" not in loc and "{" not in loc and loc.count("<table>") >= 4
     numbers = re.findall(r'class="num">([-0-9.e+]+)<', html)
     assert numbers and all(len(re.sub(r"[-.]|e[-+]\d+$", "", n).lstrip("0")) <= 4 for n in numbers), numbers[:20]
@@ -409,11 +456,30 @@ def test_gap_html_has_no_horizontal_overflow_at_1400_px(tmp_path):
     rec, _ = make_case(["conditioning_delay", "armature_reaction"], snr=4.0, seed=9)
     path = write_recording(rec, tmp_path / "rec")
     assert main(["gap", "diagnose", str(path), "--html", str(tmp_path / "d.html")]) == 0
-    html = (tmp_path / "d.html").read_text().replace(
-        "</body>", "<script>document.body.setAttribute('data-overflow', String(document.documentElement.scrollWidth - window.innerWidth))</script></body>")
+    html = (
+        (tmp_path / "d.html")
+        .read_text()
+        .replace(
+            "</body>",
+            "<script>document.body.setAttribute('data-overflow', String(document.documentElement.scrollWidth - "
+            "window.innerWidth))</script></body>",
+        )
+    )
     (tmp_path / "probe.html").write_text(html)
-    out = subprocess.run([browser, "--headless", "--no-sandbox", "--disable-gpu", "--window-size=1400,1000", "--dump-dom",
-                          (tmp_path / "probe.html").as_uri()], capture_output=True, text=True, timeout=120)
+    out = subprocess.run(
+        [
+            browser,
+            "--headless",
+            "--no-sandbox",
+            "--disable-gpu",
+            "--window-size=1400,1000",
+            "--dump-dom",
+            (tmp_path / "probe.html").as_uri(),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     overflow = int(__import__("re").search(r'data-overflow="(-?\d+)"', out.stdout).group(1))
     assert overflow <= 0, f"page is {overflow} px wider than the 1400 px window"
 

@@ -54,7 +54,9 @@ def test_dynamic_eccentricity_is_a_first_order_sinusoid_of_amplitude_p_e_over_r(
         per_pole = np.array([err[sel & (e.pole == j)].mean() for j in range(2 * P)])
         # alike for all sensors
         for x in range(3):
-            np.testing.assert_allclose([err[sel & (e.pole == j) & (e.sensor == x)].mean() for j in range(2 * P)], per_pole, atol=2e-3)
+            np.testing.assert_allclose(
+                [err[sel & (e.pole == j) & (e.sensor == x)].mean() for j in range(2 * P)], per_pole, atol=2e-3
+            )
         spectrum = np.fft.rfft(per_pole) / (2 * P) * 2
         assert abs(spectrum[1]) == pytest.approx(amp, rel=0.02)
         assert abs(spectrum[0]) < 0.01 * amp and abs(spectrum[2]) < 0.02 * amp
@@ -79,8 +81,10 @@ def test_static_eccentricity_moves_each_sensor_by_p_e_over_r_sin():
 @pytest.mark.parametrize("temperature_rise_k", [0.0, 60.0])
 def test_hysteresis_band_lags_both_ways_by_half_band_over_slope_with_temperature(temperature_rise_k):
     b, tc = 8.0, -0.001
-    hf = HallField(sensors=HallSwitches(operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=tc),
-                   temperature_rise_k=temperature_rise_k)
+    hf = HallField(
+        sensors=HallSwitches(operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=tc),
+        temperature_rise_k=temperature_rise_k,
+    )
     e, err = errors(hf)
     alpha = hf.ring.alpha_br_per_k
     expected = (b / 2) * (1 + tc * temperature_rise_k) / (slope_mt_per_deg_e() * (1 + alpha * temperature_rise_k))
@@ -115,8 +119,10 @@ def test_open_collector_delays_come_from_the_circuit():
 
 
 def test_electrical_plant_switches_where_the_kinematic_generator_does():
-    hf = HallField(ring=MagnetRing(eccentricity_mm=0.08, eccentricity_angle_deg=10.0, pole_remanence=(1.0, 1.05, 0.97, 1.0)),
-                   sensors=HallSwitches(operate_mt=(3.0, 4.0, 2.0), release_mt=(-3.0, -2.0, -4.0)))
+    hf = HallField(
+        ring=MagnetRing(eccentricity_mm=0.08, eccentricity_angle_deg=10.0, pole_remanence=(1.0, 1.05, 0.97, 1.0)),
+        sensors=HallSwitches(operate_mt=(3.0, 4.0, 2.0), release_mt=(-3.0, -2.0, -4.0)),
+    )
     cfg = BASE.with_effects(hf)
     sim = Simulation(cfg, RawHallCommutation(), duty=0.2, initial_speed_rpm=3000, seed=1)
     sim.run_until(0.03)
@@ -132,10 +138,12 @@ def test_electrical_plant_switches_where_the_kinematic_generator_does():
 
 def test_toml_nested_tables_and_errors_name_the_field(tmp_path):
     path = tmp_path / "plant.toml"
-    path.write_text('[[effects]]\nname = "hall_field"\ntemperature_rise_k = 20.0\n'
-                    'ring = { eccentricity_mm = 0.05, eccentricity_angle_deg = 30.0 }\n'
-                    'sensors = { operate_mt = [2.5, 2.5, 2.5], release_mt = [-2.5, -2.5, -2.5] }\n'
-                    'output = { c1_f = 1e-9 }\n')
+    path.write_text(
+        '[[effects]]\nname = "hall_field"\ntemperature_rise_k = 20.0\n'
+        "ring = { eccentricity_mm = 0.05, eccentricity_angle_deg = 30.0 }\n"
+        "sensors = { operate_mt = [2.5, 2.5, 2.5], release_mt = [-2.5, -2.5, -2.5] }\n"
+        "output = { c1_f = 1e-9 }\n"
+    )
     cfg = PlantConfig.from_toml(path)
     hf = cfg.effect("hall_field")
     assert hf.ring.eccentricity_mm == 0.05 and hf.output.c1_f == 1e-9

@@ -1,7 +1,6 @@
 """Modbus face of the virtual controller (exception codes, register map, robustness) and the Modbus
 link, over TCP on 127.0.0.1."""
 
-import logging
 import socket
 import struct
 import time
@@ -47,7 +46,10 @@ def test_binds_loopback_by_default(device):
 
 def test_lockstep_over_modbus_tcp_is_identical_to_in_process(device, corrections):
     runs = []
-    for link in (ModbusLink(port=device.port), InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))):
+    for link in (
+        ModbusLink(port=device.port),
+        InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0)),
+    ):
         link.download_calibration(corrections)
         b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
         b.run_setpoints([6000.0, 6300.0], hold_s=0.1, settle_s=0.05)
@@ -59,20 +61,23 @@ def test_lockstep_over_modbus_tcp_is_identical_to_in_process(device, corrections
     np.testing.assert_array_equal(a.sector, c.sector)
 
 
-@pytest.mark.parametrize("pdu, answer", [
-    (bytes([0x41, 0, 0]), "c101"),                          # unknown function: 01
-    (bytes([0x01, 0, 0, 0, 1]), "8101"),                    # coils are not implemented: 01
-    (bytes([0x04, 0, 0, 0, 1]), "8401"),                    # input registers are not implemented: 01
-    (struct.pack(">BHH", 3, 0, 0), "8303"),                 # quantity 0: 03
-    (struct.pack(">BHH", 3, 0, 126), "8303"),               # quantity above 125: 03
-    (struct.pack(">BHH", 3, 5000, 1), "8302"),              # no such register: 02
-    (struct.pack(">BHH", 6, 0, 9), "8603"),                 # strategy 9 out of range: 03
-    (struct.pack(">BHH", 6, 40, 1), "8602"),                # applied calibration is read-only: 02
-    (struct.pack(">BHHBH", 16, 0, 1, 4, 1), "9003"),         # byte count does not match: 03
-    (struct.pack(">BHHBI", 16, 1, 1, 2, 0), "9003"),         # half a FLOAT32 (speed): 03 (byte count also off)
-    (struct.pack(">BHHBH", 16, 2, 1, 2, 0), "9003"),         # the low word of the FLOAT32 alone: 03
-    (struct.pack(">BHH", 3, 0, 1), "03020003"),             # a good read: strategy 3
-])
+@pytest.mark.parametrize(
+    "pdu, answer",
+    [
+        (bytes([0x41, 0, 0]), "c101"),  # unknown function: 01
+        (bytes([0x01, 0, 0, 0, 1]), "8101"),  # coils are not implemented: 01
+        (bytes([0x04, 0, 0, 0, 1]), "8401"),  # input registers are not implemented: 01
+        (struct.pack(">BHH", 3, 0, 0), "8303"),  # quantity 0: 03
+        (struct.pack(">BHH", 3, 0, 126), "8303"),  # quantity above 125: 03
+        (struct.pack(">BHH", 3, 5000, 1), "8302"),  # no such register: 02
+        (struct.pack(">BHH", 6, 0, 9), "8603"),  # strategy 9 out of range: 03
+        (struct.pack(">BHH", 6, 40, 1), "8602"),  # applied calibration is read-only: 02
+        (struct.pack(">BHHBH", 16, 0, 1, 4, 1), "9003"),  # byte count does not match: 03
+        (struct.pack(">BHHBI", 16, 1, 1, 2, 0), "9003"),  # half a FLOAT32 (speed): 03 (byte count also off)
+        (struct.pack(">BHHBH", 16, 2, 1, 2, 0), "9003"),  # the low word of the FLOAT32 alone: 03
+        (struct.pack(">BHH", 3, 0, 1), "03020003"),  # a good read: strategy 3
+    ],
+)
 def test_exception_codes(device, pdu, answer):
     reply = ask(device.port, pdu)
     assert struct.unpack_from(">H", reply, 0)[0] == 7  # the transaction of the request, never a stale one
@@ -106,13 +111,18 @@ def test_dead_controller_gives_a_precise_error_within_the_timeout():
 
 
 ADUS = st.tuples(
-    st.integers(0, 0xFFFF),                                            # transaction id
-    st.sampled_from([0, 0, 0, 1, 0xFFFF]),                             # protocol id (0 = Modbus)
-    st.sampled_from([1, 1, 1, 1, 0, 2, 255]),                          # unit (mostly ours)
-    st.one_of(st.binary(min_size=0, max_size=40),                      # any PDU
-              st.builds(lambda fc, rest: bytes([fc]) + rest, st.sampled_from([1, 2, 3, 4, 5, 6, 15, 16, 23, 43, 0x41, 0x83]),
-                        st.binary(min_size=0, max_size=12))),
-    st.sampled_from([True, True, True, False]),                        # a truthful MBAP length?
+    st.integers(0, 0xFFFF),  # transaction id
+    st.sampled_from([0, 0, 0, 1, 0xFFFF]),  # protocol id (0 = Modbus)
+    st.sampled_from([1, 1, 1, 1, 0, 2, 255]),  # unit (mostly ours)
+    st.one_of(
+        st.binary(min_size=0, max_size=40),  # any PDU
+        st.builds(
+            lambda fc, rest: bytes([fc]) + rest,
+            st.sampled_from([1, 2, 3, 4, 5, 6, 15, 16, 23, 43, 0x41, 0x83]),
+            st.binary(min_size=0, max_size=12),
+        ),
+    ),
+    st.sampled_from([True, True, True, False]),  # a truthful MBAP length?
 )
 RESULTS = []
 
@@ -152,6 +162,7 @@ def test_two_thousand_malformed_adus_do_not_break_the_device(device):
 
 
 # --- RTU over a null modem (two pseudo-terminals bridged) ------------------------------------------
+
 
 class NullModem:
     """Two pseudo-terminals whose master sides are bridged: a serial line inside this machine."""
@@ -196,7 +207,9 @@ class NullModem:
 @pytest.fixture
 def rtu():
     line = NullModem()
-    dev = ModbusDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0), serial_port=line.a_path)
+    dev = ModbusDevice(
+        VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0), serial_port=line.a_path
+    )
     link = ModbusLink(serial_port=line.b_path, timeout_s=1.0)
     yield dev, link, line
     link.close()

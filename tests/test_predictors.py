@@ -5,9 +5,8 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings, strategies as st
 
-from hil.predictors import FilterSettings, KalmanPredictor, MotorModel, PrecalibrationPredictor, SageHusaPredictor
+from hil.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
 from hil.predictors import compare
 from hil.predictors import filters as F
 from hil.predictors.compare import SH_ADAPT
@@ -17,7 +16,11 @@ from plant_models.kinematic import OperatingPoint
 
 def test_prediction_follows_eq7_at_constant_speed_without_noise():
     e, cur = edges_and_currents([OperatingPoint(0.3, 6000.0)], 0.0, 0.0, 1.0, 0)
-    for predictor in (SageHusaPredictor(MODEL), KalmanPredictor(MODEL, FilterSettings(r0_diag=(1e-8, 0.02))), PrecalibrationPredictor()):
+    for predictor in (
+        SageHusaPredictor(MODEL),
+        KalmanPredictor(MODEL, FilterSettings(r0_diag=(1e-8, 0.02))),
+        PrecalibrationPredictor(),
+    ):
         err = angle_error_deg(e, predictor.run(e.t_conditioned_s, cur).pred_t_s)
         assert np.max(np.abs(err)) < 0.01, type(predictor).__name__
 
@@ -26,8 +29,28 @@ def test_filters_beat_the_last_edge_under_jitter():
     """Angle filtering: a Kalman filter averages edge jitter the pre-calibration predictor passes on."""
     e, cur = edges_and_currents([OperatingPoint(1.0, 8000.0)], 3e-6, 0.0, 1.0, 1)
     pre = np.sqrt(np.mean(angle_error_deg(e, PrecalibrationPredictor().run(e.t_conditioned_s, cur).pred_t_s) ** 2))
-    kf = np.sqrt(np.mean(angle_error_deg(e, KalmanPredictor(MODEL, FilterSettings(q0_diag=(0.01, 1e-9, 1e-6), r0_diag=(2.5e-5, 1.0))).run(e.t_conditioned_s, cur).pred_t_s) ** 2))
-    sh = np.sqrt(np.mean(angle_error_deg(e, SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, adapt_mask=7)).run(e.t_conditioned_s, cur).pred_t_s) ** 2))
+    kf = np.sqrt(
+        np.mean(
+            angle_error_deg(
+                e,
+                KalmanPredictor(MODEL, FilterSettings(q0_diag=(0.01, 1e-9, 1e-6), r0_diag=(2.5e-5, 1.0)))
+                .run(e.t_conditioned_s, cur)
+                .pred_t_s,
+            )
+            ** 2
+        )
+    )
+    sh = np.sqrt(
+        np.mean(
+            angle_error_deg(
+                e,
+                SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, adapt_mask=7))
+                .run(e.t_conditioned_s, cur)
+                .pred_t_s,
+            )
+            ** 2
+        )
+    )
     # t_k + (t_k - t_k-1) - t_k+1 carries the jitter 2 d_k - d_k-1 - d_k+1: sqrt(6) sigma
     assert pre == pytest.approx(math.sqrt(6) * 3e-6 * 8000 * 12, rel=0.1)
     assert kf < 0.5 * pre and sh < 0.6 * pre
@@ -48,14 +71,16 @@ def _locked_case():
     R0 = 0 the filter's P claimed a speed known to 0.04 rad/s while it was 35 rad/s off, so
     every later edge was gated and the error grew by 0.8 deg_e per cycle."""
     e, cur = edges_and_currents([OperatingPoint(0.4, 11825.9)], 3.98e-6, 0.177, 0.514, 688)
-    q0 = tuple(q * 10 ** -1.788 for q in NOMINAL_Q)
+    q0 = tuple(q * 10**-1.788 for q in NOMINAL_Q)
     kf = KalmanPredictor(MODEL, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))).run(e.t_conditioned_s, cur)
     kf_rms = np.sqrt(np.mean(angle_error_deg(e, kf.pred_t_s) ** 2))
     rms = {}
     for run_length in (0, FilterSettings().divergence_run):
         # the variance match off: it sets R from the edges right after the warm-up and the filter
         # no longer locks here (1.37 deg e); the test isolates the fade
-        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length, r_match_horizon_s=0.0))
+        sh = SageHusaPredictor(
+            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length, r_match_horizon_s=0.0)
+        )
         run = sh.run(e.t_conditioned_s, cur)
         rms[run_length] = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
         assert (run.guards["divergence"] > 0) == (run_length > 0)
@@ -64,13 +89,16 @@ def _locked_case():
 
 def test_divergence_guard_recovers_a_filter_locked_on_a_wrong_speed():
     rms, kf_rms = _locked_case()
-    assert rms[0] > 5 * kf_rms          # the failure the guard exists for
-    assert rms[FilterSettings().divergence_run] < 0.2 * rms[0], rms   # faded P: re-converged
+    assert rms[0] > 5 * kf_rms  # the failure the guard exists for
+    assert rms[FilterSettings().divergence_run] < 0.2 * rms[0], rms  # faded P: re-converged
 
 
-@pytest.mark.xfail(strict=True, reason="issue 14: the freed filter ends at 1.9 deg e RMS against the KF's 0.37 on this condition "
-                                       "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade (1.4 with the "
-                                       "variance match on, which keeps it from locking)")
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 14: the freed filter ends at 1.9 deg e RMS against the KF's 0.37 on this condition "
+    "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade (1.4 with the "
+    "variance match on, which keeps it from locking)",
+)
 def test_divergence_guard_brings_the_locked_filter_back_to_the_kf():
     rms, kf_rms = _locked_case()
     assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, rms
@@ -81,7 +109,7 @@ def test_whiteness_option_steers_q_where_the_eq12_recursion_does_not(end_rpm, q_
     """Q_w barely moves a one-step innovation (dt^2 Q_w << R), so the Eq. 12 recursion drifts
     to its band edge; lag-1 innovation whiteness does see a lagging or noise-chasing gain."""
     e, cur = edges_and_currents([OperatingPoint(2.0, 6000.0, end_speed_rpm=end_rpm)], 3e-6, 0.0, 1.0, 7)
-    q0 = tuple(q * 10 ** q_log10 for q in NOMINAL_Q)
+    q0 = tuple(q * 10**q_log10 for q in NOMINAL_Q)
     rms, q_w = {}, {}
     for mask in (SH_ADAPT, F.ADAPT_Q_WHITE | F.ADAPT_R):
         sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, adapt_mask=mask, q_band_factor=1e4))
@@ -93,7 +121,7 @@ def test_whiteness_option_steers_q_where_the_eq12_recursion_does_not(end_rpm, q_
 
 
 def test_guards_fire_and_are_visible_when_q_starts_100x_too_large():
-    """design notes section 5: the textbook update loses positive definiteness from Q0 x 100."""
+    """docs/sage-husa.md, What adapts, and the guards: the textbook update loses positive definiteness from Q0 x 100."""
     e, cur = edges_and_currents([OperatingPoint(1.0, 7000.0)], 2e-6, 0.0, 1.0, 3)
     sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=tuple(100 * q for q in NOMINAL_Q)))
     run = sh.run(e.t_conditioned_s, cur)
@@ -122,13 +150,16 @@ def test_bad_settings_and_inputs_refused():
 
 # --- layout, cross-check against filterpy, the repairs of issue 14 --------------------------------
 
+
 def test_state_layout_is_generated_from_one_table():
     at = 0
     for name, size, _ in F.STATE_TABLE:
         assert getattr(F.ST, name) == at, name
         at += size
     assert F.ST.SIZE == F.N_STATE == at
-    assert [getattr(F.FP, name) for name, _ in F.PARAM_TABLE] == list(range(len(F.PARAM_TABLE))) and F.FP.SIZE == F.N_FPARAMS
+    assert [getattr(F.FP, name) for name, _ in F.PARAM_TABLE] == list(
+        range(len(F.PARAM_TABLE))
+    ) and F.FP.SIZE == F.N_FPARAMS
 
 
 def test_fixed_noise_step_equals_filterpy_step_by_step():
@@ -138,7 +169,9 @@ def test_fixed_noise_step_equals_filterpy_step_by_step():
     from filterpy.kalman import KalmanFilter
 
     e, cur = edges_and_currents([OperatingPoint(0.15, 6000.0, end_speed_rpm=7000.0)], 3e-6, 0.0, 1.0, 11)
-    settings = FilterSettings(q0_diag=(0.01, 1e-9, 1e-4), r0_diag=(2e-5, 0.5), p0_diag=(50.0, 1e-3, 1.0), gate_state_update=False)
+    settings = FilterSettings(
+        q0_diag=(0.01, 1e-9, 1e-4), r0_diag=(2e-5, 0.5), p0_diag=(50.0, 1e-3, 1.0), gate_state_update=False
+    )
     ours = KalmanPredictor(MODEL, settings)
     kf = KalmanFilter(dim_x=3, dim_z=2)
     kf.Q, kf.R = np.diag(settings.q0_diag), np.diag(settings.r0_diag)
@@ -146,21 +179,29 @@ def test_fixed_noise_step_equals_filterpy_step_by_step():
     t = e.t_conditioned_s
     ours.update(t[0], cur[0])
     ours.update(t[1], cur[1])  # initialises speed and current from the first cycle
-    kf.x = ours.state[F.ST.X:F.ST.X + 3].copy()
+    kf.x = ours.state[F.ST.X : F.ST.X + 3].copy()
     kf.P = np.diag(settings.p0_diag)
     np.testing.assert_array_equal(ours.p_matrix, kf.P)
     for k in range(2, len(t)):
         w = float(kf.x[0])
         a, dl = F.coefficients(w, ours.fp, ours.tables)
         dt = t[k] - t[k - 1]
-        kf.F = np.array([[1.0, 0.0, a * dt], [dt, 1.0, 0.5 * a * dt * dt], [0.0, 0.0, 1.0]])     # Eq. 9
+        kf.F = np.array([[1.0, 0.0, a * dt], [dt, 1.0, 0.5 * a * dt * dt], [0.0, 0.0, 1.0]])  # Eq. 9
         kf.predict()
-        kf.x = kf.x + np.array([-dt * dl, -0.5 * dt * dt * dl, 0.0])                             # input of Eq. 9
+        kf.x = kf.x + np.array([-dt * dl, -0.5 * dt * dt * dl, 0.0])  # input of Eq. 9
         kf.update(np.array([math.pi / 3.0, cur[k]]))
-        kf.x[1] -= math.pi / 3.0   # the edge just measured is the new angle zero
+        kf.x[1] -= math.pi / 3.0  # the edge just measured is the new angle zero
         ours.update(t[k], cur[k])
-        np.testing.assert_allclose(ours.state[F.ST.X:F.ST.X + 3], kf.x, rtol=1e-12, atol=1e-12 * np.max(np.abs(kf.x)), err_msg=f"x at step {k}")
-        np.testing.assert_allclose(ours.p_matrix, kf.P, rtol=1e-12, atol=1e-12 * np.max(np.abs(kf.P)), err_msg=f"P at step {k}")
+        np.testing.assert_allclose(
+            ours.state[F.ST.X : F.ST.X + 3],
+            kf.x,
+            rtol=1e-12,
+            atol=1e-12 * np.max(np.abs(kf.x)),
+            err_msg=f"x at step {k}",
+        )
+        np.testing.assert_allclose(
+            ours.p_matrix, kf.P, rtol=1e-12, atol=1e-12 * np.max(np.abs(kf.P)), err_msg=f"P at step {k}"
+        )
 
 
 def _burst_edges(seed=5):
@@ -178,7 +219,10 @@ def test_gated_edges_still_teach_r_with_a_huber_weight():
     never saw the burst and the whole burst was gated."""
     e, t, cur, burst = _burst_edges()
     # the divergence fade off: the test isolates how R learns a burst
-    sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.7, divergence_run=0))
+    sh = SageHusaPredictor(
+        MODEL,
+        FilterSettings(q0_diag=NOMINAL_Q, adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.7, divergence_run=0),
+    )
     r_theta = []
     for tk, ck in zip(t, cur):
         sh.update(tk, ck)
@@ -195,7 +239,7 @@ def test_gated_edges_still_teach_r_with_a_huber_weight():
     s, x_pred = g.state.copy(), None
     a, dl = F.coefficients(s[F.ST.X], g.fp, g.tables)
     before = g.guard_counts[F.GUARD_GATE]
-    dt = t[400] - t[399] + 200e-6   # a wild edge
+    dt = t[400] - t[399] + 200e-6  # a wild edge
     F.step(g.state, g.fp, g.guard_counts, math.pi / 3.0, cur[400], dt, a, dl, np.empty(F.N_WORK))
     assert g.guard_counts[F.GUARD_GATE] == before + 1
     x_pred = s[F.ST.X] - dt * dl + a * dt * s[F.ST.X + 2]
@@ -206,14 +250,23 @@ def test_r_has_its_own_forgetting_factor_and_interval():
     e, t, cur, _ = _burst_edges()
     runs = {}
     for r_interval, r_b in ((30, 0.7), (120, 0.7), (30, 0.98)):
-        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, adapt_mask=SH_ADAPT, forgetting_b=0.98, adapt_interval=120,
-                                                     r_interval=r_interval, r_forgetting_b=r_b))
+        sh = SageHusaPredictor(
+            MODEL,
+            FilterSettings(
+                q0_diag=NOMINAL_Q,
+                adapt_mask=SH_ADAPT,
+                forgetting_b=0.98,
+                adapt_interval=120,
+                r_interval=r_interval,
+                r_forgetting_b=r_b,
+            ),
+        )
         sh.run(t, cur)
         runs[(r_interval, r_b)] = (int(sh.state[F.ST.K_INTERVAL_R]), sh.r_matrix[0, 0], sh.q_matrix[0, 0])
     steps = len(t) - 2
-    assert runs[(30, 0.7)][0] == 1 + (steps - 120) // 30      # R every 30 edges after the warm-up
+    assert runs[(30, 0.7)][0] == 1 + (steps - 120) // 30  # R every 30 edges after the warm-up
     assert runs[(120, 0.7)][0] == 1 + (steps - 120) // 120
-    assert runs[(30, 0.7)][1] != runs[(30, 0.98)][1]           # b_R acts on R
+    assert runs[(30, 0.7)][1] != runs[(30, 0.98)][1]  # b_R acts on R
     assert runs[(30, 0.7)][1] != runs[(120, 0.7)][1]
 
 
@@ -229,7 +282,7 @@ def test_divergence_run_makes_a_chance_trigger_rarer_than_once_per_1000_s():
     assert rate == F.MAX_EDGE_RATE_HZ
     assert rate * 1000 * p * (p / 2) >= 1.0 > rate * 1000 * p * (p / 2) ** 2
     assert F.divergence_run_for(F.CHI2_2DOF_999, rate) == 3
-    assert rate * 1000 * 0.5 ** 21 >= 1.0 > rate * 1000 * 0.5 ** 22
+    assert rate * 1000 * 0.5**21 >= 1.0 > rate * 1000 * 0.5**22
     assert F.divergence_run_for(F.CHI2_2DOF_999, rate) == FilterSettings().divergence_run
     assert F.divergence_run_for(F.CHI2_2DOF_999, rate, p_gated=1.0) == 23 == compare.BURSTS_SH["divergence_run"]
     # the formula against a Monte-Carlo draw of consistent Gaussian innovations at a looser gate
@@ -251,8 +304,12 @@ def test_divergence_fade_does_not_fire_inside_a_burst_of_edge_noise():
     e, t, cur, burst = _burst_edges()
     fades = {}
     for run_length in (3, compare.BURSTS_SH["divergence_run"]):
-        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "divergence_run": run_length,
-                                                                           "r_match_horizon_s": 0.0}))
+        sh = SageHusaPredictor(
+            MODEL,
+            FilterSettings(
+                q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "divergence_run": run_length, "r_match_horizon_s": 0.0}
+            ),
+        )
         fades[run_length] = sh.run(t, cur).guards["divergence"]
     assert fades[3] > 0 and fades[23] == 0, fades
 
@@ -273,9 +330,12 @@ def test_variance_match_bounds_hold_chance_crossings_below_once_per_1000_s():
     assert np.mean(ratio > hi) < 5 * alpha and np.mean(ratio < lo) < 5 * alpha
     hi1, lo1 = F.variance_match_bounds(30, horizon_s=0.1)
     alpha1 = 0.5 * 30 / (F.MAX_EDGE_RATE_HZ * 0.1)
-    assert np.mean(ratio > hi1) == pytest.approx(alpha1, rel=0.3) and np.mean(ratio < lo1) == pytest.approx(alpha1, rel=0.3)
+    assert np.mean(ratio > hi1) == pytest.approx(alpha1, rel=0.3) and np.mean(ratio < lo1) == pytest.approx(
+        alpha1, rel=0.3
+    )
     # treating the second differences as independent (n - 1 dof) would put the bounds too close
     from scipy.stats import chi2
+
     assert np.mean(ratio > chi2.isf(alpha1, 29) / 29) > 2 * alpha1
 
 
@@ -290,7 +350,9 @@ def test_variance_match_follows_a_burst_in_and_out_within_two_r_intervals():
     burst_var = (30e-6 * w) ** 2
     r = {}
     for horizon in (0.0, 1000.0):
-        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "r_match_horizon_s": horizon}))
+        sh = SageHusaPredictor(
+            MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "r_match_horizon_s": horizon})
+        )
         r_theta = []
         for tk, ck in zip(t, cur):
             sh.update(tk, ck)
@@ -315,14 +377,14 @@ def test_q_current_option_adapts_q_i_and_leaves_q_w_at_nominal():
         sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, adapt_mask=mask))
         sh.run(e.t_conditioned_s, cur)
         q[mask] = (sh.q_matrix[0, 0], sh.q_matrix[2, 2])
-    assert not q0[0] / 4 < q[SH_ADAPT][0] < 4 * q0[0], q              # Eq. 12 on Q_w: drifts
+    assert not q0[0] / 4 < q[SH_ADAPT][0] < 4 * q0[0], q  # Eq. 12 on Q_w: drifts
     assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][0] == q0[0], q
-    assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][1] < 0.1 * q0[2], q      # Q_i learns the exact current
+    assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][1] < 0.1 * q0[2], q  # Q_i learns the exact current
 
 
 # --- robustness over drawn conditions ------------------------------------------------------
 
-ROBUSTNESS_CONDITIONS = 1000   # the full draw: about 30 s with the batch path
+ROBUSTNESS_CONDITIONS = 1000  # the full draw: about 30 s with the batch path
 ROBUSTNESS_SEED = 0
 
 
@@ -334,9 +396,12 @@ def robustness_results():
 
 
 def _worst(results, n=8):
-    return "\n".join(f"  SH {r['sh']:.3f} vs KF {r['kf']:.3f} deg_e: jitter {r['jitter_s'] * 1e6:.2f} us, Q0 x10^{r['q_factor_log10']:.2f}, "
-                     f"{r['start_rpm']:.0f}->{r['end_rpm'] or r['start_rpm']:.0f} rpm, load x{r['load_scale']:.2f}, seed {r['seed']}"
-                     for r in sorted(results, key=lambda r: r["sh"] / r["kf"], reverse=True)[:n])
+    return "\n".join(
+        f"  SH {r['sh']:.3f} vs KF {r['kf']:.3f} deg_e: jitter {r['jitter_s'] * 1e6:.2f} us, Q0 "
+        f"x10^{r['q_factor_log10']:.2f}, "
+        f"{r['start_rpm']:.0f}->{r['end_rpm'] or r['start_rpm']:.0f} rpm, load x{r['load_scale']:.2f}, seed {r['seed']}"
+        for r in sorted(results, key=lambda r: r["sh"] / r["kf"], reverse=True)[:n]
+    )
 
 
 def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(robustness_results):
@@ -348,22 +413,32 @@ def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(
     assert not broken, f"covariance lost positive definiteness or estimate not finite in: {broken[:3]}"
 
 
-@pytest.mark.xfail(strict=True, reason="issue 14: Sage-Husa under 2x the KF in 94.5 % of 1000 drawn conditions (bar 100 %), "
-                                       "worst 10.9x (model off, Q0 1/80 nominal); docs/sage-husa.md")
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 14: Sage-Husa under 2x the KF in 94.5 % of 1000 drawn conditions (bar 100 %), "
+    "worst 10.9x (model off, Q0 1/80 nominal); docs/sage-husa.md",
+)
 def test_sage_husa_under_twice_the_kf_in_every_condition(robustness_results):
     worse = [r for r in robustness_results if not r["sh"] < 2.0 * r["kf"]]
-    assert not worse, f"Sage-Husa at 2x the KF or worse in {len(worse)} of {len(robustness_results)} conditions:\n{_worst(worse)}"
+    assert not worse, (
+        f"Sage-Husa at 2x the KF or worse in {len(worse)} of {len(robustness_results)} conditions:\n{_worst(worse)}"
+    )
 
 
-@pytest.mark.xfail(strict=True, reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 79.6 % of drawn conditions "
-                                       "(bar 95 %); docs/sage-husa.md")
+@pytest.mark.xfail(
+    strict=True,
+    reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 79.6 % of drawn conditions (bar 95 %); docs/sage-husa.md",
+)
 def test_sage_husa_no_worse_than_kf_in_95_percent(robustness_results):
     ok = [r["sh"] <= 1.05 * r["kf"] + 0.01 for r in robustness_results]
     rate = float(np.mean(ok))
-    assert rate >= 0.95, f"Sage-Husa within 5 % + 0.01 deg e of the KF in only {rate:.1%}; worst:\n{_worst(robustness_results)}"
+    assert rate >= 0.95, (
+        f"Sage-Husa within 5 % + 0.01 deg e of the KF in only {rate:.1%}; worst:\n{_worst(robustness_results)}"
+    )
 
 
 # --- the paper scenario (Table 5) -------------------------------------------------------------
+
 
 @pytest.fixture(scope="module")
 def scenario_run():
@@ -417,12 +492,19 @@ def test_table5_cli_writes_exactly_the_documented_json_keys(tmp_path, capsys):
     assert set(data) == {"protocol", "seeds_evaluated", "metrics", "improvement_pct", "sh_wins_fraction"}
     assert data["protocol"] == "paper" and data["seeds_evaluated"] == [0]
     assert set(data["metrics"]) == {"sage_husa", "kf", "precal"}
-    keys = {"speed_mape_regulation_pct", "max_overshoot_pct", "speed_mape_constant_pct", "commutation_time_mape_pct", "angle_rms_deg_e"}
+    keys = {
+        "speed_mape_regulation_pct",
+        "max_overshoot_pct",
+        "speed_mape_constant_pct",
+        "commutation_time_mape_pct",
+        "angle_rms_deg_e",
+    }
     for block in (*data["metrics"].values(), data["improvement_pct"], data["sh_wins_fraction"]):
         assert set(block) == keys
     m = data["metrics"]
     assert data["improvement_pct"]["angle_rms_deg_e"] == pytest.approx(
-        100 * (m["kf"]["angle_rms_deg_e"] - m["sage_husa"]["angle_rms_deg_e"]) / m["kf"]["angle_rms_deg_e"])
+        100 * (m["kf"]["angle_rms_deg_e"] - m["sage_husa"]["angle_rms_deg_e"]) / m["kf"]["angle_rms_deg_e"]
+    )
 
 
 def test_equation_table_points_at_the_code():
@@ -431,10 +513,14 @@ def test_equation_table_points_at_the_code():
     from pathlib import Path
 
     root = Path(__file__).resolve().parents[1]
-    rows = re.findall(r"^\| (\d+) \|[^|]*\| `(\w+)` \| `([\w/.]+):(\d+)` \| `([^`]+)` \|$", (root / "docs/sage-husa.md").read_text(), re.M)
+    rows = re.findall(
+        r"^\| (\d+) \|[^|]*\| `(\w+)` \| `([\w/.]+):(\d+)` \| `([^`]+)` \|$",
+        (root / "docs/sage-husa.md").read_text(),
+        re.M,
+    )
     assert {int(r[0]) for r in rows} == {7, 8, 9, 10, 11, 12}, rows
     for eq, function, path, line, text in rows:
         lines = (root / path).read_text().splitlines()
         assert text in lines[int(line) - 1], f"Eq. {eq}: {path}:{line} does not say {text!r}: {lines[int(line) - 1]!r}"
-        above = [ln for ln in lines[:int(line)] if ln.startswith("def ")]
+        above = [ln for ln in lines[: int(line)] if ln.startswith("def ")]
         assert above and above[-1].startswith(f"def {function}("), f"Eq. {eq}: {path}:{line} is not in {function}"

@@ -25,7 +25,9 @@ def test_each_finished_test_prints_count_elapsed_outcome_and_label(pytester):
         def test_skipped():
             pass
     """)
-    result = pytester.runpytest("-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider")
+    result = pytester.runpytest(
+        "-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider"
+    )
     out = result.stdout.str()
     lines = [line for line in out.splitlines() if re.match(r"\[\d/3 +\d+:\d\d\]", line)]
     assert [re.sub(r"\[(\d)/3 +\d+:\d\d\]", r"[\1/3]", line).rsplit("  (", 1)[0] for line in lines] == [
@@ -42,13 +44,17 @@ def test_acceptance_runs_pytest_in_a_fresh_interpreter(pytester):
     """The cause of 'Module already imported so cannot be rewritten: hil' (with a regular, not
     editable, install): pytest ran inside the hil command, which had imported hil and plant_models."""
     pytester.makeconftest("")
-    pytester.makepyfile(test_fresh="""
+    pytester.makepyfile(
+        test_fresh="""
         import sys
 
         def test_fresh():
             assert "hil.cli" not in sys.modules, "pytest runs inside the hil command"
-    """)
-    assert main(["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]) == 0
+    """
+    )
+    assert (
+        main(["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]) == 0
+    )
 
 
 def test_labels_are_short_and_readable():
@@ -62,13 +68,24 @@ def test_labels_are_short_and_readable():
 def test_a_waived_failure_reads_waived(pytester):
     budgets = pytester.path.parent / "waiver.toml"
     budgets.write_text('[[waiver]]\nrequirement = "REQ-X-009"\nreason = "known, fix in 2.1"\nowner = "lead"\n')
-    pytester.makepyfile(test_w="""
+    pytester.makepyfile(
+        test_w="""
         import pytest
 
         @pytest.mark.requirement("REQ-X-009")
         def test_known_defect():
             assert False
-    """)
-    result = pytester.runpytest("-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider",
-                                "--hil-budgets", str(budgets))
+    """
+    )
+    result = pytester.runpytest(
+        "-p",
+        "hil.progress",
+        "-q",
+        "-o",
+        "console_output_style=classic",
+        "-p",
+        "no:cacheprovider",
+        "--hil-budgets",
+        str(budgets),
+    )
     assert re.search(r"^\[1/1 +\d+:\d\d\] waived +known defect", result.stdout.str(), re.M), result.stdout.str()

@@ -23,7 +23,9 @@ def test_demo_output_in_the_readme_is_what_hil_demo_prints(tmp_path, capsys):
     assert main(["demo", "--out", str(tmp_path / "demo")]) == 0
     printed = capsys.readouterr().out.splitlines()
     shown = block.rstrip("\n").splitlines()
-    assert printed[:len(shown)] == shown, "README's demo output differs from `python -m hil demo`:\n" + "\n".join(printed[:len(shown)])
+    assert printed[: len(shown)] == shown, "README's demo output differs from `python -m hil demo`:\n" + "\n".join(
+        printed[: len(shown)]
+    )
 
 
 def test_every_hil_command_in_the_readme_parses():
@@ -34,7 +36,11 @@ def test_every_hil_command_in_the_readme_parses():
         args = shlex.split(command.split("&&")[0])
         # "a|b|c" in a command is a choice: each alternative must parse
         choices = next((i for i, a in enumerate(args) if "|" in a), None)
-        variants = [args] if choices is None else [args[:choices] + [alt] + args[choices + 1:] for alt in args[choices].split("|")]
+        variants = (
+            [args]
+            if choices is None
+            else [args[:choices] + [alt] + args[choices + 1 :] for alt in args[choices].split("|")]
+        )
         for variant in variants:
             try:
                 parser.parse_args(variant)
@@ -44,7 +50,12 @@ def test_every_hil_command_in_the_readme_parses():
 
 def test_files_and_pictures_named_in_the_readme_exist():
     named = set(re.findall(r"\((docs/img/[^)]+\.png)\)", README)) | set(re.findall(r"(examples/[\w./-]+\w)", README))
-    assert {"docs/img/acceptance-report.png", "docs/img/gap-report.png", "examples/my_pump.toml", "examples/budgets.toml"} <= named
+    assert {
+        "docs/img/acceptance-report.png",
+        "docs/img/gap-report.png",
+        "examples/my_pump.toml",
+        "examples/budgets.toml",
+    } <= named
     missing = [n for n in named if not (ROOT / n).exists()]
     assert not missing, f"README names files that do not exist: {missing}"
 

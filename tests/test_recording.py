@@ -51,7 +51,12 @@ def test_samples_round_trip(tmp_path, recording):
     from dataclasses import replace
 
     n = 50
-    samples = {"t_s": np.linspace(0, 0.01, n), "segment": np.zeros(n, dtype=np.int64), "i_a": np.sin(np.arange(n)), "speed_rpm": np.full(n, 1000.0)}
+    samples = {
+        "t_s": np.linspace(0, 0.01, n),
+        "segment": np.zeros(n, dtype=np.int64),
+        "i_a": np.sin(np.arange(n)),
+        "speed_rpm": np.full(n, 1000.0),
+    }
     rec = replace(recording, samples=samples)
     back = read_recording(write_recording(rec, tmp_path / "s"))
     assert set(back.samples) == set(samples)
@@ -90,11 +95,14 @@ def test_missing_column(written):
     assert "missing column" in refused(written, "edges.csv", 1, "sensor")
 
 
-@pytest.mark.parametrize("old, new, column, what", [
-    (None, "abc", "t_s", "not a number"),
-    (None, "nan", "t_s", "not finite"),
-    (None, "inf", "t_s", "not finite"),
-])
+@pytest.mark.parametrize(
+    "old, new, column, what",
+    [
+        (None, "abc", "t_s", "not a number"),
+        (None, "nan", "t_s", "not finite"),
+        (None, "inf", "t_s", "not finite"),
+    ],
+)
 def test_bad_numbers(written, old, new, column, what):
     line = (written / "edges.csv").read_text().splitlines()[4]
     t = line.split(",")[0]
@@ -110,14 +118,17 @@ def test_times_not_increasing(written):
     assert "increase" in refused(written, "edges.csv", 5, "t_s")
 
 
-@pytest.mark.parametrize("field_index, new, column, what", [
-    (1, "D", "sensor", "unknown sensor"),
-    (2, "up", "edge", "unknown edge"),
-    (3, "op99", "segment", "unknown segment"),
-])
+@pytest.mark.parametrize(
+    "field_index, new, column, what",
+    [
+        (1, "D", "sensor", "unknown sensor"),
+        (2, "up", "edge", "unknown edge"),
+        (3, "op99", "segment", "unknown segment"),
+    ],
+)
 def test_unknown_sensor_edge_segment(written, field_index, new, column, what):
     parts = (written / "edges.csv").read_text().splitlines()[9].split(",")
-    edit(written, "edges.csv", 10, ",".join(parts), ",".join(parts[:field_index] + [new] + parts[field_index + 1:]))
+    edit(written, "edges.csv", 10, ",".join(parts), ",".join(parts[:field_index] + [new] + parts[field_index + 1 :]))
     assert what in refused(written, "edges.csv", 10, column)
 
 
@@ -140,17 +151,20 @@ def rewrite_meta(path, change):
     (path / "meta.json").write_text(json.dumps(meta, indent=2))
 
 
-@pytest.mark.parametrize("change, column", [
-    (lambda m: m.update(format="hil-recording/2"), "format"),
-    (lambda m: m["motor"].update(pole_pairs=0), "motor.pole_pairs"),
-    (lambda m: m["motor"].pop("pole_pairs"), "motor.pole_pairs"),
-    (lambda m: m["segments"][1].update(speed_rpm="fast"), "segments[1].speed_rpm"),
-    (lambda m: m["segments"][2].update(direction="backwards"), "segments[2].direction"),
-    (lambda m: m["segments"][1].update(id="low"), "segments[1].id"),
-    (lambda m: m["segments"][1].update(t_start_s=0.01), "segments[1].t_start_s"),
-    (lambda m: m.update(timer_tick_s=-1), "timer_tick_s"),
-    (lambda m: m.update(segments=[]), "segments"),
-])
+@pytest.mark.parametrize(
+    "change, column",
+    [
+        (lambda m: m.update(format="hil-recording/2"), "format"),
+        (lambda m: m["motor"].update(pole_pairs=0), "motor.pole_pairs"),
+        (lambda m: m["motor"].pop("pole_pairs"), "motor.pole_pairs"),
+        (lambda m: m["segments"][1].update(speed_rpm="fast"), "segments[1].speed_rpm"),
+        (lambda m: m["segments"][2].update(direction="backwards"), "segments[2].direction"),
+        (lambda m: m["segments"][1].update(id="low"), "segments[1].id"),
+        (lambda m: m["segments"][1].update(t_start_s=0.01), "segments[1].t_start_s"),
+        (lambda m: m.update(timer_tick_s=-1), "timer_tick_s"),
+        (lambda m: m.update(segments=[]), "segments"),
+    ],
+)
 def test_meta_errors_name_the_key(written, change, column):
     rewrite_meta(written, change)
     with pytest.raises(RecordingError) as info:
@@ -169,7 +183,9 @@ def test_invalid_json_has_line_and_column(written):
 
 
 def test_extra_keys_and_files_are_ignored(written):
-    rewrite_meta(written, lambda m: (m["motor"].update(cooling="water"), m.update(bench="B2"), m["segments"][0].update(note="x")))
+    rewrite_meta(
+        written, lambda m: (m["motor"].update(cooling="water"), m.update(bench="B2"), m["segments"][0].update(note="x"))
+    )
     (written / "notes.txt").write_text("operator notes")
     shutil.copy(written / "edges.csv", written / "edges_backup.csv")
     rec = read_recording(written)
@@ -183,13 +199,16 @@ def test_samples_errors(written, recording):
     refused(written, "samples.csv", 1, "segment")
 
 
-@pytest.mark.parametrize("body, line, column, message", [
-    ("0.0,low,1.0\n0.1,low,nan\n", 3, "i_a", "not finite"),
-    ("0.0,low,1.0\n\n0.0,low,2.0\n", 4, "t_s", "times must increase"),
-    ("0.0,low,1.0\n0.1,nowhere,2.0\n", 3, "segment", "unknown segment"),
-    ("0.0,low,1.0\n0.1,low\n", 3, None, "expected 3 fields"),
-    ("0.0,low,1.0\n0.1,low,2.0,9\n", 3, None, "expected 3 fields"),
-])
+@pytest.mark.parametrize(
+    "body, line, column, message",
+    [
+        ("0.0,low,1.0\n0.1,low,nan\n", 3, "i_a", "not finite"),
+        ("0.0,low,1.0\n\n0.0,low,2.0\n", 4, "t_s", "times must increase"),
+        ("0.0,low,1.0\n0.1,nowhere,2.0\n", 3, "segment", "unknown segment"),
+        ("0.0,low,1.0\n0.1,low\n", 3, None, "expected 3 fields"),
+        ("0.0,low,1.0\n0.1,low,2.0,9\n", 3, None, "expected 3 fields"),
+    ],
+)
 def test_samples_errors_name_the_line_behind_the_fast_reader(written, body, line, column, message):
     """samples.csv is parsed in bulk first; a file the bulk parse doubts goes to the strict
     reader, so the error still names the line (blank lines counted) and the column."""
@@ -202,13 +221,19 @@ def test_a_large_samples_file_reads_exactly(tmp_path, recording):
 
     n = 50_000
     rng = np.random.default_rng(0)
-    samples = {"t_s": np.arange(n) * 5e-5, "segment": np.zeros(n, dtype=np.int64), "i_a": rng.normal(size=n), "u_b": rng.normal(size=n) * 40}
+    samples = {
+        "t_s": np.arange(n) * 5e-5,
+        "segment": np.zeros(n, dtype=np.int64),
+        "i_a": rng.normal(size=n),
+        "u_b": rng.normal(size=n) * 40,
+    }
     back = read_recording(write_recording(replace(recording, samples=samples), tmp_path / "big"))
     for k in samples:
         np.testing.assert_array_equal(back.samples[k], samples[k])
 
 
 # --- files that must not eat the machine, and encodings -------------------------------------------
+
 
 def one_line(path, file, line, column=None):
     """Refused with a RecordingError of one line naming file, line (and column)."""
@@ -234,10 +259,12 @@ def test_a_2_gib_edges_file_streams_in_bounded_memory_when_the_cap_is_lifted(wri
     import sys
 
     sparse(written / "edges.csv", 2 << 30)
-    code = ("import resource, sys\nfrom hil.recording import RecordingError, read_recording\n"
-            "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024\nbefore = peak()\n"
-            "try:\n    read_recording(sys.argv[1], max_table_bytes=1 << 40)\nexcept RecordingError as e:\n    print(e)\n"
-            "print(peak() - before)\n")
+    code = (
+        "import resource, sys\nfrom hil.recording import RecordingError, read_recording\n"
+        "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024\nbefore = peak()\n"
+        "try:\n    read_recording(sys.argv[1], max_table_bytes=1 << 40)\nexcept RecordingError as e:\n    print(e)\n"
+        "print(peak() - before)\n"
+    )
     out = subprocess.run([sys.executable, "-c", code, str(written)], capture_output=True, text=True, timeout=120)
     message, growth_mb = out.stdout.strip().splitlines()
     assert "edges.csv, line 1: line longer than 4096 bytes" in message, out.stdout + out.stderr
@@ -274,9 +301,13 @@ def test_invalid_utf8_is_named_by_line_and_column(written):
 def test_deep_json_and_huge_numbers_are_refused_at_their_position(written):
     text = (written / "meta.json").read_text()
     (written / "meta.json").write_text(text[:-2] + ',\n "deep": ' + "[" * 100_000 + "]" * 100_000 + "\n}\n")
-    assert "nested deeper than 64 levels" in one_line(written, "meta.json", text.count("\n") + 1, "73 (character)")  # the object counts
+    assert "nested deeper than 64 levels" in one_line(
+        written, "meta.json", text.count("\n") + 1, "73 (character)"
+    )  # the object counts
     (written / "meta.json").write_text(text[:-2] + ',\n "big": ' + "9" * 5000 + "\n}\n")
-    assert "a number longer than 100 characters" in one_line(written, "meta.json", text.count("\n") + 1, "9 (character)")
+    assert "a number longer than 100 characters" in one_line(
+        written, "meta.json", text.count("\n") + 1, "9 (character)"
+    )
     (written / "meta.json").write_text("x" * (2 << 20))
     assert "above the reader's limit" in one_line(written, "meta.json", None)
 

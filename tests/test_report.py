@@ -89,7 +89,9 @@ def test_xdist_workers_merge_into_one_report(pytester, this_checkout):
     result.assert_outcomes(passed=2, failed=1)
     content = report(pytester)
     assert len(content["tests"]) == 3 and content["complete"]
-    assert {t["worker"] for t in content["tests"]} <= {"gw0", "gw1"} and any(t["measurements"] for t in content["tests"])
+    assert {t["worker"] for t in content["tests"]} <= {"gw0", "gw1"} and any(
+        t["measurements"] for t in content["tests"]
+    )
 
 
 def test_bad_dut_spec_and_bad_budgets_are_usage_errors_naming_the_cause(pytester):
@@ -115,7 +117,7 @@ def test_replay_of_a_dead_controller_names_it(tmp_path, capsys):
 # --- verdicts (issue 15) ----------------------------------------------------------------------------
 HOSTILE = "\x1b[31mred\x1b[0m \x00 <script>alert(1)</script>"
 
-CAL_SUITE = f'''
+CAL_SUITE = f"""
 import pytest
 
 @pytest.mark.requirement("REQ-CAL-001")
@@ -126,7 +128,7 @@ def test_installation_offsets_removed():
 @pytest.mark.requirement("REQ-CAL-002")
 def test_pole_offsets_removed():
     pass
-'''
+"""
 
 
 def junit(pytester):
@@ -145,16 +147,26 @@ def test_a_known_failure_is_never_a_pass_and_hostile_messages_keep_the_junit_wel
     assert req["REQ-CAL-001"]["verdict"] == "fail" and req["REQ-CAL-002"]["verdict"] == "pass"
     assert content["complete"] and content["verdict"] == "FAIL"
     assert "REQ-CAL-001: fail" in content["verdict_reasons"]
-    assert any("known failure (xfail)" in r and "\\x1b[31mred" in r and "\x1b" not in r for r in content["verdict_reasons"])
+    assert any(
+        "known failure (xfail)" in r and "\\x1b[31mred" in r and "\x1b" not in r for r in content["verdict_reasons"]
+    )
     suite = junit(pytester)
     props = {p.get("name"): p.get("value") for p in suite.find("properties")}
-    assert props["hil.verdict"] == "FAIL" and props["hil.complete"] == "true" and props["hil.requirement:REQ-CAL-001"] == "fail"
+    assert (
+        props["hil.verdict"] == "FAIL"
+        and props["hil.complete"] == "true"
+        and props["hil.requirement:REQ-CAL-001"] == "fail"
+    )
     case = next(c for c in suite.iter("testcase") if c.get("name") == "test_installation_offsets_removed")
     failure = case.find("failure")
     assert failure is not None and case.find("skipped") is None
     assert "installation offsets not yet removed" in failure.get("message")
     # the forbidden characters are written out, the markup is text
-    assert "\\x1b[31mred" in failure.get("message") and "\\x00" in failure.get("message") and "<script>" in failure.get("message")
+    assert (
+        "\\x1b[31mred" in failure.get("message")
+        and "\\x00" in failure.get("message")
+        and "<script>" in failure.get("message")
+    )
     assert suite.get("failures") == "1" and suite.get("skipped") == "0"
     html = (pytester.path / "rep" / "hil-report.html").read_text()
     assert "<script>alert(1)</script>" not in html
@@ -166,21 +178,31 @@ def test_xml_safe_writes_out_every_character_xml_forbids():
     from hil.report import xml_safe
 
     forbidden = "".join(map(chr, [*range(0x00, 0x09), 0x0B, 0x0C, *range(0x0E, 0x20), 0xD800, 0xDFFF, 0xFFFE, 0xFFFF]))
-    element = ET.Element("x", message=xml_safe(forbidden + "\t\n ok é \U0001F600"))
+    element = ET.Element("x", message=xml_safe(forbidden + "\t\n ok é \U0001f600"))
     element.text = xml_safe(forbidden)
     parsed = ET.fromstring(ET.tostring(element, encoding="utf-8"))
-    assert parsed.get("message").startswith("\\x00\\x01") and parsed.get("message").endswith("\t\n ok é \U0001F600")
+    assert parsed.get("message").startswith("\\x00\\x01") and parsed.get("message").endswith("\t\n ok é \U0001f600")
     assert "\\ud800" in parsed.text and "\\ufffe" in parsed.text and "\\x1f" in parsed.text
 
 
-@pytest.mark.parametrize("body, outcome, verdict", [
-    ("@pytest.mark.xfail(reason='known', strict=False)\ndef test_t():\n    pass\n", "xpassed", "fail"),
-    ("def test_t():\n    assert False, 'broken'\n", "failed", "fail"),
-    ("@pytest.fixture\ndef broken():\n    raise RuntimeError('setup broke')\n\ndef test_t(broken):\n    pass\n", "error", "error"),
-    ("def test_t():\n    pytest.skip('not applicable to this DUT')\n", "skipped", "not tested"),
-])
+@pytest.mark.parametrize(
+    "body, outcome, verdict",
+    [
+        ("@pytest.mark.xfail(reason='known', strict=False)\ndef test_t():\n    pass\n", "xpassed", "fail"),
+        ("def test_t():\n    assert False, 'broken'\n", "failed", "fail"),
+        (
+            "@pytest.fixture\ndef broken():\n    raise RuntimeError('setup broke')\n\ndef test_t(broken):\n    pass\n",
+            "error",
+            "error",
+        ),
+        ("def test_t():\n    pytest.skip('not applicable to this DUT')\n", "skipped", "not tested"),
+    ],
+)
 def test_no_outcome_but_a_pass_gives_a_pass(pytester, body, outcome, verdict):
-    pytester.makepyfile(test_one="import pytest\n\n" + body.replace("def test_t", "@pytest.mark.requirement('REQ-X-001')\ndef test_t", 1))
+    pytester.makepyfile(
+        test_one="import pytest\n\n"
+        + body.replace("def test_t", "@pytest.mark.requirement('REQ-X-001')\ndef test_t", 1)
+    )
     pytester.runpytest("--hil-report-dir", "rep")
     content = report(pytester)
     assert content["tests"][0]["outcome"] == outcome
@@ -193,7 +215,8 @@ def test_no_outcome_but_a_pass_gives_a_pass(pytester, body, outcome, verdict):
 
 def test_an_xfail_mark_does_not_swallow_an_unreachable_controller(pytester):
     """A setup error under an xfail mark, and a skip raised while a link error was handled, are errors."""
-    pytester.makepyfile(test_dead="""
+    pytester.makepyfile(
+        test_dead="""
         import pytest
         from hil.dut import LinkError
 
@@ -212,18 +235,23 @@ def test_an_xfail_mark_does_not_swallow_an_unreachable_controller(pytester):
                 raise LinkError("node 5: no answer within 1 s")
             except LinkError:
                 pytest.skip("controller not reachable")
-    """)
+    """
+    )
     result = pytester.runpytest("--hil-report-dir", "rep")
     result.assert_outcomes(errors=1, failed=1)
     content = report(pytester)
     assert [t["outcome"] for t in content["tests"]] == ["error", "error"]
-    assert "Connection refused" in content["tests"][0]["message"] and "no answer within 1 s" in content["tests"][1]["message"]
+    assert (
+        "Connection refused" in content["tests"][0]["message"]
+        and "no answer within 1 s" in content["tests"][1]["message"]
+    )
     req = {r["id"]: r["verdict"] for r in content["traceability"]}
     assert req["REQ-ROB-001"] == req["REQ-ROB-002"] == "error" and content["verdict"] == "FAIL"
 
 
 def test_a_skip_that_does_not_apply_to_this_dut_leaves_a_pass_standing(pytester):
-    pytester.makepyfile(test_two="""
+    pytester.makepyfile(
+        test_two="""
         import pytest
 
         @pytest.mark.requirement("REQ-PROT-003")
@@ -231,14 +259,18 @@ def test_a_skip_that_does_not_apply_to_this_dut_leaves_a_pass_standing(pytester)
         def test_conformance(dut):
             if dut == "modbus":
                 pytest.skip("CANopen conformance: the DUT speaks modbus")
-    """)
+    """
+    )
     pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, skipped=1)
     content = report(pytester)
-    assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-PROT-003"] == "pass" and content["verdict"] == "PASS"
+    assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-PROT-003"] == "pass" and content[
+        "verdict"
+    ] == "PASS"
 
 
 def test_a_traced_requirement_that_no_test_answered_for_fails_the_run(pytester):
-    pytester.makepyfile(test_two="""
+    pytester.makepyfile(
+        test_two="""
         import pytest
 
         @pytest.mark.requirement("REQ-PROT-001")
@@ -248,12 +280,15 @@ def test_a_traced_requirement_that_no_test_answered_for_fails_the_run(pytester):
         @pytest.mark.requirement("REQ-PROT-002")
         def test_heartbeat():
             pytest.skip("the DUT speaks modbus")
-    """)
+    """
+    )
     pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, skipped=1)
     content = report(pytester)
     req = {r["id"]: r["verdict"] for r in content["traceability"]}
     assert req["REQ-PROT-001"] == "pass" and req["REQ-PROT-002"] == req["REQ-CAL-001"] == "not tested"
-    assert content["verdict"] == "FAIL" and content["verdict_reasons"] == ["REQ-PROT-002: not tested"]  # REQ-CAL-001: not traced
+    assert content["verdict"] == "FAIL" and content["verdict_reasons"] == [
+        "REQ-PROT-002: not tested"
+    ]  # REQ-CAL-001: not traced
 
 
 WAIVED_SUITE = """
@@ -270,25 +305,38 @@ def test_pole_offsets_removed():
 
 
 def test_a_waiver_shows_as_waived_with_reason_and_owner_never_as_pass(pytester):
-    pytester.makefile(".toml", budgets='[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms, the bench allows 60"\n'
-                                       'owner = "controls team"\ntests = ["test_fault_sequences"]\nexpires = "2999-12-31"\n')
+    pytester.makefile(
+        ".toml",
+        budgets='[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms, the bench allows 60"\n'
+        'owner = "controls team"\ntests = ["test_fault_sequences"]\nexpires = "2999-12-31"\n',
+    )
     pytester.makepyfile(test_w=WAIVED_SUITE)
     result = pytester.runpytest("--hil-report-dir", "rep", "--hil-budgets", "budgets.toml", "-rs")
     # pytest sees a skip carrying the waiver (so its exit status and its own JUnit agree with the report)
     result.assert_outcomes(passed=1, skipped=1)
     assert result.ret == pytest.ExitCode.OK
-    result.stdout.fnmatch_lines(["*HIL verdict PASS*", "*WAIVED REQ-ROB-002 (owner controls team): recovery needs 80 ms*",
-                                 "SKIPPED [[]1[]] test_w.py:*: WAIVED (REQ-ROB-002, owner controls team): recovery needs 80 ms*"])
+    result.stdout.fnmatch_lines(
+        [
+            "*HIL verdict PASS*",
+            "*WAIVED REQ-ROB-002 (owner controls team): recovery needs 80 ms*",
+            "SKIPPED [[]1[]] test_w.py:*: WAIVED (REQ-ROB-002, owner controls team): recovery needs 80 ms*",
+        ]
+    )
     content = report(pytester)
     assert content["tests"][0]["outcome"] == "failed" and "measured 1.7 deg_e" in content["tests"][0]["message"]
     req = {r["id"]: r for r in content["traceability"]}["REQ-ROB-002"]
     assert req["verdict"] == "waived" and req["waiver"]["reason"] == "recovery needs 80 ms, the bench allows 60"
-    assert req["waiver"]["owner"] == "controls team" and content["verdict"] == "PASS" and content["counts"]["waived"] == 1
-    assert [w["tests_waived"] for w in content["waivers"] if w["requirement"] == "REQ-ROB-002"] == [["test_w.py::test_fault_sequences_recover"]]
+    assert (
+        req["waiver"]["owner"] == "controls team" and content["verdict"] == "PASS" and content["counts"]["waived"] == 1
+    )
+    assert [w["tests_waived"] for w in content["waivers"] if w["requirement"] == "REQ-ROB-002"] == [
+        ["test_w.py::test_fault_sequences_recover"]
+    ]
     case = next(c for c in junit(pytester).iter("testcase") if c.get("name") == "test_fault_sequences_recover")
     skipped = case.find("skipped")
     assert case.find("failure") is None and skipped.get("message") == (
-        "WAIVED (REQ-ROB-002, owner controls team): recovery needs 80 ms, the bench allows 60")
+        "WAIVED (REQ-ROB-002, owner controls team): recovery needs 80 ms, the bench allows 60"
+    )
     assert "measured 1.7 deg_e exceeds the limit" in skipped.text
     html = (pytester.path / "rep" / "hil-report.html").read_text()
     assert "WAIVED: recovery needs 80 ms, the bench allows 60 (owner controls team)" in html
@@ -304,13 +352,17 @@ def test_a_waiver_applies_without_a_report_directory(pytester):
 
 
 def test_a_waiver_limited_to_other_tests_waives_nothing(pytester):
-    pytester.makefile(".toml", budgets='[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "r"\nowner = "o"\ntests = ["test_other"]\n')
+    pytester.makefile(
+        ".toml", budgets='[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "r"\nowner = "o"\ntests = ["test_other"]\n'
+    )
     pytester.makepyfile(test_w=WAIVED_SUITE)
     result = pytester.runpytest("--hil-report-dir", "rep", "--hil-budgets", "budgets.toml")
     result.assert_outcomes(passed=1, failed=1)
     result.stdout.fnmatch_lines(["*WAIVED REQ-ROB-002 (owner o): r [[]waives nothing in this run[]]"])
     content = report(pytester)
-    assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-ROB-002"] == "fail" and content["verdict"] == "FAIL"
+    assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-ROB-002"] == "fail" and content[
+        "verdict"
+    ] == "FAIL"
     assert [w["tests_waived"] for w in content["waivers"] if w["requirement"] == "REQ-ROB-002"] == [[]]
 
 
@@ -327,7 +379,9 @@ def test_a_usage_error_is_never_a_complete_pass(pytester):
     result = pytester.runpytest("--hil-report-dir", "rep", "no_such_file.py")
     assert result.ret == pytest.ExitCode.USAGE_ERROR
     content = report(pytester)
-    assert content["verdict"] == "INCOMPLETE" and not content["complete"] and "usage error" in content["incomplete_reason"]
+    assert (
+        content["verdict"] == "INCOMPLETE" and not content["complete"] and "usage error" in content["incomplete_reason"]
+    )
 
 
 def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdict(pytester, capsys):
@@ -342,27 +396,39 @@ def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdic
     assert main(common) == 1  # the xfail is a known failure: FAIL, though pytest itself exits 0
     assert report(pytester)["verdict"] == "FAIL"
     assert main(common + ["--", "--no-such-option"]) == pytest.ExitCode.USAGE_ERROR
-    assert not (pytester.path / "rep" / "hil-report.json").exists()  # the previous run's report is gone, not left to be read
-    assert main(["acceptance", "--suite", "no_such_dir"]) == 2 and "--suite no_such_dir: no such directory" in capsys.readouterr().err
+    assert not (
+        pytester.path / "rep" / "hil-report.json"
+    ).exists()  # the previous run's report is gone, not left to be read
+    assert (
+        main(["acceptance", "--suite", "no_such_dir"]) == 2
+        and "--suite no_such_dir: no such directory" in capsys.readouterr().err
+    )
 
 
 def _t(nodeid, outcome, *measured):
-    return {"nodeid": nodeid, "outcome": outcome, "requirements": ["REQ-R-001"],
-            "measurements": [{"requirement": "REQ-R-001", "verdict": v} for v in measured]}
+    return {
+        "nodeid": nodeid,
+        "outcome": outcome,
+        "requirements": ["REQ-R-001"],
+        "measurements": [{"requirement": "REQ-R-001", "verdict": v} for v in measured],
+    }
 
 
-@pytest.mark.parametrize("tests, waiver_tests, verdict", [
-    ([_t("a", "passed", "pass"), _t("b", "passed", "marginal")], None, "marginal"),
-    ([_t("a", "passed", "pass"), _t("b", "skipped")], None, "pass"),
-    ([_t("a", "passed", "fail")], None, "fail"),                       # a budget failed in a test that passed
-    ([_t("a", "failed"), _t("b", "error")], None, "fail"),             # fail outranks error
-    ([_t("a", "failed"), _t("b", "passed")], ["a"], "waived"),
-    ([_t("a", "failed"), _t("b", "failed")], ["a"], "fail"),           # the waiver does not reach b
-    ([_t("a", "error")], [], "error"),                                 # an error is never waived
-    ([_t("a", "skipped")], [], "waived"),                              # a waiver of the whole requirement
-    ([_t("a", "skipped")], ["a"], "not tested"),                       # ... but not one limited to tests
-    ([], None, "not tested"),
-])
+@pytest.mark.parametrize(
+    "tests, waiver_tests, verdict",
+    [
+        ([_t("a", "passed", "pass"), _t("b", "passed", "marginal")], None, "marginal"),
+        ([_t("a", "passed", "pass"), _t("b", "skipped")], None, "pass"),
+        ([_t("a", "passed", "fail")], None, "fail"),  # a budget failed in a test that passed
+        ([_t("a", "failed"), _t("b", "error")], None, "fail"),  # fail outranks error
+        ([_t("a", "failed"), _t("b", "passed")], ["a"], "waived"),
+        ([_t("a", "failed"), _t("b", "failed")], ["a"], "fail"),  # the waiver does not reach b
+        ([_t("a", "error")], [], "error"),  # an error is never waived
+        ([_t("a", "skipped")], [], "waived"),  # a waiver of the whole requirement
+        ([_t("a", "skipped")], ["a"], "not tested"),  # ... but not one limited to tests
+        ([], None, "not tested"),
+    ],
+)
 def test_requirement_verdict_table(tests, waiver_tests, verdict):
     from hil.budgets import Waiver
     from hil.report import requirement_verdict

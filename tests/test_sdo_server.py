@@ -28,11 +28,23 @@ RX, TX = 0x600 + NODE, 0x580 + NODE
 _channels = itertools.count()
 
 # CiA 301 abort codes
-COMMAND, TOGGLE, NO_OBJECT, NO_SUB, TOO_HIGH, TOO_LOW = 0x05040001, 0x05030000, 0x06020000, 0x06090011, 0x06070012, 0x06070013
+COMMAND, TOGGLE, NO_OBJECT, NO_SUB, TOO_HIGH, TOO_LOW = (
+    0x05040001,
+    0x05030000,
+    0x06020000,
+    0x06090011,
+    0x06070012,
+    0x06070013,
+)
 
 #: readable objects and what they hold (None: any value of this many bytes)
-KNOWN = {(0x100A, 0): b"vc-0.1.0", (0x1000, 0): struct.pack("<I", 0x192), (0x1018, 4): struct.pack("<I", 1),
-         (0x1018, 1): struct.pack("<I", 0xB1D), (0x2100, 8): 8}
+KNOWN = {
+    (0x100A, 0): b"vc-0.1.0",
+    (0x1000, 0): struct.pack("<I", 0x192),
+    (0x1018, 4): struct.pack("<I", 1),
+    (0x1018, 1): struct.pack("<I", 0xB1D),
+    (0x2100, 8): 8,
+}
 SPEED = (0x2001, 0)  #: REAL32, rw, 0..30000
 
 
@@ -77,6 +89,7 @@ def device():
 
 # --- single cases from the hold-out list -------------------------------------------------------
 
+
 def test_invalid_command_specifier_names_its_own_object(device):
     _, p = device
     p.ask(bytes([0x40]) + mux(0x1018, 1) + bytes(4))
@@ -85,9 +98,9 @@ def test_invalid_command_specifier_names_its_own_object(device):
 
 def test_segment_after_an_interleaved_expedited_read_is_aborted(device):
     _, p = device
-    assert p.ask(bytes([0x40]) + mux(0x100A, 0) + bytes(4))[0] == 0x41     # segmented upload begins
-    assert p.ask(bytes([0x40]) + mux(0x1000, 0) + bytes(4))[0] == 0x43     # another object, expedited
-    assert abort_of(p.ask(bytes([0x60]) + bytes(7)))[2] == COMMAND          # no leftover bytes of 0x100A
+    assert p.ask(bytes([0x40]) + mux(0x100A, 0) + bytes(4))[0] == 0x41  # segmented upload begins
+    assert p.ask(bytes([0x40]) + mux(0x1000, 0) + bytes(4))[0] == 0x43  # another object, expedited
+    assert abort_of(p.ask(bytes([0x60]) + bytes(7)))[2] == COMMAND  # no leftover bytes of 0x100A
 
 
 def test_segment_after_a_finished_upload_is_aborted(device):
@@ -101,8 +114,8 @@ def test_segment_after_a_finished_upload_is_aborted(device):
 def test_download_past_its_declared_size_is_aborted_at_once(device):
     dev, p = device
     assert p.ask(bytes([0x21]) + mux(*SPEED) + struct.pack("<I", 4))[0] == 0x60
-    assert p.ask(bytes([0x08]) + bytes(7)) == bytes([0x20]) + bytes(7)       # 3 bytes of 4
-    assert abort_of(p.ask(bytes([0x10]) + bytes(7))) == (*SPEED, TOO_HIGH)   # 10 of 4: refused on this segment
+    assert p.ask(bytes([0x08]) + bytes(7)) == bytes([0x20]) + bytes(7)  # 3 bytes of 4
+    assert abort_of(p.ask(bytes([0x10]) + bytes(7))) == (*SPEED, TOO_HIGH)  # 10 of 4: refused on this segment
     for k in range(2000):  # the client goes on: every further segment has no transfer to belong to
         assert abort_of(p.ask(bytes([(k & 1) << 4]) + bytes(7)))[2] == COMMAND
 
@@ -117,13 +130,19 @@ def test_a_wrong_length_frame_is_aborted_and_ends_the_transfer(device):
 def test_expedited_download_with_and_without_a_size(device):
     _, p = device
     strategy = (0x2000, 0)  # U8, 0..3
-    assert p.ask(bytes([0x22]) + mux(*strategy) + bytes([2, 0xEE, 0xEE, 0xEE])) == bytes([0x60]) + mux(*strategy) + bytes(4)
+    assert p.ask(bytes([0x22]) + mux(*strategy) + bytes([2, 0xEE, 0xEE, 0xEE])) == bytes([0x60]) + mux(
+        *strategy
+    ) + bytes(4)
     assert p.ask(bytes([0x40]) + mux(*strategy) + bytes(4))[:5] == bytes([0x4F]) + mux(*strategy) + bytes([2])
-    assert abort_of(p.ask(bytes([0x27]) + mux(*strategy) + bytes([1, 0, 0, 0]))) == (*strategy, 0x06070010)  # 3 bytes for a U8
+    assert abort_of(p.ask(bytes([0x27]) + mux(*strategy) + bytes([1, 0, 0, 0]))) == (
+        *strategy,
+        0x06070010,
+    )  # 3 bytes for a U8
     assert p.ask(bytes([0x2F]) + mux(*strategy) + bytes([3, 0, 0, 0]))[0] == 0x60
 
 
 # --- stateful fuzzing ----------------------------------------------------------------------------
+
 
 class SdoProtocol(RuleBasedStateMachine):
     """At most one transfer open; the device must answer every request as CiA 301 says."""
@@ -132,7 +151,9 @@ class SdoProtocol(RuleBasedStateMachine):
 
     @initialize()
     def start(self):
-        self.open = None   # ("up", (index, sub), remaining bytes, toggle) | ("down", (index, sub), declared, received, toggle)
+        self.open = (
+            None  # ("up", (index, sub), remaining bytes, toggle) | ("down", (index, sub), declared, received, toggle)
+        )
         self.last_mux = None
         self.speed = None  # last set point this test wrote (None: not yet known)
         self.frames = 0
@@ -152,7 +173,7 @@ class SdoProtocol(RuleBasedStateMachine):
         if size <= 4:
             assert answer[0] == 0x43 | ((4 - size) << 2)
             if not isinstance(truth, int):
-                assert answer[4:4 + size] == truth
+                assert answer[4 : 4 + size] == truth
             self.open = None
         else:
             assert answer[0] == 0x41 and struct.unpack_from("<I", answer, 4)[0] == size
@@ -182,7 +203,7 @@ class SdoProtocol(RuleBasedStateMachine):
         assert answer[0] >> 5 == 0 and (answer[0] >> 4) & 1 == expected_toggle
         assert 7 - ((answer[0] >> 1) & 7) == len(chunk) and bool(answer[0] & 1) == (not rest)
         if not any_value:
-            assert answer[1:1 + len(chunk)] == chunk
+            assert answer[1 : 1 + len(chunk)] == chunk
         self.open = None if not rest else ("up", key, rest, expected_toggle ^ 1, any_value)
 
     @rule(declared=st.sampled_from([None, 4, 4, 4, 2, 9]))
@@ -200,10 +221,10 @@ class SdoProtocol(RuleBasedStateMachine):
     @rule(rpm=st.floats(0.0, 30000.0, width=32), n=st.integers(1, 7), last=st.booleans(), wrong_toggle=st.booleans())
     def download_segment(self, rpm, n, last, wrong_toggle):
         toggle = (self.open[4] if self.open and self.open[0] == "down" else 0) ^ wrong_toggle
-        payload = struct.pack("<f", rpm) + b"\xAA" * 3
+        payload = struct.pack("<f", rpm) + b"\xaa" * 3
         if self.open and self.open[0] == "down":
-            payload = payload[len(self.open[3]):]  # continue the value where the transfer is
-        payload = payload[:n].ljust(n, b"\xAA")
+            payload = payload[len(self.open[3]) :]  # continue the value where the transfer is
+        payload = payload[:n].ljust(n, b"\xaa")
         answer = self.ask(bytes([(toggle << 4) | ((7 - n) << 1) | last]) + payload.ljust(7, b"\0"))
         if not self.open or self.open[0] != "down":
             assert abort_of(answer)[2] == COMMAND
@@ -238,7 +259,9 @@ class SdoProtocol(RuleBasedStateMachine):
         self.ask(bytes([0x80]) + mux(*(self.last_mux or SPEED)) + struct.pack("<I", 0x08000000), answer=False)
         self.open = None
 
-    @rule(ccs=st.sampled_from([5, 6, 7]), index=st.integers(0, 0xFFFF), sub=st.integers(0, 0xFF), low=st.integers(0, 31))
+    @rule(
+        ccs=st.sampled_from([5, 6, 7]), index=st.integers(0, 0xFFFF), sub=st.integers(0, 0xFF), low=st.integers(0, 31)
+    )
     def other_command(self, ccs, index, sub, low):
         answer = self.ask(bytes([(ccs << 5) | low]) + mux(index, sub) + bytes(4))
         assert abort_of(answer) == (index, sub, COMMAND)
@@ -258,8 +281,14 @@ class SdoProtocol(RuleBasedStateMachine):
         self.last_mux = SPEED
 
 
-SdoProtocol.TestCase.settings = settings(max_examples=150, stateful_step_count=60, deadline=None, derandomize=True, database=None,
-                                         suppress_health_check=list(HealthCheck))
+SdoProtocol.TestCase.settings = settings(
+    max_examples=150,
+    stateful_step_count=60,
+    deadline=None,
+    derandomize=True,
+    database=None,
+    suppress_health_check=list(HealthCheck),
+)
 
 
 def test_stateful_sdo_sequences(device):

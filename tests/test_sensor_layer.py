@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, strategies as st
 from scipy.optimize import brentq
 
-from plant_models import EFFECTS, OracleCommutation, PlantConfig, RawHallCommutation, Simulation, paper_bench
+from plant_models import EFFECTS, OracleCommutation, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
@@ -16,7 +16,9 @@ P = BASE.motor.pole_pairs
 
 
 def kin(*effects, speed_rpm=3000.0, current_a=2.0, direction=1, duration_s=0.2, seed=0):
-    return simulate_edges(BASE.with_effects(*effects), [OperatingPoint(duration_s, speed_rpm, current_a, direction)], seed=seed)
+    return simulate_edges(
+        BASE.with_effects(*effects), [OperatingPoint(duration_s, speed_rpm, current_a, direction)], seed=seed
+    )
 
 
 def w_e_deg_s(speed_rpm):
@@ -24,6 +26,7 @@ def w_e_deg_s(speed_rpm):
 
 
 # --- no effects ------------------------------------------------------------------------------
+
 
 @pytest.mark.parametrize("direction", [1, -1])
 def test_kinematic_no_effects_edges_are_ideal(direction):
@@ -36,8 +39,18 @@ def test_kinematic_no_effects_edges_are_ideal(direction):
 def test_kinematic_edge_sequence_matches_format_spec():
     e = kin(speed_rpm=600, duration_s=0.1)
     # forward: A rises at 0, C falls at 60, B rises at 120, A falls at 180, C rises at 240, B falls at 300
-    first = [("ABC"[s], "rise" if r else "fall", a % 360) for s, r, a in zip(e.sensor[:6], e.rising[:6], e.ideal_angle_deg_e[:6])]
-    assert first == [("A", "rise", 0), ("C", "fall", 60), ("B", "rise", 120), ("A", "fall", 180), ("C", "rise", 240), ("B", "fall", 300)]
+    first = [
+        ("ABC"[s], "rise" if r else "fall", a % 360)
+        for s, r, a in zip(e.sensor[:6], e.rising[:6], e.ideal_angle_deg_e[:6])
+    ]
+    assert first == [
+        ("A", "rise", 0),
+        ("C", "fall", 60),
+        ("B", "rise", 120),
+        ("A", "fall", 180),
+        ("C", "rise", 240),
+        ("B", "fall", 300),
+    ]
     r = kin(speed_rpm=600, duration_s=0.1, direction=-1)
     a = r.sensor == 0
     # reverse: A falls at 0 and rises at 180
@@ -71,6 +84,7 @@ def test_effect_defaults_are_neutral(name):
 
 # --- one effect at a time ------------------------------------------------------------------
 
+
 @given(fx.InstallationOffset.strategy())
 def test_installation_offset_is_per_sensor_constant(eff):
     e = kin(eff)
@@ -86,7 +100,7 @@ def test_pole_offset_repeats_every_mechanical_turn_alike_for_all_sensors(eff):
     for pole in range(2 * P):
         np.testing.assert_allclose(err[e.pole == pole], eff.offset_deg_e[pole], atol=1e-9)
     # the pattern repeats every 6p edges (one mechanical turn)
-    np.testing.assert_allclose(err[6 * P:], err[:-6 * P], atol=1e-9)
+    np.testing.assert_allclose(err[6 * P :], err[: -6 * P], atol=1e-9)
 
 
 def rc_crossing_time(v0, v_final, tau, threshold):
@@ -98,8 +112,12 @@ def test_conditioning_delay_matches_rc_circuit():
     circuit = fx.ConditioningCircuit()
     v_high, tau_r, v_low, tau_f = circuit.levels()
     # Thevenin levels from first principles (node equations solved by numpy)
-    g = np.array([[1 / circuit.r2_ohm + 1 / circuit.r3_ohm, -1 / circuit.r3_ohm],
-                  [-1 / circuit.r3_ohm, 1 / circuit.r3_ohm + 1 / circuit.r4_ohm]])
+    g = np.array(
+        [
+            [1 / circuit.r2_ohm + 1 / circuit.r3_ohm, -1 / circuit.r3_ohm],
+            [-1 / circuit.r3_ohm, 1 / circuit.r3_ohm + 1 / circuit.r4_ohm],
+        ]
+    )
     v_off = np.linalg.solve(g, [circuit.vcc_v / circuit.r2_ohm, 0.0])
     g_on = g.copy()
     g_on[0, 0] += 1 / circuit.r1_ohm
@@ -193,22 +211,34 @@ def test_timer_quantization_floors_to_tick(tick):
 
 # --- composition and the two modes agree ----------------------------------------------------
 
+
 @given(
-    fx.InstallationOffset.strategy(), fx.PoleOffset.strategy(P), fx.ConditioningDelay.strategy(),
-    fx.Hysteresis.strategy(), fx.Eccentricity.strategy(),
+    fx.InstallationOffset.strategy(),
+    fx.PoleOffset.strategy(P),
+    fx.ConditioningDelay.strategy(),
+    fx.Hysteresis.strategy(),
+    fx.Eccentricity.strategy(),
 )
 def test_effects_compose_additively(inst, pole, cond, hyst, ecc):
     e = kin(inst, pole, cond, hyst, ecc, speed_rpm=5000)
     w = w_e_deg_s(5000)
-    expected = (np.asarray(inst.offset_deg_e)[e.sensor] + np.asarray(pole.offset_deg_e)[e.pole] + hyst.lag_deg_e
-                + ecc.amplitude_deg_e * np.sin(2 * np.pi * e.pole / (2 * P) + ecc.phase_rad)
-                + np.where(e.rising, cond.rise_delay_s, cond.fall_delay_s) * w)
+    expected = (
+        np.asarray(inst.offset_deg_e)[e.sensor]
+        + np.asarray(pole.offset_deg_e)[e.pole]
+        + hyst.lag_deg_e
+        + ecc.amplitude_deg_e * np.sin(2 * np.pi * e.pole / (2 * P) + ecc.phase_rad)
+        + np.where(e.rising, cond.rise_delay_s, cond.fall_delay_s) * w
+    )
     np.testing.assert_allclose(e.capture_error_deg_e, expected, atol=1e-7)
 
 
 def test_electrical_and_kinematic_modes_agree_on_sensor_layer():
-    effects = (fx.InstallationOffset((1.5, -0.7, 0.3)), fx.PoleOffset((0.0, 0.8, -0.4, 0.2)),
-               fx.Hysteresis(0.6), fx.ConditioningDelay(6e-6, 1e-6))
+    effects = (
+        fx.InstallationOffset((1.5, -0.7, 0.3)),
+        fx.PoleOffset((0.0, 0.8, -0.4, 0.2)),
+        fx.Hysteresis(0.6),
+        fx.ConditioningDelay(6e-6, 1e-6),
+    )
     sim = Simulation(BASE.with_effects(*effects), RawHallCommutation(), duty=0.5, initial_speed_rpm=9000, seed=4)
     sim.run_until(0.05)
     e = sim.edges()
@@ -226,11 +256,18 @@ def test_electrical_and_kinematic_modes_agree_on_sensor_layer():
 
 # --- the Hall chatter defect (issue 15): each cause pinned on the electrical plant ---------------
 
+
 def _steady_raw_hall(effects, speed_rpm, duration_s=0.05, seed=0):
     from plant_models.plant import steady_state
 
-    sim = Simulation(BASE.with_effects(*effects), RawHallCommutation(), duty=steady_state(BASE.motor, speed_rpm)["duty"],
-                     initial_speed_rpm=speed_rpm, seed=seed, max_step_s=2e-6)
+    sim = Simulation(
+        BASE.with_effects(*effects),
+        RawHallCommutation(),
+        duty=steady_state(BASE.motor, speed_rpm)["duty"],
+        initial_speed_rpm=speed_rpm,
+        seed=seed,
+        max_step_s=2e-6,
+    )
     sim.run_until(duration_s)
     return sim
 
@@ -273,10 +310,14 @@ def _swinging_rotor(rise_s, fall_s):
     amplitude, so C's pulses past its boundary shrink through every width down to zero."""
     import dataclasses
 
-    motor = dataclasses.replace(BASE.motor, inertia_kg_m2=1e-8, friction_n_m_s_per_rad=1.5e-7, fan_coefficient_n_m_s2=0.0)
+    motor = dataclasses.replace(
+        BASE.motor, inertia_kg_m2=1e-8, friction_n_m_s_per_rad=1.5e-7, fan_coefficient_n_m_s2=0.0
+    )
     cfg = dataclasses.replace(BASE, motor=motor).with_effects(
-        fx.ConditioningDelay(rise_delay_s=rise_s, fall_delay_s=fall_s), fx.InstallationOffset((0.0, 0.0, 2.0)),
-        fx.CoggingTorque(amplitude_n_m=0.1, periods_per_rev=12, phase_rad=0.0))
+        fx.ConditioningDelay(rise_delay_s=rise_s, fall_delay_s=fall_s),
+        fx.InstallationOffset((0.0, 0.0, 2.0)),
+        fx.CoggingTorque(amplitude_n_m=0.1, periods_per_rev=12, phase_rad=0.0),
+    )
 
     class Unpowered:
         def on_edge(self, edge, sim):
@@ -284,7 +325,9 @@ def _swinging_rotor(rise_s, fall_s):
 
     from plant_models.simulation import Command
 
-    sim = Simulation(cfg, Unpowered(), duty=0.0, initial_speed_rpm=0.0, initial_angle_deg_m=28.0, seed=0, max_step_s=1e-6)
+    sim = Simulation(
+        cfg, Unpowered(), duty=0.0, initial_speed_rpm=0.0, initial_angle_deg_m=28.0, seed=0, max_step_s=1e-6
+    )
     sim.schedule(Command(0.0, sector=-1))
     sim.run_until(0.12)
     return sim.edges()
@@ -318,8 +361,15 @@ def test_edge_current_is_the_current_at_the_crossing():
     duty = steady_state(BASE.motor, 9000.0)["duty"] + 0.1  # driven hard: tens of amperes, fast transients
 
     def run(sample_rate_hz):
-        sim = Simulation(cfg, OracleCommutation(), duty=duty, initial_speed_rpm=9000.0, seed=0, max_step_s=2e-6,
-                         sample_rate_hz=sample_rate_hz)
+        sim = Simulation(
+            cfg,
+            OracleCommutation(),
+            duty=duty,
+            initial_speed_rpm=9000.0,
+            seed=0,
+            max_step_s=2e-6,
+            sample_rate_hz=sample_rate_hz,
+        )
         sim.run_until(0.02)
         return sim
 

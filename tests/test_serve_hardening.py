@@ -6,7 +6,6 @@ checked against a stated bound."""
 from __future__ import annotations
 
 import logging
-import os
 import random
 import re
 import signal
@@ -358,7 +357,8 @@ def test_a_dead_client_is_forgotten_and_a_stalled_one_holds_a_bounded_queue():
         while time.monotonic() < deadline and (len(server.clients) != 1 or next(iter(server.clients)).dropped == 0):
             time.sleep(0.05)
         (left,) = server.clients
-        assert server.connections == 1 and len(left.queue) <= 50 and left.dropped > 0, (server.connections, len(left.queue), left.dropped)
+        observed = (server.connections, len(left.queue), left.dropped)
+        assert server.connections == 1 and len(left.queue) <= 50 and left.dropped > 0, observed
         stalled.close()
     finally:
         device_side.shutdown()

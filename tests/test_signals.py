@@ -65,11 +65,19 @@ def read_hall_changes(path: Path):
     return out
 
 
-def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty: float = 0.5, carrier: str = "restart",
-                           complementary: bool = False, dead_time_s: float = 0.0, chopped: str = "high",
-                           delay_per_sector_s: float = 4e-6) -> list[tuple[float, int]]:
-    """Commutates 20 us + ``delay_per_sector_s`` (4 us) per sector after each Hall change; chops its ``chopped`` ("high" or
-    "low") side at ``pwm_hz``
+def independent_controller(
+    stimulus: Path,
+    out: Path,
+    pwm_hz: float = 20e3,
+    duty: float = 0.5,
+    carrier: str = "restart",
+    complementary: bool = False,
+    dead_time_s: float = 0.0,
+    chopped: str = "high",
+    delay_per_sector_s: float = 4e-6,
+) -> list[tuple[float, int]]:
+    """Commutates 20 us + ``delay_per_sector_s`` (4 us) per sector after each Hall change; chops its
+    ``chopped`` ("high" or "low") side at ``pwm_hz``
     with ``carrier`` "restart" (period restarted at each commutation, on-time first), "free"
     (free-running edge-aligned timer from t = 0: on at the period start) or "center" (free-running
     center-aligned: the on-time centred in each period); writes its six gates as a VCD with a
@@ -138,11 +146,18 @@ def independent_controller(stimulus: Path, out: Path, pwm_hz: float = 20e3, duty
     return plan
 
 
+def export_ideal_stimulus(tmp_path_factory, name: str, speed_rpm: float) -> Path:
+    """A 0.5 s stimulus without deviations at ``speed_rpm``, exported through the CLI."""
+    out = tmp_path_factory.mktemp("stimulus") / name
+    argv = ["signals", "export", "--out", str(out), "--speed-rpm", str(speed_rpm), "--duration-s", "0.5",
+            "--no-deviations"]
+    assert hil_main(argv) == 0
+    return out
+
+
 @pytest.fixture(scope="module")
 def ideal_stimulus(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("stimulus") / "ideal"
-    assert hil_main(["signals", "export", "--out", str(out), "--speed-rpm", str(SPEED_RPM), "--duration-s", "0.5", "--no-deviations"]) == 0
-    return out
+    return export_ideal_stimulus(tmp_path_factory, "ideal", SPEED_RPM)
 
 
 def score_json(stimulus: Path, capture: Path, *extra: str) -> dict:
@@ -156,10 +171,15 @@ def test_independent_controller_delay_is_recovered(ideal_stimulus, tmp_path, com
     """The judged case: 20 us + 4 us per sector after each Hall change, high side chopped at
     20 kHz, ideal stimulus at 6000 rpm: mean within 0.05 deg e of the delay, RMS within 3 %,
     nothing missed, no PWM edge taken for a commutation."""
-    plan = independent_controller(ideal_stimulus, tmp_path / "gates.vcd", complementary=complementary, dead_time_s=0.5e-6)
+    plan = independent_controller(
+        ideal_stimulus, tmp_path / "gates.vcd", complementary=complementary, dead_time_s=0.5e-6
+    )
     got = score_json(ideal_stimulus, tmp_path / "gates.vcd")
     assert set(got) == {"commutations", "missed", "extra", "angle_error_deg_e", "time_error_s"}
-    assert set(got["angle_error_deg_e"]) == {"mean", "rms", "p99", "max_abs"} and set(got["time_error_s"]) == {"mean", "rms"}
+    assert set(got["angle_error_deg_e"]) == {"mean", "rms", "p99", "max_abs"} and set(got["time_error_s"]) == {
+        "mean",
+        "rms",
+    }
     delays_s = np.array([20e-6 + 4e-6 * s for _, s in plan])
     # the first Hall change only starts the controller (its first pair is not a commutation)
     expected_deg = delays_s[1:] * OMEGA_E_DEG_S
@@ -167,7 +187,7 @@ def test_independent_controller_delay_is_recovered(ideal_stimulus, tmp_path, com
     assert got["extra"] == 0
     assert got["commutations"] == len(plan) - 1
     assert abs(got["angle_error_deg_e"]["mean"] - expected_deg.mean()) <= 0.05
-    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg ** 2)) - 1.0) <= 0.03
+    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg**2)) - 1.0) <= 0.03
     assert abs(got["time_error_s"]["mean"] - delays_s[1:].mean()) <= 1e-6
 
 
@@ -180,9 +200,7 @@ UNLOCKED_RPM = 6130.0
 
 @pytest.fixture(scope="module")
 def unlocked_stimulus(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("stimulus") / "unlocked"
-    assert hil_main(["signals", "export", "--out", str(out), "--speed-rpm", str(UNLOCKED_RPM), "--duration-s", "0.5", "--no-deviations"]) == 0
-    return out
+    return export_ideal_stimulus(tmp_path_factory, "unlocked", UNLOCKED_RPM)
 
 
 @pytest.mark.parametrize("duty", [0.3, 0.5, 0.8])
@@ -201,12 +219,14 @@ def test_free_running_carrier_delay_is_recovered(unlocked_stimulus, tmp_path, ca
     assert got["extra"] == 0
     assert got["commutations"] == len(plan) - 1
     assert abs(got["angle_error_deg_e"]["mean"] - expected_deg.mean()) <= 0.05
-    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg ** 2)) - 1.0) <= 0.03
+    assert abs(got["angle_error_deg_e"]["rms"] / np.sqrt(np.mean(expected_deg**2)) - 1.0) <= 0.03
 
 
 @pytest.mark.parametrize("duty", [0.3, 0.5, 0.8])
 @pytest.mark.parametrize("carrier", ["free", "center"], ids=["free-edge-aligned", "free-center-aligned"])
-def test_free_running_carrier_at_a_locked_speed_is_within_the_documented_bound(ideal_stimulus, tmp_path, carrier, duty, capsys):
+def test_free_running_carrier_at_a_locked_speed_is_within_the_documented_bound(
+    ideal_stimulus, tmp_path, carrier, duty, capsys
+):
     """At exactly 6000 rpm the carrier phase of each sector repeats every revolution: the mean
     error is then within the documented bound, (located / commutations) x half the off-time x
     the electrical speed (plus the stimulus' sampling bound), of the delay; nothing missed,
@@ -225,7 +245,8 @@ def test_free_running_carrier_at_a_locked_speed_is_within_the_documented_bound(i
 
 def _stimulus(tmp_path_factory, rpm: float, name: str) -> Path:
     out = tmp_path_factory.mktemp("stimulus") / name
-    assert hil_main(["signals", "export", "--out", str(out), "--speed-rpm", repr(rpm), "--duration-s", "0.3", "--no-deviations"]) == 0
+    args = ["--out", str(out), "--speed-rpm", repr(rpm), "--duration-s", "0.3", "--no-deviations"]
+    assert hil_main(["signals", "export", *args]) == 0
     return out
 
 
@@ -236,8 +257,8 @@ def _stimulus(tmp_path_factory, rpm: float, name: str) -> Path:
     (10000.0, 0.0, "undetermined"),
     # 546 us sectors: 5 of 6 commutations 550 us = 11 periods apart, the sixth (26 us less) off the grid
     (60.0 / (6 * POLE_PAIRS * 546e-6), 4e-6, "restarted")], ids=["10000rpm-one-delay", "9157rpm-delay-per-sector"])
-def test_restarted_carrier_on_whole_periods_is_scored_at_its_turn_on(tmp_path_factory, tmp_path, rpm, delay_per_sector_s, carrier,
-                                                                     duty, chopped, capsys):
+def test_restarted_carrier_on_whole_periods_is_scored_at_its_turn_on(
+        tmp_path_factory, tmp_path, rpm, delay_per_sector_s, carrier, duty, chopped, capsys):
     """A carrier restarted at each commutation, commutations a whole number of carrier periods
     apart: the restart's turn-on of a changed chopped phase lands on the old carrier's grid,
     exactly where a free-running carrier would show a change hidden in its off-time. Either no
@@ -246,8 +267,8 @@ def test_restarted_carrier_on_whole_periods_is_scored_at_its_turn_on(tmp_path_fa
     sample-rate bound (Hall edges quantised to the 1 MHz stimulus; the gates are exact)."""
     stimulus = _stimulus(tmp_path_factory, rpm, "whole")
     pwm_hz = 20e3
-    plan = independent_controller(stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier="restart", chopped=chopped,
-                                  delay_per_sector_s=delay_per_sector_s)
+    plan = independent_controller(stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier="restart",
+                                  chopped=chopped, delay_per_sector_s=delay_per_sector_s)
     got = score_json(stimulus, tmp_path / "gates.vcd")
     omega_e_deg_s = rpm * 6.0 * POLE_PAIRS
     delays_s = np.array([20e-6 + delay_per_sector_s * s for _, s in plan])[1:]
@@ -305,7 +326,8 @@ def test_carrier_mode_of_a_sampled_capture(unlocked_stimulus, tmp_path, carrier,
     got = score_json(unlocked_stimulus, _sampled_at_1mhz(tmp_path / "gates.vcd", tmp_path / "sampled.vcd"))
     mode = "restarted" if carrier == "restart" else "free-running"
     out = capsys.readouterr().out
-    m = re.search(r"carrier: ([a-z-]+) \((\d+) commutations show the carrier grid running on across them, (\d+) show its phase reset", out)
+    m = re.search(r"carrier: ([a-z-]+) \((\d+) commutations show the carrier grid running on across them, "
+                  r"(\d+) show its phase reset", out)
     assert m and m.group(1) == mode, out
     free, restart = int(m.group(2)), int(m.group(3))
     assert (restart if mode == "free-running" else free) == 0 and (free if mode == "free-running" else restart) > 50
@@ -335,10 +357,21 @@ def _hidden_in_off_time(plan, pwm_hz, duty, carrier, chopped="high"):
 
 
 @pytest.mark.parametrize("duty", [0.1, 0.3, 0.5, 0.8, 0.95])
-@pytest.mark.parametrize("carrier,chopped,complementary", [("free", "high", False), ("center", "high", False), ("restart", "high", False),
-                                                           ("free", "low", False), ("center", "low", False), ("free", "high", True)],
-                         ids=["free-high", "center-high", "restart-high", "free-low", "center-low", "free-complementary"])
-def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(unlocked_stimulus, tmp_path, carrier, chopped, complementary, duty):
+@pytest.mark.parametrize(
+    "carrier,chopped,complementary",
+    [
+        ("free", "high", False),
+        ("center", "high", False),
+        ("restart", "high", False),
+        ("free", "low", False),
+        ("center", "low", False),
+        ("free", "high", True),
+    ],
+    ids=["free-high", "center-high", "restart-high", "free-low", "center-low", "free-complementary"],
+)
+def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(
+    unlocked_stimulus, tmp_path, carrier, chopped, complementary, duty
+):
     """Each change of the chopped phase hidden in a free-running off-time (high or low side
     chopped) is reported at the midpoint of that off-interval, so within half the off-time of the
     true instant, and counted; every other commutation (of the unchopped side, during an on-time,
@@ -347,8 +380,16 @@ def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(unlocked_stim
     from hil.signals.commutations import extract
 
     pwm_hz = 20e3
-    plan = independent_controller(unlocked_stimulus, tmp_path / "gates.vcd", pwm_hz=pwm_hz, duty=duty, carrier=carrier, chopped=chopped,
-                                  complementary=complementary, dead_time_s=0.5e-6)
+    plan = independent_controller(
+        unlocked_stimulus,
+        tmp_path / "gates.vcd",
+        pwm_hz=pwm_hz,
+        duty=duty,
+        carrier=carrier,
+        chopped=chopped,
+        complementary=complementary,
+        dead_time_s=0.5e-6,
+    )
     ex = extract(Capture(tmp_path / "gates.vcd"))
     t_c, s_c = ex.commutations
     made = np.array([t for t, _ in plan[1:]])
@@ -397,7 +438,14 @@ def test_exported_currents_hold_their_speed_on_the_plant(rpm):
     config = paper_bench()
     tables = tabulate(config, [rpm])
     k = int(np.nonzero(tables.speeds_rpm == rpm)[0][0])
-    sim = Simulation(config, OracleCommutation(), duty=float(tables.duty[k]), initial_speed_rpm=rpm, sample_rate_hz=100e3, max_step_s=2e-6)
+    sim = Simulation(
+        config,
+        OracleCommutation(),
+        duty=float(tables.duty[k]),
+        initial_speed_rpm=rpm,
+        sample_rate_hz=100e3,
+        max_step_s=2e-6,
+    )
     sim.run_until(0.25)
     s = sim.samples()
     late = s.t_s >= 0.05  # past the winding currents' settling
@@ -420,9 +468,12 @@ def deterministic_plant():
 
     from hil.calibration.campaign import station_corrections
 
-    config = paper_bench().with_effects(fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
-                                        fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),
-                                        fx.ConditioningDelay.from_circuit(PAPER_BENCH_CIRCUIT), fx.TimerQuantization(tick_s=1e-7))
+    config = paper_bench().with_effects(
+        fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
+        fx.PoleOffset(offset_deg_e=paper_pole_offsets_deg_e()),
+        fx.ConditioningDelay.from_circuit(PAPER_BENCH_CIRCUIT),
+        fx.TimerQuantization(tick_s=1e-7),
+    )
     return config, station_corrections(config)
 
 
@@ -454,8 +505,13 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
             lk.download_calibration(corrections)
         return lk
 
-    bench = LockstepBench(config, link(), initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"],
-                          sim_options={"max_step_s": 2e-6})
+    bench = LockstepBench(
+        config,
+        link(),
+        initial_speed_rpm=rpm,
+        duty=steady_state(config.motor, rpm)["duty"],
+        sim_options={"max_step_s": 2e-6},
+    )
     bench.sim.run_until(0.6)
     c = bench.sim.commutations()
     keep = c.t_s >= 0.1  # past the controller's start and pole alignment on both paths
@@ -464,9 +520,17 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     speed = float(np.mean(s.speed_rpm[s.t_s >= 0.1]))
     assert abs(speed - rpm) < 0.01 * rpm
 
-    export(tmp_path / "stim", ExportSettings(config=config, breakpoints=[(0.0, speed)], duration_s=0.6, sample_rate_hz=fs, write_csv=False))
-    run_loopback(tmp_path / "stim", link(), tmp_path / "gates.vcd", pwm_frequency_hz=config.inverter.pwm_frequency_hz,
-                 capture_tick_s=config.compile().timer_tick_s)
+    export(
+        tmp_path / "stim",
+        ExportSettings(config=config, breakpoints=[(0.0, speed)], duration_s=0.6, sample_rate_hz=fs, write_csv=False),
+    )
+    run_loopback(
+        tmp_path / "stim",
+        link(),
+        tmp_path / "gates.vcd",
+        pwm_frequency_hz=config.inverter.pwm_frequency_hz,
+        capture_tick_s=config.compile().timer_tick_s,
+    )
     sc = score(tmp_path / "stim", tmp_path / "gates.vcd")
     assert sc.missed == 0 and sc.extra == 0
     assert sc.extracted.located_in_off_time == 0  # every commutation seen where the gates made it
@@ -476,7 +540,7 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     # pin quantisation (half a sample) plus gate quantisation (half a sample), as an angle
     bound_deg = 1.0 / fs * speed * 6.0 * POLE_PAIRS
     assert abs(np.mean(err) - np.mean(lock_err)) <= bound_deg
-    assert abs(np.sqrt(np.mean(err ** 2)) - np.sqrt(np.mean(lock_err ** 2))) <= bound_deg
+    assert abs(np.sqrt(np.mean(err**2)) - np.sqrt(np.mean(lock_err**2))) <= bound_deg
     for q in range(6):
         assert abs(np.mean(err[sector == q]) - np.mean(lock_err[lock_sector == q])) <= bound_deg, q
 
@@ -492,15 +556,20 @@ def loopback_gates(ideal_stimulus, tmp_path_factory) -> Path:
 def _sigrok() -> str:
     exe = shutil.which("sigrok-cli")
     if exe is None:
-        pytest.skip("sigrok-cli is not installed (Debian package sigrok-cli; .ci/run installs it): the .sr reader is not checked "
-                    "against the real tool's files in this run")
+        pytest.skip(
+            "sigrok-cli is not installed (Debian package sigrok-cli; .ci/run installs it): the .sr reader is not "
+            "checked "
+            "against the real tool's files in this run"
+        )
     return exe
 
 
 def test_sigrok_session_scores_the_same_as_its_vcd(ideal_stimulus, loopback_gates, tmp_path):
     exe = _sigrok()
     sr = tmp_path / "gates.sr"
-    subprocess.run([exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300
+    )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, sr)
     assert a["commutations"] == b["commutations"] > 500 and a["missed"] == b["missed"] and a["extra"] == b["extra"]
     for group in ("angle_error_deg_e", "time_error_s"):
@@ -513,10 +582,14 @@ def test_sigrok_csv_export_scores_the_same_as_its_vcd(ideal_stimulus, loopback_g
     are read from its header comments."""
     exe = _sigrok()
     sr = tmp_path / "gates.sr"
-    subprocess.run([exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300)
+    subprocess.run(
+        [exe, "-I", "vcd", "-i", str(loopback_gates), "-o", str(sr)], check=True, capture_output=True, timeout=300
+    )
     csv = tmp_path / "gates.csv"
     with open(csv, "w") as f:
-        subprocess.run([exe, "-i", str(sr), "-O", "csv:time=true:label=channel:dedup=true"], check=True, stdout=f, timeout=300)
+        subprocess.run(
+            [exe, "-i", str(sr), "-O", "csv:time=true:label=channel:dedup=true"], check=True, stdout=f, timeout=300
+        )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, csv)
     assert a["commutations"] == b["commutations"] and a["missed"] == b["missed"] and a["extra"] == b["extra"]
     assert b["angle_error_deg_e"]["mean"] == pytest.approx(a["angle_error_deg_e"]["mean"], abs=1e-9)
@@ -535,7 +608,9 @@ def test_csv_capture_with_mapping_and_inverted_channels(ideal_stimulus, loopback
     csv = tmp_path / "gates.csv"
     csv.write_text("Time [s]," + ",".join(f"Channel {j}" for j in range(6)) + "\n" + "\n".join(rows) + "\n")
     mapping = tmp_path / "map.toml"
-    mapping.write_text("active_low = [\"AL\"]\n[channels]\n" + "".join(f'{g} = "Channel {j}"\n' for j, g in enumerate(GATES)))
+    mapping.write_text(
+        'active_low = ["AL"]\n[channels]\n' + "".join(f'{g} = "Channel {j}"\n' for j, g in enumerate(GATES))
+    )
     a, b = score_json(ideal_stimulus, loopback_gates), score_json(ideal_stimulus, csv, "--mapping", str(mapping))
     assert a["commutations"] == b["commutations"] and b["missed"] == 0 and b["extra"] == 0
     assert b["angle_error_deg_e"]["rms"] == pytest.approx(a["angle_error_deg_e"]["rms"], rel=1e-6)
@@ -549,8 +624,11 @@ def _gates_vcd(path: Path, events: list[tuple[float, str, int]], end_s: float) -
     w = VcdWriter(path, Timescale(1, "ns"), list(GATES))
     w.initial([0] * 6)
     events = sorted(events)
-    w.changes(np.array([round(t * 1e9) for t, _, _ in events]), np.array([GATES.index(g) for _, g, _ in events]),
-              np.array([v for _, _, v in events], dtype=float))
+    w.changes(
+        np.array([round(t * 1e9) for t, _, _ in events]),
+        np.array([GATES.index(g) for _, g, _ in events]),
+        np.array([v for _, _, v in events], dtype=float),
+    )
     w.close(round(end_s * 1e9))
     return path
 
@@ -559,10 +637,10 @@ def test_glitch_on_the_floating_phase_is_not_a_commutation(tmp_path):
     from hil.signals.capture import Capture
     from hil.signals.commutations import extract
 
-    ev = [(0.0, "CL", 1), (0.0, "BH", 1)]          # sector 4: B high, C low
-    ev += [(300e-6, "AH", 1), (302e-6, "AH", 0)]     # 2 us spike on the floating phase A
-    ev += [(600e-6, "CL", 0), (600e-6, "AL", 1)]     # commutation to sector 5: B high, A low
-    for k in range(40):                              # B's high side chopped at 20 kHz throughout
+    ev = [(0.0, "CL", 1), (0.0, "BH", 1)]  # sector 4: B high, C low
+    ev += [(300e-6, "AH", 1), (302e-6, "AH", 0)]  # 2 us spike on the floating phase A
+    ev += [(600e-6, "CL", 0), (600e-6, "AL", 1)]  # commutation to sector 5: B high, A low
+    for k in range(40):  # B's high side chopped at 20 kHz throughout
         ev += [(k * 50e-6 + 25e-6, "BH", 0), (k * 50e-6 + 50e-6 - 1e-9, "BH", 1)]
     ex = extract(Capture(_gates_vcd(tmp_path / "g.vcd", ev, 2e-3)))
     t, s = ex.commutations
@@ -589,7 +667,9 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     fs = 250e3
     config = paper_bench(True)
     points = [(0.0, 2000.0), (0.3, 9000.0)]
-    settings = ExportSettings(config=config, breakpoints=points, duration_s=0.3, sample_rate_hz=fs, seed=7, currents=False, write_csv=False)
+    settings = ExportSettings(
+        config=config, breakpoints=points, duration_s=0.3, sample_rate_hz=fs, seed=7, currents=False, write_csv=False
+    )
     export(tmp_path, settings)
     r = VcdReader(tmp_path / "stimulus.vcd")
     ticks, slot, val = (np.concatenate(a) for a in zip(*r.changes(["HA", "HB", "HC"])))
@@ -597,8 +677,16 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     traj = Trajectory(points, 0.3, config.motor.pole_pairs)
     from hil.signals import export as ex_mod
 
-    plant_t = np.sort(np.concatenate([_chunk_edges(config, traj, k * ex_mod.CHUNK_S, min((k + 1) * ex_mod.CHUNK_S, 0.3), settings, None,
-                                                   chunk=k).t_conditioned_s for k in range(math.ceil(0.3 / ex_mod.CHUNK_S))]))
+    plant_t = np.sort(
+        np.concatenate(
+            [
+                _chunk_edges(
+                    config, traj, k * ex_mod.CHUNK_S, min((k + 1) * ex_mod.CHUNK_S, 0.3), settings, None, chunk=k
+                ).t_conditioned_s
+                for k in range(math.ceil(0.3 / ex_mod.CHUNK_S))
+            ]
+        )
+    )
     plant_t = plant_t[(plant_t > 0.5 / fs) & (plant_t < 0.3 - 0.5 / fs)]
     assert t_vcd.size == plant_t.size
     assert np.max(np.abs(np.sort(t_vcd) - plant_t)) <= 0.5 / fs + 1e-12
@@ -613,7 +701,9 @@ def test_csv_is_the_vcd_sampled(tmp_path):
 
     from hil.signals.vcd import VcdReader
 
-    assert hil_main(["signals", "export", "--out", str(tmp_path), "--duration-s", "0.05", "--sample-rate-hz", "200000", "--seed", "3"]) == 0
+    argv = ["signals", "export", "--out", str(tmp_path), "--duration-s", "0.05", "--sample-rate-hz", "200000",
+            "--seed", "3"]
+    assert hil_main(argv) == 0
     csv = pd.read_csv(tmp_path / "stimulus.csv")
     r = VcdReader(tmp_path / "stimulus.vcd")
     names = ["HA", "HB", "HC", "IA", "IB", "IC"]
@@ -634,10 +724,17 @@ def test_chunk_seams_do_not_change_the_stimulus(tmp_path, monkeypatch):
 
     def run(chunk_s, out):
         monkeypatch.setattr(ex_mod, "CHUNK_S", chunk_s)
-        s = ex_mod.ExportSettings(config=ex_mod.ideal(paper_bench()), breakpoints=[(0, 3000.0)], duration_s=0.2, currents=False,
-                                  write_csv=False)
+        s = ex_mod.ExportSettings(
+            config=ex_mod.ideal(paper_bench()),
+            breakpoints=[(0, 3000.0)],
+            duration_s=0.2,
+            currents=False,
+            write_csv=False,
+        )
         ex_mod.export(out, s)
-        return (out / "truth.csv").read_text(), [l for l in (out / "stimulus.vcd").read_text().splitlines() if not l.startswith(" ")]
+        return (out / "truth.csv").read_text(), [
+            ln for ln in (out / "stimulus.vcd").read_text().splitlines() if not ln.startswith(" ")
+        ]
 
     a, b = run(0.2, tmp_path / "one"), run(0.03, tmp_path / "many")
     assert a[0] == b[0]
@@ -730,7 +827,7 @@ def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_h
     sectors = [first]
     for d in steps:
         sectors.append((sectors[-1] + d) % 6)
-    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[:len(steps)]) * 1e-6)])
+    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[: len(steps)]) * 1e-6)])
     end = starts[-1] + 1e-3
     t, s = _six_step_states(sectors, starts, end, pwm_hz, duty, scheme)
     ex = Extractor(100e-6)
@@ -750,7 +847,13 @@ def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
     same as six wires, mapped as gates[0] ... gates[5]."""
     from hil.signals.capture import GATES, Capture
 
-    lines = ["$timescale 1 us $end", "$scope module dut $end", "$var wire 6 ! gates [5:0] $end", "$upscope $end", "$enddefinitions $end"]
+    lines = [
+        "$timescale 1 us $end",
+        "$scope module dut $end",
+        "$var wire 6 ! gates [5:0] $end",
+        "$upscope $end",
+        "$enddefinitions $end",
+    ]
     for t, s in Capture(loopback_gates).states():
         for ti, si in zip(t.tolist(), s.tolist()):
             lines += [f"#{round(ti * 1e6)}", f"b{si:b} !"]
@@ -765,7 +868,9 @@ def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
 @given(first=st.integers(0, 5), steps=st.lists(st.sampled_from([1, 1, 1, 5]), min_size=3, max_size=30),
        gaps_us=st.lists(st.floats(190.0, 2000.0), min_size=30, max_size=30), pwm_hz=st.floats(10.5e3, 40e3),
        duty=st.floats(0.1, 0.95), side=st.sampled_from(["high", "low"]), center=st.booleans())
-def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint(first, steps, gaps_us, pwm_hz, duty, side, center):
+def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint(
+    first, steps, gaps_us, pwm_hz, duty, side, center
+):
     """Random six-step runs under a free-running carrier (edge- or center-aligned, high or low side
     chopped, any duty): a commutation of the unchopped side or during an on-time is exact; one of
     the chopped side inside an off-time is at that off-interval's midpoint when the old switch's
@@ -778,7 +883,7 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
     sectors = [first]
     for d in steps:
         sectors.append((sectors[-1] + d) % 6)
-    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[:len(steps)]) * 1e-6)]) + 7e-6
+    starts = np.concatenate([[0.0], np.cumsum(np.array(gaps_us[: len(steps)]) * 1e-6)]) + 7e-6
     end = starts[-1] + 1e-3
     period = 1.0 / pwm_hz
     lead = (1.0 - duty) / 2 * period if center else 0.0
@@ -793,7 +898,11 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
     role = 0 if side == "high" else 1
 
     def pwm_on(x):
-        return np.nonzero(on_edges <= x)[0][-1] == np.nonzero(off_edges <= x)[0][-1] + 1 if (off_edges <= x).any() else True
+        return (
+            np.nonzero(on_edges <= x)[0][-1] == np.nonzero(off_edges <= x)[0][-1] + 1
+            if (off_edges <= x).any()
+            else True
+        )
 
     states = []
     for a, b in zip(t, np.append(t[1:], end)):
@@ -814,9 +923,11 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
     # chopped phase changed in an off-time; and whether the run tells the carrier mode: some
     # commutation seen at its instant, off the grid (kept so above), after two grid turn-ons of the
     # old chopped switch in the old pair's time (docs/signals.md)
-    hidden = [i > 0 and hi_lo[sectors[i - 1]][role] != hi_lo[sectors[i]][role] and not pwm_on(starts[i]) for i in range(len(sectors))]
+    hidden = [i > 0 and hi_lo[sectors[i - 1]][role] != hi_lo[sectors[i]][role] and not pwm_on(starts[i])
+              for i in range(len(sectors))]
     shown = [on_edges[on_edges > starts[i]].min() if hidden[i] else starts[i] for i in range(len(sectors))]
-    free_shown = any(not hidden[i] and ((on_edges > shown[i - 1]) & (on_edges < starts[i])).sum() >= 2 for i in range(1, len(sectors)))
+    free_shown = any(not hidden[i] and ((on_edges > shown[i - 1]) & (on_edges < starts[i])).sum() >= 2
+                     for i in range(1, len(sectors)))
     assert got.carrier == ("free-running" if free_shown else "undetermined")
     assert got.carrier_restart_evidence == 0
     located = 0

@@ -47,5 +47,7 @@ def test_sparse_oversized_and_undecodable_traces_are_one_line(files, tmp_path):
         read_trace(trace, MAPPING, meta)
     assert "\n" not in str(info.value)
     meta.write_text('{"format": "hil-recording/1", "x": ' + "[" * 100_000 + "]" * 100_000 + "}")
-    with pytest.raises(RecordingError, match=r"meta.json, line 1, column \d+ \(character\): nested deeper than 64 levels"):
+    with pytest.raises(
+        RecordingError, match=r"meta.json, line 1, column \d+ \(character\): nested deeper than 64 levels"
+    ):
         read_trace(tmp_path / "t.csv", MAPPING, meta)

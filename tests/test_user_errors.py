@@ -12,7 +12,10 @@ def test_unknown_preset_is_one_line_naming_file_and_known_presets(tmp_path, caps
     plant.write_text('preset = "nope"\n')
     assert main(["plant", "check", str(plant)]) == 2
     err = capsys.readouterr().err
-    assert err.strip() == f"hil: error: {plant}: preset: unknown preset 'nope' (known: paper-bench, paper-bench+deviations)"
+    assert (
+        err.strip()
+        == f"hil: error: {plant}: preset: unknown preset 'nope' (known: paper-bench, paper-bench+deviations)"
+    )
 
 
 def test_gap_diagnose_of_something_else_says_it_is_not_a_recording(tmp_path, capsys):

@@ -22,9 +22,12 @@ def main() -> int:
     print(json.dumps(summary, indent=2))
     worst = sorted(results, key=lambda r: r["sh"] / r["kf"], reverse=True)[:5]
     for r in worst:
-        print(f"SH {r['sh']:.4f} vs KF {r['kf']:.4f} deg e: jitter {r['jitter_s'] * 1e6:.2f} us, angle jitter {r['angle_jitter_deg']:.3f}, "
-              f"Q0 x10^{r['q_factor_log10']:.2f}, {r['start_rpm']:.0f} -> {r['end_rpm'] or r['start_rpm']:.0f} rpm, "
-              f"load x{r['load_scale']:.2f}, seed {r['seed']}, {r['scored_edges']} edges")
+        print(
+            f"SH {r['sh']:.4f} vs KF {r['kf']:.4f} deg e: jitter {r['jitter_s'] * 1e6:.2f} us, angle jitter "
+            f"{r['angle_jitter_deg']:.3f}, "
+            f"Q0 x10^{r['q_factor_log10']:.2f}, {r['start_rpm']:.0f} -> {r['end_rpm'] or r['start_rpm']:.0f} rpm, "
+            f"load x{r['load_scale']:.2f}, seed {r['seed']}, {r['scored_edges']} edges"
+        )
     print(f"{n} conditions in {time.perf_counter() - start:.0f} s")
     return 0
 

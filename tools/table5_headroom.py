@@ -92,13 +92,23 @@ def main():
     def oracle_rows(z, group):
         """The KF with R_theta multiplied by the burst factor 10^z[4] while the true burst is on."""
         x, factor = 10.0 ** z[:4], 10.0 ** z[4]
-        return [run_scheduled(r, model, x, lambda k, w, b=state_of[id(r)]: factor if b[k] else 1.0, lambda k, w: 1.0) for r in group]
+        return [
+            run_scheduled(r, model, x, lambda k, w, b=state_of[id(r)]: factor if b[k] else 1.0, lambda k, w: 1.0)
+            for r in group
+        ]
 
-    z = minimize(lambda z: float(np.mean([row.angle_rms_deg_e for row in oracle_rows(z, b_train)])),
-                 np.log10([*start_b, 16.0]), method="Nelder-Mead", options=dict(maxfev=80)).x
+    z = minimize(
+        lambda z: float(np.mean([row.angle_rms_deg_e for row in oracle_rows(z, b_train)])),
+        np.log10([*start_b, 16.0]),
+        method="Nelder-Mead",
+        options=dict(maxfev=80),
+    ).x
     oracle_b = np.mean([row.all_values() for row in oracle_rows(z, b_eval)], axis=0)
-    table(f"with interference bursts (12 us RMS, ~0.4 s in every ~1.9 s): R switched by the true burst state (x{10 ** z[4]:.1f})",
-          [("fixed Q, R (the tuned KF)", fixed_b), ("oracle R by burst state", oracle_b)])
+    table(
+        "with interference bursts (12 us RMS, ~0.4 s in every ~1.9 s): R switched by the true burst state "
+        f"(x{10 ** z[4]:.1f})",
+        [("fixed Q, R (the tuned KF)", fixed_b), ("oracle R by burst state", oracle_b)],
+    )
 
 
 if __name__ == "__main__":

@@ -21,7 +21,13 @@ from plant_models.plant import steady_state
 class CalibrationCampaign:
     low_speeds_rpm: tuple[float, ...] = (960.0, 1107.0, 1330.0)
     no_load_sweep_rpm: tuple[float, ...] = (2000.0, 4000.0, 6000.0, 8000.0, 10000.0)
-    loaded_points: tuple[tuple[float, float], ...] = ((5000.0, 1.0), (7000.0, 1.0), (10000.0, 1.0), (7000.0, 0.5), (10000.0, 0.5))
+    loaded_points: tuple[tuple[float, float], ...] = (
+        (5000.0, 1.0),
+        (7000.0, 1.0),
+        (10000.0, 1.0),
+        (7000.0, 0.5),
+        (10000.0, 0.5),
+    )
     turns_per_point: int = 200
 
     def operating_points(self, config: PlantConfig) -> list[OperatingPoint]:
@@ -49,8 +55,14 @@ def station_corrections(config: PlantConfig, seed: int = 0):
     return fit_corrections(CalibrationCampaign().run(config, seed=seed))
 
 
-def record_line_bemf_segments(config: PlantConfig, speeds_rpm=(960.0, 1107.0, 1330.0), turns: int = 20, seed: int = 0,
-                              sample_rate_hz: float = 100e3, reference_angle: bool = False) -> Recording:
+def record_line_bemf_segments(
+    config: PlantConfig,
+    speeds_rpm=(960.0, 1107.0, 1330.0),
+    turns: int = 20,
+    seed: int = 0,
+    sample_rate_hz: float = 100e3,
+    reference_angle: bool = False,
+) -> Recording:
     """Electrical-plant segments at the paper's calibration speeds, commutating on raw Hall edges,
     with terminal voltages and phase currents sampled (through the current sensors): what the
     Line-BEMF step (Eq. 3-5) needs from the bench."""

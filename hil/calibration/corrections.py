@@ -48,13 +48,21 @@ class Corrections:
         rising = np.asarray(rising, dtype=bool)
         w_e_deg_s = np.asarray(speed_rpm, dtype=float) * 6.0 * self.pole_pairs
         delay = np.where(rising, self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"])
-        return self.static_deg_e(sensor, pole) + w_e_deg_s * delay + self.armature_reaction_deg_e_per_a * np.asarray(current_a, dtype=float)
+        return (
+            self.static_deg_e(sensor, pole)
+            + w_e_deg_s * delay
+            + self.armature_reaction_deg_e_per_a * np.asarray(current_a, dtype=float)
+        )
 
     def correction_one_deg_e(self, sensor: int, rising: bool, pole: int, speed_rpm: float, current_a: float) -> float:
         """``correction_deg_e`` for one edge in plain floats (the controller's per-edge path)."""
         delay = self.conditioning_delay_s["rise" if rising else "fall"]
-        return (self.installation_offset_deg_e[SENSORS[sensor]] + self.pole_offset_deg_e[pole]
-                + speed_rpm * 6.0 * self.pole_pairs * delay + self.armature_reaction_deg_e_per_a * current_a)
+        return (
+            self.installation_offset_deg_e[SENSORS[sensor]]
+            + self.pole_offset_deg_e[pole]
+            + speed_rpm * 6.0 * self.pole_pairs * delay
+            + self.armature_reaction_deg_e_per_a * current_a
+        )
 
     def to_json_dict(self) -> dict[str, Any]:
         return {
@@ -89,14 +97,21 @@ class Corrections:
 
     def as_vector(self) -> list[float]:
         """The ten table values in protocol order: installation A/B/C, poles 0-3, rise, fall, armature."""
-        return ([self.installation_offset_deg_e[s] for s in SENSORS] + list(self.pole_offset_deg_e)
-                + [self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"], self.armature_reaction_deg_e_per_a])
+        return (
+            [self.installation_offset_deg_e[s] for s in SENSORS]
+            + list(self.pole_offset_deg_e)
+            + [self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"], self.armature_reaction_deg_e_per_a]
+        )
 
     @classmethod
     def from_vector(cls, v: list[float]) -> "Corrections":
         """Inverse of :meth:`as_vector` (four pole offsets: two pole pairs)."""
-        return cls(installation_offset_deg_e=dict(zip(SENSORS, v[:3])), pole_offset_deg_e=list(v[3:7]),
-                   conditioning_delay_s={"rise": v[7], "fall": v[8]}, armature_reaction_deg_e_per_a=v[9])
+        return cls(
+            installation_offset_deg_e=dict(zip(SENSORS, v[:3])),
+            pole_offset_deg_e=list(v[3:7]),
+            conditioning_delay_s={"rise": v[7], "fall": v[8]},
+            armature_reaction_deg_e_per_a=v[9],
+        )
 
     def as_float32(self) -> "Corrections":
         """The table as every controller link stores it (IEEE single precision): the declared scaling."""
@@ -122,8 +137,15 @@ class Corrections:
         )
 
 
-def corrected_edge_times(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, pole: np.ndarray,
-                         corrections: Corrections, current_a: np.ndarray, pole_pairs: int) -> np.ndarray:
+def corrected_edge_times(
+    t_s: np.ndarray,
+    sensor: np.ndarray,
+    rising: np.ndarray,
+    pole: np.ndarray,
+    corrections: Corrections,
+    current_a: np.ndarray,
+    pole_pairs: int,
+) -> np.ndarray:
     """Each captured edge moved back by its calibrated deviation (paper Fig. 4), vectorised.
 
     The angle is turned into time with the speed over the preceding mechanical turn (the same

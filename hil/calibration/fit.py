@@ -33,7 +33,10 @@ class CalibrationError(ValueError):
 
 def _check_data(rec: Recording) -> None:
     if len(rec) < 6 * rec.pole_pairs:
-        raise CalibrationError(f"{rec.path or 'recording'}: only {len(rec)} edges; calibration needs at least one mechanical turn ({6 * rec.pole_pairs} edges)")
+        raise CalibrationError(
+            f"{rec.path or 'recording'}: only {len(rec)} edges; calibration needs at least one mechanical turn "
+            f"({6 * rec.pole_pairs} edges)"
+        )
 
 
 def segment_speed_deg_e_s(rec: Recording) -> np.ndarray:
@@ -87,7 +90,9 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
         names.append(("inst", x))
     poles_seen = np.unique(pole)
     if poles_seen.size < n_poles:
-        undetermined["pole_offset_deg_e"] = f"edges of only {poles_seen.size} of {n_poles} poles; record whole mechanical turns"
+        undetermined["pole_offset_deg_e"] = (
+            f"edges of only {poles_seen.size} of {n_poles} poles; record whole mechanical turns"
+        )
     else:
         for j in range(1, n_poles):
             cols.append(direction * (pole == j))
@@ -98,7 +103,8 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
     if speeds.size < 2 or spread < min_speed_spread:
         undetermined["conditioning_delay_s"] = (
             f"needs segments at several speeds (spread >= {min_speed_spread:.0%} of the highest); "
-            f"got {speeds.size} speed(s), spread {spread:.0%}: a constant delay is indistinguishable from an offset")
+            f"got {speeds.size} speed(s), spread {spread:.0%}: a constant delay is indistinguishable from an offset"
+        )
     else:
         cols += [w * rec.rising, w * ~rec.rising]
         names += [("rise", 0), ("fall", 0)]
@@ -114,8 +120,10 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
         coef, *_ = np.linalg.lstsq(basis, i_seg, rcond=None)
         resid = i_seg - basis @ coef
         if np.sqrt(np.mean(resid**2)) < 0.02 * np.ptp(i_seg):
-            reason = ("current moves together with speed (linearly), so armature reaction and conditioning delay "
-                      "cannot be told apart; add a load change at a fixed speed")
+            reason = (
+                "current moves together with speed (linearly), so armature reaction and conditioning delay "
+                "cannot be told apart; add a load change at a fixed speed"
+            )
     if reason:
         undetermined["armature_reaction_deg_e_per_a"] = reason
     else:
@@ -127,7 +135,12 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
     # each segment is weighted by the inverse of its own residual variance from a first pass
     coef, *_ = np.linalg.lstsq(a, err, rcond=None)
     resid = err - a @ coef
-    var_seg = np.array([max(np.var(resid[rec.segment == k]), 1e-12) if np.any(rec.segment == k) else 1.0 for k in range(len(rec.segments))])
+    var_seg = np.array(
+        [
+            max(np.var(resid[rec.segment == k]), 1e-12) if np.any(rec.segment == k) else 1.0
+            for k in range(len(rec.segments))
+        ]
+    )
     wt = 1.0 / np.sqrt(var_seg[rec.segment])
     coef, *_ = np.linalg.lstsq(a * wt[:, None], err * wt, rcond=None)
     resid = err - a @ coef
@@ -158,7 +171,9 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
     # the delay versus speed as an interpolation table (paper Fig. 7a), from the fitted residuals
     if "conditioning_delay_s" not in undetermined:
         table: dict[str, list[float]] = {"speed_rpm": [], "rise_deg_e": [], "fall_deg_e": []}
-        static = a @ coef - (w * np.where(rec.rising, out.conditioning_delay_s["rise"], out.conditioning_delay_s["fall"]))
+        static = a @ coef - (
+            w * np.where(rec.rising, out.conditioning_delay_s["rise"], out.conditioning_delay_s["fall"])
+        )
         for k in seg_used:
             sel = rec.segment == k
             table["speed_rpm"].append(float(w_seg[k] / (6.0 * p)))
@@ -166,8 +181,12 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
                 s = sel & (rec.rising == pol)
                 table[key].append(float(np.mean(err[s] - static[s])) if s.any() else float("nan"))
         out.delay_table = table
-    out.info = {"method": "joint least squares on reference-encoder edge errors", "edges": int(len(rec)),
-                "segments": [rec.segments[k].id for k in seg_used], "residual_rms_deg_e": float(np.sqrt(np.mean(resid**2)))}
+    out.info = {
+        "method": "joint least squares on reference-encoder edge errors",
+        "edges": int(len(rec)),
+        "segments": [rec.segments[k].id for k in seg_used],
+        "residual_rms_deg_e": float(np.sqrt(np.mean(resid**2))),
+    }
     return out
 
 
@@ -175,7 +194,8 @@ def fit_from_times(rec: Recording) -> Corrections:
     """The paper's route without an encoder: Eq. 2 and Eq. 6 from capture times, Eq. 3-5 from samples."""
     p = rec.pole_pairs
     undetermined: dict[str, str] = {
-        "armature_reaction_deg_e_per_a": "needs a reference angle (ref_angle_mech_deg); the paper uses a magneto-electric position sensor for it",
+        "armature_reaction_deg_e_per_a": "needs a reference angle (ref_angle_mech_deg); the paper uses a "
+        "magneto-electric position sensor for it",
     }
     fwd = [k for k, s in enumerate(rec.segments) if s.direction == "forward"]
     order = sorted(fwd, key=lambda k: rec.segments[k].speed_rpm)
@@ -207,7 +227,16 @@ def fit_from_times(rec: Recording) -> Corrections:
                 u = np.column_stack([rec.samples[c][ss] for c in ("u_a", "u_b", "u_c")])
                 i = np.column_stack([rec.samples[c][ss] for c in ("i_a", "i_b", "i_c")])
                 a_rise = rec.t_s[sel & (rec.sensor == 0) & rec.rising][start::p]  # the reference pole N1's edges
-                dev = line_bemf_absolute_deviation(rec.samples["t_s"][ss], u, i, a_rise, m["phase_resistance_ohm"], m["phase_inductance_h"], rec.segments[k].speed_rpm, p)
+                dev = line_bemf_absolute_deviation(
+                    rec.samples["t_s"][ss],
+                    u,
+                    i,
+                    a_rise,
+                    m["phase_resistance_ohm"],
+                    m["phase_inductance_h"],
+                    rec.segments[k].speed_rpm,
+                    p,
+                )
                 if dev.size:
                     abs_by_speed.append(float(np.mean(dev)))
     if not rel_by_speed:
@@ -222,10 +251,13 @@ def fit_from_times(rec: Recording) -> Corrections:
         inst = rel
         undetermined["installation_offset_deg_e"] = (
             "only relative deviations (Eq. 2, sum zero) could be determined: the absolute reference needs "
-            "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)")
+            "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)"
+        )
         method = "paper route: Eq. 2 and Eq. 6 from capture times"
     out.installation_offset_deg_e = dict(zip(SENSORS, map(float, inst)))
-    undetermined["conditioning_delay_s"] = ("needs a reference angle (encoder) at several speeds, or the raw sensor "
-                                            "channel beside the conditioned one; capture times alone see only rise-fall differences")
+    undetermined["conditioning_delay_s"] = (
+        "needs a reference angle (encoder) at several speeds, or the raw sensor "
+        "channel beside the conditioned one; capture times alone see only rise-fall differences"
+    )
     out.info = {"method": method, "speeds_rpm": speeds[:3], "edges": int(len(rec))}
     return out

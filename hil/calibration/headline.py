@@ -41,7 +41,9 @@ class RunResult:
 def run_strategy(config, corrections, speed_rpm: float, settle_s: float, turns: int, seed: int, name: str) -> RunResult:
     duty0 = steady_state(config.motor, speed_rpm)["duty"]
     current0 = steady_state(config.motor, speed_rpm)["current_a"] * 2 / 3  # mean |i| over three phases
-    source = HallCommutation(config.motor.pole_pairs, SpeedPI(speed_rpm, feedforward=duty0), corrections, current_estimate_a=current0)
+    source = HallCommutation(
+        config.motor.pole_pairs, SpeedPI(speed_rpm, feedforward=duty0), corrections, current_estimate_a=current0
+    )
     sim = Simulation(config, source, duty=duty0, initial_speed_rpm=speed_rpm, seed=seed, sample_rate_hz=50e3)
     sim.run_until(settle_s)
     t0 = sim.t_s
@@ -51,7 +53,9 @@ def run_strategy(config, corrections, speed_rpm: float, settle_s: float, turns: 
     c = sim.commutations()
     cw = c.t_s >= t0
     return RunResult(
-        name=name, t_s=s.t_s[win] - t0, speed_rpm=s.speed_rpm[win],
+        name=name,
+        t_s=s.t_s[win] - t0,
+        speed_rpm=s.speed_rpm[win],
         speed_mse_rpm2=_fluctuation_mse(s.t_s[win], s.speed_rpm[win]),
         setpoint_mse_rpm2=float(np.mean((s.speed_rpm[win] - speed_rpm) ** 2)),
         mean_phase_current_a=float(np.mean(np.abs(s.i_true_a[win]))),
@@ -78,7 +82,12 @@ def plot(raw: RunResult, corrected: RunResult, path: str | Path) -> Path:
 
     fig, ax = pyplot().subplots(figsize=(9, 3.5))
     for r in (raw, corrected):
-        ax.plot(r.t_s * 1e3, r.speed_rpm, lw=1, label=f"{r.name}: fluctuation MSE {r.speed_mse_rpm2:.3g} rpm^2, mean |i| {r.mean_phase_current_a:.3f} A")
+        ax.plot(
+            r.t_s * 1e3,
+            r.speed_rpm,
+            lw=1,
+            label=f"{r.name}: fluctuation MSE {r.speed_mse_rpm2:.3g} rpm^2, mean |i| {r.mean_phase_current_a:.3f} A",
+        )
     ax.set_xlabel("time [ms] (measurement window after settling)")
     ax.set_ylabel("true speed [rpm]")
     ax.legend(fontsize=8)

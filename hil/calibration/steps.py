@@ -65,7 +65,9 @@ def weighted_over_speeds(values_by_speed: np.ndarray, weights=PAPER_SPEED_WEIGHT
     return np.tensordot(w / w.sum(), v, axes=(0, 0))
 
 
-def edge_angles_per_turn(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, pole_pairs: int, start: int = 0) -> np.ndarray:
+def edge_angles_per_turn(
+    t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, pole_pairs: int, start: int = 0
+) -> np.ndarray:
     """Electrical angle of each edge within its mechanical turn, from capture times only.
 
     The turn starts at an A rising edge (``start``-th of the recording, taken as pole N1: with no
@@ -86,8 +88,16 @@ def edge_angles_per_turn(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray
     return np.array(out) if out else np.zeros((0, n_per_turn))
 
 
-def line_bemf_absolute_deviation(t_s: np.ndarray, u_v: np.ndarray, i_a: np.ndarray, a_rise_t_s: np.ndarray,
-                                 resistance_ohm: float, inductance_h: float, speed_rpm: float, pole_pairs: int) -> np.ndarray:
+def line_bemf_absolute_deviation(
+    t_s: np.ndarray,
+    u_v: np.ndarray,
+    i_a: np.ndarray,
+    a_rise_t_s: np.ndarray,
+    resistance_ohm: float,
+    inductance_h: float,
+    speed_rpm: float,
+    pole_pairs: int,
+) -> np.ndarray:
     """Deviation of A's rising edges from the falling zero crossing of e_BC (Eq. 3-5).
 
     The Line-BEMF of Eq. 3 is computed from sampled terminal voltages and phase currents; for
@@ -100,12 +110,18 @@ def line_bemf_absolute_deviation(t_s: np.ndarray, u_v: np.ndarray, i_a: np.ndarr
     if crossings.size == 0:
         return np.zeros(0)
     idx = np.clip(np.searchsorted(crossings, a_rise_t_s), 1, crossings.size - 1)
-    nearest = np.where(np.abs(crossings[idx] - a_rise_t_s) < np.abs(crossings[idx - 1] - a_rise_t_s), crossings[idx], crossings[idx - 1])
+    nearest = np.where(
+        np.abs(crossings[idx] - a_rise_t_s) < np.abs(crossings[idx - 1] - a_rise_t_s),
+        crossings[idx],
+        crossings[idx - 1],
+    )
     ok = np.abs(nearest - a_rise_t_s) * w_e < 30.0
     return w_e * (a_rise_t_s[ok] - nearest[ok])
 
 
-def conditioning_delay_table(speed_rpm: np.ndarray, t_raw_s: np.ndarray, t_conditioned_s: np.ndarray, rising: np.ndarray, pole_pairs: int) -> dict[str, list[float]]:
+def conditioning_delay_table(
+    speed_rpm: np.ndarray, t_raw_s: np.ndarray, t_conditioned_s: np.ndarray, rising: np.ndarray, pole_pairs: int
+) -> dict[str, list[float]]:
     """Delay of the conditioning circuit versus speed, by comparing raw and conditioned edges.
 
     Returns {"speed_rpm": [...], "rise_deg_e": [...], "fall_deg_e": [...], "rise_s": [...],
@@ -124,13 +140,3 @@ def conditioning_delay_table(speed_rpm: np.ndarray, t_raw_s: np.ndarray, t_condi
             table["rise_deg_e"].append(float(d[r].mean() * s * 6 * pole_pairs))
             table["fall_deg_e"].append(float(d[~r].mean() * s * 6 * pole_pairs))
     return table
-
-
-def armature_regression(mean_phase_current_a: np.ndarray, offset_deg_e: np.ndarray) -> tuple[float, float, float]:
-    """Armature-reaction offset versus mean phase current by linear regression (Section 2.4).
-
-    Returns (slope deg_e/A, intercept deg_e, one-sigma slope uncertainty)."""
-    from scipy.stats import linregress
-
-    res = linregress(np.asarray(mean_phase_current_a, dtype=float), np.asarray(offset_deg_e, dtype=float))
-    return float(res.slope), float(res.intercept), float(res.stderr)

@@ -5,4 +5,13 @@ from .runner import CampaignResult, read_table, run_campaign
 from .scheduler import DispatchInfo, TaskError, dispatch
 from .spec import CampaignSpec, load_spec
 
-__all__ = ["CampaignResult", "CampaignSpec", "DispatchInfo", "TaskError", "dispatch", "load_spec", "read_table", "run_campaign"]
+__all__ = [
+    "CampaignResult",
+    "CampaignSpec",
+    "DispatchInfo",
+    "TaskError",
+    "dispatch",
+    "load_spec",
+    "read_table",
+    "run_campaign",
+]

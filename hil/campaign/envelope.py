@@ -41,7 +41,9 @@ def margin_grid(table, x: str, y: str, budget: str, x_values: list, y_values: li
     return grid
 
 
-def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values: list, unit: str, limit: float, title: str):
+def envelope_figure(
+    table, x: str, y: str, budget: str, x_values: list, y_values: list, unit: str, limit: float, title: str
+):
     from matplotlib.colors import TwoSlopeNorm
 
     plt = pyplot()
@@ -56,7 +58,9 @@ def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values
     fig, ax = plt.subplots(figsize=(7.2, 4.8))
     # a -inf margin (nothing measured, e.g. no commutation) is the worst failure: shown at the scale's end
     shown = np.where(np.isneginf(grid), -scale, grid)
-    mesh = ax.pcolormesh(xe, ye, np.ma.masked_invalid(np.clip(shown, -scale, scale)), cmap="RdYlGn", norm=norm, shading="flat")
+    mesh = ax.pcolormesh(
+        xe, ye, np.ma.masked_invalid(np.clip(shown, -scale, scale)), cmap="RdYlGn", norm=norm, shading="flat"
+    )
     cb = fig.colorbar(mesh, ax=ax, extend="both")
     cb.set_label(f"{budget} margin ({unit}); > 0 passes, colours clipped at +-{scale:g}", fontsize=8)
     empty = np.isnan(grid)
@@ -66,7 +70,13 @@ def envelope_figure(table, x: str, y: str, budget: str, x_values: list, y_values
         from matplotlib.lines import Line2D
 
         ax.contour(xc, yc, np.ma.masked_invalid(shown), levels=[0.0], colors="k", linewidths=2.0)
-        ax.legend([Line2D([], [], color="k", lw=2.0)], ["pass / fail (margin = 0)"], loc="upper right", fontsize=8, framealpha=0.8)
+        ax.legend(
+            [Line2D([], [], color="k", lw=2.0)],
+            ["pass / fail (margin = 0)"],
+            loc="upper right",
+            fontsize=8,
+            framealpha=0.8,
+        )
     for labels, setter, ticks in ((xlab, ax.set_xticks, xc), (ylab, ax.set_yticks, yc)):
         if labels is not None:
             setter(ticks, labels)
@@ -86,6 +96,15 @@ def write_envelope(table, spec, path: str | Path) -> Path | None:
     title = f"{spec.name}: {m.budget} ({spec.budgets[m.budget].limit:g} {spec.budgets[m.budget].unit})"
     if others:
         title += f", worst over {', '.join(others)}"
-    fig = envelope_figure(table, m.x, m.y, m.budget, axes[m.x], axes[m.y], spec.budgets[m.budget].unit,
-                          spec.budgets[m.budget].limit, title)
+    fig = envelope_figure(
+        table,
+        m.x,
+        m.y,
+        m.budget,
+        axes[m.x],
+        axes[m.y],
+        spec.budgets[m.budget].unit,
+        spec.budgets[m.budget].limit,
+        title,
+    )
     return save(fig, path)

@@ -61,7 +61,9 @@ def point_plant(spec: "CampaignSpec", coords: dict) -> PlantConfig:
     load = coords.get("load_scale", spec.fixed_load_scale)
     base = spec.plant
     if load != 1.0:
-        base = dataclasses.replace(base, motor=dataclasses.replace(base.motor, fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * load))
+        base = dataclasses.replace(
+            base, motor=dataclasses.replace(base.motor, fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * load)
+        )
     effects = [effect_from_mapping(t, f"effects.{t['name']}.") for t in _effect_tables(spec, coords)]
     config = base.with_effects(*effects)
     for e in config.effects:
@@ -88,14 +90,27 @@ def point_stimulus(spec: "CampaignSpec", point: dict) -> Stimulus:
     config = point_plant(spec, point)
     speed = float(point.get("speed_rpm", spec.fixed_speed_rpm))
     steady_state(config.motor, speed)  # raises on a speed the motor cannot hold
-    common = dict(seed=point["seed"], speed_rpm=speed, test=f"campaign {spec.name} point {point['index']}",
-                  plant=dataclasses.replace(config, effects=()).to_dict(), budgets=dict(spec.checked))
+    common = dict(
+        seed=point["seed"],
+        speed_rpm=speed,
+        test=f"campaign {spec.name} point {point['index']}",
+        plant=dataclasses.replace(config, effects=()).to_dict(),
+        budgets=dict(spec.checked),
+    )
     effects = [e.to_dict() for e in config.effects]
     if spec.kind == "fault_sequence":
         fault = point_fault(spec, point)
         hold = float(point.get("fault_hold_s", spec.fixed_fault_hold_s))
-        return Stimulus("fault_sequence", effects=effects, steps=[["on", fault], ["run", hold], ["off", fault]], **common)
-    return Stimulus("deviations", effects=effects, run_s=spec.run_s, strategy=str(point.get("strategy", spec.fixed_strategy)), **common)
+        return Stimulus(
+            "fault_sequence", effects=effects, steps=[["on", fault], ["run", hold], ["off", fault]], **common
+        )
+    return Stimulus(
+        "deviations",
+        effects=effects,
+        run_s=spec.run_s,
+        strategy=str(point.get("strategy", spec.fixed_strategy)),
+        **common,
+    )
 
 
 def run_point(job: tuple) -> dict:
@@ -114,10 +129,21 @@ def run_point(job: tuple) -> dict:
         budgets = Budgets({k: Budget(**v) for k, v in budgets_table.items()}, "campaign")
         link = InProcessLink(VirtualController(stim.plant_config().motor))
         outcome = run(stim, link, budgets)
-        row = {"ok": outcome.ok, "message": outcome.message, "values": outcome.values,
-               "verdicts": [v.as_dict() for v in outcome.verdicts], "error": None}
+        row = {
+            "ok": outcome.ok,
+            "message": outcome.message,
+            "values": outcome.values,
+            "verdicts": [v.as_dict() for v in outcome.verdicts],
+            "error": None,
+        }
     except Exception as exc:  # noqa: BLE001 - recorded with its traceback, the campaign goes on
-        row = {"ok": False, "message": f"{type(exc).__name__}: {exc}", "values": {}, "verdicts": [], "error": traceback.format_exc()}
+        row = {
+            "ok": False,
+            "message": f"{type(exc).__name__}: {exc}",
+            "values": {},
+            "verdicts": [],
+            "error": traceback.format_exc(),
+        }
     row["duration_s"] = time.perf_counter() - t0
     row["cpu_s"] = time.process_time() - cpu0  # with duration_s: the share of a core the worker got
     return row

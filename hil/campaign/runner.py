@@ -45,15 +45,28 @@ class CampaignResult:
 
     def summary(self) -> dict:
         n = len(self.rows)
-        return {"campaign": self.spec.name, "spec": self.spec.path, "seed": self.spec.seed, "kind": self.spec.kind,
-                "points_planned": self.spec.size, "points_done": n, "complete": n == self.spec.size and not self.info.interrupted,
-                **self.counts(), **self.info.as_dict(),
-                # throughput once the workers are up (the cluster's start is a fixed cost, in startup_s)
-                "points_per_s": n / (self.info.elapsed_s - self.info.startup_s) if self.info.elapsed_s > self.info.startup_s else None,
-                "budgets": {b: {"metric": m, **dataclasses.asdict(self.spec.budgets[b])} for b, m in self.spec.checked.items()},
-                "axes": {a.name: list(a.values) for a in self.spec.axes},
-                "failures": [{"index": r["index"], "replay": r["replay"]} for r in self.rows if r["verdict"] == "fail"],
-                "errors": [r["index"] for r in self.rows if r["verdict"] == "error"], "paths": self.paths}
+        return {
+            "campaign": self.spec.name,
+            "spec": self.spec.path,
+            "seed": self.spec.seed,
+            "kind": self.spec.kind,
+            "points_planned": self.spec.size,
+            "points_done": n,
+            "complete": n == self.spec.size and not self.info.interrupted,
+            **self.counts(),
+            **self.info.as_dict(),
+            # throughput once the workers are up (the cluster's start is a fixed cost, in startup_s)
+            "points_per_s": n / (self.info.elapsed_s - self.info.startup_s)
+            if self.info.elapsed_s > self.info.startup_s
+            else None,
+            "budgets": {
+                b: {"metric": m, **dataclasses.asdict(self.spec.budgets[b])} for b, m in self.spec.checked.items()
+            },
+            "axes": {a.name: list(a.values) for a in self.spec.axes},
+            "failures": [{"index": r["index"], "replay": r["replay"]} for r in self.rows if r["verdict"] == "fail"],
+            "errors": [r["index"] for r in self.rows if r["verdict"] == "error"],
+            "paths": self.paths,
+        }
 
 
 def _row(spec: CampaignSpec, point: dict, stim, result) -> dict:
@@ -64,16 +77,30 @@ def _row(spec: CampaignSpec, point: dict, stim, result) -> dict:
     row.setdefault("load_scale", spec.fixed_load_scale)
     row.setdefault("strategy", stim.strategy if spec.kind == "deviations" else "corrected")
     if isinstance(result, TaskError):  # the task itself never returned (e.g. it killed its workers)
-        result = {"ok": False, "message": result.message, "values": {}, "verdicts": [], "error": result.traceback, "duration_s": float("nan"),
-                  "cpu_s": float("nan")}
+        result = {
+            "ok": False,
+            "message": result.message,
+            "values": {},
+            "verdicts": [],
+            "error": result.traceback,
+            "duration_s": float("nan"),
+            "cpu_s": float("nan"),
+        }
     v = result["values"]
     nan = float("nan")
     if spec.kind == "deviations":
-        row.update(angle_p99_deg_e=v.get("commutation_angle_p99_deg_e", nan), angle_rms_deg_e=v.get("commutation_angle_rms_deg_e", nan),
-                   angle_max_deg_e=v.get("commutation_angle_max_deg_e", nan), commutations=v.get("commutations", -1))
+        row.update(
+            angle_p99_deg_e=v.get("commutation_angle_p99_deg_e", nan),
+            angle_rms_deg_e=v.get("commutation_angle_rms_deg_e", nan),
+            angle_max_deg_e=v.get("commutation_angle_max_deg_e", nan),
+            commutations=v.get("commutations", -1),
+        )
     else:
-        row.update(recovered_p99_deg_e=v.get("recovered_p99_deg_e", nan), faults_acted=",".join(v.get("acted", [])),
-                   fault_codes=",".join(v.get("codes", [])))
+        row.update(
+            recovered_p99_deg_e=v.get("recovered_p99_deg_e", nan),
+            faults_acted=",".join(v.get("acted", [])),
+            fault_codes=",".join(v.get("codes", [])),
+        )
     verdicts = {d["budget"]: d for d in result["verdicts"]}
     for b in spec.checked:
         d = verdicts.get(b)
@@ -87,8 +114,14 @@ def _row(spec: CampaignSpec, point: dict, stim, result) -> dict:
         row["verdict"] = "fail"
     else:
         row["verdict"] = "marginal" if any(d["verdict"] == "marginal" for d in result["verdicts"]) else "pass"
-    row.update(message=result["message"], error=result["error"], replay=None,
-               effects=json.dumps(stim.effects, sort_keys=True), duration_s=result["duration_s"], cpu_s=result["cpu_s"])
+    row.update(
+        message=result["message"],
+        error=result["error"],
+        replay=None,
+        effects=json.dumps(stim.effects, sort_keys=True),
+        duration_s=result["duration_s"],
+        cpu_s=result["cpu_s"],
+    )
     return row
 
 
@@ -108,8 +141,14 @@ def read_table(path: str | Path):
     return pd.read_parquet(path, engine="pyarrow")
 
 
-def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, scheduler: str | None = None, workers: int | None = None,
-                 progress: bool = True) -> CampaignResult:
+def run_campaign(
+    spec: CampaignSpec,
+    out_dir: str | Path,
+    *,
+    scheduler: str | None = None,
+    workers: int | None = None,
+    progress: bool = True,
+) -> CampaignResult:
     out = Path(out_dir)
     (out / "replays").mkdir(parents=True, exist_ok=True)
     for old in (out / "replays").glob("point-*.json"):
@@ -133,7 +172,9 @@ def run_campaign(spec: CampaignSpec, out_dir: str | Path, *, scheduler: str | No
             last_flush[0] = time.monotonic()
 
     try:
-        info = dispatch(run_point, jobs, on_result, scheduler=scheduler, workers=workers, label="campaign points", progress=progress)
+        info = dispatch(
+            run_point, jobs, on_result, scheduler=scheduler, workers=workers, label="campaign points", progress=progress
+        )
     finally:  # whatever stopped the run, the table holds every point received
         rows.sort(key=lambda r: r["index"])
         write_table(rows, table)

@@ -169,7 +169,8 @@ def _connect(scheduler: str, workers: int | None):
         client.wait_for_workers(1, timeout=WORKER_WAIT_S)
     except TimeoutError:
         client.close()
-        raise ValueError(f"--scheduler {scheduler}: no worker attached within {WORKER_WAIT_S:g} s (start one: dask worker {scheduler})") from None
+        raise ValueError(f"--scheduler {scheduler}: no worker attached within {WORKER_WAIT_S:g} s (start one: dask "
+        f"worker {scheduler})") from None
     return client, None
 
 
@@ -187,8 +188,10 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
         # electrical recordings), so they are submitted spread out (golden-ratio order): cheap and
         # dear jobs mix, the count moves evenly, and a partial table covers the whole grid
         order = sorted(range(len(jobs)), key=lambda i: (i * SPREAD) % 1.0)
-        futures = [client.submit(_call, fn, i, jobs[i], pure=False, key=f"{label.replace(' ', '-')}-{i}-{os.urandom(4).hex()}")
-                   for i in order]
+        futures = [
+            client.submit(_call, fn, i, jobs[i], pure=False, key=f"{label.replace(' ', '-')}-{i}-{os.urandom(4).hex()}")
+            for i in order
+        ]
         index_of = {f.key: i for i, f in zip(order, futures)}
         done = as_completed(futures, with_results=True, raise_errors=False)
         drawn = time.monotonic()
@@ -208,8 +211,11 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
                 else:
                     i, value, where, code = result
                     if code != code_fingerprint():
-                        value = TaskError(f"worker {where} runs other hil/plant_models code (fingerprint {code}, here "
-                                          f"{code_fingerprint()}): install the same checkout on every worker", "")
+                        value = TaskError(
+                            f"worker {where} runs other hil/plant_models code (fingerprint {code}, here "
+                            f"{code_fingerprint()}): install the same checkout on every worker",
+                            "",
+                        )
                     if where not in info.workers:
                         info.workers.append(where)
                 future.release()

@@ -137,13 +137,22 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
     _only(where, t, {"name", "values", "linspace", "pattern"})
     name = t.get("name")
     if not isinstance(name, str) or not name:
-        raise ConfigError(f"{where}.name", "required (an effect parameter such as installation_offset.offset_deg_e, or one of "
-                          f"{', '.join(OPERATING_AXES)}, or fault.<param>)")
+        raise ConfigError(
+            f"{where}.name",
+            "required (an effect parameter such as installation_offset.offset_deg_e, or one of "
+            f"{', '.join(OPERATING_AXES)}, or fault.<param>)",
+        )
     if ("values" in t) == ("linspace" in t):
         raise ConfigError(where, "give exactly one of 'values' or 'linspace'")
     if "linspace" in t:
         ls = t["linspace"]
-        if not isinstance(ls, list) or len(ls) != 3 or isinstance(ls[2], bool) or not isinstance(ls[2], int) or ls[2] < 1:
+        if (
+            not isinstance(ls, list)
+            or len(ls) != 3
+            or isinstance(ls[2], bool)
+            or not isinstance(ls[2], int)
+            or ls[2] < 1
+        ):
             raise ConfigError(f"{where}.linspace", f"must be [start, stop, count >= 1], got {ls!r}")
         a, b = _number(f"{where}.linspace[0]", ls[0]), _number(f"{where}.linspace[1]", ls[1])
         n = ls[2]
@@ -167,7 +176,7 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
         for i, v in enumerate(values):
             _number(f"{where}.values[{i}]", v, 0.0, 10.0)
     if name.startswith("fault") and kind != "fault_sequence":
-        raise ConfigError(f"{where}.name", f"{name!r} sweeps a wiring fault: set [campaign] kind = \"fault_sequence\"")
+        raise ConfigError(f"{where}.name", f'{name!r} sweeps a wiring fault: set [campaign] kind = "fault_sequence"')
     pattern = None
     if "pattern" in t:
         p = t["pattern"]
@@ -179,14 +188,21 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
         effect, _, param = name.partition(".")
         cls = EFFECTS.get(effect)
         if cls is None:
-            raise ConfigError(f"{where}.name", f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
-                              f"({', '.join(OPERATING_AXES)})")
+            raise ConfigError(
+                f"{where}.name",
+                f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
+                f"({', '.join(OPERATING_AXES)})",
+            )
         fields = {f.name: f for f in dataclasses.fields(cls)}
         if param not in fields:
-            raise ConfigError(f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})")
+            raise ConfigError(
+                f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})"
+            )
         is_list = "tuple" in str(fields[param].type)
         if is_list and pattern is None:
-            raise ConfigError(f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)")
+            raise ConfigError(
+                f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)"
+            )
         if not is_list and pattern is not None:
             raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
     elif pattern is not None:
@@ -207,7 +223,7 @@ def load_spec(path: str | Path) -> CampaignSpec:
     except ConfigError as exc:
         if str(exc).startswith(str(path)):
             raise
-        raise ConfigError(f"{path}: {exc.field}", str(exc)[len(exc.field) + 2:]) from None
+        raise ConfigError(f"{path}: {exc.field}", str(exc)[len(exc.field) + 2 :]) from None
 
 
 def parse_spec(data: dict, path: Path) -> CampaignSpec:
@@ -252,7 +268,10 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         if b not in budgets:
             raise ConfigError(f"campaign.budgets.{b}", f"no such budget (have: {', '.join(sorted(budgets.budgets))})")
         if metric not in METRICS[kind]:
-            raise ConfigError(f"campaign.budgets.{b}", f"metric must be one of {', '.join(METRICS[kind])} for kind {kind!r}, got {metric!r}")
+            raise ConfigError(
+                f"campaign.budgets.{b}",
+                f"metric must be one of {', '.join(METRICS[kind])} for kind {kind!r}, got {metric!r}",
+            )
     run_s = _number("campaign.run_s", c.get("run_s", 0.1), 0.06, 10.0)
     repeats = c.get("repeats", 1)
     if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
@@ -267,7 +286,9 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     if not isinstance(effects, list):
         raise ConfigError("fixed.effects", "must be a list of effect tables")
     for i, e in enumerate(effects):
-        effect_from_mapping(_table(f"fixed.effects[{i}]", e), f"fixed.effects[{i}].").check(plant.motor.pole_pairs, f"fixed.effects[{i}].")
+        effect_from_mapping(_table(f"fixed.effects[{i}]", e), f"fixed.effects[{i}].").check(
+            plant.motor.pole_pairs, f"fixed.effects[{i}]."
+        )
     names = [e["name"] for e in effects]
     if len(set(names)) != len(names):
         raise ConfigError("fixed.effects", "an effect appears twice")
@@ -276,7 +297,7 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         from ..faults import wiring_fault_from_dict
 
         if kind != "fault_sequence":
-            raise ConfigError("fixed.fault", "a wiring fault needs [campaign] kind = \"fault_sequence\"")
+            raise ConfigError("fixed.fault", 'a wiring fault needs [campaign] kind = "fault_sequence"')
         if isinstance(fault, str):
             fault = {"name": fault}
         try:
@@ -284,7 +305,9 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         except (KeyError, TypeError, ValueError) as exc:
             raise ConfigError("fixed.fault", f"not a wiring fault: {exc}") from None
     elif kind == "fault_sequence":
-        raise ConfigError("fixed.fault", "a fault_sequence campaign names its fault, e.g. fault = { name = \"hall_spike\" }")
+        raise ConfigError(
+            "fixed.fault", 'a fault_sequence campaign names its fault, e.g. fault = { name = "hall_spike" }'
+        )
     hold = _number("fixed.fault_hold_s", f.get("fault_hold_s", 0.02), 0.0, 10.0)
 
     raw_axes = data.get("axis", [])
@@ -313,8 +336,27 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     elif len(axes) >= 2:
         mapspec = MapSpec(axes[0].name, axes[1].name, next(iter(checked)))
 
-    spec = CampaignSpec(str(path), name, seed, kind, plant, budgets, dict(checked), speed, load, strategy, tuple(effects), fault,
-                        hold, axes, mapspec, run_s, repeats, budgets_file, data)
+    spec = CampaignSpec(
+        str(path),
+        name,
+        seed,
+        kind,
+        plant,
+        budgets,
+        dict(checked),
+        speed,
+        load,
+        strategy,
+        tuple(effects),
+        fault,
+        hold,
+        axes,
+        mapspec,
+        run_s,
+        repeats,
+        budgets_file,
+        data,
+    )
     # every axis value must give a valid plant or fault: out-of-bounds values fail here, naming the axis
     for i, a in enumerate(axes):
         if a.name.startswith("fault."):
@@ -325,7 +367,9 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
                 try:
                     wiring_fault_from_dict(point_fault(spec, {a.name: v}))
                 except (KeyError, TypeError, ValueError) as exc:
-                    raise ConfigError(f"axis[{i}].name", f"{a.name} = {v:g} is not a parameter of fault {fault['name']!r}: {exc}") from None
+                    raise ConfigError(
+                        f"axis[{i}].name", f"{a.name} = {v:g} is not a parameter of fault {fault['name']!r}: {exc}"
+                    ) from None
         if a.effect is not None:
             for j, v in enumerate(a.values):
                 try:

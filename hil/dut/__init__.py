@@ -3,5 +3,14 @@
 from .link import ControllerLink, InProcessLink, LinkError, LinkTimeout
 from .virtual import CalibrationTableError, Fault, Identity, Strategy, VirtualController
 
-__all__ = ["ControllerLink", "InProcessLink", "LinkError", "LinkTimeout", "CalibrationTableError", "Fault", "Identity", "Strategy",
-           "VirtualController"]
+__all__ = [
+    "ControllerLink",
+    "InProcessLink",
+    "LinkError",
+    "LinkTimeout",
+    "CalibrationTableError",
+    "Fault",
+    "Identity",
+    "Strategy",
+    "VirtualController",
+]

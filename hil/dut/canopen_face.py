@@ -2,7 +2,7 @@
 
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
-boot-up after an NMT reset and echoes stale indexes in some aborts: design notes section 4).
+boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
 (0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
 hil.dut.messages.
@@ -107,7 +107,11 @@ class SdoServer:
             return self._abort(index, subindex, ABORT_COMMAND)
         try:
             var = self._variable(index, subindex)
-            return self._initiate_upload(var, index, subindex) if ccs == 2 else self._initiate_download(var, index, subindex, data)
+            return (
+                self._initiate_upload(var, index, subindex)
+                if ccs == 2
+                else self._initiate_download(var, index, subindex, data)
+            )
         except SdoAbortedError as exc:
             self.transfer = None
             return self._abort(index, subindex, exc.code)
@@ -153,8 +157,8 @@ class SdoServer:
         numeric = var.data_type in canopen.objectdictionary.NUMBER_TYPES
         if expedited:
             # size not indicated: the object's own size (a number), else all four bytes
-            unsized = data[4:4 + min(len(var) // 8, 4)] if numeric else data[4:8]
-            self.node.set_data(index, subindex, data[4:8 - ((data[0] >> 2) & 3)] if sized else unsized)
+            unsized = data[4 : 4 + min(len(var) // 8, 4)] if numeric else data[4:8]
+            self.node.set_data(index, subindex, data[4 : 8 - ((data[0] >> 2) & 3)] if sized else unsized)
         else:
             declared = struct.unpack_from("<L", data, 4)[0] if sized else None
             if declared is not None and numeric and declared != len(var) // 8:
@@ -164,7 +168,7 @@ class SdoServer:
         return struct.pack("<BHBL", 0x60, index, subindex, 0)
 
     def _download_segment(self, t: _Transfer, data: bytes) -> bytes:
-        t.data += data[1:8 - ((data[0] >> 1) & 7)]
+        t.data += data[1 : 8 - ((data[0] >> 1) & 7)]
         if len(t.data) > t.limit:
             self.transfer = None
             return self._abort(t.index, t.subindex, ABORT_LENGTH_HIGH)
@@ -190,7 +194,14 @@ class SdoServer:
 class CanopenDevice:
     """Serves a VirtualController as CANopen node ``node_id`` on a python-can bus."""
 
-    def __init__(self, controller: VirtualController, node_id: int = 5, interface: str = "virtual", channel: str = "hil", **bus_kwargs):
+    def __init__(
+        self,
+        controller: VirtualController,
+        node_id: int = 5,
+        interface: str = "virtual",
+        channel: str = "hil",
+        **bus_kwargs,
+    ):
         if controller.motor.pole_pairs != 2:
             raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
         from .virtual import warm_up
@@ -241,7 +252,11 @@ class CanopenDevice:
             self.node.nmt.stop_heartbeat()
 
     def _on_nmt(self, can_id, data, timestamp) -> None:
-        if len(data) != 2 or data[1] not in (0, self.node_id) or data[0] not in (NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM):
+        if (
+            len(data) != 2
+            or data[1] not in (0, self.node_id)
+            or data[0] not in (NMT_START, NMT_STOP, NMT_PREOP, NMT_RESET_NODE, NMT_RESET_COMM)
+        ):
             return  # malformed or foreign NMT commands are ignored
         cmd = data[0]
         if cmd == NMT_START:
@@ -275,7 +290,11 @@ class CanopenDevice:
         if index == 0x1001:
             return c.error_register
         if index == 0x1003:
-            return len(self.history) if subindex == 0 else (self.history[subindex - 1] if subindex <= len(self.history) else 0)
+            return (
+                len(self.history)
+                if subindex == 0
+                else (self.history[subindex - 1] if subindex <= len(self.history) else 0)
+            )
         if index == 0x1017:
             return self._heartbeat_ms
         if index == 0x2000:
@@ -298,7 +317,13 @@ class CanopenDevice:
             return (self._cycle.current_ma, self._cycle.seq)[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
-            values = [st["estimated_speed_rpm"], *st["q_diag"], *st["r_diag"], st["guard_trips"], st["last_predicted_commutation_s"]]
+            values = [
+                st["estimated_speed_rpm"],
+                *st["q_diag"],
+                *st["r_diag"],
+                st["guard_trips"],
+                st["last_predicted_commutation_s"],
+            ]
             v = values[subindex - 1]
             return 0.0 if isinstance(v, float) and not np.isfinite(v) else v
         return None
@@ -354,7 +379,11 @@ class CanopenDevice:
         except ValueError:
             return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
         with self._lock:
-            if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
+            if (
+                self._last_ticks is not None
+                and msg.ticks < self._last_ticks
+                and self._last_ticks - msg.ticks > (1 << 31)
+            ):
                 self._epoch += 1 << 32  # the capture timer wrapped (a small step back is a bad stamp, not a wrap)
             self._last_ticks = msg.ticks
             self._last_edge = msg
@@ -496,10 +525,19 @@ class CanopenLink:
 
     name = "canopen"
 
-    def __init__(self, node_id: int = 5, interface: str = "virtual", channel: str = "hil", eds: str | None = None,
-                 timeout_s: float = 1.0, **bus_kwargs):
+    def __init__(
+        self,
+        node_id: int = 5,
+        interface: str = "virtual",
+        channel: str = "hil",
+        eds: str | None = None,
+        timeout_s: float = 1.0,
+        **bus_kwargs,
+    ):
         self.node_id, self.timeout_s = node_id, timeout_s
-        where = f"{interface}:{channel}" + (f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else "")
+        where = f"{interface}:{channel}" + (
+            f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else ""
+        )
         self.where = f"CANopen node {node_id} on {where}"
         self.network = canopen.Network()
         self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
@@ -562,12 +600,21 @@ class CanopenLink:
 
     def write(self, index: int, sub: int | None, value) -> None:
         obj = self.node.sdo[index] if sub is None else self.node.sdo[index][sub]
-        self._sdo(f"write 0x{index:04X}" + ("" if sub is None else f":{sub:02X}") + f" = {value!r}", lambda: setattr(obj, "raw", value))
+        self._sdo(
+            f"write 0x{index:04X}" + ("" if sub is None else f":{sub:02X}") + f" = {value!r}",
+            lambda: setattr(obj, "raw", value),
+        )
 
     # --- ControllerLink ---------------------------------------------------------------------------
     def identity(self) -> dict:
-        return {"vendor_id": self.read(0x1018, 1), "product_code": self.read(0x1018, 2), "revision": self.read(0x1018, 3),
-                "serial": self.read(0x1018, 4), "device_type": self.read(0x1000), "firmware": self.read(0x100A)}
+        return {
+            "vendor_id": self.read(0x1018, 1),
+            "product_code": self.read(0x1018, 2),
+            "revision": self.read(0x1018, 3),
+            "serial": self.read(0x1018, 4),
+            "device_type": self.read(0x1000),
+            "firmware": self.read(0x100A),
+        }
 
     def download_calibration(self, corrections: Corrections) -> None:
         for k, v in enumerate(corrections.as_vector()):
@@ -596,7 +643,10 @@ class CanopenLink:
             try:
                 frame = CommandMessage.unpack(self.replies.get(timeout=max(deadline - time.monotonic(), 0.0)))
             except queue.Empty:
-                raise LinkTimeout(f"{self.where}: no TPDO reply to edge #{seq} (t = {edge['t_capture_s']:.7f} s) within {self.timeout_s} s") from None
+                raise LinkTimeout(
+                    f"{self.where}: no TPDO reply to edge #{seq} (t = {edge['t_capture_s']:.7f} s) within "
+                    f"{self.timeout_s} s"
+                ) from None
             if frame.seq != seq:
                 continue  # a late frame of an earlier edge
             if not frame.keeps_everything:
@@ -607,11 +657,24 @@ class CanopenLink:
     def status(self) -> dict:
         rb = [self.read(0x2100, k) for k in range(1, 9)]
         n = self.read(0x1003, 0)
-        counters = dict(zip(("gated_edges", "covariance_repairs", "divergence_fades", "band_projections"),
-                            (self.read(0x2101, k) for k in range(1, 5))))
-        return {**counters, "strategy": self.read(0x2000), "speed_setpoint_rpm": self.read(0x2001), "estimated_speed_rpm": rb[0],
-                "q_diag": rb[1:4], "r_diag": rb[4:6], "guard_trips": rb[6], "last_predicted_commutation_s": rb[7],
-                "error_register": self.read(0x1001), "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)]}
+        counters = dict(
+            zip(
+                ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections"),
+                (self.read(0x2101, k) for k in range(1, 5)),
+            )
+        )
+        return {
+            **counters,
+            "strategy": self.read(0x2000),
+            "speed_setpoint_rpm": self.read(0x2001),
+            "estimated_speed_rpm": rb[0],
+            "q_diag": rb[1:4],
+            "r_diag": rb[4:6],
+            "guard_trips": rb[6],
+            "last_predicted_commutation_s": rb[7],
+            "error_register": self.read(0x1001),
+            "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)],
+        }
 
     def close(self) -> None:
         try:

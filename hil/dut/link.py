@@ -40,10 +40,31 @@ class ControllerLink(Protocol):
 def verify_calibration(written: Corrections, read_back: Corrections, tolerance: dict[str, float] | None = None) -> None:
     """Compare a downloaded table with its read-back (within the link's declared scaling)."""
     tol = {"deg_e": 1e-9, "s": 1e-15, "deg_e_per_a": 1e-9, **(tolerance or {})}
-    pairs = [(f"installation_offset_deg_e.{s}", written.installation_offset_deg_e[s], read_back.installation_offset_deg_e[s], tol["deg_e"]) for s in "ABC"]
-    pairs += [(f"pole_offset_deg_e[{j}]", a, b, tol["deg_e"]) for j, (a, b) in enumerate(zip(written.pole_offset_deg_e, read_back.pole_offset_deg_e))]
-    pairs += [(f"conditioning_delay_s.{k}", written.conditioning_delay_s[k], read_back.conditioning_delay_s[k], tol["s"]) for k in ("rise", "fall")]
-    pairs.append(("armature_reaction_deg_e_per_a", written.armature_reaction_deg_e_per_a, read_back.armature_reaction_deg_e_per_a, tol["deg_e_per_a"]))
+    pairs = [
+        (
+            f"installation_offset_deg_e.{s}",
+            written.installation_offset_deg_e[s],
+            read_back.installation_offset_deg_e[s],
+            tol["deg_e"],
+        )
+        for s in "ABC"
+    ]
+    pairs += [
+        (f"pole_offset_deg_e[{j}]", a, b, tol["deg_e"])
+        for j, (a, b) in enumerate(zip(written.pole_offset_deg_e, read_back.pole_offset_deg_e))
+    ]
+    pairs += [
+        (f"conditioning_delay_s.{k}", written.conditioning_delay_s[k], read_back.conditioning_delay_s[k], tol["s"])
+        for k in ("rise", "fall")
+    ]
+    pairs.append(
+        (
+            "armature_reaction_deg_e_per_a",
+            written.armature_reaction_deg_e_per_a,
+            read_back.armature_reaction_deg_e_per_a,
+            tol["deg_e_per_a"],
+        )
+    )
     for name, a, b, t in pairs:
         if not (math.isfinite(b) and abs(a - b) <= t):
             raise LinkError(f"calibration read-back mismatch at {name}: wrote {a!r}, read {b!r} (tolerance {t})")
@@ -59,7 +80,9 @@ def with_filter_vector(settings: FilterSettings, vector) -> FilterSettings:
     import dataclasses
 
     v = [float(x) for x in vector]
-    new = dataclasses.replace(settings, forgetting_b=v[0], q0_diag=tuple(v[1:4]), r0_diag=tuple(v[4:6]), p0_diag=tuple(v[6:9]))
+    new = dataclasses.replace(
+        settings, forgetting_b=v[0], q0_diag=tuple(v[1:4]), r0_diag=tuple(v[4:6]), p0_diag=tuple(v[6:9])
+    )
     new.check()
     return new
 
@@ -96,8 +119,14 @@ class InProcessLink:
 
     def identity(self) -> dict:
         i = self.controller.identity
-        return {"vendor_id": i.vendor_id, "product_code": i.product_code, "revision": i.revision, "serial": i.serial,
-                "device_type": i.device_type, "firmware": i.firmware}
+        return {
+            "vendor_id": i.vendor_id,
+            "product_code": i.product_code,
+            "revision": i.revision,
+            "serial": i.serial,
+            "device_type": i.device_type,
+            "firmware": i.firmware,
+        }
 
     def download_calibration(self, corrections: Corrections) -> None:
         table = corrections.as_float32()  # IEEE single precision, as on every link

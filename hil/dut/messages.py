@@ -51,7 +51,13 @@ class EdgeMessage:
     seq: int
 
     def pack(self) -> bytes:
-        return struct.pack(_FMT, self.ticks % WRAP, self.current_ma, (self.sensor & 0x03) | (0x80 if self.rising else 0), self.seq & 0xFF)
+        return struct.pack(
+            _FMT,
+            self.ticks % WRAP,
+            self.current_ma,
+            (self.sensor & 0x03) | (0x80 if self.rising else 0),
+            self.seq & 0xFF,
+        )
 
     @classmethod
     def unpack(cls, data: bytes) -> "EdgeMessage":
@@ -64,12 +70,24 @@ class EdgeMessage:
 
     @classmethod
     def from_edge(cls, edge: dict, seq: int) -> "EdgeMessage":
-        return cls(_ticks(edge["t_capture_s"]), _current_ma(edge.get("current_a", 0.0)), int(edge["sensor"]), bool(edge["rising"]), seq)
+        return cls(
+            _ticks(edge["t_capture_s"]),
+            _current_ma(edge.get("current_a", 0.0)),
+            int(edge["sensor"]),
+            bool(edge["rising"]),
+            seq,
+        )
 
     def to_edge(self, epoch_ticks: int = 0) -> dict:
         """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the wrap)."""
         t = (epoch_ticks + self.ticks) * TICK_S
-        return {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t, "current_a": self.current_ma / 1000.0}
+        return {
+            "t_capture_s": t,
+            "sensor": self.sensor,
+            "rising": self.rising,
+            "now_s": t,
+            "current_a": self.current_ma / 1000.0,
+        }
 
 
 NO_CURRENT = 0xFFFF
@@ -118,7 +136,9 @@ class CommandMessage:
     last: bool
 
     def pack(self) -> bytes:
-        return struct.pack(_FMT, self.ticks % WRAP, self.duty_u16, self.sector, (self.seq & 0x7F) | (0x80 if self.last else 0))
+        return struct.pack(
+            _FMT, self.ticks % WRAP, self.duty_u16, self.sector, (self.seq & 0x7F) | (0x80 if self.last else 0)
+        )
 
     @property
     def keeps_everything(self) -> bool:
@@ -141,8 +161,11 @@ class CommandMessage:
     def to_command(self, epoch_ticks: int = 0):
         from plant_models.simulation import Command
 
-        return Command(at_s=(epoch_ticks + self.ticks) * TICK_S, sector=None if self.sector == KEEP_SECTOR else self.sector,
-                       duty=None if self.duty_u16 == KEEP_DUTY else self.duty_u16 / DUTY_SCALE)
+        return Command(
+            at_s=(epoch_ticks + self.ticks) * TICK_S,
+            sector=None if self.sector == KEEP_SECTOR else self.sector,
+            duty=None if self.duty_u16 == KEEP_DUTY else self.duty_u16 / DUTY_SCALE,
+        )
 
 
 def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
@@ -152,8 +175,13 @@ def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
     if int(edge["sensor"]) not in (0, 1, 2):
         raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
     t = (epoch_ticks + _ticks(edge["t_capture_s"]) % WRAP) * TICK_S
-    out = {"t_capture_s": t, "sensor": int(edge["sensor"]), "rising": bool(edge["rising"]), "now_s": t,
-           "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0}
+    out = {
+        "t_capture_s": t,
+        "sensor": int(edge["sensor"]),
+        "rising": bool(edge["rising"]),
+        "now_s": t,
+        "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0,
+    }
     cycle = edge.get("cycle_current_a")
     return with_cycle_current(out, None if cycle is None else min(_current_ma(cycle), NO_CURRENT - 1))
 
@@ -168,8 +196,13 @@ def commands_as_received(commands, epoch_ticks: int) -> list:
         if c.sector is None and c.duty is None:
             continue  # a "keep everything" frame: nothing for the plant
         duty = None if c.duty is None else _duty_u16(c.duty) / DUTY_SCALE
-        out.append(Command(at_s=(epoch_ticks + _ticks(c.at_s) % WRAP) * TICK_S,
-                           sector=None if c.sector is None else int(c.sector), duty=duty))
+        out.append(
+            Command(
+                at_s=(epoch_ticks + _ticks(c.at_s) % WRAP) * TICK_S,
+                sector=None if c.sector is None else int(c.sector),
+                duty=duty,
+            )
+        )
     return out
 
 

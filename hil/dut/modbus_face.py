@@ -31,8 +31,10 @@ STRATEGY, SPEED = 0, 1
 CAL_STAGED, CAL_APPLY, COMMAND, CAL_APPLIED = 10, 30, 31, 40
 RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
 FILTER = 60
-RB_SPEED, RB_Q, RB_R, RB_TRIPS, RB_PRED = 100, 102, 108, 112, 114
-ERROR_REGISTER, FAULT_COUNT, FAULT_CODES = 120, 121, 122
+#: read-back block from 100: speed, Q diagonal (3), R diagonal (2) as FLOAT32 (100..113)
+RB_SPEED, RB_TRIPS, RB_PRED = 100, 112, 114
+#: fault block from 120: error register, fault count, then the fault history's codes
+ERROR_REGISTER = 120
 #: gated edges, covariance repairs, divergence fades, band projections: UINT32 each
 RB_COUNTERS = 130
 COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
@@ -41,7 +43,6 @@ EDGE_IN, REPLY = 200, 210
 #: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
 EDGE_CYCLE_CURRENT = 204
 REPLY_FRAMES = 4
-LAST = REPLY + 1 + 4 * REPLY_FRAMES  # 227
 
 
 def _f32_regs(v: float) -> list[int]:
@@ -182,8 +183,13 @@ class ModbusDevice:
             from pymodbus.server import ModbusSerialServer
 
             self._expected: dict[int, bytes] = {}
-            self.server = ModbusSerialServer(device, framer=FramerType.RTU, port=self.serial_port, baudrate=self.baudrate,
-                                             trace_packet=self._trace_packet_rtu)
+            self.server = ModbusSerialServer(
+                device,
+                framer=FramerType.RTU,
+                port=self.serial_port,
+                baudrate=self.baudrate,
+                trace_packet=self._trace_packet_rtu,
+            )
             task = asyncio.create_task(self.server.serve_forever())
             await asyncio.sleep(0.2)
             self._ready.set()
@@ -221,8 +227,8 @@ class ModbusDevice:
                         return
                     if len(buffer) < 6 + length:
                         break
-                    pdu = bytes(buffer[7:6 + length])
-                    del buffer[:6 + length]
+                    pdu = bytes(buffer[7 : 6 + length])
+                    del buffer[: 6 + length]
                     if protocol != 0:
                         self._refuse("protocol id %d is not Modbus (transaction %d): request dropped", protocol, tid)
                         continue
@@ -278,7 +284,12 @@ class ModbusDevice:
         now = time.monotonic()
         if now - self._last_summary > 10.0:
             self._last_summary = now
-            log.info("Modbus unit %d: %d malformed requests refused so far (last: %s)", self.unit, self.refused, message % args)
+            log.info(
+                "Modbus unit %d: %d malformed requests refused so far (last: %s)",
+                self.unit,
+                self.refused,
+                message % args,
+            )
 
     def _trace_packet_rtu(self, sending: bool, data: bytes) -> bytes:
         """RTU: the same rules as TCP; a serial line is strictly request then answer, so the
@@ -315,7 +326,7 @@ class ModbusDevice:
         c = self.controller
 
         def put(addr, values):
-            regs[addr - base:addr - base + len(values)] = values
+            regs[addr - base : addr - base + len(values)] = values
 
         st = c.status()
         put(STRATEGY, [int(c.strategy)])
@@ -332,7 +343,10 @@ class ModbusDevice:
         codes = (self.history + [0] * 8)[:8]
         put(ERROR_REGISTER, [c.error_register, len(self.history)] + codes)
         i = c.identity
-        put(IDENTITY, sum(([(v >> 16) & 0xFFFF, v & 0xFFFF] for v in (i.vendor_id, i.product_code, i.revision, i.serial)), []))
+        put(
+            IDENTITY,
+            sum(([(v >> 16) & 0xFFFF, v & 0xFFFF] for v in (i.vendor_id, i.product_code, i.revision, i.serial)), []),
+        )
 
     async def _action(self, fc, start, address, count, regs, values):
         try:
@@ -352,7 +366,7 @@ class ModbusDevice:
             return address <= a and a + n <= end
 
         def part(a, n):
-            return values[a - address:a - address + n]
+            return values[a - address : a - address + n]
 
         # a write must cover whole values (a FLOAT32 is two registers)
         for a, n, size in ((SPEED, 1, 2), (CAL_STAGED, 10, 2), (FILTER, 9, 2), (EDGE_IN, 1, 4)):
@@ -377,8 +391,12 @@ class ModbusDevice:
             if part(CAL_APPLY, 1)[0] != 1:
                 return ExcCodes.ILLEGAL_VALUE
             # the staged table is in the block already (earlier writes) or in this request
-            staged = [_regs_f32(part(CAL_STAGED + 2 * k, 2)) if covers(CAL_STAGED + 2 * k, 2)
-                      else _regs_f32(regs[CAL_STAGED + 2 * k - base:CAL_STAGED + 2 * k - base + 2]) for k in range(10)]
+            staged = [
+                _regs_f32(part(CAL_STAGED + 2 * k, 2))
+                if covers(CAL_STAGED + 2 * k, 2)
+                else _regs_f32(regs[CAL_STAGED + 2 * k - base : CAL_STAGED + 2 * k - base + 2])
+                for k in range(10)
+            ]
             try:
                 c.download_calibration(Corrections.from_vector(staged))
             except CalibrationTableError:
@@ -406,13 +424,19 @@ class ModbusDevice:
                 msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)))
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
-            if self._last_ticks is not None and msg.ticks < self._last_ticks and self._last_ticks - msg.ticks > (1 << 31):
+            if (
+                self._last_ticks is not None
+                and msg.ticks < self._last_ticks
+                and self._last_ticks - msg.ticks > (1 << 31)
+            ):
                 self._epoch += 1 << 32
             self._last_ticks = msg.ticks
             cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
-            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[:REPLY_FRAMES]
+            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[
+                :REPLY_FRAMES
+            ]
             reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
-            regs[REPLY - base:REPLY - base + len(reply)] = reply
+            regs[REPLY - base : REPLY - base + len(reply)] = reply
         return None
 
 
@@ -421,8 +445,15 @@ class ModbusLink:
 
     name = "modbus"
 
-    def __init__(self, host: str = "127.0.0.1", port: int = 502, unit: int = 1, timeout_s: float = 1.0,
-                 serial_port: str | None = None, baudrate: int = 115200):
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        unit: int = 1,
+        timeout_s: float = 1.0,
+        serial_port: str | None = None,
+        baudrate: int = 115200,
+    ):
         """Modbus TCP at host:port, or Modbus RTU on ``serial_port`` when given."""
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
         from pymodbus.framer import FramerType
@@ -431,7 +462,9 @@ class ModbusLink:
         self.host, self.port, self.serial_port = host, port, serial_port
         if serial_port is not None:
             self.where = f"Modbus RTU unit {unit} on {serial_port}"
-            self.client = ModbusSerialClient(serial_port, framer=FramerType.RTU, baudrate=baudrate, timeout=timeout_s, retries=0)
+            self.client = ModbusSerialClient(
+                serial_port, framer=FramerType.RTU, baudrate=baudrate, timeout=timeout_s, retries=0
+            )
         else:
             self.where = f"Modbus unit {unit} at {host}:{port}"
             self.client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
@@ -450,26 +483,43 @@ class ModbusLink:
             raise LinkError(f"{self.where}: {what} failed: {type(exc).__name__}: {exc}") from None
         if r.isError():
             code = getattr(r, "exception_code", None)
-            raise LinkError(f"{self.where}: {what} refused with exception code {code:02d}" if code is not None else f"{self.where}: {what} failed: {r}")
+            raise LinkError(
+                f"{self.where}: {what} refused with exception code {code:02d}"
+                if code is not None
+                else f"{self.where}: {what} failed: {r}"
+            )
         return r
 
     def read(self, address: int, count: int) -> list[int]:
-        return self._call(f"read {count} registers at {address}", lambda: self.client.read_holding_registers(address, count=count, device_id=self.unit)).registers
+        return self._call(
+            f"read {count} registers at {address}",
+            lambda: self.client.read_holding_registers(address, count=count, device_id=self.unit),
+        ).registers
 
     def write(self, address: int, registers: list[int]) -> None:
-        self._call(f"write {len(registers)} registers at {address}", lambda: self.client.write_registers(address, registers, device_id=self.unit))
+        self._call(
+            f"write {len(registers)} registers at {address}",
+            lambda: self.client.write_registers(address, registers, device_id=self.unit),
+        )
 
     def identity(self) -> dict:
         r = self.read(IDENTITY, 8)
         v = [(r[2 * k] << 16) | r[2 * k + 1] for k in range(4)]
-        return {"vendor_id": v[0], "product_code": v[1], "revision": v[2], "serial": v[3], "device_type": None, "firmware": None}
+        return {
+            "vendor_id": v[0],
+            "product_code": v[1],
+            "revision": v[2],
+            "serial": v[3],
+            "device_type": None,
+            "firmware": None,
+        }
 
     def download_calibration(self, corrections: Corrections) -> None:
         table = corrections.as_float32()
         self.write(CAL_STAGED, sum((_f32_regs(v) for v in table.as_vector()), []))
         self.write(CAL_APPLY, [1])
         back = self.read(CAL_APPLIED, 20)
-        verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k:2 * k + 2]) for k in range(10)]))
+        verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)]))
 
     def reset(self) -> None:
         """Command register: clear the faults and restart the control logic (calibration kept)."""
@@ -494,14 +544,24 @@ class ModbusLink:
         cycle = CycleCurrentMessage.from_edge(edge, seq)
         if cycle is not None:  # register 204 in the same transaction
             values.append(cycle.current_ma)
-        r = self._call(f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)", lambda: self.client.readwrite_registers(
-            read_address=REPLY, read_count=1 + 4 * REPLY_FRAMES, write_address=EDGE_IN, values=values, device_id=self.unit))
+        r = self._call(
+            f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
+            lambda: self.client.readwrite_registers(
+                read_address=REPLY,
+                read_count=1 + 4 * REPLY_FRAMES,
+                write_address=EDGE_IN,
+                values=values,
+                device_id=self.unit,
+            ),
+        )
         regs = r.registers
         if len(regs) != 1 + 4 * REPLY_FRAMES or regs[0] > REPLY_FRAMES:
-            raise LinkError(f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)")
+            raise LinkError(
+                f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)"
+            )
         commands = []
         for k in range(min(regs[0], REPLY_FRAMES)):
-            f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k:5 + 4 * k]))
+            f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k : 5 + 4 * k]))
             if f.seq != seq & 0x7F:
                 raise LinkError(f"{self.where}: reply to edge #{seq} carries sequence {f.seq} (a stale answer)")
             if not f.keeps_everything:
@@ -513,11 +573,19 @@ class ModbusLink:
         err = self.read(ERROR_REGISTER, 10)
         cn = self.read(RB_COUNTERS, 8)
         counters = {k: (cn[2 * i] << 16) | cn[2 * i + 1] for i, k in enumerate(COUNTER_KEYS)}
-        f = [_regs_f32(rb[2 * k:2 * k + 2]) for k in range(6)]
-        return {**counters, "strategy": self.read(STRATEGY, 1)[0], "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)), "estimated_speed_rpm": f[0],
-                "q_diag": f[1:4], "r_diag": f[4:6], "guard_trips": (rb[12] << 16) | rb[13],
-                "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
-                "error_register": err[0], "faults": [(0.0, code) for code in err[2:2 + err[1]]]}
+        f = [_regs_f32(rb[2 * k : 2 * k + 2]) for k in range(6)]
+        return {
+            **counters,
+            "strategy": self.read(STRATEGY, 1)[0],
+            "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)),
+            "estimated_speed_rpm": f[0],
+            "q_diag": f[1:4],
+            "r_diag": f[4:6],
+            "guard_trips": (rb[12] << 16) | rb[13],
+            "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
+            "error_register": err[0],
+            "faults": [(0.0, code) for code in err[2 : 2 + err[1]]],
+        }
 
     def close(self) -> None:
         self.client.close()

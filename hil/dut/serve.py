@@ -19,9 +19,19 @@ from .socketcand import SocketcandLimits
 from .virtual import Strategy, VirtualController
 
 
-def serve(canopen_port: int | None, modbus_port: int | None, host: str = "127.0.0.1", node_id: int = 5, unit: int = 1,
-          strategy: int = int(Strategy.SAGE_HUSA), preset: str = "paper-bench", stop: threading.Event | None = None,
-          bus_name: str = "can0", limits: SocketcandLimits = SocketcandLimits(), idle_timeout_s: float | None = None) -> None:
+def serve(
+    canopen_port: int | None,
+    modbus_port: int | None,
+    host: str = "127.0.0.1",
+    node_id: int = 5,
+    unit: int = 1,
+    strategy: int = int(Strategy.SAGE_HUSA),
+    preset: str = "paper-bench",
+    stop: threading.Event | None = None,
+    bus_name: str = "can0",
+    limits: SocketcandLimits = SocketcandLimits(),
+    idle_timeout_s: float | None = None,
+) -> None:
     controller = VirtualController(PRESETS[preset]().motor, strategy=Strategy(strategy))
     closers = []
     if idle_timeout_s is not None:
@@ -36,13 +46,20 @@ def serve(canopen_port: int | None, modbus_port: int | None, host: str = "127.0.
             channel = f"hil-dut-{id(controller)}"
             device = CanopenDevice(controller, node_id=node_id, interface="virtual", channel=channel)
             closers.append(device.close)
-            server = SocketcandServer(host, canopen_port, bus_name=bus_name, interface="virtual", channel=channel, limits=limits)
+            server = SocketcandServer(
+                host, canopen_port, bus_name=bus_name, interface="virtual", channel=channel, limits=limits
+            )
             closers.insert(0, server.close)
-            print(f"CANopen node {node_id}: interface=socketcand channel={bus_name} host={host} port={server.port}", flush=True)
+            print(
+                f"CANopen node {node_id}: interface=socketcand channel={bus_name} host={host} port={server.port}",
+                flush=True,
+            )
         if modbus_port is not None:
             from .modbus_face import ModbusDevice
 
-            mdev = ModbusDevice(controller, host=host, port=modbus_port, unit=unit, idle_timeout_s=limits.idle_timeout_s)
+            mdev = ModbusDevice(
+                controller, host=host, port=modbus_port, unit=unit, idle_timeout_s=limits.idle_timeout_s
+            )
             closers.append(mdev.close)
             print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)
         print("ready", flush=True)

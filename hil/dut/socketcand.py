@@ -216,7 +216,9 @@ class SocketcandServer:
                 sender.cancel()
             writer.close()
 
-    async def _command(self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None) -> list[str] | None:
+    async def _command(
+        self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None
+    ) -> list[str] | None:
         """The next ``< ... >`` command as words, or None when the client has gone (EOF or timeout)."""
         loop = asyncio.get_running_loop()
         lim = self.limits
@@ -227,8 +229,8 @@ class SocketcandServer:
                 raise ProtocolError("a command starts with '<'")
             end = buffer.find(b">", max(start, 0))
             if start >= 0 and end >= 0:
-                text = bytes(buffer[start + 1:end])
-                del buffer[:end + 1]
+                text = bytes(buffer[start + 1 : end])
+                del buffer[: end + 1]
                 try:
                     words = text.decode("ascii").split()
                 except UnicodeDecodeError:
@@ -244,7 +246,11 @@ class SocketcandServer:
                 raise ProtocolError(f"command longer than {lim.max_command_bytes} bytes")
             if buffer and started is None:
                 started = loop.time()
-            limit = deadline if deadline is not None else (started + lim.partial_timeout_s if buffer else loop.time() + lim.idle_timeout_s)
+            limit = (
+                deadline
+                if deadline is not None
+                else (started + lim.partial_timeout_s if buffer else loop.time() + lim.idle_timeout_s)
+            )
             try:
                 chunk = await asyncio.wait_for(reader.read(4096), max(limit - loop.time(), 0.0))
             except asyncio.TimeoutError:
@@ -268,7 +274,9 @@ class SocketcandServer:
 
     async def _refuse(self, writer: asyncio.StreamWriter, reason: str) -> None:
         try:
-            text = reason.replace("<", "(").replace(">", ")").encode("ascii", "replace")  # one frame, whatever it quotes
+            text = (
+                reason.replace("<", "(").replace(">", ")").encode("ascii", "replace")
+            )  # one frame, whatever it quotes
             writer.write(b"< error " + text + b" >")
             await asyncio.wait_for(writer.drain(), 1.0)
         except (asyncio.TimeoutError, ConnectionError, OSError):

@@ -29,8 +29,16 @@ VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
 #: keys each kind accepts, with a converter and a default (None: required)
 _KEYS = {
     "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1)},
-    "canopen": {"interface": (str, None), "channel": (str, None), "node": (int, 5), "bitrate": (int, 0), "eds": (str, ""),
-                "host": (str, ""), "port": (int, 0), "timeout": (float, 1.0)},
+    "canopen": {
+        "interface": (str, None),
+        "channel": (str, None),
+        "node": (int, 5),
+        "bitrate": (int, 0),
+        "eds": (str, ""),
+        "host": (str, ""),
+        "port": (int, 0),
+        "timeout": (float, 1.0),
+    },
     "modbus-tcp": {"host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0)},
     "modbus-rtu": {"port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0)},
 }
@@ -44,7 +52,7 @@ class DutSpecError(ValueError):
 @dataclass(frozen=True)
 class DutSpec:
     kind: str
-    transport: str = ""                          #: virtual only: canopen, modbus or in-process
+    transport: str = ""  #: virtual only: canopen, modbus or in-process
     options: dict = field(default_factory=dict)  #: the kind's keys, converted, defaults filled in
     text: str = "virtual"
 
@@ -71,7 +79,9 @@ def unknown_can_interface(interface: str) -> str | None:
 
     if interface in can.interfaces.VALID_INTERFACES:
         return None
-    return f"python-can has no interface {interface!r} (installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})"
+    return (
+        f"python-can has no interface {interface!r} (installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})"
+    )
 
 
 def parse_dut(text: str) -> DutSpec:
@@ -88,7 +98,10 @@ def parse_dut(text: str) -> DutSpec:
         else:
             transport = "canopen"
         if transport not in VIRTUAL_TRANSPORTS:
-            raise DutSpecError(f"--hil-dut {text!r}: unknown virtual transport {transport!r} (use one of {', '.join(VIRTUAL_TRANSPORTS)})")
+            raise DutSpecError(
+                f"--hil-dut {text!r}: unknown virtual transport {transport!r} (use one of "
+                f"{', '.join(VIRTUAL_TRANSPORTS)})"
+            )
     keys = _KEYS[kind]
     options = {}
     for part in filter(None, (p.strip() for p in rest.split(","))):
@@ -146,8 +159,17 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
         from .canopen_face import CanopenLink
 
         bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
-        return Dut(spec, CanopenLink(node_id=o["node"], interface=o["interface"], channel=o["channel"], eds=o["eds"] or None,
-                                     timeout_s=o["timeout"], **bus))
+        return Dut(
+            spec,
+            CanopenLink(
+                node_id=o["node"],
+                interface=o["interface"],
+                channel=o["channel"],
+                eds=o["eds"] or None,
+                timeout_s=o["timeout"],
+                **bus,
+            ),
+        )
     if spec.kind == "modbus-tcp":
         from .modbus_face import ModbusLink
 
@@ -167,11 +189,17 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
         device = CanopenDevice(controller, node_id=o["node"], interface="virtual", channel=channel)
-        return _served(spec, device, lambda: CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"]))
+        return _served(
+            spec,
+            device,
+            lambda: CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"]),
+        )
     from .modbus_face import ModbusDevice, ModbusLink
 
     device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"])
-    return _served(spec, device, lambda: ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"]))
+    return _served(
+        spec, device, lambda: ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"])
+    )
 
 
 def _served(spec: DutSpec, device, connect) -> Dut:

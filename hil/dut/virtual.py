@@ -67,9 +67,13 @@ def validate_corrections(c: Corrections, pole_pairs: int) -> None:
     for s in SENSORS:
         v = c.installation_offset_deg_e.get(s)
         if v is None or not math.isfinite(v) or abs(v) > 30.0:
-            raise CalibrationTableError(f"installation_offset_deg_e.{s}", f"must be finite and within +-30 deg_e, got {v!r}")
+            raise CalibrationTableError(
+                f"installation_offset_deg_e.{s}", f"must be finite and within +-30 deg_e, got {v!r}"
+            )
     if len(c.pole_offset_deg_e) != 2 * pole_pairs:
-        raise CalibrationTableError("pole_offset_deg_e", f"needs {2 * pole_pairs} entries, got {len(c.pole_offset_deg_e)}")
+        raise CalibrationTableError(
+            "pole_offset_deg_e", f"needs {2 * pole_pairs} entries, got {len(c.pole_offset_deg_e)}"
+        )
     for j, v in enumerate(c.pole_offset_deg_e):
         if not math.isfinite(v) or abs(v) > 10.0:
             raise CalibrationTableError(f"pole_offset_deg_e[{j}]", f"must be finite and within +-10 deg_e, got {v!r}")
@@ -79,7 +83,9 @@ def validate_corrections(c: Corrections, pole_pairs: int) -> None:
             raise CalibrationTableError(f"conditioning_delay_s.{k}", f"must be within [0, 100e-6] s, got {v!r}")
     v = c.armature_reaction_deg_e_per_a
     if not math.isfinite(v) or abs(v) > 5.0:
-        raise CalibrationTableError("armature_reaction_deg_e_per_a", f"must be finite and within +-5 deg_e/A, got {v!r}")
+        raise CalibrationTableError(
+            "armature_reaction_deg_e_per_a", f"must be finite and within +-5 deg_e/A, got {v!r}"
+        )
 
 
 def warm_up() -> None:
@@ -101,10 +107,20 @@ class VirtualController:
     corrections: Corrections | None = None
     #: Sage-Husa settings: the paper's initial R0, P0, q0, r0; nominal Q0, b and b_R as tuned by
     #: the ``tuned`` protocol of docs/sage-husa.md (rounded)
-    filter_settings: FilterSettings = field(default_factory=lambda: FilterSettings(
-        q0_diag=(1e-5, 1e-9, 1e-3), adapt_mask=3, forgetting_b=0.98, r_forgetting_b=0.89, r_interval=30, q_band_factor=100.0))
+    filter_settings: FilterSettings = field(
+        default_factory=lambda: FilterSettings(
+            q0_diag=(1e-5, 1e-9, 1e-3),
+            adapt_mask=3,
+            forgetting_b=0.98,
+            r_forgetting_b=0.89,
+            r_interval=30,
+            q_band_factor=100.0,
+        )
+    )
     #: the fixed-noise Kalman strategy's Q and R (the ``tuned`` protocol's KF, rounded)
-    kf_settings: FilterSettings = field(default_factory=lambda: FilterSettings(q0_diag=(4.6e-6, 1e-9, 1.2e-5), r0_diag=(1.5e-5, 1.0)))
+    kf_settings: FilterSettings = field(
+        default_factory=lambda: FilterSettings(q0_diag=(4.6e-6, 1e-9, 1.2e-5), r0_diag=(1.5e-5, 1.0))
+    )
     model: MotorModel | None = None
     current_limit_a: float = 15.0
     #: the pump turns one way: a Hall step against it means edges were lost
@@ -148,16 +164,32 @@ class VirtualController:
             predictor = KalmanPredictor(model, self.kf_settings)
         elif self.strategy is Strategy.SAGE_HUSA:
             predictor = SageHusaPredictor(model, self.filter_settings)
-        corrections = None if self.strategy is Strategy.RAW else (self.corrections or Corrections(pole_offset_deg_e=[0.0] * 2 * self.motor.pole_pairs))
-        self._logic = HallCommutation(self.motor.pole_pairs, speed_loop, corrections, current_limit_a=self.current_limit_a, motor=self.motor,
-                                      predictor=predictor)
+        corrections = (
+            None
+            if self.strategy is Strategy.RAW
+            else (self.corrections or Corrections(pole_offset_deg_e=[0.0] * 2 * self.motor.pole_pairs))
+        )
+        self._logic = HallCommutation(
+            self.motor.pole_pairs,
+            speed_loop,
+            corrections,
+            current_limit_a=self.current_limit_a,
+            motor=self.motor,
+            predictor=predictor,
+        )
         self._predictor = predictor
         self._guards_seen = 0
 
     def reset(self) -> None:
         """(Re)start the control logic with the present configuration (NMT reset application)."""
-        self._build_logic(SpeedPI(self.speed_setpoint_rpm, kp_per_rpm=self.kp_per_rpm, ki_per_rpm_s=self.ki_per_rpm_s,
-                                  feedforward=steady_state(self.motor, self.speed_setpoint_rpm)["duty"]))
+        self._build_logic(
+            SpeedPI(
+                self.speed_setpoint_rpm,
+                kp_per_rpm=self.kp_per_rpm,
+                ki_per_rpm_s=self.ki_per_rpm_s,
+                feedforward=steady_state(self.motor, self.speed_setpoint_rpm)["duty"],
+            )
+        )
         self._sector = None
         self._sensors_seen: set[int] = set()
         self._bits = [0, 0, 0]
@@ -248,12 +280,14 @@ class VirtualController:
     def status(self) -> dict:
         p = self._predictor
         # without a filter: the mean over the last mechanical turn, where edge deviations cancel
-        turn = [v for _, v in self._logic.speed_estimates_rpm[-6 * self.motor.pole_pairs:]]
+        turn = [v for _, v in self._logic.speed_estimates_rpm[-6 * self.motor.pole_pairs :]]
         est = len(turn) / sum(1.0 / v for v in turn) if turn else float("nan")
         return {
             "strategy": int(self.strategy),
             "speed_setpoint_rpm": self.speed_setpoint_rpm,
-            "estimated_speed_rpm": float(p.speed_rad_s / (2 * math.pi) * 60 / self.motor.pole_pairs) if p is not None and p.state[0] else float(est),
+            "estimated_speed_rpm": float(p.speed_rad_s / (2 * math.pi) * 60 / self.motor.pole_pairs)
+            if p is not None and p.state[0]
+            else float(est),
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
             "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
             "guard_trips": int(sum(p.guards.values())) if p is not None else 0,

@@ -1,4 +1,4 @@
-"""Sim-to-real gap diagnosis (issue 7, design notes section 6)."""
+"""Sim-to-real gap diagnosis (docs/gap.md)."""
 
 from .diagnose import Diagnosis, diagnose
 

@@ -52,19 +52,45 @@ def _quantization(c):
 
 
 CANDIDATES: dict[str, Candidate] = {
-    "installation_offset": Candidate("installation_offset", _installation,
-                                     lambda k: {"offset_deg_e": [float(v) for v in k]}, lambda c, se: bool(np.all(np.abs(c) <= 10 + 3 * se))),
-    "pole_offset": Candidate("pole_offset", _pole, lambda k: {"offset_deg_e": [float(v) for v in k]},
-                             lambda c, se: bool(np.all(np.abs(c) <= 5 + 3 * se))),
-    "eccentricity": Candidate("eccentricity", _eccentricity,
-                              lambda k: {"amplitude_deg_e": float(np.hypot(*k)), "phase_rad": float(np.mod(np.arctan2(k[1], k[0]), 2 * np.pi))},
-                              lambda c, se: bool(np.hypot(*c) <= 3 + 3 * np.hypot(*se))),
-    "hysteresis": Candidate("hysteresis", lambda c: np.ones((c["sensor"].size, 1)), lambda k: {"lag_deg_e": float(k[0])}, _not_below(0.0)),
-    "conditioning_delay": Candidate("conditioning_delay", _delay, lambda k: {"rise_delay_s": float(k[0]), "fall_delay_s": float(k[1])},
-                                    _not_below(0.0)),
-    "armature_reaction": Candidate("armature_reaction", lambda c: c["current"][:, None], lambda k: {"slope_deg_e_per_a": float(k[0])},
-                                   lambda c, se: bool(np.all(np.abs(c) <= 2 + 3 * se))),
-    "timer_quantization": Candidate("timer_quantization", _quantization, lambda k: {"tick_s": float(k[0])}, _not_below(0.0)),
+    "installation_offset": Candidate(
+        "installation_offset",
+        _installation,
+        lambda k: {"offset_deg_e": [float(v) for v in k]},
+        lambda c, se: bool(np.all(np.abs(c) <= 10 + 3 * se)),
+    ),
+    "pole_offset": Candidate(
+        "pole_offset",
+        _pole,
+        lambda k: {"offset_deg_e": [float(v) for v in k]},
+        lambda c, se: bool(np.all(np.abs(c) <= 5 + 3 * se)),
+    ),
+    "eccentricity": Candidate(
+        "eccentricity",
+        _eccentricity,
+        lambda k: {
+            "amplitude_deg_e": float(np.hypot(*k)),
+            "phase_rad": float(np.mod(np.arctan2(k[1], k[0]), 2 * np.pi)),
+        },
+        lambda c, se: bool(np.hypot(*c) <= 3 + 3 * np.hypot(*se)),
+    ),
+    "hysteresis": Candidate(
+        "hysteresis", lambda c: np.ones((c["sensor"].size, 1)), lambda k: {"lag_deg_e": float(k[0])}, _not_below(0.0)
+    ),
+    "conditioning_delay": Candidate(
+        "conditioning_delay",
+        _delay,
+        lambda k: {"rise_delay_s": float(k[0]), "fall_delay_s": float(k[1])},
+        _not_below(0.0),
+    ),
+    "armature_reaction": Candidate(
+        "armature_reaction",
+        lambda c: c["current"][:, None],
+        lambda k: {"slope_deg_e_per_a": float(k[0])},
+        lambda c, se: bool(np.all(np.abs(c) <= 2 + 3 * se)),
+    ),
+    "timer_quantization": Candidate(
+        "timer_quantization", _quantization, lambda k: {"tick_s": float(k[0])}, _not_below(0.0)
+    ),
 }
 
 #: Library effects with no mean edge-angle signature are diagnosed elsewhere: edge_jitter as a

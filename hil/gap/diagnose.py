@@ -1,4 +1,4 @@
-"""Diagnose the sim-to-real gap of a recording (design notes section 6, recording-format output).
+"""Diagnose the sim-to-real gap of a recording (docs/gap.md; the output keys are in docs/recording-format.md).
 
 Where: per-edge residuals against the model, localised per sensor, polarity, pole, operating
 region and mechanical order, gated against the noise floor estimated inside each residual
@@ -87,8 +87,14 @@ def build_cells(r: EdgeResiduals) -> Cells:
     first = np.zeros(uniq.size, dtype=np.int64)
     first[inv[::-1]] = np.arange(len(r))[::-1]
     feats = {
-        "sensor": r.sensor[first], "rising": r.rising[first], "pole": r.pole[first], "direction": r.direction[first].astype(float),
-        "w_e": r.w_e_deg_s[first], "current": np.bincount(inv, r.current_a) / n, "load": r.load_scale[first], "segment": r.segment[first],
+        "sensor": r.sensor[first],
+        "rising": r.rising[first],
+        "pole": r.pole[first],
+        "direction": r.direction[first].astype(float),
+        "w_e": r.w_e_deg_s[first],
+        "current": np.bincount(inv, r.current_a) / n,
+        "load": r.load_scale[first],
+        "segment": r.segment[first],
         "pole_pairs": r.pole_pairs,
     }
     dof = np.zeros(uniq.size)
@@ -141,14 +147,26 @@ class Diagnosis:
 
     def to_json(self) -> dict:
         return {
-            "significant": self.significant, "ranking": self.ranking, "accepted": self.accepted,
-            "confounded": self.confounded, "unexplained": self.unexplained, "gap_before": self.gap_before,
-            "gap_after_heldout": self.gap_after_heldout, "heldout_shrink": self.heldout_shrink,
-            "heldout_interval": self.heldout_interval, "heldout_note": self.heldout_note, "knobs": self.knobs,
+            "significant": self.significant,
+            "ranking": self.ranking,
+            "accepted": self.accepted,
+            "confounded": self.confounded,
+            "unexplained": self.unexplained,
+            "gap_before": self.gap_before,
+            "gap_after_heldout": self.gap_after_heldout,
+            "heldout_shrink": self.heldout_shrink,
+            "heldout_interval": self.heldout_interval,
+            "heldout_note": self.heldout_note,
+            "knobs": self.knobs,
             "gap_metric": self.gap_metric,
-            "p_value": self.p_value, "reference": self.reference, "noise_floor_deg_e": self.noise_floor_deg_e,
-            "localisation": self.localisation, "not_assessed": self.not_assessed, "noise_gap": self.noise_gap,
-            "samples": self.samples, "below_relevance": self.below_relevance,
+            "p_value": self.p_value,
+            "reference": self.reference,
+            "noise_floor_deg_e": self.noise_floor_deg_e,
+            "localisation": self.localisation,
+            "not_assessed": self.not_assessed,
+            "noise_gap": self.noise_gap,
+            "samples": self.samples,
+            "below_relevance": self.below_relevance,
         }
 
 
@@ -166,11 +184,11 @@ def equal_within_noise(gain_a: float, k_a: int, gain_b: float, k_b: int) -> bool
 
 @dataclass
 class Selection:
-    fitted: list[str]                 #: every effect the forward selection kept (fit and remainder)
-    below: dict[str, dict]            #: of those, the ones below practical relevance (name -> relevance)
-    relevance: dict[str, dict]        #: relevance of every fitted effect
-    first: dict[str, dict]            #: single-effect rows (score, delta_bic, physical, params, k)
-    ties: list[list[str]]             #: (chosen, rival) equal within noise, the chosen has fewer parameters
+    fitted: list[str]  #: every effect the forward selection kept (fit and remainder)
+    below: dict[str, dict]  #: of those, the ones below practical relevance (name -> relevance)
+    relevance: dict[str, dict]  #: relevance of every fitted effect
+    first: dict[str, dict]  #: single-effect rows (score, delta_bic, physical, params, k)
+    ties: list[list[str]]  #: (chosen, rival) equal within noise, the chosen has fewer parameters
     chi2_0: float
     chi2_end: float
 
@@ -218,9 +236,17 @@ def _select(cells: Cells, candidates: list[str]) -> Selection:
             gain = chi2_now - chi2
             d_bic = gain - k_new * math.log(n_cells)
             explained = gain / max(chi2_now - n_cells, 1e-12) if chi2_now > n_cells else 0.0
-            row = {"effect": name, "score": float(max(min(explained, 1.0), 0.0)), "delta_bic": float(d_bic),
-                   "physical": CANDIDATES[name].physical(own, own_se), "params": CANDIDATES[name].params(own), "chi2": chi2,
-                   "gain": gain, "k": k_new, "pred": x @ coef}
+            row = {
+                "effect": name,
+                "score": float(max(min(explained, 1.0), 0.0)),
+                "delta_bic": float(d_bic),
+                "physical": CANDIDATES[name].physical(own, own_se),
+                "params": CANDIDATES[name].params(own),
+                "chi2": chi2,
+                "gain": gain,
+                "k": k_new,
+                "pred": x @ coef,
+            }
             if not fitted:
                 first[name] = row
             rows.append(row)
@@ -266,7 +292,7 @@ def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, 
             for b in candidates:
                 if b in fitted:
                     continue
-                alt = fitted[:i] + [b] + fitted[i + 1:]
+                alt = fitted[:i] + [b] + fitted[i + 1 :]
                 k_alt = _rank(alt, cells)
                 if k_alt >= k_full:
                     continue
@@ -274,12 +300,12 @@ def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, 
                 coef, se, chi2_alt = _wls(x_alt, y, w)
                 col = sum(CANDIDATES[n].columns(cells.features).shape[1] for n in alt[:i])
                 k_b = CANDIDATES[b].columns(cells.features).shape[1]
-                if not CANDIDATES[b].physical(coef[col:col + k_b], se[col:col + k_b]):
+                if not CANDIDATES[b].physical(coef[col : col + k_b], se[col : col + k_b]):
                     continue
                 if not equal_within_noise(chi2_0 - chi2_now, k_full, chi2_0 - chi2_alt, k_alt):
                     continue
                 # what b adds to the set without it: its practical relevance
-                rest = alt[:i] + alt[i + 1:]
+                rest = alt[:i] + alt[i + 1 :]
                 pred_rest = _design(rest, cells) @ _wls(_design(rest, cells), y, w)[0] if rest else np.zeros_like(y)
                 rel = edge_relevance(x_alt @ coef - pred_rest, cells.n)
                 fitted[i] = b
@@ -303,8 +329,17 @@ def _n_params(name: str, cells: Cells) -> int:
 
 def edge_features(r: EdgeResiduals) -> dict:
     """Per-edge features in the form the candidates' columns take (one row per edge)."""
-    return {"sensor": r.sensor, "rising": r.rising, "pole": r.pole, "direction": r.direction.astype(float), "w_e": r.w_e_deg_s,
-            "current": r.current_a, "load": r.load_scale, "segment": r.segment, "pole_pairs": r.pole_pairs}
+    return {
+        "sensor": r.sensor,
+        "rising": r.rising,
+        "pole": r.pole,
+        "direction": r.direction.astype(float),
+        "w_e": r.w_e_deg_s,
+        "current": r.current_a,
+        "load": r.load_scale,
+        "segment": r.segment,
+        "pole_pairs": r.pole_pairs,
+    }
 
 
 def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
@@ -330,8 +365,14 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     k_of = {n: _n_params(n, cells) for n in names}
     # ranking: accepted first (in order), then the ones detected below practical relevance, then
     # by single-effect score (scores equal to three decimals: fewer parameters first)
-    rest = sorted((n for n in names if n not in sel.fitted), key=lambda n: (-round(first.get(n, {"score": 0.0})["score"], 3), k_of[n]))
-    ranking = [{"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0} for n in accepted_names + below_names + rest]
+    rest = sorted(
+        (n for n in names if n not in sel.fitted),
+        key=lambda n: (-round(first.get(n, {"score": 0.0})["score"], 3), k_of[n]),
+    )
+    ranking = [
+        {"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0}
+        for n in accepted_names + below_names + rest
+    ]
     for row in ranking:
         if row["effect"] in sel.below:
             row["below_relevance"] = True
@@ -343,7 +384,7 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
         col = 0
         for n in sel.fitted:
             k = CANDIDATES[n].columns(cells.features).shape[1]
-            row = {"effect": n, "params": CANDIDATES[n].params(coef[col:col + k]), "relevance": sel.relevance[n]}
+            row = {"effect": n, "params": CANDIDATES[n].params(coef[col : col + k]), "relevance": sel.relevance[n]}
             (below if n in sel.below else accepted).append(row)
             col += k
     dof_end = max(n_cells - _remove_collinear(_design(sel.fitted, cells)).shape[1], 1)
@@ -383,7 +424,9 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     noise_significant = p_noise < ALPHA
     jitter_row = {"effect": "edge_jitter", "score": round(jitter_score if noise_significant else 0.0, 4)}
     if noise_significant:
-        rel = jitter_relevance(jitter_params["time_rms_s"], jitter_params["angle_rms_deg_e"], cells.features["w_e"], cells.n)
+        rel = jitter_relevance(
+            jitter_params["time_rms_s"], jitter_params["angle_rms_deg_e"], cells.features["w_e"], cells.n
+        )
         row = {"effect": "edge_jitter", "params": jitter_params, "relevance": rel.to_json()}
         if rel.relevant:
             accepted.append(row)
@@ -397,13 +440,31 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     if not significant and noise_significant and shrink is None and noise_shrink is not None:
         note = "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
     diagnosis = Diagnosis(
-        significant=significant or noise_significant, ranking=ranking, accepted=accepted, confounded=confounded, unexplained=unexplained,
-        gap_before=cell_rms(cells.mean, cells.n), gap_after_heldout=after, heldout_shrink=shrink, heldout_interval=interval, heldout_note=note,
-        noise_gap={"p_value": p_noise, "significant": noise_significant, "before_deg_e": noise_before,
-                   "after_heldout_deg_e": noise_after, "heldout_shrink": noise_shrink},
-        knobs=knobs, localisation=localise(r, cells), p_value=p0, reference=r.reference,
-        noise_floor_deg_e={str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
-                           for s in np.unique(cells.features["segment"])},
+        significant=significant or noise_significant,
+        ranking=ranking,
+        accepted=accepted,
+        confounded=confounded,
+        unexplained=unexplained,
+        gap_before=cell_rms(cells.mean, cells.n),
+        gap_after_heldout=after,
+        heldout_shrink=shrink,
+        heldout_interval=interval,
+        heldout_note=note,
+        noise_gap={
+            "p_value": p_noise,
+            "significant": noise_significant,
+            "before_deg_e": noise_before,
+            "after_heldout_deg_e": noise_after,
+            "heldout_shrink": noise_shrink,
+        },
+        knobs=knobs,
+        localisation=localise(r, cells),
+        p_value=p0,
+        reference=r.reference,
+        noise_floor_deg_e={
+            str(rec.segments[s].id): float(np.sqrt(cells.var[cells.features["segment"] == s][0]))
+            for s in np.unique(cells.features["segment"])
+        },
         below_relevance=below,
     )
     edge_error = None
@@ -427,8 +488,12 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
     d.samples = {k: v.to_json() for k, v in domains.items()}
     assessed = {n for dom in domains.values() for n in dom.first_scores}
     d.not_assessed = [f"{n}: {reason}" for n, reason in NO_TRACE.items()]
-    d.not_assessed += [f"{n}: needs samples.csv with phase currents and terminal voltages (speed and the reference encoder for cogging)"
-                       for n in SAMPLE_EFFECTS if n not in assessed]
+    d.not_assessed += [
+        f"{n}: needs samples.csv with phase currents and terminal voltages (speed and the reference encoder for "
+        "cogging)"
+        for n in SAMPLE_EFFECTS
+        if n not in assessed
+    ]
     if not domains:
         return
     edge_rows = len(d.accepted) + len(d.below_relevance)
@@ -442,11 +507,18 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
                 d.confounded.append(pair)
                 d.knobs["/".join(pair)] = knob(*pair)
         for name, score in dom.first_scores.items():
-            extra_rows.append({"effect": name, "score": round(score if dom.significant else 0.0, 4),
-                               "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant,
-                               "below": any(a["effect"] == name for a in dom.below_relevance) and dom.significant})
+            extra_rows.append(
+                {
+                    "effect": name,
+                    "score": round(score if dom.significant else 0.0, 4),
+                    "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant,
+                    "below": any(a["effect"] == name for a in dom.below_relevance) and dom.significant,
+                }
+            )
     accepted_extra = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if x["accepted"]]
-    below_extra = [{"effect": x["effect"], "score": x["score"], "below_relevance": True} for x in extra_rows if x["below"]]
+    below_extra = [
+        {"effect": x["effect"], "score": x["score"], "below_relevance": True} for x in extra_rows if x["below"]
+    ]
     rest = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if not (x["accepted"] or x["below"])]
     n_acc = sum(1 for r in d.ranking[:edge_rows] if not r.get("below_relevance"))
     head, head_below = d.ranking[:n_acc], d.ranking[n_acc:edge_rows]
@@ -505,7 +577,9 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
             resid[i] = sd_m[i] - math.sqrt(max(var_e[i] + c[0] * w[i] ** 2 + c[1], 0.0))
         after = float(np.sqrt(np.sum(n_edges * resid**2) / np.sum(n_edges)))
         shrink = 1 - after / before if before > 0 else 0.0
-    explained = 1 - float(np.sum(n_edges * (excess - (coef[0] * w**2 + coef[1])) ** 2)) / max(float(np.sum(n_edges * excess**2)), 1e-300)
+    explained = 1 - float(np.sum(n_edges * (excess - (coef[0] * w**2 + coef[1])) ** 2)) / max(
+        float(np.sum(n_edges * excess**2)), 1e-300
+    )
     params = {"time_rms_s": float(np.sqrt(coef[0])), "angle_rms_deg_e": float(np.sqrt(coef[1]))}
     return p, params, max(min(explained, 1.0), 0.0), before, after, shrink
 
@@ -526,10 +600,12 @@ KNOB_RECORD = {
     "cogging_torque": "the lowest speed the pump holds, with the reference encoder",
 }
 KNOB_SHOWS = {
-    "installation_offset": "an installation offset is a fixed place on the stator, so each sensor's error changes sign in the trailing frame when the rotor turns the other way",
+    "installation_offset": "an installation offset is a fixed place on the stator, so each sensor's error changes sign "
+    "in the trailing frame when the rotor turns the other way",
     "hysteresis": "hysteresis lags the switching in either direction of rotation, alike for every sensor",
     "pole_offset": "a pole offset is any per-pole pattern repeating every mechanical turn",
-    "eccentricity": "an eccentricity is a first-order sinusoid over the mechanical turn, whose two parameters the per-pole pattern must match",
+    "eccentricity": "an eccentricity is a first-order sinusoid over the mechanical turn, whose two parameters the "
+    "per-pole pattern must match",
     "conditioning_delay": "a delay constant in time grows in angle with speed, and rising and falling edges differ",
     "armature_reaction": "armature reaction follows the phase current, not the speed",
     "timer_quantization": "a capture timer makes every edge lead by half a tick, rising and falling alike",
@@ -541,21 +617,35 @@ KNOB_SHOWS = {
 }
 _PAIR_KNOBS = {
     frozenset({"conditioning_delay", "armature_reaction"}): (
-        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed and stays, "
-        "armature reaction follows the phase current and moves; under a pump load alone speed and current rise together."),
+        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed and "
+        "stays, "
+        "armature reaction follows the phase current and moves; under a pump load alone speed and current rise "
+        "together."
+    ),
     frozenset({"hysteresis", "installation_offset"}): (
-        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation offset is a fixed "
-        "place on the stator and changes sign in the trailing frame when the rotor reverses."),
+        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation offset is "
+        "a fixed "
+        "place on the stator and changes sign in the trailing frame when the rotor reverses."
+    ),
     frozenset({"conditioning_delay", "timer_quantization"}): (
-        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising with falling "
-        "edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and differs between the edges."),
+        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising with "
+        "falling "
+        "edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and differs between "
+        "the edges."
+    ),
     frozenset({"winding_temperature", "magnet_temperature"}): (
-        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF change "
-        "(magnet temperature) follows the speed; under a pump load alone current and speed move together."),
+        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF "
+        "change "
+        "(magnet temperature) follows the speed; under a pump load alone current and speed move together."
+    ),
     frozenset({"pole_offset", "eccentricity"}): (
-        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid over the turn "
-        "(two parameters), a pole offset any per-pole pattern; only the pattern's departure from a sinusoid, resolved by more "
-        "turns, separates them, and while they are equal within noise the eccentricity is kept for having fewer parameters."),
+        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid over "
+        "the turn "
+        "(two parameters), a pole offset any per-pole pattern; only the pattern's departure from a sinusoid, resolved "
+        "by more "
+        "turns, separates them, and while they are equal within noise the eccentricity is kept for having fewer "
+        "parameters."
+    ),
 }
 
 
@@ -596,7 +686,12 @@ def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0
         pred[test] = x[test][:, keep] @ coef
         fitted_ok[test] = True
     if not fitted_ok.any():
-        return None, None, None, "held-out shrink cannot be measured: no operating point can be predicted from the others"
+        return (
+            None,
+            None,
+            None,
+            "held-out shrink cannot be measured: no operating point can be predicted from the others",
+        )
     return heldout_shrink(cells.mean, cells.mean - pred, cells.n * fitted_ok, seg, n_boot, seed)
 
 
@@ -604,14 +699,24 @@ def localise(r: EdgeResiduals, cells: Cells) -> dict:
     out: dict = {}
     res = r.residual_deg_e
     out["per_sensor"] = {"ABC"[x]: float(np.mean(res[r.sensor == x])) for x in range(3) if np.any(r.sensor == x)}
-    out["per_polarity"] = {k: float(np.mean(res[r.rising == v])) for k, v in (("rise", 1), ("fall", 0)) if np.any(r.rising == v)}
+    out["per_polarity"] = {
+        k: float(np.mean(res[r.rising == v])) for k, v in (("rise", 1), ("fall", 0)) if np.any(r.rising == v)
+    }
     out["per_pole"] = {str(j): float(np.mean(res[r.pole == j])) for j in range(2 * r.pole_pairs) if np.any(r.pole == j)}
     regions = []
     for s in np.unique(r.segment):
         sel = r.segment == s
-        regions.append({"segment": int(s), "speed_rpm": float(r.w_e_deg_s[sel][0] / (6 * r.pole_pairs)), "current_a": float(r.current_a[sel][0]),
-                        "load_scale": float(r.load_scale[sel][0]), "direction": int(r.direction[sel][0]),
-                        "mean_deg_e": float(np.mean(res[sel])), "rms_deg_e": float(np.sqrt(np.mean(res[sel] ** 2)))})
+        regions.append(
+            {
+                "segment": int(s),
+                "speed_rpm": float(r.w_e_deg_s[sel][0] / (6 * r.pole_pairs)),
+                "current_a": float(r.current_a[sel][0]),
+                "load_scale": float(r.load_scale[sel][0]),
+                "direction": int(r.direction[sel][0]),
+                "mean_deg_e": float(np.mean(res[sel])),
+                "rms_deg_e": float(np.sqrt(np.mean(res[sel] ** 2))),
+            }
+        )
     out["per_region"] = regions
     # order spectrum: edges are samples in angle, 6p per mechanical turn; the turn-averaged
     # pattern's DFT gives mechanical orders 0 .. 3p

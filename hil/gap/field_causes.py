@@ -19,7 +19,7 @@ effects that explain them"):
 
 R_s is the sensor radius (ring radius plus air gap); dB/dtheta the ring field's slope at its
 zero crossings (mT per deg_e), phi_x the sensor's stator angle.
-"""
+"""  # noqa: E501 (a Markdown table cannot wrap)
 
 from __future__ import annotations
 
@@ -55,26 +55,38 @@ def _unit_cause(name: str, rng: np.random.Generator, pole_pairs: int) -> tuple[H
         angle = float(rng.uniform(0.0, 360.0))
 
         def make(s):
-            return HallField(ring=MagnetRing(eccentricity_mm=float(np.clip(0.05 * s, 0.0, 0.5)), eccentricity_angle_deg=angle))
+            return HallField(
+                ring=MagnetRing(eccentricity_mm=float(np.clip(0.05 * s, 0.0, 0.5)), eccentricity_angle_deg=angle)
+            )
     elif name == "static_eccentricity":
         angle = float(rng.uniform(0.0, 360.0))
 
         def make(s):
-            return HallField(ring=MagnetRing(static_offset_mm=float(np.clip(0.05 * s, 0.0, 0.5)), static_offset_angle_deg=angle))
+            return HallField(
+                ring=MagnetRing(static_offset_mm=float(np.clip(0.05 * s, 0.0, 0.5)), static_offset_angle_deg=angle)
+            )
     elif name == "pole_magnetisation":
         rem = rng.uniform(-1.0, 1.0, 2 * pole_pairs)
         err = rng.uniform(-1.0, 1.0, 2 * pole_pairs)
 
         def make(s):
-            return HallField(ring=MagnetRing(pole_remanence=tuple(float(np.clip(1.0 + 0.02 * s * r, 0.8, 1.2)) for r in rem),
-                                             boundary_error_deg_m=tuple(float(np.clip(0.05 * s * e, -2.0, 2.0)) for e in err)))
+            return HallField(
+                ring=MagnetRing(
+                    pole_remanence=tuple(float(np.clip(1.0 + 0.02 * s * r, 0.8, 1.2)) for r in rem),
+                    boundary_error_deg_m=tuple(float(np.clip(0.05 * s * e, -2.0, 2.0)) for e in err),
+                )
+            )
     elif name == "hysteresis_band":
         dt = float(rng.uniform(-20.0, 80.0))
 
         def make(s):
             b = float(np.clip(2.0 * s, 0.0, 100.0))
-            return HallField(sensors=HallSwitches(operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=THRESHOLD_TC_PER_K),
-                             temperature_rise_k=dt)
+            return HallField(
+                sensors=HallSwitches(
+                    operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=THRESHOLD_TC_PER_K
+                ),
+                temperature_rise_k=dt,
+            )
     elif name == "stator_field":
         sign = float(rng.choice([-1.0, 1.0]))  # a sensor on the phase axis's far side sees the field reversed: it leads
 
@@ -101,7 +113,9 @@ def implied_effect(name: str, hf: HallField, pole_pairs: int) -> fx.Effect:
     if name == "static_eccentricity":
         phi = np.radians(SENSOR_POSITION_DEG_E / pole_pairs)
         gamma = math.radians(ring.static_offset_angle_deg)
-        return fx.InstallationOffset(tuple(float(v) for v in np.degrees(pole_pairs * ring.static_offset_mm / r_s * np.sin(phi - gamma))))
+        return fx.InstallationOffset(
+            tuple(float(v) for v in np.degrees(pole_pairs * ring.static_offset_mm / r_s * np.sin(phi - gamma)))
+        )
     if name == "pole_magnetisation":
         # where the ring's own field crosses zero, per pole boundary (all sensors alike)
         zero = HallField(ring=ring).model(pole_pairs).switch_table_deg_e()[:, :, 0].mean(axis=0)
@@ -122,17 +136,30 @@ def combine(fields: list[HallField]) -> HallField:
     """One field model holding every drawn cause (each sets different parts)."""
     out = HallField()
     for hf in fields:
-        ring = {f.name: getattr(hf.ring, f.name) for f in dataclasses.fields(MagnetRing) if getattr(hf.ring, f.name) != getattr(MagnetRing(), f.name)}
-        sens = {f.name: getattr(hf.sensors, f.name) for f in dataclasses.fields(HallSwitches)
-                if getattr(hf.sensors, f.name) != getattr(HallSwitches(), f.name)}
+        ring = {
+            f.name: getattr(hf.ring, f.name)
+            for f in dataclasses.fields(MagnetRing)
+            if getattr(hf.ring, f.name) != getattr(MagnetRing(), f.name)
+        }
+        sens = {
+            f.name: getattr(hf.sensors, f.name)
+            for f in dataclasses.fields(HallSwitches)
+            if getattr(hf.sensors, f.name) != getattr(HallSwitches(), f.name)
+        }
         out = dataclasses.replace(
-            out, ring=dataclasses.replace(out.ring, **ring), sensors=dataclasses.replace(out.sensors, **sens),
-            stator=hf.stator if hf.stator != StatorCoupling() else out.stator, output=hf.output or out.output,
-            temperature_rise_k=hf.temperature_rise_k or out.temperature_rise_k)
+            out,
+            ring=dataclasses.replace(out.ring, **ring),
+            sensors=dataclasses.replace(out.sensors, **sens),
+            stator=hf.stator if hf.stator != StatorCoupling() else out.stator,
+            output=hf.output or out.output,
+            temperature_rise_k=hf.temperature_rise_k or out.temperature_rise_k,
+        )
     return out
 
 
-def make_field_case(causes: list[str], snr: float, seed: int, electrical: bool = False, base: PlantConfig | None = None):
+def make_field_case(
+    causes: list[str], snr: float, seed: int, electrical: bool = False, base: PlantConfig | None = None
+):
     """A recording whose edges come from the field model with ``causes`` at signal-to-noise
     ``snr`` (each cause scaled alone to it, within its bounds); returns (recording, implied
     library effects, the field model)."""
@@ -154,7 +181,9 @@ def make_field_case(causes: list[str], snr: float, seed: int, electrical: bool =
         implied.append(implied_effect(name, hf, p))
         achieved.append(got / noise)
     hf = combine(fields)
-    config = base.with_effects(fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), *([hf] if causes else []))
+    config = base.with_effects(
+        fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), *([hf] if causes else [])
+    )
     rec = _record_electrical(config, ops, seed) if electrical else record_kinematic(config, ops, seed=seed)
     rec.meta_extra["validation_snr"] = min(achieved) if achieved else snr
     return rec, implied, hf
@@ -170,8 +199,10 @@ def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: i
     for _ in range(two):
         a, b = rng.choice(CAUSES, 2, replace=False)
         plan.append(("two", [str(a), str(b)]))
-    return [(i, kind, names, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)), (i % 4 == 3) and kind != "two")
-            for i, (kind, names) in enumerate(plan)]
+    return [
+        (i, kind, names, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)), (i % 4 == 3) and kind != "two")
+        for i, (kind, names) in enumerate(plan)
+    ]
 
 
 def run_field_case(job) -> dict:
@@ -188,10 +219,21 @@ def run_field_case(job) -> dict:
         hit = next((a for a in d.accepted if a["effect"] == implied[0].name), None)
         perr = _param_error(implied[0], hit) if hit else None
     return {
-        "kind": kind, "cause": names, "truth": [e.name for e in implied], "seed": seed, "snr_drawn": snr,
-        "snr": float(rec.meta_extra.get("validation_snr", snr)), "electrical": electrical, "significant": d.significant,
-        "top1": accepted[0] if accepted else "none", "top3": top[:3], "accepted": accepted,
-        "below_relevance": [b["effect"] for b in d.below_relevance], "confounded": d.confounded,
-        "unexplained": d.unexplained, "param_error": perr, "heldout_shrink": d.heldout_shrink,
+        "kind": kind,
+        "cause": names,
+        "truth": [e.name for e in implied],
+        "seed": seed,
+        "snr_drawn": snr,
+        "snr": float(rec.meta_extra.get("validation_snr", snr)),
+        "electrical": electrical,
+        "significant": d.significant,
+        "top1": accepted[0] if accepted else "none",
+        "top3": top[:3],
+        "accepted": accepted,
+        "below_relevance": [b["effect"] for b in d.below_relevance],
+        "confounded": d.confounded,
+        "unexplained": d.unexplained,
+        "param_error": perr,
+        "heldout_shrink": d.heldout_shrink,
         "implied": [e.to_dict() for e in implied],
     }

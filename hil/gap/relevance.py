@@ -56,14 +56,24 @@ def angle_floor_deg_e() -> float:
 def edge_relevance(shift_deg_e: np.ndarray, weight: np.ndarray) -> Relevance:
     """RMS (weighted by edges) of the commutation-angle shift an edge effect predicts."""
     rms = float(math.sqrt(np.sum(weight * shift_deg_e**2) / max(np.sum(weight), 1e-300)))
-    return Relevance(rms, angle_floor_deg_e(), "deg_e",
-                     f"RMS commutation-angle shift over the recording's edges; floor {FRACTION:.0%} of the {COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget")
+    return Relevance(
+        rms,
+        angle_floor_deg_e(),
+        "deg_e",
+        f"RMS commutation-angle shift over the recording's edges; floor {FRACTION:.0%} of the "
+        f"{COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget",
+    )
 
 
 def jitter_relevance(time_rms_s: float, angle_rms_deg_e: float, w_e_deg_s: np.ndarray, weight: np.ndarray) -> Relevance:
     var = (w_e_deg_s * time_rms_s) ** 2 + angle_rms_deg_e**2
-    return Relevance(float(math.sqrt(np.sum(weight * var) / max(np.sum(weight), 1e-300))), angle_floor_deg_e(), "deg_e",
-                     f"RMS commutation-angle jitter over the recording's edges; floor {FRACTION:.0%} of the {COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget")
+    return Relevance(
+        float(math.sqrt(np.sum(weight * var) / max(np.sum(weight), 1e-300))),
+        angle_floor_deg_e(),
+        "deg_e",
+        f"RMS commutation-angle jitter over the recording's edges; floor {FRACTION:.0%} of the "
+        f"{COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget",
+    )
 
 
 @dataclass(frozen=True)
@@ -81,22 +91,47 @@ def sample_relevance(name: str, params: dict, motor, env: OperatingEnvelope) -> 
     """Floor test of a sampled-signal effect's fitted parameters (``motor``: NominalMotor)."""
     if name == "winding_temperature":
         # at a fixed duty, u = 2 R I + 2 k_e w: a resistance change dR moves the speed by dR I / k_e
-        rel = float(np.max(np.abs(params["resistance_delta_ohm"]) * env.current_a / (motor.ke_v_s_per_rad * np.maximum(env.speed_rad_s, 1e-9))))
-        return Relevance(rel, FRACTION * SPEED_BUDGET, "1", "relative speed change at a fixed duty (most sensitive operating point); "
-                         f"floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget")
+        rel = float(
+            np.max(
+                np.abs(params["resistance_delta_ohm"])
+                * env.current_a
+                / (motor.ke_v_s_per_rad * np.maximum(env.speed_rad_s, 1e-9))
+            )
+        )
+        return Relevance(
+            rel,
+            FRACTION * SPEED_BUDGET,
+            "1",
+            "relative speed change at a fixed duty (most sensitive operating point); "
+            f"floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget",
+        )
     if name == "magnet_temperature":
         rel = abs(params["ke_delta_v_s_per_rad"]) / motor.ke_v_s_per_rad  # speed per duty goes as 1 / k_e
-        return Relevance(float(rel), FRACTION * SPEED_BUDGET, "1", "relative speed change at a fixed duty; "
-                         f"floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget")
+        return Relevance(
+            float(rel),
+            FRACTION * SPEED_BUDGET,
+            "1",
+            f"relative speed change at a fixed duty; floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget",
+        )
     if name == "saturation":
         knee, floor = params["saturation_current_a"], params["min_inductance_fraction"]
         drop = 1.0 - max(floor, 1.0 / (1.0 + (env.max_current_a / knee) ** 2))
-        return Relevance(float(drop), FRACTION * INDUCTANCE_TOLERANCE, "1", "inductance drop at the largest measured current; "
-                         f"floor {FRACTION:.0%} of a {INDUCTANCE_TOLERANCE:.0%} inductance tolerance")
+        return Relevance(
+            float(drop),
+            FRACTION * INDUCTANCE_TOLERANCE,
+            "1",
+            "inductance drop at the largest measured current; "
+            f"floor {FRACTION:.0%} of a {INDUCTANCE_TOLERANCE:.0%} inductance tolerance",
+        )
     if name == "cogging_torque":
         top = float(np.max(env.load_torque_n_m)) if env.load_torque_n_m.size else 0.0
-        return Relevance(float(params["amplitude_n_m"]), FRACTION * TORQUE_RIPPLE_BUDGET * top, "N m",
-                         f"peak cogging torque; floor {FRACTION:.0%} of a {TORQUE_RIPPLE_BUDGET:.0%} torque-ripple budget of the largest load torque")
+        return Relevance(
+            float(params["amplitude_n_m"]),
+            FRACTION * TORQUE_RIPPLE_BUDGET * top,
+            "N m",
+            f"peak cogging torque; floor {FRACTION:.0%} of a {TORQUE_RIPPLE_BUDGET:.0%} torque-ripple budget of the "
+            "largest load torque",
+        )
     raise KeyError(name)
 
 

@@ -12,76 +12,11 @@ from markupsafe import Markup
 
 from ..plots import pyplot
 
-TEMPLATE = """<!doctype html>
-<html><head><meta charset="utf-8"><meta name="viewport" content="width=device-width, initial-scale=1">
-<title>Sim-to-real gap: {{ name }}</title>
-<style>
-*{box-sizing:border-box}
-body{font-family:sans-serif;margin:2em auto;padding:0 1em;max-width:1100px;line-height:1.4;overflow-wrap:anywhere}
-table{border-collapse:collapse;margin:.5em 0 1em;max-width:100%}
-td,th{border:1px solid #ccc;padding:3px 8px;text-align:left;vertical-align:top}
-td.pair{white-space:nowrap}
-td.num{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
-.bad{color:#b00}.ok{color:#070}.muted{color:#666}
-img{max-width:100%;height:auto}
-code{white-space:pre-wrap;overflow-wrap:anywhere}
-.grid{display:flex;flex-wrap:wrap;gap:0 2em}
-@media print{body{margin:0;max-width:none}h2{break-after:avoid}table,img{break-inside:avoid}}
-</style></head><body>
-<h1>Sim-to-real gap diagnosis</h1>
-<p>Recording <code>{{ name }}</code>, reference: {{ d.reference }}. Gap ({{ d.gap_metric }}):
-<b>{{ d.gap_before|sig }}</b>,
-{% if d.significant %}<span class="bad">significant</span>{% else %}<span class="ok">within the noise floor</span>{% endif %}
-(p = {{ "%.2g"|format(d.p_value) }}).</p>
-<h2>Which effect</h2>
-<table><tr><th>rank</th><th>effect</th><th>score</th><th>verdict</th></tr>
-{% for r in d.ranking %}<tr><td class="num">{{ loop.index }}</td><td>{{ r.effect }}</td><td class="num">{{ "%.3f"|format(r.score) }}</td>
-<td>{% if r.effect in accepted %}accepted{% elif r.effect in below %}detected, below practical relevance{% endif %}</td></tr>{% endfor %}
-</table>
-{% for a in d.accepted %}<h3>Accepted: {{ a.effect }}</h3>{{ params_table(a) }}{% endfor %}
-{% if d.below_relevance %}<h3>Detected, below practical relevance</h3>
-<p class="muted">Fitted and significant, but what they do is below the floor of their budget (docs/gap.md, "Practical significance"); not accepted.</p>
-{% for a in d.below_relevance %}<h4>{{ a.effect }}</h4>{{ params_table(a) }}{% endfor %}{% endif %}
-{% if d.confounded %}<h3>Confounded pairs</h3>
-<table><tr><th>pair</th><th>what separates them</th></tr>
-{% for pair in d.confounded %}<tr><td class="pair">{{ pair[0] }}<br>{{ pair[1] }}</td><td>{{ d.knobs[pair|join("/")] }}</td></tr>{% endfor %}</table>{% endif %}
-<p>Unexplained remainder: <b>{{ "yes" if d.unexplained else "no" }}</b></p>
-<h2>How far it shrinks</h2>
-<p>{% if d.heldout_shrink is not none %}Held-out gap {{ (d.gap_after_heldout or 0)|sig }}, shrink <b>{{ "%.1f"|format(100 * d.heldout_shrink) }} %</b>
-{% if d.heldout_interval %}(interval {{ "%.1f"|format(100 * d.heldout_interval[0]) }}-{{ "%.1f"|format(100 * d.heldout_interval[1]) }} %){% endif %}.{% endif %} {{ d.heldout_note }}</p>
-{% for title, img in figures %}<h2>{{ title }}</h2><img src="data:image/png;base64,{{ img }}" alt="{{ title }}">{% endfor %}
-<h2>Sampled signals</h2>
-{% if d.samples %}<table><tr><th>signal</th><th>p</th><th>gap</th><th>accepted</th><th>held-out gap</th><th>shrink</th><th>unexplained</th></tr>
-{% for k, v in d.samples.items() %}<tr><td>{{ k }} [{{ v.unit }}]</td><td class="num">{{ "%.2g"|format(v.p_value) }}</td><td class="num">{{ v.gap_before|sig }}</td>
-<td>{% for a in v.accepted %}{{ a.effect }}{{ ", " if not loop.last }}{% endfor %}{% if v.below_relevance %} <span class="muted">(below relevance: {% for a in v.below_relevance %}{{ a.effect }}{{ ", " if not loop.last }}{% endfor %})</span>{% endif %}</td>
-<td class="num">{{ v.gap_after_heldout|sig if v.gap_after_heldout is not none else "-" }}</td>
-<td class="num">{{ "%.1f %%"|format(100 * v.heldout_shrink) if v.heldout_shrink is not none else "-" }}</td><td>{{ "yes" if v.unexplained else "no" }}</td></tr>{% endfor %}
-</table>{% else %}<p>The recording has no samples.csv.</p>{% endif %}
-<h2>Localisation</h2>
-<p class="muted">Mean edge residual (deg electrical, + = trails) by where it occurs.</p>
-<div class="grid">
-{% for title, key, label in (("Per sensor", "per_sensor", "sensor"), ("Per edge polarity", "per_polarity", "edge"), ("Per magnet pole", "per_pole", "pole")) %}
-{% if loc[key] %}<div><h3>{{ title }}</h3><table><tr><th>{{ label }}</th><th>mean [deg e]</th></tr>
-{% for k, v in loc[key].items() %}<tr><td>{{ k }}</td><td class="num">{{ v|sig }}</td></tr>{% endfor %}</table></div>{% endif %}
-{% endfor %}
-{% if d.noise_floor_deg_e %}<div><h3>Noise floor per segment</h3><table><tr><th>segment</th><th>per-edge noise [deg e]</th></tr>
-{% for k, v in d.noise_floor_deg_e.items() %}<tr><td>{{ k }}</td><td class="num">{{ v|sig }}</td></tr>{% endfor %}</table></div>{% endif %}
-</div>
-{% if loc.per_region %}<h3>Per operating region</h3>
-<table><tr><th>segment</th><th>speed [rpm]</th><th>mean |i| [A]</th><th>load scale</th><th>direction</th><th>mean [deg e]</th><th>RMS [deg e]</th></tr>
-{% for g in loc.per_region %}<tr><td>{{ segment_ids[g.segment] }}</td><td class="num">{{ g.speed_rpm|sig }}</td><td class="num">{{ g.current_a|sig }}</td>
-<td class="num">{{ g.load_scale|sig }}</td><td>{{ "forward" if g.direction > 0 else "reverse" }}</td><td class="num">{{ g.mean_deg_e|sig }}</td>
-<td class="num">{{ g.rms_deg_e|sig }}</td></tr>{% endfor %}</table>{% endif %}
-{% if spectrum %}<h3>Order spectrum (largest orders)</h3>
-<table><tr><th>mechanical order</th><th>amplitude [deg e]</th></tr>
-{% for o, a in spectrum %}<tr><td class="num">{{ o }}</td><td class="num">{{ a|sig }}</td></tr>{% endfor %}</table>{% endif %}
-<h2>Not assessed</h2><ul>{% for n in d.not_assessed %}<li>{{ n }}</li>{% endfor %}</ul>
-</body></html>"""
+#: the HTML lives in hil/templates (package data), beside the compliance report's
+TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
+TEMPLATE = (TEMPLATES / "gap-diagnosis.html.j2").read_text(encoding="utf-8")
 
-PARAMS_TEMPLATE = """<table><tr><th>parameter</th><th>value</th></tr>
-{% for k, v in a.params.items() %}<tr><td>{{ k }}</td><td class="num">{{ v|sig }}</td></tr>{% endfor %}
-{% if a.relevance %}<tr><td>relevance ({{ a.relevance.meaning }})</td><td class="num">{{ a.relevance.value|sig }} {{ a.relevance.unit }}
-(floor {{ a.relevance.floor|sig }})</td></tr>{% endif %}</table>"""
+PARAMS_TEMPLATE = (TEMPLATES / "gap-params.html.j2").read_text(encoding="utf-8")
 
 
 def sig(value, digits: int = 4) -> str:
@@ -123,7 +58,13 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     for x in range(3):
         for rising, mk in ((1, "^"), (0, "v")):
             sel = (r.sensor[first][idx] == x) & (r.rising[first][idx] == rising)
-            ax.plot(idx[sel], r.residual_deg_e[first][idx][sel], mk, ls="", label=f"{'ABC'[x]} {'rise' if rising else 'fall'}")
+            ax.plot(
+                idx[sel],
+                r.residual_deg_e[first][idx][sel],
+                mk,
+                ls="",
+                label=f"{'ABC'[x]} {'rise' if rising else 'fall'}",
+            )
     ax.set_xlabel("edge index (first four mechanical turns of the first segment)")
     ax.set_ylabel("residual [deg e]")
     ax.legend(ncol=6, fontsize=7)
@@ -133,8 +74,15 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
         out.append(("Order spectrum", _bars(spec["mechanical_order"], spec["amplitude_deg_e"], "amplitude [deg e]")))
     regions = diagnosis.localisation["per_region"]
     fig, ax = plt.subplots(figsize=(6, 3.5))
-    sc = ax.scatter([g["speed_rpm"] for g in regions], [g["current_a"] for g in regions], c=[g["mean_deg_e"] for g in regions],
-                    s=120, marker="o", cmap="coolwarm", edgecolors=["k" if g["direction"] > 0 else "r" for g in regions])
+    sc = ax.scatter(
+        [g["speed_rpm"] for g in regions],
+        [g["current_a"] for g in regions],
+        c=[g["mean_deg_e"] for g in regions],
+        s=120,
+        marker="o",
+        cmap="coolwarm",
+        edgecolors=["k" if g["direction"] > 0 else "r" for g in regions],
+    )
     fig.colorbar(sc, ax=ax, label="mean residual [deg e]")
     ax.set_xlabel("speed [rpm]")
     ax.set_ylabel("mean phase current [A]")
@@ -155,8 +103,12 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
         out.append(("Before / after", _png(fig)))
     speed = diagnosis.samples.get("speed", {}).get("localisation", {}).get("order_spectrum")
     if speed:
-        out.append(("Speed residual: order spectrum (cogging shows at its periods per turn)",
-                    _bars(speed["mechanical_order"], speed["amplitude_rad_s"], "speed residual [rad/s]")))
+        out.append(
+            (
+                "Speed residual: order spectrum (cogging shows at its periods per turn)",
+                _bars(speed["mechanical_order"], speed["amplitude_rad_s"], "speed residual [rad/s]"),
+            )
+        )
     volt = diagnosis.samples.get("voltage", {}).get("localisation", {}).get("per_electrical_angle_v")
     if volt:
         fig, ax = plt.subplots(figsize=(6, 3))
@@ -183,8 +135,14 @@ def write_html(path, name, rec, diagnosis, model=None) -> Path:
         top = sorted(zip(spec["mechanical_order"], spec["amplitude_deg_e"]), key=lambda oa: -oa[1])[:8]
         spectrum = sorted(top)
     html = env.from_string(TEMPLATE).render(
-        name=name, d=diagnosis, accepted=[a["effect"] for a in diagnosis.accepted], below=[a["effect"] for a in diagnosis.below_relevance],
-        figures=figures(r, cells, diagnosis), loc=diagnosis.localisation, spectrum=spectrum, segment_ids=rec.segment_ids,
+        name=name,
+        d=diagnosis,
+        accepted=[a["effect"] for a in diagnosis.accepted],
+        below=[a["effect"] for a in diagnosis.below_relevance],
+        figures=figures(r, cells, diagnosis),
+        loc=diagnosis.localisation,
+        spectrum=spectrum,
+        segment_ids=rec.segment_ids,
         params_table=lambda a: Markup(params.render(a=a)),
     )
     path = Path(path)

@@ -78,7 +78,12 @@ def turn_errors(rec: Recording) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         ids, inv = np.unique(turn_id[ok], return_inverse=True)
         e[ok] -= (np.bincount(inv, e[ok]) / np.bincount(inv))[inv]
         err[idx] = e
-        pole[idx] = np.mod(np.round((np.mod(seq, n) * 60.0 + SENSOR_POSITION_DEG_E[0] - SENSOR_POSITION_DEG_E[rec.sensor[idx]]) / 180.0), 2 * p).astype(np.int64)
+        pole[idx] = np.mod(
+            np.round(
+                (np.mod(seq, n) * 60.0 + SENSOR_POSITION_DEG_E[0] - SENSOR_POSITION_DEG_E[rec.sensor[idx]]) / 180.0
+            ),
+            2 * p,
+        ).astype(np.int64)
         turn[idx] = turn_id
     return err, pole, turn
 
@@ -124,11 +129,19 @@ def residuals(rec: Recording, model_prediction_deg_e: np.ndarray | None = None) 
     seg = rec.segments
     keep = np.isfinite(err)
     out = EdgeResiduals(
-        residual_deg_e=err, sensor=rec.sensor.astype(np.int64), rising=rec.rising.astype(np.int64), pole=pole.astype(np.int64),
-        direction=np.array([s.direction_sign for s in seg])[rec.segment], w_e_deg_s=w,
+        residual_deg_e=err,
+        sensor=rec.sensor.astype(np.int64),
+        rising=rec.rising.astype(np.int64),
+        pole=pole.astype(np.int64),
+        direction=np.array([s.direction_sign for s in seg])[rec.segment],
+        w_e_deg_s=w,
         current_a=edge_currents_a(rec),
-        load_scale=np.array([s.load_scale for s in seg])[rec.segment], segment=rec.segment.astype(np.int64),
-        turn=turn, reference=reference, pole_pairs=p, edge_index=np.arange(len(rec)),
+        load_scale=np.array([s.load_scale for s in seg])[rec.segment],
+        segment=rec.segment.astype(np.int64),
+        turn=turn,
+        reference=reference,
+        pole_pairs=p,
+        edge_index=np.arange(len(rec)),
     )
     return out.take(keep)
 
@@ -149,5 +162,4 @@ def model_prediction(config, rec: Recording) -> np.ndarray:
     current = edge_currents_a(rec)
     delay = np.where(rec.rising, cp.rise_delay_s, cp.fall_delay_s)
     offsets = cp.switch_table_deg_e()[rec.sensor, pole, np.where(direction > 0, 0, 1)]
-    return (direction * offsets + cp.hysteresis_deg_e
-            + cp.armature_offset_deg_e(current) + w * delay)
+    return direction * offsets + cp.hysteresis_deg_e + cp.armature_offset_deg_e(current) + w * delay

@@ -54,10 +54,17 @@ BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with H
 #: the residual in which each sampled-signal effect shows
 #: nuisance of the voltage residual without an encoder: the Hall reference's common angle offset
 REFERENCE = "hall_reference_offset"
-EFFECT_DOMAIN = {"winding_temperature": "voltage", "magnet_temperature": "voltage", "saturation": "voltage", "cogging_torque": "speed"}
+EFFECT_DOMAIN = {
+    "winding_temperature": "voltage",
+    "magnet_temperature": "voltage",
+    "saturation": "voltage",
+    "cogging_torque": "speed",
+}
 SAMPLE_EFFECTS = tuple(EFFECT_DOMAIN)
-NO_TRACE = {"dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
-                         "and the duty is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"}
+NO_TRACE = {
+    "dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
+    "and the duty is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"
+}
 
 
 @dataclass(frozen=True)
@@ -78,12 +85,29 @@ class NominalMotor:
     def of(cls, rec: Recording, model=None) -> "NominalMotor":
         if model is not None:
             cp = model.compile()
-            return cls(cp.pole_pairs, cp.phase_resistance_ohm, cp.phase_inductance_h, cp.ke_v_s_per_rad, cp.flat_top_deg_e,
-                       cp.inertia_kg_m2, cp.fan_coefficient_n_m_s2, cp.friction_n_m_s_per_rad, cp.supply_v)
+            return cls(
+                cp.pole_pairs,
+                cp.phase_resistance_ohm,
+                cp.phase_inductance_h,
+                cp.ke_v_s_per_rad,
+                cp.flat_top_deg_e,
+                cp.inertia_kg_m2,
+                cp.fan_coefficient_n_m_s2,
+                cp.friction_n_m_s_per_rad,
+                cp.supply_v,
+            )
         m = rec.motor
-        return cls(int(m["pole_pairs"]), float(m["phase_resistance_ohm"]), float(m["phase_inductance_h"]), float(m["ke_v_s_per_rad"]),
-                   float(m.get("flat_top_deg_e", 120.0)), float(m["inertia_kg_m2"]), float(m["fan_coefficient_n_m_s2"]),
-                   float(m.get("friction_n_m_s_per_rad", 0.0)), float(m["supply_v"]))
+        return cls(
+            int(m["pole_pairs"]),
+            float(m["phase_resistance_ohm"]),
+            float(m["phase_inductance_h"]),
+            float(m["ke_v_s_per_rad"]),
+            float(m.get("flat_top_deg_e", 120.0)),
+            float(m["inertia_kg_m2"]),
+            float(m["fan_coefficient_n_m_s2"]),
+            float(m.get("friction_n_m_s_per_rad", 0.0)),
+            float(m["supply_v"]),
+        )
 
 
 def trapezoid(phi_deg: np.ndarray, flat_top_deg_e: float) -> np.ndarray:
@@ -98,23 +122,25 @@ def flux_deficit(i: np.ndarray, inductance_h: float, knee_a: float, floor: float
     """Psi(i) - L i for L(i) = L max(floor, 1 / (1 + (i / knee)^2)) (Psi = integral of L(i) di)."""
     i_floor = knee_a * math.sqrt(1.0 / floor - 1.0)
     a = np.abs(i)
-    psi = np.where(a <= i_floor, knee_a * np.arctan(a / knee_a),
-                   knee_a * math.atan(i_floor / knee_a) + floor * (a - i_floor))
+    psi = np.where(
+        a <= i_floor, knee_a * np.arctan(a / knee_a), knee_a * math.atan(i_floor / knee_a) + floor * (a - i_floor)
+    )
     return inductance_h * (np.sign(i) * psi - i)
 
 
 # --- residuals -----------------------------------------------------------------------------
 
+
 @dataclass
 class SampleResiduals:
     """Per-row residuals and candidate regressors of one domain, with their cell coordinates."""
 
-    domain: str                      #: "voltage" or "speed"
+    domain: str  #: "voltage" or "speed"
     unit: str
     y: np.ndarray
     segment: np.ndarray
-    bin: np.ndarray                  #: angle bin (with the line pair folded in for the voltage)
-    replicate: np.ndarray            #: electrical period or mechanical turn within the segment
+    bin: np.ndarray  #: angle bin (with the line pair folded in for the voltage)
+    replicate: np.ndarray  #: electrical period or mechanical turn within the segment
     regressors: dict[str, np.ndarray] = field(default_factory=dict)
 
 
@@ -166,7 +192,9 @@ def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
     return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
 
 
-def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_before: int = 1, guard_after: int = 2) -> np.ndarray:
+def _steady_intervals(
+    u: np.ndarray, seg: np.ndarray, supply_v: float, guard_before: int = 1, guard_after: int = 2
+) -> np.ndarray:
     """Intervals between samples with no switching event in or near them.
 
     A commutation changes which terminals sit at the rails; a diode clamp that ends makes a
@@ -189,8 +217,9 @@ def _steady_intervals(u: np.ndarray, seg: np.ndarray, supply_v: float, guard_bef
     return ~bad
 
 
-def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray,
-                      hall_reference: bool = False) -> SampleResiduals | None:
+def voltage_residuals(
+    rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: np.ndarray, hall_reference: bool = False
+) -> SampleResiduals | None:
     """The voltage equation's residual. ``hall_reference``: the angle comes from the Hall edges
     (no encoder), whose common offset no edge can show; its back-EMF signature (de/dtheta per
     deg_e) is then a nuisance column every fit carries (``REFERENCE``)."""
@@ -206,14 +235,21 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
     ok = (seg[1:] == seg[:-1]) & np.isfinite(th_e[1:]) & np.isfinite(th_e[:-1])
     ok &= _steady_intervals(u, seg, motor.supply_v)
     h = np.diff(t)
-    f_d = np.column_stack([trapezoid(th_e - z + 0.5, motor.flat_top_deg_e) - trapezoid(th_e - z - 0.5, motor.flat_top_deg_e)
-                           for z in BEMF_ZERO_DEG_E])
+    f_d = np.column_stack(
+        [
+            trapezoid(th_e - z + 0.5, motor.flat_top_deg_e) - trapezoid(th_e - z - 0.5, motor.flat_top_deg_e)
+            for z in BEMF_ZERO_DEG_E
+        ]
+    )
     e_d = motor.ke_v_s_per_rad * w[:, None] * f_d  # V per deg_e of angle error
     rows = {k: [] for k in ("y", "segment", "bin", "replicate", "i", "e", "ed", "i0x", "i1x", "i0y", "i1y", "h")}
     avg = lambda a: 0.5 * (a[1:] + a[:-1])  # noqa: E731 - trapezoid over one interval
     mid = avg(th_e)
     # electrical periods counted from each segment's lowest angle (either direction)
-    rel = mid - np.array([np.nanmin(th_e[seg == k]) if np.any(seg == k) else 0.0 for k in range(len(rec.segments))])[seg[1:]]
+    rel = (
+        mid
+        - np.array([np.nanmin(th_e[seg == k]) if np.any(seg == k) else 0.0 for k in range(len(rec.segments))])[seg[1:]]
+    )
     for pair, (x, yy) in enumerate(((0, 1), (1, 2))):
         ixy = i[:, x] - i[:, yy]
         uxy = u[:, x] - u[:, yy]
@@ -221,7 +257,10 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
         resid = avg(uxy) - motor.resistance_ohm * avg(ixy) - motor.inductance_h * np.diff(ixy) / h - avg(exy)
         rows["y"].append(resid[ok])
         rows["segment"].append(seg[1:][ok])
-        rows["bin"].append((np.floor(np.mod(mid[ok], 360.0) / (360.0 / ELECTRICAL_BINS)).astype(np.int64) % ELECTRICAL_BINS) + pair * ELECTRICAL_BINS)
+        rows["bin"].append(
+            (np.floor(np.mod(mid[ok], 360.0) / (360.0 / ELECTRICAL_BINS)).astype(np.int64) % ELECTRICAL_BINS)
+            + pair * ELECTRICAL_BINS
+        )
         rows["replicate"].append(np.floor(rel[ok] / 360.0).astype(np.int64))
         rows["i"].append(avg(ixy)[ok])
         rows["e"].append(avg(exy)[ok])
@@ -234,14 +273,19 @@ def voltage_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, w: 
     r = {k: np.concatenate(v) for k, v in rows.items()}
     if r["y"].size == 0:
         return None
-    regs = {"winding_temperature": r["i"], "magnet_temperature": r["e"],
-            "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]])}
+    regs = {
+        "winding_temperature": r["i"],
+        "magnet_temperature": r["e"],
+        "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]]),
+    }
     if hall_reference:
         regs[REFERENCE] = r["ed"]
     return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
 
 
-def speed_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, th_m: np.ndarray, w: np.ndarray) -> SampleResiduals | None:
+def speed_residuals(
+    rec: Recording, motor: NominalMotor, th_e: np.ndarray, th_m: np.ndarray, w: np.ndarray
+) -> SampleResiduals | None:
     s = rec.samples
     if "speed_rpm" not in s or not all(c in s for c in ("i_a", "i_b", "i_c")) or not np.isfinite(th_m).any():
         return None
@@ -274,21 +318,28 @@ def speed_residuals(rec: Recording, motor: NominalMotor, th_e: np.ndarray, th_m:
         th_rows.append(np.deg2rad(m))
     if not ys:
         return None
-    regs = {"_theta_m": np.concatenate(th_rows), "_t": np.concatenate(t_rows), "_integration_error": np.concatenate(err_rows)}
-    return SampleResiduals("speed", "rad/s", np.concatenate(ys), np.concatenate(segs), np.concatenate(bins), np.concatenate(reps), regs)
+    regs = {
+        "_theta_m": np.concatenate(th_rows),
+        "_t": np.concatenate(t_rows),
+        "_integration_error": np.concatenate(err_rows),
+    }
+    return SampleResiduals(
+        "speed", "rad/s", np.concatenate(ys), np.concatenate(segs), np.concatenate(bins), np.concatenate(reps), regs
+    )
 
 
 # --- cells ---------------------------------------------------------------------------------
 
+
 @dataclass
 class SampleCells:
     mean: np.ndarray
-    var: np.ndarray           #: variance of the cell mean (replicate scatter / replicates)
-    n: np.ndarray             #: rows in the cell
-    n_rep: np.ndarray         #: replicates in the cell
+    var: np.ndarray  #: variance of the cell mean (replicate scatter / replicates)
+    n: np.ndarray  #: rows in the cell
+    n_rep: np.ndarray  #: replicates in the cell
     segment: np.ndarray
-    row_cell: np.ndarray      #: cell of each row (-1: dropped)
-    row_rep: np.ndarray       #: (cell, replicate) group of each row
+    row_cell: np.ndarray  #: cell of each row (-1: dropped)
+    row_rep: np.ndarray  #: (cell, replicate) group of each row
     cache: dict = field(default_factory=dict)  #: design columns by (effect, shape parameter)
 
     @property
@@ -347,6 +398,7 @@ def build_cells(r: SampleResiduals, min_replicates: int = 4) -> SampleCells:
 
 # --- candidates ----------------------------------------------------------------------------
 
+
 @dataclass(frozen=True)
 class SampleCandidate:
     """An effect as a cell design block, linear given its shape parameter (a grid is profiled)."""
@@ -357,7 +409,7 @@ class SampleCandidate:
     params: Callable[[np.ndarray, float | None, NominalMotor], dict]
     physical: Callable[[np.ndarray, np.ndarray, NominalMotor], bool]
     grid: tuple = (None,)
-    n_coef: int = 1      #: fitted coefficients (0: the column enters with coefficient 1, only its shape is fitted)
+    n_coef: int = 1  #: fitted coefficients (0: the column enters with coefficient 1, only its shape is fitted)
     #: shape parameters refined by a bounded scalar search around the best grid point
     refine: bool = False
 
@@ -373,9 +425,14 @@ def _magnet_columns(r, cells, _):
 def _saturation_columns(motor: NominalMotor):
     def columns(r, cells, knee_a):
         i0x, i1x, i0y, i1y, h = r.regressors["_sat_i"].T
-        d = (flux_deficit(i1x, motor.inductance_h, knee_a) - flux_deficit(i0x, motor.inductance_h, knee_a)
-             - flux_deficit(i1y, motor.inductance_h, knee_a) + flux_deficit(i0y, motor.inductance_h, knee_a)) / h
+        d = (
+            flux_deficit(i1x, motor.inductance_h, knee_a)
+            - flux_deficit(i0x, motor.inductance_h, knee_a)
+            - flux_deficit(i1y, motor.inductance_h, knee_a)
+            + flux_deficit(i0y, motor.inductance_h, knee_a)
+        ) / h
         return cells.average(d)[:, None]
+
     return columns
 
 
@@ -394,9 +451,14 @@ def _cogging_columns(motor: NominalMotor):
         b = np.empty_like(th)
         for k in np.unique(r.segment):
             sel = r.segment == k
-            a[sel] = _detrend(t[sel], -cumulative_trapezoid(np.sin(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2)
-            b[sel] = _detrend(t[sel], -cumulative_trapezoid(np.cos(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2)
+            a[sel] = _detrend(
+                t[sel], -cumulative_trapezoid(np.sin(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2
+            )
+            b[sel] = _detrend(
+                t[sel], -cumulative_trapezoid(np.cos(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2
+            )
         return np.column_stack([cells.average(a), cells.average(b)])
+
     return columns
 
 
@@ -404,32 +466,68 @@ def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
     r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
     return {
         REFERENCE: SampleCandidate(
-            REFERENCE, "voltage", lambda r, cells, _: cells.average(r.regressors[REFERENCE])[:, None],
-            lambda c, _, m: {"offset_deg_e": float(c[0])}, lambda c, se, m: True),
+            REFERENCE,
+            "voltage",
+            lambda r, cells, _: cells.average(r.regressors[REFERENCE])[:, None],
+            lambda c, _, m: {"offset_deg_e": float(c[0])},
+            lambda c, se, m: True,
+        ),
         "winding_temperature": SampleCandidate(
-            "winding_temperature", EFFECT_DOMAIN["winding_temperature"], _winding_columns,
-            lambda c, _, m: {"temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)), "alpha_per_k": ALPHA_CU_PER_K,
-                             "resistance_delta_ohm": float(c[0])},
-            lambda c, se, m: bool(-40 - 3 * se[0] / (r0 * ALPHA_CU_PER_K) <= c[0] / (r0 * ALPHA_CU_PER_K) <= 150 + 3 * se[0] / (r0 * ALPHA_CU_PER_K))),
+            "winding_temperature",
+            EFFECT_DOMAIN["winding_temperature"],
+            _winding_columns,
+            lambda c, _, m: {
+                "temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)),
+                "alpha_per_k": ALPHA_CU_PER_K,
+                "resistance_delta_ohm": float(c[0]),
+            },
+            lambda c, se, m: bool(
+                -40 - 3 * se[0] / (r0 * ALPHA_CU_PER_K)
+                <= c[0] / (r0 * ALPHA_CU_PER_K)
+                <= 150 + 3 * se[0] / (r0 * ALPHA_CU_PER_K)
+            ),
+        ),
         "magnet_temperature": SampleCandidate(
-            "magnet_temperature", EFFECT_DOMAIN["magnet_temperature"], _magnet_columns,
-            lambda c, _, m: {"temperature_rise_k": float(c[0] / ALPHA_BR_PER_K), "alpha_br_per_k": ALPHA_BR_PER_K,
-                             "ke_delta_v_s_per_rad": float(c[0] * ke0)},
-            lambda c, se, m: bool(-40 - 3 * se[0] / abs(ALPHA_BR_PER_K) <= c[0] / ALPHA_BR_PER_K <= 150 + 3 * se[0] / abs(ALPHA_BR_PER_K))),
+            "magnet_temperature",
+            EFFECT_DOMAIN["magnet_temperature"],
+            _magnet_columns,
+            lambda c, _, m: {
+                "temperature_rise_k": float(c[0] / ALPHA_BR_PER_K),
+                "alpha_br_per_k": ALPHA_BR_PER_K,
+                "ke_delta_v_s_per_rad": float(c[0] * ke0),
+            },
+            lambda c, se, m: bool(
+                -40 - 3 * se[0] / abs(ALPHA_BR_PER_K) <= c[0] / ALPHA_BR_PER_K <= 150 + 3 * se[0] / abs(ALPHA_BR_PER_K)
+            ),
+        ),
         "saturation": SampleCandidate(
-            "saturation", EFFECT_DOMAIN["saturation"], _saturation_columns(motor),
+            "saturation",
+            EFFECT_DOMAIN["saturation"],
+            _saturation_columns(motor),
             lambda c, knee, m: {"saturation_current_a": float(knee), "min_inductance_fraction": SATURATION_FLOOR},
-            lambda c, se, m: True, grid=tuple(np.geomspace(0.1, 1000.0, 41)), n_coef=0, refine=True),
+            lambda c, se, m: True,
+            grid=tuple(np.geomspace(0.1, 1000.0, 41)),
+            n_coef=0,
+            refine=True,
+        ),
         "cogging_torque": SampleCandidate(
-            "cogging_torque", EFFECT_DOMAIN["cogging_torque"], _cogging_columns(motor),
-            lambda c, n, m: {"amplitude_n_m": float(np.hypot(*c)), "periods_per_rev": int(n),
-                             "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi))},
-            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)), grid=possible_cogging_orders(motor.pole_pairs, MAX_COGGING_ORDER),
-            n_coef=2),
+            "cogging_torque",
+            EFFECT_DOMAIN["cogging_torque"],
+            _cogging_columns(motor),
+            lambda c, n, m: {
+                "amplitude_n_m": float(np.hypot(*c)),
+                "periods_per_rev": int(n),
+                "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi)),
+            },
+            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)),
+            grid=possible_cogging_orders(motor.pole_pairs, MAX_COGGING_ORDER),
+            n_coef=2,
+        ),
     }
 
 
 # --- fitting and selection -----------------------------------------------------------------
+
 
 @dataclass
 class _Fit:
@@ -466,7 +564,7 @@ def _own(fit: _Fit, cands, name):
     for n in fit.names:
         k = cands[n].n_coef
         if n == name:
-            return fit.coef[col:col + k], fit.se[col:col + k]
+            return fit.coef[col : col + k], fit.se[col : col + k]
         col += k
     raise KeyError(name)
 
@@ -483,7 +581,12 @@ def _best_shape(r, cells, cands, accepted, shapes, name, rows=None) -> _Fit:
     if cand.refine and len(cand.grid) > 1:
         k = cand.grid.index(best.shapes[-1])
         lo, hi = cand.grid[max(k - 1, 0)], cand.grid[min(k + 1, len(cand.grid) - 1)]
-        res = minimize_scalar(lambda lg: fit(math.exp(lg)).chi2, bounds=(math.log(lo), math.log(hi)), method="bounded", options={"xatol": 1e-3})
+        res = minimize_scalar(
+            lambda lg: fit(math.exp(lg)).chi2,
+            bounds=(math.log(lo), math.log(hi)),
+            method="bounded",
+            options={"xatol": 1e-3},
+        )
         refined = fit(math.exp(res.x))
         if refined.chi2 < best.chi2:
             best = refined
@@ -514,14 +617,39 @@ class DomainDiagnosis:
     below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, but too small to matter
 
     def to_json(self) -> dict:
-        return {k: getattr(self, k) for k in ("domain", "unit", "significant", "p_value", "accepted", "below_relevance", "unexplained", "confounded", "gap_before",
-                                               "gap_after_heldout", "heldout_shrink", "heldout_interval", "heldout_note", "localisation")} | {
-            "ranking": [{"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])],
-            "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}"}
+        return {
+            k: getattr(self, k)
+            for k in (
+                "domain",
+                "unit",
+                "significant",
+                "p_value",
+                "accepted",
+                "below_relevance",
+                "unexplained",
+                "confounded",
+                "gap_before",
+                "gap_after_heldout",
+                "heldout_shrink",
+                "heldout_interval",
+                "heldout_note",
+                "localisation",
+            )
+        } | {
+            "ranking": [
+                {"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])
+            ],
+            "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}",
+        }
 
 
-def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor: NominalMotor, segment_ids: list[str],
-                    env: OperatingEnvelope | None = None) -> DomainDiagnosis | None:
+def diagnose_domain(
+    r: SampleResiduals,
+    cands: dict[str, SampleCandidate],
+    motor: NominalMotor,
+    segment_ids: list[str],
+    env: OperatingEnvelope | None = None,
+) -> DomainDiagnosis | None:
     cells = build_cells(r)
     if cells.mean.size < 4:
         return None
@@ -550,7 +678,9 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
             search = math.log(len(cands[name].grid)) * 2 if len(cands[name].grid) > 1 else 0.0
             d_bic = gain - k_new * math.log(n_cells) - search
             if not accepted:
-                firsts[name] = float(max(min(gain / max(chi2_0 - n_cells, 1e-12), 1.0), 0.0)) if chi2_0 > n_cells else 0.0
+                firsts[name] = (
+                    float(max(min(gain / max(chi2_0 - n_cells, 1e-12), 1.0), 0.0)) if chi2_0 > n_cells else 0.0
+                )
             if cands[name].physical(coef, se, motor) and (best is None or d_bic > best[0]):
                 best = (d_bic, name, f)
         if best is None or best[0] < BIC_MIN:
@@ -584,9 +714,24 @@ def diagnose_domain(r: SampleResiduals, cands: dict[str, SampleCandidate], motor
     shrink, after, interval, note = _heldout(r, cells, cands, kept, kept_shapes)
     if below and not [n for n in kept if n != REFERENCE]:
         note = "every detected effect is below practical relevance"
-    return DomainDiagnosis(r.domain, r.unit, significant, p0, accepted_rows, firsts, unexplained, gap_before, after, shrink, interval, note,
-                           _localise(r, cells, segment_ids), chi2_0 - n_cells,
-                           _confounded(r, cells, cands, names, kept, kept_shapes, firsts, current.chi2), below)
+    return DomainDiagnosis(
+        r.domain,
+        r.unit,
+        significant,
+        p0,
+        accepted_rows,
+        firsts,
+        unexplained,
+        gap_before,
+        after,
+        shrink,
+        interval,
+        note,
+        _localise(r, cells, segment_ids),
+        chi2_0 - n_cells,
+        _confounded(r, cells, cands, names, kept, kept_shapes, firsts, current.chi2),
+        below,
+    )
 
 
 def _confounded(r, cells, cands, names, accepted, shapes, firsts, chi2_end) -> list[list[str]]:
@@ -631,19 +776,22 @@ def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) ->
     out = {"per_segment": {}}
     for s in np.unique(cells.segment):
         sel = cells.segment == s
-        out["per_segment"][segment_ids[s]] = {"rms": cell_rms(cells.mean[sel], cells.n[sel]),
-                                              "cells": int(sel.sum())}
+        out["per_segment"][segment_ids[s]] = {"rms": cell_rms(cells.mean[sel], cells.n[sel]), "cells": int(sel.sum())}
     if r.domain == "speed":
         # order spectrum of the turn-averaged speed residual: cogging appears at its periods per turn
         spectra = []
         for s in np.unique(cells.segment):
-            sel = (r.segment == s)
-            pattern = np.bincount(r.bin[sel], r.y[sel], minlength=MECHANICAL_BINS) / np.maximum(np.bincount(r.bin[sel], minlength=MECHANICAL_BINS), 1)
+            sel = r.segment == s
+            pattern = np.bincount(r.bin[sel], r.y[sel], minlength=MECHANICAL_BINS) / np.maximum(
+                np.bincount(r.bin[sel], minlength=MECHANICAL_BINS), 1
+            )
             spectra.append(np.abs(np.fft.rfft(pattern)) / MECHANICAL_BINS * 2)
         amp = np.mean(spectra, axis=0)
         out["order_spectrum"] = {"mechanical_order": list(range(amp.size)), "amplitude_rad_s": [float(v) for v in amp]}
     else:
-        pattern = np.bincount(cells_bin := (r.bin % ELECTRICAL_BINS), r.y, minlength=ELECTRICAL_BINS) / np.maximum(np.bincount(cells_bin, minlength=ELECTRICAL_BINS), 1)
+        pattern = np.bincount(cells_bin := (r.bin % ELECTRICAL_BINS), r.y, minlength=ELECTRICAL_BINS) / np.maximum(
+            np.bincount(cells_bin, minlength=ELECTRICAL_BINS), 1
+        )
         out["per_electrical_angle_v"] = {f"{int(k * 360 / ELECTRICAL_BINS)}": float(v) for k, v in enumerate(pattern)}
     return out
 
@@ -651,7 +799,11 @@ def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) ->
 def envelope(rec: Recording, motor: NominalMotor) -> OperatingEnvelope:
     """Per operating point: mean |phase current| (measured), speed and load torque."""
     s = rec.samples
-    mean_abs = (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0 if all(c in s for c in ("i_a", "i_b", "i_c")) else None
+    mean_abs = (
+        (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0
+        if all(c in s for c in ("i_a", "i_b", "i_c"))
+        else None
+    )
     cur, spd, load = [], [], []
     for k, seg in enumerate(rec.segments):
         sel = s["segment"] == k
@@ -659,11 +811,17 @@ def envelope(rec: Recording, motor: NominalMotor) -> OperatingEnvelope:
         cur.append(float(np.mean(mean_abs[sel])) if mean_abs is not None and sel.any() else seg.mean_phase_current_a)
         spd.append(w)
         load.append(seg.load_scale * motor.fan_n_m_s2 * w * w + motor.friction_n_m_s_per_rad * w)
-    i_max = float(np.max(np.abs(np.column_stack([s["i_a"], s["i_b"], s["i_c"]])))) if mean_abs is not None else max(cur, default=0.0)
+    i_max = (
+        float(np.max(np.abs(np.column_stack([s["i_a"], s["i_b"], s["i_c"]]))))
+        if mean_abs is not None
+        else max(cur, default=0.0)
+    )
     return OperatingEnvelope(np.array(cur), np.array(spd), np.array(load), i_max)
 
 
-def diagnose_samples(rec: Recording, model=None, edge_error_deg_e: np.ndarray | None = None) -> dict[str, DomainDiagnosis]:
+def diagnose_samples(
+    rec: Recording, model=None, edge_error_deg_e: np.ndarray | None = None
+) -> dict[str, DomainDiagnosis]:
     """Diagnose the sampled signals of ``rec`` (empty when it has none). Without an encoder the
     electrical angle comes from the Hall edges: ``edge_error_deg_e`` (per edge, what the accepted
     edge effects predict) puts each edge where the rotor really was, so a sampled-signal effect

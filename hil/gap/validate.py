@@ -53,9 +53,25 @@ def profile(config: PlantConfig, turns: int = 30) -> list[OperatingPoint]:
     ops = []
     for rpm in (2000.0, 5000.0, 8000.0):
         for load in (0.0, 1.0):
-            ops.append(OperatingPoint(turns * 60 / rpm, rpm, steady_state(m, rpm, load)["current_a"] * 2 / 3, load_scale=load,
-                                      id=f"{'load' if load else 'noload'}_{rpm:.0f}"))
-    ops.append(OperatingPoint(turns * 60 / 5000.0, 5000.0, steady_state(m, 5000.0, 1.0)["current_a"] * 2 / 3, direction=-1, load_scale=1.0, id="reverse_5000"))
+            ops.append(
+                OperatingPoint(
+                    turns * 60 / rpm,
+                    rpm,
+                    steady_state(m, rpm, load)["current_a"] * 2 / 3,
+                    load_scale=load,
+                    id=f"{'load' if load else 'noload'}_{rpm:.0f}",
+                )
+            )
+    ops.append(
+        OperatingPoint(
+            turns * 60 / 5000.0,
+            5000.0,
+            steady_state(m, 5000.0, 1.0)["current_a"] * 2 / 3,
+            direction=-1,
+            load_scale=1.0,
+            id="reverse_5000",
+        )
+    )
     return ops
 
 
@@ -113,8 +129,14 @@ def _noise_rms(ops, pole_pairs):
     return float(np.sqrt(np.sum(n * per) / np.sum(n)))
 
 
-def make_case(effects_withheld: list[str], snr: float, seed: int, base: PlantConfig | None = None, ool: str | None = None,
-              electrical: bool | None = None):
+def make_case(
+    effects_withheld: list[str],
+    snr: float,
+    seed: int,
+    base: PlantConfig | None = None,
+    ool: str | None = None,
+    electrical: bool | None = None,
+):
     """A recording with ``effects_withheld`` at signal-to-noise ``snr`` (and an out-of-library
     effect ``ool``); returns (recording, list of true effects). Electrical (edges and samples)
     when an effect or ``ool`` needs the sampled signals, or when ``electrical`` asks for it."""
@@ -140,7 +162,9 @@ def make_case(effects_withheld: list[str], snr: float, seed: int, base: PlantCon
             continue
         unit = _unit_effect(name, rng, p)
         if name == "timer_quantization":
-            eff = fx.TimerQuantization(min(1e-5, 2 * snr * _noise_rms(ops, p) / (np.mean([op.speed_rpm for op in ops]) * 6 * p) * math.sqrt(3)))
+            eff = fx.TimerQuantization(
+                min(1e-5, 2 * snr * _noise_rms(ops, p) / (np.mean([op.speed_rpm for op in ops]) * 6 * p) * math.sqrt(3))
+            )
         else:
             sig = _signature_rms(base, [unit], ops, seed)
             eff = _scale(unit, snr * _noise_rms(ops, p) / max(sig, 1e-12))
@@ -164,9 +188,17 @@ def make_case(effects_withheld: list[str], snr: float, seed: int, base: PlantCon
 
 def _record_electrical(config: PlantConfig, ops, seed: int, noisy: bool = True) -> Recording:
     if noisy:
-        config = dataclasses.replace(config, current_sensor=dataclasses.replace(config.current_sensor, noise_rms_a=CURRENT_NOISE_A))
-    return record_electrical(config, ops, seed=seed, sample_rate_hz=SAMPLE_RATE_HZ, voltage_noise_v=VOLTAGE_NOISE_V if noisy else 0.0,
-                             speed_noise_rpm=SPEED_NOISE_RPM if noisy else 0.0)
+        config = dataclasses.replace(
+            config, current_sensor=dataclasses.replace(config.current_sensor, noise_rms_a=CURRENT_NOISE_A)
+        )
+    return record_electrical(
+        config,
+        ops,
+        seed=seed,
+        sample_rate_hz=SAMPLE_RATE_HZ,
+        voltage_noise_v=VOLTAGE_NOISE_V if noisy else 0.0,
+        speed_noise_rpm=SPEED_NOISE_RPM if noisy else 0.0,
+    )
 
 
 def _sample_rows(rec: Recording, domain: str) -> np.ndarray:
@@ -187,11 +219,19 @@ def _signature(config: PlantConfig, ops, seed: int, domain: str) -> float:
 
 def _noise(config: PlantConfig, ops, seed: int, domain: str) -> float:
     """RMS per row of the measurement noise (noisy recording of the nominal motor)."""
-    return float(np.sqrt(np.mean(_sample_rows(_record_electrical(dataclasses.replace(config, effects=()), ops, seed), domain) ** 2)))
+    return float(
+        np.sqrt(
+            np.mean(_sample_rows(_record_electrical(dataclasses.replace(config, effects=()), ops, seed), domain) ** 2)
+        )
+    )
 
 
 #: magnitude field of each sampled-signal effect (the others, e.g. temperature coefficients, stay)
-_MAGNITUDE = {"winding_temperature": "temperature_rise_k", "magnet_temperature": "temperature_rise_k", "cogging_torque": "amplitude_n_m"}
+_MAGNITUDE = {
+    "winding_temperature": "temperature_rise_k",
+    "magnet_temperature": "temperature_rise_k",
+    "cogging_torque": "amplitude_n_m",
+}
 
 
 def _sample_effect(name: str, snr: float, seed: int, base: PlantConfig, ops, rng) -> tuple[fx.Effect, float]:
@@ -208,9 +248,13 @@ def _sample_effect(name: str, snr: float, seed: int, base: PlantConfig, ops, rng
             log_s.append(math.log(max(sig, 1e-30)))
             if abs(log_s[-1] - math.log(target)) < 0.01:
                 break
-            slope = (log_s[-1] - log_s[-2]) / (log_k[-1] - log_k[-2]) if len(log_s) > 1 and log_k[-1] != log_k[-2] else -2.0
+            slope = (
+                (log_s[-1] - log_s[-2]) / (log_k[-1] - log_k[-2]) if len(log_s) > 1 and log_k[-1] != log_k[-2] else -2.0
+            )
             slope = min(slope, -0.2)  # keep the step finite where the signature flattens
-            log_k.append(float(np.clip(log_k[-1] + (math.log(target) - log_s[-1]) / slope, math.log(0.1), math.log(1000.0))))
+            log_k.append(
+                float(np.clip(log_k[-1] + (math.log(target) - log_s[-1]) / slope, math.log(0.1), math.log(1000.0)))
+            )
         eff = fx.Saturation(float(math.exp(log_k[len(log_s) - 1])), 0.1)
         return eff, math.exp(log_s[-1]) / noise
     if name == "winding_temperature":
@@ -236,12 +280,23 @@ def _sensor_fault(config: PlantConfig, kind: str, snr: float, seed: int, ops, rn
     def faulty(size: float) -> PlantConfig:
         cs = config.current_sensor
         if kind == "current_offset":
-            return dataclasses.replace(config, current_sensor=dataclasses.replace(cs, offset_a=tuple(size if k == x else 0.0 for k in range(3))))
-        return dataclasses.replace(config, current_sensor=dataclasses.replace(cs, gain_error=tuple(size if k == x else 0.0 for k in range(3))))
+            return dataclasses.replace(
+                config,
+                current_sensor=dataclasses.replace(cs, offset_a=tuple(size if k == x else 0.0 for k in range(3))),
+            )
+        return dataclasses.replace(
+            config, current_sensor=dataclasses.replace(cs, gain_error=tuple(size if k == x else 0.0 for k in range(3)))
+        )
 
     unit = 0.01
     sig, noise = _signature(faulty(unit), ops, seed, "voltage"), _noise(config, ops, seed, "voltage")
-    size = float(np.clip(unit * snr * noise / max(sig, 1e-30), -0.05 if kind == "current_gain" else -1.0, 0.05 if kind == "current_gain" else 1.0))
+    size = float(
+        np.clip(
+            unit * snr * noise / max(sig, 1e-30),
+            -0.05 if kind == "current_gain" else -1.0,
+            0.05 if kind == "current_gain" else 1.0,
+        )
+    )
     return faulty(size)
 
 
@@ -257,7 +312,9 @@ def _inject_out_of_library(rec: Recording, kind: str, target_rms_deg: float, rng
     shift_deg = shift_deg * (target_rms_deg / max(np.sqrt(np.mean(shift_deg**2)), 1e-12))
     dt = shift_deg / w
     rec.t_s = rec.t_s + dt
-    rec.ref_angle_mech_deg = np.mod(rec.ref_angle_mech_deg + np.array([s.direction_sign for s in rec.segments])[rec.segment] * shift_deg / p, 360.0)
+    rec.ref_angle_mech_deg = np.mod(
+        rec.ref_angle_mech_deg + np.array([s.direction_sign for s in rec.segments])[rec.segment] * shift_deg / p, 360.0
+    )
     order = np.argsort(rec.t_s, kind="stable")
     for name in ("t_s", "sensor", "rising", "segment", "ref_angle_mech_deg"):
         setattr(rec, name, getattr(rec, name)[order])
@@ -280,11 +337,19 @@ def _params_vector(name, params) -> np.ndarray:
     if name == "cogging_torque":  # amplitude and phase as one phasor
         a, ph = params["amplitude_n_m"], params["phase_rad"]
         return np.array([a * math.cos(ph), a * math.sin(ph)])
-    keys = {"edge_jitter": ["time_rms_s"], "installation_offset": ["offset_deg_e"], "pole_offset": ["offset_deg_e"], "eccentricity": ["amplitude_deg_e"],
-            "hysteresis": ["lag_deg_e"], "conditioning_delay": ["rise_delay_s", "fall_delay_s"],
-            "armature_reaction": ["slope_deg_e_per_a"], "timer_quantization": ["tick_s"],
-            "winding_temperature": ["temperature_rise_k"], "magnet_temperature": ["temperature_rise_k"],
-            "saturation": ["saturation_current_a"]}[name]
+    keys = {
+        "edge_jitter": ["time_rms_s"],
+        "installation_offset": ["offset_deg_e"],
+        "pole_offset": ["offset_deg_e"],
+        "eccentricity": ["amplitude_deg_e"],
+        "hysteresis": ["lag_deg_e"],
+        "conditioning_delay": ["rise_delay_s", "fall_delay_s"],
+        "armature_reaction": ["slope_deg_e_per_a"],
+        "timer_quantization": ["tick_s"],
+        "winding_temperature": ["temperature_rise_k"],
+        "magnet_temperature": ["temperature_rise_k"],
+        "saturation": ["saturation_current_a"],
+    }[name]
     out = []
     for k in keys:
         v = params[k]
@@ -321,11 +386,15 @@ class ValidationReport:
             "top3_rate": float(np.mean([c["truth"][0] in c["top3"] for c in single])) if single else None,
             "null_cases": len(null),
             "false_alarm_rate": float(np.mean([c["significant"] for c in null])) if null else None,
-            "false_alarm_rate_electrical": float(np.mean([c["significant"] for c in null if c["electrical"]])) if any(c["electrical"] for c in null) else None,
+            "false_alarm_rate_electrical": float(np.mean([c["significant"] for c in null if c["electrical"]]))
+            if any(c["electrical"] for c in null)
+            else None,
             "no_trace_cases": len(no_trace),
             "no_trace_alarm_rate": float(np.mean([c["significant"] for c in no_trace])) if no_trace else None,
             "two_effect_cases": len(two),
-            "two_effect_both_found_rate": float(np.mean([set(c["truth"]) <= set(c["accepted"]) for c in two])) if two else None,
+            "two_effect_both_found_rate": float(np.mean([set(c["truth"]) <= set(c["accepted"]) for c in two]))
+            if two
+            else None,
             "out_of_library_cases": len(ool),
             "unexplained_rate": float(np.mean([c["unexplained"] for c in ool])) if ool else None,
             "param_within_20pct_rate": float(np.mean(np.array(perr) <= 0.2)) if perr else None,
@@ -334,19 +403,34 @@ class ValidationReport:
             "confusion": conf,
             "median_heldout_shrink_by_effect": {k: float(np.median(v)) for k, v in shrink_by_effect.items()},
             "top1_rate_by_generator": {
-                gen: float(np.mean([c["top1"] == c["truth"][0] for c in single if c["electrical"] == (gen == "electrical")]))
-                for gen in ("kinematic", "electrical") if any(c["electrical"] == (gen == "electrical") for c in single)},
+                gen: float(
+                    np.mean([c["top1"] == c["truth"][0] for c in single if c["electrical"] == (gen == "electrical")])
+                )
+                for gen in ("kinematic", "electrical")
+                if any(c["electrical"] == (gen == "electrical") for c in single)
+            },
             "edge_effects_on_electrical_plant": {
                 "cases": len(edge_el := [c for c in single if c["electrical"] and c["truth"][0] in EDGE_EFFECTS]),
-                "top1_rate": float(np.mean([c["top1"] == c["truth"][0] for c in edge_el])) if edge_el else None},
+                "top1_rate": float(np.mean([c["top1"] == c["truth"][0] for c in edge_el])) if edge_el else None,
+            },
         }
 
 
 GENERATORS = ("library", "field")
 
 
-def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_library: int = 24, seed: int = 0, progress=None,
-                   jobs: int = 1, generator: str = "library", scheduler: str | None = None, bar: bool = False) -> ValidationReport:
+def run_validation(
+    per_effect: int = 12,
+    null: int = 24,
+    two: int = 14,
+    out_of_library: int = 24,
+    seed: int = 0,
+    progress=None,
+    jobs: int = 1,
+    generator: str = "library",
+    scheduler: str | None = None,
+    bar: bool = False,
+) -> ValidationReport:
     """Draw the cases (all randomness from ``seed``), diagnose each: in this process (``jobs`` 1),
     on a local Dask cluster of ``jobs`` workers, or on the Dask ``scheduler`` at an address
     (hil.campaign.scheduler); ``bar`` draws the progress bar.
@@ -372,7 +456,10 @@ def run_validation(per_effect: int = 12, null: int = 24, two: int = 14, out_of_l
     plan += [("out_of_library", [], ool_kinds[i % len(ool_kinds)]) for i in range(out_of_library)]
     # dead time leaves no trace in the format's signals: withheld, it must not raise a gap
     plan += [("no_trace", ["dead_time"], None)] * max(null // 4, 1)
-    cases = [(i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31))) for i, (kind, names, ool) in enumerate(plan)]
+    cases = [
+        (i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)))
+        for i, (kind, names, ool) in enumerate(plan)
+    ]
     return _run(cases, _run_case, progress, jobs, scheduler, bar)
 
 
@@ -386,14 +473,23 @@ def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar:
 
     def on_result(i: int, case) -> None:
         if isinstance(case, TaskError):  # kept out of the rates, reported with its traceback
-            report.errors.append({"index": i, "case": list(cases[i]), "message": case.message, "traceback": case.traceback})
+            report.errors.append(
+                {"index": i, "case": list(cases[i]), "message": case.message, "traceback": case.traceback}
+            )
         else:
             results[i] = case
         if progress:
             progress(len(results) + len(report.errors), len(cases))
 
-    report.dispatch = dispatch(run_case, cases, on_result, scheduler=scheduler or ("serial" if jobs <= 1 else "local"), workers=jobs,
-                               label="recordings", progress=bar).as_dict()
+    report.dispatch = dispatch(
+        run_case,
+        cases,
+        on_result,
+        scheduler=scheduler or ("serial" if jobs <= 1 else "local"),
+        workers=jobs,
+        label="recordings",
+        progress=bar,
+    ).as_dict()
     report.cases = [results[i] for i in sorted(results)]
     report.errors.sort(key=lambda e: e["index"])
     return report
@@ -425,8 +521,17 @@ def _run_case(job) -> dict:
         elif truth[0].name in SAMPLE_EFFECTS:
             shrink = d.samples.get(EFFECT_DOMAIN[truth[0].name], {}).get("heldout_shrink")
     return {
-        "kind": kind, "truth": [t.name for t in truth] or ([ool] if ool else names), "seed": case_seed,
-        "snr_drawn": snr, "snr": float(rec.meta_extra.get("validation_snr", snr)), "electrical": rec.samples is not None,
-        "significant": d.significant, "top1": accepted[0] if accepted else "none", "top3": top[:3], "accepted": accepted,
-        "unexplained": d.unexplained, "param_error": perr, "heldout_shrink": shrink,
+        "kind": kind,
+        "truth": [t.name for t in truth] or ([ool] if ool else names),
+        "seed": case_seed,
+        "snr_drawn": snr,
+        "snr": float(rec.meta_extra.get("validation_snr", snr)),
+        "electrical": rec.samples is not None,
+        "significant": d.significant,
+        "top1": accepted[0] if accepted else "none",
+        "top3": top[:3],
+        "accepted": accepted,
+        "unexplained": d.unexplained,
+        "param_error": perr,
+        "heldout_shrink": shrink,
     }

@@ -65,7 +65,7 @@ KF_GRID = dict(q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r
 SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
-#: Q's forgetting factor within the design notes' 0.95 and a memory of 10,000 cycles; R's per interval
+#: Q's forgetting factor within the usual 0.95 (docs/sage-husa.md) and a memory of 10,000 cycles; R's per interval
 B_RANGE = (0.95, 0.9999)
 B_R_RANGE = (0.05, 0.999)
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the profile (oracle schedule reference)

@@ -26,7 +26,7 @@ class FilterSettings:
     #: because pre-calibration removed the deterministic edge errors; the guards floor it
     r0_diag: tuple[float, float] = (0.0, 0.02)
     p0_diag: tuple[float, float, float] = (5e4, 5e4, 5e4)  # paper 4.4
-    forgetting_b: float = 0.98                         # Q's b (Eq. 12, per step); design notes: 0.95-0.995
+    forgetting_b: float = 0.98                         # Q's b (Eq. 12, per step); usual range 0.95-0.995 (docs/sage-husa.md)
     adapt_interval: int = 120                          # paper 4.4: r and q every 120 commutations
     #: R's own forgetting factor (per R interval) and interval (paper 4.4: 120 commutations)
     r_forgetting_b: float = 0.98

@@ -358,8 +358,8 @@ class Extractor:
     def feed(self, t_s: np.ndarray, state: np.ndarray) -> None:
         self._fs[F_TOL] = self.resolution_s or 0.0
         out = self._out(t_s.size + 1)
-        m = _run(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(state, dtype=np.int64), self._fs, self._is,
-                 float(self.hold_off_s), *out)
+        m = _run(np.ascontiguousarray(t_s, dtype=np.float64), np.ascontiguousarray(state, dtype=np.int64),
+                 self._fs, self._is, float(self.hold_off_s), *out)
         self._keep(out, m)
 
     def _keep(self, out, m):
@@ -380,8 +380,9 @@ class Extractor:
         located = mode == "free-running"
         t = np.where(np.isnan(t_mid), t_on, t_mid) if located else t_on
         candidates = int(self._is[I_OFF_TIME])
-        return Extracted(t, cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]), int(self._is[I_AMBIG]),
-                         candidates if located else 0, start_s, float(end_s), resolution_s, mode, free, restart, candidates)
+        return Extracted(t, cat(self._s, np.int64), cat(self._k, np.int64) == 0, int(self._is[I_GLITCH]),
+                         int(self._is[I_AMBIG]), candidates if located else 0, start_s, float(end_s), resolution_s,
+                         mode, free, restart, candidates)
 
 
 def extract(capture, hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Extracted:

@@ -67,8 +67,10 @@ class Truth:
         if bad.size:
             raise SignalError(f"{truth_path}, line {int(bad[0]) + 2}", "non-numeric value")
         if a.shape[0] > 1 and np.any(np.diff(a[:, 1]) < 0):
-            raise SignalError(str(truth_path), f"t_ideal_s goes back at line {int(np.nonzero(np.diff(a[:, 1]) < 0)[0][0]) + 3}")
-        return cls(a[:, 0].astype(np.int64), a[:, 1], a[:, 2].astype(np.int64), a[:, 3], int(meta["pole_pairs"]), float(meta["sample_rate_hz"]),
+            line = int(np.nonzero(np.diff(a[:, 1]) < 0)[0][0]) + 3
+            raise SignalError(str(truth_path), f"t_ideal_s goes back at line {line}")
+        return cls(a[:, 0].astype(np.int64), a[:, 1], a[:, 2].astype(np.int64), a[:, 3], int(meta["pole_pairs"]),
+                   float(meta["sample_rate_hz"]),
                    meta)
 
 
@@ -103,7 +105,8 @@ class Score:
             "missed": int(self.missed),
             "extra": int(self.extra),
             "angle_error_deg_e": {"mean": stat(a, np.mean), "rms": stat(a, lambda v: np.sqrt(np.mean(v * v))),
-                                  "p99": stat(a, lambda v: np.percentile(np.abs(v), 99)), "max_abs": stat(a, lambda v: np.max(np.abs(v)))},
+                                  "p99": stat(a, lambda v: np.percentile(np.abs(v), 99)),
+                                  "max_abs": stat(a, lambda v: np.max(np.abs(v)))},
             "time_error_s": {"mean": stat(t, np.mean), "rms": stat(t, lambda v: np.sqrt(np.mean(v * v)))},
         }
 
@@ -112,7 +115,8 @@ class Score:
         for s in range(6):
             e = self.angle_error_deg_e[self.sector == s]
             rows.append({"sector": s, "n": int(e.size), "mean": float(np.mean(e)) if e.size else math.nan,
-                         "rms": float(np.sqrt(np.mean(e * e))) if e.size else math.nan, "max_abs": float(np.max(np.abs(e))) if e.size else math.nan})
+                         "rms": float(np.sqrt(np.mean(e * e))) if e.size else math.nan,
+                         "max_abs": float(np.max(np.abs(e))) if e.size else math.nan})
         return rows
 
     def over_time(self, bins: int = 10) -> list[dict]:
@@ -122,10 +126,12 @@ class Score:
         edges = np.linspace(lo, hi, bins + 1)
         rows = []
         for i in range(bins):
-            m = (self.t_ideal_s >= edges[i]) & (self.t_ideal_s < edges[i + 1] if i < bins - 1 else self.t_ideal_s <= edges[i + 1])
+            upper = self.t_ideal_s < edges[i + 1] if i < bins - 1 else self.t_ideal_s <= edges[i + 1]
+            m = (self.t_ideal_s >= edges[i]) & upper
             e = self.angle_error_deg_e[m]
             rows.append({"t0_s": float(edges[i]), "t1_s": float(edges[i + 1]), "n": int(e.size),
-                         "mean": float(np.mean(e)) if e.size else math.nan, "rms": float(np.sqrt(np.mean(e * e))) if e.size else math.nan,
+                         "mean": float(np.mean(e)) if e.size else math.nan,
+                         "rms": float(np.sqrt(np.mean(e * e))) if e.size else math.nan,
                          "max_abs": float(np.max(np.abs(e))) if e.size else math.nan,
                          "missed": int(((self.missed_t_s >= edges[i]) & (self.missed_t_s < edges[i + 1])).sum()),
                          "extra": int(((self.extra_t_s >= edges[i]) & (self.extra_t_s < edges[i + 1])).sum())})
@@ -137,11 +143,14 @@ class Score:
         fmt = (lambda v, f="{:+.4f}": "-" if v is None or (isinstance(v, float) and math.isnan(v)) else f.format(v))  # noqa: E731
         ex = self.extracted
         lines = [
-            f"commutations {j['commutations']}, missed {j['missed']}, extra {j['extra']} (scored span {self.span_s[0]:.6f}-{self.span_s[1]:.6f} s, "
-            f"hold-off {self.hold_off_s * 1e6:g} us; {ex.glitches} glitches rejected, {ex.ambiguous} ambiguous windows; "
+            f"commutations {j['commutations']}, missed {j['missed']}, extra {j['extra']} "
+            f"(scored span {self.span_s[0]:.6f}-{self.span_s[1]:.6f} s, "
+            f"hold-off {self.hold_off_s * 1e6:g} us; {ex.glitches} glitches rejected, "
+            f"{ex.ambiguous} ambiguous windows; "
             f"{ex.located_in_off_time} located in an off-time of a free-running carrier, at its midpoint)",
             _carrier_line(ex),
-            f"angle error (deg e, + = late): mean {fmt(a['mean'])}, RMS {fmt(a['rms'], '{:.4f}')}, p99 |e| {fmt(a['p99'], '{:.4f}')}, "
+            f"angle error (deg e, + = late): mean {fmt(a['mean'])}, RMS {fmt(a['rms'], '{:.4f}')}, "
+            f"p99 |e| {fmt(a['p99'], '{:.4f}')}, "
             f"max |e| {fmt(a['max_abs'], '{:.4f}')}",
             f"time error: mean {fmt(None if t['mean'] is None else t['mean'] * 1e6, '{:+.3f}')} us, "
             f"RMS {fmt(None if t['rms'] is None else t['rms'] * 1e6, '{:.3f}')} us "
@@ -149,13 +158,16 @@ class Score:
             "per sector entered:   sector     n      mean       RMS    max|e|",
         ]
         if self.sector_map is not None:
-            lines.insert(3, "NOTE: the gates do not follow the documented six-step table (docs/signals.md); scored with the pair of "
-                            "sector d read as ideal sector " + ", ".join(f"{d}->{m}" for d, m in enumerate(self.sector_map.tolist())))
+            pairs = ", ".join(f"{d}->{m}" for d, m in enumerate(self.sector_map.tolist()))
+            lines.insert(3, "NOTE: the gates do not follow the documented six-step table (docs/signals.md); "
+                            "scored with the pair of sector d read as ideal sector " + pairs)
         for r in self.per_sector():
-            lines.append(f"                      {r['sector']:>6} {r['n']:>5} {fmt(r['mean'])} {fmt(r['rms'], '{:9.4f}')} {fmt(r['max_abs'], '{:9.4f}')}")
+            lines.append(f"                      {r['sector']:>6} {r['n']:>5} {fmt(r['mean'])} "
+                         f"{fmt(r['rms'], '{:9.4f}')} {fmt(r['max_abs'], '{:9.4f}')}")
         lines.append("over time:            from (s)      to (s)      n      mean       RMS    max|e| missed extra")
         for r in self.over_time():
-            lines.append(f"                      {r['t0_s']:>8.4f}  {r['t1_s']:>10.4f} {r['n']:>6} {fmt(r['mean'])} {fmt(r['rms'], '{:9.4f}')} "
+            lines.append(f"                      {r['t0_s']:>8.4f}  {r['t1_s']:>10.4f} {r['n']:>6} {fmt(r['mean'])} "
+                         f"{fmt(r['rms'], '{:9.4f}')} "
                          f"{fmt(r['max_abs'], '{:9.4f}')} {r['missed']:>6} {r['extra']:>5}")
         return "\n".join(lines)
 
@@ -165,9 +177,9 @@ def _carrier_line(ex: Extracted) -> str:
             f"{ex.carrier_restart_evidence} show its phase reset at them")
     if ex.carrier == "free-running":
         return f"carrier: free-running ({told}); {ex.off_time_candidates} off-time commutations located at the midpoint"
-    why = "no commutation tells the carrier mode" if not ex.carrier_free_evidence + ex.carrier_restart_evidence else told
-    return (f"carrier: {ex.carrier} ({why}); {ex.off_time_candidates} commutations that fit an off-time one reported at "
-            f"the turn-on" + ("" if ex.carrier == "restarted" or not ex.off_time_candidates else
+    why = told if ex.carrier_free_evidence + ex.carrier_restart_evidence else "no commutation tells the carrier mode"
+    return (f"carrier: {ex.carrier} ({why}); {ex.off_time_candidates} commutations that fit an off-time one "
+            f"reported at the turn-on" + ("" if ex.carrier == "restarted" or not ex.off_time_candidates else
                               ", each late by at most its off-time if the carrier runs freely"))
 
 
@@ -234,17 +246,25 @@ def score_extracted(truth: Truth, ex: Extracted, hold_off_s: float = DEFAULT_HOL
     missed_rows = np.setdiff1d(expected, rows)
     res = truth.sample_rate_hz
     bound = 0.5 / res + (ex.resolution_s or 0.0)
-    return Score(int(rows.size), int(missed_rows.size), int(extra_mask.sum()), angle, dt, truth.t_ideal_s[rows], truth.sector[rows],
-                 truth.t_ideal_s[missed_rows], t_c[extra_mask], ex, (float(start), float(end)), hold_off_s, bound, sector_map)
+    return Score(int(rows.size), int(missed_rows.size), int(extra_mask.sum()), angle, dt, truth.t_ideal_s[rows],
+                 truth.sector[rows], truth.t_ideal_s[missed_rows], t_c[extra_mask], ex, (float(start), float(end)),
+                 hold_off_s, bound, sector_map)
 
 
-def score(stimulus_dir: str | Path, capture_path: str | Path, mapping: GateMapping | None = None,
-          hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Score:
+def score(
+    stimulus_dir: str | Path,
+    capture_path: str | Path,
+    mapping: GateMapping | None = None,
+    hold_off_s: float = DEFAULT_HOLD_OFF_S,
+) -> Score:
     truth = Truth.load(stimulus_dir)
     shortest = float(np.min(60.0 / np.maximum(truth.omega_e_deg_s, 1e-9))) if truth.n.size else math.inf
     if hold_off_s >= shortest:
-        raise SignalError("--hold-off-s", f"{hold_off_s * 1e6:g} us is not shorter than the shortest sector of the stimulus "
-                                          f"({shortest * 1e6:.1f} us); two commutations would fall in one window")
+        raise SignalError(
+            "--hold-off-s",
+            f"{hold_off_s * 1e6:g} us is not shorter than the shortest sector of the stimulus "
+            f"({shortest * 1e6:.1f} us); two commutations would fall in one window",
+        )
     cap = Capture(capture_path, mapping)
     ex = extract(cap, hold_off_s)
     return score_extracted(truth, ex, hold_off_s)
@@ -275,9 +295,11 @@ def write_html(path: str | Path, sc: Score, title: str) -> Path:
     fig.savefig(buf, format="png", dpi=90)
     plt.close(fig)
     img = base64.b64encode(buf.getvalue()).decode()
-    page = (f"<!doctype html><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<h1>{html.escape(title)}</h1><pre>{html.escape(json.dumps(sc.to_json(), indent=1))}</pre>"
-            f"<pre>{html.escape(sc.summary())}</pre><img alt='angle error' src='data:image/png;base64,{img}'>")
+    page = (
+        f"<!doctype html><meta charset='utf-8'><title>{html.escape(title)}</title>"
+        f"<h1>{html.escape(title)}</h1><pre>{html.escape(json.dumps(sc.to_json(), indent=1))}</pre>"
+        f"<pre>{html.escape(sc.summary())}</pre><img alt='angle error' src='data:image/png;base64,{img}'>"
+    )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(page)
