@@ -197,8 +197,12 @@ def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
     km = m
     base = SENSOR_POS[x]
     kept = st[S_FWD_TARGET + x] if crossed > 0 else st[S_REV_TARGET + x]
-    st[S_FWD_TARGET + x] = 180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
-    st[S_REV_TARGET + x] = 180.0 * km + base + switch_off[x, km % n_poles, 1] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    st[S_FWD_TARGET + x] = (
+        180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    )
+    st[S_REV_TARGET + x] = (
+        180.0 * km + base + switch_off[x, km % n_poles, 1] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
+    )
     if crossed > 0:
         st[S_REV_TARGET + x] = kept
     elif crossed < 0:
@@ -450,7 +454,9 @@ N_WORK = W_CROSS + 9
 
 
 @njit(cache=True)
-def run(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop):
+def run(
+    p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop
+):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
     return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
                     out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))

@@ -3,8 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -259,8 +258,13 @@ class Simulation:
                 return
             if reason == K.STOP_EDGE:
                 n = int(self.ist[K.I_N_EDGES])
-                edge = {"t_capture_s": float(self._edges[n - 1, K.E_T_CAPTURE]), "sensor": int(self._edges[n - 1, K.E_SENSOR]),
-                        "rising": bool(self._edges[n - 1, K.E_RISING]), "now_s": self.t_s, "current_a": self.measured_mean_abs_current_a()}
+                edge = {
+                    "t_capture_s": float(self._edges[n - 1, K.E_T_CAPTURE]),
+                    "sensor": int(self._edges[n - 1, K.E_SENSOR]),
+                    "rising": bool(self._edges[n - 1, K.E_RISING]),
+                    "now_s": self.t_s,
+                    "current_a": self.measured_mean_abs_current_a(),
+                }
                 if n >= self._edges.shape[0]:
                     self._flush()
                 for cmd in self.source.on_edge(edge, self) or ():
@@ -314,7 +318,9 @@ class Simulation:
     def commutations(self) -> "Commutations":
         self._flush()
         c = np.concatenate(self._comm_chunks) if self._comm_chunks else np.zeros((0, 4))
-        return Commutations(t_s=c[:, 0], sector=c[:, 1].astype(np.int64), theta_e_deg=c[:, 2], direction=c[:, 3].astype(np.int64))
+        return Commutations(
+            t_s=c[:, 0], sector=c[:, 1].astype(np.int64), theta_e_deg=c[:, 2], direction=c[:, 3].astype(np.int64)
+        )
 
     def samples(self) -> Samples:
         self._flush()

@@ -3,4 +3,11 @@
 from .model import MotorModel
 from .predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, PredictionRun, SageHusaPredictor
 
-__all__ = ["MotorModel", "FilterSettings", "KalmanPredictor", "PrecalibrationPredictor", "PredictionRun", "SageHusaPredictor"]
+__all__ = [
+    "MotorModel",
+    "FilterSettings",
+    "KalmanPredictor",
+    "PrecalibrationPredictor",
+    "PredictionRun",
+    "SageHusaPredictor",
+]

@@ -74,8 +74,14 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     link.download_calibration(corrections)
     link.set_strategy(int(Strategy.SAGE_HUSA))
     first = SETPOINTS_RPM[0]
-    bench = LockstepBench(config, link, initial_speed_rpm=first, duty=steady_state(config.motor, first)["duty"], seed=seed,
-                          sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S})
+    bench = LockstepBench(
+        config,
+        link,
+        initial_speed_rpm=first,
+        duty=steady_state(config.motor, first)["duty"],
+        seed=seed,
+        sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+    )
     steps = bench.run_setpoints(list(SETPOINTS_RPM), hold_s=hold_s, settle_s=SETTLE_S)
     c = bench.sim.commutations()
     closed = c.error_deg_e[c.t_s >= steps[0]]
@@ -87,7 +93,9 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
     w_true = edges.speed_rpm[k + 1] / 60.0 * 360.0 * config.motor.pole_pairs  # deg e per second
     offline = (run.pred_t_s[k] - edges.t_ideal_s[k + 1]) * w_true
-    counters = {key: int(status[key]) for key in ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")}
+    counters = {
+        key: int(status[key]) for key in ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
+    }
     return LinkResult(rms(closed), rms(offline), counters["covariance_repairs"], counters, int(closed.size))
 
 

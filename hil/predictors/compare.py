@@ -16,7 +16,6 @@ protocol states its own and prints them:
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import math
 from dataclasses import dataclass, field
@@ -61,7 +60,9 @@ SH_DESIGN = dict(adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.9, forgett
 BURSTS_SH = dict(SH_DESIGN, adapt_mask=F.ADAPT_R | F.ADAPT_Q_CURRENT,
                  divergence_run=F.divergence_run_for(F.CHI2_2DOF_999, F.MAX_EDGE_RATE_HZ, p_gated=1.0))
 #: coarse grids (log-spaced) from which both filters' refinement starts: 144 points each
-KF_GRID = dict(q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r_theta=(1e-6, 1e-5, 1e-4, 1e-3), r_i=(1e-2, 1.0))
+KF_GRID = dict(
+    q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r_theta=(1e-6, 1e-5, 1e-4, 1e-3), r_i=(1e-2, 1.0)
+)
 SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
@@ -92,7 +93,9 @@ def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]]) -> tuple[fl
     return best if res.fun >= best_value else tuple(float(v) for v in 10.0 ** res.x)
 
 
-def tune_kf(runs: list[ScenarioRun], model: MotorModel, divergence_run: int = FilterSettings().divergence_run) -> FilterSettings:
+def tune_kf(
+    runs: list[ScenarioRun], model: MotorModel, divergence_run: int = FilterSettings().divergence_run
+) -> FilterSettings:
     """Fixed Q = diag(q_w, 1e-9, q_i) and R = diag(r_theta, r_i) minimising commutation angle RMS,
     with and without the innovation gate on the state update; the better on the training runs.
     ``divergence_run``: the gated filter's run, as the protocol derives it for Sage-Husa."""
@@ -100,7 +103,9 @@ def tune_kf(runs: list[ScenarioRun], model: MotorModel, divergence_run: int = Fi
     for gate in (False, True):
         def settings(x, gate=gate):
             q_w, q_i, r_t, r_i = x
-            return FilterSettings(q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i), gate_state_update=gate, divergence_run=divergence_run)
+            return FilterSettings(
+                q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i), gate_state_update=gate, divergence_run=divergence_run
+            )
 
         s = settings(_grid_then_refine(lambda x: _mean_angle_rms(runs, KalmanPredictor(model, settings(x))), KF_GRID))
         value = _mean_angle_rms(runs, KalmanPredictor(model, s))
@@ -136,9 +141,13 @@ class Oracle:
     x: tuple[float, float, float, float]
     burst_factor: float = 0.0
 
-    def row(self, run: ScenarioRun, model: MotorModel, burst: np.ndarray | None, burst_rms_s: float, name: str = "oracle") -> Table5Row:
+    def row(
+        self, run: ScenarioRun, model: MotorModel, burst: np.ndarray | None, burst_rms_s: float, name: str = "oracle"
+    ) -> Table5Row:
         q_w, q_i, r_t, r_i = self.x
-        kf = KalmanPredictor(model, FilterSettings(q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i), gate_state_update=False))
+        kf = KalmanPredictor(
+            model, FilterSettings(q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i), gate_state_update=False)
+        )
         w_true = run.true_speed_rad_s
         r_theta = r_t * (w_true / W_REF_RAD_S) ** 2
         if burst is not None:
@@ -154,7 +163,9 @@ class Oracle:
         return score(run, name, pred, w)
 
 
-def tune_oracle(runs: list[ScenarioRun], bursts: list | None, model: MotorModel, start: FilterSettings, burst_rms_s: float) -> Oracle:
+def tune_oracle(
+    runs: list[ScenarioRun], bursts: list | None, model: MotorModel, start: FilterSettings, burst_rms_s: float
+) -> Oracle:
     z0 = list(np.log10([start.q0_diag[0], start.q0_diag[2], *start.r0_diag])) + ([0.0] if bursts else [])
 
     def oracle(z):
@@ -162,7 +173,11 @@ def tune_oracle(runs: list[ScenarioRun], bursts: list | None, model: MotorModel,
 
     def objective(z):
         o = oracle(z)
-        return float(np.mean([o.row(r, model, b, burst_rms_s).angle_rms_deg_e for r, b in zip(runs, bursts or [None] * len(runs))]))
+        return float(
+            np.mean(
+                [o.row(r, model, b, burst_rms_s).angle_rms_deg_e for r, b in zip(runs, bursts or [None] * len(runs))]
+            )
+        )
 
     res = minimize(objective, z0, method="Nelder-Mead", options=dict(maxfev=REFINE_EVALUATIONS, xatol=0.02, fatol=1e-4))
     return oracle(res.x)
@@ -192,8 +207,10 @@ class ProtocolResult:
         return {m: 100.0 * (kf[m] - sh[m]) / kf[m] if kf[m] else 0.0 for m in METRICS}
 
     def sh_wins_fraction(self) -> dict[str, float]:
-        return {m: float(np.mean([getattr(s, f) < getattr(k, f) for s, k in zip(self.rows["sage_husa"], self.rows["kf"])]))
-                for m, f in METRICS.items()}
+        return {
+            m: float(np.mean([getattr(s, f) < getattr(k, f) for s, k in zip(self.rows["sage_husa"], self.rows["kf"])]))
+            for m, f in METRICS.items()
+        }
 
     def to_json(self) -> dict:
         out = {"protocol": self.protocol, "seeds_evaluated": list(self.seeds),
@@ -211,21 +228,36 @@ class ProtocolResult:
                   "speed_mape_constant_pct": "speed MAPE constant %", "commutation_time_mape_pct": "comm. time MAPE %",
                   "angle_rms_deg_e": "angle RMS deg e"}
         imp, wins = self.improvement_pct(), self.sh_wins_fraction()
-        lines = [f"{'metric (mean of ' + str(len(self.seeds)) + ' seeds)':<27}" + "".join(f"{heads[n]:>10}" for n in names)
-                 + f"{'SH vs KF':>10}{'SH wins':>9}{'paper':>8}"]
+        lines = [
+            f"{'metric (mean of ' + str(len(self.seeds)) + ' seeds)':<27}"
+            + "".join(f"{heads[n]:>10}" for n in names)
+            + f"{'SH vs KF':>10}{'SH wins':>9}{'paper':>8}"
+        ]
         for m in METRICS:
             paper = PAPER_IMPROVEMENT_PCT.get(m)
-            lines.append(f"{labels[m]:<27}" + "".join(f"{self.metrics(n)[m]:>10.4f}" for n in names)
-                         + f"{imp[m]:>+9.1f}%{wins[m]:>9.0%}" + (f"{paper:>+7.1f}%" if paper is not None else f"{'-':>8}"))
+            lines.append(
+                f"{labels[m]:<27}"
+                + "".join(f"{self.metrics(n)[m]:>10.4f}" for n in names)
+                + f"{imp[m]:>+9.1f}%{wins[m]:>9.0%}"
+                + (f"{paper:>+7.1f}%" if paper is not None else f"{'-':>8}")
+            )
             if m == "max_overshoot_pct":
-                lines.append(f"{'  mean signed error, reg. %':<27}"
-                             + "".join(f"{self._mean(n, 'regulation_signed_error_pct'):>+10.4f}" for n in names) + "  (< 0: lag)")
+                lines.append(
+                    f"{'  mean signed error, reg. %':<27}"
+                    + "".join(f"{self._mean(n, 'regulation_signed_error_pct'):>+10.4f}" for n in names)
+                    + "  (< 0: lag)"
+                )
             if m == "speed_mape_constant_pct":
-                lines.append(f"{'  constant-stage edges':<27}" + "".join(f"{self._mean(n, 'constant_edges'):>10.0f}" for n in names))
+                lines.append(
+                    f"{'  constant-stage edges':<27}"
+                    + "".join(f"{self._mean(n, 'constant_edges'):>10.0f}" for n in names)
+                )
         if "oracle" in self.rows:
             o = self.improvement_pct("oracle")["angle_rms_deg_e"]
             captured = imp["angle_rms_deg_e"] / o if o > 0 else float("nan")
-            lines.append(f"oracle headroom (angle RMS): {o:+.1f} % over the KF; Sage-Husa captures {captured:.0%} of it")
+            lines.append(
+                f"oracle headroom (angle RMS): {o:+.1f} % over the KF; Sage-Husa captures {captured:.0%} of it"
+            )
         for factor, scan_imp, scan_wins in self.scan:
             lines.append(f"Q0 x{factor:<6g} SH vs KF: " + " ".join(f"{scan_imp[m]:+.1f}%" for m in METRICS)
                          + "  wins " + "/".join(f"{scan_wins[m]:.0%}" for m in METRICS))
@@ -251,8 +283,10 @@ def _settings_line(name: str, s: FilterSettings, adaptive: bool) -> str:
             f"R0 = diag({s.r0_diag[0]:.3g}, {s.r0_diag[1]:.3g}), P0 = diag({s.p0_diag[0]:g}, ...), "
             f"gate on the state {'on' if s.gate_state_update else 'off'}")
     if adaptive:
-        line += (f"; adapts Q (b = {s.forgetting_b:.4g}, band x{s.q_band_factor:g}) and R (b_R = {s.r_forgetting_b:.4g} "
-                 f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}), divergence run {s.divergence_run}")
+        line += (
+            f"; adapts Q (b = {s.forgetting_b:.4g}, band x{s.q_band_factor:g}) and R (b_R = {s.r_forgetting_b:.4g} "
+            f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}), divergence run {s.divergence_run}"
+        )
     return line
 
 
@@ -281,18 +315,28 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
             if factor == 1.0:
                 main = (rows, kf_s, sh_s)
         rows, kf_s, sh_s = main
-        statement += ["KF = the same filter with adaptation off; both from the paper's R0, q0 = r0 = 0, P0",
-                      _settings_line("KF", kf_s, False), _settings_line("Sage-Husa", sh_s, True),
-                      f"Q0 scanned over {', '.join(f'{f:g}' for f in Q0_SCAN)} x nominal (rows 'Q0 x'; metrics in table order)"]
+        statement += [
+            "KF = the same filter with adaptation off; both from the paper's R0, q0 = r0 = 0, P0",
+            _settings_line("KF", kf_s, False),
+            _settings_line("Sage-Husa", sh_s, True),
+            f"Q0 scanned over {', '.join(f'{f:g}' for f in Q0_SCAN)} x nominal (rows 'Q0 x'; metrics in table order)",
+        ]
         rows["precal"] = _rows(evaluation, {"precal": precal})["precal"]
         return ProtocolResult(protocol, statement, tuple(eval_seeds), rows, scan)
     if protocol == "misspecified":
         steady = [run_scenario(seed=s, setpoints_rpm=(5000.0,), hold_s=3.0) for s in train_seeds]
         kf_s = tune_kf(steady, model)
         sh_s = FilterSettings(**{**SH_DESIGN, "q0_diag": kf_s.q0_diag, "r0_diag": kf_s.r0_diag})
-        statement += [f"noise measured at one steady point: the KF tuned on ground truth at 5000 rpm (3 s, seeds {tuple(train_seeds)})",
-                      _settings_line("KF", kf_s, False), _settings_line("Sage-Husa (starts there)", sh_s, True)]
-        rows = _rows(evaluation, {"sage_husa": SageHusaPredictor(model, sh_s), "kf": KalmanPredictor(model, kf_s), "precal": precal})
+        statement += [
+            "noise measured at one steady point: the KF tuned on ground truth at 5000 rpm "
+            f"(3 s, seeds {tuple(train_seeds)})",
+            _settings_line("KF", kf_s, False),
+            _settings_line("Sage-Husa (starts there)", sh_s, True),
+        ]
+        rows = _rows(
+            evaluation,
+            {"sage_husa": SageHusaPredictor(model, sh_s), "kf": KalmanPredictor(model, kf_s), "precal": precal},
+        )
         return ProtocolResult(protocol, statement, tuple(eval_seeds), rows)
     train = [run_scenario(seed=s, hold_s=hold_s) for s in train_seeds]
     burst_train = burst_eval = None
@@ -302,10 +346,17 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
         pairs = [bursts.apply(r, s) for r, s in zip(evaluation, eval_seeds)]
         evaluation, burst_eval = [p[0] for p in pairs], [p[1] for p in pairs]
         on = float(np.mean(np.concatenate(burst_eval)))
-        statement.append(f"bursts: {bursts.time_rms_s * 1e6:g} us RMS edge-time noise, exponential dwell {bursts.on_mean_s:g} s on / "
-                         f"{bursts.off_mean_s:g} s off (edges in a burst: {on:.1%} on the evaluation seeds)")
+        statement.append(
+            f"bursts: {bursts.time_rms_s * 1e6:g} us RMS edge-time noise, "
+            f"exponential dwell {bursts.on_mean_s:g} s on / "
+            f"{bursts.off_mean_s:g} s off (edges in a burst: {on:.1%} on the evaluation seeds)"
+        )
     # the KF's gate gets the same derived divergence run as Sage-Husa's (bursts: 23)
-    kf_s = tune_kf(train, model, (BURSTS_SH if protocol == "bursts" else SH_DESIGN).get("divergence_run", FilterSettings().divergence_run))
+    kf_s = tune_kf(
+        train,
+        model,
+        (BURSTS_SH if protocol == "bursts" else SH_DESIGN).get("divergence_run", FilterSettings().divergence_run),
+    )
     sh_s = tune_sh(train, model, BURSTS_SH if protocol == "bursts" else SH_DESIGN)
     oracle = tune_oracle(train, burst_train, model, kf_s, bursts.time_rms_s)
     statement += [f"both tuned with the same budget ({math.prod(len(v) for v in KF_GRID.values())}-point grid + "
@@ -314,6 +365,10 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
                   f"oracle: KF with R_theta = {oracle.x[2]:.3g} (w / {W_REF_RAD_S:g})^2"
                   + (f" + {oracle.burst_factor:.3g} (sigma_burst w)^2 in a true burst" if burst_eval else "")
                   + f", Q = diag({oracle.x[0]:.3g}, 1e-9, {oracle.x[1]:.3g}), tuned alike"]
-    rows = _rows(evaluation, {"sage_husa": SageHusaPredictor(model, sh_s), "kf": KalmanPredictor(model, kf_s), "precal": precal})
-    rows["oracle"] = [oracle.row(r, model, b, bursts.time_rms_s) for r, b in zip(evaluation, burst_eval or [None] * len(evaluation))]
+    rows = _rows(
+        evaluation, {"sage_husa": SageHusaPredictor(model, sh_s), "kf": KalmanPredictor(model, kf_s), "precal": precal}
+    )
+    rows["oracle"] = [
+        oracle.row(r, model, b, bursts.time_rms_s) for r, b in zip(evaluation, burst_eval or [None] * len(evaluation))
+    ]
     return ProtocolResult(protocol, statement, tuple(eval_seeds), rows)

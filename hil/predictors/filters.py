@@ -115,7 +115,9 @@ MAX_EDGE_RATE_HZ = 2400.0
 EDGE_DIFF_RHO2_SUM = 70.0 / 36.0
 
 
-def variance_match_bounds(interval: int, edge_rate_hz: float = MAX_EDGE_RATE_HZ, horizon_s: float = 1000.0) -> tuple[float, float]:
+def variance_match_bounds(
+    interval: int, edge_rate_hz: float = MAX_EDGE_RATE_HZ, horizon_s: float = 1000.0
+) -> tuple[float, float]:
     """Bounds on the ratio of an R interval's measured edge-noise variance (sample variance of the
     edge second differences / 6) to the R_theta in use, beyond which the edge noise changed.
     For white Gaussian edge noise the sample variance of n second differences is close to
@@ -144,7 +146,9 @@ def huber_kappa(c: float) -> float:
     return (2.0 - 2.0 * math.exp(-0.5 * c * c) + c * math.sqrt(2.0 * math.pi) * tail) / 2.0
 
 
-def divergence_run_for(gate: float, edge_rate_hz: float, horizon_s: float = 1000.0, p_gated: float | None = None) -> int:
+def divergence_run_for(
+    gate: float, edge_rate_hz: float, horizon_s: float = 1000.0, p_gated: float | None = None
+) -> int:
     """Shortest run of one-signed gated innovations that chance produces less than once per
     ``horizon_s`` of edges. An edge is gated with probability p and its sign is even, so a given
     edge starts a one-signed run of n with probability p (p / 2)^(n - 1); the expected number
@@ -499,7 +503,10 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         s[ST.ACC_WHITE + 1] += innov0 * innov0
         if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
             c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
-            s[ST.Q] = min(max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]), s[ST.Q_NOMINAL] * fp[FP.BAND])
+            s[ST.Q] = min(
+                max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]),
+                s[ST.Q_NOMINAL] * fp[FP.BAND],
+            )
             s[ST.ACC_WHITE] = 0.0
             s[ST.ACC_WHITE + 1] = 0.0
     s[ST.PREV_INNOV] = innov0

@@ -43,7 +43,9 @@ def _steady_point(config: PlantConfig, speed_rpm: float, load_scale: float, seed
     return s, win
 
 
-def identify(config: PlantConfig, speeds_rpm=(800.0, 2000.0, 4000.0, 6000.0, 8000.0, 10000.0), seed: int = 0) -> IdentificationResult:
+def identify(
+    config: PlantConfig, speeds_rpm=(800.0, 2000.0, 4000.0, 6000.0, 8000.0, 10000.0), seed: int = 0
+) -> IdentificationResult:
     """Run the identification experiments on the plant (a bench would record the same) and fit."""
     m = config.motor
     from plant_models.hall import SECTOR_PHASES
@@ -83,5 +85,7 @@ def identify(config: PlantConfig, speeds_rpm=(800.0, 2000.0, 4000.0, 6000.0, 800
     sel = slice(win, -win)
     torque = kt * i_s[sel] - m.friction_n_m_s_per_rad * w_s[sel]
     inertia = float(np.linalg.lstsq(acc[sel, None], torque, rcond=None)[0][0])
-    model = MotorModel(m.pole_pairs, inertia, tuple([kt] * len(speeds_rpm)), tuple(fan), tuple(float(v) for v in speeds_rpm))
+    model = MotorModel(
+        m.pole_pairs, inertia, tuple([kt] * len(speeds_rpm)), tuple(fan), tuple(float(v) for v in speeds_rpm)
+    )
     return IdentificationResult(model, float(ke), inertia, np.asarray(speeds_rpm, dtype=float), fan)

@@ -40,7 +40,9 @@ class MotorModel:
         kt = np.asarray(self.torque_coefficient_n_m_per_a, dtype=float)
         m = np.asarray(self.fan_coefficient_n_m_s2, dtype=float)
         if not (speeds.size == kt.size == m.size):
-            raise ValueError("table_speed_rpm, torque_coefficient_n_m_per_a and fan_coefficient_n_m_s2 must have equal lengths")
+            raise ValueError(
+                "table_speed_rpm, torque_coefficient_n_m_per_a and fan_coefficient_n_m_s2 must have equal lengths"
+            )
         return speeds, kt, m
 
     def acceleration_rad_s2(self, w_e: float, current_a: float) -> float:
@@ -56,7 +58,9 @@ class MotorModel:
     def from_plant(cls, motor) -> "MotorModel":
         """The nominal model of a plant's MotorParameters (two conducting phases: T = 2 ke I_c,
         mean |i| over three phases = 2/3 I_c, so K_T = 3 ke per ampere of mean |i|)."""
-        return cls(int(motor.pole_pairs), motor.inertia_kg_m2, (3.0 * motor.ke_v_s_per_rad,), (motor.fan_coefficient_n_m_s2,))
+        return cls(
+            int(motor.pole_pairs), motor.inertia_kg_m2, (3.0 * motor.ke_v_s_per_rad,), (motor.fan_coefficient_n_m_s2,)
+        )
 
 
 SECTOR_RAD = math.pi / 3.0

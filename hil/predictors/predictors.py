@@ -26,7 +26,7 @@ class FilterSettings:
     #: because pre-calibration removed the deterministic edge errors; the guards floor it
     r0_diag: tuple[float, float] = (0.0, 0.02)
     p0_diag: tuple[float, float, float] = (5e4, 5e4, 5e4)  # paper 4.4
-    forgetting_b: float = 0.98                         # Q's b (Eq. 12, per step); usual range 0.95-0.995 (docs/sage-husa.md)
+    forgetting_b: float = 0.98  # Q's b (Eq. 12, per step); usual range 0.95-0.995 (docs/sage-husa.md)
     adapt_interval: int = 120                          # paper 4.4: r and q every 120 commutations
     #: R's own forgetting factor (per R interval) and interval (paper 4.4: 120 commutations)
     r_forgetting_b: float = 0.98
@@ -98,7 +98,9 @@ class FilterSettings:
         fp[F.FP.GATE_STATE] = 1.0 if self.gate_state_update else 0.0
         fp[F.FP.R_I_FLOOR] = self.current_resolution_a ** 2 / 12.0
         if self.r_match_horizon_s > 0:
-            fp[F.FP.R_MATCH_HI], fp[F.FP.R_MATCH_LO] = F.variance_match_bounds(self.r_interval, horizon_s=self.r_match_horizon_s)
+            fp[F.FP.R_MATCH_HI], fp[F.FP.R_MATCH_LO] = F.variance_match_bounds(
+                self.r_interval, horizon_s=self.r_match_horizon_s
+            )
         return fp
 
 
@@ -191,7 +193,9 @@ class _KalmanCore:
         if not t_corrected_s > last:
             self._last_t = last
             raise ValueError(f"edge times must increase: {t_corrected_s!r} after {last!r}")
-        return t_corrected_s + F.edge(self.state, self.fp, self.guard_counts, t_corrected_s - last, mean_current_a, self.tables, self._work)
+        return t_corrected_s + F.edge(
+            self.state, self.fp, self.guard_counts, t_corrected_s - last, mean_current_a, self.tables, self._work
+        )
 
     def run(self, t_corrected_s: np.ndarray, mean_current_a: np.ndarray) -> PredictionRun:
         t = np.ascontiguousarray(t_corrected_s, dtype=float)

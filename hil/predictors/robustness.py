@@ -53,10 +53,17 @@ def draw_conditions(n: int, seed: int = 0) -> list[Condition]:
     rng = np.random.default_rng(seed)
     out = []
     for _ in range(n):
-        out.append(Condition(jitter_s=float(rng.uniform(0.2e-6, 10e-6)), angle_jitter_deg=float(rng.uniform(0.0, 0.2)),
-                             q_factor_log10=float(rng.uniform(-2.0, 2.0)), start_rpm=float(rng.uniform(2000.0, 12000.0)),
-                             end_rpm=float(rng.uniform(2000.0, 12000.0)) if rng.random() < 0.5 else None,
-                             load_scale=float(rng.uniform(0.3, 2.0)), seed=int(rng.integers(0, 2**16))))
+        out.append(
+            Condition(
+                jitter_s=float(rng.uniform(0.2e-6, 10e-6)),
+                angle_jitter_deg=float(rng.uniform(0.0, 0.2)),
+                q_factor_log10=float(rng.uniform(-2.0, 2.0)),
+                start_rpm=float(rng.uniform(2000.0, 12000.0)),
+                end_rpm=float(rng.uniform(2000.0, 12000.0)) if rng.random() < 0.5 else None,
+                load_scale=float(rng.uniform(0.3, 2.0)),
+                seed=int(rng.integers(0, 2**16)),
+            )
+        )
     return out
 
 
@@ -77,7 +84,10 @@ def consistent_current(profile, load_scale, motor=BASE.motor):
 
 def edges_and_currents(profile, jitter_s, angle_jitter_deg, load_scale, seed):
     currents = consistent_current(profile, load_scale)
-    ops = [OperatingPoint(op.duration_s, op.speed_rpm, c, end_speed_rpm=op.end_speed_rpm) for op, c in zip(profile, currents)]
+    ops = [
+        OperatingPoint(op.duration_s, op.speed_rpm, c, end_speed_rpm=op.end_speed_rpm)
+        for op, c in zip(profile, currents)
+    ]
     config = BASE.with_effects(fx.EdgeJitter(time_rms_s=jitter_s, angle_rms_deg_e=angle_jitter_deg))
     e = simulate_edges(config, ops, seed=seed)
     return e, e.mean_abs_current_a

@@ -23,7 +23,6 @@ from ..calibration import Corrections
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..commutation import HallCommutation, SpeedPI
-from .model import SECTOR_RAD
 
 SETPOINTS_RPM = tuple(float(v) for v in np.linspace(5000.0, 10000.0, 7))
 #: paper Table 5 (percent): regulation-stage speed MAPE, max overshoot, constant-stage MAPE, commutation-time MAPE
@@ -66,7 +65,9 @@ def run_scenario(config: PlantConfig | None = None, corrections: Corrections | N
     # duty feed-forward from the motor model plus PI trim (anti-windup), as pump controllers do
     pi = SpeedPI(first, kp_per_rpm=1e-4, ki_per_rpm_s=2e-3, feedforward=steady_state(config.motor, first)["duty"])
     source = HallCommutation(config.motor.pole_pairs, pi, corrections, current_limit_a=15.0, motor=config.motor)
-    sim = Simulation(config, source, duty=pi.feedforward, initial_speed_rpm=first, seed=seed, sample_rate_hz=50e3, capacity=1 << 18)
+    sim = Simulation(
+        config, source, duty=pi.feedforward, initial_speed_rpm=first, seed=seed, sample_rate_hz=50e3, capacity=1 << 18
+    )
     sim.run_until(0.5)  # settle at the first set point
     sim.mark_segment(0)
     steps = []
@@ -79,13 +80,17 @@ def run_scenario(config: PlantConfig | None = None, corrections: Corrections | N
     edges = edges.take(edges.segment == 0)
     t_corr, cycle_current, s = edge_inputs(sim, edges, corrections, config.motor.pole_pairs)
     steps_arr = np.asarray(steps)
-    setpoint = np.asarray(setpoints_rpm)[np.clip(np.searchsorted(steps_arr, edges.t_capture_s, side="right") - 1, 0, len(setpoints_rpm) - 1)]
+    setpoint = np.asarray(setpoints_rpm)[
+        np.clip(np.searchsorted(steps_arr, edges.t_capture_s, side="right") - 1, 0, len(setpoints_rpm) - 1)
+    ]
     settle = []
     for k, t0 in enumerate(steps_arr):
         sel = (s.t_s >= t0) & (s.t_s < t0 + hold_s)
         outside = np.nonzero(np.abs(s.speed_rpm[sel] / setpoints_rpm[k] - 1) > settle_band)[0]
         settle.append(s.t_s[sel][outside[-1]] if outside.size else t0)
-    return ScenarioRun(config, corrections, edges, t_corr, cycle_current, setpoint, steps_arr, np.asarray(settle), hold_s)
+    return ScenarioRun(
+        config, corrections, edges, t_corr, cycle_current, setpoint, steps_arr, np.asarray(settle), hold_s
+    )
 
 
 def edge_inputs(sim: Simulation, edges: EdgeLog, corrections: Corrections, pole_pairs: int):
@@ -127,14 +132,21 @@ class Table5Row:
     guards: dict = field(default_factory=dict)
 
     def values(self) -> tuple[float, float, float, float]:
-        return (self.regulation_speed_mape_pct, self.max_overshoot_pct, self.constant_speed_mape_pct, self.commutation_time_mape_pct)
+        return (
+            self.regulation_speed_mape_pct,
+            self.max_overshoot_pct,
+            self.constant_speed_mape_pct,
+            self.commutation_time_mape_pct,
+        )
 
     def all_values(self) -> tuple[float, ...]:
         """The four Table 5 metrics, then commutation angle RMS, p99 and max."""
         return self.values() + (self.angle_rms_deg_e, self.angle_p99_deg_e, self.angle_max_deg_e)
 
 
-def score(run: ScenarioRun, name: str, pred_t_s: np.ndarray, speed_rad_s: np.ndarray, guards=None, skip_edges: int = 240) -> Table5Row:
+def score(
+    run: ScenarioRun, name: str, pred_t_s: np.ndarray, speed_rad_s: np.ndarray, guards=None, skip_edges: int = 240
+) -> Table5Row:
     """Table 5 metrics against ground truth.
 
     * commutation error: prediction made at edge k for edge k + 1 against the ideal instant of
