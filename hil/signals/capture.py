@@ -47,8 +47,12 @@ class GateMapping:
         missing = [g for g in GATES if g not in self.channels]
         unknown = [g for g in self.channels if g not in GATES]
         if missing or unknown:
-            raise SignalError("mapping", f"needs exactly the gates {', '.join(GATES)}" + (f"; missing {', '.join(missing)}" if missing else "")
-                              + (f"; unknown {', '.join(unknown)}" if unknown else ""))
+            raise SignalError(
+                "mapping",
+                f"needs exactly the gates {', '.join(GATES)}"
+                + (f"; missing {', '.join(missing)}" if missing else "")
+                + (f"; unknown {', '.join(unknown)}" if unknown else ""),
+            )
         bad = [g for g in self.active_low if g not in GATES]
         if bad:
             raise SignalError("mapping.active_low", f"unknown gate(s) {', '.join(bad)}")
@@ -181,7 +185,9 @@ class Capture:
                 raise SignalError(where, "no 'metadata' member: not a sigrok session file")
             version = zf.read("version").decode().strip() if "version" in names else "?"
             if version != "2":
-                raise SignalError(f"{where}: version", f"sigrok session format version {version!r}; this reader knows version 2")
+                raise SignalError(
+                    f"{where}: version", f"sigrok session format version {version!r}; this reader knows version 2"
+                )
             meta = configparser.ConfigParser(interpolation=None)
             meta.read_string(zf.read("metadata").decode())
             dev = next((s for s in meta.sections() if s.startswith("device")), None)
@@ -198,7 +204,10 @@ class Capture:
                 if ch not in probes:
                     raise SignalError(where, f"no logic channel {ch!r} for gate {g} (have: {', '.join(probes)})")
                 bit_of.append(probes[ch])
-            parts = sorted((n for n in names if re.fullmatch(re.escape(capturefile) + r"-\d+", n)), key=lambda n: int(n.rsplit("-", 1)[1]))
+            parts = sorted(
+                (n for n in names if re.fullmatch(re.escape(capturefile) + r"-\d+", n)),
+                key=lambda n: int(n.rsplit("-", 1)[1]),
+            )
             if not parts and capturefile in names:
                 parts = [capturefile]  # very old single-file sessions
             self.sample_period_s = 1.0 / rate
@@ -251,8 +260,11 @@ class Capture:
             # whole (unnamed with label=channel), and sample k is printed at (k + 1) periods
             period = 1.0 / sigrok
             if self.mapping.time_scale is None and cols[t_index].lower() not in _TIME_UNITS:
-                scale = next(u for u in (1.0, 1e-3, 1e-6, 1e-9, 1e-12) if abs(period / u - round(period / u)) < 1e-6 * period / u
-                             and round(period / u) >= 1)
+                scale = next(
+                    u
+                    for u in (1.0, 1e-3, 1e-6, 1e-9, 1e-12)
+                    if abs(period / u - round(period / u)) < 1e-6 * period / u and round(period / u) >= 1
+                )
             shift = period
             self.sample_period_s = period
         prev_t = -np.inf
@@ -260,8 +272,15 @@ class Capture:
         line = header_line + 1
         try:
             use = sorted(set([t_index] + idx))
-            reader = pd.read_csv(self.path, skiprows=header_line, header=0, chunksize=chunk, usecols=use, skipinitialspace=True,
-                                 dtype=float)
+            reader = pd.read_csv(
+                self.path,
+                skiprows=header_line,
+                header=0,
+                chunksize=chunk,
+                usecols=use,
+                skipinitialspace=True,
+                dtype=float,
+            )
             for frame in reader:
                 a = frame.to_numpy(dtype=float)
                 a = a[:, [use.index(c) for c in [t_index] + idx]]
@@ -341,7 +360,9 @@ def _libsigrok_rate(comments: list[str]) -> float | None:
 def _column_index(name: str, cols: list[str], where: str, what: str) -> int:
     if name in cols:
         if cols.count(name) > 1:
-            raise SignalError(where, f"column {name!r} ({what}) appears {cols.count(name)} times; map it by number (1-based)")
+            raise SignalError(
+                where, f"column {name!r} ({what}) appears {cols.count(name)} times; map it by number (1-based)"
+            )
         return cols.index(name)
     if str(name).isdigit() and 1 <= int(name) <= len(cols):
         return int(name) - 1

@@ -46,20 +46,38 @@ def cmd_export(args) -> int:
         duration = args.duration_s if args.duration_s is not None else 1.0
     if duration <= 0:
         raise SignalError("--duration-s", "a profile that ends at t = 0 needs --duration-s")
-    settings = ExportSettings(config=config, breakpoints=points, duration_s=duration, sample_rate_hz=args.sample_rate_hz, seed=args.seed,
-                              current_v_per_a=args.current_v_per_a, current_zero_v=args.current_zero_v, analog_rate_hz=args.analog_rate_hz,
-                              analog_lsb_v=args.analog_lsb_v, currents=not args.no_currents, csv_max_bytes=args.csv_max_bytes,
-                              write_csv=not args.no_csv, command=_command(args),
-                              effects_source=args.effects or "", deviations=not args.no_deviations)
+    settings = ExportSettings(
+        config=config,
+        breakpoints=points,
+        duration_s=duration,
+        sample_rate_hz=args.sample_rate_hz,
+        seed=args.seed,
+        current_v_per_a=args.current_v_per_a,
+        current_zero_v=args.current_zero_v,
+        analog_rate_hz=args.analog_rate_hz,
+        analog_lsb_v=args.analog_lsb_v,
+        currents=not args.no_currents,
+        csv_max_bytes=args.csv_max_bytes,
+        write_csv=not args.no_csv,
+        command=_command(args),
+        effects_source=args.effects or "",
+        deviations=not args.no_deviations,
+    )
 
     def progress(i, n):
         if args.progress and (i % 20 == 0 or i == n):
             print(f"  {i}/{n} chunks", file=sys.stderr)
 
     res = export(args.out, settings, progress)
-    print(f"{args.out}: {res.n_edges} Hall edges, {res.n_commutations} ideal commutations over {duration:g} s at {args.sample_rate_hz:g} Hz "
-          f"(Hall timing within +-{0.5e6 / args.sample_rate_hz:.3g} us of the plant); plant {config.name}; {res.wall_s:.1f} s")
-    print(f"  stimulus.vcd {res.vcd_bytes / 1e6:.1f} MB" + (f", stimulus.csv {res.csv_bytes / 1e6:.1f} MB" if res.csv_bytes is not None else ""))
+    print(
+        f"{args.out}: {res.n_edges} Hall edges, {res.n_commutations} ideal commutations over {duration:g} s "
+        f"at {args.sample_rate_hz:g} Hz (Hall timing within +-{0.5e6 / args.sample_rate_hz:.3g} us of the plant); "
+        f"plant {config.name}; {res.wall_s:.1f} s"
+    )
+    print(
+        f"  stimulus.vcd {res.vcd_bytes / 1e6:.1f} MB"
+        + (f", stimulus.csv {res.csv_bytes / 1e6:.1f} MB" if res.csv_bytes is not None else "")
+    )
     if res.csv_skipped_reason:
         print(f"  {res.csv_skipped_reason}")
     return 0
@@ -100,29 +118,45 @@ def cmd_loopback(args) -> int:
 
     meta = json.loads((Path(args.stimulus) / "meta.json").read_text())
     config = PlantConfig.from_dict(meta["plant"])
-    controller = VirtualController(config.motor, strategy=Strategy[args.strategy.upper()], speed_setpoint_rpm=args.speed_rpm)
+    controller = VirtualController(
+        config.motor, strategy=Strategy[args.strategy.upper()], speed_setpoint_rpm=args.speed_rpm
+    )
     tick = args.capture_tick_s if args.capture_tick_s is not None else config.compile().timer_tick_s
-    res = run_loopback(args.stimulus, InProcessLink(controller), args.out, pwm_frequency_hz=config.inverter.pwm_frequency_hz,
-                       capture_tick_s=tick)
-    print(f"{args.out}: the virtual controller ({args.strategy}) took {res.edges} Hall edges, answered {res.commands} commands, "
-          f"{res.gate_changes} gate changes")
+    res = run_loopback(
+        args.stimulus,
+        InProcessLink(controller),
+        args.out,
+        pwm_frequency_hz=config.inverter.pwm_frequency_hz,
+        capture_tick_s=tick,
+    )
+    print(
+        f"{args.out}: the virtual controller ({args.strategy}) took {res.edges} Hall edges, "
+        f"answered {res.commands} commands, "
+        f"{res.gate_changes} gate changes"
+    )
     return 0
 
 
 def add_parser(sub) -> None:
     from plant_models import PRESETS
 
-    p = sub.add_parser("signals", help="real-bench signals: stimulus an instrument plays, gate captures scored against truth")
+    p = sub.add_parser(
+        "signals", help="real-bench signals: stimulus an instrument plays, gate captures scored against truth"
+    )
     ss = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
 
-    q = ss.add_parser("export", help="write stimulus.vcd (Hall pins, current-sensor volts), stimulus.csv, truth.csv, meta.json")
+    q = ss.add_parser(
+        "export", help="write stimulus.vcd (Hall pins, current-sensor volts), stimulus.csv, truth.csv, meta.json"
+    )
     q.add_argument("--out", required=True, help="output directory")
     g = q.add_mutually_exclusive_group()
     g.add_argument("--plant", help="plant TOML")
     g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
     g = q.add_mutually_exclusive_group()
     g.add_argument("--speed-rpm", type=float, default=6000.0, help="constant speed (default 6000)")
-    g.add_argument("--profile", help='speed breakpoints "t:rpm,t:rpm,..." from t = 0, linear between (forward rotation)')
+    g.add_argument(
+        "--profile", help='speed breakpoints "t:rpm,t:rpm,..." from t = 0, linear between (forward rotation)'
+    )
     q.add_argument("--duration-s", type=float, help="length (default: 1 s, or the profile's last breakpoint)")
     q.add_argument("--sample-rate-hz", type=float, default=1e6, help="instrument sample rate (default 1 MHz)")
     q.add_argument("--effects", help="TOML with [[effects]] tables added to the plant's")
@@ -145,7 +179,12 @@ def add_parser(sub) -> None:
     q.add_argument("--html", help="write a one-page summary here")
     q.add_argument("--mapping", help="TOML channel mapping (docs/signals.md)")
     q.add_argument("--channels", help="AH=D0,AL=D1,... (capture channel of each gate)")
-    q.add_argument("--hold-off-s", type=float, default=DEFAULT_HOLD_OFF_S, help=f"hold-off (default {DEFAULT_HOLD_OFF_S * 1e6:g} us)")
+    q.add_argument(
+        "--hold-off-s",
+        type=float,
+        default=DEFAULT_HOLD_OFF_S,
+        help=f"hold-off (default {DEFAULT_HOLD_OFF_S * 1e6:g} us)",
+    )
     q.set_defaults(func=cmd_score)
 
     q = ss.add_parser("loopback", help="play a stimulus into the virtual controller and write its gates as a VCD")
@@ -153,7 +192,11 @@ def add_parser(sub) -> None:
     q.add_argument("--out", required=True, help="gate VCD to write")
     q.add_argument("--strategy", default="raw", choices=["raw", "corrected", "kf", "sage_husa"])
     q.add_argument("--speed-rpm", type=float, default=6000.0, help="the controller's speed set point")
-    q.add_argument("--capture-tick-s", type=float, help="input-capture timer tick (default: the plant's timer quantisation, else exact)")
+    q.add_argument(
+        "--capture-tick-s",
+        type=float,
+        help="input-capture timer tick (default: the plant's timer quantisation, else exact)",
+    )
     q.set_defaults(func=cmd_loopback)
 
 

@@ -9,8 +9,8 @@ acceleration over the tabulated turn), not the analytic L -> 0 steady state: the
 inductance delays each commutation's current, so the analytic duty leaves the plant short of
 torque (at 6000 rpm on the paper bench 0.2 % of duty is 40 % of the current, and the currents
 exported at it were those of a motor decelerating at 6.5 rad/s^2, which a controller's
-torque model reads as a deceleration that never happens). At export time the current at any instant is the table of the true
-mechanical angle, interpolated linearly between the two nearest grid speeds. This is
+torque model reads as a deceleration that never happens). At export time the current at any
+instant is the table of the true mechanical angle, interpolated linearly between the two nearest grid speeds. This is
 quasi-static: the extra torque current of an acceleration is not included.
 """
 
@@ -137,6 +137,8 @@ def tabulate(config: PlantConfig, speeds_rpm, seed: int = 0) -> CurrentTables:
         for x in range(3):
             # one turn against the angle relative to where the turn started, then placed absolutely
             base = s.theta_m_deg[keep][0]
-            tables[k, x] = np.interp(np.mod(angles - base, 360.0), theta[theta < 360.0], s.i_true_a[keep][theta < 360.0, x], period=360.0)
+            tables[k, x] = np.interp(
+                np.mod(angles - base, 360.0), theta[theta < 360.0], s.i_true_a[keep][theta < 360.0, x], period=360.0
+            )
         duties[k], residual[k] = turn.duty, turn.accel_rad_s2
     return CurrentTables(grid, tables, duties, residual)

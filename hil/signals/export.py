@@ -35,7 +35,17 @@ from .vcd import Timescale, VcdWriter
 FORMAT = "hil-signals/1"
 HALL_NAMES = ("HA", "HB", "HC")
 CURRENT_NAMES = ("IA", "IB", "IC")
-TRUTH_COLUMNS = ("n", "t_ideal_s", "sector", "theta_e_deg", "theta_m_deg", "speed_rpm", "t_hall_pin_s", "hall_sensor", "hall_rising")
+TRUTH_COLUMNS = (
+    "n",
+    "t_ideal_s",
+    "sector",
+    "theta_e_deg",
+    "theta_m_deg",
+    "speed_rpm",
+    "t_hall_pin_s",
+    "hall_sensor",
+    "hall_rising",
+)
 #: simulated time per generation chunk (bounds the memory: a chunk's samples are ~1e6 at 1 MHz)
 CHUNK_S = 0.25
 #: events this close to a chunk's end wait for the next chunk (a conditioned edge may land
@@ -102,7 +112,9 @@ def ideal(config: PlantConfig) -> PlantConfig:
     """The plant without deviations: no effects, ideal current sensors."""
     from plant_models.plant import CurrentSensorParameters
 
-    return dataclasses.replace(config, effects=(), current_sensor=CurrentSensorParameters(), name=config.name + " (ideal)")
+    return dataclasses.replace(
+        config, effects=(), current_sensor=CurrentSensorParameters(), name=config.name + " (ideal)"
+    )
 
 
 def _seed(seed: int, *parts: int) -> int:
@@ -133,7 +145,11 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
     analog_rate = fs / decim
     tables: CurrentTables | None = None
     if settings.currents:
-        tables = tabulate(config, [p[1] for p in settings.breakpoints] + [float(traj.speed_rpm(settings.duration_s))], seed=settings.seed)
+        tables = tabulate(
+            config,
+            [p[1] for p in settings.breakpoints] + [float(traj.speed_rpm(settings.duration_s))],
+            seed=settings.seed,
+        )
     cs = config.current_sensor
     gain = 1.0 + np.asarray(cs.gain_error)
     offset = np.asarray(cs.offset_a)
@@ -143,8 +159,10 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
     write_csv = settings.write_csv
     if write_csv and csv_estimate > settings.csv_max_bytes:
         write_csv = False
-        res.csv_skipped_reason = (f"stimulus.csv skipped: {n_samples} samples would take about {csv_estimate / 1e9:.1f} GB, above the "
-                                  f"{settings.csv_max_bytes / 1e9:.1f} GB limit (--csv-max-bytes); stimulus.vcd has the same signals")
+        res.csv_skipped_reason = (
+            f"stimulus.csv skipped: {n_samples} samples would take about {csv_estimate / 1e9:.1f} GB, above the "
+            f"{settings.csv_max_bytes / 1e9:.1f} GB limit (--csv-max-bytes); stimulus.vcd has the same signals"
+        )
     elif not write_csv:
         res.csv_skipped_reason = "stimulus.csv not written (--no-csv)"
 
@@ -162,12 +180,16 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
     reals = list(CURRENT_NAMES) if settings.currents else []
     comment = (f"bldc-hil stimulus: Hall pins HA HB HC (1 = high), phase-current sensor outputs IA IB IC in volts; "
                f"sample rate {fs:g} Hz; plant {config.name} ({config.config_hash()}); seed {settings.seed}")
-    vcd = VcdWriter(out / "stimulus.vcd", timescale, list(HALL_NAMES), reals, scope="stimulus", comment=comment, real_format="%.6g")
+    vcd = VcdWriter(
+        out / "stimulus.vcd", timescale, list(HALL_NAMES), reals, scope="stimulus", comment=comment, real_format="%.6g"
+    )
     n_chunks = max(int(math.ceil(settings.duration_s / CHUNK_S)), 1)
     last_volts = None
     csv_file = open(out / "stimulus.csv", "w", newline="\n") if write_csv else None
     if csv_file is not None:
-        csv_file.write("t_s," + ",".join(HALL_NAMES) + ("," + ",".join(CURRENT_NAMES) if settings.currents else "") + "\n")
+        csv_file.write(
+            "t_s," + ",".join(HALL_NAMES) + ("," + ",".join(CURRENT_NAMES) if settings.currents else "") + "\n"
+        )
     truth_file = open(out / "truth.csv", "w", newline="\n")
     truth_file.write(",".join(TRUTH_COLUMNS) + "\n")
     tfmt = _time_format(fs)
@@ -201,8 +223,13 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
             amps = tables.currents_a(theta_m, traj.speed_rpm(t))
             meas = amps.T * gain + offset
             if cs.noise_rms_a > 0:
-                meas = meas + cs.noise_rms_a * np.random.default_rng(_seed(settings.seed, 2, c)).standard_normal(meas.shape)
-            volts = np.rint((settings.current_zero_v + settings.current_v_per_a * meas) / settings.analog_lsb_v) * settings.analog_lsb_v
+                meas = meas + cs.noise_rms_a * np.random.default_rng(_seed(settings.seed, 2, c)).standard_normal(
+                    meas.shape
+                )
+            volts = (
+                np.rint((settings.current_zero_v + settings.current_v_per_a * meas) / settings.analog_lsb_v)
+                * settings.analog_lsb_v
+            )
             if last_volts is None:
                 last_volts = volts[0].copy()
                 analog_now = volts[0].copy()
@@ -219,13 +246,18 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
             t_id = traj.time_at_deg_e(60.0 * ns)
             ok = t_id <= settings.duration_s
             ns, t_id = ns[ok], t_id[ok]
-            carry_truth.append(np.column_stack([ns, t_id, np.mod(ns, 6), 60.0 * ns, 60.0 * ns / pp, traj.speed_rpm(t_id)]))
+            carry_truth.append(
+                np.column_stack([ns, t_id, np.mod(ns, 6), 60.0 * ns, 60.0 * ns / pp, traj.speed_rpm(t_id)])
+            )
             n_next = int(ns[-1]) + 1 if ns.size else n_next
         # write everything before the guard
         fresh = np.concatenate(ev)
         if fresh.size and fresh[:, 0].min() < written_until:
-            raise SignalError("export", f"an edge at sample {int(fresh[:, 0].min())} arrived after samples up to {written_until} were "
-                                        f"written (conditioning delay plus jitter beyond the {GUARD_S * 1e3:g} ms chunk guard)")
+            raise SignalError(
+                "export",
+                f"an edge at sample {int(fresh[:, 0].min())} arrived after samples up to {written_until} were "
+                f"written (conditioning delay plus jitter beyond the {GUARD_S * 1e3:g} ms chunk guard)",
+            )
         events = np.concatenate([carry_ev, fresh])
         events = events[np.lexsort((events[:, 1], events[:, 0]))]
         limit = n_samples if c == n_chunks - 1 else int(math.floor((tb - GUARD_S) * fs))
@@ -239,7 +271,17 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
         vcd.changes((batch[:, 0] * ticks_per_sample).astype(np.int64), batch[:, 1].astype(np.int64), batch[:, 2])
         if csv_file is not None and limit > written_until:
             # (updates hall_now and analog_now to the values at `limit`)
-            _write_csv_rows(csv_file, written_until, limit, batch, hall_now, analog_now if settings.currents else None, decim, fs, tfmt)
+            _write_csv_rows(
+                csv_file,
+                written_until,
+                limit,
+                batch,
+                hall_now,
+                analog_now if settings.currents else None,
+                decim,
+                fs,
+                tfmt,
+            )
         written_until = max(written_until, limit)
         # truth rows whose ideal instant is written
         if carry_truth:
@@ -275,10 +317,14 @@ def _chunk_edges(config, traj: Trajectory, ta: float, tb: float, settings: Expor
     for a, b, r0, r1 in traj.pieces(ta, tb):
         current = tables.mean_abs_current_a(0.5 * (r0 + r1)) if tables is not None else 0.0
         ops.append(OperatingPoint(duration_s=b - a, speed_rpm=r0, end_speed_rpm=r1, mean_phase_current_a=current))
-    return simulate_edges(config, ops, seed=_seed(settings.seed, 1, chunk), start_angle_deg_e=float(traj.angle_deg_e(ta)), start_time_s=ta)
+    return simulate_edges(
+        config, ops, seed=_seed(settings.seed, 1, chunk), start_angle_deg_e=float(traj.angle_deg_e(ta)), start_time_s=ta
+    )
 
 
-def _write_csv_rows(f, k_from: int, k_to: int, batch: np.ndarray, hall_now: list[int], analog_now, decim: int, fs: float, tfmt: str) -> None:
+def _write_csv_rows(
+    f, k_from: int, k_to: int, batch: np.ndarray, hall_now: list[int], analog_now, decim: int, fs: float, tfmt: str
+) -> None:
     """Samples k_from..k_to-1 of the signals the VCD describes (zero-order hold), in blocks."""
     block = 1 << 18
     decimals = int(tfmt[2:-1])
@@ -351,8 +397,15 @@ def _write_truth(f, rows: np.ndarray, pin_of_n: dict, fs: float) -> None:
         f.write("\n".join(lines) + "\n")
 
 
-def _write_meta(out: Path, s: ExportSettings, res: ExportResult, timescale: Timescale, ticks_per_sample: int, analog_rate: float,
-                tables: CurrentTables | None) -> None:
+def _write_meta(
+    out: Path,
+    s: ExportSettings,
+    res: ExportResult,
+    timescale: Timescale,
+    ticks_per_sample: int,
+    analog_rate: float,
+    tables: CurrentTables | None,
+) -> None:
     from importlib import metadata
 
     try:
@@ -364,8 +417,11 @@ def _write_meta(out: Path, s: ExportSettings, res: ExportResult, timescale: Time
     top_rpm = max(p[1] for p in s.breakpoints)
     meta = {
         "format": FORMAT,
-        "files": {"stimulus_vcd": "stimulus.vcd", "stimulus_csv": "stimulus.csv" if res.csv_bytes is not None else None,
-                  "truth": "truth.csv"},
+        "files": {
+            "stimulus_vcd": "stimulus.vcd",
+            "stimulus_csv": "stimulus.csv" if res.csv_bytes is not None else None,
+            "truth": "truth.csv",
+        },
         "csv_skipped": res.csv_skipped_reason or None,
         "sample_rate_hz": fs,
         "vcd_timescale": str(timescale),
@@ -375,19 +431,35 @@ def _write_meta(out: Path, s: ExportSettings, res: ExportResult, timescale: Time
         "start_angle_deg_e": s.start_angle_deg_e,
         "profile_t_rpm": [list(p) for p in s.breakpoints],
         "pole_pairs": pp,
-        "hall": {"names": list(HALL_NAMES), "high": 1, "edge_quantisation": "nearest sample",
-                 "max_abs_timing_error_s": 0.5 / fs,
-                 "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * top_rpm * 6.0 * pp},
-        "currents": None if not s.currents else {
-            "names": list(CURRENT_NAMES), "unit": "V", "v_per_a": s.current_v_per_a, "zero_v": s.current_zero_v,
-            "gain_error": list(s.config.current_sensor.gain_error), "offset_a": list(s.config.current_sensor.offset_a),
-            "noise_rms_a": s.config.current_sensor.noise_rms_a, "update_rate_hz": analog_rate, "lsb_v": s.analog_lsb_v,
-            "model": "electrical plant, ideal commutation, at the duty of its torque balance, tabulated per mechanical angle at a speed grid (quasi-static)",
+        "hall": {
+            "names": list(HALL_NAMES),
+            "high": 1,
+            "edge_quantisation": "nearest sample",
+            "max_abs_timing_error_s": 0.5 / fs,
+            "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * top_rpm * 6.0 * pp,
+        },
+        "currents": None
+        if not s.currents
+        else {
+            "names": list(CURRENT_NAMES),
+            "unit": "V",
+            "v_per_a": s.current_v_per_a,
+            "zero_v": s.current_zero_v,
+            "gain_error": list(s.config.current_sensor.gain_error),
+            "offset_a": list(s.config.current_sensor.offset_a),
+            "noise_rms_a": s.config.current_sensor.noise_rms_a,
+            "update_rate_hz": analog_rate,
+            "lsb_v": s.analog_lsb_v,
+            "model": "electrical plant, ideal commutation, at the duty of its torque balance, "
+            "tabulated per mechanical angle at a speed grid (quasi-static)",
             "grid_rpm": tables.speeds_rpm.tolist() if tables is not None else [],
         },
-        "truth": {"columns": list(TRUTH_COLUMNS),
-                  "meaning": "one row per ideal commutation: the rotor reaches theta_e_deg = 60 n (sector n mod 6 begins) at t_ideal_s; "
-                             "speed_rpm is the true speed then; t_hall_pin_s is when the Hall change announcing it is on the pins"},
+        "truth": {
+            "columns": list(TRUTH_COLUMNS),
+            "meaning": "one row per ideal commutation: the rotor reaches theta_e_deg = 60 n "
+            "(sector n mod 6 begins) at t_ideal_s; "
+            "speed_rpm is the true speed then; t_hall_pin_s is when the Hall change announcing it is on the pins",
+        },
         "plant": s.config.to_dict(),
         "plant_sha256_16": s.config.config_hash(),
         "deviations": s.deviations,

@@ -19,9 +19,15 @@ def pytest_addoption(parser):
     group = parser.getgroup("hil", "BLDC pump controller HIL")
     group.addoption("--hil-signals-stimulus", default=None, metavar="DIR",
                     help="stimulus directory (hil signals export) your instrument played; with --hil-signals-capture")
-    group.addoption("--hil-signals-capture", default=None, metavar="FILE",
-                    help="gate capture (.vcd, .sr, .csv) of your controller playing it; replaces the virtual-controller loopback")
-    group.addoption("--hil-signals-mapping", default=None, metavar="TOML", help="channel mapping of the capture (docs/signals.md)")
+    group.addoption(
+        "--hil-signals-capture",
+        default=None,
+        metavar="FILE",
+        help="gate capture (.vcd, .sr, .csv) of your controller playing it; replaces the virtual-controller loopback",
+    )
+    group.addoption(
+        "--hil-signals-mapping", default=None, metavar="TOML", help="channel mapping of the capture (docs/signals.md)"
+    )
 
 
 @dataclass
@@ -33,7 +39,9 @@ class SignalRun:
 
 
 class SignalBench:
-    def __init__(self, config, seed: int, workdir: Path, stimulus: str | None, capture: str | None, mapping: str | None):
+    def __init__(
+        self, config, seed: int, workdir: Path, stimulus: str | None, capture: str | None, mapping: str | None
+    ):
         if bool(stimulus) != bool(capture):
             raise pytest.UsageError("--hil-signals-stimulus and --hil-signals-capture go together")
         self.config, self.seed, self.workdir = config, seed, workdir
@@ -48,7 +56,12 @@ class SignalBench:
 
         mapping = GateMapping.from_toml(self.mapping) if self.mapping else None
         if self.capture:
-            return SignalRun(Path(self.stimulus), Path(self.capture), f"capture {self.capture}", score(self.stimulus, self.capture, mapping))
+            return SignalRun(
+                Path(self.stimulus),
+                Path(self.capture),
+                f"capture {self.capture}",
+                score(self.stimulus, self.capture, mapping),
+            )
         from ..dut.link import InProcessLink
         from ..dut.virtual import Strategy, VirtualController
         from .export import ExportSettings, export
@@ -56,14 +69,29 @@ class SignalBench:
 
         config = self.config.with_effects(*effects)
         out = self.workdir / "stimulus"
-        export(out, ExportSettings(config=config, breakpoints=[(0.0, speed_rpm)], duration_s=duration_s, sample_rate_hz=sample_rate_hz,
-                                   seed=self.seed, write_csv=False))
+        export(
+            out,
+            ExportSettings(
+                config=config,
+                breakpoints=[(0.0, speed_rpm)],
+                duration_s=duration_s,
+                sample_rate_hz=sample_rate_hz,
+                seed=self.seed,
+                write_csv=False,
+            ),
+        )
         link = InProcessLink(VirtualController(config.motor, strategy=Strategy.RAW if strategy is None else strategy,
                                                speed_setpoint_rpm=speed_rpm))
         if corrections is not None:
             link.download_calibration(corrections)
         gates = self.workdir / "gates.vcd"
-        run_loopback(out, link, gates, pwm_frequency_hz=config.inverter.pwm_frequency_hz, capture_tick_s=config.compile().timer_tick_s)
+        run_loopback(
+            out,
+            link,
+            gates,
+            pwm_frequency_hz=config.inverter.pwm_frequency_hz,
+            capture_tick_s=config.compile().timer_tick_s,
+        )
         return SignalRun(out, gates, "virtual controller loopback", score(out, gates, mapping))
 
 
@@ -73,5 +101,11 @@ def hil_signals(pytestconfig, hil_plant_config, hil_seed, tmp_path) -> SignalBen
     -> SignalRun (stimulus, gate capture, score against truth.csv). The virtual controller plays
     the stimulus unless --hil-signals-stimulus/--hil-signals-capture name a bench capture."""
     opt = pytestconfig.getoption
-    return SignalBench(hil_plant_config, hil_seed, tmp_path, opt("--hil-signals-stimulus"), opt("--hil-signals-capture"),
-                       opt("--hil-signals-mapping"))
+    return SignalBench(
+        hil_plant_config,
+        hil_seed,
+        tmp_path,
+        opt("--hil-signals-stimulus"),
+        opt("--hil-signals-capture"),
+        opt("--hil-signals-mapping"),
+    )

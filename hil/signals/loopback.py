@@ -81,10 +81,15 @@ class GateTimeline:
             return
         period = 1.0 / self.pwm_frequency_hz
         hi, lo = SECTOR_PHASES[self.sector]
-        k = np.arange(math.floor((self.since_s - self.carrier_origin_s) / period), math.ceil((until_s - self.carrier_origin_s) / period) + 1)
+        k = np.arange(
+            math.floor((self.since_s - self.carrier_origin_s) / period),
+            math.ceil((until_s - self.carrier_origin_s) / period) + 1,
+        )
         rise = self.carrier_origin_s + k * period
         t = np.concatenate([rise, rise + self.duty * period])
-        state = np.concatenate([np.full(k.size, (1 << (2 * lo + 1)) | (1 << (2 * hi))), np.full(k.size, 1 << (2 * lo + 1))])
+        state = np.concatenate(
+            [np.full(k.size, (1 << (2 * lo + 1)) | (1 << (2 * hi))), np.full(k.size, 1 << (2 * lo + 1))]
+        )
         keep = (t > self.since_s) & (t < until_s)
         order = np.argsort(t[keep], kind="stable")
         self._emit(t[keep][order], state[keep][order])
@@ -181,7 +186,9 @@ def run_loopback(stimulus_dir: str | Path, link, out_vcd: str | Path, pwm_freque
             levels[x] = v
             t_pin = int(ticks[i]) * scale
             t_cap = math.floor(t_pin / capture_tick_s + 1e-9) * capture_tick_s if capture_tick_s > 0 else t_pin
-            current = float(np.mean([abs((ana_at[k][n] - cur["zero_v"]) / cur["v_per_a"]) for k in range(3)])) if cur else 0.0
+            current = (
+                float(np.mean([abs((ana_at[k][n] - cur["zero_v"]) / cur["v_per_a"]) for k in range(3)])) if cur else 0.0
+            )
             cycle_current = None
             if cur and t_pin > edge_t_s:
                 cycle_current = (float(running[i]) - edge_integral_as) / (t_pin - edge_t_s)

@@ -24,7 +24,9 @@ def parse_profile(text: str) -> list[tuple[float, float]]:
         except ValueError:
             raise SignalError(f"--profile item {i + 1}", f"{item.strip()!r} is not t:rpm") from None
         if not (math.isfinite(t) and math.isfinite(rpm)) or rpm < 0:
-            raise SignalError(f"--profile item {i + 1}", f"{item.strip()!r}: time and speed must be finite, speed >= 0 rpm")
+            raise SignalError(
+                f"--profile item {i + 1}", f"{item.strip()!r}: time and speed must be finite, speed >= 0 rpm"
+            )
         if points and t <= points[-1][0]:
             raise SignalError(f"--profile item {i + 1}", f"time {t} s does not increase (previous {points[-1][0]} s)")
         points.append((t, rpm))
@@ -96,5 +98,13 @@ class Trajectory:
         cuts = np.concatenate([[ta], self.t0[(self.t0 > ta) & (self.t0 < tb)], [tb]])
         rpm = self.speed_rpm(cuts)
         # the speed at a breakpoint from the left may differ only if the profile jumps; it does not
-        return [(float(cuts[k]), float(cuts[k + 1]), float(rpm[k]), float(self.speed_rpm(np.nextafter(cuts[k + 1], cuts[k]))))
-                for k in range(cuts.size - 1) if cuts[k + 1] > cuts[k]]
+        return [
+            (
+                float(cuts[k]),
+                float(cuts[k + 1]),
+                float(rpm[k]),
+                float(self.speed_rpm(np.nextafter(cuts[k + 1], cuts[k]))),
+            )
+            for k in range(cuts.size - 1)
+            if cuts[k + 1] > cuts[k]
+        ]

@@ -71,14 +71,24 @@ class Timescale:
                 ticks = period / (mult * _UNITS[unit])
                 if ticks >= 1 - 1e-9 and abs(ticks - round(ticks)) <= 1e-9 * ticks:
                     return cls(mult, unit), int(round(ticks))
-        raise SignalError("sample_rate_hz", f"{sample_rate_hz!r} Hz has no sample period that is a whole number of femtoseconds")
+        raise SignalError(
+            "sample_rate_hz", f"{sample_rate_hz!r} Hz has no sample period that is a whole number of femtoseconds"
+        )
 
 
 class VcdWriter:
     """Streams a VCD: declare variables, give the initial values, then batches of changes."""
 
-    def __init__(self, path: str | Path, timescale: Timescale, wires: list[str], reals: list[str] = (), scope: str = "hil",
-                 comment: str = "", real_format: str = "%.6g"):
+    def __init__(
+        self,
+        path: str | Path,
+        timescale: Timescale,
+        wires: list[str],
+        reals: list[str] = (),
+        scope: str = "hil",
+        comment: str = "",
+        real_format: str = "%.6g",
+    ):
         self.path = Path(path)
         self._f = open(self.path, "w", encoding="ascii", newline="\n")
         self.names = list(wires) + list(reals)
@@ -219,7 +229,9 @@ class VcdReader:
                     scope.pop()
             elif key == "var":
                 if len(body) < 4:
-                    raise SignalError(f"{where}, line {line}", f"$var needs type, size, id and name, got {' '.join(body)!r}")
+                    raise SignalError(
+                        f"{where}, line {line}", f"$var needs type, size, id and name, got {' '.join(body)!r}"
+                    )
                 name = body[3] + ("".join(body[4:]) if len(body) > 4 else "")
                 try:
                     size = int(body[1])
@@ -233,9 +245,14 @@ class VcdReader:
         """A variable by reference name, bit-indexed name or dotted path; the name must be unique."""
         hits = [v for v in self.variables if name in (v.name, v.path) or v.path.endswith("." + name)]
         if not hits:
-            raise SignalError(str(self.path), f"no variable {name!r} (have: {', '.join(v.path for v in self.variables)})")
+            raise SignalError(
+                str(self.path), f"no variable {name!r} (have: {', '.join(v.path for v in self.variables)})"
+            )
         if len({v.code for v in hits}) > 1:
-            raise SignalError(str(self.path), f"variable name {name!r} is ambiguous ({', '.join(v.path for v in hits)}); give the dotted path")
+            raise SignalError(
+                str(self.path),
+                f"variable name {name!r} is ambiguous ({', '.join(v.path for v in hits)}); give the dotted path",
+            )
         return hits[0]
 
     def changes(self, names: list[str], chunk: int = 1 << 20) -> Iterator[tuple[np.ndarray, np.ndarray, np.ndarray]]:
@@ -280,10 +297,14 @@ class VcdReader:
         seq = np.concatenate([[self._last_t], ts_val])
         back = np.nonzero(np.diff(seq) < 0)[0]
         if back.size:
-            raise SignalError(where, f"timestamp #{int(seq[back[0] + 1])} goes back in time (after #{int(seq[back[0]])})")
+            raise SignalError(
+                where, f"timestamp #{int(seq[back[0] + 1])} goes back in time (after #{int(seq[back[0]])})"
+            )
         last_ts = np.where(is_ts, np.arange(n), -1)
         np.maximum.accumulate(last_ts, out=last_ts)
-        time_of = np.where(last_ts >= 0, np.concatenate([ts_val, [0]])[np.searchsorted(ts_pos, np.maximum(last_ts, 0))], self._t)
+        time_of = np.where(
+            last_ts >= 0, np.concatenate([ts_val, [0]])[np.searchsorted(ts_pos, np.maximum(last_ts, 0))], self._t
+        )
         pos, slot, val = [], [], []
         for code, ss in slots.items():
             for prefix, v in ((b"1", 1.0), (b"0", 0.0), (b"x", 0.0), (b"X", 0.0), (b"z", 0.0), (b"Z", 0.0)):
@@ -294,8 +315,11 @@ class VcdReader:
                     val.append(np.full(hit.size, v))
             hit = np.nonzero(after_vec & (arr == code))[0]
             if hit.size:
-                values = np.array([_vector_value(tokens[i - 1], where) for i in hit]) if hit.size < 64 or first[hit[0] - 1] not in (b"r", b"R") \
+                values = (
+                    np.array([_vector_value(tokens[i - 1], where) for i in hit])
+                    if hit.size < 64 or first[hit[0] - 1] not in (b"r", b"R")
                     else _reals(arr[hit - 1], tokens, hit, where)
+                )
                 for k in ss:
                     pos.append(hit)
                     slot.append(np.full(hit.size, k))
@@ -307,7 +331,11 @@ class VcdReader:
             return np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.int64), np.zeros(0)
         p = np.concatenate(pos)
         order = np.argsort(p, kind="stable")
-        return time_of[p[order]].astype(np.int64), np.concatenate(slot)[order].astype(np.int64), np.concatenate(val)[order]
+        return (
+            time_of[p[order]].astype(np.int64),
+            np.concatenate(slot)[order].astype(np.int64),
+            np.concatenate(val)[order],
+        )
 
     def _slow(self, tokens: list[bytes], slots: dict[bytes, list[int]], where: str):
         """A block token by token (comments inside the value changes)."""
