@@ -617,34 +617,28 @@ KNOB_SHOWS = {
 }
 _PAIR_KNOBS = {
     frozenset({"conditioning_delay", "armature_reaction"}): (
-        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed and "
-        "stays, "
-        "armature reaction follows the phase current and moves; under a pump load alone speed and current rise "
-        "together."
+        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed "
+        "and stays, armature reaction follows the phase current and moves; under a pump load alone speed and "
+        "current rise together."
     ),
     frozenset({"hysteresis", "installation_offset"}): (
-        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation offset is "
-        "a fixed "
-        "place on the stator and changes sign in the trailing frame when the rotor reverses."
+        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation "
+        "offset is a fixed place on the stator and changes sign in the trailing frame when the rotor reverses."
     ),
     frozenset({"conditioning_delay", "timer_quantization"}): (
-        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising with "
-        "falling "
-        "edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and differs between "
-        "the edges."
+        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising "
+        "with falling edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and "
+        "differs between the edges."
     ),
     frozenset({"winding_temperature", "magnet_temperature"}): (
-        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF "
-        "change "
-        "(magnet temperature) follows the speed; under a pump load alone current and speed move together."
+        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF"
+        " change (magnet temperature) follows the speed; under a pump load alone current and speed move together."
     ),
     frozenset({"pole_offset", "eccentricity"}): (
-        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid over "
-        "the turn "
-        "(two parameters), a pole offset any per-pole pattern; only the pattern's departure from a sinusoid, resolved "
-        "by more "
-        "turns, separates them, and while they are equal within noise the eccentricity is kept for having fewer "
-        "parameters."
+        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid"
+        " over the turn (two parameters), a pole offset any per-pole pattern; only the pattern's departure from a"
+        " sinusoid, resolved by more turns, separates them, and while they are equal within noise the "
+        "eccentricity is kept for having fewer parameters."
     ),
 }
 
