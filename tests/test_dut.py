@@ -180,3 +180,15 @@ def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, curr
         if not f.keeps_everything
     ]
     assert commands_as_received(commands, epoch) == via_bytes
+
+
+def test_device_epoch_advances_on_a_timer_wrap_and_not_on_a_bad_stamp():
+    """Both protocol faces unwrap the 32-bit capture stamp with next_epoch: a step back by more
+    than half the range is a wrap (one epoch more), a small step back is a bad stamp (none)."""
+    from hil.dut.messages import WRAP, next_epoch
+
+    assert next_epoch(0, None, 5) == 0
+    assert next_epoch(0, WRAP - 10, 3) == WRAP
+    assert next_epoch(WRAP, 1000, 990) == WRAP
+    assert next_epoch(0, WRAP // 2, 0) == 0  # exactly half the range back: not past the half, no wrap
+    assert next_epoch(0, WRAP // 2 + 1, 0) == WRAP

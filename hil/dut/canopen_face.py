@@ -23,7 +23,15 @@ from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
+from .messages import (
+    NO_CURRENT,
+    CommandMessage,
+    CycleCurrentMessage,
+    EdgeMessage,
+    encode_reply,
+    next_epoch,
+    with_cycle_current,
+)
 from .od import EDS_PATH
 from .virtual import CalibrationTableError, Fault, VirtualController
 
@@ -379,12 +387,7 @@ class CanopenDevice:
         except ValueError:
             return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
         with self._lock:
-            if (
-                self._last_ticks is not None
-                and msg.ticks < self._last_ticks
-                and self._last_ticks - msg.ticks > (1 << 31)
-            ):
-                self._epoch += 1 << 32  # the capture timer wrapped (a small step back is a bad stamp, not a wrap)
+            self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
             self._last_edge = msg
             cycle = self._cycle.current_ma if self._cycle_pending and self._cycle.seq == msg.seq else None

@@ -27,6 +27,14 @@ DUTY_SCALE = 65534.0  # duty 1.0 -> 65534; 0xFFFF means "keep"
 _FMT = "<IHBB"
 
 
+def next_epoch(epoch: int, last_ticks: int | None, ticks: int) -> int:
+    """The device's capture-timer epoch for an edge stamped ``ticks`` after one stamped ``last_ticks``:
+    a step back by more than half the 32-bit range is a wrap; a small step back is a bad stamp, not a wrap."""
+    if last_ticks is not None and ticks < last_ticks and last_ticks - ticks > WRAP // 2:
+        return epoch + WRAP
+    return epoch
+
+
 def _ticks(t_s: float) -> int:
     """Capture-timer ticks of an instant, before the 32-bit wrap."""
     return int(round(t_s / TICK_S))

@@ -22,7 +22,15 @@ from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
 from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import NO_CURRENT, CommandMessage, CycleCurrentMessage, EdgeMessage, encode_reply, with_cycle_current
+from .messages import (
+    NO_CURRENT,
+    CommandMessage,
+    CycleCurrentMessage,
+    EdgeMessage,
+    encode_reply,
+    next_epoch,
+    with_cycle_current,
+)
 from .tcp import close_handlers
 from .virtual import CalibrationTableError, Fault, VirtualController
 
@@ -424,12 +432,7 @@ class ModbusDevice:
                 msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)))
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
-            if (
-                self._last_ticks is not None
-                and msg.ticks < self._last_ticks
-                and self._last_ticks - msg.ticks > (1 << 31)
-            ):
-                self._epoch += 1 << 32
+            self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
             cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
             frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[
