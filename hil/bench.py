@@ -12,10 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant_models import PlantConfig, Simulation
-from plant_models.simulation import Command
 
+from .contract import Command
 from .dut.link import ControllerLink
-
 
 #: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,
 #: which moves fast right after a commutation, and a coarser step would blur it

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.hall import SENSORS
+from hil.motor import steady_state
 from plant_models import RawHallCommutation, Simulation, paper_bench
-from plant_models.hall import SENSORS
-from plant_models.plant import steady_state
 
 from .recording import Segment, motor_meta, recording_from_edges, write_recording
 

@@ -18,6 +18,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.units import rpm_to_deg_e_per_s
+
 FORMAT = "hil-recording/1"
 SENSOR_NAMES = ("A", "B", "C")
 EDGE_NAMES = ("fall", "rise")
@@ -551,7 +553,8 @@ def recording_from_edges(
     keep = edges.segment >= 0
     e = edges.take(keep)
     # true angle at the timer's capture instant (the reference encoder's view)
-    w_e_deg_s = np.abs(e.speed_rpm) * 6.0 * pp  # the electrical plant logs signed speed, the kinematic one magnitudes
+    # the electrical plant logs signed speed, the kinematic one magnitudes
+    w_e_deg_s = rpm_to_deg_e_per_s(np.abs(e.speed_rpm), pp)
     theta_cap = e.theta_e_capture_deg - e.direction * w_e_deg_s * (e.t_conditioned_s - e.t_capture_s)
     angle_mech = np.mod(theta_cap / pp, 360.0)
     angle_mech[angle_mech >= 360.0] = 0.0
@@ -635,9 +638,9 @@ def record_electrical(
     mean |i| over the three phases, as the format defines it."""
     import dataclasses
 
+    from hil.motor import steady_state
     from plant_models import RawHallCommutation, Simulation
     from plant_models.edgelog import EdgeLog
-    from plant_models.plant import steady_state
 
     cp = config.compile()
     true_motor = dataclasses.replace(

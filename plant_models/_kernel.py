@@ -21,6 +21,16 @@ import math
 import numpy as np
 from numba import njit
 
+from hil.hall import (
+    BEMF_ZERO_DEG_E,
+    SECTOR_HIGH_PHASE,
+    SECTOR_LOW_PHASE,
+    SECTOR_OF_CODE,
+    SENSOR_POSITION_DEG_E,
+    trapezoid,
+)
+from hil.units import rad_per_s_to_rpm
+
 # parameter vector layout
 P_POLE_PAIRS, P_R, P_L, P_KE, P_FLAT, P_J, P_FRICTION, P_FAN, P_VDC, P_FPWM = range(10)
 P_HYST, P_ARM_SLOPE, P_RISE, P_FALL, P_JIT_T, P_JIT_A, P_JIT_RHO, P_TICK = range(10, 18)
@@ -71,11 +81,6 @@ N_IDEAL_COLS = 4  # t, sensor, boundary, direction
 N_SAMPLE_COLS = 15  # t, i_a..c, u_a..c, speed_rpm, theta_m_deg, duty, sector, e_a..c, torque
 MAX_PENDING = 32
 
-SENSOR_POS = np.array([0.0, 120.0, 240.0])
-BEMF_ZERO = np.array([90.0, 210.0, 330.0])
-SECTOR_HIGH = np.array([2, 2, 0, 0, 1, 1])
-SECTOR_LOW = np.array([0, 1, 1, 2, 2, 0])
-SECTOR_OF_CODE = np.array([-1, 5, 3, 4, 1, 0, 2, -1])
 RAD2DEG = 180.0 / math.pi
 
 # every function the step loop calls: no allocation, no reference counting (module docstring)
@@ -83,20 +88,8 @@ _kernel_jit = njit(cache=True, _nrt=False)
 _kernel_inline = njit(cache=True, inline="always", _nrt=False)
 
 
-@_kernel_inline
-def _trap(phi, flat):
-    half = (180.0 - flat) * 0.5
-    x = phi + 90.0
-    x = x - 360.0 * math.floor(x / 360.0) - 90.0
-    if x < 90.0:
-        v = x / half
-    else:
-        v = (180.0 - x) / half
-    if v > 1.0:
-        return 1.0
-    if v < -1.0:
-        return -1.0
-    return v
+_trap = _kernel_inline(trapezoid)
+_rad_per_s_to_rpm = _kernel_inline(rad_per_s_to_rpm)
 
 
 @_kernel_inline
@@ -195,7 +188,7 @@ def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
     n_poles = switch_off.shape[1]
     kf = m + 1
     km = m
-    base = SENSOR_POS[x]
+    base = SENSOR_POSITION_DEG_E[x]
     kept = st[S_FWD_TARGET + x] if crossed > 0 else st[S_REV_TARGET + x]
     st[S_FWD_TARGET + x] = (
         180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
@@ -290,8 +283,8 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     for x in range(3):
         driven[x] = 0
     if sector >= 0:
-        hi = SECTOR_HIGH[sector]
-        lo = SECTOR_LOW[sector]
+        hi = SECTOR_HIGH_PHASE[sector]
+        lo = SECTOR_LOW_PHASE[sector]
         if drive_dir < 0:
             hi, lo = lo, hi
         d = duty - p[P_DEAD] * p[P_FPWM] * (1.0 if i[hi] >= 0.0 else -1.0)
@@ -354,7 +347,7 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     i[1] = st[S_IB]
     i[2] = st[S_IC]
     for x in range(3):
-        f[x] = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+        f[x] = _trap(the - BEMF_ZERO_DEG_E[x], p[P_FLAT])
         e[x] = ke * w0 * f[x]
     sector = ist[I_SECTOR]
     un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
@@ -510,7 +503,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             # a capture that jitter placed before the physical switch is emitted at the switch
             # (causality); its true angle is the rotor's at the capture instant, not now
             row[E_THETA_CAPTURE] = pp * (st[S_THETA_M] - st[S_OMEGA_M] * (t - t_cond)) * RAD2DEG
-            row[E_SPEED_RPM] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            row[E_SPEED_RPM] = _rad_per_s_to_rpm(st[S_OMEGA_M])
             ist[I_N_EDGES] += 1
             x = int(row[E_SENSOR])
             ist[I_SEEN + x] = 1 if row[E_RISING] > 0.5 else 0
@@ -544,7 +537,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             i3[2] = st[S_IC]
             te = 0.0
             for x in range(3):
-                f = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+                f = _trap(the - BEMF_ZERO_DEG_E[x], p[P_FLAT])
                 e_now[x] = p[P_KE] * st[S_OMEGA_M] * f
                 te += p[P_KE] * f * i3[x]
             _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
@@ -556,7 +549,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             r[4] = u_now[0]
             r[5] = u_now[1]
             r[6] = u_now[2]
-            r[7] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            r[7] = _rad_per_s_to_rpm(st[S_OMEGA_M])
             r[8] = st[S_THETA_M] * RAD2DEG
             r[9] = st[S_DUTY]
             r[10] = ist[I_SECTOR]
@@ -646,8 +639,8 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         # commit: ideal edges (perfect sensor, perfect magnet)
         for x in range(3):
             m = ist[I_IDEAL_REGION + x]
-            tf = 180.0 * (m + 1) + SENSOR_POS[x]
-            trv = 180.0 * m + SENSOR_POS[x]
+            tf = 180.0 * (m + 1) + SENSOR_POSITION_DEG_E[x]
+            trv = 180.0 * m + SENSOR_POSITION_DEG_E[x]
             d = _crossed(th1, tf, trv, eps_f, eps_r)
             if d == 0:
                 continue

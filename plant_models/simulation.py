@@ -7,22 +7,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.contract import Command
+from hil.hall import SENSOR_POSITION_DEG_E
+from hil.params import ConfigError
+from hil.units import rad_per_s_to_rpm, rpm_to_rad_per_s
+
 from . import _kernel as K
 from .edgelog import EdgeLog, join_ideal
-from .hall import SENSOR_POSITION_DEG_E
-from .params import ConfigError
 from .plant import CompiledPlant, PlantConfig
-
-
-@dataclass(frozen=True)
-class Command:
-    """A commutation command for the plant: from ``at_s`` on, energise ``sector`` (0..5, -1 = all
-    switches off) with ``duty`` (None = keep) and torque ``direction`` (+1 / -1, None = keep)."""
-
-    at_s: float
-    sector: int | None = None
-    duty: float | None = None
-    direction: int | None = None
 
 
 class RawHallCommutation:
@@ -144,7 +136,7 @@ class Simulation:
         st = np.zeros(K.N_FSTATE)
         ist = np.zeros(K.N_ISTATE, dtype=np.int64)
         st[K.S_THETA_M] = math.radians(initial_angle_deg_m)
-        st[K.S_OMEGA_M] = direction * initial_speed_rpm * 2 * math.pi / 60  # a magnitude, turning the driven way
+        st[K.S_OMEGA_M] = direction * rpm_to_rad_per_s(initial_speed_rpm)  # a magnitude, turning the driven way
         st[K.S_DUTY] = duty
         st[K.S_NEXT_SAMPLE] = 0.0
         st[K.S_SAMPLE_T0] = 0.0
@@ -197,7 +189,7 @@ class Simulation:
 
     @property
     def speed_rpm(self) -> float:
-        return float(self.st[K.S_OMEGA_M] * 60 / (2 * math.pi))
+        return float(rad_per_s_to_rpm(self.st[K.S_OMEGA_M]))
 
     @property
     def sector(self) -> int:

@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from hil.motor import steady_state
 from hil.recording import Recording, record_kinematic
 from plant_models import PlantConfig
 from plant_models.kinematic import OperatingPoint
-from plant_models.plant import steady_state
 
 
 @dataclass(frozen=True)

@@ -17,13 +17,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from hil.hall import SENSOR_POSITION_DEG_E
 from hil.recording import Recording
-from plant_models.hall import SENSOR_POSITION_DEG_E
+from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 from .corrections import SENSORS, Corrections
 from .steps import (
-    absolute_deviation, edge_angles_per_turn, line_bemf_absolute_deviation, pole_offsets, relative_deviation,
-    weighted_over_speeds, wrap180,
+    absolute_deviation,
+    edge_angles_per_turn,
+    line_bemf_absolute_deviation,
+    pole_offsets,
+    relative_deviation,
+    weighted_over_speeds,
+    wrap180,
 )
 
 
@@ -50,7 +56,7 @@ def segment_speed_deg_e_s(rec: Recording) -> np.ndarray:
             t = rec.t_s[sel]
             out[i] = abs(np.degrees(ang[-1] - ang[0]) / (t[-1] - t[0])) * p
         else:
-            out[i] = seg.speed_rpm * 6.0 * p
+            out[i] = rpm_to_deg_e_per_s(seg.speed_rpm, p)
     return out
 
 
@@ -176,7 +182,7 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
         )
         for k in seg_used:
             sel = rec.segment == k
-            table["speed_rpm"].append(float(w_seg[k] / (6.0 * p)))
+            table["speed_rpm"].append(float(deg_e_per_s_to_rpm(w_seg[k], p)))
             for pol, key in ((True, "rise_deg_e"), (False, "fall_deg_e")):
                 s = sel & (rec.rising == pol)
                 table[key].append(float(np.mean(err[s] - static[s])) if s.any() else float("nan"))

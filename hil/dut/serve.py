@@ -15,8 +15,9 @@ import threading
 
 from plant_models import PRESETS
 
+from ..contract import Strategy
+from ..controller.virtual import VirtualController
 from .socketcand import SocketcandLimits
-from .virtual import Strategy, VirtualController
 
 
 def serve(

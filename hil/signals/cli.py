@@ -112,8 +112,9 @@ def cmd_score(args) -> int:
 def cmd_loopback(args) -> int:
     from plant_models import PlantConfig
 
-    from ..dut.link import InProcessLink
-    from ..dut.virtual import Strategy, VirtualController
+    from ..contract import Strategy
+    from ..controller.virtual import VirtualController
+    from ..dut.in_process import InProcessLink
     from .loopback import run_loopback
 
     meta = json.loads((Path(args.stimulus) / "meta.json").read_text())

@@ -23,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.units import rpm_to_deg_e_per_s
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
 from plant_models.kinematic import OperatingPoint, simulate_edges
@@ -168,7 +169,7 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
 
     # Hall levels at t = 0 from the first edge of each sensor (its opposite); a sensor that never
     # switches keeps its ideal level
-    from plant_models.hall import hall_state
+    from hil.hall import hall_state
 
     levels = hall_state(settings.start_angle_deg_e).astype(np.int64).tolist()
     first = _chunk_edges(config, traj, 0, min(CHUNK_S, settings.duration_s), settings, tables)
@@ -436,7 +437,7 @@ def _write_meta(
             "high": 1,
             "edge_quantisation": "nearest sample",
             "max_abs_timing_error_s": 0.5 / fs,
-            "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * top_rpm * 6.0 * pp,
+            "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * rpm_to_deg_e_per_s(top_rpm, pp),
         },
         "currents": None
         if not s.currents

@@ -23,6 +23,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.units import rpm_to_deg_e_per_s
+
 from .capture import Capture, GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S, Extracted, extract
 from .errors import SignalError
@@ -40,7 +42,7 @@ class Truth:
 
     @property
     def omega_e_deg_s(self) -> np.ndarray:
-        return self.speed_rpm * 6.0 * self.pole_pairs
+        return rpm_to_deg_e_per_s(self.speed_rpm, self.pole_pairs)
 
     @classmethod
     def load(cls, stimulus_dir: str | Path) -> "Truth":

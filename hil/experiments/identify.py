@@ -13,10 +13,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import OracleCommutation, PlantConfig, Simulation
-from plant_models.plant import steady_state
 
-from .model import MotorModel
+from ..predictors.model import MotorModel
 
 
 @dataclass
@@ -48,7 +48,7 @@ def identify(
 ) -> IdentificationResult:
     """Run the identification experiments on the plant (a bench would record the same) and fit."""
     m = config.motor
-    from plant_models.hall import SECTOR_PHASES
+    from hil.hall import SECTOR_PHASES
 
     # K_T: regression of the conducting pair's voltage on current and speed over steady points
     rows, rhs, points = [], [], []

@@ -16,10 +16,10 @@ import numpy as np
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
-from ..dut.link import filter_vector, with_filter_vector
-from .model import MotorModel
-from .predictors import SageHusaPredictor
-from .scenario import SETPOINTS_RPM, edge_inputs, scenario_plant
+from ..contract import filter_vector, with_filter_vector
+from ..predictors.model import MotorModel
+from ..predictors.predictors import SageHusaPredictor
+from .table5 import SETPOINTS_RPM, edge_inputs, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
 HOLD_S = 0.4
@@ -58,9 +58,10 @@ class ClosedLoopResult:
 
 def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, filter_settings=None) -> LinkResult:
     """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``)."""
-    from plant_models.plant import steady_state
+    from hil.motor import steady_state
 
-    from ..dut.virtual import Strategy, VirtualController
+    from ..contract import Strategy
+    from ..controller.virtual import VirtualController
 
     link.reset()
     # the settings are written every time (a controller keeps the last ones written); the offline

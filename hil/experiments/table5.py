@@ -14,15 +14,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import PlantConfig, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog
-from plant_models.plant import steady_state
 
-from ..calibration import Corrections
 from ..calibration.campaign import station_corrections
-from ..calibration.corrections import corrected_edge_times
-from ..commutation import HallCommutation, SpeedPI
+from ..calibration.corrections import Corrections, corrected_edge_times
+from ..controller.commutation import HallCommutation, SpeedPI
 
 SETPOINTS_RPM = tuple(float(v) for v in np.linspace(5000.0, 10000.0, 7))
 #: paper Table 5 (percent): regulation-stage speed MAPE, max overshoot, constant-stage MAPE, commutation-time MAPE

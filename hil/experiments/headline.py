@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import Simulation, paper_bench
-from plant_models.plant import steady_state
 
-from ..commutation import HallCommutation, SpeedPI
-from .campaign import CalibrationCampaign
-from .fit import fit_corrections
+from ..calibration.campaign import CalibrationCampaign
+from ..calibration.fit import fit_corrections
+from ..controller.commutation import HallCommutation, SpeedPI
 
 #: paper Section 4.3: after correction the speed MSE fell by 92.0 % and the mean phase current by 62.8 %
 PAPER_SPEED_MSE_REDUCTION = 0.920
