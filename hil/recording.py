@@ -9,6 +9,7 @@ the reader unless asked for.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from array import array
@@ -18,7 +19,11 @@ from typing import Any
 
 import numpy as np
 
+from hil.motor import steady_state
 from hil.units import rpm_to_deg_e_per_s
+from plant_models import RawHallCommutation, Simulation
+from plant_models.edgelog import EdgeLog
+from plant_models.kinematic import simulate_edges
 
 FORMAT = "hil-recording/1"
 SENSOR_NAMES = ("A", "B", "C")
@@ -598,8 +603,6 @@ def motor_meta(config) -> dict[str, Any]:
 
 def record_kinematic(config, profile, seed: int = 0, reference_angle: bool = True) -> Recording:
     """Simulate ``profile`` (OperatingPoints) in the kinematic mode and return it as a Recording."""
-    from plant_models.kinematic import simulate_edges
-
     edges = simulate_edges(config, profile, seed=seed)
     segments, t = [], 0.0
     for i, op in enumerate(profile):
@@ -636,11 +639,6 @@ def record_electrical(
     (currents through the current sensors; terminal voltages and speed with the given white
     measurement noise) as a Recording. Each segment's ``mean_phase_current_a`` is the measured
     mean |i| over the three phases, as the format defines it."""
-    import dataclasses
-
-    from hil.motor import steady_state
-    from plant_models import RawHallCommutation, Simulation
-    from plant_models.edgelog import EdgeLog
 
     cp = config.compile()
     true_motor = dataclasses.replace(

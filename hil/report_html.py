@@ -11,6 +11,7 @@ they are; nothing here judges.
 from __future__ import annotations
 
 import base64
+import hashlib
 import math
 import re
 from collections import Counter
@@ -73,8 +74,6 @@ def reason(text: str, limit: int = 220) -> markupsafe.Markup:
 
 def anchor(nodeid: str) -> str:
     """An HTML id for a test's evidence card (stable, unique per node id)."""
-    import hashlib
-
     return "t-" + hashlib.sha1(nodeid.encode()).hexdigest()[:10]
 
 

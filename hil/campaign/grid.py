@@ -21,8 +21,10 @@ import numpy as np
 
 from hil.motor import steady_state
 
-from ..stimulus import Stimulus
-
+from ..budgets import Budget, Budgets
+from ..controller.virtual import VirtualController
+from ..dut.in_process import InProcessLink
+from ..stimulus import Stimulus, run
 from .spec import CampaignSpec, point_fault, point_plant
 
 
@@ -75,11 +77,6 @@ def run_point(job: tuple) -> dict:
     stim_dict, budgets_table = job
     t0, cpu0 = time.perf_counter(), time.process_time()
     try:
-        from ..budgets import Budget, Budgets
-        from ..controller.virtual import VirtualController
-        from ..dut.in_process import InProcessLink
-        from ..stimulus import run
-
         stim = Stimulus(**stim_dict)
         budgets = Budgets({k: Budget(**v) for k, v in budgets_table.items()}, "campaign")
         link = InProcessLink(VirtualController(stim.plant_config().motor))

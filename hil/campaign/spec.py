@@ -49,7 +49,7 @@ from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 
 from ..budgets import Budgets
-from ..faults import WIRING_FAULTS
+from ..faults import WIRING_FAULTS, wiring_fault_from_dict
 from ..stimulus import DEFAULT_BUDGETS, METRICS, STRATEGIES
 
 #: operating-point axes (not effect parameters)
@@ -293,8 +293,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         raise ConfigError("fixed.effects", "an effect appears twice")
     fault = f.get("fault")
     if fault is not None:
-        from ..faults import wiring_fault_from_dict
-
         if kind != "fault_sequence":
             raise ConfigError("fixed.fault", 'a wiring fault needs [campaign] kind = "fault_sequence"')
         if isinstance(fault, str):

@@ -11,11 +11,13 @@ hil.contract.
 from __future__ import annotations
 
 import queue
+import socket
 import struct
 import threading
 import time
 from dataclasses import dataclass
 
+import can
 import canopen
 import numpy as np
 from canopen.sdo.client import SdoClient
@@ -36,7 +38,7 @@ from ..contract import (
     with_cycle_current,
     with_filter_vector,
 )
-from ..controller.virtual import VirtualController
+from ..controller.virtual import VirtualController, warm_up
 from .can_interfaces import unknown_can_interface
 from .link import LinkError, LinkTimeout, verify_calibration
 from .od import EDS_PATH
@@ -218,7 +220,6 @@ class CanopenDevice:
     ):
         if controller.motor.pole_pairs != 2:
             raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
-        from ..controller.virtual import warm_up
 
         warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
@@ -466,9 +467,6 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
     fenced: when the server closes the connection the client would spin on the empty socket and
     later raise BrokenPipeError; instead its sends raise CanOperationError, which the link
     reports as a LinkError naming the node and the request."""
-    import socket
-
-    import can
 
     if why := unknown_can_interface(interface):
         raise LinkError(f"{where}: {why}")
@@ -491,9 +489,6 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
 
 def _fence_socketcand(bus) -> None:
     """python-can 4.6.1's socketcand client: a closed connection becomes CanOperationError."""
-    import socket
-
-    import can
 
     sock = bus._SocketCanDaemonBus__socket
     recv, send = bus._recv_internal, bus.send

@@ -9,6 +9,7 @@ Modbus: TCP on host:port. Never all interfaces unless asked (``--host 0.0.0.0``)
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import sys
 import threading
@@ -36,8 +37,6 @@ def serve(
     controller = VirtualController(PRESETS[preset]().motor, strategy=Strategy(strategy))
     closers = []
     if idle_timeout_s is not None:
-        import dataclasses
-
         limits = dataclasses.replace(limits, idle_timeout_s=idle_timeout_s)
     try:
         if canopen_port is not None:

@@ -9,6 +9,7 @@ compared with the ideal instant the plant knows exactly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -209,8 +210,6 @@ class Bursts:
         """The run with the burst noise added to its corrected edges, and the true burst state per
         edge. The noise is added after the controller ran (it drove the plant on clean edges),
         so every predictor sees the same disturbed edges and is scored against the same truth."""
-        import dataclasses
-
         rng = np.random.default_rng([seed, 0xB0])
         t = run.edges.t_capture_s
         burst = np.zeros(t.size, dtype=bool)

@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.campaign.scheduler import TaskError, dispatch
 from hil.recording import Recording, record_kinematic
 from hil.units import rpm_to_deg_e_per_s
 from plant_models import PlantConfig, paper_bench
@@ -370,7 +371,6 @@ def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar:
     """Diagnose every case (see run_validation for where), kept in plan order, reporting each as it ends."""
     report = ValidationReport()
     # one task per case, results kept in case order: the report is the same on any scheduler
-    from hil.campaign.scheduler import TaskError, dispatch
 
     results: dict[int, dict] = {}
 

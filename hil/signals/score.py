@@ -16,6 +16,9 @@ confirmed).
 
 from __future__ import annotations
 
+import base64
+import html
+import io
 import json
 import math
 from dataclasses import dataclass
@@ -274,10 +277,6 @@ def score(
 
 def write_html(path: str | Path, sc: Score, title: str) -> Path:
     """One self-contained page: the JSON figures, the tables and the error over time."""
-    import base64
-    import html
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")
