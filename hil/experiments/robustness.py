@@ -46,7 +46,7 @@ class Condition:
         """Long enough for MIN_SCORED_EDGES after the skipped start-up at the slowest speed."""
         slowest = min(self.start_rpm, self.end_rpm or self.start_rpm)
         slowest_edges_per_s = edges_per_s(slowest, pole_pairs)
-        return max(MIN_DURATION_S, (SKIP_EDGES + MIN_SCORED_EDGES + 10) / edges_per_s)
+        return max(MIN_DURATION_S, (SKIP_EDGES + MIN_SCORED_EDGES + 10) / slowest_edges_per_s)
 
 
 def draw_conditions(n: int, seed: int = 0) -> list[Condition]:
