@@ -9,8 +9,12 @@ defects of the virtual controller (commutation from an unknown Hall state, a spe
 uncorrected sector that the current limit turned into tens of amperes, a glitch interval taken
 as the missing-edge reference). Each replay must now meet its budget.
 
-``limit-armature-current-at-capture.json`` is not a finding to fix in the plant: it is the
-virtual controller's known limit that the built-in budgets waive (docs/budgets.md).
+``finding-armature-current-at-capture.json`` (1.5 deg e/A of armature reaction, 16/30 us
+conditioning delays, 7000 rpm) found a limit of the controller, not of the plant: it corrected
+the armature lag with the current read at the capture interrupt, while the lag was set by the
+current at the Hall switch, one conditioning delay earlier (about 1 A apart after a
+commutation): 3.0 deg e p99 of commutation against 1. The controller now reads its ADC ring
+buffer at the edge's own instant (bldc.contract.AdcHistoryMessage).
 """
 
 from pathlib import Path
@@ -27,7 +31,13 @@ from hil.stimulus import Stimulus, run
 from plant_models import RawHallCommutation, Simulation
 
 DATA = Path(__file__).parent / "data"
-FINDINGS = ["finding-start-chatter.json", "finding-pole-offset-chatter.json", "finding-fault-sequence-recovery.json"]
+#: the findings whose cause was in the plant (its Hall edges chattered), then the controller's
+PLANT_FINDINGS = [
+    "finding-start-chatter.json",
+    "finding-pole-offset-chatter.json",
+    "finding-fault-sequence-recovery.json",
+]
+FINDINGS = PLANT_FINDINGS + ["finding-armature-current-at-capture.json"]
 
 
 @pytest.mark.parametrize("name", FINDINGS)
@@ -37,7 +47,7 @@ def test_finding_replays_within_budget(name):
     assert outcome.ok, outcome.message
 
 
-@pytest.mark.parametrize("name", [n for n in FINDINGS if Stimulus.load(DATA / n).kind == "deviations"])
+@pytest.mark.parametrize("name", [n for n in PLANT_FINDINGS if Stimulus.load(DATA / n).kind == "deviations"])
 def test_finding_plant_does_not_chatter_under_raw_hall_commutation(name):
     """The finding's plant, driven by its own Hall sensors (no controller to blame)."""
     stim = Stimulus.load(DATA / name)
@@ -87,3 +97,23 @@ def test_a_glitch_step_does_not_become_the_missing_edge_reference():
         vc.capture({"t_capture_s": t, "sensor": order[k % 6][0], "rising": order[k % 6][1]})
     assert vc._last_dt == pytest.approx(sector_s)
     assert vc._logic._edge_index - edges_before <= 13  # twelve sectors passed; not hundreds of "lost" edges
+
+
+class _WithoutAdcHistory(InProcessLink):
+    """A link to a controller whose MCU has no ADC ring: only the current at the capture."""
+
+    def edge(self, edge: dict) -> list:
+        return super().edge({k: v for k, v in edge.items() if k != "adc_history_a"})
+
+
+def test_the_armature_correction_reads_the_current_at_the_edges_instant():
+    """The armature finding meets its budget because the controller reads the current one
+    conditioning delay before the capture: without the ADC history the same run fails it."""
+    stim = Stimulus.load(DATA / "finding-armature-current-at-capture.json")
+    budgets = Budgets.defaults()
+    limit = budgets["any_deviations_commutation_angle_p99"].limit
+    motor = stim.plant_config().motor
+    with_history = run(stim, InProcessLink(VirtualController(motor)), budgets).values
+    at_capture = run(stim, _WithoutAdcHistory(VirtualController(motor)), budgets).values
+    assert with_history["commutation_angle_p99_deg_e"] < 0.2 * limit  # 0.054 deg e measured
+    assert at_capture["commutation_angle_p99_deg_e"] > 2.0 * limit  # 3.0 deg e measured
