@@ -10,17 +10,15 @@ Modbus register block, and the in-process link encodes and decodes them too, so 
 the controller bit-identical inputs).
 
 EdgeMessage (plant -> controller, RPDO1):
-    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA,
+    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA at the edge's
+    own instant (the MCU's ADC ring read one applied conditioning delay of the edge's polarity
+    before the capture: where the armature field that moved the edge acted; at the capture
+    before a calibration is applied),
     U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence number.
 CycleCurrentMessage (plant -> controller, RPDO2, sent before its edge; Modbus register 204):
     U16 mean |i| over the commutation cycle the edge ends, in mA (0xFFFF: not measured), U8
     sequence number of that edge. The predictor's K_T is per ampere of this cycle mean (Eq. 8);
     without it the controller falls back to the current at the edge.
-AdcHistoryMessage (plant -> controller, RPDO3, sent before its edge; Modbus registers 205-208):
-    U16 x 4: the ADC's mean |i| in mA at the capture minus 12.5, 25, 37.5 and 50 us (0xFFFF: not
-    measured), read from the MCU's ADC ring buffer at the capture interrupt. The controller reads
-    it at the edge's own instant, one conditioning delay before the capture, where the armature
-    field that moved the edge was set (the current at the capture is one delay late).
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
@@ -223,41 +221,6 @@ def with_cycle_current(edge: dict, current_ma: int | None) -> dict:
     return edge
 
 
-#: the ADC history an edge carries: mean |i| at the capture minus k * ADC_HISTORY_STEP_S, k = 1..4
-#: (50 us back: the effect library's longest conditioning delay)
-ADC_HISTORY_STEP_S = 12.5e-6
-ADC_HISTORY_DEPTH = 4
-
-
-@dataclass(frozen=True)
-class AdcHistoryMessage:
-    currents_ma: tuple[int, ...]
-
-    def pack(self) -> bytes:
-        return struct.pack(f"<{ADC_HISTORY_DEPTH}H", *self.currents_ma)
-
-    @classmethod
-    def unpack(cls, data: bytes) -> "AdcHistoryMessage":
-        if len(data) != 2 * ADC_HISTORY_DEPTH:
-            raise ValueError(f"ADC history message needs {2 * ADC_HISTORY_DEPTH} bytes, got {len(data)}")
-        return cls(struct.unpack(f"<{ADC_HISTORY_DEPTH}H", bytes(data)))
-
-    @classmethod
-    def from_edge(cls, edge: dict) -> "AdcHistoryMessage | None":
-        """The message for ``edge``'s ADC history, or None when the edge has none."""
-        history = edge.get("adc_history_a")
-        if history is None:
-            return None
-        return cls(tuple(min(_current_ma(i), NO_CURRENT - 1) for i in history))
-
-
-def with_adc_history(edge: dict, currents_ma) -> dict:
-    """The received edge with its ADC history (mA as carried; None, or any NO_CURRENT: none)."""
-    if currents_ma is not None and NO_CURRENT not in currents_ma:
-        edge["adc_history_a"] = [ma / 1000.0 for ma in currents_ma]
-    return edge
-
-
 @dataclass(frozen=True)
 class CommandMessage:
     ticks: int
@@ -311,8 +274,6 @@ def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
         "now_s": t,
         "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0,
     }
-    history = AdcHistoryMessage.from_edge(edge)
-    with_adc_history(out, None if history is None else history.currents_ma)
     cycle = edge.get("cycle_current_a")
     return with_cycle_current(out, None if cycle is None else min(_current_ma(cycle), NO_CURRENT - 1))
 

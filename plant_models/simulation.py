@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bldc.contract import ADC_HISTORY_DEPTH, ADC_HISTORY_STEP_S, Command
+from bldc.contract import Command
 from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
 from bldc.params import ConfigError
 from bldc.units import rad_per_s_to_rpm, rpm_to_rad_per_s
@@ -292,12 +292,6 @@ class Simulation:
                     "now_s": self.t_s,
                     "current_a": self.measured_mean_abs_current_a(),
                 }
-                # the MCU's ADC ring buffer, read at the capture interrupt (bldc.contract)
-                t_cap = edge["t_capture_s"]
-                edge["adc_history_a"] = [
-                    self.measured_mean_abs_current_at_a(t_cap - k * ADC_HISTORY_STEP_S)
-                    for k in range(1, ADC_HISTORY_DEPTH + 1)
-                ]
                 if n >= self._edges.shape[0]:
                     self._flush()
                 for cmd in self.source.on_edge(edge, self) or ():

@@ -8,11 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bldc.contract import (
-    ADC_HISTORY_DEPTH,
-    AdcHistoryMessage,
     Command,
     CommandMessage,
-    CycleCurrentMessage,
     EdgeMessage,
     Fault,
     Strategy,
@@ -20,8 +17,6 @@ from bldc.contract import (
     edge_as_received,
     edge_epoch,
     encode_reply,
-    with_adc_history,
-    with_cycle_current,
 )
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
@@ -184,22 +179,11 @@ _times = st.floats(0.0, 2000.0, allow_nan=False)  # beyond the 429 s wrap of the
     offsets=st.lists(
         st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(), st.floats(-0.5, 1.5) | st.none()), max_size=3
     ),
-    cycle=st.floats(-5.0, 80.0, allow_nan=False) | st.none(),
-    history=st.lists(st.floats(-5.0, 80.0, allow_nan=False), min_size=ADC_HISTORY_DEPTH, max_size=ADC_HISTORY_DEPTH)
-    | st.none(),
 )
-def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, current, seq, offsets, cycle, history):
+def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, current, seq, offsets):
     edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "current_a": current}
-    if cycle is not None:
-        edge["cycle_current_a"] = cycle
-    if history is not None:
-        edge["adc_history_a"] = history
     epoch = edge_epoch(t)
-    received = EdgeMessage.unpack(EdgeMessage.from_edge(edge, seq).pack()).to_edge(epoch)
-    cycle_msg, adc_msg = CycleCurrentMessage.from_edge(edge, seq), AdcHistoryMessage.from_edge(edge)
-    cycle_ma = None if cycle_msg is None else CycleCurrentMessage.unpack(cycle_msg.pack()).current_ma
-    adc_ma = None if adc_msg is None else AdcHistoryMessage.unpack(adc_msg.pack()).currents_ma
-    assert edge_as_received(edge, epoch) == with_adc_history(with_cycle_current(received, cycle_ma), adc_ma)
+    assert edge_as_received(edge, epoch) == EdgeMessage.unpack(EdgeMessage.from_edge(edge, seq).pack()).to_edge(epoch)
     commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
     via_bytes = [
         f.to_command(epoch)

@@ -12,18 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import ADC_HISTORY_STEP_S, Command
+from bldc.contract import Command
 from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_rad_per_s
 
 from ..calibration.corrections import Corrections
-
-
-def current_before_capture(lookback_s: float, at_capture_a: float, history_a) -> float:
-    """Mean |i| ``lookback_s`` before the capture, linear between the ADC ring's readings (at the
-    capture and ADC_HISTORY_STEP_S apart before it), held beyond the oldest."""
-    lookbacks = [k * ADC_HISTORY_STEP_S for k in range(len(history_a) + 1)]
-    return float(np.interp(lookback_s, lookbacks, [at_capture_a, *history_a]))
 
 
 @dataclass
@@ -174,11 +167,6 @@ class HallCommutation:
             current = self.current_estimate_a
             if self.use_measured_current:
                 current = edge.get("current_a", current)
-                if edge.get("adc_history_a") is not None:
-                    # the armature field that moved this edge acted at the Hall switch, one
-                    # conditioning delay before the capture: read the ADC ring there
-                    delay = self.corrections.conditioning_delay_s["rise" if rising else "fall"]
-                    current = current_before_capture(delay, current, edge["adc_history_a"])
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
                 t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e

@@ -24,9 +24,7 @@ from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from bldc.contract import (
-    ADC_HISTORY_DEPTH,
     NO_CURRENT,
-    AdcHistoryMessage,
     CalibrationTableError,
     CommandMessage,
     CycleCurrentMessage,
@@ -36,7 +34,6 @@ from bldc.contract import (
     encode_reply,
     filter_vector,
     next_epoch,
-    with_adc_history,
     with_cycle_current,
     with_filter_vector,
 )
@@ -248,12 +245,9 @@ class CanopenDevice:
         self.network.subscribe(0, self._on_nmt)
         self.network.subscribe(0x200 + node_id, self._on_rpdo)
         self.network.subscribe(0x300 + node_id, self._on_rpdo2)
-        self.network.subscribe(0x400 + node_id, self._on_rpdo3)
         self._last_edge = EdgeMessage(0, 0, 0, False, 0)
         self._cycle = CycleCurrentMessage(NO_CURRENT, 0)  # the last RPDO2; used by the edge of its sequence
         self._cycle_pending = False
-        self._adc = AdcHistoryMessage((NO_CURRENT,) * ADC_HISTORY_DEPTH)  # the last RPDO3; used by the next edge
-        self._adc_pending = False
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -337,8 +331,6 @@ class CanopenDevice:
             return (e.ticks, e.current_ma, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq)[subindex - 1]
         if index == 0x2201 and subindex >= 1:
             return (self._cycle.current_ma, self._cycle.seq)[subindex - 1]
-        if index == 0x2202 and subindex >= 1:
-            return self._adc.currents_ma[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [
@@ -407,11 +399,9 @@ class CanopenDevice:
             self._last_ticks = msg.ticks
             self._last_edge = msg
             cycle = self._cycle.current_ma if self._cycle_pending and self._cycle.seq == msg.seq else None
-            adc = self._adc.currents_ma if self._adc_pending else None
-            self._cycle_pending = self._adc_pending = False
-            edge = with_adc_history(with_cycle_current(msg.to_edge(self._epoch), cycle), adc)
+            self._cycle_pending = False
             try:
-                commands = self.controller.capture(edge)
+                commands = self.controller.capture(with_cycle_current(msg.to_edge(self._epoch), cycle))
             except Exception:  # never let bad input kill the receive thread: report and answer
                 self.controller.raise_fault(Fault.INTERNAL, 0.0)
                 commands = []
@@ -429,17 +419,6 @@ class CanopenDevice:
             return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
         with self._lock:
             self._cycle, self._cycle_pending = msg, True
-
-    def _on_rpdo3(self, can_id, data, timestamp) -> None:
-        """The ADC history of the next edge (RPDO1 that follows)."""
-        if self.state != "OPERATIONAL":
-            return
-        try:
-            msg = AdcHistoryMessage.unpack(bytes(data))
-        except ValueError:
-            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
-        with self._lock:
-            self._adc, self._adc_pending = msg, True
 
     def close(self) -> None:
         try:
@@ -559,6 +538,7 @@ class CanopenLink:
         **bus_kwargs,
     ):
         self.node_id, self.timeout_s = node_id, timeout_s
+        self.applied_calibration: Corrections | None = None
         where = f"{interface}:{channel}" + (
             f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else ""
         )
@@ -646,6 +626,7 @@ class CanopenLink:
         self.write(0x2011, None, 1)
         back = Corrections.from_vector([self.read(0x2012, k + 1) for k in range(10)])
         verify_calibration(corrections.as_float32(), back)
+        self.applied_calibration = back
 
     def set_strategy(self, strategy: int) -> None:
         self.write(0x2000, None, int(strategy))
@@ -660,9 +641,6 @@ class CanopenLink:
         cycle = CycleCurrentMessage.from_edge(edge, seq)
         if cycle is not None:  # RPDO2 before its edge: the edge triggers the controller
             self._send(f"cycle current of edge #{seq}", 0x300 + self.node_id, cycle.pack())
-        adc = AdcHistoryMessage.from_edge(edge)
-        if adc is not None:  # RPDO3 likewise
-            self._send(f"ADC history of edge #{seq}", 0x400 + self.node_id, adc.pack())
         self._send(f"edge #{seq}", 0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
         commands = []
         deadline = time.monotonic() + self.timeout_s

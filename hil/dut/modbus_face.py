@@ -21,9 +21,7 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bldc.contract import (
-    ADC_HISTORY_DEPTH,
     NO_CURRENT,
-    AdcHistoryMessage,
     CalibrationTableError,
     CommandMessage,
     CycleCurrentMessage,
@@ -33,7 +31,6 @@ from bldc.contract import (
     encode_reply,
     filter_vector,
     next_epoch,
-    with_adc_history,
     with_cycle_current,
     with_filter_vector,
 )
@@ -59,8 +56,6 @@ IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
 EDGE_IN, REPLY = 200, 210
 #: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
 EDGE_CYCLE_CURRENT = 204
-#: the ADC history of the edge (bldc.contract.AdcHistoryMessage), mA (0xFFFF: none); used when written with it
-EDGE_ADC_HISTORY = 205
 REPLY_FRAMES = 4
 
 
@@ -99,7 +94,6 @@ def simdata() -> list[SimData]:
         SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
         SimData(EDGE_IN, 4, 0, DataType.REGISTERS),
         SimData(EDGE_CYCLE_CURRENT, 1, NO_CURRENT, DataType.REGISTERS),
-        SimData(EDGE_ADC_HISTORY, ADC_HISTORY_DEPTH, NO_CURRENT, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -445,9 +439,9 @@ class ModbusDevice:
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
             cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
-            adc = part(EDGE_ADC_HISTORY, ADC_HISTORY_DEPTH) if covers(EDGE_ADC_HISTORY, ADC_HISTORY_DEPTH) else None
-            edge = with_adc_history(with_cycle_current(msg.to_edge(self._epoch), cycle), adc)
-            frames = encode_reply(c.capture(edge), msg.seq)[:REPLY_FRAMES]
+            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[
+                :REPLY_FRAMES
+            ]
             reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
             regs[REPLY - base : REPLY - base + len(reply)] = reply
         return None
@@ -473,6 +467,7 @@ class ModbusLink:
 
         self.unit, self.timeout_s = unit, timeout_s
         self.host, self.port, self.serial_port = host, port, serial_port
+        self.applied_calibration: Corrections | None = None
         if serial_port is not None:
             self.where = f"Modbus RTU unit {unit} on {serial_port}"
             self.client = ModbusSerialClient(
@@ -532,7 +527,9 @@ class ModbusLink:
         self.write(CAL_STAGED, sum((_f32_regs(v) for v in table.as_vector()), []))
         self.write(CAL_APPLY, [1])
         back = self.read(CAL_APPLIED, 20)
-        verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)]))
+        read_back = Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)])
+        verify_calibration(table, read_back)
+        self.applied_calibration = read_back
 
     def reset(self) -> None:
         """Command register: clear the faults and restart the control logic (calibration kept)."""
@@ -555,11 +552,8 @@ class ModbusLink:
         self._seq = (self._seq + 1) & 0x7F
         values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
         cycle = CycleCurrentMessage.from_edge(edge, seq)
-        adc = AdcHistoryMessage.from_edge(edge)
-        if cycle is not None or adc is not None:  # registers 204 (and 205-208) in the same transaction
-            values.append(NO_CURRENT if cycle is None else cycle.current_ma)
-        if adc is not None:
-            values += list(adc.currents_ma)
+        if cycle is not None:  # register 204 in the same transaction
+            values.append(cycle.current_ma)
         r = self._call(
             f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
             lambda: self.client.readwrite_registers(

@@ -12,8 +12,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from bldc.contract import ADC_HISTORY_DEPTH, ADC_HISTORY_STEP_S
-
 U8, U16, U32, REAL32, VSTRING, REAL64 = 0x0005, 0x0006, 0x0007, 0x0008, 0x0009, 0x0011
 
 
@@ -51,11 +49,6 @@ EDGE_FIELDS = (
     ("sequence", U8, 8),
 )
 CYCLE_FIELDS = (("mean abs current over the cycle mA (0xFFFF: none)", U16, 16), ("sequence of its edge", U8, 8))
-#: the ADC history of the next edge (0x2202, RPDO3): mean |i| at the capture minus 12.5 ... 50 us
-ADC_FIELDS = tuple(
-    (f"mean abs current {k * ADC_HISTORY_STEP_S * 1e6:g} us before the capture mA (0xFFFF: none)", U16, 16)
-    for k in range(1, ADC_HISTORY_DEPTH + 1)
-)
 READBACK = (
     ("estimated speed rpm", REAL32),
     ("Q w", REAL32),
@@ -120,7 +113,6 @@ def objects(node_id: int = 1) -> list:
         ),
         *_rpdo(0, 0x200, 0x2200, EDGE_FIELDS),
         *_rpdo(1, 0x300, 0x2201, CYCLE_FIELDS),
-        *_rpdo(2, 0x400, 0x2202, ADC_FIELDS),
         Group(
             0x2100,
             "Read-backs",
@@ -137,7 +129,6 @@ def objects(node_id: int = 1) -> list:
         ),
         _mapped(0x2200, "Edge message (RPDO1)", EDGE_FIELDS),
         _mapped(0x2201, "Cycle-mean current (RPDO2)", CYCLE_FIELDS),
-        _mapped(0x2202, "ADC history (RPDO3)", ADC_FIELDS),
     ]
     return sorted(items, key=lambda o: o.index)
 
@@ -219,7 +210,7 @@ def eds_text() -> str:
         "BaudRate_1000=1",
         "SimpleBootUpSlave=1",
         "Granularity=0",
-        "NrOfRXPDO=3",
+        "NrOfRXPDO=2",
         "NrOfTXPDO=1",
         "",
         "[MandatoryObjects]",
