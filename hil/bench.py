@@ -39,6 +39,9 @@ class LinkSource:
         self.link = link
         self.edges = 0
         self._sample_from = 0
+        #: the current each edge carried to the controller, in order (an offline replay of the
+        #: same edges gets the same inputs)
+        self.edge_currents_a: list[float] = []
 
     def _cycle_mean_current_a(self, sim) -> float | None:
         """Mean |i| over the phases and the plant samples since the last edge, through the current
@@ -61,6 +64,7 @@ class LinkSource:
             # acted (bldc.contract, EdgeMessage)
             delay = table.conditioning_delay_s["rise" if edge["rising"] else "fall"]
             edge["current_a"] = sim.measured_mean_abs_current_at_a(edge["t_capture_s"] - delay)
+        self.edge_currents_a.append(edge["current_a"])
         now = sim.t_s
         return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
 

@@ -20,6 +20,7 @@ from bldc.units import rpm_to_deg_e_per_s
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
+from ..calibration.corrections import corrected_edge_times
 from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
@@ -90,7 +91,11 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     status = link.status()
     # offline: the same edges, corrected with the same tables, through a fresh filter
     edges = bench.sim.edges()
-    t_corr, cycle_current, _ = edge_inputs(bench.sim, edges, corrections, config.motor.pole_pairs)
+    _, cycle_current, _ = edge_inputs(bench.sim, edges, corrections, config.motor.pole_pairs)
+    # corrected with the currents the edges carried to the controller (each at the edge's instant)
+    sent = np.asarray(bench.source.edge_currents_a[: len(edges)])
+    t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections, sent,
+                                  config.motor.pole_pairs)
     run = SageHusaPredictor(MotorModel.from_plant(config.motor), settings).run(t_corr, cycle_current)
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
     w_true = rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs)
