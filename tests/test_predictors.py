@@ -66,42 +66,58 @@ def test_sage_husa_learns_edge_noise_from_the_papers_r0():
     assert sh.r_matrix[0, 0] == pytest.approx(true_r, rel=0.1)
 
 
-def _locked_case():
-    """Drawn condition that diverged (7 deg_e RMS against the KF's 0.2): after the warm-up on
-    R0 = 0 the filter's P claimed a speed known to 0.04 rad/s while it was 35 rad/s off, so
-    every later edge was gated and the error grew by 0.8 deg_e per cycle."""
+def test_warm_up_leaves_p_consistent_with_the_first_r():
+    """Drawn condition that diverged (7 deg_e RMS against the KF's 0.37): the warm-up ran on the
+    paper's R0 = 0, so the speed estimate was the last two edges' difference (35 rad/s off) while
+    P claimed it known to 0.04 rad/s; when R got its first estimate the gain on the speed fell to
+    1e-6 and every later edge was gated. P is now re-based on that first R (``filters._rebase_p``:
+    the covariance of a two-edge estimate), and the filter converges without any guard."""
     e, cur = edges_and_currents([OperatingPoint(0.4, 11825.9)], 3.98e-6, 0.177, 0.514, 688)
     q0 = tuple(q * 10**-1.788 for q in NOMINAL_Q)
     kf = KalmanPredictor(MODEL, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))).run(e.t_conditioned_s, cur)
     kf_rms = np.sqrt(np.mean(angle_error_deg(e, kf.pred_t_s) ** 2))
-    rms = {}
-    for run_length in (0, FilterSettings().divergence_run):
-        # the variance match off: it sets R from the edges right after the warm-up and the filter
-        # no longer locks here (1.37 deg e); the test isolates the fade
+    for match_horizon_s in (0.0, 1000.0):  # with and without the variance match (it hid the lock)
         sh = SageHusaPredictor(
-            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length, r_match_horizon_s=0.0)
+            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, r_match_horizon_s=match_horizon_s)
         )
         run = sh.run(e.t_conditioned_s, cur)
-        rms[run_length] = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
-        assert (run.guards["divergence"] > 0) == (run_length > 0)
-    return rms, kf_rms
+        rms = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
+        # measured 0.25 against the KF's 0.37 (1.37 with the variance match, 7 without, before)
+        assert rms < kf_rms and run.guards["divergence"] == 0, (match_horizon_s, rms, kf_rms, run.guards)
 
 
-def test_divergence_guard_recovers_a_filter_locked_on_a_wrong_speed():
-    rms, kf_rms = _locked_case()
-    assert rms[0] > 5 * kf_rms  # the failure the guard exists for
-    assert rms[FilterSettings().divergence_run] < 0.2 * rms[0], rms  # faded P: re-converged
+def _knocked_case(knock: float):
+    """A converged filter whose speed estimate is knocked off by ``knock`` (a glitch in firmware
+    memory, a missed edge): with Q0 at 1/60 nominal P is small, the gain on the speed tiny, and
+    every later edge is gated. Angle RMS from the knock on, for no fade and the default run."""
+    e, cur = edges_and_currents([OperatingPoint(1.0, 11825.9)], 3.98e-6, 0.177, 0.514, 688)
+    q0 = tuple(q * 10**-1.788 for q in NOMINAL_Q)
+    knock_at = 400
+
+    def rms(f):
+        pred = np.full(len(e), np.nan)
+        for k, (t, c) in enumerate(zip(e.t_conditioned_s, cur)):
+            if k == knock_at:
+                f.state[F.ST.X] *= 1.0 + knock
+            p = f.update(float(t), float(c))
+            pred[k] = np.nan if p is None else p
+        return float(np.sqrt(np.mean(angle_error_deg(e, pred, skip=knock_at) ** 2)))
+
+    kf_rms = rms(KalmanPredictor(MODEL, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))))
+    out = {}
+    for run_length in (0, FilterSettings().divergence_run):
+        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, **{**compare.SH_DESIGN, "divergence_run": run_length}))
+        out[run_length] = rms(sh)
+        assert (sh.guards["divergence"] > 0) == (run_length > 0), sh.guards
+    return out, kf_rms
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: the freed filter ends at 1.9 deg e RMS against the KF's 0.37 on this condition "
-    "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade (1.4 with the "
-    "variance match on, which keeps it from locking)",
-)
-def test_divergence_guard_brings_the_locked_filter_back_to_the_kf():
-    rms, kf_rms = _locked_case()
-    assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, rms
+@pytest.mark.parametrize("knock", [0.01, 0.03, 0.1])
+def test_divergence_guard_brings_a_locked_filter_back_to_the_kf(knock):
+    rms, kf_rms = _knocked_case(knock)
+    assert rms[0] > 20 * kf_rms, (rms, kf_rms)  # the failure the guard exists for: locked
+    # measured 0.31 / 0.35 / 0.65 against the KF's 0.43 / 0.45 / 0.62 deg e
+    assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, (rms, kf_rms)
 
 
 @pytest.mark.parametrize("end_rpm, q_log10", [(9000.0, -2), (None, 2)])
@@ -413,23 +429,19 @@ def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(
     assert not broken, f"covariance lost positive definiteness or estimate not finite in: {broken[:3]}"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: Sage-Husa under 2x the KF in 94.5 % of 1000 drawn conditions (bar 100 %), "
-    "worst 10.9x (model off, Q0 1/80 nominal); docs/sage-husa.md",
-)
 def test_sage_husa_under_twice_the_kf_in_every_condition(robustness_results):
+    """Measured: 100 % (worst 1.41x) of the 1000 drawn conditions; 94.5 % (worst 10.9x) before P
+    was re-based on the first R at the end of the warm-up."""
     worse = [r for r in robustness_results if not r["sh"] < 2.0 * r["kf"]]
     assert not worse, (
         f"Sage-Husa at 2x the KF or worse in {len(worse)} of {len(robustness_results)} conditions:\n{_worst(worse)}"
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 79.6 % of drawn conditions (bar 95 %); docs/sage-husa.md",
-)
 def test_sage_husa_no_worse_than_kf_in_95_percent(robustness_results):
+    """Measured: 95.3 % (95.2 % on the draw of seed 1), the issue's bar 95 %; 79.6 % before the
+    warm-up's P re-base, Q adapting only once the gate acts, and Q_w steered by innovation
+    whiteness instead of the Eq. 12 recursion (docs/sage-husa.md, Robustness)."""
     ok = [r["sh"] <= 1.05 * r["kf"] + 0.01 for r in robustness_results]
     rate = float(np.mean(ok))
     assert rate >= 0.95, (

@@ -49,7 +49,7 @@ EVAL_SEEDS = (0, 3, 4, 5, 6, 7, 8, 9, 10, 11)
 SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, see docs
 #: Sage-Husa's own design outside the paper protocol: R every 30 edges (a burst of 0.4 s holds
 #: about 20 such intervals at 5000-10,000 rpm), Q band x100 around its start
-SH_DESIGN = dict(adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.9, forgetting_b=0.98, q_band_factor=100.0)
+SH_DESIGN = dict(adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT, adapt_interval=60, r_interval=30, r_forgetting_b=0.9, forgetting_b=0.98, q_band_factor=100.0)
 #: what the bursts protocol's statement changes in that design, each from the stated disturbance:
 #: inside a burst R has not learned yet every edge may be gated, so the divergence run is derived
 #: for p_gated = 1 (23 at 12,000 rpm; 3 fires by chance in a quarter of a burst's gated

@@ -270,6 +270,30 @@ def _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u):
 
 
 @njit(cache=True)
+def _rebase_p(s, r_warm, r_new, dt):
+    """P made consistent with the first R estimate, at the end of the warm-up.
+
+    The warm-up ran on R_warm (the paper's R_theta = 0): with R_warm = 0 the gain on the angle is
+    1, the speed estimate is the last two edges' difference, and P says that estimate is exact.
+    Its true error is that of a two-point estimate with the edge noise now learned: var(theta) = R,
+    var(w) = 2 R / dt^2, cov(w, theta) = R / dt. Left as it is, P locks the speed where the last
+    noisy difference put it (a gain of 1e-6 on the speed at 12,000 rpm), and the state drifts a
+    few degrees per edge until the gate's divergence run fades it. With 0 < R_warm < R_new the
+    warm-up P is scaled by R_new / R_warm, never past the two-point covariance."""
+    if not (r_new > r_warm and dt > 0.0):
+        return
+    two_ww, two_wt, two_tt = 2.0 * r_new / (dt * dt), r_new / dt, r_new
+    scale = r_new / r_warm if r_warm > 0.0 else math.inf
+    if s[ST.P] * scale >= two_ww:
+        s[ST.P], s[ST.P + 1], s[ST.P + 3], s[ST.P + 4] = two_ww, two_wt, two_wt, two_tt
+        for i in (2, 5, 6, 7):                                      # the current decorrelated
+            s[ST.P + i] = 0.0
+    else:
+        for i in (0, 1, 3, 4):
+            s[ST.P + i] *= scale
+
+
+@njit(cache=True)
 def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     """Eq. 12 for R from every innovation, gated or not, with a Huber weight: an outlier moves R
     by c sqrt(S) at most instead of its full square, and a burst of edge noise still raises R
@@ -298,6 +322,7 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         return
     n = s[ST.N_ACC_R]
     j = s[ST.K_INTERVAL_R]
+    r_before = s[ST.R]                                              # the R_theta the interval ran on
     b = fp[FP.R_B]
     dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
     # the innovations' own mean over the interval is taken out (Eq. 12's Z~ - r): a state that is
@@ -316,29 +341,30 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     # replaced by the measured value now instead of being blended in over 1 / d_j intervals with
     # each burst edge capped by the Huber weight. Measured from the edges, not the innovations,
     # so a lagging state cannot raise R (a larger R would lower the gain and the lag grow).
-    matched = False
-    r_edge = 0.0
-    ne = s[ST.ACC_EDGE]
-    if not warm and fp[FP.R_MATCH_HI] > 0.0 and ne > 2.0 and s[ST.R] > 0.0:
-        mean = s[ST.ACC_EDGE + 1] / ne
-        r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
-        ratio = r_edge / s[ST.R]
-        matched = r_edge > 0.0 and (ratio > fp[FP.R_MATCH_HI] or ratio < fp[FP.R_MATCH_LO])
     for i in range(4):                                              # R = (1 - d) R + d mean(term)
         s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * unbias * s[ST.ACC_R + i] / n
-    if matched:
-        # the new R_theta is what the innovations show beyond H P H^T over the interval (it
-        # holds what the filter needs, e.g. edge noise that is not white), the edges' own
-        # measure where P already explains them
-        var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
-        r_innov = var0 - s[ST.ACC_Z0 + 2] / n
-        if r_innov > 0.0:
-            r_edge = r_innov
-        # the cross terms are kept within a correlation of 0.99, so R stays positive definite
-        s[ST.R] = r_edge
-        bound = 0.99 * math.sqrt(r_edge * max(s[ST.R + 3], 0.0))
-        for i in (1, 2):
-            s[ST.R + i] = min(max(s[ST.R + i], -bound), bound)
+    ne = s[ST.ACC_EDGE]
+    if not warm and fp[FP.R_MATCH_HI] > 0.0 and ne > 2.0:
+        # tested after the Eq. 12 blend: a blend that a noisy interval pushed below the edges'
+        # own measure (the residual form subtracts H P H^T, which may exceed the innovations'
+        # variance over 30 edges) is caught here too, before the filter runs on it
+        mean = s[ST.ACC_EDGE + 1] / ne
+        r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
+        if r_edge > 0.0 and not (fp[FP.R_MATCH_LO] * s[ST.R] <= r_edge <= fp[FP.R_MATCH_HI] * s[ST.R]):
+            # the new R_theta is what the innovations show beyond H P H^T over the interval (it
+            # holds what the filter needs, e.g. edge noise that is not white) where the edges'
+            # own measure agrees with it within the same chance bounds; the edges' measure
+            # where it does not (P already explains the innovations, or the difference of two
+            # noisy variances came out near zero)
+            var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
+            r_innov = var0 - s[ST.ACC_Z0 + 2] / n
+            if fp[FP.R_MATCH_LO] * r_innov <= r_edge <= fp[FP.R_MATCH_HI] * r_innov:
+                r_edge = r_innov
+            # the cross terms are kept within a correlation of 0.99, so R stays positive definite
+            s[ST.R] = r_edge
+            bound = 0.99 * math.sqrt(r_edge * max(s[ST.R + 3], 0.0))
+            for i in (1, 2):
+                s[ST.R + i] = min(max(s[ST.R + i], -bound), bound)
     if j == 0.0 and s[ST.EDGE_STATS] > 2.0:
         # the first estimate of the edge-angle variance comes from the edges themselves (below),
         # not from innovations of a filter that ran on R0 = 0 and so followed every edge: those
@@ -347,11 +373,15 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         s[ST.R] = max(s[ST.EDGE_STATS + 2] / s[ST.EDGE_STATS] - mean * mean, 0.0) / 6.0
         s[ST.R + 1] = 0.0
         s[ST.R + 2] = 0.0
-    if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
-        guards[GUARD_R_PD] += 1
+        _rebase_p(s, r_before, s[ST.R], s[ST.DT_PREV])
     # an exactly repeated current would drive its variance to the eigenvalue floor, and the
     # smallest drift of the current estimate would then be gated as an outlier; no measurement
-    # is finer than its quantisation (raising a diagonal keeps R positive definite)
+    # is finer than its quantisation. Floored before the positive-definiteness test: the
+    # warm-up's current innovations less H P H^T (P still near P0) can leave this entry negative,
+    # and a diagonal raised to its physical floor is not a repair
+    s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
+    if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
+        guards[GUARD_R_PD] += 1
     s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
     for i in range(4):
         s[ST.ACC_R + i] = 0.0
@@ -495,10 +525,10 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     s[ST.K_STEP] = k + 1.0
     if mask == 0:
         return nis
-    if mask & ADAPT_Q_WHITE and not warm:
+    if mask & ADAPT_Q_WHITE and k >= gate_from:
         # innovation whiteness (Mehra): lag-1 correlation of the angle innovations is zero for
         # the optimal gain, positive when the filter lags (Q too small), negative when it
-        # chases the noise (Q too large)
+        # chases the noise (Q too large). From the gate's start, as Q by Eq. 12 (below)
         s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
         s[ST.ACC_WHITE + 1] += innov0 * innov0
         if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
@@ -530,7 +560,13 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         return nis
     if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
         _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
-    if warm or not mask & (ADAPT_Q | ADAPT_Q_CURRENT):
+    # Q adapts once the gate acts, one R interval after the warm-up: P has then converged from
+    # its re-base on the first R (``_rebase_p``). Earlier, the Eq. 12 term P_k - Phi P Phi^T is
+    # P's own convergence (hundreds of (rad/s)^2 per step), not process noise: it drove the
+    # recursion to its lower clamp in a few steps, Q_w sat at the band floor for the rest of the
+    # run and the filter could not follow a load its model had wrong (drawn conditions, Q_w by
+    # Eq. 12: within 1.05 x KF + 0.01 deg e in 64 % before, 92 % after)
+    if k < gate_from or not mask & (ADAPT_Q | ADAPT_Q_CURRENT):
         return nis
     # --- Eq. 12: Q every step ----------------------------------------------------------------
     b = fp[FP.B]
