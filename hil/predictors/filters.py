@@ -352,13 +352,13 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
         if r_edge > 0.0 and not (fp[FP.R_MATCH_LO] * s[ST.R] <= r_edge <= fp[FP.R_MATCH_HI] * s[ST.R]):
             # the new R_theta is what the innovations show beyond H P H^T over the interval (it
-            # holds what the filter needs, e.g. edge noise that is not white) where the edges'
-            # own measure agrees with it within the same chance bounds; the edges' measure
-            # where it does not (P already explains the innovations, or the difference of two
-            # noisy variances came out near zero)
+            # holds what the filter needs, e.g. edge noise that is not white, or a burst's
+            # edges that the gate kept out of the state); the edges' own measure where the
+            # innovations show less than the chance bound below it (P already explains them, or
+            # the difference of two noisy variances came out near zero)
             var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
             r_innov = var0 - s[ST.ACC_Z0 + 2] / n
-            if fp[FP.R_MATCH_LO] * r_innov <= r_edge <= fp[FP.R_MATCH_HI] * r_innov:
+            if r_innov >= fp[FP.R_MATCH_LO] * r_edge:
                 r_edge = r_innov
             # the cross terms are kept within a correlation of 0.99, so R stays positive definite
             s[ST.R] = r_edge
