@@ -16,11 +16,11 @@ import time
 from pathlib import Path
 
 from hil.gap import diagnose
+from hil.motor import steady_state
 from hil.recording import read_recording, record_electrical, record_kinematic, write_recording
-from plant_models import paper_bench
 from plant_models import effects as fx
+from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
-from plant_models.plant import steady_state
 
 
 def _read_and_diagnose(rec, label: str):

@@ -17,13 +17,15 @@ import sys
 import time
 
 from hil.bench import LockstepBench
-from hil.calibration import fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
-from hil.dut import InProcessLink, Strategy, VirtualController
+from hil.calibration.fit import fit_corrections
+from hil.contract import Strategy
+from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenDevice, CanopenLink
+from hil.dut.in_process import InProcessLink
 from hil.dut.modbus_face import ModbusDevice, ModbusLink
+from hil.motor import steady_state
 from plant_models import paper_bench
-from plant_models.plant import steady_state
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
 CONFIG = paper_bench(with_deviations=True)

@@ -21,10 +21,10 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 # measure the checkout this file sits in, not whichever plant_models happens to be installed
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from hil.motor import steady_state  # noqa: E402
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench  # noqa: E402
 from plant_models import effects as fx  # noqa: E402
 from plant_models.kinematic import OperatingPoint, simulate_edges  # noqa: E402
-from plant_models.plant import steady_state  # noqa: E402
 
 ALL_HALL_EFFECTS = (
     fx.InstallationOffset((1.0, -0.5, 0.7)), fx.PoleOffset((0.0, 0.9, -0.3, 0.4)), fx.ConditioningDelay(6e-6, 1e-6),

@@ -9,10 +9,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from hil.calibration import Corrections, fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
-from plant_models import paper_bench
+from hil.calibration.corrections import Corrections
+from hil.calibration.fit import fit_corrections
 from plant_models import effects as fx
+from plant_models import paper_bench
 
 
 def worst_errors(jitter_s: float, turns: int, seeds=range(5)):

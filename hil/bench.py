@@ -12,10 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from plant_models import PlantConfig, Simulation
-from plant_models.simulation import Command
 
+from .contract import Command
 from .dut.link import ControllerLink
-
 
 #: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,
 #: which moves fast right after a commutation, and a coarser step would blur it
@@ -24,13 +23,11 @@ ACCEPTANCE_MAX_STEP_S = 2e-6
 
 def p99_abs(values) -> float:
     """99th percentile of |values| (the budgets' p99)."""
-    import numpy as np
 
     return float(np.percentile(np.abs(values), 99))
 
 
 def rms(values) -> float:
-    import numpy as np
 
     return float(np.sqrt(np.mean(np.square(values))))
 
@@ -47,16 +44,10 @@ class LinkSource:
         """Mean |i| over the phases and the plant samples since the last edge, through the current
         sensors' gain and offset: what the controller's ADC averages over the commutation cycle
         (the current Eq. 8's K_T is defined for). None when no sample fell in the cycle."""
-        from plant_models import _kernel as K
-
-        n = int(sim.ist[K.I_N_SAMPLES])
+        n = sim.samples_taken
         start = self._sample_from if self._sample_from <= n else 0  # the buffer was flushed since
         self._sample_from = n
-        if n <= start:
-            return None
-        cs = sim.config.current_sensor
-        i = sim._samples[start:n, 1:4] * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
-        return float(np.mean(np.abs(i)))
+        return sim.measured_mean_abs_current_since_a(start)
 
     def on_edge(self, edge: dict, sim) -> list:
         """The controller answers in its own capture-timer time; a command for an instant that has

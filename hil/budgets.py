@@ -31,7 +31,7 @@ import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from plant_models.params import ConfigError
+from hil.params import ConfigError
 
 
 @dataclass(frozen=True)

@@ -8,8 +8,8 @@ import os
 import sys
 from pathlib import Path
 
+from hil.params import describe
 from plant_models import EFFECTS, PRESETS, ConfigError, PlantConfig
-from plant_models.params import describe
 
 from .recording import RecordingError, read_recording
 
@@ -53,8 +53,8 @@ def cmd_plant_simulate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
-    from .calibration import fit_corrections
     from .calibration.campaign import CalibrationCampaign
+    from .calibration.fit import fit_corrections
     from .recording import write_recording
 
     if args.campaign:
@@ -82,7 +82,7 @@ def cmd_calibrate(args) -> int:
 
 
 def cmd_compare_correction(args) -> int:
-    from .calibration.headline import PAPER_MEAN_CURRENT_REDUCTION, PAPER_SPEED_MSE_REDUCTION, compare, plot
+    from .experiments.headline import PAPER_MEAN_CURRENT_REDUCTION, PAPER_SPEED_MSE_REDUCTION, compare, plot
 
     raw, cor, _ = compare(speed_rpm=args.speed_rpm, turns=args.turns, seed=args.seed)
     mse = 1 - cor.speed_mse_rpm2 / raw.speed_mse_rpm2
@@ -112,14 +112,14 @@ def cmd_compare_correction(args) -> int:
 
 def cmd_table5(args) -> int:
     if args.closed_loop:
-        from .predictors.closed_loop import closed_loop
+        from .experiments.closed_loop import closed_loop
 
         result = closed_loop(seed=args.seed[0] if args.seed else 0)
         print(result.format())
         if args.json:
             _write_json(args.json, result.to_json())
         return 0
-    from .predictors.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
+    from .experiments.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
 
     result = run_protocol(
         args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS)
@@ -219,8 +219,8 @@ def cmd_gap_diagnose(args) -> int:
 
 
 def cmd_gap_validate(args) -> int:
-    from .gap.validate import run_validation
     from .gap.progress import Progress
+    from .gap.validate import run_validation
 
     # a terminal gets the live bar (count, rate, time left, redrawn between results); a log file or
     # pipe gets one line per tenth of the work

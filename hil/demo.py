@@ -6,10 +6,11 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.hall import SENSORS
+from hil.motor import steady_state
 from plant_models import RawHallCommutation, Simulation, paper_bench
-from plant_models.hall import SENSORS
-from plant_models.plant import steady_state
 
+from .plots import pyplot, save
 from .recording import Segment, motor_meta, recording_from_edges, write_recording
 
 
@@ -81,8 +82,6 @@ def run_demo(
 
 def plot_demo(result: dict, path: str | Path) -> Path:
     """Edge-error pattern of the demo run: per edge, coloured by sensor, rising vs falling."""
-    from .plots import pyplot, save
-
     e = result["edges"]
     err = e.capture_error_deg_e
     fig, (ax1, ax2) = pyplot().subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2, 1]})

@@ -15,7 +15,7 @@ from typing import ClassVar
 
 from hypothesis import strategies as st
 
-from .dut.virtual import Fault
+from .contract import Fault
 
 
 @dataclass(frozen=True)

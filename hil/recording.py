@@ -9,6 +9,7 @@ the reader unless asked for.
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 from array import array
@@ -17,6 +18,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hil.motor import steady_state
+from hil.units import rpm_to_deg_e_per_s
+from plant_models import RawHallCommutation, Simulation
+from plant_models.edgelog import EdgeLog
+from plant_models.kinematic import simulate_edges
 
 FORMAT = "hil-recording/1"
 SENSOR_NAMES = ("A", "B", "C")
@@ -551,7 +558,8 @@ def recording_from_edges(
     keep = edges.segment >= 0
     e = edges.take(keep)
     # true angle at the timer's capture instant (the reference encoder's view)
-    w_e_deg_s = np.abs(e.speed_rpm) * 6.0 * pp  # the electrical plant logs signed speed, the kinematic one magnitudes
+    # the electrical plant logs signed speed, the kinematic one magnitudes
+    w_e_deg_s = rpm_to_deg_e_per_s(np.abs(e.speed_rpm), pp)
     theta_cap = e.theta_e_capture_deg - e.direction * w_e_deg_s * (e.t_conditioned_s - e.t_capture_s)
     angle_mech = np.mod(theta_cap / pp, 360.0)
     angle_mech[angle_mech >= 360.0] = 0.0
@@ -595,8 +603,6 @@ def motor_meta(config) -> dict[str, Any]:
 
 def record_kinematic(config, profile, seed: int = 0, reference_angle: bool = True) -> Recording:
     """Simulate ``profile`` (OperatingPoints) in the kinematic mode and return it as a Recording."""
-    from plant_models.kinematic import simulate_edges
-
     edges = simulate_edges(config, profile, seed=seed)
     segments, t = [], 0.0
     for i, op in enumerate(profile):
@@ -633,11 +639,6 @@ def record_electrical(
     (currents through the current sensors; terminal voltages and speed with the given white
     measurement noise) as a Recording. Each segment's ``mean_phase_current_a`` is the measured
     mean |i| over the three phases, as the format defines it."""
-    import dataclasses
-
-    from plant_models import RawHallCommutation, Simulation
-    from plant_models.edgelog import EdgeLog
-    from plant_models.plant import steady_state
 
     cp = config.compile()
     true_motor = dataclasses.replace(

@@ -308,7 +308,7 @@ class ReportWriter:
         content = self.content()
         _atomic_write(self.paths["json"], json.dumps(content, indent=1, default=str))
         _atomic_write(self.paths["junit"], junit_xml(content))
-        _atomic_write(self.paths["html"], html(content, self.directory))
+        _atomic_write(self.paths["html"], html(content, self.directory, VERDICTS))
 
 
 #: characters XML 1.0 does not allow (section 2.2), lone surrogates included

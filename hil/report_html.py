@@ -11,6 +11,7 @@ they are; nothing here judges.
 from __future__ import annotations
 
 import base64
+import hashlib
 import math
 import re
 from collections import Counter
@@ -73,8 +74,6 @@ def reason(text: str, limit: int = 220) -> markupsafe.Markup:
 
 def anchor(nodeid: str) -> str:
     """An HTML id for a test's evidence card (stable, unique per node id)."""
-    import hashlib
-
     return "t-" + hashlib.sha1(nodeid.encode()).hexdigest()[:10]
 
 
@@ -87,13 +86,12 @@ def relative_margin(m: dict) -> float:
     return margin / scale
 
 
-def summary(content: dict, worst: int = 5) -> dict:
-    """The summary block: requirements by verdict, the worst margins, the test outcome counts."""
-    from .report import VERDICTS  # the bad news first
-
+def summary(content: dict, verdicts: tuple[str, ...], worst: int = 5) -> dict:
+    """The summary block: requirements by verdict (in the order of ``verdicts``, the bad news
+    first), the worst margins, the test outcome counts."""
     by_verdict = Counter(r.get("verdict", "not tested") for r in content["traceability"])
-    ordered = [(v, by_verdict[v]) for v in VERDICTS if by_verdict.get(v)]
-    ordered += [(v, n) for v, n in by_verdict.items() if v not in VERDICTS]
+    ordered = [(v, by_verdict[v]) for v in verdicts if by_verdict.get(v)]
+    ordered += [(v, n) for v, n in by_verdict.items() if v not in verdicts]
     # one entry per (budget, DUT): the worst measurement of each, then the worst of those
     seen: dict[tuple, dict] = {}
     for t in content["tests"]:
@@ -158,7 +156,7 @@ def _num(v) -> str:
     return f"{v:.4g}"
 
 
-def html(content: dict, directory: Path) -> str:
+def html(content: dict, directory: Path, verdicts: tuple[str, ...]) -> str:
     import jinja2
     import markupsafe
 
@@ -177,4 +175,6 @@ def html(content: dict, directory: Path) -> str:
     # identifiers may break after an underscore or a dot, nowhere else
     env.filters["soft"] = lambda v: markupsafe.Markup("<wbr>").join(re.split(r"(?<=[_.])", str(v)))
     env.globals["FOLD_CHARS"] = FOLD_CHARS
-    return env.get_template("report.html.j2").render(**content, summary=summary(content), rows=matrix_rows(content))
+    return env.get_template("report.html.j2").render(
+        **content, summary=summary(content, verdicts), rows=matrix_rows(content)
+    )

@@ -15,9 +15,14 @@ from pathlib import Path
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
-from plant_models.plant import steady_state
+
+from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs, rms
+from .calibration.campaign import station_corrections
+from .contract import Strategy
+from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
 FORMAT = "hil-stimulus/1"
 #: strategy names of a stimulus (the controller's Strategy register values)
@@ -103,11 +108,6 @@ def replay_path(report_dir: str | Path | None, nodeid: str) -> Path:
 
 def run(stimulus: Stimulus, link, budgets) -> Outcome:
     """Run the stimulus on the lockstep bench through ``link`` and judge it against ``budgets``."""
-    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs, rms
-    from .calibration.campaign import station_corrections
-    from .dut.virtual import Strategy
-    from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
-
     config = stimulus.plant_config()
     # both kinds commutate on corrected edges with the station's tables for this plant
     link.reset()

@@ -27,7 +27,15 @@ from typing import Any
 
 import numpy as np
 
-from .recording import MAX_TABLE_BYTES, Recording, RecordingError, _checked_size, _lines, read_meta_file
+from .recording import (
+    MAX_TABLE_BYTES,
+    Recording,
+    RecordingError,
+    _checked_size,
+    _lines,
+    read_meta_file,
+    write_recording,
+)
 
 
 @dataclass(frozen=True)
@@ -255,8 +263,6 @@ def write_level_trace(
 
 
 def write_meta(rec: Recording, path: str | Path) -> Path:
-    from .recording import write_recording
-
     with tempfile.TemporaryDirectory() as tmp:
         write_recording(
             Recording(

@@ -1,9 +1,12 @@
 """Plant models: BLDC motor, six-step inverter, Hall sensors with conditioning, and the effect library."""
 
-from .effects import EFFECTS, ConditioningCircuit, Effect, effect_from_mapping, effects_strategy
+from hil.contract import Command
+from hil.params import ConfigError
+from plant_models.simulation import OracleCommutation, RawHallCommutation, Simulation, simulate
+
 from .edgelog import EdgeLog
+from .effects import EFFECTS, ConditioningCircuit, Effect, effect_from_mapping, effects_strategy
 from .hall_field import HallField
-from .params import ConfigError
 from .plant import (
     PRESETS,
     CompiledPlant,
@@ -13,7 +16,6 @@ from .plant import (
     PlantConfig,
     paper_bench,
 )
-from .simulation import Command, OracleCommutation, RawHallCommutation, Simulation, simulate
 
 __all__ = [
     "EFFECTS",

@@ -21,82 +21,108 @@ import math
 import numpy as np
 from numba import njit
 
-# parameter vector layout
-P_POLE_PAIRS, P_R, P_L, P_KE, P_FLAT, P_J, P_FRICTION, P_FAN, P_VDC, P_FPWM = range(10)
-P_HYST, P_ARM_SLOPE, P_RISE, P_FALL, P_JIT_T, P_JIT_A, P_JIT_RHO, P_TICK = range(10, 18)
-P_COG_AMP, P_COG_N, P_COG_PHASE, P_DEAD, P_ISAT, P_LMIN, P_HMAX, P_SAMPLE, P_LATENCY = range(18, 27)
-N_PARAMS = 27
-#: the parameter vector, declared once: slot <- CompiledPlant field (Simulation packs the plant
-#: from this table alone), then the three slots the run itself sets
-PLANT_PARAMS = (
-    (P_POLE_PAIRS, "pole_pairs"), (P_R, "phase_resistance_ohm"), (P_L, "phase_inductance_h"), (P_KE, "ke_v_s_per_rad"),
-    (P_FLAT, "flat_top_deg_e"), (P_J, "inertia_kg_m2"), (P_FRICTION, "friction_n_m_s_per_rad"),
-    (P_FAN, "fan_coefficient_n_m_s2"), (P_VDC, "supply_v"), (P_FPWM, "pwm_frequency_hz"), (P_HYST, "hysteresis_deg_e"),
-    (P_ARM_SLOPE, "armature_slope_deg_e_per_a"), (P_RISE, "rise_delay_s"), (P_FALL, "fall_delay_s"),
-    (P_JIT_T, "jitter_time_rms_s"), (P_JIT_A, "jitter_angle_rms_deg_e"), (P_JIT_RHO, "jitter_correlation"),
-    (P_TICK, "timer_tick_s"), (P_COG_AMP, "cogging_amplitude_n_m"), (P_COG_N, "cogging_periods_per_rev"),
-    (P_COG_PHASE, "cogging_phase_rad"), (P_DEAD, "dead_time_s"), (P_ISAT, "saturation_current_a"),
-    (P_LMIN, "min_inductance_fraction"),
+from hil.hall import (
+    BEMF_ZERO_DEG_E,
+    SECTOR_HIGH_PHASE,
+    SECTOR_LOW_PHASE,
+    SECTOR_OF_CODE,
+    SENSOR_POSITION_DEG_E,
+    trapezoid,
 )
-RUN_PARAMS = ((P_SAMPLE, "sample_period_s"), (P_HMAX, "max_step_s"), (P_LATENCY, "latency_s"))
+from hil.units import rad_per_s_to_rpm
 
-# float state layout
-S_T, S_THETA_M, S_OMEGA_M, S_IA, S_IB, S_IC, S_DUTY, S_NEXT_SAMPLE = range(8)
-S_AR_TIME, S_AR_ANGLE, S_E_IN, S_E_CU, S_E_MECH, S_E_LOAD = range(8, 14)
-S_FWD_TARGET = 14  # 3 values: base forward switching angle per sensor (deg_e, unwrapped)
-S_REV_TARGET = 17  # 3 values
-S_SAMPLE_T0 = 20
-S_HELD_ARM = 21  # 3 values: armature shift (deg_e) held by the boundary behind each sensor
-N_FSTATE = 24
+from ._layout import (
+    E_BOUNDARY,
+    E_CURRENT,
+    E_DIR,
+    E_POLE,
+    E_RISING,
+    E_SENSOR,
+    E_SPEED_RPM,
+    E_T_CAPTURE,
+    E_T_COND,
+    E_T_RAW,
+    E_THETA_CAPTURE,
+    E_THETA_RAW,
+    I_CMD_COUNT,
+    I_CMD_HEAD,
+    I_DIR,
+    I_IDEAL_REGION,
+    I_MODE,
+    I_N_COMM,
+    I_N_EDGES,
+    I_N_IDEAL,
+    I_N_PENDING,
+    I_N_SAMPLES,
+    I_NOISE,
+    I_ORACLE_N,
+    I_RAW_REGION,
+    I_SAMPLE_K,
+    I_SECTOR,
+    I_SEEN,
+    MAX_PENDING,
+    MODE_EXTERNAL,
+    MODE_ORACLE,
+    MODE_RAW_HALL,
+    N_EDGE_COLS,
+    N_FSTATE,
+    P_COG_AMP,
+    P_COG_N,
+    P_COG_PHASE,
+    P_DEAD,
+    P_FAN,
+    P_FLAT,
+    P_FPWM,
+    P_FRICTION,
+    P_HMAX,
+    P_ISAT,
+    P_J,
+    P_KE,
+    P_L,
+    P_LATENCY,
+    P_LMIN,
+    P_POLE_PAIRS,
+    P_R,
+    P_SAMPLE,
+    P_TICK,
+    P_VDC,
+    S_DUTY,
+    S_E_CU,
+    S_E_IN,
+    S_E_LOAD,
+    S_E_MECH,
+    S_IA,
+    S_IB,
+    S_IC,
+    S_NEXT_SAMPLE,
+    S_OMEGA_M,
+    S_SAMPLE_T0,
+    S_T,
+    S_THETA_M,
+    STOP_EDGE,
+    STOP_FULL,
+    STOP_NOISE,
+    STOP_TIME,
+    _kernel_inline,
+    _kernel_jit,
+)
+from .sensor import (
+    armature_shift,
+    crossing_direction,
+    edge_emit_time,
+    hold_crossing,
+    pending_of,
+    sensor_crossing,
+    set_targets,
+)
 
-# int state layout
-I_SECTOR, I_DIR, I_MODE, I_N_EDGES, I_N_IDEAL, I_N_SAMPLES, I_NOISE = range(7)
-I_RAW_REGION = 7  # 3 values
-I_IDEAL_REGION = 10  # 3 values
-I_N_PENDING, I_ORACLE_N, I_CMD_HEAD, I_CMD_COUNT, I_SAMPLE_K = range(13, 18)
-I_SEEN = 18  # 3 values: Hall state as the controller has seen it
-I_N_COMM = 21
-I_LAST_CROSS = 22  # 3 values: direction of each sensor's last switch (+1, -1; 0 = none yet)
-N_ISTATE = 25
-
-MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
-STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
-
-# captured edge record
-E_T_CAPTURE, E_T_COND, E_T_RAW, E_SENSOR, E_RISING, E_BOUNDARY, E_DIR = range(7)
-E_THETA_RAW, E_THETA_CAPTURE, E_SPEED_RPM, E_CURRENT, E_POLE = range(7, 12)
-N_EDGE_COLS = 12
-N_IDEAL_COLS = 4  # t, sensor, boundary, direction
-# samples
-N_SAMPLE_COLS = 15  # t, i_a..c, u_a..c, speed_rpm, theta_m_deg, duty, sector, e_a..c, torque
-MAX_PENDING = 32
-
-SENSOR_POS = np.array([0.0, 120.0, 240.0])
-BEMF_ZERO = np.array([90.0, 210.0, 330.0])
-SECTOR_HIGH = np.array([2, 2, 0, 0, 1, 1])
-SECTOR_LOW = np.array([0, 1, 1, 2, 2, 0])
-SECTOR_OF_CODE = np.array([-1, 5, 3, 4, 1, 0, 2, -1])
 RAD2DEG = 180.0 / math.pi
 
 # every function the step loop calls: no allocation, no reference counting (module docstring)
-_kernel_jit = njit(cache=True, _nrt=False)
-_kernel_inline = njit(cache=True, inline="always", _nrt=False)
 
 
-@_kernel_inline
-def _trap(phi, flat):
-    half = (180.0 - flat) * 0.5
-    x = phi + 90.0
-    x = x - 360.0 * math.floor(x / 360.0) - 90.0
-    if x < 90.0:
-        v = x / half
-    else:
-        v = (180.0 - x) / half
-    if v > 1.0:
-        return 1.0
-    if v < -1.0:
-        return -1.0
-    return v
+_trap = _kernel_inline(trapezoid)
+_rad_per_s_to_rpm = _kernel_inline(rad_per_s_to_rpm)
 
 
 @_kernel_inline
@@ -132,155 +158,6 @@ def _commutate(p, st, ist, out_comm, sector):
 
 
 @_kernel_inline
-def _armature(p, arm_i, arm_deg, current):
-    if arm_i.size > 0:
-        return _interp(current, arm_i, arm_deg)
-    return p[P_ARM_SLOPE] * current
-
-
-@_kernel_inline
-def _interp(x, xp, fp):
-    """np.interp for one point (xp increasing, >= 2 points), without its array allocation:
-    numba's own np.interp allocates its result even for a scalar. Same arithmetic, same
-    result bit for bit (NumPy's arr_interp: clamped ends, exact at a table point, the slope
-    taken from the other end of the interval if the first gives NaN)."""
-    n = xp.size
-    if math.isnan(x):
-        return x
-    if x < xp[0]:
-        return fp[0]
-    if x > xp[n - 1]:
-        return fp[n - 1]
-    j = 0
-    while j < n - 1 and xp[j + 1] <= x:
-        j += 1
-    if j == n - 1 or xp[j] == x:
-        return fp[j]
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    y = slope * (x - xp[j]) + fp[j]
-    if math.isnan(y):
-        y = slope * (x - xp[j + 1]) + fp[j + 1]
-        if math.isnan(y) and fp[j] == fp[j + 1]:
-            y = fp[j]
-    return y
-
-
-@_kernel_jit
-def _draw(st, ist, noise, slot, rms, rho):
-    """One sample of a stationary AR(1) process with RMS ``rms`` (white when rho = 0)."""
-    if rms == 0.0:
-        return 0.0
-    k = ist[I_NOISE]
-    w = noise[k % noise.size]
-    ist[I_NOISE] = k + 1
-    x = rho * st[slot] + math.sqrt(1.0 - rho * rho) * w
-    st[slot] = x
-    return rms * x
-
-
-@_kernel_jit
-def set_targets(p, st, ist, switch_off, noise, x, crossed=0):
-    """Base switching angles of sensor x around its current region, from the switching-angle
-    table ``switch_off[sensor, pole, 0 forward / 1 reverse]`` (installation and pole offsets and
-    the field-level sensor model, CompiledPlant.switch_table_deg_e), plus angle jitter.
-
-    ``crossed`` = +1 (-1): the sensor has just entered this region forward (backward), so the
-    boundary behind it is the one it crossed, at the angle it crossed it: the field is the same
-    field, and its angle noise has not moved in between. A fresh draw there would put the way
-    back in front of the rotor half the time, and the sensor would flip back at once. Both
-    sides are still drawn, so the noise stream, and every run that never turns back, stays the
-    same whichever way the last crossing went.
-    """
-    m = ist[I_RAW_REGION + x]
-    n_poles = switch_off.shape[1]
-    kf = m + 1
-    km = m
-    base = SENSOR_POS[x]
-    kept = st[S_FWD_TARGET + x] if crossed > 0 else st[S_REV_TARGET + x]
-    st[S_FWD_TARGET + x] = (
-        180.0 * kf + base + switch_off[x, kf % n_poles, 0] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
-    )
-    st[S_REV_TARGET + x] = (
-        180.0 * km + base + switch_off[x, km % n_poles, 1] + _draw(st, ist, noise, S_AR_ANGLE, p[P_JIT_A], p[P_JIT_RHO])
-    )
-    if crossed > 0:
-        st[S_REV_TARGET + x] = kept
-    elif crossed < 0:
-        st[S_FWD_TARGET + x] = kept
-
-
-@_kernel_inline
-def armature_shift(p, ist, arm_i, arm_deg, current):
-    """Armature-reaction shift of the Hall switching angles at mean |i| = ``current`` (deg e).
-
-    Its sign follows the torque (the stator MMF reverses with the drive direction), so a
-    positive slope lags in motoring whichever way the rotor turns."""
-    return ist[I_DIR] * _armature(p, arm_i, arm_deg, current)
-
-
-@_kernel_inline
-def _crossed(th1, ahead, behind, eps_f, eps_r):
-    """+1 if the rotor, now at th1 (deg e), has reached the angle ``ahead``, -1 if it has fallen
-    back to ``behind``, else 0: the one crossing test of the kernel (oracle sectors, ideal and
-    raw Hall edges). The margins ``eps_f``/``eps_r`` are positive in the direction of motion
-    and negative against it (see the step loop)."""
-    if th1 >= ahead - eps_f:
-        return 1
-    if th1 <= behind + eps_r:
-        return -1
-    return 0
-
-
-@_kernel_inline
-def sensor_crossing(p, st, ist, x, th1, arm0, arm_rate, h, eps_f, eps_r):
-    """Whether the rotor, at th1 (deg e) after a step of h seconds, has switched sensor x.
-
-    Returns (+1 forward, -1 backward or 0; the switching angle at the step start; its rate in
-    deg e/s over the step). The one place the raw Hall outputs switch. ``arm0`` is the armature
-    shift at the step start and ``arm_rate`` its rate over the step (the current's, taken
-    linear within the step): an edge sits at the current of its own instant, not at the
-    current of the step it fell in.
-
-    The hysteresis opens a band around the switching point: forward the rotor must pass it by
-    the hysteresis, backward fall short of it by as much, so the band is never negative. The
-    armature reaction is the edge's lag at the current of its edge, not a band: it moves the
-    switching point ahead of the sensor with the current, while the boundary the sensor has just
-    crossed stays where it was crossed (``S_HELD_ARM``), so the way back is the crossing angle
-    less twice the hysteresis. (Applied like the hysteresis, in whichever way the rotor
-    crosses, a leading shift made the band negative and the sensor flipped back on every step
-    after an edge; applied to both sides live, a current that moves faster than the rotor
-    after a commutation dragged the boundary just crossed back over the rotor.)
-    """
-    last = ist[I_LAST_CROSS + x]
-    if last < 0:
-        lag_f, rate_f = p[P_HYST] + st[S_HELD_ARM + x], 0.0
-    else:
-        lag_f, rate_f = p[P_HYST] + arm0, arm_rate
-    if last > 0:
-        lag_r, rate_r = p[P_HYST] - st[S_HELD_ARM + x], 0.0
-    else:
-        lag_r, rate_r = p[P_HYST] - arm0, arm_rate
-    # the switching angles at the step's end, the lag moving at its rate over the step
-    ahead = st[S_FWD_TARGET + x] + (lag_f + rate_f * h)
-    behind = st[S_REV_TARGET + x] - (lag_r - rate_r * h)
-    d = _crossed(th1, ahead, behind, eps_f, eps_r)
-    if d > 0:
-        return 1, st[S_FWD_TARGET + x] + lag_f, rate_f
-    if d < 0:
-        return -1, st[S_REV_TARGET + x] - lag_r, rate_r
-    return 0, 0.0, 0.0
-
-
-@_kernel_inline
-def hold_crossing(st, ist, x, d, arm):
-    """Sensor x has just switched going ``d`` (present armature shift ``arm``): the boundary
-    behind it keeps the shift it was crossed with."""
-    if d * ist[I_LAST_CROSS + x] >= 0:  # crossed on the live side (the held one is behind)
-        st[S_HELD_ARM + x] = arm
-    ist[I_LAST_CROSS + x] = d
-
-
-@_kernel_inline
 def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     """Terminal voltages u (to ground) and the neutral voltage for the present switch state.
 
@@ -290,8 +167,8 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     for x in range(3):
         driven[x] = 0
     if sector >= 0:
-        hi = SECTOR_HIGH[sector]
-        lo = SECTOR_LOW[sector]
+        hi = SECTOR_HIGH_PHASE[sector]
+        lo = SECTOR_LOW_PHASE[sector]
         if drive_dir < 0:
             hi, lo = lo, hi
         d = duty - p[P_DEAD] * p[P_FPWM] * (1.0 if i[hi] >= 0.0 else -1.0)
@@ -354,7 +231,7 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     i[1] = st[S_IB]
     i[2] = st[S_IC]
     for x in range(3):
-        f[x] = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+        f[x] = _trap(the - BEMF_ZERO_DEG_E[x], p[P_FLAT])
         e[x] = ke * w0 * f[x]
     sector = ist[I_SECTOR]
     un = _voltages(p, i, e, sector, ist[I_DIR], st[S_DUTY], tmp_u, tmp_d)
@@ -419,30 +296,6 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
         out_e[x] = e[x]
     out_te[0] = te
     return w0, w1
-
-
-@_kernel_jit
-def _edge_emit_time(p, st, ist, noise, t_raw, rising, peek):
-    delay = p[P_RISE] if rising else p[P_FALL]
-    jitter = 0.0
-    if p[P_JIT_T] > 0.0:
-        if peek:
-            k = ist[I_NOISE]
-            rho = p[P_JIT_RHO]
-            jitter = p[P_JIT_T] * (rho * st[S_AR_TIME] + math.sqrt(1.0 - rho * rho) * noise[k % noise.size])
-        else:
-            jitter = _draw(st, ist, noise, S_AR_TIME, p[P_JIT_T], p[P_JIT_RHO])
-    t_cond = t_raw + delay + jitter
-    return t_cond, max(t_cond, t_raw)
-
-
-@_kernel_inline
-def _pending_of(pending, ist, x):
-    """Row of sensor x's edge still on its way through the conditioning circuit, or -1."""
-    for q in range(ist[I_N_PENDING]):
-        if pending[q, E_SENSOR] == x:
-            return q
-    return -1
 
 
 # step-loop scratch (float): the trial step's starting state, then small per-phase vectors
@@ -510,7 +363,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             # a capture that jitter placed before the physical switch is emitted at the switch
             # (causality); its true angle is the rotor's at the capture instant, not now
             row[E_THETA_CAPTURE] = pp * (st[S_THETA_M] - st[S_OMEGA_M] * (t - t_cond)) * RAD2DEG
-            row[E_SPEED_RPM] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            row[E_SPEED_RPM] = _rad_per_s_to_rpm(st[S_OMEGA_M])
             ist[I_N_EDGES] += 1
             x = int(row[E_SENSOR])
             ist[I_SEEN + x] = 1 if row[E_RISING] > 0.5 else 0
@@ -544,7 +397,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             i3[2] = st[S_IC]
             te = 0.0
             for x in range(3):
-                f = _trap(the - BEMF_ZERO[x], p[P_FLAT])
+                f = _trap(the - BEMF_ZERO_DEG_E[x], p[P_FLAT])
                 e_now[x] = p[P_KE] * st[S_OMEGA_M] * f
                 te += p[P_KE] * f * i3[x]
             _voltages(p, i3, e_now, ist[I_SECTOR], ist[I_DIR], st[S_DUTY], u_now, tmp_d)
@@ -556,7 +409,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             r[4] = u_now[0]
             r[5] = u_now[1]
             r[6] = u_now[2]
-            r[7] = st[S_OMEGA_M] * 60.0 / (2.0 * math.pi)
+            r[7] = _rad_per_s_to_rpm(st[S_OMEGA_M])
             r[8] = st[S_THETA_M] * RAD2DEG
             r[9] = st[S_DUTY]
             r[10] = ist[I_SECTOR]
@@ -603,7 +456,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         t_event = st[S_T]
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            d = _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
+            d = crossing_direction(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
             if d > 0 and th0 < 60.0 * (n + 1) - eps_f:
                 t_event = min(t_event, backup[S_T] + _root(th0, we0, acc, 60.0 * (n + 1), h))
             elif d < 0:
@@ -622,7 +475,7 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
                 continue
             t_raw = backup[S_T] + _root(th0, we0 - rate, acc, target, h)
             rising = (ist[I_RAW_REGION + x] + d) % 2 == 0
-            t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, True)
+            t_cond, t_emit = edge_emit_time(p, st, ist, noise, t_raw, rising, True)
             t_event = min(t_event, t_emit)
         # (a cut never shrinks a step below 0.1 ns, so a pathological event cannot stall the
         # loop; edge times stay exact roots either way)
@@ -640,15 +493,15 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         # commit: oracle sector
         if mode == MODE_ORACLE:
             n = ist[I_ORACLE_N]
-            n += _crossed(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
+            n += crossing_direction(th1, 60.0 * (n + 1), 60.0 * n, eps_f, eps_r)
             ist[I_ORACLE_N] = n
             _commutate(p, st, ist, out_comm, n % 6)
         # commit: ideal edges (perfect sensor, perfect magnet)
         for x in range(3):
             m = ist[I_IDEAL_REGION + x]
-            tf = 180.0 * (m + 1) + SENSOR_POS[x]
-            trv = 180.0 * m + SENSOR_POS[x]
-            d = _crossed(th1, tf, trv, eps_f, eps_r)
+            tf = 180.0 * (m + 1) + SENSOR_POSITION_DEG_E[x]
+            trv = 180.0 * m + SENSOR_POSITION_DEG_E[x]
+            d = crossing_direction(th1, tf, trv, eps_f, eps_r)
             if d == 0:
                 continue
             k = m + 1 if d > 0 else m
@@ -676,14 +529,14 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
             ist[I_RAW_REGION + x] = m + d
             rising = ist[I_RAW_REGION + x] % 2 == 0
             t_raw = t0 + tau
-            t_cond, t_emit = _edge_emit_time(p, st, ist, noise, t_raw, rising, False)
+            t_cond, t_emit = edge_emit_time(p, st, ist, noise, t_raw, rising, False)
             set_targets(p, st, ist, switch_off, noise, x, d)
             # the conditioning circuit is a state (its capacitor), not a delay per edge: a raw
             # pulse that ends before the capacitor crossed the MCU threshold never reaches the
             # MCU, and its end does not either (inertial delay). Delayed independently, the two
             # could swap places (rise and fall delays far apart) and the MCU would see the same
             # level twice.
-            q = _pending_of(pending, ist, x)
+            q = pending_of(pending, ist, x)
             if q >= 0:
                 last = ist[I_N_PENDING] - 1
                 for c in range(N_EDGE_COLS):

@@ -1,7 +1,7 @@
 """The effect library: every deviation the plant can show, one typed, bounded object each.
 
 Each effect is a frozen dataclass whose fields carry units in their names and physical bounds
-(:func:`plant_models.params.bounded`). Defaults are neutral: an effect built with its defaults
+(:func:`hil.params.bounded`). Defaults are neutral: an effect built with its defaults
 changes nothing. Each effect knows how to write itself into the compiled plant
 (:meth:`Effect.contribute`), draws itself for hypothesis (:meth:`Effect.strategy`) and
 describes its fingerprint for the gap diagnosis (:attr:`Effect.fingerprint`).
@@ -16,14 +16,13 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from .params import ConfigError, bounded, from_mapping, strategy_for, validate
+from hil.params import ConfigError, bounded, from_mapping, strategy_for, validate
 
-if TYPE_CHECKING:  # pragma: no cover
-    from .plant import CompiledPlant
+from .compiled import CompiledPlant
 
 
 @dataclass(frozen=True)
@@ -34,7 +33,7 @@ class Effect:
     #: fingerprint for the gap diagnosis (docs/gap.md, Fingerprints)
     fingerprint: ClassVar[Mapping[str, str]] = {}
 
-    def contribute(self, plant: "CompiledPlant") -> None:  # pragma: no cover - abstract
+    def contribute(self, plant: CompiledPlant) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
 
     def check(self, pole_pairs: int, prefix: str) -> None:

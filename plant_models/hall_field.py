@@ -42,9 +42,10 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 from scipy.optimize import brentq
 
+from hil.hall import SENSOR_POSITION_DEG_E
+from hil.params import ConfigError, bounded, from_mapping, validate
+
 from .effects import EFFECTS, ConditioningCircuit, Effect
-from .hall import SENSOR_POSITION_DEG_E
-from .params import ConfigError, bounded, from_mapping, validate
 
 #: mechanical harmonics of the magnetisation kept in the field sum (per pole pair)
 HARMONICS_PER_POLE_PAIR = 80

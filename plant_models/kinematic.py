@@ -15,9 +15,11 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
+from hil.hall import SENSOR_POSITION_DEG_E
+from hil.params import ConfigError
+from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+
 from .edgelog import EdgeLog
-from .hall import SENSOR_POSITION_DEG_E
-from .params import ConfigError
 from .plant import PlantConfig
 
 
@@ -66,8 +68,8 @@ def simulate_edges(
     for index, op in enumerate(profile):
         op.check(index)
         d = op.direction
-        w0 = op.speed_rpm * 6.0 * p  # deg_e / s
-        w1 = (op.end_speed_rpm if op.end_speed_rpm is not None else op.speed_rpm) * 6.0 * p
+        w0 = rpm_to_deg_e_per_s(op.speed_rpm, p)  # deg_e / s
+        w1 = rpm_to_deg_e_per_s(op.end_speed_rpm if op.end_speed_rpm is not None else op.speed_rpm, p)
         acc = (w1 - w0) / op.duration_s
         travel = w0 * op.duration_s + 0.5 * acc * op.duration_s**2  # deg_e, >= 0
         theta1 = theta0 + d * travel
@@ -118,7 +120,7 @@ def simulate_edges(
                 direction=np.full(n, d, dtype=np.int64),
                 theta_e_switch_deg=switch,
                 theta_e_capture_deg=theta_cap,
-                speed_rpm=(w0 + acc * tau_cond) / (6.0 * p),
+                speed_rpm=deg_e_per_s_to_rpm(w0 + acc * tau_cond, p),
                 mean_abs_current_a=np.full(n, op.mean_phase_current_a),
                 segment=np.full(n, index, dtype=np.int64),
             )

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import math
 import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -13,32 +12,12 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from hil.motor import MotorParameters
+from hil.params import ConfigError, bounded, from_mapping, validate
+
+from . import effects as fx
+from .compiled import CompiledPlant
 from .effects import ConditioningCircuit, Effect, effect_from_mapping
-from .params import ConfigError, bounded, from_mapping, validate
-
-
-@dataclass(frozen=True)
-class MotorParameters:
-    """Star-connected three-phase BLDC motor with trapezoidal back-EMF and a fan (pump) load.
-
-    ``ke_v_s_per_rad`` is the flat-top phase back-EMF per mechanical rad/s, so the torque of a
-    two-phase conduction at current I is 2 * ke * I. ``phase_inductance_h`` is L - M.
-    Load torque: T_L = fan_coefficient * w_m^2 + friction * w_m (w_m in mechanical rad/s).
-    """
-
-    pole_pairs: int = bounded(2, low=1, high=64, unit="1", integer=True, doc="pole pairs")
-    phase_resistance_ohm: float = bounded(0.0655, low=0.0, high=100.0, unit="ohm", low_open=True, doc="per phase")
-    phase_inductance_h: float = bounded(60e-6, low=0.0, high=1.0, unit="H", low_open=True, doc="L - M per phase")
-    ke_v_s_per_rad: float = bounded(
-        0.0216, low=0.0, high=10.0, unit="V s/rad", low_open=True, doc="phase BEMF constant (mechanical)"
-    )
-    flat_top_deg_e: float = bounded(120.0, low=0.0, high=180.0, unit="deg_e", low_open=True, doc="BEMF flat top width")
-    inertia_kg_m2: float = bounded(
-        0.0039, low=0.0, high=100.0, unit="kg m^2", low_open=True, doc="rotor + pump inertia"
-    )
-    friction_n_m_s_per_rad: float = bounded(1e-5, low=0.0, high=10.0, unit="N m s/rad", doc="viscous friction")
-    fan_coefficient_n_m_s2: float = bounded(1.5e-7, low=0.0, high=1.0, unit="N m s^2/rad^2", doc="pump load T = M w^2")
-    supply_v: float = bounded(80.0, low=0.0, high=1000.0, unit="V", low_open=True, doc="DC link voltage")
 
 
 @dataclass(frozen=True)
@@ -156,53 +135,10 @@ class PlantConfig:
         except ConfigError as exc:
             raise ConfigError(f"{path}: {exc.field}", str(exc).split(": ", 1)[1]) from None
 
-    def compile(self) -> "CompiledPlant":
-        return CompiledPlant.build(self)
-
-
-@dataclass
-class CompiledPlant:
-    """Flat numeric view of a PlantConfig with every effect folded in (what the kernels read)."""
-
-    pole_pairs: int
-    phase_resistance_ohm: float
-    phase_inductance_h: float
-    ke_v_s_per_rad: float
-    flat_top_deg_e: float
-    inertia_kg_m2: float
-    friction_n_m_s_per_rad: float
-    fan_coefficient_n_m_s2: float
-    supply_v: float
-    pwm_frequency_hz: float
-    sensor_offset_deg_e: np.ndarray
-    pole_offset_deg_e: np.ndarray
-    hysteresis_deg_e: float = 0.0
-    armature_slope_deg_e_per_a: float = 0.0
-    armature_table_current_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    armature_table_offset_deg_e: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    rise_delay_s: float = 0.0
-    fall_delay_s: float = 0.0
-    jitter_time_rms_s: float = 0.0
-    jitter_angle_rms_deg_e: float = 0.0
-    jitter_correlation: float = 0.0
-    timer_tick_s: float = 0.0
-    cogging_amplitude_n_m: float = 0.0
-    cogging_periods_per_rev: int = 12
-    cogging_phase_rad: float = 0.0
-    dead_time_s: float = 0.0
-    saturation_current_a: float = 20.0
-    min_inductance_fraction: float = 1.0
-    #: switching-angle offsets [sensor, pole, forward / reverse] beyond sensor and pole offsets
-    #: (deg_e, absolute; the field-level Hall model writes it, plant_models.hall_field)
-    switch_offset_deg_e: np.ndarray = field(default_factory=lambda: np.zeros((3, 0, 2)))
-    #: the field model's current-dependent lag: mean |i| (A) -> deg_e, interpolated, clamped
-    field_current_a: np.ndarray = field(default_factory=lambda: np.zeros(0))
-    field_lag_deg_e: np.ndarray = field(default_factory=lambda: np.zeros(0))
-
-    @classmethod
-    def build(cls, config: PlantConfig) -> "CompiledPlant":
-        m, inv = config.motor, config.inverter
-        plant = cls(
+    def compile(self) -> CompiledPlant:
+        """The flat numeric view the kernels read, with every effect folded in."""
+        m, inv = self.motor, self.inverter
+        plant = CompiledPlant(
             pole_pairs=int(m.pole_pairs),
             phase_resistance_ohm=m.phase_resistance_ohm,
             phase_inductance_h=m.phase_inductance_h,
@@ -217,36 +153,9 @@ class CompiledPlant:
             pole_offset_deg_e=np.zeros(2 * int(m.pole_pairs)),
             switch_offset_deg_e=np.zeros((3, 2 * int(m.pole_pairs), 2)),
         )
-        for eff in config.effects:
+        for eff in self.effects:
             eff.contribute(plant)
         return plant
-
-    def armature_offset_deg_e(self, current_a):
-        """Current-dependent lag (deg_e): armature reaction plus the field model's stator field."""
-        current_a = np.asarray(current_a, dtype=float)
-        if self.armature_table_current_a.size:
-            out = np.interp(current_a, self.armature_table_current_a, self.armature_table_offset_deg_e)
-        else:
-            out = self.armature_slope_deg_e_per_a * current_a
-        if self.field_lag_deg_e.size:
-            out = out + np.interp(current_a, self.field_current_a, self.field_lag_deg_e)
-        return out
-
-    def armature_table(self) -> tuple[np.ndarray, np.ndarray]:
-        """The current-dependent lag as one (current, lag) table for the kernel (empty: the
-        linear slope alone, which the kernel applies itself)."""
-        if not self.armature_table_current_a.size and not self.field_lag_deg_e.size:
-            return self.armature_table_current_a, self.armature_table_offset_deg_e
-        grid = np.union1d(self.armature_table_current_a, self.field_current_a)
-        if not self.armature_table_current_a.size:  # a slope becomes exact on a grid reaching far enough
-            grid = np.union1d(grid, [1e4])
-        return grid, self.armature_offset_deg_e(grid)
-
-    def switch_table_deg_e(self) -> np.ndarray:
-        """Every zero-current switching-angle offset as one table [sensor, pole, forward / reverse]
-        (deg_e): installation and pole offsets plus the field model's. What the kernel reads."""
-        t = self.sensor_offset_deg_e[:, None, None] + self.pole_offset_deg_e[None, :, None]
-        return np.broadcast_to(t, (3, self.pole_offset_deg_e.size, 2)) + self.switch_offset_deg_e
 
 
 # --- presets -------------------------------------------------------------------------------
@@ -263,8 +172,6 @@ def paper_bench(with_deviations: bool = False) -> PlantConfig:
     the Hall deviations are of the size the paper reports (Tables 2-4) plus its conditioning
     circuit and a LA25-P-like current sensor.
     """
-    from . import effects as fx
-
     config = PlantConfig(name="paper-bench")
     if not with_deviations:
         return config
@@ -310,26 +217,3 @@ def paper_pole_offsets_deg_e() -> tuple[float, float, float, float]:
 
 
 PRESETS = {"paper-bench": paper_bench, "paper-bench+deviations": lambda: paper_bench(True)}
-
-
-def steady_state(motor: MotorParameters, speed_rpm: float, load_scale: float = 1.0) -> dict[str, float]:
-    """Torque balance of ideal six-step commutation with L -> 0 (analytic).
-
-    Two phases conduct on their flat tops: T_e = 2 ke I, and duty * V_dc = 2 R I + 2 ke w_m.
-    Returns the current and duty that hold ``speed_rpm`` against the fan load and friction.
-    """
-    w = speed_rpm * 2 * math.pi / 60
-    torque = load_scale * motor.fan_coefficient_n_m_s2 * w * w + motor.friction_n_m_s_per_rad * w
-    current = torque / (2 * motor.ke_v_s_per_rad)
-    duty = (2 * motor.phase_resistance_ohm * current + 2 * motor.ke_v_s_per_rad * w) / motor.supply_v
-    return {"torque_n_m": torque, "current_a": current, "duty": duty}
-
-
-def steady_speed_rpm(motor: MotorParameters, duty: float, load_scale: float = 1.0) -> float:
-    """Inverse of :func:`steady_state`: the speed at which ``duty`` balances the load (L -> 0)."""
-    ke, r = motor.ke_v_s_per_rad, motor.phase_resistance_ohm
-    a = load_scale * motor.fan_coefficient_n_m_s2
-    b = motor.friction_n_m_s_per_rad + 2 * ke * ke / r
-    c = -ke * duty * motor.supply_v / r
-    w = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a) if a > 0 else -c / b
-    return w * 60 / (2 * math.pi)

@@ -7,28 +7,22 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.contract import Command
+from hil.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
+from hil.params import ConfigError
+from hil.units import rad_per_s_to_rpm, rpm_to_rad_per_s
+
 from . import _kernel as K
+from . import _layout as L
 from .edgelog import EdgeLog, join_ideal
-from .hall import SENSOR_POSITION_DEG_E
-from .params import ConfigError
 from .plant import CompiledPlant, PlantConfig
-
-
-@dataclass(frozen=True)
-class Command:
-    """A commutation command for the plant: from ``at_s`` on, energise ``sector`` (0..5, -1 = all
-    switches off) with ``duty`` (None = keep) and torque ``direction`` (+1 / -1, None = keep)."""
-
-    at_s: float
-    sector: int | None = None
-    duty: float | None = None
-    direction: int | None = None
+from .sensor import set_targets
 
 
 class RawHallCommutation:
     """The naive controller: commutate on every captured Hall edge, from the Hall code."""
 
-    mode = K.MODE_RAW_HALL
+    mode = L.MODE_RAW_HALL
 
     def __init__(self, latency_s: float = 0.0):
         self.latency_s = latency_s
@@ -37,7 +31,7 @@ class RawHallCommutation:
 class OracleCommutation:
     """Ideal commutation from the true rotor angle (the reference no controller can beat)."""
 
-    mode = K.MODE_ORACLE
+    mode = L.MODE_ORACLE
     latency_s = 0.0
 
 
@@ -128,12 +122,12 @@ class Simulation:
         self.seed = seed
         cp = self.plant
         sample_period = 1.0 / sample_rate_hz
-        p = np.zeros(K.N_PARAMS)
-        for index, name in K.PLANT_PARAMS:
+        p = np.zeros(L.N_PARAMS)
+        for index, name in L.PLANT_PARAMS:
             p[index] = getattr(cp, name)
         run = {"sample_period_s": sample_period, "max_step_s": max_step_s if max_step_s is not None else sample_period,
                "latency_s": getattr(self.source, "latency_s", 0.0)}
-        for index, name in K.RUN_PARAMS:
+        for index, name in L.RUN_PARAMS:
             p[index] = run[name]
         self.p = p
         self.sample_period_s = sample_period
@@ -141,22 +135,22 @@ class Simulation:
         # current -> lag table (hall_field.py writes both alongside the library's effects)
         self.switch_table = np.ascontiguousarray(cp.switch_table_deg_e())
         self.arm_table = tuple(np.ascontiguousarray(a, dtype=float) for a in cp.armature_table())
-        st = np.zeros(K.N_FSTATE)
-        ist = np.zeros(K.N_ISTATE, dtype=np.int64)
-        st[K.S_THETA_M] = math.radians(initial_angle_deg_m)
-        st[K.S_OMEGA_M] = direction * initial_speed_rpm * 2 * math.pi / 60  # a magnitude, turning the driven way
-        st[K.S_DUTY] = duty
-        st[K.S_NEXT_SAMPLE] = 0.0
-        st[K.S_SAMPLE_T0] = 0.0
-        ist[K.I_DIR] = direction
-        ist[K.I_MODE] = getattr(self.source, "mode", K.MODE_EXTERNAL)
+        st = np.zeros(L.N_FSTATE)
+        ist = np.zeros(L.N_ISTATE, dtype=np.int64)
+        st[L.S_THETA_M] = math.radians(initial_angle_deg_m)
+        st[L.S_OMEGA_M] = direction * rpm_to_rad_per_s(initial_speed_rpm)  # a magnitude, turning the driven way
+        st[L.S_DUTY] = duty
+        st[L.S_NEXT_SAMPLE] = 0.0
+        st[L.S_SAMPLE_T0] = 0.0
+        ist[L.I_DIR] = direction
+        ist[L.I_MODE] = getattr(self.source, "mode", L.MODE_EXTERNAL)
         self.st, self.ist = st, ist
         self.noise = self.rng.standard_normal(1 << 16)
         self.cmds = np.zeros((4096, 4))
-        self.pending = np.zeros((K.MAX_PENDING, K.N_EDGE_COLS))
-        self._edges = np.zeros((capacity, K.N_EDGE_COLS))
-        self._ideal = np.zeros((capacity, K.N_IDEAL_COLS))
-        self._samples = np.zeros((capacity, K.N_SAMPLE_COLS))
+        self.pending = np.zeros((L.MAX_PENDING, L.N_EDGE_COLS))
+        self._edges = np.zeros((capacity, L.N_EDGE_COLS))
+        self._ideal = np.zeros((capacity, L.N_IDEAL_COLS))
+        self._samples = np.zeros((capacity, L.N_SAMPLE_COLS))
         self._comm = np.zeros((capacity, 4))
         self._comm_chunks: list[np.ndarray] = []
         self._edge_chunks: list[np.ndarray] = []
@@ -167,41 +161,41 @@ class Simulation:
 
     # --- set-up ----------------------------------------------------------------------------
     def _init_sensors(self):
-        the = self.plant.pole_pairs * math.degrees(self.st[K.S_THETA_M])
+        the = self.plant.pole_pairs * math.degrees(self.st[L.S_THETA_M])
         for x in range(3):
             m = math.floor((the - SENSOR_POSITION_DEG_E[x]) / 180.0)
-            self.ist[K.I_IDEAL_REGION + x] = m
+            self.ist[L.I_IDEAL_REGION + x] = m
             # raw region: the one whose switching angles bracket the present angle
             for _ in range(4):
-                self.ist[K.I_RAW_REGION + x] = m
-                K.set_targets(self.p, self.st, self.ist, self.switch_table, self.noise, x)
-                if the >= self.st[K.S_FWD_TARGET + x]:
+                self.ist[L.I_RAW_REGION + x] = m
+                set_targets(self.p, self.st, self.ist, self.switch_table, self.noise, x)
+                if the >= self.st[L.S_FWD_TARGET + x]:
                     m += 1
-                elif the < self.st[K.S_REV_TARGET + x]:
+                elif the < self.st[L.S_REV_TARGET + x]:
                     m -= 1
                 else:
                     break
-            self.ist[K.I_SEEN + x] = 1 if self.ist[K.I_RAW_REGION + x] % 2 == 0 else 0
+            self.ist[L.I_SEEN + x] = 1 if self.ist[L.I_RAW_REGION + x] % 2 == 0 else 0
         n = math.floor(the / 60.0)
-        self.ist[K.I_ORACLE_N] = n
-        if self.ist[K.I_MODE] == K.MODE_ORACLE:
-            self.ist[K.I_SECTOR] = n % 6
+        self.ist[L.I_ORACLE_N] = n
+        if self.ist[L.I_MODE] == L.MODE_ORACLE:
+            self.ist[L.I_SECTOR] = n % 6
         else:
-            code = self.ist[K.I_SEEN] * 4 + self.ist[K.I_SEEN + 1] * 2 + self.ist[K.I_SEEN + 2]
-            self.ist[K.I_SECTOR] = K.SECTOR_OF_CODE[code]
+            code = self.ist[L.I_SEEN] * 4 + self.ist[L.I_SEEN + 1] * 2 + self.ist[L.I_SEEN + 2]
+            self.ist[L.I_SECTOR] = SECTOR_OF_CODE[code]
 
     # --- control -----------------------------------------------------------------------------
     @property
     def t_s(self) -> float:
-        return float(self.st[K.S_T])
+        return float(self.st[L.S_T])
 
     @property
     def speed_rpm(self) -> float:
-        return float(self.st[K.S_OMEGA_M] * 60 / (2 * math.pi))
+        return float(rad_per_s_to_rpm(self.st[L.S_OMEGA_M]))
 
     @property
     def sector(self) -> int:
-        return int(self.ist[K.I_SECTOR])
+        return int(self.ist[L.I_SECTOR])
 
     def measured_mean_abs_current_a(self) -> float:
         """Mean |i| over the phases now, through the current sensors' gain and offset (no noise):
@@ -212,13 +206,29 @@ class Simulation:
         st = self.st
         total = 0.0
         for k in range(3):
-            total += abs(float(st[K.S_IA + k]) * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
+            total += abs(float(st[L.S_IA + k]) * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
         return total / 3.0
+
+    @property
+    def samples_taken(self) -> int:
+        """Samples recorded so far (the count restarts when the sample buffer is flushed)."""
+        return int(self.ist[L.I_N_SAMPLES])
+
+    def measured_mean_abs_current_since_a(self, first_sample: int) -> float | None:
+        """Mean |i| over the phases and the samples from ``first_sample`` on, through the current
+        sensors' gain and offset: what a controller's ADC averages over that window. None when
+        no sample fell in it."""
+        n = self.samples_taken
+        if n <= first_sample:
+            return None
+        cs = self.config.current_sensor
+        i = self._samples[first_sample:n, 1:4] * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        return float(np.mean(np.abs(i)))
 
     def set_duty(self, duty: float) -> None:
         if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:
             raise ConfigError("duty", f"must be in [0, 1], got {duty!r}")
-        self.st[K.S_DUTY] = duty
+        self.st[L.S_DUTY] = duty
 
     def mark_segment(self, index: int) -> None:
         """Edges captured from now on belong to operating segment ``index``."""
@@ -227,15 +237,15 @@ class Simulation:
     def schedule(self, command: Command) -> None:
         if command.at_s < self.t_s - 1e-12:
             raise ValueError(f"command at {command.at_s} s is in the past (plant time {self.t_s} s)")
-        head, count = int(self.ist[K.I_CMD_HEAD]), int(self.ist[K.I_CMD_COUNT])
+        head, count = int(self.ist[L.I_CMD_HEAD]), int(self.ist[L.I_CMD_COUNT])
         values = (command.at_s, -2 if command.sector is None else command.sector,
                   -1 if command.duty is None else command.duty, command.direction or 0)
         if head == count:  # queue drained: start again at the top
             head = count = 0
-            self.ist[K.I_CMD_HEAD] = 0
+            self.ist[L.I_CMD_HEAD] = 0
         if count < self.cmds.shape[0] and (count == head or command.at_s >= self.cmds[count - 1, 0]):
             self.cmds[count] = values  # the usual case: commands arrive in time order
-            self.ist[K.I_CMD_COUNT] = count + 1
+            self.ist[L.I_CMD_COUNT] = count + 1
             return
         live = self.cmds[head:count].copy()
         row = np.array([values])
@@ -244,8 +254,8 @@ class Simulation:
         if live.shape[0] > self.cmds.shape[0]:
             raise RuntimeError("more than 4096 commands pending")
         self.cmds[: live.shape[0]] = live
-        self.ist[K.I_CMD_HEAD] = 0
-        self.ist[K.I_CMD_COUNT] = live.shape[0]
+        self.ist[L.I_CMD_HEAD] = 0
+        self.ist[L.I_CMD_COUNT] = live.shape[0]
 
     def run_until(self, t_stop_s: float) -> None:
         while True:
@@ -253,15 +263,15 @@ class Simulation:
                 self.p, self.st, self.ist, self.switch_table, self.arm_table[0], self.arm_table[1], self.noise,
                 self.cmds, self.pending, self._edges, self._ideal, self._samples, self._comm, float(t_stop_s),
             )
-            if reason == K.STOP_TIME:
+            if reason == L.STOP_TIME:
                 self._flush()
                 return
-            if reason == K.STOP_EDGE:
-                n = int(self.ist[K.I_N_EDGES])
+            if reason == L.STOP_EDGE:
+                n = int(self.ist[L.I_N_EDGES])
                 edge = {
-                    "t_capture_s": float(self._edges[n - 1, K.E_T_CAPTURE]),
-                    "sensor": int(self._edges[n - 1, K.E_SENSOR]),
-                    "rising": bool(self._edges[n - 1, K.E_RISING]),
+                    "t_capture_s": float(self._edges[n - 1, L.E_T_CAPTURE]),
+                    "sensor": int(self._edges[n - 1, L.E_SENSOR]),
+                    "rising": bool(self._edges[n - 1, L.E_RISING]),
                     "now_s": self.t_s,
                     "current_a": self.measured_mean_abs_current_a(),
                 }
@@ -270,16 +280,16 @@ class Simulation:
                 for cmd in self.source.on_edge(edge, self) or ():
                     self.schedule(cmd)
                 continue
-            if reason == K.STOP_NOISE:
+            if reason == L.STOP_NOISE:
                 self.noise[:] = self.rng.standard_normal(self.noise.size)
-                self.ist[K.I_NOISE] = 0
+                self.ist[L.I_NOISE] = 0
                 continue
             self._flush()  # STOP_FULL
 
     def _flush(self):
         for name, chunks, idx in (
-            ("_edges", self._edge_chunks, K.I_N_EDGES), ("_ideal", self._ideal_chunks, K.I_N_IDEAL),
-            ("_samples", self._sample_chunks, K.I_N_SAMPLES), ("_comm", self._comm_chunks, K.I_N_COMM),
+            ("_edges", self._edge_chunks, L.I_N_EDGES), ("_ideal", self._ideal_chunks, L.I_N_IDEAL),
+            ("_samples", self._sample_chunks, L.I_N_SAMPLES), ("_comm", self._comm_chunks, L.I_N_COMM),
         ):
             n = int(self.ist[idx])
             if not n:
@@ -302,17 +312,17 @@ class Simulation:
             return EdgeLog.empty()
         e = np.concatenate(self._edge_chunks)
         ideal = np.concatenate(self._ideal_chunks) if self._ideal_chunks else np.zeros((0, 4))
-        t_ideal = join_ideal(e[:, [K.E_BOUNDARY, K.E_SENSOR, K.E_DIR]], e[:, K.E_T_RAW], ideal)
+        t_ideal = join_ideal(e[:, [L.E_BOUNDARY, L.E_SENSOR, L.E_DIR]], e[:, L.E_T_RAW], ideal)
         segment = np.full(e.shape[0], -1, dtype=np.int64)
         for t_mark, index in self._segment_marks:
-            segment[e[:, K.E_T_COND] >= t_mark] = index
+            segment[e[:, L.E_T_COND] >= t_mark] = index
         return EdgeLog(
-            t_capture_s=e[:, K.E_T_CAPTURE], t_conditioned_s=e[:, K.E_T_COND], t_raw_s=e[:, K.E_T_RAW],
-            t_ideal_s=t_ideal, sensor=e[:, K.E_SENSOR].astype(np.int64), rising=e[:, K.E_RISING] > 0.5,
-            boundary=e[:, K.E_BOUNDARY].astype(np.int64), pole=e[:, K.E_POLE].astype(np.int64),
-            direction=e[:, K.E_DIR].astype(np.int64), theta_e_switch_deg=e[:, K.E_THETA_RAW],
-            theta_e_capture_deg=e[:, K.E_THETA_CAPTURE], speed_rpm=e[:, K.E_SPEED_RPM],
-            mean_abs_current_a=e[:, K.E_CURRENT], segment=segment,
+            t_capture_s=e[:, L.E_T_CAPTURE], t_conditioned_s=e[:, L.E_T_COND], t_raw_s=e[:, L.E_T_RAW],
+            t_ideal_s=t_ideal, sensor=e[:, L.E_SENSOR].astype(np.int64), rising=e[:, L.E_RISING] > 0.5,
+            boundary=e[:, L.E_BOUNDARY].astype(np.int64), pole=e[:, L.E_POLE].astype(np.int64),
+            direction=e[:, L.E_DIR].astype(np.int64), theta_e_switch_deg=e[:, L.E_THETA_RAW],
+            theta_e_capture_deg=e[:, L.E_THETA_CAPTURE], speed_rpm=e[:, L.E_SPEED_RPM],
+            mean_abs_current_a=e[:, L.E_CURRENT], segment=segment,
         )
 
     def commutations(self) -> "Commutations":
@@ -324,7 +334,7 @@ class Simulation:
 
     def samples(self) -> Samples:
         self._flush()
-        s = np.concatenate(self._sample_chunks) if self._sample_chunks else np.zeros((0, K.N_SAMPLE_COLS))
+        s = np.concatenate(self._sample_chunks) if self._sample_chunks else np.zeros((0, L.N_SAMPLE_COLS))
         cs = self.config.current_sensor
         i_true = s[:, 1:4]
         noise_rng = np.random.default_rng([self.seed, 1])
@@ -341,7 +351,7 @@ class Simulation:
 
     def energy(self) -> Energy:
         st = self.st
-        return Energy(float(st[K.S_E_IN]), float(st[K.S_E_CU]), float(st[K.S_E_MECH]), float(st[K.S_E_LOAD]))
+        return Energy(float(st[L.S_E_IN]), float(st[L.S_E_CU]), float(st[L.S_E_MECH]), float(st[L.S_E_LOAD]))
 
 
 def simulate(config: PlantConfig, duration_s: float, source=None, **kwargs) -> Simulation:

@@ -8,7 +8,8 @@ the commutation must be back within budget.
 
 import pytest
 
-from hil.dut import Fault, LinkError, Strategy
+from hil.contract import Fault, Strategy
+from hil.dut.link import LinkError
 from hil.faults import HallSpike, LostEdge, SensorDropout
 from hil.predictors import FilterSettings
 from hil.stimulus import Stimulus, run

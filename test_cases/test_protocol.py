@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
-from hil.dut import LinkError
+from hil.dut.link import LinkError
 
 ABORT = {"no object": 0x06020000, "no sub-index": 0x06090011, "read-only": 0x06010002, "write-only": 0x06010001,
          "value range": 0x06090030, "length": 0x06070010}

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from hil.bench import p99_abs, rms
-from hil.dut import Strategy
+from hil.contract import Strategy
 from hil.plots import commutation_error_figure
 from hil.predictors import FilterSettings
 from hil.predictors.predictors import COUNTER_NAMES
-from hil.predictors.scenario import SETPOINTS_RPM, scenario_plant
+from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 
 HOLD_S = 0.4
 JITTER_S = 3e-6
@@ -139,7 +139,7 @@ def test_sage_husa_through_the_controller_is_as_accurate_as_offline(
     """The controller's Sage-Husa on the paper scenario, against the same filter replaying the
     run's captured edges offline: within 1.25x (goal 1.05x) and with no covariance repair. The
     predictor gets the cycle-mean current its K_T is defined for (RPDO2, register 204)."""
-    from hil.predictors.closed_loop import run_link
+    from hil.experiments.closed_loop import run_link
 
     corrections = calibrate(SCENARIO_EFFECTS)
     r = run_link(

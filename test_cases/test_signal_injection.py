@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from hil.bench import p99_abs, rms
-from hil.dut import Strategy
+from hil.contract import Strategy
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
 

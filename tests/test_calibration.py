@@ -4,17 +4,22 @@ import json
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from hil.calibration import CalibrationError, Corrections, fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
+from hil.calibration.corrections import Corrections
+from hil.calibration.fit import CalibrationError, fit_corrections
 from hil.calibration.steps import pole_offsets, relative_deviation, weighted_over_speeds
 from hil.recording import record_kinematic, write_recording
-from plant_models import paper_bench
 from plant_models import effects as fx
+from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 from plant_models.plant import (
-    PAPER_PERCENT_BASE_DEG_E, PAPER_TABLE2_POLE_PERCENT, PAPER_TABLE3_RELATIVE_DEG_E, PAPER_TABLE4_ABSOLUTE_PERCENT,
+    PAPER_PERCENT_BASE_DEG_E,
+    PAPER_TABLE2_POLE_PERCENT,
+    PAPER_TABLE3_RELATIVE_DEG_E,
+    PAPER_TABLE4_ABSOLUTE_PERCENT,
 )
 
 P = 2
@@ -199,7 +204,7 @@ def test_non_monotonic_or_non_finite_recording_refused(tmp_path, capsys):
 
 def test_corrected_commutation_meets_angle_budget_at_5700_rpm(capsys, tmp_path):
     """Paper Section 4.3 scenario: after correction p99 commutation error <= 0.5 deg electrical."""
-    from hil.calibration.headline import compare
+    from hil.experiments.headline import compare
 
     raw, corrected, _ = compare(speed_rpm=5700.0, turns=10)
     assert len(corrected.commutation_error_deg_e) >= 115

@@ -18,8 +18,8 @@ from hil.campaign import dispatch, load_spec, read_table, run_campaign
 from hil.campaign.envelope import margin_grid
 from hil.campaign.grid import point_seed, point_stimulus, points, run_point
 from hil.campaign.scheduler import TaskError
+from hil.params import ConfigError
 from hil.stimulus import Stimulus
-from plant_models.params import ConfigError
 
 #: raw Hall commutation with installation offsets: the commutation lands where the sensor's edge
 #: is, so its error against the plant's true rotor angle is the offset itself (deg e), plus the
@@ -143,8 +143,8 @@ def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
     failing = table[table["verdict"] == "fail"]
     assert len(failing) == 2
     from hil.budgets import Budgets
-    from hil.dut.link import InProcessLink
-    from hil.dut.virtual import VirtualController
+    from hil.controller.virtual import VirtualController
+    from hil.dut.in_process import InProcessLink
     from hil.stimulus import run
 
     for _, row in failing.iterrows():

@@ -11,13 +11,16 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
 from hil.bench import LockstepBench
-from hil.calibration import fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
-from hil.dut import Fault, InProcessLink, LinkError, LinkTimeout, Strategy, VirtualController
+from hil.calibration.fit import fit_corrections
+from hil.contract import Fault, Strategy
+from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenDevice, CanopenLink
+from hil.dut.in_process import InProcessLink
+from hil.dut.link import LinkError, LinkTimeout
 from hil.dut.od import EDS_PATH, eds_text
+from hil.motor import steady_state
 from plant_models import paper_bench
-from plant_models.plant import steady_state
 
 CONFIG = paper_bench(with_deviations=True)
 _channels = itertools.count()

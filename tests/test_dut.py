@@ -4,14 +4,30 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from hil.bench import LockstepBench
-from hil.calibration import Corrections, fit_corrections
 from hil.calibration.campaign import CalibrationCampaign
-from hil.commutation import HallCommutation, SpeedPI
-from hil.dut import Fault, InProcessLink, LinkError, Strategy, VirtualController
+from hil.calibration.corrections import Corrections
+from hil.calibration.fit import fit_corrections
+from hil.contract import (
+    Command,
+    CommandMessage,
+    EdgeMessage,
+    Fault,
+    Strategy,
+    commands_as_received,
+    edge_as_received,
+    edge_epoch,
+    encode_reply,
+)
+from hil.controller.commutation import HallCommutation, SpeedPI
+from hil.controller.virtual import VirtualController
+from hil.dut.in_process import InProcessLink
+from hil.dut.link import LinkError
+from hil.motor import steady_state
 from plant_models import Simulation, paper_bench
-from plant_models.plant import steady_state
 
 CONFIG = paper_bench(with_deviations=True)
 
@@ -149,11 +165,6 @@ def test_filter_guard_trip_is_a_fault(corrections):
 
 # --- the in-process link's quantisation equals the 8-byte messages of the protocol links -----
 
-from hypothesis import given, settings, strategies as st  # noqa: E402
-
-from hil.dut.link import edge_epoch  # noqa: E402
-from hil.dut.messages import CommandMessage, EdgeMessage, commands_as_received, edge_as_received, encode_reply  # noqa: E402
-from plant_models.simulation import Command  # noqa: E402
 
 _times = st.floats(0.0, 2000.0, allow_nan=False)  # beyond the 429 s wrap of the capture timer
 
@@ -185,7 +196,7 @@ def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, curr
 def test_device_epoch_advances_on_a_timer_wrap_and_not_on_a_bad_stamp():
     """Both protocol faces unwrap the 32-bit capture stamp with next_epoch: a step back by more
     than half the range is a wrap (one epoch more), a small step back is a bad stamp (none)."""
-    from hil.dut.messages import WRAP, next_epoch
+    from hil.contract import WRAP, next_epoch
 
     assert next_epoch(0, None, 5) == 0
     assert next_epoch(0, WRAP - 10, 3) == WRAP

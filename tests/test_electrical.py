@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 
 from hil.linebemf import falling_zero_crossings, line_bemf
+from hil.motor import steady_speed_rpm, steady_state
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
-from plant_models.plant import steady_speed_rpm, steady_state
 
 BASE = paper_bench()
 P = BASE.motor.pole_pairs
@@ -98,7 +98,7 @@ def test_floating_phase_shows_neutral_plus_own_bemf():
     sim = Simulation(BASE, OracleCommutation(), duty=duty, initial_speed_rpm=9000)
     sim.run_until(0.05)
     s = sim.samples()
-    from plant_models.hall import SECTOR_PHASES
+    from hil.hall import SECTOR_PHASES
 
     hi, lo = SECTOR_PHASES[s.sector, 0], SECTOR_PHASES[s.sector, 1]
     fl = 3 - hi - lo
@@ -255,21 +255,21 @@ def test_a_capture_jittered_before_the_switch_carries_the_angle_at_capture():
 def test_parameter_vector_table_fills_every_slot_once_from_the_plant():
     """The kernel's parameter vector is declared once (PLANT_PARAMS + RUN_PARAMS): every slot
     exactly once, and Simulation packs each from the field the table names."""
-    from plant_models import _kernel as K
+    from plant_models import _layout as L
 
-    slots = [index for index, _ in K.PLANT_PARAMS + K.RUN_PARAMS]
-    assert sorted(slots) == list(range(K.N_PARAMS))
+    slots = [index for index, _ in L.PLANT_PARAMS + L.RUN_PARAMS]
+    assert sorted(slots) == list(range(L.N_PARAMS))
     config = BASE.with_effects(fx.Hysteresis(0.4), fx.ConditioningDelay(6e-6, 1e-6), fx.CoggingTorque(0.004, 12, 0.3))
     sim = Simulation(config, RawHallCommutation(latency_s=7e-6), sample_rate_hz=50e3, max_step_s=3e-6)
-    for index, name in K.PLANT_PARAMS:
+    for index, name in L.PLANT_PARAMS:
         assert sim.p[index] == getattr(sim.plant, name), name
-    assert (sim.p[K.P_SAMPLE], sim.p[K.P_HMAX], sim.p[K.P_LATENCY]) == (1.0 / 50e3, 3e-6, 7e-6)
+    assert (sim.p[L.P_SAMPLE], sim.p[L.P_HMAX], sim.p[L.P_LATENCY]) == (1.0 / 50e3, 3e-6, 7e-6)
 
 
 def test_kernel_interp_is_numpy_interp_bit_for_bit():
     """The kernel's allocation-free interpolation (armature-reaction tables) against NumPy's:
     ends clamped, table points exact, interior points the same double."""
-    from plant_models._kernel import _interp
+    from plant_models.sensor import _interp
 
     rng = np.random.default_rng(17)  # seed recorded: the points are reproducible
     xp = np.array([0.0, 0.5, 2.0, 2.5, 8.0, 64.0])

@@ -16,14 +16,15 @@ virtual controller's known limit that the built-in budgets waive (docs/budgets.m
 from pathlib import Path
 
 import pytest
+from test_sensor_layer import assert_no_chatter
 
 from hil.budgets import Budgets
-from hil.commutation import HallCommutation, SpeedPI
-from hil.dut import InProcessLink, VirtualController
+from hil.controller.commutation import HallCommutation, SpeedPI
+from hil.controller.virtual import VirtualController
+from hil.dut.in_process import InProcessLink
+from hil.motor import steady_state
 from hil.stimulus import Stimulus, run
 from plant_models import RawHallCommutation, Simulation
-from plant_models.plant import steady_state
-from test_sensor_layer import assert_no_chatter
 
 DATA = Path(__file__).parent / "data"
 FINDINGS = ["finding-start-chatter.json", "finding-pole-offset-chatter.json", "finding-fault-sequence-recovery.json"]
@@ -50,7 +51,7 @@ def test_finding_plant_does_not_chatter_under_raw_hall_commutation(name):
 def test_first_commutation_follows_the_first_edge():
     """At start-up only the switching sensor's level is known; the Hall state after the edge
     follows from which edge it was (the pump turns forward), not from two assumed-low sensors."""
-    from plant_models.hall import SECTOR_OF_CODE, hall_code, hall_state
+    from hil.hall import SECTOR_OF_CODE, hall_code, hall_state
 
     for sensor, rising, angle in [
         (0, True, 0.0),

@@ -9,10 +9,11 @@ from hil.cli import main
 from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
 from hil.gap.samples import EFFECT_DOMAIN
-from hil.gap.validate import KNOWN_MODEL, _param_error, make_case, run_validation
+from hil.gap.synthetic import KNOWN_MODEL, param_error
+from hil.gap.validate import make_case, run_validation
 from hil.recording import read_recording, record_kinematic, write_recording
-from plant_models import paper_bench
 from plant_models import effects as fx
+from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 
 
@@ -22,7 +23,7 @@ def test_withheld_effect_is_found_fitted_and_shrinks_the_gap(name):
     d = diagnose(rec, KNOWN_MODEL)  # the model knows the bench's base jitter, not the withheld effect
     assert d.significant
     assert d.accepted[0]["effect"] == name, d.ranking[:3]
-    assert _param_error(truth[0], d.accepted[0]) < 0.2
+    assert param_error(truth[0], d.accepted[0]) < 0.2
     shrink = d.noise_gap["heldout_shrink"] if name == "edge_jitter" else d.heldout_shrink
     assert shrink >= 0.8
     assert not d.unexplained
@@ -61,7 +62,7 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
     assert d.ranking[0]["effect"] == name
     # temperatures, knee and cogging phasor within 5 % (the bar is 20 %): the residuals are exact
     # physics of the plant, so a larger error means a discretisation or sign slip somewhere
-    assert _param_error(truth[0], d.accepted[0]) < 0.05
+    assert param_error(truth[0], d.accepted[0]) < 0.05
     domain = d.samples[EFFECT_DOMAIN[name]]
     assert domain["heldout_shrink"] >= 0.8
     assert d.heldout_shrink == domain["heldout_shrink"]  # the edges show nothing: the headline is this signal's
@@ -86,7 +87,7 @@ def test_winding_and_magnet_temperature_are_confounded_when_current_follows_spee
 
 
 def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace():
-    from hil.gap.validate import JITTER_S, TICK_S, _record_electrical, profile
+    from hil.gap.synthetic import JITTER_S, TICK_S, profile, record_electrical_case
 
     for seed in range(3):
         rec, _ = make_case([], snr=1.0, seed=seed, electrical=True)
@@ -96,7 +97,7 @@ def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace
     config = paper_bench().with_effects(
         fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), fx.DeadTime(3e-6)
     )
-    d = diagnose(_record_electrical(config, profile(config), 5), KNOWN_MODEL)
+    d = diagnose(record_electrical_case(config, profile(config), 5), KNOWN_MODEL)
     assert not d.significant
     assert any(n.startswith("dead_time: no trace") for n in d.not_assessed)
 
@@ -132,7 +133,7 @@ def test_model_that_knows_the_effect_leaves_no_gap():
     eff = fx.ConditioningDelay(8e-6, 2e-6)
     rec, _ = make_case([], snr=1.0, seed=3)
     config = paper_bench().with_effects(eff, fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7))
-    from hil.gap.validate import profile
+    from hil.gap.synthetic import profile
 
     rec = record_kinematic(config, profile(config), seed=3)
     assert diagnose(rec).significant  # the nominal model does not know the delay
@@ -143,7 +144,7 @@ def test_confounded_pair_is_named_with_its_knob():
     """Forward only, current tied to speed by the pump load over a narrow speed range: the
     armature lag (~ w^2) and a conditioning delay (~ w) are then alike. (Over a wide range the
     curvature separates them, and the diagnosis does so.)"""
-    from plant_models.plant import steady_state
+    from hil.motor import steady_state
 
     m = paper_bench().motor
     ops = [
@@ -189,7 +190,7 @@ def test_without_encoder_relative_pattern_is_still_localised():
     config = paper_bench().with_effects(
         fx.PoleOffset((0.0, 0.6, -0.3, 0.2)), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
     )
-    from hil.gap.validate import profile
+    from hil.gap.synthetic import profile
 
     rec = record_kinematic(config, profile(config), seed=4, reference_angle=False)
     d = diagnose(rec)
@@ -340,7 +341,7 @@ def test_sampled_diagnosis_needs_only_the_motor_keys_of_the_format(tmp_path):
     (path / "ground_truth.csv").unlink(missing_ok=True)
     d = diagnose(read_recording(path))
     cogging = next(a for a in d.accepted if a["effect"] == "cogging_torque")
-    assert _param_error(truth[0], cogging) < 0.05 and not d.unexplained
+    assert param_error(truth[0], cogging) < 0.05 and not d.unexplained
 
 
 # --- parsimony, practical significance, the field-level generator, the readable report ---------
@@ -370,7 +371,7 @@ def test_rotor_fixed_eccentricity_ranks_first_over_pole_offset_by_parsimony():
         d = diagnose(rec, KNOWN_MODEL)
         assert d.ranking[0]["effect"] == "eccentricity" and d.accepted[0]["effect"] == "eccentricity", d.ranking[:3]
         assert "pole_offset" not in [a["effect"] for a in d.accepted]
-        assert _param_error(implied[0], d.accepted[0]) < 0.2
+        assert param_error(implied[0], d.accepted[0]) < 0.2
 
 
 def test_equal_within_noise_uses_the_explained_chi_square_spread():
@@ -411,10 +412,10 @@ def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
     """No encoder: the voltage equation's angle comes from the Hall edges. An installation
     offset then bends the back-EMF's phase; the accepted edge effect puts the edges back where
     the rotor was before any sampled effect is fitted."""
-    from hil.gap.validate import _record_electrical, profile
+    from hil.gap.synthetic import profile, record_electrical_case
 
     config = KNOWN_MODEL.with_effects(fx.InstallationOffset((3.0, -2.0, 1.0)), fx.TimerQuantization(1e-7))
-    rec = _record_electrical(config, profile(config)[:3], seed=5)
+    rec = record_electrical_case(config, profile(config)[:3], seed=5)
     rec.ref_angle_mech_deg = None
     d = diagnose(rec, KNOWN_MODEL)
     assert d.reference == "turn" and d.accepted[0]["effect"] == "installation_offset"

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from hil.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
-from hil.predictors import compare
+from hil.experiments import compare
 from hil.predictors import filters as F
-from hil.predictors.compare import SH_ADAPT
-from hil.predictors.robustness import MODEL, NOMINAL_Q0 as NOMINAL_Q, angle_error_deg, edges_and_currents
+from hil.experiments.compare import SH_ADAPT
+from hil.experiments.robustness import MODEL, NOMINAL_Q0 as NOMINAL_Q, angle_error_deg, edges_and_currents
 from plant_models.kinematic import OperatingPoint
 
 
@@ -406,7 +406,7 @@ ROBUSTNESS_SEED = 0
 
 @pytest.fixture(scope="module")
 def robustness_results():
-    from hil.predictors.robustness import draw_conditions, run_condition
+    from hil.experiments.robustness import draw_conditions, run_condition
 
     return [run_condition(c) for c in draw_conditions(ROBUSTNESS_CONDITIONS, ROBUSTNESS_SEED)]
 
@@ -421,7 +421,7 @@ def _worst(results, n=8):
 
 
 def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(robustness_results):
-    from hil.predictors.robustness import summarise
+    from hil.experiments.robustness import summarise
 
     s = summarise(robustness_results)
     assert s["conditions"] >= 1000 and s["min_duration_s"] >= 1.0 and s["min_scored_edges"] >= 500, s
@@ -454,7 +454,7 @@ def test_sage_husa_no_worse_than_kf_in_95_percent(robustness_results):
 
 @pytest.fixture(scope="module")
 def scenario_run():
-    from hil.predictors.scenario import run_scenario
+    from hil.experiments.table5 import run_scenario
 
     return run_scenario(seed=0)
 

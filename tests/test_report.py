@@ -218,7 +218,7 @@ def test_an_xfail_mark_does_not_swallow_an_unreachable_controller(pytester):
     pytester.makepyfile(
         test_dead="""
         import pytest
-        from hil.dut import LinkError
+        from hil.dut.link import LinkError
 
         @pytest.fixture
         def link():

@@ -430,10 +430,9 @@ def test_exported_currents_hold_their_speed_on_the_plant(rpm):
     plant (ideal commutation, from that speed) the tabulated duty keeps the speed within 0.5 rpm
     over 0.2 s and its mean electromagnetic torque is the pump load's within 1 % (the analytic
     L -> 0 duty misses both: at 6000 rpm it loses 9.5 rpm and gives 61 % of the torque)."""
-    from plant_models import OracleCommutation, Simulation, paper_bench
-    from plant_models.plant import steady_state
-
+    from hil.motor import steady_state
     from hil.signals.currents import tabulate
+    from plant_models import OracleCommutation, Simulation, paper_bench
 
     config = paper_bench()
     tables = tabulate(config, [rpm])
@@ -462,11 +461,10 @@ def test_exported_currents_hold_their_speed_on_the_plant(rpm):
 def deterministic_plant():
     """Paper-sized deterministic deviations (no jitter: both paths see the same edges) and the
     calibration station's tables for them."""
+    from hil.calibration.campaign import station_corrections
     from plant_models import effects as fx
     from plant_models import paper_bench
     from plant_models.plant import PAPER_BENCH_CIRCUIT, paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
-
-    from hil.calibration.campaign import station_corrections
 
     config = paper_bench().with_effects(
         fx.InstallationOffset(offset_deg_e=paper_installation_offsets_deg_e()),
@@ -487,11 +485,11 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     restarts at commutation: each restart then turns on on the old carrier's grid, as a change
     hidden in a free-running off-time would; the capture's carrier mode (docs/signals.md) keeps
     every commutation where the gates made it."""
-    from plant_models.plant import steady_state
-
     from hil.bench import LockstepBench
-    from hil.dut.link import InProcessLink
-    from hil.dut.virtual import Strategy, VirtualController
+    from hil.contract import Strategy
+    from hil.controller.virtual import VirtualController
+    from hil.dut.in_process import InProcessLink
+    from hil.motor import steady_state
     from hil.signals.export import ExportSettings, export
     from hil.signals.loopback import run_loopback
     from hil.signals.score import score
@@ -658,11 +656,10 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     """On a ramp with paper-sized deviations: every Hall change in the VCD is a conditioned
     edge of the kinematic plant (same trajectory and seed) within half a sample period, and the
     truth instants are where the trajectory reaches 60 n deg e."""
-    from plant_models import paper_bench
-
     from hil.signals.export import ExportSettings, _chunk_edges, export
     from hil.signals.trajectory import Trajectory
     from hil.signals.vcd import VcdReader
+    from plant_models import paper_bench
 
     fs = 250e3
     config = paper_bench(True)
@@ -718,9 +715,8 @@ def test_csv_is_the_vcd_sampled(tmp_path):
 
 def test_chunk_seams_do_not_change_the_stimulus(tmp_path, monkeypatch):
     """Streaming in short chunks gives the same Hall edges and truth as one long chunk."""
-    from plant_models import paper_bench
-
     from hil.signals import export as ex_mod
+    from plant_models import paper_bench
 
     def run(chunk_s, out):
         monkeypatch.setattr(ex_mod, "CHUNK_S", chunk_s)
@@ -805,7 +801,8 @@ def _six_step_states(sectors, starts, end, pwm_hz, duty, scheme):
     return np.array(t_out), np.array(s_out, dtype=np.int64)
 
 
-from hypothesis import assume, given, settings, strategies as st  # noqa: E402
+from hypothesis import assume, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
 
 
 @settings(deadline=None, max_examples=60, derandomize=True, database=None)

@@ -10,7 +10,7 @@ import json
 import sys
 import time
 
-from hil.predictors.robustness import draw_conditions, run_condition, summarise
+from hil.experiments.robustness import draw_conditions, run_condition, summarise
 
 
 def main() -> int:

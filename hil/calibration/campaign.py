@@ -11,10 +11,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hil.recording import Recording, record_kinematic
+from hil.motor import steady_state
+from hil.recording import Recording, record_electrical, record_kinematic
 from plant_models import PlantConfig
 from plant_models.kinematic import OperatingPoint
-from plant_models.plant import steady_state
+
+from .fit import fit_corrections
 
 
 @dataclass(frozen=True)
@@ -50,8 +52,6 @@ class CalibrationCampaign:
 
 def station_corrections(config: PlantConfig, seed: int = 0):
     """The calibration station end to end: run the campaign on the plant, fit the tables."""
-    from .fit import fit_corrections
-
     return fit_corrections(CalibrationCampaign().run(config, seed=seed))
 
 
@@ -66,7 +66,5 @@ def record_line_bemf_segments(
     """Electrical-plant segments at the paper's calibration speeds, commutating on raw Hall edges,
     with terminal voltages and phase currents sampled (through the current sensors): what the
     Line-BEMF step (Eq. 3-5) needs from the bench."""
-    from hil.recording import record_electrical
-
     ops = [OperatingPoint(turns * 60.0 / rpm, rpm, load_scale=1.0, id=f"linebemf_{rpm:.0f}") for rpm in speeds_rpm]
     return record_electrical(config, ops, seed=seed, sample_rate_hz=sample_rate_hz, reference_angle=reference_angle)

@@ -9,6 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+
 SENSORS = ("A", "B", "C")
 
 
@@ -46,7 +48,7 @@ class Corrections:
     def correction_deg_e(self, sensor, rising, pole, speed_rpm, current_a) -> np.ndarray:
         """Angle by which each captured edge trails its ideal position (Fig. 4 integration)."""
         rising = np.asarray(rising, dtype=bool)
-        w_e_deg_s = np.asarray(speed_rpm, dtype=float) * 6.0 * self.pole_pairs
+        w_e_deg_s = rpm_to_deg_e_per_s(np.asarray(speed_rpm, dtype=float), self.pole_pairs)
         delay = np.where(rising, self.conditioning_delay_s["rise"], self.conditioning_delay_s["fall"])
         return (
             self.static_deg_e(sensor, pole)
@@ -159,5 +161,5 @@ def corrected_edge_times(
         w_e[:n] = w_e[n]
     else:
         w_e[:] = 60.0 * (t.size - 1) / (t[-1] - t[0])
-    speed_rpm = w_e / (6.0 * pole_pairs)
+    speed_rpm = deg_e_per_s_to_rpm(w_e, pole_pairs)
     return t - corrections.correction_deg_e(sensor, rising, pole, speed_rpm, current_a) / w_e

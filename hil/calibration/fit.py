@@ -15,15 +15,23 @@ deviation from the Line-BEMF (Eq. 3-5) when terminal voltages and currents were 
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
+from hil.hall import SENSOR_POSITION_DEG_E
 from hil.recording import Recording
-from plant_models.hall import SENSOR_POSITION_DEG_E
+from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 from .corrections import SENSORS, Corrections
 from .steps import (
-    absolute_deviation, edge_angles_per_turn, line_bemf_absolute_deviation, pole_offsets, relative_deviation,
-    weighted_over_speeds, wrap180,
+    absolute_deviation,
+    edge_angles_per_turn,
+    line_bemf_absolute_deviation,
+    pole_offsets,
+    relative_deviation,
+    weighted_over_speeds,
+    wrap180,
 )
 
 
@@ -50,7 +58,7 @@ def segment_speed_deg_e_s(rec: Recording) -> np.ndarray:
             t = rec.t_s[sel]
             out[i] = abs(np.degrees(ang[-1] - ang[0]) / (t[-1] - t[0])) * p
         else:
-            out[i] = seg.speed_rpm * 6.0 * p
+            out[i] = rpm_to_deg_e_per_s(seg.speed_rpm, p)
     return out
 
 
@@ -67,21 +75,26 @@ def edge_errors_from_encoder(rec: Recording) -> tuple[np.ndarray, np.ndarray]:
     return err, pole
 
 
-def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Corrections:
-    _check_data(rec)
-    if rec.ref_angle_mech_deg is None:
-        return fit_from_times(rec)
-    p = rec.pole_pairs
-    n_poles = 2 * p
-    err, pole = edge_errors_from_encoder(rec)
-    direction = np.array([s.direction_sign for s in rec.segments])[rec.segment].astype(float)
-    w_seg = segment_speed_deg_e_s(rec)
-    w = w_seg[rec.segment]
-    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
-    if rec.timer_tick_s:
-        err = err + w * rec.timer_tick_s / 2.0  # the capture timer floors: undo its mean lag
-    undetermined: dict[str, str] = {}
+@dataclass
+class DesignMatrix:
+    """The joint model of the edge errors (paper Eq. 1-6 with the armature term): one column per
+    identifiable deviation, and for each one the recording cannot determine, the reason."""
 
+    columns: np.ndarray              #: (edges, parameters)
+    names: list[tuple[str, int]]     #: (kind, index) of each column: inst / pole / rise / fall / arm
+    undetermined: dict[str, str]
+
+
+def design_matrix(
+    rec: Recording, w: np.ndarray, w_seg: np.ndarray, min_speed_spread: float, pole: np.ndarray
+) -> DesignMatrix:
+    """Columns for the deviations this recording can separate (``w``: each edge's electrical
+    speed, ``w_seg``: each segment's, deg e/s; ``pole``: the pole causing each edge). Signed by
+    the direction, since every deviation lags the rotor the way it turns."""
+    n_poles = 2 * rec.pole_pairs
+    direction = np.array([s.direction_sign for s in rec.segments])[rec.segment].astype(float)
+    current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
+    undetermined: dict[str, str] = {}
     cols, names = [], []
     for x, name in enumerate(SENSORS):
         if not np.any(rec.sensor == x):
@@ -129,30 +142,39 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
     else:
         cols.append(current)
         names.append(("arm", 0))
+    return DesignMatrix(np.column_stack(cols).astype(float), names, undetermined)
 
-    a = np.column_stack(cols).astype(float)
-    # two-pass weighted least squares: time jitter makes the angle noise grow with speed, so
-    # each segment is weighted by the inverse of its own residual variance from a first pass
+
+@dataclass
+class WeightedFit:
+    coef: np.ndarray
+    standard_error: np.ndarray
+    residual: np.ndarray  #: unweighted, deg e per edge
+
+
+def weighted_least_squares(a: np.ndarray, err: np.ndarray, segment: np.ndarray, n_segments: int) -> WeightedFit:
+    """Two-pass weighted least squares: time jitter makes the angle noise grow with speed, so
+    each segment is weighted by the inverse of its own residual variance from a first pass."""
     coef, *_ = np.linalg.lstsq(a, err, rcond=None)
     resid = err - a @ coef
     var_seg = np.array(
-        [
-            max(np.var(resid[rec.segment == k]), 1e-12) if np.any(rec.segment == k) else 1.0
-            for k in range(len(rec.segments))
-        ]
+        [max(np.var(resid[segment == k]), 1e-12) if np.any(segment == k) else 1.0 for k in range(n_segments)]
     )
-    wt = 1.0 / np.sqrt(var_seg[rec.segment])
+    wt = 1.0 / np.sqrt(var_seg[segment])
     coef, *_ = np.linalg.lstsq(a * wt[:, None], err * wt, rcond=None)
     resid = err - a @ coef
     dof = max(a.shape[0] - a.shape[1], 1)
     aw = a * wt[:, None]
     sigma2 = float(((resid * wt) @ (resid * wt))) / dof
     cov = sigma2 * np.linalg.pinv(aw.T @ aw)
-    se = np.sqrt(np.diag(cov))
+    return WeightedFit(coef, np.sqrt(np.diag(cov)), resid)
 
-    out = Corrections(pole_offset_deg_e=[0.0] * n_poles, undetermined=undetermined)
+
+def unpack(design: DesignMatrix, fit: WeightedFit, n_poles: int) -> Corrections:
+    """The fitted coefficients as a correction table, with their standard errors."""
+    out = Corrections(pole_offset_deg_e=[0.0] * n_poles, undetermined=design.undetermined)
     unc: dict = {"installation_offset_deg_e": {}, "pole_offset_deg_e": [0.0] * n_poles}
-    for (kind, k), c, s in zip(names, coef, se):
+    for (kind, k), c, s in zip(design.names, fit.coef, fit.standard_error):
         if kind == "inst":
             out.installation_offset_deg_e[SENSORS[k]] = float(c)
             unc["installation_offset_deg_e"][SENSORS[k]] = float(s)
@@ -168,24 +190,46 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
             out.armature_reaction_deg_e_per_a = float(c)
             unc["armature_reaction_deg_e_per_a"] = float(s)
     out.uncertainty = unc
-    # the delay versus speed as an interpolation table (paper Fig. 7a), from the fitted residuals
-    if "conditioning_delay_s" not in undetermined:
-        table: dict[str, list[float]] = {"speed_rpm": [], "rise_deg_e": [], "fall_deg_e": []}
-        static = a @ coef - (
+    return out
+
+
+def _delay_table(rec: Recording, static: np.ndarray, err: np.ndarray, w_seg: np.ndarray) -> dict:
+    """The delay versus speed as an interpolation table (paper Fig. 7a), from the fitted residuals:
+    per segment, the mean edge error left once the static deviations are removed."""
+    table: dict[str, list[float]] = {"speed_rpm": [], "rise_deg_e": [], "fall_deg_e": []}
+    for k in np.unique(rec.segment):
+        sel = rec.segment == k
+        table["speed_rpm"].append(float(deg_e_per_s_to_rpm(w_seg[k], rec.pole_pairs)))
+        for pol, key in ((True, "rise_deg_e"), (False, "fall_deg_e")):
+            s = sel & (rec.rising == pol)
+            table[key].append(float(np.mean(err[s] - static[s])) if s.any() else float("nan"))
+    return table
+
+
+def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Corrections:
+    """Every deviation at once from reference-encoder edge errors (joint weighted least squares);
+    without an encoder, the paper's route from capture times (``fit_from_times``)."""
+    _check_data(rec)
+    if rec.ref_angle_mech_deg is None:
+        return fit_from_times(rec)
+    err, pole = edge_errors_from_encoder(rec)
+    w_seg = segment_speed_deg_e_s(rec)
+    w = w_seg[rec.segment]
+    if rec.timer_tick_s:
+        err = err + w * rec.timer_tick_s / 2.0  # the capture timer floors: undo its mean lag
+    design = design_matrix(rec, w, w_seg, min_speed_spread, pole)
+    fit = weighted_least_squares(design.columns, err, rec.segment, len(rec.segments))
+    out = unpack(design, fit, 2 * rec.pole_pairs)
+    if "conditioning_delay_s" not in design.undetermined:
+        static = design.columns @ fit.coef - (
             w * np.where(rec.rising, out.conditioning_delay_s["rise"], out.conditioning_delay_s["fall"])
         )
-        for k in seg_used:
-            sel = rec.segment == k
-            table["speed_rpm"].append(float(w_seg[k] / (6.0 * p)))
-            for pol, key in ((True, "rise_deg_e"), (False, "fall_deg_e")):
-                s = sel & (rec.rising == pol)
-                table[key].append(float(np.mean(err[s] - static[s])) if s.any() else float("nan"))
-        out.delay_table = table
+        out.delay_table = _delay_table(rec, static, err, w_seg)
     out.info = {
         "method": "joint least squares on reference-encoder edge errors",
         "edges": int(len(rec)),
-        "segments": [rec.segments[k].id for k in seg_used],
-        "residual_rms_deg_e": float(np.sqrt(np.mean(resid**2))),
+        "segments": [rec.segments[k].id for k in np.unique(rec.segment)],
+        "residual_rms_deg_e": float(np.sqrt(np.mean(fit.residual**2))),
     }
     return out
 

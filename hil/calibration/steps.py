@@ -8,6 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from hil.linebemf import falling_zero_crossings, line_bemf
+from hil.units import rpm_to_deg_e_per_s
 
 #: paper Section 4.2: weights of the three calibration speeds, in the order of Tables 2-4
 PAPER_SPEED_WEIGHTS = (0.5, 0.3, 0.2)
@@ -104,7 +105,7 @@ def line_bemf_absolute_deviation(
     each captured A rising edge the nearest falling e_BC crossing is the ideal commutation
     instant, and phi_PosA-r = theta_A-r - theta_LEMF = w_e (t_A-r - t_LEMF).
     """
-    w_e = speed_rpm * 6.0 * pole_pairs
+    w_e = rpm_to_deg_e_per_s(speed_rpm, pole_pairs)
     e_bc = line_bemf(t_s, u_v, i_a, resistance_ohm, inductance_h)["BC"]
     crossings = falling_zero_crossings(t_s, e_bc, 20.0 / w_e, 2.0 / w_e)
     if crossings.size == 0:

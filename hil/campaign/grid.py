@@ -15,18 +15,17 @@ import dataclasses
 import itertools
 import time
 import traceback
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from plant_models import PlantConfig
-from plant_models.effects import effect_from_mapping
-from plant_models.plant import steady_state
+from hil.motor import steady_state
 
-from ..stimulus import Stimulus
-
-if TYPE_CHECKING:  # pragma: no cover
-    from .spec import CampaignSpec
+from ..budgets import Budget, Budgets
+from ..controller.virtual import VirtualController
+from ..dut.in_process import InProcessLink
+from ..stimulus import Stimulus, run
+from .spec import CampaignSpec, point_fault, point_plant
 
 
 def point_seed(campaign_seed: int, index: int) -> int:
@@ -42,48 +41,6 @@ def points(spec: "CampaignSpec") -> list[dict[str, Any]]:
         coords = {a.name: v for a, v in zip(spec.axes, combo[:-1])}
         out.append({"index": index, "repeat": combo[-1], "seed": point_seed(spec.seed, index), **coords})
     return out
-
-
-def _effect_tables(spec: "CampaignSpec", coords: dict) -> list[dict]:
-    tables = {e["name"]: dict(e) for e in spec.fixed_effects}
-    for a in spec.axes:
-        if a.effect is None or a.name not in coords:
-            continue
-        param = a.name.partition(".")[2]
-        v = coords[a.name]
-        table = tables.setdefault(a.effect, {"name": a.effect})
-        table[param] = [v * p for p in a.pattern] if a.pattern is not None else v
-    return list(tables.values())
-
-
-def point_plant(spec: "CampaignSpec", coords: dict) -> PlantConfig:
-    """The point's plant: the campaign plant with its pump load scaled and the effects applied."""
-    load = coords.get("load_scale", spec.fixed_load_scale)
-    base = spec.plant
-    if load != 1.0:
-        base = dataclasses.replace(
-            base, motor=dataclasses.replace(base.motor, fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * load)
-        )
-    effects = [effect_from_mapping(t, f"effects.{t['name']}.") for t in _effect_tables(spec, coords)]
-    config = base.with_effects(*effects)
-    for e in config.effects:
-        e.check(config.motor.pole_pairs, f"effects.{e.name}.")
-    return config
-
-
-def point_fault(spec: "CampaignSpec", coords: dict) -> dict:
-    """The point's wiring fault (a table for ``wiring_fault_from_dict``)."""
-    from ..faults import WIRING_FAULTS
-
-    fault = dict(spec.fixed_fault or {})
-    fields = {f.name: f for f in dataclasses.fields(WIRING_FAULTS[fault["name"]])}
-    for a in spec.axes:
-        if a.name.startswith("fault.") and a.name in coords:
-            param = a.name.partition(".")[2]
-            if param not in fields:
-                raise KeyError(f"no parameter {param!r} (has: {', '.join(fields) or 'none'})")
-            fault[param] = int(coords[a.name]) if isinstance(fields[param].default, int) else coords[a.name]
-    return fault
 
 
 def point_stimulus(spec: "CampaignSpec", point: dict) -> Stimulus:
@@ -120,11 +77,6 @@ def run_point(job: tuple) -> dict:
     stim_dict, budgets_table = job
     t0, cpu0 = time.perf_counter(), time.process_time()
     try:
-        from ..budgets import Budget, Budgets
-        from ..dut.link import InProcessLink
-        from ..dut.virtual import VirtualController
-        from ..stimulus import run
-
         stim = Stimulus(**stim_dict)
         budgets = Budgets({k: Budget(**v) for k, v in budgets_table.items()}, "campaign")
         link = InProcessLink(VirtualController(stim.plant_config().motor))

@@ -20,7 +20,9 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .envelope import write_envelope
 from .grid import point_stimulus, points, run_point
+from .report import write_report
 from .scheduler import DispatchInfo, TaskError, dispatch
 from .spec import CampaignSpec
 
@@ -180,12 +182,9 @@ def run_campaign(
         write_table(rows, table)
     result = CampaignResult(spec, out, rows, info, {"table": str(table)})
     if rows:
-        from .envelope import write_envelope
-
         png = write_envelope(read_table(table), spec, out / "envelope.png")
         if png:
             result.paths["envelope"] = str(png)
-    from .report import write_report
 
     result.paths["report"] = str(out / "campaign-report.html")
     result.paths["json"] = str(out / "campaign.json")

@@ -25,6 +25,7 @@ second whether or not a job finished, so it never sits still while work goes on.
 from __future__ import annotations
 
 import functools
+import hashlib
 import logging
 import os
 import sys
@@ -73,8 +74,6 @@ class DispatchInfo:
 def code_fingerprint() -> str:
     """SHA-256 over the sources of hil and plant_models as this process imports them: a worker
     running other code (an older checkout on a cluster node) would give other results."""
-    import hashlib
-
     import plant_models
 
     h = hashlib.sha256()

@@ -44,11 +44,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from hil.params import ConfigError
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
-from plant_models.params import ConfigError
 
 from ..budgets import Budgets
+from ..faults import WIRING_FAULTS, wiring_fault_from_dict
 from ..stimulus import DEFAULT_BUDGETS, METRICS, STRATEGIES
 
 #: operating-point axes (not effect parameters)
@@ -228,8 +229,6 @@ def load_spec(path: str | Path) -> CampaignSpec:
 
 def parse_spec(data: dict, path: Path) -> CampaignSpec:
     """Validate the parsed TOML; errors name the key (``load_spec`` prefixes the file)."""
-    from .grid import point_plant  # the grid builds each point's plant: checked here for every point
-
     _only("", data, {"campaign", "fixed", "axis", "map"})
     c = _table("campaign", data.get("campaign", {}))
     _only("campaign", c, {"name", "seed", "kind", "plant", "budgets_file", "budgets", "run_s", "repeats"})
@@ -294,8 +293,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         raise ConfigError("fixed.effects", "an effect appears twice")
     fault = f.get("fault")
     if fault is not None:
-        from ..faults import wiring_fault_from_dict
-
         if kind != "fault_sequence":
             raise ConfigError("fixed.fault", 'a wiring fault needs [campaign] kind = "fault_sequence"')
         if isinstance(fault, str):
@@ -360,9 +357,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     # every axis value must give a valid plant or fault: out-of-bounds values fail here, naming the axis
     for i, a in enumerate(axes):
         if a.name.startswith("fault."):
-            from ..faults import wiring_fault_from_dict
-            from .grid import point_fault
-
             for j, v in enumerate(a.values):
                 try:
                     wiring_fault_from_dict(point_fault(spec, {a.name: v}))
@@ -377,3 +371,43 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
                 except ConfigError as exc:
                     raise ConfigError(f"axis[{i}].values[{j}]", f"{a.name} = {v:g}: {exc}") from None
     return spec
+
+
+def _effect_tables(spec: CampaignSpec, coords: dict) -> list[dict]:
+    tables = {e["name"]: dict(e) for e in spec.fixed_effects}
+    for a in spec.axes:
+        if a.effect is None or a.name not in coords:
+            continue
+        param = a.name.partition(".")[2]
+        v = coords[a.name]
+        table = tables.setdefault(a.effect, {"name": a.effect})
+        table[param] = [v * p for p in a.pattern] if a.pattern is not None else v
+    return list(tables.values())
+
+
+def point_plant(spec: CampaignSpec, coords: dict) -> PlantConfig:
+    """The point's plant: the campaign plant with its pump load scaled and the effects applied."""
+    load = coords.get("load_scale", spec.fixed_load_scale)
+    base = spec.plant
+    if load != 1.0:
+        base = dataclasses.replace(
+            base, motor=dataclasses.replace(base.motor, fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * load)
+        )
+    effects = [effect_from_mapping(t, f"effects.{t['name']}.") for t in _effect_tables(spec, coords)]
+    config = base.with_effects(*effects)
+    for e in config.effects:
+        e.check(config.motor.pole_pairs, f"effects.{e.name}.")
+    return config
+
+
+def point_fault(spec: CampaignSpec, coords: dict) -> dict:
+    """The point's wiring fault (a table for ``wiring_fault_from_dict``)."""
+    fault = dict(spec.fixed_fault or {})
+    fields = {f.name: f for f in dataclasses.fields(WIRING_FAULTS[fault["name"]])}
+    for a in spec.axes:
+        if a.name.startswith("fault.") and a.name in coords:
+            param = a.name.partition(".")[2]
+            if param not in fields:
+                raise KeyError(f"no parameter {param!r} (has: {', '.join(fields) or 'none'})")
+            fault[param] = int(coords[a.name]) if isinstance(fields[param].default, int) else coords[a.name]
+    return fault

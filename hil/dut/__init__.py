@@ -1,16 +1,5 @@
-"""The device under test: the virtual controller and the links that reach a controller."""
+"""Reaching the device under test: the link interface (``link``), its implementations (in-process,
+CANopen, Modbus), the virtual controller's protocol faces, and ``--dut`` specifications (``spec``).
 
-from .link import ControllerLink, InProcessLink, LinkError, LinkTimeout
-from .virtual import CalibrationTableError, Fault, Identity, Strategy, VirtualController
-
-__all__ = [
-    "ControllerLink",
-    "InProcessLink",
-    "LinkError",
-    "LinkTimeout",
-    "CalibrationTableError",
-    "Fault",
-    "Identity",
-    "Strategy",
-    "VirtualController",
-]
+Import the module you need; this package imports nothing, so ``hil.dut.link`` stays light.
+"""

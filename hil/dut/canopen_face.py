@@ -5,35 +5,43 @@ leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY
 boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
 (0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
-hil.dut.messages.
+hil.contract.
 """
 
 from __future__ import annotations
 
 import queue
+import socket
 import struct
 import threading
 import time
 from dataclasses import dataclass
 
+import can
 import canopen
 import numpy as np
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from ..calibration.corrections import Corrections
-from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import (
+from ..contract import (
     NO_CURRENT,
+    CalibrationTableError,
     CommandMessage,
     CycleCurrentMessage,
     EdgeMessage,
+    Fault,
+    edge_epoch,
     encode_reply,
+    filter_vector,
     next_epoch,
     with_cycle_current,
+    with_filter_vector,
 )
+from ..controller.virtual import VirtualController, warm_up
+from .can_interfaces import unknown_can_interface
+from .link import LinkError, LinkTimeout, verify_calibration
 from .od import EDS_PATH
-from .virtual import CalibrationTableError, Fault, VirtualController
 
 ABORT_NO_OBJECT = 0x06020000
 ABORT_NO_SUBINDEX = 0x06090011
@@ -212,7 +220,6 @@ class CanopenDevice:
     ):
         if controller.motor.pole_pairs != 2:
             raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
-        from .virtual import warm_up
 
         warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
@@ -460,11 +467,6 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
     fenced: when the server closes the connection the client would spin on the empty socket and
     later raise BrokenPipeError; instead its sends raise CanOperationError, which the link
     reports as a LinkError naming the node and the request."""
-    import socket
-
-    import can
-
-    from .spec import unknown_can_interface
 
     if why := unknown_can_interface(interface):
         raise LinkError(f"{where}: {why}")
@@ -487,9 +489,6 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
 
 def _fence_socketcand(bus) -> None:
     """python-can 4.6.1's socketcand client: a closed connection becomes CanOperationError."""
-    import socket
-
-    import can
 
     sock = bus._SocketCanDaemonBus__socket
     recv, send = bus._recv_internal, bus.send

@@ -21,18 +21,23 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from ..calibration.corrections import Corrections
-from .link import LinkError, LinkTimeout, edge_epoch, filter_vector, verify_calibration, with_filter_vector
-from .messages import (
+from ..contract import (
     NO_CURRENT,
+    CalibrationTableError,
     CommandMessage,
     CycleCurrentMessage,
     EdgeMessage,
+    Fault,
+    edge_epoch,
     encode_reply,
+    filter_vector,
     next_epoch,
     with_cycle_current,
+    with_filter_vector,
 )
+from ..controller.virtual import VirtualController, warm_up
+from .link import LinkError, LinkTimeout, verify_calibration
 from .tcp import close_handlers
-from .virtual import CalibrationTableError, Fault, VirtualController
 
 # addresses
 STRATEGY, SPEED = 0, 1
@@ -155,8 +160,6 @@ class ModbusDevice:
     def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1,
                  serial_port: str | None = None, baudrate: int = 115200, idle_timeout_s: float | None = None):
         """TCP on host:port, or RTU on ``serial_port`` (a serial device path) when given."""
-        from .virtual import warm_up
-
         warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
         self.serial_port, self.baudrate = serial_port, baudrate

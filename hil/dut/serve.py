@@ -9,14 +9,16 @@ Modbus: TCP on host:port. Never all interfaces unless asked (``--host 0.0.0.0``)
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import sys
 import threading
 
 from plant_models import PRESETS
 
+from ..contract import Strategy
+from ..controller.virtual import VirtualController
 from .socketcand import SocketcandLimits
-from .virtual import Strategy, VirtualController
 
 
 def serve(
@@ -35,8 +37,6 @@ def serve(
     controller = VirtualController(PRESETS[preset]().motor, strategy=Strategy(strategy))
     closers = []
     if idle_timeout_s is not None:
-        import dataclasses
-
         limits = dataclasses.replace(limits, idle_timeout_s=idle_timeout_s)
     try:
         if canopen_port is not None:

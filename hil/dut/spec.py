@@ -22,7 +22,9 @@ import itertools
 import os
 from dataclasses import dataclass, field
 
-from plant_models import MotorParameters
+from hil.motor import MotorParameters
+
+from .can_interfaces import unknown_can_interface
 
 KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu")
 VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
@@ -71,17 +73,6 @@ class DutSpec:
     def id(self) -> str:
         """A short name for test ids and reports."""
         return f"virtual-{self.transport}" if self.is_virtual else self.kind
-
-
-def unknown_can_interface(interface: str) -> str | None:
-    """Why python-can cannot open ``interface`` (one line listing the ones it has), or None."""
-    import can
-
-    if interface in can.interfaces.VALID_INTERFACES:
-        return None
-    return (
-        f"python-can has no interface {interface!r} (installed: {', '.join(sorted(can.interfaces.VALID_INTERFACES))})"
-    )
 
 
 def parse_dut(text: str) -> DutSpec:
@@ -178,8 +169,8 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
         from .modbus_face import ModbusLink
 
         return Dut(spec, ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"]))
-    from .link import InProcessLink
-    from .virtual import VirtualController
+    from ..controller.virtual import VirtualController
+    from .in_process import InProcessLink
 
     controller = VirtualController(motor)
     if spec.transport == "in-process":

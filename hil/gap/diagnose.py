@@ -28,7 +28,7 @@ from .candidates import CANDIDATES
 from .fitting import cell_rms, heldout_shrink
 from .fitting import wls as _wls
 from .relevance import edge_relevance, jitter_relevance
-from .residuals import EdgeResiduals, residuals
+from .residuals import EdgeResiduals, model_prediction, residuals
 from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
 
 ALPHA = 1e-3          # significance of a gap against the noise floor
@@ -344,8 +344,6 @@ def edge_features(r: EdgeResiduals) -> dict:
 
 def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
     """Diagnose ``rec`` against ``model`` (a PlantConfig; None = the nominal motor, no effects)."""
-    from .residuals import model_prediction
-
     r = residuals(rec, model_prediction(model, rec) if model is not None else None)
     if len(r) < 6 * rec.pole_pairs:
         raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")

@@ -29,10 +29,23 @@ from typing import Callable
 
 import numpy as np
 
+from hil.hall import SENSOR_POSITION_DEG_E
+from hil.recording import record_kinematic
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
-from plant_models.hall import SENSOR_POSITION_DEG_E
 from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling
+
+from .diagnose import diagnose
+from .synthetic import (
+    JITTER_S,
+    KNOWN_MODEL,
+    TICK_S,
+    noise_rms,
+    param_error,
+    profile,
+    record_electrical_case,
+    signature_rms,
+)
 
 #: cause -> the library effect that should explain it
 CAUSE_EFFECT = {
@@ -163,20 +176,17 @@ def make_field_case(
     """A recording whose edges come from the field model with ``causes`` at signal-to-noise
     ``snr`` (each cause scaled alone to it, within its bounds); returns (recording, implied
     library effects, the field model)."""
-    from .validate import JITTER_S, TICK_S, _noise_rms, _record_electrical, _signature_rms, profile
-    from hil.recording import record_kinematic
-
     base = base or paper_bench()
     rng = np.random.default_rng(seed)
     ops = profile(base)
     p = base.motor.pole_pairs
-    noise = _noise_rms(ops, p)
+    noise = noise_rms(ops, p)
     fields, implied, achieved = [], [], []
     for name in causes:
         unit, make = _unit_cause(name, rng, p)
-        sig = _signature_rms(base, [unit], ops, seed)
+        sig = signature_rms(base, [unit], ops, seed)
         hf = make(snr * noise / max(sig, 1e-12))
-        got = _signature_rms(base, [hf], ops, seed)
+        got = signature_rms(base, [hf], ops, seed)
         fields.append(hf)
         implied.append(implied_effect(name, hf, p))
         achieved.append(got / noise)
@@ -184,7 +194,7 @@ def make_field_case(
     config = base.with_effects(
         fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), *([hf] if causes else [])
     )
-    rec = _record_electrical(config, ops, seed) if electrical else record_kinematic(config, ops, seed=seed)
+    rec = record_electrical_case(config, ops, seed) if electrical else record_kinematic(config, ops, seed=seed)
     rec.meta_extra["validation_snr"] = min(achieved) if achieved else snr
     return rec, implied, hf
 
@@ -206,9 +216,6 @@ def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: i
 
 
 def run_field_case(job) -> dict:
-    from .diagnose import diagnose
-    from .validate import KNOWN_MODEL, _param_error
-
     i, kind, names, snr, seed, electrical = job
     rec, implied, _ = make_field_case(names, snr, seed, electrical=electrical)
     d = diagnose(rec, KNOWN_MODEL)
@@ -217,7 +224,7 @@ def run_field_case(job) -> dict:
     perr = None
     if kind == "single":
         hit = next((a for a in d.accepted if a["effect"] == implied[0].name), None)
-        perr = _param_error(implied[0], hit) if hit else None
+        perr = param_error(implied[0], hit) if hit else None
     return {
         "kind": kind,
         "cause": names,

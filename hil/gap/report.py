@@ -11,6 +11,10 @@ from jinja2 import Environment, select_autoescape
 from markupsafe import Markup
 
 from ..plots import pyplot
+from .candidates import CANDIDATES
+from .diagnose import _design, build_cells
+from .fitting import wls as _wls
+from .residuals import model_prediction, residuals
 
 #: the HTML lives in hil/templates (package data), beside the compliance report's
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
@@ -47,9 +51,6 @@ def _bars(order, amplitude, ylabel: str) -> str:
 
 
 def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
-    from .diagnose import _design
-    from .fitting import wls as _wls
-
     plt = pyplot()
     out = []
     fig, ax = plt.subplots(figsize=(10, 3.2))
@@ -88,7 +89,6 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     ax.set_ylabel("mean phase current [A]")
     ax.set_title("operating regions (red edge: reverse)", fontsize=9)
     out.append(("Operating-region map", _png(fig)))
-    from .candidates import CANDIDATES
 
     names = [a["effect"] for a in diagnosis.accepted if a["effect"] in CANDIDATES]  # the mean edge effects
     if names:
@@ -120,9 +120,6 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
 
 
 def write_html(path, name, rec, diagnosis, model=None) -> Path:
-    from .diagnose import build_cells
-    from .residuals import model_prediction, residuals
-
     pred = model_prediction(model, rec) if model is not None else None
     r = residuals(rec, pred)
     cells = build_cells(r)

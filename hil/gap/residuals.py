@@ -13,8 +13,8 @@ import numpy as np
 
 from hil.calibration.fit import edge_errors_from_encoder, segment_speed_deg_e_s
 from hil.calibration.steps import wrap180
+from hil.hall import SENSOR_POSITION_DEG_E
 from hil.recording import Recording
-from plant_models.hall import SENSOR_POSITION_DEG_E
 
 
 @dataclass

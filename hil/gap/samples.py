@@ -34,7 +34,9 @@ from scipy import stats
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import minimize_scalar
 
+from hil.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from hil.recording import Recording
+from hil.units import rpm_to_rad_per_s
 
 from .fitting import cell_rms, heldout_shrink
 from .fitting import wls as _wls
@@ -50,7 +52,6 @@ MECHANICAL_BINS = 96         #: speed cells per turn: cogging orders up to 48 ar
 MAX_COGGING_ORDER = 48
 JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc marks a switching event
 RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
-BEMF_ZERO_DEG_E = (90.0, 210.0, 330.0)  #: phase back-EMF zero crossings, with Hall A rising at 0
 #: the residual in which each sampled-signal effect shows
 #: nuisance of the voltage residual without an encoder: the Hall reference's common angle offset
 REFERENCE = "hall_reference_offset"
@@ -108,14 +109,6 @@ class NominalMotor:
             float(m.get("friction_n_m_s_per_rad", 0.0)),
             float(m["supply_v"]),
         )
-
-
-def trapezoid(phi_deg: np.ndarray, flat_top_deg_e: float) -> np.ndarray:
-    """Unit trapezoidal back-EMF shape, zero rising at phi = 0 (the plant's shape)."""
-    half = (180.0 - flat_top_deg_e) * 0.5
-    x = np.mod(phi_deg + 90.0, 360.0) - 90.0
-    v = np.where(x < 90.0, x / half, (180.0 - x) / half)
-    return np.clip(v, -1.0, 1.0)
 
 
 def flux_deficit(i: np.ndarray, inductance_h: float, knee_a: float, floor: float = SATURATION_FLOOR) -> np.ndarray:
@@ -178,7 +171,7 @@ def _angles(rec: Recording, edge_error_deg_e: np.ndarray | None = None) -> tuple
 
 
 def _ideal_edge_deg_e(sensor: np.ndarray, rising: np.ndarray, direction: int) -> np.ndarray:
-    rise_fwd = np.array([0.0, 120.0, 240.0])[sensor]
+    rise_fwd = SENSOR_POSITION_DEG_E[sensor]
     at_rise = rising.astype(bool) if direction > 0 else ~rising.astype(bool)
     return np.where(at_rise, rise_fwd, rise_fwd + 180.0) % 360.0
 
@@ -188,7 +181,7 @@ def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
     s = rec.samples
     sign = np.array([seg.direction_sign for seg in rec.segments])[s["segment"]]
     if "speed_rpm" in s:
-        return sign * np.abs(s["speed_rpm"]) * 2 * math.pi / 60
+        return sign * rpm_to_rad_per_s(np.abs(s["speed_rpm"]))
     return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
 
 
@@ -807,7 +800,7 @@ def envelope(rec: Recording, motor: NominalMotor) -> OperatingEnvelope:
     cur, spd, load = [], [], []
     for k, seg in enumerate(rec.segments):
         sel = s["segment"] == k
-        w = seg.speed_rpm * 2 * math.pi / 60
+        w = rpm_to_rad_per_s(seg.speed_rpm)
         cur.append(float(np.mean(mean_abs[sel])) if mean_abs is not None and sel.any() else seg.mean_phase_current_a)
         spd.append(w)
         load.append(seg.load_scale * motor.fan_n_m_s2 * w * w + motor.friction_n_m_s_per_rad * w)

@@ -22,57 +22,38 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.recording import Recording, record_electrical, record_kinematic
+from hil.campaign.scheduler import TaskError, dispatch
+from hil.recording import Recording, record_kinematic
+from hil.units import rpm_to_deg_e_per_s
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
-from plant_models.kinematic import OperatingPoint
-from plant_models.plant import steady_state
 
 from .candidates import CANDIDATES
 from .diagnose import diagnose
-from .samples import EFFECT_DOMAIN, SAMPLE_EFFECTS
+from .field_causes import plan_field_cases, run_field_case
+from .samples import (
+    EFFECT_DOMAIN,
+    SAMPLE_EFFECTS,
+    NominalMotor,
+    _angles,
+    _speed_rad_s,
+    speed_residuals,
+    voltage_residuals,
+)
+from .synthetic import (
+    JITTER_S,
+    KNOWN_MODEL,
+    TICK_S,
+    noise_rms,
+    param_error,
+    profile,
+    record_electrical_case,
+    signature_rms,
+)
 
 EDGE_EFFECTS = tuple(CANDIDATES) + ("edge_jitter",)
 EFFECT_NAMES = EDGE_EFFECTS + SAMPLE_EFFECTS
-JITTER_S = 1e-6
-TICK_S = 1e-7
-#: the sampled signals' measurement noise in the electrical recordings (white, per sample)
-CURRENT_NOISE_A = 0.002
-VOLTAGE_NOISE_V = 0.005
-SPEED_NOISE_RPM = 0.002
-SAMPLE_RATE_HZ = 20e3
-#: what the model knows: the nominal motor and the bench's base edge jitter
-KNOWN_MODEL = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=JITTER_S))
 SAMPLE_OUT_OF_LIBRARY = ("current_offset", "current_gain")
-
-
-def profile(config: PlantConfig, turns: int = 30) -> list[OperatingPoint]:
-    """The operating points a bench would record: three speeds, no load and pump load, and a
-    reverse run (the knobs that separate confounded effects)."""
-    m = config.motor
-    ops = []
-    for rpm in (2000.0, 5000.0, 8000.0):
-        for load in (0.0, 1.0):
-            ops.append(
-                OperatingPoint(
-                    turns * 60 / rpm,
-                    rpm,
-                    steady_state(m, rpm, load)["current_a"] * 2 / 3,
-                    load_scale=load,
-                    id=f"{'load' if load else 'noload'}_{rpm:.0f}",
-                )
-            )
-    ops.append(
-        OperatingPoint(
-            turns * 60 / 5000.0,
-            5000.0,
-            steady_state(m, 5000.0, 1.0)["current_a"] * 2 / 3,
-            direction=-1,
-            load_scale=1.0,
-            id="reverse_5000",
-        )
-    )
-    return ops
 
 
 def _unit_effect(name: str, rng: np.random.Generator, pole_pairs: int) -> fx.Effect:
@@ -110,25 +91,6 @@ def _scale(effect: fx.Effect, factor: float) -> fx.Effect:
     return dataclasses.replace(effect, **changes)
 
 
-def _signature_rms(config: PlantConfig, effects, ops, seed: int) -> float:
-    e = _truth_error(config.with_effects(*effects), ops, seed)
-    return float(np.sqrt(np.mean(e**2)))
-
-
-def _truth_error(config, ops, seed):
-    from plant_models.kinematic import simulate_edges
-
-    e = simulate_edges(config, ops, seed=seed)
-    return e.direction * (e.theta_e_capture_deg - e.ideal_angle_deg_e) if len(e) else np.zeros(0)
-
-
-def _noise_rms(ops, pole_pairs):
-    w = np.array([op.speed_rpm * 6 * pole_pairs for op in ops])
-    n = np.array([op.duration_s * op.speed_rpm / 60 * 6 * pole_pairs for op in ops])
-    per = (w * JITTER_S) ** 2 + (w * TICK_S) ** 2 / 12
-    return float(np.sqrt(np.sum(n * per) / np.sum(n)))
-
-
 def make_case(
     effects_withheld: list[str],
     snr: float,
@@ -162,12 +124,11 @@ def make_case(
             continue
         unit = _unit_effect(name, rng, p)
         if name == "timer_quantization":
-            eff = fx.TimerQuantization(
-                min(1e-5, 2 * snr * _noise_rms(ops, p) / (np.mean([op.speed_rpm for op in ops]) * 6 * p) * math.sqrt(3))
-            )
+            mean_w_deg_e_s = rpm_to_deg_e_per_s(np.mean([op.speed_rpm for op in ops]), p)
+            eff = fx.TimerQuantization(min(1e-5, 2 * snr * noise_rms(ops, p) / mean_w_deg_e_s * math.sqrt(3)))
         else:
-            sig = _signature_rms(base, [unit], ops, seed)
-            eff = _scale(unit, snr * _noise_rms(ops, p) / max(sig, 1e-12))
+            sig = signature_rms(base, [unit], ops, seed)
+            eff = _scale(unit, snr * noise_rms(ops, p) / max(sig, 1e-12))
         truth.append(eff)
     known_tick = not any(e.name == "timer_quantization" for e in truth)
     injected = [t for t in truth if t.name != "edge_jitter"]  # withheld jitter is already in ``noise``
@@ -175,36 +136,19 @@ def make_case(
     if electrical:
         if ool in SAMPLE_OUT_OF_LIBRARY:
             config = _sensor_fault(config, ool, snr, seed, ops, rng)
-        rec = _record_electrical(config, ops, seed)
+        rec = record_electrical_case(config, ops, seed)
     else:
         rec = record_kinematic(config, ops, seed=seed)
     if not known_tick:
         rec.timer_tick_s = None  # withheld: the model does not know the capture timer
     if ool and ool not in SAMPLE_OUT_OF_LIBRARY:
-        _inject_out_of_library(rec, ool, snr * _noise_rms(ops, p), rng)
+        _inject_out_of_library(rec, ool, snr * noise_rms(ops, p), rng)
     rec.meta_extra["validation_snr"] = snr_achieved  # below the drawn SNR when a magnitude hit its bound
     return rec, truth
 
 
-def _record_electrical(config: PlantConfig, ops, seed: int, noisy: bool = True) -> Recording:
-    if noisy:
-        config = dataclasses.replace(
-            config, current_sensor=dataclasses.replace(config.current_sensor, noise_rms_a=CURRENT_NOISE_A)
-        )
-    return record_electrical(
-        config,
-        ops,
-        seed=seed,
-        sample_rate_hz=SAMPLE_RATE_HZ,
-        voltage_noise_v=VOLTAGE_NOISE_V if noisy else 0.0,
-        speed_noise_rpm=SPEED_NOISE_RPM if noisy else 0.0,
-    )
-
-
 def _sample_rows(rec: Recording, domain: str) -> np.ndarray:
     """Per-row residual of one sampled domain against the nominal motor (the SNR's yardstick)."""
-    from .samples import NominalMotor, _angles, _speed_rad_s, speed_residuals, voltage_residuals
-
     motor = NominalMotor.of(rec)
     th_e, th_m, _ = _angles(rec)
     w = _speed_rad_s(rec, th_m)
@@ -214,16 +158,13 @@ def _sample_rows(rec: Recording, domain: str) -> np.ndarray:
 
 def _signature(config: PlantConfig, ops, seed: int, domain: str) -> float:
     """RMS per row of the effects' signature (noise-free recording), in the domain's unit."""
-    return float(np.sqrt(np.mean(_sample_rows(_record_electrical(config, ops, seed, noisy=False), domain) ** 2)))
+    return float(np.sqrt(np.mean(_sample_rows(record_electrical_case(config, ops, seed, noisy=False), domain) ** 2)))
 
 
 def _noise(config: PlantConfig, ops, seed: int, domain: str) -> float:
     """RMS per row of the measurement noise (noisy recording of the nominal motor)."""
-    return float(
-        np.sqrt(
-            np.mean(_sample_rows(_record_electrical(dataclasses.replace(config, effects=()), ops, seed), domain) ** 2)
-        )
-    )
+    nominal = record_electrical_case(dataclasses.replace(config, effects=()), ops, seed)
+    return float(np.sqrt(np.mean(_sample_rows(nominal, domain) ** 2)))
 
 
 #: magnitude field of each sampled-signal effect (the others, e.g. temperature coefficients, stay)
@@ -303,7 +244,7 @@ def _sensor_fault(config: PlantConfig, kind: str, snr: float, seed: int, ops, rn
 def _inject_out_of_library(rec: Recording, kind: str, target_rms_deg: float, rng) -> None:
     """Effects no candidate describes: one sensor's own RC delay, or a lag growing with speed^2."""
     p = rec.pole_pairs
-    w = np.array([s.speed_rpm * 6 * p for s in rec.segments])[rec.segment]
+    w = np.array([rpm_to_deg_e_per_s(s.speed_rpm, p) for s in rec.segments])[rec.segment]
     if kind == "sensor_delay":
         x = int(rng.integers(0, 3))
         shift_deg = np.where(rec.sensor == x, w, 0.0)
@@ -320,41 +261,6 @@ def _inject_out_of_library(rec: Recording, kind: str, target_rms_deg: float, rng
         setattr(rec, name, getattr(rec, name)[order])
     if rec.truth is not None:
         rec.truth = {k: v[order] for k, v in rec.truth.items()}
-
-
-def _param_error(truth: fx.Effect, accepted: dict) -> float:
-    """Relative error of the fitted magnitude against the injected one."""
-    t = _params_vector(truth.name, dataclasses.asdict(truth))
-    f = _params_vector(truth.name, accepted["params"])
-    if truth.name == "cogging_torque" and accepted["params"]["periods_per_rev"] != truth.periods_per_rev:
-        return float("inf")  # the wrong order: no magnitude is right
-    if truth.name == "pole_offset":  # the common part is shared with installation offsets
-        t, f = t - t.mean(), f - f.mean()
-    return float(np.linalg.norm(f - t) / max(np.linalg.norm(t), 1e-12))
-
-
-def _params_vector(name, params) -> np.ndarray:
-    if name == "cogging_torque":  # amplitude and phase as one phasor
-        a, ph = params["amplitude_n_m"], params["phase_rad"]
-        return np.array([a * math.cos(ph), a * math.sin(ph)])
-    keys = {
-        "edge_jitter": ["time_rms_s"],
-        "installation_offset": ["offset_deg_e"],
-        "pole_offset": ["offset_deg_e"],
-        "eccentricity": ["amplitude_deg_e"],
-        "hysteresis": ["lag_deg_e"],
-        "conditioning_delay": ["rise_delay_s", "fall_delay_s"],
-        "armature_reaction": ["slope_deg_e_per_a"],
-        "timer_quantization": ["tick_s"],
-        "winding_temperature": ["temperature_rise_k"],
-        "magnet_temperature": ["temperature_rise_k"],
-        "saturation": ["saturation_current_a"],
-    }[name]
-    out = []
-    for k in keys:
-        v = params[k]
-        out.extend(v if isinstance(v, (list, tuple)) else [v])
-    return np.asarray(out, dtype=float)
 
 
 @dataclass
@@ -442,8 +348,6 @@ def run_validation(
         raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
     rng = np.random.default_rng(seed)
     if generator == "field":
-        from .field_causes import plan_field_cases, run_field_case
-
         return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler, bar)
     plan = []
     for name in EFFECT_NAMES:
@@ -467,7 +371,6 @@ def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar:
     """Diagnose every case (see run_validation for where), kept in plan order, reporting each as it ends."""
     report = ValidationReport()
     # one task per case, results kept in case order: the report is the same on any scheduler
-    from hil.campaign.scheduler import TaskError, dispatch
 
     results: dict[int, dict] = {}
 
@@ -500,7 +403,7 @@ def _run_case(job) -> dict:
     if kind == "no_trace":
         dead = fx.DeadTime(float(np.random.default_rng(case_seed).uniform(0.5e-6, 3e-6)))
         config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), dead)
-        rec, truth = _record_electrical(config, profile(config), case_seed), []
+        rec, truth = record_electrical_case(config, profile(config), case_seed), []
     else:
         # half of the null recordings are electrical (false alarms in the sampled signals count
         # too), and a quarter of the edge-effect draws: the edges of the full electrical plant
@@ -515,7 +418,7 @@ def _run_case(job) -> dict:
     shrink = d.heldout_shrink
     if kind == "single":
         hit = next((a for a in d.accepted if a["effect"] == truth[0].name), None)
-        perr = _param_error(truth[0], hit) if hit else None
+        perr = param_error(truth[0], hit) if hit else None
         if truth[0].name == "edge_jitter":
             shrink = d.noise_gap.get("heldout_shrink")
         elif truth[0].name in SAMPLE_EFFECTS:

@@ -7,7 +7,13 @@ import shlex
 import sys
 from pathlib import Path
 
+from .capture import GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S
+from .errors import SignalError
+from .export import ExportSettings, export, ideal, load_effects
+from .loopback import run_loopback
+from .score import score, write_html
+from .trajectory import parse_profile
 
 
 def _plant(args):
@@ -29,10 +35,6 @@ def _command(args) -> str:
 
 
 def cmd_export(args) -> int:
-    from .errors import SignalError
-    from .export import ExportSettings, export, ideal, load_effects
-    from .trajectory import parse_profile
-
     config = _plant(args)
     if args.effects:
         config = config.with_effects(*load_effects(args.effects))
@@ -84,8 +86,6 @@ def cmd_export(args) -> int:
 
 
 def _mapping(args):
-    from .capture import GateMapping
-
     if args.mapping and args.channels:
         raise ValueError("give --mapping or --channels, not both")
     if args.mapping:
@@ -94,8 +94,6 @@ def _mapping(args):
 
 
 def cmd_score(args) -> int:
-    from .score import score, write_html
-
     sc = score(args.stimulus, args.capture, _mapping(args), args.hold_off_s)
     print(f"{args.capture} against {Path(args.stimulus) / 'truth.csv'}:")
     print(sc.summary())
@@ -112,9 +110,9 @@ def cmd_score(args) -> int:
 def cmd_loopback(args) -> int:
     from plant_models import PlantConfig
 
-    from ..dut.link import InProcessLink
-    from ..dut.virtual import Strategy, VirtualController
-    from .loopback import run_loopback
+    from ..contract import Strategy
+    from ..controller.virtual import VirtualController
+    from ..dut.in_process import InProcessLink
 
     meta = json.loads((Path(args.stimulus) / "meta.json").read_text())
     config = PlantConfig.from_dict(meta["plant"])

@@ -21,8 +21,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import OracleCommutation, PlantConfig, Simulation
-from plant_models.plant import steady_state
 
 #: table resolution over one mechanical turn
 TABLE_POINTS = 1440

@@ -18,14 +18,19 @@ import json
 import math
 import platform
 import time
+import tomllib
 from dataclasses import dataclass, field
+from importlib import metadata
 from pathlib import Path
 
 import numpy as np
 
-from plant_models import PlantConfig
+from hil.hall import hall_state
+from hil.units import rpm_to_deg_e_per_s
+from plant_models import ConfigError, PlantConfig
 from plant_models.effects import effect_from_mapping
 from plant_models.kinematic import OperatingPoint, simulate_edges
+from plant_models.plant import CurrentSensorParameters
 
 from .currents import CurrentTables, tabulate
 from .errors import SignalError
@@ -90,8 +95,6 @@ class ExportResult:
 
 def load_effects(path: str | Path):
     """Effects from a TOML file of ``[[effects]]`` tables."""
-    import tomllib
-
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text())
@@ -100,7 +103,6 @@ def load_effects(path: str | Path):
     tables = data.get("effects")
     if not isinstance(tables, list):
         raise SignalError(str(path), "expected [[effects]] tables")
-    from plant_models import ConfigError
 
     try:
         return tuple(effect_from_mapping(t, f"{path}: effects[{i}].") for i, t in enumerate(tables))
@@ -110,8 +112,6 @@ def load_effects(path: str | Path):
 
 def ideal(config: PlantConfig) -> PlantConfig:
     """The plant without deviations: no effects, ideal current sensors."""
-    from plant_models.plant import CurrentSensorParameters
-
     return dataclasses.replace(
         config, effects=(), current_sensor=CurrentSensorParameters(), name=config.name + " (ideal)"
     )
@@ -168,7 +168,6 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
 
     # Hall levels at t = 0 from the first edge of each sensor (its opposite); a sensor that never
     # switches keeps its ideal level
-    from plant_models.hall import hall_state
 
     levels = hall_state(settings.start_angle_deg_e).astype(np.int64).tolist()
     first = _chunk_edges(config, traj, 0, min(CHUNK_S, settings.duration_s), settings, tables)
@@ -406,8 +405,6 @@ def _write_meta(
     analog_rate: float,
     tables: CurrentTables | None,
 ) -> None:
-    from importlib import metadata
-
     try:
         version = metadata.version("bldc-hil")
     except metadata.PackageNotFoundError:  # pragma: no cover
@@ -436,7 +433,7 @@ def _write_meta(
             "high": 1,
             "edge_quantisation": "nearest sample",
             "max_abs_timing_error_s": 0.5 / fs,
-            "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * top_rpm * 6.0 * pp,
+            "max_abs_angle_error_deg_e_at_top_speed": 0.5 / fs * rpm_to_deg_e_per_s(top_rpm, pp),
         },
         "currents": None
         if not s.currents

@@ -62,8 +62,9 @@ class SignalBench:
                 f"capture {self.capture}",
                 score(self.stimulus, self.capture, mapping),
             )
-        from ..dut.link import InProcessLink
-        from ..dut.virtual import Strategy, VirtualController
+        from ..contract import Strategy
+        from ..controller.virtual import VirtualController
+        from ..dut.in_process import InProcessLink
         from .export import ExportSettings, export
         from .loopback import run_loopback
 

@@ -16,12 +16,17 @@ confirmed).
 
 from __future__ import annotations
 
+import base64
+import html
+import io
 import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from hil.units import rpm_to_deg_e_per_s
 
 from .capture import Capture, GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S, Extracted, extract
@@ -40,7 +45,7 @@ class Truth:
 
     @property
     def omega_e_deg_s(self) -> np.ndarray:
-        return self.speed_rpm * 6.0 * self.pole_pairs
+        return rpm_to_deg_e_per_s(self.speed_rpm, self.pole_pairs)
 
     @classmethod
     def load(cls, stimulus_dir: str | Path) -> "Truth":
@@ -272,10 +277,6 @@ def score(
 
 def write_html(path: str | Path, sc: Score, title: str) -> Path:
     """One self-contained page: the JSON figures, the tables and the error over time."""
-    import base64
-    import html
-    import io
-
     import matplotlib
 
     matplotlib.use("Agg")

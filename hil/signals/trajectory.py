@@ -12,6 +12,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+
 from .errors import SignalError
 
 
@@ -53,7 +55,7 @@ class Trajectory:
         last_rpm = float(np.interp(self.duration_s, [p[0] for p in self.breakpoints], [p[1] for p in self.breakpoints]))
         pts.append((self.duration_s, last_rpm))
         t = np.array([p[0] for p in pts])
-        w = np.array([p[1] for p in pts]) * 6.0 * self.pole_pairs  # deg_e / s
+        w = rpm_to_deg_e_per_s(np.array([p[1] for p in pts]), self.pole_pairs)  # deg_e / s
         self.t0 = t[:-1]
         self.t1 = t[1:]
         self.w0 = w[:-1]
@@ -75,7 +77,7 @@ class Trajectory:
     def speed_rpm(self, t_s) -> np.ndarray:
         t = np.asarray(t_s, dtype=float)
         i = self._segment(t)
-        return (self.w0[i] + self.acc[i] * (t - self.t0[i])) / (6.0 * self.pole_pairs)
+        return deg_e_per_s_to_rpm(self.w0[i] + self.acc[i] * (t - self.t0[i]), self.pole_pairs)
 
     def time_at_deg_e(self, theta_deg_e) -> np.ndarray:
         """First instant the rotor reaches each angle (angles within the trajectory)."""

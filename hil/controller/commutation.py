@@ -12,10 +12,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant_models.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
-from plant_models.simulation import Command
-
-from .calibration.corrections import Corrections
+from ..calibration.corrections import Corrections
+from ..contract import Command
+from ..hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
+from ..units import deg_e_per_s_to_rpm, rpm_to_rad_per_s
 
 
 @dataclass
@@ -98,7 +98,7 @@ class HallCommutation:
         if self.current_limit_a is None or self.motor is None:
             return duty
         m = self.motor
-        bemf = 2.0 * m.ke_v_s_per_rad * speed_rpm * 2.0 * math.pi / 60.0
+        bemf = 2.0 * m.ke_v_s_per_rad * rpm_to_rad_per_s(speed_rpm)
         span = 2.0 * m.phase_resistance_ohm * self.current_limit_a
         return min(max(duty, (bemf - span) / m.supply_v, 0.0), (bemf + span) / m.supply_v, 1.0)
 
@@ -162,7 +162,7 @@ class HallCommutation:
                 w_e = 360.0 * self.pole_pairs / max(t - self._history[-n - 1][0], 1e-9)
             else:
                 w_e = 60.0 / max(t - self._last_t, 1e-9)
-            speed_rpm = w_e / (6.0 * self.pole_pairs)
+            speed_rpm = deg_e_per_s_to_rpm(w_e, self.pole_pairs)
             current = self.current_estimate_a
             if self.use_measured_current:
                 current = edge.get("current_a", current)
@@ -192,7 +192,7 @@ class HallCommutation:
                     60.0 * periods / self.pole_pairs / (t - self._history[-6 * periods - 1][0]) if periods else 0.0
                 )
             else:
-                speed_rpm = 60.0 / (t_corr - self._last_corr_t) / (6.0 * self.pole_pairs)
+                speed_rpm = deg_e_per_s_to_rpm(60.0 / (t_corr - self._last_corr_t), self.pole_pairs)
             if speed_rpm > 0.0:
                 self.speed_estimates_rpm.append((t, speed_rpm))
                 duty = self._limit(self.speed.update(speed_rpm, t - self._last_t), speed_rpm)

@@ -1,4 +1,7 @@
-"""Hall-sensor geometry and the six-step commutation table (one place for the conventions).
+"""Hall-sensor geometry and the six-step commutation table: the one place for these conventions.
+
+The plant's kernel, the controller, calibration, gap diagnosis and the bench-signal tools all take
+them from here (``docs/architecture.md``).
 
 Conventions (``docs/recording-format.md``): in electrical degrees, for forward rotation,
 A rises at 0 and falls at 180, B rises at 120 and falls at 300, C rises at 240 and falls at 60.
@@ -24,6 +27,8 @@ BEMF_ZERO_DEG_E = np.array([90.0, 210.0, 330.0])
 # Six-step table for forward torque: sector s covers theta_e in [60 s, 60 s + 60);
 # (high phase, low phase); the third phase floats.
 SECTOR_PHASES = np.array([[2, 0], [2, 1], [0, 1], [0, 2], [1, 2], [1, 0]], dtype=np.int64)
+SECTOR_HIGH_PHASE = np.ascontiguousarray(SECTOR_PHASES[:, 0])
+SECTOR_LOW_PHASE = np.ascontiguousarray(SECTOR_PHASES[:, 1])
 
 
 def hall_state(theta_e_deg: np.ndarray | float) -> np.ndarray:
@@ -50,10 +55,13 @@ def ideal_edge_angle_deg_e(sensor: np.ndarray, boundary: np.ndarray) -> np.ndarr
     return 180.0 * np.asarray(boundary, dtype=float) + SENSOR_POSITION_DEG_E[np.asarray(sensor)]
 
 
-def trapezoid(phi_deg: np.ndarray | float, flat_top_deg_e: float = 120.0) -> np.ndarray:
-    """Unit trapezoidal back-EMF shape: 0 at phi=0 rising, flat +1 around 90, flat -1 around 270."""
-    half_ramp = (180.0 - flat_top_deg_e) / 2.0
-    x = np.mod(np.asarray(phi_deg, dtype=float) + 90.0, 360.0) - 90.0  # in [-90, 270)
-    rising = np.clip(x / half_ramp, -1.0, 1.0)
-    falling = np.clip((180.0 - x) / half_ramp, -1.0, 1.0)
-    return np.where(x < 90.0, rising, falling)
+def trapezoid(phi_deg, flat_top_deg_e=120.0):
+    """Unit trapezoidal back-EMF shape: 0 at phi=0 rising, flat +1 around 90, flat -1 around 270.
+
+    Written with ufuncs only, so the same function serves numpy arrays here and scalars inside the
+    plant's compiled kernel (which wraps it with numba instead of keeping a copy)."""
+    half_ramp = (180.0 - flat_top_deg_e) * 0.5
+    x = phi_deg + 90.0
+    x = x - 360.0 * np.floor(x / 360.0) - 90.0  # in [-90, 270)
+    # rising flank below 90 deg, falling flank above: the nearer of x and 180 - x
+    return np.minimum(np.maximum(np.minimum(x, 180.0 - x) / half_ramp, -1.0), 1.0)

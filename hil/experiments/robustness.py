@@ -18,9 +18,9 @@ from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
+from ..predictors.model import MotorModel
+from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
 from .compare import SH_DESIGN
-from .model import MotorModel
-from .predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
 
 NOMINAL_Q0 = (0.1, 1e-9, 1e-6)
 SKIP_EDGES = 150

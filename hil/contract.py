@@ -1,4 +1,11 @@
-"""The edge and command messages every link carries, in one 8-byte format (CANopen PDO payload,
+"""The contract between the controller and the framework: the one module both sides import.
+
+Everything that crosses the link is defined here and nowhere else: the commutation ``Command`` the
+plant executes, the ``Strategy`` codes, the ``Fault`` (EMCY) codes, the refusal of a calibration
+table, the nine-value filter-settings vector, and the 8-byte edge and command messages. The
+controller (``hil.controller``) and the simulator (``plant_models``) both depend on this module and
+never on each other (``docs/architecture.md``). The wire layouts are in ``docs/controller.md``.
+The edge and command messages every link carries, in one 8-byte format (CANopen PDO payload,
 Modbus register block, and the in-process link encodes and decodes them too, so all links give
 the controller bit-identical inputs).
 
@@ -16,8 +23,77 @@ CommandMessage (controller -> plant, TPDO1):
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import struct
 from dataclasses import dataclass
+from typing import Protocol
+
+@dataclass(frozen=True)
+class Command:
+    """A commutation command for the plant: from ``at_s`` on, energise ``sector`` (0..5, -1 = all
+    switches off) with ``duty`` (None = keep) and torque ``direction`` (+1 / -1, None = keep)."""
+
+    at_s: float
+    sector: int | None = None
+    duty: float | None = None
+    direction: int | None = None
+
+
+class Strategy(enum.IntEnum):
+    """How the controller commutates (CANopen 0x2010, Modbus register 10)."""
+
+    RAW = 0
+    CORRECTED = 1
+    KF = 2
+    SAGE_HUSA = 3
+
+
+class Fault(enum.IntEnum):
+    """EMCY error codes (CiA 301: 0xFF00-0xFFFF manufacturer specific)."""
+
+    ILLEGAL_HALL_CODE = 0xFF01
+    MISSING_EDGE = 0xFF02
+    FILTER_GUARD_TRIP = 0xFF03
+    INVALID_CALIBRATION = 0xFF04
+    CAPTURE_TIMING = 0xFF05      #: a capture time that does not increase (edge discarded)
+    INTERNAL = 0x6100            #: CiA 301 internal software error
+
+
+class CalibrationTableError(ValueError):
+    """A downloaded table is refused; ``field`` names the entry."""
+
+    def __init__(self, field: str, message: str):
+        self.field = field
+        super().__init__(f"{field}: {message}")
+
+
+class FilterSettingsVector(Protocol):
+    """What crosses the link of the predictors' ``FilterSettings`` (the contract does not import the
+    predictors, which compile numba kernels): the forgetting factor b and the Q0, R0, P0 diagonals."""
+
+    forgetting_b: float
+    q0_diag: tuple[float, float, float]
+    r0_diag: tuple[float, float]
+    p0_diag: tuple[float, float, float]
+
+    def check(self) -> None: ...
+
+
+def filter_vector(settings: FilterSettingsVector) -> list[float]:
+    """The nine filter settings every link carries (CANopen 0x2020, Modbus 60-77), in order."""
+    return [settings.forgetting_b, *settings.q0_diag, *settings.r0_diag, *settings.p0_diag]
+
+
+def with_filter_vector(settings: FilterSettingsVector, vector) -> FilterSettingsVector:
+    """``settings`` with b, Q0, R0 and P0 taken from the nine-value vector (validated)."""
+    v = [float(x) for x in vector]
+    new = dataclasses.replace(
+        settings, forgetting_b=v[0], q0_diag=tuple(v[1:4]), r0_diag=tuple(v[4:6]), p0_diag=tuple(v[6:9])
+    )
+    new.check()
+    return new
+
 
 TICK_S = 1e-7
 WRAP = 1 << 32
@@ -33,6 +109,12 @@ def next_epoch(epoch: int, last_ticks: int | None, ticks: int) -> int:
     if last_ticks is not None and ticks < last_ticks and last_ticks - ticks > WRAP // 2:
         return epoch + WRAP
     return epoch
+
+
+def edge_epoch(t_s: float) -> int:
+    """Ticks of the capture timer's completed wraps at time t_s (both ends know the plant's
+    time base, so a wrap of the 32-bit timer is undone the same way on every link)."""
+    return (int(round(t_s / TICK_S)) >> 32) << 32
 
 
 def _ticks(t_s: float) -> int:
@@ -166,9 +248,7 @@ class CommandMessage:
         sector = KEEP_SECTOR if command.sector is None else int(command.sector)
         return cls(_ticks(command.at_s), duty, sector, seq, last)
 
-    def to_command(self, epoch_ticks: int = 0):
-        from plant_models.simulation import Command
-
+    def to_command(self, epoch_ticks: int = 0) -> Command:
         return Command(
             at_s=(epoch_ticks + self.ticks) * TICK_S,
             sector=None if self.sector == KEEP_SECTOR else self.sector,
@@ -197,8 +277,6 @@ def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
 def commands_as_received(commands, epoch_ticks: int) -> list:
     """What the plant receives for a reply: the commands through ``encode_reply``, pack, unpack
     and ``to_command`` without building the bytes (the in-process link's hot path)."""
-    from plant_models.simulation import Command
-
     out = []
     for c in commands:
         if c.sector is None and c.duty is None:

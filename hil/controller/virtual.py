@@ -9,47 +9,18 @@ Modbus) and the in-process link all drive this one object.
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from plant_models import MotorParameters
-from plant_models.hall import SECTOR_OF_CODE
-from plant_models.plant import steady_state
-from plant_models.simulation import Command
-
 from ..calibration.corrections import SENSORS, Corrections
-from ..commutation import HallCommutation, SpeedPI
+from ..contract import CalibrationTableError, Command, Fault, Strategy
+from ..hall import SECTOR_OF_CODE
+from ..motor import MotorParameters, steady_state
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
 from ..predictors.predictors import COUNTER_NAMES
-
-
-class Strategy(enum.IntEnum):
-    RAW = 0
-    CORRECTED = 1
-    KF = 2
-    SAGE_HUSA = 3
-
-
-class Fault(enum.IntEnum):
-    """EMCY error codes (CiA 301: 0xFF00-0xFFFF manufacturer specific)."""
-
-    ILLEGAL_HALL_CODE = 0xFF01
-    MISSING_EDGE = 0xFF02
-    FILTER_GUARD_TRIP = 0xFF03
-    INVALID_CALIBRATION = 0xFF04
-    CAPTURE_TIMING = 0xFF05      #: a capture time that does not increase (edge discarded)
-    INTERNAL = 0x6100            #: CiA 301 internal software error
-
-
-class CalibrationTableError(ValueError):
-    """A downloaded table is refused; ``field`` names the entry."""
-
-    def __init__(self, field: str, message: str):
-        self.field = field
-        super().__init__(f"{field}: {message}")
+from .commutation import HallCommutation, SpeedPI
 
 
 @dataclass(frozen=True)

@@ -8,15 +8,17 @@ plus friction); M(n) from steady loaded points (K_T I = M w_m^2 + f w_m), as a t
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from hil.hall import SECTOR_PHASES
+from hil.motor import steady_state
 from plant_models import OracleCommutation, PlantConfig, Simulation
-from plant_models.plant import steady_state
 
-from .model import MotorModel
+from ..predictors.model import MotorModel
 
 
 @dataclass
@@ -29,8 +31,6 @@ class IdentificationResult:
 
 
 def _steady_point(config: PlantConfig, speed_rpm: float, load_scale: float, seed: int):
-    import dataclasses
-
     motor = dataclasses.replace(config.motor, fan_coefficient_n_m_s2=config.motor.fan_coefficient_n_m_s2 * load_scale)
     cfg = dataclasses.replace(config, motor=motor)
     duty = steady_state(motor, speed_rpm)["duty"]
@@ -48,7 +48,6 @@ def identify(
 ) -> IdentificationResult:
     """Run the identification experiments on the plant (a bench would record the same) and fit."""
     m = config.motor
-    from plant_models.hall import SECTOR_PHASES
 
     # K_T: regression of the conducting pair's voltage on current and speed over steady points
     rows, rhs, points = [], [], []
@@ -69,7 +68,6 @@ def identify(
     # M(n): at steady speed the mean electromagnetic torque balances the load (friction folded in)
     fan = np.array([kt * i / (w * w) for _, i, w in points])
     # J: acceleration from 500 rpm without fan load at a fixed duty
-    import dataclasses
 
     noload = dataclasses.replace(config, motor=dataclasses.replace(m, fan_coefficient_n_m_s2=0.0))
     sim = Simulation(noload, OracleCommutation(), duty=0.15, initial_speed_rpm=500.0, seed=seed, sample_rate_hz=20e3)

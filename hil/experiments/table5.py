@@ -9,20 +9,20 @@ compared with the ideal instant the plant knows exactly.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.motor import steady_state
 from plant_models import PlantConfig, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog
-from plant_models.plant import steady_state
 
-from ..calibration import Corrections
 from ..calibration.campaign import station_corrections
-from ..calibration.corrections import corrected_edge_times
-from ..commutation import HallCommutation, SpeedPI
+from ..calibration.corrections import Corrections, corrected_edge_times
+from ..controller.commutation import HallCommutation, SpeedPI
 
 SETPOINTS_RPM = tuple(float(v) for v in np.linspace(5000.0, 10000.0, 7))
 #: paper Table 5 (percent): regulation-stage speed MAPE, max overshoot, constant-stage MAPE, commutation-time MAPE
@@ -210,8 +210,6 @@ class Bursts:
         """The run with the burst noise added to its corrected edges, and the true burst state per
         edge. The noise is added after the controller ran (it drove the plant on clean edges),
         so every predictor sees the same disturbed edges and is scored against the same truth."""
-        import dataclasses
-
         rng = np.random.default_rng([seed, 0xB0])
         t = run.edges.t_capture_s
         burst = np.zeros(t.size, dtype=bool)

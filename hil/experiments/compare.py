@@ -23,11 +23,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import minimize
 
-from . import filters as F
+from ..predictors import filters as F
+from ..predictors.model import MotorModel
+from ..predictors.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
 from .identify import identify
-from .model import MotorModel
-from .predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
-from .scenario import Bursts, ScenarioRun, Table5Row, run_scenario, score
+from .table5 import Bursts, ScenarioRun, Table5Row, run_scenario, score
 
 #: the JSON's metric keys and the Table5Row field each one reads
 METRICS = {

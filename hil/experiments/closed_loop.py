@@ -14,12 +14,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hil.motor import steady_state
+
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
-from ..dut.link import filter_vector, with_filter_vector
-from .model import MotorModel
-from .predictors import SageHusaPredictor
-from .scenario import SETPOINTS_RPM, edge_inputs, scenario_plant
+from ..contract import Strategy, filter_vector, with_filter_vector
+from ..controller.virtual import VirtualController
+from ..dut.spec import open_dut
+from ..predictors.model import MotorModel
+from ..predictors.predictors import SageHusaPredictor
+from .table5 import SETPOINTS_RPM, edge_inputs, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
 HOLD_S = 0.4
@@ -58,9 +62,6 @@ class ClosedLoopResult:
 
 def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, filter_settings=None) -> LinkResult:
     """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``)."""
-    from plant_models.plant import steady_state
-
-    from ..dut.virtual import Strategy, VirtualController
 
     link.reset()
     # the settings are written every time (a controller keeps the last ones written); the offline
@@ -100,8 +101,6 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
 
 
 def closed_loop(seed: int = 0, links=LINKS, hold_s: float = HOLD_S) -> ClosedLoopResult:
-    from ..dut.spec import open_dut
-
     config = scenario_plant()
     corrections = station_corrections(config, seed=seed)
     out = {}
