@@ -408,27 +408,9 @@ def _innovation_inverse(p_pred, s):
     return s11 / det, -s01 / det, -s10 / det, s00 / det
 
 
-@njit(cache=True)
-def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
-    """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
-
-    The angle is kept relative to the last corrected edge: that edge is at 0, so the edge that
-    ends this cycle is measured at z_theta = pi / 3 (Eq. 10, observing angle and current);
-    dt is the measured cycle duration; accel_per_amp = p K_T(n) / J and decel_load =
-    p M(n) w_m^2 / J are evaluated at the previous estimate; wk is scratch (N_WORK), so a step
-    allocates nothing. Returns the normalised innovation squared."""
-    phi = wk[0:9]
-    u = wk[9:12]
-    x = wk[12:15]
-    p = wk[15:24]
-    x_pred = wk[24:27]
-    p_pred = wk[27:36]
-    tmp = wk[36:45]
-    gain = wk[45:51]          # 3 x 2
-    p_new = wk[51:60]
-    ikh = wk[60:69]
-    phi_p_phi = wk[69:78]
-    x_new = wk[78:81]
+@njit(cache=True, inline="always")
+def _predict(s, dt, accel_per_amp, decel_load, phi, u, x, p, x_pred, p_pred, phi_p_phi, tmp):
+    """Eq. 9 (transition Phi and load input over one cycle of dt) and the Eq. 11 prediction."""
     # --- Eq. 9: transition Phi and input ------------------------------------------------------
     a = accel_per_amp
     phi[0], phi[1], phi[2] = 1.0, 0.0, a * dt
@@ -446,104 +428,90 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     _mm3t(tmp, phi, phi_p_phi)
     for i in range(9):                                              # P_k,k-1 = Phi P Phi^T + Q_k-1
         p_pred[i] = phi_p_phi[i] + s[ST.Q + i]
-    # H = [[0,1,0],[0,0,1]] (Eq. 10 as we read it: the edge measures the angle): rows 1 and 2
-    hx0 = x_pred[1]
-    hx1 = x_pred[2]
-    innov0 = z_theta - hx0 - s[ST.SMALL_R]                          # Z~ = Z - H X_k,k-1 - r
-    innov1 = z_i - hx1 - s[ST.SMALL_R + 1]
-    i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
-    nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
-    k = s[ST.K_STEP]
-    warm = k < fp[FP.WARMUP]
-    mask = int(fp[FP.ADAPTIVE])
-    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
-    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
-    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
-    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
-    gated = False
-    faded = False
-    if fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]:
-        # signed run length of gated innovations of one sign: a wrong state pushes every edge
-        # the same way, a burst of edge noise scatters both ways
-        run = s[ST.GATED_RUN]
-        if innov0 >= 0.0:
-            run = run + 1.0 if run > 0.0 else 1.0
-        else:
-            run = run - 1.0 if run < 0.0 else -1.0
-        s[ST.GATED_RUN] = run
-        if fp[FP.DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[FP.DIVERGENCE_RUN]:
-            # innovations persistently beyond the gate, all one way: the state is wrong, not the
-            # edge. P is overconfident, so it is faded by the ratio of the observed to the
-            # expected NIS (strong-tracking fading factor) and the filter takes the edge
-            fade = nis / 2.0
-            for i in range(9):
-                p_pred[i] *= fade
-            guards[GUARD_DIVERGENCE] += 1
-            faded = True
-            i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
-        else:
-            gated = True
-            guards[GUARD_GATE] += 1
-    else:
+
+
+@njit(cache=True, inline="always")
+def _gate(s, fp, guards, k, gate_from, innov0, nis, p_pred):
+    """The chi-square gate on the NIS and the divergence fade. Returns (gated, faded): a gated
+    edge leaves the state at its prediction; a faded step has P_k,k-1 scaled up and takes the
+    edge (the caller recomputes S^-1)."""
+    if not (fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]):
         s[ST.GATED_RUN] = 0.0
-    if gated:
-        # an outlier edge: the state keeps its prediction, P its predicted covariance
-        for i in range(3):
-            x_new[i] = x_pred[i]
-        for i in range(9):
-            p_new[i] = p_pred[i]
+        return False, False
+    # signed run length of gated innovations of one sign: a wrong state pushes every edge the
+    # same way, a burst of edge noise scatters both ways
+    run = s[ST.GATED_RUN]
+    if innov0 >= 0.0:
+        run = run + 1.0 if run > 0.0 else 1.0
     else:
-        for i in range(3):                                          # K = P H^T (H P H^T + R)^-1
-            a0 = p_pred[3 * i + 1]
-            a1 = p_pred[3 * i + 2]
-            gain[2 * i] = a0 * i00 + a1 * i10
-            gain[2 * i + 1] = a0 * i01 + a1 * i11
-        for i in range(3):                                          # X_k = X_k,k-1 + K Z~
-            x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
-        # Joseph form of P_k = (I - K H) P_k,k-1 (I - K H)^T + K R K^T (symmetric, PSD)
-        for i in range(3):
-            for j in range(3):
-                ikh[3 * i + j] = 1.0 if i == j else 0.0
-            ikh[3 * i + 1] -= gain[2 * i]
-            ikh[3 * i + 2] -= gain[2 * i + 1]
-        _mm3(ikh, p_pred, tmp)
-        _mm3t(tmp, ikh, p_new)
-        r00, r01, r10, r11 = s[ST.R], s[ST.R + 1], s[ST.R + 2], s[ST.R + 3]
-        for i in range(3):                                          # + K R K^T
-            g0, g1 = gain[2 * i], gain[2 * i + 1]
-            for j in range(3):
-                h0, h1 = gain[2 * j], gain[2 * j + 1]
-                p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
-        if _sym_pd_floor(p_new, 3, 1e-12):
-            guards[GUARD_P_PD] += 1
+        run = run - 1.0 if run < 0.0 else -1.0
+    s[ST.GATED_RUN] = run
+    if fp[FP.DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[FP.DIVERGENCE_RUN]:
+        # innovations persistently beyond the gate, all one way: the state is wrong, not the
+        # edge. P is overconfident, so it is faded by the ratio of the observed to the expected
+        # NIS (strong-tracking fading factor) and the filter takes the edge
+        fade = nis / 2.0
+        for i in range(9):
+            p_pred[i] *= fade
+        guards[GUARD_DIVERGENCE] += 1
+        return False, True
+    guards[GUARD_GATE] += 1
+    return True, False
+
+
+@njit(cache=True, inline="always")
+def _update(s, guards, innov0, innov1, i00, i01, i10, i11, x_pred, p_pred, gain, x_new, p_new, ikh, tmp):
+    """Eq. 11: gain, state update and the Joseph-form covariance update, with its repair."""
+    for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
+        a0 = p_pred[3 * i + 1]
+        a1 = p_pred[3 * i + 2]
+        gain[2 * i] = a0 * i00 + a1 * i10
+        gain[2 * i + 1] = a0 * i01 + a1 * i11
+    for i in range(3):                                              # X_k = X_k,k-1 + K Z~
+        x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
+    # Joseph form of P_k = (I - K H) P_k,k-1 (I - K H)^T + K R K^T (symmetric, PSD)
     for i in range(3):
-        s[ST.X + i] = x_new[i]
-    s[ST.X + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
-    for i in range(9):
-        s[ST.P + i] = p_new[i]
-    s[ST.LAST_NIS] = nis
-    s[ST.K_STEP] = k + 1.0
-    if mask == 0:
-        return nis
-    if mask & ADAPT_Q_WHITE and k >= gate_from:
-        # innovation whiteness (Mehra): lag-1 correlation of the angle innovations is zero for
-        # the optimal gain, positive when the filter lags (Q too small), negative when it
-        # chases the noise (Q too large). From the gate's start, as Q by Eq. 12 (below)
-        s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
-        s[ST.ACC_WHITE + 1] += innov0 * innov0
-        if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
-            c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
-            s[ST.Q] = min(
-                max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]),
-                s[ST.Q_NOMINAL] * fp[FP.BAND],
-            )
-            s[ST.ACC_WHITE] = 0.0
-            s[ST.ACC_WHITE + 1] = 0.0
-    s[ST.PREV_INNOV] = innov0
-    # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with white
-    # edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
-    # whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
-    # gives R's first estimate; over each R interval, the variance match's
+        for j in range(3):
+            ikh[3 * i + j] = 1.0 if i == j else 0.0
+        ikh[3 * i + 1] -= gain[2 * i]
+        ikh[3 * i + 2] -= gain[2 * i + 1]
+    _mm3(ikh, p_pred, tmp)
+    _mm3t(tmp, ikh, p_new)
+    r00, r01, r10, r11 = s[ST.R], s[ST.R + 1], s[ST.R + 2], s[ST.R + 3]
+    for i in range(3):                                              # + K R K^T
+        g0, g1 = gain[2 * i], gain[2 * i + 1]
+        for j in range(3):
+            h0, h1 = gain[2 * j], gain[2 * j + 1]
+            p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
+    # covariance repair: only rounding can make the Joseph form indefinite; counted when it did
+    if _sym_pd_floor(p_new, 3, 1e-12):
+        guards[GUARD_P_PD] += 1
+
+
+@njit(cache=True, inline="always")
+def _adapt_q_whiteness(s, fp, k, innov0):
+    """Option (ADAPT_Q_WHITE): Q_w steered by innovation whiteness (Mehra 1970). The lag-1
+    correlation of the angle innovations is zero for the optimal gain, positive when the filter
+    lags (Q too small), negative when it chases the noise (Q too large); once per interval Q_w
+    takes a log-step of WHITENESS_GAIN per unit of correlation, within its band."""
+    s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
+    s[ST.ACC_WHITE + 1] += innov0 * innov0
+    if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
+        c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
+        s[ST.Q] = min(
+            max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]),
+            s[ST.Q_NOMINAL] * fp[FP.BAND],
+        )
+        s[ST.ACC_WHITE] = 0.0
+        s[ST.ACC_WHITE + 1] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _edge_noise(s, dt, warm):
+    """Sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with white
+    edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
+    whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
+    gives R's first estimate; over each R interval, the variance match's."""
     if s[ST.DT_PREV] > 0.0:
         x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
         at = ST.EDGE_STATS if warm else ST.ACC_EDGE
@@ -551,32 +519,21 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         s[at + 1] += x2
         s[at + 2] += x2 * x2
     s[ST.DT_PREV] = dt
-    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
-    # faded step's innovation is the state's error, not the edge noise R stands for
-    settled = k >= 0.5 * fp[FP.WARMUP]
-    if mask & ADAPT_R and settled and not faded:
-        _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred)
-    if gated:
-        return nis
-    if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
-        _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
-    # Q adapts once the gate acts, one R interval after the warm-up: P has then converged from
-    # its re-base on the first R (``_rebase_p``). Earlier, the Eq. 12 term P_k - Phi P Phi^T is
-    # P's own convergence (hundreds of (rad/s)^2 per step), not process noise: it drove the
-    # recursion to its lower clamp in a few steps, Q_w sat at the band floor for the rest of the
-    # run and the filter could not follow a load its model had wrong (drawn conditions, Q_w by
-    # Eq. 12: within 1.05 x KF + 0.01 deg e in 64 % before, 92 % after)
-    if k < gate_from or not mask & (ADAPT_Q | ADAPT_Q_CURRENT):
-        return nis
-    # --- Eq. 12: Q every step ----------------------------------------------------------------
+
+
+@njit(cache=True, inline="always")
+def _adapt_q(s, fp, guards, k, innov0, innov1, gain, p_new, phi_p_phi):
+    """Eq. 12 for Q, every step: Q = (1 - d_k) Q + d_k (K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T).
+
+    Q keeps its physical structure: process noise enters speed and current (theta follows from
+    w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its nominal
+    value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R starts too
+    small (R0 = 0 here) and R is then never learned."""
+    mask = int(fp[FP.ADAPTIVE])
     b = fp[FP.B]
     # d_k continues from the true step count: restarting it at 1 after the warm-up would let a
     # single noisy sample replace Q
     d = (1.0 - b) / (1.0 - b ** (k + 1.0))                          # d_k = (1 - b) / (1 - b^(k+1))
-    # Q keeps its physical structure: process noise enters speed and current (theta follows
-    # from w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its
-    # nominal value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R
-    # starts too small (R0 = 0 here) and R is then never learned.
     band = fp[FP.BAND]
     clamped = False
     for i, raw in ((0, ST.Q_RAW), (2, ST.Q_RAW + 1)):
@@ -605,6 +562,79 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     s[ST.Q + 4] = s[ST.Q_NOMINAL + 4]
     if clamped:
         guards[GUARD_Q_BAND] += 1
+
+
+@njit(cache=True)
+def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
+    """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
+
+    The angle is kept relative to the last corrected edge: that edge is at 0, so the edge that
+    ends this cycle is measured at z_theta = pi / 3 (Eq. 10, observing angle and current);
+    dt is the measured cycle duration; accel_per_amp = p K_T(n) / J and decel_load =
+    p M(n) w_m^2 / J are evaluated at the previous estimate; wk is scratch (N_WORK), so a step
+    allocates nothing. Returns the normalised innovation squared."""
+    phi, u, x, p = wk[0:9], wk[9:12], wk[12:15], wk[15:24]
+    x_pred, p_pred, tmp = wk[24:27], wk[27:36], wk[36:45]
+    gain = wk[45:51]          # 3 x 2
+    p_new, ikh, phi_p_phi, x_new = wk[51:60], wk[60:69], wk[69:78], wk[78:81]
+    _predict(s, dt, accel_per_amp, decel_load, phi, u, x, p, x_pred, p_pred, phi_p_phi, tmp)
+    # --- Eq. 10: H = [[0,1,0],[0,0,1]] (as we read it: the edge measures the angle) ----------
+    hx0 = x_pred[1]
+    hx1 = x_pred[2]
+    innov0 = z_theta - hx0 - s[ST.SMALL_R]                          # Z~ = Z - H X_k,k-1 - r
+    innov1 = z_i - hx1 - s[ST.SMALL_R + 1]
+    i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
+    nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
+    k = s[ST.K_STEP]
+    warm = k < fp[FP.WARMUP]
+    mask = int(fp[FP.ADAPTIVE])
+    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
+    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
+    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
+    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
+    gated, faded = _gate(s, fp, guards, k, gate_from, innov0, nis, p_pred)
+    if gated:
+        # an outlier edge: the state keeps its prediction, P its predicted covariance
+        for i in range(3):
+            x_new[i] = x_pred[i]
+        for i in range(9):
+            p_new[i] = p_pred[i]
+    else:
+        if faded:
+            i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
+        _update(s, guards, innov0, innov1, i00, i01, i10, i11, x_pred, p_pred, gain, x_new, p_new, ikh, tmp)
+    for i in range(3):
+        s[ST.X + i] = x_new[i]
+    s[ST.X + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
+    for i in range(9):
+        s[ST.P + i] = p_new[i]
+    s[ST.LAST_NIS] = nis
+    s[ST.K_STEP] = k + 1.0
+    if mask == 0:
+        return nis
+    # --- Eq. 12 ------------------------------------------------------------------------------
+    # Q adapts once the gate acts, one R interval after the warm-up: P has then converged from
+    # its re-base on the first R (``_rebase_p``). Earlier, the Eq. 12 term P_k - Phi P Phi^T is
+    # P's own convergence (hundreds of (rad/s)^2 per step), not process noise: it drove the
+    # recursion to its lower clamp in a few steps, Q_w sat at the band floor for the rest of the
+    # run and the filter could not follow a load its model had wrong (drawn conditions, Q_w by
+    # Eq. 12: within 1.05 x KF + 0.01 deg e in 64 % before, 91 % after). Whiteness alike.
+    q_on = k >= gate_from
+    if mask & ADAPT_Q_WHITE and q_on:
+        _adapt_q_whiteness(s, fp, k, innov0)
+    s[ST.PREV_INNOV] = innov0
+    _edge_noise(s, dt, warm)
+    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
+    # faded step's innovation is the state's error, not the edge noise R stands for
+    settled = k >= 0.5 * fp[FP.WARMUP]
+    if mask & ADAPT_R and settled and not faded:
+        _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred)
+    if gated:
+        return nis
+    if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
+        _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
+    if q_on and mask & (ADAPT_Q | ADAPT_Q_CURRENT):
+        _adapt_q(s, fp, guards, k, innov0, innov1, gain, p_new, phi_p_phi)
     return nis
 
 
