@@ -305,7 +305,7 @@ def _accumulate_r(s, fp, innov0, innov1, nis, p_pred):
     m = math.sqrt(nis) if nis > 0.0 else 0.0
     w = 1.0 if m <= c else c / m
     g = w / fp[FP.HUBER_KAPPA]
-    s[ST.ACC_R] += g * innov0 * innov0 - p_pred[4]                  # w Z~ Z~^T / kappa - H P_k,k-1 H^T
+    s[ST.ACC_R] += g * innov0 * innov0 - p_pred[4]                  # w Z~^2 / kappa - H P_k,k-1 H^T (diagonal)
     s[ST.ACC_R + 1] += g * innov1 * innov1 - p_pred[8]
     sg = math.sqrt(g)
     s[ST.ACC_R_MEAN] += sg * innov0
