@@ -29,6 +29,7 @@ import struct
 from dataclasses import dataclass
 from typing import Protocol
 
+
 @dataclass(frozen=True)
 class Command:
     """A commutation command for the plant: from ``at_s`` on, energise ``sector`` (0..5, -1 = all

@@ -34,6 +34,11 @@ def rad_per_s_to_rpm(speed_rad_per_s):
     return speed_rad_per_s * 60 / (2 * math.pi)
 
 
+def rad_e_per_s_to_rpm(speed_rad_e_per_s, pole_pairs):
+    """Mechanical speed in rpm of an electrical angular speed in rad/s."""
+    return speed_rad_e_per_s / pole_pairs * 60 / (2 * math.pi)
+
+
 def edges_per_s(speed_rpm, pole_pairs):
     """Hall edges per second at a mechanical speed: six per electrical period."""
     return speed_rpm / 60.0 * 6 * pole_pairs

@@ -24,7 +24,8 @@ from hil.motor import steady_state
 from ..budgets import Budget, Budgets
 from ..controller.virtual import VirtualController
 from ..dut.in_process import InProcessLink
-from ..stimulus import Stimulus, run
+from .. import stimulus
+from ..stimulus import Stimulus
 from .spec import CampaignSpec, point_fault, point_plant
 
 
@@ -80,7 +81,7 @@ def run_point(job: tuple) -> dict:
         stim = Stimulus(**stim_dict)
         budgets = Budgets({k: Budget(**v) for k, v in budgets_table.items()}, "campaign")
         link = InProcessLink(VirtualController(stim.plant_config().motor))
-        outcome = run(stim, link, budgets)
+        outcome = stimulus.run(stim, link, budgets)  # looked up on use, so a patched run takes effect
         row = {
             "ok": outcome.ok,
             "message": outcome.message,

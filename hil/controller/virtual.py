@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.units import rad_e_per_s_to_rpm
+
 from ..calibration.corrections import SENSORS, Corrections
 from ..contract import CalibrationTableError, Command, Fault, Strategy
 from ..hall import SECTOR_OF_CODE
@@ -256,7 +258,7 @@ class VirtualController:
         return {
             "strategy": int(self.strategy),
             "speed_setpoint_rpm": self.speed_setpoint_rpm,
-            "estimated_speed_rpm": float(p.speed_rad_s / (2 * math.pi) * 60 / self.motor.pole_pairs)
+            "estimated_speed_rpm": float(rad_e_per_s_to_rpm(p.speed_rad_s, self.motor.pole_pairs))
             if p is not None and p.state[0]
             else float(est),
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hil.motor import steady_state
+from hil.units import rpm_to_deg_e_per_s
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
@@ -92,7 +93,7 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     t_corr, cycle_current, _ = edge_inputs(bench.sim, edges, corrections, config.motor.pole_pairs)
     run = SageHusaPredictor(MotorModel.from_plant(config.motor), settings).run(t_corr, cycle_current)
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
-    w_true = edges.speed_rpm[k + 1] / 60.0 * 360.0 * config.motor.pole_pairs  # deg e per second
+    w_true = rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs)
     offline = (run.pred_t_s[k] - edges.t_ideal_s[k + 1]) * w_true
     counters = {
         key: int(status[key]) for key in ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")

@@ -9,13 +9,13 @@ plus friction); M(n) from steady loaded points (K_T I = M w_m^2 + f w_m), as a t
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from hil.hall import SECTOR_PHASES
 from hil.motor import steady_state
+from hil.units import rpm_to_rad_per_s
 from plant_models import OracleCommutation, PlantConfig, Simulation
 
 from ..predictors.model import MotorModel
@@ -59,7 +59,7 @@ def identify(
         flat = np.abs(s.i_meas_a[idx, fl]) < 0.05  # only instants with the third phase open
         u_pair = s.u_v[idx, hi] - s.u_v[idx, lo]
         i_pair = 0.5 * (s.i_meas_a[idx, hi] - s.i_meas_a[idx, lo])
-        w_m = s.speed_rpm[idx] * 2 * math.pi / 60
+        w_m = rpm_to_rad_per_s(s.speed_rpm[idx])
         rows.append(np.column_stack([2 * i_pair[flat], 2 * w_m[flat]]))
         rhs.append(u_pair[flat])
         points.append((rpm, float(np.mean(np.abs(s.i_meas_a[idx]))), float(np.mean(w_m))))
@@ -73,7 +73,7 @@ def identify(
     sim = Simulation(noload, OracleCommutation(), duty=0.15, initial_speed_rpm=500.0, seed=seed, sample_rate_hz=20e3)
     sim.run_until(0.3)
     s = sim.samples()
-    w_m = s.speed_rpm * 2 * math.pi / 60
+    w_m = rpm_to_rad_per_s(s.speed_rpm)
     # smooth over whole electrical periods before differentiating
     win = max(1, int(round(len(s.t_s) / (s.t_s[-1] - s.t_s[0]) * 60.0 / (500.0 * m.pole_pairs))))
     kernel = np.ones(win) / win

@@ -9,11 +9,11 @@ least 500 scored edges. Both filters are scored against the plant's ideal instan
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
+from hil.units import edges_per_s, rpm_to_deg_e_per_s, rpm_to_rad_per_s
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges
@@ -45,8 +45,8 @@ class Condition:
     def duration_s(self, pole_pairs: int) -> float:
         """Long enough for MIN_SCORED_EDGES after the skipped start-up at the slowest speed."""
         slowest = min(self.start_rpm, self.end_rpm or self.start_rpm)
-        edges_per_s = slowest / 60.0 * 6 * pole_pairs
-        return max(MIN_DURATION_S, (SKIP_EDGES + MIN_SCORED_EDGES + 10) / edges_per_s)
+        slowest_edges_per_s = edges_per_s(slowest, pole_pairs)
+        return max(MIN_DURATION_S, (SKIP_EDGES + MIN_SCORED_EDGES + 10) / slowest_edges_per_s)
 
 
 def draw_conditions(n: int, seed: int = 0) -> list[Condition]:
@@ -75,8 +75,8 @@ def consistent_current(profile, load_scale, motor=BASE.motor):
     """Mean |i| that makes the filter's own equation of motion true for this profile."""
     out = []
     for op in profile:
-        w_m = op.speed_rpm * 2 * math.pi / 60
-        acc = ((op.end_speed_rpm or op.speed_rpm) - op.speed_rpm) * 2 * math.pi / 60 / op.duration_s
+        w_m = rpm_to_rad_per_s(op.speed_rpm)
+        acc = rpm_to_rad_per_s((op.end_speed_rpm or op.speed_rpm) - op.speed_rpm) / op.duration_s
         torque = motor.inertia_kg_m2 * acc + load_scale * motor.fan_coefficient_n_m_s2 * w_m * w_m
         out.append(max(torque, 0.0) / (3 * motor.ke_v_s_per_rad))
     return out
@@ -95,7 +95,7 @@ def edges_and_currents(profile, jitter_s, angle_jitter_deg, load_scale, seed):
 
 def angle_error_deg(e, pred, skip=SKIP_EDGES):
     k = np.arange(skip, len(e) - 1)
-    return (pred[k] - e.t_ideal_s[k + 1]) * e.speed_rpm[k + 1] * 6 * MODEL.pole_pairs
+    return (pred[k] - e.t_ideal_s[k + 1]) * rpm_to_deg_e_per_s(e.speed_rpm[k + 1], MODEL.pole_pairs)
 
 
 def _pd(m) -> bool:

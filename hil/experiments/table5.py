@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from hil.motor import steady_state
+from hil.units import rpm_to_rad_per_s
 from plant_models import PlantConfig, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog
@@ -53,7 +54,7 @@ class ScenarioRun:
 
     @property
     def true_speed_rad_s(self) -> np.ndarray:
-        return self.edges.speed_rpm * 2 * math.pi / 60 * self.config.motor.pole_pairs
+        return rpm_to_rad_per_s(self.edges.speed_rpm) * self.config.motor.pole_pairs
 
 
 def run_scenario(config: PlantConfig | None = None, corrections: Corrections | None = None, hold_s: float = 1.0,
@@ -179,7 +180,7 @@ def score(
         sel = (t >= t0) & (t <= max(t1, t0 + 0.05))
         if sel.any():
             excess = np.max(w_est[sel]) - np.max(run.true_speed_rad_s[k][sel])
-            sp = run.setpoint_rpm[k][sel][0] * 2 * math.pi / 60 * run.config.motor.pole_pairs
+            sp = rpm_to_rad_per_s(run.setpoint_rpm[k][sel][0]) * run.config.motor.pole_pairs
             overshoot = max(overshoot, 100 * max(excess, 0.0) / sp)
     return Table5Row(
         name=name,

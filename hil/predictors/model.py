@@ -21,6 +21,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from hil.units import rad_e_per_s_to_rpm
+
 
 @dataclass(frozen=True)
 class MotorModel:
@@ -48,7 +50,7 @@ class MotorModel:
     def acceleration_rad_s2(self, w_e: float, current_a: float) -> float:
         """Electrical angular acceleration of Eq. 8 (friction neglected, as the paper does)."""
         speeds, kt, m = self.arrays()
-        n_rpm = w_e / self.pole_pairs * 60 / (2 * math.pi)
+        n_rpm = rad_e_per_s_to_rpm(w_e, self.pole_pairs)
         k = np.interp(n_rpm, speeds, kt)
         mm = np.interp(n_rpm, speeds, m)
         w_m = w_e / self.pole_pairs

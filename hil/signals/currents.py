@@ -16,12 +16,12 @@ quasi-static: the extra torque current of an acceleration is not included.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
 
 from hil.motor import steady_state
+from hil.units import rpm_to_rad_per_s
 from plant_models import OracleCommutation, PlantConfig, Simulation
 
 #: table resolution over one mechanical turn
@@ -96,7 +96,7 @@ def _one_turn(config: PlantConfig, rpm: float, duty: float, seed: int) -> _Turn:
     keep = s.t_s >= settle_s
     theta = s.theta_m_deg[keep] - s.theta_m_deg[keep][0]
     # speed at the same angle one turn apart: the torque ripple's periods cancel
-    t, w = s.t_s[keep], s.speed_rpm[keep] * math.pi / 30.0
+    t, w = s.t_s[keep], rpm_to_rad_per_s(s.speed_rpm[keep])
     accel = (np.interp(360.0, theta, w) - w[0]) / (np.interp(360.0, theta, t) - t[0])
     return _Turn(duty, float(accel), s, keep, theta)
 
