@@ -78,6 +78,8 @@ KF_GRID = dict(
 SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
+#: grid points the refinement starts from (each gets an equal share of the evaluations)
+REFINE_STARTS = 2
 #: Q's forgetting factor within the usual 0.95 (docs/sage-husa.md) and a memory of 10,000 cycles; R's per interval
 B_RANGE = (0.95, 0.9999)
 B_R_RANGE = (0.05, 0.999)
@@ -94,15 +96,22 @@ def _mean_angle_rms(runs: list[ScenarioRun], predictor) -> float:
 
 
 def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]]) -> tuple[float, ...]:
-    """Best grid point, then Nelder-Mead in log space around it: the same search for both
-    filters, so neither wins by being tuned harder."""
-    scored = [(objective(x), x) for x in itertools.product(*grid.values())]
-    best_value, best = min(scored, key=lambda vx: vx[0])
-    z0 = np.log10(best)
-    simplex = np.vstack([z0] + [z0 + 0.5 * row for row in np.eye(len(z0))])
-    res = minimize(lambda z: objective(tuple(10.0 ** z)), z0, method="Nelder-Mead",
-                   options=dict(maxfev=REFINE_EVALUATIONS, xatol=0.02, fatol=1e-4, initial_simplex=simplex))
-    return best if res.fun >= best_value else tuple(float(v) for v in 10.0 ** res.x)
+    """The best REFINE_STARTS grid points, then Nelder-Mead in log space around each with an
+    equal share of REFINE_EVALUATIONS; the best point seen. The same search for both filters,
+    so neither wins by being tuned harder. Several starts because the objective is rough (the
+    gate, the fades and the variance match are thresholds): from one start the refinement of
+    Sage-Husa ended 2 points worse on its own training runs than a point it had not visited."""
+    scored = sorted(((objective(x), x) for x in itertools.product(*grid.values())), key=lambda vx: vx[0])
+    best_value, best = scored[0]
+    for _, start in scored[:REFINE_STARTS]:
+        z0 = np.log10(start)
+        simplex = np.vstack([z0] + [z0 + 0.5 * row for row in np.eye(len(z0))])
+        res = minimize(lambda z: objective(tuple(10.0 ** z)), z0, method="Nelder-Mead",
+                       options=dict(maxfev=REFINE_EVALUATIONS // REFINE_STARTS, xatol=0.02, fatol=1e-4,
+                                    initial_simplex=simplex))
+        if res.fun < best_value:
+            best_value, best = float(res.fun), tuple(float(v) for v in 10.0 ** res.x)
+    return best
 
 
 def tune_kf(
