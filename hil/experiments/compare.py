@@ -304,8 +304,15 @@ def _settings_line(name: str, s: FilterSettings, adaptive: bool) -> str:
             f"R0 = diag({s.r0_diag[0]:.3g}, {s.r0_diag[1]:.3g}), P0 = diag({s.p0_diag[0]:g}, ...), "
             f"gate on the state {'on' if s.gate_state_update else 'off'}")
     if adaptive:
+        m = s.adapt_mask
+        q_i = f"Q_i by Eq. 12 (b = {s.forgetting_b:.4g})" if m & (F.ADAPT_Q | F.ADAPT_Q_CURRENT) else "Q_i fixed"
+        if m & F.ADAPT_Q_WHITE:
+            q_w = f"Q_w by innovation whiteness every {s.adapt_interval} edges"
+        else:
+            q_w = "Q_w by Eq. 12" if m & F.ADAPT_Q else "Q_w fixed"
+        q = f"{q_w}, {q_i}"
         line += (
-            f"; adapts Q (b = {s.forgetting_b:.4g}, band x{s.q_band_factor:g}) and R (b_R = {s.r_forgetting_b:.4g} "
+            f"; {q}, Q band x{s.q_band_factor:g}; R by Eq. 12 (b_R = {s.r_forgetting_b:.4g} "
             f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}), divergence run {s.divergence_run}"
         )
     return line
@@ -381,7 +388,8 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
     sh_s = tune_sh(train, model, BURSTS_SH if protocol == "bursts" else SH_DESIGN)
     oracle = tune_oracle(train, burst_train, model, kf_s, bursts.time_rms_s)
     statement += [f"both tuned with the same budget ({math.prod(len(v) for v in KF_GRID.values())}-point grid + "
-                  f"{REFINE_EVALUATIONS} Nelder-Mead evaluations) on seeds {tuple(train_seeds)}",
+                  f"{REFINE_EVALUATIONS} Nelder-Mead evaluations from its {REFINE_STARTS} best points) "
+                  f"on seeds {tuple(train_seeds)}",
                   _settings_line("KF", kf_s, False), _settings_line("Sage-Husa", sh_s, True),
                   f"oracle: KF with R_theta = {oracle.x[2]:.3g} (w / {W_REF_RAD_S:g})^2"
                   + (f" + {oracle.burst_factor:.3g} (sigma_burst w)^2 in a true burst" if burst_eval else "")
