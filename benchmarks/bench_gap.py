@@ -15,8 +15,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bldc.motor import steady_state
 from hil.gap import diagnose
-from hil.motor import steady_state
 from hil.recording import read_recording, record_electrical, record_kinematic, write_recording
 from plant_models import effects as fx
 from plant_models import paper_bench

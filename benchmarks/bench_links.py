@@ -16,15 +16,15 @@ import subprocess
 import sys
 import time
 
+from bldc.contract import Strategy
+from bldc.motor import steady_state
 from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
-from hil.contract import Strategy
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenDevice, CanopenLink
 from hil.dut.in_process import InProcessLink
 from hil.dut.modbus_face import ModbusDevice, ModbusLink
-from hil.motor import steady_state
 from plant_models import paper_bench
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

@@ -21,7 +21,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 # measure the checkout this file sits in, not whichever plant_models happens to be installed
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from hil.motor import steady_state  # noqa: E402
+from bldc.motor import steady_state  # noqa: E402
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench  # noqa: E402
 from plant_models import effects as fx  # noqa: E402
 from plant_models.kinematic import OperatingPoint, simulate_edges  # noqa: E402

@@ -16,8 +16,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 
 from hil.predictors import FilterSettings, MotorModel, SageHusaPredictor  # noqa: E402
-from plant_models import paper_bench  # noqa: E402
 from plant_models import effects as fx  # noqa: E402
+from plant_models import paper_bench  # noqa: E402
 from plant_models.kinematic import OperatingPoint, simulate_edges  # noqa: E402
 
 

@@ -11,9 +11,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bldc.contract import Command
 from plant_models import PlantConfig, Simulation
 
-from .contract import Command
 from .dut.link import ControllerLink
 
 #: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,

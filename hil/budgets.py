@@ -31,7 +31,7 @@ import tomllib
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from hil.params import ConfigError
+from bldc.params import ConfigError
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ import os
 import sys
 from pathlib import Path
 
-from hil.params import describe
+from bldc.params import describe
 from plant_models import EFFECTS, PRESETS, ConfigError, PlantConfig
 
 from .recording import RecordingError, read_recording

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.hall import SENSORS
-from hil.motor import steady_state
+from bldc.hall import SENSORS
+from bldc.motor import steady_state
 from plant_models import RawHallCommutation, Simulation, paper_bench
 
 from .plots import pyplot, save

@@ -15,7 +15,7 @@ from typing import ClassVar
 
 from hypothesis import strategies as st
 
-from .contract import Fault
+from bldc.contract import Fault
 
 
 @dataclass(frozen=True)

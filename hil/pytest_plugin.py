@@ -223,7 +223,7 @@ def _check_configuration(config, report_dir) -> None:
             f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
             "a real controller serves one session: run without -n"
         )
-    from hil.params import ConfigError
+    from bldc.params import ConfigError
 
     try:
         _plant_config(config)
@@ -433,10 +433,10 @@ def hil_link(hil_dut, request):
 def hil_bench(hil_link, hil_plant_config, hil_seed):
     """Factory: ``hil_bench(strategy, corrections=None, effects=(), speed_rpm=6000, filter_settings=None)``
     -> a LockstepBench of the plant (with ``effects`` injected) and the controller, configured through the link."""
-    from hil.motor import steady_state
+    from bldc.contract import Strategy
+    from bldc.motor import steady_state
 
     from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
-    from .contract import Strategy
     from .progress import note
 
     benches = 0

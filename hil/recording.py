@@ -19,8 +19,8 @@ from typing import Any
 
 import numpy as np
 
-from hil.motor import steady_state
-from hil.units import rpm_to_deg_e_per_s
+from bldc.motor import steady_state
+from bldc.units import rpm_to_deg_e_per_s
 from plant_models import RawHallCommutation, Simulation
 from plant_models.edgelog import EdgeLog
 from plant_models.kinematic import simulate_edges

@@ -15,13 +15,13 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.motor import steady_state
+from bldc.contract import Strategy
+from bldc.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
 
 from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs, rms
 from .calibration.campaign import station_corrections
-from .contract import Strategy
 from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
 FORMAT = "hil-stimulus/1"

@@ -1,7 +1,7 @@
 """Plant models: BLDC motor, six-step inverter, Hall sensors with conditioning, and the effect library."""
 
-from hil.contract import Command
-from hil.params import ConfigError
+from bldc.contract import Command
+from bldc.params import ConfigError
 from plant_models.simulation import OracleCommutation, RawHallCommutation, Simulation, simulate
 
 from .edgelog import EdgeLog

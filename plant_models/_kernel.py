@@ -21,7 +21,7 @@ import math
 import numpy as np
 from numba import njit
 
-from hil.hall import (
+from bldc.hall import (
     BEMF_ZERO_DEG_E,
     SECTOR_HIGH_PHASE,
     SECTOR_LOW_PHASE,
@@ -29,7 +29,7 @@ from hil.hall import (
     SENSOR_POSITION_DEG_E,
     trapezoid,
 )
-from hil.units import rad_per_s_to_rpm
+from bldc.units import rad_per_s_to_rpm
 
 from ._layout import (
     E_BOUNDARY,

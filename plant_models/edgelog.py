@@ -6,7 +6,7 @@ from dataclasses import dataclass, fields
 
 import numpy as np
 
-from hil.hall import ideal_edge_angle_deg_e
+from bldc.hall import ideal_edge_angle_deg_e
 
 
 @dataclass

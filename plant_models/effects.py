@@ -1,7 +1,7 @@
 """The effect library: every deviation the plant can show, one typed, bounded object each.
 
 Each effect is a frozen dataclass whose fields carry units in their names and physical bounds
-(:func:`hil.params.bounded`). Defaults are neutral: an effect built with its defaults
+(:func:`bldc.params.bounded`). Defaults are neutral: an effect built with its defaults
 changes nothing. Each effect knows how to write itself into the compiled plant
 (:meth:`Effect.contribute`), draws itself for hypothesis (:meth:`Effect.strategy`) and
 describes its fingerprint for the gap diagnosis (:attr:`Effect.fingerprint`).
@@ -20,7 +20,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from hil.params import ConfigError, bounded, from_mapping, strategy_for, validate
+from bldc.params import ConfigError, bounded, from_mapping, strategy_for, validate
 
 from .compiled import CompiledPlant
 

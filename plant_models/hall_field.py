@@ -42,8 +42,8 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 from scipy.optimize import brentq
 
-from hil.hall import SENSOR_POSITION_DEG_E
-from hil.params import ConfigError, bounded, from_mapping, validate
+from bldc.hall import SENSOR_POSITION_DEG_E
+from bldc.params import ConfigError, bounded, from_mapping, validate
 
 from .effects import EFFECTS, ConditioningCircuit, Effect
 

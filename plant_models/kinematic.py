@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.signal import lfilter
 
-from hil.hall import SENSOR_POSITION_DEG_E
-from hil.params import ConfigError
-from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+from bldc.hall import SENSOR_POSITION_DEG_E
+from bldc.params import ConfigError
+from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 from .edgelog import EdgeLog
 from .plant import PlantConfig

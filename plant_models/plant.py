@@ -12,8 +12,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from hil.motor import MotorParameters
-from hil.params import ConfigError, bounded, from_mapping, validate
+from bldc.motor import MotorParameters
+from bldc.params import ConfigError, bounded, from_mapping, validate
 
 from . import effects as fx
 from .compiled import CompiledPlant

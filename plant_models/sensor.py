@@ -4,7 +4,7 @@ Compiled with numba and inlined into the kernel's step loop (``_kernel``); every
 on the kernel's state vectors (``_layout``).
 
 Where: the switching angle of sensor x around its region (``set_targets``) is its position
-(``hil.hall``) plus the installation, pole and field-model offsets and angle jitter; hysteresis
+(``bldc.hall``) plus the installation, pole and field-model offsets and angle jitter; hysteresis
 opens a band around it and armature reaction moves it with the current (``sensor_crossing``,
 ``hold_crossing``). When: the conditioning circuit delays each edge inertially (a pulse shorter
 than the delay never arrives, ``pending_of``) and adds time jitter (``edge_emit_time``).
@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from hil.hall import SENSOR_POSITION_DEG_E
+from bldc.hall import SENSOR_POSITION_DEG_E
 
 from ._layout import (
     E_SENSOR,

@@ -7,10 +7,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.contract import Command
-from hil.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
-from hil.params import ConfigError
-from hil.units import rad_per_s_to_rpm, rpm_to_rad_per_s
+from bldc.contract import Command
+from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
+from bldc.params import ConfigError
+from bldc.units import rad_per_s_to_rpm, rpm_to_rad_per_s
 
 from . import _kernel as K
 from . import _layout as L

@@ -9,9 +9,9 @@ shows what the deviation alone would cost.
 
 import pytest
 
+from bldc.contract import Strategy
 from hil.bench import p99_abs as p99
 from hil.bench import rms
-from hil.contract import Strategy
 from hil.plots import commutation_error_figure
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e

@@ -26,6 +26,7 @@ from hil.pytest_plugin import hil_settings
 from hil.stimulus import Stimulus, replay_path, run
 from plant_models import effects as fx
 
+
 def deviations(pole_pairs: int):
     """The calibratable effects, each drawn by the effect library's own strategy, inside its full
     physical bounds (installation +-10 deg e, poles +-5 deg e, armature +-2 deg e/A, delays to

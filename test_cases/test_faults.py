@@ -8,7 +8,7 @@ the commutation must be back within budget.
 
 import pytest
 
-from hil.contract import Fault, Strategy
+from bldc.contract import Fault, Strategy
 from hil.dut.link import LinkError
 from hil.faults import HallSpike, LostEdge, SensorDropout
 from hil.predictors import FilterSettings

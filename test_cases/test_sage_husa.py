@@ -10,12 +10,12 @@ same plant and seed; every commutation is scored against the true rotor angle.
 import numpy as np
 import pytest
 
+from bldc.contract import Strategy
 from hil.bench import p99_abs, rms
-from hil.contract import Strategy
+from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 from hil.plots import commutation_error_figure
 from hil.predictors import FilterSettings
 from hil.predictors.predictors import COUNTER_NAMES
-from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 
 HOLD_S = 0.4
 JITTER_S = 3e-6

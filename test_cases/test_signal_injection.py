@@ -11,8 +11,8 @@ score your controller's capture instead.
 import numpy as np
 import pytest
 
+from bldc.contract import Strategy
 from hil.bench import p99_abs, rms
-from hil.contract import Strategy
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
 

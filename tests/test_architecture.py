@@ -15,15 +15,11 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-PACKAGES = ("hil", "plant_models")
+PACKAGES = ("bldc", "hil", "plant_models")
 
 #: module prefix -> group, the longest prefix wins (the rows of the table in docs/architecture.md)
 GROUP_OF_PREFIX = {
-    "hil.units": "vocabulary",
-    "hil.params": "vocabulary",
-    "hil.hall": "vocabulary",
-    "hil.motor": "vocabulary",
-    "hil.contract": "vocabulary",
+    "bldc": "vocabulary",
     "plant_models": "plant",
     "hil.predictors": "predictors",
     "hil.calibration.corrections": "corrections",
@@ -124,6 +120,18 @@ def _imports(module: str, path: Path) -> list[tuple[str, int]]:
 GRAPH = {m: _imports(m, p) for m, p in MODULES.items()}
 
 
+def test_the_top_level_packages_import_downwards_only():
+    """bldc imports neither of the others, plant_models never imports hil."""
+    wrong = [
+        f"{module} imports {target}"
+        for module, imports in GRAPH.items()
+        for target, _ in imports
+        if (module.split(".")[0], target.split(".")[0]) in {("bldc", "hil"), ("bldc", "plant_models"),
+                                                            ("plant_models", "hil")}
+    ]
+    assert not wrong, wrong
+
+
 def test_every_module_has_a_room():
     for module in MODULES:
         assert group(module) in MAY_IMPORT, module
@@ -192,7 +200,7 @@ def _loaded_after(statement: str) -> set[str]:
     "statement, never",
     [
         ("import hil.dut.link", ("numba", "canopen", "can", "pymodbus", "plant_models", "hil.controller")),
-        ("import hil.contract", ("numba", "plant_models", "hil.predictors", "hil.controller")),
+        ("import bldc.contract", ("numba", "plant_models", "hil.predictors", "hil.controller")),
         ("import hil.controller.virtual", ("plant_models",)),
     ],
 )
@@ -203,12 +211,12 @@ def test_light_modules_stay_light_when_imported(statement, never):
 
 
 def test_the_hall_geometry_is_written_once():
-    """Sensor positions and back-EMF zero crossings appear as numbers only in hil/hall.py."""
+    """Sensor positions and back-EMF zero crossings appear as numbers only in bldc/hall.py."""
     literals = ("0.0, 120.0, 240.0", "0, 120, 240", "90.0, 210.0, 330.0", "90, 210, 330")
     found = [
         f"{path.relative_to(ROOT)}: {lit}"
         for path in MODULES.values()
-        if path.name != "hall.py" or path.parent.name != "hil"
+        if path.name != "hall.py" or path.parent.name != "bldc"
         for lit in literals
         if lit in path.read_text()
     ]

@@ -14,11 +14,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from bldc.params import ConfigError
 from hil.campaign import dispatch, load_spec, read_table, run_campaign
 from hil.campaign.envelope import margin_grid
 from hil.campaign.grid import point_seed, point_stimulus, points, run_point
 from hil.campaign.scheduler import TaskError
-from hil.params import ConfigError
 from hil.stimulus import Stimulus
 
 #: raw Hall commutation with installation offsets: the commutation lands where the sensor's edge

@@ -10,16 +10,16 @@ import time
 import numpy as np
 import pytest
 
+from bldc.contract import Strategy
+from bldc.motor import steady_state
 from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
-from hil.contract import Strategy
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenLink
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
 from hil.dut.modbus_face import ModbusLink
-from hil.motor import steady_state
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)

@@ -7,11 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from hil.bench import LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
-from hil.calibration.corrections import Corrections
-from hil.calibration.fit import fit_corrections
-from hil.contract import (
+from bldc.contract import (
     Command,
     CommandMessage,
     EdgeMessage,
@@ -22,11 +18,15 @@ from hil.contract import (
     edge_epoch,
     encode_reply,
 )
+from bldc.motor import steady_state
+from hil.bench import LockstepBench
+from hil.calibration.campaign import CalibrationCampaign
+from hil.calibration.corrections import Corrections
+from hil.calibration.fit import fit_corrections
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError
-from hil.motor import steady_state
 from plant_models import Simulation, paper_bench
 
 CONFIG = paper_bench(with_deviations=True)
@@ -196,7 +196,7 @@ def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, curr
 def test_device_epoch_advances_on_a_timer_wrap_and_not_on_a_bad_stamp():
     """Both protocol faces unwrap the 32-bit capture stamp with next_epoch: a step back by more
     than half the range is a wrap (one epoch more), a small step back is a bad stamp (none)."""
-    from hil.contract import WRAP, next_epoch
+    from bldc.contract import WRAP, next_epoch
 
     assert next_epoch(0, None, 5) == 0
     assert next_epoch(0, WRAP - 10, 3) == WRAP

@@ -6,8 +6,8 @@ import math
 import numpy as np
 import pytest
 
+from bldc.motor import steady_speed_rpm, steady_state
 from hil.linebemf import falling_zero_crossings, line_bemf
-from hil.motor import steady_speed_rpm, steady_state
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
 
@@ -98,7 +98,7 @@ def test_floating_phase_shows_neutral_plus_own_bemf():
     sim = Simulation(BASE, OracleCommutation(), duty=duty, initial_speed_rpm=9000)
     sim.run_until(0.05)
     s = sim.samples()
-    from hil.hall import SECTOR_PHASES
+    from bldc.hall import SECTOR_PHASES
 
     hi, lo = SECTOR_PHASES[s.sector, 0], SECTOR_PHASES[s.sector, 1]
     fl = 3 - hi - lo

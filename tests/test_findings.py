@@ -18,11 +18,11 @@ from pathlib import Path
 import pytest
 from test_sensor_layer import assert_no_chatter
 
+from bldc.motor import steady_state
 from hil.budgets import Budgets
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
-from hil.motor import steady_state
 from hil.stimulus import Stimulus, run
 from plant_models import RawHallCommutation, Simulation
 
@@ -51,7 +51,7 @@ def test_finding_plant_does_not_chatter_under_raw_hall_commutation(name):
 def test_first_commutation_follows_the_first_edge():
     """At start-up only the switching sensor's level is known; the Hall state after the edge
     follows from which edge it was (the pump turns forward), not from two assumed-low sensors."""
-    from hil.hall import SECTOR_OF_CODE, hall_code, hall_state
+    from bldc.hall import SECTOR_OF_CODE, hall_code, hall_state
 
     for sensor, rising, angle in [
         (0, True, 0.0),

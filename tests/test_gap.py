@@ -144,7 +144,7 @@ def test_confounded_pair_is_named_with_its_knob():
     """Forward only, current tied to speed by the pump load over a narrow speed range: the
     armature lag (~ w^2) and a conditioning delay (~ w) are then alike. (Over a wide range the
     curvature separates them, and the diagnosis does so.)"""
-    from hil.motor import steady_state
+    from bldc.motor import steady_state
 
     m = paper_bench().motor
     ops = [

@@ -11,7 +11,7 @@ import math
 import numpy as np
 import pytest
 
-from hil.hall import SENSOR_POSITION_DEG_E
+from bldc.hall import SENSOR_POSITION_DEG_E
 from plant_models import ConfigError, PlantConfig, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling

@@ -10,15 +10,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from bldc.contract import Fault, Strategy
+from bldc.motor import steady_state
 from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
-from hil.contract import Fault, Strategy
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
 from hil.dut.modbus_face import ModbusDevice, ModbusLink
-from hil.motor import steady_state
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)

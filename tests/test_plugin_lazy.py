@@ -133,7 +133,7 @@ def test_the_controller_is_reset_once_per_test_and_once_more_per_further_bench(p
     )
     pytester.makepyfile(
         test_r=(
-            "from hil.contract import Strategy\n\n"
+            "from bldc.contract import Strategy\n\n"
             "def test_one_bench(resets, hil_bench):\n"
             "    hil_bench(Strategy.RAW)\n"
             "    assert len(resets) == 1\n\n"

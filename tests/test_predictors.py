@@ -6,11 +6,12 @@ import math
 import numpy as np
 import pytest
 
-from hil.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
 from hil.experiments import compare
-from hil.predictors import filters as F
 from hil.experiments.compare import SH_ADAPT
-from hil.experiments.robustness import MODEL, NOMINAL_Q0 as NOMINAL_Q, angle_error_deg, edges_and_currents
+from hil.experiments.robustness import MODEL, angle_error_deg, edges_and_currents
+from hil.experiments.robustness import NOMINAL_Q0 as NOMINAL_Q
+from hil.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
+from hil.predictors import filters as F
 from plant_models.kinematic import OperatingPoint
 
 

@@ -3,7 +3,8 @@
 import json
 
 import can  # noqa: F401  imported before any in-process pytester run: its snapshot of sys.modules would
-            # otherwise drop python-can and the pandas it pulls in, and pandas cannot be imported twice
+
+# otherwise drop python-can and the pandas it pulls in, and pandas cannot be imported twice
 import pytest
 
 pytest_plugins = ["pytester"]

@@ -18,7 +18,7 @@ from hypothesis import HealthCheck, settings
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, precondition, rule
 
-from hil.contract import Strategy
+from bldc.contract import Strategy
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenDevice
 from plant_models import paper_bench

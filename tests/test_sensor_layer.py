@@ -259,7 +259,7 @@ def test_electrical_and_kinematic_modes_agree_on_sensor_layer():
 
 
 def _steady_raw_hall(effects, speed_rpm, duration_s=0.05, seed=0):
-    from hil.motor import steady_state
+    from bldc.motor import steady_state
 
     sim = Simulation(
         BASE.with_effects(*effects),
@@ -324,7 +324,7 @@ def _swinging_rotor(rise_s, fall_s):
         def on_edge(self, edge, sim):
             return []
 
-    from hil.contract import Command
+    from bldc.contract import Command
 
     sim = Simulation(
         cfg, Unpowered(), duty=0.0, initial_speed_rpm=0.0, initial_angle_deg_m=28.0, seed=0, max_step_s=1e-6
@@ -355,7 +355,7 @@ def test_edge_current_is_the_current_at_the_crossing():
     """The armature shift follows the current within the plant step: an edge's current (and so
     its lag) is the current at its own instant. Taken at the step start it was up to a step of
     commutation transient stale (0.6 A on a finding), which cost 2 deg e of commutation there."""
-    from hil.motor import steady_state
+    from bldc.motor import steady_state
 
     # commutation on the true angle, edges 1 deg e later: each edge falls in a commutation transient
     cfg = BASE.with_effects(fx.ArmatureReaction(1.0), fx.InstallationOffset((1.0, 1.0, 1.0)))

@@ -314,7 +314,7 @@ def test_unit_id_rule(served, unit, answer):
 
 
 def test_a_bad_request_is_one_debug_line_and_the_log_stays_bounded(caplog):
-    from hil.contract import Strategy
+    from bldc.contract import Strategy
     from hil.controller.virtual import VirtualController
     from hil.dut.modbus_face import ModbusDevice
     from plant_models import paper_bench

@@ -430,7 +430,7 @@ def test_exported_currents_hold_their_speed_on_the_plant(rpm):
     plant (ideal commutation, from that speed) the tabulated duty keeps the speed within 0.5 rpm
     over 0.2 s and its mean electromagnetic torque is the pump load's within 1 % (the analytic
     L -> 0 duty misses both: at 6000 rpm it loses 9.5 rpm and gives 61 % of the torque)."""
-    from hil.motor import steady_state
+    from bldc.motor import steady_state
     from hil.signals.currents import tabulate
     from plant_models import OracleCommutation, Simulation, paper_bench
 
@@ -485,11 +485,11 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     restarts at commutation: each restart then turns on on the old carrier's grid, as a change
     hidden in a free-running off-time would; the capture's carrier mode (docs/signals.md) keeps
     every commutation where the gates made it."""
+    from bldc.contract import Strategy
+    from bldc.motor import steady_state
     from hil.bench import LockstepBench
-    from hil.contract import Strategy
     from hil.controller.virtual import VirtualController
     from hil.dut.in_process import InProcessLink
-    from hil.motor import steady_state
     from hil.signals.export import ExportSettings, export
     from hil.signals.loopback import run_loopback
     from hil.signals.score import score

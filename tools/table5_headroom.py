@@ -16,11 +16,11 @@ from __future__ import annotations
 import numpy as np
 from scipy.optimize import minimize
 
-from hil.predictors import filters as F
 from hil.experiments.compare import tune_kf
 from hil.experiments.identify import identify
-from hil.predictors.predictors import FilterSettings, KalmanPredictor
 from hil.experiments.table5 import Bursts, run_scenario, score
+from hil.predictors import filters as F
+from hil.predictors.predictors import FilterSettings, KalmanPredictor
 
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the scenario
 METRICS = ("MAPE reg. %", "overshoot %", "MAPE const. %", "MAPE comm. time %", "angle RMS", "p99", "max")

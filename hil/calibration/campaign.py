@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hil.motor import steady_state
+from bldc.motor import steady_state
 from hil.recording import Recording, record_electrical, record_kinematic
 from plant_models import PlantConfig
 from plant_models.kinematic import OperatingPoint

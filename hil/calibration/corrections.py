@@ -9,7 +9,7 @@ from typing import Any
 
 import numpy as np
 
-from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 SENSORS = ("A", "B", "C")
 

@@ -19,9 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.hall import SENSOR_POSITION_DEG_E
+from bldc.hall import SENSOR_POSITION_DEG_E
+from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 from hil.recording import Recording
-from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 from .corrections import SENSORS, Corrections
 from .steps import (

@@ -19,12 +19,12 @@ from typing import Any
 
 import numpy as np
 
-from hil.motor import steady_state
+from bldc.motor import steady_state
 
+from .. import stimulus
 from ..budgets import Budget, Budgets
 from ..controller.virtual import VirtualController
 from ..dut.in_process import InProcessLink
-from .. import stimulus
 from ..stimulus import Stimulus
 from .spec import CampaignSpec, point_fault, point_plant
 

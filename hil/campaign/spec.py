@@ -44,7 +44,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from hil.params import ConfigError
+from bldc.params import ConfigError
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 

@@ -12,10 +12,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bldc.contract import Command
+from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
+from bldc.units import deg_e_per_s_to_rpm, rpm_to_rad_per_s
+
 from ..calibration.corrections import Corrections
-from ..contract import Command
-from ..hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
-from ..units import deg_e_per_s_to_rpm, rpm_to_rad_per_s
 
 
 @dataclass

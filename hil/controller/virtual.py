@@ -14,12 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.units import rad_e_per_s_to_rpm
+from bldc.contract import CalibrationTableError, Command, Fault, Strategy
+from bldc.hall import SECTOR_OF_CODE
+from bldc.motor import MotorParameters, steady_state
+from bldc.units import rad_e_per_s_to_rpm
 
 from ..calibration.corrections import SENSORS, Corrections
-from ..contract import CalibrationTableError, Command, Fault, Strategy
-from ..hall import SECTOR_OF_CODE
-from ..motor import MotorParameters, steady_state
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
 from ..predictors.predictors import COUNTER_NAMES
 from .commutation import HallCommutation, SpeedPI

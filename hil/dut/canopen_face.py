@@ -5,7 +5,7 @@ leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY
 boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
 (0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
-hil.contract.
+bldc.contract.
 """
 
 from __future__ import annotations
@@ -23,8 +23,7 @@ import numpy as np
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
-from ..calibration.corrections import Corrections
-from ..contract import (
+from bldc.contract import (
     NO_CURRENT,
     CalibrationTableError,
     CommandMessage,
@@ -38,6 +37,8 @@ from ..contract import (
     with_cycle_current,
     with_filter_vector,
 )
+
+from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController, warm_up
 from .can_interfaces import unknown_can_interface
 from .link import LinkError, LinkTimeout, verify_calibration

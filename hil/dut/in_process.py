@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..calibration.corrections import Corrections
-from ..contract import (
+from bldc.contract import (
     CalibrationTableError,
     Command,
     commands_as_received,
@@ -14,6 +13,8 @@ from ..contract import (
     filter_vector,
     with_filter_vector,
 )
+
+from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController
 from ..predictors import FilterSettings
 from .link import LinkError, verify_calibration

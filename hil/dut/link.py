@@ -11,8 +11,9 @@ from __future__ import annotations
 import math
 from typing import Protocol
 
+from bldc.contract import Command, FilterSettingsVector
+
 from ..calibration.corrections import Corrections
-from ..contract import Command, FilterSettingsVector
 
 
 class LinkError(RuntimeError):

@@ -20,8 +20,7 @@ import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
-from ..calibration.corrections import Corrections
-from ..contract import (
+from bldc.contract import (
     NO_CURRENT,
     CalibrationTableError,
     CommandMessage,
@@ -35,6 +34,8 @@ from ..contract import (
     with_cycle_current,
     with_filter_vector,
 )
+
+from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController, warm_up
 from .link import LinkError, LinkTimeout, verify_calibration
 from .tcp import close_handlers

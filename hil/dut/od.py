@@ -4,7 +4,7 @@ shipped in the package (hil/dut/virtual_controller.eds) and drives the SDO valid
 Manufacturer objects: 0x2000 strategy, 0x2001 speed set point, 0x2010 calibration (staged),
 0x2011 apply calibration (write 1), 0x2012 applied calibration (read-back), 0x2020 filter
 settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200 / 0x2201 the
-last edge message (RPDO1) and cycle-mean current (RPDO2) received. PDO payloads are documented in hil/contract.py.
+last edge message (RPDO1) and cycle-mean current (RPDO2) received. PDO payloads are documented in bldc/contract.py.
 """
 
 from __future__ import annotations

@@ -14,9 +14,9 @@ import signal
 import sys
 import threading
 
+from bldc.contract import Strategy
 from plant_models import PRESETS
 
-from ..contract import Strategy
 from ..controller.virtual import VirtualController
 from .socketcand import SocketcandLimits
 

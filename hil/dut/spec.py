@@ -22,7 +22,7 @@ import itertools
 import os
 from dataclasses import dataclass, field
 
-from hil.motor import MotorParameters
+from bldc.motor import MotorParameters
 
 from .can_interfaces import unknown_can_interface
 

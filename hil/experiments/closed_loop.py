@@ -14,12 +14,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.motor import steady_state
-from hil.units import rpm_to_deg_e_per_s
+from bldc.contract import Strategy, filter_vector, with_filter_vector
+from bldc.motor import steady_state
+from bldc.units import rpm_to_deg_e_per_s
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
-from ..contract import Strategy, filter_vector, with_filter_vector
 from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel

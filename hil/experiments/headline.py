@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.motor import steady_state
+from bldc.motor import steady_state
 from plant_models import Simulation, paper_bench
 
 from ..calibration.campaign import CalibrationCampaign

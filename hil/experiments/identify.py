@@ -13,9 +13,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.hall import SECTOR_PHASES
-from hil.motor import steady_state
-from hil.units import rpm_to_rad_per_s
+from bldc.hall import SECTOR_PHASES
+from bldc.motor import steady_state
+from bldc.units import rpm_to_rad_per_s
 from plant_models import OracleCommutation, PlantConfig, Simulation
 
 from ..predictors.model import MotorModel

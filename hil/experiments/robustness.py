@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.units import edges_per_s, rpm_to_deg_e_per_s, rpm_to_rad_per_s
+from bldc.units import edges_per_s, rpm_to_deg_e_per_s, rpm_to_rad_per_s
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges

@@ -15,8 +15,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.motor import steady_state
-from hil.units import rpm_to_rad_per_s
+from bldc.motor import steady_state
+from bldc.units import rpm_to_rad_per_s
 from plant_models import PlantConfig, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog

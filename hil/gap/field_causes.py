@@ -29,7 +29,7 @@ from typing import Callable
 
 import numpy as np
 
-from hil.hall import SENSOR_POSITION_DEG_E
+from bldc.hall import SENSOR_POSITION_DEG_E
 from hil.recording import record_kinematic
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx

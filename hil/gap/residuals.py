@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bldc.hall import SENSOR_POSITION_DEG_E
 from hil.calibration.fit import edge_errors_from_encoder, segment_speed_deg_e_s
 from hil.calibration.steps import wrap180
-from hil.hall import SENSOR_POSITION_DEG_E
 from hil.recording import Recording
 
 

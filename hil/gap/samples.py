@@ -34,9 +34,9 @@ from scipy import stats
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import minimize_scalar
 
-from hil.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
+from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
+from bldc.units import rpm_to_rad_per_s
 from hil.recording import Recording
-from hil.units import rpm_to_rad_per_s
 
 from .fitting import cell_rms, heldout_shrink
 from .fitting import wls as _wls

@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bldc.units import rpm_to_deg_e_per_s
 from hil.campaign.scheduler import TaskError, dispatch
 from hil.recording import Recording, record_kinematic
-from hil.units import rpm_to_deg_e_per_s
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 

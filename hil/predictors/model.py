@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from hil.units import rad_e_per_s_to_rpm
+from bldc.units import rad_e_per_s_to_rpm
 
 
 @dataclass(frozen=True)

@@ -108,9 +108,9 @@ def cmd_score(args) -> int:
 
 
 def cmd_loopback(args) -> int:
+    from bldc.contract import Strategy
     from plant_models import PlantConfig
 
-    from ..contract import Strategy
     from ..controller.virtual import VirtualController
     from ..dut.in_process import InProcessLink
 

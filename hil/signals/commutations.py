@@ -31,7 +31,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
-from hil.hall import SECTOR_PHASES
+from bldc.hall import SECTOR_PHASES
 
 #: default hold-off: two periods of a 20 kHz PWM, a third of a sector at 15,000 rpm (2 pole pairs)
 DEFAULT_HOLD_OFF_S = 100e-6
@@ -304,7 +304,7 @@ def carrier_mode(free: int, restart: int) -> str:
 @dataclass
 class Extracted:
     t_s: np.ndarray            #: reported instant of each accepted change of pair
-    sector: np.ndarray         #: sector entered (six-step table of hil.hall)
+    sector: np.ndarray         #: sector entered (six-step table of bldc.hall)
     initial: np.ndarray        #: True for the first pair (the start, not a commutation)
     glitches: int = 0          #: evidence rejected by the hold-off (the old pair came back)
     ambiguous: int = 0         #: windows where all three phases conducted noticeably

@@ -20,8 +20,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.motor import steady_state
-from hil.units import rpm_to_rad_per_s
+from bldc.motor import steady_state
+from bldc.units import rpm_to_rad_per_s
 from plant_models import OracleCommutation, PlantConfig, Simulation
 
 #: table resolution over one mechanical turn

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.hall import hall_state
-from hil.units import rpm_to_deg_e_per_s
+from bldc.hall import hall_state
+from bldc.units import rpm_to_deg_e_per_s
 from plant_models import ConfigError, PlantConfig
 from plant_models.effects import effect_from_mapping
 from plant_models.kinematic import OperatingPoint, simulate_edges

@@ -62,7 +62,8 @@ class SignalBench:
                 f"capture {self.capture}",
                 score(self.stimulus, self.capture, mapping),
             )
-        from ..contract import Strategy
+        from bldc.contract import Strategy
+
         from ..controller.virtual import VirtualController
         from ..dut.in_process import InProcessLink
         from .export import ExportSettings, export

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.hall import SECTOR_PHASES
+from bldc.hall import SECTOR_PHASES
 
 from .capture import GATES
 from .errors import SignalError

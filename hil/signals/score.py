@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.units import rpm_to_deg_e_per_s
+from bldc.units import rpm_to_deg_e_per_s
 
 from .capture import Capture, GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S, Extracted, extract

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hil.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
+from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 from .errors import SignalError
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from hil.params import bounded
+from bldc.params import bounded
 
 from .units import rad_per_s_to_rpm, rpm_to_rad_per_s
 
