@@ -44,7 +44,7 @@ PROTOCOLS = ("paper", "tuned", "misspecified", "bursts")
 #: stated nominal Q0 per commutation cycle: speed (rad/s)^2, angle rad^2, current A^2
 NOMINAL_Q0 = (0.1, 1e-9, 1e-6)
 Q0_SCAN = (0.01, 0.1, 1.0, 10.0, 100.0)
-TRAIN_SEEDS = (1, 2)
+TRAIN_SEEDS = (1, 2, 12, 13)
 EVAL_SEEDS = (0, 3, 4, 5, 6, 7, 8, 9, 10, 11)
 SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, see docs
 #: Sage-Husa's own design outside the paper protocol: R every 30 edges (a burst of 0.4 s holds

@@ -54,6 +54,8 @@ STATE_TABLE = (
     ("PREV_INNOV", 1, "last angle innovation (whiteness option)"),
     ("ACC_WHITE", 2, "whiteness option: sum of lag-1 products, sum of squares"),
     ("COEF", 2, "Eq. 8 coefficients at the present speed estimate (the next step's, too)"),
+    ("CUSUM", 6, "edge-noise change detector, up and down: statistic, sum of x2^2 / 6, count since it left 0"),
+    ("CHANGED", 2, "after a detected change, until the R interval ends: sum of x2^2 / 6 and count since the change"),
 )
 #: the parameter vector, in order: (name, meaning)
 PARAM_TABLE = (
@@ -75,6 +77,7 @@ PARAM_TABLE = (
     ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
     ("R_MATCH_HI", "variance match: interval variance / S of the angle above this replaces R_theta (0 = off)"),
     ("R_MATCH_LO", "variance match: interval variance / S of the angle below this replaces R_theta"),
+    ("CUSUM_H", "edge-noise change detector threshold (0 = off)"),
 )
 
 
@@ -402,6 +405,8 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         s[ST.ACC_Z0 + i] = 0.0
     s[ST.N_ACC_R] = 0.0
     s[ST.K_INTERVAL_R] = j + 1.0
+    s[ST.CHANGED] = 0.0
+    s[ST.CHANGED + 1] = 0.0
 
 
 N_WORK = 96
@@ -522,6 +527,7 @@ def _edge_noise(s, dt, warm):
     edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
     whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
     gives R's first estimate; over each R interval, the variance match's."""
+    x2 = math.nan
     if s[ST.DT_PREV] > 0.0:
         x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
         at = ST.EDGE_STATS if warm else ST.ACC_EDGE
@@ -529,6 +535,58 @@ def _edge_noise(s, dt, warm):
         s[at + 1] += x2
         s[at + 2] += x2 * x2
     s[ST.DT_PREV] = dt
+    return x2
+
+
+#: variance ratios the change detector is tuned for: a tenfold rise, a tenfold fall
+CUSUM_UP, CUSUM_DOWN = 10.0, 0.1
+#: its threshold for chance alarms (both sides) rarer than once per 1000 s at MAX_EDGE_RATE_HZ:
+#: Monte-Carlo of white Gaussian edge noise, 2e8 edges: 0.98 alarms per 2.4e6 edges at 24, 0.60
+#: at 25, 0.41 at 26 (``test_change_detector_chance_alarms_rarer_than_once_per_1000_s``)
+CUSUM_H_1000S = 25.0
+
+
+@njit(cache=True, inline="always")
+def _change_detect(s, fp, x2):
+    """Page's CUSUM on the edges' own noise measure u = x2^2 / (6 R_theta), for a tenfold rise
+    and a tenfold fall of the edge-angle variance: the log-likelihood ratio of one sample is
+    (u / 2)(1 - 1/V) - ln(V) / 2. At the threshold the edge noise changed: the R interval
+    restarts at the change point (where the statistic left zero) and, until it ends, R_theta is
+    the mean x2^2 / 6 since the change point, growing sample by sample (a few samples say little
+    of a variance; the interval's Eq. 12 and variance match take over at its end). Returns True
+    on a change."""
+    if s[ST.CHANGED + 1] > 0.0 and x2 == x2:
+        s[ST.CHANGED] += x2 * x2 / 6.0
+        s[ST.CHANGED + 1] += 1.0
+        s[ST.R] = s[ST.CHANGED] / s[ST.CHANGED + 1]
+    r = s[ST.R]
+    if not (r > 0.0 and x2 == x2):
+        return False
+    u = x2 * x2 / (6.0 * r)
+    for side in range(2):
+        v = CUSUM_UP if side == 0 else CUSUM_DOWN
+        at = ST.CUSUM + 3 * side
+        g = s[at] + 0.5 * u * (1.0 - 1.0 / v) - 0.5 * math.log(v)
+        if g <= 0.0:
+            s[at], s[at + 1], s[at + 2] = 0.0, 0.0, 0.0
+            continue
+        s[at] = g
+        s[at + 1] += x2 * x2 / 6.0
+        s[at + 2] += 1.0
+        if g > fp[FP.CUSUM_H]:
+            s[ST.CHANGED], s[ST.CHANGED + 1] = s[at + 1], s[at + 2]
+            s[ST.R] = s[at + 1] / s[at + 2]
+            for i in range(6):
+                s[ST.CUSUM + i] = 0.0
+            for i in range(2):
+                s[ST.ACC_R + i] = 0.0
+                s[ST.ACC_R_MEAN + i] = 0.0
+            for i in range(3):
+                s[ST.ACC_EDGE + i] = 0.0
+                s[ST.ACC_Z0 + i] = 0.0
+            s[ST.N_ACC_R] = 0.0
+            return True
+    return False
 
 
 @njit(cache=True, inline="always")
@@ -633,7 +691,9 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     if mask & ADAPT_Q_WHITE and q_on:
         _adapt_q_whiteness(s, fp, k, innov0)
     s[ST.PREV_INNOV] = innov0
-    _edge_noise(s, dt, warm)
+    x2 = _edge_noise(s, dt, warm)
+    if fp[FP.CUSUM_H] > 0.0 and mask & ADAPT_R and not warm:
+        _change_detect(s, fp, x2)
     # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
     # faded step's innovation is the state's error, not the edge noise R stands for
     settled = k >= 0.5 * fp[FP.WARMUP]
