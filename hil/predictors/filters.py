@@ -297,6 +297,18 @@ def _rebase_p(s, r_warm, r_new, dt):
 
 
 @njit(cache=True, inline="always")
+def _restart_r_interval(s):
+    """Empty the R interval's accumulators: a new interval starts with the next edge."""
+    for i in range(2):
+        s[ST.ACC_R + i] = 0.0
+        s[ST.ACC_R_MEAN + i] = 0.0
+    for i in range(3):
+        s[ST.ACC_EDGE + i] = 0.0
+        s[ST.ACC_Z0 + i] = 0.0
+    s[ST.N_ACC_R] = 0.0
+
+
+@njit(cache=True, inline="always")
 def _accumulate_r(s, fp, innov0, innov1, nis, p_pred):
     """The R interval's terms of one edge: the Eq. 12 term of each diagonal entry, Huber-weighted
     (an outlier moves R by c sqrt(S) at most instead of its full square, and a burst of edge
@@ -397,13 +409,7 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
     if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
         guards[GUARD_R_PD] += 1
-    for i in range(2):
-        s[ST.ACC_R + i] = 0.0
-        s[ST.ACC_R_MEAN + i] = 0.0
-    for i in range(3):
-        s[ST.ACC_EDGE + i] = 0.0
-        s[ST.ACC_Z0 + i] = 0.0
-    s[ST.N_ACC_R] = 0.0
+    _restart_r_interval(s)
     s[ST.K_INTERVAL_R] = j + 1.0
     s[ST.CHANGED] = 0.0
     s[ST.CHANGED + 1] = 0.0
@@ -578,13 +584,7 @@ def _change_detect(s, fp, x2):
             s[ST.R] = s[at + 1] / s[at + 2]
             for i in range(6):
                 s[ST.CUSUM + i] = 0.0
-            for i in range(2):
-                s[ST.ACC_R + i] = 0.0
-                s[ST.ACC_R_MEAN + i] = 0.0
-            for i in range(3):
-                s[ST.ACC_EDGE + i] = 0.0
-                s[ST.ACC_Z0 + i] = 0.0
-            s[ST.N_ACC_R] = 0.0
+            _restart_r_interval(s)
             return True
     return False
 
