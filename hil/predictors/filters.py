@@ -369,8 +369,7 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
     R keeps its physical structure, as Q does: the edge instants and the current come from
     different sensors, so their noises are independent and R is diagonal. The Eq. 12 cross
     term is the innovations' cross-correlation, which comes from the state's errors (H P H^T
-    accounts for them only on average): estimated, it made R indefinite under bursts about once
-    per interval, 200 covariance repairs a run (``bursts`` protocol, 10 seeds: 2089 against 0)."""
+    accounts for them only on average), not a property of the sensors."""
     _accumulate_r(s, fp, innov0, innov1, nis, p_pred)
     warm = k < fp[FP.WARMUP]
     # during the warm-up R is set once, at its end (the first R_INTERVAL cycles after P0 would
@@ -399,16 +398,16 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         mean = s[ST.EDGE_STATS + 1] / s[ST.EDGE_STATS]
         s[ST.R] = max(s[ST.EDGE_STATS + 2] / s[ST.EDGE_STATS] - mean * mean, 0.0) / 6.0
         _rebase_p(s, r_before, s[ST.R], s[ST.DT_PREV])
-    # an exactly repeated current would drive its variance to the eigenvalue floor, and the
-    # smallest drift of the current estimate would then be gated as an outlier; no measurement
-    # is finer than its quantisation. Floored before the positive-definiteness test: the
-    # warm-up's current innovations less H P H^T (P still near P0) can leave this entry negative,
-    # and a diagonal raised to its physical floor is not a repair
     s[ST.R + 1] = 0.0
     s[ST.R + 2] = 0.0
-    s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
+    # an Eq. 12 estimate that went negative lost positive definiteness: the textbook failure
+    # the guards exist for, floored and counted as a repair
     if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
         guards[GUARD_R_PD] += 1
+    # an exactly repeated current would drive its variance to the eigenvalue floor, and the
+    # smallest drift of the current estimate would then be gated as an outlier; no measurement
+    # is finer than its quantisation (a positive variance raised to it is not a repair)
+    s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
     _restart_r_interval(s)
     s[ST.K_INTERVAL_R] = j + 1.0
     s[ST.CHANGED] = 0.0
