@@ -10,7 +10,10 @@ Modbus register block, and the in-process link encodes and decodes them too, so 
 the controller bit-identical inputs).
 
 EdgeMessage (plant -> controller, RPDO1):
-    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA,
+    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA at the edge's
+    own instant (the MCU's ADC ring read one applied conditioning delay of the edge's polarity
+    before the capture: where the armature field that moved the edge acted; at the capture
+    before a calibration is applied),
     U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence number.
 CycleCurrentMessage (plant -> controller, RPDO2, sent before its edge; Modbus register 204):
     U16 mean |i| over the commutation cycle the edge ends, in mA (0xFFFF: not measured), U8

@@ -54,6 +54,13 @@ class LinkSource:
         already passed on the plant (the capture stamp precedes the interrupt) applies now."""
         self.edges += 1
         edge["cycle_current_a"] = self._cycle_mean_current_a(sim)
+        table = getattr(self.link, "applied_calibration", None)
+        if table is not None:
+            # the edge's current at its own instant: the MCU's ADC ring read one applied
+            # conditioning delay before the capture, where the armature field that moved the edge
+            # acted (bldc.contract, EdgeMessage)
+            delay = table.conditioning_delay_s["rise" if edge["rising"] else "fall"]
+            edge["current_a"] = sim.measured_mean_abs_current_at_a(edge["t_capture_s"] - delay)
         now = sim.t_s
         return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
 

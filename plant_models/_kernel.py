@@ -32,6 +32,8 @@ from bldc.hall import (
 from bldc.units import rad_per_s_to_rpm
 
 from ._layout import (
+    CURRENT_RING,
+    I_RING_N,
     E_BOUNDARY,
     E_CURRENT,
     E_DIR,
@@ -308,16 +310,17 @@ N_WORK = W_CROSS + 9
 
 @njit(cache=True)
 def run(
-    p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm, t_stop
+    p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
+    current_ring, t_stop
 ):
     """Advance the plant to t_stop; stop early on a captured edge (external mode) or a full buffer."""
     return _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples,
-                    out_comm, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
+                    out_comm, current_ring, t_stop, np.zeros(N_WORK), np.zeros(3, dtype=np.int64))
 
 
 @_kernel_jit
 def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_edges, out_ideal, out_samples, out_comm,
-             t_stop, work, tmp_d):
+             current_ring, t_stop, work, tmp_d):
     """:func:`run`'s step loop, on the scratch ``work`` (N_WORK floats) and ``tmp_d`` (3 ints)."""
     pp = p[P_POLE_PAIRS]
     n_poles = switch_off.shape[1]
@@ -333,6 +336,16 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
     mode = ist[I_MODE]
     while True:
         t = st[S_T]
+        # the phase currents' recent history, from which an MCU's ADC ring is read at an instant
+        # before the capture (Simulation.measured_mean_abs_current_at_a)
+        ring_n = ist[I_RING_N]
+        if ring_n == 0 or current_ring[(ring_n - 1) % CURRENT_RING, 0] < t:
+            row = current_ring[ring_n % CURRENT_RING]
+            row[0] = t
+            row[1] = st[S_IA]
+            row[2] = st[S_IB]
+            row[3] = st[S_IC]
+            ist[I_RING_N] = ring_n + 1
         # apply due commands
         while ist[I_CMD_HEAD] < ist[I_CMD_COUNT] and cmds[ist[I_CMD_HEAD], 0] <= t + 1e-12:
             c = ist[I_CMD_HEAD]

@@ -45,7 +45,8 @@ I_N_PENDING, I_ORACLE_N, I_CMD_HEAD, I_CMD_COUNT, I_SAMPLE_K = range(13, 18)
 I_SEEN = 18  # 3 values: Hall state as the controller has seen it
 I_N_COMM = 21
 I_LAST_CROSS = 22  # 3 values: direction of each sensor's last switch (+1, -1; 0 = none yet)
-N_ISTATE = 25
+I_RING_N = 25  # phase-current history rows written so far (the MCU ADC's ring, see CURRENT_RING)
+N_ISTATE = 26
 
 MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
 STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
@@ -58,3 +59,6 @@ N_IDEAL_COLS = 4  # t, sensor, boundary, direction
 # samples
 N_SAMPLE_COLS = 15  # t, i_a..c, u_a..c, speed_rpm, theta_m_deg, duty, sector, e_a..c, torque
 MAX_PENDING = 32
+#: phase-current history: (t, i_a, i_b, i_c) at the start of every accepted step, the last
+#: CURRENT_RING of them (at the 2 us acceptance step, 128 us: beyond any conditioning delay)
+CURRENT_RING = 64

@@ -148,6 +148,7 @@ class Simulation:
         self.noise = self.rng.standard_normal(1 << 16)
         self.cmds = np.zeros((4096, 4))
         self.pending = np.zeros((L.MAX_PENDING, L.N_EDGE_COLS))
+        self.current_ring = np.zeros((L.CURRENT_RING, 4))
         self._edges = np.zeros((capacity, L.N_EDGE_COLS))
         self._ideal = np.zeros((capacity, L.N_IDEAL_COLS))
         self._samples = np.zeros((capacity, L.N_SAMPLE_COLS))
@@ -209,6 +210,21 @@ class Simulation:
             total += abs(float(st[L.S_IA + k]) * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
         return total / 3.0
 
+    def measured_mean_abs_current_at_a(self, t_s: float) -> float:
+        """Mean |i| over the phases at ``t_s`` in the recent past, through the current sensors' gain
+        and offset: what an MCU's ADC ring buffer holds for that instant. Linear between the
+        plant's step starts (the currents are exact there, and a step is at most ``max_step_s``);
+        held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
+        n = int(self.ist[L.I_RING_N])
+        if t_s >= self.t_s or not n:
+            return self.measured_mean_abs_current_a()
+        rows = np.roll(self.current_ring, -(n % L.CURRENT_RING), axis=0)[-min(n, L.CURRENT_RING):]
+        now = np.array([[self.t_s, self.st[L.S_IA], self.st[L.S_IB], self.st[L.S_IC]]])
+        rows = np.vstack([rows[rows[:, 0] < self.t_s], now])
+        cs = self.config.current_sensor
+        i = [float(np.interp(t_s, rows[:, 0], rows[:, 1 + k])) for k in range(3)]
+        return sum(abs(i[k] * (1.0 + cs.gain_error[k]) + cs.offset_a[k]) for k in range(3)) / 3.0
+
     @property
     def samples_taken(self) -> int:
         """Samples recorded so far (the count restarts when the sample buffer is flushed)."""
@@ -261,7 +277,8 @@ class Simulation:
         while True:
             reason = K.run(
                 self.p, self.st, self.ist, self.switch_table, self.arm_table[0], self.arm_table[1], self.noise,
-                self.cmds, self.pending, self._edges, self._ideal, self._samples, self._comm, float(t_stop_s),
+                self.cmds, self.pending, self._edges, self._ideal, self._samples, self._comm, self.current_ring,
+                float(t_stop_s),
             )
             if reason == L.STOP_TIME:
                 self._flush()

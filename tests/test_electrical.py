@@ -300,3 +300,24 @@ def test_results_do_not_depend_on_buffer_capacity_or_run_chunks():
     np.testing.assert_array_equal(ea.t_capture_s, eb.t_capture_s)
     np.testing.assert_array_equal(ea.theta_e_switch_deg, eb.theta_e_switch_deg)
     np.testing.assert_array_equal(one.commutations().t_s, many.commutations().t_s)
+
+
+def test_the_adc_ring_holds_the_current_of_an_instant_before_the_present():
+    """Simulation.measured_mean_abs_current_at_a (an edge's current at its own instant, one
+    conditioning delay before the capture) against the plant's own 1 MHz samples of the true
+    currents, up to the 50 us of the effect library's longest delay."""
+
+    sim = Simulation(BASE, RawHallCommutation(), sample_rate_hz=1e6, max_step_s=2e-6, initial_speed_rpm=6000.0)
+    worst, compared = 0.0, 0
+    for stop in np.arange(0.0101, 0.0125, 0.00013):  # instants all over the commutation cycle
+        sim.run_until(stop)
+        s = sim.samples()
+        for lookback_s in (0.0, 4e-6, 12.5e-6, 25e-6, 37e-6, 50e-6):
+            at = sim.t_s - lookback_s
+            j = int(np.argmin(np.abs(s.t_s - at)))
+            if abs(s.t_s[j] - at) > 1e-9:
+                continue  # between two samples of the 1 us grid
+            truth = float(np.mean(np.abs(s.i_true_a[j])))
+            worst = max(worst, abs(sim.measured_mean_abs_current_at_a(at) - truth))
+            compared += 1
+    assert compared >= 40 and worst < 0.02  # A; the current moves by amperes within the 50 us after a commutation

@@ -538,6 +538,7 @@ class CanopenLink:
         **bus_kwargs,
     ):
         self.node_id, self.timeout_s = node_id, timeout_s
+        self.applied_calibration: Corrections | None = None
         where = f"{interface}:{channel}" + (
             f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else ""
         )
@@ -625,6 +626,7 @@ class CanopenLink:
         self.write(0x2011, None, 1)
         back = Corrections.from_vector([self.read(0x2012, k + 1) for k in range(10)])
         verify_calibration(corrections.as_float32(), back)
+        self.applied_calibration = back
 
     def set_strategy(self, strategy: int) -> None:
         self.write(0x2000, None, int(strategy))

@@ -28,6 +28,7 @@ class InProcessLink:
     def __init__(self, controller: VirtualController):
         self.controller = controller
         self.where = "in-process virtual controller"
+        self.applied_calibration: Corrections | None = None
 
     def reset(self) -> None:
         """Clear the faults and restart the control logic (calibration and settings are kept)."""
@@ -60,6 +61,7 @@ class InProcessLink:
         except CalibrationTableError as exc:
             raise LinkError(f"{self.name}: controller refused the calibration table: {exc}") from None
         verify_calibration(table, self.controller.corrections)
+        self.applied_calibration = self.controller.corrections
 
     def set_speed(self, rpm: float) -> None:
         self.controller.set_speed(float(np.float32(rpm)))

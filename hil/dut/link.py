@@ -28,6 +28,9 @@ class ControllerLink(Protocol):
     name: str
     #: where the controller is, for messages ("CANopen node 5 on virtual:hil")
     where: str
+    #: the correction table the controller applies, as read back at the last download (None
+    #: before one): the bench reads each edge's current at the edge's own instant with its delays
+    applied_calibration: Corrections | None
 
     def identity(self) -> dict: ...
     def reset(self) -> None: ...

@@ -467,6 +467,7 @@ class ModbusLink:
 
         self.unit, self.timeout_s = unit, timeout_s
         self.host, self.port, self.serial_port = host, port, serial_port
+        self.applied_calibration: Corrections | None = None
         if serial_port is not None:
             self.where = f"Modbus RTU unit {unit} on {serial_port}"
             self.client = ModbusSerialClient(
@@ -526,7 +527,9 @@ class ModbusLink:
         self.write(CAL_STAGED, sum((_f32_regs(v) for v in table.as_vector()), []))
         self.write(CAL_APPLY, [1])
         back = self.read(CAL_APPLIED, 20)
-        verify_calibration(table, Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)]))
+        read_back = Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)])
+        verify_calibration(table, read_back)
+        self.applied_calibration = read_back
 
     def reset(self) -> None:
         """Command register: clear the faults and restart the control logic (calibration kept)."""
