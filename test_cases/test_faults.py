@@ -63,9 +63,11 @@ def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hi
 
 @pytest.mark.requirement("REQ-FLT-004")
 def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_evidence):
-    """Q0 a hundred times too large for a filter told to adapt Q, R and r: the guards must fire
-    (the divergence guard, docs/sage-husa.md), and the controller must say so."""
-    settings = FilterSettings(q0_diag=(10.0, 1e-7, 1e-4), adapt_mask=7)
+    """Q0 far too large (the current's entry 1 A^2, a thousand times the controller's): the
+    textbook Eq. 12 update of R goes negative and loses positive definiteness, the guards must
+    repair it (docs/sage-husa.md), and the controller must say so. (At Q0 x100 the filter no
+    longer needs a repair since it adapts Q only once its gate acts.)"""
+    settings = FilterSettings(q0_diag=(10.0, 1e-7, 1.0), adapt_mask=7)
     bench = hil_bench(
         Strategy.SAGE_HUSA, corrections=calibrate(DEVIATIONS), effects=DEVIATIONS, filter_settings=settings
     )

@@ -67,42 +67,58 @@ def test_sage_husa_learns_edge_noise_from_the_papers_r0():
     assert sh.r_matrix[0, 0] == pytest.approx(true_r, rel=0.1)
 
 
-def _locked_case():
-    """Drawn condition that diverged (7 deg_e RMS against the KF's 0.2): after the warm-up on
-    R0 = 0 the filter's P claimed a speed known to 0.04 rad/s while it was 35 rad/s off, so
-    every later edge was gated and the error grew by 0.8 deg_e per cycle."""
+def test_warm_up_leaves_p_consistent_with_the_first_r():
+    """Drawn condition that diverged (7 deg_e RMS against the KF's 0.37): the warm-up ran on the
+    paper's R0 = 0, so the speed estimate was the last two edges' difference (35 rad/s off) while
+    P claimed it known to 0.04 rad/s; when R got its first estimate the gain on the speed fell to
+    1e-6 and every later edge was gated. P is now re-based on that first R (``filters._rebase_p``:
+    the covariance of a two-edge estimate), and the filter converges without any guard."""
     e, cur = edges_and_currents([OperatingPoint(0.4, 11825.9)], 3.98e-6, 0.177, 0.514, 688)
     q0 = tuple(q * 10**-1.788 for q in NOMINAL_Q)
     kf = KalmanPredictor(MODEL, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))).run(e.t_conditioned_s, cur)
     kf_rms = np.sqrt(np.mean(angle_error_deg(e, kf.pred_t_s) ** 2))
-    rms = {}
-    for run_length in (0, FilterSettings().divergence_run):
-        # the variance match off: it sets R from the edges right after the warm-up and the filter
-        # no longer locks here (1.37 deg e); the test isolates the fade
+    for match_horizon_s in (0.0, 1000.0):  # with and without the variance match (it hid the lock)
         sh = SageHusaPredictor(
-            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, divergence_run=run_length, r_match_horizon_s=0.0)
+            MODEL, FilterSettings(q0_diag=q0, adapt_mask=SH_ADAPT, r_match_horizon_s=match_horizon_s)
         )
         run = sh.run(e.t_conditioned_s, cur)
-        rms[run_length] = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
-        assert (run.guards["divergence"] > 0) == (run_length > 0)
-    return rms, kf_rms
+        rms = np.sqrt(np.mean(angle_error_deg(e, run.pred_t_s) ** 2))
+        # measured 0.25 against the KF's 0.37 (1.37 with the variance match, 7 without, before)
+        assert rms < kf_rms and run.guards["divergence"] == 0, (match_horizon_s, rms, kf_rms, run.guards)
 
 
-def test_divergence_guard_recovers_a_filter_locked_on_a_wrong_speed():
-    rms, kf_rms = _locked_case()
-    assert rms[0] > 5 * kf_rms  # the failure the guard exists for
-    assert rms[FilterSettings().divergence_run] < 0.2 * rms[0], rms  # faded P: re-converged
+def _knocked_case(knock: float):
+    """A converged filter whose speed estimate is knocked off by ``knock`` (a glitch in firmware
+    memory, a missed edge): with Q0 at 1/60 nominal P is small, the gain on the speed tiny, and
+    every later edge is gated. Angle RMS from the knock on, for no fade and the default run."""
+    e, cur = edges_and_currents([OperatingPoint(1.0, 11825.9)], 3.98e-6, 0.177, 0.514, 688)
+    q0 = tuple(q * 10**-1.788 for q in NOMINAL_Q)
+    knock_at = 400
+
+    def rms(f):
+        pred = np.full(len(e), np.nan)
+        for k, (t, c) in enumerate(zip(e.t_conditioned_s, cur)):
+            if k == knock_at:
+                f.state[F.ST.X] *= 1.0 + knock
+            p = f.update(float(t), float(c))
+            pred[k] = np.nan if p is None else p
+        return float(np.sqrt(np.mean(angle_error_deg(e, pred, skip=knock_at) ** 2)))
+
+    kf_rms = rms(KalmanPredictor(MODEL, FilterSettings(q0_diag=q0, r0_diag=(1e-5, 1.0))))
+    out = {}
+    for run_length in (0, FilterSettings().divergence_run):
+        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=q0, **{**compare.SH_DESIGN, "divergence_run": run_length}))
+        out[run_length] = rms(sh)
+        assert (sh.guards["divergence"] > 0) == (run_length > 0), sh.guards
+    return out, kf_rms
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: the freed filter ends at 1.9 deg e RMS against the KF's 0.37 on this condition "
-    "(bar 1.5x): it re-converges only after the run of 3 gated edges per fade (1.4 with the "
-    "variance match on, which keeps it from locking)",
-)
-def test_divergence_guard_brings_the_locked_filter_back_to_the_kf():
-    rms, kf_rms = _locked_case()
-    assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, rms
+@pytest.mark.parametrize("knock", [0.01, 0.03, 0.1])
+def test_divergence_guard_brings_a_locked_filter_back_to_the_kf(knock):
+    rms, kf_rms = _knocked_case(knock)
+    assert rms[0] > 20 * kf_rms, (rms, kf_rms)  # the failure the guard exists for: locked
+    # measured 0.31 / 0.35 / 0.65 against the KF's 0.43 / 0.45 / 0.62 deg e
+    assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, (rms, kf_rms)
 
 
 @pytest.mark.parametrize("end_rpm, q_log10", [(9000.0, -2), (None, 2)])
@@ -260,6 +276,7 @@ def test_r_has_its_own_forgetting_factor_and_interval():
                 adapt_interval=120,
                 r_interval=r_interval,
                 r_forgetting_b=r_b,
+                cusum_h=0.0,  # the change detector restarts the interval at a burst's edges
             ),
         )
         sh.run(t, cur)
@@ -300,15 +317,16 @@ def test_divergence_run_makes_a_chance_trigger_rarer_than_once_per_1000_s():
 def test_divergence_fade_does_not_fire_inside_a_burst_of_edge_noise():
     """Inside a burst R has not learned yet, most edges are gated and their signs are random: a
     run of 3 (the bound for consistent innovations) fired there by chance and took burst edges
-    at full gain; the bursts protocol's run (23, derived for p_gated = 1) does not. The variance match is
-    off: the test isolates the fade while R is still learning the burst."""
+    at full gain; the bursts protocol's run (23, derived for p_gated = 1) does not. The variance match
+    and the change detector are off: the test isolates the fade while R is still learning the burst."""
     e, t, cur, burst = _burst_edges()
     fades = {}
     for run_length in (3, compare.BURSTS_SH["divergence_run"]):
         sh = SageHusaPredictor(
             MODEL,
             FilterSettings(
-                q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "divergence_run": run_length, "r_match_horizon_s": 0.0}
+                q0_diag=NOMINAL_Q,
+                **{**compare.BURSTS_SH, "divergence_run": run_length, "r_match_horizon_s": 0.0, "cusum_h": 0.0},
             ),
         )
         fades[run_length] = sh.run(t, cur).guards["divergence"]
@@ -352,7 +370,8 @@ def test_variance_match_follows_a_burst_in_and_out_within_two_r_intervals():
     r = {}
     for horizon in (0.0, 1000.0):
         sh = SageHusaPredictor(
-            MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "r_match_horizon_s": horizon})
+            MODEL,
+            FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "r_match_horizon_s": horizon, "cusum_h": 0.0}),
         )
         r_theta = []
         for tk, ck in zip(t, cur):
@@ -364,6 +383,56 @@ def test_variance_match_follows_a_burst_in_and_out_within_two_r_intervals():
         into = r[horizon][first + 2 * 30 + 1] > 0.3 * burst_var
         out = r[horizon][last + 2 * 30 + 1] < 3 * quiet
         assert (into and out) == ok, (horizon, r[horizon][first + 61] / burst_var, r[horizon][last + 61] / quiet)
+
+
+def test_change_detector_follows_a_burst_within_a_few_edges():
+    """Page's CUSUM on the edges' own noise measure sets R_theta within a few edges of a burst's
+    onset and end; the interval's variance match alone waits for the end of its R interval."""
+    e, t, cur, burst = _burst_edges()
+    first, last = np.nonzero(burst)[0][[0, -1]]
+    w = 8000 / 60 * 2 * math.pi * MODEL.pole_pairs
+    burst_var = (30e-6 * w) ** 2
+    lag = {}
+    for h in (0.0, F.CUSUM_H_1000S):
+        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=NOMINAL_Q, **{**compare.BURSTS_SH, "cusum_h": h}))
+        r_theta = []
+        for tk, ck in zip(t, cur):
+            sh.update(tk, ck)
+            r_theta.append(sh.r_matrix[0, 0])
+        r_theta = np.array(r_theta)
+        quiet = r_theta[first - 1]
+        into = np.nonzero(r_theta[first:] > 0.3 * burst_var)[0]
+        out = np.nonzero(r_theta[last + 1:] < 3 * quiet)[0]
+        lag[h] = (int(into[0]) if into.size else None, int(out[0]) if out.size else None)
+    # measured: 14 and 23 edges with the detector, 21 and 40 without (the R interval is 30 edges)
+    assert lag[F.CUSUM_H_1000S][0] <= 16 and lag[F.CUSUM_H_1000S][1] <= 25, lag
+    assert lag[0.0][0] > 16 and lag[0.0][1] > 25, lag
+
+
+def test_change_detector_chance_alarms_rarer_than_once_per_1000_s():
+    """White Gaussian edge noise at the top edge rate (2400 edges/s): fewer than one chance
+    alarm per 1000 s, i.e. at most 10 in 2.4e7 edges (measured 7 at the default threshold; the
+    filter's own detector runs on the second differences, correlated over two lags)."""
+    from numba import njit
+
+    @njit(cache=False)
+    def alarms(n, h, seed):
+        np.random.seed(seed)
+        s = np.zeros(F.N_STATE)
+        fp = np.zeros(F.N_FPARAMS)
+        fp[F.FP.CUSUM_H] = h
+        a, b, count = np.random.standard_normal(), np.random.standard_normal(), 0
+        for _ in range(n):
+            s[F.ST.R] = 1.0
+            c = np.random.standard_normal()
+            if F._change_detect(s, fp, c - 2.0 * b + a):
+                count += 1
+            a, b = b, c
+        return count
+
+    n = 24_000_000
+    assert alarms(n, F.CUSUM_H_1000S, 7) <= 10
+    assert alarms(n, 20.0, 7) > 10  # the test can fail: a lower threshold alarms by chance
 
 
 def test_q_current_option_adapts_q_i_and_leaves_q_w_at_nominal():
@@ -414,23 +483,20 @@ def test_robustness_runs_are_long_enough_and_covariances_stay_positive_definite(
     assert not broken, f"covariance lost positive definiteness or estimate not finite in: {broken[:3]}"
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: Sage-Husa under 2x the KF in 94.5 % of 1000 drawn conditions (bar 100 %), "
-    "worst 10.9x (model off, Q0 1/80 nominal); docs/sage-husa.md",
-)
 def test_sage_husa_under_twice_the_kf_in_every_condition(robustness_results):
+    """Measured: 100 % (worst 1.39x) of the 1000 drawn conditions; 94.5 % (worst 10.9x) before P
+    was re-based on the first R at the end of the warm-up."""
     worse = [r for r in robustness_results if not r["sh"] < 2.0 * r["kf"]]
     assert not worse, (
         f"Sage-Husa at 2x the KF or worse in {len(worse)} of {len(robustness_results)} conditions:\n{_worst(worse)}"
     )
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="issue 14: Sage-Husa <= 1.05 x KF + 0.01 deg e in 79.6 % of drawn conditions (bar 95 %); docs/sage-husa.md",
-)
 def test_sage_husa_no_worse_than_kf_in_95_percent(robustness_results):
+    """Measured: 95.9 % (95.8 % on the draw of seed 1), the issue's bar 95 %; 79.6 % before the
+    warm-up's P re-base, Q adapting only once the gate acts, Q_w steered by innovation
+    whiteness instead of the Eq. 12 recursion and R kept diagonal (docs/sage-husa.md,
+    Robustness)."""
     ok = [r["sh"] <= 1.05 * r["kf"] + 0.01 for r in robustness_results]
     rate = float(np.mean(ok))
     assert rate >= 0.95, (
@@ -525,3 +591,16 @@ def test_equation_table_points_at_the_code():
         assert text in lines[int(line) - 1], f"Eq. {eq}: {path}:{line} does not say {text!r}: {lines[int(line) - 1]!r}"
         above = [ln for ln in lines[: int(line)] if ln.startswith("def ")]
         assert above and above[-1].startswith(f"def {function}("), f"Eq. {eq}: {path}:{line} is not in {function}"
+
+
+def test_r_stays_diagonal_under_bursts(scenario_run):
+    """Edge instants and current come from different sensors: R is diagonal. Its Eq. 12 cross
+    term (the innovations' cross-correlation, which the state's errors make) is not estimated."""
+    from hil.experiments.identify import identify
+    from hil.experiments.table5 import Bursts
+
+    run, _ = Bursts().apply(scenario_run, 0)
+    settings = {**compare.BURSTS_SH, "q0_diag": (8.28e-05, 1e-09, 4.14), "forgetting_b": 0.9991, "r_forgetting_b": 0.05}
+    sh = SageHusaPredictor(identify(run.config, seed=1).model, FilterSettings(**settings))
+    sh.run(run.t_corrected_s, run.mean_current_a)
+    assert sh.r_matrix[0, 1] == sh.r_matrix[1, 0] == 0.0 and sh.r_matrix[0, 0] > 0.0, sh.r_matrix

@@ -44,12 +44,24 @@ PROTOCOLS = ("paper", "tuned", "misspecified", "bursts")
 #: stated nominal Q0 per commutation cycle: speed (rad/s)^2, angle rad^2, current A^2
 NOMINAL_Q0 = (0.1, 1e-9, 1e-6)
 Q0_SCAN = (0.01, 0.1, 1.0, 10.0, 100.0)
-TRAIN_SEEDS = (1, 2)
+TRAIN_SEEDS = (1, 2, 12, 13)
 EVAL_SEEDS = (0, 3, 4, 5, 6, 7, 8, 9, 10, 11)
 SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, see docs
 #: Sage-Husa's own design outside the paper protocol: R every 30 edges (a burst of 0.4 s holds
-#: about 20 such intervals at 5000-10,000 rpm), Q band x100 around its start
-SH_DESIGN = dict(adapt_mask=SH_ADAPT, r_interval=30, r_forgetting_b=0.9, forgetting_b=0.98, q_band_factor=100.0)
+#: about 20 such intervals at 5000-10,000 rpm), Q band x100 around its start. Q_w is steered by
+#: innovation whiteness every 60 edges (``filters.ADAPT_Q_WHITE``) and Q_i by Eq. 12: a one-step
+#: innovation carries almost nothing of Q_w (dt^2 Q_w is about 1/200 of R_theta), so its Eq. 12
+#: recursion falls to the band floor where no process noise is, and the filter then cannot follow
+#: a load its model has wrong (1000 drawn conditions within 1.05 x KF + 0.01 deg e: 90.9 % with
+#: Eq. 12 on Q_w, 95.6 % with whiteness; docs/sage-husa.md, Robustness)
+SH_DESIGN = dict(
+    adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT,
+    adapt_interval=60,
+    r_interval=30,
+    r_forgetting_b=0.9,
+    forgetting_b=0.98,
+    q_band_factor=100.0,
+)
 #: what the bursts protocol's statement changes in that design, each from the stated disturbance:
 #: inside a burst R has not learned yet every edge may be gated, so the divergence run is derived
 #: for p_gated = 1 (23 at 12,000 rpm; 3 fires by chance in a quarter of a burst's gated
@@ -66,6 +78,8 @@ KF_GRID = dict(
 SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
+#: grid points the refinement starts from (each gets an equal share of the evaluations)
+REFINE_STARTS = 2
 #: Q's forgetting factor within the usual 0.95 (docs/sage-husa.md) and a memory of 10,000 cycles; R's per interval
 B_RANGE = (0.95, 0.9999)
 B_R_RANGE = (0.05, 0.999)
@@ -82,15 +96,22 @@ def _mean_angle_rms(runs: list[ScenarioRun], predictor) -> float:
 
 
 def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]]) -> tuple[float, ...]:
-    """Best grid point, then Nelder-Mead in log space around it: the same search for both
-    filters, so neither wins by being tuned harder."""
-    scored = [(objective(x), x) for x in itertools.product(*grid.values())]
-    best_value, best = min(scored, key=lambda vx: vx[0])
-    z0 = np.log10(best)
-    simplex = np.vstack([z0] + [z0 + 0.5 * row for row in np.eye(len(z0))])
-    res = minimize(lambda z: objective(tuple(10.0 ** z)), z0, method="Nelder-Mead",
-                   options=dict(maxfev=REFINE_EVALUATIONS, xatol=0.02, fatol=1e-4, initial_simplex=simplex))
-    return best if res.fun >= best_value else tuple(float(v) for v in 10.0 ** res.x)
+    """The best REFINE_STARTS grid points, then Nelder-Mead in log space around each with an
+    equal share of REFINE_EVALUATIONS; the best point seen. The same search for both filters,
+    so neither wins by being tuned harder. Several starts because the objective is rough (the
+    gate, the fades and the variance match are thresholds): from one start the refinement of
+    Sage-Husa ended 2 points worse on its own training runs than a point it had not visited."""
+    scored = sorted(((objective(x), x) for x in itertools.product(*grid.values())), key=lambda vx: vx[0])
+    best_value, best = scored[0]
+    for _, start in scored[:REFINE_STARTS]:
+        z0 = np.log10(start)
+        simplex = np.vstack([z0] + [z0 + 0.5 * row for row in np.eye(len(z0))])
+        res = minimize(lambda z: objective(tuple(10.0 ** z)), z0, method="Nelder-Mead",
+                       options=dict(maxfev=REFINE_EVALUATIONS // REFINE_STARTS, xatol=0.02, fatol=1e-4,
+                                    initial_simplex=simplex))
+        if res.fun < best_value:
+            best_value, best = float(res.fun), tuple(float(v) for v in 10.0 ** res.x)
+    return best
 
 
 def tune_kf(
@@ -283,8 +304,15 @@ def _settings_line(name: str, s: FilterSettings, adaptive: bool) -> str:
             f"R0 = diag({s.r0_diag[0]:.3g}, {s.r0_diag[1]:.3g}), P0 = diag({s.p0_diag[0]:g}, ...), "
             f"gate on the state {'on' if s.gate_state_update else 'off'}")
     if adaptive:
+        m = s.adapt_mask
+        q_i = f"Q_i by Eq. 12 (b = {s.forgetting_b:.4g})" if m & (F.ADAPT_Q | F.ADAPT_Q_CURRENT) else "Q_i fixed"
+        if m & F.ADAPT_Q_WHITE:
+            q_w = f"Q_w by innovation whiteness every {s.adapt_interval} edges"
+        else:
+            q_w = "Q_w by Eq. 12" if m & F.ADAPT_Q else "Q_w fixed"
+        q = f"{q_w}, {q_i}"
         line += (
-            f"; adapts Q (b = {s.forgetting_b:.4g}, band x{s.q_band_factor:g}) and R (b_R = {s.r_forgetting_b:.4g} "
+            f"; {q}, Q band x{s.q_band_factor:g}; R by Eq. 12 (b_R = {s.r_forgetting_b:.4g} "
             f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}), divergence run {s.divergence_run}"
         )
     return line
@@ -360,7 +388,8 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
     sh_s = tune_sh(train, model, BURSTS_SH if protocol == "bursts" else SH_DESIGN)
     oracle = tune_oracle(train, burst_train, model, kf_s, bursts.time_rms_s)
     statement += [f"both tuned with the same budget ({math.prod(len(v) for v in KF_GRID.values())}-point grid + "
-                  f"{REFINE_EVALUATIONS} Nelder-Mead evaluations) on seeds {tuple(train_seeds)}",
+                  f"{REFINE_EVALUATIONS} Nelder-Mead evaluations from its {REFINE_STARTS} best points) "
+                  f"on seeds {tuple(train_seeds)}",
                   _settings_line("KF", kf_s, False), _settings_line("Sage-Husa", sh_s, True),
                   f"oracle: KF with R_theta = {oracle.x[2]:.3g} (w / {W_REF_RAD_S:g})^2"
                   + (f" + {oracle.burst_factor:.3g} (sigma_burst w)^2 in a true burst" if burst_eval else "")

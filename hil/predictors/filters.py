@@ -38,7 +38,7 @@ STATE_TABLE = (
     ("ACC_SMALL_Q", 3, "q interval accumulator: sum of X_k - Phi X_k-1"),
     ("N_ACC", 1, "cycles in the r, q interval"),
     ("K_INTERVAL", 1, "r, q intervals completed (j of d_j)"),
-    ("ACC_R", 4, "R interval accumulator: sum of Huber-weighted Z~ Z~^T / kappa - H P H^T"),
+    ("ACC_R", 2, "R interval accumulator, diagonal: sum of Huber-weighted Z~^2 / kappa - H P H^T"),
     ("ACC_R_MEAN", 2, "R interval accumulator: sum of sqrt(weight) Z~ (the innovations' mean is taken out)"),
     ("N_ACC_R", 1, "cycles in the R interval"),
     ("K_INTERVAL_R", 1, "R intervals completed"),
@@ -54,6 +54,8 @@ STATE_TABLE = (
     ("PREV_INNOV", 1, "last angle innovation (whiteness option)"),
     ("ACC_WHITE", 2, "whiteness option: sum of lag-1 products, sum of squares"),
     ("COEF", 2, "Eq. 8 coefficients at the present speed estimate (the next step's, too)"),
+    ("CUSUM", 6, "edge-noise change detector, up and down: statistic, sum of x2^2 / 6, count since it left 0"),
+    ("CHANGED", 2, "after a detected change, until the R interval ends: sum of x2^2 / 6 and count since the change"),
 )
 #: the parameter vector, in order: (name, meaning)
 PARAM_TABLE = (
@@ -75,6 +77,7 @@ PARAM_TABLE = (
     ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
     ("R_MATCH_HI", "variance match: interval variance / S of the angle above this replaces R_theta (0 = off)"),
     ("R_MATCH_LO", "variance match: interval variance / S of the angle below this replaces R_theta"),
+    ("CUSUM_H", "edge-noise change detector threshold (0 = off)"),
 )
 
 
@@ -270,27 +273,104 @@ def _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u):
 
 
 @njit(cache=True)
-def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
-    """Eq. 12 for R from every innovation, gated or not, with a Huber weight: an outlier moves R
-    by c sqrt(S) at most instead of its full square, and a burst of edge noise still raises R
-    (it is the edge noise R stands for). The weight is made unbiased for Gaussian innovations by
-    kappa (``huber_kappa``). R has its own forgetting factor and interval: it is applied every
-    R_INTERVAL cycles from the mean term, d_j = (1 - b_R) / (1 - b_R^(j+1))."""
+def _rebase_p(s, r_warm, r_new, dt):
+    """P made consistent with the first R estimate, at the end of the warm-up.
+
+    The warm-up ran on R_warm (the paper's R_theta = 0): with R_warm = 0 the gain on the angle is
+    1, the speed estimate is the last two edges' difference, and P says that estimate is exact.
+    Its true error is that of a two-point estimate with the edge noise now learned: var(theta) = R,
+    var(w) = 2 R / dt^2, cov(w, theta) = R / dt. Left as it is, P locks the speed where the last
+    noisy difference put it (a gain of 1e-6 on the speed at 12,000 rpm), and the state drifts a
+    few degrees per edge until the gate's divergence run fades it. With 0 < R_warm < R_new the
+    warm-up P is scaled by R_new / R_warm, never past the two-point covariance."""
+    if not (r_new > r_warm and dt > 0.0):
+        return
+    two_ww, two_wt, two_tt = 2.0 * r_new / (dt * dt), r_new / dt, r_new
+    scale = r_new / r_warm if r_warm > 0.0 else math.inf
+    if s[ST.P] * scale >= two_ww:
+        s[ST.P], s[ST.P + 1], s[ST.P + 3], s[ST.P + 4] = two_ww, two_wt, two_wt, two_tt
+        for i in (2, 5, 6, 7):                                      # the current decorrelated
+            s[ST.P + i] = 0.0
+    else:
+        for i in (0, 1, 3, 4):
+            s[ST.P + i] *= scale
+
+
+@njit(cache=True, inline="always")
+def _restart_r_interval(s):
+    """Empty the R interval's accumulators: a new interval starts with the next edge."""
+    for i in range(2):
+        s[ST.ACC_R + i] = 0.0
+        s[ST.ACC_R_MEAN + i] = 0.0
+    for i in range(3):
+        s[ST.ACC_EDGE + i] = 0.0
+        s[ST.ACC_Z0 + i] = 0.0
+    s[ST.N_ACC_R] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _accumulate_r(s, fp, innov0, innov1, nis, p_pred):
+    """The R interval's terms of one edge: the Eq. 12 term of each diagonal entry, Huber-weighted
+    (an outlier moves R by c sqrt(S) at most instead of its full square, and a burst of edge
+    noise still raises R: it is the edge noise R stands for; kappa, ``huber_kappa``, makes the
+    weight unbiased for Gaussian innovations), the weighted innovations' sum (their mean is taken
+    out) and, unweighted, the angle innovations' sum, sum of squares and H P H^T for the
+    variance match."""
     c = fp[FP.HUBER_C]
     m = math.sqrt(nis) if nis > 0.0 else 0.0
     w = 1.0 if m <= c else c / m
     g = w / fp[FP.HUBER_KAPPA]
-    s[ST.ACC_R] += g * innov0 * innov0 - p_pred[4]                  # w Z~ Z~^T / kappa - H P_k,k-1 H^T
-    s[ST.ACC_R + 1] += g * innov0 * innov1 - p_pred[5]
-    s[ST.ACC_R + 2] += g * innov1 * innov0 - p_pred[7]
-    s[ST.ACC_R + 3] += g * innov1 * innov1 - p_pred[8]
+    s[ST.ACC_R] += g * innov0 * innov0 - p_pred[4]                  # w Z~^2 / kappa - H P_k,k-1 H^T (diagonal)
+    s[ST.ACC_R + 1] += g * innov1 * innov1 - p_pred[8]
     sg = math.sqrt(g)
     s[ST.ACC_R_MEAN] += sg * innov0
     s[ST.ACC_R_MEAN + 1] += sg * innov1
     s[ST.N_ACC_R] += 1.0
-    s[ST.ACC_Z0] += innov0                                          # unweighted, for the variance match
+    s[ST.ACC_Z0] += innov0
     s[ST.ACC_Z0 + 1] += innov0 * innov0
     s[ST.ACC_Z0 + 2] += p_pred[4]
+
+
+@njit(cache=True, inline="always")
+def _variance_match(s, fp, n):
+    """R_theta replaced at once when the edge noise changed (a burst began or ended).
+
+    The edge noise of the interval is measured from the edges themselves (the second
+    differences of ``_edge_noise``, variance 6 sigma^2 whatever the filter does), against the
+    R_theta the filter will run on: beyond a bound that chance crosses less than once per
+    1000 s (``variance_match_bounds``), R_theta is set now instead of being blended in over
+    1 / d_j intervals with each burst edge capped by the Huber weight. The trigger is the
+    edges', not the innovations': a lagging state cannot raise R (a larger R would lower the
+    gain and the lag grow). Tested after the Eq. 12 blend, so a blend that a noisy interval
+    pushed below the edges' measure is caught too."""
+    ne = s[ST.ACC_EDGE]
+    if not (fp[FP.R_MATCH_HI] > 0.0 and ne > 2.0):
+        return
+    mean = s[ST.ACC_EDGE + 1] / ne
+    r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
+    if not r_edge > 0.0 or fp[FP.R_MATCH_LO] * s[ST.R] <= r_edge <= fp[FP.R_MATCH_HI] * s[ST.R]:
+        return
+    # the new R_theta is what the innovations show beyond H P H^T over the interval (it holds
+    # what the filter needs, e.g. edge noise that is not white, or a burst's edges that the gate
+    # kept out of the state); the edges' own measure where the innovations show less than the
+    # chance bound below it (P already explains them, or the difference of two noisy variances
+    # came out near zero)
+    var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
+    r_innov = var0 - s[ST.ACC_Z0 + 2] / n
+    s[ST.R] = r_innov if r_innov >= fp[FP.R_MATCH_LO] * r_edge else r_edge
+
+
+@njit(cache=True)
+def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
+    """Eq. 12 for R from every innovation, gated or not (``_accumulate_r``). R has its own
+    forgetting factor and interval: it is applied every R_INTERVAL cycles from the interval's
+    mean term, d_j = (1 - b_R) / (1 - b_R^(j+1)).
+
+    R keeps its physical structure, as Q does: the edge instants and the current come from
+    different sensors, so their noises are independent and R is diagonal. The Eq. 12 cross
+    term is the innovations' cross-correlation, which comes from the state's errors (H P H^T
+    accounts for them only on average), not a property of the sensors."""
+    _accumulate_r(s, fp, innov0, innov1, nis, p_pred)
     warm = k < fp[FP.WARMUP]
     # during the warm-up R is set once, at its end (the first R_INTERVAL cycles after P0 would
     # otherwise swamp it); then every R_INTERVAL cycles
@@ -298,70 +378,40 @@ def _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred):
         return
     n = s[ST.N_ACC_R]
     j = s[ST.K_INTERVAL_R]
+    r_before = s[ST.R]                                              # the R_theta the interval ran on
     b = fp[FP.R_B]
     dj = (1.0 - b) / (1.0 - b ** (j + 1.0))
     # the innovations' own mean over the interval is taken out (Eq. 12's Z~ - r): a state that is
     # off pushes every innovation one way, and R must not absorb that error (it would lower the
     # gain, the error would grow, and R with it); the one-signed run then fades P instead
-    m0, m1 = s[ST.ACC_R_MEAN] / n, s[ST.ACC_R_MEAN + 1] / n
     unbias = n / (n - 1.0) if n > 1.0 else 1.0
-    s[ST.ACC_R] -= n * m0 * m0
-    s[ST.ACC_R + 1] -= n * m0 * m1
-    s[ST.ACC_R + 2] -= n * m1 * m0
-    s[ST.ACC_R + 3] -= n * m1 * m1
-    # variance match: the edge noise of this interval, measured from the edges themselves (the
-    # second differences in ``step``, variance 6 sigma^2 whatever the filter does), against the
-    # R_theta the filter used. Beyond a bound that chance crosses less than once per 1000 s
-    # (``variance_match_bounds``) the edge noise changed (a burst began or ended): R_theta is
-    # replaced by the measured value now instead of being blended in over 1 / d_j intervals with
-    # each burst edge capped by the Huber weight. Measured from the edges, not the innovations,
-    # so a lagging state cannot raise R (a larger R would lower the gain and the lag grow).
-    matched = False
-    r_edge = 0.0
-    ne = s[ST.ACC_EDGE]
-    if not warm and fp[FP.R_MATCH_HI] > 0.0 and ne > 2.0 and s[ST.R] > 0.0:
-        mean = s[ST.ACC_EDGE + 1] / ne
-        r_edge = (s[ST.ACC_EDGE + 2] - ne * mean * mean) / (ne - 1.0) / 6.0
-        ratio = r_edge / s[ST.R]
-        matched = r_edge > 0.0 and (ratio > fp[FP.R_MATCH_HI] or ratio < fp[FP.R_MATCH_LO])
-    for i in range(4):                                              # R = (1 - d) R + d mean(term)
-        s[ST.R + i] = (1.0 - dj) * s[ST.R + i] + dj * unbias * s[ST.ACC_R + i] / n
-    if matched:
-        # the new R_theta is what the innovations show beyond H P H^T over the interval (it
-        # holds what the filter needs, e.g. edge noise that is not white), the edges' own
-        # measure where P already explains them
-        var0 = (s[ST.ACC_Z0 + 1] - s[ST.ACC_Z0] * s[ST.ACC_Z0] / n) / (n - 1.0) if n > 1.0 else 0.0
-        r_innov = var0 - s[ST.ACC_Z0 + 2] / n
-        if r_innov > 0.0:
-            r_edge = r_innov
-        # the cross terms are kept within a correlation of 0.99, so R stays positive definite
-        s[ST.R] = r_edge
-        bound = 0.99 * math.sqrt(r_edge * max(s[ST.R + 3], 0.0))
-        for i in (1, 2):
-            s[ST.R + i] = min(max(s[ST.R + i], -bound), bound)
+    for i in range(2):
+        mean = s[ST.ACC_R_MEAN + i] / n
+        term = unbias * (s[ST.ACC_R + i] - n * mean * mean) / n
+        s[ST.R + 3 * i] = (1.0 - dj) * s[ST.R + 3 * i] + dj * term  # R = (1 - d) R + d mean(term)
+    if not warm:
+        _variance_match(s, fp, n)
     if j == 0.0 and s[ST.EDGE_STATS] > 2.0:
         # the first estimate of the edge-angle variance comes from the edges themselves (below),
         # not from innovations of a filter that ran on R0 = 0 and so followed every edge: those
         # innovations carry its own prediction error, not only the edge noise (R 6-10x too large)
         mean = s[ST.EDGE_STATS + 1] / s[ST.EDGE_STATS]
         s[ST.R] = max(s[ST.EDGE_STATS + 2] / s[ST.EDGE_STATS] - mean * mean, 0.0) / 6.0
-        s[ST.R + 1] = 0.0
-        s[ST.R + 2] = 0.0
+        _rebase_p(s, r_before, s[ST.R], s[ST.DT_PREV])
+    s[ST.R + 1] = 0.0
+    s[ST.R + 2] = 0.0
+    # an Eq. 12 estimate that went negative lost positive definiteness: the textbook failure
+    # the guards exist for, floored and counted as a repair
     if _sym_pd_floor(s[ST.R:ST.R + 4], 2, fp[FP.FLOOR]):
         guards[GUARD_R_PD] += 1
     # an exactly repeated current would drive its variance to the eigenvalue floor, and the
     # smallest drift of the current estimate would then be gated as an outlier; no measurement
-    # is finer than its quantisation (raising a diagonal keeps R positive definite)
+    # is finer than its quantisation (a positive variance raised to it is not a repair)
     s[ST.R + 3] = max(s[ST.R + 3], fp[FP.R_I_FLOOR])
-    for i in range(4):
-        s[ST.ACC_R + i] = 0.0
-    s[ST.ACC_R_MEAN] = 0.0
-    s[ST.ACC_R_MEAN + 1] = 0.0
-    for i in range(3):
-        s[ST.ACC_EDGE + i] = 0.0
-        s[ST.ACC_Z0 + i] = 0.0
-    s[ST.N_ACC_R] = 0.0
+    _restart_r_interval(s)
     s[ST.K_INTERVAL_R] = j + 1.0
+    s[ST.CHANGED] = 0.0
+    s[ST.CHANGED + 1] = 0.0
 
 
 N_WORK = 96
@@ -378,27 +428,9 @@ def _innovation_inverse(p_pred, s):
     return s11 / det, -s01 / det, -s10 / det, s00 / det
 
 
-@njit(cache=True)
-def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
-    """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
-
-    The angle is kept relative to the last corrected edge: that edge is at 0, so the edge that
-    ends this cycle is measured at z_theta = pi / 3 (Eq. 10, observing angle and current);
-    dt is the measured cycle duration; accel_per_amp = p K_T(n) / J and decel_load =
-    p M(n) w_m^2 / J are evaluated at the previous estimate; wk is scratch (N_WORK), so a step
-    allocates nothing. Returns the normalised innovation squared."""
-    phi = wk[0:9]
-    u = wk[9:12]
-    x = wk[12:15]
-    p = wk[15:24]
-    x_pred = wk[24:27]
-    p_pred = wk[27:36]
-    tmp = wk[36:45]
-    gain = wk[45:51]          # 3 x 2
-    p_new = wk[51:60]
-    ikh = wk[60:69]
-    phi_p_phi = wk[69:78]
-    x_new = wk[78:81]
+@njit(cache=True, inline="always")
+def _predict(s, dt, accel_per_amp, decel_load, phi, u, x, p, x_pred, p_pred, phi_p_phi, tmp):
+    """Eq. 9 (transition Phi and load input over one cycle of dt) and the Eq. 11 prediction."""
     # --- Eq. 9: transition Phi and input ------------------------------------------------------
     a = accel_per_amp
     phi[0], phi[1], phi[2] = 1.0, 0.0, a * dt
@@ -416,104 +448,91 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     _mm3t(tmp, phi, phi_p_phi)
     for i in range(9):                                              # P_k,k-1 = Phi P Phi^T + Q_k-1
         p_pred[i] = phi_p_phi[i] + s[ST.Q + i]
-    # H = [[0,1,0],[0,0,1]] (Eq. 10 as we read it: the edge measures the angle): rows 1 and 2
-    hx0 = x_pred[1]
-    hx1 = x_pred[2]
-    innov0 = z_theta - hx0 - s[ST.SMALL_R]                          # Z~ = Z - H X_k,k-1 - r
-    innov1 = z_i - hx1 - s[ST.SMALL_R + 1]
-    i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
-    nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
-    k = s[ST.K_STEP]
-    warm = k < fp[FP.WARMUP]
-    mask = int(fp[FP.ADAPTIVE])
-    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
-    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
-    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
-    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
-    gated = False
-    faded = False
-    if fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]:
-        # signed run length of gated innovations of one sign: a wrong state pushes every edge
-        # the same way, a burst of edge noise scatters both ways
-        run = s[ST.GATED_RUN]
-        if innov0 >= 0.0:
-            run = run + 1.0 if run > 0.0 else 1.0
-        else:
-            run = run - 1.0 if run < 0.0 else -1.0
-        s[ST.GATED_RUN] = run
-        if fp[FP.DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[FP.DIVERGENCE_RUN]:
-            # innovations persistently beyond the gate, all one way: the state is wrong, not the
-            # edge. P is overconfident, so it is faded by the ratio of the observed to the
-            # expected NIS (strong-tracking fading factor) and the filter takes the edge
-            fade = nis / 2.0
-            for i in range(9):
-                p_pred[i] *= fade
-            guards[GUARD_DIVERGENCE] += 1
-            faded = True
-            i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
-        else:
-            gated = True
-            guards[GUARD_GATE] += 1
-    else:
+
+
+@njit(cache=True, inline="always")
+def _gate(s, fp, guards, k, gate_from, innov0, nis, p_pred):
+    """The chi-square gate on the NIS and the divergence fade. Returns (gated, faded): a gated
+    edge leaves the state at its prediction; a faded step has P_k,k-1 scaled up and takes the
+    edge (the caller recomputes S^-1)."""
+    if not (fp[FP.GATE_STATE] != 0.0 and k >= gate_from and nis > fp[FP.GATE]):
         s[ST.GATED_RUN] = 0.0
-    if gated:
-        # an outlier edge: the state keeps its prediction, P its predicted covariance
-        for i in range(3):
-            x_new[i] = x_pred[i]
-        for i in range(9):
-            p_new[i] = p_pred[i]
+        return False, False
+    # signed run length of gated innovations of one sign: a wrong state pushes every edge the
+    # same way, a burst of edge noise scatters both ways
+    run = s[ST.GATED_RUN]
+    if innov0 >= 0.0:
+        run = run + 1.0 if run > 0.0 else 1.0
     else:
-        for i in range(3):                                          # K = P H^T (H P H^T + R)^-1
-            a0 = p_pred[3 * i + 1]
-            a1 = p_pred[3 * i + 2]
-            gain[2 * i] = a0 * i00 + a1 * i10
-            gain[2 * i + 1] = a0 * i01 + a1 * i11
-        for i in range(3):                                          # X_k = X_k,k-1 + K Z~
-            x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
-        # Joseph form of P_k = (I - K H) P_k,k-1 (I - K H)^T + K R K^T (symmetric, PSD)
-        for i in range(3):
-            for j in range(3):
-                ikh[3 * i + j] = 1.0 if i == j else 0.0
-            ikh[3 * i + 1] -= gain[2 * i]
-            ikh[3 * i + 2] -= gain[2 * i + 1]
-        _mm3(ikh, p_pred, tmp)
-        _mm3t(tmp, ikh, p_new)
-        r00, r01, r10, r11 = s[ST.R], s[ST.R + 1], s[ST.R + 2], s[ST.R + 3]
-        for i in range(3):                                          # + K R K^T
-            g0, g1 = gain[2 * i], gain[2 * i + 1]
-            for j in range(3):
-                h0, h1 = gain[2 * j], gain[2 * j + 1]
-                p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
-        if _sym_pd_floor(p_new, 3, 1e-12):
-            guards[GUARD_P_PD] += 1
+        run = run - 1.0 if run < 0.0 else -1.0
+    s[ST.GATED_RUN] = run
+    if fp[FP.DIVERGENCE_RUN] > 0.0 and abs(run) >= fp[FP.DIVERGENCE_RUN]:
+        # innovations persistently beyond the gate, all one way: the state is wrong, not the
+        # edge. P is overconfident, so it is faded by the ratio of the observed to the expected
+        # NIS (strong-tracking fading factor) and the filter takes the edge
+        fade = nis / 2.0
+        for i in range(9):
+            p_pred[i] *= fade
+        guards[GUARD_DIVERGENCE] += 1
+        return False, True
+    guards[GUARD_GATE] += 1
+    return True, False
+
+
+@njit(cache=True, inline="always")
+def _update(s, guards, innov0, innov1, i00, i01, i10, i11, x_pred, p_pred, gain, x_new, p_new, ikh, tmp):
+    """Eq. 11: gain, state update and the Joseph-form covariance update, with its repair."""
+    for i in range(3):                                              # K = P H^T (H P H^T + R)^-1
+        a0 = p_pred[3 * i + 1]
+        a1 = p_pred[3 * i + 2]
+        gain[2 * i] = a0 * i00 + a1 * i10
+        gain[2 * i + 1] = a0 * i01 + a1 * i11
+    for i in range(3):                                              # X_k = X_k,k-1 + K Z~
+        x_new[i] = x_pred[i] + gain[2 * i] * innov0 + gain[2 * i + 1] * innov1
+    # Joseph form of P_k = (I - K H) P_k,k-1 (I - K H)^T + K R K^T (symmetric, PSD)
     for i in range(3):
-        s[ST.X + i] = x_new[i]
-    s[ST.X + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
-    for i in range(9):
-        s[ST.P + i] = p_new[i]
-    s[ST.LAST_NIS] = nis
-    s[ST.K_STEP] = k + 1.0
-    if mask == 0:
-        return nis
-    if mask & ADAPT_Q_WHITE and not warm:
-        # innovation whiteness (Mehra): lag-1 correlation of the angle innovations is zero for
-        # the optimal gain, positive when the filter lags (Q too small), negative when it
-        # chases the noise (Q too large)
-        s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
-        s[ST.ACC_WHITE + 1] += innov0 * innov0
-        if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
-            c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
-            s[ST.Q] = min(
-                max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]),
-                s[ST.Q_NOMINAL] * fp[FP.BAND],
-            )
-            s[ST.ACC_WHITE] = 0.0
-            s[ST.ACC_WHITE + 1] = 0.0
-    s[ST.PREV_INNOV] = innov0
-    # sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with white
-    # edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
-    # whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
-    # gives R's first estimate; over each R interval, the variance match's
+        for j in range(3):
+            ikh[3 * i + j] = 1.0 if i == j else 0.0
+        ikh[3 * i + 1] -= gain[2 * i]
+        ikh[3 * i + 2] -= gain[2 * i + 1]
+    _mm3(ikh, p_pred, tmp)
+    _mm3t(tmp, ikh, p_new)
+    r00, r01, r10, r11 = s[ST.R], s[ST.R + 1], s[ST.R + 2], s[ST.R + 3]
+    for i in range(3):                                              # + K R K^T
+        g0, g1 = gain[2 * i], gain[2 * i + 1]
+        for j in range(3):
+            h0, h1 = gain[2 * j], gain[2 * j + 1]
+            p_new[3 * i + j] += g0 * (r00 * h0 + r01 * h1) + g1 * (r10 * h0 + r11 * h1)
+    # covariance repair: only rounding can make the Joseph form indefinite; counted when it did
+    if _sym_pd_floor(p_new, 3, 1e-12):
+        guards[GUARD_P_PD] += 1
+
+
+@njit(cache=True, inline="always")
+def _adapt_q_whiteness(s, fp, k, innov0):
+    """Option (ADAPT_Q_WHITE): Q_w steered by innovation whiteness (Mehra 1970). The lag-1
+    correlation of the angle innovations is zero for the optimal gain, positive when the filter
+    lags (Q too small), negative when it chases the noise (Q too large); once per interval Q_w
+    takes a log-step of WHITENESS_GAIN per unit of correlation, within its band."""
+    s[ST.ACC_WHITE] += innov0 * s[ST.PREV_INNOV]
+    s[ST.ACC_WHITE + 1] += innov0 * innov0
+    if s[ST.ACC_WHITE + 1] > 0.0 and (k + 1.0 - fp[FP.WARMUP]) % fp[FP.INTERVAL] == 0.0:
+        c1 = s[ST.ACC_WHITE] / s[ST.ACC_WHITE + 1]
+        s[ST.Q] = min(
+            max(s[ST.Q] * math.exp(WHITENESS_GAIN * c1), s[ST.Q_NOMINAL] / fp[FP.BAND]),
+            s[ST.Q_NOMINAL] * fp[FP.BAND],
+        )
+        s[ST.ACC_WHITE] = 0.0
+        s[ST.ACC_WHITE + 1] = 0.0
+
+
+@njit(cache=True, inline="always")
+def _edge_noise(s, dt, warm):
+    """Sensor analysis of the edge noise (paper 3.2: R from the sensor's own errors): with white
+    edge-angle noise n_k, w (dt_k - dt_k-1) = n_k - 2 n_k-1 + n_k-2 has variance 6 sigma^2
+    whatever the filter does; a steady acceleration only shifts its mean. Over the warm-up it
+    gives R's first estimate; over each R interval, the variance match's."""
+    x2 = math.nan
     if s[ST.DT_PREV] > 0.0:
         x2 = (math.pi / 3.0) / dt * (dt - s[ST.DT_PREV])
         at = ST.EDGE_STATS if warm else ST.ACC_EDGE
@@ -521,26 +540,67 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
         s[at + 1] += x2
         s[at + 2] += x2 * x2
     s[ST.DT_PREV] = dt
-    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
-    # faded step's innovation is the state's error, not the edge noise R stands for
-    settled = k >= 0.5 * fp[FP.WARMUP]
-    if mask & ADAPT_R and settled and not faded:
-        _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred)
-    if gated:
-        return nis
-    if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
-        _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
-    if warm or not mask & (ADAPT_Q | ADAPT_Q_CURRENT):
-        return nis
-    # --- Eq. 12: Q every step ----------------------------------------------------------------
+    return x2
+
+
+#: variance ratios the change detector is tuned for: a tenfold rise, a tenfold fall
+CUSUM_UP, CUSUM_DOWN = 10.0, 0.1
+#: its threshold for chance alarms (both sides) rarer than once per 1000 s at MAX_EDGE_RATE_HZ:
+#: Monte-Carlo of white Gaussian edge noise, 2e8 edges: 0.98 alarms per 2.4e6 edges at 24, 0.60
+#: at 25, 0.41 at 26 (``test_change_detector_chance_alarms_rarer_than_once_per_1000_s``)
+CUSUM_H_1000S = 25.0
+
+
+@njit(cache=True, inline="always")
+def _change_detect(s, fp, x2):
+    """Page's CUSUM on the edges' own noise measure u = x2^2 / (6 R_theta), for a tenfold rise
+    and a tenfold fall of the edge-angle variance: the log-likelihood ratio of one sample is
+    (u / 2)(1 - 1/V) - ln(V) / 2. At the threshold the edge noise changed: the R interval
+    restarts at the change point (where the statistic left zero) and, until it ends, R_theta is
+    the mean x2^2 / 6 since the change point, growing sample by sample (a few samples say little
+    of a variance; the interval's Eq. 12 and variance match take over at its end). Returns True
+    on a change."""
+    if s[ST.CHANGED + 1] > 0.0 and x2 == x2:
+        s[ST.CHANGED] += x2 * x2 / 6.0
+        s[ST.CHANGED + 1] += 1.0
+        s[ST.R] = s[ST.CHANGED] / s[ST.CHANGED + 1]
+    r = s[ST.R]
+    if not (r > 0.0 and x2 == x2):
+        return False
+    u = x2 * x2 / (6.0 * r)
+    for side in range(2):
+        v = CUSUM_UP if side == 0 else CUSUM_DOWN
+        at = ST.CUSUM + 3 * side
+        g = s[at] + 0.5 * u * (1.0 - 1.0 / v) - 0.5 * math.log(v)
+        if g <= 0.0:
+            s[at], s[at + 1], s[at + 2] = 0.0, 0.0, 0.0
+            continue
+        s[at] = g
+        s[at + 1] += x2 * x2 / 6.0
+        s[at + 2] += 1.0
+        if g > fp[FP.CUSUM_H]:
+            s[ST.CHANGED], s[ST.CHANGED + 1] = s[at + 1], s[at + 2]
+            s[ST.R] = s[at + 1] / s[at + 2]
+            for i in range(6):
+                s[ST.CUSUM + i] = 0.0
+            _restart_r_interval(s)
+            return True
+    return False
+
+
+@njit(cache=True, inline="always")
+def _adapt_q(s, fp, guards, k, innov0, innov1, gain, p_new, phi_p_phi):
+    """Eq. 12 for Q, every step: Q = (1 - d_k) Q + d_k (K Z~ Z~^T K^T + P_k - Phi P_k-1 Phi^T).
+
+    Q keeps its physical structure: process noise enters speed and current (theta follows from
+    w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its nominal
+    value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R starts too
+    small (R0 = 0 here) and R is then never learned."""
+    mask = int(fp[FP.ADAPTIVE])
     b = fp[FP.B]
     # d_k continues from the true step count: restarting it at 1 after the warm-up would let a
     # single noisy sample replace Q
     d = (1.0 - b) / (1.0 - b ** (k + 1.0))                          # d_k = (1 - b) / (1 - b^(k+1))
-    # Q keeps its physical structure: process noise enters speed and current (theta follows
-    # from w through Eq. 9), so only those diagonal entries adapt; the angle entry stays at its
-    # nominal value and cross terms at zero. Unconstrained, Q absorbs the edge noise whenever R
-    # starts too small (R0 = 0 here) and R is then never learned.
     band = fp[FP.BAND]
     clamped = False
     for i, raw in ((0, ST.Q_RAW), (2, ST.Q_RAW + 1)):
@@ -569,6 +629,81 @@ def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
     s[ST.Q + 4] = s[ST.Q_NOMINAL + 4]
     if clamped:
         guards[GUARD_Q_BAND] += 1
+
+
+@njit(cache=True)
+def step(s, fp, guards, z_theta, z_i, dt, accel_per_amp, decel_load, wk):
+    """One commutation cycle: predict with Eq. 9, update with Eq. 11, adapt with Eq. 12.
+
+    The angle is kept relative to the last corrected edge: that edge is at 0, so the edge that
+    ends this cycle is measured at z_theta = pi / 3 (Eq. 10, observing angle and current);
+    dt is the measured cycle duration; accel_per_amp = p K_T(n) / J and decel_load =
+    p M(n) w_m^2 / J are evaluated at the previous estimate; wk is scratch (N_WORK), so a step
+    allocates nothing. Returns the normalised innovation squared."""
+    phi, u, x, p = wk[0:9], wk[9:12], wk[12:15], wk[15:24]
+    x_pred, p_pred, tmp = wk[24:27], wk[27:36], wk[36:45]
+    gain = wk[45:51]          # 3 x 2
+    p_new, ikh, phi_p_phi, x_new = wk[51:60], wk[60:69], wk[69:78], wk[78:81]
+    _predict(s, dt, accel_per_amp, decel_load, phi, u, x, p, x_pred, p_pred, phi_p_phi, tmp)
+    # --- Eq. 10: H = [[0,1,0],[0,0,1]] (as we read it: the edge measures the angle) ----------
+    hx0 = x_pred[1]
+    hx1 = x_pred[2]
+    innov0 = z_theta - hx0 - s[ST.SMALL_R]                          # Z~ = Z - H X_k,k-1 - r
+    innov1 = z_i - hx1 - s[ST.SMALL_R + 1]
+    i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
+    nis = innov0 * (i00 * innov0 + i01 * innov1) + innov1 * (i10 * innov0 + i11 * innov1)
+    k = s[ST.K_STEP]
+    warm = k < fp[FP.WARMUP]
+    mask = int(fp[FP.ADAPTIVE])
+    # the gate acts once P is consistent with R: the warm-up ran on R0 (the paper's R_theta = 0
+    # claims exact edges, so P leaves it overconfident), and R's first estimate is set at its
+    # end; one R interval with that R brings P in line. Gating earlier refuses every edge.
+    gate_from = fp[FP.WARMUP] + (fp[FP.R_INTERVAL] if mask & ADAPT_R else 0.0)
+    gated, faded = _gate(s, fp, guards, k, gate_from, innov0, nis, p_pred)
+    if gated:
+        # an outlier edge: the state keeps its prediction, P its predicted covariance
+        for i in range(3):
+            x_new[i] = x_pred[i]
+        for i in range(9):
+            p_new[i] = p_pred[i]
+    else:
+        if faded:
+            i00, i01, i10, i11 = _innovation_inverse(p_pred, s)
+        _update(s, guards, innov0, innov1, i00, i01, i10, i11, x_pred, p_pred, gain, x_new, p_new, ikh, tmp)
+    for i in range(3):
+        s[ST.X + i] = x_new[i]
+    s[ST.X + 1] -= math.pi / 3.0  # re-reference: the edge just measured is the new angle zero
+    for i in range(9):
+        s[ST.P + i] = p_new[i]
+    s[ST.LAST_NIS] = nis
+    s[ST.K_STEP] = k + 1.0
+    if mask == 0:
+        return nis
+    # --- Eq. 12 ------------------------------------------------------------------------------
+    # Q adapts once the gate acts, one R interval after the warm-up: P has then converged from
+    # its re-base on the first R (``_rebase_p``). Earlier, the Eq. 12 term P_k - Phi P Phi^T is
+    # P's own convergence (hundreds of (rad/s)^2 per step), not process noise: it drove the
+    # recursion to its lower clamp in a few steps, Q_w sat at the band floor for the rest of the
+    # run and the filter could not follow a load its model had wrong (drawn conditions, Q_w by
+    # Eq. 12: within 1.05 x KF + 0.01 deg e in 64 % before, 91 % after). Whiteness alike.
+    q_on = k >= gate_from
+    if mask & ADAPT_Q_WHITE and q_on:
+        _adapt_q_whiteness(s, fp, k, innov0)
+    s[ST.PREV_INNOV] = innov0
+    x2 = _edge_noise(s, dt, warm)
+    if fp[FP.CUSUM_H] > 0.0 and mask & ADAPT_R and not warm:
+        _change_detect(s, fp, x2)
+    # the first half of the warm-up lets P settle from P0 (5e4 would swamp the R estimate); a
+    # faded step's innovation is the state's error, not the edge noise R stands for
+    settled = k >= 0.5 * fp[FP.WARMUP]
+    if mask & ADAPT_R and settled and not faded:
+        _adapt_r(s, fp, guards, k, innov0, innov1, nis, p_pred)
+    if gated:
+        return nis
+    if mask & (ADAPT_SMALL_R | ADAPT_SMALL_Q) and settled:
+        _adapt_small_rq(s, fp, k, z_theta, z_i, hx0, hx1, x_new, phi, x, u)
+    if q_on and mask & (ADAPT_Q | ADAPT_Q_CURRENT):
+        _adapt_q(s, fp, guards, k, innov0, innov1, gain, p_new, phi_p_phi)
     return nis
 
 

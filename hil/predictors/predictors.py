@@ -56,6 +56,10 @@ class FilterSettings:
     #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
     #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
     adapt_mask: int = F.ADAPT_ALL
+    #: threshold of the edge-noise change detector (``filters._change_detect``); 0 = off. The
+    #: default is the one at which white edge noise raises a chance alarm less than once per
+    #: 1000 s at 12,000 rpm, 2 pole pairs (``filters.CUSUM_H_1000S``)
+    cusum_h: float = F.CUSUM_H_1000S
 
     def check(self) -> None:
         for name in ("forgetting_b", "r_forgetting_b"):
@@ -75,6 +79,8 @@ class FilterSettings:
             raise ValueError(f"current_resolution_a must be >= 0, got {self.current_resolution_a!r}")
         if not self.r_match_horizon_s >= 0:
             raise ValueError(f"r_match_horizon_s must be >= 0 (0 = off), got {self.r_match_horizon_s!r}")
+        if not (self.cusum_h >= 0 and math.isfinite(self.cusum_h)):
+            raise ValueError(f"cusum_h must be >= 0 and finite (0 = off), got {self.cusum_h!r}")
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
 
@@ -101,6 +107,7 @@ class FilterSettings:
             fp[F.FP.R_MATCH_HI], fp[F.FP.R_MATCH_LO] = F.variance_match_bounds(
                 self.r_interval, horizon_s=self.r_match_horizon_s
             )
+        fp[F.FP.CUSUM_H] = self.cusum_h
         return fp
 
 
