@@ -339,12 +339,12 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
         # the phase currents' recent history, from which an MCU's ADC ring is read at an instant
         # before the capture (Simulation.measured_mean_abs_current_at_a)
         ring_n = ist[I_RING_N]
-        if ring_n == 0 or current_ring[(ring_n - 1) % CURRENT_RING, 0] < t:
-            row = current_ring[ring_n % CURRENT_RING]
-            row[0] = t
-            row[1] = st[S_IA]
-            row[2] = st[S_IB]
-            row[3] = st[S_IC]
+        k = ring_n & (CURRENT_RING - 1)  # CURRENT_RING is a power of two
+        if ring_n == 0 or current_ring[(ring_n - 1) & (CURRENT_RING - 1), 0] < t:
+            current_ring[k, 0] = t
+            current_ring[k, 1] = st[S_IA]
+            current_ring[k, 2] = st[S_IB]
+            current_ring[k, 3] = st[S_IC]
             ist[I_RING_N] = ring_n + 1
         # apply due commands
         while ist[I_CMD_HEAD] < ist[I_CMD_COUNT] and cmds[ist[I_CMD_HEAD], 0] <= t + 1e-12:
