@@ -387,13 +387,19 @@ class CanopenDevice:
         self.node.emcy.send(code, self.controller.error_register)
 
     # --- PDO -------------------------------------------------------------------------------------
-    def _on_rpdo(self, can_id, data, timestamp) -> None:
+    def _received(self, message_type, data):
+        """The PDO's message, or None when the device is not operational or the PDO is malformed
+        (ignored, as CiA 301 devices do with wrong-length PDOs)."""
         if self.state != "OPERATIONAL":
-            return
+            return None
         try:
-            msg = EdgeMessage.unpack(bytes(data))
+            return message_type.unpack(bytes(data))
         except ValueError:
-            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
+            return None
+
+    def _on_rpdo(self, can_id, data, timestamp) -> None:
+        if (msg := self._received(EdgeMessage, data)) is None:
+            return
         with self._lock:
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
@@ -411,12 +417,8 @@ class CanopenDevice:
 
     def _on_rpdo2(self, can_id, data, timestamp) -> None:
         """The cycle-mean current of the edge with the same sequence number (RPDO1 that follows)."""
-        if self.state != "OPERATIONAL":
+        if (msg := self._received(CycleCurrentMessage, data)) is None:
             return
-        try:
-            msg = CycleCurrentMessage.unpack(bytes(data))
-        except ValueError:
-            return  # a malformed PDO is ignored, as CiA 301 devices do with wrong-length PDOs
         with self._lock:
             self._cycle, self._cycle_pending = msg, True
 
