@@ -275,10 +275,11 @@ class ProtocolResult:
                 )
         if "oracle" in self.rows:
             o = self.improvement_pct("oracle")["angle_rms_deg_e"]
-            captured = imp["angle_rms_deg_e"] / o if o > 0 else float("nan")
-            lines.append(
-                f"oracle headroom (angle RMS): {o:+.1f} % over the KF; Sage-Husa captures {captured:.0%} of it"
-            )
+            if o > 0:
+                share = f"Sage-Husa captures {imp['angle_rms_deg_e'] / o:.0%} of it"
+            else:  # a share of no gain means nothing
+                share = "none for Sage-Husa to capture"
+            lines.append(f"oracle headroom (angle RMS): {o:+.1f} % over the KF; {share}")
         for factor, scan_imp, scan_wins in self.scan:
             lines.append(f"Q0 x{factor:<6g} SH vs KF: " + " ".join(f"{scan_imp[m]:+.1f}%" for m in METRICS)
                          + "  wins " + "/".join(f"{scan_wins[m]:.0%}" for m in METRICS))
