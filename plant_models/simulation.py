@@ -198,32 +198,51 @@ class Simulation:
     def sector(self) -> int:
         return int(self.ist[L.I_SECTOR])
 
-    def measured_mean_abs_current_a(self) -> float:
-        """Mean |i| over the phases now, through the current sensors' gain and offset (no noise):
-        what a controller's ADC reads at this instant."""
-        # scalar arithmetic: this runs once per edge in the lockstep loop, where numpy's
-        # per-call overhead on three values was a tenth of the whole edge's cost
+    def _through_current_sensors(self, i_a: float, i_b: float, i_c: float) -> float:
+        """Mean |i| of three phase currents as the current sensors measure them (gain, offset; no
+        noise). Scalar arithmetic: it runs once per edge in the lockstep loop, where numpy's
+        per-call overhead on three values was a tenth of the whole edge's cost."""
         cs = self.config.current_sensor
-        st = self.st
         total = 0.0
-        for k in range(3):
-            total += abs(float(st[L.S_IA + k]) * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
+        for k, i in enumerate((i_a, i_b, i_c)):
+            total += abs(i * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
         return total / 3.0
 
+    def measured_mean_abs_current_a(self) -> float:
+        """Mean |i| over the phases now, through the current sensors: what a controller's ADC reads
+        at this instant."""
+        st = self.st
+        return self._through_current_sensors(float(st[L.S_IA]), float(st[L.S_IB]), float(st[L.S_IC]))
+
     def measured_mean_abs_current_at_a(self, t_s: float) -> float:
-        """Mean |i| over the phases at ``t_s`` in the recent past, through the current sensors' gain
-        and offset: what an MCU's ADC ring buffer holds for that instant. Linear between the
-        plant's step starts (the currents are exact there, and a step is at most ``max_step_s``);
-        held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
+        """Mean |i| over the phases at ``t_s`` in the recent past, through the current sensors: what
+        an MCU's ADC ring buffer holds for that instant. Linear between the plant's step starts (the
+        currents are exact there, and a step is at most ``max_step_s``), with np.interp's
+        arithmetic; held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
+        ring, mask = self.current_ring, L.CURRENT_RING - 1
+        st, now = self.st, self.t_s
+        present = (float(st[L.S_IA]), float(st[L.S_IB]), float(st[L.S_IC]))
         n = int(self.ist[L.I_RING_N])
-        if t_s >= self.t_s or not n:
-            return self.measured_mean_abs_current_a()
-        rows = np.roll(self.current_ring, -(n % L.CURRENT_RING), axis=0)[-min(n, L.CURRENT_RING):]
-        now = np.array([[self.t_s, self.st[L.S_IA], self.st[L.S_IB], self.st[L.S_IC]]])
-        rows = np.vstack([rows[rows[:, 0] < self.t_s], now])
-        cs = self.config.current_sensor
-        i = [float(np.interp(t_s, rows[:, 0], rows[:, 1 + k])) for k in range(3)]
-        return sum(abs(i[k] * (1.0 + cs.gain_error[k]) + cs.offset_a[k]) for k in range(3)) / 3.0
+        first, last = max(n - L.CURRENT_RING, 0), n - 1  # rows by write count, oldest to newest
+        while last >= first and ring[last & mask, 0] >= now:
+            last -= 1  # a row of the present instant: the present itself stands for it
+        if t_s >= now or last < first:
+            return self._through_current_sensors(*present)
+        if t_s <= ring[first & mask, 0]:
+            return self._through_current_sensors(*ring[first & mask, 1:4].tolist())
+        # binary search (rows increase in time): the last row at or before t_s
+        lo, hi = first, last
+        while lo < hi:
+            mid = (lo + hi + 1) // 2
+            if ring[mid & mask, 0] <= t_s:
+                lo = mid
+            else:
+                hi = mid - 1
+        t0, *i0 = ring[lo & mask].tolist()
+        if t0 == t_s:
+            return self._through_current_sensors(*i0)
+        t1, *i1 = ring[(lo + 1) & mask].tolist() if lo < last else (now, *present)
+        return self._through_current_sensors(*((i1[j] - i0[j]) / (t1 - t0) * (t_s - t0) + i0[j] for j in range(3)))
 
     @property
     def samples_taken(self) -> int:
