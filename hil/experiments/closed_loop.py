@@ -25,7 +25,7 @@ from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
 from ..predictors.predictors import SageHusaPredictor
-from .table5 import SETPOINTS_RPM, edge_inputs, scenario_plant
+from .table5 import SETPOINTS_RPM, cycle_mean_currents, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
 HOLD_S = 0.4
@@ -91,7 +91,7 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     status = link.status()
     # offline: the same edges, corrected with the same tables, through a fresh filter
     edges = bench.sim.edges()
-    _, cycle_current, _ = edge_inputs(bench.sim, edges, corrections, config.motor.pole_pairs)
+    cycle_current = cycle_mean_currents(bench.sim.samples(), edges)
     # corrected with the currents the edges carried to the controller (each at the edge's instant)
     sent = np.asarray(bench.source.edge_currents_a[: len(edges)])
     t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections, sent,

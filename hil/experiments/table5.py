@@ -20,6 +20,7 @@ from bldc.units import rpm_to_rad_per_s
 from plant_models import PlantConfig, Simulation, paper_bench
 from plant_models import effects as fx
 from plant_models.edgelog import EdgeLog
+from plant_models.simulation import Samples
 
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import Corrections, corrected_edge_times
@@ -94,10 +95,9 @@ def run_scenario(config: PlantConfig | None = None, corrections: Corrections | N
     )
 
 
-def edge_inputs(sim: Simulation, edges: EdgeLog, corrections: Corrections, pole_pairs: int):
-    """What an offline predictor gets from a run: the corrected edge times and the mean |i| of the
-    commutation cycle each edge ends (from the sampled, measured currents); and the samples."""
-    s = sim.samples()
+def cycle_mean_currents(s: Samples, edges: EdgeLog) -> np.ndarray:
+    """The mean |i| of the commutation cycle each edge ends, from the sampled, measured currents
+    (the first edge, which ends no whole cycle, takes the second's)."""
     mean_abs = np.mean(np.abs(s.i_meas_a), axis=1)
     idx = np.clip(np.searchsorted(s.t_s, edges.t_capture_s), 0, mean_abs.size - 1)
     sums = np.add.reduceat(mean_abs, idx)
@@ -105,13 +105,21 @@ def edge_inputs(sim: Simulation, edges: EdgeLog, corrections: Corrections, pole_
     cycle_current = np.empty(edges.t_capture_s.size)
     cycle_current[1:] = (sums / np.maximum(counts, 1))[:-1]
     cycle_current[0] = cycle_current[1]
+    return cycle_current
+
+
+def edge_inputs(sim: Simulation, edges: EdgeLog, corrections: Corrections, pole_pairs: int):
+    """What an offline predictor gets from a run: the corrected edge times and the mean |i| of the
+    commutation cycle each edge ends (from the sampled, measured currents); and the samples."""
+    s = sim.samples()
+    mean_abs = np.mean(np.abs(s.i_meas_a), axis=1)
     # the armature correction takes the ADC's mean |i| latched at the capture, as the controller
     # does (HallCommutation) and as the calibration station measured it: the armature field acts
     # at the edge instant, and the cycle mean differs from it (by ~30 % on the paper bench)
     at_capture = np.clip(np.searchsorted(s.t_s, edges.t_capture_s, side="right") - 1, 0, mean_abs.size - 1)
     t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections,
                                   mean_abs[at_capture], pole_pairs)
-    return t_corr, cycle_current, s
+    return t_corr, cycle_mean_currents(s, edges), s
 
 
 @dataclass
