@@ -5,6 +5,7 @@ plant executes, the ``Strategy`` codes, the ``Fault`` (EMCY) codes, the refusal 
 table, the nine-value filter-settings vector, and the 8-byte edge and command messages. The
 controller (``hil.controller``) and the simulator (``plant_models``) both depend on this module and
 never on each other (``docs/architecture.md``). The wire layouts are in ``docs/controller.md``.
+
 The edge and command messages every link carries, in one 8-byte format (CANopen PDO payload,
 Modbus register block, and the in-process link encodes and decodes them too, so all links give
 the controller bit-identical inputs).

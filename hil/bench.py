@@ -23,12 +23,10 @@ ACCEPTANCE_MAX_STEP_S = 2e-6
 
 def p99_abs(values) -> float:
     """99th percentile of |values| (the budgets' p99)."""
-
     return float(np.percentile(np.abs(values), 99))
 
 
 def rms(values) -> float:
-
     return float(np.sqrt(np.mean(np.square(values))))
 
 

@@ -71,7 +71,7 @@ class InProcessLink:
 
     def edge(self, edge: dict) -> list[Command]:
         # quantised exactly as the 8-byte messages of the protocol links, so all links are
-        # bit-identical, without building the bytes (messages.edge_as_received)
+        # bit-identical, without building the bytes (bldc.contract.edge_as_received)
         epoch = edge_epoch(edge["t_capture_s"])
         commands = self.controller.capture(edge_as_received(edge, epoch))
         return commands_as_received(commands, epoch)
