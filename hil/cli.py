@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import sys
 from pathlib import Path
@@ -347,6 +348,8 @@ def cmd_dut_serve(args) -> int:
 
     if args.canopen_port is None and args.modbus_port is None:
         raise ValueError("give --canopen-port and/or --modbus-port")
+    # a served port's operator sees why a client was closed or refused (one line each, on stderr)
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
           strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
     return 0

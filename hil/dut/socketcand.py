@@ -59,6 +59,7 @@ class ProtocolError(Exception):
 class _Client:
     writer: asyncio.StreamWriter
     queue: collections.deque
+    peer: str = "?"
     ready: asyncio.Event = field(default_factory=asyncio.Event)
     dropped: int = 0
 
@@ -167,18 +168,21 @@ class SocketcandServer:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
         if self.connections >= self.limits.max_clients:
+            log.warning("socketcand: a client refused: %d clients connected already", self.connections)
             await self._refuse(writer, "too many clients")
             return
         self.connections += 1
         self._handlers[asyncio.current_task()] = writer
-        client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames))
+        peer = writer.get_extra_info("peername")
+        peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
+        client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames), peer)
         sender = None
         buffer = bytearray()
         try:
             writer.write(b"< hi >")
             handshake = asyncio.get_running_loop().time() + self.limits.handshake_timeout_s
             for expected in (f"open {self.bus_name}", "rawmode"):
-                words = await self._command(reader, buffer, handshake)
+                words = await self._command(reader, buffer, handshake, peer)
                 if words is None:
                     return
                 if words[0] == "open" and expected.startswith("open") and words[1:] != [self.bus_name]:
@@ -189,7 +193,7 @@ class SocketcandServer:
             self.clients.add(client)
             sender = asyncio.create_task(self._send_frames(client))
             while True:
-                words = await self._command(reader, buffer, None)
+                words = await self._command(reader, buffer, None, peer)
                 if words is None:
                     return
                 if words[0] == "send":
@@ -204,6 +208,7 @@ class SocketcandServer:
                 else:
                     client.put(b"< error unknown command >")
         except ProtocolError as exc:
+            log.warning("socketcand client %s refused: %s", peer, exc)
             await self._refuse(writer, str(exc))
         except (ConnectionError, OSError, asyncio.IncompleteReadError):
             pass
@@ -217,9 +222,10 @@ class SocketcandServer:
             writer.close()
 
     async def _command(
-        self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None
+        self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None, peer: str = "?"
     ) -> list[str] | None:
-        """The next ``< ... >`` command as words, or None when the client has gone (EOF or timeout)."""
+        """The next ``< ... >`` command as words, or None when the client has gone (EOF) or is to be
+        closed (a timeout, logged with its reason)."""
         loop = asyncio.get_running_loop()
         lim = self.limits
         started = None
@@ -254,6 +260,13 @@ class SocketcandServer:
             try:
                 chunk = await asyncio.wait_for(reader.read(4096), max(limit - loop.time(), 0.0))
             except asyncio.TimeoutError:
+                if deadline is not None:
+                    why = f"handshake not finished within {lim.handshake_timeout_s:g} s"
+                elif buffer:
+                    why = f"a command begun did not end within {lim.partial_timeout_s:g} s"
+                else:
+                    why = f"nothing sent for {lim.idle_timeout_s:g} s"
+                log.warning("socketcand client %s closed: %s", peer, why)
                 return None
             if not chunk:
                 return None
@@ -269,7 +282,11 @@ class SocketcandServer:
                     batch = [client.queue.popleft() for _ in range(min(len(client.queue), 256))]
                     client.writer.write(b"".join(batch))
                     await asyncio.wait_for(client.writer.drain(), self.limits.idle_timeout_s)
-        except (asyncio.TimeoutError, ConnectionError, OSError):
+        except asyncio.TimeoutError:
+            log.warning("socketcand client %s closed: read nothing for %g s (%d frames dropped so far)",
+                        client.peer, self.limits.idle_timeout_s, client.dropped)
+            client.writer.close()
+        except (ConnectionError, OSError):
             client.writer.close()
 
     async def _refuse(self, writer: asyncio.StreamWriter, reason: str) -> None:
