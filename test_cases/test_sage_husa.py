@@ -12,6 +12,7 @@ import pytest
 
 from bldc.contract import Strategy
 from hil.bench import p99_abs, rms
+from hil.controller.virtual import VirtualController
 from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 from hil.plots import commutation_error_figure
 from hil.predictors import FilterSettings
@@ -19,10 +20,12 @@ from hil.predictors.predictors import COUNTER_NAMES
 
 HOLD_S = 0.4
 JITTER_S = 3e-6
-SCENARIO_EFFECTS = scenario_plant(jitter_time_rms_s=JITTER_S).effects
+SCENARIO_PLANT = scenario_plant(jitter_time_rms_s=JITTER_S)
+SCENARIO_EFFECTS = SCENARIO_PLANT.effects
 #: the Sage-Husa settings under test, written to the controller (it keeps whatever an earlier
-#: test wrote): the paper's R0 and P0, nominal Q0 and b of the ``tuned`` protocol (docs/sage-husa.md)
-SH_SETTINGS = FilterSettings(q0_diag=(1e-5, 1e-9, 1e-3), forgetting_b=0.98)
+#: test wrote; a link carries b, Q0, R0 and P0): the reference controller's, the paper's R0 and
+#: P0 with Q0 and b tuned on its closed loop (docs/sage-husa.md, "Tuned on the closed loop")
+SH_SETTINGS = VirtualController(SCENARIO_PLANT.motor).filter_settings
 
 
 def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS):

@@ -24,7 +24,7 @@ from ..calibration.corrections import corrected_edge_times
 from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
-from ..predictors.predictors import SageHusaPredictor
+from ..predictors.predictors import COUNTER_NAMES, SageHusaPredictor, split_counters
 from .table5 import SETPOINTS_RPM, cycle_mean_currents, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
@@ -62,24 +62,95 @@ class ClosedLoopResult:
         return "\n".join(lines)
 
 
-def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, filter_settings=None) -> LinkResult:
-    """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``)."""
+@dataclass
+class Recording:
+    """One closed-loop run of the paper scenario as a bench records it: the captured edges
+    corrected with the downloaded tables and the currents the edges carried, the cycle-mean
+    currents, and the plant's ground truth for the judged edges; with what the controller's own
+    commutations scored. Offline, any predictor replays it and is scored like the closed loop."""
+
+    seed: int
+    #: the strategy that commutated while the edges were recorded ("SAGE_HUSA", "KF", ...)
+    strategy: str
+    t_corrected_s: np.ndarray
+    cycle_current_a: np.ndarray
+    #: edges whose prediction (made at edge k for edge k + 1) is judged: captured at or after the
+    #: first set point's step, as the closed loop's commutations are
+    judged: np.ndarray
+    t_ideal_next_s: np.ndarray       #: ideal instant of edge k + 1, per judged k
+    w_true_next_deg_e_s: np.ndarray  #: true electrical speed at edge k + 1, per judged k
+    closed_loop_error_deg_e: np.ndarray
+    counters: dict
+
+    def replay(self, predictor) -> tuple[np.ndarray, dict[str, int]]:
+        """The commutation angle error of ``predictor`` replaying the recorded edges (a fresh
+        run), and its counters (``COUNTER_NAMES``)."""
+        run = predictor.run(self.t_corrected_s, self.cycle_current_a)
+        return (run.pred_t_s[self.judged] - self.t_ideal_next_s) * self.w_true_next_deg_e_s, split_counters(run.guards)
+
+    def replay_angle_rms_deg_e(self, predictor) -> float:
+        return rms(self.replay(predictor)[0])
+
+    def save(self, path) -> None:
+        np.savez_compressed(path, **{k: np.asarray(v) for k, v in self.__dict__.items() if k != "counters"},
+                            **{f"counter_{k}": v for k, v in self.counters.items()})
+
+    @classmethod
+    def load(cls, path) -> "Recording":
+        with np.load(path) as z:
+            d = {k: z[k] for k in z.files}
+        counters = {k[len("counter_"):]: int(d.pop(k)) for k in list(d) if k.startswith("counter_")}
+        return cls(seed=int(d.pop("seed")), strategy=str(d.pop("strategy")), counters=counters, **d)
+
+
+def commutation_time_mape_pct(error_deg_e: np.ndarray) -> float:
+    """Commutation time error over the ideal commutation interval, (err / w) / (60 deg / w), in %."""
+    return float(np.mean(np.abs(error_deg_e) / 60.0) * 100)
+
+
+class _EdgeTap:
+    """A link that passes everything through and keeps the cycle-mean current each edge message
+    carried (what the controller's predictor got), for the offline replay."""
+
+    def __init__(self, link):
+        self._link = link
+        self.cycle_current_a: list[float | None] = []
+
+    def edge(self, edge: dict):
+        self.cycle_current_a.append(edge.get("cycle_current_a"))
+        return self._link.edge(edge)
+
+    def __getattr__(self, name):
+        return getattr(self._link, name)
+
+
+def _carried_cycle_currents(tap: _EdgeTap, samples, edges) -> np.ndarray:
+    """The cycle-mean current each edge carried to the controller; where an edge message carried
+    none (no plant sample fell in its cycle), the mean computed from the samples, as the
+    controller's fallback would not know it either."""
+    out = cycle_mean_currents(samples, edges)
+    carried = tap.cycle_current_a[: len(edges)]
+    for k, v in enumerate(carried):
+        if v is not None:
+            out[k] = v
+    return out
+
+
+def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S,
+                strategy: Strategy = Strategy.SAGE_HUSA, filter_settings=None) -> Recording:
+    """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``) with
+    ``strategy`` commutating; ``filter_settings`` (b, Q0, R0, P0) written first when given."""
 
     link.reset()
-    # the settings are written every time (a controller keeps the last ones written); the offline
-    # filter gets them as the link carries them, in IEEE single precision
-    # the link carries b, Q0, R0 and P0; the rest of the filter's design is the controller's own
-    # (the virtual controller's, which this replay assumes)
-    settings = filter_settings or VirtualController(config.motor).filter_settings
-    link.set_filter_settings(settings)
-    settings = with_filter_vector(VirtualController(config.motor).filter_settings,
-                                  [float(np.float32(v)) for v in filter_vector(settings)])
+    if filter_settings is not None:
+        link.set_filter_settings(filter_settings)
     link.download_calibration(corrections)
-    link.set_strategy(int(Strategy.SAGE_HUSA))
+    link.set_strategy(int(strategy))
     first = SETPOINTS_RPM[0]
+    tap = _EdgeTap(link)
     bench = LockstepBench(
         config,
-        link,
+        tap,
         initial_speed_rpm=first,
         duty=steady_state(config.motor, first)["duty"],
         seed=seed,
@@ -87,23 +158,39 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     )
     steps = bench.run_setpoints(list(SETPOINTS_RPM), hold_s=hold_s, settle_s=SETTLE_S)
     c = bench.sim.commutations()
-    closed = c.error_deg_e[c.t_s >= steps[0]]
     status = link.status()
-    # offline: the same edges, corrected with the same tables, through a fresh filter
     edges = bench.sim.edges()
-    cycle_current = cycle_mean_currents(bench.sim.samples(), edges)
     # corrected with the currents the edges carried to the controller (each at the edge's instant)
     sent = np.asarray(bench.source.edge_currents_a[: len(edges)])
     t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections, sent,
                                   config.motor.pole_pairs)
-    run = SageHusaPredictor(MotorModel.from_plant(config.motor), settings).run(t_corr, cycle_current)
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
-    w_true = rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs)
-    offline = (run.pred_t_s[k] - edges.t_ideal_s[k + 1]) * w_true
-    counters = {
-        key: int(status[key]) for key in ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
-    }
-    return LinkResult(rms(closed), rms(offline), counters["covariance_repairs"], counters, int(closed.size))
+    return Recording(
+        seed=seed,
+        strategy=Strategy(int(strategy)).name,
+        t_corrected_s=t_corr,
+        cycle_current_a=_carried_cycle_currents(tap, bench.sim.samples(), edges),
+        judged=k,
+        t_ideal_next_s=edges.t_ideal_s[k + 1],
+        w_true_next_deg_e_s=rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs),
+        closed_loop_error_deg_e=c.error_deg_e[c.t_s >= steps[0]],
+        counters={key: int(status[key]) for key in COUNTER_NAMES},
+    )
+
+
+def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, filter_settings=None) -> LinkResult:
+    """Sage-Husa through ``link``, and the same filter replaying the run's edges offline."""
+    # the settings are written every time (a controller keeps the last ones written); the offline
+    # filter gets them as the link carries them, in IEEE single precision
+    # the link carries b, Q0, R0 and P0; the rest of the filter's design is the controller's own
+    # (the virtual controller's, which this replay assumes)
+    settings = filter_settings or VirtualController(config.motor).filter_settings
+    r = record_link(link, config, corrections, seed, hold_s, Strategy.SAGE_HUSA, settings)
+    settings = with_filter_vector(VirtualController(config.motor).filter_settings,
+                                  [float(np.float32(v)) for v in filter_vector(settings)])
+    offline = r.replay_angle_rms_deg_e(SageHusaPredictor(MotorModel.from_plant(config.motor), settings))
+    return LinkResult(rms(r.closed_loop_error_deg_e), offline, r.counters["covariance_repairs"], r.counters,
+                      int(r.closed_loop_error_deg_e.size))
 
 
 def closed_loop(seed: int = 0, links=LINKS, hold_s: float = HOLD_S) -> ClosedLoopResult:

@@ -83,6 +83,8 @@ REFINE_STARTS = 2
 #: Q's forgetting factor within the usual 0.95 (docs/sage-husa.md) and a memory of 10,000 cycles; R's per interval
 B_RANGE = (0.95, 0.9999)
 B_R_RANGE = (0.05, 0.999)
+#: R's interval where a search has it: a tenth of the paper's 120 edges to twice it
+R_INTERVAL_RANGE = (12, 240)
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the profile (oracle schedule reference)
 
 
@@ -115,11 +117,12 @@ def _grid_then_refine(objective, grid: dict[str, tuple[float, ...]]) -> tuple[fl
 
 
 def tune_kf(
-    runs: list[ScenarioRun], model: MotorModel, divergence_run: int = FilterSettings().divergence_run
+    runs: list, model: MotorModel, divergence_run: int = FilterSettings().divergence_run, objective=_mean_angle_rms
 ) -> FilterSettings:
     """Fixed Q = diag(q_w, 1e-9, q_i) and R = diag(r_theta, r_i) minimising commutation angle RMS,
     with and without the innovation gate on the state update; the better on the training runs.
-    ``divergence_run``: the gated filter's run, as the protocol derives it for Sage-Husa."""
+    ``divergence_run``: the gated filter's run, as the protocol derives it for Sage-Husa;
+    ``objective(runs, predictor)``: the score to minimise (default: mean angle RMS over ScenarioRuns)."""
     best = None
     for gate in (False, True):
         def settings(x, gate=gate):
@@ -128,26 +131,39 @@ def tune_kf(
                 q0_diag=(q_w, 1e-9, q_i), r0_diag=(r_t, r_i), gate_state_update=gate, divergence_run=divergence_run
             )
 
-        s = settings(_grid_then_refine(lambda x: _mean_angle_rms(runs, KalmanPredictor(model, settings(x))), KF_GRID))
-        value = _mean_angle_rms(runs, KalmanPredictor(model, s))
+        s = settings(_grid_then_refine(lambda x: objective(runs, KalmanPredictor(model, settings(x))), KF_GRID))
+        value = objective(runs, KalmanPredictor(model, s))
         if best is None or value < best[0]:
             best = (value, s)
     return best[1]
 
 
-def tune_sh(runs: list[ScenarioRun], model: MotorModel, design: dict | None = None) -> FilterSettings:
+def sh_settings(design: dict, point: dict[str, float]) -> FilterSettings:
+    """Sage-Husa's settings at one point of a search: ``design`` with the nominal Q_w and Q_i, the
+    forgetting factors of Q and R (as 1 - b, clipped to their ranges) and, where the search has
+    it, R's interval (rounded to whole edges, clipped to R_INTERVAL_RANGE)."""
+    extra = {}
+    if "r_interval" in point:
+        extra["r_interval"] = min(max(int(round(point["r_interval"])), R_INTERVAL_RANGE[0]), R_INTERVAL_RANGE[1])
+    return FilterSettings(**{**design, "q0_diag": (point["q_w"], 1e-9, point["q_i"]),
+                             "forgetting_b": min(max(1.0 - point["one_minus_b"], B_RANGE[0]), B_RANGE[1]),
+                             "r_forgetting_b": min(max(1.0 - point["one_minus_b_r"], B_R_RANGE[0]), B_R_RANGE[1]),
+                             **extra})
+
+
+def tune_sh(runs: list, model: MotorModel, design: dict | None = None, grid: dict | None = None,
+            objective=_mean_angle_rms) -> FilterSettings:
     """Sage-Husa keeps the paper's R0, P0, q0, r0; its nominal Q_w and Q_i (independently, as the
     KF's) and the forgetting factors of Q and R are searched with the KF's budget. ``design``:
-    the stated design the search starts from (default SH_DESIGN)."""
+    the stated design the search starts from (default SH_DESIGN); ``grid``: the coarse grid
+    (default SH_GRID; a ``r_interval`` axis searches R's interval too); ``objective``: as tune_kf's."""
     design = SH_DESIGN if design is None else design
+    grid = SH_GRID if grid is None else grid
 
     def settings(x):
-        q_w, q_i, one_minus_b, one_minus_b_r = x
-        return FilterSettings(**{**design, "q0_diag": (q_w, 1e-9, q_i),
-                                 "forgetting_b": min(max(1.0 - one_minus_b, B_RANGE[0]), B_RANGE[1]),
-                                 "r_forgetting_b": min(max(1.0 - one_minus_b_r, B_R_RANGE[0]), B_R_RANGE[1])})
+        return sh_settings(design, dict(zip(grid, x)))
 
-    return settings(_grid_then_refine(lambda x: _mean_angle_rms(runs, SageHusaPredictor(model, settings(x))), SH_GRID))
+    return settings(_grid_then_refine(lambda x: objective(runs, SageHusaPredictor(model, settings(x))), grid))
 
 
 # --- the oracle: a KF told the true noise schedule ----------------------------------------------
