@@ -4,8 +4,9 @@ The paper scenario (seven set points 5000-10,000 rpm, calibration downloaded, 3 
 jitter) runs in lockstep through the virtual controller on each link; the controller predicts
 every commutation with its Sage-Husa filter and the plant scores each commutation against the
 true rotor angle. The captured edges of the same run are then replayed offline (corrected with
-the same tables, cycle-mean currents from the sampled currents) through a fresh Sage-Husa with
-the controller's settings and model, and scored against the same truth.
+the same tables and the currents the edges carried, with the cycle-mean currents the edge
+messages carried, as the plant sent them) through a fresh Sage-Husa with the controller's
+settings and model, and scored against the same truth (``Recording``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,7 @@ from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
 from ..predictors.predictors import COUNTER_NAMES, SageHusaPredictor, split_counters
-from .table5 import SETPOINTS_RPM, cycle_mean_currents, scenario_plant
+from .table5 import SETPOINTS_RPM, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
 HOLD_S = 0.4
@@ -66,8 +67,9 @@ class ClosedLoopResult:
 class Recording:
     """One closed-loop run of the paper scenario as a bench records it: the captured edges
     corrected with the downloaded tables and the currents the edges carried, the cycle-mean
-    currents, and the plant's ground truth for the judged edges; with what the controller's own
-    commutations scored. Offline, any predictor replays it and is scored like the closed loop."""
+    currents the edge messages carried (the predictor's input), and the plant's ground truth for
+    the judged edges; with what the controller's own commutations scored. Offline, any predictor
+    replays it and is scored like the closed loop."""
 
     seed: int
     #: the strategy that commutated while the edges were recorded ("SAGE_HUSA", "KF", ...)
@@ -124,16 +126,12 @@ class _EdgeTap:
         return getattr(self._link, name)
 
 
-def _carried_cycle_currents(tap: _EdgeTap, samples, edges) -> np.ndarray:
-    """The cycle-mean current each edge carried to the controller; where an edge message carried
-    none (no plant sample fell in its cycle), the mean computed from the samples, as the
-    controller's fallback would not know it either."""
-    out = cycle_mean_currents(samples, edges)
-    carried = tap.cycle_current_a[: len(edges)]
-    for k, v in enumerate(carried):
-        if v is not None:
-            out[k] = v
-    return out
+def _carried_cycle_currents(tap: _EdgeTap, sent_a: np.ndarray) -> np.ndarray:
+    """The current the controller's predictor got with each edge: the cycle mean its message
+    carried, or where it carried none (no plant sample fell in the cycle) the current at the
+    edge, as the controller falls back (HallCommutation.on_edge)."""
+    carried = tap.cycle_current_a[: sent_a.size]
+    return np.array([sent if c is None else c for c, sent in zip(carried, sent_a)], dtype=float)
 
 
 def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S,
@@ -169,7 +167,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         seed=seed,
         strategy=Strategy(int(strategy)).name,
         t_corrected_s=t_corr,
-        cycle_current_a=_carried_cycle_currents(tap, bench.sim.samples(), edges),
+        cycle_current_a=_carried_cycle_currents(tap, sent),
         judged=k,
         t_ideal_next_s=edges.t_ideal_s[k + 1],
         w_true_next_deg_e_s=rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs),

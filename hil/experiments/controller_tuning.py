@@ -235,6 +235,7 @@ def main(argv=None) -> int:
     import argparse
     from pathlib import Path
     import json
+    import textwrap
     import time
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -248,22 +249,25 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     if set(args.seed) & set(args.train_seed):
         ap.error(f"evaluation seeds {sorted(set(args.seed) & set(args.train_seed))} are also training seeds")
+    def say(line: str) -> None:  # 100 columns at most
+        print(textwrap.fill(line, 100, subsequent_indent="    "))
+
     t0 = time.monotonic()
     config = scenario_plant()
     model = MotorModel.from_plant(config.motor)
     recordings = record(args.train_seed, args.hold)
-    print(f"recorded {len(recordings)} closed-loop runs (seeds {args.train_seed}, "
-          f"{sum(r.t_corrected_s.size for r in recordings)} edges) in {time.monotonic() - t0:.0f} s")
+    say(f"recorded {len(recordings)} closed-loop runs, the corrected-edge rule commutating (seeds "
+        f"{args.train_seed}, {sum(r.t_corrected_s.size for r in recordings)} edges) in {time.monotonic() - t0:.0f} s")
     t1 = time.monotonic()
     t = tune(recordings, model)
-    print(f"tuned on their replays in {time.monotonic() - t1:.0f} s: each option a "
-          f"{math.prod(len(v) for v in SH_GRID.values())}-point grid + {compare.REFINE_EVALUATIONS} "
-          f"Nelder-Mead evaluations from its {compare.REFINE_STARTS} best points; KF options gate off/on, "
-          f"Sage-Husa options {', '.join(SH_DESIGNS)}")
+    say(f"tuned on their replays in {time.monotonic() - t1:.0f} s: each option a "
+        f"{math.prod(len(v) for v in SH_GRID.values())}-point grid + {compare.REFINE_EVALUATIONS} "
+        f"Nelder-Mead evaluations from its {compare.REFINE_STARTS} best points; KF options gate off/on, "
+        f"Sage-Husa options {', '.join(SH_DESIGNS)}")
     for name, value in t.training.items():
         print(f"  training replay angle RMS, {name}: {value:.4f} deg e")
-    print(settings_line("KF", t.kf, False))
-    print(settings_line(f"Sage-Husa ({t.sh_design})", t.sh, True))
+    say(settings_line("KF", t.kf, False))
+    say(settings_line(f"Sage-Husa ({t.sh_design})", t.sh, True))
     default = VirtualController(config.motor)
     pairs = {"tuned": (t.sh, t.kf)}
     if (default.filter_settings, default.kf_settings) == (t.sh, t.kf):
@@ -275,8 +279,8 @@ def main(argv=None) -> int:
         print("diagnostic, Sage-Husa with R's current entry held (r_current_held), tuned alike:")
         for name, value in d.training.items():
             print(f"  training replay angle RMS, {name}: {value:.4f} deg e")
-        print(settings_line(f"Sage-Husa ({d.sh_design})", d.sh, True)
-              + f", current floor {d.sh.current_resolution_a ** 2 / 12:.2g} A^2")
+        say(settings_line(f"Sage-Husa ({d.sh_design})", d.sh, True)
+            + f", current floor {d.sh.current_resolution_a ** 2 / 12:.2g} A^2")
         pairs["diagnostic: R_i held"] = (d.sh, t.kf)
     out = {"train_seeds": args.train_seed, "eval_seeds": args.seed, "training": t.training,
            "kf": dataclasses.asdict(t.kf), "sage_husa": dataclasses.asdict(t.sh), "evaluation": {}}
