@@ -35,7 +35,10 @@ S_FWD_TARGET = 14  # 3 values: base forward switching angle per sensor (deg_e, u
 S_REV_TARGET = 17  # 3 values
 S_SAMPLE_T0 = 20
 S_HELD_ARM = 21  # 3 values: armature shift (deg_e) held by the boundary behind each sensor
-N_FSTATE = 24
+#: the last exact current decay exp(-R h / L) and its step h (the kernel's ``_step``), kept in
+#: the state so that a run in many calls is the very same run as in one
+S_DECAY_H, S_DECAY_A = 24, 25
+N_FSTATE = 26
 
 # int state layout
 I_SECTOR, I_DIR, I_MODE, I_N_EDGES, I_N_IDEAL, I_N_SAMPLES, I_NOISE = range(7)

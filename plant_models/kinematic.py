@@ -126,10 +126,14 @@ def simulate_edges(
             )
         )
         theta0, t0 = theta1, t0 + op.duration_s
-    log = EdgeLog.concatenate(logs) if logs else EdgeLog.empty()
+    if not logs:
+        return EdgeLog.empty()
+    log = logs[0] if len(logs) == 1 else EdgeLog.concatenate(logs)
     # a conditioned edge may overtake its neighbour across a segment seam; keep time order
-    order = np.argsort(log.t_conditioned_s, kind="stable")
-    return log.take(order)
+    # (checked first: reordering copies every column, and almost always nothing overtakes)
+    if np.all(log.t_conditioned_s[1:] >= log.t_conditioned_s[:-1]):
+        return log
+    return log.take(np.argsort(log.t_conditioned_s, kind="stable"))
 
 
 def _time_at(travel_deg: np.ndarray, w0: float, acc: float) -> np.ndarray:
