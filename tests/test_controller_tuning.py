@@ -46,7 +46,8 @@ def test_a_recording_replays_to_the_closed_loop_score(runs):
     corrected edges and the replay's)."""
     recordings, model, controller = runs
     kf = recordings[Strategy.KF]
-    closed, replay = rms(kf.closed_loop_error_deg_e), kf.replay_angle_rms_deg_e(KalmanPredictor(model, controller.kf_settings))
+    closed = rms(kf.closed_loop_error_deg_e)
+    replay = kf.replay_angle_rms_deg_e(KalmanPredictor(model, controller.kf_settings))
     assert kf.closed_loop_error_deg_e.size > 1000
     assert abs(closed / replay - 1) <= 0.02, f"KF closed loop {closed:.4f} deg e, its replay {replay:.4f}"
     sh = recordings[Strategy.SAGE_HUSA]

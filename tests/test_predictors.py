@@ -12,6 +12,7 @@ from hil.experiments.robustness import MODEL, angle_error_deg, edges_and_current
 from hil.experiments.robustness import NOMINAL_Q0 as NOMINAL_Q
 from hil.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
 from hil.predictors import filters as F
+from bldc.units import rpm_to_rad_per_s
 from plant_models.kinematic import OperatingPoint
 
 
@@ -450,6 +451,25 @@ def test_q_current_option_adapts_q_i_and_leaves_q_w_at_nominal():
     assert not q0[0] / 4 < q[SH_ADAPT][0] < 4 * q0[0], q  # Eq. 12 on Q_w: drifts
     assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][0] == q0[0], q
     assert q[F.ADAPT_R | F.ADAPT_Q_CURRENT][1] < 0.1 * q0[2], q  # Q_i learns the exact current
+
+
+
+def test_r_current_floor_option_keeps_r_i_at_or_above_r0_and_still_learns_r_theta():
+    """With ADAPT_R_CURRENT_FLOOR, R's current entry never falls below its R0 (it stands for the
+    acceleration input's error too, not only the sensor's noise, which is all Eq. 12 sees), while
+    R_theta is still learned from the edges: the variance of 3 us of jitter at 6000 rpm (rad^2)."""
+    e, cur = edges_and_currents([OperatingPoint(2.0, 6000.0)], 3e-6, 0.0, 1.0, 7)
+    r0 = (0.0, 1.6)
+    r = {}
+    for mask in (F.ADAPT_Q | F.ADAPT_R, F.ADAPT_Q | F.ADAPT_R | F.ADAPT_R_CURRENT_FLOOR):
+        sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=(1e-5, 1e-9, 1e-3), r0_diag=r0, adapt_mask=mask))
+        sh.run(e.t_conditioned_s, cur)
+        r[mask] = (sh.r_matrix[0, 0], sh.r_matrix[1, 1])
+    injected_rad2 = (3e-6 * rpm_to_rad_per_s(6000.0) * MODEL.pole_pairs) ** 2
+    held = r[F.ADAPT_Q | F.ADAPT_R | F.ADAPT_R_CURRENT_FLOOR]
+    assert held[1] >= r0[1], r
+    assert r[F.ADAPT_Q | F.ADAPT_R][1] < 0.5 * r0[1], r  # without the option Eq. 12 lowers it
+    assert 0.5 * injected_rad2 < held[0] < 2.0 * injected_rad2, (held, injected_rad2)
 
 
 # --- robustness over drawn conditions ------------------------------------------------------

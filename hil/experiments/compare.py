@@ -141,8 +141,10 @@ def tune_kf(
 def sh_settings(design: dict, point: dict[str, float]) -> FilterSettings:
     """Sage-Husa's settings at one point of a search: ``design`` with the nominal Q_w and Q_i, the
     forgetting factors of Q and R (as 1 - b, clipped to their ranges) and, where the search has
-    it, R's interval (rounded to whole edges, clipped to R_INTERVAL_RANGE)."""
+    it, R's interval (rounded to whole edges, clipped to R_INTERVAL_RANGE) and R's current entry."""
     extra = {}
+    if "r_i" in point:  # R0's current entry, for a design that floors R_i there (filters.ADAPT_R_CURRENT_FLOOR)
+        extra["r0_diag"] = (design.get("r0_diag", FilterSettings().r0_diag)[0], point["r_i"])
     if "r_interval" in point:
         extra["r_interval"] = min(max(int(round(point["r_interval"])), R_INTERVAL_RANGE[0]), R_INTERVAL_RANGE[1])
     return FilterSettings(**{**design, "q0_diag": (point["q_w"], 1e-9, point["q_i"]),

@@ -74,7 +74,8 @@ PARAM_TABLE = (
     ("HUBER_C", "Huber threshold on sqrt(NIS)"),
     ("HUBER_KAPPA", "consistency factor E[w NIS] / 2 of the Huber weight"),
     ("GATE_STATE", "1: a gated innovation leaves the state at its prediction"),
-    ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation"),
+    ("R_I_FLOOR", "floor of the current variance in R (A^2): the current measurement's quantisation, "
+                  "or R0's current entry with ADAPT_R_CURRENT_FLOOR"),
     ("R_MATCH_HI", "variance match: interval variance / S of the angle above this replaces R_theta (0 = off)"),
     ("R_MATCH_LO", "variance match: interval variance / S of the angle below this replaces R_theta"),
     ("CUSUM_H", "edge-noise change detector threshold (0 = off)"),
@@ -104,6 +105,13 @@ ADAPT_Q_WHITE = 16
 #: option: only the current entry of Q by Eq. 12; Q_w stays at nominal (dt^2 Q_w is about 1/200 of
 #: R_theta, so a one-step innovation carries almost nothing about Q_w and its recursion drifts)
 ADAPT_Q_CURRENT = 32
+#: option: R's current entry never below its R0 (Eq. 12 may raise it, not lower it). The measured
+#: current drives the model's acceleration (K_T i), so R_i stands for what that input misses (load
+#: and torque-constant error) as much as for the sensor's noise; Eq. 12 learns only the latter from
+#: the current's innovations (about 0.04 A^2 against the 1.6 A^2 a KF tuned on the closed loop
+#: needs), and a filter that trusts the current that much follows the model's error. R0's current
+#: entry is then a stated floor, as the quantisation's is (``FP.R_I_FLOOR``)
+ADAPT_R_CURRENT_FLOOR = 64
 #: log-step of Q_w per unit of lag-1 innovation correlation, applied once per interval
 WHITENESS_GAIN = 4.0
 CHI2_2DOF_999 = 13.815510557964274  # 99.9 % quantile, 2 degrees of freedom: P(NIS > gate) = 1e-3

@@ -102,7 +102,8 @@ class FilterSettings:
         fp[F.FP.HUBER_C] = self.huber_c
         fp[F.FP.HUBER_KAPPA] = F.huber_kappa(self.huber_c)
         fp[F.FP.GATE_STATE] = 1.0 if self.gate_state_update else 0.0
-        fp[F.FP.R_I_FLOOR] = self.current_resolution_a ** 2 / 12.0
+        fp[F.FP.R_I_FLOOR] = max(self.current_resolution_a ** 2 / 12.0,
+                                 self.r0_diag[1] if self.adapt_mask & F.ADAPT_R_CURRENT_FLOOR else 0.0)
         if self.r_match_horizon_s > 0:
             fp[F.FP.R_MATCH_HI], fp[F.FP.R_MATCH_LO] = F.variance_match_bounds(
                 self.r_interval, horizon_s=self.r_match_horizon_s
