@@ -54,7 +54,7 @@ def electrical(source, sim_s=1.0, speed=15000.0, effects=()):
         return sim
 
     Simulation(config, source, duty=duty, initial_speed_rpm=speed).run_until(1e-3)  # JIT warm-up
-    wall, cpu, sim = best_of(3, run)
+    wall, cpu, sim = best_of(5, run)
     return sim_s / wall, sim_s / cpu, len(sim.edges()) / wall, len(sim.samples().t_s)
 
 
@@ -62,7 +62,7 @@ def kinematic(seconds=60.0, speed=10000.0):
     config = paper_bench().with_effects(*ALL_HALL_EFFECTS)
     profile = [OperatingPoint(seconds, speed, 4.0)]
     simulate_edges(config, [OperatingPoint(0.01, speed, 4.0)])
-    wall, cpu, edges = best_of(5, lambda: simulate_edges(config, profile, seed=1))
+    wall, cpu, edges = best_of(9, lambda: simulate_edges(config, profile, seed=1))
     return len(edges) / wall, len(edges) / cpu, len(edges)
 
 

@@ -84,8 +84,8 @@ def simulate_edges(
             inside = (d * (switch - theta0) >= 0) & (d * (switch - theta1) < 0)
             k, switch = k[inside], switch[inside]
             parts.append((np.full(k.size, x), k, switch))
-        sensor = np.concatenate([q[0] for q in parts]).astype(np.int64)
-        boundary = np.concatenate([q[1] for q in parts]).astype(np.int64)
+        sensor = np.concatenate([q[0] for q in parts]).astype(np.int64, copy=False)
+        boundary = np.concatenate([q[1] for q in parts]).astype(np.int64, copy=False)
         switch = np.concatenate([q[2] for q in parts])
         if cp.jitter_angle_rms_deg_e > 0:
             order = np.argsort(d * switch, kind="stable")
