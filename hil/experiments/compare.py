@@ -55,7 +55,7 @@ SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, s
 #: a load its model has wrong (1000 drawn conditions within 1.05 x KF + 0.01 deg e: 90.9 % with
 #: Eq. 12 on Q_w, 95.6 % with whiteness; docs/sage-husa.md, Robustness)
 SH_DESIGN = dict(
-    adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT,
+    adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT | F.ADAPT_R_CURRENT_FLOOR,
     adapt_interval=60,
     r_interval=30,
     r_forgetting_b=0.9,
@@ -75,7 +75,10 @@ BURSTS_SH = dict(SH_DESIGN, adapt_mask=F.ADAPT_R | F.ADAPT_Q_CURRENT,
 KF_GRID = dict(
     q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r_theta=(1e-6, 1e-5, 1e-4, 1e-3), r_i=(1e-2, 1.0)
 )
-SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001), one_minus_b_r=(0.7, 0.1))
+SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.02, 0.005), one_minus_b_r=(0.7, 0.1),
+               r_i=KF_GRID["r_i"])
+BURSTS_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001),
+                   one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
 #: grid points the refinement starts from (each gets an equal share of the evaluations)
@@ -404,7 +407,7 @@ def run_protocol(protocol: str, eval_seeds=EVAL_SEEDS, train_seeds=TRAIN_SEEDS, 
         model,
         (BURSTS_SH if protocol == "bursts" else SH_DESIGN).get("divergence_run", FilterSettings().divergence_run),
     )
-    sh_s = tune_sh(train, model, BURSTS_SH if protocol == "bursts" else SH_DESIGN)
+    sh_s = tune_sh(train, model, *((BURSTS_SH, BURSTS_GRID) if protocol == "bursts" else (SH_DESIGN, SH_GRID)))
     oracle = tune_oracle(train, burst_train, model, kf_s, bursts.time_rms_s)
     statement += [f"both tuned with the same budget ({math.prod(len(v) for v in KF_GRID.values())}-point grid + "
                   f"{REFINE_EVALUATIONS} Nelder-Mead evaluations from its {REFINE_STARTS} best points) "
