@@ -348,7 +348,8 @@ def cmd_dut_serve(args) -> int:
 
     if args.canopen_port is None and args.modbus_port is None:
         raise ValueError("give --canopen-port and/or --modbus-port")
-    # a served port's operator sees why a client was closed or refused (one line each, on stderr)
+    # the operator sees why the socketcand server closed or refused a client (one line each, on
+    # stderr); the Modbus server's refusals are debug lines (docs/controller.md)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
           strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)

@@ -248,13 +248,16 @@ def _step(p, st, ist, h, tmp_u, tmp_d, out_u, out_e, out_te, wk):
     # exp(-R h / L) = a_kept exp(-R dh / L) = a_kept (1 - R dh / L): the next term, (R dh / L)^2 / 2,
     # is at most 5e-21 (R h / L)^2 of a, under a double's resolution for any step shorter than
     # a hundred electrical time constants
-    dh = h - st[S_DECAY_H]
-    if abs(dh) <= 1e-10 * h:
-        a = st[S_DECAY_A] * (1.0 - R * dh / p[P_L])
-    else:
-        a = math.exp(-R * h / p[P_L])
-        st[S_DECAY_H] = h
-        st[S_DECAY_A] = a
+    # (R and L are fixed for a simulation's life: p is packed once, in Simulation.__init__)
+    a = 0.0
+    if not saturating:
+        dh = h - st[S_DECAY_H]
+        if abs(dh) <= 1e-10 * h:
+            a = st[S_DECAY_A] * (1.0 - R * dh / p[P_L])
+        else:
+            a = math.exp(-R * h / p[P_L])
+            st[S_DECAY_H] = h
+            st[S_DECAY_A] = a
     for x in range(3):
         if tmp_d[x] == 0:
             i1[x] = 0.0

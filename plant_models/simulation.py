@@ -400,8 +400,9 @@ def simulate(config: PlantConfig, duration_s: float, source=None, **kwargs) -> S
 
 
 def _joined(chunks: list[np.ndarray], columns: int) -> np.ndarray:
-    """The chunks as one array, read-only: one chunk is handed out as it is (the simulation never
-    writes a chunk again), so a second of 100 kHz samples is not copied (12 MB, 6 ms)."""
+    """The chunks as one array, read-only: a single chunk (a run that fit its buffer, as the
+    lockstep bench's do) is handed out as it is, since the simulation never writes a chunk again;
+    several are joined once (12 MB a simulated second at 100 kHz) and kept joined."""
     if not chunks:
         return np.zeros((0, columns))
     if len(chunks) == 1:

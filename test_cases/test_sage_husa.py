@@ -107,9 +107,10 @@ def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_link,
 
 @pytest.mark.requirement("REQ-PRED-003")
 def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, hil_link, hil_budget, hil_evidence):
-    """Started with R0 of the paper (edge-angle variance 0) and Q0 a hundred times too large, the
-    filter must learn an edge-angle noise variance of the size the plant actually injects
-    (3 us jitter at the running speed), where a filter that adapts nothing keeps R0."""
+    """Started with R0 of the paper (edge-angle variance 0) and Q0 a hundred times too large (the
+    controller keeps Q_w at that nominal and Q_i within its band, so the start is wrong
+    throughout), the filter must learn an edge-angle noise variance of the size the plant
+    actually injects (3 us jitter at the running speed), where a filter that adapts nothing keeps R0."""
     corrections = calibrate(SCENARIO_EFFECTS)
     nominal = FilterSettings(q0_diag=(0.1, 1e-9, 1e-6))
     wrong = FilterSettings(

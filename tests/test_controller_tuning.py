@@ -5,7 +5,6 @@ covariance repair. Short runs (0.15 s per set point); no tuning here."""
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -41,9 +40,10 @@ def runs():
 
 def test_a_recording_replays_to_the_closed_loop_score(runs):
     """The KF's replay is the tuning's footing: within 2 % of the KF through the controller (on
-    the full scenario it is within 1 %). Sage-Husa within 1.25x, the closed-loop acceptance bar
-    (its Eq. 12 recursion for Q_w follows the small differences between the controller's
-    corrected edges and the replay's)."""
+    the full scenario it is within 1 %). The controller's Sage-Husa within 5 % (the closed-loop
+    goal; 0.955-1.019 on the ten held-out full runs: its Q_w is nominal, and only an Eq. 12
+    recursion on Q_w followed the small differences between the controller's corrected edges and
+    the replay's, to 0.96-1.14x)."""
     recordings, model, controller = runs
     kf = recordings[Strategy.KF]
     closed = rms(kf.closed_loop_error_deg_e)
@@ -53,7 +53,7 @@ def test_a_recording_replays_to_the_closed_loop_score(runs):
     sh = recordings[Strategy.SAGE_HUSA]
     closed = rms(sh.closed_loop_error_deg_e)
     replay = sh.replay_angle_rms_deg_e(SageHusaPredictor(model, controller.filter_settings))
-    assert 1 / 1.25 <= closed / replay <= 1.25, f"Sage-Husa closed loop {closed:.4f} deg e, its replay {replay:.4f}"
+    assert 1 / 1.05 <= closed / replay <= 1.05, f"Sage-Husa closed loop {closed:.4f} deg e, its replay {replay:.4f}"
     # the edges barely depend on which filter commutated: the KF replays the Sage-Husa run alike
     other = sh.replay_angle_rms_deg_e(KalmanPredictor(model, controller.kf_settings))
     assert abs(other / rms(kf.closed_loop_error_deg_e) - 1) <= 0.02
@@ -90,4 +90,6 @@ def test_rounding_keeps_two_digits_and_the_forgetting_factors_below_one():
                                forgetting_b=0.99483, r_forgetting_b=0.8612))
     assert s.q0_diag == (6.9e-6, 1e-9, 8.3e-4) and s.r0_diag == (9.9e-6, 1.6)
     assert math.isclose(s.forgetting_b, 0.9948) and math.isclose(s.r_forgetting_b, 0.86)
-    assert dataclasses.replace(s, q0_diag=(1.0, 1.0, 1.0)).forgetting_b < 1.0
+    # a factor a hair below one keeps its distance from one, to two digits: it never rounds to 1
+    close = rounded(FilterSettings(forgetting_b=0.9999963, r_forgetting_b=0.99999))
+    assert close.forgetting_b == 1.0 - 3.7e-6 and close.r_forgetting_b < 1.0

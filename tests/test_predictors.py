@@ -472,6 +472,19 @@ def test_r_current_floor_option_keeps_r_i_at_or_above_r0_and_still_learns_r_thet
     assert 0.5 * injected_rad2 < held[0] < 2.0 * injected_rad2, (held, injected_rad2)
 
 
+def test_a_negative_r_i_estimate_is_a_repair_even_under_the_floor():
+    """The floor raises R_i after the textbook failure is counted: with Q's current entry 1 A^2
+    (a thousand times too large) the Eq. 12 term of R_i, innovation^2 - H P H^T, goes negative,
+    and the guards must say so (the controller raises EMCY 0xFF03 on it, REQ-FLT-004) before R_i
+    is raised back to its R0."""
+    e, cur = edges_and_currents([OperatingPoint(0.4, 6000.0)], 3e-6, 0.0, 1.0, 7)
+    mask = F.ADAPT_Q_CURRENT | F.ADAPT_R | F.ADAPT_R_CURRENT_FLOOR
+    sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=(10.0, 1e-7, 1.0), r0_diag=(0.0, 1.8), adapt_mask=mask))
+    sh.run(e.t_conditioned_s, cur)
+    assert sh.counters["covariance_repairs"] > 0, sh.counters
+    assert sh.r_matrix[1, 1] >= 1.8
+
+
 # --- robustness over drawn conditions ------------------------------------------------------
 
 ROBUSTNESS_CONDITIONS = 1000  # the full draw: about 30 s with the batch path

@@ -44,9 +44,13 @@ class Served:
             if not line or line.strip() == "ready":
                 break
             lines.append(line.strip())
-        co = re.fullmatch(r"CANopen node 5: interface=socketcand channel=can0 host=127\.0\.0\.1 port=(\d+)", lines[0])
-        mb = re.fullmatch(r"Modbus TCP unit 1: 127\.0\.0\.1:(\d+)", lines[1])
-        assert co and mb and len(lines) == 2, (lines, self.log)
+        co = re.fullmatch(r"CANopen node 5: interface=socketcand channel=can0 host=127\.0\.0\.1 port=(\d+)",
+                          lines[0]) if lines else None
+        mb = re.fullmatch(r"Modbus TCP unit 1: 127\.0\.0\.1:(\d+)", lines[1]) if len(lines) > 1 else None
+        if not (co and mb and len(lines) == 2):
+            self.proc.kill()  # a server that did not start as expected is not left running
+            self.proc.wait()
+            raise AssertionError(f"hil dut serve did not start: {lines} {self.log}")
         self.co_port, self.mb_port = int(co.group(1)), int(mb.group(1))
 
     def log_tail(self, n: int = 20) -> str:
@@ -189,7 +193,7 @@ def test_memory_stays_flat_over_50000_frames_after_a_killed_client():
     except AssertionError as exc:
         raise AssertionError(f"{exc}\nthe server's log:\n{server.log_tail()}") from None
     finally:
-        server.stop()
+        server.stop()  # (its own assertion, a traceback on stderr, comes after the test's failure)
 
 
 def _memory_stays_flat(server: Served) -> None:
@@ -236,6 +240,7 @@ def test_slow_loris_connections_are_closed_and_capped(served_server):
     co_port, mb_port = served_server.co_port, served_server.mb_port
     # a command begun and never finished: closed after the partial timeout (5 s)
     c = Cand(co_port)
+    half_sent = "127.0.0.1:%d" % c.sock.getsockname()[1]
     c.sock.sendall(b"< send 60")
     t = closed_within(c.sock, 10.0)
     c.close()
@@ -243,13 +248,15 @@ def test_slow_loris_connections_are_closed_and_capped(served_server):
     assert t is not None and 4.0 <= t <= 7.0, t
     # a raw-mode client that sends nothing: closed after the idle timeout
     c = Cand(co_port)
+    idle = "127.0.0.1:%d" % c.sock.getsockname()[1]
     t = closed_within(c.sock, IDLE_S + 4.0)
     c.close()
     print(f"socketcand: idle raw-mode client closed after {t:.1f} s (idle timeout {IDLE_S} s)")
     assert t is not None and t <= IDLE_S + 2.0, t
-    # the operator is told why, one line each
-    for reason in ("closed: a command begun did not end within 5 s", f"closed: nothing sent for {IDLE_S:g} s"):
-        assert served_server.logged(reason), (reason, served_server.log_tail())
+    # the operator is told why, one line each, naming the client
+    for line in (f"client {half_sent} closed: a command begun did not end within 5 s",
+                 f"client {idle} closed: nothing sent for {IDLE_S:g} s"):
+        assert served_server.logged(line), (line, served_server.log_tail())
     # the same for Modbus: half an ADU, then silence
     with socket.create_connection(("127.0.0.1", mb_port)) as s:
         s.sendall(mbap(struct.pack(">BHH", 3, 0, 1))[:5])

@@ -167,14 +167,14 @@ class SocketcandServer:
         if sock is not None:
             sock.setsockopt(socket.SOL_SOCKET, socket.SO_KEEPALIVE, 1)
             sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        peer = writer.get_extra_info("peername")
+        peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
         if self.connections >= self.limits.max_clients:
-            log.warning("socketcand: a client refused: %d clients connected already", self.connections)
+            log.warning("socketcand client %s refused: %d clients connected already", peer, self.connections)
             await self._refuse(writer, "too many clients")
             return
         self.connections += 1
         self._handlers[asyncio.current_task()] = writer
-        peer = writer.get_extra_info("peername")
-        peer = f"{peer[0]}:{peer[1]}" if isinstance(peer, tuple) else "?"
         client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames), peer)
         sender = None
         buffer = bytearray()

@@ -53,7 +53,10 @@ SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, s
 #: innovation carries almost nothing of Q_w (dt^2 Q_w is about 1/200 of R_theta), so its Eq. 12
 #: recursion falls to the band floor where no process noise is, and the filter then cannot follow
 #: a load its model has wrong (1000 drawn conditions within 1.05 x KF + 0.01 deg e: 90.9 % with
-#: Eq. 12 on Q_w, 95.6 % with whiteness; docs/sage-husa.md, Robustness)
+#: Eq. 12 on Q_w, 95.6 % with whiteness; docs/sage-husa.md, Robustness). R's current entry never
+#: below its R0 (``filters.ADAPT_R_CURRENT_FLOOR``): it stands for the acceleration input's error
+#: as well as the sensor's noise, which is all Eq. 12 learns (``tuned``: -4.0 % angle RMS with
+#: R_i free, +3.0 % floored at its tuned R0; robustness 96.0 %)
 SH_DESIGN = dict(
     adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT | F.ADAPT_R_CURRENT_FLOOR,
     adapt_interval=60,
@@ -335,7 +338,9 @@ def _settings_line(name: str, s: FilterSettings, adaptive: bool) -> str:
         q = f"{q_w}, {q_i}"
         line += (
             f"; {q}, Q band x{s.q_band_factor:g}; R by Eq. 12 (b_R = {s.r_forgetting_b:.4g} "
-            f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}), divergence run {s.divergence_run}"
+            f"every {s.r_interval} edges, Huber c = {s.huber_c:.3g}"
+            + (f", R_i >= {s.r0_diag[1]:.3g}" if m & F.ADAPT_R_CURRENT_FLOOR else "")
+            + f"), divergence run {s.divergence_run}"
         )
     return line
 

@@ -53,8 +53,10 @@ class FilterSettings:
     #: an edge noise inconsistent with R_theta beyond what chance gives once per this many
     #: seconds of edges at 12,000 rpm replaces R_theta at once; 0 = off (R by Eq. 12 only)
     r_match_horizon_s: float = 1000.0
-    #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter);
-    #: 16 steers Q's speed entry by innovation whiteness instead (an option, not the paper's)
+    #: which Eq. 12 estimates adapt: 1 Q, 2 R, 4 r, 8 q (15 = all, the paper's filter). Options,
+    #: not the paper's: 16 steers Q's speed entry by innovation whiteness instead; 32 adapts Q's
+    #: current entry only (Q_w stays nominal); 64 keeps R's current entry at or above its R0
+    #: (``filters.ADAPT_*``, docs/sage-husa.md "What adapts")
     adapt_mask: int = F.ADAPT_ALL
     #: threshold of the edge-noise change detector (``filters._change_detect``); 0 = off. The
     #: default is the one at which white edge noise raises a chance alarm less than once per
