@@ -45,9 +45,7 @@ class LinkSource:
         """Mean |i| over the phases and the plant samples since the last edge, through the current
         sensors' gain and offset: what the controller's ADC averages over the commutation cycle
         (the current Eq. 8's K_T is defined for). None when no sample fell in the cycle."""
-        n = sim.samples_taken
-        start = self._sample_from if self._sample_from <= n else 0  # the buffer was flushed since
-        self._sample_from = n
+        start, self._sample_from = self._sample_from, sim.samples_taken
         return sim.measured_mean_abs_current_since_a(start)
 
     def on_edge(self, edge: dict, sim) -> list:

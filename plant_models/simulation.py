@@ -160,6 +160,7 @@ class Simulation:
         self._edge_chunks: list[np.ndarray] = []
         self._ideal_chunks: list[np.ndarray] = []
         self._sample_chunks: list[np.ndarray] = []
+        self._samples_flushed = 0  #: samples moved from the buffer into _sample_chunks
         self._segment_marks: list[tuple[float, int]] = []
         self._init_sensors()
 
@@ -249,18 +250,27 @@ class Simulation:
 
     @property
     def samples_taken(self) -> int:
-        """Samples recorded so far (the count restarts when the sample buffer is flushed)."""
-        return int(self.ist[L.I_N_SAMPLES])
+        """Samples recorded since the start (flushed ones included): an index into ``samples()``."""
+        return self._samples_flushed + int(self.ist[L.I_N_SAMPLES])
 
     def measured_mean_abs_current_since_a(self, first_sample: int) -> float | None:
-        """Mean |i| over the phases and the samples from ``first_sample`` on, through the current
-        sensors' gain and offset: what a controller's ADC averages over that window. None when
-        no sample fell in it."""
-        n = self.samples_taken
-        if n <= first_sample:
+        """Mean |i| over the phases and the samples from index ``first_sample`` on (``samples_taken``
+        at the window's start), through the current sensors' gain and offset: what a controller's
+        ADC averages over that window, across buffer flushes. None when no sample fell in it."""
+        n_buffer = int(self.ist[L.I_N_SAMPLES])
+        if self._samples_flushed + n_buffer <= first_sample:
             return None
+        parts = [self._samples[max(first_sample - self._samples_flushed, 0):n_buffer, 1:4]]
+        end = self._samples_flushed
+        for chunk in reversed(self._sample_chunks):  # the window's part that was flushed, if any
+            if end <= first_sample:
+                break
+            start = end - chunk.shape[0]
+            parts.insert(0, chunk[max(first_sample - start, 0):, 1:4])
+            end = start
         cs = self.config.current_sensor
-        i = self._samples[first_sample:n, 1:4] * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        i = np.concatenate(parts) if len(parts) > 1 else parts[0]
+        i = i * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
         return float(np.mean(np.abs(i)))
 
     def set_duty(self, duty: float) -> None:
@@ -333,6 +343,8 @@ class Simulation:
             n = int(self.ist[idx])
             if not n:
                 continue
+            if name == "_samples":
+                self._samples_flushed += n
             buf = getattr(self, name)
             if 2 * n >= buf.shape[0]:
                 # at least half full: hand the buffer over and write on into a new one (copying

@@ -41,7 +41,7 @@ def runs():
 def test_a_recording_replays_to_the_closed_loop_score(runs):
     """The KF's replay is the tuning's footing: within 2 % of the KF through the controller (on
     the full scenario it is within 1 %). The controller's Sage-Husa within 5 % (the closed-loop
-    goal; 0.955-1.019 on the ten held-out full runs: its Q_w is nominal, and only an Eq. 12
+    goal; 0.957-1.018 on the ten held-out full runs: its Q_w is nominal, and only an Eq. 12
     recursion on Q_w followed the small differences between the controller's corrected edges and
     the replay's, to 0.96-1.14x)."""
     recordings, model, controller = runs

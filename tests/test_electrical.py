@@ -321,3 +321,22 @@ def test_the_adc_ring_holds_the_current_of_an_instant_before_the_present():
             worst = max(worst, abs(sim.measured_mean_abs_current_at_a(at) - truth))
             compared += 1
     assert compared >= 40 and worst < 0.02  # A; the current moves by amperes within the 50 us after a commutation
+
+
+def test_the_adc_window_mean_spans_buffer_flushes():
+    """The controller's cycle-mean current (``measured_mean_abs_current_since_a``) is the mean over
+    every sample of its window, also when the sample buffer was flushed inside the window (a small
+    buffer here, flushed every 97 samples; a lockstep run flushes at the end of each run_until)."""
+    config = dataclasses.replace(BASE, current_sensor=dataclasses.replace(
+        BASE.current_sensor, gain_error=(0.02, -0.01, 0.0), offset_a=(0.05, 0.0, -0.03)))
+    duty = steady_state(BASE.motor, 8000.0)["duty"]
+    sim = Simulation(config, OracleCommutation(), duty=duty, initial_speed_rpm=8000.0, capacity=97)
+    sim.run_until(0.001)
+    first = sim.samples_taken
+    sim.run_until(0.0013)  # a short call: a flush at its end
+    sim.run_until(0.004)  # 300 samples at 100 kHz: more flushes inside the window
+    got = sim.measured_mean_abs_current_since_a(first)
+    i = sim.samples().i_true_a[first:] * (1.0 + np.array([0.02, -0.01, 0.0])) + np.array([0.05, 0.0, -0.03])
+    assert sim.samples_taken == sim.samples().t_s.size and i.shape[0] == 300
+    assert got == pytest.approx(float(np.mean(np.abs(i))), rel=1e-12)
+    assert sim.measured_mean_abs_current_since_a(sim.samples_taken) is None
