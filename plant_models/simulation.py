@@ -212,6 +212,12 @@ class Simulation:
             total += abs(i * (1.0 + cs.gain_error[k]) + cs.offset_a[k])
         return total / 3.0
 
+    def _sensed(self, i_true_a: np.ndarray) -> np.ndarray:
+        """Phase currents (rows of three) as the current sensors measure them: gain and offset (the
+        array form of ``_through_current_sensors``; no noise)."""
+        cs = self.config.current_sensor
+        return i_true_a * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+
     def measured_mean_abs_current_a(self) -> float:
         """Mean |i| over the phases now, through the current sensors: what a controller's ADC reads
         at this instant."""
@@ -268,10 +274,7 @@ class Simulation:
             start = end - chunk.shape[0]
             parts.insert(0, chunk[max(first_sample - start, 0):, 1:4])
             end = start
-        cs = self.config.current_sensor
-        i = np.concatenate(parts) if len(parts) > 1 else parts[0]
-        i = i * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
-        return float(np.mean(np.abs(i)))
+        return float(np.mean(np.abs(self._sensed(np.concatenate(parts) if len(parts) > 1 else parts[0]))))
 
     def set_duty(self, duty: float) -> None:
         if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:
@@ -389,7 +392,7 @@ class Simulation:
         cs = self.config.current_sensor
         i_true = s[:, 1:4]
         noise_rng = np.random.default_rng([self.seed, 1])
-        i_meas = i_true * (1.0 + np.asarray(cs.gain_error)) + np.asarray(cs.offset_a)
+        i_meas = self._sensed(i_true)
         if cs.noise_rms_a > 0:
             i_meas = i_meas + cs.noise_rms_a * noise_rng.standard_normal(i_true.shape)
         out = Samples(

@@ -13,6 +13,7 @@ import pytest
 from bldc.contract import Strategy
 from hil.bench import p99_abs, rms
 from hil.controller.virtual import VirtualController
+from hil.experiments.closed_loop import commutation_time_mape_pct
 from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 from hil.plots import commutation_error_figure
 from hil.predictors import FilterSettings
@@ -41,7 +42,7 @@ def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS):
     keep = c.t_s >= steps[0]
     err = c.error_deg_e[keep]
     # commutation time error over the ideal commutation interval: (err / w) / (60 deg / w), at any speed
-    return bench, (c.t_s, c.error_deg_e), steps[0], err, float(np.mean(np.abs(err) / 60.0) * 100)
+    return bench, (c.t_s, c.error_deg_e), steps[0], err, commutation_time_mape_pct(err)
 
 
 def run_strategies(calibrate, hil_bench, hil_link, strategies):

@@ -105,6 +105,12 @@ class Recording:
         return cls(seed=int(d.pop("seed")), strategy=str(d.pop("strategy")), counters=counters, **d)
 
 
+def as_carried(settings, design):
+    """``design`` with the b, Q0, R0 and P0 of ``settings`` as a link carries them (IEEE single):
+    what a controller whose own design is ``design`` runs after ``settings`` were written."""
+    return with_filter_vector(design, [float(np.float32(v)) for v in filter_vector(settings)])
+
+
 def commutation_time_mape_pct(error_deg_e: np.ndarray) -> float:
     """Commutation time error over the ideal commutation interval, (err / w) / (60 deg / w), in %."""
     return float(np.mean(np.abs(error_deg_e) / 60.0) * 100)
@@ -184,8 +190,7 @@ def run_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S, f
     # (the virtual controller's, which this replay assumes)
     settings = filter_settings or VirtualController(config.motor).filter_settings
     r = record_link(link, config, corrections, seed, hold_s, Strategy.SAGE_HUSA, settings)
-    settings = with_filter_vector(VirtualController(config.motor).filter_settings,
-                                  [float(np.float32(v)) for v in filter_vector(settings)])
+    settings = as_carried(settings, VirtualController(config.motor).filter_settings)
     offline = r.replay_angle_rms_deg_e(SageHusaPredictor(MotorModel.from_plant(config.motor), settings))
     return LinkResult(rms(r.closed_loop_error_deg_e), offline, r.counters["covariance_repairs"], r.counters,
                       int(r.closed_loop_error_deg_e.size))

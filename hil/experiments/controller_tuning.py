@@ -43,7 +43,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bldc.contract import Strategy, filter_vector, with_filter_vector
+from bldc.contract import Strategy
 from plant_models import paper_bench
 
 from ..bench import rms
@@ -54,7 +54,7 @@ from ..predictors import filters as F
 from ..predictors.model import MotorModel
 from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
 from . import compare
-from .closed_loop import HOLD_S, Recording, commutation_time_mape_pct, record_link
+from .closed_loop import HOLD_S, Recording, as_carried, commutation_time_mape_pct, record_link
 from .table5 import scenario_plant
 
 TRAIN_SEEDS = compare.TRAIN_SEEDS
@@ -77,10 +77,9 @@ SH_GRID = dict(q_w=compare.SH_GRID["q_w"], q_i=compare.SH_GRID["q_i"], one_minus
 #: significant digits the tuned values are rounded to before they become defaults (and before
 #: they are evaluated, so what is evaluated is what the defaults are)
 DIGITS = 2
-#: the grid of a design with R's current entry floored at its R0: R0_i takes the place of R's
-#: interval, on the KF's two values (144 points still)
-SH_GRID_R_I = {**{k: v for k, v in SH_GRID.items() if k != "r_interval"}, "r_i": compare.KF_GRID["r_i"]}
-assert (math.prod(len(v) for v in SH_GRID.values()) == math.prod(len(v) for v in SH_GRID_R_I.values())
+#: a design with R's current entry floored at its R0 searches compare's grid, where R0_i takes the
+#: place of R's interval, on the KF's two values (144 points still)
+assert (math.prod(len(v) for v in SH_GRID.values()) == math.prod(len(v) for v in compare.SH_GRID.values())
         == math.prod(len(v) for v in compare.KF_GRID.values()))
 
 
@@ -142,7 +141,7 @@ def tune(recordings: list[Recording], model: MotorModel, kf: FilterSettings | No
     training["KF"] = replay_objective(recordings, KalmanPredictor(model, kf))
     best = None
     for name, design in designs.items():
-        grid = SH_GRID_R_I if design.get("adapt_mask", 0) & F.ADAPT_R_CURRENT_FLOOR else SH_GRID
+        grid = compare.SH_GRID if design.get("adapt_mask", 0) & F.ADAPT_R_CURRENT_FLOOR else SH_GRID
         s = rounded(compare.tune_sh(recordings, model, design, grid, objective=replay_objective))
         training[f"Sage-Husa {name}"] = value = replay_objective(recordings, SageHusaPredictor(model, s))
         if best is None or value < best[0]:
@@ -189,7 +188,7 @@ def evaluate(sh: FilterSettings, kf: FilterSettings, seeds, hold_s: float = HOLD
         link = InProcessLink(VirtualController(config.motor, filter_settings=sh, kf_settings=kf))
         r_sh = record_link(link, config, corrections, seed, hold_s, Strategy.SAGE_HUSA, sh)
         r_kf = record_link(link, config, corrections, seed, hold_s, Strategy.KF)
-        carried = with_filter_vector(sh, [float(np.float32(v)) for v in filter_vector(sh)])
+        carried = as_carried(sh, sh)
         out.append(SeedResult(
             seed,
             rms(r_sh.closed_loop_error_deg_e),
