@@ -70,6 +70,17 @@ def test_a_recording_round_trips_through_a_file(runs, tmp_path):
     np.testing.assert_array_equal(back.closed_loop_error_deg_e, r.closed_loop_error_deg_e)
 
 
+def test_a_file_that_is_not_a_recording_is_refused_naming_it(tmp_path):
+    other = tmp_path / "other.npz"
+    np.savez(other, t_corrected_s=np.zeros(3))
+    with pytest.raises(ValueError, match=r"other\.npz: not a closed-loop recording: missing \['seed', 'strategy'"):
+        Recording.load(other)
+    text = tmp_path / "notes.npz"
+    text.write_text("not numpy")
+    with pytest.raises(ValueError, match=r"notes\.npz: not a closed-loop recording"):
+        Recording.load(text)
+
+
 def test_the_objective_refuses_settings_that_need_a_covariance_repair(runs):
     """b_R = 0.3 per 30-edge interval: R's current entry follows single intervals, and its Eq. 12
     estimate goes negative (a repair, EMCY 0xFF03 on the controller). The same settings with

@@ -11,6 +11,7 @@ settings and model, and scored against the same truth (``Recording``).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -99,9 +100,18 @@ class Recording:
 
     @classmethod
     def load(cls, path) -> "Recording":
-        with np.load(path) as z:
-            d = {k: z[k] for k in z.files}
+        """A recording written by ``save``; anything else is refused naming the file and what it lacks."""
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                d = {k: z[k] for k in z.files}
+        except (OSError, ValueError) as exc:
+            raise ValueError(f"{path}: not a closed-loop recording (.npz written by Recording.save): {exc}") from None
         counters = {k[len("counter_"):]: int(d.pop(k)) for k in list(d) if k.startswith("counter_")}
+        fields = [f.name for f in dataclasses.fields(cls) if f.name != "counters"]
+        missing = [name for name in fields if name not in d]
+        if missing or set(d) - set(fields):
+            raise ValueError(f"{path}: not a closed-loop recording: missing {missing or 'nothing'}, "
+                             f"unknown {sorted(set(d) - set(fields)) or 'nothing'}")
         return cls(seed=int(d.pop("seed")), strategy=str(d.pop("strategy")), counters=counters, **d)
 
 
