@@ -91,7 +91,9 @@ def pytest_addoption(parser):
         type="paths",
         default=[],
     )
-    parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="int", default=0)
+    # read as text and parsed here: pytest's own "int" ini type names neither the key nor the file
+    # when the value is not an integer (pytest 9.2: "invalid literal for int() with base 10")
+    parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="string", default="0")
     parser.addini(
         "hil_report_dir",
         "report directory (relative to the ini file) used when --hil-report-dir is not given",
@@ -112,7 +114,15 @@ def _option(config, name: str):
     ini file); None for a path neither gives."""
     value = config.getoption(f"--hil-{name.replace('_', '-')}")
     if name == "seed":
-        return int(value) if value is not None else config.getini("hil_seed")
+        if value is not None:
+            return int(value)
+        text = config.getini("hil_seed")
+        try:
+            return int(text)
+        except ValueError:
+            raise pytest.UsageError(
+                f"hil: ini key hil_seed in {config.inipath} must be an integer, got {text!r}"
+            ) from None
     if value not in (None, ""):
         return config.invocation_params.dir / value
     paths = config.getini(f"hil_{name}")

@@ -90,7 +90,8 @@ def test_a_seed_that_is_not_an_integer_is_refused(pytester):
     pytester.makepyfile(test_seed="def test_seed(hil_seed):\n    pass\n")
     result = pytester.runpytest()
     assert result.ret != 0
-    assert "hil_seed" in result.stderr.str() + result.stdout.str()
+    assert result.ret == pytest.ExitCode.USAGE_ERROR
+    result.stderr.fnmatch_lines(["*ini key hil_seed in*tox.ini*must be an integer*five*"])
 
 
 def test_two_ini_paths_for_one_file_are_refused_naming_the_key(pytester):
