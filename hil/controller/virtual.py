@@ -10,6 +10,7 @@ Modbus) and the in-process link all drive this one object.
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -106,8 +107,11 @@ class VirtualController:
     current_limit_a: float = 15.0
     #: the pump turns one way: a Hall step against it means edges were lost
     direction: int = 1
-    #: an edge interval longer than this multiple of the previous one means an edge was lost
+    #: an edge interval longer than this multiple of the mean interval so far means an edge was
+    #: lost (the first mechanical turn, before each sector has a reference of its own)
     missing_edge_interval_ratio: float = 1.8
+    #: ... than this multiple of the same sector's interval one mechanical turn earlier
+    same_sector_interval_ratio: float = 1.3
     kp_per_rpm: float = 1e-4
     ki_per_rpm_s: float = 2e-3
 
@@ -178,7 +182,8 @@ class VirtualController:
         self._normal_steps = 6  # Hall steps in a row since the last lost edge
         self._resync_pending = False
         self._last_t: float | None = None
-        self._last_dt: float | None = None
+        #: the last mechanical turn's sector intervals, oldest first (the missing-edge references)
+        self._intervals: deque[float] = deque(maxlen=6 * self.motor.pole_pairs)
 
     # --- run time -------------------------------------------------------------------------------
     def raise_fault(self, code: int, t_s: float) -> None:
@@ -222,19 +227,20 @@ class VirtualController:
         if rotor_motion:
             if self._last_t is not None:
                 dt = t - self._last_t
-                if self._last_dt is not None and dt > self.missing_edge_interval_ratio * self._last_dt:
+                ref, ratio = self._reference_interval_s()
+                if ref is not None and dt > ratio * ref:
                     self._edge_lost(t)  # an interval of two or more sectors
                     # keep the edge count (and the pole assignment) right: sectors that passed
                     # minus the edges that did arrive
-                    self._logic.count_lost_edges(max(round(dt / self._last_dt) - self._edges_since_motion, 0))
-                    dt = self._last_dt  # the interval of one sector stays the reference
-                elif self._last_dt is not None and dt * self.missing_edge_interval_ratio < self._last_dt:
-                    # far shorter than the last sector (the rotor cannot speed up that much in one
+                    self._logic.count_lost_edges(max(round(dt / ref) - self._edges_since_motion, 0))
+                    dt = ref  # the interval of one sector stays the reference
+                elif ref is not None and dt * ratio < ref:
+                    # far shorter than its reference (the rotor cannot speed up that much in one
                     # sector): a glitch that read as a step, e.g. a spike on a Hall state left
                     # wrong by a lost edge. Taken as the reference, it made every later sector
                     # read as lost edges, the edge count ran away and the corrections with it
-                    dt = self._last_dt
-                self._last_dt = dt
+                    dt = ref
+                self._intervals.append(dt)
             self._last_t = t
             self._edges_since_motion = 0
         if self._resync_pending and self._normal_steps >= 6:
@@ -252,6 +258,20 @@ class VirtualController:
                 self._guards_seen = trips
                 self.raise_fault(Fault.FILTER_GUARD_TRIP, t)
         return commands
+
+    def _reference_interval_s(self) -> tuple[float | None, float]:
+        """What a sector interval is compared with to tell a lost edge (or a glitch), and the ratio
+        that tells it. Sectors are uneven by their installation, pole and delay deviations (up to
+        about 80/40 deg e within the effect library's bounds, beyond the ratio of 1.8 between
+        neighbours that once read as lost edges every turn); the same sector one mechanical turn
+        earlier has the same deviations, so it is the reference once a turn has been seen, with
+        ``same_sector_interval_ratio`` (two sectors are at least 1.4 of one). Before that: the mean
+        interval so far, with ``missing_edge_interval_ratio``."""
+        if not self._intervals:
+            return None, self.missing_edge_interval_ratio
+        if len(self._intervals) == self._intervals.maxlen:
+            return self._intervals[0], self.same_sector_interval_ratio
+        return sum(self._intervals) / len(self._intervals), self.missing_edge_interval_ratio
 
     def _edge_lost(self, t_s: float) -> None:
         self.raise_fault(Fault.MISSING_EDGE, t_s)
