@@ -138,3 +138,4 @@ def test_the_armature_correction_gets_the_current_at_the_edges_instant(name, p99
     at_capture = run(stim, _CurrentAtCapture(VirtualController(motor)), budgets).values["commutation_angle_p99_deg_e"]
     assert at_edge < 0.05 * limit  # 0.014 and 0.019 deg e measured
     assert at_capture == pytest.approx(p99_deg_e, abs=0.1)
+

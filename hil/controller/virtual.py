@@ -240,6 +240,7 @@ class VirtualController:
                     # wrong by a lost edge. Taken as the reference, it made every later sector
                     # read as lost edges, the edge count ran away and the corrections with it
                     dt = ref
+                    self._intervals.clear()  # a step that was not a sector: the history is out of line
                 self._intervals.append(dt)
             self._last_t = t
             self._edges_since_motion = 0
@@ -275,6 +276,9 @@ class VirtualController:
 
     def _edge_lost(self, t_s: float) -> None:
         self.raise_fault(Fault.MISSING_EDGE, t_s)
+        # the history no longer lines up with the sectors (one turn back is another sector now):
+        # the references start again from the mean interval
+        self._intervals.clear()
         self._normal_steps, self._resync_pending = 0, True
 
     # --- read-backs -------------------------------------------------------------------------------
