@@ -2,24 +2,28 @@
 
 Everything that crosses the link is defined here and nowhere else: the commutation ``Command`` the
 plant executes, the ``Strategy`` codes, the ``Fault`` (EMCY) codes, the refusal of a calibration
-table, the nine-value filter-settings vector, and the 8-byte edge and command messages. The
+table, the nine-value filter-settings vector, and the edge and command messages. The
 controller (``hil.controller``) and the simulator (``plant_models``) both depend on this module and
 never on each other (``docs/architecture.md``). The wire layouts are in ``docs/controller.md``.
 
-The edge and command messages every link carries, in one 8-byte format (CANopen PDO payload,
-Modbus register block, and the in-process link encodes and decodes them too, so all links give
-the controller bit-identical inputs).
+The edge and command messages every link carries (CANopen PDOs, a Modbus register block; the
+in-process link builds the same fields without the bytes, so all links give the controller
+bit-identical inputs). Wire layouts and versions: docs/controller.md.
 
-EdgeMessage (plant -> controller, RPDO1):
-    U32 capture time in 100 ns timer ticks (wraps after 429 s), U16 mean |i| in mA at the edge's
-    own instant (the MCU's ADC ring read one applied conditioning delay of the edge's polarity
-    before the capture: where the armature field that moved the edge acted; at the capture
-    before a calibration is applied),
-    U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence number.
-CycleCurrentMessage (plant -> controller, RPDO2, sent before its edge; Modbus register 204):
-    U16 mean |i| over the commutation cycle the edge ends, in mA (0xFFFF: not measured), U8
-    sequence number of that edge. The predictor's K_T is per ampere of this cycle mean (Eq. 8);
-    without it the controller falls back to the current at the edge.
+EdgeMessage, version 2 (plant -> controller): what the MCU's own peripherals hold at a capture.
+    Header, 8 bytes (RPDO1; Modbus mailbox registers 0-3): U32 capture time in 100 ns timer ticks
+    (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence
+    number, U16 age of the newest regular ADC sample at the capture in ticks (0xFFFF: none).
+    ADC window, up to MAX_ADC_SAMPLES samples of the three phase-current sensors' outputs: the
+    conversion the capture event triggers (index 0), then regular conversions every
+    ADC_PERIOD_TICKS reaching back at least ADC_LOOKBACK_S before the capture and to the
+    previous edge's capture: CANopen one RPDO2 per sample before the header (I16 a, b, c in
+    ADC_LSB_A counts, U8 sequence number, U8 index, 0 = newest); Modbus three registers per
+    sample after the header, newest first (samples beyond the first 39 in a write of their own
+    before it: docs/controller.md). The controller computes the current at the edge's
+    own instant (one applied conditioning delay before the capture) and the commutation cycle's
+    mean current (Eq. 8's input) from them itself. Version 1 (8 bytes with the current at the
+    edge and a separate cycle-current message, computed by the bench) is withdrawn.
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
@@ -32,6 +36,8 @@ import enum
 import struct
 from dataclasses import dataclass
 from typing import Protocol
+
+import numpy as np
 
 
 @dataclass(frozen=True)
@@ -127,99 +133,159 @@ def _ticks(t_s: float) -> int:
     return int(round(t_s / TICK_S))
 
 
-def _current_ma(current_a: float) -> int:
-    """The edge message's U16 mean |i| in mA (clamped to its range)."""
-    return max(0, min(int(round(current_a * 1000.0)), 0xFFFF))
-
-
 def _duty_u16(duty: float) -> int:
     """The command message's duty, clamped to 0..1 and scaled (KEEP_DUTY is never produced)."""
     return int(round(min(max(duty, 0.0), 1.0) * DUTY_SCALE))
 
 
+#: The controller's ADC as the bench emulates it: the three phase-current sensors' outputs converted
+#: every ADC_PERIOD_TICKS of the capture timer (regular conversions at 50 kHz: twice per period of a
+#: 25 kHz PWM), and once more at the capture event itself (an injected conversion the capture timer
+#: triggers, as MCU timers can): the current right after a commutation turns faster than a sample
+#: period, and a line between regular samples missed the Hall switch's current by up to 1.7 A
+ADC_PERIOD_TICKS = 200
+ADC_PERIOD_S = ADC_PERIOD_TICKS * TICK_S
+#: an edge's ADC window reaches back at least this far before its capture (and to the previous
+#: edge's capture when that is earlier): the largest conditioning delay a calibration may carry
+#: (real open-collector Hall wiring with a filter capacitor: up to about 300 us) plus one ADC period
+#: to interpolate over
+ADC_LOOKBACK_S = 500e-6
+#: samples one edge message carries at most (the capture's and the newest regular ones): a cycle
+#: longer than this window (79 x 20 us = 1.58 ms: 3,800 rpm with 2 pole pairs) is averaged over its
+#: last 1.58 ms
+MAX_ADC_SAMPLES = 80
+#: one count of a sample: 2 mA, so an I16 spans +-65.5 A (beyond it the sample saturates, as an ADC)
+ADC_LSB_A = 2e-3
+NO_SAMPLES = 0xFFFF  #: the header's sample age when the message carries no sample
+_HEADER_FMT = "<IBBH"
+_SAMPLE_FMT = "<hhhBB"
+
+
+def _adc_counts(current_a) -> np.ndarray:
+    """Phase-current sensor outputs in ADC counts (I16, saturating)."""
+    return np.clip(np.rint(np.asarray(current_a, dtype=float) / ADC_LSB_A), -32768, 32767).astype(np.int64)
+
+
 @dataclass(frozen=True)
 class EdgeMessage:
+    """The edge message, version 2 (docs/controller.md): the capture and the ADC window before it.
+
+    ``samples`` are the three phase-current sensors' outputs in ADC counts, newest first: sample 0
+    converted at the capture event, sample k >= 1 (regular) ``newest_sample_age_ticks + (k - 1) *
+    ADC_PERIOD_TICKS`` ticks before the capture. The
+    controller computes the current at the edge's own instant and the commutation cycle's mean
+    from them itself, as firmware does from its ADC ring."""
+
     ticks: int
-    current_ma: int
     sensor: int
     rising: bool
     seq: int
+    newest_sample_age_ticks: int = NO_SAMPLES
+    samples: tuple[tuple[int, int, int], ...] = ()
 
-    def pack(self) -> bytes:
+    def __post_init__(self):
+        if len(self.samples) > MAX_ADC_SAMPLES:
+            raise ValueError(f"edge message carries at most {MAX_ADC_SAMPLES} ADC samples, got {len(self.samples)}")
+        if (len(self.samples) > 1) != (self.newest_sample_age_ticks != NO_SAMPLES):
+            raise ValueError("edge message: a regular sample's age needs regular samples, and they need an age")
+
+    # --- wire forms ---------------------------------------------------------------------------
+    def header(self) -> bytes:
+        """The 8-byte header (CANopen RPDO1; the first 4 registers of the Modbus mailbox)."""
         return struct.pack(
-            _FMT,
+            _HEADER_FMT,
             self.ticks % WRAP,
-            self.current_ma,
             (self.sensor & 0x03) | (0x80 if self.rising else 0),
             self.seq & 0xFF,
+            self.newest_sample_age_ticks,
         )
+
+    def sample_frames(self) -> list[bytes]:
+        """One 8-byte frame per sample (CANopen RPDO2, sent before the header, oldest first): I16
+        phase a, b, c in counts, U8 sequence number of the edge, U8 sample index (0 = newest)."""
+        return [
+            struct.pack(_SAMPLE_FMT, *self.samples[k], self.seq & 0xFF, k) for k in range(len(self.samples) - 1, -1, -1)
+        ]
+
+    def pack(self) -> bytes:
+        """Header and samples as one byte string (the Modbus mailbox's content)."""
+        return self.header() + b"".join(struct.pack("<hhh", *s) for s in self.samples)
+
+    @classmethod
+    def unpack_header(cls, data: bytes) -> tuple["EdgeMessage", int]:
+        """The header without its samples, and the newest sample's age it announces."""
+        if len(data) != 8:
+            raise ValueError(f"edge message header needs 8 bytes, got {len(data)}")
+        ticks, flags, seq, age = struct.unpack(_HEADER_FMT, bytes(data))
+        if flags & 0x03 == 3 or flags & 0x7C:
+            raise ValueError(f"edge message flags 0x{flags:02X}: sensor must be 0-2 and bits 2-6 clear")
+        return cls(ticks, flags & 0x03, bool(flags & 0x80), seq, NO_SAMPLES, ()), age
 
     @classmethod
     def unpack(cls, data: bytes) -> "EdgeMessage":
-        if len(data) != 8:
-            raise ValueError(f"edge message needs 8 bytes, got {len(data)}")
-        ticks, ma, flags, seq = struct.unpack(_FMT, bytes(data))
-        if flags & 0x03 == 3 or flags & 0x7C:
-            raise ValueError(f"edge message flags 0x{flags:02X}: sensor must be 0-2 and bits 2-6 clear")
-        return cls(ticks, ma, flags & 0x03, bool(flags & 0x80), seq)
+        """Header and samples from one byte string (``pack``)."""
+        data = bytes(data)
+        if len(data) < 8 or (len(data) - 8) % 6:
+            raise ValueError(f"edge message needs 8 + 6 n bytes, got {len(data)}")
+        head, age = cls.unpack_header(data[:8])
+        samples = tuple(struct.unpack_from("<hhh", data, 8 + 6 * k) for k in range((len(data) - 8) // 6))
+        return head._with(age, samples)
 
+    @classmethod
+    def from_frames(cls, header: bytes, frames: list[bytes]) -> "EdgeMessage":
+        """The message from its header and the sample frames received before it: frames of another
+        sequence number are stale and ignored; those of this one must be indices 0..n-1 once each."""
+        head, age = cls.unpack_header(header)
+        by_index: dict[int, tuple[int, int, int]] = {}
+        for f in frames:
+            if len(f) != 8:
+                raise ValueError(f"edge sample frame needs 8 bytes, got {len(f)}")
+            a, b, c, seq, k = struct.unpack(_SAMPLE_FMT, bytes(f))
+            if seq != head.seq:
+                continue
+            if k in by_index:
+                raise ValueError(f"edge #{seq}: sample {k} received twice")
+            by_index[k] = (a, b, c)
+        if sorted(by_index) != list(range(len(by_index))):
+            raise ValueError(f"edge #{head.seq}: sample indices {sorted(by_index)} are not 0..n-1")
+        return head._with(age, tuple(by_index[k] for k in range(len(by_index))))
+
+    def _with(self, age: int, samples) -> "EdgeMessage":
+        return dataclasses.replace(self, newest_sample_age_ticks=age if len(samples) > 1 else NO_SAMPLES,
+                                   samples=samples)
+
+    # --- the two ends ---------------------------------------------------------------------------
     @classmethod
     def from_edge(cls, edge: dict, seq: int) -> "EdgeMessage":
-        return cls(
-            _ticks(edge["t_capture_s"]),
-            _current_ma(edge.get("current_a", 0.0)),
-            int(edge["sensor"]),
-            bool(edge["rising"]),
-            seq,
-        )
+        """What the bench sends for ``edge``: its capture, the capture-triggered conversion
+        ``capture_phase_currents_a`` (three values) and the regular ADC window ``adc_t_s``
+        (ascending, ADC_PERIOD_S apart) with ``adc_phase_currents_a`` (one row of three per
+        sample), when given."""
+        ticks = _ticks(edge["t_capture_s"])
+        head = cls(ticks, int(edge["sensor"]), bool(edge["rising"]), seq)
+        if edge.get("capture_phase_currents_a") is None:
+            return head
+        at_capture = tuple(_adc_counts(edge["capture_phase_currents_a"]).tolist())
+        t = edge.get("adc_t_s")
+        if t is None or len(t) == 0:
+            return head._with(NO_SAMPLES, (at_capture,))
+        counts = _adc_counts(edge["adc_phase_currents_a"])[::-1][: MAX_ADC_SAMPLES - 1]
+        age = ticks - _ticks(t[-1])
+        if not 0 <= age < NO_SAMPLES:
+            raise ValueError(f"edge ADC window: the newest sample must precede the capture by 0-6.5 ms ({age} ticks)")
+        return head._with(age, (at_capture, *map(tuple, counts.tolist())))
 
     def to_edge(self, epoch_ticks: int = 0) -> dict:
-        """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the wrap)."""
+        """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the
+        wrap); the ADC window ascending in time and ending at the capture, in amperes."""
         t = (epoch_ticks + self.ticks) * TICK_S
-        return {
-            "t_capture_s": t,
-            "sensor": self.sensor,
-            "rising": self.rising,
-            "now_s": t,
-            "current_a": self.current_ma / 1000.0,
-        }
-
-
-NO_CURRENT = 0xFFFF
-
-
-@dataclass(frozen=True)
-class CycleCurrentMessage:
-    current_ma: int
-    seq: int
-
-    def pack(self) -> bytes:
-        return struct.pack("<HB", self.current_ma, self.seq & 0xFF)
-
-    @classmethod
-    def unpack(cls, data: bytes) -> "CycleCurrentMessage":
-        if len(data) != 3:
-            raise ValueError(f"cycle-current message needs 3 bytes, got {len(data)}")
-        ma, seq = struct.unpack("<HB", bytes(data))
-        return cls(ma, seq)
-
-    @classmethod
-    def from_edge(cls, edge: dict, seq: int) -> "CycleCurrentMessage | None":
-        """The message for ``edge``'s cycle-mean current, or None when the edge has none."""
-        if edge.get("cycle_current_a") is None:
-            return None
-        return cls(min(_current_ma(edge["cycle_current_a"]), NO_CURRENT - 1), seq)
-
-    @property
-    def current_a(self) -> float | None:
-        return None if self.current_ma == NO_CURRENT else self.current_ma / 1000.0
-
-
-def with_cycle_current(edge: dict, current_ma: int | None) -> dict:
-    """The received edge with its cycle-mean current (mA as carried; None or NO_CURRENT: none)."""
-    if current_ma is not None and current_ma != NO_CURRENT:
-        edge["cycle_current_a"] = current_ma / 1000.0
-    return edge
+        edge = {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t}
+        if self.samples:
+            k = np.arange(len(self.samples) - 2, -1, -1)
+            regular = (epoch_ticks + self.ticks - self.newest_sample_age_ticks - k * ADC_PERIOD_TICKS) * TICK_S
+            edge["adc_t_s"] = np.append(regular, t)
+            edge["adc_phase_currents_a"] = np.asarray(self.samples[::-1], dtype=float) * ADC_LSB_A
+        return edge
 
 
 @dataclass(frozen=True)
@@ -262,21 +328,13 @@ class CommandMessage:
 
 
 def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
-    """What the controller receives for ``edge``: ``EdgeMessage.unpack(EdgeMessage.from_edge(edge,
-    seq).pack()).to_edge(epoch_ticks)`` without building the bytes (the in-process link's hot
-    path; tests/test_dut.py holds the two equal)."""
+    """What the controller receives for ``edge``: the message's fields as they cross any link
+    (``unpack(pack(m)) == m``: tests/test_dut.py), without building the bytes (the in-process
+    link's hot path)."""
     if int(edge["sensor"]) not in (0, 1, 2):
         raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
-    t = (epoch_ticks + _ticks(edge["t_capture_s"]) % WRAP) * TICK_S
-    out = {
-        "t_capture_s": t,
-        "sensor": int(edge["sensor"]),
-        "rising": bool(edge["rising"]),
-        "now_s": t,
-        "current_a": _current_ma(edge.get("current_a", 0.0)) / 1000.0,
-    }
-    cycle = edge.get("cycle_current_a")
-    return with_cycle_current(out, None if cycle is None else min(_current_ma(cycle), NO_CURRENT - 1))
+    m = EdgeMessage.from_edge(edge, 0)
+    return dataclasses.replace(m, ticks=m.ticks % WRAP).to_edge(epoch_ticks)
 
 
 def commands_as_received(commands, epoch_ticks: int) -> list:

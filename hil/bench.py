@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import Command
+from bldc.contract import ADC_LOOKBACK_S, ADC_PERIOD_S, MAX_ADC_SAMPLES, Command
 from plant_models import PlantConfig, Simulation
 
 from .dut.link import ControllerLink
@@ -31,38 +31,44 @@ def rms(values) -> float:
 
 
 class LinkSource:
-    """Adapts a ControllerLink to the plant's commutation-source interface."""
+    """Adapts a ControllerLink to the plant's commutation-source interface.
+
+    Each edge goes to the controller with what its own peripherals hold at the capture: the
+    capture stamp and pin level, and the ADC window of its phase-current sensors' outputs
+    (``bldc.contract.EdgeMessage``). The bench computes no current for the controller and reads
+    nothing back from it: the controller computes the edge's and the cycle's currents itself."""
 
     def __init__(self, link: ControllerLink):
         self.link = link
         self.edges = 0
-        self._sample_from = 0
-        #: the current each edge carried to the controller, in order (an offline replay of the
-        #: same edges gets the same inputs)
-        self.edge_currents_a: list[float] = []
+        self._last_capture_s: float | None = None
 
-    def _cycle_mean_current_a(self, sim) -> float | None:
-        """Mean |i| over the phases and the plant samples since the last edge, through the current
-        sensors' gain and offset: what the controller's ADC averages over the commutation cycle
-        (the current Eq. 8's K_T is defined for). None when no sample fell in the cycle."""
-        start, self._sample_from = self._sample_from, sim.samples_taken
-        return sim.measured_mean_abs_current_since_a(start)
+    def adc_window(self, edge: dict, sim) -> tuple[np.ndarray, np.ndarray]:
+        """The regular ADC samples the controller holds at ``edge``'s capture: from ADC_LOOKBACK_S
+        before it, or from the previous edge's capture when that is earlier, to the capture."""
+        t = edge["t_capture_s"]
+        after = t - ADC_LOOKBACK_S
+        if self._last_capture_s is not None:
+            after = min(after, self._last_capture_s)
+        return sim.adc_window(after, t, ADC_PERIOD_S, MAX_ADC_SAMPLES - 1)
 
     def on_edge(self, edge: dict, sim) -> list:
         """The controller answers in its own capture-timer time; a command for an instant that has
         already passed on the plant (the capture stamp precedes the interrupt) applies now."""
         self.edges += 1
-        edge["cycle_current_a"] = self._cycle_mean_current_a(sim)
-        table = getattr(self.link, "applied_calibration", None)
-        if table is not None:
-            # the edge's current at its own instant: the MCU's ADC ring read one applied
-            # conditioning delay before the capture, where the armature field that moved the edge
-            # acted (bldc.contract, EdgeMessage)
-            delay = table.conditioning_delay_s["rise" if edge["rising"] else "fall"]
-            edge["current_a"] = sim.measured_mean_abs_current_at_a(edge["t_capture_s"] - delay)
-        self.edge_currents_a.append(edge["current_a"])
+        self.with_adc(edge, sim)
         now = sim.t_s
         return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
+
+    def with_adc(self, edge: dict, sim) -> dict:
+        """``edge`` as the controller's peripherals hold it: the capture and the ADC (regular
+        window and the capture-triggered conversion); the plant's own current taken out."""
+        edge.pop("current_a", None)  # the plant's present current: not the controller's to have
+        edge["adc_t_s"], edge["adc_phase_currents_a"] = self.adc_window(edge, sim)
+        # the conversion the capture event triggers (through the same sensors)
+        edge["capture_phase_currents_a"] = sim.sensed_phase_currents_at_a(edge["t_capture_s"])
+        self._last_capture_s = edge["t_capture_s"]
+        return edge
 
 
 @dataclass

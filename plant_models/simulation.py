@@ -226,9 +226,17 @@ class Simulation:
 
     def measured_mean_abs_current_at_a(self, t_s: float) -> float:
         """Mean |i| over the phases at ``t_s`` in the recent past, through the current sensors: what
-        an MCU's ADC ring buffer holds for that instant. Linear between the plant's step starts (the
-        currents are exact there, and a step is at most ``max_step_s``), with np.interp's
-        arithmetic; held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
+        an MCU's ADC ring buffer holds for that instant (``phase_currents_at_a``)."""
+        return self._through_current_sensors(*self.phase_currents_at_a(t_s))
+
+    def sensed_phase_currents_at_a(self, t_s: float) -> np.ndarray:
+        """The three phase-current sensors' outputs at ``t_s`` in the recent past (gain, offset)."""
+        return self._sensed(np.asarray(self.phase_currents_at_a(t_s)))
+
+    def phase_currents_at_a(self, t_s: float) -> tuple[float, float, float]:
+        """The true phase currents at ``t_s`` in the recent past. Linear between the plant's step
+        starts (the currents are exact there, and a step is at most ``max_step_s``), with
+        np.interp's arithmetic; held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
         ring, mask = self.current_ring, L.CURRENT_RING - 1
         st, now = self.st, self.t_s
         present = (float(st[L.S_IA]), float(st[L.S_IB]), float(st[L.S_IC]))
@@ -237,9 +245,9 @@ class Simulation:
         while last >= first and ring[last & mask, 0] >= now:
             last -= 1  # a row of the present instant: the present itself stands for it
         if t_s >= now or last < first:
-            return self._through_current_sensors(*present)
+            return present
         if t_s <= ring[first & mask, 0]:
-            return self._through_current_sensors(*ring[first & mask, 1:4].tolist())
+            return tuple(ring[first & mask, 1:4].tolist())
         # binary search (rows increase in time): the last row at or before t_s
         lo, hi = first, last
         while lo < hi:
@@ -250,31 +258,57 @@ class Simulation:
                 hi = mid - 1
         t0, *i0 = ring[lo & mask].tolist()
         if t0 == t_s:
-            return self._through_current_sensors(*i0)
+            return tuple(i0)
         t1, *i1 = ring[(lo + 1) & mask].tolist() if lo < last else (now, *present)
-        return self._through_current_sensors(*((i1[j] - i0[j]) / (t1 - t0) * (t_s - t0) + i0[j] for j in range(3)))
+        return tuple((i1[j] - i0[j]) / (t1 - t0) * (t_s - t0) + i0[j] for j in range(3))
 
     @property
     def samples_taken(self) -> int:
         """Samples recorded since the start (flushed ones included): an index into ``samples()``."""
         return self._samples_flushed + int(self.ist[L.I_N_SAMPLES])
 
-    def measured_mean_abs_current_since_a(self, first_sample: int) -> float | None:
-        """Mean |i| over the phases and the samples from index ``first_sample`` on (``samples_taken``
-        at the window's start), through the current sensors' gain and offset: what a controller's
-        ADC averages over that window, across buffer flushes. None when no sample fell in it."""
+    def _sample_rows_since(self, first_sample: int) -> np.ndarray:
+        """Sample rows from index ``first_sample`` (``samples_taken`` counting) to now, across
+        buffer flushes."""
         n_buffer = int(self.ist[L.I_N_SAMPLES])
-        if self._samples_flushed + n_buffer <= first_sample:
-            return None
-        parts = [self._samples[max(first_sample - self._samples_flushed, 0):n_buffer, 1:4]]
+        parts = [self._samples[max(first_sample - self._samples_flushed, 0):n_buffer]]
         end = self._samples_flushed
         for chunk in reversed(self._sample_chunks):  # the window's part that was flushed, if any
             if end <= first_sample:
                 break
             start = end - chunk.shape[0]
-            parts.insert(0, chunk[max(first_sample - start, 0):, 1:4])
+            parts.insert(0, chunk[max(first_sample - start, 0):])
             end = start
-        return float(np.mean(np.abs(self._sensed(np.concatenate(parts) if len(parts) > 1 else parts[0]))))
+        return np.concatenate(parts) if len(parts) > 1 else parts[0]
+
+    def measured_mean_abs_current_since_a(self, first_sample: int) -> float | None:
+        """Mean |i| over the phases and the samples from index ``first_sample`` on (``samples_taken``
+        at the window's start), through the current sensors' gain and offset: what a controller's
+        ADC averages over that window, across buffer flushes. None when no sample fell in it."""
+        if self.samples_taken <= first_sample:
+            return None
+        return float(np.mean(np.abs(self._sensed(self._sample_rows_since(first_sample)[:, 1:4]))))
+
+    def adc_window(self, after_s: float, until_s: float, period_s: float, max_samples: int):
+        """The phase-current sensors' outputs (gain and offset; rows of three, A) as an ADC sampling
+        every ``period_s`` from t = 0 holds them for ``after_s < t <= until_s``: the newest
+        ``max_samples``, ascending in time, with their instants. ``period_s`` must be a whole
+        multiple of the plant's sample period (the ADC's instants are plant sample instants)."""
+        ratio = period_s / self.sample_period_s
+        step = int(round(ratio))
+        if step < 1 or abs(ratio - step) > 1e-9 * ratio:
+            raise ConfigError(
+                "Simulation.sample_rate_hz",
+                f"the ADC period {period_s * 1e6:g} us is not a whole multiple of the plant's sample period "
+                f"{self.sample_period_s * 1e6:g} us",
+            )
+        # sample index k is taken at k * sample_period_s (the kernel samples on that grid from 0)
+        first = max(int(math.floor(max(after_s, until_s - max_samples * period_s) / self.sample_period_s)), 0)
+        first += -first % step
+        rows = self._sample_rows_since(first) if first < self.samples_taken else np.empty((0, L.N_SAMPLE_COLS))
+        rows = rows[::step]
+        rows = rows[(rows[:, 0] > after_s) & (rows[:, 0] <= until_s)][-max_samples:]
+        return rows[:, 0].copy(), self._sensed(rows[:, 1:4])
 
     def set_duty(self, duty: float) -> None:
         if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:

@@ -8,6 +8,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from bldc.contract import (
+    ADC_LSB_A,
+    ADC_PERIOD_S,
+    MAX_ADC_SAMPLES,
     Command,
     CommandMessage,
     EdgeMessage,
@@ -19,10 +22,11 @@ from bldc.contract import (
     encode_reply,
 )
 from bldc.motor import steady_state
-from hil.bench import LockstepBench
+from hil.bench import LinkSource, LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.corrections import Corrections
 from hil.calibration.fit import fit_corrections
+from hil.controller.adc import edge_currents
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
@@ -46,8 +50,9 @@ def bench(strategy, corrections, speed=6000.0):
 
 
 def test_in_process_bench_matches_the_controller_logic_within_the_message_scaling(corrections):
-    """The link carries 100 ns ticks, mA and a 16-bit duty: the same commutation decisions as the
-    float logic called directly, each instant within a few ticks."""
+    """The link carries 100 ns ticks, 2 mA ADC counts and a 16-bit duty: the same commutation
+    decisions as the float logic called directly on the same ADC window, each instant within a
+    few ticks."""
     b, link, _ = bench(Strategy.CORRECTED, corrections)
     b.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
     direct = HallCommutation(
@@ -57,9 +62,24 @@ def test_in_process_bench_matches_the_controller_logic_within_the_message_scalin
         current_limit_a=15.0,
         motor=CONFIG.motor,
     )
+    class Unquantised(LinkSource):
+        """The same ADC window and edge currents, in floats, straight into the logic (no message)."""
+
+        def on_edge(self, edge, sim):
+            previous = self._last_capture_s
+            self.with_adc(edge, sim)
+            edge["adc_t_s"] = np.append(edge["adc_t_s"], edge["t_capture_s"])
+            edge["adc_phase_currents_a"] = np.vstack([edge["adc_phase_currents_a"], edge["capture_phase_currents_a"]])
+            delay = corrections.conditioning_delay_s["rise" if edge["rising"] else "fall"]
+            edge_currents(edge, delay, previous, commutations)
+            reply = direct.on_edge(edge)
+            commutations[:] = (commutations + [max(c.at_s, edge["t_capture_s"]) for c in reply])[-4:]
+            return reply
+
+    commutations: list[float] = []
     sim = Simulation(
         CONFIG,
-        direct,
+        Unquantised(None),
         duty=steady_state(CONFIG.motor, 6000.0)["duty"],
         initial_speed_rpm=6000.0,
         sample_rate_hz=50e3,
@@ -169,21 +189,36 @@ def test_filter_guard_trip_is_a_fault(corrections):
 _times = st.floats(0.0, 2000.0, allow_nan=False)  # beyond the 429 s wrap of the capture timer
 
 
+def _same_edge(a: dict, b: dict) -> None:
+    assert a.keys() == b.keys()
+    for key in a:
+        np.testing.assert_array_equal(a[key], b[key], err_msg=key)
+
+
 @settings(max_examples=3000, deadline=None, derandomize=True, database=None)
 @given(
     t=_times,
     sensor=st.integers(0, 2),
     rising=st.booleans(),
-    current=st.floats(-5.0, 80.0, allow_nan=False),
+    window=st.lists(st.tuples(*[st.floats(-80.0, 80.0, allow_nan=False)] * 3), max_size=MAX_ADC_SAMPLES),
+    age_s=st.floats(0.0, ADC_PERIOD_S),
     seq=st.integers(0, 127),
     offsets=st.lists(
         st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(), st.floats(-0.5, 1.5) | st.none()), max_size=3
     ),
 )
-def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, current, seq, offsets):
-    edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "current_a": current}
+def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, window, age_s, seq, offsets):
+    adc_t = t - age_s - ADC_PERIOD_S * np.arange(len(window))[::-1]
+    edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "adc_t_s": adc_t,
+            "adc_phase_currents_a": np.asarray(window, dtype=float).reshape(-1, 3)}
     epoch = edge_epoch(t)
-    assert edge_as_received(edge, epoch) == EdgeMessage.unpack(EdgeMessage.from_edge(edge, seq).pack()).to_edge(epoch)
+    message = EdgeMessage.from_edge(edge, seq)
+    received = edge_as_received(edge, epoch)
+    _same_edge(received, EdgeMessage.unpack(message.pack()).to_edge(epoch))
+    _same_edge(received, EdgeMessage.from_frames(message.header(), message.sample_frames()).to_edge(epoch))
+    if window:  # the ADC window arrives within a count and a tick
+        assert np.max(np.abs(received["adc_phase_currents_a"] - edge["adc_phase_currents_a"])) <= ADC_LSB_A / 2 + 1e-9
+        assert np.max(np.abs(received["adc_t_s"] - adc_t - (received["t_capture_s"] - t))) <= 1.5e-7
     commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
     via_bytes = [
         f.to_command(epoch)

@@ -24,6 +24,7 @@ from ..calibration.corrections import SENSORS, Corrections
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
 from ..predictors import filters as F
 from ..predictors.predictors import COUNTER_NAMES
+from .adc import edge_currents
 from .commutation import HallCommutation, SpeedPI
 
 
@@ -184,6 +185,8 @@ class VirtualController:
         self._last_t: float | None = None
         #: the last mechanical turn's sector intervals, oldest first (the missing-edge references)
         self._intervals: deque[float] = deque(maxlen=6 * self.motor.pole_pairs)
+        self._last_capture_s: float | None = None  #: the previous edge's capture (its ADC cycle's start)
+        self._commutations_s: list[float] = []  #: its own last commutation instants (the current turns there)
 
     # --- run time -------------------------------------------------------------------------------
     def raise_fault(self, code: int, t_s: float) -> None:
@@ -203,11 +206,14 @@ class VirtualController:
         self.error_register = 0
 
     def capture(self, edge: dict) -> list[Command]:
-        """A captured edge: t_capture_s, sensor (0..2), rising; now_s, current_a. Returns commands."""
+        """A captured edge (``EdgeMessage.to_edge``): t_capture_s, sensor (0..2), rising, now_s and
+        the ADC window before the capture. Returns commands."""
         t = float(edge["t_capture_s"])
         if not math.isfinite(t) or (self._last_t is not None and t <= self._last_t):
             self.raise_fault(Fault.CAPTURE_TIMING, t if math.isfinite(t) else 0.0)
             return []  # a capture stamp that does not increase cannot be an edge of this rotor
+        edge_currents(edge, self._applied_delay_s(bool(edge["rising"])), self._last_capture_s, self._commutations_s)
+        self._last_capture_s = t
         self._bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
         sector = int(SECTOR_OF_CODE[self._bits[0] * 4 + self._bits[1] * 2 + self._bits[2]])
         self._sensors_seen.add(int(edge["sensor"]))
@@ -250,6 +256,10 @@ class VirtualController:
             self._logic.resync()
             self._resync_pending = False
         commands = self._logic.on_edge(edge)
+        # a command for an instant already past takes effect at once (the interrupt's instant)
+        now = float(edge.get("now_s", t))
+        turns = [max(c.at_s, now) for c in commands if c.sector is not None]
+        self._commutations_s = (self._commutations_s + turns)[-4:]
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
             trips = self._predictor.covariance_repairs
@@ -273,6 +283,12 @@ class VirtualController:
         if len(self._intervals) == self._intervals.maxlen:
             return self._intervals[0], self.same_sector_interval_ratio
         return sum(self._intervals) / len(self._intervals), self.missing_edge_interval_ratio
+    def _applied_delay_s(self, rising: bool) -> float:
+        """The conditioning delay of the applied table for this polarity: the edge's current is read
+        that long before the capture, where the armature field that moved the edge acted (0 before
+        a calibration is applied, and under raw commutation)."""
+        table = self._logic.corrections
+        return table.conditioning_delay_s["rise" if rising else "fall"] if table is not None else 0.0
 
     def _edge_lost(self, t_s: float) -> None:
         self.raise_fault(Fault.MISSING_EDGE, t_s)

@@ -3,9 +3,9 @@
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
 boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
-Edges arrive as RPDO1 (COB-ID 0x200 + node), each preceded by its cycle-mean current as RPDO2
-(0x300 + node, optional), commands leave as TPDO1 (0x180 + node), in the messages of
-bldc.contract.
+Edges arrive as the edge message's header in RPDO1 (COB-ID 0x200 + node), each preceded by its
+ADC window, one sample per RPDO2 (0x300 + node); commands leave as TPDO1 (0x180 + node), in the
+messages of bldc.contract (version 2 of the edge message).
 """
 
 from __future__ import annotations
@@ -24,17 +24,15 @@ from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from bldc.contract import (
-    NO_CURRENT,
     CalibrationTableError,
     CommandMessage,
-    CycleCurrentMessage,
+    MAX_ADC_SAMPLES,
     EdgeMessage,
     Fault,
     edge_epoch,
     encode_reply,
     filter_vector,
     next_epoch,
-    with_cycle_current,
     with_filter_vector,
 )
 
@@ -245,9 +243,11 @@ class CanopenDevice:
         self.network.subscribe(0, self._on_nmt)
         self.network.subscribe(0x200 + node_id, self._on_rpdo)
         self.network.subscribe(0x300 + node_id, self._on_rpdo2)
-        self._last_edge = EdgeMessage(0, 0, 0, False, 0)
-        self._cycle = CycleCurrentMessage(NO_CURRENT, 0)  # the last RPDO2; used by the edge of its sequence
-        self._cycle_pending = False
+        self._last_edge = EdgeMessage(0, 0, False, 0)
+        #: RPDO2 sample frames received since the last edge header: the ADC window of the edge whose
+        #: header (RPDO1) follows them (bounded: a stream of samples without headers keeps the newest)
+        self._sample_frames: list[bytes] = []
+        self._last_sample = (0, 0, 0, 0, 0)  #: the last RPDO2's fields, for 0x2201 reads
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -328,9 +328,11 @@ class CanopenDevice:
             return int(st[("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")[subindex - 1]])
         if index == 0x2200 and subindex >= 1:
             e = self._last_edge
-            return (e.ticks, e.current_ma, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq)[subindex - 1]
+            return (e.ticks, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq, e.newest_sample_age_ticks)[
+                subindex - 1
+            ]
         if index == 0x2201 and subindex >= 1:
-            return (self._cycle.current_ma, self._cycle.seq)[subindex - 1]
+            return self._last_sample[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [
@@ -387,27 +389,20 @@ class CanopenDevice:
         self.node.emcy.send(code, self.controller.error_register)
 
     # --- PDO -------------------------------------------------------------------------------------
-    def _received(self, message_type, data):
-        """The PDO's message, or None when the device is not operational or the PDO is malformed
-        (ignored, as CiA 301 devices do with wrong-length PDOs)."""
-        if self.state != "OPERATIONAL":
-            return None
-        try:
-            return message_type.unpack(bytes(data))
-        except ValueError:
-            return None
-
     def _on_rpdo(self, can_id, data, timestamp) -> None:
-        if (msg := self._received(EdgeMessage, data)) is None:
+        if self.state != "OPERATIONAL":
             return
         with self._lock:
+            frames, self._sample_frames = self._sample_frames, []
+            try:
+                msg = EdgeMessage.from_frames(bytes(data), frames)
+            except ValueError:
+                return  # a malformed PDO or sample set is ignored, as CiA 301 devices do
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
             self._last_edge = msg
-            cycle = self._cycle.current_ma if self._cycle_pending and self._cycle.seq == msg.seq else None
-            self._cycle_pending = False
             try:
-                commands = self.controller.capture(with_cycle_current(msg.to_edge(self._epoch), cycle))
+                commands = self.controller.capture(msg.to_edge(self._epoch))
             except Exception:  # never let bad input kill the receive thread: report and answer
                 self.controller.raise_fault(Fault.INTERNAL, 0.0)
                 commands = []
@@ -416,11 +411,13 @@ class CanopenDevice:
             self.network.send_message(0x180 + self.node_id, f.pack())
 
     def _on_rpdo2(self, can_id, data, timestamp) -> None:
-        """The cycle-mean current of the edge with the same sequence number (RPDO1 that follows)."""
-        if (msg := self._received(CycleCurrentMessage, data)) is None:
+        """One ADC sample of the edge whose header (RPDO1) follows."""
+        if self.state != "OPERATIONAL" or len(data) != 8:
             return
         with self._lock:
-            self._cycle, self._cycle_pending = msg, True
+            self._sample_frames.append(bytes(data))
+            del self._sample_frames[:-MAX_ADC_SAMPLES]
+            self._last_sample = struct.unpack("<hhhBB", bytes(data))
 
     def close(self) -> None:
         try:
@@ -640,10 +637,10 @@ class CanopenLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        cycle = CycleCurrentMessage.from_edge(edge, seq)
-        if cycle is not None:  # RPDO2 before its edge: the edge triggers the controller
-            self._send(f"cycle current of edge #{seq}", 0x300 + self.node_id, cycle.pack())
-        self._send(f"edge #{seq}", 0x200 + self.node_id, EdgeMessage.from_edge(edge, seq).pack())
+        msg = EdgeMessage.from_edge(edge, seq)
+        for k, frame in enumerate(msg.sample_frames()):  # RPDO2s before their header: the header triggers
+            self._send(f"ADC sample {len(msg.samples) - 1 - k} of edge #{seq}", 0x300 + self.node_id, frame)
+        self._send(f"edge #{seq}", 0x200 + self.node_id, msg.header())
         commands = []
         deadline = time.monotonic() + self.timeout_s
         while True:

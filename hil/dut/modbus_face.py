@@ -2,7 +2,7 @@
 
 Register map (holding registers, one unit; FLOAT32 = IEEE single, two registers, high word
 first; docs/controller.md has the table). Edges are exchanged in one transaction: function 23
-(read/write multiple registers) writes the 8-byte edge message to the mailbox at 200 and reads
+(read/write multiple registers) writes the edge message (header and ADC window) to the mailbox at 300 and reads
 the reply at 210 (count, then up to four 8-byte command messages), so a plant step costs one
 round trip.
 """
@@ -21,17 +21,15 @@ from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bldc.contract import (
-    NO_CURRENT,
     CalibrationTableError,
     CommandMessage,
-    CycleCurrentMessage,
+    MAX_ADC_SAMPLES,
     EdgeMessage,
     Fault,
     edge_epoch,
     encode_reply,
     filter_vector,
     next_epoch,
-    with_cycle_current,
     with_filter_vector,
 )
 
@@ -53,9 +51,18 @@ ERROR_REGISTER = 120
 RB_COUNTERS = 130
 COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
 IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
-EDGE_IN, REPLY = 200, 210
-#: mean |i| over the cycle the edge ends, mA (0xFFFF: none); used when written with the edge
-EDGE_CYCLE_CURRENT = 204
+REPLY = 210
+#: the edge mailbox (edge message version 2): the 8-byte header in 4 registers, then its ADC window,
+#: 3 registers per sample (I16 phase a, b, c in counts), newest first; the write's length says how
+#: many samples it holds. The header triggers the controller.
+EDGE_IN = 300
+#: samples the mailbox's one write holds (a read/write-multiple request writes at most 121 registers)
+MAILBOX_SAMPLES = 39
+EDGE_MAILBOX_REGISTERS = 4 + 3 * MAILBOX_SAMPLES
+#: an edge's older samples (index 39 on), when it has more, written before its mailbox (write
+#: multiple registers; the next mailbox write takes them and empties the block)
+EDGE_OLDER_SAMPLES = EDGE_IN + EDGE_MAILBOX_REGISTERS
+EDGE_OLDER_REGISTERS = 3 * (MAX_ADC_SAMPLES - MAILBOX_SAMPLES)
 REPLY_FRAMES = 4
 
 
@@ -76,6 +83,11 @@ def _regs_bytes(r) -> bytes:
     return struct.pack(">HHHH", *r)
 
 
+def _regs_i16_bytes(r) -> bytes:
+    """Registers holding I16 ADC counts (two's complement) as the edge message's little-endian samples."""
+    return struct.pack(f"<{len(r)}h", *(v - 0x10000 if v & 0x8000 else v for v in r))
+
+
 def simdata() -> list[SimData]:
     """The register map: everything not listed is an illegal address."""
     return [
@@ -92,8 +104,8 @@ def simdata() -> list[SimData]:
         SimData(ERROR_REGISTER, 10, 0, DataType.UINT16, readonly=True),
         SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
         SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
-        SimData(EDGE_IN, 4, 0, DataType.REGISTERS),
-        SimData(EDGE_CYCLE_CURRENT, 1, NO_CURRENT, DataType.REGISTERS),
+        SimData(EDGE_IN, EDGE_MAILBOX_REGISTERS, 0, DataType.REGISTERS),
+        SimData(EDGE_OLDER_SAMPLES, EDGE_OLDER_REGISTERS, 0, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -173,6 +185,7 @@ class ModbusDevice:
         controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
         self._epoch = 0
         self._last_ticks = None
+        self._older_samples: list[int] = []  #: the last write to EDGE_OLDER_SAMPLES, for the next edge
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
@@ -431,17 +444,23 @@ class ModbusDevice:
             c.reset()
             self._epoch, self._last_ticks = 0, None
             values[COMMAND - address] = 0  # a trigger reads back as 0
+        if address >= EDGE_OLDER_SAMPLES:
+            if address != EDGE_OLDER_SAMPLES or len(values) % 3:
+                return ExcCodes.ILLEGAL_VALUE  # whole samples from the block's start
+            self._older_samples = list(values)
         if covers(EDGE_IN, 4):
+            if address != EDGE_IN or (end - EDGE_IN - 4) % 3:
+                return ExcCodes.ILLEGAL_VALUE  # a mailbox write is the header and whole samples
+            older, self._older_samples = self._older_samples, []
+            if older and end - EDGE_IN != EDGE_MAILBOX_REGISTERS:
+                return ExcCodes.ILLEGAL_VALUE  # older samples belong after a full mailbox
             try:
-                msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)))
+                msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)) + _regs_i16_bytes(values[4:] + older))
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
-            cycle = part(EDGE_CYCLE_CURRENT, 1)[0] if covers(EDGE_CYCLE_CURRENT) else None
-            frames = encode_reply(c.capture(with_cycle_current(msg.to_edge(self._epoch), cycle)), msg.seq)[
-                :REPLY_FRAMES
-            ]
+            frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
             reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
             regs[REPLY - base : REPLY - base + len(reply)] = reply
         return None
@@ -550,10 +569,15 @@ class ModbusLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
-        cycle = CycleCurrentMessage.from_edge(edge, seq)
-        if cycle is not None:  # register 204 in the same transaction
-            values.append(cycle.current_ma)
+        msg = EdgeMessage.from_edge(edge, seq)
+        samples = [v & 0xFFFF for sample in msg.samples for v in sample]
+        values = _bytes_regs(msg.header()) + samples[: 3 * MAILBOX_SAMPLES]
+        if len(samples) > 3 * MAILBOX_SAMPLES:  # the older ones first, in a write of their own
+            older = samples[3 * MAILBOX_SAMPLES :]
+            self._call(
+                f"older ADC samples of edge #{seq}",
+                lambda: self.client.write_registers(EDGE_OLDER_SAMPLES, older, device_id=self.unit),
+            )
         r = self._call(
             f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
             lambda: self.client.readwrite_registers(

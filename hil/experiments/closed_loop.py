@@ -16,13 +16,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bldc.contract import Strategy, filter_vector, with_filter_vector
+from bldc.contract import Strategy, edge_as_received, filter_vector, with_filter_vector
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
 from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
+from ..controller.adc import edge_currents
 from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
@@ -127,27 +128,29 @@ def commutation_time_mape_pct(error_deg_e: np.ndarray) -> float:
 
 
 class _EdgeTap:
-    """A link that passes everything through and keeps the cycle-mean current each edge message
-    carried (what the controller's predictor got), for the offline replay."""
+    """A link that passes everything through and keeps, for the offline replay, the currents the
+    controller computes from each edge's ADC window with the applied table's delays: the edge's
+    current (for the correction) and the cycle mean (the predictor's input). The experiment knows
+    the table it downloaded; the bench itself gives the controller only the samples."""
 
-    def __init__(self, link):
+    def __init__(self, link, corrections):
         self._link = link
-        self.cycle_current_a: list[float | None] = []
+        self._delay_s = corrections.as_float32().conditioning_delay_s
+        self._last_capture_s: float | None = None
+        self.current_a: list[float] = []
+        self.cycle_current_a: list[float] = []
 
     def edge(self, edge: dict):
-        self.cycle_current_a.append(edge.get("cycle_current_a"))
+        seen = edge_currents(edge_as_received(edge, 0), self._delay_s["rise" if edge["rising"] else "fall"],
+                             self._last_capture_s)
+        self._last_capture_s = seen["t_capture_s"]
+        self.current_a.append(seen.get("current_a", 0.0))
+        # where no sample fell in the cycle the controller falls back to the edge's current
+        self.cycle_current_a.append(seen.get("cycle_current_a", self.current_a[-1]))
         return self._link.edge(edge)
 
     def __getattr__(self, name):
         return getattr(self._link, name)
-
-
-def _carried_cycle_currents(tap: _EdgeTap, sent_a: np.ndarray) -> np.ndarray:
-    """The current the controller's predictor got with each edge: the cycle mean its message
-    carried, or where it carried none (no plant sample fell in the cycle) the current at the
-    edge, as the controller falls back (HallCommutation.on_edge)."""
-    carried = tap.cycle_current_a[: sent_a.size]
-    return np.array([sent if c is None else c for c, sent in zip(carried, sent_a)], dtype=float)
 
 
 def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S,
@@ -161,7 +164,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
     link.download_calibration(corrections)
     link.set_strategy(int(strategy))
     first = SETPOINTS_RPM[0]
-    tap = _EdgeTap(link)
+    tap = _EdgeTap(link, corrections)
     bench = LockstepBench(
         config,
         tap,
@@ -174,8 +177,8 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
     c = bench.sim.commutations()
     status = link.status()
     edges = bench.sim.edges()
-    # corrected with the currents the edges carried to the controller (each at the edge's instant)
-    sent = np.asarray(bench.source.edge_currents_a[: len(edges)])
+    # corrected with the currents the controller computed at each edge's own instant
+    sent = np.asarray(tap.current_a[: len(edges)])
     t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections, sent,
                                   config.motor.pole_pairs)
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
@@ -183,7 +186,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         seed=seed,
         strategy=Strategy(int(strategy)).name,
         t_corrected_s=t_corr,
-        cycle_current_a=_carried_cycle_currents(tap, sent),
+        cycle_current_a=np.asarray(tap.cycle_current_a[: len(edges)], dtype=float),
         judged=k,
         t_ideal_next_s=edges.t_ideal_s[k + 1],
         w_true_next_deg_e_s=rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs),
