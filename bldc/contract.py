@@ -11,19 +11,18 @@ in-process link builds the same fields without the bytes, so all links give the 
 bit-identical inputs). Wire layouts and versions: docs/controller.md.
 
 EdgeMessage, version 2 (plant -> controller): what the MCU's own peripherals hold at a capture.
-    Header, 8 bytes (RPDO1; Modbus mailbox registers 0-3): U32 capture time in 100 ns timer ticks
-    (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8 sequence
-    number, U16 age of the newest regular ADC sample at the capture in ticks (0xFFFF: none).
-    ADC window, up to MAX_ADC_SAMPLES samples of the three phase-current sensors' outputs: the
-    conversion the capture event triggers (index 0), then regular conversions every
-    ADC_PERIOD_TICKS reaching back at least ADC_LOOKBACK_S before the capture and to the
-    previous edge's capture: CANopen one RPDO2 per sample before the header (I16 a, b, c in
-    ADC_LSB_A counts, U8 sequence number, U8 index, 0 = newest); Modbus three registers per
-    sample after the header, newest first (samples beyond the first 39 in a write of their own
-    before it: docs/controller.md). The controller computes the current at the edge's
-    own instant (one applied conditioning delay before the capture) and the commutation cycle's
-    mean current (Eq. 8's input) from them itself. Version 1 (8 bytes with the current at the
-    edge and a separate cycle-current message, computed by the bench) is withdrawn.
+    Header, 8 bytes (RPDO1, sent last: it triggers; Modbus mailbox registers 0-3): U32 capture
+    time in 100 ns timer ticks (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit
+    7 rising), U8 sequence number, U16 age of the window's newest conversion in ticks (0xFFFF:
+    no window). Accumulators (RPDO3: I32 sums of phases a and b; RPDO4: I32 sum of phase c, U16
+    conversions summed, U8 sequence number, U8 0): the sensors' conversions summed since the
+    previous capture, in counts. Window (one RPDO2 per conversion, oldest first: I16 a, b, c in
+    counts, U8 sequence number, U8 index): index 0 the conversion the capture triggered, then the
+    newest periodic conversions, ADC_PERIOD_TICKS apart, the header's age before the capture. Modbus: header, accumulators (I32 a, b, c, U16 conversions), then
+    the window newest first: the bytes of ``pack``, two per register, the first one high. The
+    controller computes the current at the edge's own instant and the cycle's mean current (Eq.
+    8's input) from them itself. Version 1 (8 bytes carrying currents the bench computed) is
+    withdrawn.
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
@@ -138,27 +137,28 @@ def _duty_u16(duty: float) -> int:
     return int(round(min(max(duty, 0.0), 1.0) * DUTY_SCALE))
 
 
-#: The controller's ADC as the bench emulates it: the three phase-current sensors' outputs converted
-#: every ADC_PERIOD_TICKS of the capture timer (regular conversions at 50 kHz: twice per period of a
-#: 25 kHz PWM), and once more at the capture event itself (an injected conversion the capture timer
-#: triggers, as MCU timers can): the current right after a commutation turns faster than a sample
-#: period, and a line between regular samples missed the Hall switch's current by up to 1.7 A
-ADC_PERIOD_TICKS = 200
+#: The controller's ADC as the bench emulates it (docs/controller.md, "What the controller's
+#: peripherals hold"). Its three phase-current sensors are converted at the capture event (an
+#: injected conversion the capture timer triggers, as MCU timers can) and every ADC_PERIOD_TICKS
+#: of the capture timer (250 kHz, into a DMA ring; at 20 us between conversions a line between them
+#: missed the current at the Hall switch by up to 1.7 A right after a commutation), and
+#: at a lower rate a conversion is also added to per-phase accumulators that the capture
+#: interrupt reads and clears (the commutation cycle's sums; the bench adds one conversion per plant
+#: sample, 50 kHz by default, and the count goes with the sums).
+ADC_PERIOD_TICKS = 40
 ADC_PERIOD_S = ADC_PERIOD_TICKS * TICK_S
-#: an edge's ADC window reaches back at least this far before its capture (and to the previous
-#: edge's capture when that is earlier): the largest conditioning delay a calibration may carry
-#: (real open-collector Hall wiring with a filter capacitor: up to about 300 us) plus one ADC period
-#: to interpolate over
-ADC_LOOKBACK_S = 500e-6
-#: samples one edge message carries at most (the capture's and the newest regular ones): a cycle
-#: longer than this window (79 x 20 us = 1.58 ms: 3,800 rpm with 2 pole pairs) is averaged over its
-#: last 1.58 ms
-MAX_ADC_SAMPLES = 80
-#: one count of a sample: 2 mA, so an I16 spans +-65.5 A (beyond it the sample saturates, as an ADC)
+#: the window an edge carries (the capture's conversion and the periodic ones) reaches this far
+#: before its capture: the largest conditioning delay a calibration table may carry (100 us, the
+#: built-in controller's table bound) and one conversion
+MAX_ADC_SAMPLES = 28
+ADC_LOOKBACK_S = (MAX_ADC_SAMPLES - 2) * ADC_PERIOD_S
+#: one count of a conversion: 2 mA, so an I16 spans +-65.5 A (beyond it a conversion saturates)
 ADC_LSB_A = 2e-3
-NO_SAMPLES = 0xFFFF  #: the header's sample age when the message carries no sample
+NO_SAMPLES = 0xFFFF  #: the header's newest-conversion age when the message carries no window
 _HEADER_FMT = "<IBBH"
 _SAMPLE_FMT = "<hhhBB"
+_SUMS_AB_FMT = "<ii"
+_SUM_C_FMT = "<iHBB"
 
 
 def _adc_counts(current_a) -> np.ndarray:
@@ -168,13 +168,14 @@ def _adc_counts(current_a) -> np.ndarray:
 
 @dataclass(frozen=True)
 class EdgeMessage:
-    """The edge message, version 2 (docs/controller.md): the capture and the ADC window before it.
+    """The edge message, version 2 (docs/controller.md): the capture and the controller's ADC.
 
-    ``samples`` are the three phase-current sensors' outputs in ADC counts, newest first: sample 0
-    converted at the capture event, sample k >= 1 (regular) ``newest_sample_age_ticks + (k - 1) *
-    ADC_PERIOD_TICKS`` ticks before the capture. The
-    controller computes the current at the edge's own instant and the commutation cycle's mean
-    from them itself, as firmware does from its ADC ring."""
+    ``samples``: the window, three sensor outputs per conversion in counts, newest first: 0 the
+    conversion the capture event triggers, k >= 1 taken ``newest_sample_age_ticks + (k - 1) *
+    ADC_PERIOD_TICKS`` ticks before the capture.
+    ``sums`` and ``summed``: the per-phase accumulators (counts) and the number of conversions they
+    hold since the previous capture. The controller computes the current at the edge's own
+    instant and the commutation cycle's mean from them itself, as firmware does from its ADC."""
 
     ticks: int
     sensor: int
@@ -182,16 +183,20 @@ class EdgeMessage:
     seq: int
     newest_sample_age_ticks: int = NO_SAMPLES
     samples: tuple[tuple[int, int, int], ...] = ()
+    sums: tuple[int, int, int] = (0, 0, 0)
+    summed: int = 0
 
     def __post_init__(self):
         if len(self.samples) > MAX_ADC_SAMPLES:
             raise ValueError(f"edge message carries at most {MAX_ADC_SAMPLES} ADC samples, got {len(self.samples)}")
         if (len(self.samples) > 1) != (self.newest_sample_age_ticks != NO_SAMPLES):
-            raise ValueError("edge message: a regular sample's age needs regular samples, and they need an age")
+            raise ValueError("edge message: the periodic conversions' age needs them, and they need an age")
+        if not 0 <= self.summed <= 0xFFFF:
+            raise ValueError(f"edge message: the accumulators hold 0-65535 conversions, got {self.summed}")
 
-    # --- wire forms ---------------------------------------------------------------------------
+    # --- wire forms (docs/controller.md) ---------------------------------------------------------
     def header(self) -> bytes:
-        """The 8-byte header (CANopen RPDO1; the first 4 registers of the Modbus mailbox)."""
+        """The 8-byte header (CANopen RPDO1; Modbus mailbox registers 0-3), sent last: it triggers."""
         return struct.pack(
             _HEADER_FMT,
             self.ticks % WRAP,
@@ -200,42 +205,60 @@ class EdgeMessage:
             self.newest_sample_age_ticks,
         )
 
+    def accumulator_frames(self) -> tuple[bytes, bytes]:
+        """The accumulators (CANopen RPDO3: I32 sum a, I32 sum b; RPDO4: I32 sum c, U16 conversions,
+        U8 sequence number, U8 0)."""
+        return (
+            struct.pack(_SUMS_AB_FMT, *self.sums[:2]),
+            struct.pack(_SUM_C_FMT, self.sums[2], self.summed, self.seq & 0xFF, 0),
+        )
+
     def sample_frames(self) -> list[bytes]:
-        """One 8-byte frame per sample (CANopen RPDO2, sent before the header, oldest first): I16
-        phase a, b, c in counts, U8 sequence number of the edge, U8 sample index (0 = newest)."""
+        """One 8-byte frame per conversion (CANopen RPDO2, oldest first): I16 phase a, b, c in counts,
+        U8 sequence number of the edge, U8 index (0 = newest)."""
         return [
             struct.pack(_SAMPLE_FMT, *self.samples[k], self.seq & 0xFF, k) for k in range(len(self.samples) - 1, -1, -1)
         ]
 
     def pack(self) -> bytes:
-        """Header and samples as one byte string (the Modbus mailbox's content)."""
-        return self.header() + b"".join(struct.pack("<hhh", *s) for s in self.samples)
+        """Header, accumulators and window as one byte string (the Modbus mailbox's content)."""
+        return (
+            self.header()
+            + b"".join(self.accumulator_frames())[:14]
+            + b"".join(struct.pack("<hhh", *s) for s in self.samples)
+        )
 
     @classmethod
-    def unpack_header(cls, data: bytes) -> tuple["EdgeMessage", int]:
-        """The header without its samples, and the newest sample's age it announces."""
+    def _unpack_header(cls, data: bytes) -> tuple["EdgeMessage", int]:
+        """The header without the rest, and the newest conversion's age it announces."""
         if len(data) != 8:
             raise ValueError(f"edge message header needs 8 bytes, got {len(data)}")
         ticks, flags, seq, age = struct.unpack(_HEADER_FMT, bytes(data))
         if flags & 0x03 == 3 or flags & 0x7C:
             raise ValueError(f"edge message flags 0x{flags:02X}: sensor must be 0-2 and bits 2-6 clear")
-        return cls(ticks, flags & 0x03, bool(flags & 0x80), seq, NO_SAMPLES, ()), age
+        return cls(ticks, flags & 0x03, bool(flags & 0x80), seq), age
+
+    def _with(self, age: int, samples, sums, summed) -> "EdgeMessage":
+        return dataclasses.replace(self, newest_sample_age_ticks=age if len(samples) > 1 else NO_SAMPLES,
+                                   samples=tuple(samples), sums=tuple(sums), summed=summed)
 
     @classmethod
     def unpack(cls, data: bytes) -> "EdgeMessage":
-        """Header and samples from one byte string (``pack``)."""
+        """Header, accumulators and window from one byte string (``pack``)."""
         data = bytes(data)
-        if len(data) < 8 or (len(data) - 8) % 6:
-            raise ValueError(f"edge message needs 8 + 6 n bytes, got {len(data)}")
-        head, age = cls.unpack_header(data[:8])
-        samples = tuple(struct.unpack_from("<hhh", data, 8 + 6 * k) for k in range((len(data) - 8) // 6))
-        return head._with(age, samples)
+        if len(data) < 22 or (len(data) - 22) % 6:
+            raise ValueError(f"edge message needs 22 + 6 n bytes, got {len(data)}")
+        head, age = cls._unpack_header(data[:8])
+        a, b, c, summed = struct.unpack_from("<iiiH", data, 8)
+        samples = [struct.unpack_from("<hhh", data, 22 + 6 * k) for k in range((len(data) - 22) // 6)]
+        return head._with(age, samples, (a, b, c), summed)
 
     @classmethod
-    def from_frames(cls, header: bytes, frames: list[bytes]) -> "EdgeMessage":
-        """The message from its header and the sample frames received before it: frames of another
-        sequence number are stale and ignored; those of this one must be indices 0..n-1 once each."""
-        head, age = cls.unpack_header(header)
+    def from_frames(cls, header: bytes, accumulators: tuple[bytes, bytes] | None, frames: list[bytes]):
+        """The message from its header and the frames received before it: sample frames of another
+        sequence number are stale and ignored; those of this one must be indices 0..n-1 once each.
+        Without accumulator frames of this sequence number the accumulators read empty."""
+        head, age = cls._unpack_header(header)
         by_index: dict[int, tuple[int, int, int]] = {}
         for f in frames:
             if len(f) != 8:
@@ -248,42 +271,49 @@ class EdgeMessage:
             by_index[k] = (a, b, c)
         if sorted(by_index) != list(range(len(by_index))):
             raise ValueError(f"edge #{head.seq}: sample indices {sorted(by_index)} are not 0..n-1")
-        return head._with(age, tuple(by_index[k] for k in range(len(by_index))))
-
-    def _with(self, age: int, samples) -> "EdgeMessage":
-        return dataclasses.replace(self, newest_sample_age_ticks=age if len(samples) > 1 else NO_SAMPLES,
-                                   samples=samples)
+        sums, summed = (0, 0, 0), 0
+        if accumulators is not None and len(accumulators[0]) == 8 and len(accumulators[1]) == 8:
+            a, b = struct.unpack(_SUMS_AB_FMT, bytes(accumulators[0]))
+            c, n, seq, _ = struct.unpack(_SUM_C_FMT, bytes(accumulators[1]))
+            if seq == head.seq:
+                sums, summed = (a, b, c), n
+        return head._with(age, [by_index[k] for k in range(len(by_index))], sums, summed)
 
     # --- the two ends ---------------------------------------------------------------------------
     @classmethod
     def from_edge(cls, edge: dict, seq: int) -> "EdgeMessage":
-        """What the bench sends for ``edge``: its capture, the capture-triggered conversion
-        ``capture_phase_currents_a`` (three values) and the regular ADC window ``adc_t_s``
-        (ascending, ADC_PERIOD_S apart) with ``adc_phase_currents_a`` (one row of three per
-        sample), when given."""
+        """What the bench sends for ``edge``: its capture; the conversion the capture triggers,
+        ``capture_phase_currents_a`` (three values), and the periodic window ``adc_t_s``
+        (ascending, ADC_PERIOD_S apart) with ``adc_phase_currents_a`` (a row of three per
+        conversion); the cycle's accumulated conversions ``adc_cycle_phase_currents_a`` (rows of
+        three), when given."""
         ticks = _ticks(edge["t_capture_s"])
         head = cls(ticks, int(edge["sensor"]), bool(edge["rising"]), seq)
-        if edge.get("capture_phase_currents_a") is None:
-            return head
-        at_capture = tuple(_adc_counts(edge["capture_phase_currents_a"]).tolist())
-        t = edge.get("adc_t_s")
-        if t is None or len(t) == 0:
-            return head._with(NO_SAMPLES, (at_capture,))
-        counts = _adc_counts(edge["adc_phase_currents_a"])[::-1][: MAX_ADC_SAMPLES - 1]
-        age = ticks - _ticks(t[-1])
-        if not 0 <= age < NO_SAMPLES:
-            raise ValueError(f"edge ADC window: the newest sample must precede the capture by 0-6.5 ms ({age} ticks)")
-        return head._with(age, (at_capture, *map(tuple, counts.tolist())))
+        samples, age = (), NO_SAMPLES
+        if edge.get("capture_phase_currents_a") is not None:
+            samples = (tuple(_adc_counts(edge["capture_phase_currents_a"]).tolist()),)
+            t = edge.get("adc_t_s")
+            if t is not None and len(t):
+                periodic = _adc_counts(edge["adc_phase_currents_a"])[::-1][: MAX_ADC_SAMPLES - 1]
+                samples += tuple(map(tuple, periodic.tolist()))
+                age = ticks - _ticks(t[-1])
+                if not 0 <= age < NO_SAMPLES:
+                    raise ValueError(f"edge ADC window: the newest conversion must precede the capture ({age} ticks)")
+        cycle = edge.get("adc_cycle_phase_currents_a")
+        counts = _adc_counts(cycle if cycle is not None else np.empty((0, 3)))[-0xFFFF:]
+        return head._with(age, samples, tuple(int(v) for v in counts.sum(axis=0)), len(counts))
 
     def to_edge(self, epoch_ticks: int = 0) -> dict:
         """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the
-        wrap); the ADC window ascending in time and ending at the capture, in amperes."""
+        wrap); the window ascending in time, in amperes; the accumulators in ampere-conversions."""
         t = (epoch_ticks + self.ticks) * TICK_S
-        edge = {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t}
+        edge = {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t,
+                "adc_cycle_sums_a": np.asarray(self.sums, dtype=float) * ADC_LSB_A,
+                "adc_cycle_conversions": self.summed}
         if self.samples:
             k = np.arange(len(self.samples) - 2, -1, -1)
-            regular = (epoch_ticks + self.ticks - self.newest_sample_age_ticks - k * ADC_PERIOD_TICKS) * TICK_S
-            edge["adc_t_s"] = np.append(regular, t)
+            periodic = (epoch_ticks + self.ticks - self.newest_sample_age_ticks - k * ADC_PERIOD_TICKS) * TICK_S
+            edge["adc_t_s"] = np.append(periodic, t)
             edge["adc_phase_currents_a"] = np.asarray(self.samples[::-1], dtype=float) * ADC_LSB_A
         return edge
 

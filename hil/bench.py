@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import ADC_LOOKBACK_S, ADC_PERIOD_S, MAX_ADC_SAMPLES, Command
+from bldc.contract import ADC_PERIOD_S, MAX_ADC_SAMPLES, Command
 from plant_models import PlantConfig, Simulation
 
 from .dut.link import ControllerLink
@@ -41,16 +41,7 @@ class LinkSource:
     def __init__(self, link: ControllerLink):
         self.link = link
         self.edges = 0
-        self._last_capture_s: float | None = None
-
-    def adc_window(self, edge: dict, sim) -> tuple[np.ndarray, np.ndarray]:
-        """The regular ADC samples the controller holds at ``edge``'s capture: from ADC_LOOKBACK_S
-        before it, or from the previous edge's capture when that is earlier, to the capture."""
-        t = edge["t_capture_s"]
-        after = t - ADC_LOOKBACK_S
-        if self._last_capture_s is not None:
-            after = min(after, self._last_capture_s)
-        return sim.adc_window(after, t, ADC_PERIOD_S, MAX_ADC_SAMPLES - 1)
+        self._cycle_first_sample = 0  #: the first plant sample after the previous capture
 
     def on_edge(self, edge: dict, sim) -> list:
         """The controller answers in its own capture-timer time; a command for an instant that has
@@ -61,13 +52,17 @@ class LinkSource:
         return [c if c.at_s >= now else Command(now, c.sector, c.duty, c.direction) for c in self.link.edge(edge)]
 
     def with_adc(self, edge: dict, sim) -> dict:
-        """``edge`` as the controller's peripherals hold it: the capture and the ADC (regular
-        window and the capture-triggered conversion); the plant's own current taken out."""
+        """``edge`` as the controller's peripherals hold it at the capture: the stamp and pin level,
+        the ADC's window (the conversion the capture triggers and the newest periodic ones) and the
+        conversions accumulated
+        since the previous capture (one per plant sample); the plant's own current taken out."""
+        t = edge["t_capture_s"]
         edge.pop("current_a", None)  # the plant's present current: not the controller's to have
-        edge["adc_t_s"], edge["adc_phase_currents_a"] = self.adc_window(edge, sim)
-        # the conversion the capture event triggers (through the same sensors)
-        edge["capture_phase_currents_a"] = sim.sensed_phase_currents_at_a(edge["t_capture_s"])
-        self._last_capture_s = edge["t_capture_s"]
+        edge["adc_t_s"], edge["adc_phase_currents_a"] = sim.adc_conversions(t, ADC_PERIOD_S, MAX_ADC_SAMPLES - 1)
+        edge["capture_phase_currents_a"] = sim.adc_conversions_at(np.array([t]))[0]  # the capture's conversion
+        cycle = sim.sensed_samples_since(self._cycle_first_sample, t)
+        edge["adc_cycle_phase_currents_a"] = cycle
+        self._cycle_first_sample += cycle.shape[0]
         return edge
 
 

@@ -347,8 +347,8 @@ def _advance(p, st, ist, switch_off, arm_i, arm_deg, noise, cmds, pending, out_e
     mode = ist[I_MODE]
     while True:
         t = st[S_T]
-        # the phase currents' recent history, from which an MCU's ADC ring is read at an instant
-        # before the capture (Simulation.measured_mean_abs_current_at_a)
+        # the phase currents' recent history (CURRENT_RING rows), from which the controller's ADC
+        # window is read before each capture (Simulation.adc_conversions)
         ring_n = ist[I_RING_N]
         k = ring_n & (CURRENT_RING - 1)  # CURRENT_RING is a power of two
         if ring_n == 0 or current_ring[(ring_n - 1) & (CURRENT_RING - 1), 0] < t:

@@ -63,5 +63,7 @@ N_IDEAL_COLS = 4  # t, sensor, boundary, direction
 N_SAMPLE_COLS = 15  # t, i_a..c, u_a..c, speed_rpm, theta_m_deg, duty, sector, e_a..c, torque
 MAX_PENDING = 32
 #: phase-current history: (t, i_a, i_b, i_c) at the start of every accepted step, the last
-#: CURRENT_RING of them (at the 2 us acceptance step, 128 us: beyond any conditioning delay)
-CURRENT_RING = 64
+#: CURRENT_RING of them, from which the controller's ADC window is read (bldc.contract: 104 us
+#: before the capture). Steps are at most 2 us in acceptance runs but split at every sample, edge
+#: and command: 64 rows spanned as little as 47 us; 512 span at least 190 us
+CURRENT_RING = 512

@@ -229,10 +229,6 @@ class Simulation:
         an MCU's ADC ring buffer holds for that instant (``phase_currents_at_a``)."""
         return self._through_current_sensors(*self.phase_currents_at_a(t_s))
 
-    def sensed_phase_currents_at_a(self, t_s: float) -> np.ndarray:
-        """The three phase-current sensors' outputs at ``t_s`` in the recent past (gain, offset)."""
-        return self._sensed(np.asarray(self.phase_currents_at_a(t_s)))
-
     def phase_currents_at_a(self, t_s: float) -> tuple[float, float, float]:
         """The true phase currents at ``t_s`` in the recent past. Linear between the plant's step
         starts (the currents are exact there, and a step is at most ``max_step_s``), with
@@ -289,26 +285,38 @@ class Simulation:
             return None
         return float(np.mean(np.abs(self._sensed(self._sample_rows_since(first_sample)[:, 1:4]))))
 
-    def adc_window(self, after_s: float, until_s: float, period_s: float, max_samples: int):
-        """The phase-current sensors' outputs (gain and offset; rows of three, A) as an ADC sampling
-        every ``period_s`` from t = 0 holds them for ``after_s < t <= until_s``: the newest
-        ``max_samples``, ascending in time, with their instants. ``period_s`` must be a whole
-        multiple of the plant's sample period (the ADC's instants are plant sample instants)."""
-        ratio = period_s / self.sample_period_s
-        step = int(round(ratio))
-        if step < 1 or abs(ratio - step) > 1e-9 * ratio:
-            raise ConfigError(
-                "Simulation.sample_rate_hz",
-                f"the ADC period {period_s * 1e6:g} us is not a whole multiple of the plant's sample period "
-                f"{self.sample_period_s * 1e6:g} us",
-            )
-        # sample index k is taken at k * sample_period_s (the kernel samples on that grid from 0)
-        first = max(int(math.floor(max(after_s, until_s - max_samples * period_s) / self.sample_period_s)), 0)
-        first += -first % step
-        rows = self._sample_rows_since(first) if first < self.samples_taken else np.empty((0, L.N_SAMPLE_COLS))
-        rows = rows[::step]
-        rows = rows[(rows[:, 0] > after_s) & (rows[:, 0] <= until_s)][-max_samples:]
-        return rows[:, 0].copy(), self._sensed(rows[:, 1:4])
+    def sensed_samples_since(self, first_sample: int, until_s: float) -> np.ndarray:
+        """The phase-current sensors' outputs (rows of three, A) of the samples from index
+        ``first_sample`` on taken at or before ``until_s``."""
+        if self.samples_taken <= first_sample:
+            return np.empty((0, 3))
+        rows = self._sample_rows_since(first_sample)
+        return self._sensed(rows[rows[:, 0] <= until_s, 1:4])
+
+    def adc_conversions(self, until_s: float, period_s: float, count: int) -> tuple[np.ndarray, np.ndarray]:
+        """The phase-current sensors' outputs (gain, offset; rows of three, A) at the ``count``
+        instants of a ``period_s`` grid from t = 0 up to ``until_s`` (ascending), as an ADC
+        converting them into a DMA ring holds them; read from the plant's current history
+        (``phase_currents_at_a``), held at its oldest row."""
+        newest = math.floor(until_s / period_s + 1e-9)
+        t = np.arange(newest - count + 1, newest + 1) * period_s
+        t = t[t >= 0.0]
+        return t, self.adc_conversions_at(t)
+
+    def adc_conversions_at(self, t_s: np.ndarray) -> np.ndarray:
+        """The phase-current sensors' outputs (rows of three, A) at the instants ``t_s`` of the
+        recent past: the plant's current history, linear between step starts, held at its oldest
+        row (``CURRENT_RING`` rows) and at the present."""
+        ring, mask = self.current_ring, L.CURRENT_RING - 1
+        n = int(self.ist[L.I_RING_N])
+        rows = ring[np.arange(max(n - L.CURRENT_RING, 0), n) & mask]
+        rows = rows[rows[:, 0] < self.t_s]
+        st = self.st
+        history_t = np.append(rows[:, 0], self.t_s)
+        currents = np.empty((np.size(t_s), 3))
+        for j, col in enumerate((L.S_IA, L.S_IB, L.S_IC)):
+            currents[:, j] = np.interp(t_s, history_t, np.append(rows[:, 1 + j], st[col]))
+        return self._sensed(currents)
 
     def set_duty(self, duty: float) -> None:
         if not math.isfinite(duty) or not 0.0 <= duty <= 1.0:

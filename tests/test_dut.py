@@ -66,17 +66,12 @@ def test_in_process_bench_matches_the_controller_logic_within_the_message_scalin
         """The same ADC window and edge currents, in floats, straight into the logic (no message)."""
 
         def on_edge(self, edge, sim):
-            previous = self._last_capture_s
             self.with_adc(edge, sim)
-            edge["adc_t_s"] = np.append(edge["adc_t_s"], edge["t_capture_s"])
-            edge["adc_phase_currents_a"] = np.vstack([edge["adc_phase_currents_a"], edge["capture_phase_currents_a"]])
+            cycle = edge["adc_cycle_phase_currents_a"]
+            edge["adc_cycle_sums_a"], edge["adc_cycle_conversions"] = cycle.sum(axis=0), cycle.shape[0]
             delay = corrections.conditioning_delay_s["rise" if edge["rising"] else "fall"]
-            edge_currents(edge, delay, previous, commutations)
-            reply = direct.on_edge(edge)
-            commutations[:] = (commutations + [max(c.at_s, edge["t_capture_s"]) for c in reply])[-4:]
-            return reply
+            return direct.on_edge(edge_currents(edge, delay))
 
-    commutations: list[float] = []
     sim = Simulation(
         CONFIG,
         Unquantised(None),
@@ -201,24 +196,30 @@ def _same_edge(a: dict, b: dict) -> None:
     sensor=st.integers(0, 2),
     rising=st.booleans(),
     window=st.lists(st.tuples(*[st.floats(-80.0, 80.0, allow_nan=False)] * 3), max_size=MAX_ADC_SAMPLES),
+    cycle=st.lists(st.tuples(*[st.floats(-60.0, 60.0, allow_nan=False)] * 3), max_size=300),
     age_s=st.floats(0.0, ADC_PERIOD_S),
     seq=st.integers(0, 127),
     offsets=st.lists(
         st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(), st.floats(-0.5, 1.5) | st.none()), max_size=3
     ),
 )
-def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, window, age_s, seq, offsets):
+def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, window, cycle, age_s, seq, offsets):
     adc_t = t - age_s - ADC_PERIOD_S * np.arange(len(window))[::-1]
     edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "adc_t_s": adc_t,
-            "adc_phase_currents_a": np.asarray(window, dtype=float).reshape(-1, 3)}
+            "adc_phase_currents_a": np.asarray(window, dtype=float).reshape(-1, 3),
+            "adc_cycle_phase_currents_a": np.asarray(cycle, dtype=float).reshape(-1, 3)}
     epoch = edge_epoch(t)
     message = EdgeMessage.from_edge(edge, seq)
     received = edge_as_received(edge, epoch)
     _same_edge(received, EdgeMessage.unpack(message.pack()).to_edge(epoch))
-    _same_edge(received, EdgeMessage.from_frames(message.header(), message.sample_frames()).to_edge(epoch))
-    if window:  # the ADC window arrives within a count and a tick
+    _same_edge(received, EdgeMessage.from_frames(message.header(), message.accumulator_frames(),
+                                                 message.sample_frames()).to_edge(epoch))
+    if window:  # the ADC window arrives within half a count and a tick
         assert np.max(np.abs(received["adc_phase_currents_a"] - edge["adc_phase_currents_a"])) <= ADC_LSB_A / 2 + 1e-9
         assert np.max(np.abs(received["adc_t_s"] - adc_t - (received["t_capture_s"] - t))) <= 1.5e-7
+    assert received["adc_cycle_conversions"] == len(cycle)
+    assert np.all(np.abs(received["adc_cycle_sums_a"] - np.sum(np.reshape(cycle, (-1, 3)), axis=0))
+                  <= len(cycle) * ADC_LSB_A / 2 + 1e-6)
     commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
     via_bytes = [
         f.to_command(epoch)

@@ -185,8 +185,6 @@ class VirtualController:
         self._last_t: float | None = None
         #: the last mechanical turn's sector intervals, oldest first (the missing-edge references)
         self._intervals: deque[float] = deque(maxlen=6 * self.motor.pole_pairs)
-        self._last_capture_s: float | None = None  #: the previous edge's capture (its ADC cycle's start)
-        self._commutations_s: list[float] = []  #: its own last commutation instants (the current turns there)
 
     # --- run time -------------------------------------------------------------------------------
     def raise_fault(self, code: int, t_s: float) -> None:
@@ -212,8 +210,7 @@ class VirtualController:
         if not math.isfinite(t) or (self._last_t is not None and t <= self._last_t):
             self.raise_fault(Fault.CAPTURE_TIMING, t if math.isfinite(t) else 0.0)
             return []  # a capture stamp that does not increase cannot be an edge of this rotor
-        edge_currents(edge, self._applied_delay_s(bool(edge["rising"])), self._last_capture_s, self._commutations_s)
-        self._last_capture_s = t
+        edge_currents(edge, self._applied_delay_s(bool(edge["rising"])))
         self._bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
         sector = int(SECTOR_OF_CODE[self._bits[0] * 4 + self._bits[1] * 2 + self._bits[2]])
         self._sensors_seen.add(int(edge["sensor"]))
@@ -256,10 +253,6 @@ class VirtualController:
             self._logic.resync()
             self._resync_pending = False
         commands = self._logic.on_edge(edge)
-        # a command for an instant already past takes effect at once (the interrupt's instant)
-        now = float(edge.get("now_s", t))
-        turns = [max(c.at_s, now) for c in commands if c.sector is not None]
-        self._commutations_s = (self._commutations_s + turns)[-4:]
         if self._predictor is not None:
             # guards firing while P settles from P0 during the warm-up are expected, not faults
             trips = self._predictor.covariance_repairs

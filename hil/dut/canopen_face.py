@@ -4,8 +4,9 @@ Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation 
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
 boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive as the edge message's header in RPDO1 (COB-ID 0x200 + node), each preceded by its
-ADC window, one sample per RPDO2 (0x300 + node); commands leave as TPDO1 (0x180 + node), in the
-messages of bldc.contract (version 2 of the edge message).
+ADC window, one conversion per RPDO2 (0x300 + node), and its accumulators (RPDO3 0x400 + node,
+RPDO4 0x500 + node); commands leave as TPDO1 (0x180 + node), in the messages of bldc.contract
+(version 2 of the edge message).
 """
 
 from __future__ import annotations
@@ -243,7 +244,11 @@ class CanopenDevice:
         self.network.subscribe(0, self._on_nmt)
         self.network.subscribe(0x200 + node_id, self._on_rpdo)
         self.network.subscribe(0x300 + node_id, self._on_rpdo2)
+        self.network.subscribe(0x400 + node_id, self._on_accumulators)
+        self.network.subscribe(0x500 + node_id, self._on_accumulators)
         self._last_edge = EdgeMessage(0, 0, False, 0)
+        #: the last RPDO3 and RPDO4 (the accumulators of the edge whose header follows)
+        self._accumulators: dict[int, bytes] = {}
         #: RPDO2 sample frames received since the last edge header: the ADC window of the edge whose
         #: header (RPDO1) follows them (bounded: a stream of samples without headers keeps the newest)
         self._sample_frames: list[bytes] = []
@@ -333,6 +338,11 @@ class CanopenDevice:
             ]
         if index == 0x2201 and subindex >= 1:
             return self._last_sample[subindex - 1]
+        if index == 0x2202 and subindex >= 1:
+            return self._last_edge.sums[subindex - 1]
+        if index == 0x2203 and subindex >= 1:
+            e = self._last_edge
+            return (e.sums[2], e.summed, e.seq, 0)[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [
@@ -394,8 +404,10 @@ class CanopenDevice:
             return
         with self._lock:
             frames, self._sample_frames = self._sample_frames, []
+            sums = self._accumulators.get(0x400 + self.node_id), self._accumulators.get(0x500 + self.node_id)
+            self._accumulators = {}
             try:
-                msg = EdgeMessage.from_frames(bytes(data), frames)
+                msg = EdgeMessage.from_frames(bytes(data), None if None in sums else sums, frames)
             except ValueError:
                 return  # a malformed PDO or sample set is ignored, as CiA 301 devices do
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
@@ -409,6 +421,13 @@ class CanopenDevice:
             frames = encode_reply(commands, msg.seq)
         for f in frames:
             self.network.send_message(0x180 + self.node_id, f.pack())
+
+    def _on_accumulators(self, can_id, data, timestamp) -> None:
+        """RPDO3 or RPDO4: the accumulators of the edge whose header (RPDO1) follows."""
+        if self.state != "OPERATIONAL" or len(data) != 8:
+            return
+        with self._lock:
+            self._accumulators[can_id] = bytes(data)
 
     def _on_rpdo2(self, can_id, data, timestamp) -> None:
         """One ADC sample of the edge whose header (RPDO1) follows."""
@@ -638,8 +657,11 @@ class CanopenLink:
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
         msg = EdgeMessage.from_edge(edge, seq)
-        for k, frame in enumerate(msg.sample_frames()):  # RPDO2s before their header: the header triggers
-            self._send(f"ADC sample {len(msg.samples) - 1 - k} of edge #{seq}", 0x300 + self.node_id, frame)
+        # the window and the accumulators before their header: the header triggers the controller
+        for k, frame in enumerate(msg.sample_frames()):
+            self._send(f"ADC conversion {len(msg.samples) - 1 - k} of edge #{seq}", 0x300 + self.node_id, frame)
+        for cob, frame in zip((0x400, 0x500), msg.accumulator_frames()):
+            self._send(f"ADC accumulators of edge #{seq}", cob + self.node_id, frame)
         self._send(f"edge #{seq}", 0x200 + self.node_id, msg.header())
         commands = []
         deadline = time.monotonic() + self.timeout_s

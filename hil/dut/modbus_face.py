@@ -52,17 +52,11 @@ RB_COUNTERS = 130
 COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
 IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
 REPLY = 210
-#: the edge mailbox (edge message version 2): the 8-byte header in 4 registers, then its ADC window,
-#: 3 registers per sample (I16 phase a, b, c in counts), newest first; the write's length says how
-#: many samples it holds. The header triggers the controller.
+#: the edge mailbox (edge message version 2): its bytes (``EdgeMessage.pack``: header, accumulators,
+#: then the ADC window newest first), two per register, the first one high; the write's length says
+#: how many conversions it holds. The write triggers the controller.
 EDGE_IN = 300
-#: samples the mailbox's one write holds (a read/write-multiple request writes at most 121 registers)
-MAILBOX_SAMPLES = 39
-EDGE_MAILBOX_REGISTERS = 4 + 3 * MAILBOX_SAMPLES
-#: an edge's older samples (index 39 on), when it has more, written before its mailbox (write
-#: multiple registers; the next mailbox write takes them and empties the block)
-EDGE_OLDER_SAMPLES = EDGE_IN + EDGE_MAILBOX_REGISTERS
-EDGE_OLDER_REGISTERS = 3 * (MAX_ADC_SAMPLES - MAILBOX_SAMPLES)
+EDGE_MAILBOX_REGISTERS = 11 + 3 * MAX_ADC_SAMPLES
 REPLY_FRAMES = 4
 
 
@@ -83,9 +77,13 @@ def _regs_bytes(r) -> bytes:
     return struct.pack(">HHHH", *r)
 
 
-def _regs_i16_bytes(r) -> bytes:
-    """Registers holding I16 ADC counts (two's complement) as the edge message's little-endian samples."""
-    return struct.pack(f"<{len(r)}h", *(v - 0x10000 if v & 0x8000 else v for v in r))
+def _bytes_to_regs(b: bytes) -> list[int]:
+    """A byte string (even length) as registers, two bytes each, the first one high."""
+    return list(struct.unpack(f">{len(b) // 2}H", b))
+
+
+def _regs_to_bytes(r) -> bytes:
+    return struct.pack(f">{len(r)}H", *r)
 
 
 def simdata() -> list[SimData]:
@@ -105,7 +103,6 @@ def simdata() -> list[SimData]:
         SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
         SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
         SimData(EDGE_IN, EDGE_MAILBOX_REGISTERS, 0, DataType.REGISTERS),
-        SimData(EDGE_OLDER_SAMPLES, EDGE_OLDER_REGISTERS, 0, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -185,7 +182,6 @@ class ModbusDevice:
         controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
         self._epoch = 0
         self._last_ticks = None
-        self._older_samples: list[int] = []  #: the last write to EDGE_OLDER_SAMPLES, for the next edge
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
@@ -394,7 +390,7 @@ class ModbusDevice:
             return values[a - address : a - address + n]
 
         # a write must cover whole values (a FLOAT32 is two registers)
-        for a, n, size in ((SPEED, 1, 2), (CAL_STAGED, 10, 2), (FILTER, 9, 2), (EDGE_IN, 1, 4)):
+        for a, n, size in ((SPEED, 1, 2), (CAL_STAGED, 10, 2), (FILTER, 9, 2), (EDGE_IN, 1, 11)):
             for k in range(n):
                 lo, hi = a + size * k, a + size * (k + 1)
                 if address < hi and end > lo and not (address <= lo and end >= hi):
@@ -444,18 +440,11 @@ class ModbusDevice:
             c.reset()
             self._epoch, self._last_ticks = 0, None
             values[COMMAND - address] = 0  # a trigger reads back as 0
-        if address >= EDGE_OLDER_SAMPLES:
-            if address != EDGE_OLDER_SAMPLES or len(values) % 3:
-                return ExcCodes.ILLEGAL_VALUE  # whole samples from the block's start
-            self._older_samples = list(values)
-        if covers(EDGE_IN, 4):
-            if address != EDGE_IN or (end - EDGE_IN - 4) % 3:
-                return ExcCodes.ILLEGAL_VALUE  # a mailbox write is the header and whole samples
-            older, self._older_samples = self._older_samples, []
-            if older and end - EDGE_IN != EDGE_MAILBOX_REGISTERS:
-                return ExcCodes.ILLEGAL_VALUE  # older samples belong after a full mailbox
+        if covers(EDGE_IN, 11):
+            if address != EDGE_IN or (end - EDGE_IN - 11) % 3:
+                return ExcCodes.ILLEGAL_VALUE  # a mailbox write is the header, the sums and whole conversions
             try:
-                msg = EdgeMessage.unpack(_regs_bytes(part(EDGE_IN, 4)) + _regs_i16_bytes(values[4:] + older))
+                msg = EdgeMessage.unpack(_regs_to_bytes(values))
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
@@ -569,15 +558,7 @@ class ModbusLink:
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        msg = EdgeMessage.from_edge(edge, seq)
-        samples = [v & 0xFFFF for sample in msg.samples for v in sample]
-        values = _bytes_regs(msg.header()) + samples[: 3 * MAILBOX_SAMPLES]
-        if len(samples) > 3 * MAILBOX_SAMPLES:  # the older ones first, in a write of their own
-            older = samples[3 * MAILBOX_SAMPLES :]
-            self._call(
-                f"older ADC samples of edge #{seq}",
-                lambda: self.client.write_registers(EDGE_OLDER_SAMPLES, older, device_id=self.unit),
-            )
+        values = _bytes_to_regs(EdgeMessage.from_edge(edge, seq).pack())
         r = self._call(
             f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
             lambda: self.client.readwrite_registers(

@@ -3,8 +3,9 @@ shipped in the package (hil/dut/virtual_controller.eds) and drives the SDO valid
 
 Manufacturer objects: 0x2000 strategy, 0x2001 speed set point, 0x2010 calibration (staged),
 0x2011 apply calibration (write 1), 0x2012 applied calibration (read-back), 0x2020 filter
-settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200 / 0x2201 the
-last edge message (RPDO1) and cycle-mean current (RPDO2) received. PDO payloads are documented in bldc/contract.py.
+settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200-0x2203 the last edge message received
+(version 2: header RPDO1, ADC conversion RPDO2, accumulators RPDO3 and RPDO4). PDO payloads are
+documented in bldc/contract.py.
 """
 
 from __future__ import annotations
@@ -12,6 +13,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+I16, I32 = 0x0003, 0x0004
 U8, U16, U32, REAL32, VSTRING, REAL64 = 0x0005, 0x0006, 0x0007, 0x0008, 0x0009, 0x0011
 
 
@@ -41,14 +43,28 @@ CAL_NAMES = ("installation A deg_e", "installation B deg_e", "installation C deg
 FILTER_NAMES = ("forgetting b", "Q0 w", "Q0 theta", "Q0 I", "R0 theta", "R0 I", "P0 w", "P0 theta", "P0 I")
 #: the split filter counters (0x2101), in order (hil.predictors.COUNTER_NAMES)
 COUNTERS = ("gated edges", "covariance repairs", "divergence fades", "band projections")
-#: the edge message's fields (0x2200, mapped by RPDO1) and the cycle-mean current (0x2201, RPDO2)
+#: the edge message's (version 2) header (0x2200, mapped by RPDO1), one ADC conversion of its window
+#: (0x2201, RPDO2) and its accumulators (0x2202, RPDO3; 0x2203, RPDO4)
 EDGE_FIELDS = (
     ("capture time 100 ns ticks", U32, 32),
-    ("mean abs current at the edge mA", U16, 16),
     ("flags", U8, 8),
     ("sequence", U8, 8),
+    ("newest ADC conversion age ticks (0xFFFF: none)", U16, 16),
 )
-CYCLE_FIELDS = (("mean abs current over the cycle mA (0xFFFF: none)", U16, 16), ("sequence of its edge", U8, 8))
+SAMPLE_FIELDS = (
+    ("phase a sensor counts (2 mA)", I16, 16),
+    ("phase b sensor counts (2 mA)", I16, 16),
+    ("phase c sensor counts (2 mA)", I16, 16),
+    ("sequence of its edge", U8, 8),
+    ("conversion index (0 = newest)", U8, 8),
+)
+SUMS_AB_FIELDS = (("phase a sum counts", I32, 32), ("phase b sum counts", I32, 32))
+SUM_C_FIELDS = (
+    ("phase c sum counts", I32, 32),
+    ("conversions summed", U16, 16),
+    ("sequence of its edge", U8, 8),
+    ("reserved", U8, 8),
+)
 READBACK = (
     ("estimated speed rpm", REAL32),
     ("Q w", REAL32),
@@ -112,7 +128,9 @@ def objects(node_id: int = 1) -> list:
             + tuple(Entry(0x2020, k + 1, n, REAL32, "rw", "0") for k, n in enumerate(FILTER_NAMES)),
         ),
         *_rpdo(0, 0x200, 0x2200, EDGE_FIELDS),
-        *_rpdo(1, 0x300, 0x2201, CYCLE_FIELDS),
+        *_rpdo(1, 0x300, 0x2201, SAMPLE_FIELDS),
+        *_rpdo(2, 0x400, 0x2202, SUMS_AB_FIELDS),
+        *_rpdo(3, 0x500, 0x2203, SUM_C_FIELDS),
         Group(
             0x2100,
             "Read-backs",
@@ -127,8 +145,10 @@ def objects(node_id: int = 1) -> list:
             (Entry(0x2101, 0, "Highest sub-index supported", U8, "const", str(len(COUNTERS))),)
             + tuple(Entry(0x2101, k + 1, n, U32, "ro", "0") for k, n in enumerate(COUNTERS)),
         ),
-        _mapped(0x2200, "Edge message (RPDO1)", EDGE_FIELDS),
-        _mapped(0x2201, "Cycle-mean current (RPDO2)", CYCLE_FIELDS),
+        _mapped(0x2200, "Edge message v2 header (RPDO1)", EDGE_FIELDS),
+        _mapped(0x2201, "Edge message v2 ADC conversion (RPDO2, one per conversion)", SAMPLE_FIELDS),
+        _mapped(0x2202, "Edge message v2 accumulators a, b (RPDO3)", SUMS_AB_FIELDS),
+        _mapped(0x2203, "Edge message v2 accumulator c, conversions (RPDO4)", SUM_C_FIELDS),
     ]
     return sorted(items, key=lambda o: o.index)
 

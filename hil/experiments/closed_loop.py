@@ -136,16 +136,13 @@ class _EdgeTap:
     def __init__(self, link, corrections):
         self._link = link
         self._delay_s = corrections.as_float32().conditioning_delay_s
-        self._last_capture_s: float | None = None
         self.current_a: list[float] = []
         self.cycle_current_a: list[float] = []
 
     def edge(self, edge: dict):
-        seen = edge_currents(edge_as_received(edge, 0), self._delay_s["rise" if edge["rising"] else "fall"],
-                             self._last_capture_s)
-        self._last_capture_s = seen["t_capture_s"]
+        seen = edge_currents(edge_as_received(edge, 0), self._delay_s["rise" if edge["rising"] else "fall"])
         self.current_a.append(seen.get("current_a", 0.0))
-        # where no sample fell in the cycle the controller falls back to the edge's current
+        # where no conversion fell in the cycle the controller falls back to the edge's current
         self.cycle_current_a.append(seen.get("cycle_current_a", self.current_a[-1]))
         return self._link.edge(edge)
 
