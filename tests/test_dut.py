@@ -195,7 +195,8 @@ def _same_edge(a: dict, b: dict) -> None:
     t=_times,
     sensor=st.integers(0, 2),
     rising=st.booleans(),
-    window=st.lists(st.tuples(*[st.floats(-80.0, 80.0, allow_nan=False)] * 3), max_size=MAX_ADC_SAMPLES),
+    at_capture=st.tuples(*[st.floats(-80.0, 80.0, allow_nan=False)] * 3),
+    window=st.lists(st.tuples(*[st.floats(-80.0, 80.0, allow_nan=False)] * 3), max_size=MAX_ADC_SAMPLES - 1),
     cycle=st.lists(st.tuples(*[st.floats(-60.0, 60.0, allow_nan=False)] * 3), max_size=300),
     age_s=st.floats(0.0, ADC_PERIOD_S),
     seq=st.integers(0, 127),
@@ -203,9 +204,12 @@ def _same_edge(a: dict, b: dict) -> None:
         st.tuples(st.floats(-1e-3, 5e-3), st.integers(0, 5) | st.none(), st.floats(-0.5, 1.5) | st.none()), max_size=3
     ),
 )
-def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, window, cycle, age_s, seq, offsets):
+def test_in_process_fast_path_equals_the_byte_round_trip(
+    t, sensor, rising, at_capture, window, cycle, age_s, seq, offsets
+):
     adc_t = t - age_s - ADC_PERIOD_S * np.arange(len(window))[::-1]
     edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "adc_t_s": adc_t,
+            "capture_phase_currents_a": at_capture,
             "adc_phase_currents_a": np.asarray(window, dtype=float).reshape(-1, 3),
             "adc_cycle_phase_currents_a": np.asarray(cycle, dtype=float).reshape(-1, 3)}
     epoch = edge_epoch(t)
@@ -214,12 +218,15 @@ def test_in_process_fast_path_equals_the_byte_round_trip(t, sensor, rising, wind
     _same_edge(received, EdgeMessage.unpack(message.pack()).to_edge(epoch))
     _same_edge(received, EdgeMessage.from_frames(message.header(), message.accumulator_frames(),
                                                  message.sample_frames()).to_edge(epoch))
-    if window:  # the ADC window arrives within half a count and a tick
-        assert np.max(np.abs(received["adc_phase_currents_a"] - edge["adc_phase_currents_a"])) <= ADC_LSB_A / 2 + 1e-9
-        assert np.max(np.abs(received["adc_t_s"] - adc_t - (received["t_capture_s"] - t))) <= 1.5e-7
+    # the ADC window arrives within half a count and a tick, the capture's conversion last; beyond
+    # +-65.5 A a conversion saturates, as an ADC does
+    sent = np.clip(np.vstack([np.reshape(window, (-1, 3)), at_capture]), -32768 * ADC_LSB_A, 32767 * ADC_LSB_A)
+    assert np.max(np.abs(received["adc_phase_currents_a"] - sent)) <= ADC_LSB_A / 2 + 1e-9
+    shift = received["t_capture_s"] - t  # the capture timer's epoch and tick
+    assert np.max(np.abs(received["adc_t_s"] - np.append(adc_t, t) - shift)) <= 1.5e-7
     assert received["adc_cycle_conversions"] == len(cycle)
-    assert np.all(np.abs(received["adc_cycle_sums_a"] - np.sum(np.reshape(cycle, (-1, 3)), axis=0))
-                  <= len(cycle) * ADC_LSB_A / 2 + 1e-6)
+    summed = np.sum(np.clip(np.reshape(cycle, (-1, 3)), -32768 * ADC_LSB_A, 32767 * ADC_LSB_A), axis=0)
+    assert np.all(np.abs(received["adc_cycle_sums_a"] - summed) <= len(cycle) * ADC_LSB_A / 2 + 1e-6)
     commands = [Command(at_s=max(t + dt, 0.0), sector=s, duty=d) for dt, s, d in offsets]
     via_bytes = [
         f.to_command(epoch)

@@ -15,8 +15,9 @@ lag was set by the current at the Hall switch, one conditioning delay earlier. W
 and 16/30 us delays at 7000 rpm the two are about 1 A apart after a commutation (3.0 deg e p99
 of commutation against 1); with 1.4 deg e/A, early sensors and 4.6/14.8 us at 10,000 rpm the
 commutation falls on the Hall switch itself, where the current turns fastest (6.5 deg e). The
-edge now carries the current at its own instant: the MCU's ADC ring read one applied
-conditioning delay before the capture (bldc.contract, EdgeMessage).
+controller now reads the current at the edge's own instant from its own ADC window, one applied
+conditioning delay before the capture (hil.controller.adc; the edge message carries the
+conversions, bldc.contract.EdgeMessage).
 
 ``finding-uneven-sectors-read-as-lost-edges.json`` came from the search at 100 examples (it had run
 8): installation offsets of +2.4/+1.8/-9.0 deg e, pole offsets to -4.8 deg e and 14/50 us delays,
@@ -113,13 +114,13 @@ def test_a_glitch_step_does_not_become_the_missing_edge_reference():
     assert vc._logic._edge_index - edges_before <= 13  # twelve sectors passed; not hundreds of "lost" edges
 
 
-class _CurrentAtCapture(InProcessLink):
-    """A link whose edges carry the current at the capture interrupt: the applied table's delays
-    are not known to the bench, so it does not read the current one delay back."""
+class _CurrentAtCapture(VirtualController):
+    """The classic firmware defect: the edge's current read from the ADC at the capture interrupt,
+    not one applied conditioning delay before it, where the armature field that moved the edge
+    acted."""
 
-    def download_calibration(self, corrections) -> None:
-        super().download_calibration(corrections)
-        self.applied_calibration = None
+    def _applied_delay_s(self, rising: bool) -> float:
+        return 0.0
 
 
 @pytest.mark.parametrize(
@@ -135,7 +136,9 @@ def test_the_armature_correction_gets_the_current_at_the_edges_instant(name, p99
     limit = budgets["any_deviations_commutation_angle_p99"].limit
     motor = stim.plant_config().motor
     at_edge = run(stim, InProcessLink(VirtualController(motor)), budgets).values["commutation_angle_p99_deg_e"]
-    at_capture = run(stim, _CurrentAtCapture(VirtualController(motor)), budgets).values["commutation_angle_p99_deg_e"]
-    assert at_edge < 0.05 * limit  # 0.014 and 0.019 deg e measured
-    assert at_capture == pytest.approx(p99_deg_e, abs=0.1)
+    at_capture = run(stim, InProcessLink(_CurrentAtCapture(motor)), budgets).values["commutation_angle_p99_deg_e"]
+    # the controller's own ADC (a conversion every 4 us and one at the capture): 0.015 and 0.34 deg e
+    # measured (0.014 and 0.019 when the bench handed it the plant's exact current)
+    assert at_edge < 0.4 * limit
+    assert at_capture == pytest.approx(p99_deg_e, abs=0.15)
 
