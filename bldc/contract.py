@@ -13,16 +13,16 @@ bit-identical inputs). Wire layouts and versions: docs/controller.md.
 EdgeMessage, version 2 (plant -> controller): what the MCU's own peripherals hold at a capture.
     Header, 8 bytes (RPDO1, sent last: it triggers; Modbus mailbox registers 0-3): U32 capture
     time in 100 ns timer ticks (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit
-    7 rising), U8 sequence number, U16 age of the window's newest conversion in ticks (0xFFFF:
-    no window). Accumulators (RPDO3: I32 sums of phases a and b; RPDO4: I32 sum of phase c, U16
+    7 rising), U8 sequence number, U16 age of the newest periodic conversion in ticks (0xFFFF:
+    none). Accumulators (RPDO3: I32 sums of phases a and b; RPDO4: I32 sum of phase c, U16
     conversions summed, U8 sequence number, U8 0): the sensors' conversions summed since the
     previous capture, in counts. Window (one RPDO2 per conversion, oldest first: I16 a, b, c in
     counts, U8 sequence number, U8 index): index 0 the conversion the capture triggered, then the
-    newest periodic conversions, ADC_PERIOD_TICKS apart, the header's age before the capture. Modbus: header, accumulators (I32 a, b, c, U16 conversions), then
-    the window newest first: the bytes of ``pack``, two per register, the first one high. The
-    controller computes the current at the edge's own instant and the cycle's mean current (Eq.
-    8's input) from them itself. Version 1 (8 bytes carrying currents the bench computed) is
-    withdrawn.
+    newest periodic conversions, ADC_PERIOD_TICKS apart, the newest the header's age before the
+    capture. Modbus: header, accumulators (I32 a, b, c, U16 conversions), then the window newest
+    first: the bytes of ``pack``, two per register, the first one high. The controller computes
+    the current at the edge's own instant and the cycle's mean current (Eq. 8's input) from them
+    itself. Version 1 (8 bytes carrying currents the bench computed) is withdrawn.
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.

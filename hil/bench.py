@@ -7,6 +7,7 @@ depend on the host's speed, only on the plant, the controller and the scenario.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,8 +59,13 @@ class LinkSource:
         since the previous capture (one per plant sample); the plant's own current taken out."""
         t = edge["t_capture_s"]
         edge.pop("current_a", None)  # the plant's present current: not the controller's to have
-        edge["adc_t_s"], edge["adc_phase_currents_a"] = sim.adc_conversions(t, ADC_PERIOD_S, MAX_ADC_SAMPLES - 1)
-        edge["capture_phase_currents_a"] = sim.adc_conversions_at(np.array([t]))[0]  # the capture's conversion
+        # the periodic conversions (every ADC_PERIOD_S from t = 0) up to the capture, and the one
+        # the capture triggers
+        newest = math.floor(t / ADC_PERIOD_S + 1e-9)
+        grid = np.arange(max(newest - MAX_ADC_SAMPLES + 2, 0), newest + 1) * ADC_PERIOD_S
+        converted = sim.adc_conversions_at(np.append(grid, t))
+        edge["adc_t_s"], edge["adc_phase_currents_a"] = grid, converted[:-1]
+        edge["capture_phase_currents_a"] = converted[-1]
         cycle = sim.sensed_samples_since(self._cycle_first_sample, t)
         edge["adc_cycle_phase_currents_a"] = cycle
         self._cycle_first_sample += cycle.shape[0]

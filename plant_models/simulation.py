@@ -293,16 +293,6 @@ class Simulation:
         rows = self._sample_rows_since(first_sample)
         return self._sensed(rows[rows[:, 0] <= until_s, 1:4])
 
-    def adc_conversions(self, until_s: float, period_s: float, count: int) -> tuple[np.ndarray, np.ndarray]:
-        """The phase-current sensors' outputs (gain, offset; rows of three, A) at the ``count``
-        instants of a ``period_s`` grid from t = 0 up to ``until_s`` (ascending), as an ADC
-        converting them into a DMA ring holds them; read from the plant's current history
-        (``phase_currents_at_a``), held at its oldest row."""
-        newest = math.floor(until_s / period_s + 1e-9)
-        t = np.arange(newest - count + 1, newest + 1) * period_s
-        t = t[t >= 0.0]
-        return t, self.adc_conversions_at(t)
-
     def adc_conversions_at(self, t_s: np.ndarray) -> np.ndarray:
         """The phase-current sensors' outputs (rows of three, A) at the instants ``t_s`` of the
         recent past: the plant's current history, linear between step starts, held at its oldest
@@ -312,10 +302,12 @@ class Simulation:
         rows = ring[np.arange(max(n - L.CURRENT_RING, 0), n) & mask]
         rows = rows[rows[:, 0] < self.t_s]
         st = self.st
-        history_t = np.append(rows[:, 0], self.t_s)
+        history = np.empty((rows.shape[0] + 1, 4))  # the present closes the history
+        history[:-1] = rows
+        history[-1] = (self.t_s, st[L.S_IA], st[L.S_IB], st[L.S_IC])
         currents = np.empty((np.size(t_s), 3))
-        for j, col in enumerate((L.S_IA, L.S_IB, L.S_IC)):
-            currents[:, j] = np.interp(t_s, history_t, np.append(rows[:, 1 + j], st[col]))
+        for j in range(3):
+            currents[:, j] = np.interp(t_s, history[:, 0], history[:, 1 + j])
         return self._sensed(currents)
 
     def set_duty(self, duty: float) -> None:
