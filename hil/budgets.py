@@ -100,6 +100,9 @@ REQUIREMENTS = {
     "REQ-FLT-005": "No fault is raised on a healthy run",
     "REQ-ROB-001": "Any combination of bounded deviations, once calibrated, meets the commutation budget",
     "REQ-ROB-002": "Faults switched on and off while running are reported and recovered from",
+    "REQ-CUR-001": "The phase current stays within the controller's current limit through a set-point step",
+    "REQ-CUR-002": "Calibrated commutation lowers the mean phase current against raw Hall commutation (paper 4.3)",
+    "REQ-SPD-001": "The controller's speed loop settles a set-point step without excessive overshoot",
 }
 
 

@@ -435,6 +435,43 @@ def find_suite(path: str | None) -> Path:
     raise ValueError(f"no acceptance suite at {', '.join(str(c) for c in candidates)} (give --suite DIR)")
 
 
+def cmd_qualify(args) -> int:
+    """The suite against each seeded defect: exit 0 when the control run PASSes and every defect is
+    caught, 1 when a defect survives or the control run fails, 2 on bad input."""
+    from .qualify.defects import CATALOGUE, load_defects
+    from .qualify.run import qualify
+
+    try:
+        if args.defects:
+            load_defects(args.defects)
+        if args.list:
+            for d in CATALOGUE.values():
+                print(f"{d.name:<34} {d.description}")
+            return 0
+        args.only = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else None
+        suite = find_suite(args.suite)
+        args.suite = str(suite if suite.is_dir() else suite.parent)
+        print(f"hil qualify: {len(args.only or CATALOGUE)} defects against {args.dut}, {args.workers} at a time; "
+              f"reports in {args.report_dir}/")
+        result = qualify(args)
+    except (OSError, ValueError, TypeError) as exc:
+        print(f"hil qualify: {exc}", file=sys.stderr)
+        return 2
+    d = result["detection"]
+    print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
+          f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
+    for req, names in result["requirements"].items():
+        print(f"  {req:<14} catches {', '.join(names)}")
+    if result["survivors"]:
+        print("survivors (findings: add the requirement that catches them, or state why harmless): "
+              + ", ".join(result["survivors"]))
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"written: {args.json}")
+    return 0 if result["control_verdict"] == "PASS" and not result["survivors"] else 1
+
+
 def cmd_acceptance(args) -> int:
     import subprocess
 
@@ -703,6 +740,24 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
+
+    p = sub.add_parser(
+        "qualify",
+        help="qualify the acceptance suite: run it against each seeded firmware defect of the built-in controller",
+    )
+    p.add_argument("--dut", default="virtual:modbus", help="the built-in controller's form (default: virtual:modbus)")
+    p.add_argument("--defects", help="a Python file of further @defect classes (hil.qualify.defects)")
+    p.add_argument("--only", help="comma-separated defect names (default: the whole catalogue)")
+    p.add_argument("--budgets", help="budgets TOML over the defaults")
+    p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search")
+    p.add_argument(
+        "--report-dir", default="reports/qualify", help="one acceptance report per run (default: reports/qualify)"
+    )
+    p.add_argument("-n", "--workers", type=int, default=2, help="runs at a time (default 2)")
+    p.add_argument("--suite", help="the acceptance suite: a directory (default: ./test_cases)")
+    p.add_argument("--json", help="write the result as JSON here")
+    p.add_argument("--list", action="store_true", help="list the defects and exit")
+    p.set_defaults(func=cmd_qualify)
 
     p = sub.add_parser("replay", help="re-run a saved stimulus (a failing property-based example)")
     p.add_argument("file", help="stimulus JSON (reports/replays/*.json)")

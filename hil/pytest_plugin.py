@@ -71,6 +71,15 @@ def pytest_addoption(parser):
     )
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
     group.addoption(
+        "--hil-defect",
+        default=None,
+        metavar="NAME",
+        help="seed this firmware defect into the built-in controller (hil qualify; virtual DUTs only)",
+    )
+    group.addoption(
+        "--hil-defects", default=None, metavar="FILE", help="a Python file of further @defect classes (hil qualify)"
+    )
+    group.addoption(
         "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
     )
     group.addoption(
@@ -406,19 +415,41 @@ def hil_kinematic(hil_plant_config, hil_seed):
     return make
 
 
+def _seeded_defect(spec, motor, config):
+    """The built-in controller with the firmware defect ``--hil-defect`` names, or None (no defect)."""
+    name = config.getoption("--hil-defect")
+    if name is None:
+        return None
+    from .qualify.defects import CATALOGUE, load_defects
+
+    if config.getoption("--hil-defects"):
+        try:
+            load_defects(config.getoption("--hil-defects"))
+        except (OSError, ValueError, TypeError) as exc:
+            raise pytest.UsageError(f"hil: --hil-defects: {exc}") from None
+    if name not in CATALOGUE:
+        raise pytest.UsageError(f"hil: --hil-defect {name!r} is not a known defect ({', '.join(CATALOGUE)})")
+    if not spec.is_virtual:
+        raise pytest.UsageError(f"hil: --hil-defect seeds the built-in controller; {spec.text} is not virtual")
+    return CATALOGUE[name].controller(motor)
+
+
 @pytest.fixture(scope="session")
-def hil_dut(hil_dut_spec, hil_plant_config):
+def hil_dut(hil_dut_spec, hil_plant_config, pytestconfig):
     """The controller under test, opened once per session and DUT spec (``virtual``: the built-in
     controller, served over its protocol in this process; each xdist worker has its own)."""
     from .dut.link import LinkError
     from .dut.spec import open_dut
 
+    controller = _seeded_defect(hil_dut_spec, hil_plant_config.motor, pytestconfig)
     try:  # a controller that cannot be reached ends the session in one line, not one error per test
-        dut = open_dut(hil_dut_spec, hil_plant_config.motor)
+        dut = open_dut(hil_dut_spec, hil_plant_config.motor, controller=controller)
     except LinkError as exc:
         pytest.exit(f"hil: {exc}", returncode=3)
     try:
         dut.identity = dut.link.identity()
+        if controller is not None:  # the report names the seeded defect beside the identity
+            dut.identity["seeded defect"] = pytestconfig.getoption("--hil-defect")
     except LinkError as exc:
         dut.close()
         pytest.exit(f"hil: {exc}", returncode=3)

@@ -56,7 +56,13 @@ REPLY = 210
 #: then the ADC window newest first), two per register, the first one high; the write's length says
 #: how many conversions it holds. The write triggers the controller.
 EDGE_IN = 300
-EDGE_MAILBOX_REGISTERS = 11 + 3 * MAX_ADC_SAMPLES
+#: conversions the mailbox's own write holds (read/write multiple registers writes at most 121)
+MAILBOX_CONVERSIONS = 36
+EDGE_MAILBOX_REGISTERS = 11 + 3 * MAILBOX_CONVERSIONS
+#: an edge's older conversions (index 36 on), when it has more, written just before its mailbox
+#: (write multiple registers); the mailbox write takes them and empties the block
+EDGE_OLDER = EDGE_IN + EDGE_MAILBOX_REGISTERS
+EDGE_OLDER_REGISTERS = 3 * (MAX_ADC_SAMPLES - MAILBOX_CONVERSIONS)
 REPLY_FRAMES = 4
 
 
@@ -103,6 +109,7 @@ def simdata() -> list[SimData]:
         SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
         SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
         SimData(EDGE_IN, EDGE_MAILBOX_REGISTERS, 0, DataType.REGISTERS),
+        SimData(EDGE_OLDER, EDGE_OLDER_REGISTERS, 0, DataType.REGISTERS),
         SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
     ]
 
@@ -182,6 +189,7 @@ class ModbusDevice:
         controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
         self._epoch = 0
         self._last_ticks = None
+        self._older: list[int] = []  #: the last write to EDGE_OLDER, for the next mailbox write
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
@@ -440,11 +448,18 @@ class ModbusDevice:
             c.reset()
             self._epoch, self._last_ticks = 0, None
             values[COMMAND - address] = 0  # a trigger reads back as 0
+        if address >= EDGE_OLDER:
+            if address != EDGE_OLDER or len(values) % 3:
+                return ExcCodes.ILLEGAL_VALUE  # whole conversions from the block's start
+            self._older = list(values)
         if covers(EDGE_IN, 11):
             if address != EDGE_IN or (end - EDGE_IN - 11) % 3:
                 return ExcCodes.ILLEGAL_VALUE  # a mailbox write is the header, the sums and whole conversions
+            older, self._older = self._older, []
+            if older and end != EDGE_OLDER:
+                return ExcCodes.ILLEGAL_VALUE  # older conversions follow a full mailbox only
             try:
-                msg = EdgeMessage.unpack(_regs_to_bytes(values))
+                msg = EdgeMessage.unpack(_regs_to_bytes(list(values) + older))
             except ValueError:
                 return ExcCodes.ILLEGAL_VALUE
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
@@ -559,6 +574,12 @@ class ModbusLink:
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
         values = _bytes_to_regs(EdgeMessage.from_edge(edge, seq).pack())
+        if len(values) > EDGE_MAILBOX_REGISTERS:  # the older conversions first, in a write of their own
+            older, values = values[EDGE_MAILBOX_REGISTERS:], values[:EDGE_MAILBOX_REGISTERS]
+            self._call(
+                f"older ADC conversions of edge #{seq}",
+                lambda: self.client.write_registers(EDGE_OLDER, older, device_id=self.unit),
+            )
         r = self._call(
             f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
             lambda: self.client.readwrite_registers(

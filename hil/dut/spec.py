@@ -142,8 +142,9 @@ class Dut:
         self.close()
 
 
-def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
-    """Open the controller; for ``virtual`` build the reference controller for ``motor`` and serve it."""
+def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Dut:
+    """Open the controller; for ``virtual`` serve ``controller`` (default: the reference controller
+    built for ``motor``)."""
     spec = parse_dut(spec) if isinstance(spec, str) else spec
     o = spec.options
     if spec.kind == "canopen":
@@ -172,7 +173,7 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters) -> Dut:
     from ..controller.virtual import VirtualController
     from .in_process import InProcessLink
 
-    controller = VirtualController(motor)
+    controller = controller if controller is not None else VirtualController(motor)
     if spec.transport == "in-process":
         return Dut(spec, InProcessLink(controller))
     if spec.transport == "canopen":

@@ -1,0 +1,226 @@
+"""Seeded firmware defects of the built-in controller: what the acceptance suite must catch.
+
+Each defect is a realistic firmware bug, written as a subclass of the built-in controller that
+changes only what the bug changes (the table the firmware applies, not the one it reads back;
+the instant its ADC is read; its filter; its fault handling). ``hil qualify`` runs the acceptance
+suite against each; a defect no requirement fails is a finding about the suite.
+
+Add your own in a Python file and pass it with ``--defects FILE``::
+
+    from hil.qualify.defects import defect
+    from hil.controller.virtual import VirtualController
+
+    @defect("speed-loop-gain-x10", "the speed PI's proportional gain ten times too high")
+    class FastSpeedLoop(VirtualController):
+        kp_per_rpm: float = 1e-3
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import importlib.util
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from bldc.contract import Fault, Strategy
+
+from ..calibration.corrections import SENSORS, Corrections
+from ..controller.virtual import VirtualController
+from ..predictors import KalmanPredictor, MotorModel
+
+
+@dataclass(frozen=True)
+class Defect:
+    name: str
+    description: str
+    controller: type[VirtualController]
+
+
+CATALOGUE: dict[str, Defect] = {}
+
+
+def defect(name: str, description: str):
+    """Register a controller class as the seeded defect ``name`` (a VirtualController subclass)."""
+
+    def register(cls):
+        if not (isinstance(cls, type) and issubclass(cls, VirtualController)):
+            raise TypeError(f"defect {name!r}: {cls!r} is not a VirtualController subclass")
+        if name in CATALOGUE:
+            raise ValueError(f"defect {name!r} is registered twice ({CATALOGUE[name].controller.__qualname__}, "
+                             f"{cls.__qualname__})")
+        CATALOGUE[name] = Defect(name, description, dataclasses.dataclass(cls) if "__dataclass_fields__" not in
+                                 cls.__dict__ else cls)
+        return cls
+
+    return register
+
+
+def load_defects(path: str | Path) -> list[str]:
+    """Import a user's defects file (its ``@defect`` classes join the catalogue); their names."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"defects file {path} does not exist")
+    before = set(CATALOGUE)
+    spec = importlib.util.spec_from_file_location(f"hil_user_defects_{path.stem}", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    added = [n for n in CATALOGUE if n not in before]
+    if not added:
+        raise ValueError(f"defects file {path} registers no defect (decorate VirtualController subclasses "
+                         "with @defect)")
+    return added
+
+
+class _WrongTable(VirtualController):
+    """Firmware that stores and reads back the downloaded table but applies a wrong one."""
+
+    def applied(self, table: Corrections) -> Corrections:
+        raise NotImplementedError
+
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        if self._logic.corrections is not None and self.corrections is not None:
+            self._logic.corrections = self.applied(self.corrections)
+
+
+@defect("pole-table-one-pole-off", "the pole offsets applied one magnet pole late (table index off by one)")
+class PoleTableOneOff(_WrongTable):
+    def applied(self, table):
+        return dataclasses.replace(table, pole_offset_deg_e=list(np.roll(table.pole_offset_deg_e, 1)))
+
+
+@defect("rise-fall-delays-swapped", "the rising edges corrected with the falling-edge delay and vice versa")
+class DelaysSwapped(_WrongTable):
+    def applied(self, table):
+        d = table.conditioning_delay_s
+        return dataclasses.replace(table, conditioning_delay_s={"rise": d["fall"], "fall": d["rise"]})
+
+
+@defect("installation-on-wrong-sensor", "sensor A's installation offset applied to B, B's to C, C's to A")
+class InstallationRotated(_WrongTable):
+    def applied(self, table):
+        off = table.installation_offset_deg_e
+        rotated = {s: off[SENSORS[k - 1]] for k, s in enumerate(SENSORS)}
+        return dataclasses.replace(table, installation_offset_deg_e=rotated)
+
+
+@defect("armature-sign-inverted", "the armature-reaction correction applied with the wrong sign")
+class ArmatureSign(_WrongTable):
+    def applied(self, table):
+        return dataclasses.replace(table, armature_reaction_deg_e_per_a=-table.armature_reaction_deg_e_per_a)
+
+
+@defect("delay-applied-at-90-percent", "the conditioning delays applied at 90 % (a timer prescaler rounded)")
+class DelayNinety(_WrongTable):
+    def applied(self, table):
+        delays = {k: 0.9 * v for k, v in table.conditioning_delay_s.items()}
+        return dataclasses.replace(table, conditioning_delay_s=delays)
+
+
+@defect("table-never-applied", "the table is accepted and read back, but the commutation runs on an empty one")
+class TableNeverApplied(_WrongTable):
+    def applied(self, table):
+        return Corrections(pole_offset_deg_e=[0.0] * len(table.pole_offset_deg_e))
+
+
+@defect("current-sampled-at-capture", "the edge's current read from the ADC at the capture interrupt, not one "
+        "conditioning delay before it where the armature field moved the edge")
+class CurrentAtCapture(VirtualController):
+    def _applied_delay_s(self, rising: bool) -> float:
+        return 0.0
+
+
+class _InMilliamps:
+    """A predictor whose current input is scaled to mA on the way in."""
+
+    def __init__(self, predictor):
+        self._predictor = predictor
+
+    def update(self, t_s, current_a):
+        return self._predictor.update(t_s, current_a * 1000.0)
+
+    def __getattr__(self, name):
+        return getattr(self._predictor, name)
+
+
+@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A")
+class PredictorMilliamps(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        if self._logic.predictor is not None:
+            self._logic.predictor = _InMilliamps(self._logic.predictor)
+
+
+class _GateLatency(VirtualController):
+    latency_s: float = 0.0
+
+    def capture(self, edge):
+        # commands leave the interrupt late by the gate driver's uncompensated latency
+        return [dataclasses.replace(c, at_s=c.at_s + self.latency_s) for c in super().capture(edge)]
+
+
+@defect("gate-latency-5us", "5 us of gate-driver latency not compensated")
+class GateLatency5(_GateLatency):
+    latency_s: float = 5e-6
+
+
+@defect("gate-latency-25us", "25 us of gate-driver latency not compensated")
+class GateLatency25(_GateLatency):
+    latency_s: float = 25e-6
+
+
+@defect("sage-husa-runs-kf", "the Sage-Husa strategy selects the fixed-noise Kalman filter")
+class SageHusaIsKf(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        if self.strategy is Strategy.SAGE_HUSA:
+            model = self.model or MotorModel.from_plant(self.motor)
+            self._predictor = self._logic.predictor = KalmanPredictor(model, self.kf_settings)
+
+
+@defect("sage-husa-without-adaptation", "Sage-Husa with its noise adaptation (Eq. 12) switched off")
+class NoAdaptation(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        self.filter_settings = dataclasses.replace(self.filter_settings, adapt_mask=0)
+        super()._build_logic(speed_loop)
+
+
+@defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)")
+class NoMissingEdgeFault(VirtualController):
+    def raise_fault(self, code, t_s):
+        if int(code) != Fault.MISSING_EDGE:
+            super().raise_fault(code, t_s)
+
+
+@defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)")
+class NoTableValidation(VirtualController):
+    def download_calibration(self, corrections):
+        self.corrections = corrections
+        self.reset()
+
+
+@defect("current-limit-not-enforced", "the speed loop's duty is clamped to 0..1 but never limited to keep the "
+        "phase current within the limit")
+class NoCurrentLimit(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        self._logic._duty_bounds = lambda speed_rpm: (0.0, 1.0)
+
+
+@defect("never-resynchronises", "after lost edges the edge count (and the pole table) is never resynchronised")
+class NeverResyncs(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        self._logic.resync = lambda: None
+
+
+@defect("lost-edge-against-last-sector", "a lost edge told from the last sector's interval (x1.8), so uneven "
+        "calibrated sectors read as lost edges")
+class LostEdgeAgainstLastSector(VirtualController):
+    def _reference_interval_s(self):
+        if not self._intervals:
+            return None, self.missing_edge_interval_ratio
+        return self._intervals[-1], self.missing_edge_interval_ratio
+

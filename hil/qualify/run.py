@@ -1,0 +1,134 @@
+"""``hil qualify``: the acceptance suite run against each seeded firmware defect.
+
+The control run (the built-in controller as shipped) must PASS; each defect then runs the same
+suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). A defect is
+killed when the run's verdict is not PASS; the requirements that failed are what caught it. The
+suite's files run cheapest first, so a killed defect costs seconds, a survivor the whole suite.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import time
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from .defects import CATALOGUE, load_defects
+
+#: the acceptance suite's files, cheapest and most discriminating first (the property searches last)
+SUITE_ORDER = (
+    "test_protocol.py",
+    "test_faults.py",
+    "test_calibration_recovery.py",
+    "test_signal_injection.py",
+    "test_sage_husa.py",
+    "test_fault_injection.py",
+)
+#: a run that has not finished after this long is stopped and reported as undecided
+RUN_TIMEOUT_S = 1200.0
+
+
+@dataclass
+class Run:
+    name: str
+    description: str
+    verdict: str  #: the report's verdict: PASS, FAIL, or "no report"
+    killed: bool
+    killed_by: list[str] = field(default_factory=list)  #: requirement ids that failed
+    failed_tests: list[str] = field(default_factory=list)
+    duration_s: float = 0.0
+    report: str = ""
+    note: str = ""
+
+
+def suite_files(suite: Path) -> list[str]:
+    """The suite's test files in SUITE_ORDER (others after them, by name)."""
+    files = sorted(p.name for p in suite.glob("test_*.py"))
+    if not files:
+        raise FileNotFoundError(f"no test_*.py in the acceptance suite {suite}")
+    ordered = [f for f in SUITE_ORDER if f in files] + [f for f in files if f not in SUITE_ORDER]
+    return [str(suite / f) for f in ordered]
+
+
+def _run(name: str, description: str, defect: str | None, args) -> Run:
+    report_dir = Path(args.report_dir) / (defect or "control")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", args.dut,
+           "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
+    if args.budgets:
+        cmd += ["--hil-budgets", args.budgets]
+    if defect is not None:
+        cmd += ["--hil-defect", defect]
+        if args.defects:
+            cmd += ["--hil-defects", args.defects]
+    cmd += suite_files(Path(args.suite))
+    started = time.monotonic()
+    note = ""
+    try:
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S,
+                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
+        output = proc.stdout + proc.stderr
+    except subprocess.TimeoutExpired:
+        output, note = "", f"stopped after {RUN_TIMEOUT_S:.0f} s"
+    duration = time.monotonic() - started
+    report_json = report_dir / "hil-report.json"
+    if not report_json.is_file():
+        tail = " | ".join(output.strip().splitlines()[-3:])
+        return Run(name, description, "no report", False, duration_s=duration, report=str(report_json),
+                   note=note or f"the run wrote no report: {tail}")
+    report = json.loads(report_json.read_text())
+    verdict = report.get("verdict", "no verdict")
+    failed_reqs = [r["id"] for r in report.get("traceability", []) if r.get("verdict") in ("fail", "error")]
+    failed_tests = [t["nodeid"] for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
+    return Run(name, description, verdict, verdict != "PASS", failed_reqs, failed_tests, duration, str(report_json),
+               note)
+
+
+def qualify(args, progress=print) -> dict:
+    """Control run and one run per defect (``args.only`` or the whole catalogue), ``args.workers``
+    at a time; the result as the JSON ``hil qualify`` writes."""
+    if args.defects:
+        load_defects(args.defects)
+    names = list(CATALOGUE) if not args.only else args.only
+    unknown = [n for n in names if n not in CATALOGUE]
+    if unknown:
+        raise ValueError(f"unknown defect(s) {', '.join(unknown)}; known: {', '.join(CATALOGUE)}")
+    jobs = [("control", "the built-in controller as shipped", None)] + [
+        (n, CATALOGUE[n].description, n) for n in names
+    ]
+    started = time.monotonic()
+    with ThreadPoolExecutor(max_workers=max(int(args.workers), 1)) as pool:
+        futures = [pool.submit(_run, name, description, defect, args) for name, description, defect in jobs]
+        runs = []
+        for future in futures:
+            run = future.result()
+            runs.append(run)
+            caught = ", ".join(run.killed_by) or "-"
+            state = "control" if run.name == "control" else ("killed" if run.killed else "SURVIVED")
+            progress(f"{run.name:<34} {state:<9} {run.verdict:<9} {run.duration_s:6.1f} s  caught by: {caught}"
+                     + (f"  ({run.note})" if run.note else ""))
+    control, mutants = runs[0], runs[1:]
+    killed = [m for m in mutants if m.killed]
+    by_requirement: dict[str, list[str]] = {}
+    for m in killed:
+        for req in m.killed_by:
+            by_requirement.setdefault(req, []).append(m.name)
+    return {
+        "format": "hil-qualify/1",
+        "dut": args.dut,
+        "seed": args.seed,
+        "control_verdict": control.verdict,
+        "control": asdict(control),
+        "mutants": [asdict(m) for m in mutants],
+        "detection": {
+            "killed": len(killed),
+            "total": len(mutants),
+            "ratio": len(killed) / len(mutants) if mutants else None,
+        },
+        "requirements": {req: sorted(names_) for req, names_ in sorted(by_requirement.items())},
+        "survivors": [m.name for m in mutants if not m.killed],
+        "duration_s": time.monotonic() - started,
+    }
