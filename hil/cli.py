@@ -352,7 +352,8 @@ def cmd_dut_serve(args) -> int:
     # stderr); the Modbus server's refusals are debug lines (docs/controller.md)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
-          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
+          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout,
+          profile=args.profile)
     return 0
 
 
@@ -681,6 +682,11 @@ def build_parser() -> argparse.ArgumentParser:
     )
     q.add_argument(
         "--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for"
+    )
+    q.add_argument(
+        "--profile",
+        help="serve under this device profile (hil-device-profile/1, docs/device-profiles.md) instead of the "
+        "controller's own map",
     )
     q.set_defaults(func=cmd_dut_serve)
 
