@@ -245,6 +245,8 @@ class DeviceObject:
             names = {v: k for k, v in self.values.items()}
             name = names.get(int(raw))
             return STRATEGY_NAMES[name] if name is not None else None
+        if self.type not in ("float32", "float64") and (self.scale, self.offset, self.unit) == (1.0, 0.0, "none"):
+            return int(raw)  # a count, a code, an identity: an integer stays one
         u = float(raw) * self.scale + self.offset
         role_unit = ROLES[self.role].unit if self.role in ROLES else "none"
         v = u * self._unit_factor(self.unit, pole_pairs)
