@@ -446,7 +446,10 @@ def _require_testable(item, link) -> None:
     missing = missing_needs(rids, profile.has, profile.edge_hook.kind, profile.fault_sources)
     if missing:
         reason = f"not testable with the profile {profile.path}: it lacks {', '.join(missing)}"
-        item.user_properties.append((PROPERTY_PREFIX + "not_testable", reason))
+        # the requirements the profile cannot show; the test's others are merely not tested by it
+        lacking = sorted(r for r in rids if missing_needs([r], profile.has, profile.edge_hook.kind,
+                                                         profile.fault_sources))
+        item.user_properties.append((PROPERTY_PREFIX + "not_testable", {"reason": reason, "requirements": lacking}))
         pytest.skip(reason)
 
 
@@ -715,7 +718,7 @@ class HilReporter:
             "doc": "",
             "worker": _worker_id(reports[-1]),
             "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
-            "not_testable": "",
+            "not_testable": None,
         }
         for key, value in props:
             key = str(key)

@@ -1,0 +1,204 @@
+"""Device profiles (hil-device-profile/1): strict parsing, the shipped maps, a foreign map served
+and tested end to end (hil dut serve --profile, a raw Modbus client, hil dut check, hil acceptance)."""
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hil.budgets import REQUIREMENT_NEEDS, REQUIREMENTS
+from hil.dut.draft import draft_from_eds
+from hil.dut.od import EDS_PATH
+from hil.dut.profile import ROLES, SHIPPED, ProfileError, load_profile, shipped
+
+ROOT = Path(__file__).resolve().parent.parent
+FOREIGN = ROOT / "examples" / "acme-p3-modbus.toml"
+HEAD = 'format = "hil-device-profile/1"\nname = "t"\nprotocol = "modbus"\n'
+
+
+def _write(tmp_path, text: str) -> Path:
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    "body, where",
+    [
+        ("colour = 1\n", "p.toml: colour"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=1\ntype='float32'\nadress=2\n",
+         "[objects.speed_setpoint].adress"),
+        ("[objects.sped_setpoint]\ntable='holding'\naddress=1\ntype='float32'\n", "[objects.sped_setpoint]"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=1\ntype='float32'\nunit='s'\n",
+         "[objects.speed_setpoint].unit"),
+        ("[objects.speed_setpoint]\ntable='holding'\ntype='float32'\n", "[objects.speed_setpoint].address"),
+        ("[objects.strategy]\ntable='holding'\naddress=0\ntype='uint16'\n", "[objects.strategy].values"),
+        ("[objects.speed_setpoint]\ntable='input'\naddress=1\ntype='float32'\n", "[objects.speed_setpoint].table"),
+        ("[objects.reset]\ntable='holding'\naddress=1\ntype='uint16'\n", "[objects.reset].write"),
+        ("[objects.speed_actual]\ntable='input'\naddress=1\ntype='float32'\n"
+         "[objects.speed_setpoint]\ntable='input'\naddress=2\ntype='float32'\n", "[objects.speed_setpoint]"),
+        ("[faults]\nmap = { 0x3101 = 'hall_trouble' }\n", "[faults].map.0x3101"),
+        ("[edge_hook]\nkind='pdo'\nrx_cob_ids=[0x205]\ntx_cob_id=0x185\n", "[edge_hook].kind"),
+        ("[edge_hook]\nkind='mailbox'\nrequest_address=200\n", "[edge_hook].reply_address"),
+    ],
+)
+def test_a_bad_profile_names_file_table_and_key(tmp_path, body, where):
+    with pytest.raises(ProfileError) as info:
+        load_profile(_write(tmp_path, HEAD + body))
+    assert str(tmp_path / "p.toml") in str(info.value) and where in str(info.value), str(info.value)
+
+
+def test_scaled_little_endian_words_encode_as_the_modbus_spec_says(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[modbus]\nword_order='little'\n[objects.speed_setpoint]\n"
+                            "table='holding'\naddress=1\ntype='int32'\nscale=0.1\nunit='hz_e'\n")).bind(2)
+    obj = p.get("speed_setpoint")
+    raw = obj.to_raw(6000.0, 2)  # 6000 rpm at 2 pole pairs is 200 Hz electrical: 2000 counts of 0.1
+    assert raw == 2000 and obj.to_registers(raw) == [2000, 0]
+    assert obj.to_registers(obj.to_raw(-15.0, 2)) == [0xFFFF - 4, 0xFFFF]  # -0.5 Hz: -5 counts, two's complement
+    assert obj.from_raw(obj.from_registers([2000, 0]), 2) == pytest.approx(6000.0)
+
+
+def test_the_shipped_canopen_profile_agrees_with_the_shipped_eds(tmp_path):
+    """Types the profile states match the EDS; a profile without types takes them from the EDS."""
+    bound = shipped("canopen").bind(2, 5, str(EDS_PATH))  # a disagreement would raise
+    untyped = SHIPPED["canopen"].read_text().replace('type = "float32"\n', "").replace('type = "uint32"\n', "")
+    p = load_profile(_write(tmp_path, untyped))
+    with pytest.raises(ProfileError, match=r"\[objects.speed_setpoint\].type"):
+        p.bind(2, 5)
+    typed = p.bind(2, 5, str(EDS_PATH))
+    assert {r: o.type for r, o in typed.objects.items()} == {r: o.type for r, o in bound.objects.items()}
+    assert bound.edge_hook.rx_cob_ids == (0x205, 0x305) and bound.edge_hook.tx_cob_id == 0x185
+
+
+def test_a_draft_from_the_shipped_eds_finds_every_object_of_the_shipped_profile(tmp_path):
+    text = draft_from_eds(str(EDS_PATH))
+    assert text.count("# GUESS") >= 30  # each guessed role and value is marked
+    draft, own = load_profile(_write(tmp_path, text)), shipped("canopen")
+    where = {r: (o.index, o.subindex, o.count, o.type) for r, o in draft.objects.items()}
+    assert {r: (o.index, o.subindex, o.count, o.type) for r, o in own.objects.items()}.items() <= where.items()
+
+
+def test_every_role_a_requirement_needs_exists():
+    assert set(REQUIREMENT_NEEDS) == set(REQUIREMENTS)
+    for rid, need in REQUIREMENT_NEEDS.items():
+        assert set(need.get("roles", ())) <= set(ROLES), rid
+
+
+def _run(*args, timeout=600):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=ROOT,
+                          env=env, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def served():
+    """The virtual controller in its own process under the foreign example profile."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil", "dut", "serve", "--modbus-port", "0", "--profile", str(FOREIGN)],
+        stdout=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    lines = [proc.stdout.readline().strip(), proc.stdout.readline().strip()]
+    assert lines[0].startswith("Modbus TCP unit 1: 127.0.0.1:") and lines[1] == "ready", lines
+    yield int(lines[0].rpartition(":")[2])
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def test_a_plain_modbus_client_finds_the_values_where_the_foreign_profile_says(served):
+    from pymodbus.client import ModbusTcpClient
+
+    from hil.dut.modbus_face import ModbusLink
+
+    link = ModbusLink(port=served, profile=str(FOREIGN))
+    link.set_speed(6000.0)
+    link.set_strategy(2)  # kf
+    c = ModbusTcpClient("127.0.0.1", port=served)
+    assert c.connect()
+    try:
+        # holding 1000: strategy kf is the device's 12; 1001-1002: int32 0.1 rpm, low word first
+        assert c.read_holding_registers(1000, count=3, device_id=1).registers == [12, 60000, 0]
+        # the vendor id 0x00000B1D in input registers 3300-3301, low word first
+        assert c.read_input_registers(3300, count=2, device_id=1).registers == [0x0B1D, 0]
+        # the read-backs are input registers: the holding table has nothing at 3300
+        assert c.read_holding_registers(3300, count=1, device_id=1).exception_code == 2
+        link.write_role("pole_offset", [1.0, -0.5, 0.25, 0.0])  # deg_e; the device holds 0.001 deg_m
+        regs = c.read_holding_registers(1016, count=4, device_id=1).registers
+        assert [struct.unpack(">h", struct.pack(">H", r))[0] for r in regs] == [500, -250, 125, 0]
+    finally:
+        c.close()
+        link.set_strategy(3)
+        link.close()
+
+
+def test_hil_dut_check_accepts_the_foreign_profile(served):
+    r = _run("dut", "check", "--dut", f"modbus-tcp:host=127.0.0.1,port={served},profile={FOREIGN}")
+    assert r.returncode == 0, r.stderr
+    assert "x_firmware_build" in r.stdout and "input 3300" in r.stdout
+    assert "REQ-PROT-002  not testable" in r.stdout and "REQ-CAL-001   testable" in r.stdout
+
+
+def test_hil_dut_check_fails_on_an_object_the_device_refuses(served, tmp_path):
+    text = FOREIGN.read_text().replace("address = 3400", "address = 3999")  # not in the device's map
+    r = _run("dut", "check", "--dut", f"modbus-tcp:host=127.0.0.1,port={served},profile={_write(tmp_path, text)}")
+    assert r.returncode == 1 and "REFUSED" in r.stdout
+
+
+@pytest.mark.slow
+def test_acceptance_through_the_foreign_profile(served, tmp_path):
+    """Every requirement a Modbus device can show passes; the CANopen-only heartbeat requirement is
+    not testable (never green) until a budgets file puts it out of scope, with reason and owner."""
+    dut = f"modbus-tcp:host=127.0.0.1,port={served},profile={FOREIGN}"
+    r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), timeout=1200)
+    content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
+    verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+    assert verdicts.pop("REQ-PROT-002") == "not testable"
+    assert set(verdicts.values()) <= {"pass", "marginal"}, verdicts
+    assert len(verdicts) == len(REQUIREMENTS) - 1
+    assert r.returncode == 1 and content["verdict"] == "FAIL"
+    assert content["verdict_reasons"] == ["REQ-PROT-002: not testable with this profile"]
+    budgets = _write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\n'
+                     'reason = "Modbus: no heartbeat, no EMCY"\nowner = "test bench team"\n')
+    r = _run("acceptance", "--dut", dut, "--budgets", str(budgets), "--report-dir", str(tmp_path / "b"),
+             "--suite", "test_cases/test_protocol.py", "--", "-k", "not refused_calibration", timeout=600)
+    content = json.loads((tmp_path / "b" / "hil-report.json").read_text())
+    req = next(q for q in content["traceability"] if q["id"] == "REQ-PROT-002")
+    assert req["verdict"] == "out of scope" and req["waiver"]["owner"] == "test bench team"
+    assert content["verdict"] == "PASS" and r.returncode == 0, content["verdict_reasons"]
+
+
+def _record(nodeid, outcome, requirements, not_testable=None):
+    return {"nodeid": nodeid, "outcome": outcome, "requirements": requirements, "measurements": [],
+            "message": "", "not_testable": not_testable}
+
+
+def test_not_testable_is_never_pass_and_out_of_scope_never_hides_a_failure(tmp_path):
+    from hil.budgets import Budgets
+    from hil.report import requirement_verdict
+
+    skipped = _record("t::heartbeat", "skipped", ["REQ-PROT-002", "REQ-CAL-005"],
+                      {"reason": "lacks heartbeat_period", "requirements": ["REQ-PROT-002"]})
+    assert requirement_verdict("REQ-PROT-002", [skipped]) == ("not testable", None)
+    assert requirement_verdict("REQ-CAL-005", [skipped]) == ("not tested", None)  # its own needs are met
+    ran = _record("t::ok", "passed", ["REQ-PROT-002"])
+    assert requirement_verdict("REQ-PROT-002", [skipped, ran])[0] == "pass"  # another DUT showed it
+    budgets = Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\n'
+                                       'reason = "Modbus"\nowner = "me"\n'))
+    verdict, entry = requirement_verdict("REQ-PROT-002", [skipped], budgets.waivers)
+    assert verdict == "out of scope" and entry.owner == "me"
+    failed = _record("t::bad", "failed", ["REQ-PROT-002"])
+    assert requirement_verdict("REQ-PROT-002", [failed], budgets.waivers) == ("fail", None)
+
+
+def test_an_out_of_scope_entry_is_parsed_strictly(tmp_path):
+    from bldc.params import ConfigError
+    from hil.budgets import Budgets
+
+    with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.tests"):
+        Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'
+                                 'owner = "o"\ntests = ["x"]\n'))
+    with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.owner"):
+        Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'))
