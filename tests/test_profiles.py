@@ -2,6 +2,7 @@
 and tested end to end (hil dut serve --profile, a raw Modbus client, hil dut check, hil acceptance)."""
 
 import json
+import math
 import os
 import struct
 import subprocess
@@ -202,3 +203,80 @@ def test_an_out_of_scope_entry_is_parsed_strictly(tmp_path):
                                  'owner = "o"\ntests = ["x"]\n'))
     with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.owner"):
         Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'))
+
+
+FOREIGN_CANOPEN = ROOT / "examples" / "acme-p3-canopen.toml"
+
+
+@pytest.mark.slow
+def test_the_foreign_canopen_profile_passes_acceptance(tmp_path):
+    """The virtual controller under a foreign object dictionary (0x3000 objects, scaled integers,
+    its own strategy numbers and EMCY codes, RPDO3/4 and TPDO2): every requirement passes, the
+    heartbeat and EMCY ones included."""
+    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "--report-dir", str(tmp_path),
+             timeout=1200)
+    content = json.loads((tmp_path / "hil-report.json").read_text())
+    verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+    assert set(verdicts) == set(REQUIREMENTS) and set(verdicts.values()) <= {"pass", "marginal"}, verdicts
+    assert r.returncode == 0 and content["verdict"] == "PASS"
+
+
+@pytest.mark.slow
+def test_the_foreign_canopen_profile_served_over_socketcand_is_checked_and_conformant(tmp_path):
+    """``hil dut serve --profile`` over the socketcand port: the endpoint lines as before, hil dut
+    check reads every object, the conformance suite passes (heartbeat and EMCY included)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", "0", "--profile", str(FOREIGN_CANOPEN)],
+        stdout=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    try:
+        lines = [proc.stdout.readline().strip(), proc.stdout.readline().strip()]
+        assert lines[0].startswith("CANopen node 5: interface=socketcand channel=can0 host=127.0.0.1 port=")
+        assert lines[1] == "ready", lines
+        port = int(lines[0].rpartition("port=")[2])
+        dut = f"canopen:interface=socketcand,channel=can0,host=127.0.0.1,port={port},node=5,profile={FOREIGN_CANOPEN}"
+        check = _run("dut", "check", "--dut", dut)
+        assert check.returncode == 0, check.stderr
+        assert "0x3010:01 x3" in check.stdout and "REQ-PROT-002  testable" in check.stdout
+        # over the socketcand port, the conformance suite (a lockstep bench there takes minutes per test)
+        r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), "--suite",
+                 "test_cases/test_protocol.py", timeout=600)
+        content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
+        verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+        assert verdicts == {"REQ-PROT-001": "pass", "REQ-PROT-002": "pass", "REQ-PROT-003": "pass",
+                            "REQ-CAL-005": "pass"}, verdicts
+        assert r.returncode == 0 and content["verdict"] == "PASS"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_the_foreign_canopen_profile_encodes_as_it_says():
+    """Raw SDO uploads find the device's own numbers: strategy kf is 4, 6000 rpm is 628.32 rad/s
+    in hundredths, and a refused calibration's EMCY carries the device's code 0x5530."""
+    from hil.calibration.corrections import Corrections
+    from hil.controller.virtual import VirtualController
+    from hil.dut.canopen_face import CanopenDevice, CanopenLink
+    from hil.dut.link import LinkError
+    from plant_models import paper_bench
+
+    channel = f"profiles-{os.getpid()}"
+    dev = CanopenDevice(VirtualController(paper_bench().motor), node_id=7, channel=channel,
+                        profile=str(FOREIGN_CANOPEN))
+    link = CanopenLink(node_id=7, channel=channel, profile=str(FOREIGN_CANOPEN))
+    try:
+        link.set_strategy(2)
+        link.set_speed(6000.0)
+        assert struct.unpack("<H", link.node.sdo.upload(0x3000, 0)[:2])[0] == 4
+        hundredths = round(6000 * 2 * math.pi / 60 * 100)  # rpm -> mechanical rad/s, 0.01 per count
+        assert struct.unpack("<i", link.node.sdo.upload(0x3001, 0)[:4])[0] == hundredths
+        bad = [0.0] * 3 + [50.0, 0.0, 0.0, 0.0] + [0.0, 0.0, 0.0]  # a 50 deg_e pole offset is refused
+        with pytest.raises(LinkError, match="0x06090030"):
+            link.download_calibration(Corrections.from_vector(bad))
+        _, frame = link.emcy.get(timeout=1.0)
+        assert struct.unpack_from("<H", frame)[0] == 0x5530
+        assert struct.unpack("<I", link.node.sdo.upload(0x1003, 1)[:4])[0] == 0x5530
+        assert link.faults() == [0xFF04]  # the framework's invalid_calibration
+    finally:
+        link.close()
+        dev.close()

@@ -44,8 +44,9 @@ from ..controller.virtual import VirtualController, warm_up
 from .can_interfaces import unknown_can_interface
 from .link import LinkError, LinkTimeout
 from .od import EDS_PATH
-from .profile import Profile, ProfileError, load_profile, shipped
+from .profile import CANOPEN_TYPE_CODES, ROLES, Profile, ProfileError, load_profile, shipped
 from .roles import RoleLink
+from .virtual_roles import VirtualRoles
 
 ABORT_NO_OBJECT = 0x06020000
 ABORT_NO_SUBINDEX = 0x06090011
@@ -223,25 +224,30 @@ class CanopenDevice:
         profile: Profile | str | None = None,
         **bus_kwargs,
     ):
-        if controller.motor.pole_pairs != 2:
-            raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
-        # the device's dictionary is the shipped EDS: it serves the shipped profile (a foreign CANopen
-        # profile is served over Modbus only, for now: docs/device-profiles.md)
+        """Node ``node_id`` on the bus; the dictionary is the shipped EDS for the controller's own
+        profile, else one built from ``profile`` (every object it maps, CiA 301's mandatory ones)."""
         self.profile = _profile(profile, controller.motor.pole_pairs, node_id, None)
-        if self.profile.objects != shipped("canopen").bind(2, node_id).objects:
-            raise ValueError(f"{self.profile.path}: the virtual CANopen device serves its own dictionary only")
+        own = self.profile.objects == shipped("canopen").bind(controller.motor.pole_pairs, node_id).objects
+        if own and controller.motor.pole_pairs != 2:
+            raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
+        #: the roles of a foreign profile (None: the shipped EDS's own objects, served below)
+        self.roles = None if own else VirtualRoles(controller, self.profile)
+        self._cells = {
+            (o.index, o.subindex_of(k)): (o, k) for o in self.profile.objects.values() for k in range(o.count)
+        }
 
         warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
         self.node_id = node_id
         self.network = canopen.Network()
         self.network.connect(interface=interface, channel=channel, **bus_kwargs)
-        self.node = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
+        od = canopen.import_od(str(EDS_PATH), node_id) if self.roles is None else object_dictionary(self.profile)
+        self.node = canopen.LocalNode(node_id, od)
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary
         self.staged = (controller.corrections or Corrections()).as_float32().as_vector()
         self.filter = filter_vector(controller.filter_settings)
-        self.history: list[int] = []
+        self.history: list[int] = [] if self.roles is None else self.roles.history
         self._epoch = 0
         self._last_ticks: int | None = None
         self._lock = threading.Lock()
@@ -314,6 +320,8 @@ class CanopenDevice:
             self.network.send_message(0x580 + self.node_id, answer)
 
     def _on_read(self, index, subindex, od):
+        if self.roles is not None:
+            return self._role_read(index, subindex)
         c = self.controller
         if index == 0x1001:
             return c.error_register
@@ -357,6 +365,8 @@ class CanopenDevice:
         return None
 
     def _on_write(self, index, subindex, od, data):
+        if self.roles is not None:
+            return self._role_write(index, subindex, od.decode_raw(data))
         value = od.decode_raw(data)
         limits_low = od.min if od.min is not None else None
         limits_high = od.max if od.max is not None else None
@@ -393,10 +403,40 @@ class CanopenDevice:
             self.filter = new
 
     # --- EMCY ------------------------------------------------------------------------------------
+    # --- a foreign profile's objects: the controller's roles, encoded as the profile says ----------
+    def _role_read(self, index: int, subindex: int):
+        cell = self._cells.get((index, subindex))
+        if cell is None:
+            return None  # an object of CiA 301's (0x1000, a record's highest sub-index): its default
+        obj, k = cell
+        if obj.is_action:
+            return 0
+        return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs)
+
+    def _role_write(self, index: int, subindex: int, raw) -> None:
+        obj, k = self._cells[(index, subindex)]
+        try:
+            if obj.is_action:
+                if raw != obj.write:
+                    raise ValueError(f"{obj.role} takes {obj.write}, got {raw!r}")
+                self.roles.write(obj.role, [])
+                if obj.role == "reset":
+                    self._epoch, self._last_ticks = 0, None
+                return
+            present = self.roles.read(obj.role, obj.count)
+            present[k] = obj.from_raw(raw, self.profile.pole_pairs)
+            self.roles.write(obj.role, present)
+        except ValueError:  # CalibrationTableError and ProfileValueError included
+            raise SdoAbortedError(ABORT_RANGE) from None
+        if obj.role == "heartbeat_period":
+            self._heartbeat_ms = self.roles.heartbeat_ms
+            self._start_heartbeat()
+
     def _on_fault(self, code: int, t_s: float) -> None:
-        self.history.insert(0, code)
-        del self.history[8:]
-        self.node.emcy.send(code, self.controller.error_register)
+        if self.roles is None:  # a foreign profile's roles keep the history themselves
+            self.history.insert(0, code)
+            del self.history[8:]
+        self.node.emcy.send(self.profile.device_fault(code), self.controller.error_register)
 
     # --- PDO -------------------------------------------------------------------------------------
     def _received(self, message_type, data):
@@ -565,7 +605,10 @@ class CanopenLink(RoleLink):
         self.network = canopen.Network()
         self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
         self.network.connect()
-        self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
+        # the device's own EDS; else the shipped one for the virtual controller's own profile, or
+        # the dictionary the profile describes
+        own = self.profile.objects == shipped("canopen").bind(pole_pairs, node_id).objects
+        self.node = self.network.add_node(node_id, eds or (str(EDS_PATH) if own else object_dictionary(self.profile)))
         # the client is already subscribed to the response COB-ID; swapping its class keeps that
         # subscription and adds the multiplexer check
         self.node.sdo.__class__ = MuxCheckedSdoClient
@@ -702,3 +745,44 @@ def _profile(profile: Profile | str | None, pole_pairs: int, node_id: int, eds: 
     if profile.protocol != "canopen":
         raise ProfileError(profile.path, f"a {profile.protocol} profile on a CANopen device")
     return profile.bind(pole_pairs, node_id, eds)
+
+
+_TYPE_CODES = {name: code for code, name in CANOPEN_TYPE_CODES.items()}
+
+
+def object_dictionary(profile: Profile):
+    """A CiA 301 object dictionary holding every object of ``profile`` (an object with sub-indices
+    is a RECORD with its highest sub-index at 0, unless a role maps sub 0) and 0x1000: what a
+    device with this profile has, for the virtual device and for a link without the device's EDS."""
+    od = canopen.ObjectDictionary()
+    by_index: dict[int, dict[int, tuple]] = {}
+    for o in profile.objects.values():
+        for k in range(o.count):
+            by_index.setdefault(o.index, {})[o.subindex_of(k)] = (o, k)
+
+    def variable(o, index: int, sub: int, name: str) -> canopen.objectdictionary.ODVariable:
+        var = canopen.objectdictionary.ODVariable(name, index, sub)
+        var.data_type = _TYPE_CODES[o.type]
+        access = ROLES[o.role].access if o.role in ROLES else "r"
+        var.access_type = {"r": "ro", "rw": "rw", "w": "wo"}[access]
+        var.default = False if o.type == "bool" else (0.0 if o.type.startswith("float") else 0)
+        return var
+
+    if 0x1000 not in by_index:
+        device_type = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
+        device_type.data_type, device_type.access_type, device_type.default = 0x07, "ro", 0
+        od.add_object(device_type)
+    for index, subs in sorted(by_index.items()):
+        if list(subs) == [0] and subs[0][0].count == 1:
+            o, _ = subs[0]
+            od.add_object(variable(o, index, 0, o.role))
+            continue
+        record = canopen.objectdictionary.ODRecord(f"{subs[min(subs)][0].role} record", index)
+        if 0 not in subs:
+            highest = canopen.objectdictionary.ODVariable("Highest sub-index supported", index, 0)
+            highest.data_type, highest.access_type, highest.default = 0x05, "const", max(subs)
+            record.add_member(highest)
+        for sub, (o, k) in sorted(subs.items()):
+            record.add_member(variable(o, index, sub, f"{o.role}[{k}]" if o.count > 1 else o.role))
+        od.add_object(record)
+    return od
