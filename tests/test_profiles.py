@@ -45,6 +45,8 @@ def _write(tmp_path, text: str) -> Path:
         ("[faults]\nmap = { 0x3101 = 'hall_trouble' }\n", "[faults].map.0x3101"),
         ("[edge_hook]\nkind='pdo'\nrx_cob_ids=[0x205]\ntx_cob_id=0x185\n", "[edge_hook].kind"),
         ("[edge_hook]\nkind='mailbox'\nrequest_address=200\n", "[edge_hook].reply_address"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=203\ntype='float32'\n"
+         "[edge_hook]\nkind='mailbox'\nrequest_address=200\nreply_address=300\n", "[edge_hook].request_address"),
     ],
 )
 def test_a_bad_profile_names_file_table_and_key(tmp_path, body, where):
@@ -280,3 +282,23 @@ def test_the_foreign_canopen_profile_encodes_as_it_says():
     finally:
         link.close()
         dev.close()
+
+
+def test_a_bad_profile_on_dut_is_refused_before_anything_opens(tmp_path):
+    from hil.dut.spec import DutSpecError, parse_dut
+
+    bad = _write(tmp_path, HEAD + "[objects.strategy]\ntable='holding'\naddress=0\ntype='uint16'\nvalue={raw=0}\n")
+    with pytest.raises(DutSpecError, match=r"p.toml: \[objects.strategy\].value"):
+        parse_dut(f"modbus-tcp:host=127.0.0.1,profile={bad}")
+    with pytest.raises(DutSpecError, match="is a canopen profile, the DUT speaks modbus"):
+        parse_dut(f"modbus-rtu:port=/dev/null,profile={FOREIGN_CANOPEN}")
+    assert parse_dut(f"virtual:modbus,profile={FOREIGN}").options["profile"] == str(FOREIGN)
+
+
+def test_a_reading_the_type_cannot_hold_saturates_on_the_device_and_is_refused_by_the_link(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[objects.identity_product]\ntable='input'\naddress=0\n"
+                            "type='uint16'\n")).bind(2)
+    obj = p.get("identity_product")
+    assert obj.to_raw(0x00480001, 2, saturate=True) == 0xFFFF
+    with pytest.raises(ValueError, match=r"outside uint16 \(0..65535\)"):
+        obj.to_raw(0x00480001, 2)

@@ -411,7 +411,7 @@ class CanopenDevice:
         obj, k = cell
         if obj.is_action:
             return 0
-        return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs)
+        return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs, saturate=True)
 
     def _role_write(self, index: int, subindex: int, raw) -> None:
         obj, k = self._cells[(index, subindex)]

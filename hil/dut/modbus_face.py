@@ -34,7 +34,7 @@ from bldc.contract import (
 
 from ..controller.virtual import VirtualController, warm_up
 from .link import LinkError, LinkTimeout
-from .profile import ROLES, Profile, ProfileError, ProfileValueError, load_profile, shipped
+from .profile import MAILBOX_WORDS, ROLES, Profile, ProfileError, ProfileValueError, load_profile, shipped
 from .roles import RoleLink
 from .tcp import close_handlers
 from .virtual_roles import VirtualRoles
@@ -44,6 +44,7 @@ from .virtual_roles import VirtualRoles
 #: the reply is a frame count, then up to four command messages
 EDGE_WORDS, CYCLE_WORD, REPLY_FRAMES = 4, 4, 4
 REQUEST_WORDS, REPLY_WORDS = EDGE_WORDS + 1, 1 + 4 * REPLY_FRAMES
+assert (REQUEST_WORDS, REPLY_WORDS) == tuple(MAILBOX_WORDS.values())  # the profile checks overlaps with these
 
 
 def _bytes_regs(b: bytes) -> list[int]:
@@ -358,7 +359,7 @@ class ModbusDevice:
     def _encode(self, obj) -> list[list[int]]:
         """Each element's registers of ``obj`` as the device holds it now."""
         values = self.roles.read(obj.role, obj.count)
-        return [obj.to_registers(obj.to_raw(v, self.profile.pole_pairs) if not obj.is_action else 0)
+        return [obj.to_registers(obj.to_raw(v, self.profile.pole_pairs, saturate=True) if not obj.is_action else 0)
                 for v in values]
 
     def _write(self, table: str, address: int, values: list[int]):

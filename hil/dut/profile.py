@@ -215,8 +215,10 @@ class DeviceObject:
             return 60.0 / pole_pairs
         return f
 
-    def to_raw(self, value, pole_pairs: int = 2):
-        """The device's raw value of one element given in the role's framework unit."""
+    def to_raw(self, value, pole_pairs: int = 2, saturate: bool = False):
+        """The device's raw value of one element given in the role's framework unit; out of the
+        type's range it is refused, or with ``saturate`` held at the nearest end (what a device
+        does with a reading it cannot represent)."""
         if self.values is not None:
             names = {v: k for k, v in STRATEGY_NAMES.items()}
             name = names.get(int(value))
@@ -235,6 +237,8 @@ class DeviceObject:
             raise ProfileValueError(f"{self.where}: {value!r} is not a finite number")
         r = int(round(raw))
         lo, hi = int_range(self.type)
+        if saturate:
+            return min(max(r, lo), hi)
         if not lo <= r <= hi:
             raise ProfileValueError(f"{self.where}: {value!r} is raw {r}, outside {self.type} ({lo}..{hi})")
         return r
@@ -463,6 +467,8 @@ def parse_profile(data: dict, where: str) -> Profile:
     _check_overlaps(objects, where)
     sources, fault_map = _faults(data.get("faults"), f"{where}: [faults]", protocol, objects)
     hook = _edge_hook(data.get("edge_hook", {"kind": "none"}), f"{where}: [edge_hook]", protocol)
+    if hook.kind == "mailbox":
+        _check_mailbox(hook, objects, f"{where}: [edge_hook]")
     return Profile(where, name.strip(), protocol, objects, sources, fault_map, hook, word_order)
 
 
@@ -555,6 +561,24 @@ def _check_overlaps(objects: dict[str, DeviceObject], where: str) -> None:
             if key in seen and seen[key] != o.role:
                 raise ProfileError(o.where, f"{o.label()} overlaps [objects.{seen[key]}]")
             seen[key] = o.role
+
+
+#: registers of the framework's mailbox (hil-edge/1): edge message and cycle current; frame count
+#: and four command messages (hil.dut.modbus_face lays them out)
+MAILBOX_WORDS = {"request_address": 5, "reply_address": 17}
+
+
+def _check_mailbox(hook: EdgeHook, objects: dict[str, DeviceObject], where: str) -> None:
+    """The mailbox's request and reply blocks must not overlap each other or a mapped holding register."""
+    blocks = {key: range(getattr(hook, key), getattr(hook, key) + n) for key, n in MAILBOX_WORDS.items()}
+    if set(blocks["request_address"]) & set(blocks["reply_address"]):
+        raise ProfileError(f"{where}.reply_address", "the reply block overlaps the request block")
+    for key, block in blocks.items():
+        for o in objects.values():
+            if o.table == "holding" and o.address < block.stop and block.start < o.end:
+                raise ProfileError(f"{where}.{key}", f"the mailbox ({len(block)} registers) overlaps {o.where}")
+        if block.stop > 0x10000:
+            raise ProfileError(f"{where}.{key}", f"the mailbox ({len(block)} registers) runs past register 65535")
 
 
 def _faults(table, where: str, protocol: str, objects) -> tuple[tuple[str, ...], dict[int, int]]:
