@@ -385,6 +385,9 @@ def cmd_dut_check(args) -> int:
                 continue
             values = [obj.from_raw(r, profile.pole_pairs) for r in raws]
             unit = ROLES[role].unit if role in ROLES else obj.unit
+            if obj.values is not None:  # an enumeration: the framework's name of the device's value
+                names = {v: k for k, v in obj.values.items()}
+                values, unit = [names.get(r, f"(no name for {r})") for r in raws], ""
             shown = ", ".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in values)
             print(f"{role:<46}{label:<18}{', '.join(map(str, raws))[:24]:>24}  {shown} {unit}")
         print("requirements:")
