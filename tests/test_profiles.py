@@ -302,3 +302,34 @@ def test_a_reading_the_type_cannot_hold_saturates_on_the_device_and_is_refused_b
     assert obj.to_raw(0x00480001, 2, saturate=True) == 0xFFFF
     with pytest.raises(ValueError, match=r"outside uint16 \(0..65535\)"):
         obj.to_raw(0x00480001, 2)
+
+
+def test_the_foreign_modbus_profile_over_rtu():
+    """modbus-rtu with profile=: input registers, a coil action and the mailbox over the serial
+    framer; another unit's request is not answered as this device's."""
+    from test_modbus import NullModem
+
+    from hil.controller.virtual import VirtualController
+    from hil.dut.link import LinkError
+    from hil.dut.modbus_face import ModbusDevice, ModbusLink
+    from plant_models import paper_bench
+
+    line = NullModem()
+    dev = ModbusDevice(VirtualController(paper_bench().motor), serial_port=line.a_path, profile=str(FOREIGN))
+    link = ModbusLink(serial_port=line.b_path, timeout_s=1.0, profile=str(FOREIGN))
+    try:
+        assert link.identity()["vendor_id"] == 0x0B1D  # input registers 3300-3301, low word first
+        link.reset()
+        link.set_speed(6000.0)
+        assert link.read(1001, 2) == [60000, 0]
+        assert isinstance(link.edge({"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0}), list)
+        with pytest.raises(LinkError, match="exception code 02"):
+            link.read(3300, 1)  # the identity is in the input table, not the holding one
+        link.close()  # the serial port is locked by one client at a time
+        link = ModbusLink(serial_port=line.b_path, timeout_s=1.0, unit=2, profile=str(FOREIGN))
+        with pytest.raises(LinkError, match="exception code 11"):
+            link.read(1000, 1)
+    finally:
+        link.close()
+        dev.close()
+        line.close()

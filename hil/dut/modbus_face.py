@@ -325,7 +325,18 @@ class ModbusDevice:
         self._thread.join(timeout=5.0)
 
     # --- the register map's behaviour (pymodbus calls these for every decoded request) ------------
+    def device_ids(self) -> list[int]:
+        return [self.unit]
+
+    def _check_unit(self, device_id: int) -> None:
+        """RTU: another unit's request is not this device's (pymodbus answers 0x0B, as the TCP rule)."""
+        if device_id != self.unit:
+            from pymodbus.exceptions import NoSuchIdException
+
+            raise NoSuchIdException(f"unit {device_id}")
+
     async def async_getValues(self, device_id: int, fc: int, address: int, count: int = 1):
+        self._check_unit(device_id)
         try:
             return self._read(FUNCTION_TABLE[fc], address, count)
         except Exception:  # bad input never stops the server: report and refuse
@@ -333,6 +344,7 @@ class ModbusDevice:
             return ExcCodes.DEVICE_FAILURE
 
     async def async_setValues(self, device_id: int, fc: int, address: int, values):
+        self._check_unit(device_id)
         try:
             return self._write(FUNCTION_TABLE[fc], address, [int(v) for v in values])
         except Exception:
