@@ -36,7 +36,6 @@ KEYWORDS = [
     ("filter_q_diag", ("q ",), ()),
     ("filter_r_diag", ("r ",), ()),
 ]
-UNIT_WORDS = {"rpm": "rpm", "deg_e": "deg_e", "deg_m": "deg_m", " ms": "ms", " us": "us", " s": "s", " per a": None}
 
 
 def _guess(name: str, applied: bool) -> str | None:

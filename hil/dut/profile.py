@@ -325,11 +325,6 @@ class Profile:
     def get(self, role: str) -> DeviceObject | None:
         return self.objects.get(role)
 
-    @property
-    def roles(self) -> list[str]:
-        return [r for r in self.objects if r in ROLES] + [r for r in CANOPEN_SERVICES if self.protocol == "canopen"
-                                                          and r not in self.objects]
-
     def framework_fault(self, device_code: int) -> int:
         """The framework's fault code of a device code (an unmapped code is kept as the device gives it)."""
         return self.fault_map.get(int(device_code), int(device_code))
