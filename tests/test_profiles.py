@@ -55,6 +55,12 @@ def test_a_bad_profile_names_file_table_and_key(tmp_path, body, where):
     assert str(tmp_path / "p.toml") in str(info.value) and where in str(info.value), str(info.value)
 
 
+def test_a_coil_action_may_say_write_true(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[objects.clear_faults]\ntable='coil'\naddress=3\ntype='bool'\n"
+                            "write=true\n"))
+    assert p.get("clear_faults").write == 1 and p.get("clear_faults").to_registers(1) == [1]
+
+
 def test_scaled_little_endian_words_encode_as_the_modbus_spec_says(tmp_path):
     p = load_profile(_write(tmp_path, HEAD + "[modbus]\nword_order='little'\n[objects.speed_setpoint]\n"
                             "table='holding'\naddress=1\ntype='int32'\nscale=0.1\nunit='hz_e'\n")).bind(2)

@@ -537,6 +537,8 @@ def _object(role: str, table, where: str, protocol: str, word_order: str) -> Dev
         if r is not None and r.unit != "action":
             raise ProfileError(f"{where}.write", f"{role} is not an action")
         w = table["write"]
+        if isinstance(w, bool):  # a coil's action: write = true
+            w = int(w)
         kw["write"] = _int(w, f"{where}.write", -(1 << 31), (1 << 32) - 1) if not isinstance(w, float) else w
     elif r is not None and r.unit == "action":
         raise ProfileError(f"{where}.write", f"required: {role} is an action (the value written)")
