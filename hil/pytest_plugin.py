@@ -64,7 +64,8 @@ def pytest_addoption(parser):
         metavar="SPEC",
         help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
         "canopen:interface=..,channel=..,node=.., "
-        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual",
+        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=.. (each with profile=FILE for the "
+        "device's own map: docs/device-profiles.md); default: virtual",
     )
     group.addoption(
         "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
