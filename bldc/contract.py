@@ -10,19 +10,19 @@ The edge and command messages every link carries (CANopen PDOs, a Modbus registe
 in-process link builds the same fields without the bytes, so all links give the controller
 bit-identical inputs). Wire layouts and versions: docs/controller.md.
 
-EdgeMessage, version 2 (plant -> controller): what the MCU's own peripherals hold at a capture.
-    Header, 8 bytes (RPDO1, sent last: it triggers; Modbus mailbox registers 0-3): U32 capture
-    time in 100 ns timer ticks (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit
-    7 rising), U8 sequence number, U16 age of the newest periodic conversion in ticks (0xFFFF:
-    none). Accumulators (RPDO3: I32 sums of phases a and b; RPDO4: I32 sum of phase c, U16
-    conversions summed, U8 sequence number, U8 0): the sensors' conversions summed since the
-    previous capture, in counts. Window (one RPDO2 per conversion, oldest first: I16 a, b, c in
-    counts, U8 sequence number, U8 index): index 0 the conversion the capture triggered, then the
-    newest periodic conversions, ADC_PERIOD_TICKS apart, the newest the header's age before the
-    capture. Modbus: header, accumulators (I32 a, b, c, U16 conversions), then the window newest
-    first: the bytes of ``pack``, two per register, the first one high. The controller computes
-    the current at the edge's own instant and the cycle's mean current (Eq. 8's input) from them
-    itself. Version 1 (8 bytes carrying currents the bench computed) is withdrawn.
+EdgeMessage, version 2 (plant -> controller): what the MCU's own peripherals hold at a capture
+    (docs/controller.md). Header, 8 bytes, sent last (it triggers): U32 capture time in 100 ns
+    timer ticks (wraps after 429 s), U8 flags (bits 0-1 sensor A/B/C = 0/1/2, bit 7 rising), U8
+    sequence number, U16 age of the newest periodic conversion in ticks (0xFFFF: none).
+    Accumulators: the phase-current sensors' conversions summed since the previous capture (I32
+    per phase, in counts) and how many (U16). Window: conversion 0 at the capture event, then the
+    newest periodic conversions, ADC_PERIOD_TICKS apart (I16 a, b, c in counts). CANopen: the
+    header on the first COB-ID, after 8-byte data frames on the second (accumulators at indices
+    0xFD-0xFF, then the conversions oldest first, each ending in U8 sequence number, U8 index).
+    Modbus: ``pack``'s bytes, two per register, the first one high, from the mailbox's first
+    register (the parts that do not fit written before it). The controller computes the current
+    at the edge's own instant and the cycle's mean current (Eq. 8's input) from them itself.
+    Version 1 (8 bytes carrying currents the bench computed) is withdrawn.
 CommandMessage (controller -> plant, TPDO1):
     U32 instant in 100 ns ticks, U16 duty x 65535 (0xFFFF... see KEEP_DUTY), U8 sector (0-5,
     0xFF keep), U8 sequence number of the edge it answers | 0x80 on the last frame of the reply.
@@ -159,8 +159,9 @@ ADC_LSB_A = 2e-3
 NO_SAMPLES = 0xFFFF  #: the header's newest-conversion age when the message carries no window
 _HEADER_FMT = "<IBBH"
 _SAMPLE_FMT = "<hhhBB"
-_SUMS_AB_FMT = "<ii"
-_SUM_C_FMT = "<iHBB"
+_SUM_FMT = "<iHBB"
+#: the data frames' indices of the three accumulators (conversions take 0..MAX_ADC_SAMPLES - 1)
+ACCUMULATOR_INDEX = 0xFD
 
 
 def _adc_counts(current_a) -> np.ndarray:
@@ -207,26 +208,23 @@ class EdgeMessage:
             self.newest_sample_age_ticks,
         )
 
-    def accumulator_frames(self) -> tuple[bytes, bytes]:
-        """The accumulators (CANopen RPDO3: I32 sum a, I32 sum b; RPDO4: I32 sum c, U16 conversions,
-        U8 sequence number, U8 0)."""
-        return (
-            struct.pack(_SUMS_AB_FMT, *self.sums[:2]),
-            struct.pack(_SUM_C_FMT, self.sums[2], self.summed, self.seq & 0xFF, 0),
-        )
-
-    def sample_frames(self) -> list[bytes]:
-        """One 8-byte frame per conversion (CANopen RPDO2, oldest first): I16 phase a, b, c in counts,
-        U8 sequence number of the edge, U8 index (0 = newest)."""
-        return [
-            struct.pack(_SAMPLE_FMT, *self.samples[k], self.seq & 0xFF, k) for k in range(len(self.samples) - 1, -1, -1)
+    def data_frames(self) -> list[bytes]:
+        """The frames that precede the header (CANopen: the second RPDO), 8 bytes each, ending in
+        U8 sequence number and U8 index: the accumulators at indices ACCUMULATOR_INDEX.. (I32 sum of
+        phase a with U16 conversions summed, then I32 sums of b and c with U16 0), then one frame
+        per conversion, oldest first (I16 phase a, b, c; index 0 the capture's)."""
+        seq = self.seq & 0xFF
+        sums = [
+            struct.pack(_SUM_FMT, self.sums[k], self.summed if k == 0 else 0, seq, ACCUMULATOR_INDEX + k)
+            for k in range(3)
         ]
+        return sums + [struct.pack(_SAMPLE_FMT, *self.samples[k], seq, k) for k in range(len(self.samples) - 1, -1, -1)]
 
     def pack(self) -> bytes:
         """Header, accumulators and window as one byte string (the Modbus mailbox's content)."""
         return (
             self.header()
-            + b"".join(self.accumulator_frames())[:14]
+            + struct.pack("<iiiH", *self.sums, self.summed)
             + b"".join(struct.pack("<hhh", *s) for s in self.samples)
         )
 
@@ -256,30 +254,30 @@ class EdgeMessage:
         return head._with(age, samples, (a, b, c), summed)
 
     @classmethod
-    def from_frames(cls, header: bytes, accumulators: tuple[bytes, bytes] | None, frames: list[bytes]):
-        """The message from its header and the frames received before it: sample frames of another
-        sequence number are stale and ignored; those of this one must be indices 0..n-1 once each.
-        Without accumulator frames of this sequence number the accumulators read empty."""
+    def from_frames(cls, header: bytes, frames: list[bytes]) -> "EdgeMessage":
+        """The message from its header and the data frames received before it: frames of another
+        sequence number are stale and ignored; the conversions of this one must be indices 0..n-1
+        once each; without its accumulator frames the accumulators read empty."""
         head, age = cls._unpack_header(header)
-        by_index: dict[int, tuple[int, int, int]] = {}
+        by_index: dict[int, bytes] = {}
         for f in frames:
             if len(f) != 8:
-                raise ValueError(f"edge sample frame needs 8 bytes, got {len(f)}")
-            a, b, c, seq, k = struct.unpack(_SAMPLE_FMT, bytes(f))
+                raise ValueError(f"edge data frame needs 8 bytes, got {len(f)}")
+            seq, k = f[6], f[7]
             if seq != head.seq:
                 continue
             if k in by_index:
-                raise ValueError(f"edge #{seq}: sample {k} received twice")
-            by_index[k] = (a, b, c)
+                raise ValueError(f"edge #{seq}: data frame {k} received twice")
+            by_index[k] = bytes(f)
+        sums, summed = [0, 0, 0], 0
+        if all(ACCUMULATOR_INDEX + k in by_index for k in range(3)):
+            for k in range(3):
+                sums[k], n, _, _ = struct.unpack(_SUM_FMT, by_index.pop(ACCUMULATOR_INDEX + k))
+                summed = n if k == 0 else summed
         if sorted(by_index) != list(range(len(by_index))):
-            raise ValueError(f"edge #{head.seq}: sample indices {sorted(by_index)} are not 0..n-1")
-        sums, summed = (0, 0, 0), 0
-        if accumulators is not None and len(accumulators[0]) == 8 and len(accumulators[1]) == 8:
-            a, b = struct.unpack(_SUMS_AB_FMT, bytes(accumulators[0]))
-            c, n, seq, _ = struct.unpack(_SUM_C_FMT, bytes(accumulators[1]))
-            if seq == head.seq:
-                sums, summed = (a, b, c), n
-        return head._with(age, [by_index[k] for k in range(len(by_index))], sums, summed)
+            raise ValueError(f"edge #{head.seq}: conversion indices {sorted(by_index)} are not 0..n-1")
+        samples = [struct.unpack(_SAMPLE_FMT, by_index[k])[:3] for k in range(len(by_index))]
+        return head._with(age, samples, sums, summed)
 
     # --- the two ends ---------------------------------------------------------------------------
     @classmethod

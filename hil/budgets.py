@@ -18,6 +18,11 @@ A budgets TOML file holds one table per budget and any number of ``[[waiver]]`` 
     tests = ["test_fault_sequences"]   # optional: node-id substrings it is limited to
     expires = "2027-06-30"             # optional: an expired waiver is refused
 
+    [[out_of_scope]]                   # a requirement the device's profile cannot show
+    requirement = "REQ-PROT-002"
+    reason = "Modbus device: no heartbeat, no EMCY"
+    owner = "name or role"
+
 The built-in defaults are ``default_budgets.toml`` beside this module. Checking a measurement
 gives a Verdict (measured, limit, margin, pass / marginal / fail); asserting it raises
 BudgetExceeded with a message a person understands.
@@ -28,7 +33,7 @@ from __future__ import annotations
 import datetime
 import math
 import tomllib
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from bldc.params import ConfigError
@@ -105,10 +110,53 @@ REQUIREMENTS = {
     "REQ-SPD-001": "The controller's speed loop settles a set-point step without excessive overshoot",
 }
 
+_CALIBRATION = ("installation_offset", "pole_offset", "conditioning_delay_rise", "conditioning_delay_fall",
+                "armature_slope", "calibration_apply")
+_FILTER = ("filter_forgetting", "filter_q0", "filter_r0", "filter_p0")
+#: what each requirement's tests need of a device profile (hil.dut.profile roles, docs/device-profiles.md):
+#: ``roles``, ``edge_hook`` (edges reach the controller: the lockstep bench), ``fault_source`` (how
+#: faults are seen). A profile that lacks one makes the requirement "not testable with this profile".
+REQUIREMENT_NEEDS = {
+    **{f"REQ-CAL-00{k}": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True} for k in (1, 2, 3, 4)},
+    "REQ-CAL-005": {"roles": (*_CALIBRATION, "fault_code"), "edge_hook": False},
+    "REQ-COMM-001": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True},
+    "REQ-PRED-001": {
+        "roles": ("strategy", *_CALIBRATION, *_FILTER, "guard_trips", "gated_edges", "covariance_repairs",
+                  "divergence_fades", "band_projections"),
+        "edge_hook": True,
+    },
+    "REQ-PRED-002": {"roles": ("strategy", *_CALIBRATION, *_FILTER), "edge_hook": True},
+    "REQ-PRED-003": {"roles": ("strategy", *_CALIBRATION, *_FILTER, "filter_q_diag", "filter_r_diag"),
+                     "edge_hook": True},
+    "REQ-PROT-001": {"roles": ("identity_vendor", "identity_product", "identity_revision", "identity_serial")},
+    "REQ-PROT-002": {"roles": ("heartbeat_period", "error_register", "fault_code", *_CALIBRATION),
+                     "fault_source": "emcy"},
+    "REQ-PROT-003": {"roles": ("strategy",)},
+    **{f"REQ-FLT-00{k}": {"roles": ("strategy", *_CALIBRATION, "fault_code"), "edge_hook": True} for k in (1, 2, 3, 5)},
+    "REQ-FLT-004": {"roles": ("strategy", *_CALIBRATION, *_FILTER, "guard_trips", "fault_code"), "edge_hook": True},
+    "REQ-ROB-001": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True},
+    "REQ-ROB-002": {"roles": ("strategy", *_CALIBRATION, "fault_code"), "edge_hook": True},
+}
+
+
+def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list[str]:
+    """What a device profile lacks for ``requirements`` (``has_role(role)``, its edge hook kind, its
+    fault sources), one phrase each; empty when every requirement is testable through it."""
+    out: list[str] = []
+    for rid in sorted(set(requirements)):
+        need = REQUIREMENT_NEEDS.get(rid, {})
+        out += [f"role {r}" for r in need.get("roles", ()) if not has_role(r) and f"role {r}" not in out]
+        if need.get("edge_hook") and edge_hook == "none" and "an edge hook" not in out:
+            out.append("an edge hook")
+        if (src := need.get("fault_source")) and src not in fault_sources and f"fault source {src}" not in out:
+            out.append(f"fault source {src}")
+    return out
+
 
 DEFAULTS_TOML = Path(__file__).with_name("default_budgets.toml")
 _BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description"}
 _WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
+_SCOPE_KEYS = {"requirement", "reason", "owner", "expires"}
 
 
 @dataclass(frozen=True)
@@ -122,6 +170,9 @@ class Waiver:
     tests: tuple[str, ...] = ()  #: node-id substrings it is limited to (empty: every test of the requirement)
     expires: datetime.date | None = None
     source: str = ""  #: where it was declared ("file: [[waiver]][i]")
+    #: "waiver" (a failure accepted) or "out of scope" (a requirement the device cannot show: it
+    #: stands for a requirement no test could judge, never for a failure)
+    kind: str = "waiver"
 
     def covers(self, nodeid: str) -> bool:
         return not self.tests or any(s in nodeid for s in self.tests)
@@ -134,6 +185,7 @@ class Waiver:
             "tests": list(self.tests),
             "expires": self.expires.isoformat() if self.expires else None,
             "source": self.source,
+            "kind": self.kind,
         }
 
 
@@ -145,8 +197,8 @@ def _check_table(table, where: str, what: str, known: set[str]) -> None:
             raise ConfigError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(known))})")
 
 
-def _waiver(table, where: str, today: datetime.date) -> Waiver:
-    _check_table(table, where, "[[waiver]]", _WAIVER_KEYS)
+def _waiver(table, where: str, today: datetime.date, keys=_WAIVER_KEYS, what: str = "[[waiver]]") -> Waiver:
+    _check_table(table, where, what, keys)
     for key in ("requirement", "reason", "owner"):
         v = table.get(key)
         if not isinstance(v, str) or not v.strip():
@@ -259,6 +311,14 @@ class Budgets:
                 if not isinstance(table, list):
                     raise ConfigError(f"{where}: waiver", "waivers are an array of tables: write [[waiver]]")
                 waivers += [_waiver(t, f"{where}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
+            elif key == "out_of_scope":
+                if not isinstance(table, list):
+                    raise ConfigError(f"{where}: out_of_scope", "an array of tables: write [[out_of_scope]]")
+                waivers += [
+                    replace(_waiver(t, f"{where}: [[out_of_scope]][{i}]", today, _SCOPE_KEYS, "[[out_of_scope]]"),
+                            kind="out of scope")
+                    for i, t in enumerate(table)
+                ]
             else:
                 budgets[key] = _budget(key, table, budgets.get(key), f"{where}: [{key}]")
         return cls(budgets, str(path), tuple(waivers))

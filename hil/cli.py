@@ -352,7 +352,62 @@ def cmd_dut_serve(args) -> int:
     # stderr); the Modbus server's refusals are debug lines (docs/controller.md)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
-          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout)
+          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout,
+          profile=args.profile)
+    return 0
+
+
+def cmd_dut_check(args) -> int:
+    """Read every readable object of the DUT's profile once (writes nothing) and say which
+    requirements the profile makes testable; 1 when the device refuses an object."""
+    from .budgets import REQUIREMENTS, missing_needs
+    from .dut.link import LinkError
+    from .dut.profile import ROLES
+    from .dut.spec import open_dut
+
+    refused = 0
+    with open_dut(args.dut, PRESETS[args.preset]().motor) as dut:
+        profile = getattr(dut.link, "profile", None)
+        if profile is None:
+            raise ValueError(f"{args.dut}: this link has no device profile to check")
+        print(f"{dut.link.where}: profile {profile.path} ({profile.name})")
+        print(f"{'role':<46}{'object':<18}{'raw':>24}  engineering")
+        for role, obj in profile.objects.items():
+            label = obj.label() + (f" x{obj.count}" if obj.count > 1 else "")
+            if not obj.readable:
+                print(f"{role:<46}{label:<18}{'(action: ' + str(obj.write) + ', not written)':>24}")
+                continue
+            try:
+                raws = dut.link.read_raw(obj)
+            except LinkError as exc:
+                refused += 1
+                print(f"{role:<46}{label:<18}{'REFUSED':>24}  {exc}")
+                continue
+            values = [obj.from_raw(r, profile.pole_pairs) for r in raws]
+            unit = ROLES[role].unit if role in ROLES else obj.unit
+            if obj.values is not None:  # an enumeration: the framework's name of the device's value
+                names = {v: k for k, v in obj.values.items()}
+                values, unit = [names.get(r, f"(no name for {r})") for r in raws], ""
+            shown = ", ".join(f"{v:.6g}" if isinstance(v, float) else str(v) for v in values)
+            print(f"{role:<46}{label:<18}{', '.join(map(str, raws))[:24]:>24}  {shown} {unit}")
+        print("requirements:")
+        for rid, title in REQUIREMENTS.items():
+            missing = missing_needs([rid], profile.has, profile.edge_hook.kind, profile.fault_sources)
+            print(f"  {rid:<14}{'testable' if not missing else 'not testable: lacks ' + ', '.join(missing)}")
+    if refused:
+        print(f"hil dut check: the device refused {refused} object(s)", file=sys.stderr)
+    return 1 if refused else 0
+
+
+def cmd_dut_profile(args) -> int:
+    from .dut.draft import draft_from_eds
+
+    text = draft_from_eds(args.from_eds)
+    if args.output:
+        Path(args.output).write_text(text)
+        print(f"{args.output}: drafted from {args.from_eds}; finish every line marked GUESS")
+    else:
+        print(text, end="")
     return 0
 
 
@@ -719,7 +774,22 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument(
         "--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for"
     )
+    q.add_argument(
+        "--profile",
+        help="serve under this device profile (hil-device-profile/1, docs/device-profiles.md) instead of the "
+        "controller's own map",
+    )
     q.set_defaults(func=cmd_dut_serve)
+    q = ds.add_parser(
+        "check", help="read every object of a DUT's profile once (writes nothing); which requirements it makes testable"
+    )
+    q.add_argument("--dut", required=True, help="controller spec with profile=FILE (hil/dut/spec.py)")
+    q.add_argument("--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor (its pole pairs)")
+    q.set_defaults(func=cmd_dut_check)
+    q = ds.add_parser("profile", help="draft a device profile from an EDS, every guess marked")
+    q.add_argument("--from-eds", required=True, help="the device's EDS file")
+    q.add_argument("-o", "--output", help="write the draft here (default: standard output)")
+    q.set_defaults(func=cmd_dut_profile)
 
     p = sub.add_parser(
         "acceptance",

@@ -64,7 +64,8 @@ def pytest_addoption(parser):
         metavar="SPEC",
         help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
         "canopen:interface=..,channel=..,node=.., "
-        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=..; default: virtual",
+        "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=.. (each with profile=FILE for the "
+        "device's own map: docs/device-profiles.md); default: virtual",
     )
     group.addoption(
         "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
@@ -462,12 +463,36 @@ def hil_dut(hil_dut_spec, hil_plant_config, pytestconfig):
 
 @pytest.fixture
 def hil_link(hil_dut, request):
-    """The controller link, reset for this test (faults cleared, control logic restarted)."""
+    """The controller link, reset for this test (faults cleared, control logic restarted). A test
+    whose requirements need what the DUT's device profile lacks is skipped as "not testable with
+    this profile" (the report's verdict, never a pass)."""
     request.node.user_properties.append(
         (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity})
     )
+    _require_testable(request.node, hil_dut.link)
     hil_dut.link.reset()
     return hil_dut.link
+
+
+def _require_testable(item, link) -> None:
+    """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source its
+    requirements need (hil.budgets.REQUIREMENT_NEEDS); a link without a profile has everything."""
+    profile = getattr(link, "profile", None)
+    if profile is None:
+        return
+    from .budgets import missing_needs
+
+    rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    params = getattr(getattr(item, "callspec", None), "params", {})
+    rids |= {v for v in params.values() if isinstance(v, str) and v.startswith("REQ-")}
+    missing = missing_needs(rids, profile.has, profile.edge_hook.kind, profile.fault_sources)
+    if missing:
+        reason = f"not testable with the profile {profile.path}: it lacks {', '.join(missing)}"
+        # the requirements the profile cannot show; the test's others are merely not tested by it
+        lacking = sorted(r for r in rids if missing_needs([r], profile.has, profile.edge_hook.kind,
+                                                         profile.fault_sources))
+        item.user_properties.append((PROPERTY_PREFIX + "not_testable", {"reason": reason, "requirements": lacking}))
+        pytest.skip(reason)
 
 
 @pytest.fixture
@@ -683,7 +708,8 @@ class HilReporter:
             terminalreporter.write_line(f"  {reason}")
         for w in content["waivers"]:
             unused = "" if w["tests_waived"] else " [waives nothing in this run]"
-            terminalreporter.write_line(f"  WAIVED {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
+            label = "OUT OF SCOPE" if w.get("kind") == "out of scope" else "WAIVED"
+            terminalreporter.write_line(f"  {label} {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
@@ -734,6 +760,7 @@ class HilReporter:
             "doc": "",
             "worker": _worker_id(reports[-1]),
             "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
+            "not_testable": None,
         }
         for key, value in props:
             key = str(key)
@@ -750,6 +777,8 @@ class HilReporter:
                 record["dut"], record["dut_identity"] = value["id"], value["identity"]
             elif kind == "doc":
                 record["doc"] = value
+            elif kind == "not_testable" and outcome == "skipped":
+                record["not_testable"] = value
         json.dumps(record)  # everything in a record is plain data
         return record
 

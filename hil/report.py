@@ -48,7 +48,9 @@ _EXIT_NAMES = {2: "interrupted", 3: "internal error", 4: "usage error"}
 #: outcomes that are evidence of a defect: a failure, a known failure (xfail), an unexpected pass
 _FAILING = ("failed", "xfailed", "xpassed")
 #: test and requirement verdicts, the worst first
-VERDICTS = ("fail", "error", "waived", "not tested", "marginal", "pass")
+VERDICTS = ("fail", "error", "waived", "not testable", "not tested", "out of scope", "marginal", "pass")
+#: a requirement verdict that leaves the run short of PASS (besides fail and error)
+_UNANSWERED = ("not tested", "not testable")
 
 
 def _relevant(test: dict, rid: str | None) -> list[dict]:
@@ -62,13 +64,15 @@ def test_status(test: dict, rid: str | None = None) -> str:
     """One test's verdict (for requirement ``rid``, or overall): fail, error, not tested, marginal or pass.
 
     A known failure (xfail) and an unexpected pass (xpass) are ``fail``; a skip is ``not tested``
-    (the plugin turns a skip that hides an unreachable controller into an error)."""
+    (the plugin turns a skip that hides an unreachable controller into an error), or ``not
+    testable`` for a requirement the device's profile lacks what it needs for."""
     if test["outcome"] == "error":
         return "error"
     if test["outcome"] in _FAILING:
         return "fail"
     if test["outcome"] == "skipped":
-        return "not tested"
+        lacking = test.get("not_testable") or {}  # the requirements the device's profile cannot show
+        return "not testable" if lacking and (rid is None or rid in lacking["requirements"]) else "not tested"
     verdicts = {m["verdict"] for m in _relevant(test, rid)}
     return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
 
@@ -77,6 +81,8 @@ def find_waiver(waivers, rid: str, nodeid: str | None):
     """The first waiver of ``rid`` covering the test ``nodeid`` (None: the requirement as a whole,
     which only a waiver not limited to tests covers)."""
     for w in waivers:
+        if w.kind != "waiver" and nodeid is not None:
+            continue  # out of scope stands for a requirement no test judged, never for a failure
         if w.requirement == rid and (w.covers(nodeid) if nodeid is not None else not w.tests):
             return w
     return None
@@ -95,8 +101,9 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
     pass only when every traced test passed (skips aside) and at least one did; marginal when one
     is marginal; a failing test (failure, xfail, xpass, failed budget) gives fail unless a waiver of
     ``rid`` covers that test (then waived); an error gives error (an error is never waived: it is
-    no evidence either way); no test that ran gives not tested, or waived under a waiver of the
-    whole requirement."""
+    no evidence either way); no test that ran gives not tested (not testable when the device's
+    profile lacks what its tests need), or waived / out of scope under an entry of the budgets file
+    for the whole requirement."""
     statuses, used = [], None
     for t in tests:
         s = test_status(t, rid)
@@ -109,9 +116,11 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
         and "error" not in statuses
     ):
         w = find_waiver(waivers, rid, None)
-        return ("waived", w) if w is not None else ("not tested", None)
+        if w is not None:
+            return ("out of scope" if w.kind == "out of scope" else "waived"), w
+        return ("not testable" if "not testable" in statuses else "not tested"), None
     worst = min(statuses, key=VERDICTS.index)
-    if worst == "not tested":  # skipped beside passing ones: the skips do not apply to this DUT
+    if worst in _UNANSWERED:  # skipped beside passing ones: the skips do not apply to this DUT
         worst = "marginal" if "marginal" in statuses else "pass"
     return worst, (used if worst == "waived" else None)
 
@@ -279,8 +288,9 @@ class ReportWriter:
                     )
                 )
         for r in matrix:
-            if r["traced"] and r["verdict"] in ("fail", "error", "not tested"):
-                reasons.append(f"{r['id']}: {r['verdict']}")
+            if r["traced"] and r["verdict"] in ("fail", "error", *_UNANSWERED):
+                why = next((t["message"] for t in r["tests"] if t["verdict"] == "not testable"), "")
+                reasons.append(f"{r['id']}: {r['verdict']}" + (" with this profile" if why else ""))
         if not self.complete:
             reasons.append(f"incomplete: {self.incomplete_reason}")
         ran = [t for t in tests if t["outcome"] != "skipped"]

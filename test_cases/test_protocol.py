@@ -1,8 +1,8 @@
 """Protocol conformance of the controller (CiA 301 over CANopen, the Modbus application protocol).
 
-Object indexes and limits come from the EDS the link was given (the shipped one for the
-virtual controller), so the same tests judge any CANopen device; Modbus requests use the
-device's register map only where the standard leaves no choice.
+The probes come from the device profile the link reads (a read-only object, an address beyond
+the map, a value outside the strategy enumeration) and, for CANopen, from its EDS (the shipped
+one for the virtual controller), so the same tests judge any device.
 """
 
 import socket
@@ -15,6 +15,8 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
 from hil.dut.link import LinkError
+from hil.dut.modbus_face import REPLY_WORDS, REQUEST_WORDS
+from hil.dut.profile import ROLES
 
 ABORT = {"no object": 0x06020000, "no sub-index": 0x06090011, "read-only": 0x06010002, "write-only": 0x06010001,
          "value range": 0x06090030, "length": 0x06070010}
@@ -45,44 +47,38 @@ def _variables(od):
                 yield var, var.subindex
 
 
-def _probe(od, kind):
-    """A request the EDS says must be refused with ``kind``'s abort code."""
+def _probe(od, profile, kind):
+    """A request the profile (or the EDS) says must be refused with ``kind``'s abort code."""
     variables = list(_variables(od))
     if kind == "no object":
-        index = next(i for i in range(0x5FFF, 0x1FFF, -1) if i not in od)
+        mapped = {o.index for o in profile.objects.values()}
+        index = next(i for i in range(0x5FFF, 0x1FFF, -1) if i not in od and i not in mapped)
         return f"read 0x{index:04X}", lambda sdo: sdo.upload(index, 0)
     if kind == "no sub-index":
         obj = next(o for o in od.values() if not isinstance(o, canopen.objectdictionary.ODVariable))
         sub = max(obj.subindices) + 1
         return f"read 0x{obj.index:04X}:{sub:02X}", lambda sdo: sdo.upload(obj.index, sub)
-    if kind == "read-only":
-        var, sub = next((v, s) for v, s in variables if v.access_type == "ro")
-        return f"write 0x{var.index:04X}", lambda sdo: sdo.download(
-            var.index, sub or 0, var.encode_raw(0) if var.data_type != 0x0009 else b"x"
-        )
+    if kind == "read-only":  # a role the profile says is only read
+        obj = next(o for o in profile.objects.values() if o.role in ROLES and ROLES[o.role].access == "r")
+        return f"write {obj.label()} ({obj.role})", lambda sdo: sdo.download(obj.index, obj.subindex, obj.pack_le(0))
     if kind == "write-only":
         var, sub = next(((v, s) for v, s in variables if v.access_type == "wo"), (None, None))
         if var is None:
             pytest.skip("the EDS declares no write-only object")
         return f"read 0x{var.index:04X}", lambda sdo: sdo.upload(var.index, sub or 0)
-    if kind == "value range":
-        var, sub = next(
-            (
-                (v, s)
-                for v, s in variables
-                if "w" in v.access_type and v.max is not None and v.data_type in canopen.objectdictionary.INTEGER_TYPES
-            ),
-            (None, None),
+    if kind == "value range":  # one past the strategy enumeration's highest value
+        obj = profile.get("strategy")
+        value = max(obj.values.values()) + 1
+        return f"write {obj.label()} (strategy) = {value}", lambda sdo: sdo.download(
+            obj.index, obj.subindex, obj.pack_le(value)
         )
-        if var is None:
-            pytest.skip("the EDS declares no writable integer with a high limit")
-        return f"write 0x{var.index:04X} = {var.max + 1}", lambda sdo: sdo.download(
-            var.index, sub or 0, var.encode_raw(var.max + 1)
-        )
-    if kind == "length":
-        var, sub = next((v, s) for v, s in variables if "w" in v.access_type and v.data_type == 0x0005)  # a writable U8
-        return f"write 0x{var.index:04X} with 4 bytes", lambda sdo: sdo.download(
-            var.index, sub or 0, struct.pack("<I", 1)
+    if kind == "length":  # four bytes into a writable object shorter than that
+        obj = next((o for o in profile.objects.values() if o.role in ROLES and "w" in ROLES[o.role].access
+                    and not o.is_action and o.size < 4), None)
+        if obj is None:
+            pytest.skip("the profile maps no writable object shorter than four bytes")
+        return f"write {obj.label()} ({obj.role}) with 4 bytes", lambda sdo: sdo.download(
+            obj.index, obj.subindex, struct.pack("<I", 1)
         )
     raise ValueError(kind)
 
@@ -91,14 +87,14 @@ def _probe(od, kind):
 @pytest.mark.parametrize("kind", list(ABORT), ids=[k.replace(" ", "-") for k in ABORT])
 def test_sdo_abort_codes(kind, hil_dut, hil_link, hil_evidence):
     _need(hil_dut, "canopen")
-    what, request = _probe(hil_link.node.object_dictionary, kind)
+    what, request = _probe(hil_link.node.object_dictionary, hil_link.profile, kind)
     with pytest.raises(SdoAbortedError) as info:
         request(hil_link.node.sdo)
     hil_evidence.value(f"abort code for '{what}'", f"0x{info.value.code:08X}")
     assert info.value.code == ABORT[kind], (
         f"{what}: SDO abort 0x{info.value.code:08X}, CiA 301 requires 0x{ABORT[kind]:08X} ({kind})"
     )
-    assert hil_link.read(0x1000) is not None  # still serving well-formed requests
+    assert hil_link.identity()["device_type"] is not None  # still serving well-formed requests
 
 
 @pytest.mark.requirement("REQ-PROT-002")
@@ -106,7 +102,7 @@ def test_heartbeat_period_matches_0x1017(hil_dut, hil_link, hil_budget, hil_evid
     _need(hil_dut, "canopen")
     period_ms = 50
     stamps = []
-    hil_link.write(0x1017, None, period_ms)
+    hil_link.write_role("heartbeat_period", [period_ms])
 
     def on_heartbeat(cid, data, ts):
         if bytes(data) != b"\x00":
@@ -117,7 +113,7 @@ def test_heartbeat_period_matches_0x1017(hil_dut, hil_link, hil_budget, hil_evid
         time.sleep(1.0)
     finally:
         hil_link.network.unsubscribe(0x700 + hil_link.node_id, on_heartbeat)  # the link's own boot-up listener stays
-        hil_link.write(0x1017, None, 100)
+        hil_link.write_role("heartbeat_period", [100])
     intervals = np.diff(stamps[1:])
     assert len(intervals) >= 10, f"only {len(stamps)} heartbeats in 1 s at a {period_ms} ms period"
     hil_evidence.value("heartbeats in 1 s", len(stamps))
@@ -136,13 +132,13 @@ def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_dut, hil_link, calib
         hil_link.download_calibration(bad)
     _, frame = hil_link.emcy.get(timeout=hil_link.timeout_s)
     code, register = struct.unpack_from("<HB", frame)
+    error_register = int(hil_link.read_role("error_register")[0])
     hil_evidence.value("EMCY error code", f"0x{code:04X}")
-    hil_evidence.value("error register (0x1001)", f"0x{hil_link.read(0x1001):02X}")
-    assert register & 0x01 and hil_link.read(0x1001) & 0x01, (
-        "the error register's generic bit must be set with the EMCY"
-    )
-    assert hil_link.read(0x1003, 0) >= 1 and hil_link.read(0x1003, 1) == code, (
-        "0x1003:1 must hold the newest error code"
+    hil_evidence.value("error register", f"0x{error_register:02X}")
+    assert register & 0x01 and error_register & 0x01, "the error register's generic bit must be set with the EMCY"
+    faults = hil_link.faults()
+    assert faults and faults[0] == hil_link.profile.framework_fault(code), (
+        f"the newest latched fault must be the EMCY's code 0x{code:04X} (latched: {faults})"
     )
 
 
@@ -154,20 +150,49 @@ def _modbus_ask(link, pdu: bytes) -> bytes:
     return reply[7:]
 
 
+MODBUS_PROBES = ("function-0x41", "beyond-the-map", "quantity-0", "quantity-126", "value-range", "read-only")
+
+
+def _modbus_probe(profile, kind: str) -> tuple[str, bytes, int]:
+    """(what, request PDU, the exception code the Modbus application protocol requires), from the
+    device's profile: its register tables, the end of its map, its strategy enumeration."""
+    objects = [o for o in profile.objects.values() if o.table in ("holding", "input")]
+    table = "holding" if any(o.table == "holding" for o in objects) else "input"
+    fc = 3 if table == "holding" else 4
+    first = min(o.address for o in objects if o.table == table)
+    if kind == "function-0x41":
+        return "unknown function code 0x41", bytes([0x41, 0, 0]), 0x01
+    if kind == "beyond-the-map":
+        ends = [o.end for o in objects if o.table == table]
+        hook = profile.edge_hook
+        if hook.kind == "mailbox" and table == "holding":
+            ends += [hook.request_address + REQUEST_WORDS, hook.reply_address + REPLY_WORDS]
+        end = max(ends)
+        return f"read 1 {table} register at {end} (after the map)", struct.pack(">BHH", fc, end, 1), 0x02
+    if kind == "quantity-0":
+        return f"read quantity 0 at {first}", struct.pack(">BHH", fc, first, 0), 0x03
+    if kind == "quantity-126":
+        return f"read quantity 126 at {first}", struct.pack(">BHH", fc, first, 126), 0x03
+    if kind == "value-range":
+        obj = profile.get("strategy")
+        if obj is None or obj.table != "holding" or obj.registers != 1:
+            pytest.skip("the profile has no one-register strategy in a holding register")
+        value = max(obj.values.values()) + 1
+        return f"write strategy {value} at {obj.address}", struct.pack(">BHH", 6, obj.address, value), 0x03
+    ro = next((o for o in profile.objects.values() if o.table == "holding" and o.role in ROLES
+               and ROLES[o.role].access == "r" and o.registers == 1), None)
+    if ro is None:
+        pytest.skip("the profile maps no one-register read-only holding register")
+    return f"write the read-only {ro.role} at {ro.address}", struct.pack(">BHH", 6, ro.address, 0), 0x02
+
+
 @pytest.mark.requirement("REQ-PROT-003")
-@pytest.mark.parametrize(
-    "name, pdu, code",
-    [
-        pytest.param("unknown function code 0x41", bytes([0x41, 0, 0]), 0x01, id="function-0x41"),
-        pytest.param("read 1 register at 0xFFF0", struct.pack(">BHH", 3, 0xFFF0, 1), 0x02, id="register-0xFFF0"),
-        pytest.param("read quantity 0", struct.pack(">BHH", 3, 0, 0), 0x03, id="quantity-0"),
-        pytest.param("read quantity 126", struct.pack(">BHH", 3, 0, 126), 0x03, id="quantity-126"),
-    ],
-)
-def test_modbus_exception_codes(name, pdu, code, hil_dut, hil_link, hil_evidence):
+@pytest.mark.parametrize("kind", MODBUS_PROBES)
+def test_modbus_exception_codes(kind, hil_dut, hil_link, hil_evidence):
     _need(hil_dut, "modbus")
     if hil_link.serial_port is not None:
         pytest.skip("raw ADUs are sent over TCP only")
+    name, pdu, code = _modbus_probe(hil_link.profile, kind)
     answer = _modbus_ask(hil_link, pdu)
     hil_evidence.value(f"answer to {name}", answer.hex())
     assert answer[0] == (pdu[0] | 0x80) and answer[1] == code, (

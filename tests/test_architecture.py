@@ -42,6 +42,7 @@ GROUP_OF_PREFIX = {
     "hil.gap": "gap",
     "hil.signals": "signals",
     "hil.campaign": "campaign",
+    "hil.qualify": "qualify",
     "hil.cli": "entry",
     "hil.pytest_plugin": "entry",
     "hil.demo": "entry",
@@ -69,6 +70,7 @@ MAY_IMPORT = {
     "gap": _BELOW_BESIDE | {"campaign"},
     "signals": _BELOW_BESIDE,
     "campaign": _BELOW_BESIDE,
+    "qualify": _BELOW_BESIDE,
     "entry": set(GROUP_OF_PREFIX.values()),
 }
 

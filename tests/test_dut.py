@@ -216,8 +216,7 @@ def test_in_process_fast_path_equals_the_byte_round_trip(
     message = EdgeMessage.from_edge(edge, seq)
     received = edge_as_received(edge, epoch)
     _same_edge(received, EdgeMessage.unpack(message.pack()).to_edge(epoch))
-    _same_edge(received, EdgeMessage.from_frames(message.header(), message.accumulator_frames(),
-                                                 message.sample_frames()).to_edge(epoch))
+    _same_edge(received, EdgeMessage.from_frames(message.header(), message.data_frames()).to_edge(epoch))
     # the ADC window arrives within half a count and a tick, the capture's conversion last; beyond
     # +-65.5 A a conversion saturates, as an ADC does
     sent = np.clip(np.vstack([np.reshape(window, (-1, 3)), at_capture]), -32768 * ADC_LSB_A, 32767 * ADC_LSB_A)

@@ -3,10 +3,10 @@
 Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
 leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
 boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
-Edges arrive as the edge message's header in RPDO1 (COB-ID 0x200 + node), each preceded by its
-ADC window, one conversion per RPDO2 (0x300 + node), and its accumulators (RPDO3 0x400 + node,
-RPDO4 0x500 + node); commands leave as TPDO1 (0x180 + node), in the messages of bldc.contract
-(version 2 of the edge message).
+Edges arrive on the profile's receive COB-IDs (the built-in controller's: the header in RPDO1,
+0x200 + node, after its accumulators and ADC window, one data frame each, in RPDO2, 0x300 +
+node); commands leave on its transmit COB-ID (TPDO1, 0x180 + node), in the messages of
+bldc.contract (edge message version 2).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import can
 import canopen
@@ -40,8 +41,11 @@ from bldc.contract import (
 from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController, warm_up
 from .can_interfaces import unknown_can_interface
-from .link import LinkError, LinkTimeout, verify_calibration
+from .link import LinkError, LinkTimeout
 from .od import EDS_PATH
+from .profile import CANOPEN_TYPE_CODES, ROLES, Profile, ProfileError, load_profile, shipped
+from .roles import RoleLink
+from .virtual_roles import VirtualRoles
 
 ABORT_NO_OBJECT = 0x06020000
 ABORT_NO_SUBINDEX = 0x06090011
@@ -216,22 +220,33 @@ class CanopenDevice:
         node_id: int = 5,
         interface: str = "virtual",
         channel: str = "hil",
+        profile: Profile | str | None = None,
         **bus_kwargs,
     ):
-        if controller.motor.pole_pairs != 2:
+        """Node ``node_id`` on the bus; the dictionary is the shipped EDS for the controller's own
+        profile, else one built from ``profile`` (every object it maps, CiA 301's mandatory ones)."""
+        self.profile = _profile(profile, controller.motor.pole_pairs, node_id, None)
+        own = self.profile.objects == shipped("canopen").bind(controller.motor.pole_pairs, node_id).objects
+        if own and controller.motor.pole_pairs != 2:
             raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
+        #: the roles of a foreign profile (None: the shipped EDS's own objects, served below)
+        self.roles = None if own else VirtualRoles(controller, self.profile)
+        self._cells = {
+            (o.index, o.subindex_of(k)): (o, k) for o in self.profile.objects.values() for k in range(o.count)
+        }
 
         warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
         self.node_id = node_id
         self.network = canopen.Network()
         self.network.connect(interface=interface, channel=channel, **bus_kwargs)
-        self.node = canopen.LocalNode(node_id, canopen.import_od(str(EDS_PATH), node_id))
+        od = canopen.import_od(str(EDS_PATH), node_id) if self.roles is None else object_dictionary(self.profile)
+        self.node = canopen.LocalNode(node_id, od)
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary
         self.staged = (controller.corrections or Corrections()).as_float32().as_vector()
         self.filter = filter_vector(controller.filter_settings)
-        self.history: list[int] = []
+        self.history: list[int] = [] if self.roles is None else self.roles.history
         self._epoch = 0
         self._last_ticks: int | None = None
         self._lock = threading.Lock()
@@ -242,17 +257,16 @@ class CanopenDevice:
         self.network.subscribe(self.node.sdo.rx_cobid, self._on_sdo)
         self.network.unsubscribe(0, self.node.nmt.on_command)
         self.network.subscribe(0, self._on_nmt)
-        self.network.subscribe(0x200 + node_id, self._on_rpdo)
-        self.network.subscribe(0x300 + node_id, self._on_rpdo2)
-        self.network.subscribe(0x400 + node_id, self._on_accumulators)
-        self.network.subscribe(0x500 + node_id, self._on_accumulators)
+        hook = self.profile.edge_hook
+        if hook.kind == "pdo":
+            self.network.subscribe(hook.rx_cob_ids[0], self._on_rpdo)
+            if len(hook.rx_cob_ids) > 1:
+                self.network.subscribe(hook.rx_cob_ids[1], self._on_data)
         self._last_edge = EdgeMessage(0, 0, False, 0)
-        #: the last RPDO3 and RPDO4 (the accumulators of the edge whose header follows)
-        self._accumulators: dict[int, bytes] = {}
-        #: RPDO2 sample frames received since the last edge header: the ADC window of the edge whose
-        #: header (RPDO1) follows them (bounded: a stream of samples without headers keeps the newest)
-        self._sample_frames: list[bytes] = []
-        self._last_sample = (0, 0, 0, 0, 0)  #: the last RPDO2's fields, for 0x2201 reads
+        #: data frames received since the last edge header: the accumulators and the ADC window of the
+        #: edge whose header follows them (bounded: a stream without headers keeps the newest)
+        self._data_frames: list[bytes] = []
+        self._last_data = bytes(8)  #: the last data frame, for 0x2201 reads
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -307,6 +321,8 @@ class CanopenDevice:
             self.network.send_message(0x580 + self.node_id, answer)
 
     def _on_read(self, index, subindex, od):
+        if self.roles is not None:
+            return self._role_read(index, subindex)
         c = self.controller
         if index == 0x1001:
             return c.error_register
@@ -337,12 +353,7 @@ class CanopenDevice:
                 subindex - 1
             ]
         if index == 0x2201 and subindex >= 1:
-            return self._last_sample[subindex - 1]
-        if index == 0x2202 and subindex >= 1:
-            return self._last_edge.sums[subindex - 1]
-        if index == 0x2203 and subindex >= 1:
-            e = self._last_edge
-            return (e.sums[2], e.summed, e.seq, 0)[subindex - 1]
+            return struct.unpack("<hhhBB", self._last_data)[subindex - 1]
         if index == 0x2100 and subindex >= 1:
             st = c.status()
             values = [
@@ -357,6 +368,8 @@ class CanopenDevice:
         return None
 
     def _on_write(self, index, subindex, od, data):
+        if self.roles is not None:
+            return self._role_write(index, subindex, od.decode_raw(data))
         value = od.decode_raw(data)
         limits_low = od.min if od.min is not None else None
         limits_high = od.max if od.max is not None else None
@@ -393,23 +406,51 @@ class CanopenDevice:
             self.filter = new
 
     # --- EMCY ------------------------------------------------------------------------------------
+    # --- a foreign profile's objects: the controller's roles, encoded as the profile says ----------
+    def _role_read(self, index: int, subindex: int):
+        cell = self._cells.get((index, subindex))
+        if cell is None:
+            return None  # an object of CiA 301's (0x1000, a record's highest sub-index): its default
+        obj, k = cell
+        if obj.is_action:
+            return 0
+        return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs, saturate=True)
+
+    def _role_write(self, index: int, subindex: int, raw) -> None:
+        obj, k = self._cells[(index, subindex)]
+        try:
+            if obj.is_action:
+                if raw != obj.write:
+                    raise ValueError(f"{obj.role} takes {obj.write}, got {raw!r}")
+                self.roles.write(obj.role, [])
+                if obj.role == "reset":
+                    self._epoch, self._last_ticks = 0, None
+                return
+            present = self.roles.read(obj.role, obj.count)
+            present[k] = obj.from_raw(raw, self.profile.pole_pairs)
+            self.roles.write(obj.role, present)
+        except ValueError:  # CalibrationTableError and ProfileValueError included
+            raise SdoAbortedError(ABORT_RANGE) from None
+        if obj.role == "heartbeat_period":
+            self._heartbeat_ms = self.roles.heartbeat_ms
+            self._start_heartbeat()
+
     def _on_fault(self, code: int, t_s: float) -> None:
-        self.history.insert(0, code)
-        del self.history[8:]
-        self.node.emcy.send(code, self.controller.error_register)
+        if self.roles is None:  # a foreign profile's roles keep the history themselves
+            self.history.insert(0, code)
+            del self.history[8:]
+        self.node.emcy.send(self.profile.device_fault(code), self.controller.error_register)
 
     # --- PDO -------------------------------------------------------------------------------------
     def _on_rpdo(self, can_id, data, timestamp) -> None:
         if self.state != "OPERATIONAL":
             return
         with self._lock:
-            frames, self._sample_frames = self._sample_frames, []
-            sums = self._accumulators.get(0x400 + self.node_id), self._accumulators.get(0x500 + self.node_id)
-            self._accumulators = {}
+            frames, self._data_frames = self._data_frames, []
             try:
-                msg = EdgeMessage.from_frames(bytes(data), None if None in sums else sums, frames)
+                msg = EdgeMessage.from_frames(bytes(data), frames)
             except ValueError:
-                return  # a malformed PDO or sample set is ignored, as CiA 301 devices do
+                return  # a malformed PDO or frame set is ignored, as CiA 301 devices do
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
             self._last_edge = msg
@@ -420,23 +461,16 @@ class CanopenDevice:
                 commands = []
             frames = encode_reply(commands, msg.seq)
         for f in frames:
-            self.network.send_message(0x180 + self.node_id, f.pack())
+            self.network.send_message(self.profile.edge_hook.tx_cob_id, f.pack())
 
-    def _on_accumulators(self, can_id, data, timestamp) -> None:
-        """RPDO3 or RPDO4: the accumulators of the edge whose header (RPDO1) follows."""
+    def _on_data(self, can_id, data, timestamp) -> None:
+        """A data frame (accumulators or one ADC conversion) of the edge whose header follows."""
         if self.state != "OPERATIONAL" or len(data) != 8:
             return
         with self._lock:
-            self._accumulators[can_id] = bytes(data)
-
-    def _on_rpdo2(self, can_id, data, timestamp) -> None:
-        """One ADC sample of the edge whose header (RPDO1) follows."""
-        if self.state != "OPERATIONAL" or len(data) != 8:
-            return
-        with self._lock:
-            self._sample_frames.append(bytes(data))
-            del self._sample_frames[:-MAX_ADC_SAMPLES]
-            self._last_sample = struct.unpack("<hhhBB", bytes(data))
+            self._data_frames.append(bytes(data))
+            del self._data_frames[: -(MAX_ADC_SAMPLES + 3)]
+            self._last_data = bytes(data)
 
     def close(self) -> None:
         try:
@@ -541,8 +575,8 @@ def _fence_socketcand(bus) -> None:
     bus._recv_internal, bus.send = _recv_internal, _send
 
 
-class CanopenLink:
-    """The framework's view of a CANopen controller on any python-can interface."""
+class CanopenLink(RoleLink):
+    """The framework's view of a CANopen controller on any python-can interface, through its profile."""
 
     name = "canopen"
 
@@ -553,9 +587,14 @@ class CanopenLink:
         channel: str = "hil",
         eds: str | None = None,
         timeout_s: float = 1.0,
+        profile: Profile | str | None = None,
+        pole_pairs: int = 2,
         **bus_kwargs,
     ):
+        """``profile``: the device's object dictionary map (default: the virtual controller's own);
+        ``eds``: the device's EDS, which gives the type of each object the profile leaves untyped."""
         self.node_id, self.timeout_s = node_id, timeout_s
+        self.profile = _profile(profile, pole_pairs, node_id, eds)
         self.applied_calibration: Corrections | None = None
         where = f"{interface}:{channel}" + (
             f"@{bus_kwargs['host']}:{bus_kwargs.get('port')}" if "host" in bus_kwargs else ""
@@ -564,7 +603,10 @@ class CanopenLink:
         self.network = canopen.Network()
         self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
         self.network.connect()
-        self.node = self.network.add_node(node_id, eds or str(EDS_PATH))
+        # the device's own EDS; else the shipped one for the virtual controller's own profile, or
+        # the dictionary the profile describes
+        own = self.profile.objects == shipped("canopen").bind(pole_pairs, node_id).objects
+        self.node = self.network.add_node(node_id, eds or (str(EDS_PATH) if own else object_dictionary(self.profile)))
         # the client is already subscribed to the response COB-ID; swapping its class keeps that
         # subscription and adds the multiplexer check
         self.node.sdo.__class__ = MuxCheckedSdoClient
@@ -574,7 +616,9 @@ class CanopenLink:
         self.node.sdo.MAX_RETRIES = 1
         self.replies: queue.Queue = queue.Queue()
         self.emcy: queue.Queue = queue.Queue()
-        self.network.subscribe(0x180 + node_id, lambda cid, data, ts: self.replies.put(bytes(data)))
+        hook = self.profile.edge_hook
+        if hook.kind == "pdo":
+            self.network.subscribe(hook.tx_cob_id, lambda cid, data, ts: self.replies.put(bytes(data)))
         self.network.subscribe(0x80 + node_id, lambda cid, data, ts: self.emcy.put((ts, bytes(data))))
         self.boot_ups: queue.Queue = queue.Queue()
         self.network.subscribe(0x700 + node_id, lambda cid, data, ts: bytes(data) == b"\x00" and self.boot_ups.put(ts))
@@ -588,7 +632,14 @@ class CanopenLink:
             raise LinkError(f"{self.where}: {what} could not be sent: {type(exc).__name__}: {exc}") from None
 
     def reset(self) -> None:
-        """NMT reset node (faults cleared, logic restarted), wait for the boot-up, then start."""
+        """The profile's reset action when it lists one; else NMT reset node (faults cleared, logic
+        restarted: CiA 301's reset application), wait for the boot-up, then start."""
+        if self.profile.has("clear_faults"):
+            self.act("clear_faults")
+        if self.profile.get("reset") is not None:
+            self.act("reset")
+            self._seq = 0
+            return
         for q in (self.boot_ups, self.replies, self.emcy):
             while not q.empty():
                 q.get_nowait()
@@ -599,11 +650,6 @@ class CanopenLink:
             raise LinkTimeout(f"{self.where}: no boot-up within {self.timeout_s} s after NMT reset node") from None
         self._send("NMT start", 0, bytes([NMT_START, self.node_id]))
         self._seq = 0
-
-    def set_filter_settings(self, settings) -> None:
-        for k, v in enumerate(filter_vector(settings)):
-            self.write(0x2020, k + 1, float(v))
-        self.write(0x2000, None, self.read(0x2000))  # the filter restarts with its new settings
 
     # --- SDO helpers -----------------------------------------------------------------------------
     def _sdo(self, what: str, fn):
@@ -627,42 +673,46 @@ class CanopenLink:
             lambda: setattr(obj, "raw", value),
         )
 
-    # --- ControllerLink ---------------------------------------------------------------------------
+    # --- RoleLink: raw values of an object by SDO --------------------------------------------------
+    def read_raw(self, obj) -> list:
+        out = []
+        for k in range(obj.count):
+            sub = obj.subindex_of(k)
+            data = self._sdo(f"read {obj.label(k)} ({obj.role})", lambda: self.node.sdo.upload(obj.index, sub))
+            out.append(obj.unpack_le(data))
+        return out
+
+    def write_raw(self, obj, raws: list) -> None:
+        for k, raw in enumerate(raws):
+            self._sdo(
+                f"write {obj.label(k)} ({obj.role}) = {raw!r}",
+                lambda: self.node.sdo.download(obj.index, obj.subindex_of(k), obj.pack_le(raw)),
+            )
+
     def identity(self) -> dict:
-        return {
-            "vendor_id": self.read(0x1018, 1),
-            "product_code": self.read(0x1018, 2),
-            "revision": self.read(0x1018, 3),
-            "serial": self.read(0x1018, 4),
-            "device_type": self.read(0x1000),
-            "firmware": self.read(0x100A),
-        }
-
-    def download_calibration(self, corrections: Corrections) -> None:
-        for k, v in enumerate(corrections.as_vector()):
-            self.write(0x2010, k + 1, float(v))
-        self.write(0x2011, None, 1)
-        back = Corrections.from_vector([self.read(0x2012, k + 1) for k in range(10)])
-        verify_calibration(corrections.as_float32(), back)
-        self.applied_calibration = back
-
-    def set_strategy(self, strategy: int) -> None:
-        self.write(0x2000, None, int(strategy))
-
-    def set_speed(self, rpm: float) -> None:
-        self.write(0x2001, None, float(rpm))
+        ident = super().identity()
+        ident["device_type"] = self._sdo(
+            "read 0x1000", lambda: struct.unpack("<I", self.node.sdo.upload(0x1000, 0)[:4])[0]
+        )
+        try:  # optional in CiA 301
+            ident["firmware"] = self.node.sdo.upload(0x100A, 0).decode("ascii", "replace")
+        except Exception:
+            ident["firmware"] = None
+        return ident
 
     def edge(self, edge: dict) -> list:
+        hook = self.profile.edge_hook
+        if hook.kind != "pdo":
+            raise LinkError(f"{self.where}: the profile {self.profile.path} gives edges no PDOs ({hook.kind})")
+        edge_cob, data_cob = hook.rx_cob_ids[0], (hook.rx_cob_ids[1] if len(hook.rx_cob_ids) > 1 else None)
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
         msg = EdgeMessage.from_edge(edge, seq)
-        # the window and the accumulators before their header: the header triggers the controller
-        for k, frame in enumerate(msg.sample_frames()):
-            self._send(f"ADC conversion {len(msg.samples) - 1 - k} of edge #{seq}", 0x300 + self.node_id, frame)
-        for cob, frame in zip((0x400, 0x500), msg.accumulator_frames()):
-            self._send(f"ADC accumulators of edge #{seq}", cob + self.node_id, frame)
-        self._send(f"edge #{seq}", 0x200 + self.node_id, msg.header())
+        if data_cob is not None:  # the accumulators and the window before their header: the header triggers
+            for frame in msg.data_frames():
+                self._send(f"ADC data frame {frame[7]} of edge #{seq}", data_cob, frame)
+        self._send(f"edge #{seq}", edge_cob, msg.header())
         commands = []
         deadline = time.monotonic() + self.timeout_s
         while True:
@@ -680,30 +730,58 @@ class CanopenLink:
             if frame.last:
                 return commands
 
-    def status(self) -> dict:
-        rb = [self.read(0x2100, k) for k in range(1, 9)]
-        n = self.read(0x1003, 0)
-        counters = dict(
-            zip(
-                ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections"),
-                (self.read(0x2101, k) for k in range(1, 5)),
-            )
-        )
-        return {
-            **counters,
-            "strategy": self.read(0x2000),
-            "speed_setpoint_rpm": self.read(0x2001),
-            "estimated_speed_rpm": rb[0],
-            "q_diag": rb[1:4],
-            "r_diag": rb[4:6],
-            "guard_trips": rb[6],
-            "last_predicted_commutation_s": rb[7],
-            "error_register": self.read(0x1001),
-            "faults": [(0.0, self.read(0x1003, k)) for k in range(1, n + 1)],
-        }
-
     def close(self) -> None:
         try:
             self.network.disconnect()
         except Exception:  # a bus that is already gone cannot be closed more
             pass
+
+
+def _profile(profile: Profile | str | None, pole_pairs: int, node_id: int, eds: str | None) -> Profile:
+    """A bound CANopen profile (default: the virtual controller's own, typed by the shipped EDS)."""
+    if profile is None or isinstance(profile, (str, Path)):
+        profile = load_profile(profile) if profile is not None else shipped("canopen")
+    if profile.protocol != "canopen":
+        raise ProfileError(profile.path, f"a {profile.protocol} profile on a CANopen device")
+    return profile.bind(pole_pairs, node_id, eds)
+
+
+_TYPE_CODES = {name: code for code, name in CANOPEN_TYPE_CODES.items()}
+
+
+def object_dictionary(profile: Profile):
+    """A CiA 301 object dictionary holding every object of ``profile`` (an object with sub-indices
+    is a RECORD with its highest sub-index at 0, unless a role maps sub 0) and 0x1000: what a
+    device with this profile has, for the virtual device and for a link without the device's EDS."""
+    od = canopen.ObjectDictionary()
+    by_index: dict[int, dict[int, tuple]] = {}
+    for o in profile.objects.values():
+        for k in range(o.count):
+            by_index.setdefault(o.index, {})[o.subindex_of(k)] = (o, k)
+
+    def variable(o, index: int, sub: int, name: str) -> canopen.objectdictionary.ODVariable:
+        var = canopen.objectdictionary.ODVariable(name, index, sub)
+        var.data_type = _TYPE_CODES[o.type]
+        access = ROLES[o.role].access if o.role in ROLES else "r"
+        var.access_type = {"r": "ro", "rw": "rw", "w": "wo"}[access]
+        var.default = False if o.type == "bool" else (0.0 if o.type.startswith("float") else 0)
+        return var
+
+    if 0x1000 not in by_index:
+        device_type = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
+        device_type.data_type, device_type.access_type, device_type.default = 0x07, "ro", 0
+        od.add_object(device_type)
+    for index, subs in sorted(by_index.items()):
+        if list(subs) == [0] and subs[0][0].count == 1:
+            o, _ = subs[0]
+            od.add_object(variable(o, index, 0, o.role))
+            continue
+        record = canopen.objectdictionary.ODRecord(f"{subs[min(subs)][0].role} record", index)
+        if 0 not in subs:
+            highest = canopen.objectdictionary.ODVariable("Highest sub-index supported", index, 0)
+            highest.data_type, highest.access_type, highest.default = 0x05, "const", max(subs)
+            record.add_member(highest)
+        for sub, (o, k) in sorted(subs.items()):
+            record.add_member(variable(o, index, sub, f"{o.role}[{k}]" if o.count > 1 else o.role))
+        od.add_object(record)
+    return od

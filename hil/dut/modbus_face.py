@@ -1,10 +1,10 @@
 """The virtual controller's Modbus face (pymodbus, TCP or RTU framer) and the Modbus link.
 
-Register map (holding registers, one unit; FLOAT32 = IEEE single, two registers, high word
-first; docs/controller.md has the table). Edges are exchanged in one transaction: function 23
-(read/write multiple registers) writes the edge message (header and ADC window) to the mailbox at 300 and reads
-the reply at 210 (count, then up to four 8-byte command messages), so a plant step costs one
-round trip.
+Both read the register map from a device profile (hil.dut.profile; the virtual controller's own
+map is hil/dut/profiles/virtual-modbus.toml, docs/controller.md has the table): nothing here
+knows an address. Edges are exchanged in one transaction: function 23 (read/write multiple
+registers) writes the edge message to the profile's mailbox and reads the reply at its reply
+address (count, then up to four command messages), so a plant step costs one round trip.
 """
 
 from __future__ import annotations
@@ -15,127 +15,100 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
-import numpy as np
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bldc.contract import (
-    CalibrationTableError,
-    CommandMessage,
     MAX_ADC_SAMPLES,
+    CommandMessage,
     EdgeMessage,
     Fault,
     edge_epoch,
     encode_reply,
-    filter_vector,
     next_epoch,
-    with_filter_vector,
 )
 
-from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController, warm_up
-from .link import LinkError, LinkTimeout, verify_calibration
+from .link import LinkError, LinkTimeout
+from .profile import (
+    EDGE_HEADER_WORDS,
+    REPLY_WORDS,
+    ROLES,
+    Profile,
+    ProfileError,
+    ProfileValueError,
+    load_profile,
+    mailbox_words,
+    shipped,
+)
+from .roles import RoleLink
 from .tcp import close_handlers
+from .virtual_roles import VirtualRoles
 
-# addresses
-STRATEGY, SPEED = 0, 1
-CAL_STAGED, CAL_APPLY, COMMAND, CAL_APPLIED = 10, 30, 31, 40
-RESET_APPLICATION = 1  #: COMMAND value: clear faults, restart the control logic
-FILTER = 60
-#: read-back block from 100: speed, Q diagonal (3), R diagonal (2) as FLOAT32 (100..113)
-RB_SPEED, RB_TRIPS, RB_PRED = 100, 112, 114
-#: fault block from 120: error register, fault count, then the fault history's codes
-ERROR_REGISTER = 120
-#: gated edges, covariance repairs, divergence fades, band projections: UINT32 each
-RB_COUNTERS = 130
-COUNTER_KEYS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
-IDENTITY = 150  # vendor, product, revision, serial: UINT32 each
-REPLY = 210
-#: the edge mailbox (edge message version 2): its bytes (``EdgeMessage.pack``: header, accumulators,
-#: then the ADC window newest first), two per register, the first one high; the write's length says
-#: how many conversions it holds. The write triggers the controller.
-EDGE_IN = 300
-#: conversions the mailbox's own write holds (read/write multiple registers writes at most 121)
-MAILBOX_CONVERSIONS = 36
-EDGE_MAILBOX_REGISTERS = 11 + 3 * MAILBOX_CONVERSIONS
-#: an edge's older conversions (index 36 on), when it has more, written just before its mailbox
-#: (write multiple registers); the mailbox write takes them and empties the block
-EDGE_OLDER = EDGE_IN + EDGE_MAILBOX_REGISTERS
-EDGE_OLDER_REGISTERS = 3 * (MAX_ADC_SAMPLES - MAILBOX_CONVERSIONS)
+#: the edge mailbox, at the profile's request address (edge message version 2: docs/controller.md):
+#: the message's bytes two per register, the first one high; its header (4 registers) triggers the
+#: controller, the rest (accumulators, ADC window) follows it in the same write. Where the mailbox
+#: has less room than the message (``profile.mailbox_words``), the rest's first part is written
+#: before, at the register after the header, in writes of their own that the device appends.
+#: The reply: a frame count, then up to four command messages.
 REPLY_FRAMES = 4
-
-
-def _f32_regs(v: float) -> list[int]:
-    hi, lo = struct.unpack(">HH", struct.pack(">f", v))
-    return [hi, lo]
-
-
-def _regs_f32(r) -> float:
-    return struct.unpack(">f", struct.pack(">HH", *r))[0]
+assert REPLY_WORDS == 1 + 4 * REPLY_FRAMES
+#: the most registers a message's rest may take (accumulators and a full window)
+MESSAGE_REST_WORDS = 7 + 3 * MAX_ADC_SAMPLES
 
 
 def _bytes_regs(b: bytes) -> list[int]:
-    return list(struct.unpack(">HHHH", b))
-
-
-def _regs_bytes(r) -> bytes:
-    return struct.pack(">HHHH", *r)
-
-
-def _bytes_to_regs(b: bytes) -> list[int]:
     """A byte string (even length) as registers, two bytes each, the first one high."""
     return list(struct.unpack(f">{len(b) // 2}H", b))
 
 
-def _regs_to_bytes(r) -> bytes:
+def _regs_bytes(r) -> bytes:
     return struct.pack(f">{len(r)}H", *r)
 
 
-def simdata() -> list[SimData]:
-    """The register map: everything not listed is an illegal address."""
-    return [
-        SimData(STRATEGY, 1, 3, DataType.UINT16),
-        SimData(SPEED, 1, 5000.0, DataType.FLOAT32),
-        SimData(CAL_STAGED, 10, 0.0, DataType.FLOAT32),
-        SimData(CAL_APPLY, 1, 0, DataType.UINT16),
-        SimData(COMMAND, 1, 0, DataType.UINT16),
-        SimData(CAL_APPLIED, 10, 0.0, DataType.FLOAT32, readonly=True),
-        SimData(FILTER, 9, 0.0, DataType.FLOAT32),
-        SimData(RB_SPEED, 7, 0.0, DataType.FLOAT32, readonly=True),
-        SimData(RB_TRIPS, 1, 0, DataType.UINT32, readonly=True),
-        SimData(RB_PRED, 1, 0.0, DataType.FLOAT64, readonly=True),
-        SimData(ERROR_REGISTER, 10, 0, DataType.UINT16, readonly=True),
-        SimData(IDENTITY, 4, 0, DataType.UINT32, readonly=True),
-        SimData(RB_COUNTERS, 4, 0, DataType.UINT32, readonly=True),
-        SimData(EDGE_IN, EDGE_MAILBOX_REGISTERS, 0, DataType.REGISTERS),
-        SimData(EDGE_OLDER, EDGE_OLDER_REGISTERS, 0, DataType.REGISTERS),
-        SimData(REPLY, 1 + 4 * REPLY_FRAMES, 0, DataType.REGISTERS, readonly=True),
-    ]
+#: the function codes that read (and write) each table
+TABLE_FUNCTIONS = {"holding": (3, 6, 16, 23), "input": (4,), "coil": (1, 5, 15), "discrete": (2,)}
+FUNCTION_TABLE = {fc: table for table, fcs in TABLE_FUNCTIONS.items() for fc in fcs}
 
 
-SUPPORTED_FUNCTIONS = (3, 6, 16, 23)
+def supported_functions(profile: Profile) -> tuple[int, ...]:
+    """The functions a device with this map implements: those of its tables (the mailbox is holding)."""
+    tables = {o.table for o in profile.objects.values()}
+    if profile.edge_hook.kind == "mailbox":
+        tables.add("holding")
+    return tuple(sorted(fc for t in tables for fc in TABLE_FUNCTIONS[t]))
 
 
-def request_exception(pdu: bytes) -> bytes | None:
+def request_exception(pdu: bytes, supported=(3, 6, 16, 23)) -> bytes | None:
     """The exception PDU the Modbus application protocol requires for a malformed request, or None.
 
-    01 illegal function: a function code this device does not implement (only holding registers:
-    3, 6, 16, 23); 03 illegal data value: a quantity out of range or a byte count that does not
-    match it. Addresses (02) and values of well-formed requests are judged by the register map.
+    01 illegal function: a function code this device does not implement (``supported``: those of
+    the tables its map has); 03 illegal data value: a quantity out of range or a byte count that
+    does not match it. Addresses (02) and values of well-formed requests are judged by the map.
     """
     if not pdu:
         return None
     fc = pdu[0]
-    if fc & 0x80 or fc not in SUPPORTED_FUNCTIONS:
+    if fc & 0x80 or fc not in supported:
         return bytes([(fc | 0x80) & 0xFF, 0x01])
     bad = bytes([fc | 0x80, 0x03])
     try:
-        if fc == 3:
+        if fc in (3, 4):
             _, qty = struct.unpack_from(">HH", pdu, 1)
             return bad if not 1 <= qty <= 125 or len(pdu) != 5 else None
+        if fc in (1, 2):
+            _, qty = struct.unpack_from(">HH", pdu, 1)
+            return bad if not 1 <= qty <= 2000 or len(pdu) != 5 else None
+        if fc == 5:
+            _, value = struct.unpack_from(">HH", pdu, 1)
+            return bad if len(pdu) != 5 or value not in (0, 0xFF00) else None
         if fc == 6:
             return bad if len(pdu) != 5 else None
+        if fc == 15:
+            _, qty, nbytes = struct.unpack_from(">HHB", pdu, 1)
+            return bad if not 1 <= qty <= 1968 or nbytes != (qty + 7) // 8 or len(pdu) != 6 + nbytes else None
         if fc == 16:
             _, qty, nbytes = struct.unpack_from(">HHB", pdu, 1)
             return bad if not 1 <= qty <= 123 or nbytes != 2 * qty or len(pdu) != 6 + nbytes else None
@@ -146,6 +119,15 @@ def request_exception(pdu: bytes) -> bytes | None:
     except struct.error:
         return bad
     return None
+
+
+def _profile(profile: Profile | str | None, pole_pairs: int) -> Profile:
+    """A bound Modbus profile (default: the virtual controller's own map)."""
+    if profile is None or isinstance(profile, (str, Path)):
+        profile = load_profile(profile) if profile is not None else shipped("modbus")
+    if profile.protocol != "modbus":
+        raise ProfileError(profile.path, f"a {profile.protocol} profile on a Modbus device")
+    return profile.bind(pole_pairs)
 
 
 UNIT_ANY = 0xFF  #: Modbus TCP's "unit identifier not used" value: this device answers it as its own
@@ -175,21 +157,32 @@ class ModbusDevice:
     """
 
     def __init__(self, controller: VirtualController, host: str = "127.0.0.1", port: int = 0, unit: int = 1,
-                 serial_port: str | None = None, baudrate: int = 115200, idle_timeout_s: float | None = None):
-        """TCP on host:port, or RTU on ``serial_port`` (a serial device path) when given."""
+                 serial_port: str | None = None, baudrate: int = 115200, idle_timeout_s: float | None = None,
+                 profile: Profile | str | None = None):
+        """TCP on host:port, or RTU on ``serial_port`` (a serial device path) when given; the
+        register map is ``profile``'s (default: the virtual controller's own, hil/dut/profiles)."""
         warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
+        self.profile = _profile(profile, controller.motor.pole_pairs)
+        self.roles = VirtualRoles(controller, self.profile)
+        self.supported = supported_functions(self.profile)
+        self.map = RegisterMap(self.profile)
+        hook = self.profile.edge_hook
+        self._reply = [0] * REPLY_WORDS
+        self._mailbox = None
+        if hook.kind == "mailbox":
+            self._mailbox = (hook.request_address, mailbox_words(self.profile), hook.reply_address)
+            self._request = [0] * self._mailbox[1]
+        #: the message rest written ahead of its header (appended, taken by the next header)
+        self._rest_ahead: list[int] = []
         self.serial_port, self.baudrate = serial_port, baudrate
         self.limits = TcpLimits() if idle_timeout_s is None else TcpLimits(idle_timeout_s=idle_timeout_s)
         self.port = port
         self.connections = 0
         self.refused = 0  #: malformed requests answered with an exception or dropped connections
         self._last_summary = 0.0
-        self.history: list[int] = []
-        controller.on_fault(lambda code, t: (self.history.insert(0, code), self.history.__delitem__(slice(8, None))))
         self._epoch = 0
         self._last_ticks = None
-        self._older: list[int] = []  #: the last write to EDGE_OLDER, for the next mailbox write
         self._ready = threading.Event()
         self._error: BaseException | None = None
         self._thread = threading.Thread(target=self._run, name="modbus-device", daemon=True)
@@ -206,28 +199,27 @@ class ModbusDevice:
 
     async def _serve(self):
         self.loop = asyncio.get_running_loop()
-        device = SimDevice(self.unit, simdata=simdata(), action=self._action)
         if self.serial_port is not None:
             from pymodbus.framer import FramerType
             from pymodbus.server import ModbusSerialServer
 
             self._expected: dict[int, bytes] = {}
             self.server = ModbusSerialServer(
-                device,
+                SimDevice(self.unit, simdata=[SimData(0, 1, 0, DataType.REGISTERS)]),  # replaced below
                 framer=FramerType.RTU,
                 port=self.serial_port,
                 baudrate=self.baudrate,
                 trace_packet=self._trace_packet_rtu,
             )
+            self.server.context = self  # the profile's map answers (async_getValues / async_setValues)
             task = asyncio.create_task(self.server.serve_forever())
             await asyncio.sleep(0.2)
             self._ready.set()
             await task
             return
         from pymodbus.pdu import DecodePDU
-        from pymodbus.simulator.simcore import SimCore
 
-        self._context, self._decoder = SimCore(device), DecodePDU(True)
+        self._context, self._decoder = self, DecodePDU(True)
         self._stopped = asyncio.Event()
         self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
         server = await asyncio.start_server(self._connection, self.host, self.port)
@@ -291,7 +283,7 @@ class ModbusDevice:
         fc = pdu[0] if pdu else 0
         if unit not in (self.unit, UNIT_ANY):
             return bytes([(fc | 0x80) & 0xFF, GATEWAY_NO_RESPONSE])
-        exc = request_exception(pdu)
+        exc = request_exception(pdu, self.supported)
         if exc is not None:
             self._refuse("function %d: malformed request %s answered with exception %02X", fc, pdu[:16].hex(), exc[1])
             return exc
@@ -328,7 +320,7 @@ class ModbusDevice:
         if len(data) < 4:
             return data
         if not sending:
-            self._expected = {0: exc} if (exc := request_exception(data[1:-2])) is not None else {}
+            self._expected = {0: exc} if (exc := request_exception(data[1:-2], self.supported)) is not None else {}
             return data
         exc = self._expected.pop(0, None)
         if exc is None:
@@ -349,129 +341,159 @@ class ModbusDevice:
             self.loop.call_soon_threadsafe(self._stopped.set)
         self._thread.join(timeout=5.0)
 
-    # --- the register map's behaviour --------------------------------------------------------------
-    def _refresh(self, regs: list[int], base: int) -> None:
-        """Read-backs into the block before any read."""
-        c = self.controller
+    # --- the register map's behaviour (pymodbus calls these for every decoded request) ------------
+    def device_ids(self) -> list[int]:
+        return [self.unit]
 
-        def put(addr, values):
-            regs[addr - base : addr - base + len(values)] = values
+    def _check_unit(self, device_id: int) -> None:
+        """RTU: another unit's request is not this device's (pymodbus answers 0x0B, as the TCP rule)."""
+        if device_id != self.unit:
+            from pymodbus.exceptions import NoSuchIdException
 
-        st = c.status()
-        put(STRATEGY, [int(c.strategy)])
-        put(SPEED, _f32_regs(c.speed_setpoint_rpm))
-        applied = (c.corrections or Corrections()).as_vector()
-        put(CAL_APPLIED, sum((_f32_regs(v) for v in applied), []))
-        put(FILTER, sum((_f32_regs(v) for v in filter_vector(c.filter_settings)), []))
-        speed = st["estimated_speed_rpm"] if np.isfinite(st["estimated_speed_rpm"]) else 0.0
-        put(RB_SPEED, sum((_f32_regs(v) for v in [speed, *st["q_diag"], *st["r_diag"]]), []))
-        put(RB_TRIPS, [(st["guard_trips"] >> 16) & 0xFFFF, st["guard_trips"] & 0xFFFF])
-        pred = st["last_predicted_commutation_s"] if np.isfinite(st["last_predicted_commutation_s"]) else 0.0
-        put(RB_PRED, list(struct.unpack(">HHHH", struct.pack(">d", pred))))
-        put(RB_COUNTERS, sum(([(st[k] >> 16) & 0xFFFF, st[k] & 0xFFFF] for k in COUNTER_KEYS), []))
-        codes = (self.history + [0] * 8)[:8]
-        put(ERROR_REGISTER, [c.error_register, len(self.history)] + codes)
-        i = c.identity
-        put(
-            IDENTITY,
-            sum(([(v >> 16) & 0xFFFF, v & 0xFFFF] for v in (i.vendor_id, i.product_code, i.revision, i.serial)), []),
-        )
+            raise NoSuchIdException(f"unit {device_id}")
 
-    async def _action(self, fc, start, address, count, regs, values):
+    async def async_getValues(self, device_id: int, fc: int, address: int, count: int = 1):
+        self._check_unit(device_id)
         try:
-            if values is None:
-                self._refresh(regs, start)
-                return None
-            return self._write(address, list(values), regs, start)
+            return self._read(FUNCTION_TABLE[fc], address, count)
         except Exception:  # bad input never stops the server: report and refuse
             self.controller.raise_fault(Fault.INTERNAL, 0.0)
             return ExcCodes.DEVICE_FAILURE
 
-    def _write(self, address: int, values: list[int], regs: list[int], base: int):
+    async def async_setValues(self, device_id: int, fc: int, address: int, values):
+        self._check_unit(device_id)
+        try:
+            return self._write(FUNCTION_TABLE[fc], address, [int(v) for v in values])
+        except Exception:
+            self.controller.raise_fault(Fault.INTERNAL, 0.0)
+            return ExcCodes.DEVICE_FAILURE
+
+    def _read(self, table: str, address: int, count: int):
+        cells = self.map.cells(table, address, count, self._mailbox, write=False)
+        if cells is None:
+            return ExcCodes.ILLEGAL_ADDRESS
+        out, encoded = [], {}
+        for cell in cells:
+            if cell[0] == "request":
+                out.append(self._request[cell[1]])
+            elif cell[0] == "reply":
+                out.append(self._reply[cell[1]])
+            else:
+                obj, k, w = cell
+                if obj.role not in encoded:
+                    encoded[obj.role] = self._encode(obj)
+                out.append(encoded[obj.role][k][w])
+        return [bool(v) for v in out] if table in ("coil", "discrete") else out
+
+    def _encode(self, obj) -> list[list[int]]:
+        """Each element's registers of ``obj`` as the device holds it now."""
+        values = self.roles.read(obj.role, obj.count)
+        return [obj.to_registers(obj.to_raw(v, self.profile.pole_pairs, saturate=True) if not obj.is_action else 0)
+                for v in values]
+
+    def _write(self, table: str, address: int, values: list[int]):
+        cells = self.map.cells(table, address, len(values), self._mailbox, write=True)
+        if cells is None:
+            return ExcCodes.ILLEGAL_ADDRESS
+        touched: dict[str, dict[int, dict[int, int]]] = {}
+        objects, mailbox = {}, {}
+        for cell, v in zip(cells, values):
+            if cell[0] == "request":
+                mailbox[cell[1]] = v
+            else:
+                obj, k, w = cell
+                objects[obj.role] = obj
+                touched.setdefault(obj.role, {}).setdefault(k, {})[w] = v
+        # a write must cover whole values (a FLOAT32 is two registers), and the edge message whole
+        for role, elements in touched.items():
+            if any(len(words) != objects[role].registers for words in elements.values()):
+                return ExcCodes.ILLEGAL_VALUE
+        header = [mailbox.get(i) for i in range(EDGE_HEADER_WORDS)]
+        if mailbox and None in header and any(i < EDGE_HEADER_WORDS for i in mailbox):
+            return ExcCodes.ILLEGAL_VALUE  # the header is written whole
+        try:  # in address order: a staged table written with its apply action is applied whole
+            for role in sorted(touched, key=lambda r: objects[r].address):
+                obj, elements = objects[role], touched[role]
+                raws = {k: obj.from_registers([ws[w] for w in range(obj.registers)]) for k, ws in elements.items()}
+                if obj.is_action:
+                    if any(raw != obj.write for raw in raws.values()):
+                        return ExcCodes.ILLEGAL_VALUE
+                    self.roles.write(role, [])
+                    if role == "reset":
+                        self._epoch, self._last_ticks = 0, None
+                    continue
+                present = self.roles.read(role, obj.count)
+                for k, raw in raws.items():
+                    present[k] = obj.from_raw(raw, self.profile.pole_pairs)
+                self.roles.write(role, present)
+        except (ValueError, ProfileValueError):  # CalibrationTableError included
+            return ExcCodes.ILLEGAL_VALUE
+        if not mailbox:
+            return None
+        for i, v in mailbox.items():
+            self._request[i] = v
+        rest = [mailbox[i] for i in sorted(mailbox) if i >= EDGE_HEADER_WORDS]
+        if None in header:  # a part of a message's rest, ahead of its header
+            self._rest_ahead += rest
+            if len(self._rest_ahead) > MESSAGE_REST_WORDS:
+                self._rest_ahead = []
+                return ExcCodes.ILLEGAL_VALUE
+            return None
+        ahead, self._rest_ahead = self._rest_ahead, []
+        return self._edge(header + ahead + rest)
+
+    def _edge(self, words: list[int]):
+        """The edge message written to the mailbox: run the controller, leave the reply."""
         c = self.controller
-        end = address + len(values)
-
-        def covers(a, n=1):
-            return address <= a and a + n <= end
-
-        def part(a, n):
-            return values[a - address : a - address + n]
-
-        # a write must cover whole values (a FLOAT32 is two registers)
-        for a, n, size in ((SPEED, 1, 2), (CAL_STAGED, 10, 2), (FILTER, 9, 2), (EDGE_IN, 1, 11)):
-            for k in range(n):
-                lo, hi = a + size * k, a + size * (k + 1)
-                if address < hi and end > lo and not (address <= lo and end >= hi):
-                    return ExcCodes.ILLEGAL_VALUE
-        if covers(STRATEGY):
-            v = part(STRATEGY, 1)[0]
-            if v > 3:
-                return ExcCodes.ILLEGAL_VALUE
-            c.set_strategy(v)
-        if covers(SPEED, 2):
-            rpm = _regs_f32(part(SPEED, 2))
-            if not (np.isfinite(rpm) and 0.0 <= rpm <= 30000.0):
-                return ExcCodes.ILLEGAL_VALUE
-            c.set_speed(rpm)
-        for k in range(10):
-            if covers(CAL_STAGED + 2 * k, 2) and not np.isfinite(_regs_f32(part(CAL_STAGED + 2 * k, 2))):
-                return ExcCodes.ILLEGAL_VALUE
-        if covers(CAL_APPLY):
-            if part(CAL_APPLY, 1)[0] != 1:
-                return ExcCodes.ILLEGAL_VALUE
-            # the staged table is in the block already (earlier writes) or in this request
-            staged = [
-                _regs_f32(part(CAL_STAGED + 2 * k, 2))
-                if covers(CAL_STAGED + 2 * k, 2)
-                else _regs_f32(regs[CAL_STAGED + 2 * k - base : CAL_STAGED + 2 * k - base + 2])
-                for k in range(10)
-            ]
-            try:
-                c.download_calibration(Corrections.from_vector(staged))
-            except CalibrationTableError:
-                return ExcCodes.ILLEGAL_VALUE
-            values[CAL_APPLY - address] = 0  # write-only trigger reads back as 0
-        if any(covers(FILTER + 2 * k, 2) for k in range(9)):
-            vector = filter_vector(c.filter_settings)
-            for k in range(9):
-                if covers(FILTER + 2 * k, 2):
-                    vector[k] = _regs_f32(part(FILTER + 2 * k, 2))
-            try:  # takes effect at the next strategy write or reset command, as the filter restarts then
-                c.filter_settings = with_filter_vector(c.filter_settings, vector)
-            except ValueError:
-                return ExcCodes.ILLEGAL_VALUE
-        if covers(COMMAND):
-            if part(COMMAND, 1)[0] != RESET_APPLICATION:
-                return ExcCodes.ILLEGAL_VALUE
-            c.clear_faults()
-            self.history.clear()
-            c.reset()
-            self._epoch, self._last_ticks = 0, None
-            values[COMMAND - address] = 0  # a trigger reads back as 0
-        if address >= EDGE_OLDER:
-            if address != EDGE_OLDER or len(values) % 3:
-                return ExcCodes.ILLEGAL_VALUE  # whole conversions from the block's start
-            self._older = list(values)
-        if covers(EDGE_IN, 11):
-            if address != EDGE_IN or (end - EDGE_IN - 11) % 3:
-                return ExcCodes.ILLEGAL_VALUE  # a mailbox write is the header, the sums and whole conversions
-            older, self._older = self._older, []
-            if older and end != EDGE_OLDER:
-                return ExcCodes.ILLEGAL_VALUE  # older conversions follow a full mailbox only
-            try:
-                msg = EdgeMessage.unpack(_regs_to_bytes(list(values) + older))
-            except ValueError:
-                return ExcCodes.ILLEGAL_VALUE
-            self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
-            self._last_ticks = msg.ticks
-            frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
-            reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
-            regs[REPLY - base : REPLY - base + len(reply)] = reply
+        try:
+            msg = EdgeMessage.unpack(_regs_bytes(words))
+        except ValueError:
+            return ExcCodes.ILLEGAL_VALUE
+        self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
+        self._last_ticks = msg.ticks
+        frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
+        reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
+        self._reply = reply + [0] * (REPLY_WORDS - len(reply))
         return None
 
 
-class ModbusLink:
-    """The framework's view of a Modbus TCP controller."""
+class RegisterMap:
+    """Which object, element and word each register of a profile is."""
+
+    def __init__(self, profile: Profile):
+        self.profile = profile
+        self._cells: dict[tuple[str, int], tuple] = {}
+        for obj in profile.objects.values():
+            for k in range(obj.count):
+                for w in range(obj.registers):
+                    self._cells[(obj.table, obj.address_of(k) + w)] = (obj, k, w)
+
+    def cells(self, table: str, address: int, count: int, mailbox, write: bool) -> list | None:
+        """The cells of ``count`` registers from ``address``, or None when one is not in the map
+        (or is read-only, for a write)."""
+        out = []
+        for a in range(address, address + count):
+            if mailbox is not None and table == "holding":
+                req, request_words, rep = mailbox
+                if req <= a < req + request_words:
+                    out.append(("request", a - req))
+                    continue
+                if rep <= a < rep + REPLY_WORDS:
+                    if write:
+                        return None
+                    out.append(("reply", a - rep))
+                    continue
+            cell = self._cells.get((table, a))
+            if cell is None:
+                return None
+            if write and not (cell[0].role in ROLES and "w" in ROLES[cell[0].role].access):
+                return None
+            out.append(cell)
+        return out
+
+
+class ModbusLink(RoleLink):
+    """The framework's view of a Modbus controller (TCP or RTU), through its profile."""
 
     name = "modbus"
 
@@ -483,14 +505,19 @@ class ModbusLink:
         timeout_s: float = 1.0,
         serial_port: str | None = None,
         baudrate: int = 115200,
+        profile: Profile | str | None = None,
+        pole_pairs: int = 2,
     ):
-        """Modbus TCP at host:port, or Modbus RTU on ``serial_port`` when given."""
+        """Modbus TCP at host:port, or Modbus RTU on ``serial_port`` when given; the map is
+        ``profile``'s (default: the virtual controller's own)."""
         from pymodbus.client import ModbusSerialClient, ModbusTcpClient
         from pymodbus.framer import FramerType
 
+        self.profile = _profile(profile, pole_pairs)
+        self._mailbox_words = mailbox_words(self.profile) if self.profile.edge_hook.kind == "mailbox" else 0
         self.unit, self.timeout_s = unit, timeout_s
         self.host, self.port, self.serial_port = host, port, serial_port
-        self.applied_calibration: Corrections | None = None
+        self.applied_calibration = None
         if serial_port is not None:
             self.where = f"Modbus RTU unit {unit} on {serial_port}"
             self.client = ModbusSerialClient(
@@ -521,77 +548,70 @@ class ModbusLink:
             )
         return r
 
-    def read(self, address: int, count: int) -> list[int]:
-        return self._call(
-            f"read {count} registers at {address}",
-            lambda: self.client.read_holding_registers(address, count=count, device_id=self.unit),
-        ).registers
+    def read(self, address: int, count: int, table: str = "holding") -> list[int]:
+        """``count`` registers (or bits) of ``table`` from ``address``."""
+        fn = {"holding": self.client.read_holding_registers, "input": self.client.read_input_registers,
+              "coil": self.client.read_coils, "discrete": self.client.read_discrete_inputs}[table]
+        r = self._call(f"read {count} {table} at {address}", lambda: fn(address, count=count, device_id=self.unit))
+        return r.registers if table in ("holding", "input") else [int(b) for b in r.bits[:count]]
 
-    def write(self, address: int, registers: list[int]) -> None:
+    def write(self, address: int, registers: list[int], table: str = "holding") -> None:
+        if table == "coil":
+            self._call(
+                f"write {len(registers)} coils at {address}",
+                lambda: self.client.write_coils(address, [bool(v) for v in registers], device_id=self.unit),
+            )
+            return
         self._call(
             f"write {len(registers)} registers at {address}",
             lambda: self.client.write_registers(address, registers, device_id=self.unit),
         )
 
-    def identity(self) -> dict:
-        r = self.read(IDENTITY, 8)
-        v = [(r[2 * k] << 16) | r[2 * k + 1] for k in range(4)]
-        return {
-            "vendor_id": v[0],
-            "product_code": v[1],
-            "revision": v[2],
-            "serial": v[3],
-            "device_type": None,
-            "firmware": None,
-        }
+    # --- RoleLink: raw values of an object ---------------------------------------------------------
+    def read_raw(self, obj) -> list:
+        regs = self.read(obj.address, obj.count * obj.registers, obj.table)
+        n = obj.registers
+        return [obj.from_registers(regs[k * n : (k + 1) * n]) for k in range(obj.count)]
 
-    def download_calibration(self, corrections: Corrections) -> None:
-        table = corrections.as_float32()
-        self.write(CAL_STAGED, sum((_f32_regs(v) for v in table.as_vector()), []))
-        self.write(CAL_APPLY, [1])
-        back = self.read(CAL_APPLIED, 20)
-        read_back = Corrections.from_vector([_regs_f32(back[2 * k : 2 * k + 2]) for k in range(10)])
-        verify_calibration(table, read_back)
-        self.applied_calibration = read_back
+    def write_raw(self, obj, raws: list) -> None:
+        self.write(obj.address, sum((obj.to_registers(r) for r in raws), []), obj.table)
 
     def reset(self) -> None:
-        """Command register: clear the faults and restart the control logic (calibration kept)."""
-        self.write(COMMAND, [RESET_APPLICATION])
+        super().reset()
         self._seq = 0
 
-    def set_filter_settings(self, settings) -> None:
-        self.write(FILTER, sum((_f32_regs(v) for v in filter_vector(settings)), []))
-        self.write(STRATEGY, self.read(STRATEGY, 1))  # the filter restarts with its new settings
-
-    def set_strategy(self, strategy: int) -> None:
-        self.write(STRATEGY, [int(strategy)])
-
-    def set_speed(self, rpm: float) -> None:
-        self.write(SPEED, _f32_regs(rpm))
-
     def edge(self, edge: dict) -> list:
+        hook = self.profile.edge_hook
+        if hook.kind != "mailbox":
+            raise LinkError(f"{self.where}: the profile {self.profile.path} gives edges no mailbox ({hook.kind})")
         epoch = edge_epoch(edge["t_capture_s"])
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
-        values = _bytes_to_regs(EdgeMessage.from_edge(edge, seq).pack())
-        if len(values) > EDGE_MAILBOX_REGISTERS:  # the older conversions first, in a write of their own
-            older, values = values[EDGE_MAILBOX_REGISTERS:], values[:EDGE_MAILBOX_REGISTERS]
+        values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
+        header, rest = values[:EDGE_HEADER_WORDS], values[EDGE_HEADER_WORDS:]
+        room = self._mailbox_words - EDGE_HEADER_WORDS  # of the rest, in the header's write
+        ahead = rest[: max(len(rest) - room, 0)]
+        for k in range(0, len(ahead), room):  # what does not fit, ahead of the header, in order
+            part = ahead[k : k + room]
             self._call(
-                f"older ADC conversions of edge #{seq}",
-                lambda: self.client.write_registers(EDGE_OLDER, older, device_id=self.unit),
+                f"ADC data of edge #{seq}",
+                lambda part=part: self.client.write_registers(
+                    hook.request_address + EDGE_HEADER_WORDS, part, device_id=self.unit
+                ),
             )
+        values = header + rest[len(ahead) :]
         r = self._call(
             f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
             lambda: self.client.readwrite_registers(
-                read_address=REPLY,
-                read_count=1 + 4 * REPLY_FRAMES,
-                write_address=EDGE_IN,
+                read_address=hook.reply_address,
+                read_count=REPLY_WORDS,
+                write_address=hook.request_address,
                 values=values,
                 device_id=self.unit,
             ),
         )
         regs = r.registers
-        if len(regs) != 1 + 4 * REPLY_FRAMES or regs[0] > REPLY_FRAMES:
+        if len(regs) != REPLY_WORDS or regs[0] > REPLY_FRAMES:
             raise LinkError(
                 f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)"
             )
@@ -603,25 +623,6 @@ class ModbusLink:
             if not f.keeps_everything:
                 commands.append(f.to_command(epoch))
         return commands
-
-    def status(self) -> dict:
-        rb = self.read(RB_SPEED, 18)
-        err = self.read(ERROR_REGISTER, 10)
-        cn = self.read(RB_COUNTERS, 8)
-        counters = {k: (cn[2 * i] << 16) | cn[2 * i + 1] for i, k in enumerate(COUNTER_KEYS)}
-        f = [_regs_f32(rb[2 * k : 2 * k + 2]) for k in range(6)]
-        return {
-            **counters,
-            "strategy": self.read(STRATEGY, 1)[0],
-            "speed_setpoint_rpm": _regs_f32(self.read(SPEED, 2)),
-            "estimated_speed_rpm": f[0],
-            "q_diag": f[1:4],
-            "r_diag": f[4:6],
-            "guard_trips": (rb[12] << 16) | rb[13],
-            "last_predicted_commutation_s": struct.unpack(">d", struct.pack(">HHHH", *rb[14:18]))[0],
-            "error_register": err[0],
-            "faults": [(0.0, code) for code in err[2 : 2 + err[1]]],
-        }
 
     def close(self) -> None:
         self.client.close()

@@ -3,9 +3,8 @@ shipped in the package (hil/dut/virtual_controller.eds) and drives the SDO valid
 
 Manufacturer objects: 0x2000 strategy, 0x2001 speed set point, 0x2010 calibration (staged),
 0x2011 apply calibration (write 1), 0x2012 applied calibration (read-back), 0x2020 filter
-settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200-0x2203 the last edge message received
-(version 2: header RPDO1, ADC conversion RPDO2, accumulators RPDO3 and RPDO4). PDO payloads are
-documented in bldc/contract.py.
+settings, 0x2100 read-backs, 0x2101 filter counters, 0x2200 / 0x2201 the last edge message header
+(RPDO1) and data frame (RPDO2) received (version 2). PDO payloads are documented in bldc/contract.py.
 """
 
 from __future__ import annotations
@@ -13,7 +12,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-I16, I32 = 0x0003, 0x0004
+I16 = 0x0003
 U8, U16, U32, REAL32, VSTRING, REAL64 = 0x0005, 0x0006, 0x0007, 0x0008, 0x0009, 0x0011
 
 
@@ -43,8 +42,9 @@ CAL_NAMES = ("installation A deg_e", "installation B deg_e", "installation C deg
 FILTER_NAMES = ("forgetting b", "Q0 w", "Q0 theta", "Q0 I", "R0 theta", "R0 I", "P0 w", "P0 theta", "P0 I")
 #: the split filter counters (0x2101), in order (hil.predictors.COUNTER_NAMES)
 COUNTERS = ("gated edges", "covariance repairs", "divergence fades", "band projections")
-#: the edge message's (version 2) header (0x2200, mapped by RPDO1), one ADC conversion of its window
-#: (0x2201, RPDO2) and its accumulators (0x2202, RPDO3; 0x2203, RPDO4)
+#: the edge message's (version 2) header (0x2200, mapped by RPDO1) and one data frame (0x2201, RPDO2):
+#: a conversion of its window, or at index 0xFD-0xFF an accumulator (its first six bytes then I32
+#: sum and U16 conversions summed: bldc.contract)
 EDGE_FIELDS = (
     ("capture time 100 ns ticks", U32, 32),
     ("flags", U8, 8),
@@ -56,14 +56,7 @@ SAMPLE_FIELDS = (
     ("phase b sensor counts (2 mA)", I16, 16),
     ("phase c sensor counts (2 mA)", I16, 16),
     ("sequence of its edge", U8, 8),
-    ("conversion index (0 = newest)", U8, 8),
-)
-SUMS_AB_FIELDS = (("phase a sum counts", I32, 32), ("phase b sum counts", I32, 32))
-SUM_C_FIELDS = (
-    ("phase c sum counts", I32, 32),
-    ("conversions summed", U16, 16),
-    ("sequence of its edge", U8, 8),
-    ("reserved", U8, 8),
+    ("index (conversions from 0, the capture's; accumulators 0xFD-0xFF)", U8, 8),
 )
 READBACK = (
     ("estimated speed rpm", REAL32),
@@ -129,8 +122,7 @@ def objects(node_id: int = 1) -> list:
         ),
         *_rpdo(0, 0x200, 0x2200, EDGE_FIELDS),
         *_rpdo(1, 0x300, 0x2201, SAMPLE_FIELDS),
-        *_rpdo(2, 0x400, 0x2202, SUMS_AB_FIELDS),
-        *_rpdo(3, 0x500, 0x2203, SUM_C_FIELDS),
+
         Group(
             0x2100,
             "Read-backs",
@@ -146,9 +138,9 @@ def objects(node_id: int = 1) -> list:
             + tuple(Entry(0x2101, k + 1, n, U32, "ro", "0") for k, n in enumerate(COUNTERS)),
         ),
         _mapped(0x2200, "Edge message v2 header (RPDO1)", EDGE_FIELDS),
-        _mapped(0x2201, "Edge message v2 ADC conversion (RPDO2, one per conversion)", SAMPLE_FIELDS),
-        _mapped(0x2202, "Edge message v2 accumulators a, b (RPDO3)", SUMS_AB_FIELDS),
-        _mapped(0x2203, "Edge message v2 accumulator c, conversions (RPDO4)", SUM_C_FIELDS),
+        _mapped(0x2201, "Edge message v2 data frame (RPDO2: a conversion, or an accumulator at 0xFD-0xFF)",
+                SAMPLE_FIELDS),
+
     ]
     return sorted(items, key=lambda o: o.index)
 

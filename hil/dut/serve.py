@@ -5,6 +5,8 @@ processes by a socketcand-protocol server (hil.dut.socketcand) bound to the give
 (127.0.0.1 unless asked); clients use python-can's own ``socketcand`` interface:
 ``CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=PORT)``.
 Modbus: TCP on host:port. Never all interfaces unless asked (``--host 0.0.0.0``).
+``--profile FILE`` serves the controller under a device profile (docs/device-profiles.md), so a
+profile can be tried before the hardware exists.
 """
 
 from __future__ import annotations
@@ -33,7 +35,13 @@ def serve(
     bus_name: str = "can0",
     limits: SocketcandLimits = SocketcandLimits(),
     idle_timeout_s: float | None = None,
+    profile: str | None = None,
 ) -> None:
+    """Serve until ``stop`` (or SIGINT / SIGTERM); ``profile``: a device profile the face of its
+    protocol serves instead of the virtual controller's own map (the other face keeps its own)."""
+    from .profile import load_profile
+
+    protocol = load_profile(profile).protocol if profile else None
     controller = VirtualController(PRESETS[preset]().motor, strategy=Strategy(strategy))
     closers = []
     if idle_timeout_s is not None:
@@ -44,7 +52,13 @@ def serve(
             from .socketcand import SocketcandServer
 
             channel = f"hil-dut-{id(controller)}"
-            device = CanopenDevice(controller, node_id=node_id, interface="virtual", channel=channel)
+            device = CanopenDevice(
+                controller,
+                node_id=node_id,
+                interface="virtual",
+                channel=channel,
+                profile=profile if protocol == "canopen" else None,
+            )
             closers.append(device.close)
             server = SocketcandServer(
                 host, canopen_port, bus_name=bus_name, interface="virtual", channel=channel, limits=limits
@@ -58,7 +72,12 @@ def serve(
             from .modbus_face import ModbusDevice
 
             mdev = ModbusDevice(
-                controller, host=host, port=modbus_port, unit=unit, idle_timeout_s=limits.idle_timeout_s
+                controller,
+                host=host,
+                port=modbus_port,
+                unit=unit,
+                idle_timeout_s=limits.idle_timeout_s,
+                profile=profile if protocol == "modbus" else None,
             )
             closers.append(mdev.close)
             print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)

@@ -11,7 +11,11 @@ reach it, and ``open_dut`` gives the one ``ControllerLink`` the acceptance suite
     canopen:interface=socketcand,channel=can0,host=127.0.0.1,port=29536,node=5   (hil dut serve, or a socketcand daemon)
     modbus-tcp:host=192.168.0.10,port=502,unit=1
     modbus-rtu:port=/dev/ttyUSB0,baud=115200,unit=1
+    modbus-tcp:host=192.168.0.10,profile=acme-p3.toml        (the device's own register map: docs/device-profiles.md)
+    virtual:modbus,profile=acme-p3.toml                      (the virtual controller served under that map)
 
+Every protocol form takes ``profile=FILE``, a device profile (``hil-device-profile/1``) mapping the
+framework's roles to the device's objects; without one, the virtual controller's own map.
 Every form takes ``timeout=SECONDS`` (default 1.0): a controller that stops answering fails
 the test within it, naming the request.
 """
@@ -30,7 +34,7 @@ KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu")
 VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
 #: keys each kind accepts, with a converter and a default (None: required)
 _KEYS = {
-    "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1)},
+    "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1), "profile": (str, "")},
     "canopen": {
         "interface": (str, None),
         "channel": (str, None),
@@ -40,9 +44,14 @@ _KEYS = {
         "host": (str, ""),
         "port": (int, 0),
         "timeout": (float, 1.0),
+        "profile": (str, ""),
     },
-    "modbus-tcp": {"host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0)},
-    "modbus-rtu": {"port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0)},
+    "modbus-tcp": {
+        "host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0), "profile": (str, "")
+    },
+    "modbus-rtu": {
+        "port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0), "profile": (str, "")
+    },
 }
 _channels = itertools.count()
 
@@ -115,7 +124,24 @@ def parse_dut(text: str) -> DutSpec:
         raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
     if kind == "canopen" and (why := unknown_can_interface(options["interface"])):
         raise DutSpecError(f"--hil-dut {text!r}: {why}")
+    if options["profile"]:
+        _check_profile(text, kind, transport, options["profile"])
     return DutSpec(kind, transport, options, text)
+
+
+def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
+    """A profile that cannot be read, or is for the other protocol, is refused before anything opens."""
+    from .profile import ProfileError, load_profile
+
+    try:
+        profile = load_profile(path)
+    except ProfileError as exc:
+        raise DutSpecError(f"--hil-dut {text!r}: profile {exc}") from None
+    protocol = transport if kind == "virtual" else ("canopen" if kind == "canopen" else "modbus")
+    if protocol == "in-process":
+        raise DutSpecError(f"--hil-dut {text!r}: the in-process link has no object dictionary for a profile")
+    if profile.protocol != protocol:
+        raise DutSpecError(f"--hil-dut {text!r}: {path} is a {profile.protocol} profile, the DUT speaks {protocol}")
 
 
 class Dut:
@@ -147,6 +173,7 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
     built for ``motor``)."""
     spec = parse_dut(spec) if isinstance(spec, str) else spec
     o = spec.options
+    profile = {"profile": o["profile"] or None, "pole_pairs": motor.pole_pairs}
     if spec.kind == "canopen":
         from .canopen_face import CanopenLink
 
@@ -159,17 +186,21 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
                 channel=o["channel"],
                 eds=o["eds"] or None,
                 timeout_s=o["timeout"],
+                profile=o["profile"] or None,
+                pole_pairs=motor.pole_pairs,
                 **bus,
             ),
         )
     if spec.kind == "modbus-tcp":
         from .modbus_face import ModbusLink
 
-        return Dut(spec, ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"]))
+        link = ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"], **profile)
+        return Dut(spec, link)
     if spec.kind == "modbus-rtu":
         from .modbus_face import ModbusLink
 
-        return Dut(spec, ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"]))
+        link = ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"], **profile)
+        return Dut(spec, link)
     from ..controller.virtual import VirtualController
     from .in_process import InProcessLink
 
@@ -180,17 +211,23 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
         from .canopen_face import CanopenDevice, CanopenLink
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
-        device = CanopenDevice(controller, node_id=o["node"], interface="virtual", channel=channel)
+        device = CanopenDevice(
+            controller, node_id=o["node"], interface="virtual", channel=channel, profile=profile["profile"]
+        )
         return _served(
             spec,
             device,
-            lambda: CanopenLink(node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"]),
+            lambda: CanopenLink(
+                node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"], **profile
+            ),
         )
     from .modbus_face import ModbusDevice, ModbusLink
 
-    device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"])
+    device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"], profile=profile["profile"])
     return _served(
-        spec, device, lambda: ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"])
+        spec,
+        device,
+        lambda: ModbusLink(host="127.0.0.1", port=device.port, unit=o["unit"], timeout_s=o["timeout"], **profile),
     )
 
 

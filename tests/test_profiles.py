@@ -1,0 +1,341 @@
+"""Device profiles (hil-device-profile/1): strict parsing, the shipped maps, a foreign map served
+and tested end to end (hil dut serve --profile, a raw Modbus client, hil dut check, hil acceptance)."""
+
+import json
+import math
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hil.budgets import REQUIREMENT_NEEDS, REQUIREMENTS
+from hil.dut.draft import draft_from_eds
+from hil.dut.od import EDS_PATH
+from hil.dut.profile import ROLES, SHIPPED, ProfileError, load_profile, shipped
+
+ROOT = Path(__file__).resolve().parent.parent
+FOREIGN = ROOT / "examples" / "acme-p3-modbus.toml"
+HEAD = 'format = "hil-device-profile/1"\nname = "t"\nprotocol = "modbus"\n'
+
+
+def _write(tmp_path, text: str) -> Path:
+    p = tmp_path / "p.toml"
+    p.write_text(text)
+    return p
+
+
+@pytest.mark.parametrize(
+    "body, where",
+    [
+        ("colour = 1\n", "p.toml: colour"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=1\ntype='float32'\nadress=2\n",
+         "[objects.speed_setpoint].adress"),
+        ("[objects.sped_setpoint]\ntable='holding'\naddress=1\ntype='float32'\n", "[objects.sped_setpoint]"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=1\ntype='float32'\nunit='s'\n",
+         "[objects.speed_setpoint].unit"),
+        ("[objects.speed_setpoint]\ntable='holding'\ntype='float32'\n", "[objects.speed_setpoint].address"),
+        ("[objects.strategy]\ntable='holding'\naddress=0\ntype='uint16'\n", "[objects.strategy].values"),
+        ("[objects.speed_setpoint]\ntable='input'\naddress=1\ntype='float32'\n", "[objects.speed_setpoint].table"),
+        ("[objects.reset]\ntable='holding'\naddress=1\ntype='uint16'\n", "[objects.reset].write"),
+        ("[objects.speed_actual]\ntable='input'\naddress=1\ntype='float32'\n"
+         "[objects.speed_setpoint]\ntable='input'\naddress=2\ntype='float32'\n", "[objects.speed_setpoint]"),
+        ("[faults]\nmap = { 0x3101 = 'hall_trouble' }\n", "[faults].map.0x3101"),
+        ("[edge_hook]\nkind='pdo'\nrx_cob_ids=[0x205]\ntx_cob_id=0x185\n", "[edge_hook].kind"),
+        ("[edge_hook]\nkind='mailbox'\nrequest_address=200\n", "[edge_hook].reply_address"),
+        ("[objects.speed_setpoint]\ntable='holding'\naddress=203\ntype='float32'\n"
+         "[edge_hook]\nkind='mailbox'\nrequest_address=200\nreply_address=300\n", "[edge_hook].request_address"),
+    ],
+)
+def test_a_bad_profile_names_file_table_and_key(tmp_path, body, where):
+    with pytest.raises(ProfileError) as info:
+        load_profile(_write(tmp_path, HEAD + body))
+    assert str(tmp_path / "p.toml") in str(info.value) and where in str(info.value), str(info.value)
+
+
+def test_a_coil_action_may_say_write_true(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[objects.clear_faults]\ntable='coil'\naddress=3\ntype='bool'\n"
+                            "write=true\n"))
+    assert p.get("clear_faults").write == 1 and p.get("clear_faults").to_registers(1) == [1]
+
+
+def test_scaled_little_endian_words_encode_as_the_modbus_spec_says(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[modbus]\nword_order='little'\n[objects.speed_setpoint]\n"
+                            "table='holding'\naddress=1\ntype='int32'\nscale=0.1\nunit='hz_e'\n")).bind(2)
+    obj = p.get("speed_setpoint")
+    raw = obj.to_raw(6000.0, 2)  # 6000 rpm at 2 pole pairs is 200 Hz electrical: 2000 counts of 0.1
+    assert raw == 2000 and obj.to_registers(raw) == [2000, 0]
+    assert obj.to_registers(obj.to_raw(-15.0, 2)) == [0xFFFF - 4, 0xFFFF]  # -0.5 Hz: -5 counts, two's complement
+    assert obj.from_raw(obj.from_registers([2000, 0]), 2) == pytest.approx(6000.0)
+
+
+def test_the_shipped_canopen_profile_agrees_with_the_shipped_eds(tmp_path):
+    """Types the profile states match the EDS; a profile without types takes them from the EDS."""
+    bound = shipped("canopen").bind(2, 5, str(EDS_PATH))  # a disagreement would raise
+    untyped = SHIPPED["canopen"].read_text().replace('type = "float32"\n', "").replace('type = "uint32"\n', "")
+    p = load_profile(_write(tmp_path, untyped))
+    with pytest.raises(ProfileError, match=r"\[objects.speed_setpoint\].type"):
+        p.bind(2, 5)
+    typed = p.bind(2, 5, str(EDS_PATH))
+    assert {r: o.type for r, o in typed.objects.items()} == {r: o.type for r, o in bound.objects.items()}
+    assert bound.edge_hook.rx_cob_ids == (0x205, 0x305) and bound.edge_hook.tx_cob_id == 0x185
+
+
+def test_a_draft_from_the_shipped_eds_finds_every_object_of_the_shipped_profile(tmp_path):
+    text = draft_from_eds(str(EDS_PATH))
+    assert text.count("# GUESS") >= 30  # each guessed role and value is marked
+    draft, own = load_profile(_write(tmp_path, text)), shipped("canopen")
+    where = {r: (o.index, o.subindex, o.count, o.type) for r, o in draft.objects.items()}
+    assert {r: (o.index, o.subindex, o.count, o.type) for r, o in own.objects.items()}.items() <= where.items()
+
+
+def test_every_role_a_requirement_needs_exists():
+    assert set(REQUIREMENT_NEEDS) == set(REQUIREMENTS)
+    for rid, need in REQUIREMENT_NEEDS.items():
+        assert set(need.get("roles", ())) <= set(ROLES), rid
+
+
+def _run(*args, timeout=600):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=ROOT,
+                          env=env, timeout=timeout)
+
+
+@pytest.fixture(scope="module")
+def served():
+    """The virtual controller in its own process under the foreign example profile."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil", "dut", "serve", "--modbus-port", "0", "--profile", str(FOREIGN)],
+        stdout=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    lines = [proc.stdout.readline().strip(), proc.stdout.readline().strip()]
+    assert lines[0].startswith("Modbus TCP unit 1: 127.0.0.1:") and lines[1] == "ready", lines
+    yield int(lines[0].rpartition(":")[2])
+    proc.terminate()
+    proc.wait(timeout=10)
+
+
+def test_a_plain_modbus_client_finds_the_values_where_the_foreign_profile_says(served):
+    from pymodbus.client import ModbusTcpClient
+
+    from hil.dut.modbus_face import ModbusLink
+
+    link = ModbusLink(port=served, profile=str(FOREIGN))
+    link.set_speed(6000.0)
+    link.set_strategy(2)  # kf
+    c = ModbusTcpClient("127.0.0.1", port=served)
+    assert c.connect()
+    try:
+        # holding 1000: strategy kf is the device's 12; 1001-1002: int32 0.1 rpm, low word first
+        assert c.read_holding_registers(1000, count=3, device_id=1).registers == [12, 60000, 0]
+        # the vendor id 0x00000B1D in input registers 3300-3301, low word first
+        assert c.read_input_registers(3300, count=2, device_id=1).registers == [0x0B1D, 0]
+        # the read-backs are input registers: the holding table has nothing at 3300
+        assert c.read_holding_registers(3300, count=1, device_id=1).exception_code == 2
+        link.write_role("pole_offset", [1.0, -0.5, 0.25, 0.0])  # deg_e; the device holds 0.001 deg_m
+        regs = c.read_holding_registers(1016, count=4, device_id=1).registers
+        assert [struct.unpack(">h", struct.pack(">H", r))[0] for r in regs] == [500, -250, 125, 0]
+    finally:
+        c.close()
+        link.set_strategy(3)
+        link.close()
+
+
+def test_hil_dut_check_accepts_the_foreign_profile(served):
+    r = _run("dut", "check", "--dut", f"modbus-tcp:host=127.0.0.1,port={served},profile={FOREIGN}")
+    assert r.returncode == 0, r.stderr
+    assert "x_firmware_build" in r.stdout and "input 3300" in r.stdout
+    assert "REQ-PROT-002  not testable" in r.stdout and "REQ-CAL-001   testable" in r.stdout
+
+
+def test_hil_dut_check_fails_on_an_object_the_device_refuses(served, tmp_path):
+    text = FOREIGN.read_text().replace("address = 3400", "address = 3999")  # not in the device's map
+    r = _run("dut", "check", "--dut", f"modbus-tcp:host=127.0.0.1,port={served},profile={_write(tmp_path, text)}")
+    assert r.returncode == 1 and "REFUSED" in r.stdout
+
+
+@pytest.mark.slow
+def test_acceptance_through_the_foreign_profile(served, tmp_path):
+    """Every requirement a Modbus device can show passes; the CANopen-only heartbeat requirement is
+    not testable (never green) until a budgets file puts it out of scope, with reason and owner."""
+    dut = f"modbus-tcp:host=127.0.0.1,port={served},profile={FOREIGN}"
+    r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), timeout=1200)
+    content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
+    verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+    assert verdicts.pop("REQ-PROT-002") == "not testable"
+    assert set(verdicts.values()) <= {"pass", "marginal"}, verdicts
+    assert len(verdicts) == len(REQUIREMENTS) - 1
+    assert r.returncode == 1 and content["verdict"] == "FAIL"
+    assert content["verdict_reasons"] == ["REQ-PROT-002: not testable with this profile"]
+    budgets = _write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\n'
+                     'reason = "Modbus: no heartbeat, no EMCY"\nowner = "test bench team"\n')
+    r = _run("acceptance", "--dut", dut, "--budgets", str(budgets), "--report-dir", str(tmp_path / "b"),
+             "--suite", "test_cases/test_protocol.py", "--", "-k", "not refused_calibration", timeout=600)
+    content = json.loads((tmp_path / "b" / "hil-report.json").read_text())
+    req = next(q for q in content["traceability"] if q["id"] == "REQ-PROT-002")
+    assert req["verdict"] == "out of scope" and req["waiver"]["owner"] == "test bench team"
+    assert content["verdict"] == "PASS" and r.returncode == 0, content["verdict_reasons"]
+
+
+def _record(nodeid, outcome, requirements, not_testable=None):
+    return {"nodeid": nodeid, "outcome": outcome, "requirements": requirements, "measurements": [],
+            "message": "", "not_testable": not_testable}
+
+
+def test_not_testable_is_never_pass_and_out_of_scope_never_hides_a_failure(tmp_path):
+    from hil.budgets import Budgets
+    from hil.report import requirement_verdict
+
+    skipped = _record("t::heartbeat", "skipped", ["REQ-PROT-002", "REQ-CAL-005"],
+                      {"reason": "lacks heartbeat_period", "requirements": ["REQ-PROT-002"]})
+    assert requirement_verdict("REQ-PROT-002", [skipped]) == ("not testable", None)
+    assert requirement_verdict("REQ-CAL-005", [skipped]) == ("not tested", None)  # its own needs are met
+    ran = _record("t::ok", "passed", ["REQ-PROT-002"])
+    assert requirement_verdict("REQ-PROT-002", [skipped, ran])[0] == "pass"  # another DUT showed it
+    budgets = Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\n'
+                                       'reason = "Modbus"\nowner = "me"\n'))
+    verdict, entry = requirement_verdict("REQ-PROT-002", [skipped], budgets.waivers)
+    assert verdict == "out of scope" and entry.owner == "me"
+    failed = _record("t::bad", "failed", ["REQ-PROT-002"])
+    assert requirement_verdict("REQ-PROT-002", [failed], budgets.waivers) == ("fail", None)
+
+
+def test_an_out_of_scope_entry_is_parsed_strictly(tmp_path):
+    from bldc.params import ConfigError
+    from hil.budgets import Budgets
+
+    with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.tests"):
+        Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'
+                                 'owner = "o"\ntests = ["x"]\n'))
+    with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.owner"):
+        Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'))
+
+
+FOREIGN_CANOPEN = ROOT / "examples" / "acme-p3-canopen.toml"
+
+
+@pytest.mark.slow
+def test_the_foreign_canopen_profile_passes_acceptance(tmp_path):
+    """The virtual controller under a foreign object dictionary (0x3000 objects, scaled integers,
+    its own strategy numbers and EMCY codes, RPDO3/4 and TPDO2): every requirement passes, the
+    heartbeat and EMCY ones included."""
+    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "--report-dir", str(tmp_path),
+             timeout=1200)
+    content = json.loads((tmp_path / "hil-report.json").read_text())
+    verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+    assert set(verdicts) == set(REQUIREMENTS) and set(verdicts.values()) <= {"pass", "marginal"}, verdicts
+    assert r.returncode == 0 and content["verdict"] == "PASS"
+
+
+@pytest.mark.slow
+def test_the_foreign_canopen_profile_served_over_socketcand_is_checked_and_conformant(tmp_path):
+    """``hil dut serve --profile`` over the socketcand port: the endpoint lines as before, hil dut
+    check reads every object, the conformance suite passes (heartbeat and EMCY included)."""
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", "0", "--profile", str(FOREIGN_CANOPEN)],
+        stdout=subprocess.PIPE, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)},
+    )
+    try:
+        lines = [proc.stdout.readline().strip(), proc.stdout.readline().strip()]
+        assert lines[0].startswith("CANopen node 5: interface=socketcand channel=can0 host=127.0.0.1 port=")
+        assert lines[1] == "ready", lines
+        port = int(lines[0].rpartition("port=")[2])
+        dut = f"canopen:interface=socketcand,channel=can0,host=127.0.0.1,port={port},node=5,profile={FOREIGN_CANOPEN}"
+        check = _run("dut", "check", "--dut", dut)
+        assert check.returncode == 0, check.stderr
+        assert "0x3010:01 x3" in check.stdout and "REQ-PROT-002  testable" in check.stdout
+        # over the socketcand port, the conformance suite (a lockstep bench there takes minutes per test)
+        r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), "--suite",
+                 "test_cases/test_protocol.py", timeout=600)
+        content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
+        verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
+        assert verdicts == {"REQ-PROT-001": "pass", "REQ-PROT-002": "pass", "REQ-PROT-003": "pass",
+                            "REQ-CAL-005": "pass"}, verdicts
+        assert r.returncode == 0 and content["verdict"] == "PASS"
+    finally:
+        proc.terminate()
+        proc.wait(timeout=10)
+
+
+def test_the_foreign_canopen_profile_encodes_as_it_says():
+    """Raw SDO uploads find the device's own numbers: strategy kf is 4, 6000 rpm is 628.32 rad/s
+    in hundredths, and a refused calibration's EMCY carries the device's code 0x5530."""
+    from hil.calibration.corrections import Corrections
+    from hil.controller.virtual import VirtualController
+    from hil.dut.canopen_face import CanopenDevice, CanopenLink
+    from hil.dut.link import LinkError
+    from plant_models import paper_bench
+
+    channel = f"profiles-{os.getpid()}"
+    dev = CanopenDevice(VirtualController(paper_bench().motor), node_id=7, channel=channel,
+                        profile=str(FOREIGN_CANOPEN))
+    link = CanopenLink(node_id=7, channel=channel, profile=str(FOREIGN_CANOPEN))
+    try:
+        link.set_strategy(2)
+        link.set_speed(6000.0)
+        assert struct.unpack("<H", link.node.sdo.upload(0x3000, 0)[:2])[0] == 4
+        hundredths = round(6000 * 2 * math.pi / 60 * 100)  # rpm -> mechanical rad/s, 0.01 per count
+        assert struct.unpack("<i", link.node.sdo.upload(0x3001, 0)[:4])[0] == hundredths
+        bad = [0.0] * 3 + [50.0, 0.0, 0.0, 0.0] + [0.0, 0.0, 0.0]  # a 50 deg_e pole offset is refused
+        with pytest.raises(LinkError, match="0x06090030"):
+            link.download_calibration(Corrections.from_vector(bad))
+        _, frame = link.emcy.get(timeout=1.0)
+        assert struct.unpack_from("<H", frame)[0] == 0x5530
+        assert struct.unpack("<I", link.node.sdo.upload(0x1003, 1)[:4])[0] == 0x5530
+        assert link.faults() == [0xFF04]  # the framework's invalid_calibration
+    finally:
+        link.close()
+        dev.close()
+
+
+def test_a_bad_profile_on_dut_is_refused_before_anything_opens(tmp_path):
+    from hil.dut.spec import DutSpecError, parse_dut
+
+    bad = _write(tmp_path, HEAD + "[objects.strategy]\ntable='holding'\naddress=0\ntype='uint16'\nvalue={raw=0}\n")
+    with pytest.raises(DutSpecError, match=r"p.toml: \[objects.strategy\].value"):
+        parse_dut(f"modbus-tcp:host=127.0.0.1,profile={bad}")
+    with pytest.raises(DutSpecError, match="is a canopen profile, the DUT speaks modbus"):
+        parse_dut(f"modbus-rtu:port=/dev/null,profile={FOREIGN_CANOPEN}")
+    assert parse_dut(f"virtual:modbus,profile={FOREIGN}").options["profile"] == str(FOREIGN)
+
+
+def test_a_reading_the_type_cannot_hold_saturates_on_the_device_and_is_refused_by_the_link(tmp_path):
+    p = load_profile(_write(tmp_path, HEAD + "[objects.identity_product]\ntable='input'\naddress=0\n"
+                            "type='uint16'\n")).bind(2)
+    obj = p.get("identity_product")
+    assert obj.to_raw(0x00480001, 2, saturate=True) == 0xFFFF
+    with pytest.raises(ValueError, match=r"outside uint16 \(0..65535\)"):
+        obj.to_raw(0x00480001, 2)
+
+
+def test_the_foreign_modbus_profile_over_rtu():
+    """modbus-rtu with profile=: input registers, a coil action and the mailbox over the serial
+    framer; another unit's request is not answered as this device's."""
+    from test_modbus import NullModem
+
+    from hil.controller.virtual import VirtualController
+    from hil.dut.link import LinkError
+    from hil.dut.modbus_face import ModbusDevice, ModbusLink
+    from plant_models import paper_bench
+
+    line = NullModem()
+    dev = ModbusDevice(VirtualController(paper_bench().motor), serial_port=line.a_path, profile=str(FOREIGN))
+    link = ModbusLink(serial_port=line.b_path, timeout_s=1.0, profile=str(FOREIGN))
+    try:
+        assert link.identity()["vendor_id"] == 0x0B1D  # input registers 3300-3301, low word first
+        link.reset()
+        link.set_speed(6000.0)
+        assert link.read(1001, 2) == [60000, 0]
+        assert isinstance(link.edge({"t_capture_s": 0.001, "sensor": 0, "rising": True, "current_a": 1.0}), list)
+        with pytest.raises(LinkError, match="exception code 02"):
+            link.read(3300, 1)  # the identity is in the input table, not the holding one
+        link.close()  # the serial port is locked by one client at a time
+        link = ModbusLink(serial_port=line.b_path, timeout_s=1.0, unit=2, profile=str(FOREIGN))
+        with pytest.raises(LinkError, match="exception code 11"):
+            link.read(1000, 1)
+    finally:
+        link.close()
+        dev.close()
+        line.close()
