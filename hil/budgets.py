@@ -136,6 +136,10 @@ REQUIREMENT_NEEDS = {
     "REQ-FLT-004": {"roles": ("strategy", *_CALIBRATION, *_FILTER, "guard_trips", "fault_code"), "edge_hook": True},
     "REQ-ROB-001": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True},
     "REQ-ROB-002": {"roles": ("strategy", *_CALIBRATION, "fault_code"), "edge_hook": True},
+    # judged on the plant's true currents and speed: the controller's own speed loop and set point
+    "REQ-CUR-001": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
+    "REQ-CUR-002": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
+    "REQ-SPD-001": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
 }
 
 

@@ -15,7 +15,7 @@ import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
 from hil.dut.link import LinkError
-from hil.dut.modbus_face import REPLY_WORDS, REQUEST_WORDS
+from hil.dut.profile import REPLY_WORDS, mailbox_words
 from hil.dut.profile import ROLES
 
 ABORT = {"no object": 0x06020000, "no sub-index": 0x06090011, "read-only": 0x06010002, "write-only": 0x06010001,
@@ -166,7 +166,7 @@ def _modbus_probe(profile, kind: str) -> tuple[str, bytes, int]:
         ends = [o.end for o in objects if o.table == table]
         hook = profile.edge_hook
         if hook.kind == "mailbox" and table == "holding":
-            ends += [hook.request_address + REQUEST_WORDS, hook.reply_address + REPLY_WORDS]
+            ends += [hook.request_address + mailbox_words(profile), hook.reply_address + REPLY_WORDS]
         end = max(ends)
         return f"read 1 {table} register at {end} (after the map)", struct.pack(">BHH", fc, end, 1), 0x02
     if kind == "quantity-0":

@@ -54,6 +54,36 @@ def suite_files(suite: Path) -> list[str]:
     return [str(suite / f) for f in ordered]
 
 
+def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tuple[str | None, dict[str, str]]:
+    """A budgets file that takes out of scope each requirement the DUT form's profile cannot show
+    (hil.budgets.REQUIREMENT_NEEDS: the Modbus controller has no heartbeat and no EMCY), over the
+    user's ``budgets``; its path (None when nothing is out of scope) and the requirements with why."""
+    from ..budgets import REQUIREMENTS, missing_needs
+    from ..dut.profile import load_profile, shipped
+    from ..dut.spec import parse_dut
+
+    spec = parse_dut(dut)
+    if not spec.is_virtual or spec.transport not in ("canopen", "modbus"):
+        raise ValueError(f"hil qualify seeds defects into the built-in controller: give virtual:canopen or "
+                         f"virtual:modbus (with profile=FILE if you like), not {dut}")
+    path = spec.options.get("profile")
+    profile = load_profile(path) if path else shipped(spec.transport)
+    lacking = {}
+    for rid in REQUIREMENTS:
+        missing = missing_needs([rid], profile.has, profile.edge_hook.kind, profile.fault_sources)
+        if missing:
+            lacking[rid] = f"not testable on {dut} (its profile lacks {', '.join(missing)})"
+    if not lacking:
+        return budgets, {}
+    text = Path(budgets).read_text() + "\n" if budgets else ""
+    for rid, why in lacking.items():
+        text += f'\n[[out_of_scope]]\nrequirement = "{rid}"\nreason = "{why}"\nowner = "hil qualify"\n'
+    directory.mkdir(parents=True, exist_ok=True)
+    out = directory / "qualify-budgets.toml"
+    out.write_text(text)
+    return str(out), lacking
+
+
 def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
     cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", args.dut,
@@ -83,7 +113,9 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     verdict = report.get("verdict", "no verdict")
     failed_reqs = [r["id"] for r in report.get("traceability", []) if r.get("verdict") in ("fail", "error")]
     failed_tests = [t["nodeid"] for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
-    return Run(name, description, verdict, verdict != "PASS", failed_reqs, failed_tests, duration, str(report_json),
+    # caught: a test of the suite failed (a verdict short of PASS for another reason, a requirement
+    # the run could not test, is not a catch)
+    return Run(name, description, verdict, bool(failed_tests), failed_reqs, failed_tests, duration, str(report_json),
                note)
 
 
@@ -96,6 +128,9 @@ def qualify(args, progress=print) -> dict:
     unknown = [n for n in names if n not in CATALOGUE]
     if unknown:
         raise ValueError(f"unknown defect(s) {', '.join(unknown)}; known: {', '.join(CATALOGUE)}")
+    args.budgets, out_of_scope = out_of_scope_budgets(args.dut, args.budgets, Path(args.report_dir))
+    for rid, why in out_of_scope.items():
+        progress(f"out of scope: {rid}: {why}")
     jobs = [("control", "the built-in controller as shipped", None)] + [
         (n, CATALOGUE[n].description, n) for n in names
     ]
@@ -121,6 +156,7 @@ def qualify(args, progress=print) -> dict:
         "dut": args.dut,
         "seed": args.seed,
         "control_verdict": control.verdict,
+        "out_of_scope": out_of_scope,
         "control": asdict(control),
         "mutants": [asdict(m) for m in mutants],
         "detection": {

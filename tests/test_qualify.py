@@ -1,0 +1,118 @@
+"""hil qualify: the catalogue of seeded firmware defects and the runner that judges the suite by them."""
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from bldc.contract import Strategy
+from hil.calibration.corrections import Corrections
+from hil.controller.virtual import VirtualController
+from hil.qualify import defects as D
+from hil.qualify.defects import CATALOGUE, load_defects
+from plant_models import paper_bench
+
+ROOT = Path(__file__).resolve().parents[1]
+MOTOR = paper_bench().motor
+TABLE = Corrections(
+    installation_offset_deg_e={"A": 1.0, "B": -2.0, "C": 3.0},
+    pole_offset_deg_e=[0.5, -1.5, 2.5, -3.5],
+    conditioning_delay_s={"rise": 20e-6, "fall": 5e-6},
+    armature_reaction_deg_e_per_a=0.4,
+)
+
+
+def test_the_catalogue_holds_at_least_twelve_kinds_each_a_controller():
+    assert len(CATALOGUE) >= 12
+    for d in CATALOGUE.values():
+        controller = d.controller(MOTOR)
+        assert isinstance(controller, VirtualController) and type(controller) is not VirtualController
+        assert d.description and d.name == d.name.lower()
+
+
+@pytest.mark.parametrize("name", [n for n, d in CATALOGUE.items() if issubclass(d.controller, D._WrongTable)])
+def test_a_wrong_table_defect_reads_back_the_table_it_does_not_apply(name):
+    c = CATALOGUE[name].controller(MOTOR)
+    c.download_calibration(TABLE)
+    c.set_strategy(int(Strategy.CORRECTED))
+    assert c.corrections == TABLE  # what a read-back sees
+    assert c._logic.corrections != TABLE  # what the commutation applies
+
+
+def test_the_current_sampling_defect_reads_at_the_capture():
+    c = CATALOGUE["current-sampled-at-capture"].controller(MOTOR)
+    good = VirtualController(MOTOR)
+    for controller in (c, good):
+        controller.download_calibration(TABLE)
+        controller.set_strategy(int(Strategy.CORRECTED))
+    assert good._applied_delay_s(True) == TABLE.conditioning_delay_s["rise"] and c._applied_delay_s(True) == 0.0
+
+
+def test_a_users_defects_file_joins_the_catalogue(tmp_path):
+    f = tmp_path / "mine.py"
+    f.write_text(
+        "from hil.qualify.defects import defect\n"
+        "from hil.controller.virtual import VirtualController\n\n"
+        "@defect('test-speed-gain-x10', 'the speed PI ten times too stiff')\n"
+        "class Stiff(VirtualController):\n"
+        "    kp_per_rpm: float = 1e-3\n"
+    )
+    try:
+        assert load_defects(f) == ["test-speed-gain-x10"]
+        assert CATALOGUE["test-speed-gain-x10"].controller(MOTOR).kp_per_rpm == 1e-3
+        with pytest.raises(ValueError, match="registered twice"):
+            load_defects(f)
+    finally:
+        CATALOGUE.pop("test-speed-gain-x10", None)
+    empty = tmp_path / "empty.py"
+    empty.write_text("x = 1\n")
+    with pytest.raises(ValueError, match="empty.py registers no defect"):
+        load_defects(empty)
+    with pytest.raises(FileNotFoundError, match="nope.py does not exist"):
+        load_defects(tmp_path / "nope.py")
+
+
+def _hil(*args, cwd=ROOT, timeout=900):
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    return subprocess.run([sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=cwd, env=env,
+                          timeout=timeout)
+
+
+def test_qualify_lists_its_catalogue():
+    r = _hil("qualify", "--list")
+    assert r.returncode == 0, r.stderr
+    assert all(name in r.stdout for name in CATALOGUE)
+
+
+def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_path):
+    """A small suite (the fault tests): the control PASSes, a controller that validates no table is
+    caught by REQ-CAL-005, and one that never limits its current is not (the fault tests do
+    not step the speed): a survivor, and the exit status says so."""
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    for name in ("conftest.py", "test_faults.py"):
+        shutil.copy(ROOT / "test_cases" / name, suite / name)
+    out = tmp_path / "q.json"
+    r = _hil("qualify", "--suite", str(suite), "--only", "no-table-validation,current-limit-not-enforced",
+             "--report-dir", str(tmp_path / "reports"), "--json", str(out))
+    assert r.returncode == 1, r.stdout + r.stderr  # a survivor
+    result = json.loads(out.read_text())
+    assert result["control_verdict"] == "PASS"
+    assert result["out_of_scope"] == {"REQ-PROT-002": result["out_of_scope"]["REQ-PROT-002"]}
+    mutants = {m["name"]: m for m in result["mutants"]}
+    assert mutants["no-table-validation"]["killed"] and "REQ-CAL-005" in mutants["no-table-validation"]["killed_by"]
+    assert not mutants["current-limit-not-enforced"]["killed"]
+    assert result["detection"] == {"killed": 1, "total": 2, "ratio": 0.5}
+    assert result["survivors"] == ["current-limit-not-enforced"]
+    assert "caught 1 of 2 defects (50 %)" in r.stdout
+
+
+def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
+    r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "--report-dir", str(tmp_path))
+    assert r.returncode == 2 and "built-in controller" in r.stderr
+    r = _hil("qualify", "--only", "no-such-defect", "--report-dir", str(tmp_path))
+    assert r.returncode == 2 and "unknown defect(s) no-such-defect" in r.stderr
