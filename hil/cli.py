@@ -31,12 +31,51 @@ def cmd_demo(args) -> int:
 def cmd_recording_check(args) -> int:
     rec = read_recording(args.recording)
     channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
+    if rec.ordinary:
+        pp = rec.stated_pole_pairs
+        print(
+            f"{args.recording}: hil-recording/1, {len(rec)} edges, one ordinary run (no segments: speed, direction "
+            f"and reversals come from the edges), pole_pairs {pp if pp else 'not stated'}, timer_tick_s "
+            f"{rec.timer_tick_s or 'unknown'}, samples {f'yes ({channels})' if rec.samples else 'no'}"
+        )
+        return 0
     print(
         f"{args.recording}: hil-recording/1, {len(rec)} edges, {len(rec.segments)} segments "
         f"({', '.join(rec.segment_ids)}), pole_pairs {rec.pole_pairs}, "
         f"reference angle {'yes' if rec.ref_angle_mech_deg is not None else 'no'}, "
         f"samples {f'yes ({channels})' if rec.samples else 'no'}"
     )
+    return 0
+
+
+def cmd_recording_import(args) -> int:
+    from .recording import write_recording
+    from .signals.hall import capture_recording, parse_channels, read_hall_capture
+
+    cap = read_hall_capture(
+        args.capture,
+        parse_channels(args.channels) if args.channels else None,
+        sample_rate_hz=args.sample_rate_hz,
+        time_column=args.time_column,
+        active_low=tuple(x.strip().upper() for x in args.active_low.split(",") if x.strip()) if args.active_low else (),
+    )
+    rec = capture_recording(cap, args.pole_pairs, source=Path(args.capture).name)
+    write_recording(rec, args.out)
+    n_rise = int(cap.rising.sum())
+    print(f"{args.capture}: {len(rec)} Hall edges ({n_rise} rising, {len(rec) - n_rise} falling)")
+    print(f"  channels: {', '.join(f'{k}={v}' for k, v in cap.channels.items())}")
+    tick = f"{cap.timer_tick_s:.6g} s" if cap.timer_tick_s else "unknown"
+    print(f"  timer_tick_s: {tick} (from {cap.tick_source})")
+    for note in cap.notes:
+        print(f"  note: {note}")
+    if args.pole_pairs:
+        print(f"  pole_pairs: {args.pole_pairs} (stated)")
+    else:
+        print(
+            "  pole_pairs: not stated; `hil calibrate` looks for the pole pattern in the edges and says what it "
+            "assumes (give --pole-pairs N if you know it; speeds in rpm need it)"
+        )
+    print(f"  written to {args.out} as one ordinary run (no segments)")
     return 0
 
 
@@ -64,6 +103,8 @@ def cmd_calibrate(args) -> int:
         write_recording(rec, args.recording)
         print(f"campaign: {len(rec.segments)} operating points, {len(rec)} edges written to {args.recording}")
     rec = read_recording(args.recording)
+    if rec.ordinary or _no_forward_without_encoder(rec):
+        return _calibrate_ordinary(rec, args)
     corr = fit_corrections(rec)
     fmt = lambda d: ", ".join(f"{k} {v:+.4f}" for k, v in d.items())  # noqa: E731
     print(f"{args.recording}: {corr.info.get('method')}")
@@ -79,6 +120,60 @@ def cmd_calibrate(args) -> int:
     if args.json:
         corr.write_json(args.json)
         print(f"corrections written to {args.json}")
+    return 0
+
+
+def _no_forward_without_encoder(rec) -> bool:
+    """Steady segments without an encoder, none of them forward: the paper's route (Eq. 2, 6 on
+    forward turns) has nothing to read; the ordinary-run model reads either direction."""
+    return rec.ref_angle_mech_deg is None and all(s.direction != "forward" for s in rec.segments)
+
+
+def _calibrate_ordinary(rec, args) -> int:
+    from .calibration.ordinary import Circuit, calibrate_ordinary, hall_steps
+
+    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
+    circuit = Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s)
+    out = calibrate_ordinary(
+        steps, tick_s=rec.timer_tick_s, pole_pairs=rec.stated_pole_pairs, circuit=circuit, source=str(args.recording)
+    )
+    a = out["assumptions"]
+
+    def pm(d, scale=1.0, unit=""):
+        if d.get("value") is None:
+            return f"not given: {d.get('reason')}"
+        return f"{d['value'] * scale:+.4g} +- {d['stderr'] * scale:.2g}{unit}"
+
+    print(f"{args.recording}: {out['info']['method']}")
+    print(f"  direction: {a['direction']}; {a['edges_used']} of {a['edges']} edges in {a['runs']} run(s)")
+    print(
+        f"  speed range: {a['speed_range_hz_e'][0]:.1f}-{a['speed_range_hz_e'][1]:.1f} Hz electrical (5-95 %); "
+        f"steadiness: {a['steadiness']}"
+    )
+    print(
+        f"  removed: {a['glitches_removed']} glitch(es), {a['invalid_states_dropped']} invalid-state edge(s), "
+        f"{a['stalls_split']} stall(s) split, {a['reversals']} reversal(s) split, {a['outlier_edges']} outlier(s)"
+    )
+    print(f"  timer_tick_s: {a['timer_tick_s'] or 'unknown'}; pole pairs: {a['pole_pairs_source']}")
+    print(f"  rise_fall_delay_difference_s:    {pm(out['rise_fall_delay_difference_s'], 1e6, ' us')}")
+    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(out['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}")
+    ind = out["independent_estimate"]
+    if ind:
+        print(
+            f"  independent (sector widths vs speed): delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
+            f"angle {pm(ind['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}"
+        )
+    inst = out["installation_offset_deg_e"]
+    print(f"  installation_offset_deg_e (relative): {', '.join(f'{k} {v:+.3f}' for k, v in inst.items())}")
+    poles = out["pole_offset_deg_e"]
+    print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
+    print(f"  delay bound: {a['delay_bound_s'] * 1e6:.0f} us ({a['delay_bound']})")
+    for r in out["refused"]:
+        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
+    for quantity, why in out["undetermined"].items():
+        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    if args.json:
+        _write_json(args.json, out)
     return 0
 
 
@@ -539,6 +634,21 @@ def build_parser() -> argparse.ArgumentParser:
     q = rs.add_parser("check", help="validate a recording directory")
     q.add_argument("recording")
     q.set_defaults(func=cmd_recording_check)
+    q = rs.add_parser(
+        "import", help="a logic-analyser capture of the three Hall lines (VCD, sigrok .sr, CSV) as a recording"
+    )
+    q.add_argument("capture", help="VCD, sigrok session (.sr) or CSV (time or sample index, three levels)")
+    q.add_argument("--out", required=True, help="recording directory to write")
+    q.add_argument(
+        "--channels", help="A=NAME,B=NAME,C=NAME (default: hall_a, hall_b, hall_c if present, else the first three)"
+    )
+    q.add_argument(
+        "--sample-rate-hz", type=float, help="the capture's sample rate (default: from the file's time base)"
+    )
+    q.add_argument("--time-column", help="CSV: the time or sample-index column (default: the first)")
+    q.add_argument("--active-low", help="sensors whose line reads 0 when the Hall element is on, e.g. A,B,C")
+    q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (written to meta.json)")
+    q.set_defaults(func=cmd_recording_import)
 
     p = sub.add_parser("plant", help="the plant model")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
@@ -569,6 +679,11 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
     p.add_argument("--turns", type=int, default=200, help="mechanical turns per operating point (--campaign)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pullup-ohm", type=float, help="Hall pull-up resistor (with --filter-farad: the delay bound)")
+    p.add_argument("--filter-farad", type=float, help="Hall filter capacitor (with --pullup-ohm: the delay bound)")
+    p.add_argument(
+        "--delay-max-s", type=float, help="stated maximum conditioning delay (default: 1 ms, open-collector wiring)"
+    )
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser(
