@@ -261,6 +261,8 @@ def cmd_gap_diagnose(args) -> int:
             )
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
         rec = read_trace(args.recording, mapping, args.meta)
+    if rec.ordinary:
+        return _gap_diagnose_ordinary(rec, args)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
     print(
@@ -310,6 +312,66 @@ def cmd_gap_diagnose(args) -> int:
         print(f"diagnosis written to {args.json}")
     if args.html:
         write_html(args.html, str(args.recording), rec, d, model)
+        print(f"report written to {args.html}")
+    return 0
+
+
+def _gap_diagnose_ordinary(rec, args) -> int:
+    from .calibration.ordinary import hall_steps
+    from .gap.ordinary import diagnose_ordinary, write_html
+
+    if args.model:
+        print(
+            f"{args.recording}: --model is not used for an ordinary run (capture times only): the model is an ideal "
+            "motor with ideal sensors on a smooth speed trajectory",
+            file=sys.stderr,
+        )
+    d, parts = diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising))
+    extra = parts["extra"]
+    print(
+        f"{args.recording}: ordinary run, gap {d.gap_before:.4g} deg e (systematic edge-angle residual against an "
+        f"ideal motor on a smooth trajectory), {'SIGNIFICANT' if d.significant else 'within the noise floor'} "
+        f"(p = {d.p_value:.2g})"
+    )
+    print(f"  pole pairs: {extra['pole_pairs_source']}")
+    accepted = [a["effect"] for a in d.accepted]
+    for i, r in enumerate(d.ranking, 1):
+        mark = "   accepted" if r["effect"] in accepted else ""
+        print(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{mark}")
+    for a in d.accepted:
+        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
+    for pair in d.confounded:
+        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
+    if d.heldout_shrink is not None:
+        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
+        print(
+            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
+            f"{d.heldout_note}"
+        )
+    else:
+        print(f"  held-out: {d.heldout_note}")
+    rep = extra["repeatability"]
+    parts_rep = []
+    if "rise_fall_delay_difference_s" in rep:
+        a, b = rep["rise_fall_delay_difference_s"]
+        parts_rep.append(
+            f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
+        )
+    if "static_parameters_rms_difference_deg_e" in rep:
+        parts_rep.append(
+            f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their RMS "
+            f"{rep['static_parameters_rms_deg_e']:.3g})"
+        )
+    print(f"  split-half repeatability: {'; '.join(parts_rep) or rep.get('note', 'no figure')}")
+    for n in d.not_assessed:
+        print(f"  not assessed: {n}")
+    if args.json:
+        out = d.to_json()
+        out.update(extra)
+        _write_json(args.json, out)
+    if args.html:
+        write_html(args.html, str(args.recording), d, parts)
         print(f"report written to {args.html}")
     return 0
 

@@ -230,7 +230,12 @@ class Effects:
     static: bool = True  #: an offset per sensor boundary and direction (sum zero)
     delay: bool = True  #: the rise-minus-fall delay difference
     pole_pairs: int | None = None  #: pole offsets (two sum-zero sets: N and S boundaries)
-    per_sensor_only: bool = False  #: static offsets alike for both polarities (installation only)
+    #: the static offsets split as the gap diagnosis names them (used instead of ``static``):
+    install: bool = False  #: per sensor, both polarities alike (installation offset)
+    switching: bool = False  #: per sensor, rise minus fall, constant in angle (switching points, hysteresis)
+    #: a speed ripple locked to the sectors (six-step commutation torque ripple): the angle at each
+    #: sector boundary moves by a torque pattern over J w^2, i.e. per boundary times (w_ref / w)^2
+    ripple: bool = False
 
 
 def knot_spacing_edges(pole_pairs: int | None, knot_cycles: float = KNOT_CYCLES) -> float:
@@ -258,18 +263,29 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
             here = steps.direction[idx] == sgn
             if not here.any():
                 continue
-            if eff.per_sensor_only:
-                groups = SENSOR_OF_BOUNDARY[np.mod(lab, 3)]
-                z = _sum_zero_basis(3)
-                ind = np.eye(3)[groups]
-                keys = [f"inst_{dname}_{j}" for j in range(2)]
-            else:
-                z = _sum_zero_basis(6)
-                ind = np.eye(6)[lab]
-                keys = [f"static_{dname}_{j}" for j in range(5)]
-            block = (ind @ z) * (tau * d * here)[:, None]
-            cols.append(block)
-            names += keys
+            z = _sum_zero_basis(6)
+            cols.append((np.eye(6)[lab] @ z) * (tau * d * here)[:, None])
+            names += [f"static_{dname}_{j}" for j in range(5)]
+    sensor = SENSOR_OF_BOUNDARY[np.mod(lab, 3)]
+    for sgn, dname in ((1, "fwd"), (-1, "rev")):
+        here = steps.direction[idx] == sgn
+        if not here.any():
+            continue
+        if eff.install and not eff.static:
+            cols.append((np.eye(3)[sensor] @ _sum_zero_basis(3)) * (tau * d * here)[:, None])
+            names += [f"inst_{dname}_{j}" for j in range(2)]
+        if eff.switching and not eff.static:
+            half = np.where(steps.rising[idx], 0.5, -0.5)  # trails on rising edges, leads on falling
+            cols.append(np.eye(3)[sensor] * (tau * half * here)[:, None])
+            names += [f"switch_{dname}_{SENSORS[x]}" for x in range(3)]
+    if eff.ripple:
+        for sgn, dname in ((1, "fwd"), (-1, "rev")):
+            here = steps.direction[idx] == sgn
+            if here.any():
+                # (w_ref / w)^2 with w_ref = 10 Hz electrical: the coefficient is the angle at 10 Hz
+                scale = (10.0 * 360.0 * tau) ** 2
+                cols.append((np.eye(6)[lab] @ _sum_zero_basis(6)) * (tau * scale * here)[:, None])
+                names += [f"ripple_{dname}_{j}" for j in range(5)]
     if eff.delay:
         cols.append(np.where(steps.rising[idx], 0.5, -0.5)[:, None])
         names.append("delay_diff_s")
