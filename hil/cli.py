@@ -134,7 +134,7 @@ def _calibrate_ordinary(rec, args) -> int:
 
     steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
     circuit = Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s)
-    out = calibrate_ordinary(
+    out, fit = calibrate_ordinary(
         steps, tick_s=rec.timer_tick_s, pole_pairs=rec.stated_pole_pairs, circuit=circuit, source=str(args.recording)
     )
     a = out["assumptions"]
@@ -174,6 +174,11 @@ def _calibrate_ordinary(rec, args) -> int:
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
     if args.json:
         _write_json(args.json, out)
+    if args.plot:
+        from .gap.ordinary import save_sector_width_figure
+
+        save_sector_width_figure(args.plot, steps, fit, f"{Path(str(args.recording)).name}: sector width against speed")
+        print(f"sector widths before and after calibration plotted to {args.plot}")
     return 0
 
 
@@ -746,6 +751,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument(
         "--delay-max-s", type=float, help="stated maximum conditioning delay (default: 1 ms, open-collector wiring)"
     )
+    p.add_argument("--plot", help="ordinary run: save sector width against speed, before and after calibration (PNG)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser(

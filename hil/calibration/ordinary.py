@@ -644,8 +644,9 @@ def calibrate_ordinary(
     pole_pairs: int | None = None,
     circuit: Circuit | None = None,
     source: str = "",
-) -> dict:
-    """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md)."""
+) -> tuple[dict, Fit]:
+    """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
+    and the fit it comes from."""
     circuit = circuit or Circuit()
     refused: list[dict] = []
     undetermined: dict[str, str] = {}
@@ -806,4 +807,4 @@ def calibrate_ordinary(
             "source": source,
             "edges": int(steps.t_s.size),
         },
-    }
+    }, fit

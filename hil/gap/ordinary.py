@@ -426,6 +426,15 @@ def sector_width_figure(steps: HallSteps, fit: Fit, title: str = ""):
     return fig
 
 
+def save_sector_width_figure(path, steps: HallSteps, fit: Fit, title: str = "") -> None:
+    from pathlib import Path
+
+    fig = sector_width_figure(steps, fit, title)
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90)
+    pyplot().close(fig)
+
+
 _HTML = """<!doctype html><html><head><meta charset="utf-8"><title>Gap diagnosis: {{ name }}</title>
 <style>body{font-family:sans-serif;max-width:1100px;margin:2em auto}td,th{padding:2px 8px;text-align:left}</style>
 </head><body>
