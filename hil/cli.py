@@ -242,6 +242,21 @@ def _write_json(path: str, data: dict) -> None:
     print(f"wrote {path}")
 
 
+def _print_verdict(d) -> None:
+    """The confounded pairs, the remainder and the held-out figure of a diagnosis."""
+    for pair in d.confounded:
+        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
+    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
+        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
+        print(
+            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
+            f"{d.heldout_note}"
+        )
+    else:
+        print(f"  held-out: {d.heldout_note}")
+
+
 def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
@@ -300,17 +315,7 @@ def cmd_gap_diagnose(args) -> int:
             f"{rel.get('floor', float('nan')):.3g} "
             f"{rel.get('unit', '')}: {rel.get('meaning', '')})"
         )
-    for pair in d.confounded:
-        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
-    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
-    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
-        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
-        print(
-            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
-            f"{d.heldout_note}"
-        )
-    else:
-        print(f"  held-out: {d.heldout_note}")
+    _print_verdict(d)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(d.to_json(), indent=2) + "\n")
@@ -345,17 +350,7 @@ def _gap_diagnose_ordinary(rec, args) -> int:
         print(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{mark}")
     for a in d.accepted:
         print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
-    for pair in d.confounded:
-        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
-    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
-    if d.heldout_shrink is not None:
-        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
-        print(
-            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
-            f"{d.heldout_note}"
-        )
-    else:
-        print(f"  held-out: {d.heldout_note}")
+    _print_verdict(d)
     rep = extra["repeatability"]
     parts_rep = []
     if "rise_fall_delay_difference_s" in rep:

@@ -241,6 +241,11 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps) -> tuple[Diagnosis, dict
             f"{before_h:.3g} deg e"
         )
         remainder_p = _p_value(c1)
+        if shrink is not None and shrink <= 0:
+            note += (
+                "; the accepted effects do not hold on the held-out stretches (the gap grew): treat them as not "
+                "established by this capture"
+            )
     else:
         remainder_p = p0
     unexplained = bool(significant and remainder_p < ALPHA)
