@@ -95,6 +95,7 @@ def cmd_plant_simulate(args) -> int:
 def cmd_calibrate(args) -> int:
     from .calibration.campaign import CalibrationCampaign
     from .calibration.fit import fit_corrections
+    from .calibration.ordinary import pole_table_refusal
     from .recording import write_recording
 
     if args.campaign:
@@ -117,9 +118,13 @@ def cmd_calibrate(args) -> int:
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
     for quantity, why in corr.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    # a value beyond its physical bound is refused with the reason, never written as a table entry
+    refusal = pole_table_refusal(corr.pole_offset_deg_e)
+    if refusal:
+        print(f"  REFUSED {refusal['field']}: {refusal['reason']}", file=sys.stderr)
+        corr.pole_offset_deg_e = []
     if args.json:
-        corr.write_json(args.json)
-        print(f"corrections written to {args.json}")
+        _write_json(args.json, {**corr.to_json_dict(), "refused": [refusal] if refusal else []})
     return 0
 
 

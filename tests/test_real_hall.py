@@ -330,3 +330,35 @@ def test_pole_of_boundary_walks_each_sensor_through_the_poles():
     for x_mod in range(3):  # one sensor: consecutive boundaries of it are consecutive poles
         seq = b[m % 3 == x_mod]
         assert np.all(np.diff(seq) % 8 == 1)
+
+
+def test_steady_windows_taken_as_segments_get_their_humps_refused(tmp_path, capsys):
+    """The issue's first try: the hoverboard's speed cycles cut into 0.5 s windows taken as steady
+    segments (lines relabelled to run forward) give pole offsets far beyond +-10 deg e; they are
+    refused, never written."""
+    from hil.recording import Segment
+
+    cap = read_hall_capture(HBOARD)
+    rec = capture_recording(cap, pole_pairs=15)
+    rec.sensor = np.array([0, 2, 1])[rec.sensor]  # forward
+    edges_t = rec.t_s
+    starts = np.arange(edges_t[0], edges_t[-1] - 0.5, 0.5)
+    segs = []
+    for i, t0 in enumerate(starts):
+        sel = (edges_t >= t0) & (edges_t < t0 + 0.5)
+        if sel.sum() < 12:
+            continue
+        rpm = sel.sum() / 6.0 / 0.5 / 15 * 60.0  # measured per window
+        segs.append(Segment(f"w{i:02d}", float(t0), float(t0 + 0.5), "forward", float(rpm), 0.0, 1.0))
+    rec.segments = segs
+    index = np.full(edges_t.size, -1)
+    for k, s in enumerate(segs):
+        index[(edges_t >= s.t_start_s) & (edges_t < s.t_end_s)] = k
+    keep = index >= 0
+    rec.t_s, rec.sensor, rec.rising, rec.segment = edges_t[keep], rec.sensor[keep], rec.rising[keep], index[keep]
+    write_recording(rec, tmp_path / "win")
+    assert main(["calibrate", str(tmp_path / "win"), "--json", str(tmp_path / "c.json")]) == 0
+    out = json.loads((tmp_path / "c.json").read_text())
+    assert out["pole_offset_deg_e"] == []
+    assert out["refused"] and out["refused"][0]["field"] == "pole_offset_deg_e"
+    assert "REFUSED pole_offset_deg_e" in capsys.readouterr().err

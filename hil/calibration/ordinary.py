@@ -637,6 +637,20 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
 
 
+def pole_table_refusal(poles: list[float]) -> dict | None:
+    """The refusal of a pole table with an entry beyond the controller's bound, or None. A table
+    with a hole would be worse than none: the whole table is refused."""
+    out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
+    if not out:
+        return None
+    return {
+        "field": "pole_offset_deg_e",
+        "reason": f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
+        f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is not the "
+        "motor's, or a speed change inside a segment taken as steady); the table is not written",
+    }
+
+
 def calibrate_ordinary(
     steps: HallSteps,
     *,
@@ -723,17 +737,9 @@ def calibrate_ordinary(
             for i in range(pole_pairs):
                 table[2 * i + parity], se[2 * i + parity] = pf.combination(dict(zip(keys, z[i])))
         poles, poles_se = [float(v) for v in table], [float(v) for v in se]
-        out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
-        if out:
-            refused.append(
-                {
-                    "field": "pole_offset_deg_e",
-                    "reason": f"pole(s) {', '.join(map(str, out))} at "
-                    f"{', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
-                    f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is "
-                    "not the motor's, or a trajectory the model does not follow); the table is not written",
-                }
-            )
+        refusal = pole_table_refusal(poles)
+        if refusal:
+            refused.append(refusal)
             poles, poles_se = [], []
     else:
         undetermined["pole_offset_deg_e"] = p_source
