@@ -217,8 +217,16 @@ def test_gap_diagnose_names_the_delay_and_shrinks_the_held_out_gap(tmp_path, cap
     out_json, out_html = tmp_path / "gap.json", tmp_path / "gap.html"
     assert main(["gap", "diagnose", str(rec_dir), "--json", str(out_json), "--html", str(out_html)]) == 0
     d = json.loads(out_json.read_text())
-    for key in ("significant", "ranking", "accepted", "confounded", "unexplained", "gap_before",
-                "gap_after_heldout", "heldout_shrink"):
+    for key in (
+        "significant",
+        "ranking",
+        "accepted",
+        "confounded",
+        "unexplained",
+        "gap_before",
+        "gap_after_heldout",
+        "heldout_shrink",
+    ):
         assert key in d
     assert d["significant"] and d["gap_before"] > 3.0
     assert d["ranking"][0]["effect"] == "conditioning_delay" and d["ranking"][0]["score"] > 0.9
