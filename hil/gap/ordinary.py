@@ -391,7 +391,8 @@ def sector_width_figure(steps: HallSteps, fit: Fit, title: str = ""):
     fig, axes = plt.subplots(1, 2, figsize=(11, 4), sharey=True)
     idx = fit.index
     t = steps.t_s[idx]
-    corrected = t - fit.trail_deg_e * fit.tau_s_per_deg
+    sensor_trail = fit.trail_deg_e if fit.sensor_trail_deg_e is None else fit.sensor_trail_deg_e
+    corrected = t - sensor_trail * fit.tau_s_per_deg
     run = steps.run[idx]
     sensor = SENSOR_OF_BOUNDARY[np.mod(steps.label[idx], 3)]
     same = run[1:] == run[:-1]
