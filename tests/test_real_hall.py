@@ -370,3 +370,12 @@ def test_steady_windows_taken_as_segments_get_their_humps_refused(tmp_path, caps
     assert out["pole_offset_deg_e"] == []
     assert out["refused"] and out["refused"][0]["field"] == "pole_offset_deg_e"
     assert "REFUSED pole_offset_deg_e" in capsys.readouterr().err
+
+
+def test_a_sample_index_column_needs_the_sample_rate(tmp_path):
+    csv = tmp_path / "hall.csv"
+    csv.write_text("sample,hall_a,hall_b,hall_c\n0,1,0,1\n10,1,0,0\n20,1,1,0\n")
+    with pytest.raises(ValueError, match="column sample: counts samples.*--sample-rate-hz"):
+        read_hall_capture(csv)
+    cap = read_hall_capture(csv, sample_rate_hz=1000.0)
+    assert cap.timer_tick_s == pytest.approx(1e-3) and cap.t_s.tolist() == pytest.approx([0.01, 0.02])

@@ -133,6 +133,13 @@ def read_hall_capture(
     time_scale = None
     if probe.kind == "csv" and sample_rate_hz:
         time_scale = 1.0 / sample_rate_hz  # the time column counts samples
+    elif probe.kind == "csv":
+        _, header, _ = _csv_header(path)
+        t_name = (time_column or header[0]).strip()
+        if re.fullmatch(r"(?i)(sample|samples|sample_?index|index|n|k)", t_name):
+            raise SignalError(
+                f"{path}: column {t_name}", "counts samples, not seconds: give --sample-rate-hz (or a time column)"
+            )
     mapping = GateMapping(
         chosen,
         time=time_column,
