@@ -5,9 +5,9 @@ finish within 5 minutes on two cores for a one-minute capture. Timed on the real
 (tests/data/real-hall, 30 s, 28.7k edges, written as VCD by the logic analyser) and on a
 synthetic one-minute capture of a rotor ramping 50 -> 450 Hz electrical with a +-10 % speed cycle
 (about 90k edges, 33.3 us sampling, a 130 us rise-minus-fall delay difference), both through the
-command line as a user runs them. Measured 2026-11-25 on a shared 2-core machine: spindle
-import 1 s, calibrate 6-30 s, gap diagnose 20-35 s; the synthetic minute calibrate 87 s, gap
-diagnose 105 s wall (46 s of CPU), with three other engineers' jobs running.
+command line as a user runs them. Measured 2026-11-25 on a shared 2-core machine with three other
+engineers' jobs running (wall time): spindle import 4 s, calibrate 66 s, gap diagnose 25 s; the
+synthetic minute calibrate 50 s, gap diagnose 93 s. The bar is 300 s each.
 """
 
 from __future__ import annotations
@@ -51,7 +51,9 @@ def synthetic_minute(out: Path) -> int:
 
 def timed(args: list[str]) -> float:
     t0 = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "hil", *args], check=True, stdout=subprocess.DEVNULL)
+    subprocess.run(
+        [sys.executable, "-m", "hil", *args], check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     return time.perf_counter() - t0
 
 
