@@ -31,12 +31,51 @@ def cmd_demo(args) -> int:
 def cmd_recording_check(args) -> int:
     rec = read_recording(args.recording)
     channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
+    if rec.ordinary:
+        pp = rec.stated_pole_pairs
+        print(
+            f"{args.recording}: hil-recording/1, {len(rec)} edges, one ordinary run (no segments: speed, direction "
+            f"and reversals come from the edges), pole_pairs {pp if pp else 'not stated'}, timer_tick_s "
+            f"{rec.timer_tick_s or 'unknown'}, samples {f'yes ({channels})' if rec.samples else 'no'}"
+        )
+        return 0
     print(
         f"{args.recording}: hil-recording/1, {len(rec)} edges, {len(rec.segments)} segments "
         f"({', '.join(rec.segment_ids)}), pole_pairs {rec.pole_pairs}, "
         f"reference angle {'yes' if rec.ref_angle_mech_deg is not None else 'no'}, "
         f"samples {f'yes ({channels})' if rec.samples else 'no'}"
     )
+    return 0
+
+
+def cmd_recording_import(args) -> int:
+    from .recording import write_recording
+    from .signals.hall import capture_recording, parse_channels, read_hall_capture
+
+    cap = read_hall_capture(
+        args.capture,
+        parse_channels(args.channels) if args.channels else None,
+        sample_rate_hz=args.sample_rate_hz,
+        time_column=args.time_column,
+        active_low=tuple(x.strip().upper() for x in args.active_low.split(",") if x.strip()) if args.active_low else (),
+    )
+    rec = capture_recording(cap, args.pole_pairs, source=Path(args.capture).name)
+    write_recording(rec, args.out)
+    n_rise = int(cap.rising.sum())
+    print(f"{args.capture}: {len(rec)} Hall edges ({n_rise} rising, {len(rec) - n_rise} falling)")
+    print(f"  channels: {', '.join(f'{k}={v}' for k, v in cap.channels.items())}")
+    tick = f"{cap.timer_tick_s:.6g} s" if cap.timer_tick_s else "unknown"
+    print(f"  timer_tick_s: {tick} (from {cap.tick_source})")
+    for note in cap.notes:
+        print(f"  note: {note}")
+    if args.pole_pairs:
+        print(f"  pole_pairs: {args.pole_pairs} (stated)")
+    else:
+        print(
+            "  pole_pairs: not stated; `hil calibrate` looks for the pole pattern in the edges and says what it "
+            "assumes (give --pole-pairs N if you know it; speeds in rpm need it)"
+        )
+    print(f"  written to {args.out} as one ordinary run (no segments)")
     return 0
 
 
@@ -56,6 +95,7 @@ def cmd_plant_simulate(args) -> int:
 def cmd_calibrate(args) -> int:
     from .calibration.campaign import CalibrationCampaign
     from .calibration.fit import fit_corrections
+    from .calibration.ordinary import pole_table_refusal
     from .recording import write_recording
 
     if args.campaign:
@@ -64,6 +104,8 @@ def cmd_calibrate(args) -> int:
         write_recording(rec, args.recording)
         print(f"campaign: {len(rec.segments)} operating points, {len(rec)} edges written to {args.recording}")
     rec = read_recording(args.recording)
+    if rec.ordinary or _no_forward_without_encoder(rec):
+        return _calibrate_ordinary(rec, args)
     corr = fit_corrections(rec)
     fmt = lambda d: ", ".join(f"{k} {v:+.4f}" for k, v in d.items())  # noqa: E731
     print(f"{args.recording}: {corr.info.get('method')}")
@@ -76,9 +118,72 @@ def cmd_calibrate(args) -> int:
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
     for quantity, why in corr.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    # a value beyond its physical bound is refused with the reason, never written as a table entry
+    refusal = pole_table_refusal(corr.pole_offset_deg_e)
+    if refusal:
+        print(f"  REFUSED {refusal['field']}: {refusal['reason']}", file=sys.stderr)
+        corr.pole_offset_deg_e = []
     if args.json:
-        corr.write_json(args.json)
-        print(f"corrections written to {args.json}")
+        _write_json(args.json, {**corr.to_json_dict(), "refused": [refusal] if refusal else []})
+    return 0
+
+
+def _no_forward_without_encoder(rec) -> bool:
+    """Steady segments without an encoder, none of them forward: the paper's route (Eq. 2, 6 on
+    forward turns) has nothing to read; the ordinary-run model reads either direction."""
+    return rec.ref_angle_mech_deg is None and all(s.direction != "forward" for s in rec.segments)
+
+
+def _calibrate_ordinary(rec, args) -> int:
+    from .calibration.ordinary import Circuit, calibrate_ordinary, hall_steps
+
+    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
+    circuit = Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s)
+    out, fit = calibrate_ordinary(
+        steps, tick_s=rec.timer_tick_s, pole_pairs=rec.stated_pole_pairs, circuit=circuit, source=str(args.recording)
+    )
+    a = out["assumptions"]
+
+    def pm(d, scale=1.0, unit=""):
+        if d.get("value") is None:
+            return f"not given: {d.get('reason')}"
+        return f"{d['value'] * scale:+.4g} +- {d['stderr'] * scale:.2g}{unit}"
+
+    print(f"{args.recording}: {out['info']['method']}")
+    print(f"  direction: {a['direction']}; {a['edges_used']} of {a['edges']} edges in {a['runs']} run(s)")
+    print(
+        f"  speed range: {a['speed_range_hz_e'][0]:.1f}-{a['speed_range_hz_e'][1]:.1f} Hz electrical (5-95 %); "
+        f"steadiness: {a['steadiness']}"
+    )
+    print(
+        f"  removed: {a['glitches_removed']} glitch(es), {a['invalid_states_dropped']} invalid-state edge(s), "
+        f"{a['stalls_split']} stall(s) split, {a['reversals']} reversal(s) split, {a['outlier_edges']} outlier(s)"
+    )
+    print(f"  timer_tick_s: {a['timer_tick_s'] or 'unknown'}; pole pairs: {a['pole_pairs_source']}")
+    print(f"  rise_fall_delay_difference_s:    {pm(out['rise_fall_delay_difference_s'], 1e6, ' us')}")
+    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(out['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}")
+    ind = out["independent_estimate"]
+    if ind:
+        print(
+            f"  independent (sector widths vs speed): delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
+            f"angle {pm(ind['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}"
+        )
+    inst = out["installation_offset_deg_e"]
+    print(f"  installation_offset_deg_e (relative): {', '.join(f'{k} {v:+.3f}' for k, v in inst.items())}")
+    poles = out["pole_offset_deg_e"]
+    print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
+    print(f"  delay bound: {a['delay_bound_s'] * 1e6:.0f} us ({a['delay_bound']})")
+    for r in out["refused"]:
+        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
+    for quantity, why in out["undetermined"].items():
+        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    if args.json:
+        _write_json(args.json, out)
+    if args.plot:
+        from .gap.ordinary import save_sector_width_figure
+
+        save_sector_width_figure(args.plot, steps, fit, f"{Path(str(args.recording)).name}: sector width against speed")
+        print(f"sector widths before and after calibration plotted to {args.plot}")
     return 0
 
 
@@ -142,6 +247,21 @@ def _write_json(path: str, data: dict) -> None:
     print(f"wrote {path}")
 
 
+def _print_verdict(d) -> None:
+    """The confounded pairs, the remainder and the held-out figure of a diagnosis."""
+    for pair in d.confounded:
+        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
+    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
+        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
+        print(
+            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
+            f"{d.heldout_note}"
+        )
+    else:
+        print(f"  held-out: {d.heldout_note}")
+
+
 def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import write_html
@@ -166,6 +286,8 @@ def cmd_gap_diagnose(args) -> int:
             )
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
         rec = read_trace(args.recording, mapping, args.meta)
+    if rec.ordinary:
+        return _gap_diagnose_ordinary(rec, args)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
     print(
@@ -198,23 +320,63 @@ def cmd_gap_diagnose(args) -> int:
             f"{rel.get('floor', float('nan')):.3g} "
             f"{rel.get('unit', '')}: {rel.get('meaning', '')})"
         )
-    for pair in d.confounded:
-        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
-    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
-    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
-        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
-        print(
-            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
-            f"{d.heldout_note}"
-        )
-    else:
-        print(f"  held-out: {d.heldout_note}")
+    _print_verdict(d)
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(d.to_json(), indent=2) + "\n")
         print(f"diagnosis written to {args.json}")
     if args.html:
         write_html(args.html, str(args.recording), rec, d, model)
+        print(f"report written to {args.html}")
+    return 0
+
+
+def _gap_diagnose_ordinary(rec, args) -> int:
+    from .calibration.ordinary import hall_steps
+    from .gap.ordinary import diagnose_ordinary, write_html
+
+    if args.model:
+        print(
+            f"{args.recording}: --model is not used for an ordinary run (capture times only): the model is an ideal "
+            "motor with ideal sensors on a smooth speed trajectory",
+            file=sys.stderr,
+        )
+    d, parts = diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising))
+    extra = parts["extra"]
+    print(
+        f"{args.recording}: ordinary run, gap {d.gap_before:.4g} deg e (systematic edge-angle residual against an "
+        f"ideal motor on a smooth trajectory), {'SIGNIFICANT' if d.significant else 'within the noise floor'} "
+        f"(p = {d.p_value:.2g})"
+    )
+    print(f"  pole pairs: {extra['pole_pairs_source']}")
+    accepted = [a["effect"] for a in d.accepted]
+    for i, r in enumerate(d.ranking, 1):
+        mark = "   accepted" if r["effect"] in accepted else ""
+        print(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{mark}")
+    for a in d.accepted:
+        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
+    _print_verdict(d)
+    rep = extra["repeatability"]
+    parts_rep = []
+    if "rise_fall_delay_difference_s" in rep:
+        a, b = rep["rise_fall_delay_difference_s"]
+        parts_rep.append(
+            f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
+        )
+    if "static_parameters_rms_difference_deg_e" in rep:
+        parts_rep.append(
+            f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their RMS "
+            f"{rep['static_parameters_rms_deg_e']:.3g})"
+        )
+    print(f"  split-half repeatability: {'; '.join(parts_rep) or rep.get('note', 'no figure')}")
+    for n in d.not_assessed:
+        print(f"  not assessed: {n}")
+    if args.json:
+        out = d.to_json()
+        out.update(extra)
+        _write_json(args.json, out)
+    if args.html:
+        write_html(args.html, str(args.recording), d, parts)
         print(f"report written to {args.html}")
     return 0
 
@@ -631,6 +793,21 @@ def build_parser() -> argparse.ArgumentParser:
     q = rs.add_parser("check", help="validate a recording directory")
     q.add_argument("recording")
     q.set_defaults(func=cmd_recording_check)
+    q = rs.add_parser(
+        "import", help="a logic-analyser capture of the three Hall lines (VCD, sigrok .sr, CSV) as a recording"
+    )
+    q.add_argument("capture", help="VCD, sigrok session (.sr) or CSV (time or sample index, three levels)")
+    q.add_argument("--out", required=True, help="recording directory to write")
+    q.add_argument(
+        "--channels", help="A=NAME,B=NAME,C=NAME (default: hall_a, hall_b, hall_c if present, else the first three)"
+    )
+    q.add_argument(
+        "--sample-rate-hz", type=float, help="the capture's sample rate (default: from the file's time base)"
+    )
+    q.add_argument("--time-column", help="CSV: the time or sample-index column (default: the first)")
+    q.add_argument("--active-low", help="sensors whose line reads 0 when the Hall element is on, e.g. A,B,C")
+    q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (written to meta.json)")
+    q.set_defaults(func=cmd_recording_import)
 
     p = sub.add_parser("plant", help="the plant model")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
@@ -661,6 +838,12 @@ def build_parser() -> argparse.ArgumentParser:
     g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
     p.add_argument("--turns", type=int, default=200, help="mechanical turns per operating point (--campaign)")
     p.add_argument("--seed", type=int, default=0)
+    p.add_argument("--pullup-ohm", type=float, help="Hall pull-up resistor (with --filter-farad: the delay bound)")
+    p.add_argument("--filter-farad", type=float, help="Hall filter capacitor (with --pullup-ohm: the delay bound)")
+    p.add_argument(
+        "--delay-max-s", type=float, help="stated maximum conditioning delay (default: 1 ms, open-collector wiring)"
+    )
+    p.add_argument("--plot", help="ordinary run: save sector width against speed, before and after calibration (PNG)")
     p.set_defaults(func=cmd_calibrate)
 
     p = sub.add_parser(

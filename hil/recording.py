@@ -33,6 +33,8 @@ EDGE_OPTIONAL = ("ref_angle_mech_deg",)
 SAMPLE_REQUIRED = ("t_s", "segment")
 SAMPLE_OPTIONAL = ("i_a", "i_b", "i_c", "u_a", "u_b", "u_c", "speed_rpm")
 DIRECTIONS = ("forward", "reverse")
+#: the segment column of an ordinary run: empty in every row (read as segment -1)
+ORDINARY_SEGMENT = {"": -1}
 TRUTH_COLUMNS = ("t_ideal_s", "t_raw_s", "t_conditioned_s", "true_angle_mech_deg", "pole", "mean_abs_current_a")
 
 
@@ -82,7 +84,24 @@ class Recording:
 
     @property
     def pole_pairs(self) -> int:
+        if "pole_pairs" not in self.motor:
+            raise RecordingError(
+                (self.path or Path("recording")) / "meta.json",
+                None,
+                "motor.pole_pairs",
+                "not stated; this step needs the motor's pole pairs (an ordinary run may leave them out)",
+            )
         return int(self.motor["pole_pairs"])
+
+    @property
+    def stated_pole_pairs(self) -> int | None:
+        """The pole pairs if meta.json states them (an ordinary run may not)."""
+        return int(self.motor["pole_pairs"]) if "pole_pairs" in self.motor else None
+
+    @property
+    def ordinary(self) -> bool:
+        """One ordinary run (no segments): speed, direction and reversals come from the edges."""
+        return not self.segments
 
     @property
     def segment_ids(self) -> list[str]:
@@ -114,7 +133,7 @@ def write_recording(rec: Recording, directory: str | Path) -> Path:
         "format": FORMAT,
         "motor": rec.motor,
         "timer_tick_s": rec.timer_tick_s if rec.timer_tick_s is not None else 0,
-        "segments": [
+        **({} if rec.ordinary else {"segments": [
             {
                 "id": s.id,
                 "t_start_s": s.t_start_s,
@@ -126,17 +145,20 @@ def write_recording(rec: Recording, directory: str | Path) -> Path:
                 **s.extra,
             }
             for s in rec.segments
-        ],
+        ]}),
         **rec.meta_extra,
     }
     (d / "meta.json").write_text(json.dumps(meta, indent=2) + "\n")
     ids = rec.segment_ids
     with open(d / "edges.csv", "w", newline="") as fh:
         w = csv.writer(fh, lineterminator="\n")
-        cols = list(EDGE_COLUMNS) + (["ref_angle_mech_deg"] if rec.ref_angle_mech_deg is not None else [])
+        # an ordinary run has no segment column (the format allows it absent)
+        cols = list(EDGE_COLUMNS if not rec.ordinary else EDGE_COLUMNS[:3])
+        cols += ["ref_angle_mech_deg"] if rec.ref_angle_mech_deg is not None else []
         w.writerow(cols)
         for n in range(rec.t_s.size):
-            row = [_fmt(rec.t_s[n]), SENSOR_NAMES[rec.sensor[n]], EDGE_NAMES[int(rec.rising[n])], ids[rec.segment[n]]]
+            row = [_fmt(rec.t_s[n]), SENSOR_NAMES[rec.sensor[n]], EDGE_NAMES[int(rec.rising[n])]]
+            row += [] if rec.ordinary else [ids[rec.segment[n]]]
             if rec.ref_angle_mech_deg is not None:
                 row.append(_fmt(rec.ref_angle_mech_deg[n]))
             w.writerow(row)
@@ -148,7 +170,8 @@ def write_recording(rec: Recording, directory: str | Path) -> Path:
             seg = rec.samples["segment"]
             data = [rec.samples[c] for c in cols[2:]]
             for n in range(rec.samples["t_s"].size):
-                w.writerow([_fmt(rec.samples["t_s"][n]), ids[seg[n]]] + [_fmt(a[n]) for a in data])
+                sid = ids[seg[n]] if seg[n] >= 0 else ""
+                w.writerow([_fmt(rec.samples["t_s"][n]), sid] + [_fmt(a[n]) for a in data])
     if rec.truth is not None:
         with open(d / "ground_truth.csv", "w", newline="") as fh:
             w = csv.writer(fh, lineterminator="\n")
@@ -278,11 +301,16 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
 
     if meta.get("format") != FORMAT:
         err("format", "format", f'expected "{FORMAT}", got {meta.get("format")!r}')
-    motor = meta.get("motor")
+    segs = meta.get("segments")
+    ordinary = segs is None or segs == []
+    # an ordinary run (a logic analyser's capture) may know nothing of the motor
+    motor = meta.get("motor", {} if ordinary else None)
     if not isinstance(motor, dict):
         err("motor", "motor", "missing or not an object")
     pp = motor.get("pole_pairs")
-    if isinstance(pp, bool) or not isinstance(pp, (int, float)) or not float(pp).is_integer() or pp < 1:
+    if not (ordinary and pp is None) and (
+        isinstance(pp, bool) or not isinstance(pp, (int, float)) or not float(pp).is_integer() or pp < 1
+    ):
         err("motor.pole_pairs", "pole_pairs", f"must be a positive integer, got {pp!r}")
     for key, value in motor.items():
         if (
@@ -297,9 +325,10 @@ def read_meta_file(path: Path) -> tuple[dict, list[Segment], float | None, dict]
         if isinstance(tick, bool) or not isinstance(tick, (int, float)) or not math.isfinite(tick) or tick < 0:
             err("timer_tick_s", "timer_tick_s", f"must be a finite number >= 0, got {tick!r}")
         tick = float(tick) or None
-    segs = meta.get("segments")
-    if not isinstance(segs, list) or not segs:
-        err("segments", "segments", "missing or empty (at least one segment is needed)")
+    if ordinary:
+        segs = []
+    elif not isinstance(segs, list):
+        err("segments", "segments", "must be a list of segments (or absent, or empty, for an ordinary run)")
     segments: list[Segment] = []
     seen: set[str] = set()
     numeric = ("t_start_s", "t_end_s", "speed_rpm", "mean_phase_current_a", "load_scale")
@@ -363,6 +392,10 @@ class _Column:
     def add(self, path: Path, line: int, text: str, last: float | None) -> float | None:
         v = text.strip()
         if self.choices is not None:
+            if v not in self.choices and self.choices == ORDINARY_SEGMENT:
+                raise RecordingError(
+                    path, line, self.name, f"{v[:40]!r}, but meta.json has no segments (an ordinary run): leave it out"
+                )
             if v not in self.choices:
                 raise RecordingError(
                     path,
@@ -455,7 +488,7 @@ def _read_samples_fast(
     first = next(_lines(path, max_bytes), None)  # the header, checked like every line (BOM, UTF-8, length)
     header = [h.strip() for h in _split(path, *first)] if first else []
     if not all(c in header for c in SAMPLE_REQUIRED) or len(set(header)) != len(header):
-        return None
+        return None  # (an ordinary run without a segment column too: the strict reader takes it)
     numeric = [c for c in header if c != "segment"]
     try:
         df = pd.read_csv(
@@ -490,18 +523,19 @@ def read_recording(
     if not d.is_dir():
         raise RecordingError(d, None, None, "not a directory (a recording is a directory with meta.json and edges.csv)")
     motor, segments, tick, extra = _read_meta(d)
-    seg_index = {s.id: i for i, s in enumerate(segments)}
+    seg_index = {s.id: i for i, s in enumerate(segments)} if segments else ORDINARY_SEGMENT
     path = d / "edges.csv"
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file")
+    # an ordinary run: the segment column is absent, or empty in every row
     header, cols = _read_columns(
         path,
-        EDGE_COLUMNS,
+        EDGE_COLUMNS if segments else EDGE_COLUMNS[:3],
         [
             _Column("t_s", increasing=True),
             _Column("sensor", {"A": 0, "B": 1, "C": 2}, "sensor"),
             _Column("edge", {"fall": 0, "rise": 1}, "edge"),
-            _Column("segment", seg_index, "segment"),
+            _Column("segment", seg_index if segments else ORDINARY_SEGMENT, "segment"),
             _Column("ref_angle_mech_deg", low=0.0, high_open=360.0),
         ],
         max_table_bytes,
@@ -514,7 +548,7 @@ def read_recording(
     if spath.is_file() and samples is None:
         _, samples = _read_columns(
             spath,
-            SAMPLE_REQUIRED,
+            SAMPLE_REQUIRED if segments else SAMPLE_REQUIRED[:1],
             [_Column("t_s", increasing=True), _Column("segment", seg_index, "segment")]
             + [_Column(c) for c in SAMPLE_OPTIONAL],
             max_table_bytes,
@@ -534,7 +568,7 @@ def read_recording(
         t_s=t,
         sensor=cols["sensor"],
         rising=cols["edge"].astype(bool),
-        segment=cols["segment"],
+        segment=cols["segment"] if "segment" in cols else np.full(t.size, -1, dtype=np.int64),
         ref_angle_mech_deg=cols.get("ref_angle_mech_deg"),
         timer_tick_s=tick,
         samples=samples,

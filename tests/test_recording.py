@@ -162,7 +162,7 @@ def rewrite_meta(path, change):
         (lambda m: m["segments"][1].update(id="low"), "segments[1].id"),
         (lambda m: m["segments"][1].update(t_start_s=0.01), "segments[1].t_start_s"),
         (lambda m: m.update(timer_tick_s=-1), "timer_tick_s"),
-        (lambda m: m.update(segments=[]), "segments"),
+        (lambda m: m.update(segments={}), "segments"),
     ],
 )
 def test_meta_errors_name_the_key(written, change, column):

@@ -42,18 +42,21 @@ class GateMapping:
     threshold: float = 0.5
     #: gates whose capture channel reads 0 when the switch is on (inverting gate drivers)
     active_low: tuple[str, ...] = ()
+    #: the logic signals read, bit j of the state is ``signals[j]`` (the six gates; the Hall
+    #: importer reads the three Hall lines A, B, C with the same readers)
+    signals: tuple[str, ...] = GATES
 
     def __post_init__(self):
-        missing = [g for g in GATES if g not in self.channels]
-        unknown = [g for g in self.channels if g not in GATES]
+        missing = [g for g in self.signals if g not in self.channels]
+        unknown = [g for g in self.channels if g not in self.signals]
         if missing or unknown:
             raise SignalError(
                 "mapping",
-                f"needs exactly the gates {', '.join(GATES)}"
+                f"needs exactly the signals {', '.join(self.signals)}"
                 + (f"; missing {', '.join(missing)}" if missing else "")
                 + (f"; unknown {', '.join(unknown)}" if unknown else ""),
             )
-        bad = [g for g in self.active_low if g not in GATES]
+        bad = [g for g in self.active_low if g not in self.signals]
         if bad:
             raise SignalError("mapping.active_low", f"unknown gate(s) {', '.join(bad)}")
 
@@ -94,7 +97,7 @@ class GateMapping:
 
     @property
     def invert_mask(self) -> int:
-        return sum(1 << GATES.index(g) for g in self.active_low)
+        return sum(1 << self.signals.index(g) for g in self.active_low)
 
 
 class Capture:
@@ -135,11 +138,12 @@ class Capture:
         scale = r.timescale.seconds
         self.sample_period_s = scale
         names, bit_of = [], []
-        for g in GATES:
+        for g in self.mapping.signals:
             name, bit = _vcd_channel(r, self.mapping.channels[g])
             names.append(name)
             bit_of.append(bit)
-        bits = np.zeros(6, dtype=np.int64)
+        n_signals = len(self.mapping.signals)
+        bits = np.zeros(n_signals, dtype=np.int64)
         first = True
         for ticks, slot, val in r.changes(names, chunk):
             if any(b is not None for b in bit_of):  # one bit of a vector (a gate bus)
@@ -152,7 +156,7 @@ class Capture:
             state = np.empty(n, dtype=np.int64)
             # each gate's value after every change: forward fill of its own changes
             acc = np.zeros(n, dtype=np.int64)
-            for j in range(6):
+            for j in range(n_signals):
                 mine = slot == j
                 vals = np.where(mine, val.astype(np.int64), -1)
                 idx = np.where(mine, np.arange(n), -1)
@@ -199,7 +203,7 @@ class Capture:
             capturefile = sec.get("capturefile", "logic-1")
             probes = {sec[k]: int(k[5:]) - 1 for k in sec if re.fullmatch(r"probe\d+", k)}
             bit_of = []
-            for g in GATES:
+            for g in self.mapping.signals:
                 ch = self.mapping.channels[g]
                 if ch not in probes:
                     raise SignalError(where, f"no logic channel {ch!r} for gate {g} (have: {', '.join(probes)})")
@@ -251,7 +255,7 @@ class Capture:
         cols = [c.strip() for c in header]
         time_col = self.mapping.time if self.mapping.time is not None else cols[0]
         t_index = _column_index(time_col, cols, where, "time")
-        idx = [_column_index(self.mapping.channels[g], cols, where, g) for g in GATES]
+        idx = [_column_index(self.mapping.channels[g], cols, where, g) for g in self.mapping.signals]
         scale = self.mapping.time_scale if self.mapping.time_scale is not None else _unit_of(cols[t_index])
         shift = 0.0
         sigrok = _libsigrok_rate(comments)
@@ -292,7 +296,7 @@ class Capture:
                 if back.size:
                     raise SignalError(f"{where}, line {line + int(back[0]) + 1}", f"time goes back ({t[back[0]]!r} s)")
                 state = np.zeros(t.size, dtype=np.int64)
-                for j in range(6):
+                for j in range(len(idx)):
                     state |= (a[:, 1 + j] > self.mapping.threshold).astype(np.int64) << j
                 if t.size > 1 and self.sample_period_s is None:
                     d = np.diff(t)
