@@ -1,0 +1,275 @@
+"""Commutation predictors that motor firmware ships for Hall sensors, and the variational-Bayes
+adaptive Kalman filter: the peers the KF and Sage-Husa are compared with (docs/sage-husa.md).
+
+Every peer has the interface of ``predictors.py``: ``run(t_corrected_s, mean_current_a)`` takes
+the corrected edge times (calibration applied) and returns a :class:`PredictionRun` whose
+``pred_t_s[k]`` is the predicted instant of edge k + 1 and ``speed_rad_s[k]`` the speed estimate
+after edge k (electrical). ``settings`` gives what was set, for the comparison's JSON.
+
+* ``sector_hold`` (VESC ``foc_correct_hall``): at each edge the angle snaps to the edge's
+  calibrated angle (the midpoint of the two sector centres the table holds) and is extrapolated
+  at 60 deg e over the last sector time: the next edge one last-sector-time later. It is the
+  paper's pre-calibration baseline, :class:`PrecalibrationPredictor`, and is not written twice.
+* ``moving_average`` (ST MCSDK ``hall_speed_pos_fdbk.c``): speed from the mean of a FIFO of the
+  last ``fifo_edges`` edge periods (one electrical period = 6), the angle set to the edge's at
+  each edge and integrated between edges at that speed.
+* ``pll`` (ODrive ``Encoder::update``, moteus ``motor_position.h``): a second-order phase-locked
+  loop on the calibrated edge positions with kp = 2 bw, ki = kp^2 / 4 (a critically damped double
+  pole at -bw). A Hall sensor gives a position only at its edges, so the loop's phase detector
+  is sampled there: the loop is the edge-sampled form of that PLL with both poles at
+  z = exp(-bw dt) over the last edge interval dt (alpha = 1 - z^2, beta = (1 - z)^2, which
+  tend to kp dt and ki dt^2 at small bw dt). Option ``two_edge`` (moteus): the loop takes the
+  midpoint of the last two edges (one rising, one falling: the sequence alternates), which
+  cancels a rise/fall delay asymmetry to first order.
+* ``vb_akf``: Huang, Zhang, Wu, Chambers, "A Novel Adaptive Kalman Filter With Inaccurate
+  Process and Measurement Noise Covariance Matrices", IEEE TAC 63(2), 2018,
+  DOI 10.1109/TAC.2017.2730480, Algorithm 1, on the paper's model (Eq. 9 transition, Eq. 10
+  observation of the edge angle and the cycle's mean current).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+from . import filters as F
+from .model import SECTOR_RAD, MotorModel
+from .predictors import FilterSettings, PrecalibrationPredictor, PredictionRun
+
+
+def _checked(t_corrected_s, mean_current_a=None) -> tuple[np.ndarray, np.ndarray]:
+    t = np.ascontiguousarray(t_corrected_s, dtype=float)
+    cur = np.zeros(t.size) if mean_current_a is None else np.ascontiguousarray(mean_current_a, dtype=float)
+    if t.size != cur.size:
+        raise ValueError("one mean current per edge is needed")
+    if t.size > 1 and np.any(np.diff(t) <= 0):
+        k = int(np.nonzero(np.diff(t) <= 0)[0][0]) + 1
+        raise ValueError(f"edge times must increase (edge {k}: {t[k]!r} after {t[k - 1]!r})")
+    return t, cur
+
+
+class SectorHoldPredictor(PrecalibrationPredictor):
+    """VESC's hall interpolation: next edge one last-sector-time after this one (no setting)."""
+
+    name = "sector_hold"
+
+    @property
+    def settings(self) -> dict:
+        return {}
+
+
+@njit(cache=True)
+def _moving_average(t, n_fifo, pred, w):
+    acc, n = 0.0, 0
+    for k in range(1, t.size):
+        acc += t[k] - t[k - 1]
+        n += 1
+        if n > n_fifo:
+            acc -= t[k - n_fifo] - t[k - n_fifo - 1]
+            n = n_fifo
+        period = acc / n                       # mean of the FIFO of the last n edge periods
+        pred[k] = t[k] + period
+        w[k] = SECTOR_RAD / period
+
+
+
+class MovingAveragePredictor:
+    """MCSDK's hall speed: the mean over a FIFO of the last ``fifo_edges`` edge periods."""
+
+    name = "moving_average"
+
+    def __init__(self, fifo_edges: int = 6):
+        if not (isinstance(fifo_edges, (int, np.integer)) and fifo_edges >= 1):
+            raise ValueError(f"fifo_edges must be an integer >= 1, got {fifo_edges!r}")
+        self.fifo_edges = int(fifo_edges)
+
+    @property
+    def settings(self) -> dict:
+        return {"fifo_edges": self.fifo_edges}
+
+    def run(self, t_corrected_s, mean_current_a=None) -> PredictionRun:
+        t, _ = _checked(t_corrected_s, mean_current_a)
+        pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
+        _moving_average(t, self.fifo_edges, pred, w)
+        return PredictionRun(pred, w, {})
+
+
+@njit(cache=True)
+def _pll(t, bw, two_edge, pred, w_out):
+    # position in rad e counted from edge 0 (edge k at k pi / 3); the loop's own clock t_m is the
+    # instant its measurement refers to (the edge, or the midpoint of the last two edges)
+    theta, w, t_m = 0.0, 0.0, t[0]
+    for k in range(1, t.size):
+        if two_edge and k >= 2:
+            z_t, z = 0.5 * (t[k] + t[k - 1]), (k - 0.5) * SECTOR_RAD
+        else:
+            z_t, z = t[k], k * SECTOR_RAD
+        if k == 1 or (two_edge and k == 2):
+            # start-up: the loop starts locked to the first measured interval
+            w = SECTOR_RAD / (t[k] - t[k - 1])
+            theta, t_m = z, z_t
+        else:
+            dt = z_t - t_m
+            theta += w * dt                            # integrate between measurements
+            e = z - theta                              # phase detector
+            p = math.exp(-bw * dt)                     # both poles at exp(-bw dt)
+            theta += (1.0 - p * p) * e                 # alpha = 1 - p^2  (-> kp dt = 2 bw dt)
+            w += (1.0 - p) * (1.0 - p) / dt * e        # beta / dt, beta = (1 - p)^2 (-> ki dt^2)
+            t_m = z_t
+        w_out[k] = w
+        ahead = (k + 1) * SECTOR_RAD - theta        # angle to the next edge
+        pred[k] = t_m + max(ahead, 0.0) / max(w, 1e-9)
+
+
+class PllPredictor:
+    """Second-order PLL on the calibrated edge positions (ODrive, moteus); ``bandwidth_rad_s`` is
+    the user's knob; ``two_edge`` the moteus rise+fall option."""
+
+    name = "pll"
+
+    def __init__(self, bandwidth_rad_s: float = 300.0, two_edge: bool = False):
+        if not (math.isfinite(bandwidth_rad_s) and bandwidth_rad_s > 0):
+            raise ValueError(f"bandwidth_rad_s must be positive and finite, got {bandwidth_rad_s!r}")
+        self.bandwidth_rad_s, self.two_edge = float(bandwidth_rad_s), bool(two_edge)
+
+    @property
+    def settings(self) -> dict:
+        bw = self.bandwidth_rad_s
+        return {"bandwidth_rad_s": bw, "kp_per_s": 2.0 * bw, "ki_per_s2": bw * bw, "two_edge": self.two_edge}
+
+    def run(self, t_corrected_s, mean_current_a=None) -> PredictionRun:
+        t, _ = _checked(t_corrected_s, mean_current_a)
+        pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
+        if t.size > 1:
+            _pll(t, self.bandwidth_rad_s, self.two_edge, pred, w)
+        return PredictionRun(pred, w, {})
+
+
+# --- VB-AKF (Huang et al. 2018, Algorithm 1) ------------------------------------------------------
+
+@njit(cache=True)
+def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, guards):
+    """Algorithm 1 of Huang et al. 2018 per commutation cycle on the paper's Eq. 9 model.
+
+    State x = [w, theta, I] (theta from the last edge, as in ``filters.step``); measurement
+    z = [pi / 3, I_meas] with H = [[0, 1, 0], [0, 0, 1]], or z = pi / 3 alone (m = 1: the
+    kinematic run, no current). q0: nominal Q (3 x 3); r0: the prior's nominal R (m x m)."""
+    n = 3
+    H = np.zeros((m, n))
+    H[0, 1] = 1.0
+    if m == 2:
+        H[1, 2] = 1.0
+    x = np.zeros(n)
+    P = p0.copy()
+    # prior of R: inverse Wishart with u_0 dof and scale U_0 = (u_0 - m - 1) R_0 (its mean R_0)
+    u = tau + m + 1.0
+    U = (u - m - 1.0) * r0
+    st = np.zeros(F.N_STATE)                     # only X is read by filters.predict_next_s
+    eye = np.eye(n)
+    for k in range(1, t.size):
+        dt = t[k] - t[k - 1]
+        if k == 1:
+            x[0], x[1], x[2] = SECTOR_RAD / dt, 0.0, cur[k]
+        else:
+            a, dl = F.coefficients(x[0], fp, tables)
+            Phi = np.array([[1.0, 0.0, a * dt], [dt, 1.0, 0.5 * a * dt * dt], [0.0, 0.0, 1.0]])
+            uin = np.array([-dt * dl, -0.5 * dt * dt * dl, 0.0])
+            # Step 1: x_k|k-1 = F x_k-1|k-1 (+ the load input of Eq. 9)
+            x_pred = Phi @ x + uin
+            # Step 2: P~_k|k-1 = F P_k-1|k-1 F^T + Q~_k-1 (Q~: the nominal, inaccurate Q)
+            P_pred = Phi @ P @ Phi.T + q0
+            z = np.empty(m)
+            z[0] = SECTOR_RAD
+            if m == 2:
+                z[1] = cur[k]
+            # Step 3: t_k|k-1 = n + tau + 1, T_k|k-1 = tau P~_k|k-1;
+            #         u_k|k-1 = rho (u_k-1|k-1 - m - 1) + m + 1, U_k|k-1 = rho U_k-1|k-1
+            t_pr = n + tau + 1.0
+            T_pr = tau * P_pred
+            u_pr = rho * (u - m - 1.0) + m + 1.0
+            U_pr = rho * U
+            xi, Pi = x_pred.copy(), P_pred.copy()
+            t_i, T_i, u_i, U_i = t_pr, T_pr, u_pr, U_pr
+            for _ in range(n_iter):
+                # Step 4: A = P^(i) + (x^(i) - x_k|k-1)(x^(i) - x_k|k-1)^T
+                dx = xi - x_pred
+                A = Pi + np.outer(dx, dx)
+                # Step 5: t^(i+1) = t_k|k-1 + 1, T^(i+1) = A + T_k|k-1
+                t_i, T_i = t_pr + 1.0, A + T_pr
+                # Step 6: B = (z - H x^(i))(z - H x^(i))^T + H P^(i) H^T
+                r = z - H @ xi
+                B = np.outer(r, r) + H @ Pi @ H.T
+                # Step 7: u^(i+1) = u_k|k-1 + 1, U^(i+1) = B + U_k|k-1
+                u_i, U_i = u_pr + 1.0, B + U_pr
+                # Step 8: E[P_k|k-1^-1] = (t - n - 1) T^-1, E[R^-1] = (u - m - 1) U^-1
+                # Step 9: P~^(i+1) = E[P^-1]^-1, R~^(i+1) = E[R^-1]^-1
+                P_t = T_i / (t_i - n - 1.0)
+                R_t = U_i / (u_i - m - 1.0)
+                # Step 10: K = P~ H^T (H P~ H^T + R~)^-1
+                S = H @ P_t @ H.T + R_t
+                K = P_t @ H.T @ np.linalg.inv(S)
+                # Step 11: x^(i+1) = x_k|k-1 + K (z - H x_k|k-1)
+                xi = x_pred + K @ (z - H @ x_pred)
+                # Step 12: P^(i+1) = P~ - K H P~ (Joseph form: the same in exact arithmetic)
+                IKH = eye - K @ H
+                Pi = IKH @ P_t @ IKH.T + K @ R_t @ K.T
+                Pi = 0.5 * (Pi + Pi.T)
+            # Step 13: x_k|k = x^(N), P_k|k = P^(N), u_k|k = u^(N), U_k|k = U^(N)
+            x, P, u, U = xi, Pi, u_i, U_i
+            x[1] -= SECTOR_RAD                       # re-reference: this edge is the new zero
+            if not (np.all(np.isfinite(x)) and x[0] > 0.0):
+                guards[0] += 1                          # lost: restart from the last interval
+                x[0], x[1], x[2] = SECTOR_RAD / dt, 0.0, cur[k]
+                P = p0.copy()
+        a, dl = F.coefficients(x[0], fp, tables)
+        st[F.ST.X], st[F.ST.X + 1], st[F.ST.X + 2] = x[0], x[1], x[2]
+        pred[k] = t[k] + F.predict_next_s(st, a, dl)
+        w_out[k] = x[0]
+
+
+class VbAkfPredictor:
+    """Variational-Bayes adaptive KF (Huang et al. 2018, Algorithm 1) on the paper's model.
+
+    ``q0_diag``: the nominal Q~ (per cycle: (rad/s)^2, rad^2, A^2); ``r0_diag``: the mean of R's
+    inverse-Wishart prior (angle rad^2, current A^2); ``tau`` the tuning parameter of P's prior,
+    ``rho`` R's forgetting factor, ``iterations`` the variational iterations N. With
+    ``use_current`` False the current is not observed (m = 1)."""
+
+    name = "vb_akf"
+
+    def __init__(self, model: MotorModel, q0_diag=(1e-2, 1e-9, 1e-3), r0_diag=(1e-4, 1.0), tau: float = 3.0,
+                 rho: float = 1.0 - math.exp(-4.0), iterations: int = 10, p0_diag=(5e4, 5e4, 5e4),
+                 use_current: bool = True):
+        if not tau > 0:
+            raise ValueError(f"tau must be > 0, got {tau!r}")
+        if not 0.0 < rho <= 1.0:
+            raise ValueError(f"rho must be in (0, 1], got {rho!r}")
+        if not (isinstance(iterations, (int, np.integer)) and iterations >= 1):
+            raise ValueError(f"iterations must be an integer >= 1, got {iterations!r}")
+        for name, v in (("q0_diag", q0_diag), ("r0_diag", r0_diag), ("p0_diag", p0_diag)):
+            if any(not (math.isfinite(x) and x > 0) for x in v):
+                raise ValueError(f"{name} must be positive and finite, got {v!r}")
+        self.model = model
+        self.q0_diag, self.r0_diag, self.p0_diag = tuple(map(float, q0_diag)), tuple(map(float, r0_diag)), p0_diag
+        self.tau, self.rho, self.iterations, self.use_current = float(tau), float(rho), int(iterations), use_current
+        self.fp = FilterSettings().params(False, model.pole_pairs, model.inertia_kg_m2)
+        speed, kt, m = model.arrays()
+        self.tables = np.ascontiguousarray(np.vstack((speed, kt, m)), dtype=float)
+
+    @property
+    def settings(self) -> dict:
+        return {"q0_diag": list(self.q0_diag), "r0_diag": list(self.r0_diag), "tau": self.tau, "rho": self.rho,
+                "iterations": self.iterations, "p0_diag": list(self.p0_diag), "use_current": self.use_current}
+
+    def run(self, t_corrected_s, mean_current_a=None) -> PredictionRun:
+        t, cur = _checked(t_corrected_s, mean_current_a)
+        m = 2 if self.use_current else 1
+        pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
+        guards = np.zeros(1, dtype=np.int64)
+        if t.size > 1:
+            _vb_akf(t, cur, self.fp, self.tables, np.diag(self.q0_diag), np.diag(self.r0_diag[:m]),
+                    np.diag(np.asarray(self.p0_diag, dtype=float)), self.tau, self.rho, self.iterations, m,
+                    pred, w, guards)
+        return PredictionRun(pred, w, {"restarts": int(guards[0])})
