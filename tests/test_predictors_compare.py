@@ -120,3 +120,14 @@ def test_pumps_contract_on_two_held_out_pumps():
         assert [r["name"] for r in pump["predictors"]] == list(peers.NAMES)
         assert all(math.isfinite(r["angle_rms_deg_e"]) for r in pump["predictors"])
     assert out["settings_provenance"]["train_pump_seeds"]
+
+
+def test_the_controller_defaults_are_the_training_pump_tuning():
+    """Issue 26: the controller's filters come from the training pumps, not from the scenario
+    REQ-PRED-002 judges (a hand edit of either side fails here)."""
+    from hil.controller.virtual import VirtualController
+    from hil.experiments.controller_tuning import pump_defaults
+    from hil.experiments.table5 import scenario_plant
+
+    controller = VirtualController(scenario_plant().motor)
+    assert (controller.filter_settings, controller.kf_settings) == pump_defaults()
