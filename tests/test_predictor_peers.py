@@ -96,13 +96,20 @@ def test_vb_akf_averages_white_edge_noise_better_than_sector_hold():
     assert err < 1.3 and run.guards["restarts"] == 0
 
 
-def test_vb_akf_learns_r_from_a_prior_100x_too_small():
-    """The point of Algorithm 1: R's prior mean is 1 % of the true edge-angle variance; the
-    learned filter still averages the noise (within 1.5x of the edge noise itself)."""
+@pytest.mark.parametrize("prior", [0.01, 100.0])
+def test_vb_akf_learns_r_from_a_wrong_prior(prior):
+    """The point of Algorithm 1: R's prior mean is 1/100 or 100x the true edge-angle variance
+    (1 deg e RMS of white jitter); R's posterior mean after 6000 edges is within 20 % of the truth
+    (measured 14-16 % low from either side: the nominal Q takes a share of the residuals), and the
+    filter still averages the noise."""
     t, truth = edges(jitter_deg_e=1.0, seed=7)
     r_true = math.radians(1.0) ** 2
-    vb = VbAkfPredictor(kinematic_model(), q0_diag=(1.0, 1e-9, 1e2), r0_diag=(0.01 * r_true, 1e12), use_current=False)
+    # rho = 0.999: R's statistics forget over about 1000 edges, so its estimate has a spread of
+    # about sqrt(2 / 1000) = 4.5 %
+    vb = VbAkfPredictor(kinematic_model(), q0_diag=(1.0, 1e-9, 1e2), r0_diag=(prior * r_true, 1e12), rho=0.999,
+                        use_current=False)
     err = np.sqrt(np.mean(angle_err_deg(vb.run(t).pred_t_s, truth, skip=2000) ** 2))
+    assert vb.r_learned[0, 0] == pytest.approx(r_true, rel=0.2)
     assert err < 1.5
 
 

@@ -150,7 +150,7 @@ class PllPredictor:
 # --- VB-AKF (Huang et al. 2018, Algorithm 1) ------------------------------------------------------
 
 @njit(cache=True)
-def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, guards):
+def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, guards, r_out):
     """Algorithm 1 of Huang et al. 2018 per commutation cycle on the paper's Eq. 9 model.
 
     State x = [w, theta, I] (theta from the last edge, as in ``filters.step``); measurement
@@ -227,6 +227,7 @@ def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, gu
         st[F.ST.X], st[F.ST.X + 1], st[F.ST.X + 2] = x[0], x[1], x[2]
         pred[k] = t[k] + F.predict_next_s(st, a, dl)
         w_out[k] = x[0]
+    r_out[:, :] = U / (u - m - 1.0)                 # R's posterior mean E[R] at the last edge
 
 
 class VbAkfPredictor:
@@ -268,8 +269,11 @@ class VbAkfPredictor:
         m = 2 if self.use_current else 1
         pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
         guards = np.zeros(1, dtype=np.int64)
+        r_learned = np.diag(self.r0_diag[:m])
         if t.size > 1:
             _vb_akf(t, cur, self.fp, self.tables, np.diag(self.q0_diag), np.diag(self.r0_diag[:m]),
                     np.diag(np.asarray(self.p0_diag, dtype=float)), self.tau, self.rho, self.iterations, m,
-                    pred, w, guards)
+                    pred, w, guards, r_learned)
+        #: R's posterior mean after the last edge (rad^2 for the angle; A^2 for the current)
+        self.r_learned = r_learned
         return PredictionRun(pred, w, {"restarts": int(guards[0])})
