@@ -486,6 +486,29 @@ def score_recording(tc: np.ndarray, pred: np.ndarray, speed: np.ndarray, first: 
             "edges_scored": int(k.size)}
 
 
+#: what a recording's meta.json motor block needs for the model-based filters (with phase currents)
+MODEL_KEYS = ("inertia_kg_m2", "ke_v_s_per_rad", "fan_coefficient_n_m_s2")
+
+
+def recording_model(rec, t_edges_s: np.ndarray) -> tuple[MotorModel | None, np.ndarray | None]:
+    """The paper's model from the recording's motor block and the mean |i| over the three phases
+    of each commutation cycle (samples from the previous edge up to this one; the nearest sample
+    where a cycle holds none), or (None, None) when the phase currents or the motor data are missing."""
+    s, motor = rec.samples, rec.motor
+    if not s or any(c not in s for c in ("i_a", "i_b", "i_c")) or any(k not in motor for k in MODEL_KEYS):
+        return None, None
+    model = MotorModel(int(motor["pole_pairs"]), float(motor["inertia_kg_m2"]),
+                       (3.0 * float(motor["ke_v_s_per_rad"]),), (float(motor["fan_coefficient_n_m_s2"]),))
+    mean_abs = (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0
+    csum = np.concatenate(([0.0], np.cumsum(mean_abs)))
+    hi = np.searchsorted(s["t_s"], t_edges_s)
+    lo = np.concatenate(([hi[0]], hi[:-1]))
+    nearest = mean_abs[np.clip(hi, 0, mean_abs.size - 1)]
+    count = hi - lo
+    cycle = np.where(count > 0, (csum[hi] - csum[lo]) / np.maximum(count, 1), nearest)
+    return model, cycle
+
+
 def compare_recording(rec, source: str) -> dict:
     tuned, provenance = _tuned()
     e = recording_edges(rec)
@@ -494,15 +517,18 @@ def compare_recording(rec, source: str) -> dict:
     half = e.t_s.size // 2
     dev = slot_deviation_deg_e(e.t_s[:half], e.slot[:half])
     tc = corrected_times(e.t_s, e.slot, dev)
+    model, current = recording_model(rec, e.t_s)
+    kinematic = model is None
+    if kinematic:
+        current = np.zeros(tc.size)
     preds = []
     for name in NAMES:
-        kin = name in ("kf", "sage_husa", "vb_akf")
+        kin = kinematic and name in ("kf", "sage_husa", "vb_akf")
         settings = tuned["kinematic"][name] if kin else tuned[name]
-        p = build(name, settings, KINEMATIC_MODEL, kinematic=kin)
-        zeros = np.zeros(tc.size)
-        p.run(tc[:64], zeros[:64])
+        p = build(name, settings, KINEMATIC_MODEL if kinematic else model, kinematic=kin)
+        p.run(tc[:64], current[:64])
         t0 = time.perf_counter()
-        r = p.run(tc, zeros)
+        r = p.run(tc, current)
         us = (time.perf_counter() - t0) / tc.size * 1e6
         row = {"name": name, **score_recording(tc, r.pred_t_s, r.speed_rad_s, half), "us_per_edge": us,
                "speed_mape_constant_pct": None, "speed_mape_regulation_pct": None, "settings": settings_of(p)}
@@ -517,9 +543,12 @@ def compare_recording(rec, source: str) -> dict:
             "calibration": {"method": "per sensor and polarity (6 slots) from capture times, first half "
                                       f"({half} edges); pole offsets are not corrected (no index pulse)",
                             "slot_deviation_deg_e": [float(v) for v in dev]},
-            "model": "kf, sage_husa and vb_akf run kinematic: no current or motor data, the state is angle, "
-                     "speed and acceleration (K_T = J = 1, no load, the current channel unobserved); their "
-                     "settings are the kinematic tuning on the training pumps",
+            "model": ("kf, sage_husa and vb_akf run kinematic: no current or motor data, the state is angle, "
+                      "speed and acceleration (K_T = J = 1, no load, the current channel unobserved); their "
+                      "settings are the kinematic tuning on the training pumps" if kinematic else
+                      "kf, sage_husa and vb_akf run the paper's model: J, K_T = 3 ke and M from the recording's "
+                      "motor block, the cycle-mean |i| from its phase currents; their settings are the "
+                      "training pumps' tuning"),
             "speed_mape_note": "constant-speed and regulation-stage MAPE need set-point stages a recording "
                                "does not state: null; speed_mape_pct is over all scored edges against the "
                                "two-sector speed",
