@@ -118,3 +118,18 @@ def test_vb_akf_refuses_bad_hyperparameters():
         VbAkfPredictor(kinematic_model(), rho=0.0)
     with pytest.raises(ValueError, match="iterations"):
         VbAkfPredictor(kinematic_model(), iterations=0)
+
+
+@pytest.mark.parametrize("two_edge", [False, True])
+def test_pll_speed_step_response_is_the_critically_damped_loop(two_edge):
+    """kp = 2 bw, ki = bw^2: the loop's error obeys e'' + 2 bw e' + bw^2 e = theta'', so after a
+    speed step dw the speed estimate is w + dw (1 - (1 + bw t) e^(-bw t)). The edge-sampled loop
+    (bw dt = 0.06 here) follows it within 3 % of the step (measured 1.1 % and 0.02 %)."""
+    w, dw, t_step, bw = W_E, 0.1 * W_E, 1.0, 100.0
+    theta = np.arange(int((w * t_step + (w + dw)) / SECTOR_RAD)) * SECTOR_RAD
+    t = np.where(theta < w * t_step, theta / w, t_step + (theta - w * t_step) / (w + dw))
+    r = PllPredictor(bw, two_edge).run(t)
+    after = (t > t_step) & (t < t_step + 0.1)
+    tau = t[after] - t_step
+    want = w + dw * (1.0 - (1.0 + bw * tau) * np.exp(-bw * tau))
+    assert np.max(np.abs(r.speed_rad_s[after] - want)) < 0.03 * dw
