@@ -149,80 +149,138 @@ class PllPredictor:
 
 # --- VB-AKF (Huang et al. 2018, Algorithm 1) ------------------------------------------------------
 
+@njit(cache=True, inline="always")
+def _inv_small(s, m, out):
+    """out = s^-1 for the 1 x 1 or 2 x 2 innovation covariance."""
+    if m == 1:
+        out[0, 0] = 1.0 / s[0, 0]
+        return
+    det = s[0, 0] * s[1, 1] - s[0, 1] * s[1, 0]
+    out[0, 0], out[1, 1] = s[1, 1] / det, s[0, 0] / det
+    out[0, 1], out[1, 0] = -s[0, 1] / det, -s[1, 0] / det
+
+
 @njit(cache=True)
 def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, guards, r_out):
     """Algorithm 1 of Huang et al. 2018 per commutation cycle on the paper's Eq. 9 model.
 
     State x = [w, theta, I] (theta from the last edge, as in ``filters.step``); measurement
     z = [pi / 3, I_meas] with H = [[0, 1, 0], [0, 0, 1]], or z = pi / 3 alone (m = 1: the
-    kinematic run, no current). q0: nominal Q (3 x 3); r0: the prior's nominal R (m x m)."""
+    kinematic run, no current). q0: nominal Q (3 x 3); r0: the prior's nominal R (m x m).
+    H selects state entries 1 .. m, so H M H^T is M[1:1+m, 1:1+m] and M H^T is M[:, 1:1+m]; the
+    work arrays are allocated once (a step allocates nothing)."""
     n = 3
-    H = np.zeros((m, n))
-    H[0, 1] = 1.0
-    if m == 2:
-        H[1, 2] = 1.0
-    x = np.zeros(n)
-    P = p0.copy()
+    x, x_pred, xi, dx = np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)
+    P, Phi, tmp, P_pred, T_pr = p0.copy(), np.eye(n), np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
+    Pi, P_t, IKH = np.zeros((n, n)), np.zeros((n, n)), np.zeros((n, n))
+    K = np.zeros((n, m))
+    z, innov, r = np.zeros(m), np.zeros(m), np.zeros(m)
+    U_pr, U_i, R_t, S, S_inv = (np.zeros((m, m)), np.zeros((m, m)), np.zeros((m, m)), np.zeros((m, m)),
+                                np.zeros((m, m)))
     # prior of R: inverse Wishart with u_0 dof and scale U_0 = (u_0 - m - 1) R_0 (its mean R_0)
     u = tau + m + 1.0
     U = (u - m - 1.0) * r0
     st = np.zeros(F.N_STATE)                     # only X is read by filters.predict_next_s
-    eye = np.eye(n)
     for k in range(1, t.size):
         dt = t[k] - t[k - 1]
         if k == 1:
             x[0], x[1], x[2] = SECTOR_RAD / dt, 0.0, cur[k]
         else:
             a, dl = F.coefficients(x[0], fp, tables)
-            Phi = np.array([[1.0, 0.0, a * dt], [dt, 1.0, 0.5 * a * dt * dt], [0.0, 0.0, 1.0]])
-            uin = np.array([-dt * dl, -0.5 * dt * dt * dl, 0.0])
+            Phi[0, 2], Phi[1, 0], Phi[1, 2] = a * dt, dt, 0.5 * a * dt * dt
             # Step 1: x_k|k-1 = F x_k-1|k-1 (+ the load input of Eq. 9)
-            x_pred = Phi @ x + uin
+            x_pred[0] = x[0] + Phi[0, 2] * x[2] - dt * dl
+            x_pred[1] = dt * x[0] + x[1] + Phi[1, 2] * x[2] - 0.5 * dt * dt * dl
+            x_pred[2] = x[2]
             # Step 2: P~_k|k-1 = F P_k-1|k-1 F^T + Q~_k-1 (Q~: the nominal, inaccurate Q)
-            P_pred = Phi @ P @ Phi.T + q0
-            z = np.empty(m)
+            for i in range(n):
+                for j in range(n):
+                    tmp[i, j] = Phi[i, 0] * P[0, j] + Phi[i, 1] * P[1, j] + Phi[i, 2] * P[2, j]
+            for i in range(n):
+                for j in range(n):
+                    P_pred[i, j] = tmp[i, 0] * Phi[j, 0] + tmp[i, 1] * Phi[j, 1] + tmp[i, 2] * Phi[j, 2] + q0[i, j]
             z[0] = SECTOR_RAD
             if m == 2:
                 z[1] = cur[k]
+            for i in range(m):
+                innov[i] = z[i] - x_pred[1 + i]      # z - H x_k|k-1
             # Step 3: t_k|k-1 = n + tau + 1, T_k|k-1 = tau P~_k|k-1;
             #         u_k|k-1 = rho (u_k-1|k-1 - m - 1) + m + 1, U_k|k-1 = rho U_k-1|k-1
             t_pr = n + tau + 1.0
-            T_pr = tau * P_pred
             u_pr = rho * (u - m - 1.0) + m + 1.0
-            U_pr = rho * U
-            xi, Pi = x_pred.copy(), P_pred.copy()
-            t_i, T_i, u_i, U_i = t_pr, T_pr, u_pr, U_pr
+            for i in range(n):
+                xi[i] = x_pred[i]
+                for j in range(n):
+                    T_pr[i, j] = tau * P_pred[i, j]
+                    Pi[i, j] = P_pred[i, j]
+            for i in range(m):
+                for j in range(m):
+                    U_pr[i, j] = rho * U[i, j]
+            # Step 5 and 7: t^(i+1) = t_k|k-1 + 1, u^(i+1) = u_k|k-1 + 1 (the same every iteration)
+            t_i, u_i = t_pr + 1.0, u_pr + 1.0
             for _ in range(n_iter):
-                # Step 4: A = P^(i) + (x^(i) - x_k|k-1)(x^(i) - x_k|k-1)^T
-                dx = xi - x_pred
-                A = Pi + np.outer(dx, dx)
-                # Step 5: t^(i+1) = t_k|k-1 + 1, T^(i+1) = A + T_k|k-1
-                t_i, T_i = t_pr + 1.0, A + T_pr
-                # Step 6: B = (z - H x^(i))(z - H x^(i))^T + H P^(i) H^T
-                r = z - H @ xi
-                B = np.outer(r, r) + H @ Pi @ H.T
-                # Step 7: u^(i+1) = u_k|k-1 + 1, U^(i+1) = B + U_k|k-1
-                u_i, U_i = u_pr + 1.0, B + U_pr
-                # Step 8: E[P_k|k-1^-1] = (t - n - 1) T^-1, E[R^-1] = (u - m - 1) U^-1
-                # Step 9: P~^(i+1) = E[P^-1]^-1, R~^(i+1) = E[R^-1]^-1
-                P_t = T_i / (t_i - n - 1.0)
-                R_t = U_i / (u_i - m - 1.0)
+                for i in range(n):
+                    dx[i] = xi[i] - x_pred[i]
+                for i in range(m):
+                    r[i] = z[i] - xi[1 + i]
+                # Step 4: A = P^(i) + (x^(i) - x_k|k-1)(x^(i) - x_k|k-1)^T; Step 5: T^(i+1) = A + T_k|k-1;
+                # Step 8: E[P_k|k-1^-1] = (t - n - 1) T^-1; Step 9: P~^(i+1) = E[P^-1]^-1
+                for i in range(n):
+                    for j in range(n):
+                        P_t[i, j] = (Pi[i, j] + dx[i] * dx[j] + T_pr[i, j]) / (t_i - n - 1.0)
+                # Step 6: B = (z - H x^(i))(z - H x^(i))^T + H P^(i) H^T; Step 7: U^(i+1) = B + U_k|k-1;
+                # Step 8: E[R^-1] = (u - m - 1) U^-1; Step 9: R~^(i+1) = E[R^-1]^-1
+                for i in range(m):
+                    for j in range(m):
+                        U_i[i, j] = r[i] * r[j] + Pi[1 + i, 1 + j] + U_pr[i, j]
+                        R_t[i, j] = U_i[i, j] / (u_i - m - 1.0)
+                        S[i, j] = P_t[1 + i, 1 + j] + R_t[i, j]
                 # Step 10: K = P~ H^T (H P~ H^T + R~)^-1
-                S = H @ P_t @ H.T + R_t
-                K = P_t @ H.T @ np.linalg.inv(S)
+                _inv_small(S, m, S_inv)
+                for i in range(n):
+                    for j in range(m):
+                        v = 0.0
+                        for q in range(m):
+                            v += P_t[i, 1 + q] * S_inv[q, j]
+                        K[i, j] = v
                 # Step 11: x^(i+1) = x_k|k-1 + K (z - H x_k|k-1)
-                xi = x_pred + K @ (z - H @ x_pred)
-                # Step 12: P^(i+1) = P~ - K H P~ (Joseph form: the same in exact arithmetic)
-                IKH = eye - K @ H
-                Pi = IKH @ P_t @ IKH.T + K @ R_t @ K.T
-                Pi = 0.5 * (Pi + Pi.T)
+                for i in range(n):
+                    v = x_pred[i]
+                    for q in range(m):
+                        v += K[i, q] * innov[q]
+                    xi[i] = v
+                # Step 12: P^(i+1) = P~ - K H P~, in Joseph form (the same in exact arithmetic):
+                # (I - K H) P~ (I - K H)^T + K R~ K^T
+                for i in range(n):
+                    for j in range(n):
+                        IKH[i, j] = 1.0 if i == j else 0.0
+                    for q in range(m):
+                        IKH[i, 1 + q] -= K[i, q]
+                for i in range(n):
+                    for j in range(n):
+                        tmp[i, j] = IKH[i, 0] * P_t[0, j] + IKH[i, 1] * P_t[1, j] + IKH[i, 2] * P_t[2, j]
+                for i in range(n):
+                    for j in range(i, n):
+                        v = tmp[i, 0] * IKH[j, 0] + tmp[i, 1] * IKH[j, 1] + tmp[i, 2] * IKH[j, 2]
+                        for p_ in range(m):
+                            for q in range(m):
+                                v += K[i, p_] * R_t[p_, q] * K[j, q]
+                        Pi[i, j] = v
+                        Pi[j, i] = v
             # Step 13: x_k|k = x^(N), P_k|k = P^(N), u_k|k = u^(N), U_k|k = U^(N)
-            x, P, u, U = xi, Pi, u_i, U_i
+            for i in range(n):
+                x[i] = xi[i]
+                for j in range(n):
+                    P[i, j] = Pi[i, j]
+            u = u_i
+            for i in range(m):
+                for j in range(m):
+                    U[i, j] = U_i[i, j]
             x[1] -= SECTOR_RAD                       # re-reference: this edge is the new zero
             if not (np.all(np.isfinite(x)) and x[0] > 0.0):
                 guards[0] += 1                          # lost: restart from the last interval
                 x[0], x[1], x[2] = SECTOR_RAD / dt, 0.0, cur[k]
-                P = p0.copy()
+                P[:, :] = p0
         a, dl = F.coefficients(x[0], fp, tables)
         st[F.ST.X], st[F.ST.X + 1], st[F.ST.X + 2] = x[0], x[1], x[2]
         pred[k] = t[k] + F.predict_next_s(st, a, dl)
