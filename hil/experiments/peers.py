@@ -9,8 +9,8 @@ Scenarios:
   bench, a speed-step profile inside 3,000-15,000 rpm, the effect library's Hall deviations), each
   calibrated by the calibration station, then run through the speed steps; truth from the plant;
   held-out seeds ``HELD_OUT_PUMP_SEEDS``, none of which any tuning saw;
-* a recording (hil-recording/1): calibrated on its first half (``recording_edges``), scored on
-  its second against the corrected edge instants.
+* a recording (hil-recording/1): calibrated on its first half (``slot_deviation_deg_e``), scored
+  on its second against the corrected edge instants (``compare_recording``).
 
 Every predictor's settings come from ``peer_settings.TUNED``, written once by
 ``tools/predictor_tuning.py`` from a tuning on the training pumps ``TRAIN_PUMP_SEEDS``
@@ -253,9 +253,9 @@ BUDGETS = {
 
 # --- evaluation ------------------------------------------------------------------------------------
 
-def _figures(name: str, predictor, pairs, t_scored=None) -> tuple[dict, list[dict]]:
-    """Per-run rows and the pooled figures of one predictor; the cost per edge is the batch
-    run's wall time over the edges (best of the runs' rates, after one compile call)."""
+def _figures(name: str, predictor, pairs) -> tuple[list, list[float]]:
+    """One predictor over (run, model) pairs: each run's Table5Row against the plant's truth and
+    its cost per edge (the batch run's wall time over its edges, after one compile call)."""
     predictor.run(pairs[0][0].t_corrected_s[:64], pairs[0][0].mean_current_a[:64])
     rows, cost = [], []
     for run, _ in pairs:
@@ -320,20 +320,20 @@ def compare_pumps(seeds=HELD_OUT_PUMP_SEEDS) -> dict:
             r, c = _figures(name, q, [pair])
             rows += r
             cost += c
-            per_pump[j]["predictors"].append(_row_json(name, r, c, None) | {"settings": None})
+            per_pump[j]["predictors"].append(_row_json(name, r, c, None))
         row = _row_json(name, rows, cost, settings_of(p))
         rms = [r.angle_rms_deg_e for r in rows]
         row["angle_rms_median_deg_e"] = float(np.median(rms))
         preds.append(row)
-    kf = {r["name"]: r for r in preds}
+    by_name = {r["name"]: r for r in preds}
     return {"source": f"scenario pumps: {len(seeds)} held-out pumps (seeds {seeds[0]}-{seeds[-1]}) drawn from "
                       f"{PUMP_RANGE}; {PUMP_SETPOINTS} set points each held {PUMP_HOLD_S:g} s, calibrated by "
                       "the station",
             "reference": "the plant's ideal edge instants (ground truth); figures are means over the pumps, "
                          "angle_rms_median_deg_e the median, max the largest",
             "settings_provenance": provenance,
-            "sage_husa_over_kf_median_rms": (kf["sage_husa"]["angle_rms_median_deg_e"]
-                                             / kf["kf"]["angle_rms_median_deg_e"]),
+            "sage_husa_over_kf_median_rms": (by_name["sage_husa"]["angle_rms_median_deg_e"]
+                                             / by_name["kf"]["angle_rms_median_deg_e"]),
             "predictors": preds, "pumps": per_pump}
 
 
