@@ -71,8 +71,8 @@ PROVENANCE = {'tool': 'tools/predictor_tuning.py',
                               'pll': 0.2439402431872312,
                               'kf': 0.13062408383705842,
                               'sage_husa': 0.12287539455208135,
-                              'vb_akf': 0.1400816172947228,
+                              'vb_akf': 0.140081617294737,
                               'kf (kinematic)': 0.16125430791203987,
                               'sage_husa (kinematic)': 0.15284416886211272,
-                              'vb_akf (kinematic)': 0.17800056093140654},
- 'tuning_wall_time_s': 854}
+                              'vb_akf (kinematic)': 0.17800056093140715},
+ 'tuning_wall_time_s': 128}
