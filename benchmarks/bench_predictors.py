@@ -3,7 +3,9 @@
 Per-step cost of our Sage-Husa online update (Eq. 9 predict, Eq. 11 update, Eq. 12 adaptation,
 guards) against filterpy's ``KalmanFilter.predict() + update()`` on the same 3-state model
 (F and B from Eq. 9, H observing angle and current), measured in the same run; and the batch
-mode over a whole recorded edge sequence in filter steps per second on one core.
+mode over a whole recorded edge sequence in filter steps per second on one core; then the batch
+cost per edge of every predictor ``hil predictors compare`` runs, with its shipped settings
+(hil/experiments/peer_settings.py), on the same edges.
 """
 
 from __future__ import annotations
@@ -78,6 +80,20 @@ def _timed(fn):
     return time.perf_counter() - start
 
 
+def peer_costs(t, cur) -> dict[str, float]:
+    """Batch run time per edge (us, best of 3 after a compile call) of each compared predictor."""
+    from hil.experiments import peers
+    from hil.experiments.peer_settings import TUNED
+
+    model = MotorModel.from_plant(paper_bench().motor)
+    out = {}
+    for name in peers.NAMES:
+        p = peers.build(name, TUNED[name], model)
+        p.run(t[:100], cur[:100])
+        out[name] = min(_timed(lambda: p.run(t, cur)) for _ in range(3)) / t.size * 1e6
+    return out
+
+
 def main():
     t, cur = edges(12.0)  # about 20,000 edges
     n = 15000
@@ -99,6 +115,8 @@ def main():
         f"{'ours: batch mode over ' + format(t.size, ',') + ' recorded edges':<58} {1e6 / rate:>9.3f} us "
         f"{rate:>12,.0f} steps/s (bar >= 1,000,000)"
     )
+    for name, us in peer_costs(t, cur).items():
+        print(f"{'batch, ' + name + ' (shipped settings)':<58} {us:>9.3f} us")
 
 
 if __name__ == "__main__":

@@ -241,6 +241,23 @@ def cmd_table5(args) -> int:
     return 0
 
 
+def cmd_predictors_compare(args) -> int:
+    from .experiments import peers
+
+    if args.recording and args.scenario:
+        raise ValueError("give a RECORDING or --scenario, not both")
+    if args.recording:
+        result = peers.compare_recording(read_recording(args.recording), args.recording)
+    elif (args.scenario or "paper") == "paper":
+        result = peers.compare_paper()
+    else:
+        result = peers.compare_pumps()
+    print(peers.format_result(result))
+    if args.json:
+        _write_json(args.json, result)
+    return 0
+
+
 def _write_json(path: str, data: dict) -> None:
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     Path(path).write_text(json.dumps(data, indent=2) + "\n")
@@ -873,6 +890,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--train-seed", type=int, nargs="+", help="tuning seeds (default: 1 2 12 13)")
     p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
+
+    p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
+    ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
+    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated on its first half, scored "
+                   "on its second)")
+    q.add_argument("--scenario", choices=["paper", "pumps"], help="the paper's speed steps (default) or held-out pumps")
+    q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
+    q.set_defaults(func=cmd_predictors_compare)
 
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)

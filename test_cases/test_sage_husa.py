@@ -29,15 +29,17 @@ SCENARIO_EFFECTS = SCENARIO_PLANT.effects
 SH_SETTINGS = VirtualController(SCENARIO_PLANT.motor).filter_settings
 
 
-def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS):
+def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS, setpoints_rpm=SETPOINTS_RPM,
+                 seed=None):
     bench = hil_bench(
         strategy,
         corrections=corrections,
         effects=SCENARIO_EFFECTS,
-        speed_rpm=SETPOINTS_RPM[0],
+        speed_rpm=setpoints_rpm[0],
         filter_settings=filter_settings,
+        seed=seed,
     )
-    steps = bench.run_setpoints(list(SETPOINTS_RPM), hold_s=HOLD_S, settle_s=0.3)
+    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=HOLD_S, settle_s=0.3)
     c = bench.sim.commutations()
     keep = c.t_s >= steps[0]
     err = c.error_deg_e[keep]
@@ -91,19 +93,52 @@ def test_sage_husa_meets_its_budgets(calibrate, hil_bench, hil_link, hil_budget,
     hil_budget("commutation_time_mape", sh[5])
 
 
+#: REQ-PRED-002 is judged over this many seeds (from the run's seed on) on each operating profile
+#: of ``controller_tuning.PROFILES``, with the controller's own motor: Sage-Husa's angle RMS over the
+#: KF's, pooled over every run. The controller's filters were tuned on training pumps, none of
+#: these; the evidence states the spread per run and with each seed left out in turn
+REQ_PRED_002_SEEDS = 6
+
+
 @pytest.mark.requirement("REQ-PRED-002")
-def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_link, hil_budget, hil_evidence):
-    """Against the controller's fixed-noise Kalman filter, both tuned alike on the controller's
-    closed loop (other seeds than this one): stationary noise leaves adaptation little to win, so
-    this is the honest bound; held out, Sage-Husa is 1.00x the KF (docs/sage-husa.md, "Tuned on
-    the closed loop")."""
-    rows, traces, judged_from_s, _ = run_strategies(calibrate, hil_bench, hil_link, (Strategy.SAGE_HUSA, Strategy.KF))
-    hil_evidence.table("paper scenario: Sage-Husa against the tuned Kalman filter", ROW_COLUMNS, list(rows.values()))
+def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_seed, hil_budget, hil_evidence):
+    """Against the controller's fixed-noise Kalman filter, both from the same tuning on training
+    pumps (docs/sage-husa.md, "Peers"), over held-out seeds and three operating profiles, so that
+    one seed cannot flip the verdict: stationary noise leaves adaptation little to win, so this is
+    the honest bound."""
+    from hil.experiments.controller_tuning import PROFILES
+
+    corrections = calibrate(SCENARIO_EFFECTS)
+    runs, traces, judged_from_s = [], {}, None
+    for profile, setpoints in PROFILES.items():
+        for seed in range(hil_seed, hil_seed + REQ_PRED_002_SEEDS):
+            pair = {}
+            for strategy in (Strategy.SAGE_HUSA, Strategy.KF):
+                _, trace, t0, err, _ = run_scenario(hil_bench, corrections, strategy, setpoints_rpm=setpoints,
+                                                    seed=seed)
+                pair[strategy] = rms(err)
+                if seed == hil_seed and setpoints == SETPOINTS_RPM:
+                    traces[strategy.name], judged_from_s = trace, t0
+            runs.append((profile, seed, pair[Strategy.SAGE_HUSA], pair[Strategy.KF]))
+
+    def pooled(rows):
+        return float(np.mean([r[2] for r in rows]) / np.mean([r[3] for r in rows]))
+
+    leave_one_out = [pooled([r for r in runs if r[1] != s]) for s in range(hil_seed, hil_seed + REQ_PRED_002_SEEDS)]
+    hil_evidence.table(
+        "Sage-Husa against the tuned Kalman filter, per operating profile and seed",
+        ["profile", "seed", "Sage-Husa RMS deg e", "KF RMS deg e", "ratio"],
+        [[p, s, sh, kf, sh / kf] for p, s, sh, kf in runs],
+    )
+    for profile in PROFILES:
+        hil_evidence.value(f"pooled ratio, {profile}", pooled([r for r in runs if r[0] == profile]), "ratio")
+    hil_evidence.value("pooled ratio with one seed left out, lowest", min(leave_one_out), "ratio")
+    hil_evidence.value("pooled ratio with one seed left out, highest", max(leave_one_out), "ratio")
     hil_evidence.figure(
         "commutation error: Sage-Husa and Kalman filter",
         commutation_error_figure(traces, "paper scenario, 5000 to 10,000 rpm", judged_from_s=judged_from_s),
     )
-    hil_budget("sage_husa_over_kf_angle_rms", rows[Strategy.SAGE_HUSA][2] / rows[Strategy.KF][2])
+    hil_budget("sage_husa_over_kf_angle_rms", pooled(runs))
 
 
 @pytest.mark.requirement("REQ-PRED-003")

@@ -55,7 +55,7 @@ from ..predictors.model import MotorModel
 from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
 from . import compare
 from .closed_loop import HOLD_S, Recording, as_carried, commutation_time_mape_pct, record_link
-from .table5 import scenario_plant
+from .table5 import SETPOINTS_RPM, scenario_plant
 
 TRAIN_SEEDS = compare.TRAIN_SEEDS
 EVAL_SEEDS = compare.EVAL_SEEDS
@@ -175,19 +175,21 @@ def acceptance_plant():
 PLANTS = {"paper scenario": scenario_plant, "acceptance plant": acceptance_plant}
 
 
-def evaluate(sh: FilterSettings, kf: FilterSettings, seeds, hold_s: float = HOLD_S, config=None) -> list[SeedResult]:
+def evaluate(sh: FilterSettings, kf: FilterSettings, seeds, hold_s: float = HOLD_S, config=None,
+             setpoints_rpm=SETPOINTS_RPM) -> list[SeedResult]:
     """Each seed through a controller whose defaults are ``sh`` and ``kf`` (in-process link), as
     the acceptance test runs it: Sage-Husa with b, Q0, R0, P0 written over the link, then the
     fixed-noise KF; each scored against the plant's true rotor angle, and each run's edges
-    replayed offline through the same filter. ``config``: the plant (default: the paper scenario's)."""
+    replayed offline through the same filter. ``config``: the plant (default: the paper scenario's);
+    ``setpoints_rpm``: the operating profile (default: the paper's)."""
     config = config or scenario_plant()
     model = MotorModel.from_plant(config.motor)
     out = []
     for seed in seeds:
         corrections = station_corrections(config, seed=seed)
         link = InProcessLink(VirtualController(config.motor, filter_settings=sh, kf_settings=kf))
-        r_sh = record_link(link, config, corrections, seed, hold_s, Strategy.SAGE_HUSA, sh)
-        r_kf = record_link(link, config, corrections, seed, hold_s, Strategy.KF)
+        r_sh = record_link(link, config, corrections, seed, hold_s, Strategy.SAGE_HUSA, sh, setpoints_rpm)
+        r_kf = record_link(link, config, corrections, seed, hold_s, Strategy.KF, setpoints_rpm=setpoints_rpm)
         carried = as_carried(sh, sh)
         out.append(SeedResult(
             seed,
@@ -286,4 +288,73 @@ def main(argv=None) -> int:
     print(f"\n{time.monotonic() - t0:.0f} s in all")
     if args.json:
         args.json.write_text(json.dumps(out, indent=1))
+    return 0
+
+
+# --- the defaults from the training pumps, judged over held-out seeds and profiles ----------------
+
+#: operating profiles REQ-PRED-002 is judged over, with the controller's own motor (a DUT is one
+#: motor): the paper's steps and a low and a high band of the pump's range
+PROFILES = {
+    "paper 5000-10,000 rpm": SETPOINTS_RPM,
+    "low 3000-6000 rpm": tuple(float(v) for v in np.linspace(3000.0, 6000.0, 4)),
+    "high 9000-14,000 rpm": tuple(float(v) for v in np.linspace(9000.0, 14000.0, 4)),
+}
+
+
+def pump_defaults() -> tuple[FilterSettings, FilterSettings]:
+    """Sage-Husa's and the KF's settings from the training-pump tuning (``peers.tune``, shipped in
+    ``peer_settings.TUNED``; no scenario seed of this controller's plant was seen), rounded to
+    DIGITS significant digits as the controller's defaults are."""
+    from .peer_settings import TUNED
+    from .peers import filter_settings
+
+    return rounded(filter_settings(TUNED["sage_husa"])), rounded(filter_settings(TUNED["kf"]))
+
+
+@dataclass
+class Judgement:
+    rows: dict[str, list[SeedResult]]   #: per profile, one row per seed
+
+    def pooled_ratio(self, drop_seed: int | None = None) -> float:
+        """Sage-Husa's angle RMS over the KF's, pooled (mean of the runs' RMS) over every seed
+        and profile, optionally without one seed."""
+        runs = [r for rows in self.rows.values() for r in rows if r.seed != drop_seed]
+        return float(np.mean([r.sh_angle_rms_deg_e for r in runs]) / np.mean([r.kf_angle_rms_deg_e for r in runs]))
+
+    def leave_one_seed_out(self) -> tuple[float, float]:
+        seeds = sorted({r.seed for rows in self.rows.values() for r in rows})
+        values = [self.pooled_ratio(s) for s in seeds]
+        return min(values), max(values)
+
+
+def judge(sh: FilterSettings, kf: FilterSettings, seeds, profiles=PROFILES, hold_s: float = HOLD_S) -> Judgement:
+    """REQ-PRED-002 through the controller (in-process) over held-out seeds and operating profiles."""
+    config = acceptance_plant()
+    return Judgement({name: evaluate(sh, kf, seeds, hold_s, config, sp) for name, sp in profiles.items()})
+
+
+def judge_main(argv=None) -> int:
+    import argparse
+    import time
+
+    ap = argparse.ArgumentParser(description="REQ-PRED-002 with the pump-tuned defaults over held-out seeds "
+                                             "and operating profiles")
+    ap.add_argument("--seed", type=int, nargs="+", default=list(range(10)))
+    args = ap.parse_args(argv)
+    t0 = time.monotonic()
+    sh, kf = pump_defaults()
+    print(settings_line("KF (training pumps)", kf, False))
+    print(settings_line("Sage-Husa (training pumps)", sh, True))
+    default = VirtualController(scenario_plant().motor)
+    print("the controller's defaults are these settings"
+          if (default.filter_settings, default.kf_settings) == (sh, kf) else "the controller's defaults differ")
+    j = judge(sh, kf, args.seed)
+    for name, rows in j.rows.items():
+        print()
+        print(format_results(f"{name}, acceptance plant, through the controller (in-process):", rows))
+    lo, hi = j.leave_one_seed_out()
+    ratios = [r.ratio for rows in j.rows.values() for r in rows]
+    print(f"\npooled SH/KF over {len(ratios)} runs: {j.pooled_ratio():.3f}; per run {min(ratios):.3f}-"
+          f"{max(ratios):.3f}; leaving one seed out {lo:.3f}-{hi:.3f}; {time.monotonic() - t0:.0f} s")
     return 0

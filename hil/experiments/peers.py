@@ -1,0 +1,585 @@
+"""Every commutation predictor on every scenario: the firmware peers (sector hold, moving
+average, PLL), the KF, Sage-Husa and the VB-AKF (``hil predictors compare``, docs/sage-husa.md).
+
+Scenarios:
+
+* ``paper``: the paper's speed-step scenario (``table5.run_scenario``), seeds ``compare.EVAL_SEEDS``,
+  truth from the plant;
+* ``pumps``: pumps drawn from ``PUMP_RANGE`` (pole pairs, inertia and fan load around the paper
+  bench, a speed-step profile inside 3,000-15,000 rpm, the effect library's Hall deviations), each
+  calibrated by the calibration station, then run through the speed steps; truth from the plant;
+  held-out seeds ``HELD_OUT_PUMP_SEEDS``, none of which any tuning saw;
+* a recording (hil-recording/1): calibrated on its first half (``slot_deviation_deg_e``), scored
+  on its second against the corrected edge instants (``compare_recording``).
+
+Every predictor's settings come from ``peer_settings.TUNED``, written once by
+``tools/predictor_tuning.py`` from a tuning on the training pumps ``TRAIN_PUMP_SEEDS``
+(``tune``); ``compare`` only evaluates.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from bldc.motor import steady_state
+from plant_models import PlantConfig, paper_bench
+from plant_models import effects as fx
+from plant_models.plant import PAPER_BENCH_CIRCUIT
+
+from ..calibration.campaign import station_corrections
+from ..predictors.model import SECTOR_RAD, MotorModel
+from ..predictors.peers import MovingAveragePredictor, PllPredictor, SectorHoldPredictor, VbAkfPredictor
+from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
+from . import compare
+from .identify import identify
+from .table5 import ScenarioRun, run_scenario, scenario_plant, score
+
+NAMES = ("sector_hold", "moving_average", "pll", "kf", "sage_husa", "vb_akf")
+#: the pumps' range: pole pairs, and inertia and fan load as factors of the paper bench's
+PUMP_RANGE = dict(pole_pairs=(1, 4), inertia_factor=(0.3, 3.0), fan_factor=(0.5, 2.0), speed_rpm=(3000.0, 15000.0),
+                  installation_offset_deg_e=(-3.0, 3.0), pole_offset_deg_e=(-2.0, 2.0),
+                  conditioning_c1_factor=(0.5, 2.0), armature_slope_deg_e_per_a=(0.0, 0.5),
+                  edge_jitter_time_rms_s=(1e-6, 5e-6), timer_tick_s=1e-7)
+#: a pump's profile: this many set points, each held this long, from a low to a high speed at
+#: least this far apart; speeds above what the supply holds at 95 % duty are left out
+PUMP_SETPOINTS, PUMP_HOLD_S, PUMP_MIN_SPAN_RPM, PUMP_MAX_DUTY = 5, 0.6, 2000.0, 0.95
+HELD_OUT_PUMP_SEEDS = tuple(range(1000, 1024))
+TRAIN_PUMP_SEEDS = tuple(range(2000, 2008))
+#: the tuning's budget: at most compare's (a 144-point grid, then 80 Nelder-Mead evaluations from
+#: its 2 best points) per option; predictors with fewer knobs search exhaustively with fewer
+MA_FIFO_GRID = tuple(range(1, 145))
+PLL_BW_GRID_RAD_S = tuple(float(v) for v in np.geomspace(10.0, 2e4, 144))
+VB_GRID = dict(q_w=compare.KF_GRID["q_w"], q_i=compare.KF_GRID["q_i"], r_theta=(1e-5, 1e-3), tau=(1.0, 10.0),
+               one_minus_rho=(math.exp(-4.0), 1e-3))
+VB_ITERATIONS = (2, 10)
+assert math.prod(len(v) for v in VB_GRID.values()) == math.prod(len(v) for v in compare.KF_GRID.values())
+#: the kinematic form of the model-based filters (no current, no motor data): K_T = 1, J = 1, one
+#: pole pair, no load, so the third state is the acceleration (rad/s^2 e); the current channel
+#: carries 0 with this variance (A^2 = (rad/s^2)^2), so it says nothing of the acceleration
+KINEMATIC_MODEL = MotorModel(1, 1.0, (1.0,), (0.0,))
+KINEMATIC_R_I = 1e12
+
+
+@dataclass
+class Pump:
+    seed: int
+    params: dict
+    config: PlantConfig
+    setpoints_rpm: tuple[float, ...]
+
+
+def draw_pump(seed: int) -> Pump:
+    """One pump from PUMP_RANGE (log-uniform factors, uniform offsets), its deviations inside the
+    effect library's bounds."""
+    rng = np.random.default_rng([seed, 0x9035])
+    r = PUMP_RANGE
+    base = paper_bench()
+    pp = int(rng.integers(r["pole_pairs"][0], r["pole_pairs"][1] + 1))
+
+    def log_uniform(lo_hi):
+        return float(np.exp(rng.uniform(*np.log(lo_hi))))
+
+    j_f, fan_f, c1_f = log_uniform(r["inertia_factor"]), log_uniform(r["fan_factor"]), log_uniform(
+        r["conditioning_c1_factor"])
+    motor = dataclasses.replace(base.motor, pole_pairs=pp, inertia_kg_m2=base.motor.inertia_kg_m2 * j_f,
+                                fan_coefficient_n_m_s2=base.motor.fan_coefficient_n_m_s2 * fan_f)
+    # the fastest speed the supply holds at PUMP_MAX_DUTY (the analytic steady state, bisected)
+    lo_rpm, hi_rpm = r["speed_rpm"]
+    if steady_state(motor, hi_rpm)["duty"] > PUMP_MAX_DUTY:
+        a, b = lo_rpm, hi_rpm
+        for _ in range(40):
+            mid = 0.5 * (a + b)
+            a, b = (mid, b) if steady_state(motor, mid)["duty"] <= PUMP_MAX_DUTY else (a, mid)
+        hi_rpm = a
+    low = float(rng.uniform(lo_rpm, max(lo_rpm, hi_rpm - PUMP_MIN_SPAN_RPM)))
+    high = float(rng.uniform(min(low + PUMP_MIN_SPAN_RPM, hi_rpm), hi_rpm))
+    setpoints = tuple(float(v) for v in np.linspace(low, high, PUMP_SETPOINTS))
+    install = tuple(float(v) for v in rng.uniform(*r["installation_offset_deg_e"], 3))
+    poles = tuple(float(v) for v in rng.uniform(*r["pole_offset_deg_e"], 2 * pp))
+    circuit = dataclasses.replace(PAPER_BENCH_CIRCUIT, c1_f=PAPER_BENCH_CIRCUIT.c1_f * c1_f)
+    arm = float(rng.uniform(*r["armature_slope_deg_e_per_a"]))
+    jitter = float(rng.uniform(*r["edge_jitter_time_rms_s"]))
+    config = dataclasses.replace(
+        base, motor=motor, name=f"pump-{seed}",
+        effects=(fx.InstallationOffset(offset_deg_e=install), fx.PoleOffset(offset_deg_e=poles),
+                 fx.ConditioningDelay.from_circuit(circuit), fx.ArmatureReaction(slope_deg_e_per_a=arm),
+                 fx.EdgeJitter(time_rms_s=jitter), fx.TimerQuantization(tick_s=r["timer_tick_s"])))
+    params = dict(seed=seed, pole_pairs=pp, inertia_kg_m2=motor.inertia_kg_m2, inertia_factor=j_f,
+                  fan_coefficient_n_m_s2=motor.fan_coefficient_n_m_s2, fan_factor=fan_f, setpoints_rpm=list(setpoints),
+                  hold_s=PUMP_HOLD_S, installation_offset_deg_e=list(install), pole_offset_deg_e=list(poles),
+                  conditioning_c1_f=circuit.c1_f, armature_slope_deg_e_per_a=arm, edge_jitter_time_rms_s=jitter,
+                  timer_tick_s=r["timer_tick_s"])
+    return Pump(seed, params, config, setpoints)
+
+
+def pump_run(pump: Pump) -> tuple[ScenarioRun, MotorModel]:
+    """The pump calibrated by the station, run through its speed steps; its identified model."""
+    corrections = station_corrections(pump.config, seed=pump.seed)
+    run = run_scenario(pump.config, corrections, hold_s=PUMP_HOLD_S, setpoints_rpm=pump.setpoints_rpm, seed=pump.seed)
+    return run, identify(pump.config, seed=pump.seed).model
+
+
+# --- the predictors from their settings ---------------------------------------------------------
+
+def build(name: str, settings: dict, model: MotorModel, kinematic: bool = False):
+    """The predictor ``name`` with ``settings`` (as ``peer_settings.TUNED`` holds them) on ``model``;
+    ``kinematic``: the model-based filters without current or motor data (KINEMATIC_MODEL)."""
+    if name == "sector_hold":
+        return SectorHoldPredictor()
+    if name == "moving_average":
+        return MovingAveragePredictor(int(settings["fifo_edges"]))
+    if name == "pll":
+        return PllPredictor(float(settings["bandwidth_rad_s"]), bool(settings["two_edge"]))
+    if kinematic:
+        model = KINEMATIC_MODEL
+    if name in ("kf", "sage_husa"):
+        s = filter_settings(settings)
+        if kinematic:
+            s = dataclasses.replace(s, r0_diag=(s.r0_diag[0], KINEMATIC_R_I))
+        return (KalmanPredictor if name == "kf" else SageHusaPredictor)(model, s)
+    if name == "vb_akf":
+        kw = {k: settings[k] for k in ("q0_diag", "r0_diag", "tau", "rho", "iterations")}
+        return VbAkfPredictor(model, **kw, use_current=not kinematic)
+    raise ValueError(f"unknown predictor {name!r}; one of {', '.join(NAMES)}")
+
+
+def filter_settings(d: dict) -> FilterSettings:
+    fields = {f.name for f in dataclasses.fields(FilterSettings)}
+    return FilterSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+
+
+def settings_of(predictor) -> dict:
+    if isinstance(predictor, (KalmanPredictor, SageHusaPredictor)):
+        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(predictor.settings).items()}
+    return predictor.settings
+
+
+# --- tuning (tools/predictor_tuning.py; never run by compare) -----------------------------------------
+
+def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
+    """The tuning objective over (run, model) pairs: mean commutation angle RMS, each pump's
+    predictor rebuilt on its own model (compare's objective takes one model for all runs);
+    ``kinematic``: the model-based filters in their kinematic form (``build``)."""
+    out = []
+    for run, model in runs:
+        p = predictor
+        if kinematic:
+            model = KINEMATIC_MODEL
+        if isinstance(predictor, (KalmanPredictor, SageHusaPredictor)):
+            s = predictor.settings
+            if kinematic:
+                s = dataclasses.replace(s, r0_diag=(s.r0_diag[0], KINEMATIC_R_I))
+            p = type(predictor)(model, s)
+        elif isinstance(predictor, VbAkfPredictor):
+            p = VbAkfPredictor(model, predictor.q0_diag, predictor.r0_diag, predictor.tau, predictor.rho,
+                               predictor.iterations, use_current=not kinematic)
+        cur = np.zeros(run.t_corrected_s.size) if kinematic else run.mean_current_a
+        r = p.run(run.t_corrected_s, cur)
+        out.append(score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e)
+    value = float(np.mean(out))
+    return value if math.isfinite(value) else math.inf
+
+
+def tune(runs: list[tuple[ScenarioRun, MotorModel]], kinematic: bool = False, log=print) -> dict[str, dict]:
+    """Each predictor's settings minimising the mean commutation angle RMS over ``runs`` (training
+    pumps), each search at most compare's budget per option (stated in ``BUDGETS``);
+    ``kinematic``: only the model-based filters, in their kinematic form (for recordings)."""
+    model0 = KINEMATIC_MODEL if kinematic else runs[0][1]
+
+    def objective(r, predictor):
+        return _pair_objective(r, predictor, kinematic)
+
+    tuned: dict[str, dict] = {}
+    t0 = time.monotonic()
+    if not kinematic:
+        tuned["sector_hold"] = {}
+        best = min((objective(runs, MovingAveragePredictor(n)), n) for n in MA_FIFO_GRID)
+        tuned["moving_average"] = MovingAveragePredictor(best[1]).settings
+        log(f"moving_average: fifo {best[1]} ({best[0]:.4f} deg e) {time.monotonic() - t0:.0f} s")
+        best = None
+        for two in (False, True):
+            bw = compare._grid_then_refine(
+                lambda x, two=two: objective(runs, PllPredictor(min(max(x[0], 1.0), 1e5), two)),
+                {"bw": PLL_BW_GRID_RAD_S})
+            p = PllPredictor(min(max(bw[0], 1.0), 1e5), two)
+            value = objective(runs, p)
+            if best is None or value < best[0]:
+                best = (value, p)
+        tuned["pll"] = best[1].settings
+        log(f"pll: {tuned['pll']} ({best[0]:.4f} deg e) {time.monotonic() - t0:.0f} s")
+    kf = KalmanPredictor(model0, compare.tune_kf(runs, model0, objective=objective))
+    tuned["kf"] = settings_of(kf)
+    log(f"kf: ({objective(runs, kf):.4f} deg e) {time.monotonic() - t0:.0f} s")
+    sh = SageHusaPredictor(model0, compare.tune_sh(runs, model0, objective=objective))
+    tuned["sage_husa"] = settings_of(sh)
+    log(f"sage_husa: ({objective(runs, sh):.4f} deg e) {time.monotonic() - t0:.0f} s")
+    best = None
+    for iterations in VB_ITERATIONS:
+        def vb(x, iterations=iterations):
+            p = dict(zip(VB_GRID, x))
+            return VbAkfPredictor(model0, (p["q_w"], 1e-9, p["q_i"]), (p["r_theta"], compare.KF_GRID["r_i"][1]),
+                                  tau=p["tau"], rho=1.0 - min(p["one_minus_rho"], 0.5), iterations=iterations,
+                                  use_current=not kinematic)
+
+        x = compare._grid_then_refine(lambda x, vb=vb: objective(runs, vb(x)), VB_GRID)
+        value = objective(runs, vb(x))
+        if best is None or value < best[0]:
+            best = (value, vb(x))
+        log(f"vb_akf, {iterations} iterations: {value:.4f} deg e, {time.monotonic() - t0:.0f} s")
+    tuned["vb_akf"] = best[1].settings
+    return tuned
+
+
+BUDGETS = {
+    "sector_hold": "no setting",
+    "moving_average": f"FIFO length {MA_FIFO_GRID[0]}-{MA_FIFO_GRID[-1]} edges, exhaustive "
+                      f"({len(MA_FIFO_GRID)} evaluations)",
+    "pll": f"bandwidth on a {len(PLL_BW_GRID_RAD_S)}-point log grid {PLL_BW_GRID_RAD_S[0]:g}-"
+           f"{PLL_BW_GRID_RAD_S[-1]:g} rad/s + {compare.REFINE_EVALUATIONS} Nelder-Mead evaluations, "
+           "two-edge option off and on",
+    "kf": f"Q_w, Q_i, R_theta, R_i on a 144-point grid + {compare.REFINE_EVALUATIONS} Nelder-Mead evaluations, "
+          "gate off and on (compare.tune_kf)",
+    "sage_husa": f"nominal Q_w, Q_i, b, b_R, R0_i on a 144-point grid + {compare.REFINE_EVALUATIONS} Nelder-Mead "
+                 "evaluations, design compare.SH_DESIGN (compare.tune_sh)",
+    "vb_akf": f"nominal Q_w, Q_i, R_theta, tau, 1 - rho on a 144-point grid + {compare.REFINE_EVALUATIONS} "
+              f"Nelder-Mead evaluations, {' and '.join(map(str, VB_ITERATIONS))} variational iterations",
+}
+
+
+# --- evaluation ------------------------------------------------------------------------------------
+
+def _figures(name: str, predictor, pairs) -> tuple[list, list[float]]:
+    """One predictor over (run, model) pairs: each run's Table5Row against the plant's truth and
+    its cost per edge (the batch run's wall time over its edges, after one compile call)."""
+    predictor.run(pairs[0][0].t_corrected_s[:64], pairs[0][0].mean_current_a[:64])
+    rows, cost = [], []
+    for run, _ in pairs:
+        t0 = time.perf_counter()
+        r = predictor.run(run.t_corrected_s, run.mean_current_a)
+        cost.append((time.perf_counter() - t0) / run.t_corrected_s.size * 1e6)
+        row = score(run, name, r.pred_t_s, r.speed_rad_s)
+        rows.append(row)
+    return rows, cost
+
+
+def _row_json(name: str, rows, cost, settings) -> dict:
+    def mean(attr):
+        v = [getattr(r, attr) for r in rows]
+        return float(np.mean(v)) if all(np.isfinite(v)) else None
+
+    def nanmean(attr):
+        # a run without a constant (or regulation) stage has no such MAPE; the others are averaged
+        v = np.array([getattr(r, attr) for r in rows], dtype=float)
+        return float(np.nanmean(v)) if np.isfinite(v).any() else None
+
+    return {"name": name, "angle_rms_deg_e": mean("angle_rms_deg_e"), "angle_p99_deg_e": mean("angle_p99_deg_e"),
+            "angle_max_deg_e": float(max(r.angle_max_deg_e for r in rows)), "us_per_edge": float(np.median(cost)),
+            "speed_mape_constant_pct": nanmean("constant_speed_mape_pct"),
+            "speed_mape_regulation_pct": nanmean("regulation_speed_mape_pct"), "settings": settings}
+
+
+def _tuned():
+    from .peer_settings import PROVENANCE, TUNED
+
+    return TUNED, PROVENANCE
+
+
+def compare_paper(seeds=compare.EVAL_SEEDS, hold_s: float = 1.0) -> dict:
+    tuned, provenance = _tuned()
+    config = scenario_plant()
+    model = identify(config, seed=compare.TRAIN_SEEDS[0]).model
+    pairs = [(run_scenario(config, station_corrections(config, seed=s), hold_s=hold_s, seed=s), model) for s in seeds]
+    preds = []
+    for name in NAMES:
+        p = build(name, tuned[name], model)
+        rows, cost = _figures(name, p, pairs)
+        preds.append(_row_json(name, rows, cost, settings_of(p)))
+    return {"source": f"scenario paper: 7 set points 5000-10,000 rpm held {hold_s:g} s, seeds {list(seeds)}",
+            "reference": "the plant's ideal edge instants (ground truth); figures are means over the seeds, "
+                         "max the largest", "settings_provenance": provenance, "predictors": preds}
+
+
+def compare_pumps(seeds=HELD_OUT_PUMP_SEEDS) -> dict:
+    tuned, provenance = _tuned()
+    if set(seeds) & set(provenance["train_pump_seeds"]):
+        raise ValueError(f"pump seeds {sorted(set(seeds) & set(provenance['train_pump_seeds']))} were tuned on")
+    pumps = [draw_pump(s) for s in seeds]
+    pairs = [pump_run(p) for p in pumps]
+    per_pump = [{"params": p.params, "predictors": []} for p in pumps]
+    preds = []
+    for name in NAMES:
+        p = build(name, tuned[name], pairs[0][1])
+        rows, cost = [], []
+        for j, pair in enumerate(pairs):
+            q = build(name, tuned[name], pair[1])
+            r, c = _figures(name, q, [pair])
+            rows += r
+            cost += c
+            per_pump[j]["predictors"].append(_row_json(name, r, c, None))
+        row = _row_json(name, rows, cost, settings_of(p))
+        rms = [r.angle_rms_deg_e for r in rows]
+        row["angle_rms_median_deg_e"] = float(np.median(rms))
+        preds.append(row)
+    by_name = {r["name"]: r for r in preds}
+    return {"source": f"scenario pumps: {len(seeds)} held-out pumps (seeds {seeds[0]}-{seeds[-1]}) drawn from "
+                      f"{PUMP_RANGE}; {PUMP_SETPOINTS} set points each held {PUMP_HOLD_S:g} s, calibrated by "
+                      "the station",
+            "reference": "the plant's ideal edge instants (ground truth); figures are means over the pumps, "
+                         "angle_rms_median_deg_e the median, max the largest",
+            "settings_provenance": provenance,
+            "sage_husa_over_kf_median_rms": (by_name["sage_husa"]["angle_rms_median_deg_e"]
+                                             / by_name["kf"]["angle_rms_median_deg_e"]),
+            "predictors": preds, "pumps": per_pump}
+
+
+def tuning_main(argv=None) -> int:
+    """Tune every predictor on the training pumps and write ``peer_settings.py`` (run once, by
+    tools/predictor_tuning.py)."""
+    import argparse
+    import pprint
+    from pathlib import Path
+
+    ap = argparse.ArgumentParser(description=tuning_main.__doc__.splitlines()[0])
+    ap.add_argument("--train-seed", type=int, nargs="+", default=list(TRAIN_PUMP_SEEDS))
+    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("peer_settings.py"))
+    args = ap.parse_args(argv)
+    if set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS):
+        ap.error(f"training seeds {sorted(set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS))} are held out")
+    t0 = time.monotonic()
+    runs = [pump_run(draw_pump(s)) for s in args.train_seed]
+    print(f"{len(runs)} training pumps, {sum(r.t_corrected_s.size for r, _ in runs)} edges, "
+          f"{time.monotonic() - t0:.0f} s")
+    tuned = tune(runs)
+    print("kinematic forms (no current, no motor data), for recordings:")
+    tuned["kinematic"] = tune(runs, kinematic=True)
+    training = {name: _pair_objective(runs, build(name, tuned[name], runs[0][1])) for name in NAMES}
+    training.update({f"{name} (kinematic)": _pair_objective(runs, build(name, tuned["kinematic"][name], runs[0][1],
+                                                                          kinematic=True), kinematic=True)
+                     for name in tuned["kinematic"]})
+    provenance = {"tool": "tools/predictor_tuning.py", "train_pump_seeds": list(args.train_seed),
+                  "pump_range": {k: list(v) if isinstance(v, tuple) else v for k, v in PUMP_RANGE.items()},
+                  "objective": "mean commutation angle RMS (deg e) over the training pumps, ground truth",
+                  "budgets": BUDGETS, "training_angle_rms_deg_e": training,
+                  "tuning_wall_time_s": round(time.monotonic() - t0)}
+    defaults = settings_of(KalmanPredictor(KINEMATIC_MODEL, FilterSettings()))
+
+    def compact(d: dict) -> dict:
+        # a filter's settings as they differ from FilterSettings' defaults (filter_settings fills in the rest)
+        return {k: v for k, v in d.items() if k not in defaults or v != defaults[k]}
+
+    for block in (tuned, tuned["kinematic"]):
+        for name in ("kf", "sage_husa"):
+            block[name] = compact(block[name])
+    text = ('"""Every predictor\'s settings, from tools/predictor_tuning.py on the training pumps (written by\n'
+            'it; do not edit by hand: rerun the tool). ``PROVENANCE`` says what was searched, on what. The\n'
+            'filters\' settings list what differs from ``FilterSettings``\' defaults."""\n\n'
+            f"TUNED = {pprint.pformat(tuned, width=100, sort_dicts=False)}\n\n"
+            f"PROVENANCE = {pprint.pformat(provenance, width=100, sort_dicts=False)}\n")
+    args.out.write_text(text)
+    for name, v in training.items():
+        print(f"  {name}: {v:.4f} deg e on the training pumps")
+    print(f"wrote {args.out} in {time.monotonic() - t0:.0f} s")
+    return 0
+
+
+# --- a recording --------------------------------------------------------------------------------
+
+#: a recording's edges are calibrated per slot: sensor and polarity (6 per electrical period)
+N_SLOTS = 6
+RECORDING_REFERENCE = (
+    "no encoder: each prediction of edge k+1 is scored against the corrected instant of edge k+1 "
+    "(calibration fitted on the first half of the edges, scored on the second half), converted to "
+    "deg e with the speed over the two sectors around it (one rising and one falling edge); this "
+    "is the best reference a capture without encoder allows, and it still holds the edges' own "
+    "noise and quantisation")
+
+
+@dataclass
+class RecordingEdges:
+    t_s: np.ndarray          #: capture times of the kept edges
+    slot: np.ndarray         #: 2 sensor + rising
+    dropped: int             #: edges that did not advance the rotor (bounces, reversals)
+    direction: int           #: +1 forward (A, B, C), -1 reverse
+
+
+def recording_edges(rec) -> RecordingEdges:
+    """The edges a predictor can use from a recording: the Hall code is rebuilt from the edges
+    (a line's level before its first edge is the opposite of that edge's polarity), each edge
+    moves the sector by +-1; in the recording's main direction an edge that does not take the
+    rotor past the furthest sector reached is a bounce or a reversal and is dropped, so each
+    kept edge is the next sector boundary, 60 deg e after the last."""
+    from bldc.hall import SECTOR_OF_CODE
+
+    sensor, rising = np.asarray(rec.sensor, dtype=int), np.asarray(rec.rising, dtype=bool)
+    level = np.zeros(3, dtype=int)
+    for s in range(3):
+        first = np.nonzero(sensor == s)[0]
+        if first.size == 0:
+            raise ValueError(f"{getattr(rec, 'path', 'recording')}: sensor {'ABC'[s]} has no edge")
+        level[s] = 0 if rising[first[0]] else 1
+    sector = np.empty(sensor.size, dtype=int)
+    for k in range(sensor.size):
+        level[sensor[k]] = int(rising[k])
+        sector[k] = SECTOR_OF_CODE[level[0] * 4 + level[1] * 2 + level[2]]
+    if np.any(sector < 0):
+        k = int(np.nonzero(sector < 0)[0][0])
+        raise ValueError(f"{getattr(rec, 'path', 'recording')}: edge {k} leaves an illegal Hall code (000 or 111)")
+    step = (np.diff(sector) + 3) % 6 - 3            # -1, +1 (a +-2 or 3 step is a lost edge)
+    pos = np.concatenate(([0], np.cumsum(np.where(np.abs(step) == 1, step, 0))))
+    direction = 1 if pos[-1] >= pos[0] else -1
+    furthest = np.maximum.accumulate(direction * pos)
+    keep = np.concatenate(([True], direction * pos[1:] > furthest[:-1]))
+    t = np.asarray(rec.t_s, dtype=float)[keep]
+    return RecordingEdges(t, (2 * sensor + rising.astype(int))[keep], int(np.count_nonzero(~keep)), direction)
+
+
+def slot_deviation_deg_e(t: np.ndarray, slot: np.ndarray) -> np.ndarray:
+    """Each slot's mean edge-angle deviation (deg e, lead negative) from capture times: edge k
+    against a linear fit over the electrical period either side of it (edges k-6 ... k+6, the two
+    ends at half weight, so every slot weighs alike and a steady acceleration cancels)."""
+    n = t.size
+    k = np.arange(6, n - 6)
+    w = np.ones(13)
+    w[0] = w[-1] = 0.5
+    period = (t[k + 6] - t[k - 6]) / 2.0
+    ideal = sum(w[j] * (t[k + j - 6] - (j - 6) * period / 6.0) for j in range(13)) / 12.0
+    dev = 360.0 * (t[k] - ideal) / period
+    out = np.zeros(N_SLOTS)
+    for s in range(N_SLOTS):
+        sel = slot[k] == s
+        out[s] = float(np.median(dev[sel])) if sel.any() else 0.0
+    return out - out.mean()
+
+
+def corrected_times(t: np.ndarray, slot: np.ndarray, dev_deg_e: np.ndarray) -> np.ndarray:
+    """Capture times with each slot's deviation taken out, at the speed of the electrical period
+    before the edge (causal: a firmware could do the same)."""
+    period = np.empty_like(t)
+    period[6:] = t[6:] - t[:-6]
+    period[:6] = period[6] if t.size > 6 else np.inf
+    out = t - dev_deg_e[slot] / 360.0 * period
+    bad = np.nonzero(np.diff(out) <= 0)[0]
+    if bad.size:
+        raise ValueError(f"the slot correction reorders edges {int(bad[0])} and {int(bad[0]) + 1}")
+    return out
+
+
+def score_recording(tc: np.ndarray, pred: np.ndarray, speed: np.ndarray, first: int) -> dict:
+    """Angle error of each prediction made at edge k >= first (for edge k + 1) against the corrected
+    instant of edge k + 1, in deg e at the two-sector speed around it; the speed estimate after
+    edge k against the two-sector speed around edge k."""
+    k = np.arange(max(first, 1), tc.size - 2)
+    w_ref = 2.0 * SECTOR_RAD / (tc[k + 2] - tc[k])               # around edge k + 1
+    err = np.degrees((pred[k] - tc[k + 1]) * w_ref)
+    w_at = 2.0 * SECTOR_RAD / (tc[k + 1] - tc[k - 1])            # around edge k
+    ape = np.abs(speed[k] / w_at - 1.0) * 100.0
+    finite = np.isfinite(err)
+    return {"angle_rms_deg_e": float(np.sqrt(np.mean(err**2))) if finite.all() else None,
+            "angle_p99_deg_e": float(np.percentile(np.abs(err), 99)) if finite.all() else None,
+            "angle_max_deg_e": float(np.max(np.abs(err))) if finite.all() else None,
+            "speed_mape_pct": float(np.mean(ape)) if np.isfinite(ape).all() else None,
+            "edges_scored": int(k.size)}
+
+
+#: what a recording's meta.json motor block needs for the model-based filters (with phase currents)
+MODEL_KEYS = ("inertia_kg_m2", "ke_v_s_per_rad", "fan_coefficient_n_m_s2")
+
+
+def recording_model(rec, t_edges_s: np.ndarray) -> tuple[MotorModel | None, np.ndarray | None]:
+    """The paper's model from the recording's motor block and the mean |i| over the three phases
+    of each commutation cycle (samples from the previous edge up to this one; the nearest sample
+    where a cycle holds none), or (None, None) when the phase currents or the motor data are missing."""
+    s, motor = rec.samples, rec.motor
+    if not s or any(c not in s for c in ("i_a", "i_b", "i_c")) or any(k not in motor for k in MODEL_KEYS):
+        return None, None
+    model = MotorModel(int(motor["pole_pairs"]), float(motor["inertia_kg_m2"]),
+                       (3.0 * float(motor["ke_v_s_per_rad"]),), (float(motor["fan_coefficient_n_m_s2"]),))
+    mean_abs = (np.abs(s["i_a"]) + np.abs(s["i_b"]) + np.abs(s["i_c"])) / 3.0
+    csum = np.concatenate(([0.0], np.cumsum(mean_abs)))
+    hi = np.searchsorted(s["t_s"], t_edges_s)
+    lo = np.concatenate(([hi[0]], hi[:-1]))
+    nearest = mean_abs[np.clip(hi, 0, mean_abs.size - 1)]
+    count = hi - lo
+    cycle = np.where(count > 0, (csum[hi] - csum[lo]) / np.maximum(count, 1), nearest)
+    return model, cycle
+
+
+def compare_recording(rec, source: str) -> dict:
+    tuned, provenance = _tuned()
+    e = recording_edges(rec)
+    if e.t_s.size < 200:
+        raise ValueError(f"{source}: {e.t_s.size} usable edges; at least 200 are needed (half to calibrate)")
+    half = e.t_s.size // 2
+    dev = slot_deviation_deg_e(e.t_s[:half], e.slot[:half])
+    tc = corrected_times(e.t_s, e.slot, dev)
+    model, current = recording_model(rec, e.t_s)
+    kinematic = model is None
+    if kinematic:
+        current = np.zeros(tc.size)
+    preds = []
+    for name in NAMES:
+        kin = kinematic and name in ("kf", "sage_husa", "vb_akf")
+        settings = tuned["kinematic"][name] if kin else tuned[name]
+        p = build(name, settings, KINEMATIC_MODEL if kinematic else model, kinematic=kin)
+        p.run(tc[:64], current[:64])
+        t0 = time.perf_counter()
+        r = p.run(tc, current)
+        us = (time.perf_counter() - t0) / tc.size * 1e6
+        row = {"name": name, **score_recording(tc, r.pred_t_s, r.speed_rad_s, half), "us_per_edge": us,
+               "speed_mape_constant_pct": None, "speed_mape_regulation_pct": None, "settings": settings_of(p)}
+        if kin:
+            row["mode"] = "kinematic"
+        preds.append(row)
+    tick = getattr(rec, "timer_tick_s", None)
+    return {"source": f"recording {source}: {len(rec)} edges, {e.t_s.size} kept ({e.dropped} dropped as bounces "
+                      f"or reversals), direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
+                      f"{(tick or 0) * 1e6:.3g} us",
+            "reference": RECORDING_REFERENCE,
+            "calibration": {"method": "per sensor and polarity (6 slots) from capture times, first half "
+                                      f"({half} edges); pole offsets are not corrected (no index pulse)",
+                            "slot_deviation_deg_e": [float(v) for v in dev]},
+            "model": ("kf, sage_husa and vb_akf run kinematic: no current or motor data, the state is angle, "
+                      "speed and acceleration (K_T = J = 1, no load, the current channel unobserved); their "
+                      "settings are the kinematic tuning on the training pumps" if kinematic else
+                      "kf, sage_husa and vb_akf run the paper's model: J, K_T = 3 ke and M from the recording's "
+                      "motor block, the cycle-mean |i| from its phase currents; their settings are the "
+                      "training pumps' tuning"),
+            "speed_mape_note": "constant-speed and regulation-stage MAPE need set-point stages a recording "
+                               "does not state: null; speed_mape_pct is over all scored edges against the "
+                               "two-sector speed",
+            "settings_provenance": provenance, "predictors": preds}
+
+
+def format_result(result: dict) -> str:
+    """The comparison as a table, 100 columns at most."""
+    import textwrap
+
+    lines = [textwrap.fill(result["source"], 100, subsequent_indent="    "),
+             textwrap.fill("reference: " + result["reference"], 100, subsequent_indent="    ")]
+    if "model" in result:
+        lines.append(textwrap.fill(result["model"], 100, subsequent_indent="    "))
+    head = f"{'predictor':<15}{'RMS deg e':>10}{'p99':>9}{'max':>9}{'MAPE c %':>10}{'MAPE r %':>10}{'us/edge':>9}"
+    lines.append(head)
+
+    def f(v, width, fmt):
+        if v is None:
+            return f"{'-':>{width}}"
+        return f"{v:>{width}.2e}" if abs(v) >= 1e4 else f"{v:>{width}{fmt}}"  # a lost filter stays legible
+
+    for r in result["predictors"]:
+        const = r.get("speed_mape_constant_pct")
+        if const is None:
+            const = r.get("speed_mape_pct")
+        lines.append(f"{r['name']:<15}{f(r['angle_rms_deg_e'], 10, '.4f')}{f(r['angle_p99_deg_e'], 9, '.3f')}"
+                     f"{f(r['angle_max_deg_e'], 9, '.3f')}{f(const, 10, '.4f')}"
+                     f"{f(r.get('speed_mape_regulation_pct'), 10, '.4f')}{r['us_per_edge']:>9.2f}")
+    if "sage_husa_over_kf_median_rms" in result:
+        lines.append(f"Sage-Husa / KF, median angle RMS over the pumps: {result['sage_husa_over_kf_median_rms']:.3f}")
+    if "speed_mape_note" in result:
+        lines.append(textwrap.fill(result["speed_mape_note"], 100, subsequent_indent="    "))
+    return "\n".join(lines)
