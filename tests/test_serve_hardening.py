@@ -446,3 +446,32 @@ def test_a_client_faster_than_the_device_waits_instead_of_growing_its_queue():
     finally:
         asleep.shutdown()
         server.close()
+
+
+# --- stopping -----------------------------------------------------------------------------------
+
+def test_sigterm_ends_the_served_process_within_a_second_and_closes_its_clients():
+    """A service manager (systemd, a test harness) stops ``hil dut serve`` with SIGTERM: it exits
+    with 0 within a second, and the clients connected at that moment see their connections end."""
+    server = Served(IDLE_S)
+    try:
+        cand = Cand(server.co_port)  # one client of each port, connected when the signal comes
+        cand.send(0x605, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0]))
+        assert cand.sdo_answer()[:4] == bytes([0x43, 0x00, 0x10, 0x00])
+        modbus = socket.create_connection(("127.0.0.1", server.mb_port), timeout=5.0)
+        modbus.sendall(mbap(struct.pack(">BHH", 3, 0, 1)))
+        modbus_answers(modbus, 1)
+        t0 = time.monotonic()
+        server.proc.send_signal(signal.SIGTERM)
+        try:
+            code = server.proc.wait(timeout=10.0)
+        except subprocess.TimeoutExpired:
+            code = None
+        exit_s = time.monotonic() - t0
+        print(f"\nexit {code} {exit_s:.2f} s after SIGTERM")
+        assert code == 0 and exit_s <= 1.0, (code, exit_s, server.log_tail())
+        for sock in (cand.sock, modbus):
+            assert closed_within(sock, 1.0) is not None  # EOF (or a reset): nothing left listening
+            sock.close()
+    finally:
+        server.stop()  # the exit code was read above; this kills it had it not exited, and checks stderr

@@ -10,6 +10,8 @@ Modbus: TCP on host:port. Never all interfaces unless asked (``--host 0.0.0.0``)
 from __future__ import annotations
 
 import dataclasses
+import logging
+import os
 import signal
 import sys
 import threading
@@ -64,9 +66,10 @@ def serve(
             print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)
         print("ready", flush=True)
         stop = stop or threading.Event()
+        signalled = []
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda *_: stop.set())
+                signal.signal(sig, lambda *_: (signalled.append(True), stop.set()))
         stop.wait()
     finally:
         for close in closers:
@@ -75,3 +78,11 @@ def serve(
             except Exception:  # pragma: no cover - best effort on the way out
                 pass
         sys.stdout.flush()
+    if signalled:
+        # stopped by a signal: the process is ours and everything it served is closed above.
+        # The interpreter's own finalization (tearing down numba, scipy, canopen, ... module by
+        # module) would take another second on a busy machine, and a service manager waits for
+        # it; nothing is left that needs it, so the streams are flushed and the process ends now.
+        logging.shutdown()
+        sys.stderr.flush()
+        os._exit(0)

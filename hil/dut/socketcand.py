@@ -139,7 +139,7 @@ class SocketcandServer:
         """Frames on the bus (from the device) go to every raw-mode client."""
         while not self._stop.is_set():
             try:
-                msg = self.bus.recv(timeout=0.2)
+                msg = self.bus.recv(timeout=0.05)  # how late close() sees the stop: it waits for this thread
             except Exception:  # the bus was shut down under us
                 return
             if msg is not None and not msg.is_error_frame:
