@@ -133,6 +133,26 @@ class Cand:
         self.sock.close()
 
 
+def sdo_traffic(client: Cand, n: int, in_flight: int = 32) -> None:
+    """n SDO requests (upload 0x1018:04, the serial number), ``in_flight`` of them sent ahead of
+    their answers (a second thread sends; fewer than the server's max_backlog_frames, so the
+    device takes every one), each answered with the serial number."""
+    request = f"< send 605 8 {' '.join(f'{b:02X}' for b in (0x40, 0x18, 0x10, 0x04, 0, 0, 0, 0))} >".encode()
+    window = threading.Semaphore(in_flight)
+
+    def send():
+        for _ in range(n):
+            window.acquire()
+            client.sock.sendall(request)
+
+    sender = threading.Thread(target=send)
+    sender.start()
+    for _ in range(n):
+        assert client.sdo_answer() == bytes([0x43, 0x18, 0x10, 0x04, 1, 0, 0, 0])
+        window.release()
+    sender.join()
+
+
 def closed_within(sock: socket.socket, seconds: float) -> float | None:
     """Seconds until the server closed the connection (None: still open after ``seconds``)."""
     sock.settimeout(0.2)
@@ -211,25 +231,9 @@ def _memory_stays_flat(server: Served) -> None:
     stalled = Cand(co_port, rcvbuf=4096)  # and one that stays, alive, reading nothing
     client = Cand(co_port)
     client.sock.settimeout(30.0)
-    request = f"< send 605 8 {' '.join(f'{b:02X}' for b in (0x40, 0x18, 0x10, 0x04, 0, 0, 0, 0))} >".encode()
 
-    def traffic(n, in_flight=32):
-        """n SDO requests (upload 0x1018:04, the serial number), ``in_flight`` of them sent ahead
-        of their answers (a second thread sends; fewer than the server's max_backlog_frames, so
-        the device takes every one), each answered with the serial number."""
-        window = threading.Semaphore(in_flight)
-
-        def send():
-            for _ in range(n):
-                window.acquire()
-                client.sock.sendall(request)
-
-        sender = threading.Thread(target=send)
-        sender.start()
-        for _ in range(n):
-            assert client.sdo_answer() == bytes([0x43, 0x18, 0x10, 0x04, 1, 0, 0, 0])
-            window.release()
-        sender.join()
+    def traffic(n):
+        sdo_traffic(client, n)
 
     # measured from the moment the three clients are in, no warm-up left out: the stalled
     # client's queue and connection filling up are part of what is measured
@@ -514,9 +518,7 @@ def test_sigterm_ends_the_served_process_within_a_second_and_closes_its_clients(
         cand.send(0x605, bytes([0x40, 0x00, 0x10, 0, 0, 0, 0, 0]))
         assert cand.sdo_answer()[:4] == bytes([0x43, 0x00, 0x10, 0x00])
         stalled = Cand(server.co_port, rcvbuf=4096)
-        for _ in range(4):  # requests it never reads the answers of: its connection fills
-            stalled.sock.sendall(b"< send 605 8 40 00 10 00 00 00 00 00 >" * 5000)
-            time.sleep(0.3)
+        sdo_traffic(cand, 2000)  # frames for the stalled client too, which it never reads
         modbus = socket.create_connection(("127.0.0.1", server.mb_port), timeout=5.0)
         modbus.sendall(mbap(struct.pack(">BHH", 3, 0, 1)))
         modbus_answers(modbus, 1)
@@ -534,3 +536,35 @@ def test_sigterm_ends_the_served_process_within_a_second_and_closes_its_clients(
             sock.close()
     finally:
         server.stop()  # the exit code was read above; this kills it had it not exited, and checks stderr
+
+
+def test_a_stopping_server_resets_a_connection_that_cannot_flush(caplog):
+    """A client that reads nothing holds more than its kernel buffers take (some 3 MB here): a
+    plain close would wait for it forever. The server closes within a second and nothing is
+    logged as an error (a handler cancelled by the loop's end was: 'Exception in callback')."""
+    from hil.dut.socketcand import SocketcandServer
+
+    server = SocketcandServer(port=0, channel="harden-stop")
+    stalled = Cand(server.port, rcvbuf=4096)
+    try:
+        deadline = time.monotonic() + 5
+        while not server.clients and time.monotonic() < deadline:
+            time.sleep(0.01)
+        (client,) = server.clients
+        line = b"< frame 185 1.000000 0102030405060708 >"
+        for _ in range(300_000):  # some 12 MB offered, more than the kernel and the queue take
+            server.loop.call_soon_threadsafe(server._fanout, line, None)
+        while client.dropped == 0 and time.monotonic() < deadline + 25:
+            time.sleep(0.05)
+        assert client.dropped > 0  # its queue is full: its connection holds all it can
+        with caplog.at_level(logging.WARNING):
+            t0 = time.monotonic()
+            server.close()
+            close_s = time.monotonic() - t0
+        errors = [r.getMessage() for r in caplog.records if r.levelno >= logging.ERROR]
+        print(f"\nclosed in {close_s:.2f} s with a stalled client")
+        assert close_s <= 1.0 and not errors, (close_s, errors)
+        assert closed_within(stalled.sock, 1.0) is not None
+    finally:
+        stalled.close()
+        server.close()
