@@ -239,6 +239,9 @@ class CanopenDevice:
         self.controller = controller
         self.node_id = node_id
         self.network = canopen.Network()
+        # the notifier looks for a stop this often; close() waits for it (canopen's 1 s made
+        # ``hil dut serve`` take up to a second longer to exit on SIGTERM)
+        self.network.NOTIFIER_CYCLE = 0.05
         self.network.connect(interface=interface, channel=channel, **bus_kwargs)
         od = canopen.import_od(str(EDS_PATH), node_id) if self.roles is None else object_dictionary(self.profile)
         self.node = canopen.LocalNode(node_id, od)

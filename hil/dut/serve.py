@@ -12,6 +12,8 @@ profile can be tried before the hardware exists.
 from __future__ import annotations
 
 import dataclasses
+import logging
+import os
 import signal
 import sys
 import threading
@@ -83,9 +85,10 @@ def serve(
             print(f"Modbus TCP unit {unit}: {host}:{mdev.port}", flush=True)
         print("ready", flush=True)
         stop = stop or threading.Event()
+        signalled = []
         if threading.current_thread() is threading.main_thread():
             for sig in (signal.SIGINT, signal.SIGTERM):
-                signal.signal(sig, lambda *_: stop.set())
+                signal.signal(sig, lambda *_: (signalled.append(True), stop.set()))
         stop.wait()
     finally:
         for close in closers:
@@ -94,3 +97,11 @@ def serve(
             except Exception:  # pragma: no cover - best effort on the way out
                 pass
         sys.stdout.flush()
+    if signalled:
+        # stopped by a signal: the process is ours and everything it served is closed above.
+        # The interpreter's own finalization (tearing down numba, scipy, canopen, ... module by
+        # module) would take another second on a busy machine, and a service manager waits for
+        # it; nothing is left that needs it, so the streams are flushed and the process ends now.
+        logging.shutdown()
+        sys.stderr.flush()
+        os._exit(0)

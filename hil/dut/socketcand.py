@@ -19,8 +19,12 @@ against the clients it may meet on a shared port:
 - every client has a bounded frame queue: a client that does not read loses its oldest frames,
   as a CAN controller overruns, and one that reads nothing for ``idle_timeout_s`` is closed;
 - a client that leaves, or is killed, is forgotten at once (its queue goes with it);
-- a client that sends faster than the device takes frames waits (``max_backlog_frames``): the
-  backlog stays in its TCP connection, not in this process's memory.
+- a client that sends faster than the device takes frames overruns it, as on a real bus: beyond
+  ``max_backlog_frames`` waiting for the device, the oldest is dropped (a CAN controller's receive
+  FIFO overruns; a real socketcand drops the frame the kernel refuses). Held back instead, a
+  burst of 10,000 frames delayed the next request's answer by seconds, past any SDO client's
+  timeout. The operator is told (one line, naming the client and the count);
+- every client the server closes, or that is lost, is one WARNING line with its address and why.
 """
 
 from __future__ import annotations
@@ -28,6 +32,8 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
+import queue
+import re
 import socket
 import threading
 import time
@@ -39,6 +45,14 @@ from .tcp import close_handlers
 
 log = logging.getLogger(__name__)
 
+#: read at once from a client (and held by its stream before reading pauses: twice this): some
+#: 1,700 commands, so a burst is read and split in few steps
+_READ_BYTES = 65536
+#: a command: from a '<' to the next '>'
+_COMMAND = re.compile(rb"<([^>]*)>")
+#: the shape of a send; well_formed_send checks the rest
+_SEND = re.compile(rb"\s*send\s+([0-9A-Fa-f]{1,8})\s+([0-8])((?:\s+[0-9A-Fa-f]{1,2})*)\s*")
+
 
 @dataclass(frozen=True)
 class SocketcandLimits:
@@ -48,7 +62,8 @@ class SocketcandLimits:
     partial_timeout_s: float = 5.0      #: a command begun must end within this
     idle_timeout_s: float = 300.0       #: raw mode: no command, or nothing read, for this long closes
     max_command_bytes: int = 128        #: '< send 1FFFFFFF 8 ff ff ff ff ff ff ff ff >' is 41
-    max_backlog_frames: int = 256       #: frames the device has not yet taken; a sender waits beyond this
+    max_backlog_frames: int = 64        #: frames the device has not yet taken; the oldest is dropped beyond this
+    overrun_log_interval_s: float = 10.0  #: a client that keeps overrunning the device: one line this often
 
 
 class ProtocolError(Exception):
@@ -61,7 +76,9 @@ class _Client:
     queue: collections.deque
     peer: str = "?"
     ready: asyncio.Event = field(default_factory=asyncio.Event)
-    dropped: int = 0
+    dropped: int = 0   #: frames to this client lost because it read too slowly
+    overrun: int = 0   #: frames from this client the device never saw (sent too fast), not yet logged
+    overrun_logged_at: float = float("-inf")
 
     def put(self, line: bytes) -> None:
         if len(self.queue) == self.queue.maxlen:
@@ -91,6 +108,21 @@ def parse_send(words: list[str]) -> can.Message:
     if not 0 <= dlc <= 8 or len(data_words) != dlc or any(len(b) > 2 for b in data_words):
         raise ProtocolError(f"send: {len(data_words)} data bytes for length {dlc_text}")
     return can.Message(arbitration_id=can_id, is_extended_id=extended, data=data, dlc=dlc)
+
+
+def _why(exc: BaseException) -> str:
+    """An exception as one line: its type and its message."""
+    return f"{type(exc).__name__}: {' '.join(str(exc).split())}"[:200]
+
+
+def well_formed_send(text: bytes) -> bool:
+    """Whether ``parse_send`` takes the command ``text``, checked without building a Message (a
+    frame about to be dropped); False also for some it takes ("08" for 8), which it then decides."""
+    match = _SEND.fullmatch(text)
+    if match is None:
+        return False
+    ident, dlc, data = match.groups()
+    return int(ident, 16) <= (0x1FFFFFFF if len(ident) > 3 else 0x7FF) and len(data.split()) == int(dlc)
 
 
 class SocketcandServer:
@@ -128,7 +160,7 @@ class SocketcandServer:
         self._closed = asyncio.Event()
         self._handlers: dict[asyncio.Task, asyncio.StreamWriter] = {}
         server = await asyncio.start_server(self._serve_client, self.host, self._requested_port,
-                                            limit=self.limits.max_command_bytes * 4)
+                                            limit=_READ_BYTES)
         self.port = server.sockets[0].getsockname()[1]
         self._ready.set()
         async with server:
@@ -139,7 +171,7 @@ class SocketcandServer:
         """Frames on the bus (from the device) go to every raw-mode client."""
         while not self._stop.is_set():
             try:
-                msg = self.bus.recv(timeout=0.2)
+                msg = self.bus.recv(timeout=0.05)  # how late close() sees the stop: it waits for this thread
             except Exception:  # the bus was shut down under us
                 return
             if msg is not None and not msg.is_error_frame:
@@ -148,13 +180,37 @@ class SocketcandServer:
                 except RuntimeError:  # the loop is closed: we are stopping
                     return
 
-    def _backlog(self) -> int:
-        """Frames queued for the slowest receiver on a python-can ``virtual`` channel (0 elsewhere):
-        its queues are unbounded, so a client sending faster than the device reads would grow them."""
+    def _room(self) -> tuple[int, int]:
+        """(how many more frames the device takes now, how many waiting frames were dropped to
+        make room for one at least). A python-can ``virtual`` channel's queues are unbounded, so a
+        client sending faster than the device reads would grow them without end: beyond
+        ``max_backlog_frames`` waiting in a receiver's queue, its oldest is dropped. On any other
+        interface the kernel or the adapter bounds them (no limit here)."""
         queues = getattr(self.bus, "channel", None)
         if not isinstance(queues, list):
-            return 0
-        return max((q.qsize() for q in queues if q is not self.bus.queue), default=0)
+            return 1 << 30, 0
+        room, dropped = self.limits.max_backlog_frames, 0
+        for q in list(queues):
+            if q is self.bus.queue:
+                continue
+            while q.qsize() >= self.limits.max_backlog_frames:
+                try:
+                    q.get_nowait()
+                except queue.Empty:  # the device took it meanwhile
+                    break
+                dropped += 1
+            room = min(room, self.limits.max_backlog_frames - q.qsize())
+        return max(room, 1), dropped
+
+    def _count_overrun(self, client: _Client, dropped: int, final: bool = False) -> None:
+        """One WARNING line at the first overrun, then at most every ``overrun_log_interval_s``
+        while it goes on, and one at the end of the session for what is left."""
+        client.overrun += dropped
+        now = time.monotonic()
+        if client.overrun and (final or now - client.overrun_logged_at >= self.limits.overrun_log_interval_s):
+            log.warning("socketcand client %s: %d frames dropped: sent faster than the device takes them "
+                        "(more than %d waiting)", client.peer, client.overrun, self.limits.max_backlog_frames)
+            client.overrun, client.overrun_logged_at = 0, now
 
     def _fanout(self, line: bytes, sender: _Client | None) -> None:
         for client in self.clients:
@@ -178,13 +234,14 @@ class SocketcandServer:
         client = _Client(writer, collections.deque(maxlen=self.limits.queue_frames), peer)
         sender = None
         buffer = bytearray()
+        pending: collections.deque[bytes] = collections.deque()  # commands read, not yet done
         try:
             writer.write(b"< hi >")
             handshake = asyncio.get_running_loop().time() + self.limits.handshake_timeout_s
             for expected in (f"open {self.bus_name}", "rawmode"):
-                words = await self._command(reader, buffer, handshake, peer)
-                if words is None:
+                if not pending and not await self._commands(reader, buffer, pending, handshake, peer):
                     return
+                words = pending.popleft().decode("ascii").split()
                 if words[0] == "open" and expected.startswith("open") and words[1:] != [self.bus_name]:
                     raise ProtocolError(f"no bus {' '.join(words[1:])[:32]} (this server has {self.bus_name})")
                 if " ".join(words) != expected:
@@ -193,26 +250,44 @@ class SocketcandServer:
             self.clients.add(client)
             sender = asyncio.create_task(self._send_frames(client))
             while True:
-                words = await self._command(reader, buffer, None, peer)
-                if words is None:
+                if not pending and not await self._commands(reader, buffer, pending, None, peer):
                     return
-                if words[0] == "send":
-                    msg = parse_send(words)
-                    while self._backlog() > self.limits.max_backlog_frames:
-                        await asyncio.sleep(0.001)  # backpressure: the client waits, not the device's memory
-                    self.bus.send(msg)
-                    msg.timestamp = time.time()
-                    self._fanout(frame_line(msg), client)  # a bus: the other clients see it too
-                elif words == ["echo"]:
-                    client.put(b"< echo >")
-                else:
-                    client.put(b"< error unknown command >")
+                # everything this client has sent so far, in order; the sends the device cannot
+                # take are the oldest of them, dropped before any work is spent on them, so the
+                # last request of a burst reaches the device at once and not behind the rest
+                sends = sum(text.split(None, 1)[0] == b"send" for text in pending)
+                room, dropped = self._room() if sends else (0, 0)
+                skip = max(sends - room, 0)
+                if skip + dropped:
+                    self._count_overrun(client, skip + dropped)
+                while pending:
+                    text = pending.popleft()
+                    words = text.split(None, 1)[:1]
+                    if words == [b"send"]:
+                        if skip:  # checked, not built: a malformed frame is refused, dropped or not
+                            skip -= 1
+                            if not well_formed_send(text):
+                                parse_send(text.decode("ascii").split())
+                            continue
+                        msg = parse_send(text.decode("ascii").split())
+                        self.bus.send(msg)
+                        msg.timestamp = time.time()
+                        self._fanout(frame_line(msg), client)  # a bus: the other clients see it too
+                    elif text.split() == [b"echo"]:
+                        client.put(b"< echo >")
+                    else:
+                        client.put(b"< error unknown command >")
         except ProtocolError as exc:
             log.warning("socketcand client %s refused: %s", peer, exc)
             await self._refuse(writer, str(exc))
-        except (ConnectionError, OSError, asyncio.IncompleteReadError):
-            pass
+        except (ConnectionError, OSError) as exc:  # a reset: the client died, or left with answers unread
+            # (one that leaves during the handshake is a port check, as CanopenLink makes: not news)
+            log.log(logging.WARNING if sender is not None else logging.DEBUG, "socketcand client %s lost: %s",
+                    peer, _why(exc))
+        except Exception as exc:  # a fault of this server: the client is closed and told nothing more
+            log.warning("socketcand client %s closed: server error %s", peer, _why(exc))
         finally:
+            self._count_overrun(client, 0, final=True)
             self.connections -= 1
             self._handlers.pop(asyncio.current_task(), None)
             self.clients.discard(client)
@@ -221,29 +296,32 @@ class SocketcandServer:
                 sender.cancel()
             writer.close()
 
-    async def _command(
-        self, reader: asyncio.StreamReader, buffer: bytearray, deadline: float | None, peer: str = "?"
-    ) -> list[str] | None:
-        """The next ``< ... >`` command as words, or None when the client has gone (EOF) or is to be
-        closed (a timeout, logged with its reason)."""
+    async def _commands(
+        self, reader: asyncio.StreamReader, buffer: bytearray, out: collections.deque, deadline: float | None,
+        peer: str = "?",
+    ) -> bool:
+        """Every complete ``< ... >`` command the client has sent (the text between the brackets)
+        appended to ``out``, waiting for one at least; False when the client has gone (EOF) or is
+        to be closed (a timeout, logged with its reason). Text outside the brackets is skipped."""
         loop = asyncio.get_running_loop()
         lim = self.limits
         started = None
         while True:
+            done = 0
+            for match in _COMMAND.finditer(buffer):  # a burst of commands is split at C speed
+                text = match.group(1)
+                if not text.isascii():
+                    raise ProtocolError("commands are ASCII")
+                if not text.strip():
+                    raise ProtocolError("empty command")
+                out.append(text)
+                done = match.end()
+            del buffer[:done]
+            if done:
+                return True
             start = buffer.find(b"<")
             if start < 0 and buffer.strip():
                 raise ProtocolError("a command starts with '<'")
-            end = buffer.find(b">", max(start, 0))
-            if start >= 0 and end >= 0:
-                text = bytes(buffer[start + 1 : end])
-                del buffer[: end + 1]
-                try:
-                    words = text.decode("ascii").split()
-                except UnicodeDecodeError:
-                    raise ProtocolError("commands are ASCII") from None
-                if not words:
-                    raise ProtocolError("empty command")
-                return words
             if start > 0:
                 del buffer[:start]  # whitespace before the '<'
             elif start < 0:
@@ -258,7 +336,7 @@ class SocketcandServer:
                 else (started + lim.partial_timeout_s if buffer else loop.time() + lim.idle_timeout_s)
             )
             try:
-                chunk = await asyncio.wait_for(reader.read(4096), max(limit - loop.time(), 0.0))
+                chunk = await asyncio.wait_for(reader.read(_READ_BYTES), max(limit - loop.time(), 0.0))
             except asyncio.TimeoutError:
                 if deadline is not None:
                     why = f"handshake not finished within {lim.handshake_timeout_s:g} s"
@@ -267,9 +345,9 @@ class SocketcandServer:
                 else:
                     why = f"nothing sent for {lim.idle_timeout_s:g} s"
                 log.warning("socketcand client %s closed: %s", peer, why)
-                return None
+                return False
             if not chunk:
-                return None
+                return False
             buffer += chunk
 
     async def _send_frames(self, client: _Client) -> None:
@@ -286,7 +364,9 @@ class SocketcandServer:
             log.warning("socketcand client %s closed: read nothing for %g s (%d frames dropped so far)",
                         client.peer, self.limits.idle_timeout_s, client.dropped)
             client.writer.close()
-        except (ConnectionError, OSError):
+        except (ConnectionError, OSError) as exc:
+            if not client.writer.is_closing():  # (closed by its reader's side: logged there)
+                log.warning("socketcand client %s lost: %s", client.peer, _why(exc))
             client.writer.close()
 
     async def _refuse(self, writer: asyncio.StreamWriter, reason: str) -> None:
