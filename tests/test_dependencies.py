@@ -17,8 +17,9 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_DIRS = ("tests", "test_cases")
-#: the project's own top-level packages and the test directories' own modules
-OWN = {"bldc", "hil", "plant_models", "conftest", "test_sensor_layer"}
+#: the project's own top-level packages and the test directories' own modules (a test may import
+#: a helper from another test module)
+OWN = {"bldc", "hil", "plant_models"} | {p.stem for d in TEST_DIRS for p in (ROOT / d).glob("*.py")}
 
 
 def _distribution_name(requirement: str) -> str:

@@ -62,7 +62,9 @@ class SocketcandLimits:
     partial_timeout_s: float = 5.0      #: a command begun must end within this
     idle_timeout_s: float = 300.0       #: raw mode: no command, or nothing read, for this long closes
     max_command_bytes: int = 128        #: '< send 1FFFFFFF 8 ff ff ff ff ff ff ff ff >' is 41
-    max_backlog_frames: int = 64        #: frames the device has not yet taken; the oldest is dropped beyond this
+    #: frames the device has not yet taken; the oldest is dropped beyond this (a receive FIFO that
+    #: holds four whole edge messages: one is up to 56 frames, bldc.contract.EdgeMessage)
+    max_backlog_frames: int = 256
     overrun_log_interval_s: float = 10.0  #: a client that keeps overrunning the device: one line this often
 
 
