@@ -107,7 +107,7 @@ def screenshot(page: Path, png: Path, tmp_path: Path, height_px: int = 1000) -> 
 def hil(*args: str, cwd: Path) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
     return subprocess.run(
-        [sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=900
+        [sys.executable, "-m", "hil", *args], capture_output=True, text=True, cwd=cwd, env=env, timeout=1800
     )
 
 
