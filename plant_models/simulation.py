@@ -224,40 +224,6 @@ class Simulation:
         st = self.st
         return self._through_current_sensors(float(st[L.S_IA]), float(st[L.S_IB]), float(st[L.S_IC]))
 
-    def measured_mean_abs_current_at_a(self, t_s: float) -> float:
-        """Mean |i| over the phases at ``t_s`` in the recent past, through the current sensors: what
-        an MCU's ADC ring buffer holds for that instant (``phase_currents_at_a``)."""
-        return self._through_current_sensors(*self.phase_currents_at_a(t_s))
-
-    def phase_currents_at_a(self, t_s: float) -> tuple[float, float, float]:
-        """The true phase currents at ``t_s`` in the recent past. Linear between the plant's step
-        starts (the currents are exact there, and a step is at most ``max_step_s``), with
-        np.interp's arithmetic; held at the oldest row kept (``CURRENT_RING`` rows) and at the present."""
-        ring, mask = self.current_ring, L.CURRENT_RING - 1
-        st, now = self.st, self.t_s
-        present = (float(st[L.S_IA]), float(st[L.S_IB]), float(st[L.S_IC]))
-        n = int(self.ist[L.I_RING_N])
-        first, last = max(n - L.CURRENT_RING, 0), n - 1  # rows by write count, oldest to newest
-        while last >= first and ring[last & mask, 0] >= now:
-            last -= 1  # a row of the present instant: the present itself stands for it
-        if t_s >= now or last < first:
-            return present
-        if t_s <= ring[first & mask, 0]:
-            return tuple(ring[first & mask, 1:4].tolist())
-        # binary search (rows increase in time): the last row at or before t_s
-        lo, hi = first, last
-        while lo < hi:
-            mid = (lo + hi + 1) // 2
-            if ring[mid & mask, 0] <= t_s:
-                lo = mid
-            else:
-                hi = mid - 1
-        t0, *i0 = ring[lo & mask].tolist()
-        if t0 == t_s:
-            return tuple(i0)
-        t1, *i1 = ring[(lo + 1) & mask].tolist() if lo < last else (now, *present)
-        return tuple((i1[j] - i0[j]) / (t1 - t0) * (t_s - t0) + i0[j] for j in range(3))
-
     @property
     def samples_taken(self) -> int:
         """Samples recorded since the start (flushed ones included): an index into ``samples()``."""
@@ -276,14 +242,6 @@ class Simulation:
             parts.insert(0, chunk[max(first_sample - start, 0):])
             end = start
         return np.concatenate(parts) if len(parts) > 1 else parts[0]
-
-    def measured_mean_abs_current_since_a(self, first_sample: int) -> float | None:
-        """Mean |i| over the phases and the samples from index ``first_sample`` on (``samples_taken``
-        at the window's start), through the current sensors' gain and offset: what a controller's
-        ADC averages over that window, across buffer flushes. None when no sample fell in it."""
-        if self.samples_taken <= first_sample:
-            return None
-        return float(np.mean(np.abs(self._sensed(self._sample_rows_since(first_sample)[:, 1:4]))))
 
     def sensed_samples_since(self, first_sample: int, until_s: float) -> np.ndarray:
         """The phase-current sensors' outputs (rows of three, A) of the samples from index

@@ -303,9 +303,9 @@ def test_results_do_not_depend_on_buffer_capacity_or_run_chunks():
 
 
 def test_the_adc_ring_holds_the_current_of_an_instant_before_the_present():
-    """Simulation.measured_mean_abs_current_at_a (an edge's current at its own instant, one
-    conditioning delay before the capture) against the plant's own 1 MHz samples of the true
-    currents, up to the 50 us of the effect library's longest delay."""
+    """Simulation.adc_conversions_at (the controller's ADC window, from which it reads an edge's
+    current one conditioning delay before the capture) against the plant's own 1 MHz samples of
+    the true currents, up to the 50 us of the effect library's longest delay."""
 
     sim = Simulation(BASE, RawHallCommutation(), sample_rate_hz=1e6, max_step_s=2e-6, initial_speed_rpm=6000.0)
     worst, compared = 0.0, 0
@@ -318,15 +318,17 @@ def test_the_adc_ring_holds_the_current_of_an_instant_before_the_present():
             if abs(s.t_s[j] - at) > 1e-9:
                 continue  # between two samples of the 1 us grid
             truth = float(np.mean(np.abs(s.i_true_a[j])))
-            worst = max(worst, abs(sim.measured_mean_abs_current_at_a(at) - truth))
+            converted = float(np.mean(np.abs(sim.adc_conversions_at(np.array([at]))[0])))
+            worst = max(worst, abs(converted - truth))
             compared += 1
     assert compared >= 40 and worst < 0.02  # A; the current moves by amperes within the 50 us after a commutation
 
 
 def test_the_adc_window_mean_spans_buffer_flushes():
-    """The controller's cycle-mean current (``measured_mean_abs_current_since_a``) is the mean over
-    every sample of its window, also when the sample buffer was flushed inside the window (a small
-    buffer here, flushed every 97 samples; a lockstep run flushes at the end of each run_until)."""
+    """The conversions the controller's ADC accumulates over a cycle (``sensed_samples_since``) are
+    every sample of its window through the sensors, also when the sample buffer was flushed inside
+    the window (a small buffer here, flushed every 97 samples; a lockstep run flushes at the end of
+    each run_until)."""
     config = dataclasses.replace(BASE, current_sensor=dataclasses.replace(
         BASE.current_sensor, gain_error=(0.02, -0.01, 0.0), offset_a=(0.05, 0.0, -0.03)))
     duty = steady_state(BASE.motor, 8000.0)["duty"]
@@ -335,8 +337,8 @@ def test_the_adc_window_mean_spans_buffer_flushes():
     first = sim.samples_taken
     sim.run_until(0.0013)  # a short call: a flush at its end
     sim.run_until(0.004)  # 300 samples at 100 kHz: more flushes inside the window
-    got = sim.measured_mean_abs_current_since_a(first)
+    got = float(np.mean(np.abs(sim.sensed_samples_since(first, math.inf))))
     i = sim.samples().i_true_a[first:] * (1.0 + np.array([0.02, -0.01, 0.0])) + np.array([0.05, 0.0, -0.03])
     assert sim.samples_taken == sim.samples().t_s.size and i.shape[0] == 300
     assert got == pytest.approx(float(np.mean(np.abs(i))), rel=1e-12)
-    assert sim.measured_mean_abs_current_since_a(sim.samples_taken) is None
+    assert sim.sensed_samples_since(sim.samples_taken, math.inf).shape == (0, 3)
