@@ -32,11 +32,11 @@ from __future__ import annotations
 
 import datetime
 import math
-import tomllib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from bldc.params import ConfigError
+from bldc.tomlfile import ANY_KEY, load_toml
 
 
 @dataclass(frozen=True)
@@ -193,16 +193,11 @@ class Waiver:
         }
 
 
-def _check_table(table, where: str, what: str, known: set[str]) -> None:
-    if not isinstance(table, dict):
-        raise ConfigError(where, f"each {what} is a table")
-    for key in table:
-        if key not in known:
-            raise ConfigError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(known))})")
+#: what a budgets file may hold (bldc.tomlfile): any budget's table, waivers, out-of-scope entries
+_SCHEMA = {"waiver": [_WAIVER_KEYS], "out_of_scope": [_SCOPE_KEYS], ANY_KEY: _BUDGET_KEYS}
 
 
-def _waiver(table, where: str, today: datetime.date, keys=_WAIVER_KEYS, what: str = "[[waiver]]") -> Waiver:
-    _check_table(table, where, what, keys)
+def _waiver(table, where: str, today: datetime.date) -> Waiver:
     for key in ("requirement", "reason", "owner"):
         v = table.get(key)
         if not isinstance(v, str) or not v.strip():
@@ -238,7 +233,6 @@ def _waiver(table, where: str, today: datetime.date, keys=_WAIVER_KEYS, what: st
 
 
 def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
-    _check_table(table, where, "budget", _BUDGET_KEYS)
     for key in ("requirement", "unit", "limit"):
         if key not in table and inherited is None:
             raise ConfigError(f"{where}.{key}", "required")
@@ -299,30 +293,17 @@ class Budgets:
     ) -> "Budgets":
         """``path`` laid over ``base`` (default: the built-in defaults): its budgets override or add,
         its waivers add to the base's. Errors and waiver sources name the file as ``name`` (default: ``path``)."""
-        path = Path(path)
         where = name or str(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except OSError as exc:
-            raise ConfigError(where, f"cannot read: {exc.strerror}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(where, f"not valid TOML: {exc}") from None
+        data = load_toml(path, _SCHEMA, name=where)
         base = base if base is not None else cls.defaults()
         today = today or datetime.date.today()
         budgets, waivers = dict(base.budgets), list(base.waivers)
         for key, table in data.items():
             if key == "waiver":
-                if not isinstance(table, list):
-                    raise ConfigError(f"{where}: waiver", "waivers are an array of tables: write [[waiver]]")
                 waivers += [_waiver(t, f"{where}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
             elif key == "out_of_scope":
-                if not isinstance(table, list):
-                    raise ConfigError(f"{where}: out_of_scope", "an array of tables: write [[out_of_scope]]")
-                waivers += [
-                    replace(_waiver(t, f"{where}: [[out_of_scope]][{i}]", today, _SCOPE_KEYS, "[[out_of_scope]]"),
-                            kind="out of scope")
-                    for i, t in enumerate(table)
-                ]
+                waivers += [replace(_waiver(t, f"{where}: [[out_of_scope]][{i}]", today), kind="out of scope")
+                            for i, t in enumerate(table)]
             else:
                 budgets[key] = _budget(key, table, budgets.get(key), f"{where}: [{key}]")
         return cls(budgets, str(path), tuple(waivers))

@@ -223,3 +223,24 @@ def test_the_hall_geometry_is_written_once():
         if lit in path.read_text()
     ]
     assert not found, found
+
+
+def _tomllib_uses(path: Path) -> list[int]:
+    """Lines of ``path`` that import tomllib or call it (an alias or ``from tomllib import loads`` included)."""
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] in ("tomllib", "tomli") for a in node.names):
+            lines.append(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in ("tomllib", "tomli"):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_toml_files_are_read_only_through_the_strict_loader():
+    """bldc.tomlfile.load_toml is the one reader of TOML (one error type naming file, table and key;
+    unknown keys refused): no other module of the project, tests and tools included, uses tomllib."""
+    helper = ROOT / "bldc" / "tomlfile.py"
+    sources = [p for p in ROOT.rglob("*.py") if not any(part.startswith(".") for part in p.relative_to(ROOT).parts)]
+    assert helper in sources and _tomllib_uses(helper)  # the rule sees the one module that may
+    wrong = [f"{p.relative_to(ROOT)}:{line}" for p in sources if p != helper for line in _tomllib_uses(p)]
+    assert not wrong, "tomllib used outside bldc/tomlfile.py (read with load_toml): " + ", ".join(wrong)

@@ -39,12 +39,12 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from bldc.params import ConfigError
+from bldc.tomlfile import load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 
@@ -213,12 +213,7 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
 
 def load_spec(path: str | Path) -> CampaignSpec:
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ConfigError(str(path), f"not valid TOML: {exc}") from None
+    data = load_toml(path)  # parse_spec checks every key
     try:
         return parse_spec(data, path)
     except ConfigError as exc:

@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import math
 import struct
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from bldc.contract import Fault, Strategy
+from bldc.tomlfile import load_toml
 
 FORMAT = "hil-device-profile/1"
 PROFILES_DIR = Path(__file__).with_name("profiles")
@@ -420,16 +420,8 @@ def _choice(v, where: str, choices) -> str:
 
 
 def load_profile(path: str | Path) -> Profile:
-    """Parse a profile file strictly (``ProfileError`` names file, table and key)."""
-    path = Path(path)
-    where = str(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ProfileError(where, f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ProfileError(where, f"not valid TOML: {exc}") from None
-    return parse_profile(data, where)
+    """Parse a profile file strictly: ``ProfileError`` (``TomlError`` for the file itself) names file, table and key."""
+    return parse_profile(load_toml(path), str(path))  # parse_profile checks every key
 
 
 def parse_profile(data: dict, where: str) -> Profile:
