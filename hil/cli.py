@@ -539,7 +539,7 @@ def cmd_dut_serve(args) -> int:
 def cmd_dut_check(args) -> int:
     """Read every readable object of the DUT's profile once (writes nothing) and say which
     requirements the profile makes testable; 1 when the device refuses an object."""
-    from .budgets import REQUIREMENTS, missing_needs
+    from .requirements import REQUIREMENTS, missing_needs
     from .dut.link import LinkError
     from .dut.profile import ROLES
     from .dut.spec import open_dut

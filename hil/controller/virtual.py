@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import CalibrationTableError, Command, Fault, Strategy
+from bldc.contract import FILTER_COUNTERS, GUARD_TRIPS, CalibrationTableError, Command, Fault, Strategy
 from bldc.hall import sector_of_levels
 from bldc.motor import MotorParameters, steady_state
 from bldc.units import rad_e_per_s_to_rpm
@@ -23,7 +23,6 @@ from bldc.units import rad_e_per_s_to_rpm
 from ..calibration.corrections import SENSORS, Corrections
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
 from ..predictors import filters as F
-from ..predictors.predictors import COUNTER_NAMES
 from .adc import edge_currents
 from .commutation import HallCommutation, SpeedPI
 
@@ -305,8 +304,8 @@ class VirtualController:
             else float(est),
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
             "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
-            "guard_trips": int(sum(p.guards.values())) if p is not None else 0,
-            **(p.counters if p is not None else dict.fromkeys(COUNTER_NAMES, 0)),
+            GUARD_TRIPS: int(sum(p.guards.values())) if p is not None else 0,
+            **(p.counters if p is not None else dict.fromkeys(FILTER_COUNTERS, 0)),
             "last_predicted_commutation_s": float(self._logic.last_prediction_s),
             "error_register": self.error_register,
             "faults": list(self.faults),

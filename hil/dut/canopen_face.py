@@ -26,6 +26,7 @@ from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from bldc.contract import (
+    FILTER_COUNTERS,
     CalibrationTableError,
     CommandMessage,
     MAX_ADC_SAMPLES,
@@ -349,7 +350,7 @@ class CanopenDevice:
             return self.filter[subindex - 1]
         if index == 0x2101 and subindex >= 1:
             st = c.status()
-            return int(st[("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")[subindex - 1]])
+            return int(st[FILTER_COUNTERS[subindex - 1]])
         if index == 0x2200 and subindex >= 1:
             e = self._last_edge
             return (e.ticks, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq, e.newest_sample_age_ticks)[

@@ -12,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from bldc.contract import FILTER_COUNTERS
+
 I16 = 0x0003
 U8, U16, U32, REAL32, VSTRING, REAL64 = 0x0005, 0x0006, 0x0007, 0x0008, 0x0009, 0x0011
 
@@ -40,8 +42,8 @@ class Group:
 CAL_NAMES = ("installation A deg_e", "installation B deg_e", "installation C deg_e", "pole 0 deg_e", "pole 1 deg_e",
              "pole 2 deg_e", "pole 3 deg_e", "rise delay s", "fall delay s", "armature deg_e per A")
 FILTER_NAMES = ("forgetting b", "Q0 w", "Q0 theta", "Q0 I", "R0 theta", "R0 I", "P0 w", "P0 theta", "P0 I")
-#: the split filter counters (0x2101), in order (hil.predictors.COUNTER_NAMES)
-COUNTERS = ("gated edges", "covariance repairs", "divergence fades", "band projections")
+#: the split filter counters (0x2101), in order, as the EDS names them
+COUNTERS = tuple(name.replace("_", " ") for name in FILTER_COUNTERS)
 #: the edge message's (version 2) header (0x2200, mapped by RPDO1) and one data frame (0x2201, RPDO2):
 #: a conversion of its window, or at index 0xFD-0xFF an accumulator (its first six bytes then I32
 #: sum and U16 conversions summed: bldc.contract)
