@@ -19,7 +19,7 @@ from hil.controller.virtual import VirtualController
 from hil.dut.canopen_face import CanopenDevice, CanopenLink
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
-from hil.dut.od import EDS_PATH, eds_text
+from hil.dut.eds import SHIPPED_EDS, shipped_eds_text
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)
@@ -42,9 +42,11 @@ def pair():
     dev.close()
 
 
-def test_shipped_eds_is_generated_from_the_declaration():
-    assert EDS_PATH.read_text() == eds_text(), (
-        "regenerate: python -c 'from hil.dut.od import *; EDS_PATH.write_text(eds_text())'"
+def test_the_shipped_eds_is_generated_from_the_shipped_profile():
+    """The profile is the one source of the built-in map; the EDS is written from it."""
+    assert SHIPPED_EDS.read_text() == shipped_eds_text(), (
+        "regenerate: python -m hil.dut.eds hil/dut/profiles/virtual-canopen.toml -o "
+        "hil/dut/profiles/virtual-canopen.eds"
     )
 
 

@@ -13,7 +13,7 @@ import pytest
 
 from hil.budgets import REQUIREMENT_NEEDS, REQUIREMENTS
 from hil.dut.draft import draft_from_eds
-from hil.dut.od import EDS_PATH
+from hil.dut.eds import SHIPPED_EDS as EDS_PATH
 from hil.dut.profile import ROLES, SHIPPED, ProfileError, load_profile, shipped
 
 ROOT = Path(__file__).resolve().parent.parent

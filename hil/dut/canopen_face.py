@@ -1,8 +1,10 @@
 """The virtual controller's CANopen face (CiA 301) on a python-can bus, and the CANopen link.
 
-Device: a ``canopen.LocalNode`` with the shipped EDS, behind our own validation (the library
-leaves PDOs unlinked, ignores EDS limits, leaves 0x1001/0x1003 untouched on EMCY, sends no
-boot-up after an NMT reset and echoes stale indexes in some aborts: docs/controller.md, Library traps).
+Device: a ``canopen.LocalNode`` holding the dictionary its profile describes (hil.dut.eds; the
+built-in controller's: hil/dut/profiles/virtual-canopen.toml), every object served through the
+controller's roles (hil.dut.virtual_roles) as Modbus is, behind our own validation (the library
+leaves PDOs unlinked, leaves 0x1001/0x1003 untouched on EMCY, sends no boot-up after an NMT reset
+and echoes stale indexes in some aborts: docs/controller.md, Library traps).
 Edges arrive on the profile's receive COB-IDs (the built-in controller's: the header in RPDO1,
 0x200 + node, after its accumulators and ADC window, one data frame each, in RPDO2, 0x300 +
 node); commands leave on its transmit COB-ID (TPDO1, 0x180 + node), in the messages of
@@ -21,29 +23,25 @@ from pathlib import Path
 
 import can
 import canopen
-import numpy as np
 from canopen.sdo.client import SdoClient
 from canopen.sdo.exceptions import SdoAbortedError, SdoCommunicationError
 
 from bldc.contract import (
-    CalibrationTableError,
     CommandMessage,
     MAX_ADC_SAMPLES,
     EdgeMessage,
     Fault,
     edge_epoch,
     encode_reply,
-    filter_vector,
     next_epoch,
-    with_filter_vector,
 )
 
 from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController, warm_up
 from .can_interfaces import unknown_can_interface
 from .link import LinkError, LinkTimeout
-from .od import EDS_PATH
-from .profile import CANOPEN_TYPE_CODES, ROLES, Profile, ProfileError, load_profile, shipped
+from .eds import object_dictionary, read_eds, virtual_identity
+from .profile import Profile, ProfileError, load_profile, shipped
 from .roles import RoleLink
 from .virtual_roles import VirtualRoles
 
@@ -223,14 +221,10 @@ class CanopenDevice:
         profile: Profile | str | None = None,
         **bus_kwargs,
     ):
-        """Node ``node_id`` on the bus; the dictionary is the shipped EDS for the controller's own
-        profile, else one built from ``profile`` (every object it maps, CiA 301's mandatory ones)."""
+        """Node ``node_id`` on the bus, serving the dictionary of ``profile`` (default: the virtual
+        controller's own, hil/dut/profiles/virtual-canopen.toml) through the controller's roles."""
         self.profile = _profile(profile, controller.motor.pole_pairs, node_id, None)
-        own = self.profile.objects == shipped("canopen").bind(controller.motor.pole_pairs, node_id).objects
-        if own and controller.motor.pole_pairs != 2:
-            raise ValueError("the shipped EDS describes a 2-pole-pair motor (four pole offsets)")
-        #: the roles of a foreign profile (None: the shipped EDS's own objects, served below)
-        self.roles = None if own else VirtualRoles(controller, self.profile)
+        self.roles = VirtualRoles(controller, self.profile)
         self._cells = {
             (o.index, o.subindex_of(k)): (o, k) for o in self.profile.objects.values() for k in range(o.count)
         }
@@ -243,13 +237,9 @@ class CanopenDevice:
         # ``hil dut serve`` take up to a second longer to exit on SIGTERM)
         self.network.NOTIFIER_CYCLE = 0.05
         self.network.connect(interface=interface, channel=channel, **bus_kwargs)
-        od = canopen.import_od(str(EDS_PATH), node_id) if self.roles is None else object_dictionary(self.profile)
-        self.node = canopen.LocalNode(node_id, od)
+        self.node = canopen.LocalNode(node_id, object_dictionary(self.profile, node_id, virtual_identity()))
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary
-        self.staged = (controller.corrections or Corrections()).as_float32().as_vector()
-        self.filter = filter_vector(controller.filter_settings)
-        self.history: list[int] = [] if self.roles is None else self.roles.history
         self._epoch = 0
         self._last_ticks: int | None = None
         self._lock = threading.Lock()
@@ -265,11 +255,9 @@ class CanopenDevice:
             self.network.subscribe(hook.rx_cob_ids[0], self._on_rpdo)
             if len(hook.rx_cob_ids) > 1:
                 self.network.subscribe(hook.rx_cob_ids[1], self._on_data)
-        self._last_edge = EdgeMessage(0, 0, False, 0)
         #: data frames received since the last edge header: the accumulators and the ADC window of the
         #: edge whose header follows them (bounded: a stream without headers keeps the newest)
         self._data_frames: list[bytes] = []
-        self._last_data = bytes(8)  #: the last data frame, for 0x2201 reads
         self.node.add_read_callback(self._on_read)
         self.node.add_write_callback(self._on_write)
         controller.on_fault(self._on_fault)
@@ -304,11 +292,9 @@ class CanopenDevice:
         elif cmd == NMT_PREOP:
             self.state = "PRE-OPERATIONAL"
         elif cmd in (NMT_RESET_NODE, NMT_RESET_COMM):
-            if cmd == NMT_RESET_NODE:
+            if cmd == NMT_RESET_NODE:  # CiA 301's reset application: faults cleared, logic restarted
                 with self._lock:
-                    self.controller.clear_faults()
-                    self.history.clear()
-                    self.controller.reset()
+                    self.roles.write("reset", [])
                     self._epoch, self._last_ticks = 0, None
             self._boot()
             return
@@ -323,94 +309,8 @@ class CanopenDevice:
         if answer is not None:
             self.network.send_message(0x580 + self.node_id, answer)
 
-    def _on_read(self, index, subindex, od):
-        if self.roles is not None:
-            return self._role_read(index, subindex)
-        c = self.controller
-        if index == 0x1001:
-            return c.error_register
-        if index == 0x1003:
-            return (
-                len(self.history)
-                if subindex == 0
-                else (self.history[subindex - 1] if subindex <= len(self.history) else 0)
-            )
-        if index == 0x1017:
-            return self._heartbeat_ms
-        if index == 0x2000:
-            return int(c.strategy)
-        if index == 0x2001:
-            return c.speed_setpoint_rpm
-        if index == 0x2010 and subindex >= 1:
-            return self.staged[subindex - 1]
-        if index == 0x2012 and subindex >= 1:
-            return (c.corrections or Corrections()).as_vector()[subindex - 1]
-        if index == 0x2020 and subindex >= 1:
-            return self.filter[subindex - 1]
-        if index == 0x2101 and subindex >= 1:
-            st = c.status()
-            return int(st[("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")[subindex - 1]])
-        if index == 0x2200 and subindex >= 1:
-            e = self._last_edge
-            return (e.ticks, (e.sensor & 0x03) | (0x80 if e.rising else 0), e.seq, e.newest_sample_age_ticks)[
-                subindex - 1
-            ]
-        if index == 0x2201 and subindex >= 1:
-            return struct.unpack("<hhhBB", self._last_data)[subindex - 1]
-        if index == 0x2100 and subindex >= 1:
-            st = c.status()
-            values = [
-                st["estimated_speed_rpm"],
-                *st["q_diag"],
-                *st["r_diag"],
-                st["guard_trips"],
-                st["last_predicted_commutation_s"],
-            ]
-            v = values[subindex - 1]
-            return 0.0 if isinstance(v, float) and not np.isfinite(v) else v
-        return None
-
-    def _on_write(self, index, subindex, od, data):
-        if self.roles is not None:
-            return self._role_write(index, subindex, od.decode_raw(data))
-        value = od.decode_raw(data)
-        limits_low = od.min if od.min is not None else None
-        limits_high = od.max if od.max is not None else None
-        if isinstance(value, float) and not np.isfinite(value):
-            raise SdoAbortedError(ABORT_RANGE)
-        if (limits_low is not None and value < limits_low) or (limits_high is not None and value > limits_high):
-            raise SdoAbortedError(ABORT_RANGE)
-        c = self.controller
-        if index == 0x1003 and subindex == 0:
-            if value != 0:
-                raise SdoAbortedError(ABORT_RANGE)
-            self.history.clear()
-        elif index == 0x1017:
-            self._heartbeat_ms = int(value)
-            self._start_heartbeat()
-        elif index == 0x2000:
-            c.set_strategy(int(value))
-        elif index == 0x2001:
-            c.set_speed(float(value))
-        elif index == 0x2010:
-            self.staged[subindex - 1] = float(value)
-        elif index == 0x2011:
-            try:
-                c.download_calibration(Corrections.from_vector(self.staged))
-            except CalibrationTableError:
-                raise SdoAbortedError(ABORT_RANGE) from None
-        elif index == 0x2020:
-            new = list(self.filter)
-            new[subindex - 1] = float(value)
-            try:  # takes effect at the next strategy write or NMT reset, as the filter restarts then
-                c.filter_settings = with_filter_vector(c.filter_settings, new)
-            except ValueError:
-                raise SdoAbortedError(ABORT_RANGE) from None
-            self.filter = new
-
-    # --- EMCY ------------------------------------------------------------------------------------
-    # --- a foreign profile's objects: the controller's roles, encoded as the profile says ----------
-    def _role_read(self, index: int, subindex: int):
+    # --- the profile's objects: the controller's roles, encoded as the profile says -----------------
+    def _on_read(self, index: int, subindex: int, od):
         cell = self._cells.get((index, subindex))
         if cell is None:
             return None  # an object of CiA 301's (0x1000, a record's highest sub-index): its default
@@ -419,8 +319,9 @@ class CanopenDevice:
             return 0
         return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs, saturate=True)
 
-    def _role_write(self, index: int, subindex: int, raw) -> None:
+    def _on_write(self, index: int, subindex: int, od, data) -> None:
         obj, k = self._cells[(index, subindex)]
+        raw = od.decode_raw(data)
         try:
             if obj.is_action:
                 if raw != obj.write:
@@ -438,10 +339,7 @@ class CanopenDevice:
             self._heartbeat_ms = self.roles.heartbeat_ms
             self._start_heartbeat()
 
-    def _on_fault(self, code: int, t_s: float) -> None:
-        if self.roles is None:  # a foreign profile's roles keep the history themselves
-            self.history.insert(0, code)
-            del self.history[8:]
+    def _on_fault(self, code: int, t_s: float) -> None:  # the roles keep the history (0x1003)
         self.node.emcy.send(self.profile.device_fault(code), self.controller.error_register)
 
     # --- PDO -------------------------------------------------------------------------------------
@@ -456,7 +354,6 @@ class CanopenDevice:
                 return  # a malformed PDO or frame set is ignored, as CiA 301 devices do
             self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
             self._last_ticks = msg.ticks
-            self._last_edge = msg
             try:
                 commands = self.controller.capture(msg.to_edge(self._epoch))
             except Exception:  # never let bad input kill the receive thread: report and answer
@@ -473,7 +370,6 @@ class CanopenDevice:
         with self._lock:
             self._data_frames.append(bytes(data))
             del self._data_frames[: -(MAX_ADC_SAMPLES + 3)]
-            self._last_data = bytes(data)
 
     def close(self) -> None:
         try:
@@ -606,10 +502,10 @@ class CanopenLink(RoleLink):
         self.network = canopen.Network()
         self.network.bus = _open_bus(self.where, interface, channel, timeout_s, bus_kwargs)
         self.network.connect()
-        # the device's own EDS; else the shipped one for the virtual controller's own profile, or
-        # the dictionary the profile describes
-        own = self.profile.objects == shipped("canopen").bind(pole_pairs, node_id).objects
-        self.node = self.network.add_node(node_id, eds or (str(EDS_PATH) if own else object_dictionary(self.profile)))
+        # the device's own EDS, else the dictionary the profile describes
+        self.node = self.network.add_node(
+            node_id, read_eds(eds, node_id) if eds else object_dictionary(self.profile, node_id)
+        )
         # the client is already subscribed to the response COB-ID; swapping its class keeps that
         # subscription and adds the multiplexer check
         self.node.sdo.__class__ = MuxCheckedSdoClient
@@ -741,50 +637,9 @@ class CanopenLink(RoleLink):
 
 
 def _profile(profile: Profile | str | None, pole_pairs: int, node_id: int, eds: str | None) -> Profile:
-    """A bound CANopen profile (default: the virtual controller's own, typed by the shipped EDS)."""
+    """A bound CANopen profile (default: the virtual controller's own)."""
     if profile is None or isinstance(profile, (str, Path)):
         profile = load_profile(profile) if profile is not None else shipped("canopen")
     if profile.protocol != "canopen":
         raise ProfileError(profile.path, f"a {profile.protocol} profile on a CANopen device")
     return profile.bind(pole_pairs, node_id, eds)
-
-
-_TYPE_CODES = {name: code for code, name in CANOPEN_TYPE_CODES.items()}
-
-
-def object_dictionary(profile: Profile):
-    """A CiA 301 object dictionary holding every object of ``profile`` (an object with sub-indices
-    is a RECORD with its highest sub-index at 0, unless a role maps sub 0) and 0x1000: what a
-    device with this profile has, for the virtual device and for a link without the device's EDS."""
-    od = canopen.ObjectDictionary()
-    by_index: dict[int, dict[int, tuple]] = {}
-    for o in profile.objects.values():
-        for k in range(o.count):
-            by_index.setdefault(o.index, {})[o.subindex_of(k)] = (o, k)
-
-    def variable(o, index: int, sub: int, name: str) -> canopen.objectdictionary.ODVariable:
-        var = canopen.objectdictionary.ODVariable(name, index, sub)
-        var.data_type = _TYPE_CODES[o.type]
-        access = ROLES[o.role].access if o.role in ROLES else "r"
-        var.access_type = {"r": "ro", "rw": "rw", "w": "wo"}[access]
-        var.default = False if o.type == "bool" else (0.0 if o.type.startswith("float") else 0)
-        return var
-
-    if 0x1000 not in by_index:
-        device_type = canopen.objectdictionary.ODVariable("Device type", 0x1000, 0)
-        device_type.data_type, device_type.access_type, device_type.default = 0x07, "ro", 0
-        od.add_object(device_type)
-    for index, subs in sorted(by_index.items()):
-        if list(subs) == [0] and subs[0][0].count == 1:
-            o, _ = subs[0]
-            od.add_object(variable(o, index, 0, o.role))
-            continue
-        record = canopen.objectdictionary.ODRecord(f"{subs[min(subs)][0].role} record", index)
-        if 0 not in subs:
-            highest = canopen.objectdictionary.ODVariable("Highest sub-index supported", index, 0)
-            highest.data_type, highest.access_type, highest.default = 0x05, "const", max(subs)
-            record.add_member(highest)
-        for sub, (o, k) in sorted(subs.items()):
-            record.add_member(variable(o, index, sub, f"{o.role}[{k}]" if o.count > 1 else o.role))
-        od.add_object(record)
-    return od

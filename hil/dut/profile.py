@@ -342,9 +342,9 @@ class Profile:
         objects = dict(self.objects)
         od = None
         if self.protocol == "canopen" and eds:
-            import canopen
+            from .eds import read_eds
 
-            od = canopen.import_od(str(eds), node_id or 1)
+            od = read_eds(eds, node_id or 1)
         for role, obj in objects.items():
             if self.protocol == "canopen":
                 from_eds = _eds_type(od, obj) if od is not None else None
