@@ -126,7 +126,19 @@ def parse_dut(text: str) -> DutSpec:
         raise DutSpecError(f"--hil-dut {text!r}: {why}")
     if options["profile"]:
         _check_profile(text, kind, transport, options["profile"])
+    if options.get("eds"):
+        _check_eds(text, options["eds"])
     return DutSpec(kind, transport, options, text)
+
+
+def _check_eds(text: str, path: str) -> None:
+    """An EDS that cannot be read is refused before anything opens, naming its section and key."""
+    from .eds import EdsError, read_eds
+
+    try:
+        read_eds(path)
+    except EdsError as exc:
+        raise DutSpecError(f"--hil-dut {text!r}: eds {exc}") from None
 
 
 def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
