@@ -51,7 +51,7 @@ class Command:
 
 
 class Strategy(enum.IntEnum):
-    """How the controller commutates (CANopen 0x2010, Modbus register 10)."""
+    """How the controller commutates (the strategy role: hil/dut/profiles/virtual-*.toml)."""
 
     RAW = 0
     CORRECTED = 1
@@ -91,7 +91,7 @@ class FilterSettingsVector(Protocol):
 
 
 def filter_vector(settings: FilterSettingsVector) -> list[float]:
-    """The nine filter settings every link carries (CANopen 0x2020, Modbus 60-77), in order."""
+    """The nine filter settings every link carries (the filter_* roles of a device profile), in order."""
     return [settings.forgetting_b, *settings.q0_diag, *settings.r0_diag, *settings.p0_diag]
 
 
