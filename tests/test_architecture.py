@@ -188,8 +188,8 @@ def test_no_import_cycle_between_modules():
 def test_the_graph_reader_sees_function_level_imports():
     """A guard on the guard: the reader must see an import made inside a function."""
     source = MODULES["hil.dut.spec"].read_text()
-    assert "\nfrom .canopen_face" not in source  # hil.dut.spec loads the CANopen stack on use only
-    assert "hil.dut.canopen_face" in {t for t, _ in GRAPH["hil.dut.spec"]}
+    assert "\nfrom .canopen_link" not in source  # hil.dut.spec loads the CANopen stack on use only
+    assert "hil.dut.canopen_link" in {t for t, _ in GRAPH["hil.dut.spec"]}
 
 
 def _loaded_after(statement: str) -> set[str]:

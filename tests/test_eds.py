@@ -120,7 +120,7 @@ def test_an_eds_generated_from_a_foreign_profile_drafts_back_to_that_profile(tmp
     assert read_eds(eds, 5)[0x3000].name == "strategy"
     draft = tmp_path / "draft.toml"
     draft.write_text(draft_from_eds(str(eds)))
-    back = load_profile(draft).bind(2, 5, str(eds))
-    own = foreign.bind(2, 5, str(eds))
+    back = load_profile(draft).bind(2, 5, read_eds(eds, 5))
+    own = foreign.bind(2, 5, read_eds(eds, 5))
     mapped = {r: (o.index, o.subindex, o.count, o.type) for r, o in own.objects.items() if not o.default}
     assert mapped.items() <= {r: (o.index, o.subindex, o.count, o.type) for r, o in back.objects.items()}.items()

@@ -187,7 +187,7 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
     o = spec.options
     profile = {"profile": o["profile"] or None, "pole_pairs": motor.pole_pairs}
     if spec.kind == "canopen":
-        from .canopen_face import CanopenLink
+        from .canopen_link import CanopenLink
 
         bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
         return Dut(
@@ -204,12 +204,12 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
             ),
         )
     if spec.kind == "modbus-tcp":
-        from .modbus_face import ModbusLink
+        from .modbus_link import ModbusLink
 
         link = ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"], **profile)
         return Dut(spec, link)
     if spec.kind == "modbus-rtu":
-        from .modbus_face import ModbusLink
+        from .modbus_link import ModbusLink
 
         link = ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"], **profile)
         return Dut(spec, link)
@@ -220,7 +220,8 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
     if spec.transport == "in-process":
         return Dut(spec, InProcessLink(controller))
     if spec.transport == "canopen":
-        from .canopen_face import CanopenDevice, CanopenLink
+        from .canopen_device import CanopenDevice
+        from .canopen_link import CanopenLink
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
         device = CanopenDevice(
@@ -233,7 +234,8 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
                 node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"], **profile
             ),
         )
-    from .modbus_face import ModbusDevice, ModbusLink
+    from .modbus_device import ModbusDevice
+    from .modbus_link import ModbusLink
 
     device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"], profile=profile["profile"])
     return _served(
