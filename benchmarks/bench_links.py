@@ -22,9 +22,11 @@ from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
 from hil.controller.virtual import VirtualController
-from hil.dut.canopen_face import CanopenDevice, CanopenLink
+from hil.dut.canopen_device import CanopenDevice
+from hil.dut.canopen_link import CanopenLink
 from hil.dut.in_process import InProcessLink
-from hil.dut.modbus_face import ModbusDevice, ModbusLink
+from hil.dut.modbus_device import ModbusDevice
+from hil.dut.modbus_link import ModbusLink
 from plant_models import paper_bench
 
 logging.getLogger("pymodbus").setLevel(logging.CRITICAL)

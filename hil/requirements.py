@@ -76,8 +76,8 @@ _FLT_TEST = ("`test_faults.py`: the wiring fault on the captured-edge stream giv
 _PRED_TEST = ("`test_sage_husa.py`: the paper's seven set points, Sage–Husa, KF and pre-calibration on the same "
               "plant and seed")
 _PRED_DOC = "sage-husa.md#the-scenario"
-_CANOPEN_DOC = "controller.md#canopen-face-hildutcanopen_face-eds-hildutvirtual_controllereds"
-_CONTROLLER_DOC = "controller.md#virtual-controller-hilcontrollervirtualvirtualcontroller"
+_CANOPEN_DOC = "controller.md#canopen-face"
+_CONTROLLER_DOC = "controller.md#virtual-controller"
 _SPEED_STEP = "5000 to 5500 rpm"
 
 _REGISTRY = (

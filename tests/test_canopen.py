@@ -16,10 +16,11 @@ from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
 from hil.controller.virtual import VirtualController
-from hil.dut.canopen_face import CanopenDevice, CanopenLink
+from hil.dut.canopen_device import CanopenDevice
+from hil.dut.canopen_link import CanopenLink
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
-from hil.dut.od import EDS_PATH, eds_text
+from hil.dut.eds import SHIPPED_EDS, shipped_eds_text
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)
@@ -42,9 +43,11 @@ def pair():
     dev.close()
 
 
-def test_shipped_eds_is_generated_from_the_declaration():
-    assert EDS_PATH.read_text() == eds_text(), (
-        "regenerate: python -c 'from hil.dut.od import *; EDS_PATH.write_text(eds_text())'"
+def test_the_shipped_eds_is_generated_from_the_shipped_profile():
+    """The profile is the one source of the built-in map; the EDS is written from it."""
+    assert SHIPPED_EDS.read_text() == shipped_eds_text(), (
+        "regenerate: python -m hil.dut.eds hil/dut/profiles/virtual-canopen.toml -o "
+        "hil/dut/profiles/virtual-canopen.eds"
     )
 
 
@@ -273,7 +276,7 @@ def test_a_late_answer_to_another_request_is_not_taken_for_this_one():
     from canopen.sdo.client import SdoClient
     from canopen.sdo.exceptions import SdoAbortedError
 
-    from hil.dut.canopen_face import MuxCheckedSdoClient
+    from hil.dut.canopen_link import MuxCheckedSdoClient
 
     stale_abort = bytes([0x80, 0x00, 0x20, 0x01]) + (0x06020000).to_bytes(4, "little")
     answer = bytes([0x43, 0x00, 0x10, 0x00]) + (0x192).to_bytes(4, "little")

@@ -16,10 +16,10 @@ from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.fit import fit_corrections
 from hil.controller.virtual import VirtualController
-from hil.dut.canopen_face import CanopenLink
+from hil.dut.canopen_link import CanopenLink
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
-from hil.dut.modbus_face import ModbusLink
+from hil.dut.modbus_link import ModbusLink
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)

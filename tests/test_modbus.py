@@ -18,7 +18,8 @@ from hil.calibration.fit import fit_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
-from hil.dut.modbus_face import ModbusDevice, ModbusLink
+from hil.dut.modbus_device import ModbusDevice
+from hil.dut.modbus_link import ModbusLink
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)

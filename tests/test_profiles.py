@@ -13,7 +13,8 @@ import pytest
 
 from hil.requirements import REQUIREMENTS
 from hil.dut.draft import draft_from_eds
-from hil.dut.od import EDS_PATH
+from hil.dut.eds import SHIPPED_EDS as EDS_PATH
+from hil.dut.eds import read_eds
 from hil.dut.profile import ROLES, SHIPPED, ProfileError, load_profile, shipped
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -73,12 +74,12 @@ def test_scaled_little_endian_words_encode_as_the_modbus_spec_says(tmp_path):
 
 def test_the_shipped_canopen_profile_agrees_with_the_shipped_eds(tmp_path):
     """Types the profile states match the EDS; a profile without types takes them from the EDS."""
-    bound = shipped("canopen").bind(2, 5, str(EDS_PATH))  # a disagreement would raise
+    bound = shipped("canopen").bind(2, 5, read_eds(EDS_PATH, 5))  # a disagreement would raise
     untyped = SHIPPED["canopen"].read_text().replace('type = "float32"\n', "").replace('type = "uint32"\n', "")
     p = load_profile(_write(tmp_path, untyped))
     with pytest.raises(ProfileError, match=r"\[objects.speed_setpoint\].type"):
         p.bind(2, 5)
-    typed = p.bind(2, 5, str(EDS_PATH))
+    typed = p.bind(2, 5, read_eds(EDS_PATH, 5))
     assert {r: o.type for r, o in typed.objects.items()} == {r: o.type for r, o in bound.objects.items()}
     assert bound.edge_hook.rx_cob_ids == (0x205, 0x305) and bound.edge_hook.tx_cob_id == 0x185
 
@@ -119,7 +120,7 @@ def served():
 def test_a_plain_modbus_client_finds_the_values_where_the_foreign_profile_says(served):
     from pymodbus.client import ModbusTcpClient
 
-    from hil.dut.modbus_face import ModbusLink
+    from hil.dut.modbus_link import ModbusLink
 
     link = ModbusLink(port=served, profile=str(FOREIGN))
     link.set_speed(6000.0)
@@ -263,7 +264,8 @@ def test_the_foreign_canopen_profile_encodes_as_it_says():
     in hundredths, and a refused calibration's EMCY carries the device's code 0x5530."""
     from hil.calibration.corrections import Corrections
     from hil.controller.virtual import VirtualController
-    from hil.dut.canopen_face import CanopenDevice, CanopenLink
+    from hil.dut.canopen_device import CanopenDevice
+    from hil.dut.canopen_link import CanopenLink
     from hil.dut.link import LinkError
     from plant_models import paper_bench
 
@@ -316,7 +318,8 @@ def test_the_foreign_modbus_profile_over_rtu():
 
     from hil.controller.virtual import VirtualController
     from hil.dut.link import LinkError
-    from hil.dut.modbus_face import ModbusDevice, ModbusLink
+    from hil.dut.modbus_device import ModbusDevice
+    from hil.dut.modbus_link import ModbusLink
     from plant_models import paper_bench
 
     line = NullModem()

@@ -20,7 +20,7 @@ from hypothesis.stateful import RuleBasedStateMachine, initialize, precondition,
 
 from bldc.contract import Strategy
 from hil.controller.virtual import VirtualController
-from hil.dut.canopen_face import CanopenDevice
+from hil.dut.canopen_device import CanopenDevice
 from plant_models import paper_bench
 
 CONFIG = paper_bench(with_deviations=True)

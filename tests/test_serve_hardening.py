@@ -354,7 +354,7 @@ def test_a_burst_of_ten_thousand_sdo_frames_then_the_same_clients_upload_is_answ
     overruns, and the operator is told in one line naming the client."""
     from canopen.sdo.client import SdoClient
 
-    from hil.dut.canopen_face import CanopenLink
+    from hil.dut.canopen_link import CanopenLink
 
     link = CanopenLink(interface="socketcand", channel="can0", host="127.0.0.1", port=served_server.co_port,
                        timeout_s=SdoClient.RESPONSE_TIMEOUT)
@@ -425,7 +425,7 @@ def test_unit_id_rule(served, unit, answer):
 def test_a_bad_request_is_one_debug_line_and_the_log_stays_bounded(caplog):
     from bldc.contract import Strategy
     from hil.controller.virtual import VirtualController
-    from hil.dut.modbus_face import ModbusDevice
+    from hil.dut.modbus_device import ModbusDevice
     from plant_models import paper_bench
 
     dev = ModbusDevice(VirtualController(paper_bench().motor, strategy=Strategy.SAGE_HUSA))

@@ -1,7 +1,7 @@
 """The controller link: the one interface through which the framework reaches a controller.
 
 The acceptance suite never knows which implementation it has: ``hil.dut.in_process`` (the virtual
-controller called directly), ``hil.dut.canopen_face`` or ``hil.dut.modbus_face``. This module
+controller called directly), ``hil.dut.canopen_link`` or ``hil.dut.modbus_link``. This module
 imports nothing heavy (no protocol stack, no controller, no numba), so a type annotation or an
 ``except LinkError`` costs nothing.
 """

@@ -327,15 +327,12 @@ class Profile:
         inverse = {v: k for k, v in self.fault_map.items()}
         return inverse.get(int(framework_code), int(framework_code))
 
-    def bind(self, pole_pairs: int | None = None, node_id: int | None = None, eds: str | None = None) -> "Profile":
+    def bind(self, pole_pairs: int | None = None, node_id: int | None = None, eds=None) -> "Profile":
         """The profile resolved for one device: array counts checked against the motor, CANopen
-        types from the EDS where the profile leaves them out, ``$NODEID`` in COB-IDs replaced."""
+        types from the device's EDS (``eds``: its dictionary, ``hil.dut.eds.read_eds``) where the
+        profile leaves them out, ``$NODEID`` in COB-IDs replaced."""
         objects = dict(self.objects)
-        od = None
-        if self.protocol == "canopen" and eds:
-            import canopen
-
-            od = canopen.import_od(str(eds), node_id or 1)
+        od = eds if self.protocol == "canopen" else None
         for role, obj in objects.items():
             if self.protocol == "canopen":
                 from_eds = _eds_type(od, obj) if od is not None else None
@@ -549,7 +546,7 @@ def _check_overlaps(objects: dict[str, DeviceObject], where: str) -> None:
 #: first EDGE_HEADER_WORDS registers at the request address; the reply is a frame count and four
 #: command messages at the reply address. The message's rest (accumulators and ADC window, up to
 #: 163 registers) follows the header as far as the mailbox has room, and is written ahead of it in
-#: parts where it has not (hil.dut.modbus_face), so a profile that leaves little room still works.
+#: parts where it has not (hil.dut.modbus_device), so a profile that leaves little room still works.
 EDGE_HEADER_WORDS, REPLY_WORDS = 4, 17
 #: the most registers one write of the header and the rest takes (read/write multiple registers)
 MAILBOX_MAX_WORDS = 121
@@ -664,3 +661,17 @@ def _edge_hook(table, where: str, protocol: str) -> EdgeHook:
 def shipped(protocol: str) -> Profile:
     """The built-in virtual controller's own map for ``protocol`` (canopen or modbus)."""
     return load_profile(SHIPPED[protocol])
+
+
+def bound_profile(protocol: str, profile: "Profile | str | Path | None", pole_pairs: int, node_id: int | None = None,
+                  eds=None) -> Profile:
+    """A ``protocol`` profile bound for one device (default: the virtual controller's own map);
+    a profile of the other protocol is a ``ProfileError``."""
+    if profile is None or isinstance(profile, (str, Path)):
+        profile = load_profile(profile) if profile is not None else shipped(protocol)
+    if profile.protocol != protocol:
+        raise ProfileError(profile.path, f"a {profile.protocol} profile on a {PROTOCOL_NAMES[protocol]} device")
+    return profile.bind(pole_pairs, node_id, eds)
+
+
+PROTOCOL_NAMES = {"canopen": "CANopen", "modbus": "Modbus"}

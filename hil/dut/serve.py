@@ -50,7 +50,7 @@ def serve(
         limits = dataclasses.replace(limits, idle_timeout_s=idle_timeout_s)
     try:
         if canopen_port is not None:
-            from .canopen_face import CanopenDevice
+            from .canopen_device import CanopenDevice
             from .socketcand import SocketcandServer
 
             channel = f"hil-dut-{id(controller)}"
@@ -71,7 +71,7 @@ def serve(
                 flush=True,
             )
         if modbus_port is not None:
-            from .modbus_face import ModbusDevice
+            from .modbus_device import ModbusDevice
 
             mdev = ModbusDevice(
                 controller,

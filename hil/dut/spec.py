@@ -126,7 +126,19 @@ def parse_dut(text: str) -> DutSpec:
         raise DutSpecError(f"--hil-dut {text!r}: {why}")
     if options["profile"]:
         _check_profile(text, kind, transport, options["profile"])
+    if options.get("eds"):
+        _check_eds(text, options["eds"])
     return DutSpec(kind, transport, options, text)
+
+
+def _check_eds(text: str, path: str) -> None:
+    """An EDS that cannot be read is refused before anything opens, naming its section and key."""
+    from .eds import EdsError, read_eds
+
+    try:
+        read_eds(path)
+    except EdsError as exc:
+        raise DutSpecError(f"--hil-dut {text!r}: eds {exc}") from None
 
 
 def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
@@ -177,7 +189,7 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
     o = spec.options
     profile = {"profile": o["profile"] or None, "pole_pairs": motor.pole_pairs}
     if spec.kind == "canopen":
-        from .canopen_face import CanopenLink
+        from .canopen_link import CanopenLink
 
         bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
         return Dut(
@@ -194,12 +206,12 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
             ),
         )
     if spec.kind == "modbus-tcp":
-        from .modbus_face import ModbusLink
+        from .modbus_link import ModbusLink
 
         link = ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"], **profile)
         return Dut(spec, link)
     if spec.kind == "modbus-rtu":
-        from .modbus_face import ModbusLink
+        from .modbus_link import ModbusLink
 
         link = ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"], **profile)
         return Dut(spec, link)
@@ -210,7 +222,8 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
     if spec.transport == "in-process":
         return Dut(spec, InProcessLink(controller))
     if spec.transport == "canopen":
-        from .canopen_face import CanopenDevice, CanopenLink
+        from .canopen_device import CanopenDevice
+        from .canopen_link import CanopenLink
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
         device = CanopenDevice(
@@ -223,7 +236,8 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
                 node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"], **profile
             ),
         )
-    from .modbus_face import ModbusDevice, ModbusLink
+    from .modbus_device import ModbusDevice
+    from .modbus_link import ModbusLink
 
     device = ModbusDevice(controller, host="127.0.0.1", port=0, unit=o["unit"], profile=profile["profile"])
     return _served(

@@ -129,5 +129,9 @@ class VirtualRoles:
         elif role == "clear_faults":
             c.clear_faults()
             self.history.clear()
+        elif role == "fault_count":  # CiA 301 0x1003 sub 0: writing 0 clears the history, nothing else
+            if int(values[0]) != 0:
+                raise ValueError(f"fault_count takes 0 (clear the history), got {values[0]!r}")
+            self.history.clear()
         else:
             raise ValueError(f"{role} is read-only")

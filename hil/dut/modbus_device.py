@@ -1,6 +1,6 @@
-"""The virtual controller's Modbus face (pymodbus, TCP or RTU framer) and the Modbus link.
+"""The simulated Modbus device: the virtual controller served over Modbus (pymodbus, TCP or RTU framer).
 
-Both read the register map from a device profile (hil.dut.profile; the virtual controller's own
+It reads the register map from a device profile (hil.dut.profile; the virtual controller's own
 map is hil/dut/profiles/virtual-modbus.toml, docs/controller.md has the table): nothing here
 knows an address. Edges are exchanged in one transaction: function 23 (read/write multiple
 registers) writes the edge message to the profile's mailbox and reads the reply at its reply
@@ -15,120 +15,38 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from pathlib import Path
 
 from pymodbus.constants import ExcCodes
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from bldc.contract import (
-    MAX_ADC_SAMPLES,
-    CommandMessage,
     EdgeMessage,
     Fault,
-    edge_epoch,
     encode_reply,
     next_epoch,
 )
 
 from ..controller.virtual import VirtualController, warm_up
-from .link import LinkError, LinkTimeout
+from .modbus_codec import (
+    FUNCTION_TABLE,
+    MESSAGE_REST_WORDS,
+    REPLY_FRAMES,
+    bytes_of,
+    registers_of,
+    request_exception,
+    supported_functions,
+)
 from .profile import (
     EDGE_HEADER_WORDS,
     REPLY_WORDS,
     ROLES,
     Profile,
-    ProfileError,
     ProfileValueError,
-    load_profile,
+    bound_profile,
     mailbox_words,
-    shipped,
 )
-from .roles import RoleLink
 from .tcp import close_handlers
 from .virtual_roles import VirtualRoles
-
-#: the edge mailbox, at the profile's request address (edge message version 2: docs/controller.md):
-#: the message's bytes two per register, the first one high; its header (4 registers) triggers the
-#: controller, the rest (accumulators, ADC window) follows it in the same write. Where the mailbox
-#: has less room than the message (``profile.mailbox_words``), the rest's first part is written
-#: before, at the register after the header, in writes of their own that the device appends.
-#: The reply: a frame count, then up to four command messages.
-REPLY_FRAMES = 4
-assert REPLY_WORDS == 1 + 4 * REPLY_FRAMES
-#: the most registers a message's rest may take (accumulators and a full window)
-MESSAGE_REST_WORDS = 7 + 3 * MAX_ADC_SAMPLES
-
-
-def _bytes_regs(b: bytes) -> list[int]:
-    """A byte string (even length) as registers, two bytes each, the first one high."""
-    return list(struct.unpack(f">{len(b) // 2}H", b))
-
-
-def _regs_bytes(r) -> bytes:
-    return struct.pack(f">{len(r)}H", *r)
-
-
-#: the function codes that read (and write) each table
-TABLE_FUNCTIONS = {"holding": (3, 6, 16, 23), "input": (4,), "coil": (1, 5, 15), "discrete": (2,)}
-FUNCTION_TABLE = {fc: table for table, fcs in TABLE_FUNCTIONS.items() for fc in fcs}
-
-
-def supported_functions(profile: Profile) -> tuple[int, ...]:
-    """The functions a device with this map implements: those of its tables (the mailbox is holding)."""
-    tables = {o.table for o in profile.objects.values()}
-    if profile.edge_hook.kind == "mailbox":
-        tables.add("holding")
-    return tuple(sorted(fc for t in tables for fc in TABLE_FUNCTIONS[t]))
-
-
-def request_exception(pdu: bytes, supported=(3, 6, 16, 23)) -> bytes | None:
-    """The exception PDU the Modbus application protocol requires for a malformed request, or None.
-
-    01 illegal function: a function code this device does not implement (``supported``: those of
-    the tables its map has); 03 illegal data value: a quantity out of range or a byte count that
-    does not match it. Addresses (02) and values of well-formed requests are judged by the map.
-    """
-    if not pdu:
-        return None
-    fc = pdu[0]
-    if fc & 0x80 or fc not in supported:
-        return bytes([(fc | 0x80) & 0xFF, 0x01])
-    bad = bytes([fc | 0x80, 0x03])
-    try:
-        if fc in (3, 4):
-            _, qty = struct.unpack_from(">HH", pdu, 1)
-            return bad if not 1 <= qty <= 125 or len(pdu) != 5 else None
-        if fc in (1, 2):
-            _, qty = struct.unpack_from(">HH", pdu, 1)
-            return bad if not 1 <= qty <= 2000 or len(pdu) != 5 else None
-        if fc == 5:
-            _, value = struct.unpack_from(">HH", pdu, 1)
-            return bad if len(pdu) != 5 or value not in (0, 0xFF00) else None
-        if fc == 6:
-            return bad if len(pdu) != 5 else None
-        if fc == 15:
-            _, qty, nbytes = struct.unpack_from(">HHB", pdu, 1)
-            return bad if not 1 <= qty <= 1968 or nbytes != (qty + 7) // 8 or len(pdu) != 6 + nbytes else None
-        if fc == 16:
-            _, qty, nbytes = struct.unpack_from(">HHB", pdu, 1)
-            return bad if not 1 <= qty <= 123 or nbytes != 2 * qty or len(pdu) != 6 + nbytes else None
-        if fc == 23:
-            _, rqty, _, wqty, nbytes = struct.unpack_from(">HHHHB", pdu, 1)
-            ok = 1 <= rqty <= 125 and 1 <= wqty <= 121 and nbytes == 2 * wqty and len(pdu) == 10 + nbytes
-            return None if ok else bad
-    except struct.error:
-        return bad
-    return None
-
-
-def _profile(profile: Profile | str | None, pole_pairs: int) -> Profile:
-    """A bound Modbus profile (default: the virtual controller's own map)."""
-    if profile is None or isinstance(profile, (str, Path)):
-        profile = load_profile(profile) if profile is not None else shipped("modbus")
-    if profile.protocol != "modbus":
-        raise ProfileError(profile.path, f"a {profile.protocol} profile on a Modbus device")
-    return profile.bind(pole_pairs)
-
 
 UNIT_ANY = 0xFF  #: Modbus TCP's "unit identifier not used" value: this device answers it as its own
 GATEWAY_NO_RESPONSE = 0x0B
@@ -163,7 +81,7 @@ class ModbusDevice:
         register map is ``profile``'s (default: the virtual controller's own, hil/dut/profiles)."""
         warm_up()  # ready before the port opens
         self.controller, self.host, self.unit = controller, host, unit
-        self.profile = _profile(profile, controller.motor.pole_pairs)
+        self.profile = bound_profile("modbus", profile, controller.motor.pole_pairs)
         self.roles = VirtualRoles(controller, self.profile)
         self.supported = supported_functions(self.profile)
         self.map = RegisterMap(self.profile)
@@ -446,13 +364,13 @@ class ModbusDevice:
         """The edge message written to the mailbox: run the controller, leave the reply."""
         c = self.controller
         try:
-            msg = EdgeMessage.unpack(_regs_bytes(words))
+            msg = EdgeMessage.unpack(bytes_of(words))
         except ValueError:
             return ExcCodes.ILLEGAL_VALUE
         self._epoch = next_epoch(self._epoch, self._last_ticks, msg.ticks)
         self._last_ticks = msg.ticks
         frames = encode_reply(c.capture(msg.to_edge(self._epoch)), msg.seq)[:REPLY_FRAMES]
-        reply = [len(frames)] + sum((_bytes_regs(f.pack()) for f in frames), [])
+        reply = [len(frames)] + sum((registers_of(f.pack()) for f in frames), [])
         self._reply = reply + [0] * (REPLY_WORDS - len(reply))
         return None
 
@@ -490,139 +408,3 @@ class RegisterMap:
                 return None
             out.append(cell)
         return out
-
-
-class ModbusLink(RoleLink):
-    """The framework's view of a Modbus controller (TCP or RTU), through its profile."""
-
-    name = "modbus"
-
-    def __init__(
-        self,
-        host: str = "127.0.0.1",
-        port: int = 502,
-        unit: int = 1,
-        timeout_s: float = 1.0,
-        serial_port: str | None = None,
-        baudrate: int = 115200,
-        profile: Profile | str | None = None,
-        pole_pairs: int = 2,
-    ):
-        """Modbus TCP at host:port, or Modbus RTU on ``serial_port`` when given; the map is
-        ``profile``'s (default: the virtual controller's own)."""
-        from pymodbus.client import ModbusSerialClient, ModbusTcpClient
-        from pymodbus.framer import FramerType
-
-        self.profile = _profile(profile, pole_pairs)
-        self._mailbox_words = mailbox_words(self.profile) if self.profile.edge_hook.kind == "mailbox" else 0
-        self.unit, self.timeout_s = unit, timeout_s
-        self.host, self.port, self.serial_port = host, port, serial_port
-        self.applied_calibration = None
-        if serial_port is not None:
-            self.where = f"Modbus RTU unit {unit} on {serial_port}"
-            self.client = ModbusSerialClient(
-                serial_port, framer=FramerType.RTU, baudrate=baudrate, timeout=timeout_s, retries=0
-            )
-        else:
-            self.where = f"Modbus unit {unit} at {host}:{port}"
-            self.client = ModbusTcpClient(host, port=port, timeout=timeout_s, retries=0)
-        if not self.client.connect():
-            raise LinkTimeout(f"{self.where}: cannot connect within {timeout_s} s")
-        self._seq = 0
-
-    def _call(self, what: str, fn):
-        from pymodbus.exceptions import ModbusException
-
-        try:
-            r = fn()
-        except ModbusException as exc:
-            raise LinkTimeout(f"{self.where}: no answer to {what} within {self.timeout_s} s ({exc})") from None
-        except Exception as exc:  # the transport itself failed (a reset connection, a closed port)
-            raise LinkError(f"{self.where}: {what} failed: {type(exc).__name__}: {exc}") from None
-        if r.isError():
-            code = getattr(r, "exception_code", None)
-            raise LinkError(
-                f"{self.where}: {what} refused with exception code {code:02d}"
-                if code is not None
-                else f"{self.where}: {what} failed: {r}"
-            )
-        return r
-
-    def read(self, address: int, count: int, table: str = "holding") -> list[int]:
-        """``count`` registers (or bits) of ``table`` from ``address``."""
-        fn = {"holding": self.client.read_holding_registers, "input": self.client.read_input_registers,
-              "coil": self.client.read_coils, "discrete": self.client.read_discrete_inputs}[table]
-        r = self._call(f"read {count} {table} at {address}", lambda: fn(address, count=count, device_id=self.unit))
-        return r.registers if table in ("holding", "input") else [int(b) for b in r.bits[:count]]
-
-    def write(self, address: int, registers: list[int], table: str = "holding") -> None:
-        if table == "coil":
-            self._call(
-                f"write {len(registers)} coils at {address}",
-                lambda: self.client.write_coils(address, [bool(v) for v in registers], device_id=self.unit),
-            )
-            return
-        self._call(
-            f"write {len(registers)} registers at {address}",
-            lambda: self.client.write_registers(address, registers, device_id=self.unit),
-        )
-
-    # --- RoleLink: raw values of an object ---------------------------------------------------------
-    def read_raw(self, obj) -> list:
-        regs = self.read(obj.address, obj.count * obj.registers, obj.table)
-        n = obj.registers
-        return [obj.from_registers(regs[k * n : (k + 1) * n]) for k in range(obj.count)]
-
-    def write_raw(self, obj, raws: list) -> None:
-        self.write(obj.address, sum((obj.to_registers(r) for r in raws), []), obj.table)
-
-    def reset(self) -> None:
-        super().reset()
-        self._seq = 0
-
-    def edge(self, edge: dict) -> list:
-        hook = self.profile.edge_hook
-        if hook.kind != "mailbox":
-            raise LinkError(f"{self.where}: the profile {self.profile.path} gives edges no mailbox ({hook.kind})")
-        epoch = edge_epoch(edge["t_capture_s"])
-        seq = self._seq
-        self._seq = (self._seq + 1) & 0x7F
-        values = _bytes_regs(EdgeMessage.from_edge(edge, seq).pack())
-        header, rest = values[:EDGE_HEADER_WORDS], values[EDGE_HEADER_WORDS:]
-        room = self._mailbox_words - EDGE_HEADER_WORDS  # of the rest, in the header's write
-        ahead = rest[: max(len(rest) - room, 0)]
-        for k in range(0, len(ahead), room):  # what does not fit, ahead of the header, in order
-            part = ahead[k : k + room]
-            self._call(
-                f"ADC data of edge #{seq}",
-                lambda part=part: self.client.write_registers(
-                    hook.request_address + EDGE_HEADER_WORDS, part, device_id=self.unit
-                ),
-            )
-        values = header + rest[len(ahead) :]
-        r = self._call(
-            f"edge #{seq} (t = {edge['t_capture_s']:.7f} s)",
-            lambda: self.client.readwrite_registers(
-                read_address=hook.reply_address,
-                read_count=REPLY_WORDS,
-                write_address=hook.request_address,
-                values=values,
-                device_id=self.unit,
-            ),
-        )
-        regs = r.registers
-        if len(regs) != REPLY_WORDS or regs[0] > REPLY_FRAMES:
-            raise LinkError(
-                f"{self.where}: reply to edge #{seq} is malformed ({len(regs)} registers, {regs[:1]} frames)"
-            )
-        commands = []
-        for k in range(min(regs[0], REPLY_FRAMES)):
-            f = CommandMessage.unpack(_regs_bytes(regs[1 + 4 * k : 5 + 4 * k]))
-            if f.seq != seq & 0x7F:
-                raise LinkError(f"{self.where}: reply to edge #{seq} carries sequence {f.seq} (a stale answer)")
-            if not f.keeps_everything:
-                commands.append(f.to_command(epoch))
-        return commands
-
-    def close(self) -> None:
-        self.client.close()
