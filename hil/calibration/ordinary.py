@@ -780,7 +780,9 @@ def calibrate_ordinary(
     poles: list[float] = []
     poles_se: list[float] = []
     if pole_pairs:
-        pf = robust_fit(fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc))
+        pf = robust_fit(
+            fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
+        )
         z = _sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)

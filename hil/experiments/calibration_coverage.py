@@ -181,7 +181,9 @@ def coverage_study(n_captures: int, seed: int = 0, **capture_kwargs) -> tuple[li
             continue
         z = np.array([c.z for c in mine])
         rows.append(
-            CoverageRow(fig, len(mine), float(np.mean(z <= Z)), float(Z * np.mean([c.stderr for c in mine])), UNITS[fig])
+            CoverageRow(
+                fig, len(mine), float(np.mean(z <= Z)), float(Z * np.mean([c.stderr for c in mine])), UNITS[fig]
+            )
         )
     info = {
         "captures": n_captures,
