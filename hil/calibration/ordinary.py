@@ -28,7 +28,7 @@ from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
 from .corrections import SENSORS
-from .uncertainty import block_starts, robust_fit
+from .uncertainty import MODEL_WEIGHT_IGNORED, bic_weight, block_starts, robust_fit, with_model_choice
 
 #: Hall state (bit 0 = A, bit 1 = B, bit 2 = C) of each forward sector [60 i, 60 i + 60) deg e:
 #: A rises at 0, C falls at 60, B rises at 120, A falls at 180, C rises at 240, B falls at 300
@@ -674,7 +674,11 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     v = np.array([a for a, _ in vals])
     s = np.array([b for _, b in vals])
     w = 1.0 / np.maximum(s, 1e-12) ** 2
-    return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
+    mean = float(np.sum(w * v) / np.sum(w))
+    # the two directions measure one sensor: where they disagree beyond their errors (a misfit that
+    # depends on the direction), the error is scaled up by the Birge ratio (the PDG's scale factor)
+    birge = np.sqrt(max(1.0, float(np.sum(w * (v - mean) ** 2)) / max(v.size - 1, 1)))
+    return mean, float(birge / np.sqrt(np.sum(w)))
 
 
 def pole_table_refusal(poles: list[float]) -> dict | None:
@@ -710,13 +714,20 @@ def calibrate_ordinary(
     # shows it (BIC), never written as a correction
     ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
     n_used = int(steps.used().sum())
-    ripple = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used) > 10.0
+    ripple_gain = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used)
+    ripple = ripple_gain > 10.0
     # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
     # constant angle: their standard errors may grow by half at most
     ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
-    if ripple:
-        fit = ripple_fit
-    fit = robust_fit(fit)  # standard errors that hold under correlated residuals (uncertainty.py)
+    # standard errors that hold under correlated residuals, and under the ripple model not taken
+    # where the data do not rule it out (uncertainty.py)
+    ripple_weight = bic_weight(ripple_gain)
+    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
+    other_what = (
+        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
+    )
+    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
+    fit = with_model_choice(robust_fit(fit), other, other_weight, other_what)
     used = steps.used()
     f_hz = speed_hz_e(steps)
     lo, hi = (float(v) for v in np.percentile(f_hz[used], [5, 95]))
@@ -783,6 +794,11 @@ def calibrate_ordinary(
         pf = robust_fit(
             fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
         )
+        if other_weight >= MODEL_WEIGHT_IGNORED:
+            pf_other = fit_ordinary(
+                steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
+            )
+            pf = with_model_choice(pf, pf_other, other_weight, other_what)
         z = _sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)

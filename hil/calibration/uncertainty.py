@@ -30,7 +30,7 @@ import dataclasses
 from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy import linalg, stats
+from scipy import linalg, special, stats
 
 if TYPE_CHECKING:
     from .ordinary import Fit
@@ -96,3 +96,34 @@ def t_over_normal(blocks: int) -> float:
     ``blocks - 1`` degrees of freedom."""
     q = 0.5 + INTERVAL_COVERAGE / 2
     return float(stats.t.ppf(q, blocks - 1) / stats.norm.ppf(q))
+
+
+def with_model_choice(chosen: Fit, alternative: Fit, weight: float, what: str) -> Fit:
+    """``chosen`` with the spread of a model choice added: where the data do not settle between
+    two nuisance models (``weight`` is the alternative's posterior weight, from BIC), each figure
+    is uncertain by the change the alternative would make, ``weight * (d d')`` with ``d`` the
+    change of the shared coefficients (the between-model term of a model average)."""
+    if weight < MODEL_WEIGHT_IGNORED:
+        return chosen
+    delta = np.array(
+        [
+            c - alternative.coef[alternative.names.index(n)] if n in alternative.names else 0.0
+            for n, c in zip(chosen.names, chosen.coef)
+        ]
+    )
+    return dataclasses.replace(
+        chosen,
+        cov=chosen.cov + weight * np.outer(delta, delta),
+        stderr_method=(
+            f"{chosen.stderr_method}; plus the change {what} would make, weighted by its BIC weight {weight:.2g}"
+        ),
+    )
+
+
+#: an alternative model with less posterior weight than this changes no figure's error
+MODEL_WEIGHT_IGNORED = 1e-3
+
+
+def bic_weight(gain: float) -> float:
+    """The posterior weight of a model whose BIC is ``gain`` lower than its alternative's."""
+    return float(special.expit(gain / 2.0))
