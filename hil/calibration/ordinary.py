@@ -30,6 +30,7 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 
 from .corrections import SENSORS
+from .uncertainty import MODEL_WEIGHT_IGNORED, bic_weight, block_starts, robust_fit, with_model_choice
 
 #: the edge decoding (bit order, glitches, invalid states, stalls, reversals) is ``bldc.edges``
 SENSOR_OF_BOUNDARY = edges.SENSOR_OF_BOUNDARY
@@ -90,6 +91,15 @@ class Fit:
     #: per used edge, the part of ``trail_deg_e`` that the sensors cause (the rotor's own speed
     #: ripple left out: a calibration corrects sensors, not the rotor)
     sensor_trail_deg_e: np.ndarray | None = None
+    #: per contiguous stretch of the used edges (``uncertainty.block_starts``), its share of the
+    #: effects' normal equations: the score (effect columns, splines projected out, times the
+    #: weighted residuals; rows sum to about zero) and the information (those columns' cross
+    #: product; they sum to ``information``): what a block covariance is built from
+    block_score: np.ndarray | None = None
+    block_information: np.ndarray | None = None
+    information: np.ndarray | None = None
+    #: how ``cov`` was obtained (``uncertainty.robust_fit`` replaces the least-squares one)
+    stderr_method: str = "weighted least squares (white residuals)"
 
     def get(self, name: str) -> tuple[float, float]:
         i = self.names.index(name)
@@ -246,6 +256,7 @@ def fit_ordinary(
         w = keep / sigma
         sol = _solve(s_mat, e_cols, y, w)
         resid = y - s_mat @ sol[:n_spline] - e_cols @ sol[n_spline:]
+        solved = (s_mat, e_cols, w, resid)
         # noise per speed band: quantisation and jitter grow differently with speed
         sigma = _band_sigma(resid, tau, keep, tick_s)
         # outliers (a missed edge, a bump): beyond 6 robust sd, left out of the next pass
@@ -268,11 +279,14 @@ def fit_ordinary(
         dof = max(int(keep.sum()) - n_spline - e_cols.shape[1], 1)
         s2 = float(np.sum((resid * w) ** 2)) / dof
         cov = s2 * _effect_precision_inv(s_mat, e_cols, w)
+    # residuals are shrunk by the parameters fitted (a spline coefficient every few cycles): the
+    # same degrees-of-freedom factor as the least-squares variance
+    blocks = _block_parts(*solved, np.sqrt(float(keep.sum()) / dof))
     e_cols, _ = effect_columns(steps, idx, tau, eff)
     trail_s = e_cols @ coef if fixed_from is None else fixed_part
     sensor = np.array([not n.startswith("ripple_") for n in names], dtype=bool)
     sensor_s = e_cols[:, sensor] @ coef[sensor] if fixed_from is None and names else trail_s
-    return Fit(names, coef, cov, resid, tau, idx, sigma, trail_s / tau, outliers, sensor_s / tau)
+    return Fit(names, coef, cov, resid, tau, idx, sigma, trail_s / tau, outliers, sensor_s / tau, *blocks)
 
 
 def _schur(s_mat, e_cols: np.ndarray, w: np.ndarray):
@@ -306,6 +320,20 @@ def _effect_precision_inv(s_mat, e_cols: np.ndarray, w: np.ndarray) -> np.ndarra
         return np.zeros((0, 0))
     *_, m = _schur(s_mat, e_cols, w)
     return linalg.pinvh(m)
+
+
+def _block_parts(s_mat, e_cols: np.ndarray, w: np.ndarray, resid: np.ndarray, resid_scale: float):
+    """Per contiguous stretch of the edges: the effects' score and information (the effect columns
+    weighted, with the splines projected out), and the whole information."""
+    p = e_cols.shape[1]
+    starts = block_starts(resid.size)
+    if not p or starts.size < 2:
+        return None, None, None
+    sw, ew, _, _, z_b, m = _schur(s_mat, e_cols, w)
+    projected = ew - np.asarray(sw @ z_b)
+    score = np.add.reduceat(projected * (resid_scale * w * resid)[:, None], starts, axis=0)
+    info = np.stack([a.T @ a for a in np.split(projected, starts[1:])])
+    return score, info, m
 
 
 def _band_sigma(resid: np.ndarray, tau: np.ndarray, keep: np.ndarray, tick_s: float | None) -> np.ndarray:
@@ -501,7 +529,11 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     v = np.array([a for a, _ in vals])
     s = np.array([b for _, b in vals])
     w = 1.0 / np.maximum(s, 1e-12) ** 2
-    return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
+    mean = float(np.sum(w * v) / np.sum(w))
+    # the two directions measure one sensor: where they disagree beyond their errors (a misfit that
+    # depends on the direction), the error is scaled up by the Birge ratio (the PDG's scale factor)
+    birge = np.sqrt(max(1.0, float(np.sum(w * (v - mean) ** 2)) / max(v.size - 1, 1)))
+    return mean, float(birge / np.sqrt(np.sum(w)))
 
 
 def pole_table_refusal(poles: list[float]) -> dict | None:
@@ -537,12 +569,20 @@ def calibrate_ordinary(
     # shows it (BIC), never written as a correction
     ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
     n_used = int(steps.used().sum())
-    ripple = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used) > 10.0
+    ripple_gain = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used)
+    ripple = ripple_gain > 10.0
     # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
     # constant angle: their standard errors may grow by half at most
     ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
-    if ripple:
-        fit = ripple_fit
+    # standard errors that hold under correlated residuals, and under the ripple model not taken
+    # where the data do not rule it out (uncertainty.py)
+    ripple_weight = bic_weight(ripple_gain)
+    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
+    other_what = (
+        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
+    )
+    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
+    fit = with_model_choice(robust_fit(fit), other, other_weight, other_what)
     used = steps.used()
     f_hz = speed_hz_e(steps)
     lo, hi = (float(v) for v in np.percentile(f_hz[used], [5, 95]))
@@ -606,7 +646,14 @@ def calibrate_ordinary(
     poles: list[float] = []
     poles_se: list[float] = []
     if pole_pairs:
-        pf = fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
+        pf = robust_fit(
+            fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
+        )
+        if other_weight >= MODEL_WEIGHT_IGNORED:
+            pf_other = fit_ordinary(
+                steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
+            )
+            pf = with_model_choice(pf, pf_other, other_weight, other_what)
         z = _sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)
@@ -682,6 +729,7 @@ def calibrate_ordinary(
         "refused": refused,
         "undetermined": undetermined,
         "uncertainty": {"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
+        "stderr_method": fit.stderr_method,
         "conditioning_delay_table": {},
         "independent_estimate": None
         if ind is None
