@@ -40,7 +40,7 @@ from hil.calibration.ordinary import (
 from hil.recording import Recording
 
 from ..plots import pyplot
-from .diagnose import Diagnosis
+from .diagnose import Diagnosis, knob
 from .relevance import edge_relevance
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink, inliers
 
@@ -299,7 +299,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         pair = ["conditioning_delay", "hysteresis"]
         if _delay_switch_corr(full) > CONFOUND_CORR and delay_se > 0.1 * abs(delay) and pair not in confounded:
             confounded.append(pair)
-    knobs = {"/".join(p): KNOBS.get("/".join(p), "a run that moves one and not the other") for p in confounded}
+    knobs = {"/".join(p): KNOBS.get("/".join(p)) or knob(*p) for p in confounded}
     not_assessed = list(NOT_ASSESSED) + list(notes or [])
     if not whole.pole_pairs:
         not_assessed.append(f"pole_offset: {whole.pole_note}")
