@@ -44,10 +44,19 @@ from .diagnose import Diagnosis, knob
 from .relevance import edge_relevance
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink, inliers
 
-#: held-out design: the used edges in this many consecutive stretches, every other one held out:
-#: the bootstrap of the held-out shrink resamples the 10 held-out stretches (blocks of time, so
+#: held-out design: the used edges in up to this many consecutive stretches, every other one held
+#: out: the bootstrap of the held-out shrink resamples the held-out stretches (blocks of time, so
 #: correlated residuals stay together)
 N_STRETCHES = 20
+#: a stretch holds at least this many used edges (its own trajectory, 48 cells), so a short capture
+#: gets fewer stretches (at least four: two held out)
+MIN_STRETCH_EDGES = 150
+
+
+def n_stretches(steps: HallSteps) -> int:
+    """How many stretches the held-out design cuts ``steps`` into (an even number, 4 to 20)."""
+    used = int(steps.used().sum())
+    return int(min(N_STRETCHES, max(4, 2 * (used // (2 * MIN_STRETCH_EDGES)))))
 #: speed bands of the cells (quantiles of the electrical speed)
 N_SPEED_BANDS = 4
 #: two estimates this correlated cannot be told apart by this capture
@@ -253,7 +262,8 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     edges_b = np.quantile(f_hz[steps.used()], np.linspace(0, 1, N_SPEED_BANDS + 1))
     band = np.clip(np.searchsorted(edges_b, f_hz, side="right") - 1, 0, N_SPEED_BANDS - 1)
     band = np.where(np.isfinite(f_hz), band, 0)
-    st, stretch = _stretched(steps, N_STRETCHES)
+    n_st = n_stretches(steps)
+    st, stretch = _stretched(steps, n_st)
     whole = _pipeline(st, tick, rec.stated_pole_pairs, stretch, band)
     sel, full = whole.sel, whole.full
     significant = whole.p_value < ALPHA
@@ -285,7 +295,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         rows[n]["relevance"] = whole.relevance[n]
     remainder_p = _p_value(_cells(st, full, stretch, band))
     unexplained = bool(significant and remainder_p < ALPHA)
-    shrink, after, interval, note = _heldout(st, stretch, band, tick, rec.stated_pole_pairs, bool(accepted))
+    shrink, after, interval, note = _heldout(st, stretch, n_st, band, tick, rec.stated_pole_pairs, bool(accepted))
     confounded = [list(t) for t in sel.ties]
 
     def refit_chi2(m: str) -> float:
@@ -339,14 +349,14 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     )
 
 
-def _heldout(st: HallSteps, stretch, band, tick, stated_pole_pairs, any_accepted: bool):
+def _heldout(st: HallSteps, stretch, n_st: int, band, tick, stated_pole_pairs, any_accepted: bool):
     """Every other stretch trains: the gap test, the knots, the pole pairs, the effects and their
     values are chosen there alone; the held-out stretches are then fitted with those effects fixed
     and only their own speed trajectory free. Returns (shrink, gap after, interval, note)."""
     if not any_accepted:
         return None, None, None, "no effect accepted"
-    train = np.isin(stretch, np.arange(0, N_STRETCHES, 2))
-    test = np.isin(stretch, np.arange(1, N_STRETCHES, 2))
+    train = np.isin(stretch, np.arange(0, n_st, 2))
+    test = np.isin(stretch, np.arange(1, n_st, 2))
     try:
         t = _pipeline(replace(st, run=np.where(train, st.run, -1)), tick, stated_pole_pairs, stretch, band)
     except OrdinaryRunError as exc:
@@ -361,7 +371,7 @@ def _heldout(st: HallSteps, stretch, band, tick, stated_pole_pairs, any_accepted
     )
     res = heldout_shrink(_blocks(_cells(st, h0, stretch, band)), _blocks(_cells(st, h1, stretch, band)))
     note = (
-        f"{N_STRETCHES} equal stretches of the run (by edge count): on the odd ones alone the gap test, the knot "
+        f"{n_st} equal stretches of the run (by edge count): on the odd ones alone the gap test, the knot "
         f"spacing ({t.knot_cycles:g} electrical cycles), the pole pairs ({t.pole_pairs or 'none'}), the effects "
         f"({', '.join(chosen)}) and their values were chosen; they are judged on the even ones with only the speed "
         f"trajectory refitted there; gap there before {res.before:.3g} deg e; interval: 5-95 % bootstrap over the "
@@ -377,7 +387,8 @@ def _heldout(st: HallSteps, stretch, band, tick, stated_pole_pairs, any_accepted
 
 def report_fit(rec: Recording, d: Diagnosis) -> tuple[HallSteps, Fit]:
     """The stretched steps and the joint fit of the kept effects that ``d`` chose (for figures)."""
-    st, _ = _stretched(hall_steps(rec.t_s, rec.sensor, rec.rising), N_STRETCHES)
+    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
+    st, _ = _stretched(steps, n_stretches(steps))
     kept = [a["effect"] for a in d.accepted + d.below_relevance]
     eff = _merge(kept, d.pole_pairs)
     return st, fit_ordinary(st, eff, tick_s=rec.timer_tick_s, knot_cycles=d.knot_cycles or KNOT_CYCLES)
