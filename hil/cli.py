@@ -693,19 +693,15 @@ def cmd_replay(args) -> int:
     return 0 if outcome.ok else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="hil",
-        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-
+def _parser_demo(sub) -> None:
     p = sub.add_parser("demo", help="paper-bench run with paper-sized deviations; prints the edge errors")
     p.add_argument("--speed-rpm", type=float, default=5700.0)
     p.add_argument("--duration-s", type=float, default=0.5)
     p.add_argument("--out", default="reports/demo-recording", help="where to write the recording")
     p.set_defaults(func=cmd_demo)
 
+
+def _parser_recording(sub) -> None:
     p = sub.add_parser("recording", help="bench recordings (hil-recording/1)")
     rs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = rs.add_parser("check", help="validate a recording directory")
@@ -727,6 +723,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (written to meta.json)")
     q.set_defaults(func=cmd_recording_import)
 
+
+def _parser_plant(sub) -> None:
     p = sub.add_parser("plant", help="the plant model")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("simulate", help="write a kinematic-mode recording of steady operating points")
@@ -743,6 +741,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("plant")
     q.set_defaults(func=cmd_plant_check)
 
+
+def _parser_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
     p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
     p.add_argument("--json", help="write the corrections here")
@@ -764,6 +764,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="ordinary run: save sector width against speed, before and after calibration (PNG)")
     p.set_defaults(func=cmd_calibrate)
 
+
+def _parser_compare_correction(sub) -> None:
     p = sub.add_parser(
         "compare-correction", help="paper Section 4.3: raw versus corrected commutation on the paper bench"
     )
@@ -773,6 +775,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", default="reports/headline-5700rpm.png")
     p.set_defaults(func=cmd_compare_correction)
 
+
+def _parser_table5(sub) -> None:
     p = sub.add_parser(
         "table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario"
     )
@@ -792,6 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
 
+
+def _parser_predictors(sub) -> None:
     p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
@@ -801,6 +807,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
     q.set_defaults(func=cmd_predictors_compare)
 
+
+def _parser_gap(sub) -> None:
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
@@ -844,6 +852,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
 
+
+def _parser_campaign(sub) -> None:
     p = sub.add_parser(
         "campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)"
     )
@@ -856,6 +866,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
 
+
+def _parser_dut(sub) -> None:
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ds.add_parser(
@@ -901,6 +913,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", help="write the draft here (default: standard output)")
     q.set_defaults(func=cmd_dut_profile)
 
+
+def _parser_acceptance(sub) -> None:
     p = sub.add_parser(
         "acceptance",
         help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports",
@@ -921,6 +935,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
 
+
+def _parser_qualify(sub) -> None:
     p = sub.add_parser(
         "qualify",
         help="qualify the acceptance suite: run it against each seeded firmware defect of the built-in controller",
@@ -939,6 +955,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the defects and exit")
     p.set_defaults(func=cmd_qualify)
 
+
+def _parser_replay(sub) -> None:
     p = sub.add_parser("replay", help="re-run a saved stimulus (a failing property-based example)")
     p.add_argument("file", help="stimulus JSON (reports/replays/*.json)")
     p.add_argument(
@@ -947,13 +965,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.set_defaults(func=cmd_replay)
 
-    from .signals.cli import add_parser as add_signals_parser  # real-bench signals (docs/signals.md)
 
-    add_signals_parser(sub)
-
+def _parser_effects(sub) -> None:
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
     p.set_defaults(func=cmd_effects)
+
+
+def _parser_signals(sub) -> None:
+    from .signals.cli import add_parser  # real-bench signals (docs/signals.md)
+
+    add_parser(sub)
+
+
+#: every command's parser, in the order ``hil --help`` lists them: each function adds its one
+#: subparser (and its actions) to ``sub``; a new command adds its function here (one line), and
+#: a command of its own module registers with that module's ``add_parser``
+COMMAND_PARSERS = (
+    _parser_demo,
+    _parser_recording,
+    _parser_plant,
+    _parser_calibrate,
+    _parser_compare_correction,
+    _parser_table5,
+    _parser_predictors,
+    _parser_gap,
+    _parser_campaign,
+    _parser_dut,
+    _parser_acceptance,
+    _parser_qualify,
+    _parser_replay,
+    _parser_signals,
+    _parser_effects,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hil",
+        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in COMMAND_PARSERS:
+        add(sub)
     return parser
 
 

@@ -223,3 +223,44 @@ def test_the_hall_geometry_is_written_once():
         if lit in path.read_text()
     ]
     assert not found, found
+
+
+def _hand_assembled_hall_codes(tree: ast.AST) -> list[int]:
+    """Lines that build a 3-bit Hall code by hand: a sum or bitwise or whose terms weigh lines by
+    4 and 2 (``a * 4 + b * 2 + c``, ``(a << 2) | (b << 1) | c``), or that index ``SECTOR_OF_CODE``
+    or a sector table of their own."""
+
+    def weights(node: ast.AST) -> set[int]:
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.BitOr)):
+            return weights(node.left) | weights(node.right)
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Mult, ast.LShift)):
+            for c in (node.left, node.right):
+                if isinstance(c, ast.Constant) and isinstance(c.value, int):
+                    return {c.value if isinstance(node.op, ast.Mult) else 1 << c.value}
+        return set()
+
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.BitOr)) and {4, 2} <= weights(node):
+            lines.append(node.lineno)
+        elif isinstance(node, (ast.Name, ast.Attribute)) and (
+            getattr(node, "id", None) or getattr(node, "attr", "")
+        ) in ("SECTOR_OF_CODE", "SECTOR_STATES", "_SECTOR_OF_STATE"):
+            lines.append(node.lineno)
+    return sorted(set(lines))
+
+
+def test_no_module_outside_the_core_decodes_hall_codes():
+    """Issue 31: Hall codes are decoded in ``bldc`` only (``bldc.hall.sector_of_levels`` for one
+    edge at a time, ``bldc.edges.decode_edges`` for captured edges); nothing under ``hil/``
+    assembles a code or reads a code table. The check itself is checked on the forms it replaced."""
+    for form in ("s = T[a * 4 + b * 2 + c]", "s = (a << 2) | (b << 1) | c", "s = SECTOR_OF_CODE[x]"):
+        assert _hand_assembled_hall_codes(ast.parse(form)), form
+    assert not _hand_assembled_hall_codes(ast.parse("n = 1 << 20; m = 2 * k + 1"))
+    found = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for module, path in MODULES.items()
+        if module.startswith("hil")
+        for line in _hand_assembled_hall_codes(ast.parse(path.read_text()))
+    ]
+    assert not found, f"Hall codes decoded outside bldc: {found}"

@@ -21,31 +21,22 @@ common part of the two delays, armature reaction) is listed as not determined, n
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
+from bldc import edges
+
 from .corrections import SENSORS
 
-#: Hall state (bit 0 = A, bit 1 = B, bit 2 = C) of each forward sector [60 i, 60 i + 60) deg e:
-#: A rises at 0, C falls at 60, B rises at 120, A falls at 180, C rises at 240, B falls at 300
-SECTOR_STATES = (5, 1, 3, 2, 6, 4)
-_SECTOR_OF_STATE = np.full(8, -1, dtype=np.int64)
-_SECTOR_OF_STATE[list(SECTOR_STATES)] = np.arange(6)
-#: sensor at boundary 60 m deg e, by m mod 3 (A at 0/180, C at 60/240, B at 120/300) ...
-SENSOR_OF_BOUNDARY = np.array([0, 2, 1])
-#: ... and that sensor's position in units of 60 deg e (A 0, B 120, C 240)
-_SENSOR_POSITION_60 = np.array([0, 4, 2])
-
-#: a one-edge excursion of the direction whose shorter interval is below this fraction of the
-#: neighbouring sector times is a glitch (a line bouncing), not a rotor that rocked back
-GLITCH_FRACTION = 0.1
-#: a sector this many times longer than both neighbours is a stall: the trajectory is split there
-STALL_FACTOR = 4.0
+#: the edge decoding (bit order, glitches, invalid states, stalls, reversals) is ``bldc.edges``
+SENSOR_OF_BOUNDARY = edges.SENSOR_OF_BOUNDARY
+HallSteps = edges.HallSteps
+pole_of_boundary = edges.pole_of_boundary
 #: runs shorter than this (edges) are not fitted: four electrical cycles
-MIN_RUN_EDGES = 24
+MIN_RUN_EDGES = edges.MIN_RUN_EDGES
 #: spline knot spacing, electrical cycles: wide enough that the 6-edge pattern of the sensors is
 #: not absorbed by the trajectory (its knots are 4 pattern periods apart), narrow enough to follow
 #: a speed cycle of the captures (the speed changes by a few percent per knot interval)
@@ -68,128 +59,13 @@ class OrdinaryRunError(ValueError):
     """The capture cannot be analysed; the message says why."""
 
 
-@dataclass
-class HallSteps:
-    """The captured edges read as steps of the Hall state."""
-
-    t_s: np.ndarray
-    sensor: np.ndarray
-    rising: np.ndarray
-    direction: np.ndarray  #: +1 forward (A, B, C), -1 reverse, 0 dropped
-    boundary: np.ndarray  #: unwrapped boundary index m: the edge is at 60 m deg e (ideal)
-    run: np.ndarray  #: run of constant direction and no stall; -1 dropped
-    glitches: int = 0
-    invalid_states: int = 0
-    stalls: int = 0
-    reversals: int = 0
-    short_runs_dropped: int = 0
-
-    @property
-    def label(self) -> np.ndarray:
-        return np.mod(self.boundary, 6)
-
-    def used(self) -> np.ndarray:
-        return self.run >= 0
-
-
 def hall_steps(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray) -> HallSteps:
-    """Direction, boundary and run of every edge; glitches, invalid states and stalls removed."""
-    t_s, sensor, rising = np.asarray(t_s, float), np.asarray(sensor, np.int64), np.asarray(rising, bool)
-    n = t_s.size
-    if n < MIN_RUN_EDGES:
-        raise OrdinaryRunError(f"only {n} edges: at least {MIN_RUN_EDGES} (four electrical cycles) are needed")
-    state = 0
-    for x in range(3):
-        idx = np.nonzero(sensor == x)[0]
-        if idx.size == 0:
-            raise OrdinaryRunError(f"no edge of sensor {SENSORS[x]}: three Hall lines are needed")
-        if not rising[idx[0]]:
-            state |= 1 << x  # its first edge falls: it was high before
-    states = np.empty(n, dtype=np.int64)
-    consistent = np.ones(n, dtype=bool)
-    for k in range(n):  # a plain loop: some 0.1 s per million edges is not worth vectorising
-        bit = 1 << int(sensor[k])
-        consistent[k] = bool(state & bit) != bool(rising[k])  # a rise must find the line low
-        state = state | bit if rising[k] else state & ~bit
-        states[k] = state
-    sector = _SECTOR_OF_STATE[states]
-    prev = np.concatenate([[_SECTOR_OF_STATE[_initial_state(states[0], sensor[0], rising[0])]], sector[:-1]])
-    step = np.mod(sector - prev, 6)
-    ok = consistent & (sector >= 0) & (prev >= 0)
-    direction = np.where(ok & (step == 1), 1, np.where(ok & (step == 5), -1, 0))
-    invalid = int(np.sum(direction == 0))
-    # glitches: a single edge against the direction, undone at once
-    dt = np.diff(t_s, prepend=t_s[0])
-    glitches = 0
-    for k in (
-        np.nonzero((direction[1:-1] != 0) & (direction[1:-1] == -direction[:-2]) & (direction[2:] == direction[:-2]))[0]
-        + 1
-    ):
-        if direction[k] == 0 or direction[k - 1] == 0:
-            continue
-        local = np.median(dt[max(1, k - 6) : k + 7])
-        before, after = dt[k], dt[k + 1]
-        if min(before, after) < GLITCH_FRACTION * local:
-            pair = (k - 1, k) if before < after else (k, k + 1)
-            direction[list(pair)] = 0
-            glitches += 1
-    # unwrapped boundary: a forward step enters sector u + 1 across boundary u + 1; a reverse
-    # step leaves sector u across boundary u; dropped edges move the count as the states say
-    boundary = np.zeros(n, dtype=np.int64)
-    u = int(prev[0]) if prev[0] >= 0 else 0
-    for k in range(n):
-        if direction[k] > 0:
-            u += 1
-            boundary[k] = u
-        elif direction[k] < 0:
-            boundary[k] = u
-            u -= 1
-        elif sector[k] >= 0:
-            d = int(np.mod(sector[k] - np.mod(u, 6), 6))
-            u += {0: 0, 1: 1, 5: -1}.get(d, 0)
-    # runs: constant direction, no stall in between
-    run = np.full(n, -1, dtype=np.int64)
-    kept = np.nonzero(direction != 0)[0]
-    stalls = reversals = short = 0
-    if kept.size:
-        tk = t_s[kept]
-        gap = np.diff(tk)
-        new = np.zeros(kept.size, dtype=bool)
-        new[0] = True
-        rev = direction[kept][1:] != direction[kept][:-1]
-        new[1:] |= rev
-        reversals = int(rev.sum())
-        # consecutive kept edges must be neighbours (a dropped edge between breaks the run)
-        new[1:] |= np.abs(np.diff(boundary[kept])) != 1
-        if gap.size > 2:
-            left = np.concatenate([[np.inf], gap[:-1]])
-            right = np.concatenate([gap[1:], [np.inf]])
-            stall = (gap > STALL_FACTOR * left) & (gap > STALL_FACTOR * right)
-            stall |= (gap > STALL_FACTOR * np.minimum(left, right)) & ~np.isfinite(np.maximum(left, right))
-            stalls = int(np.sum(stall & ~rev))
-            new[1:] |= stall
-        rid = np.cumsum(new) - 1
-        sizes = np.bincount(rid)
-        keep_run = sizes[rid] >= MIN_RUN_EDGES
-        short = int(np.sum(sizes < MIN_RUN_EDGES))
-        remap = np.full(sizes.size, -1)
-        good = np.nonzero(sizes >= MIN_RUN_EDGES)[0]
-        remap[good] = np.arange(good.size)
-        run[kept[keep_run]] = remap[rid[keep_run]]
-    return HallSteps(t_s, sensor, rising, direction, boundary, run, glitches, invalid, stalls, reversals, short)
-
-
-def _initial_state(after: int, sensor: int, rising: bool) -> int:
-    """The Hall state before the first edge, from the state after it."""
-    bit = 1 << int(sensor)
-    return after & ~bit if rising else after | bit
-
-
-def pole_of_boundary(boundary: np.ndarray, pole_pairs: int) -> np.ndarray:
-    """The magnet pole boundary (0 .. 2p-1) that boundary 60 m deg e is: the sensor there sits at
-    60 s, the boundaries of the magnet pass it every 180 deg e."""
-    m = np.asarray(boundary)
-    return np.mod((m - _SENSOR_POSITION_60[np.mod(m, 3)]) // 3, 2 * pole_pairs)
+    """The capture's edges decoded by ``bldc.edges.decode_edges`` (runs of four electrical cycles
+    or more kept); a capture that cannot be read raises ``OrdinaryRunError``."""
+    try:
+        return edges.decode_edges(t_s, sensor, rising, min_run_edges=MIN_RUN_EDGES)
+    except edges.HallEdgeError as e:
+        raise OrdinaryRunError(f"{e} (four electrical cycles)" if "edges:" in str(e) else str(e)) from None
 
 
 def _sum_zero_basis(k: int) -> np.ndarray:
@@ -346,7 +222,7 @@ def fit_ordinary(
     tau = np.full(idx.size, np.nan)
     # first guess of tau: the local sector time (mean of the two sectors around each edge) / 60 deg
     for sel, _ in blocks:
-        tau[sel] = np.maximum(np.gradient(t[sel]), 1e-9) / 60.0
+        tau[sel] = 1.0 / (360.0 * edges.electrical_speed_hz(t[sel], window_sectors=2))
     tau_data = tau.copy()
     sigma = np.ones(idx.size)
     fixed_part = np.zeros(idx.size)
@@ -452,13 +328,7 @@ def _band_sigma(resid: np.ndarray, tau: np.ndarray, keep: np.ndarray, tick_s: fl
 
 def speed_hz_e(steps: HallSteps) -> np.ndarray:
     """Electrical speed (Hz) at each used edge, from its neighbours (for reporting)."""
-    f = np.full(steps.t_s.size, np.nan)
-    for r in np.unique(steps.run[steps.run >= 0]):
-        idx = np.nonzero(steps.run == r)[0]
-        t = steps.t_s[idx]
-        g = np.gradient(t)
-        f[idx] = 1.0 / (6.0 * np.maximum(g, 1e-12))
-    return f
+    return edges.electrical_speed_hz(steps.t_s, window_sectors=2, run=steps.run)
 
 
 @dataclass
@@ -530,21 +400,6 @@ class Circuit:
             f"default {DEFAULT_DELAY_MAX_S * 1e6:.0f} us (open-collector Hall outputs with pull-up and filter "
             "capacitor; state the circuit to narrow it)"
         )
-
-
-@dataclass
-class OrdinaryCalibration:
-    """Everything ``hil calibrate`` reports for an ordinary run."""
-
-    steps: HallSteps
-    fit: Fit
-    pole_pairs: int | None
-    pole_pairs_source: str
-    assumptions: dict = field(default_factory=dict)
-    result: dict = field(default_factory=dict)
-    refused: list[dict] = field(default_factory=list)
-    undetermined: dict[str, str] = field(default_factory=dict)
-    independent: IndependentDelay | None = None
 
 
 def choose_pole_pairs(

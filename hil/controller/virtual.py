@@ -16,7 +16,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bldc.contract import CalibrationTableError, Command, Fault, Strategy
-from bldc.hall import SECTOR_OF_CODE
+from bldc.hall import sector_of_levels
 from bldc.motor import MotorParameters, steady_state
 from bldc.units import rad_e_per_s_to_rpm
 
@@ -213,7 +213,7 @@ class VirtualController:
             return []  # a capture stamp that does not increase cannot be an edge of this rotor
         edge_currents(edge, self._applied_delay_s(bool(edge["rising"])))
         self._bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
-        sector = int(SECTOR_OF_CODE[self._bits[0] * 4 + self._bits[1] * 2 + self._bits[2]])
+        sector = sector_of_levels(self._bits)
         self._sensors_seen.add(int(edge["sensor"]))
         rotor_motion = True
         if len(self._sensors_seen) == 3:  # the Hall state is known once every sensor has switched
