@@ -23,6 +23,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import stats
 
+from bldc.edges import electrical_speed_hz
 from hil.calibration.ordinary import (
     MIN_RUN_EDGES,
     SENSOR_OF_BOUNDARY,
@@ -35,7 +36,6 @@ from hil.calibration.ordinary import (
     choose_pole_pairs,
     fit_ordinary,
     hall_steps,
-    speed_hz_e,
 )
 from hil.recording import Recording
 
@@ -258,7 +258,7 @@ def _pipeline(steps: HallSteps, tick: float | None, stated_pole_pairs: int | Non
 def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None = None) -> Diagnosis:
     """The diagnosis of an ordinary run (one result type with the segments route)."""
     tick = rec.timer_tick_s
-    f_hz = speed_hz_e(steps)
+    f_hz = electrical_speed_hz(steps.t_s, window_sectors=2, run=steps.run)
     edges_b = np.quantile(f_hz[steps.used()], np.linspace(0, 1, N_SPEED_BANDS + 1))
     band = np.clip(np.searchsorted(edges_b, f_hz, side="right") - 1, 0, N_SPEED_BANDS - 1)
     band = np.where(np.isfinite(f_hz), band, 0)
@@ -467,11 +467,9 @@ def sector_width_figure(steps: HallSteps, fit: Fit, title: str = ""):
     sensor = SENSOR_OF_BOUNDARY[np.mod(steps.label[idx], 3)]
     same = run[1:] == run[:-1]
     k = np.nonzero(same)[0]  # sector k opens at edge k
-    w_cap = np.diff(t)[same]
-    # the local speed: six captured sectors around each one (an electrical turn)
-    turn = np.convolve(w_cap, np.ones(6), "same")
-    valid = np.convolve(np.ones(w_cap.size), np.ones(6), "same") == 6
-    speed = np.where(valid, 1.0 / np.maximum(turn, 1e-12), np.nan)
+    # the local speed (Hz e): an electrical turn of captured sectors around each one (bldc.edges)
+    f_edge = electrical_speed_hz(t, window_sectors=6, run=run)
+    speed = 0.5 * (f_edge[1:] + f_edge[:-1])[same]
     for ax, times, what in ((axes[0], t, "as captured"), (axes[1], corrected, "after calibration")):
         width = 360.0 * np.diff(times)[same] * speed
         for x, name in enumerate("ABC"):

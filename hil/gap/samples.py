@@ -34,6 +34,7 @@ from scipy import stats
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import minimize_scalar
 
+from bldc.edges import electrical_speed_hz
 from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from bldc.units import rpm_to_rad_per_s
 from hil.recording import Recording
@@ -176,12 +177,24 @@ def _ideal_edge_deg_e(sensor: np.ndarray, rising: np.ndarray, direction: int) ->
 
 
 def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
-    """Signed mechanical speed: the speed column with the segment's direction, else d(theta)/dt."""
+    """Signed mechanical speed: the speed column with the segment's direction; else, with the
+    reference encoder, d(theta)/dt of its angle; else speed from the Hall edges (``bldc.edges``:
+    two sectors around each edge), interpolated to the samples."""
     s = rec.samples
     sign = np.array([seg.direction_sign for seg in rec.segments])[s["segment"]]
     if "speed_rpm" in s:
         return sign * rpm_to_rad_per_s(np.abs(s["speed_rpm"]))
-    return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
+    if rec.ref_angle_mech_deg is not None:
+        return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
+    w = np.full(s["t_s"].size, np.nan)
+    for k in range(len(rec.segments)):
+        e_sel, s_sel = rec.segment == k, s["segment"] == k
+        if e_sel.sum() < 3 or not s_sel.any():
+            continue
+        t = rec.t_s[e_sel]
+        f_hz = electrical_speed_hz(t, window_sectors=2)
+        w[s_sel] = 2.0 * np.pi * np.interp(s["t_s"][s_sel], t, f_hz) / rec.pole_pairs
+    return sign * w
 
 
 def _steady_intervals(
