@@ -264,24 +264,9 @@ def _write_json(path: str, data: dict) -> None:
     print(f"wrote {path}")
 
 
-def _print_verdict(d) -> None:
-    """The confounded pairs, the remainder and the held-out figure of a diagnosis."""
-    for pair in d.confounded:
-        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
-    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
-    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
-        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
-        print(
-            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
-            f"{d.heldout_note}"
-        )
-    else:
-        print(f"  held-out: {d.heldout_note}")
-
-
 def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
-    from .gap.report import write_html
+    from .gap.report import format_text, write_html
 
     path = Path(args.recording)
     if path.is_dir():
@@ -303,97 +288,13 @@ def cmd_gap_diagnose(args) -> int:
             )
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
         rec = read_trace(args.recording, mapping, args.meta)
-    if rec.ordinary:
-        return _gap_diagnose_ordinary(rec, args)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
-    print(
-        f"{args.recording}: gap {d.gap_before:.4g} ({d.gap_metric}), "
-        f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (edges: p = {d.p_value:.2g})"
-    )
-    for name, dom in d.samples.items():
-        shrink = (
-            f", held-out shrink {dom['heldout_shrink']:.1%}"
-            if dom["heldout_shrink"] is not None and dom["accepted"]
-            else ""
-        )
-        print(
-            f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
-            f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}"
-        )
-    for i, r in enumerate(d.ranking[:5], 1):
-        verdict = (
-            "   accepted"
-            if any(a["effect"] == r["effect"] for a in d.accepted)
-            else ("   below relevance" if r.get("below_relevance") else "")
-        )
-        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{verdict}")
-    for a in d.accepted:
-        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
-    for b in d.below_relevance:
-        rel = b.get("relevance", {})
-        print(
-            f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor "
-            f"{rel.get('floor', float('nan')):.3g} "
-            f"{rel.get('unit', '')}: {rel.get('meaning', '')})"
-        )
-    _print_verdict(d)
+    print(format_text(d, str(args.recording)))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(d.to_json(), indent=2) + "\n")
-        print(f"diagnosis written to {args.json}")
+        _write_json(args.json, d.to_json())
     if args.html:
         write_html(args.html, str(args.recording), rec, d, model)
-        print(f"report written to {args.html}")
-    return 0
-
-
-def _gap_diagnose_ordinary(rec, args) -> int:
-    from .calibration.ordinary import hall_steps
-    from .gap.ordinary import diagnose_ordinary, write_html
-
-    if args.model:
-        print(
-            f"{args.recording}: --model is not used for an ordinary run (capture times only): the model is an ideal "
-            "motor with ideal sensors on a smooth speed trajectory",
-            file=sys.stderr,
-        )
-    d, parts = diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising))
-    extra = parts["extra"]
-    print(
-        f"{args.recording}: ordinary run, gap {d.gap_before:.4g} deg e (systematic edge-angle residual against an "
-        f"ideal motor on a smooth trajectory), {'SIGNIFICANT' if d.significant else 'within the noise floor'} "
-        f"(p = {d.p_value:.2g})"
-    )
-    print(f"  pole pairs: {extra['pole_pairs_source']}")
-    accepted = [a["effect"] for a in d.accepted]
-    for i, r in enumerate(d.ranking, 1):
-        mark = "   accepted" if r["effect"] in accepted else ""
-        print(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{mark}")
-    for a in d.accepted:
-        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
-    _print_verdict(d)
-    rep = extra["repeatability"]
-    parts_rep = []
-    if "rise_fall_delay_difference_s" in rep:
-        a, b = rep["rise_fall_delay_difference_s"]
-        parts_rep.append(
-            f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
-        )
-    if "static_parameters_rms_difference_deg_e" in rep:
-        parts_rep.append(
-            f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their RMS "
-            f"{rep['static_parameters_rms_deg_e']:.3g})"
-        )
-    print(f"  split-half repeatability: {'; '.join(parts_rep) or rep.get('note', 'no figure')}")
-    for n in d.not_assessed:
-        print(f"  not assessed: {n}")
-    if args.json:
-        out = d.to_json()
-        out.update(extra)
-        _write_json(args.json, out)
-    if args.html:
-        write_html(args.html, str(args.recording), d, parts)
         print(f"report written to {args.html}")
     return 0
 
