@@ -9,8 +9,9 @@ Scenarios:
   bench, a speed-step profile inside 3,000-15,000 rpm, the effect library's Hall deviations), each
   calibrated by the calibration station, then run through the speed steps; truth from the plant;
   held-out seeds ``HELD_OUT_PUMP_SEEDS``, none of which any tuning saw;
-* a recording (hil-recording/1): calibrated on its first half (``slot_deviation_deg_e``), scored
-  on its second against the corrected edge instants (``compare_recording``).
+* a recording (hil-recording/1): calibrated on its first half by the project's calibration
+  (``hil.calibration.calibrate``, the one ``hil calibrate`` runs), scored on its second against
+  the corrected edge instants (``compare_recording``).
 
 Every predictor's settings come from ``peer_settings.TUNED``, written once by
 ``tools/predictor_tuning.py`` from a tuning on the training pumps ``TRAIN_PUMP_SEEDS``
@@ -387,73 +388,52 @@ def tuning_main(argv=None) -> int:
     return 0
 
 
-# --- a recording --------------------------------------------------------------------------------
+# --- a recording ---------------------------------------------------------------------------------
 
-#: a recording's edges are calibrated per slot: sensor and polarity (6 per electrical period)
-N_SLOTS = 6
 RECORDING_REFERENCE = (
     "no encoder: each prediction of edge k+1 is scored against the corrected instant of edge k+1 "
-    "(calibration fitted on the first half of the edges, scored on the second half), converted to "
-    "deg e with the speed over the two sectors around it (one rising and one falling edge); this "
-    "is the best reference a capture without encoder allows, and it still holds the edges' own "
-    "noise and quantisation")
+    "(the project's calibration, the one `hil calibrate` runs, fitted on the first half of the "
+    "edges and applied to all: installation, pole and rise-minus-fall delay terms taken off the "
+    "capture times; scored on the second half), converted to deg e with the speed over the two "
+    "sectors around it; this is the best reference a capture without encoder allows, and it still "
+    "holds the edges' own noise and quantisation")
 
 
 @dataclass
 class RecordingEdges:
-    t_s: np.ndarray          #: capture times of the kept edges
-    slot: np.ndarray         #: 2 sensor + rising
-    dropped: int             #: edges that did not advance the rotor (bounces, reversals)
-    direction: int           #: +1 forward (A, B, C), -1 reverse
+    """The edges a predictor runs on: one run of rotor steps, with the calibration's corrected instants."""
+
+    t_s: np.ndarray  #: capture times of the kept edges
+    t_corrected_s: np.ndarray  #: the same edges, the calibration's deviations taken off
+    first_scored: int  #: the first edge of the second half (the calibration saw only edges before it)
+    dropped: int  #: edges outside the run (bounces, invalid states, reversals, stalls, short runs)
+    direction: int  #: +1 forward (A, B, C), -1 reverse
+    calibration: object  #: the ``hil.calibration.route.Calibration`` of the first half
 
 
 def recording_edges(rec) -> RecordingEdges:
-    """The edges a predictor can use from a recording: the longest run of rotor steps that
-    ``bldc.edges.decode_edges`` reads from it (constant direction, no stall; bounces and invalid
-    states removed), so each kept edge is the next sector boundary, 60 deg e after the last."""
-    from bldc.edges import HallEdgeError, decode_edges, longest_run
+    """The longest run of rotor steps that ``bldc.edges`` reads from the recording (constant
+    direction, no stall; bounces and invalid states removed: each edge is the next sector
+    boundary), and its corrected instants: the recording's first half (up to the run's middle
+    edge) is calibrated by ``hil.calibration.calibrate`` as an ordinary run, and the table's
+    sensor effects are taken off every edge of the run."""
+    from bldc.edges import longest_run
 
-    try:
-        steps = decode_edges(rec.t_s, rec.sensor, rec.rising)
-    except HallEdgeError as e:
-        raise ValueError(f"{getattr(rec, 'path', 'recording')}: {e}") from None
+    from ..calibration import calibrate
+    from ..calibration.ordinary import hall_steps
+
+    ordinary = dataclasses.replace(rec, segments=[], segment=np.zeros(len(rec), dtype=np.int64),
+                                   ref_angle_mech_deg=None)
+    steps = hall_steps(ordinary.t_s, ordinary.sensor, ordinary.rising)
     idx = longest_run(steps)
-    if not idx.size:
-        raise ValueError(f"{getattr(rec, 'path', 'recording')}: no run of rotor steps long enough to use")
-    sensor, rising = steps.sensor[idx], steps.rising[idx]
-    return RecordingEdges(steps.t_s[idx], 2 * sensor + rising.astype(int), int(steps.t_s.size - idx.size),
-                          int(steps.direction[idx[0]]))
-
-
-def slot_deviation_deg_e(t: np.ndarray, slot: np.ndarray) -> np.ndarray:
-    """Each slot's mean edge-angle deviation (deg e, lead negative) from capture times: edge k
-    against a linear fit over the electrical period either side of it (edges k-6 ... k+6, the two
-    ends at half weight, so every slot weighs alike and a steady acceleration cancels)."""
-    n = t.size
-    k = np.arange(6, n - 6)
-    w = np.ones(13)
-    w[0] = w[-1] = 0.5
-    period = (t[k + 6] - t[k - 6]) / 2.0
-    ideal = sum(w[j] * (t[k + j - 6] - (j - 6) * period / 6.0) for j in range(13)) / 12.0
-    dev = 360.0 * (t[k] - ideal) / period
-    out = np.zeros(N_SLOTS)
-    for s in range(N_SLOTS):
-        sel = slot[k] == s
-        out[s] = float(np.median(dev[sel])) if sel.any() else 0.0
-    return out - out.mean()
-
-
-def corrected_times(t: np.ndarray, slot: np.ndarray, dev_deg_e: np.ndarray) -> np.ndarray:
-    """Capture times with each slot's deviation taken out, at the speed of the electrical period
-    before the edge (causal: a firmware could do the same)."""
-    period = np.empty_like(t)
-    period[6:] = t[6:] - t[:-6]
-    period[:6] = period[6] if t.size > 6 else np.inf
-    out = t - dev_deg_e[slot] / 360.0 * period
-    bad = np.nonzero(np.diff(out) <= 0)[0]
-    if bad.size:
-        raise ValueError(f"the slot correction reorders edges {int(bad[0])} and {int(bad[0]) + 1}")
-    return out
+    if idx.size < 200:
+        raise ValueError(f"{getattr(rec, 'path', None) or 'recording'}: {idx.size} usable edges in its longest run "
+                         "of rotor steps; at least 200 are needed (half to calibrate)")
+    half = idx.size // 2
+    cal = calibrate(ordinary.first_edges(int(idx[half])))
+    t_corrected = steps.t_s[idx] - cal.edge_corrections_s(steps, idx)
+    return RecordingEdges(steps.t_s[idx], t_corrected, half, int(steps.t_s.size - idx.size),
+                          int(steps.direction[idx[0]]), cal)
 
 
 def score_recording(tc: np.ndarray, pred: np.ndarray, speed: np.ndarray, first: int) -> dict:
@@ -499,11 +479,7 @@ def recording_model(rec, t_edges_s: np.ndarray) -> tuple[MotorModel | None, np.n
 def compare_recording(rec, source: str) -> dict:
     tuned, provenance = _tuned()
     e = recording_edges(rec)
-    if e.t_s.size < 200:
-        raise ValueError(f"{source}: {e.t_s.size} usable edges; at least 200 are needed (half to calibrate)")
-    half = e.t_s.size // 2
-    dev = slot_deviation_deg_e(e.t_s[:half], e.slot[:half])
-    tc = corrected_times(e.t_s, e.slot, dev)
+    tc, half = e.t_corrected_s, e.first_scored
     model, current = recording_model(rec, e.t_s)
     kinematic = model is None
     if kinematic:
@@ -527,9 +503,7 @@ def compare_recording(rec, source: str) -> dict:
                       f"or reversals), direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
                       f"{(tick or 0) * 1e6:.3g} us",
             "reference": RECORDING_REFERENCE,
-            "calibration": {"method": "per sensor and polarity (6 slots) from capture times, first half "
-                                      f"({half} edges); pole offsets are not corrected (no index pulse)",
-                            "slot_deviation_deg_e": [float(v) for v in dev]},
+            "calibration": _calibration_summary(e.calibration, half),
             "model": ("kf, sage_husa and vb_akf run kinematic: no current or motor data, the state is angle, "
                       "speed and acceleration (K_T = J = 1, no load, the current channel unobserved); their "
                       "settings are the kinematic tuning on the training pumps" if kinematic else
@@ -540,6 +514,15 @@ def compare_recording(rec, source: str) -> dict:
                                "does not state: null; speed_mape_pct is over all scored edges against the "
                                "two-sector speed",
             "settings_provenance": provenance, "predictors": preds}
+
+
+def _calibration_summary(cal, half: int) -> dict:
+    """What the comparison took off the edges: the calibration's table, from the first ``half`` edges."""
+    out = cal.to_json_dict()
+    keys = ("installation_offset_deg_e", "pole_offset_deg_e", "rise_fall_delay_difference_s", "refused")
+    return {"method": f"hil calibrate (ordinary run) on the first {half} edges of the run; its installation, "
+                      "pole and rise-minus-fall delay terms taken off every edge",
+            **{k: out[k] for k in keys}}
 
 
 def format_result(result: dict) -> str:
