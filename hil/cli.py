@@ -886,8 +886,8 @@ def _parser_predictors(sub) -> None:
     p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
-    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated on its first half, scored "
-                   "on its second)")
+    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated as `hil calibrate` "
+                   "does, scored on the second half)")
     q.add_argument("--scenario", choices=["paper", "pumps"], help="the paper's speed steps (default) or held-out pumps")
     q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
     q.set_defaults(func=cmd_predictors_compare)

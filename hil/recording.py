@@ -110,19 +110,6 @@ class Recording:
     def __len__(self) -> int:
         return int(self.t_s.size)
 
-    def first_edges(self, n: int) -> "Recording":
-        """The recording up to (not including) edge ``n``: its edges, reference angles, truth and
-        the samples before the last kept edge (a calibration on a part of a capture)."""
-        cut = lambda a: None if a is None else a[:n]  # noqa: E731
-        samples = None
-        if self.samples is not None and n > 0:
-            keep = self.samples["t_s"] <= self.t_s[n - 1]
-            samples = {k: v[keep] for k, v in self.samples.items()}
-        truth = None if self.truth is None else {k: v[:n] for k, v in self.truth.items()}
-        return dataclasses.replace(self, t_s=self.t_s[:n], sensor=self.sensor[:n], rising=self.rising[:n],
-                                   segment=self.segment[:n], ref_angle_mech_deg=cut(self.ref_angle_mech_deg),
-                                   samples=samples, truth=truth)
-
 
 # --- writing --------------------------------------------------------------------------------
 
