@@ -50,7 +50,7 @@ def cmd_recording_check(args) -> int:
 
 def cmd_recording_import(args) -> int:
     from .recording import write_recording
-    from .signals.hall import capture_recording, parse_channels, read_hall_capture
+    from .signals.hall import capture_recording, parse_channels, read_hall_capture, step_summary
 
     cap = read_hall_capture(
         args.capture,
@@ -66,6 +66,7 @@ def cmd_recording_import(args) -> int:
     print(f"  channels: {', '.join(f'{k}={v}' for k, v in cap.channels.items())}")
     tick = f"{cap.timer_tick_s:.6g} s" if cap.timer_tick_s else "unknown"
     print(f"  timer_tick_s: {tick} (from {cap.tick_source})")
+    print(f"  rotor steps: {step_summary(rec.t_s, rec.sensor, rec.rising)}")
     for note in cap.notes:
         print(f"  note: {note}")
     if args.pole_pairs:

@@ -158,3 +158,12 @@ def test_the_registry_declares_every_predictor_once_and_builds_each_from_its_shi
             assert abs(r.pred_t_s[-2] - t[-1]) < 1e-5, name
     with pytest.raises(ValueError, match="unknown predictor 'nope'"):
         build("nope", {}, KINEMATIC_MODEL)
+
+
+def test_the_registry_names_real_controller_strategies():
+    from bldc.contract import Strategy
+    from hil.predictors.registry import PREDICTORS
+
+    named = {e.strategy: e.name for e in PREDICTORS.values() if e.strategy}
+    assert named == {"KF": "kf", "SAGE_HUSA": "sage_husa"}
+    assert all(s in Strategy.__members__ for s in named)

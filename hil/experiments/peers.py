@@ -451,7 +451,8 @@ def compare_recording(rec, source: str) -> dict:
         preds.append(row)
     tick = getattr(rec, "timer_tick_s", None)
     return {"source": f"recording {source}: {len(rec)} edges, {e.t_s.size} kept ({e.dropped} outside the longest "
-                      f"run of rotor steps: bounces, invalid states, reversals, stalls, shorter runs), direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
+                      "run of rotor steps: bounces, invalid states, reversals, stalls, shorter runs), "
+                      f"direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
                       f"{(tick or 0) * 1e6:.3g} us",
             "reference": RECORDING_REFERENCE,
             "calibration": _calibration_summary(e.calibration, half),

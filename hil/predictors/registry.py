@@ -74,14 +74,16 @@ class PredictorEntry:
     #: (settings, model, kinematic) -> a predictor with ``run(t_s, current_a)``
     make: Callable[[dict, MotorModel, bool], object]
     model_based: bool  #: runs on the motor model (J, K_T, load): has a kinematic form
-    strategy: str | None  #: the controller strategy (``bldc.contract.Strategy``) that runs it, if any
+    #: the controller strategy (``bldc.contract.Strategy`` name) that runs it, if any (RAW and
+    #: CORRECTED commutate at the edges themselves, no predictor)
+    strategy: str | None
     tuning_space: str  #: what the tuning searches (the budget stated in ``PROVENANCE``)
 
 
 PREDICTORS: dict[str, PredictorEntry] = {
     e.name: e
     for e in (
-        PredictorEntry("sector_hold", SectorHoldPredictor, lambda s, m, k: SectorHoldPredictor(), False, "RAW",
+        PredictorEntry("sector_hold", SectorHoldPredictor, lambda s, m, k: SectorHoldPredictor(), False, None,
                        "no setting"),
         PredictorEntry("moving_average", MovingAveragePredictor,
                        lambda s, m, k: MovingAveragePredictor(int(s["fifo_edges"])), False, None,
