@@ -52,9 +52,15 @@ def spindle(tmp_path_factory):
     return vcd_recording(SPINDLE, tmp_path_factory.mktemp("rec") / "spindle")
 
 
-def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hold(spindle):
+@pytest.fixture(scope="module")
+def spindle_compared(spindle):
+    edges = peers.recording_edges(spindle)
+    return peers.compare_recording(spindle, "spindle", edges), edges
+
+
+def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hold(spindle_compared):
     """Held-out real capture (no tuning saw any real capture): the judged bound of issue 26."""
-    out = peers.compare_recording(spindle, "spindle")
+    out, _ = spindle_compared
     rows = {r["name"]: r for r in out["predictors"]}
     assert set(rows) == set(peers.NAMES)
     for r in rows.values():
@@ -65,15 +71,14 @@ def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hol
     assert "kinematic" in out["model"] and "corrected" in out["reference"]
 
 
-def test_real_capture_scored_against_the_calibrations_corrected_instants(spindle):
+def test_real_capture_scored_against_the_calibrations_corrected_instants(spindle, spindle_compared):
     """Issue 31: the comparison calibrates the capture with the project's calibration (the delay
     included) and scores against those instants. An independent computation of sector hold (plain
     numpy on the calibration's corrected times: predict edge k+1 one sector after edge k at the
     last sector's duration, the error in deg e at the two-sector speed around edge k+1) agrees
     within 25 %, and the best predictor reaches 2.0 deg e RMS (issue figures: sector hold 3.21,
     PLL 1.74; measured 3.17 and 1.71)."""
-    out = peers.compare_recording(spindle, "spindle")
-    e = peers.recording_edges(spindle)
+    out, e = spindle_compared
     # the rise-minus-fall delay is taken off: the shift of each edge is +-D/2 (rising later) plus
     # an angle per edge slot (sensor and polarity) times the time per degree
     pick = np.searchsorted(spindle.t_s, e.t_s)

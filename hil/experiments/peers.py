@@ -427,9 +427,10 @@ def recording_model(rec, t_edges_s: np.ndarray) -> tuple[MotorModel | None, np.n
     return model, cycle
 
 
-def compare_recording(rec, source: str) -> dict:
+def compare_recording(rec, source: str, edges: RecordingEdges | None = None) -> dict:
+    """Every predictor on a recording (``edges``: its ``recording_edges``, if already read)."""
     tuned, provenance = _tuned()
-    e = recording_edges(rec)
+    e = edges or recording_edges(rec)
     tc, half = e.t_corrected_s, e.first_scored
     model, current = recording_model(rec, e.t_s)
     kinematic = model is None
