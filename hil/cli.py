@@ -50,7 +50,7 @@ def cmd_recording_check(args) -> int:
 
 def cmd_recording_import(args) -> int:
     from .recording import write_recording
-    from .signals.hall import capture_recording, parse_channels, read_hall_capture
+    from .signals.hall import capture_recording, parse_channels, read_hall_capture, step_summary
 
     cap = read_hall_capture(
         args.capture,
@@ -66,6 +66,7 @@ def cmd_recording_import(args) -> int:
     print(f"  channels: {', '.join(f'{k}={v}' for k, v in cap.channels.items())}")
     tick = f"{cap.timer_tick_s:.6g} s" if cap.timer_tick_s else "unknown"
     print(f"  timer_tick_s: {tick} (from {cap.tick_source})")
+    print(f"  rotor steps: {step_summary(rec.t_s, rec.sensor, rec.rising)}")
     for note in cap.notes:
         print(f"  note: {note}")
     if args.pole_pairs:
@@ -93,9 +94,9 @@ def cmd_plant_simulate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
+    from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
-    from .calibration.fit import fit_corrections
-    from .calibration.ordinary import pole_table_refusal
+    from .calibration.ordinary import Circuit
     from .recording import write_recording
 
     if args.campaign:
@@ -104,11 +105,32 @@ def cmd_calibrate(args) -> int:
         write_recording(rec, args.recording)
         print(f"campaign: {len(rec.segments)} operating points, {len(rec)} edges written to {args.recording}")
     rec = read_recording(args.recording)
-    if rec.ordinary or _no_forward_without_encoder(rec):
-        return _calibrate_ordinary(rec, args)
-    corr = fit_corrections(rec)
+    cal = calibrate(
+        rec, circuit=Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s), source=str(args.recording)
+    )
+    out = cal.to_json_dict()
+    if cal.route == "ordinary":
+        _print_ordinary_calibration(args.recording, out)
+    else:
+        _print_segment_calibration(args.recording, cal.corrections)
+    for r in out["refused"]:
+        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
+    for quantity, why in out["undetermined"].items():
+        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
+    if args.json:
+        _write_json(args.json, out)
+    if args.plot and cal.route == "ordinary":
+        from .gap.ordinary import save_sector_width_figure
+
+        title = f"{Path(str(args.recording)).name}: sector width against speed"
+        save_sector_width_figure(args.plot, cal.steps, cal.fit, title)
+        print(f"sector widths before and after calibration plotted to {args.plot}")
+    return 0
+
+
+def _print_segment_calibration(recording, corr) -> None:
     fmt = lambda d: ", ".join(f"{k} {v:+.4f}" for k, v in d.items())  # noqa: E731
-    print(f"{args.recording}: {corr.info.get('method')}")
+    print(f"{recording}: {corr.info.get('method')}")
     print(f"  installation_offset_deg_e: {fmt(corr.installation_offset_deg_e)}")
     print(f"  pole_offset_deg_e:         {', '.join(f'{v:+.4f}' for v in corr.pole_offset_deg_e)}")
     print(
@@ -116,32 +138,9 @@ def cmd_calibrate(args) -> int:
         f"{corr.conditioning_delay_s['fall'] * 1e6:.3f} us"
     )
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
-    for quantity, why in corr.undetermined.items():
-        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
-    # a value beyond its physical bound is refused with the reason, never written as a table entry
-    refusal = pole_table_refusal(corr.pole_offset_deg_e)
-    if refusal:
-        print(f"  REFUSED {refusal['field']}: {refusal['reason']}", file=sys.stderr)
-        corr.pole_offset_deg_e = []
-    if args.json:
-        _write_json(args.json, {**corr.to_json_dict(), "refused": [refusal] if refusal else []})
-    return 0
 
 
-def _no_forward_without_encoder(rec) -> bool:
-    """Steady segments without an encoder, none of them forward: the paper's route (Eq. 2, 6 on
-    forward turns) has nothing to read; the ordinary-run model reads either direction."""
-    return rec.ref_angle_mech_deg is None and all(s.direction != "forward" for s in rec.segments)
-
-
-def _calibrate_ordinary(rec, args) -> int:
-    from .calibration.ordinary import Circuit, calibrate_ordinary, hall_steps
-
-    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
-    circuit = Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s)
-    out, fit = calibrate_ordinary(
-        steps, tick_s=rec.timer_tick_s, pole_pairs=rec.stated_pole_pairs, circuit=circuit, source=str(args.recording)
-    )
+def _print_ordinary_calibration(recording, out: dict) -> None:
     a = out["assumptions"]
 
     def pm(d, scale=1.0, unit=""):
@@ -149,7 +148,7 @@ def _calibrate_ordinary(rec, args) -> int:
             return f"not given: {d.get('reason')}"
         return f"{d['value'] * scale:+.4g} +- {d['stderr'] * scale:.2g}{unit}"
 
-    print(f"{args.recording}: {out['info']['method']}")
+    print(f"{recording}: {out['info']['method']}")
     print(f"  direction: {a['direction']}; {a['edges_used']} of {a['edges']} edges in {a['runs']} run(s)")
     print(
         f"  speed range: {a['speed_range_hz_e'][0]:.1f}-{a['speed_range_hz_e'][1]:.1f} Hz electrical (5-95 %); "
@@ -173,18 +172,6 @@ def _calibrate_ordinary(rec, args) -> int:
     poles = out["pole_offset_deg_e"]
     print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
     print(f"  delay bound: {a['delay_bound_s'] * 1e6:.0f} us ({a['delay_bound']})")
-    for r in out["refused"]:
-        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
-    for quantity, why in out["undetermined"].items():
-        print(f"  could not determine {quantity}: {why}", file=sys.stderr)
-    if args.json:
-        _write_json(args.json, out)
-    if args.plot:
-        from .gap.ordinary import save_sector_width_figure
-
-        save_sector_width_figure(args.plot, steps, fit, f"{Path(str(args.recording)).name}: sector width against speed")
-        print(f"sector widths before and after calibration plotted to {args.plot}")
-    return 0
 
 
 def cmd_compare_correction(args) -> int:
@@ -801,8 +788,8 @@ def _parser_predictors(sub) -> None:
     p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
-    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated on its first half, scored "
-                   "on its second)")
+    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated as `hil calibrate` "
+                   "does, scored on the second half)")
     q.add_argument("--scenario", choices=["paper", "pumps"], help="the paper's speed steps (default) or held-out pumps")
     q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
     q.set_defaults(func=cmd_predictors_compare)

@@ -268,3 +268,22 @@ def test_one_edge_correction_equals_the_vectorised_one():
         for s, r, p, n, i in zip(sensor, rising, pole, speed, current)
     ]
     assert np.allclose(one, batch, rtol=0, atol=1e-12)
+
+
+def test_the_segment_route_applies_the_stated_delay_bound():
+    """``hil.calibration.calibrate`` on a campaign (segment route): the paper circuit's delays
+    (rise about 6.6 us) are kept under the default bound and refused, with the reason, under a
+    stated 1 us maximum; the refused delay is 0 in the table, never the fitted value."""
+    from hil.calibration import calibrate as calibrate_recording
+    from hil.calibration.ordinary import Circuit
+
+    config = paper_bench().with_effects(fx.ConditioningDelay(rise_delay_s=6.6e-6, fall_delay_s=0.5e-6), *NOISE)
+    rec = CalibrationCampaign(turns_per_point=40).run(config, seed=3)
+    kept = calibrate_recording(rec)
+    assert kept.route == "segments" and kept.refused == []
+    assert kept.corrections.conditioning_delay_s["rise"] == pytest.approx(6.6e-6, abs=1e-6)
+    cal = calibrate_recording(rec, circuit=Circuit(delay_max_s=1e-6))
+    assert [r["field"] for r in cal.refused] == ["conditioning_delay_s.rise"]
+    assert "stated maximum 1 us" in cal.refused[0]["reason"]
+    assert cal.corrections.conditioning_delay_s["rise"] == 0.0
+    assert cal.to_json_dict()["conditioning_delay_s"]["rise"] == 0.0

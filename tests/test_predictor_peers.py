@@ -133,3 +133,37 @@ def test_pll_speed_step_response_is_the_critically_damped_loop(two_edge):
     tau = t[after] - t_step
     want = w + dw * (1.0 - (1.0 + bw * tau) * np.exp(-bw * tau))
     assert np.max(np.abs(r.speed_rad_s[after] - want)) < 0.03 * dw
+
+
+def test_the_registry_declares_every_predictor_once_and_builds_each_from_its_shipped_settings():
+    """Issue 31: one registry. Every entry builds from its tuned settings (and the model-based
+    ones from their kinematic settings) into its declared class, whose settings read back equal;
+    the shipped settings cover exactly the registry's names; an unknown name is refused."""
+    from hil.experiments.peer_settings import TUNED
+    from hil.predictors.registry import KINEMATIC_MODEL, MODEL_BASED, NAMES, PREDICTORS, build, settings_of
+
+    assert set(TUNED) - {"kinematic"} == set(NAMES)
+    assert set(TUNED["kinematic"]) == set(MODEL_BASED) == {"kf", "sage_husa", "vb_akf"}
+    t = np.cumsum(np.full(400, 1e-3))
+    for name, entry in PREDICTORS.items():
+        forms = [(TUNED[name], False)] + ([(TUNED["kinematic"][name], True)] if entry.model_based else [])
+        for settings, kinematic in forms:
+            p = build(name, settings, KINEMATIC_MODEL, kinematic=kinematic)
+            assert type(p) is entry.cls
+            back = settings_of(p)
+            if not kinematic:  # the kinematic form leaves the current channel unobserved (R_i huge)
+                assert {k: back[k] for k in settings} == settings, name
+            r = p.run(t, np.zeros(t.size))
+            # at a constant 1 ms per sector every predictor settles on the next edge (sector hold: exactly)
+            assert abs(r.pred_t_s[-2] - t[-1]) < 1e-5, name
+    with pytest.raises(ValueError, match="unknown predictor 'nope'"):
+        build("nope", {}, KINEMATIC_MODEL)
+
+
+def test_the_registry_names_real_controller_strategies():
+    from bldc.contract import Strategy
+    from hil.predictors.registry import PREDICTORS
+
+    named = {e.strategy: e.name for e in PREDICTORS.values() if e.strategy}
+    assert named == {"KF": "kf", "SAGE_HUSA": "sage_husa"}
+    assert all(s in Strategy.__members__ for s in named)

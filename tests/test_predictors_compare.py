@@ -11,7 +11,7 @@ import pytest
 
 from hil.cli import main as hil_main
 from hil.experiments import peers
-from hil.recording import Recording, Segment, read_recording, record_kinematic, write_recording
+from hil.recording import Recording, Segment, read_recording, write_recording
 from hil.signals.vcd import VcdReader
 
 SPINDLE = Path(__file__).parent / "data" / "real-hall" / "20260618-spindle-hw.vcd"
@@ -47,36 +47,20 @@ def test_pumps_are_drawn_inside_the_stated_range_and_no_tuning_seed_is_held_out(
     assert peers.draw_pump(1000).params == peers.draw_pump(1000).params
 
 
-def test_slot_calibration_recovers_the_simulated_per_slot_deviations():
-    """Edges of a rotor at constant speed with installation offsets and a rise/fall delay
-    difference: each slot's deviation from capture times against the plant's truth (t_capture -
-    t_ideal at the true speed), both with their mean taken out."""
-    from plant_models import paper_bench
-    from plant_models import effects as fx
-    from plant_models.kinematic import OperatingPoint
-
-    config = paper_bench().with_effects(fx.InstallationOffset(offset_deg_e=(2.0, -1.5, 0.5)),
-                                        fx.ConditioningDelay(rise_delay_s=8e-6, fall_delay_s=1e-6),
-                                        fx.EdgeJitter(time_rms_s=1e-6))
-    rec = record_kinematic(config, [OperatingPoint(1.0, 6000.0)], seed=2)
-    e = peers.recording_edges(rec)
-    assert e.dropped == 0
-    dev = peers.slot_deviation_deg_e(e.t_s, e.slot)
-    w_deg_s = 6000.0 / 60.0 * 360.0 * config.motor.pole_pairs
-    truth_dev = (rec.t_s - rec.truth["t_ideal_s"]) * w_deg_s
-    slot = 2 * rec.sensor + rec.rising.astype(int)
-    want = np.array([truth_dev[slot == s].mean() for s in range(6)])
-    np.testing.assert_allclose(dev, want - want.mean(), atol=0.05)  # the effects are 0.5-2.6 deg e
-
-
 @pytest.fixture(scope="module")
 def spindle(tmp_path_factory):
     return vcd_recording(SPINDLE, tmp_path_factory.mktemp("rec") / "spindle")
 
 
-def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hold(spindle):
+@pytest.fixture(scope="module")
+def spindle_compared(spindle):
+    edges = peers.recording_edges(spindle)
+    return peers.compare_recording(spindle, "spindle", edges), edges
+
+
+def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hold(spindle_compared):
     """Held-out real capture (no tuning saw any real capture): the judged bound of issue 26."""
-    out = peers.compare_recording(spindle, "spindle")
+    out, _ = spindle_compared
     rows = {r["name"]: r for r in out["predictors"]}
     assert set(rows) == set(peers.NAMES)
     for r in rows.values():
@@ -85,6 +69,33 @@ def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hol
     best = min(rows[n]["angle_rms_deg_e"] for n in ("kf", "sage_husa", "vb_akf"))
     assert best <= rows["sector_hold"]["angle_rms_deg_e"]
     assert "kinematic" in out["model"] and "corrected" in out["reference"]
+
+
+def test_real_capture_scored_against_the_calibrations_corrected_instants(spindle, spindle_compared):
+    """Issue 31: the comparison calibrates the capture with the project's calibration (the delay
+    included) and scores against those instants. An independent computation of sector hold (plain
+    numpy on the calibration's corrected times: predict edge k+1 one sector after edge k at the
+    last sector's duration, the error in deg e at the two-sector speed around edge k+1) agrees
+    within 25 %, and the best predictor reaches 2.0 deg e RMS (issue figures: sector hold 3.21,
+    PLL 1.74; measured 3.17 and 1.71)."""
+    out, e = spindle_compared
+    # the rise-minus-fall delay is taken off: the shift of each edge is +-D/2 (rising later) plus
+    # an angle per edge slot (sensor and polarity) times the time per degree
+    pick = np.searchsorted(spindle.t_s, e.t_s)
+    rising, slot = spindle.rising[pick].astype(bool), 2 * spindle.sensor[pick] + spindle.rising[pick]
+    tau = np.gradient(e.t_s) / 60.0
+    cols = np.column_stack([np.where(rising, 0.5, -0.5), np.eye(6)[slot] * tau[:, None]])
+    delay_taken_off = np.linalg.lstsq(cols, e.t_s - e.t_corrected_s, rcond=None)[0][0]
+    delay = out["calibration"]["rise_fall_delay_difference_s"]["value"]
+    assert 100e-6 < delay < 170e-6  # the spindle's 134 us (docs/real-captures.md)
+    assert delay_taken_off == pytest.approx(delay, rel=0.05)
+    tc, k = e.t_corrected_s, np.arange(e.first_scored, e.t_corrected_s.size - 2)
+    predicted = tc[k] + (tc[k] - tc[k - 1])
+    err_deg = (predicted - tc[k + 1]) * 120.0 / (tc[k + 2] - tc[k])
+    independent = float(np.sqrt(np.mean(err_deg**2)))
+    rows = {r["name"]: r["angle_rms_deg_e"] for r in out["predictors"]}
+    assert abs(rows["sector_hold"] / independent - 1.0) < 0.25, (rows["sector_hold"], independent)
+    assert min(rows.values()) <= 2.0, rows
 
 
 def test_cli_writes_the_contract(spindle, tmp_path):

@@ -60,6 +60,9 @@ def test_import_reads_the_vcd_time_base_and_every_edge(tmp_path, capsys):
     assert main(["recording", "import", str(SPINDLE), "--out", str(tmp_path / "rec")]) == 0
     printed = capsys.readouterr().out
     assert "timer_tick_s: 3.3333e-05 s" in printed and "pole_pairs: not stated" in printed
+    # the Hall-edge core's reading, as every analysis of the recording makes it (hil calibrate
+    # on this capture: 28694 of 28699 edges in one run, two reversals split)
+    assert "rotor steps: 28694 of 28699 edges in 1 run(s)" in printed and "split at 2 reversal(s)" in printed
     rec = read_recording(tmp_path / "rec")
     assert rec.ordinary and rec.stated_pole_pairs is None and rec.motor == {}
     assert rec.timer_tick_s == pytest.approx(TICK_S, rel=1e-9)
@@ -308,6 +311,30 @@ def test_synthetic_pole_offsets_recovered_and_out_of_bound_refused():
     out, _ = calibrate_ordinary(hall_steps(t, s, r), tick_s=TICK_S, pole_pairs=4)
     assert out["pole_offset_deg_e"] == []
     assert [x["field"] for x in out["refused"]] == ["pole_offset_deg_e"]
+
+
+def test_calibrate_chooses_the_route_and_refuses_a_bad_pole_table_on_both():
+    """``hil.calibration.calibrate``: an ordinary run (no segments) and the same edges cut into
+    steady forward segments (the campaign route, no encoder) both come back as one
+    ``Calibration``; the 16 deg e pole table is refused on both (never in the table)."""
+    from hil.calibration import calibrate
+    from hil.calibration.route import Calibration
+    from hil.recording import Recording, Segment
+
+    big = np.array([0.0, 2.0, -1.5, 1.0, -0.5, 1.5, -1.0, -1.5]) * 8.0
+    t, s, r = synthetic_run(pole_deg_e=big, pole_pairs=4, direction=1)
+    ordinary = Recording({"pole_pairs": 4}, [], t, s, r, np.zeros(t.size, dtype=np.int64), timer_tick_s=TICK_S)
+    cuts = np.linspace(t[0], t[-1] + 1e-9, 11)
+    segs = [Segment(f"w{i}", float(a), float(b), "forward",
+                    float(np.sum((t >= a) & (t < b)) / 6.0 / (b - a) / 4 * 60.0), 0.0, 1.0)
+            for i, (a, b) in enumerate(zip(cuts[:-1], cuts[1:]))]
+    segmented = Recording({"pole_pairs": 4}, segs, t, s, r, np.searchsorted(cuts, t, side="right") - 1,
+                          timer_tick_s=TICK_S)
+    for rec, route in ((ordinary, "ordinary"), (segmented, "segments")):
+        cal = calibrate(rec)
+        assert isinstance(cal, Calibration) and cal.route == route
+        assert "pole_offset_deg_e" in [x["field"] for x in cal.refused], (route, cal.refused)
+        assert cal.to_json_dict()["pole_offset_deg_e"] == [] and cal.corrections.pole_offset_deg_e == []
 
 
 def test_a_glitch_is_removed_and_changes_nothing():

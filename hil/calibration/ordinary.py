@@ -550,6 +550,38 @@ def pole_table_refusal(poles: list[float]) -> dict | None:
     }
 
 
+def installation_refusal(inst: dict[str, float]) -> dict | None:
+    """The refusal of installation offsets beyond half a sector (a wiring or labelling error), or None."""
+    bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
+    if not bad:
+        return None
+    return {
+        "field": "installation_offset_deg_e",
+        "reason": f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
+        f"+-{INSTALLATION_BOUND_DEG_E:.0f}: a wiring or channel-mapping error, not an offset",
+    }
+
+
+def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> dict | None:
+    """The refusal of a conditioning delay beyond its bound (``Circuit.bound_s``, or half a sector
+    at the top speed), or None."""
+    if value_s is None or abs(value_s) <= bound_s:
+        return None
+    reason = f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})"
+    return {"field": field, "reason": reason}
+
+
+def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
+    """The bound on a conditioning delay: the circuit's, or half a sector at the top speed if tighter."""
+    bound_s, bound_why = circuit.bound_s()
+    sector_s = 1.0 / (6.0 * top_hz_e)
+    if DELAY_SECTOR_FRACTION * sector_s < bound_s:
+        return DELAY_SECTOR_FRACTION * sector_s, (
+            f"half a sector at the top speed {top_hz_e:.0f} Hz electrical ({sector_s * 1e6:.0f} us per sector)"
+        )
+    return bound_s, bound_why
+
+
 def calibrate_ordinary(
     steps: HallSteps,
     *,
@@ -559,7 +591,22 @@ def calibrate_ordinary(
     source: str = "",
 ) -> tuple[dict, Fit]:
     """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
-    and the fit it comes from."""
+    and the fit it comes from (``ordinary_calibration`` also gives the fit of the table's effects)."""
+    out, fit, _ = ordinary_calibration(steps, tick_s=tick_s, pole_pairs=pole_pairs, circuit=circuit, source=source)
+    return out, fit
+
+
+def ordinary_calibration(
+    steps: HallSteps,
+    *,
+    tick_s: float | None = None,
+    pole_pairs: int | None = None,
+    circuit: Circuit | None = None,
+    source: str = "",
+) -> tuple[dict, Fit, Fit]:
+    """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
+    the fit it comes from, and the fit whose effects the table holds (with the pole offsets, when
+    they were determined and not refused)."""
     circuit = circuit or Circuit()
     refused: list[dict] = []
     undetermined: dict[str, str] = {}
@@ -603,37 +650,20 @@ def calibrate_ordinary(
         )
         delay = _value(None, None, reason=why)
         angle = _value(None, None, reason=why)
-    bound_s, bound_why = circuit.bound_s()
-    sector_s = 1.0 / (6.0 * top)
-    if DELAY_SECTOR_FRACTION * sector_s < bound_s:
-        bound_s, bound_why = (
-            DELAY_SECTOR_FRACTION * sector_s,
-            (f"half a sector at the top speed {top:.0f} Hz electrical ({sector_s * 1e6:.0f} us per sector)"),
-        )
-    if delay["value"] is not None and abs(delay["value"]) > bound_s:
-        refused.append(
-            {
-                "field": "rise_fall_delay_difference_s",
-                "reason": f"{delay['value'] * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})",
-            }
-        )
-        delay = _value(None, None, reason=refused[-1]["reason"], fitted=delay["value"])
+    bound_s, bound_why = delay_bound_s(circuit, top)
+    refusal = delay_refusal("rise_fall_delay_difference_s", delay["value"], bound_s, bound_why)
+    if refusal:
+        refused.append(refusal)
+        delay = _value(None, None, reason=refusal["reason"], fitted=delay["value"])
     # installation offsets (relative: sum zero), both edges of a sensor alike
     inst, inst_se = {}, {}
     for x, name in enumerate(SENSORS):
         labels = list(_SENSOR_LABELS[x])
         r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
         inst[name], inst_se[name] = r if r else (0.0, None)
-    bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
-    if bad:
-        refused.append(
-            {
-                "field": "installation_offset_deg_e",
-                "reason": f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
-                f"+-{INSTALLATION_BOUND_DEG_E:.0f}: "
-                "a wiring or channel-mapping error, not an offset",
-            }
-        )
+    refusal = installation_refusal(inst)
+    if refusal:
+        refused.append(refusal)
         inst = dict.fromkeys(SENSORS, 0.0)
     undetermined["installation_offset_deg_e"] = (
         "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
@@ -645,6 +675,7 @@ def calibrate_ordinary(
         pole_pairs, p_source = choose_pole_pairs(steps, tick_s, fit, kc, ripple=ripple)
     poles: list[float] = []
     poles_se: list[float] = []
+    table_fit = fit
     if pole_pairs:
         pf = robust_fit(
             fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
@@ -666,6 +697,8 @@ def calibrate_ordinary(
         if refusal:
             refused.append(refusal)
             poles, poles_se = [], []
+        else:
+            table_fit = pf
     else:
         undetermined["pole_offset_deg_e"] = p_source
     undetermined["conditioning_delay_s"] = (
@@ -745,4 +778,4 @@ def calibrate_ordinary(
             "source": source,
             "edges": int(steps.t_s.size),
         },
-    }, fit
+    }, fit, table_fit

@@ -307,7 +307,7 @@ def pump_defaults() -> tuple[FilterSettings, FilterSettings]:
     ``peer_settings.TUNED``; no scenario seed of this controller's plant was seen), rounded to
     DIGITS significant digits as the controller's defaults are."""
     from .peer_settings import TUNED
-    from .peers import filter_settings
+    from ..predictors.registry import filter_settings
 
     return rounded(filter_settings(TUNED["sage_husa"])), rounded(filter_settings(TUNED["kf"]))
 

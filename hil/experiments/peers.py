@@ -9,8 +9,9 @@ Scenarios:
   bench, a speed-step profile inside 3,000-15,000 rpm, the effect library's Hall deviations), each
   calibrated by the calibration station, then run through the speed steps; truth from the plant;
   held-out seeds ``HELD_OUT_PUMP_SEEDS``, none of which any tuning saw;
-* a recording (hil-recording/1): calibrated on its first half (``slot_deviation_deg_e``), scored
-  on its second against the corrected edge instants (``compare_recording``).
+* a recording (hil-recording/1): calibrated by the project's calibration
+  (``hil.calibration.calibrate``, the one ``hil calibrate`` runs), scored on the second half of
+  its longest run against the corrected edge instants (``compare_recording``).
 
 Every predictor's settings come from ``peer_settings.TUNED``, written once by
 ``tools/predictor_tuning.py`` from a tuning on the training pumps ``TRAIN_PUMP_SEEDS``
@@ -26,20 +27,35 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from bldc.edges import electrical_speed_hz
 from bldc.motor import steady_state
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.plant import PAPER_BENCH_CIRCUIT
 
 from ..calibration.campaign import station_corrections
-from ..predictors.model import SECTOR_RAD, MotorModel
-from ..predictors.peers import MovingAveragePredictor, PllPredictor, SectorHoldPredictor, VbAkfPredictor
+from ..predictors.model import MotorModel
+from ..predictors.peers import MovingAveragePredictor, PllPredictor, VbAkfPredictor
 from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
+from ..predictors.registry import (
+    KINEMATIC_MODEL,
+    MA_FIFO_GRID,
+    MODEL_BASED,
+    NAMES,
+    PLL_BW_GRID_RAD_S,
+    PREDICTORS,
+    VB_ITERATIONS,
+    VB_ONE_MINUS_RHO,
+    VB_R_THETA,
+    VB_TAU,
+    build,
+    rebuilt,
+    settings_of,
+)
 from . import compare
 from .identify import identify
 from .table5 import ScenarioRun, run_scenario, scenario_plant, score
 
-NAMES = ("sector_hold", "moving_average", "pll", "kf", "sage_husa", "vb_akf")
 #: the pumps' range: pole pairs, and inertia and fan load as factors of the paper bench's
 PUMP_RANGE = dict(pole_pairs=(1, 4), inertia_factor=(0.3, 3.0), fan_factor=(0.5, 2.0), speed_rpm=(3000.0, 15000.0),
                   installation_offset_deg_e=(-3.0, 3.0), pole_offset_deg_e=(-2.0, 2.0),
@@ -51,18 +67,11 @@ PUMP_SETPOINTS, PUMP_HOLD_S, PUMP_MIN_SPAN_RPM, PUMP_MAX_DUTY = 5, 0.6, 2000.0, 
 HELD_OUT_PUMP_SEEDS = tuple(range(1000, 1024))
 TRAIN_PUMP_SEEDS = tuple(range(2000, 2008))
 #: the tuning's budget: at most compare's (a 144-point grid, then 80 Nelder-Mead evaluations from
-#: its 2 best points) per option; predictors with fewer knobs search exhaustively with fewer
-MA_FIFO_GRID = tuple(range(1, 145))
-PLL_BW_GRID_RAD_S = tuple(float(v) for v in np.geomspace(10.0, 2e4, 144))
-VB_GRID = dict(q_w=compare.KF_GRID["q_w"], q_i=compare.KF_GRID["q_i"], r_theta=(1e-5, 1e-3), tau=(1.0, 10.0),
-               one_minus_rho=(math.exp(-4.0), 1e-3))
-VB_ITERATIONS = (2, 10)
+#: its 2 best points) per option; predictors with fewer knobs search exhaustively with fewer (the
+#: spaces are declared with the predictors, ``hil.predictors.registry``)
+VB_GRID = dict(q_w=compare.KF_GRID["q_w"], q_i=compare.KF_GRID["q_i"], r_theta=VB_R_THETA, tau=VB_TAU,
+               one_minus_rho=VB_ONE_MINUS_RHO)
 assert math.prod(len(v) for v in VB_GRID.values()) == math.prod(len(v) for v in compare.KF_GRID.values())
-#: the kinematic form of the model-based filters (no current, no motor data): K_T = 1, J = 1, one
-#: pole pair, no load, so the third state is the acceleration (rad/s^2 e); the current channel
-#: carries 0 with this variance (A^2 = (rad/s^2)^2), so it says nothing of the acceleration
-KINEMATIC_MODEL = MotorModel(1, 1.0, (1.0,), (0.0,))
-KINEMATIC_R_I = 1e12
 
 
 @dataclass
@@ -126,39 +135,6 @@ def pump_run(pump: Pump) -> tuple[ScenarioRun, MotorModel]:
 
 # --- the predictors from their settings ---------------------------------------------------------
 
-def build(name: str, settings: dict, model: MotorModel, kinematic: bool = False):
-    """The predictor ``name`` with ``settings`` (as ``peer_settings.TUNED`` holds them) on ``model``;
-    ``kinematic``: the model-based filters without current or motor data (KINEMATIC_MODEL)."""
-    if name == "sector_hold":
-        return SectorHoldPredictor()
-    if name == "moving_average":
-        return MovingAveragePredictor(int(settings["fifo_edges"]))
-    if name == "pll":
-        return PllPredictor(float(settings["bandwidth_rad_s"]), bool(settings["two_edge"]))
-    if kinematic:
-        model = KINEMATIC_MODEL
-    if name in ("kf", "sage_husa"):
-        s = filter_settings(settings)
-        if kinematic:
-            s = dataclasses.replace(s, r0_diag=(s.r0_diag[0], KINEMATIC_R_I))
-        return (KalmanPredictor if name == "kf" else SageHusaPredictor)(model, s)
-    if name == "vb_akf":
-        kw = {k: settings[k] for k in ("q0_diag", "r0_diag", "tau", "rho", "iterations")}
-        return VbAkfPredictor(model, **kw, use_current=not kinematic)
-    raise ValueError(f"unknown predictor {name!r}; one of {', '.join(NAMES)}")
-
-
-def filter_settings(d: dict) -> FilterSettings:
-    fields = {f.name for f in dataclasses.fields(FilterSettings)}
-    return FilterSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
-
-
-def settings_of(predictor) -> dict:
-    if isinstance(predictor, (KalmanPredictor, SageHusaPredictor)):
-        return {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(predictor.settings).items()}
-    return predictor.settings
-
-
 # --- tuning (tools/predictor_tuning.py; never run by compare) -----------------------------------------
 
 def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
@@ -167,17 +143,7 @@ def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
     ``kinematic``: the model-based filters in their kinematic form (``build``)."""
     out = []
     for run, model in runs:
-        p = predictor
-        if kinematic:
-            model = KINEMATIC_MODEL
-        if isinstance(predictor, (KalmanPredictor, SageHusaPredictor)):
-            s = predictor.settings
-            if kinematic:
-                s = dataclasses.replace(s, r0_diag=(s.r0_diag[0], KINEMATIC_R_I))
-            p = type(predictor)(model, s)
-        elif isinstance(predictor, VbAkfPredictor):
-            p = VbAkfPredictor(model, predictor.q0_diag, predictor.r0_diag, predictor.tau, predictor.rho,
-                               predictor.iterations, use_current=not kinematic)
+        p = rebuilt(predictor, model, kinematic)
         cur = np.zeros(run.t_corrected_s.size) if kinematic else run.mean_current_a
         r = p.run(run.t_corrected_s, cur)
         out.append(score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e)
@@ -235,20 +201,7 @@ def tune(runs: list[tuple[ScenarioRun, MotorModel]], kinematic: bool = False, lo
     return tuned
 
 
-BUDGETS = {
-    "sector_hold": "no setting",
-    "moving_average": f"FIFO length {MA_FIFO_GRID[0]}-{MA_FIFO_GRID[-1]} edges, exhaustive "
-                      f"({len(MA_FIFO_GRID)} evaluations)",
-    "pll": f"bandwidth on a {len(PLL_BW_GRID_RAD_S)}-point log grid {PLL_BW_GRID_RAD_S[0]:g}-"
-           f"{PLL_BW_GRID_RAD_S[-1]:g} rad/s + {compare.REFINE_EVALUATIONS} Nelder-Mead evaluations, "
-           "two-edge option off and on",
-    "kf": f"Q_w, Q_i, R_theta, R_i on a 144-point grid + {compare.REFINE_EVALUATIONS} Nelder-Mead evaluations, "
-          "gate off and on (compare.tune_kf)",
-    "sage_husa": f"nominal Q_w, Q_i, b, b_R, R0_i on a 144-point grid + {compare.REFINE_EVALUATIONS} Nelder-Mead "
-                 "evaluations, design compare.SH_DESIGN (compare.tune_sh)",
-    "vb_akf": f"nominal Q_w, Q_i, R_theta, tau, 1 - rho on a 144-point grid + {compare.REFINE_EVALUATIONS} "
-              f"Nelder-Mead evaluations, {' and '.join(map(str, VB_ITERATIONS))} variational iterations",
-}
+BUDGETS = {name: entry.tuning_space for name, entry in PREDICTORS.items()}
 
 
 # --- evaluation ------------------------------------------------------------------------------------
@@ -387,73 +340,52 @@ def tuning_main(argv=None) -> int:
     return 0
 
 
-# --- a recording --------------------------------------------------------------------------------
+# --- a recording ---------------------------------------------------------------------------------
 
-#: a recording's edges are calibrated per slot: sensor and polarity (6 per electrical period)
-N_SLOTS = 6
 RECORDING_REFERENCE = (
     "no encoder: each prediction of edge k+1 is scored against the corrected instant of edge k+1 "
-    "(calibration fitted on the first half of the edges, scored on the second half), converted to "
-    "deg e with the speed over the two sectors around it (one rising and one falling edge); this "
-    "is the best reference a capture without encoder allows, and it still holds the edges' own "
-    "noise and quantisation")
+    "(the project's calibration of the recording, the one `hil calibrate` runs, its installation, "
+    "pole and rise-minus-fall delay terms taken off the capture times; the predictors run over the "
+    "longest run of rotor steps and are scored on its second half), converted to deg e with the speed over the two "
+    "sectors around it; this is the best reference a capture without encoder allows, and it still "
+    "holds the edges' own noise and quantisation")
 
 
 @dataclass
 class RecordingEdges:
-    t_s: np.ndarray          #: capture times of the kept edges
-    slot: np.ndarray         #: 2 sensor + rising
-    dropped: int             #: edges that did not advance the rotor (bounces, reversals)
-    direction: int           #: +1 forward (A, B, C), -1 reverse
+    """The edges a predictor runs on: one run of rotor steps, with the calibration's corrected instants."""
+
+    t_s: np.ndarray  #: capture times of the kept edges
+    t_corrected_s: np.ndarray  #: the same edges, the calibration's deviations taken off
+    first_scored: int  #: the first scored edge: the second half of the run (the predictors settle on the first)
+    dropped: int  #: edges outside the run (bounces, invalid states, reversals, stalls, short runs)
+    direction: int  #: +1 forward (A, B, C), -1 reverse
+    calibration: object  #: the recording's ``hil.calibration.route.Calibration``
 
 
 def recording_edges(rec) -> RecordingEdges:
-    """The edges a predictor can use from a recording: the longest run of rotor steps that
-    ``bldc.edges.decode_edges`` reads from it (constant direction, no stall; bounces and invalid
-    states removed), so each kept edge is the next sector boundary, 60 deg e after the last."""
-    from bldc.edges import HallEdgeError, decode_edges, longest_run
+    """The longest run of rotor steps that ``bldc.edges`` reads from the recording (constant
+    direction, no stall; bounces and invalid states removed: each edge is the next sector
+    boundary), and its corrected instants: the recording is calibrated by
+    ``hil.calibration.calibrate`` as an ordinary run (what ``hil calibrate`` reports for a
+    capture), and the table's sensor effects are taken off every edge of the run."""
+    from bldc.edges import longest_run
 
-    try:
-        steps = decode_edges(rec.t_s, rec.sensor, rec.rising)
-    except HallEdgeError as e:
-        raise ValueError(f"{getattr(rec, 'path', 'recording')}: {e}") from None
+    from ..calibration import calibrate
+    from ..calibration.ordinary import hall_steps
+
+    ordinary = dataclasses.replace(rec, segments=[], segment=np.zeros(len(rec), dtype=np.int64),
+                                   ref_angle_mech_deg=None)
+    steps = hall_steps(ordinary.t_s, ordinary.sensor, ordinary.rising)
     idx = longest_run(steps)
-    if not idx.size:
-        raise ValueError(f"{getattr(rec, 'path', 'recording')}: no run of rotor steps long enough to use")
-    sensor, rising = steps.sensor[idx], steps.rising[idx]
-    return RecordingEdges(steps.t_s[idx], 2 * sensor + rising.astype(int), int(steps.t_s.size - idx.size),
-                          int(steps.direction[idx[0]]))
-
-
-def slot_deviation_deg_e(t: np.ndarray, slot: np.ndarray) -> np.ndarray:
-    """Each slot's mean edge-angle deviation (deg e, lead negative) from capture times: edge k
-    against a linear fit over the electrical period either side of it (edges k-6 ... k+6, the two
-    ends at half weight, so every slot weighs alike and a steady acceleration cancels)."""
-    n = t.size
-    k = np.arange(6, n - 6)
-    w = np.ones(13)
-    w[0] = w[-1] = 0.5
-    period = (t[k + 6] - t[k - 6]) / 2.0
-    ideal = sum(w[j] * (t[k + j - 6] - (j - 6) * period / 6.0) for j in range(13)) / 12.0
-    dev = 360.0 * (t[k] - ideal) / period
-    out = np.zeros(N_SLOTS)
-    for s in range(N_SLOTS):
-        sel = slot[k] == s
-        out[s] = float(np.median(dev[sel])) if sel.any() else 0.0
-    return out - out.mean()
-
-
-def corrected_times(t: np.ndarray, slot: np.ndarray, dev_deg_e: np.ndarray) -> np.ndarray:
-    """Capture times with each slot's deviation taken out, at the speed of the electrical period
-    before the edge (causal: a firmware could do the same)."""
-    period = np.empty_like(t)
-    period[6:] = t[6:] - t[:-6]
-    period[:6] = period[6] if t.size > 6 else np.inf
-    out = t - dev_deg_e[slot] / 360.0 * period
-    bad = np.nonzero(np.diff(out) <= 0)[0]
-    if bad.size:
-        raise ValueError(f"the slot correction reorders edges {int(bad[0])} and {int(bad[0]) + 1}")
-    return out
+    if idx.size < 200:
+        raise ValueError(f"{getattr(rec, 'path', None) or 'recording'}: {idx.size} usable edges in its longest run "
+                         "of rotor steps; at least 200 are needed (half to calibrate)")
+    half = idx.size // 2
+    cal = calibrate(ordinary)
+    t_corrected = steps.t_s[idx] - cal.edge_corrections_s(steps, idx)
+    return RecordingEdges(steps.t_s[idx], t_corrected, half, int(steps.t_s.size - idx.size),
+                          int(steps.direction[idx[0]]), cal)
 
 
 def score_recording(tc: np.ndarray, pred: np.ndarray, speed: np.ndarray, first: int) -> dict:
@@ -461,10 +393,9 @@ def score_recording(tc: np.ndarray, pred: np.ndarray, speed: np.ndarray, first: 
     instant of edge k + 1, in deg e at the two-sector speed around it; the speed estimate after
     edge k against the two-sector speed around edge k."""
     k = np.arange(max(first, 1), tc.size - 2)
-    w_ref = 2.0 * SECTOR_RAD / (tc[k + 2] - tc[k])               # around edge k + 1
-    err = np.degrees((pred[k] - tc[k + 1]) * w_ref)
-    w_at = 2.0 * SECTOR_RAD / (tc[k + 1] - tc[k - 1])            # around edge k
-    ape = np.abs(speed[k] / w_at - 1.0) * 100.0
+    w = 2.0 * np.pi * electrical_speed_hz(tc, window_sectors=2)  # rad/s e over the two sectors around each edge
+    err = np.degrees((pred[k] - tc[k + 1]) * w[k + 1])
+    ape = np.abs(speed[k] / w[k] - 1.0) * 100.0
     finite = np.isfinite(err)
     return {"angle_rms_deg_e": float(np.sqrt(np.mean(err**2))) if finite.all() else None,
             "angle_p99_deg_e": float(np.percentile(np.abs(err), 99)) if finite.all() else None,
@@ -496,21 +427,18 @@ def recording_model(rec, t_edges_s: np.ndarray) -> tuple[MotorModel | None, np.n
     return model, cycle
 
 
-def compare_recording(rec, source: str) -> dict:
+def compare_recording(rec, source: str, edges: RecordingEdges | None = None) -> dict:
+    """Every predictor on a recording (``edges``: its ``recording_edges``, if already read)."""
     tuned, provenance = _tuned()
-    e = recording_edges(rec)
-    if e.t_s.size < 200:
-        raise ValueError(f"{source}: {e.t_s.size} usable edges; at least 200 are needed (half to calibrate)")
-    half = e.t_s.size // 2
-    dev = slot_deviation_deg_e(e.t_s[:half], e.slot[:half])
-    tc = corrected_times(e.t_s, e.slot, dev)
+    e = edges or recording_edges(rec)
+    tc, half = e.t_corrected_s, e.first_scored
     model, current = recording_model(rec, e.t_s)
     kinematic = model is None
     if kinematic:
         current = np.zeros(tc.size)
     preds = []
     for name in NAMES:
-        kin = kinematic and name in ("kf", "sage_husa", "vb_akf")
+        kin = kinematic and name in MODEL_BASED
         settings = tuned["kinematic"][name] if kin else tuned[name]
         p = build(name, settings, KINEMATIC_MODEL if kinematic else model, kinematic=kin)
         p.run(tc[:64], current[:64])
@@ -523,13 +451,12 @@ def compare_recording(rec, source: str) -> dict:
             row["mode"] = "kinematic"
         preds.append(row)
     tick = getattr(rec, "timer_tick_s", None)
-    return {"source": f"recording {source}: {len(rec)} edges, {e.t_s.size} kept ({e.dropped} dropped as bounces "
-                      f"or reversals), direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
+    return {"source": f"recording {source}: {len(rec)} edges, {e.t_s.size} kept ({e.dropped} outside the longest "
+                      "run of rotor steps: bounces, invalid states, reversals, stalls, shorter runs), "
+                      f"direction {'forward' if e.direction > 0 else 'reverse'}, timer tick "
                       f"{(tick or 0) * 1e6:.3g} us",
             "reference": RECORDING_REFERENCE,
-            "calibration": {"method": "per sensor and polarity (6 slots) from capture times, first half "
-                                      f"({half} edges); pole offsets are not corrected (no index pulse)",
-                            "slot_deviation_deg_e": [float(v) for v in dev]},
+            "calibration": _calibration_summary(e.calibration, half),
             "model": ("kf, sage_husa and vb_akf run kinematic: no current or motor data, the state is angle, "
                       "speed and acceleration (K_T = J = 1, no load, the current channel unobserved); their "
                       "settings are the kinematic tuning on the training pumps" if kinematic else
@@ -540,6 +467,15 @@ def compare_recording(rec, source: str) -> dict:
                                "does not state: null; speed_mape_pct is over all scored edges against the "
                                "two-sector speed",
             "settings_provenance": provenance, "predictors": preds}
+
+
+def _calibration_summary(cal, half: int) -> dict:
+    """What the comparison took off the edges: the calibration's table, from the first ``half`` edges."""
+    out = cal.to_json_dict()
+    keys = ("installation_offset_deg_e", "pole_offset_deg_e", "rise_fall_delay_difference_s", "refused")
+    return {"method": "hil calibrate (ordinary run) on the recording; its installation, pole and rise-minus-fall "
+                      f"delay terms taken off every edge; the predictors scored from edge {half} of the run on",
+            **{k: out[k] for k in keys}}
 
 
 def format_result(result: dict) -> str:

@@ -214,3 +214,23 @@ def capture_recording(cap: HallCapture, pole_pairs: int | None = None, source: s
             }
         },
     )
+
+
+def step_summary(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray) -> str:
+    """How the Hall-edge core (``bldc.edges``) reads the captured edges as rotor steps: runs,
+    direction, and what it removes (the same reading every analysis of the recording makes)."""
+    from bldc.edges import HallEdgeError, decode_edges
+
+    try:
+        steps = decode_edges(t_s, sensor, rising)
+    except HallEdgeError as e:
+        return f"not readable as rotor steps: {e}"
+    used = steps.used()
+    fwd, rev = int(np.sum(steps.direction[used] > 0)), int(np.sum(steps.direction[used] < 0))
+    c = steps.counts()
+    return (
+        f"{int(used.sum())} of {steps.t_s.size} edges in {int(steps.run.max()) + 1 if used.any() else 0} run(s) "
+        f"({fwd} forward, {rev} reverse); removed: {c['glitches_removed']} glitch pair(s), "
+        f"{c['invalid_states_dropped']} invalid-state edge(s), {c['short_runs_dropped']} short run(s); split at "
+        f"{c['reversals']} reversal(s) and {c['stalls_split']} stall(s)"
+    )
