@@ -93,8 +93,14 @@ def test_a_draft_from_the_shipped_eds_finds_every_object_of_the_shipped_profile(
 
 
 def test_every_role_a_requirement_needs_exists():
+    from hil.dut.profile import CALIBRATION_ROLES, COUNTERS, FILTER_ROLES
+    from hil.requirements import ROLE_GROUPS
+
     for rid, req in REQUIREMENTS.items():
         assert req.roles and set(req.roles) <= set(ROLES), rid
+    # the registry's role groups (hil.requirements may not import hil.dut) are the profile's
+    assert ROLE_GROUPS["calibration"] == (*CALIBRATION_ROLES, "calibration_apply")
+    assert (ROLE_GROUPS["filter settings"], ROLE_GROUPS["filter counters"]) == (FILTER_ROLES, COUNTERS)
 
 
 def _run(*args, timeout=600):

@@ -32,7 +32,8 @@
     y = "speed_rpm"
     budget = "commutation_angle_p99"            # default: the first budget
 
-Every error names the file and the key (``spec.toml: axis[1].linspace: ...``).
+Every error names the file and the key (``spec.toml: axis[1].linspace: ...``; an unknown key, as
+every TOML file's, in TOML's notation: ``spec.toml: [[axis]][1].step: unknown key ...``).
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ from typing import Any
 
 from bldc.contract import strategy_named
 from bldc.params import ConfigError
-from bldc.tomlfile import load_toml
+from bldc.tomlfile import ANY_KEY, load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 
@@ -123,10 +124,14 @@ def _table(where: str, v: Any) -> dict:
     return v
 
 
-def _only(where: str, table: dict, known: set[str]) -> None:
-    for key in table:
-        if key not in known:
-            raise ConfigError(f"{where}.{key}" if where else key, f"unknown key (known: {', '.join(sorted(known))})")
+#: the keys a SPEC may hold (bldc.tomlfile): ``[campaign.budgets]`` names any budget
+SCHEMA = {
+    "campaign": {"name": None, "seed": None, "kind": None, "plant": None, "budgets_file": None, "run_s": None,
+                 "repeats": None, "budgets": {ANY_KEY: None}},
+    "fixed": {"speed_rpm", "load_scale", "strategy", "effects", "fault", "fault_hold_s"},
+    "axis": [{"name", "values", "linspace", "pattern"}],
+    "map": {"x", "y", "budget"},
+}
 
 
 def _strategy(where: str, v: Any) -> str:
@@ -138,7 +143,6 @@ def _strategy(where: str, v: Any) -> str:
 
 
 def _axis(where: str, t: dict, kind: str) -> Axis:
-    _only(where, t, {"name", "values", "linspace", "pattern"})
     name = t.get("name")
     if not isinstance(name, str) or not name:
         raise ConfigError(
@@ -216,7 +220,7 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
 
 def load_spec(path: str | Path) -> CampaignSpec:
     path = Path(path)
-    data = load_toml(path)  # parse_spec checks every key
+    data = load_toml(path, SCHEMA)
     try:
         return parse_spec(data, path)
     except ConfigError as exc:
@@ -226,10 +230,9 @@ def load_spec(path: str | Path) -> CampaignSpec:
 
 
 def parse_spec(data: dict, path: Path) -> CampaignSpec:
-    """Validate the parsed TOML; errors name the key (``load_spec`` prefixes the file)."""
-    _only("", data, {"campaign", "fixed", "axis", "map"})
+    """Validate the values of a SPEC whose keys ``load_toml`` checked against ``SCHEMA``; errors
+    name the key (``load_spec`` prefixes the file)."""
     c = _table("campaign", data.get("campaign", {}))
-    _only("campaign", c, {"name", "seed", "kind", "plant", "budgets_file", "budgets", "run_s", "repeats"})
     name = c.get("name", path.stem)
     if not isinstance(name, str):
         raise ConfigError("campaign.name", "must be a string")
@@ -275,7 +278,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
         raise ConfigError("campaign.repeats", f"must be an integer >= 1, got {repeats!r}")
 
     f = _table("fixed", data.get("fixed", {}))
-    _only("fixed", f, {"speed_rpm", "load_scale", "strategy", "effects", "fault", "fault_hold_s"})
     speed = _number("fixed.speed_rpm", f.get("speed_rpm", 6000.0), 100.0, 30000.0)
     load = _number("fixed.load_scale", f.get("load_scale", 1.0), 0.0, 10.0)
     strategy = _strategy("fixed.strategy", f.get("strategy", "corrected"))
@@ -318,7 +320,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     mapspec = None
     if m is not None:
         _table("map", m)
-        _only("map", m, {"x", "y", "budget"})
         for key in ("x", "y"):
             if m.get(key) not in seen:
                 raise ConfigError(f"map.{key}", f"must name a swept axis ({', '.join(seen)}), got {m.get(key)!r}")
