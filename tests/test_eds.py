@@ -147,3 +147,25 @@ def test_the_docs_list_the_shipped_dictionary_as_it_is_served():
         listed = {t.split()[0] for t in types.split("/")}
         assert served == listed or (types.strip() == "mixed" and len(served) > 1), (index, served, types)
         assert {v.access_type for v in members} == {a.strip() for a in access.split("/")}, (index, access)
+
+
+def test_the_docs_list_the_shipped_register_map_as_it_is_served():
+    """The same for the Modbus face's table: each mapped register in a row of its object's type
+    and access, the mailbox where the profile puts it, and no row the map does not have."""
+    from hil.dut.profile import REPLY_WORDS, ROLES, mailbox_words, shipped
+
+    text = (ROOT / "docs" / "controller.md").read_text()
+    section = text[text.index("## Modbus face") :]
+    section = section[: section.index("\n## ", 1)]
+    rows = [(int(a), int(b or a), types, access) for a, b, types, access in
+            re.findall(r"^\| (\d+)(?:-(\d+))? \| [^|]+ \| ([^|]+) \| (ro|rw|wo) \|$", section, re.M)]
+    profile = shipped("modbus").bind(2)
+    hook = profile.edge_hook
+    mailbox = {(hook.reply_address, hook.reply_address + REPLY_WORDS - 1, "ro"),
+               (hook.request_address, hook.request_address + mailbox_words(profile) - 1, "wo")}
+    assert mailbox <= {(a, b, access) for a, b, _, access in rows}
+    listed = {r for a, b, _, _ in rows if (a, b) not in {(m[0], m[1]) for m in mailbox} for r in range(a, b + 1)}
+    assert listed == {r for o in profile.objects.values() for r in range(o.address, o.end)}
+    for o in profile.objects.values():
+        a, b, types, access = next(row for row in rows if row[0] <= o.address <= row[1])
+        assert o.type.upper() in types and access == {"r": "ro", "rw": "rw", "w": "wo"}[ROLES[o.role].access], o.role
