@@ -1,8 +1,11 @@
 """The contract between the controller and the framework: the one module both sides import.
 
 Everything that crosses the link is defined here and nowhere else: the commutation ``Command`` the
-plant executes, the ``Strategy`` codes, the ``Fault`` (EMCY) codes, the refusal of a calibration
-table, the nine-value filter-settings vector, and the edge and command messages. The
+plant executes, the ``Strategy`` codes and their names, the ``Fault`` (EMCY) codes and their names,
+the filter's counters, the refusal of a calibration table, the nine-value filter-settings vector,
+and the edge and command messages. Where a device keeps each of them (a CANopen index, a Modbus
+register) is not the contract's business: that is its device profile (``hil/dut/profiles``,
+docs/device-profiles.md). The
 controller (``hil.controller``) and the simulator (``plant_models``) both depend on this module and
 never on each other (``docs/architecture.md``). The wire layouts are in ``docs/controller.md``.
 
@@ -51,12 +54,26 @@ class Command:
 
 
 class Strategy(enum.IntEnum):
-    """How the controller commutates (the strategy role: hil/dut/profiles/virtual-*.toml)."""
+    """How the controller commutates (the device profile's ``strategy`` role says where a device keeps it)."""
 
     RAW = 0
     CORRECTED = 1
     KF = 2
     SAGE_HUSA = 3
+
+
+#: the strategies by the names files, device profiles, reports and the command line use:
+#: raw, corrected, kf, sage_husa
+STRATEGY_NAMES = {s.name.lower(): s for s in Strategy}
+
+
+def strategy_named(name: str) -> Strategy:
+    """The strategy called ``name``; ``sage-husa``, as stimulus files and campaign specs were once
+    written, reads as ``sage_husa``. ValueError names the known strategies."""
+    try:
+        return STRATEGY_NAMES[name.replace("-", "_") if isinstance(name, str) else name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown strategy {name!r} (known: {', '.join(STRATEGY_NAMES)})") from None
 
 
 class Fault(enum.IntEnum):
@@ -67,7 +84,20 @@ class Fault(enum.IntEnum):
     FILTER_GUARD_TRIP = 0xFF03
     INVALID_CALIBRATION = 0xFF04
     CAPTURE_TIMING = 0xFF05      #: a capture time that does not increase (edge discarded)
-    INTERNAL = 0x6100            #: CiA 301 internal software error
+    INTERNAL_ERROR = 0x6100      #: CiA 301 internal software error
+    INTERNAL = INTERNAL_ERROR    #: the same code under the shorter name the device faces raise it by
+
+
+#: the faults by the names device profiles use to map a device's own codes onto them:
+#: illegal_hall_code, missing_edge, filter_guard_trip, invalid_calibration, capture_timing, internal_error
+FAULT_NAMES = {f.name.lower(): f for f in Fault}
+
+#: the Sage-Husa filter's counters a controller exposes, in this order (docs/controller.md): edges
+#: the innovation gate held back, covariance matrices repaired (an eigenvalue floor on R or P),
+#: divergence fades, and Q estimates projected onto their band
+FILTER_COUNTERS = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
+#: the counter of every guard intervention of the filter (the sum of all guards)
+GUARD_TRIPS = "guard_trips"
 
 
 class CalibrationTableError(ValueError):
@@ -91,7 +121,7 @@ class FilterSettingsVector(Protocol):
 
 
 def filter_vector(settings: FilterSettingsVector) -> list[float]:
-    """The nine filter settings every link carries (the filter_* roles of a device profile), in order."""
+    """The nine filter settings every link carries, in order (the profile's filter_* roles say where)."""
     return [settings.forgetting_b, *settings.q0_diag, *settings.r0_diag, *settings.p0_diag]
 
 

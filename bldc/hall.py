@@ -50,6 +50,13 @@ for _s in range(6):
 del _s
 
 
+def sector_of_levels(levels) -> int:
+    """The forward sector of one set of Hall line levels (A, B, C; 0 or 1 each), -1 for the
+    illegal codes: the scalar form of ``SECTOR_OF_CODE[hall_code(levels)]`` for code that sees
+    one edge at a time (the controller)."""
+    return int(SECTOR_OF_CODE[(int(levels[0]) << 2) | (int(levels[1]) << 1) | int(levels[2])])
+
+
 def ideal_edge_angle_deg_e(sensor: np.ndarray, boundary: np.ndarray) -> np.ndarray:
     """Unwrapped electrical angle at which magnet boundary ``boundary`` passes ``sensor``."""
     return 180.0 * np.asarray(boundary, dtype=float) + SENSOR_POSITION_DEG_E[np.asarray(sensor)]

@@ -10,6 +10,7 @@ A budgets TOML file holds one table per budget and any number of ``[[waiver]]`` 
     marginal = 0.4         # optional: beyond this, still passing but marginal
     kind = "max"           # or "min": the measured value must reach the limit
     description = "..."
+    limit_source = "..."   # optional: where the limit comes from (a specification, a datasheet)
 
     [[waiver]]
     requirement = "REQ-ROB-002"
@@ -23,7 +24,8 @@ A budgets TOML file holds one table per budget and any number of ``[[waiver]]`` 
     reason = "Modbus device: no heartbeat, no EMCY"
     owner = "name or role"
 
-The built-in defaults are ``default_budgets.toml`` beside this module. Checking a measurement
+The built-in defaults are each requirement's default budgets in the requirement registry
+(``hil.requirements``); a file is laid over them. Checking a measurement
 gives a Verdict (measured, limit, margin, pass / marginal / fail); asserting it raises
 BudgetExceeded with a message a person understands.
 """
@@ -32,11 +34,13 @@ from __future__ import annotations
 
 import datetime
 import math
-import tomllib
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from bldc.params import ConfigError
+from bldc.tomlfile import ANY_KEY, load_toml
+
+from .requirements import REQUIREMENTS
 
 
 @dataclass(frozen=True)
@@ -48,6 +52,7 @@ class Budget:
     kind: str = "max"
     marginal: float | None = None
     description: str = ""
+    limit_source: str = ""  #: where the limit's value comes from (hil.requirements.DefaultBudget)
 
 
 @dataclass(frozen=True)
@@ -84,81 +89,7 @@ class BudgetExceeded(AssertionError):
         super().__init__(verdict.message())
 
 
-#: the requirement catalogue: what each ID means (budgets add their own descriptions)
-REQUIREMENTS = {
-    "REQ-CAL-001": "Installation deviations of the Hall sensors are removed by the pre-calibration (paper Eq. 1-5)",
-    "REQ-CAL-002": "Magnet-pole deviations are removed by the pre-calibration (paper Eq. 6)",
-    "REQ-CAL-003": "Conditioning-circuit (RC) delays are removed, rising and falling edges apart (paper Eq. 7-8)",
-    "REQ-CAL-004": "Armature-reaction deviation is removed as a function of phase current",
-    "REQ-CAL-005": "The calibration table is downloaded, applied and read back exactly; an invalid table is refused",
-    "REQ-COMM-001": "Corrected commutation lands within the angle budget over the speed range",
-    "REQ-PRED-001": "The Sage-Husa predictor meets the commutation budgets in the paper's speed-step scenario",
-    "REQ-PRED-002": "The Sage-Husa predictor is no worse than the fixed-noise Kalman filter",
-    "REQ-PRED-003": "The Sage-Husa predictor adapts its noise statistics to the measured edge noise",
-    "REQ-PROT-001": "The controller identifies itself (vendor, product, revision, serial, firmware)",
-    "REQ-PROT-002": "CANopen: heartbeat at the period of 0x1017; EMCY and 0x1001/0x1003 on a fault",
-    "REQ-PROT-003": "Bad requests get the standard's answer (SDO abort codes, Modbus exception codes)",
-    "REQ-FLT-001": "An illegal Hall code (000/111) raises fault 0xFF01",
-    "REQ-FLT-002": "A missing edge raises fault 0xFF02",
-    "REQ-FLT-003": "A Hall sensor drop-out is detected as a fault",
-    "REQ-FLT-004": "A filter guard trip raises fault 0xFF03",
-    "REQ-FLT-005": "No fault is raised on a healthy run",
-    "REQ-ROB-001": "Any combination of bounded deviations, once calibrated, meets the commutation budget",
-    "REQ-ROB-002": "Faults switched on and off while running are reported and recovered from",
-    "REQ-CUR-001": "The phase current stays within the controller's current limit through a set-point step",
-    "REQ-CUR-002": "Calibrated commutation lowers the mean phase current against raw Hall commutation (paper 4.3)",
-    "REQ-SPD-001": "The controller's speed loop settles a set-point step without excessive overshoot",
-}
-
-_CALIBRATION = ("installation_offset", "pole_offset", "conditioning_delay_rise", "conditioning_delay_fall",
-                "armature_slope", "calibration_apply")
-_FILTER = ("filter_forgetting", "filter_q0", "filter_r0", "filter_p0")
-#: what each requirement's tests need of a device profile (hil.dut.profile roles, docs/device-profiles.md):
-#: ``roles``, ``edge_hook`` (edges reach the controller: the lockstep bench), ``fault_source`` (how
-#: faults are seen). A profile that lacks one makes the requirement "not testable with this profile".
-REQUIREMENT_NEEDS = {
-    **{f"REQ-CAL-00{k}": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True} for k in (1, 2, 3, 4)},
-    "REQ-CAL-005": {"roles": (*_CALIBRATION, "fault_code"), "edge_hook": False},
-    "REQ-COMM-001": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True},
-    "REQ-PRED-001": {
-        "roles": ("strategy", *_CALIBRATION, *_FILTER, "guard_trips", "gated_edges", "covariance_repairs",
-                  "divergence_fades", "band_projections"),
-        "edge_hook": True,
-    },
-    "REQ-PRED-002": {"roles": ("strategy", *_CALIBRATION, *_FILTER), "edge_hook": True},
-    "REQ-PRED-003": {"roles": ("strategy", *_CALIBRATION, *_FILTER, "filter_q_diag", "filter_r_diag"),
-                     "edge_hook": True},
-    "REQ-PROT-001": {"roles": ("identity_vendor", "identity_product", "identity_revision", "identity_serial")},
-    "REQ-PROT-002": {"roles": ("heartbeat_period", "error_register", "fault_code", *_CALIBRATION),
-                     "fault_source": "emcy"},
-    "REQ-PROT-003": {"roles": ("strategy",)},
-    **{f"REQ-FLT-00{k}": {"roles": ("strategy", *_CALIBRATION, "fault_code"), "edge_hook": True} for k in (1, 2, 3, 5)},
-    "REQ-FLT-004": {"roles": ("strategy", *_CALIBRATION, *_FILTER, "guard_trips", "fault_code"), "edge_hook": True},
-    "REQ-ROB-001": {"roles": ("strategy", *_CALIBRATION), "edge_hook": True},
-    "REQ-ROB-002": {"roles": ("strategy", *_CALIBRATION, "fault_code"), "edge_hook": True},
-    # judged on the plant's true currents and speed: the controller's own speed loop and set point
-    "REQ-CUR-001": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
-    "REQ-CUR-002": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
-    "REQ-SPD-001": {"roles": ("strategy", "speed_setpoint", *_CALIBRATION), "edge_hook": True},
-}
-
-
-def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list[str]:
-    """What a device profile lacks for ``requirements`` (``has_role(role)``, its edge hook kind, its
-    fault sources), one phrase each; empty when every requirement is testable through it."""
-    out: list[str] = []
-    for rid in sorted(set(requirements)):
-        need = REQUIREMENT_NEEDS.get(rid, {})
-        out += [f"role {r}" for r in need.get("roles", ()) if not has_role(r) and f"role {r}" not in out]
-        if need.get("edge_hook") and edge_hook == "none" and "an edge hook" not in out:
-            out.append("an edge hook")
-        if (src := need.get("fault_source")) and src not in fault_sources and f"fault source {src}" not in out:
-            out.append(f"fault source {src}")
-    return out
-
-
-DEFAULTS_TOML = Path(__file__).with_name("default_budgets.toml")
-_BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description"}
+_BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description", "limit_source"}
 _WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
 _SCOPE_KEYS = {"requirement", "reason", "owner", "expires"}
 
@@ -193,16 +124,11 @@ class Waiver:
         }
 
 
-def _check_table(table, where: str, what: str, known: set[str]) -> None:
-    if not isinstance(table, dict):
-        raise ConfigError(where, f"each {what} is a table")
-    for key in table:
-        if key not in known:
-            raise ConfigError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(known))})")
+#: what a budgets file may hold (bldc.tomlfile): any budget's table, waivers, out-of-scope entries
+_SCHEMA = {"waiver": [_WAIVER_KEYS], "out_of_scope": [_SCOPE_KEYS], ANY_KEY: _BUDGET_KEYS}
 
 
-def _waiver(table, where: str, today: datetime.date, keys=_WAIVER_KEYS, what: str = "[[waiver]]") -> Waiver:
-    _check_table(table, where, what, keys)
+def _waiver(table, where: str, today: datetime.date) -> Waiver:
     for key in ("requirement", "reason", "owner"):
         v = table.get(key)
         if not isinstance(v, str) or not v.strip():
@@ -238,13 +164,12 @@ def _waiver(table, where: str, today: datetime.date, keys=_WAIVER_KEYS, what: st
 
 
 def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
-    _check_table(table, where, "budget", _BUDGET_KEYS)
     for key in ("requirement", "unit", "limit"):
         if key not in table and inherited is None:
             raise ConfigError(f"{where}.{key}", "required")
     merged = asdict(inherited) if inherited is not None else {}
-    if "limit" in table and "marginal" not in table:
-        merged.pop("marginal", None)  # a marginal bound belongs to the limit it was set with
+    if "limit" in table:  # a marginal bound and a source belong to the limit they were set with
+        merged = {k: v for k, v in merged.items() if k not in ("marginal", "limit_source")}
     merged = {**merged, **table, "name": name}
     for key in ("limit", "marginal"):
         v = merged.get(key)
@@ -285,9 +210,13 @@ class Budgets:
 
     @classmethod
     def defaults(cls) -> "Budgets":
-        b = cls.from_toml(DEFAULTS_TOML, base=cls({}), name="hil/default_budgets.toml")
-        b.source = "defaults"
-        return b
+        """The built-in budgets: each requirement's default budgets in the registry (hil.requirements)."""
+        budgets = {}
+        for req in REQUIREMENTS.values():
+            for b in req.budgets:
+                table = {k: v for k, v in asdict(b).items() if k != "name"} | {"requirement": req.id}
+                budgets[b.name] = _budget(b.name, table, None, f"hil/requirements.py: {req.id}: {b.name}")
+        return cls(budgets, "defaults")
 
     @classmethod
     def from_toml(
@@ -299,30 +228,17 @@ class Budgets:
     ) -> "Budgets":
         """``path`` laid over ``base`` (default: the built-in defaults): its budgets override or add,
         its waivers add to the base's. Errors and waiver sources name the file as ``name`` (default: ``path``)."""
-        path = Path(path)
         where = name or str(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except OSError as exc:
-            raise ConfigError(where, f"cannot read: {exc.strerror}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(where, f"not valid TOML: {exc}") from None
+        data = load_toml(path, _SCHEMA, name=where)
         base = base if base is not None else cls.defaults()
         today = today or datetime.date.today()
         budgets, waivers = dict(base.budgets), list(base.waivers)
         for key, table in data.items():
             if key == "waiver":
-                if not isinstance(table, list):
-                    raise ConfigError(f"{where}: waiver", "waivers are an array of tables: write [[waiver]]")
                 waivers += [_waiver(t, f"{where}: [[waiver]][{i}]", today) for i, t in enumerate(table)]
             elif key == "out_of_scope":
-                if not isinstance(table, list):
-                    raise ConfigError(f"{where}: out_of_scope", "an array of tables: write [[out_of_scope]]")
-                waivers += [
-                    replace(_waiver(t, f"{where}: [[out_of_scope]][{i}]", today, _SCOPE_KEYS, "[[out_of_scope]]"),
-                            kind="out of scope")
-                    for i, t in enumerate(table)
-                ]
+                waivers += [replace(_waiver(t, f"{where}: [[out_of_scope]][{i}]", today), kind="out of scope")
+                            for i, t in enumerate(table)]
             else:
                 budgets[key] = _budget(key, table, budgets.get(key), f"{where}: [{key}]")
         return cls(budgets, str(path), tuple(waivers))
@@ -352,8 +268,8 @@ class Budgets:
         return v
 
     def requirement_titles(self) -> dict[str, str]:
-        """Every requirement this run knows of: the catalogue, then the budgets' own descriptions."""
-        titles = dict(REQUIREMENTS)
+        """Every requirement this run knows of: the registry's statements, then the budgets' own descriptions."""
+        titles = {rid: req.statement for rid, req in REQUIREMENTS.items()}
         for b in self.budgets.values():
             titles.setdefault(b.requirement, b.description)
         return titles

@@ -264,24 +264,9 @@ def _write_json(path: str, data: dict) -> None:
     print(f"wrote {path}")
 
 
-def _print_verdict(d) -> None:
-    """The confounded pairs, the remainder and the held-out figure of a diagnosis."""
-    for pair in d.confounded:
-        print(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
-    print(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
-    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
-        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
-        print(
-            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%}-{hi:.1%}); "
-            f"{d.heldout_note}"
-        )
-    else:
-        print(f"  held-out: {d.heldout_note}")
-
-
 def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
-    from .gap.report import write_html
+    from .gap.report import format_text, write_html
 
     path = Path(args.recording)
     if path.is_dir():
@@ -303,97 +288,13 @@ def cmd_gap_diagnose(args) -> int:
             )
         mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
         rec = read_trace(args.recording, mapping, args.meta)
-    if rec.ordinary:
-        return _gap_diagnose_ordinary(rec, args)
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
-    print(
-        f"{args.recording}: gap {d.gap_before:.4g} ({d.gap_metric}), "
-        f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (edges: p = {d.p_value:.2g})"
-    )
-    for name, dom in d.samples.items():
-        shrink = (
-            f", held-out shrink {dom['heldout_shrink']:.1%}"
-            if dom["heldout_shrink"] is not None and dom["accepted"]
-            else ""
-        )
-        print(
-            f"  sampled {name}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
-            f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}"
-        )
-    for i, r in enumerate(d.ranking[:5], 1):
-        verdict = (
-            "   accepted"
-            if any(a["effect"] == r["effect"] for a in d.accepted)
-            else ("   below relevance" if r.get("below_relevance") else "")
-        )
-        print(f"  {i}. {r['effect']:<22} score {r['score']:.3f}{verdict}")
-    for a in d.accepted:
-        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
-    for b in d.below_relevance:
-        rel = b.get("relevance", {})
-        print(
-            f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor "
-            f"{rel.get('floor', float('nan')):.3g} "
-            f"{rel.get('unit', '')}: {rel.get('meaning', '')})"
-        )
-    _print_verdict(d)
+    print(format_text(d, str(args.recording)))
     if args.json:
-        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(d.to_json(), indent=2) + "\n")
-        print(f"diagnosis written to {args.json}")
+        _write_json(args.json, d.to_json())
     if args.html:
         write_html(args.html, str(args.recording), rec, d, model)
-        print(f"report written to {args.html}")
-    return 0
-
-
-def _gap_diagnose_ordinary(rec, args) -> int:
-    from .calibration.ordinary import hall_steps
-    from .gap.ordinary import diagnose_ordinary, write_html
-
-    if args.model:
-        print(
-            f"{args.recording}: --model is not used for an ordinary run (capture times only): the model is an ideal "
-            "motor with ideal sensors on a smooth speed trajectory",
-            file=sys.stderr,
-        )
-    d, parts = diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising))
-    extra = parts["extra"]
-    print(
-        f"{args.recording}: ordinary run, gap {d.gap_before:.4g} deg e (systematic edge-angle residual against an "
-        f"ideal motor on a smooth trajectory), {'SIGNIFICANT' if d.significant else 'within the noise floor'} "
-        f"(p = {d.p_value:.2g})"
-    )
-    print(f"  pole pairs: {extra['pole_pairs_source']}")
-    accepted = [a["effect"] for a in d.accepted]
-    for i, r in enumerate(d.ranking, 1):
-        mark = "   accepted" if r["effect"] in accepted else ""
-        print(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{mark}")
-    for a in d.accepted:
-        print(f"  accepted {a['effect']}: {json.dumps(a['params'])}")
-    _print_verdict(d)
-    rep = extra["repeatability"]
-    parts_rep = []
-    if "rise_fall_delay_difference_s" in rep:
-        a, b = rep["rise_fall_delay_difference_s"]
-        parts_rep.append(
-            f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
-        )
-    if "static_parameters_rms_difference_deg_e" in rep:
-        parts_rep.append(
-            f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their RMS "
-            f"{rep['static_parameters_rms_deg_e']:.3g})"
-        )
-    print(f"  split-half repeatability: {'; '.join(parts_rep) or rep.get('note', 'no figure')}")
-    for n in d.not_assessed:
-        print(f"  not assessed: {n}")
-    if args.json:
-        out = d.to_json()
-        out.update(extra)
-        _write_json(args.json, out)
-    if args.html:
-        write_html(args.html, str(args.recording), d, parts)
         print(f"report written to {args.html}")
     return 0
 
@@ -539,7 +440,7 @@ def cmd_dut_serve(args) -> int:
 def cmd_dut_check(args) -> int:
     """Read every readable object of the DUT's profile once (writes nothing) and say which
     requirements the profile makes testable; 1 when the device refuses an object."""
-    from .budgets import REQUIREMENTS, missing_needs
+    from .requirements import REQUIREMENTS, missing_needs
     from .dut.link import LinkError
     from .dut.profile import ROLES
     from .dut.spec import open_dut
@@ -792,19 +693,15 @@ def cmd_replay(args) -> int:
     return 0 if outcome.ok else 1
 
 
-def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="hil",
-        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
-    )
-    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-
+def _parser_demo(sub) -> None:
     p = sub.add_parser("demo", help="paper-bench run with paper-sized deviations; prints the edge errors")
     p.add_argument("--speed-rpm", type=float, default=5700.0)
     p.add_argument("--duration-s", type=float, default=0.5)
     p.add_argument("--out", default="reports/demo-recording", help="where to write the recording")
     p.set_defaults(func=cmd_demo)
 
+
+def _parser_recording(sub) -> None:
     p = sub.add_parser("recording", help="bench recordings (hil-recording/1)")
     rs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = rs.add_parser("check", help="validate a recording directory")
@@ -826,6 +723,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (written to meta.json)")
     q.set_defaults(func=cmd_recording_import)
 
+
+def _parser_plant(sub) -> None:
     p = sub.add_parser("plant", help="the plant model")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("simulate", help="write a kinematic-mode recording of steady operating points")
@@ -842,6 +741,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("plant")
     q.set_defaults(func=cmd_plant_check)
 
+
+def _parser_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
     p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
     p.add_argument("--json", help="write the corrections here")
@@ -863,6 +764,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", help="ordinary run: save sector width against speed, before and after calibration (PNG)")
     p.set_defaults(func=cmd_calibrate)
 
+
+def _parser_compare_correction(sub) -> None:
     p = sub.add_parser(
         "compare-correction", help="paper Section 4.3: raw versus corrected commutation on the paper bench"
     )
@@ -872,6 +775,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--plot", default="reports/headline-5700rpm.png")
     p.set_defaults(func=cmd_compare_correction)
 
+
+def _parser_table5(sub) -> None:
     p = sub.add_parser(
         "table5", help="paper Section 4.4: pre-calibration, KF and Sage-Husa predictors on the paper scenario"
     )
@@ -891,6 +796,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
 
+
+def _parser_predictors(sub) -> None:
     p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
@@ -900,6 +807,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
     q.set_defaults(func=cmd_predictors_compare)
 
+
+def _parser_gap(sub) -> None:
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
@@ -943,6 +852,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("--json", default="reports/gap-validate.json")
     q.set_defaults(func=cmd_gap_validate)
 
+
+def _parser_campaign(sub) -> None:
     p = sub.add_parser(
         "campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)"
     )
@@ -955,6 +866,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_campaign)
 
+
+def _parser_dut(sub) -> None:
     p = sub.add_parser("dut", help="the virtual controller (device under test)")
     ds = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ds.add_parser(
@@ -1000,6 +913,8 @@ def build_parser() -> argparse.ArgumentParser:
     q.add_argument("-o", "--output", help="write the draft here (default: standard output)")
     q.set_defaults(func=cmd_dut_profile)
 
+
+def _parser_acceptance(sub) -> None:
     p = sub.add_parser(
         "acceptance",
         help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports",
@@ -1020,6 +935,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
 
+
+def _parser_qualify(sub) -> None:
     p = sub.add_parser(
         "qualify",
         help="qualify the acceptance suite: run it against each seeded firmware defect of the built-in controller",
@@ -1038,6 +955,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--list", action="store_true", help="list the defects and exit")
     p.set_defaults(func=cmd_qualify)
 
+
+def _parser_replay(sub) -> None:
     p = sub.add_parser("replay", help="re-run a saved stimulus (a failing property-based example)")
     p.add_argument("file", help="stimulus JSON (reports/replays/*.json)")
     p.add_argument(
@@ -1046,13 +965,49 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.set_defaults(func=cmd_replay)
 
-    from .signals.cli import add_parser as add_signals_parser  # real-bench signals (docs/signals.md)
 
-    add_signals_parser(sub)
-
+def _parser_effects(sub) -> None:
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
     p.set_defaults(func=cmd_effects)
+
+
+def _parser_signals(sub) -> None:
+    from .signals.cli import add_parser  # real-bench signals (docs/signals.md)
+
+    add_parser(sub)
+
+
+#: every command's parser, in the order ``hil --help`` lists them: each function adds its one
+#: subparser (and its actions) to ``sub``; a new command adds its function here (one line), and
+#: a command of its own module registers with that module's ``add_parser``
+COMMAND_PARSERS = (
+    _parser_demo,
+    _parser_recording,
+    _parser_plant,
+    _parser_calibrate,
+    _parser_compare_correction,
+    _parser_table5,
+    _parser_predictors,
+    _parser_gap,
+    _parser_campaign,
+    _parser_dut,
+    _parser_acceptance,
+    _parser_qualify,
+    _parser_replay,
+    _parser_signals,
+    _parser_effects,
+)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="hil",
+        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for add in COMMAND_PARSERS:
+        add(sub)
     return parser
 
 

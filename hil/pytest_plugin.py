@@ -476,11 +476,11 @@ def hil_link(hil_dut, request):
 
 def _require_testable(item, link) -> None:
     """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source its
-    requirements need (hil.budgets.REQUIREMENT_NEEDS); a link without a profile has everything."""
+    requirements need (hil.requirements); a link without a profile has everything."""
     profile = getattr(link, "profile", None)
     if profile is None:
         return
-    from .budgets import missing_needs
+    from .requirements import missing_needs
 
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}
     params = getattr(getattr(item, "callspec", None), "params", {})

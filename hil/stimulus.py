@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bldc.contract import Strategy
+from bldc.contract import Strategy, strategy_named
 from bldc.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
@@ -25,8 +25,6 @@ from .calibration.campaign import station_corrections
 from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
 FORMAT = "hil-stimulus/1"
-#: strategy names of a stimulus (the controller's Strategy register values)
-STRATEGIES = {"raw": 0, "corrected": 1, "kf": 2, "sage-husa": 3}
 #: what a run measures, per kind (deg electrical): the commutation angle error's p99, RMS and
 #: maximum of |error| over the judged window; after a fault sequence, p99 in the recovery window
 METRICS = {"deviations": ("angle_p99", "angle_rms", "angle_max"), "fault_sequence": ("recovered_p99",)}
@@ -49,7 +47,7 @@ class Stimulus:
     plant: dict = field(
         default_factory=dict
     )  #: the nominal plant (PlantConfig.to_dict), so a replay needs nothing else
-    #: the controller's commutation strategy (raw, corrected, kf, sage-husa); faults always run corrected
+    #: the controller's commutation strategy (bldc.contract.STRATEGY_NAMES); faults always run corrected
     strategy: str = "corrected"
     #: budget name -> the measured metric it judges (METRICS); empty: the acceptance suite's budget of the kind
     budgets: dict = field(default_factory=dict)
@@ -76,10 +74,11 @@ class Stimulus:
             raise ValueError(f"{path}: unknown field(s) {', '.join(sorted(unknown))}")
         if data.get("kind") not in ("deviations", "fault_sequence"):
             raise ValueError(f"{path}: field 'kind' must be 'deviations' or 'fault_sequence', got {data.get('kind')!r}")
-        if data.get("strategy", "corrected") not in STRATEGIES:
-            raise ValueError(
-                f"{path}: field 'strategy' must be one of {', '.join(STRATEGIES)}, got {data.get('strategy')!r}"
-            )
+        try:
+            # the contract's spelling ("sage-husa", as replays were once written, reads as sage_husa)
+            data["strategy"] = strategy_named(data.get("strategy", "corrected")).name.lower()
+        except ValueError as exc:
+            raise ValueError(f"{path}: field 'strategy': {exc}") from None
         for name, metric in dict(data.get("budgets") or {}).items():
             if metric not in METRICS[data["kind"]]:
                 raise ValueError(
@@ -112,7 +111,8 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     # both kinds commutate on corrected edges with the station's tables for this plant
     link.reset()
     link.download_calibration(station_corrections(config, seed=stimulus.seed))
-    link.set_strategy(int(STRATEGIES[stimulus.strategy]) if stimulus.kind == "deviations" else int(Strategy.CORRECTED))
+    strategy = strategy_named(stimulus.strategy) if stimulus.kind == "deviations" else Strategy.CORRECTED
+    link.set_strategy(int(strategy))
     injector = FaultInjector(link)
     bench = LockstepBench(
         config,

@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import csv
 import tempfile
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from bldc.tomlfile import load_toml
 
 from .recording import (
     MAX_TABLE_BYTES,
@@ -53,14 +54,7 @@ class TraceMapping:
 
     @classmethod
     def from_toml(cls, path: str | Path) -> "TraceMapping":
-        try:
-            data = tomllib.loads(Path(path).read_text(encoding="utf-8-sig"))
-        except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-            raise RecordingError(path, None, None, f"mapping is not valid TOML: {exc}") from None
-        known = set(cls.__dataclass_fields__)
-        for key in data:
-            if key not in known:
-                raise RecordingError(path, None, key, f"unknown mapping key (known: {', '.join(sorted(known))})")
+        data = load_toml(path, set(cls.__dataclass_fields__))
         if "hall" in data:
             data["hall"] = tuple(data["hall"])
             if len(data["hall"]) != 3:

@@ -5,7 +5,6 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
-import tomllib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
@@ -14,6 +13,7 @@ import numpy as np
 
 from bldc.motor import MotorParameters
 from bldc.params import ConfigError, bounded, from_mapping, validate
+from bldc.tomlfile import load_toml
 
 from . import effects as fx
 from .compiled import CompiledPlant
@@ -124,12 +124,7 @@ class PlantConfig:
     @classmethod
     def from_toml(cls, path: str | Path) -> "PlantConfig":
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise ConfigError(str(path), f"not valid TOML: {exc}") from None
-        except OSError as exc:
-            raise ConfigError(str(path), f"cannot read: {exc.strerror}") from None
+        data = load_toml(path)  # from_dict knows the sections and parameters
         try:
             return cls.from_dict(data)
         except ConfigError as exc:

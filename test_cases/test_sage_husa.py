@@ -10,14 +10,13 @@ same plant and seed; every commutation is scored against the true rotor angle.
 import numpy as np
 import pytest
 
-from bldc.contract import Strategy
+from bldc.contract import FILTER_COUNTERS, Strategy
 from hil.bench import p99_abs, rms
 from hil.controller.virtual import VirtualController
 from hil.experiments.closed_loop import commutation_time_mape_pct
 from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
 from hil.plots import commutation_error_figure
 from hil.predictors import FilterSettings
-from hil.predictors.predictors import COUNTER_NAMES
 
 HOLD_S = 0.4
 JITTER_S = 3e-6
@@ -57,7 +56,7 @@ def run_strategies(calibrate, hil_bench, hil_link, strategies):
         _, trace, judged_from_s, err, mape = run_scenario(hil_bench, corrections, strategy)
         rows[strategy] = [strategy.name, err.size, rms(err), p99_abs(err), float(np.max(np.abs(err))), mape]
         traces[strategy.name] = trace
-        counters[strategy] = {k: hil_link.status()[k] for k in COUNTER_NAMES}
+        counters[strategy] = {k: hil_link.status()[k] for k in FILTER_COUNTERS}
     return rows, traces, judged_from_s, counters
 
 

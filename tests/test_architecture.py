@@ -34,6 +34,7 @@ GROUP_OF_PREFIX = {
     "hil.bench": "bench",
     "hil.stimulus": "bench",
     "hil.budgets": "verdicts",
+    "hil.requirements": "verdicts",
     "hil.report": "verdicts",
     "hil.report_html": "verdicts",
     "hil.progress": "verdicts",
@@ -223,3 +224,116 @@ def test_the_hall_geometry_is_written_once():
         if lit in path.read_text()
     ]
     assert not found, found
+
+
+def _hand_assembled_hall_codes(tree: ast.AST) -> list[int]:
+    """Lines that build a 3-bit Hall code by hand: a sum or bitwise or whose terms weigh lines by
+    4 and 2 (``a * 4 + b * 2 + c``, ``(a << 2) | (b << 1) | c``), or that index ``SECTOR_OF_CODE``
+    or a sector table of their own."""
+
+    def weights(node: ast.AST) -> set[int]:
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.BitOr)):
+            return weights(node.left) | weights(node.right)
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Mult, ast.LShift)):
+            for c in (node.left, node.right):
+                if isinstance(c, ast.Constant) and isinstance(c.value, int):
+                    return {c.value if isinstance(node.op, ast.Mult) else 1 << c.value}
+        return set()
+
+    lines = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.BinOp) and isinstance(node.op, (ast.Add, ast.BitOr)) and {4, 2} <= weights(node):
+            lines.append(node.lineno)
+        elif isinstance(node, (ast.Name, ast.Attribute)) and (
+            getattr(node, "id", None) or getattr(node, "attr", "")
+        ) in ("SECTOR_OF_CODE", "SECTOR_STATES", "_SECTOR_OF_STATE"):
+            lines.append(node.lineno)
+    return sorted(set(lines))
+
+
+def test_no_module_outside_the_core_decodes_hall_codes():
+    """Issue 31: Hall codes are decoded in ``bldc`` only (``bldc.hall.sector_of_levels`` for one
+    edge at a time, ``bldc.edges.decode_edges`` for captured edges); nothing under ``hil/``
+    assembles a code or reads a code table. The check itself is checked on the forms it replaced."""
+    for form in ("s = T[a * 4 + b * 2 + c]", "s = (a << 2) | (b << 1) | c", "s = SECTOR_OF_CODE[x]"):
+        assert _hand_assembled_hall_codes(ast.parse(form)), form
+    assert not _hand_assembled_hall_codes(ast.parse("n = 1 << 20; m = 2 * k + 1"))
+    found = [
+        f"{path.relative_to(ROOT)}:{line}"
+        for module, path in MODULES.items()
+        if module.startswith("hil")
+        for line in _hand_assembled_hall_codes(ast.parse(path.read_text()))
+    ]
+    assert not found, f"Hall codes decoded outside bldc: {found}"
+
+
+def _tomllib_uses(path: Path) -> list[int]:
+    """Lines of ``path`` that import tomllib or call it (an alias or ``from tomllib import loads`` included)."""
+    lines = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import) and any(a.name.split(".")[0] in ("tomllib", "tomli") for a in node.names):
+            lines.append(node.lineno)
+        elif isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] in ("tomllib", "tomli"):
+            lines.append(node.lineno)
+    return lines
+
+
+def test_toml_files_are_read_only_through_the_strict_loader():
+    """bldc.tomlfile.load_toml is the one reader of TOML (one error type naming file, table and key;
+    unknown keys refused): no other module of the project, tests and tools included, uses tomllib."""
+    helper = ROOT / "bldc" / "tomlfile.py"
+    sources = [p for p in ROOT.rglob("*.py") if not any(part.startswith(".") for part in p.relative_to(ROOT).parts)]
+    assert helper in sources and _tomllib_uses(helper)  # the rule sees the one module that may
+    wrong = [f"{p.relative_to(ROOT)}:{line}" for p in sources if p != helper for line in _tomllib_uses(p)]
+    assert not wrong, "tomllib used outside bldc/tomlfile.py (read with load_toml): " + ", ".join(wrong)
+
+
+#: names bldc.contract defines once (strategies, filter counters, faults): no other module lists them.
+#: family -> (its names, names one of which a list must hold to be a copy, whether dict keys count):
+#: the predictors' own names (kf, sage_husa beside precal, pll, ...) are another list, and a
+#: figure's style by run label is no list of strategies
+_CONTRACT_NAME_FAMILIES = {
+    "strategies": ({"raw", "corrected", "kf", "sage_husa", "sage-husa"}, {"raw", "corrected"}, False),
+    "filter counters": ({"guard_trips", "gated_edges", "covariance_repairs", "divergence_fades", "band_projections"},
+                        None, True),
+    "faults": ({"illegal_hall_code", "missing_edge", "filter_guard_trip", "invalid_calibration", "capture_timing",
+                "internal_error"}, None, True),
+}
+
+
+def _name_lists(path: Path) -> list[tuple[int, str]]:
+    """(line, family) of each tuple, list or set literal (or dict's keys) in ``path`` that spells two
+    or more names of a family the contract owns: a second copy of the list, which drifts."""
+    found = []
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, (ast.Tuple, ast.List, ast.Set)):
+            items, keys = node.elts, False
+        elif isinstance(node, ast.Dict):
+            items, keys = [k for k in node.keys if k is not None], True
+        else:
+            continue
+        words = {e.value for e in items if isinstance(e, ast.Constant) and isinstance(e.value, str)}
+        for family, (names, marks, dict_keys) in _CONTRACT_NAME_FAMILIES.items():
+            # a list of the family (most of its words are the family's), not a table of other things
+            # that names a few of them among many (the draft's phrases per profile role)
+            mostly = 2 * len(words & names) >= len(words)
+            if len(words & names) >= 2 and mostly and (marks is None or words & marks) and (dict_keys or not keys):
+                found.append((node.lineno, family))
+    return found
+
+
+def test_strategy_counter_and_fault_names_are_listed_only_in_the_contract():
+    contract = MODULES["bldc.contract"]
+    assert {f for _, f in _name_lists(contract)} >= {"filter counters"}  # the rule sees the list where it belongs
+    wrong = [f"{p.relative_to(ROOT)}:{line}: {family}" for m, p in MODULES.items() if p != contract
+             for line, family in _name_lists(p)]
+    assert not wrong, "import these names from bldc.contract: " + ", ".join(wrong)
+
+
+def test_the_contract_states_no_device_address():
+    """Where a device keeps the strategy or the filter settings is its profile's business (a copy in
+    the contract's text drifted: it said 0x2010 and register 10 for what sits at 0x2000 and 0)."""
+    import re
+
+    text = MODULES["bldc.contract"].read_text()
+    assert not re.findall(r"0x2[0-9A-Fa-f]{3}|(?:Modbus|holding) registers? \d", text)

@@ -4,8 +4,13 @@ import math
 
 import pytest
 
-from hil.budgets import BudgetExceeded, Budgets
+from pathlib import Path
+
+from hil.budgets import Budget, BudgetExceeded, Budgets
+from hil.requirements import DOCS, GENERATED, REQUIREMENTS, rendered
 from plant_models import ConfigError
+
+SUITE = Path(__file__).resolve().parents[1] / "test_cases"
 
 
 def test_verdicts_and_margins():
@@ -105,16 +110,75 @@ def test_the_defaults_are_consistent():
         assert budget.limit >= 0 and budget.requirement.startswith("REQ-")
 
 
-def test_every_built_in_waiver_names_a_test_of_the_acceptance_suite():
-    """A renamed test must not leave a waiver behind that waives nothing (or, worse, something else)."""
-    from pathlib import Path
+def test_the_defaults_are_the_registrys_budgets_each_under_its_requirement():
+    defaults = Budgets.defaults()
+    declared = [(b.name, rid) for rid, r in REQUIREMENTS.items() for b in r.budgets]
+    assert len({name for name, _ in declared}) == len(declared), "a budget name declared twice in the registry"
+    assert {n: b.requirement for n, b in defaults.budgets.items()} == dict(declared)
+    assert defaults.waivers == ()  # a built-in default never waives: waivers are the user's, in a budgets file
+    titles = defaults.requirement_titles()
+    assert all(titles[rid] == r.statement for rid, r in REQUIREMENTS.items())
 
-    suite = "\n".join(p.read_text() for p in (Path(__file__).resolve().parents[1] / "test_cases").glob("test_*.py"))
-    for w in Budgets.defaults().waivers:
-        assert w.tests, f"{w.source}: a built-in waiver is limited to the tests it is meant for"
-        for name in w.tests:
-            assert f"def {name}(" in suite, f"{w.source}: no test {name} in test_cases/"
-        assert w.source.startswith("hil/default_budgets.toml: [[waiver]]") and len(w.reason) > 40
+
+def test_a_limit_of_a_budgets_file_drops_the_defaults_marginal_bound_and_source(tmp_path):
+    base = Budgets({"x": Budget("x", "REQ-X-001", "deg_e", 1.0, marginal=0.8, limit_source="spec 4.2")})
+    path = tmp_path / "b.toml"
+    path.write_text('[x]\nunit = "rad"\n')
+    kept = Budgets.from_toml(path, base=base)["x"]
+    assert (kept.unit, kept.marginal, kept.limit_source) == ("rad", 0.8, "spec 4.2")
+    path.write_text("[x]\nlimit = 2.0\n")
+    changed = Budgets.from_toml(path, base=base)["x"]
+    assert (changed.limit, changed.marginal, changed.limit_source) == (2.0, None, "")
+    path.write_text('[x]\nlimit = 2.0\nlimit_source = "our datasheet, table 3"\n')
+    assert Budgets.from_toml(path, base=base)["x"].limit_source == "our datasheet, table 3"
+
+
+def _traced_in_the_suite() -> dict[str, list[str]]:
+    """Requirement ID -> the test files of test_cases/ that name it (a marker or a parameter)."""
+    import ast
+    import re
+
+    out: dict[str, list[str]] = {}
+    for path in sorted(SUITE.glob("test_*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.Constant) and isinstance(node.value, str) and re.fullmatch(
+                r"REQ-[A-Z]+-\d{3}", node.value
+            ):
+                out.setdefault(node.value, []).append(path.name)
+    return out
+
+
+def test_every_requirement_has_a_test_and_every_traced_id_is_a_requirement():
+    """Adding a requirement is one registry entry and its test: neither goes without the other."""
+    traced = _traced_in_the_suite()
+    untested, unknown = set(REQUIREMENTS) - set(traced), set(traced) - set(REQUIREMENTS)
+    assert not untested, f"no test in test_cases/ traces to {sorted(untested)}"
+    assert not unknown, f"test_cases/ traces to IDs the registry lacks: {sorted(unknown)}"
+    for rid, r in REQUIREMENTS.items():  # the test file the registry names is one that traces to it
+        named = {f for f in traced[rid] if f"`{f}" in r.tested_by}
+        assert named, f"{rid}: tested_by names none of {traced[rid]}"
+
+
+def _github_anchor(heading: str) -> str:
+    """GitHub's anchor of a markdown heading: lower case, punctuation other than - and _ dropped, spaces to -."""
+    import re
+
+    return re.sub(r"[^\w\- ]", "", heading.strip().lower()).replace(" ", "-")
+
+
+def test_every_requirements_doc_anchor_is_a_heading_of_its_page():
+    for rid, r in REQUIREMENTS.items():
+        page, _, anchor = r.doc.partition("#")
+        headings = [line.lstrip("#") for line in (DOCS / page).read_text().splitlines() if line.startswith("#")]
+        assert anchor in {_github_anchor(h) for h in headings}, f"{rid}: no heading of docs/{page} is #{anchor}"
+
+
+@pytest.mark.parametrize("page", sorted(GENERATED))
+def test_the_docs_tables_are_the_registrys(page):
+    """docs/acceptance.md's requirement table and docs/budgets.md's defaults are generated from the
+    registry (``python -m hil.requirements`` rewrites them)."""
+    text = (DOCS / page).read_text()
+    assert rendered(page, text) == text, f"docs/{page} differs from the registry: run python -m hil.requirements"
 
 
 WAIVER = '[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms"\nowner = "controls team"\n'

@@ -304,3 +304,22 @@ def test_fault_sweep_records_what_acted_and_what_was_reported(tmp_path):
     assert all("0xff01" in codes.split(",") for codes in table["fault_codes"]), table["fault_codes"].tolist()
     assert (table["recovered_commutation_angle_p99.measured"] == table["recovered_p99_deg_e"]).all()
     assert set(table["verdict"]) <= {"pass", "marginal"}, table[["verdict", "message"]].to_string()
+
+
+def test_strategy_names_are_the_contracts_and_the_old_spelling_still_reads(tmp_path):
+    """bldc.contract spells the strategies once (sage_husa); a spec or a replay written with
+    "sage-husa" reads as sage_husa, and an unknown name is refused naming the known ones."""
+    from bldc.contract import STRATEGY_NAMES, Strategy
+    from hil.stimulus import Stimulus
+
+    assert list(STRATEGY_NAMES) == ["raw", "corrected", "kf", "sage_husa"]
+    spec = load_spec(write_spec(tmp_path, SPEC.replace('strategy = "raw"', 'strategy = "sage-husa"')))
+    assert spec.fixed_strategy == "sage_husa" and STRATEGY_NAMES[spec.fixed_strategy] == Strategy.SAGE_HUSA
+    with pytest.raises(ConfigError, match=r"fixed.strategy: unknown strategy 'fast' \(known: raw, corrected, kf, "):
+        load_spec(write_spec(tmp_path, SPEC.replace('strategy = "raw"', 'strategy = "fast"')))
+    replay = tmp_path / "replay.json"
+    stim = point_stimulus(spec, points(spec)[0])
+    stim.save(replay)
+    data = json.loads(replay.read_text())
+    replay.write_text(json.dumps({**data, "strategy": "sage-husa"}))
+    assert Stimulus.load(replay).strategy == "sage_husa"

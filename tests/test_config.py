@@ -148,3 +148,36 @@ def test_pole_strategies_follow_pole_count(effects):
     from plant_models import MotorParameters
 
     PlantConfig(motor=MotorParameters(pole_pairs=3), effects=tuple(effects))
+
+
+def test_the_strict_toml_loader_names_file_line_table_and_key(tmp_path):
+    """bldc.tomlfile.load_toml: one error type for every TOML file, saying where in TOML's own notation."""
+    from bldc.tomlfile import ANY_KEY, TomlError, load_toml
+
+    path = tmp_path / "f.toml"
+    schema = {"top": {"inner": {"x"}}, "w": [{"a", "b"}], ANY_KEY: {"limit"}}
+    cases = [
+        ("[top.inner]\ny = 1\n", "[top.inner]", "y", "unknown key (known: x)"),
+        ("[[w]]\na = 1\n[[w]]\nc = 2\n", "[[w]][1]", "c", "unknown key (known: a, b)"),
+        ("[w]\na = 1\n", None, "w", "an array of tables: write [[w]]"),
+        ("[anything]\nlimt = 1\n", "[anything]", "limt", "unknown key (known: limit)"),
+        ("top = 3\n", None, "top", "must be a table ([top]), got 3"),
+    ]
+    for text, table, key, words in cases:
+        path.write_text(text)
+        with pytest.raises(TomlError) as info:
+            load_toml(path, schema)
+        e = info.value
+        assert (e.file, e.table, e.key) == (str(path), table, key) and words in str(e), str(e)
+        assert str(e).startswith(f"{path}: {table + '.' if table else ''}{key}: "), str(e)
+    path.write_text('a = 1\n\n[b\n')
+    with pytest.raises(TomlError, match="not valid TOML") as info:
+        load_toml(path)
+    assert info.value.line == 3 and isinstance(info.value, ConfigError)
+    path.write_bytes("\ufeffa = 'é'\n".encode())  # a byte-order mark is tolerated, the text is UTF-8
+    assert load_toml(path, {"a"}) == {"a": "é"}
+    path.write_bytes(b"a = '\xe9'\n")
+    with pytest.raises(TomlError, match="not UTF-8"):
+        load_toml(path)
+    with pytest.raises(TomlError, match="cannot read"):
+        load_toml(tmp_path / "missing.toml")

@@ -12,8 +12,9 @@ import ast
 import importlib.metadata
 import re
 import sys
-import tomllib
 from pathlib import Path
+
+from bldc.tomlfile import load_toml
 
 ROOT = Path(__file__).resolve().parents[1]
 TEST_DIRS = ("tests", "test_cases")
@@ -29,7 +30,7 @@ def _distribution_name(requirement: str) -> str:
 
 
 def declared_distributions() -> set[str]:
-    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    project = load_toml(ROOT / "pyproject.toml")["project"]
     requirements = project["dependencies"] + project["optional-dependencies"]["test"]
     declared = {_distribution_name(r) for r in requirements}
     # extras pull further distributions in: dask[distributed] brings distributed

@@ -1,6 +1,7 @@
 """Sim-to-real gap diagnosis: inject, withhold, diagnose, score (against the injected truth)."""
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -498,3 +499,69 @@ def test_progress_moves_smoothly_on_a_file():
     lines = out.getvalue().splitlines()
     assert len(lines) == 11 and lines[-1].startswith("  100/100 recordings diagnosed (100%)")  # one line per 10 %
     assert "left" in lines[5]
+
+
+# --- the one selection engine (hil/gap/selection.py) -------------------------------------------
+
+
+def _toy_engine(gains: dict[str, tuple[float, int]], chi2_0: float = 20000.0, n_obs: int = 100):
+    """An engine run on candidates that each remove a fixed chi-square with k parameters."""
+    from hil.gap.selection import Trial, forward_select
+
+    def try_add(fitted, name):
+        removed = sum(gains[n][0] for n in fitted) + gains[name][0]
+        return Trial(name, chi2_0 - removed, gains[name][1], True)
+
+    return forward_select(list(gains), try_add, chi2_0, n_obs, lambda fitted, t: 1.0)
+
+
+def test_engine_gives_a_tie_within_noise_to_fewer_parameters():
+    # a gain of 10,000 carries a noise of about 200: 10,150 with 3 parameters is not better
+    sel = _toy_engine({"small": (10000.0, 2), "big": (10150.0, 3)})
+    assert sel.fitted == ["small"] and sel.ties == [["small", "big"]]
+    sel = _toy_engine({"small": (10000.0, 2), "big": (11000.0, 3)})
+    assert sel.fitted == ["big"] and sel.ties == []
+
+
+def test_engine_names_a_rival_confounded_only_when_its_refit_earns_nothing():
+    from hil.gap.selection import BIC_MIN, confounded_rivals
+
+    sel = _toy_engine({"a": (1000.0, 1), "b": (950.0, 1)})
+    assert sel.fitted == ["a"]
+    # the rival explains 95 % as much alone; refitted after "a" it removes 2 more (nothing) or 500
+    assert confounded_rivals(sel, ["a"], ["a", "b"], lambda m: sel.chi2_end - 2.0) == [["a", "b"]]
+    assert confounded_rivals(sel, ["a"], ["a", "b"], lambda m: sel.chi2_end - 50 * BIC_MIN) == []
+
+
+def test_heldout_interval_resamples_blocks_and_holds_the_estimate():
+    from hil.gap.selection import BlockSums, heldout_shrink
+
+    rng = np.random.default_rng(3)
+    block = np.repeat(np.arange(10), 8)
+    n = np.full(block.size, 50.0)
+    before = rng.normal(2.0, 0.3, block.size)
+    # the effects remove 90 % of the gap in most blocks, none in one: the interval must show it
+    after = np.where(block == 4, before, 0.1 * before)
+    res = heldout_shrink(BlockSums.of(block, n, before), BlockSums.of(block, n, after), seed=1)
+    assert res.blocks == 10
+    assert res.interval[0] < res.shrink < res.interval[1]
+    # one block where nothing shrinks: resamples without it reach 90 %, with it twice fall far below
+    assert res.interval[0] < res.shrink - 0.1 and res.interval[1] > 0.85, (res.shrink, res.interval)
+    g0 = np.sqrt(np.sum(n * before**2) / n.sum())
+    assert abs(res.before - g0) < 1e-12
+
+
+def test_report_prints_named_parameters_with_units_and_errors(tmp_path):
+    from hil.gap.report import format_text, param_rows
+
+    rec, _ = make_case(["conditioning_delay"], snr=6.0, seed=4)
+    d = diagnose(rec, KNOWN_MODEL)
+    row = next(a for a in d.accepted if a["effect"] == "conditioning_delay")
+    rows = {r["parameter"]: r for r in param_rows(row)}
+    assert rows["rise delay"]["unit"] == "us" and rows["rise delay"]["stderr"]
+    # the table's value is the fit's, in us, to 4 significant digits
+    assert float(rows["rise delay"]["value"]) == pytest.approx(row["params"]["rise_delay_s"] * 1e6, rel=1e-3)
+    text = format_text(d, "rec")
+    assert "{" not in text and not re.search(r"\d{7,}", text)
+    assert "share alone" in text
+    assert sum(r.get("share_added", 0.0) for r in d.ranking) <= 1.0 + 1e-9

@@ -69,18 +69,6 @@ def test_slot_calibration_recovers_the_simulated_per_slot_deviations():
     np.testing.assert_allclose(dev, want - want.mean(), atol=0.05)  # the effects are 0.5-2.6 deg e
 
 
-def test_recording_edges_drop_a_bounce():
-    """A bounce (A rises, falls back, rises again) advances the rotor once: one edge kept."""
-    seg = [Segment("s", 0.0, 1.0, "forward", 0.0, 0.0, 1.0)]
-    # forward sequence of 6 edges, then a bounce on the next one
-    sensor = np.array([0, 2, 1, 0, 2, 1, 0, 0, 0, 2])
-    rising = np.array([1, 0, 1, 0, 1, 0, 1, 0, 1, 0], dtype=bool)
-    t = np.arange(sensor.size) * 1e-3
-    rec = Recording({"pole_pairs": 1}, seg, t, sensor, rising, np.zeros(t.size, dtype=np.int64))
-    e = peers.recording_edges(rec)
-    assert e.dropped == 2 and e.t_s.size == 8 and e.direction == 1
-
-
 @pytest.fixture(scope="module")
 def spindle(tmp_path_factory):
     return vcd_recording(SPINDLE, tmp_path_factory.mktemp("rec") / "spindle")

@@ -80,8 +80,8 @@ class DesignMatrix:
     """The joint model of the edge errors (paper Eq. 1-6 with the armature term): one column per
     identifiable deviation, and for each one the recording cannot determine, the reason."""
 
-    columns: np.ndarray              #: (edges, parameters)
-    names: list[tuple[str, int]]     #: (kind, index) of each column: inst / pole / rise / fall / arm
+    columns: np.ndarray  #: (edges, parameters)
+    names: list[tuple[str, int]]  #: (kind, index) of each column: inst / pole / rise / fall / arm
     undetermined: dict[str, str]
 
 

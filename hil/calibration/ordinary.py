@@ -21,31 +21,23 @@ common part of the two delays, armature reaction) is listed as not determined, n
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
+from bldc import edges
+
 from .corrections import SENSORS
+from .uncertainty import MODEL_WEIGHT_IGNORED, bic_weight, block_starts, robust_fit, with_model_choice
 
-#: Hall state (bit 0 = A, bit 1 = B, bit 2 = C) of each forward sector [60 i, 60 i + 60) deg e:
-#: A rises at 0, C falls at 60, B rises at 120, A falls at 180, C rises at 240, B falls at 300
-SECTOR_STATES = (5, 1, 3, 2, 6, 4)
-_SECTOR_OF_STATE = np.full(8, -1, dtype=np.int64)
-_SECTOR_OF_STATE[list(SECTOR_STATES)] = np.arange(6)
-#: sensor at boundary 60 m deg e, by m mod 3 (A at 0/180, C at 60/240, B at 120/300) ...
-SENSOR_OF_BOUNDARY = np.array([0, 2, 1])
-#: ... and that sensor's position in units of 60 deg e (A 0, B 120, C 240)
-_SENSOR_POSITION_60 = np.array([0, 4, 2])
-
-#: a one-edge excursion of the direction whose shorter interval is below this fraction of the
-#: neighbouring sector times is a glitch (a line bouncing), not a rotor that rocked back
-GLITCH_FRACTION = 0.1
-#: a sector this many times longer than both neighbours is a stall: the trajectory is split there
-STALL_FACTOR = 4.0
+#: the edge decoding (bit order, glitches, invalid states, stalls, reversals) is ``bldc.edges``
+SENSOR_OF_BOUNDARY = edges.SENSOR_OF_BOUNDARY
+HallSteps = edges.HallSteps
+pole_of_boundary = edges.pole_of_boundary
 #: runs shorter than this (edges) are not fitted: four electrical cycles
-MIN_RUN_EDGES = 24
+MIN_RUN_EDGES = edges.MIN_RUN_EDGES
 #: spline knot spacing, electrical cycles: wide enough that the 6-edge pattern of the sensors is
 #: not absorbed by the trajectory (its knots are 4 pattern periods apart), narrow enough to follow
 #: a speed cycle of the captures (the speed changes by a few percent per knot interval)
@@ -68,128 +60,13 @@ class OrdinaryRunError(ValueError):
     """The capture cannot be analysed; the message says why."""
 
 
-@dataclass
-class HallSteps:
-    """The captured edges read as steps of the Hall state."""
-
-    t_s: np.ndarray
-    sensor: np.ndarray
-    rising: np.ndarray
-    direction: np.ndarray  #: +1 forward (A, B, C), -1 reverse, 0 dropped
-    boundary: np.ndarray  #: unwrapped boundary index m: the edge is at 60 m deg e (ideal)
-    run: np.ndarray  #: run of constant direction and no stall; -1 dropped
-    glitches: int = 0
-    invalid_states: int = 0
-    stalls: int = 0
-    reversals: int = 0
-    short_runs_dropped: int = 0
-
-    @property
-    def label(self) -> np.ndarray:
-        return np.mod(self.boundary, 6)
-
-    def used(self) -> np.ndarray:
-        return self.run >= 0
-
-
 def hall_steps(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray) -> HallSteps:
-    """Direction, boundary and run of every edge; glitches, invalid states and stalls removed."""
-    t_s, sensor, rising = np.asarray(t_s, float), np.asarray(sensor, np.int64), np.asarray(rising, bool)
-    n = t_s.size
-    if n < MIN_RUN_EDGES:
-        raise OrdinaryRunError(f"only {n} edges: at least {MIN_RUN_EDGES} (four electrical cycles) are needed")
-    state = 0
-    for x in range(3):
-        idx = np.nonzero(sensor == x)[0]
-        if idx.size == 0:
-            raise OrdinaryRunError(f"no edge of sensor {SENSORS[x]}: three Hall lines are needed")
-        if not rising[idx[0]]:
-            state |= 1 << x  # its first edge falls: it was high before
-    states = np.empty(n, dtype=np.int64)
-    consistent = np.ones(n, dtype=bool)
-    for k in range(n):  # a plain loop: some 0.1 s per million edges is not worth vectorising
-        bit = 1 << int(sensor[k])
-        consistent[k] = bool(state & bit) != bool(rising[k])  # a rise must find the line low
-        state = state | bit if rising[k] else state & ~bit
-        states[k] = state
-    sector = _SECTOR_OF_STATE[states]
-    prev = np.concatenate([[_SECTOR_OF_STATE[_initial_state(states[0], sensor[0], rising[0])]], sector[:-1]])
-    step = np.mod(sector - prev, 6)
-    ok = consistent & (sector >= 0) & (prev >= 0)
-    direction = np.where(ok & (step == 1), 1, np.where(ok & (step == 5), -1, 0))
-    invalid = int(np.sum(direction == 0))
-    # glitches: a single edge against the direction, undone at once
-    dt = np.diff(t_s, prepend=t_s[0])
-    glitches = 0
-    for k in (
-        np.nonzero((direction[1:-1] != 0) & (direction[1:-1] == -direction[:-2]) & (direction[2:] == direction[:-2]))[0]
-        + 1
-    ):
-        if direction[k] == 0 or direction[k - 1] == 0:
-            continue
-        local = np.median(dt[max(1, k - 6) : k + 7])
-        before, after = dt[k], dt[k + 1]
-        if min(before, after) < GLITCH_FRACTION * local:
-            pair = (k - 1, k) if before < after else (k, k + 1)
-            direction[list(pair)] = 0
-            glitches += 1
-    # unwrapped boundary: a forward step enters sector u + 1 across boundary u + 1; a reverse
-    # step leaves sector u across boundary u; dropped edges move the count as the states say
-    boundary = np.zeros(n, dtype=np.int64)
-    u = int(prev[0]) if prev[0] >= 0 else 0
-    for k in range(n):
-        if direction[k] > 0:
-            u += 1
-            boundary[k] = u
-        elif direction[k] < 0:
-            boundary[k] = u
-            u -= 1
-        elif sector[k] >= 0:
-            d = int(np.mod(sector[k] - np.mod(u, 6), 6))
-            u += {0: 0, 1: 1, 5: -1}.get(d, 0)
-    # runs: constant direction, no stall in between
-    run = np.full(n, -1, dtype=np.int64)
-    kept = np.nonzero(direction != 0)[0]
-    stalls = reversals = short = 0
-    if kept.size:
-        tk = t_s[kept]
-        gap = np.diff(tk)
-        new = np.zeros(kept.size, dtype=bool)
-        new[0] = True
-        rev = direction[kept][1:] != direction[kept][:-1]
-        new[1:] |= rev
-        reversals = int(rev.sum())
-        # consecutive kept edges must be neighbours (a dropped edge between breaks the run)
-        new[1:] |= np.abs(np.diff(boundary[kept])) != 1
-        if gap.size > 2:
-            left = np.concatenate([[np.inf], gap[:-1]])
-            right = np.concatenate([gap[1:], [np.inf]])
-            stall = (gap > STALL_FACTOR * left) & (gap > STALL_FACTOR * right)
-            stall |= (gap > STALL_FACTOR * np.minimum(left, right)) & ~np.isfinite(np.maximum(left, right))
-            stalls = int(np.sum(stall & ~rev))
-            new[1:] |= stall
-        rid = np.cumsum(new) - 1
-        sizes = np.bincount(rid)
-        keep_run = sizes[rid] >= MIN_RUN_EDGES
-        short = int(np.sum(sizes < MIN_RUN_EDGES))
-        remap = np.full(sizes.size, -1)
-        good = np.nonzero(sizes >= MIN_RUN_EDGES)[0]
-        remap[good] = np.arange(good.size)
-        run[kept[keep_run]] = remap[rid[keep_run]]
-    return HallSteps(t_s, sensor, rising, direction, boundary, run, glitches, invalid, stalls, reversals, short)
-
-
-def _initial_state(after: int, sensor: int, rising: bool) -> int:
-    """The Hall state before the first edge, from the state after it."""
-    bit = 1 << int(sensor)
-    return after & ~bit if rising else after | bit
-
-
-def pole_of_boundary(boundary: np.ndarray, pole_pairs: int) -> np.ndarray:
-    """The magnet pole boundary (0 .. 2p-1) that boundary 60 m deg e is: the sensor there sits at
-    60 s, the boundaries of the magnet pass it every 180 deg e."""
-    m = np.asarray(boundary)
-    return np.mod((m - _SENSOR_POSITION_60[np.mod(m, 3)]) // 3, 2 * pole_pairs)
+    """The capture's edges decoded by ``bldc.edges.decode_edges`` (runs of four electrical cycles
+    or more kept); a capture that cannot be read raises ``OrdinaryRunError``."""
+    try:
+        return edges.decode_edges(t_s, sensor, rising, min_run_edges=MIN_RUN_EDGES)
+    except edges.HallEdgeError as e:
+        raise OrdinaryRunError(f"{e} (four electrical cycles)" if "edges:" in str(e) else str(e)) from None
 
 
 def _sum_zero_basis(k: int) -> np.ndarray:
@@ -214,6 +91,15 @@ class Fit:
     #: per used edge, the part of ``trail_deg_e`` that the sensors cause (the rotor's own speed
     #: ripple left out: a calibration corrects sensors, not the rotor)
     sensor_trail_deg_e: np.ndarray | None = None
+    #: per contiguous stretch of the used edges (``uncertainty.block_starts``), its share of the
+    #: effects' normal equations: the score (effect columns, splines projected out, times the
+    #: weighted residuals; rows sum to about zero) and the information (those columns' cross
+    #: product; they sum to ``information``): what a block covariance is built from
+    block_score: np.ndarray | None = None
+    block_information: np.ndarray | None = None
+    information: np.ndarray | None = None
+    #: how ``cov`` was obtained (``uncertainty.robust_fit`` replaces the least-squares one)
+    stderr_method: str = "weighted least squares (white residuals)"
 
     def get(self, name: str) -> tuple[float, float]:
         i = self.names.index(name)
@@ -346,7 +232,7 @@ def fit_ordinary(
     tau = np.full(idx.size, np.nan)
     # first guess of tau: the local sector time (mean of the two sectors around each edge) / 60 deg
     for sel, _ in blocks:
-        tau[sel] = np.maximum(np.gradient(t[sel]), 1e-9) / 60.0
+        tau[sel] = 1.0 / (360.0 * edges.electrical_speed_hz(t[sel], window_sectors=2))
     tau_data = tau.copy()
     sigma = np.ones(idx.size)
     fixed_part = np.zeros(idx.size)
@@ -370,6 +256,7 @@ def fit_ordinary(
         w = keep / sigma
         sol = _solve(s_mat, e_cols, y, w)
         resid = y - s_mat @ sol[:n_spline] - e_cols @ sol[n_spline:]
+        solved = (s_mat, e_cols, w, resid)
         # noise per speed band: quantisation and jitter grow differently with speed
         sigma = _band_sigma(resid, tau, keep, tick_s)
         # outliers (a missed edge, a bump): beyond 6 robust sd, left out of the next pass
@@ -392,11 +279,14 @@ def fit_ordinary(
         dof = max(int(keep.sum()) - n_spline - e_cols.shape[1], 1)
         s2 = float(np.sum((resid * w) ** 2)) / dof
         cov = s2 * _effect_precision_inv(s_mat, e_cols, w)
+    # residuals are shrunk by the parameters fitted (a spline coefficient every few cycles): the
+    # same degrees-of-freedom factor as the least-squares variance
+    blocks = _block_parts(*solved, np.sqrt(float(keep.sum()) / dof))
     e_cols, _ = effect_columns(steps, idx, tau, eff)
     trail_s = e_cols @ coef if fixed_from is None else fixed_part
     sensor = np.array([not n.startswith("ripple_") for n in names], dtype=bool)
     sensor_s = e_cols[:, sensor] @ coef[sensor] if fixed_from is None and names else trail_s
-    return Fit(names, coef, cov, resid, tau, idx, sigma, trail_s / tau, outliers, sensor_s / tau)
+    return Fit(names, coef, cov, resid, tau, idx, sigma, trail_s / tau, outliers, sensor_s / tau, *blocks)
 
 
 def _schur(s_mat, e_cols: np.ndarray, w: np.ndarray):
@@ -432,6 +322,20 @@ def _effect_precision_inv(s_mat, e_cols: np.ndarray, w: np.ndarray) -> np.ndarra
     return linalg.pinvh(m)
 
 
+def _block_parts(s_mat, e_cols: np.ndarray, w: np.ndarray, resid: np.ndarray, resid_scale: float):
+    """Per contiguous stretch of the edges: the effects' score and information (the effect columns
+    weighted, with the splines projected out), and the whole information."""
+    p = e_cols.shape[1]
+    starts = block_starts(resid.size)
+    if not p or starts.size < 2:
+        return None, None, None
+    sw, ew, _, _, z_b, m = _schur(s_mat, e_cols, w)
+    projected = ew - np.asarray(sw @ z_b)
+    score = np.add.reduceat(projected * (resid_scale * w * resid)[:, None], starts, axis=0)
+    info = np.stack([a.T @ a for a in np.split(projected, starts[1:])])
+    return score, info, m
+
+
 def _band_sigma(resid: np.ndarray, tau: np.ndarray, keep: np.ndarray, tick_s: float | None) -> np.ndarray:
     """Robust noise sd per decile of tau (speed), floored at the timer's quantisation."""
     out = np.empty(resid.size)
@@ -452,13 +356,7 @@ def _band_sigma(resid: np.ndarray, tau: np.ndarray, keep: np.ndarray, tick_s: fl
 
 def speed_hz_e(steps: HallSteps) -> np.ndarray:
     """Electrical speed (Hz) at each used edge, from its neighbours (for reporting)."""
-    f = np.full(steps.t_s.size, np.nan)
-    for r in np.unique(steps.run[steps.run >= 0]):
-        idx = np.nonzero(steps.run == r)[0]
-        t = steps.t_s[idx]
-        g = np.gradient(t)
-        f[idx] = 1.0 / (6.0 * np.maximum(g, 1e-12))
-    return f
+    return edges.electrical_speed_hz(steps.t_s, window_sectors=2, run=steps.run)
 
 
 @dataclass
@@ -530,21 +428,6 @@ class Circuit:
             f"default {DEFAULT_DELAY_MAX_S * 1e6:.0f} us (open-collector Hall outputs with pull-up and filter "
             "capacitor; state the circuit to narrow it)"
         )
-
-
-@dataclass
-class OrdinaryCalibration:
-    """Everything ``hil calibrate`` reports for an ordinary run."""
-
-    steps: HallSteps
-    fit: Fit
-    pole_pairs: int | None
-    pole_pairs_source: str
-    assumptions: dict = field(default_factory=dict)
-    result: dict = field(default_factory=dict)
-    refused: list[dict] = field(default_factory=list)
-    undetermined: dict[str, str] = field(default_factory=dict)
-    independent: IndependentDelay | None = None
 
 
 def choose_pole_pairs(
@@ -646,7 +529,11 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     v = np.array([a for a, _ in vals])
     s = np.array([b for _, b in vals])
     w = 1.0 / np.maximum(s, 1e-12) ** 2
-    return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
+    mean = float(np.sum(w * v) / np.sum(w))
+    # the two directions measure one sensor: where they disagree beyond their errors (a misfit that
+    # depends on the direction), the error is scaled up by the Birge ratio (the PDG's scale factor)
+    birge = np.sqrt(max(1.0, float(np.sum(w * (v - mean) ** 2)) / max(v.size - 1, 1)))
+    return mean, float(birge / np.sqrt(np.sum(w)))
 
 
 def pole_table_refusal(poles: list[float]) -> dict | None:
@@ -682,12 +569,20 @@ def calibrate_ordinary(
     # shows it (BIC), never written as a correction
     ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
     n_used = int(steps.used().sum())
-    ripple = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used) > 10.0
+    ripple_gain = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used)
+    ripple = ripple_gain > 10.0
     # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
     # constant angle: their standard errors may grow by half at most
     ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
-    if ripple:
-        fit = ripple_fit
+    # standard errors that hold under correlated residuals, and under the ripple model not taken
+    # where the data do not rule it out (uncertainty.py)
+    ripple_weight = bic_weight(ripple_gain)
+    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
+    other_what = (
+        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
+    )
+    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
+    fit = with_model_choice(robust_fit(fit), other, other_weight, other_what)
     used = steps.used()
     f_hz = speed_hz_e(steps)
     lo, hi = (float(v) for v in np.percentile(f_hz[used], [5, 95]))
@@ -751,7 +646,14 @@ def calibrate_ordinary(
     poles: list[float] = []
     poles_se: list[float] = []
     if pole_pairs:
-        pf = fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
+        pf = robust_fit(
+            fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
+        )
+        if other_weight >= MODEL_WEIGHT_IGNORED:
+            pf_other = fit_ordinary(
+                steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
+            )
+            pf = with_model_choice(pf, pf_other, other_weight, other_what)
         z = _sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)
@@ -827,6 +729,7 @@ def calibrate_ordinary(
         "refused": refused,
         "undetermined": undetermined,
         "uncertainty": {"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
+        "stderr_method": fit.stderr_method,
         "conditioning_delay_table": {},
         "independent_estimate": None
         if ind is None

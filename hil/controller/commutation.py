@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bldc.contract import Command
-from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E, hall_state
+from bldc.hall import SENSOR_POSITION_DEG_E, hall_state, sector_of_levels
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_rad_per_s
 
 from ..calibration.corrections import Corrections
@@ -149,7 +149,7 @@ class HallCommutation:
         self._history.append((t, x, rising, boundary))
         if len(self._history) > 64:
             del self._history[:-64]
-        sector = int(SECTOR_OF_CODE[self._seen[0] * 4 + self._seen[1] * 2 + self._seen[2]])
+        sector = sector_of_levels(self._seen)
         if sector < 0:
             return []
         if sector == self._last_sector:

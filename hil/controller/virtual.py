@@ -15,15 +15,14 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import CalibrationTableError, Command, Fault, Strategy
-from bldc.hall import SECTOR_OF_CODE
+from bldc.contract import FILTER_COUNTERS, GUARD_TRIPS, CalibrationTableError, Command, Fault, Strategy
+from bldc.hall import sector_of_levels
 from bldc.motor import MotorParameters, steady_state
 from bldc.units import rad_e_per_s_to_rpm
 
 from ..calibration.corrections import SENSORS, Corrections
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
 from ..predictors import filters as F
-from ..predictors.predictors import COUNTER_NAMES
 from .adc import edge_currents
 from .commutation import HallCommutation, SpeedPI
 
@@ -213,7 +212,7 @@ class VirtualController:
             return []  # a capture stamp that does not increase cannot be an edge of this rotor
         edge_currents(edge, self._applied_delay_s(bool(edge["rising"])))
         self._bits[int(edge["sensor"])] = 1 if edge["rising"] else 0
-        sector = int(SECTOR_OF_CODE[self._bits[0] * 4 + self._bits[1] * 2 + self._bits[2]])
+        sector = sector_of_levels(self._bits)
         self._sensors_seen.add(int(edge["sensor"]))
         rotor_motion = True
         if len(self._sensors_seen) == 3:  # the Hall state is known once every sensor has switched
@@ -305,8 +304,8 @@ class VirtualController:
             else float(est),
             "q_diag": [float(v) for v in np.diag(p.q_matrix)] if p is not None else [0.0, 0.0, 0.0],
             "r_diag": [float(v) for v in np.diag(p.r_matrix)] if p is not None else [0.0, 0.0],
-            "guard_trips": int(sum(p.guards.values())) if p is not None else 0,
-            **(p.counters if p is not None else dict.fromkeys(COUNTER_NAMES, 0)),
+            GUARD_TRIPS: int(sum(p.guards.values())) if p is not None else 0,
+            **(p.counters if p is not None else dict.fromkeys(FILTER_COUNTERS, 0)),
             "last_predicted_commutation_s": float(self._logic.last_prediction_s),
             "error_register": self.error_register,
             "faults": list(self.faults),

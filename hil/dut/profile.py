@@ -16,11 +16,11 @@ from __future__ import annotations
 
 import math
 import struct
-import tomllib
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from bldc.contract import Fault, Strategy
+from bldc.contract import FAULT_NAMES, FILTER_COUNTERS, GUARD_TRIPS, STRATEGY_NAMES
+from bldc.tomlfile import load_toml
 
 FORMAT = "hil-device-profile/1"
 PROFILES_DIR = Path(__file__).with_name("profiles")
@@ -68,15 +68,6 @@ UNITS = {
     "none": ("none", 1.0),
 }
 
-STRATEGY_NAMES = {s.name.lower(): int(s) for s in Strategy}  # raw, corrected, kf, sage_husa
-FAULT_NAMES = {
-    "illegal_hall_code": Fault.ILLEGAL_HALL_CODE,
-    "missing_edge": Fault.MISSING_EDGE,
-    "filter_guard_trip": Fault.FILTER_GUARD_TRIP,
-    "invalid_calibration": Fault.INVALID_CALIBRATION,
-    "capture_timing": Fault.CAPTURE_TIMING,
-    "internal_error": Fault.INTERNAL,
-}
 
 
 @dataclass(frozen=True)
@@ -121,7 +112,7 @@ def _roles() -> dict[str, Role]:
     return {r.name: r for r in rows}
 
 
-COUNTERS = ("guard_trips", "gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
+COUNTERS = (GUARD_TRIPS, *FILTER_COUNTERS)
 #: the staged calibration roles in the order of ``Corrections.as_vector``
 CALIBRATION_ROLES = ("installation_offset", "pole_offset", "conditioning_delay_rise", "conditioning_delay_fall",
                      "armature_slope")
@@ -260,7 +251,7 @@ class DeviceObject:
         if self.values is not None:
             names = {v: k for k, v in self.values.items()}
             name = names.get(int(raw))
-            return STRATEGY_NAMES[name] if name is not None else None
+            return int(STRATEGY_NAMES[name]) if name is not None else None
         if self.type not in ("float32", "float64") and (self.scale, self.offset, self.unit) == (1.0, 0.0, "none"):
             return int(raw)  # a count, a code, an identity: an integer stays one
         u = float(raw) * self.scale + self.offset
@@ -427,16 +418,8 @@ def _choice(v, where: str, choices) -> str:
 
 
 def load_profile(path: str | Path) -> Profile:
-    """Parse a profile file strictly (``ProfileError`` names file, table and key)."""
-    path = Path(path)
-    where = str(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except OSError as exc:
-        raise ProfileError(where, f"cannot read: {exc.strerror}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise ProfileError(where, f"not valid TOML: {exc}") from None
-    return parse_profile(data, where)
+    """Parse a profile file strictly: ``ProfileError`` (``TomlError`` for the file itself) names file, table and key."""
+    return parse_profile(load_toml(path), str(path))  # parse_profile checks every key
 
 
 def parse_profile(data: dict, where: str) -> Profile:

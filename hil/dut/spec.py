@@ -143,11 +143,13 @@ def _check_eds(text: str, path: str) -> None:
 
 def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
     """A profile that cannot be read, or is for the other protocol, is refused before anything opens."""
+    from bldc.tomlfile import TomlError
+
     from .profile import ProfileError, load_profile
 
     try:
         profile = load_profile(path)
-    except ProfileError as exc:
+    except (ProfileError, TomlError) as exc:
         raise DutSpecError(f"--hil-dut {text!r}: profile {exc}") from None
     protocol = transport if kind == "virtual" else ("canopen" if kind == "canopen" else "modbus")
     if protocol == "in-process":

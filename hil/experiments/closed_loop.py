@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from bldc.contract import Strategy, edge_as_received, filter_vector, with_filter_vector
+from bldc.contract import FILTER_COUNTERS, Strategy, edge_as_received, filter_vector, with_filter_vector
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
@@ -27,7 +27,7 @@ from ..controller.adc import edge_currents
 from ..controller.virtual import VirtualController
 from ..dut.spec import open_dut
 from ..predictors.model import MotorModel
-from ..predictors.predictors import COUNTER_NAMES, SageHusaPredictor, split_counters
+from ..predictors.predictors import SageHusaPredictor, split_counters
 from .table5 import SETPOINTS_RPM, scenario_plant
 
 LINKS = ("in-process", "canopen", "modbus")
@@ -88,7 +88,7 @@ class Recording:
 
     def replay(self, predictor) -> tuple[np.ndarray, dict[str, int]]:
         """The commutation angle error of ``predictor`` replaying the recorded edges (a fresh
-        run), and its counters (``COUNTER_NAMES``)."""
+        run), and its counters (``FILTER_COUNTERS``)."""
         run = predictor.run(self.t_corrected_s, self.cycle_current_a)
         return (run.pred_t_s[self.judged] - self.t_ideal_next_s) * self.w_true_next_deg_e_s, split_counters(run.guards)
 
@@ -190,7 +190,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         t_ideal_next_s=edges.t_ideal_s[k + 1],
         w_true_next_deg_e_s=rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs),
         closed_loop_error_deg_e=c.error_deg_e[c.t_s >= steps[0]],
-        counters={key: int(status[key]) for key in COUNTER_NAMES},
+        counters={key: int(status[key]) for key in FILTER_COUNTERS},
     )
 
 

@@ -408,34 +408,21 @@ class RecordingEdges:
 
 
 def recording_edges(rec) -> RecordingEdges:
-    """The edges a predictor can use from a recording: the Hall code is rebuilt from the edges
-    (a line's level before its first edge is the opposite of that edge's polarity), each edge
-    moves the sector by +-1; in the recording's main direction an edge that does not take the
-    rotor past the furthest sector reached is a bounce or a reversal and is dropped, so each
-    kept edge is the next sector boundary, 60 deg e after the last."""
-    from bldc.hall import SECTOR_OF_CODE
+    """The edges a predictor can use from a recording: the longest run of rotor steps that
+    ``bldc.edges.decode_edges`` reads from it (constant direction, no stall; bounces and invalid
+    states removed), so each kept edge is the next sector boundary, 60 deg e after the last."""
+    from bldc.edges import HallEdgeError, decode_edges, longest_run
 
-    sensor, rising = np.asarray(rec.sensor, dtype=int), np.asarray(rec.rising, dtype=bool)
-    level = np.zeros(3, dtype=int)
-    for s in range(3):
-        first = np.nonzero(sensor == s)[0]
-        if first.size == 0:
-            raise ValueError(f"{getattr(rec, 'path', 'recording')}: sensor {'ABC'[s]} has no edge")
-        level[s] = 0 if rising[first[0]] else 1
-    sector = np.empty(sensor.size, dtype=int)
-    for k in range(sensor.size):
-        level[sensor[k]] = int(rising[k])
-        sector[k] = SECTOR_OF_CODE[level[0] * 4 + level[1] * 2 + level[2]]
-    if np.any(sector < 0):
-        k = int(np.nonzero(sector < 0)[0][0])
-        raise ValueError(f"{getattr(rec, 'path', 'recording')}: edge {k} leaves an illegal Hall code (000 or 111)")
-    step = (np.diff(sector) + 3) % 6 - 3            # -1, +1 (a +-2 or 3 step is a lost edge)
-    pos = np.concatenate(([0], np.cumsum(np.where(np.abs(step) == 1, step, 0))))
-    direction = 1 if pos[-1] >= pos[0] else -1
-    furthest = np.maximum.accumulate(direction * pos)
-    keep = np.concatenate(([True], direction * pos[1:] > furthest[:-1]))
-    t = np.asarray(rec.t_s, dtype=float)[keep]
-    return RecordingEdges(t, (2 * sensor + rising.astype(int))[keep], int(np.count_nonzero(~keep)), direction)
+    try:
+        steps = decode_edges(rec.t_s, rec.sensor, rec.rising)
+    except HallEdgeError as e:
+        raise ValueError(f"{getattr(rec, 'path', 'recording')}: {e}") from None
+    idx = longest_run(steps)
+    if not idx.size:
+        raise ValueError(f"{getattr(rec, 'path', 'recording')}: no run of rotor steps long enough to use")
+    sensor, rising = steps.sensor[idx], steps.rising[idx]
+    return RecordingEdges(steps.t_s[idx], 2 * sensor + rising.astype(int), int(steps.t_s.size - idx.size),
+                          int(steps.direction[idx[0]]))
 
 
 def slot_deviation_deg_e(t: np.ndarray, slot: np.ndarray) -> np.ndarray:

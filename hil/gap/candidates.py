@@ -18,6 +18,15 @@ class Candidate:
     columns: Callable[[dict], np.ndarray]            #: cells -> (n_cells, k)
     params: Callable[[np.ndarray], dict]             #: coefficients -> effect parameters
     physical: Callable[[np.ndarray, np.ndarray], bool]  #: (coef, stderr) -> plausible?
+    #: (coef, stderr) -> standard errors of the parameters; None: the parameters are linear in the
+    #: coefficients, so they are ``params(stderr)``
+    param_stderr: Callable[[np.ndarray, np.ndarray], dict] | None = None
+
+    def stderr(self, coef: np.ndarray, se: np.ndarray) -> dict:
+        """Standard errors of ``params(coef)`` (model-based: from the weighted fit of the cells)."""
+        if self.param_stderr is not None:
+            return self.param_stderr(coef, se)
+        return {k: (np.abs(v).tolist() if isinstance(v, list) else abs(v)) for k, v in self.params(se).items()}
 
     @property
     def fingerprint(self) -> dict:
@@ -41,6 +50,15 @@ def _eccentricity(c):
     n = 2 * c["pole_pairs"]
     ang = 2 * np.pi * c["pole"] / n
     return np.column_stack([c["direction"] * np.sin(ang), c["direction"] * np.cos(ang)])
+
+
+def _eccentricity_stderr(k, se):
+    """First-order propagation of the sine and cosine coefficients' errors to amplitude and phase."""
+    amp = max(float(np.hypot(*k)), 1e-300)
+    return {
+        "amplitude_deg_e": float(np.hypot(k[0] * se[0], k[1] * se[1]) / amp),
+        "phase_rad": float(np.hypot(k[1] * se[0], k[0] * se[1]) / amp**2),
+    }
 
 
 def _delay(c):
@@ -72,6 +90,7 @@ CANDIDATES: dict[str, Candidate] = {
             "phase_rad": float(np.mod(np.arctan2(k[1], k[0]), 2 * np.pi)),
         },
         lambda c, se: bool(np.hypot(*c) <= 3 + 3 * np.hypot(*se)),
+        _eccentricity_stderr,
     ),
     "hysteresis": Candidate(
         "hysteresis", lambda c: np.ones((c["sensor"].size, 1)), lambda k: {"lag_deg_e": float(k[0])}, _not_below(0.0)

@@ -25,15 +25,23 @@ from scipy.optimize import nnls
 from hil.recording import Recording
 
 from .candidates import CANDIDATES
-from .fitting import cell_rms, heldout_shrink
+from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import edge_relevance, jitter_relevance
 from .residuals import EdgeResiduals, model_prediction, residuals
 from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
+from .selection import (
+    ALPHA,
+    BlockSums,
+    Selection,
+    Trial,
+    confounded_rivals,
+    equal_within_noise,
+    forward_select,
+    heldout_shrink,
+)
 
-ALPHA = 1e-3          # significance of a gap against the noise floor
-BIC_MIN = 10.0        # minimum BIC improvement for an effect to earn its place
-CONFOUND_RATIO = 0.9  # a rival explaining >= 90 % as much, with near-collinear columns, is confounded
+__all__ = ["ALPHA", "Diagnosis", "diagnose", "equal_within_noise", "knob"]
 
 
 @dataclass
@@ -49,6 +57,12 @@ class Cells:
     @property
     def weight(self) -> np.ndarray:
         return self.n_eff / self.var
+
+    def subset(self, keep: np.ndarray) -> "Cells":
+        """The cells ``keep`` (a boolean mask) alone: what a held-out check trains on."""
+        feats = {k: (v[keep] if isinstance(v, np.ndarray) else v) for k, v in self.features.items()}
+        n, n_eff, var, dof = self.n[keep], self.n_eff[keep], self.var[keep], self.dof[keep]
+        return Cells(self.mean[keep], n, n_eff, var, feats, self.edge_cell, dof)
 
 
 def build_cells(r: EdgeResiduals) -> Cells:
@@ -144,9 +158,24 @@ class Diagnosis:
     samples: dict = field(default_factory=dict)
     below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, too small to matter
     gap_metric: str = "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
+    #: "segments" (a recording with operating points) or "ordinary run" (capture times only)
+    route: str = "segments"
+    pole_pairs: int | None = None
+    pole_pairs_source: str = "stated in the recording"
+    knot_cycles: float | None = None  #: an ordinary run's trajectory knot spacing (electrical cycles)
+    remainder_p_value: float | None = None  #: the remainder after the kept effects, against the noise floor
+    repeatability: dict = field(default_factory=dict)  #: an ordinary run's split-half figures
+    ranking_bic_gain: dict[str, float] = field(default_factory=dict)  #: BIC gain of each candidate alone
 
     def to_json(self) -> dict:
         return {
+            "route": self.route,
+            "pole_pairs": self.pole_pairs,
+            "pole_pairs_source": self.pole_pairs_source,
+            "knot_cycles": self.knot_cycles,
+            "remainder_p_value": self.remainder_p_value,
+            "repeatability": self.repeatability,
+            "ranking_bic_gain": self.ranking_bic_gain,
             "significant": self.significant,
             "ranking": self.ranking,
             "accepted": self.accepted,
@@ -170,120 +199,79 @@ class Diagnosis:
         }
 
 
-def explained_noise_sd(gain: float, k: int) -> float:
-    """Standard deviation of an explained chi-square: under noise it is non-central chi-square
-    with k degrees of freedom and non-centrality about ``gain``, variance 2 (k + 2 gain)."""
-    return math.sqrt(2.0 * (k + 2.0 * max(gain, 0.0)))
-
-
-def equal_within_noise(gain_a: float, k_a: int, gain_b: float, k_b: int) -> bool:
-    """Two candidates explain the same within noise: their explained chi-squares differ by less
-    than twice the larger one's standard deviation."""
-    return abs(gain_a - gain_b) <= 2.0 * max(explained_noise_sd(gain_a, k_a), explained_noise_sd(gain_b, k_b))
-
-
 @dataclass
-class Selection:
-    fitted: list[str]  #: every effect the forward selection kept (fit and remainder)
-    below: dict[str, dict]  #: of those, the ones below practical relevance (name -> relevance)
-    relevance: dict[str, dict]  #: relevance of every fitted effect
-    first: dict[str, dict]  #: single-effect rows (score, delta_bic, physical, params, k)
-    ties: list[list[str]]  #: (chosen, rival) equal within noise, the chosen has fewer parameters
-    chi2_0: float
-    chi2_end: float
+class EdgeSelection:
+    sel: Selection  #: the engine's selection (order, single-effect trials, ties)
+    below: dict[str, dict]  #: of the kept effects, the ones below practical relevance (name -> relevance)
+    relevance: dict[str, dict]  #: relevance of every kept effect
+
+    @property
+    def fitted(self) -> list[str]:
+        return self.sel.fitted
 
     @property
     def accepted(self) -> list[str]:
-        return [n for n in self.fitted if n not in self.below]
+        return [n for n in self.sel.fitted if n not in self.below]
 
 
-def _select(cells: Cells, candidates: list[str]) -> Selection:
-    """Forward selection with parsimony and practical significance.
-
-    Each step fits every remaining candidate after the effects already kept. Among those that
-    earn their place (BIC gain >= BIC_MIN, physical parameters), the ones whose explained
-    chi-square is equal within noise to the best are tied, and the tie goes to the candidate
-    with the fewest new parameters (then the larger gain): BIC's own penalty only separates
-    candidates whose gains differ by a few units, while at a high SNR the noise in a gain of
-    thousands is tens of units. The chosen effect's predicted angle shift (what it adds to the
-    fit) is tested against its practical floor; below it, the effect stays in the fit but is
-    not accepted."""
+def _try_add(cells: Cells):
+    """The engine's view of the edge cells: ``fitted`` plus ``name`` by weighted least squares."""
     w, y = cells.weight, cells.mean
-    chi2_0 = float(np.sum(w * y * y))
-    n_cells = y.size
-    fitted: list[str] = []
-    below: dict[str, dict] = {}
-    relevance: dict[str, dict] = {}
-    ties: list[list[str]] = []
-    chi2_now = chi2_0
-    pred_now = np.zeros_like(y)
-    first: dict[str, dict] = {}
-    while True:
-        rows = []
+
+    def try_add(fitted: list[str], name: str) -> Trial | None:
         x_acc = _design(fitted, cells)
         k_acc = _remove_collinear(x_acc).shape[1]
-        for name in candidates:
-            if name in fitted:
-                continue
-            x_c = CANDIDATES[name].columns(cells.features)
-            k_new = _remove_collinear(np.column_stack([x_acc, x_c])).shape[1] - k_acc
-            if k_new <= 0:
-                continue
-            x = np.column_stack([x_acc, x_c])
-            coef, se, chi2 = _wls(x, y, w)
-            k_c = x_c.shape[1]
-            own, own_se = coef[-k_c:], se[-k_c:]
-            gain = chi2_now - chi2
-            d_bic = gain - k_new * math.log(n_cells)
-            explained = gain / max(chi2_now - n_cells, 1e-12) if chi2_now > n_cells else 0.0
-            row = {
-                "effect": name,
-                "score": float(max(min(explained, 1.0), 0.0)),
-                "delta_bic": float(d_bic),
-                "physical": CANDIDATES[name].physical(own, own_se),
-                "params": CANDIDATES[name].params(own),
-                "chi2": chi2,
-                "gain": gain,
-                "k": k_new,
-                "pred": x @ coef,
-            }
-            if not fitted:
-                first[name] = row
-            rows.append(row)
-        eligible = [r for r in rows if r["physical"] and r["delta_bic"] >= BIC_MIN]
-        if not eligible:
-            break
-        top = max(eligible, key=lambda r: r["gain"])
-        tied = [r for r in eligible if equal_within_noise(top["gain"], top["k"], r["gain"], r["k"])]
-        best = min(tied, key=lambda r: (r["k"], -r["gain"]))
-        for r in tied:
-            if r is not best and r["k"] > best["k"]:
-                ties.append([best["effect"], r["effect"]])
-        shift = best["pred"] - pred_now
-        rel = edge_relevance(shift, cells.n)
-        relevance[best["effect"]] = rel.to_json()
+        x_c = CANDIDATES[name].columns(cells.features)
+        x = np.column_stack([x_acc, x_c])
+        k_new = _remove_collinear(x).shape[1] - k_acc
+        if k_new <= 0:
+            return None
+        coef, se, chi2 = _wls(x, y, w)
+        k_c = x_c.shape[1]
+        physical = CANDIDATES[name].physical(coef[-k_c:], se[-k_c:])
+        return Trial(name, chi2, k_new, physical, fit=x @ coef)
+
+    return try_add
+
+
+def _select(cells: Cells, candidates: list[str]) -> EdgeSelection:
+    """Forward selection by the engine (hil.gap.selection), then parsimony swaps, then practical
+    significance: each chosen effect's predicted angle shift (what it adds to the fit before it)
+    is tested against its practical floor; below it, the effect stays in the fit but is not
+    accepted."""
+    n_cells = cells.mean.size
+    chi2_0 = float(np.sum(cells.weight * cells.mean**2))
+
+    def remainder_p(fitted: list[str], t: Trial) -> float:
+        return float(stats.chi2.sf(t.chi2, max(n_cells - _rank(fitted, cells), 1)))
+
+    sel = forward_select(candidates, _try_add(cells), chi2_0, n_cells, remainder_p)
+    below: dict[str, dict] = {}
+    relevance: dict[str, dict] = {}
+    pred_now = np.zeros_like(cells.mean)
+    for t in sel.steps:
+        rel = edge_relevance(t.fit - pred_now, cells.n)
+        relevance[t.name] = rel.to_json()
         if not rel.relevant:
-            below[best["effect"]] = rel.to_json()
-        fitted.append(best["effect"])
-        chi2_now, pred_now = best["chi2"], best["pred"]
-        if stats.chi2.sf(chi2_now, max(n_cells - _remove_collinear(_design(fitted, cells)).shape[1], 1)) > ALPHA:
-            break
-    chi2_now = _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now)
-    return Selection(fitted, below, relevance, first, ties, chi2_0, chi2_now)
+            below[t.name] = rel.to_json()
+        pred_now = t.fit
+    sel.chi2_end = _parsimony_swaps(cells, candidates, sel, below, relevance)
+    return EdgeSelection(sel, below, relevance)
 
 
 def _rank(names: list[str], cells: Cells) -> int:
     return _remove_collinear(_design(names, cells)).shape[1]
 
 
-def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, chi2_now) -> float:
+def _parsimony_swaps(cells, candidates, sel: Selection, below, relevance) -> float:
     """After forward selection: replace a kept effect by a rival with fewer parameters when the
     whole set then explains the same within noise. Forward selection can take the bigger model
     first when it also soaks up part of another cause (a per-pole pattern absorbs the rising /
     falling split of a delay at one speed, because rising and falling edges alternate with the
-    poles), and the smaller one never earns its place once the bigger is in. Edits ``fitted``,
-    ``below``, ``relevance`` and ``ties``; returns the new remainder chi-square."""
+    poles), and the smaller one never earns its place once the bigger is in. Edits
+    ``sel.fitted``, ``sel.ties``, ``below`` and ``relevance``; returns the new remainder chi-square."""
     w, y = cells.weight, cells.mean
+    fitted, chi2_0, chi2_now = sel.fitted, sel.chi2_0, sel.chi2_end
     swapped = True
     while swapped:
         swapped = False
@@ -314,7 +302,7 @@ def _parsimony_swaps(cells, candidates, fitted, below, relevance, ties, chi2_0, 
                 relevance[b] = rel.to_json()
                 if not rel.relevant:
                     below[b] = rel.to_json()
-                ties.append([b, a])
+                sel.ties.append([b, a])
                 chi2_now = chi2_alt
                 swapped = True
                 break
@@ -342,8 +330,40 @@ def edge_features(r: EdgeResiduals) -> dict:
     }
 
 
+def _edge_selection(cells: Cells, names: list[str]) -> tuple[float, EdgeSelection]:
+    """The gap's p-value against the noise floor, and the selection when it is significant."""
+    chi2_0 = float(np.sum(cells.weight * cells.mean**2))
+    p0 = float(stats.chi2.sf(chi2_0, cells.mean.size))
+    if p0 >= ALPHA:
+        return p0, EdgeSelection(Selection([], [], {}, [], chi2_0, chi2_0, cells.mean.size), {}, {})
+    return p0, _select(cells, names)
+
+
 def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
-    """Diagnose ``rec`` against ``model`` (a PlantConfig; None = the nominal motor, no effects)."""
+    """Diagnose ``rec``: the route follows the recording. With operating points (segments), against
+    ``model`` (a PlantConfig; None = the nominal motor, no effects); an ordinary run (capture
+    times only) against an ideal motor on a smooth trajectory (``model`` and ``candidates`` do not
+    apply and are named in ``not_assessed`` when given)."""
+    if rec.ordinary:
+        from hil.calibration.ordinary import hall_steps
+
+        from .ordinary import diagnose_ordinary
+
+        notes = []
+        if model is not None:
+            notes.append(
+                "--model: not used for an ordinary run (capture times only): the model is an ideal motor with ideal "
+                "sensors on a smooth speed trajectory"
+            )
+        if candidates is not None:
+            notes.append("candidates: an ordinary run has its own list (the effects capture times can see)")
+        return diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising), notes)
+    return diagnose_segments(rec, model, candidates)
+
+
+def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
+    """Diagnose a recording with operating points against ``model`` (a PlantConfig; None = the
+    nominal motor, no effects)."""
     r = residuals(rec, model_prediction(model, rec) if model is not None else None)
     if len(r) < 6 * rec.pole_pairs:
         raise ValueError(f"{rec.path or 'recording'}: too few usable edges ({len(r)}) to diagnose")
@@ -353,26 +373,27 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
         # relative errors: common shifts and equal lags are invisible without an encoder
         names = [n for n in names if n not in ("hysteresis", "timer_quantization")]
     n_cells = cells.mean.size
-    chi2_0 = float(np.sum(cells.weight * cells.mean**2))
-    p0 = float(stats.chi2.sf(chi2_0, n_cells))
+    p0, es = _edge_selection(cells, names)
     significant = p0 < ALPHA
-    sel = _select(cells, names) if significant else Selection([], {}, {}, {}, [], chi2_0, chi2_0)
-    first = sel.first
-    accepted_names = sel.accepted
-    below_names = [n for n in sel.fitted if n in sel.below]
+    sel = es.sel
+    accepted_names = es.accepted
+    below_names = [n for n in sel.fitted if n in es.below]
     k_of = {n: _n_params(n, cells) for n in names}
     # ranking: accepted first (in order), then the ones detected below practical relevance, then
     # by single-effect score (scores equal to three decimals: fewer parameters first)
-    rest = sorted(
-        (n for n in names if n not in sel.fitted),
-        key=lambda n: (-round(first.get(n, {"score": 0.0})["score"], 3), k_of[n]),
-    )
-    ranking = [
-        {"effect": n, "score": round(first[n]["score"], 4) if n in first else 0.0}
-        for n in accepted_names + below_names + rest
-    ]
+    rest = sorted((n for n in names if n not in sel.fitted), key=lambda n: (-round(sel.share_alone(n), 3), k_of[n]))
+    ranking = [{"effect": n, "score": round(sel.share_alone(n), 4)} for n in accepted_names + below_names + rest]
+    excess = max(sel.chi2_0 - n_cells, 1e-12)
+    chi2_prev = sel.chi2_0
+    share_added = {}
+    for i, n in enumerate(sel.fitted):  # what each kept effect adds after those before it
+        chi2_i = _wls(_design(sel.fitted[: i + 1], cells), cells.mean, cells.weight)[2]
+        share_added[n] = round(max(chi2_prev - chi2_i, 0.0) / excess, 4)
+        chi2_prev = chi2_i
     for row in ranking:
-        if row["effect"] in sel.below:
+        if row["effect"] in share_added:
+            row["share_added"] = share_added[row["effect"]]
+        if row["effect"] in es.below:
             row["below_relevance"] = True
     # fitted parameters of every kept effect, jointly on all data
     accepted, below = [], []
@@ -382,10 +403,16 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
         col = 0
         for n in sel.fitted:
             k = CANDIDATES[n].columns(cells.features).shape[1]
-            row = {"effect": n, "params": CANDIDATES[n].params(coef[col : col + k]), "relevance": sel.relevance[n]}
-            (below if n in sel.below else accepted).append(row)
+            c, s_c = coef[col : col + k], se[col : col + k]
+            row = {
+                "effect": n,
+                "params": CANDIDATES[n].params(c),
+                "stderr": CANDIDATES[n].stderr(c, s_c),
+                "relevance": es.relevance[n],
+            }
+            (below if n in es.below else accepted).append(row)
             col += k
-    dof_end = max(n_cells - _remove_collinear(_design(sel.fitted, cells)).shape[1], 1)
+    dof_end = max(n_cells - _rank(sel.fitted, cells), 1)
     unexplained = bool(significant and stats.chi2.sf(sel.chi2_end, dof_end) < ALPHA)
     confounded, knobs = [], {}
 
@@ -398,21 +425,17 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
     # equal within noise at selection: the smaller model was kept, the rival stays named
     for chosen, rival in sel.ties:
         confound(chosen, rival)
-    # a rival explains nearly as much as an accepted effect on its own, and adding it after the
-    # accepted set earns nothing (the data cannot tell them apart)
-    for n in accepted_names:
-        s_n = first.get(n, {}).get("score", 0.0)
-        for m in names:
-            if m == n or m in sel.fitted or s_n <= 0:
-                continue
-            s_m = first.get(m, {}).get("score", 0.0)
-            if s_m >= CONFOUND_RATIO * s_n and first.get(m, {}).get("physical", False):
-                x_acc = _remove_collinear(_design(sel.fitted, cells))
-                x_both = _remove_collinear(np.column_stack([x_acc, CANDIDATES[m].columns(cells.features)]))
-                _, _, chi_both = _wls(x_both, cells.mean, cells.weight)
-                if sel.chi2_end - chi_both < BIC_MIN:
-                    confound(n, m)
-    shrink, after, interval, note = _heldout(cells, accepted_names)
+
+    def refit_chi2(m: str) -> float:
+        x_both = _remove_collinear(np.column_stack([_design(sel.fitted, cells), CANDIDATES[m].columns(cells.features)]))
+        return _wls(x_both, cells.mean, cells.weight)[2]
+
+    for pair in confounded_rivals(sel, accepted_names, names, refit_chi2):
+        confound(*pair)
+    shrink, after, interval, note = _heldout(cells, names) if accepted_names else (None, None, None, "")
+    if not accepted_names:
+        shrink, note = (0.0, "no effect accepted") if np.unique(cells.features["segment"]).size > 1 else (
+            None, "held-out shrink cannot be measured: the recording has a single segment")
     if below_names and not accepted_names:
         note = "every detected edge effect is below practical relevance"
     # the noise: edge jitter is a variance effect; accepted quantisation adds its own variance
@@ -464,6 +487,9 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
             for s in np.unique(cells.features["segment"])
         },
         below_relevance=below,
+        pole_pairs=rec.pole_pairs,
+        remainder_p_value=float(stats.chi2.sf(sel.chi2_end, dof_end)),
+        ranking_bic_gain={n: round(t.delta_bic, 1) for n, t in sel.first.items()},
     )
     edge_error = None
     if r.reference == "turn" and sel.fitted:
@@ -654,37 +680,48 @@ def knob(a: str, b: str) -> str:
     return f"Record {record}: {shows_a}, while {shows_b}."
 
 
-def _heldout(cells: Cells, accepted: list[str], n_boot: int = 200, seed: int = 0):
+def _heldout(cells: Cells, names: list[str]):
+    """Leave one operating point out: on the other segments the gap is tested, the effects are
+    chosen and fitted (the held-out segment influences neither), and they predict the held-out
+    one. Returns (shrink, gap after, 5-95 % interval from a bootstrap over segments, note)."""
     seg = cells.features["segment"]
     segments = np.unique(seg)
     if segments.size < 2:
         return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
-    if not accepted:
-        return 0.0, None, None, "no effect accepted"
-    x = _design(accepted, cells)
     pred = np.zeros_like(cells.mean)
     fitted_ok = np.zeros(cells.mean.size, dtype=bool)
+    differ = 0
     for s in segments:
         test = seg == s
-        train = ~test
-        xt = x[train]
+        train_cells = cells.subset(~test)
+        _, es = _edge_selection(train_cells, names)
+        chosen = es.accepted
+        if not chosen:
+            fitted_ok[test] = True  # nothing chosen: the held-out segment keeps its gap
+            differ += 1
+            continue
+        x = _design(chosen, cells)
+        xt = x[~test]
         keep = np.any(xt != 0, axis=0)
-        if not keep.any():
-            continue
-        coef, _, _ = _wls(xt[:, keep], cells.mean[train], cells.weight[train])
         # a held-out cell that needs a column never seen in training cannot be predicted
-        if np.any(np.abs(x[test][:, ~keep]).sum(axis=0) > 0):
+        if not keep.any() or np.any(np.abs(x[test][:, ~keep]).sum(axis=0) > 0):
             continue
+        coef, _, _ = _wls(xt[:, keep], cells.mean[~test], cells.weight[~test])
         pred[test] = x[test][:, keep] @ coef
         fitted_ok[test] = True
     if not fitted_ok.any():
-        return (
-            None,
-            None,
-            None,
-            "held-out shrink cannot be measured: no operating point can be predicted from the others",
-        )
-    return heldout_shrink(cells.mean, cells.mean - pred, cells.n * fitted_ok, seg, n_boot, seed)
+        return None, None, None, "held-out shrink cannot be measured: no operating point is predicted from the others"
+    ok = fitted_ok
+    res = heldout_shrink(
+        BlockSums.of(seg[ok], cells.n[ok], cells.mean[ok]), BlockSums.of(seg[ok], cells.n[ok], (cells.mean - pred)[ok])
+    )
+    note = (
+        f"leave-one-operating-point-out over {res.blocks} segments: the gap test, the effect choice and the fit "
+        "see only the other segments; interval: 5-95 % bootstrap over segments"
+    )
+    if differ:
+        note += f"; on {differ} of them the other segments chose no effect"
+    return res.shrink, res.after, res.interval, note
 
 
 def localise(r: EdgeResiduals, cells: Cells) -> dict:

@@ -1,4 +1,8 @@
-"""HTML report of a diagnosis: edge-error pattern, order spectrum, operating-region map, before/after."""
+"""The one report of a diagnosis, for every route: the terminal summary (``format_text``) and the
+HTML page (``write_html``): ranking, accepted effects as tables of named parameters with units,
+rounded values, standard errors and relevance, the held-out shrink, and the route's figures (edge
+pattern, order spectrum, operating regions and before/after for a recording with segments; the
+sector widths and split-half repeatability for an ordinary run)."""
 
 from __future__ import annotations
 
@@ -12,7 +16,7 @@ from markupsafe import Markup
 
 from ..plots import pyplot
 from .candidates import CANDIDATES
-from .diagnose import _design, build_cells
+from .diagnose import Diagnosis, _design, build_cells
 from .fitting import wls as _wls
 from .residuals import model_prediction, residuals
 
@@ -32,6 +36,135 @@ def sig(value, digits: int = 4) -> str:
     if isinstance(value, (int, np.integer)):
         return str(int(value))
     return f"{float(value):.{digits}g}"
+
+
+#: unit suffixes of parameter names (longest first) -> (unit shown, scale to it)
+_UNITS = (
+    ("_deg_e_per_a", "deg e/A", 1.0),
+    ("_v_s_per_rad", "V s/rad", 1.0),
+    ("_deg_e", "deg e", 1.0),
+    ("_per_k", "1/K", 1.0),
+    ("_ohm", "ohm", 1.0),
+    ("_n_m", "N m", 1.0),
+    ("_rad", "rad", 1.0),
+    ("_s", "us", 1e6),
+    ("_a", "A", 1.0),
+    ("_k", "K", 1.0),
+)
+_SENSORS = "ABC"
+
+
+def _unit(name: str) -> tuple[str, str, float]:
+    """(label without the unit, unit, scale) of a parameter name that carries its unit."""
+    for suffix, unit, scale in _UNITS:
+        if name.endswith(suffix):
+            return name[: -len(suffix)].replace("_", " "), unit, scale
+    if name == "periods_per_rev":
+        return "periods", "per turn", 1.0
+    return name.replace("_", " "), "", 1.0
+
+
+def param_rows(a: dict) -> list[dict]:
+    """An accepted (or below-floor) effect's parameters as rows: parameter, value, standard error
+    and unit, rounded (4 significant digits, the error 2). A list is one row per sensor (three
+    entries) or per pole; a dict of contrasts one row per named contrast."""
+    rows = []
+    stderr = a.get("stderr", {})
+    for key, value in a["params"].items():
+        label, unit, scale = _unit(key)
+        err = stderr.get(key)
+        if isinstance(value, dict):
+            items = [(f"{label} [{k}]", v, (err or {}).get(k)) for k, v in value.items()]
+        elif isinstance(value, (list, tuple)):
+            names = _SENSORS if len(value) == 3 and a["effect"] == "installation_offset" else range(len(value))
+            items = [(f"{label} [{n}]", v, err[i] if err else None) for i, (n, v) in enumerate(zip(names, value))]
+        else:
+            items = [(label, value, err)]
+        for name, v, e in items:
+            num = isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool)
+            rows.append(
+                {
+                    "parameter": name,
+                    "value": sig(v * scale if num else v),
+                    "stderr": sig(e * scale, 2) if e is not None and num else "",
+                    "unit": unit,
+                }
+            )
+    return rows
+
+
+def format_params(a: dict) -> str:
+    """One line: ``name = value +- error unit`` per parameter."""
+    parts = []
+    for r in param_rows(a):
+        err = f" +- {r['stderr']}" if r["stderr"] else ""
+        parts.append(f"{r['parameter']} = {r['value']}{err}{' ' + r['unit'] if r['unit'] else ''}")
+    return "; ".join(parts)
+
+
+def format_text(d: Diagnosis, name: str) -> str:
+    """The terminal summary of a diagnosis (every route)."""
+    lines = []
+    what = "ordinary run, " if d.route == "ordinary run" else ""
+    lines.append(
+        f"{name}: {what}gap {d.gap_before:.4g} ({d.gap_metric}), "
+        f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (p = {d.p_value:.2g})"
+    )
+    if d.route == "ordinary run":
+        lines.append(f"  pole pairs: {d.pole_pairs_source}")
+    for dname, dom in d.samples.items():
+        shrink = (
+            f", held-out shrink {dom['heldout_shrink']:.1%}"
+            if dom["heldout_shrink"] is not None and dom["accepted"]
+            else ""
+        )
+        lines.append(
+            f"  sampled {dname}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
+            f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}"
+        )
+    accepted = {a["effect"] for a in d.accepted}
+    lines.append("  ranking (share alone: each effect fitted on its own; share added: in the order chosen)")
+    for i, r in enumerate(d.ranking[:6], 1):
+        verdict = (
+            "accepted" if r["effect"] in accepted else ("below relevance" if r.get("below_relevance") else "")
+        )
+        added = f"  added {r['share_added']:.3f}" if "share_added" in r else ""
+        lines.append(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{added}   {verdict}".rstrip())
+    for a in d.accepted:
+        lines.append(f"  accepted {a['effect']}: {format_params(a)}")
+    for b in d.below_relevance:
+        rel = b.get("relevance", {})
+        lines.append(
+            f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor "
+            f"{rel.get('floor', float('nan')):.3g} {rel.get('unit', '')}: {rel.get('meaning', '')})"
+        )
+    for pair in d.confounded:
+        lines.append(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    lines.append(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
+    if d.heldout_shrink is not None and d.gap_after_heldout is not None:
+        lo, hi = d.heldout_interval or (float("nan"), float("nan"))
+        lines.append(
+            f"  held-out: gap {d.gap_after_heldout:.4g}, shrink {d.heldout_shrink:.1%} (interval {lo:.1%} to "
+            f"{hi:.1%}); {d.heldout_note}"
+        )
+    else:
+        lines.append(f"  held-out: {d.heldout_note}")
+    rep = d.repeatability
+    if d.route == "ordinary run":
+        parts = []
+        if "rise_fall_delay_difference_s" in rep:
+            a, b = rep["rise_fall_delay_difference_s"]
+            parts.append(
+                f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
+            )
+        if "static_parameters_rms_difference_deg_e" in rep:
+            parts.append(
+                f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their "
+                f"RMS {rep['static_parameters_rms_deg_e']:.3g})"
+            )
+        lines.append(f"  split-half repeatability: {'; '.join(parts) or rep.get('note', 'no figure')}")
+    lines += [f"  not assessed: {n}" for n in d.not_assessed]
+    return "\n".join(lines)
 
 
 def _png(fig) -> str:
@@ -119,30 +252,79 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     return out
 
 
-def write_html(path, name, rec, diagnosis, model=None) -> Path:
-    pred = model_prediction(model, rec) if model is not None else None
-    r = residuals(rec, pred)
-    cells = build_cells(r)
+def repeatability_rows(rep: dict) -> list[dict]:
+    """An ordinary run's split-half figures as rows (first half, second half, unit)."""
+    rows = []
+    if "rise_fall_delay_difference_s" in rep:
+        (a, b), (sa, sb) = rep["rise_fall_delay_difference_s"], rep["rise_fall_delay_difference_stderr_s"]
+        rows.append(
+            {
+                "figure": "rise-minus-fall delay difference",
+                "key": "rise_fall_delay_difference_s",
+                "value": f"{sig(a * 1e6)} +- {sig(sa * 1e6, 2)} / {sig(b * 1e6)} +- {sig(sb * 1e6, 2)}",
+                "unit": "us",
+            }
+        )
+        rows.append(
+            {
+                "figure": "halves apart (relative; in standard errors)",
+                "key": "delay_relative_difference",
+                "value": f"{100 * rep['delay_relative_difference']:.2g} %; z = {sig(rep['delay_difference_z'], 2)}",
+                "unit": "",
+            }
+        )
+    if "static_parameters_rms_difference_deg_e" in rep:
+        rows.append(
+            {
+                "figure": "other parameters: RMS difference of the halves (their RMS)",
+                "key": "static_parameters_rms_difference_deg_e",
+                "value": f"{sig(rep['static_parameters_rms_difference_deg_e'], 3)} "
+                f"({sig(rep['static_parameters_rms_deg_e'], 3)})",
+                "unit": "deg e",
+            }
+        )
+    if "note" in rep:
+        rows.append({"figure": "note", "key": "note", "value": rep["note"], "unit": ""})
+    return rows
+
+
+def _ordinary_figures(rec, d: Diagnosis) -> list[tuple[str, str]]:
+    from .ordinary import report_fit, sector_width_figure
+
+    steps, fit = report_fit(rec, d)
+    return [("Sector width against speed", _png(sector_width_figure(steps, fit, "")))]
+
+
+def write_html(path, name, rec, diagnosis: Diagnosis, model=None) -> Path:
+    """The HTML report of ``diagnosis`` of ``rec`` (either route)."""
     env = Environment(autoescape=select_autoescape(default=True))
     env.filters["sig"] = sig
     params = env.from_string(PARAMS_TEMPLATE)
-    spec = diagnosis.localisation.get("order_spectrum")
+    loc = diagnosis.localisation
     spectrum = []
-    if spec:
-        top = sorted(zip(spec["mechanical_order"], spec["amplitude_deg_e"]), key=lambda oa: -oa[1])[:8]
-        spectrum = sorted(top)
+    if diagnosis.route == "ordinary run":
+        figs = _ordinary_figures(rec, diagnosis)
+    else:
+        pred = model_prediction(model, rec) if model is not None else None
+        r = residuals(rec, pred)
+        figs = figures(r, build_cells(r), diagnosis)
+        spec = loc.get("order_spectrum")
+        if spec:
+            top = sorted(zip(spec["mechanical_order"], spec["amplitude_deg_e"]), key=lambda oa: -oa[1])[:8]
+            spectrum = sorted(top)
     html = env.from_string(TEMPLATE).render(
         name=name,
         d=diagnosis,
         accepted=[a["effect"] for a in diagnosis.accepted],
         below=[a["effect"] for a in diagnosis.below_relevance],
-        figures=figures(r, cells, diagnosis),
-        loc=diagnosis.localisation,
+        figures=figs,
+        loc=loc,
         spectrum=spectrum,
         segment_ids=rec.segment_ids,
-        params_table=lambda a: Markup(params.render(a=a)),
+        repeatability=repeatability_rows(diagnosis.repeatability),
+        params_table=lambda a: Markup(params.render(a=a, rows=param_rows(a))),
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(html)
+    path.write_text(html, encoding="utf-8")
     return path

@@ -34,16 +34,16 @@ from scipy import stats
 from scipy.integrate import cumulative_trapezoid
 from scipy.optimize import minimize_scalar
 
+from bldc.edges import electrical_speed_hz
 from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from bldc.units import rpm_to_rad_per_s
 from hil.recording import Recording
 
-from .fitting import cell_rms, heldout_shrink
+from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
+from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
-ALPHA = 1e-3
-BIC_MIN = 10.0
 ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
 ALPHA_BR_PER_K = -0.0012     #: NdFeB remanence (the library's default)
 SATURATION_FLOOR = 0.1       #: L(i)/L floor assumed when fitting the knee (the library's lower bound)
@@ -177,12 +177,24 @@ def _ideal_edge_deg_e(sensor: np.ndarray, rising: np.ndarray, direction: int) ->
 
 
 def _speed_rad_s(rec: Recording, th_m_deg: np.ndarray) -> np.ndarray:
-    """Signed mechanical speed: the speed column with the segment's direction, else d(theta)/dt."""
+    """Signed mechanical speed: the speed column with the segment's direction; else, with the
+    reference encoder, d(theta)/dt of its angle; else speed from the Hall edges (``bldc.edges``:
+    two sectors around each edge), interpolated to the samples."""
     s = rec.samples
     sign = np.array([seg.direction_sign for seg in rec.segments])[s["segment"]]
     if "speed_rpm" in s:
         return sign * rpm_to_rad_per_s(np.abs(s["speed_rpm"]))
-    return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
+    if rec.ref_angle_mech_deg is not None:
+        return np.gradient(np.deg2rad(th_m_deg), s["t_s"])
+    w = np.full(s["t_s"].size, np.nan)
+    for k in range(len(rec.segments)):
+        e_sel, s_sel = rec.segment == k, s["segment"] == k
+        if e_sel.sum() < 3 or not s_sel.any():
+            continue
+        t = rec.t_s[e_sel]
+        f_hz = electrical_speed_hz(t, window_sectors=2)
+        w[s_sel] = 2.0 * np.pi * np.interp(s["t_s"][s_sel], t, f_hz) / rec.pole_pairs
+    return sign * w
 
 
 def _steady_intervals(
@@ -353,12 +365,14 @@ class SampleCells:
     def chi2(self, resid: np.ndarray) -> float:
         return float(np.sum(resid * resid / self.var))
 
-    def significance(self, resid: np.ndarray, n_params: int = 0) -> float:
-        """p-value of the cell means ``resid`` against the noise floor. Each cell's t statistic
-        (replicate variance, n_rep - 1 dof) is mapped to chi-square(1), so small replicate
-        counts do not fake a gap."""
-        t = np.abs(resid) / np.sqrt(self.var)
-        p_cell = np.clip(2 * stats.t.sf(t, np.maximum(self.n_rep - 1, 1)), 1e-300, 1.0)
+    def significance(self, resid: np.ndarray, n_params: int = 0, rows: np.ndarray | None = None) -> float:
+        """p-value of the cell means ``resid`` (of the cells ``rows``, default all) against the
+        noise floor. Each cell's t statistic (replicate variance, n_rep - 1 dof) is mapped to
+        chi-square(1), so small replicate counts do not fake a gap."""
+        rows = np.arange(self.mean.size) if rows is None else rows
+        resid = resid[rows]
+        t = np.abs(resid) / np.sqrt(self.var[rows])
+        p_cell = np.clip(2 * stats.t.sf(t, np.maximum(self.n_rep[rows] - 1, 1)), 1e-300, 1.0)
         stat = float(np.sum(stats.chi2.isf(p_cell, 1)))
         return float(stats.chi2.sf(stat, max(resid.size - n_params, 1)))
 
@@ -649,71 +663,31 @@ def diagnose_domain(
     if "_integration_error" in r.regressors:
         cells.var = cells.var + cells.average(r.regressors["_integration_error"]) ** 2
     names = [n for n, c in cands.items() if c.domain == r.domain and n != REFERENCE]
-    # without an encoder every fit carries the Hall reference's unknown common angle offset
-    accepted: list[str] = [REFERENCE] if REFERENCE in r.regressors else []
-    shapes: list = [None] * len(accepted)
-    current = _fit(r, cells, cands, accepted, shapes)
-    p0 = cells.significance(current.resid, len(accepted))
-    chi2_0 = current.chi2
-    n_cells = cells.mean.size
+    p0, sel, shapes, current = _select_domain(r, cells, cands, names, motor)
     significant = p0 < ALPHA
-    firsts: dict[str, float] = {n: 0.0 for n in names}
-    chi2_now = chi2_0
-    while significant:
-        best = None
-        for name in names:
-            if name in accepted:
-                continue
-            f = _best_shape(r, cells, cands, accepted, shapes, name)
-            coef, se = _own(f, cands, name)
-            gain = chi2_now - f.chi2
-            k_new = _n_params(cands, [name])
-            search = math.log(len(cands[name].grid)) * 2 if len(cands[name].grid) > 1 else 0.0
-            d_bic = gain - k_new * math.log(n_cells) - search
-            if not accepted:
-                firsts[name] = (
-                    float(max(min(gain / max(chi2_0 - n_cells, 1e-12), 1.0), 0.0)) if chi2_0 > n_cells else 0.0
-                )
-            if cands[name].physical(coef, se, motor) and (best is None or d_bic > best[0]):
-                best = (d_bic, name, f)
-        if best is None or best[0] < BIC_MIN:
-            break
-        _, name, f = best
-        accepted.append(name)
-        shapes = f.shapes
-        current = f
-        chi2_now = f.chi2
-        if cells.significance(current.resid, _n_params(cands, accepted)) > ALPHA:
-            break
+    n_cells = cells.mean.size
+    accepted = sel.fitted
     unexplained = bool(significant and cells.significance(current.resid, _n_params(cands, accepted)) < ALPHA)
-    # practical significance: an effect whose fitted magnitude does not matter stays in the fit
-    # (its pattern is explained, not unexplained) but is reported apart, not accepted
-    accepted_rows, below = [], []
-    for n, s in zip(accepted, shapes):
-        if n == REFERENCE:
-            continue
-        coef, _ = _own(current, cands, n)
-        row = {"effect": n, "params": cands[n].params(coef, s, motor)}
-        if env is not None:
-            rel = sample_relevance(n, row["params"], motor, env)
-            row["relevance"] = rel.to_json()
-            if not rel.relevant:
-                below.append(row)
-                continue
-        accepted_rows.append(row)
-    kept = [n for n in accepted if n not in {b["effect"] for b in below}]
-    kept_shapes = [s for n, s in zip(accepted, shapes) if n in kept]
+    accepted_rows, below = _rows(cands, current, accepted, shapes, motor, env)
+    below_names = {b["effect"] for b in below}
+    kept = [n for n in accepted if n not in below_names]
     gap_before = cell_rms(cells.mean, cells.n)
-    shrink, after, interval, note = _heldout(r, cells, cands, kept, kept_shapes)
-    if below and not [n for n in kept if n != REFERENCE]:
+    any_kept = bool([n for n in kept if n != REFERENCE])
+    shrink, after, interval, note = _heldout(r, cells, cands, names, motor, env, any_kept)
+    if below and not any_kept:
         note = "every detected effect is below practical relevance"
+    kept_shapes = [s for n, s in zip(accepted, shapes) if n in kept]
+
+    def refit_chi2(m: str) -> float:
+        return _best_shape(r, cells, cands, kept, kept_shapes, m).chi2
+
     return DomainDiagnosis(
         r.domain,
         r.unit,
         significant,
         p0,
         accepted_rows,
-        firsts,
+        {n: sel.share_alone(n) for n in names},
         unexplained,
         gap_before,
         after,
@@ -721,48 +695,101 @@ def diagnose_domain(
         interval,
         note,
         _localise(r, cells, segment_ids),
-        chi2_0 - n_cells,
-        _confounded(r, cells, cands, names, kept, kept_shapes, firsts, current.chi2),
+        sel.chi2_0 - n_cells,
+        confounded_rivals(sel, [n for n in kept if n != REFERENCE], names, refit_chi2),
         below,
     )
 
 
-def _confounded(r, cells, cands, names, accepted, shapes, firsts, chi2_end) -> list[list[str]]:
-    """Rivals the data cannot tell from an accepted effect: alone they explain at least 90 % as
-    much, and added after the accepted set they earn nothing (the edge diagnosis's rule)."""
-    pairs = []
-    for n in accepted:
-        for m in names:
-            if m in accepted or firsts.get(m, 0.0) < 0.9 * firsts.get(n, 0.0) or firsts.get(n, 0.0) <= 0.0:
+def _select_domain(r, cells, cands, names, motor, rows=None):
+    """The domain's gap test and the engine's selection on the cells ``rows`` (default all):
+    (p-value, selection, shape parameters of the kept effects, their joint fit). Without an
+    encoder every fit carries the Hall reference's unknown common angle offset."""
+    rows = np.arange(cells.mean.size) if rows is None else rows
+    start: list[str] = [REFERENCE] if REFERENCE in r.regressors else []
+    shapes_of: dict[tuple, list] = {tuple(start): [None] * len(start)}
+    fits: dict[tuple, _Fit] = {tuple(start): _fit(r, cells, cands, start, shapes_of[tuple(start)], rows=rows)}
+    p0 = cells.significance(fits[tuple(start)].resid, len(start), rows)
+
+    def try_add(fitted: list[str], name: str) -> Trial:
+        f = _best_shape(r, cells, cands, fitted, shapes_of[tuple(fitted)], name, rows=rows)
+        key = tuple(fitted + [name])
+        shapes_of[key], fits[key] = f.shapes, f
+        coef, se = _own(f, cands, name)
+        search = math.log(len(cands[name].grid)) * 2 if len(cands[name].grid) > 1 else 0.0
+        return Trial(name, f.chi2, _n_params(cands, [name]), cands[name].physical(coef, se, motor), search, f)
+
+    def remainder_p(fitted: list[str], t: Trial) -> float:
+        return cells.significance(t.fit.resid, _n_params(cands, fitted), rows)
+
+    chi2_0 = fits[tuple(start)].chi2
+    if p0 < ALPHA:
+        sel = forward_select(names, try_add, chi2_0, rows.size, remainder_p, start=start)
+    else:
+        sel = Selection(list(start), [], {}, [], chi2_0, chi2_0, rows.size)
+    key = tuple(sel.fitted)
+    return p0, sel, shapes_of[key], fits[key]
+
+
+def _rows(cands, fit: _Fit, names, shapes, motor, env):
+    """Accepted rows and rows below practical relevance: an effect whose fitted magnitude does not
+    matter stays in the fit (its pattern is explained, not unexplained) but is not accepted."""
+    accepted_rows, below = [], []
+    for n, s in zip(names, shapes):
+        if n == REFERENCE:
+            continue
+        coef, se = _own(fit, cands, n)
+        row = {"effect": n, "params": cands[n].params(coef, s, motor), "stderr": _stderr(cands[n], coef, se, s, motor)}
+        if env is not None:
+            rel = sample_relevance(n, row["params"], motor, env)
+            row["relevance"] = rel.to_json()
+            if not rel.relevant:
+                below.append(row)
                 continue
-            if chi2_end - _best_shape(r, cells, cands, accepted, shapes, m).chi2 < BIC_MIN:
-                pairs.append(sorted([n, m]))
-    return pairs
+        accepted_rows.append(row)
+    return accepted_rows, below
 
 
-def _heldout(r, cells, cands, accepted, shapes, n_boot: int = 200, seed: int = 0):
+def _stderr(cand, coef, se, shape, motor) -> dict:
+    """Standard errors of the linear parameters (model-based, from the weighted fit of the
+    cells); a searched shape parameter (knee, order) has none."""
+    if cand.n_coef == 0:
+        return {}
+    lo, hi = cand.params(coef - se, shape, motor), cand.params(coef + se, shape, motor)
+    out = {}
+    for k, v in cand.params(coef, shape, motor).items():
+        if isinstance(v, float) and k not in ("alpha_per_k", "alpha_br_per_k") and not k.startswith("phase"):
+            out[k] = abs(hi[k] - lo[k]) / 2.0
+    return out
+
+
+def _heldout(r, cells, cands, names, motor, env, any_kept: bool):
+    """Leave one operating point out: the gap test, the effects, their shape parameters and values
+    are chosen on the other segments alone and predict the held-out one."""
     segs = np.unique(cells.segment)
     if segs.size < 2:
         return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
-    if not [n for n in accepted if n != REFERENCE]:
+    if not any_kept:
         return 0.0, None, None, "no effect accepted"
     pred_resid = np.full(cells.mean.size, np.nan)
     for s in segs:
         test = cells.segment == s
         train = np.nonzero(~test)[0]
-        # shape parameters (knee, order) are refitted on the training segments too
-        names, sh = [], []
-        for n, s0 in zip(accepted, shapes):
-            if len(cands[n].grid) > 1:
-                sub = _best_shape(r, cells, cands, names, sh, n, rows=train)
-                sh = sub.shapes
-            else:
-                sh = sh + [s0]
-            names.append(n)
-        f = _fit(r, cells, cands, names, sh, rows=train)
+        _, sel, shapes, f = _select_domain(r, cells, cands, names, motor, rows=train)
+        _, below = _rows(cands, f, sel.fitted, shapes, motor, env)
+        drop = {b["effect"] for b in below}
+        if drop:
+            kept = [(n, sh) for n, sh in zip(sel.fitted, shapes) if n not in drop]
+            f = _fit(r, cells, cands, [n for n, _ in kept], [sh for _, sh in kept], rows=train)
         pred_resid[test] = f.resid[test]
     ok = np.isfinite(pred_resid)
-    return heldout_shrink(cells.mean, np.where(ok, pred_resid, 0.0), cells.n * ok, cells.segment, n_boot, seed)
+    seg, n = cells.segment[ok], cells.n[ok]
+    res = heldout_shrink(BlockSums.of(seg, n, cells.mean[ok]), BlockSums.of(seg, n, pred_resid[ok]))
+    note = (
+        f"leave-one-operating-point-out over {res.blocks} segments: the gap test, the effect choice, shape "
+        "parameters and fit see only the other segments; interval: 5-95 % bootstrap over segments"
+    )
+    return res.shrink, res.after, res.interval, note
 
 
 def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> dict:

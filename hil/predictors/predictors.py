@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from bldc.contract import FILTER_COUNTERS
+
 from . import filters as F
 from .model import SECTOR_RAD, MotorModel
 
@@ -115,18 +117,16 @@ class FilterSettings:
 
 
 GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence")
-#: the four counters a controller exposes (docs/controller.md), from the guard counts
-COUNTER_NAMES = ("gated_edges", "covariance_repairs", "divergence_fades", "band_projections")
 
 
 def split_counters(guards: dict[str, int]) -> dict[str, int]:
-    """Gated edges, covariance repairs (eigenvalue floors on R or P: a matrix in use had to be
+    """The counters a controller exposes (``bldc.contract.FILTER_COUNTERS``) from the guard counts:
+    gated edges, covariance repairs (eigenvalue floors on R or P: a matrix in use had to be
     repaired), divergence fades and band projections (Q's Eq. 12 estimate projected onto its
     band, including a non-positive estimate)."""
-    return {"gated_edges": guards.get("innovation_gate", 0),
-            "covariance_repairs": guards.get("r_not_pd", 0) + guards.get("p_not_pd", 0),
-            "divergence_fades": guards.get("divergence", 0),
-            "band_projections": guards.get("q_band", 0)}
+    g = guards.get
+    counts = (g("innovation_gate", 0), g("r_not_pd", 0) + g("p_not_pd", 0), g("divergence", 0), g("q_band", 0))
+    return dict(zip(FILTER_COUNTERS, counts, strict=True))
 
 
 @dataclass

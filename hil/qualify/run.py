@@ -56,9 +56,9 @@ def suite_files(suite: Path) -> list[str]:
 
 def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tuple[str | None, dict[str, str]]:
     """A budgets file that takes out of scope each requirement the DUT form's profile cannot show
-    (hil.budgets.REQUIREMENT_NEEDS: the Modbus controller has no heartbeat and no EMCY), over the
+    (hil.requirements: the Modbus controller has no heartbeat and no EMCY), over the
     user's ``budgets``; its path (None when nothing is out of scope) and the requirements with why."""
-    from ..budgets import REQUIREMENTS, missing_needs
+    from ..requirements import REQUIREMENTS, missing_needs
     from ..dut.profile import load_profile, shipped
     from ..dut.spec import parse_dut
 

@@ -12,13 +12,14 @@ from __future__ import annotations
 
 import configparser
 import re
-import tomllib
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+
+from bldc.tomlfile import load_toml
 
 from .errors import SignalError
 from .vcd import VcdReader
@@ -76,19 +77,9 @@ class GateMapping:
     @classmethod
     def from_toml(cls, path: str | Path) -> "GateMapping":
         """``[channels] AH = "D0" ...``; optional ``time``, ``time_scale``, ``threshold``, ``active_low``."""
-        try:
-            data = tomllib.loads(Path(path).read_text())
-        except (OSError, tomllib.TOMLDecodeError) as exc:
-            raise SignalError(str(path), f"cannot read mapping TOML: {exc}") from None
-        known = {"channels", "time", "time_scale", "threshold", "active_low"}
-        for key in data:
-            if key not in known:
-                raise SignalError(f"{path}: {key}", f"unknown mapping key (known: {', '.join(sorted(known))})")
-        channels = {g: g for g in GATES}
-        for g, ch in dict(data.get("channels", {})).items():
-            if g not in GATES:
-                raise SignalError(f"{path}: channels.{g}", f"not a gate ({', '.join(GATES)})")
-            channels[g] = str(ch)
+        data = load_toml(path, {"channels": set(GATES), "time": None, "time_scale": None, "threshold": None,
+                                "active_low": None})
+        channels = {g: g for g in GATES} | {g: str(ch) for g, ch in data.get("channels", {}).items()}
         try:
             return cls(channels, data.get("time"), data.get("time_scale"), float(data.get("threshold", 0.5)),
                        tuple(data.get("active_low", ())))

@@ -7,6 +7,8 @@ import shlex
 import sys
 from pathlib import Path
 
+from bldc.contract import STRATEGY_NAMES
+
 from .capture import GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S
 from .errors import SignalError
@@ -108,7 +110,6 @@ def cmd_score(args) -> int:
 
 
 def cmd_loopback(args) -> int:
-    from bldc.contract import Strategy
     from plant_models import PlantConfig
 
     from ..controller.virtual import VirtualController
@@ -117,7 +118,7 @@ def cmd_loopback(args) -> int:
     meta = json.loads((Path(args.stimulus) / "meta.json").read_text())
     config = PlantConfig.from_dict(meta["plant"])
     controller = VirtualController(
-        config.motor, strategy=Strategy[args.strategy.upper()], speed_setpoint_rpm=args.speed_rpm
+        config.motor, strategy=STRATEGY_NAMES[args.strategy], speed_setpoint_rpm=args.speed_rpm
     )
     tick = args.capture_tick_s if args.capture_tick_s is not None else config.compile().timer_tick_s
     res = run_loopback(
@@ -188,7 +189,7 @@ def add_parser(sub) -> None:
     q = ss.add_parser("loopback", help="play a stimulus into the virtual controller and write its gates as a VCD")
     q.add_argument("stimulus", help="the directory `hil signals export` wrote")
     q.add_argument("--out", required=True, help="gate VCD to write")
-    q.add_argument("--strategy", default="raw", choices=["raw", "corrected", "kf", "sage_husa"])
+    q.add_argument("--strategy", default="raw", choices=list(STRATEGY_NAMES))
     q.add_argument("--speed-rpm", type=float, default=6000.0, help="the controller's speed set point")
     q.add_argument(
         "--capture-tick-s",

@@ -18,7 +18,6 @@ import json
 import math
 import platform
 import time
-import tomllib
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
@@ -26,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from bldc.hall import hall_state
+from bldc.tomlfile import load_toml
 from bldc.units import rpm_to_deg_e_per_s
 from plant_models import ConfigError, PlantConfig
 from plant_models.effects import effect_from_mapping
@@ -96,10 +96,7 @@ class ExportResult:
 def load_effects(path: str | Path):
     """Effects from a TOML file of ``[[effects]]`` tables."""
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text())
-    except (OSError, tomllib.TOMLDecodeError) as exc:
-        raise SignalError(str(path), f"cannot read effects TOML: {exc}") from None
+    data = load_toml(path, {"effects": [None]})
     tables = data.get("effects")
     if not isinstance(tables, list):
         raise SignalError(str(path), "expected [[effects]] tables")

@@ -1,0 +1,337 @@
+"""The requirement registry: every requirement the acceptance suite judges, declared once.
+
+An entry holds what the requirement asks, how the suite tests it, the page of the docs that
+explains it, what a device profile must offer for a test to show it (roles, the edge hook, a fault
+source) and its default budgets (limit, marginal bound, unit, and where the limit comes from).
+Everything else derives from it:
+
+- the built-in budgets (``hil.budgets.Budgets.defaults``) and the report's requirement titles;
+- "not testable with this profile" (``missing_needs``: the plugin's skip, ``hil qualify``'s
+  out-of-scope entries, ``hil dut check``);
+- the requirement table of docs/acceptance.md and the defaults table of docs/budgets.md
+  (``python -m hil.requirements`` rewrites them; tests/test_budgets.py holds the docs to them).
+
+Adding a requirement is one entry here and its test in test_cases/ (marked
+``@pytest.mark.requirement("REQ-...")``, or parametrised with the ID).
+"""
+
+from __future__ import annotations
+
+import re
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+from bldc.contract import FILTER_COUNTERS, GUARD_TRIPS
+
+
+@dataclass(frozen=True)
+class DefaultBudget:
+    """A built-in budget (docs/budgets.md): ``kind`` "max", the measurement must not exceed
+    ``limit``; "min", it must reach it; beyond ``marginal`` it passes but is flagged."""
+
+    name: str
+    unit: str
+    limit: float
+    marginal: float | None = None
+    kind: str = "max"
+    description: str = ""
+    #: where the limit's value comes from (a paper table, a datasheet, a customer specification);
+    #: empty where no source is stated yet
+    limit_source: str = ""
+
+
+@dataclass(frozen=True)
+class Requirement:
+    id: str
+    statement: str  #: what it asks (the report's title)
+    tested_by: str  #: the suite's test(s) and what they do
+    doc: str  #: the page and heading that explain how it is judged, "page.md#anchor" under docs/
+    #: what a device profile must offer (hil.dut.profile roles, docs/device-profiles.md); a profile
+    #: that lacks one makes the requirement "not testable with this profile"
+    roles: tuple[str, ...] = ()
+    edge_hook: bool = False  #: edges reach the controller (the lockstep bench)
+    fault_source: str | None = None  #: how its faults must be seen ("emcy")
+    budgets: tuple[DefaultBudget, ...] = ()
+
+
+#: role groups (hil.dut.profile roles) several requirements need
+CALIBRATION = ("installation_offset", "pole_offset", "conditioning_delay_rise", "conditioning_delay_fall",
+               "armature_slope", "calibration_apply")
+FILTER_SETTINGS = ("filter_forgetting", "filter_q0", "filter_r0", "filter_p0")
+FILTER_STATE = ("filter_q_diag", "filter_r_diag")
+COUNTERS = (GUARD_TRIPS, *FILTER_COUNTERS)
+#: the groups by the words the docs use for them
+ROLE_GROUPS = {"calibration": CALIBRATION, "filter settings": FILTER_SETTINGS, "filter Q and R": FILTER_STATE,
+               "filter counters": COUNTERS}
+
+_BENCH = ("strategy", *CALIBRATION)  # a lockstep bench run: the strategy set, the calibration downloaded
+_SPEED_LOOP = ("strategy", "speed_setpoint", *CALIBRATION)  # judged on the plant's true currents and speed
+
+_CAL_DOC = "calibration.md#the-procedure-and-what-each-step-needs-from-the-bench"
+_CAL_TEST = ("`test_calibration_recovery.py`: the deviation alone, calibrated, downloaded, corrected commutation "
+             "p99 and the share of the raw error removed")
+_FLT_TEST = ("`test_faults.py`: the wiring fault on the captured-edge stream gives the promised fault code and "
+             "nothing unexplained; commutation recovers")
+_PRED_TEST = ("`test_sage_husa.py`: the paper's seven set points, Sage–Husa, KF and pre-calibration on the same "
+              "plant and seed")
+_PRED_DOC = "sage-husa.md#the-scenario"
+_CANOPEN_DOC = "controller.md#canopen-face"
+_CONTROLLER_DOC = "controller.md#virtual-controller"
+_SPEED_STEP = "5000 to 5500 rpm"
+
+_REGISTRY = (
+    Requirement(
+        "REQ-CAL-001", "Installation deviations of the Hall sensors are removed by the pre-calibration (paper Eq. 1-5)",
+        _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("installation_offset_error", "deg_e", 0.05, 0.04,
+                               description="calibrated installation offsets against truth"),),
+    ),
+    Requirement(
+        "REQ-CAL-002", "Magnet-pole deviations are removed by the pre-calibration (paper Eq. 6)",
+        _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("pole_offset_error", "deg_e", 0.05, 0.04,
+                               description="calibrated pole offsets against truth"),),
+    ),
+    Requirement(
+        "REQ-CAL-003", "Conditioning-circuit (RC) delays are removed, rising and falling edges apart (paper Eq. 7-8)",
+        _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("conditioning_delay_error", "s", 0.5e-6, 0.4e-6,
+                               description="calibrated rise and fall delays against truth"),),
+    ),
+    Requirement(
+        "REQ-CAL-004", "Armature-reaction deviation is removed as a function of phase current",
+        _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("armature_slope_error", "fraction", 0.05, 0.04,
+                               description="calibrated armature-reaction slope, relative error"),),
+    ),
+    Requirement(
+        "REQ-CAL-005",
+        "The calibration table is downloaded, applied and read back exactly; an invalid table is refused",
+        "every download is read back and compared; a refused table raises 0xFF04 (`test_faults.py`, "
+        "`test_protocol.py`)",
+        _CONTROLLER_DOC, (*CALIBRATION, "fault_code"),
+        budgets=(DefaultBudget("calibrated_fraction_removed", "fraction", 0.90, 0.95, "min",
+                               "share of the raw commutation angle RMS that the downloaded calibration removes"),),
+    ),
+    Requirement(
+        "REQ-COMM-001", "Corrected commutation lands within the angle budget over the speed range",
+        "the combined deviations (`test_calibration_recovery.py[combined]`); the same through the pins "
+        "(`test_signal_injection.py`)",
+        "calibration.md#raw-versus-corrected-commutation-paper-section-43", _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("commutation_angle_p99", "deg_e", 0.5, 0.4,
+                               description="p99 commutation angle error after calibration (paper 4.3 scenario)"),),
+    ),
+    Requirement(
+        "REQ-PRED-001", "The Sage-Husa predictor meets the commutation budgets in the paper's speed-step scenario",
+        _PRED_TEST, _PRED_DOC, (*_BENCH, *FILTER_SETTINGS, *COUNTERS), edge_hook=True,
+        budgets=(
+            DefaultBudget("sage_husa_commutation_angle_rms", "deg_e", 1.0, 0.8, description=(
+                "RMS commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario")),
+            DefaultBudget("sage_husa_commutation_angle_p99", "deg_e", 2.5, 2.0, description=(
+                "p99 commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario")),
+            DefaultBudget("sage_husa_commutation_time_mape", "%", 1.0, 0.5, description=(
+                "mean absolute commutation time error of the Sage-Husa predictor against the plant's ideal "
+                "commutation instants, over the ideal commutation interval (60 deg e), paper scenario (1 % is "
+                "0.6 deg e)")),
+            DefaultBudget("commutation_time_mape", "percent", 1.0, 0.9, description=(
+                "MAPE of the predicted commutation instant over the ideal interval (paper Table 5 scenario)")),
+        ),
+    ),
+    Requirement(
+        "REQ-PRED-002", "The Sage-Husa predictor is no worse than the fixed-noise Kalman filter",
+        _PRED_TEST, _PRED_DOC, (*_BENCH, *FILTER_SETTINGS), edge_hook=True,
+        budgets=(DefaultBudget("sage_husa_over_kf_angle_rms", "ratio", 1.05, 1.0, description=(
+            "Sage-Husa commutation angle RMS over the tuned Kalman filter's, same scenario (issue 4: no worse "
+            "by more than 5 %)")),),
+    ),
+    Requirement(
+        "REQ-PRED-003", "The Sage-Husa predictor adapts its noise statistics to the measured edge noise",
+        "`test_sage_husa.py`: Sage–Husa started with R0 = 0 and Q0 100x too large learns the injected edge-angle "
+        "noise (read back over the link)",
+        "sage-husa.md#what-adapts-and-the-guards", (*_BENCH, *FILTER_SETTINGS, *FILTER_STATE), edge_hook=True,
+        budgets=(DefaultBudget("learned_edge_noise_ratio", "ratio", 0.25, 0.5, "min", (
+            "edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects (a filter "
+            "that adapts nothing stays at R0 = 0)")),),
+    ),
+    Requirement(
+        "REQ-PROT-001", "The controller identifies itself (vendor, product, revision, serial, firmware)",
+        "`test_protocol.py`: identity read over the link", _CANOPEN_DOC,
+        ("identity_vendor", "identity_product", "identity_revision", "identity_serial"),
+    ),
+    Requirement(
+        "REQ-PROT-002", "CANopen: heartbeat at the period of 0x1017; EMCY and 0x1001/0x1003 on a fault",
+        "`test_protocol.py`: heartbeat against 0x1017, EMCY with 0x1001/0x1003 on a refused calibration",
+        _CANOPEN_DOC, ("heartbeat_period", "error_register", "fault_code", *CALIBRATION), fault_source="emcy",
+        budgets=(DefaultBudget("heartbeat_period_error", "fraction", 0.05, 0.03,
+                               description="mean heartbeat period against 0x1017 (CiA 301), relative"),),
+    ),
+    Requirement(
+        "REQ-PROT-003", "Bad requests get the standard's answer (SDO abort codes, Modbus exception codes)",
+        "`test_protocol.py`: every SDO abort code from the EDS, Modbus exceptions 01/02/03", _CANOPEN_DOC,
+        ("strategy",),
+    ),
+    Requirement(
+        "REQ-FLT-001", "An illegal Hall code (000/111) raises fault 0xFF01", _FLT_TEST + " (a Hall spike)",
+        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+    ),
+    Requirement(
+        "REQ-FLT-002", "A missing edge raises fault 0xFF02", _FLT_TEST + " (a lost edge)",
+        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+    ),
+    Requirement(
+        "REQ-FLT-003", "A Hall sensor drop-out is detected as a fault", _FLT_TEST + " (0xFF01 or 0xFF02)",
+        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+    ),
+    Requirement(
+        "REQ-FLT-004", "A filter guard trip raises fault 0xFF03", "`test_faults.py`: a forced covariance repair",
+        _CONTROLLER_DOC, (*_BENCH, *FILTER_SETTINGS, GUARD_TRIPS, "fault_code"), edge_hook=True,
+    ),
+    Requirement(
+        "REQ-FLT-005", "No fault is raised on a healthy run", "`test_faults.py`: a healthy run raises none",
+        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+    ),
+    Requirement(
+        "REQ-ROB-001", "Any combination of bounded deviations, once calibrated, meets the commutation budget",
+        "`test_fault_injection.py`: hypothesis over deviation sets (`target()` on the p99; 100 examples); the "
+        "evidence carries `examples run` and the seed, and a search that ran fewer examples than it claims fails",
+        "acceptance.md#findings-and-the-search-bounds", _BENCH, edge_hook=True,
+        budgets=(DefaultBudget("any_deviations_commutation_angle_p99", "deg_e", 1.0, 0.5, description=(
+            "p99 commutation angle error, corrected, for any drawn set of calibratable deviations (property "
+            "search)")),),
+    ),
+    Requirement(
+        "REQ-ROB-002", "Faults switched on and off while running are reported and recovered from",
+        "`test_fault_injection.py`: a stateful machine of wiring faults switched on and off (50 sequences)",
+        "acceptance.md#findings-and-the-search-bounds", (*_BENCH, "fault_code"), edge_hook=True,
+        budgets=(DefaultBudget("recovered_commutation_angle_p99", "deg_e", 1.0, 0.8, description=(
+            "p99 commutation angle error in the 30 ms before the end of a 60 ms recovery window after a wiring "
+            "fault")),),
+    ),
+    Requirement(
+        "REQ-CUR-001", "The phase current stays within the controller's current limit through a set-point step",
+        f"`test_current.py`: the controller's own speed loop stepped {_SPEED_STEP} with calibrated commutation; "
+        "peak phase current from the plant's true currents",
+        _CONTROLLER_DOC, _SPEED_LOOP, edge_hook=True,
+        budgets=(DefaultBudget("phase_current_peak_a", "A", 15.0, 13.5, description=(
+            f"peak phase current (plant truth) through a {_SPEED_STEP} step of the controller's own speed loop: "
+            "the built-in controller's current limit (set your controller's)")),),
+    ),
+    Requirement(
+        "REQ-CUR-002", "Calibrated commutation lowers the mean phase current against raw Hall commutation (paper 4.3)",
+        "`test_current.py`: mean phase current with calibrated commutation over raw Hall commutation at 5700 rpm, "
+        "pump load, paper-sized deviations, same plant and seed (the paper's efficiency figure)",
+        "calibration.md#raw-versus-corrected-commutation-paper-section-43", _SPEED_LOOP, edge_hook=True,
+        budgets=(DefaultBudget("calibrated_over_raw_mean_current", "ratio", 0.8, 0.7, description=(
+            "mean phase current with calibrated commutation over raw Hall commutation, 5700 rpm, pump load, "
+            "paper-sized deviations (the paper reports 0.372)")),),
+    ),
+    Requirement(
+        "REQ-SPD-001", "The controller's speed loop settles a set-point step without excessive overshoot",
+        f"`test_current.py`: the same {_SPEED_STEP} step; overshoot and settling time from the plant's true speed",
+        _CONTROLLER_DOC, _SPEED_LOOP, edge_hook=True,
+        budgets=(
+            DefaultBudget("speed_step_overshoot", "fraction", 0.1, 0.05, description=(
+                f"speed overshoot (plant truth) of a {_SPEED_STEP} set-point step, over the step size")),
+            DefaultBudget("speed_step_settling_s", "s", 0.6, 0.4, description=(
+                f"time from a {_SPEED_STEP} set-point step until the true speed stays within +-2 % of the set "
+                "point")),
+        ),
+    ),
+)
+
+#: the registry by ID, in the order above
+REQUIREMENTS: dict[str, Requirement] = {r.id: r for r in _REGISTRY}
+
+
+def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list[str]:
+    """What a device profile lacks for ``requirements`` (``has_role(role)``, its edge hook kind, its
+    fault sources), one phrase each; empty when every requirement is testable through it. A
+    requirement the registry does not hold (a user's own budget's) needs nothing."""
+    out: list[str] = []
+    for rid in sorted(set(requirements)):
+        if (req := REQUIREMENTS.get(rid)) is None:
+            continue
+        out += [f"role {r}" for r in req.roles if not has_role(r) and f"role {r}" not in out]
+        if req.edge_hook and edge_hook == "none" and "an edge hook" not in out:
+            out.append("an edge hook")
+        if req.fault_source and req.fault_source not in fault_sources and f"fault source {req.fault_source}" not in out:
+            out.append(f"fault source {req.fault_source}")
+    return out
+
+
+# --- the docs' tables -----------------------------------------------------------------------------
+DOCS = Path(__file__).resolve().parent.parent / "docs"
+
+
+def _roles_in_words(roles: tuple[str, ...]) -> str:
+    """The roles with each complete group named by its word (``calibration`` for its six roles)."""
+    words, left = [], list(roles)
+    for word, group in ROLE_GROUPS.items():
+        if set(group) <= set(left):
+            words.append(word)
+            left = [r for r in left if r not in group]
+    return ", ".join(words + [f"`{r}`" for r in left])
+
+
+def _needs_in_words(req: Requirement) -> str:
+    parts = [_roles_in_words(req.roles)] if req.roles else []
+    parts += ["the edge hook"] if req.edge_hook else []
+    parts += [f"fault source {req.fault_source}"] if req.fault_source else []
+    return "; ".join(parts) or "–"
+
+
+def _bound(b: DefaultBudget) -> str:
+    return f"`{b.name}` {'≤' if b.kind == 'max' else '≥'} {b.limit:g} {b.unit}"
+
+
+def requirements_table() -> str:
+    """The requirement table of docs/acceptance.md (markdown), one row per requirement."""
+    rows = ["| requirement | what it asks | tested by | default budgets | the device profile must offer |",
+            "|---|---|---|---|---|"]
+    for r in REQUIREMENTS.values():
+        budgets = "; ".join(_bound(b) for b in r.budgets) or "– (pass or fail)"
+        rows.append(f"| [{r.id}]({r.doc}) | {r.statement} | {r.tested_by} | {budgets} | {_needs_in_words(r)} |")
+    return "\n".join(rows) + "\n"
+
+
+def budgets_table() -> str:
+    """The defaults table of docs/budgets.md (markdown), one row per built-in budget."""
+    rows = ["| budget | requirement | kind | limit | marginal from | unit | meaning | limit from |",
+            "|---|---|---|---|---|---|---|---|"]
+    for r in REQUIREMENTS.values():
+        for b in r.budgets:
+            marginal = "–" if b.marginal is None else f"{b.marginal:g}"
+            rows.append(f"| {b.name} | {r.id} | {b.kind} | {b.limit:g} | {marginal} | {b.unit} | {b.description} | "
+                        f"{b.limit_source or 'not stated yet'} |")
+    return "\n".join(rows) + "\n"
+
+
+#: page -> (the generated table's function); the table sits between these two lines of the page
+GENERATED = {"acceptance.md": requirements_table, "budgets.md": budgets_table}
+BEGIN = "<!-- generated from hil/requirements.py by `python -m hil.requirements`: edit the registry, not this table -->"
+END = "<!-- end of the generated table -->"
+
+
+def rendered(page: str, text: str) -> str:
+    """``text`` (the page's content) with its generated table as the registry gives it now."""
+    pattern = re.compile(re.escape(BEGIN) + r"\n.*?" + re.escape(END), re.DOTALL)
+    if len(pattern.findall(text)) != 1:
+        raise ValueError(f"docs/{page}: needs exactly one generated table between the lines {BEGIN!r} and {END!r}")
+    return pattern.sub(lambda _: f"{BEGIN}\n{GENERATED[page]()}{END}", text)
+
+
+def main() -> int:
+    """Rewrite the generated tables of the docs in place."""
+    for page in GENERATED:
+        path = DOCS / page
+        text = path.read_text()
+        new = rendered(page, text)
+        if new != text:
+            path.write_text(new)
+            print(f"docs/{page}: table rewritten from the registry")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())
