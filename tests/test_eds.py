@@ -124,3 +124,48 @@ def test_an_eds_generated_from_a_foreign_profile_drafts_back_to_that_profile(tmp
     own = foreign.bind(2, 5, read_eds(eds, 5))
     mapped = {r: (o.index, o.subindex, o.count, o.type) for r, o in own.objects.items() if not o.default}
     assert mapped.items() <= {r: (o.index, o.subindex, o.count, o.type) for r, o in back.objects.items()}.items()
+
+
+def test_the_docs_list_the_shipped_dictionary_as_it_is_served():
+    """docs/controller.md's table of the built-in dictionary is a copy a reader trusts: every
+    object the device serves is in it, with the types and access it is served with."""
+    from hil.dut.eds import object_dictionary, virtual_identity
+    from hil.dut.profile import shipped
+
+    text = (ROOT / "docs" / "controller.md").read_text()
+    section = text[text.index("## CANopen face") :]
+    section = section[: section.index("\n## ", 1)]
+    rows = re.findall(r"^\| 0x([0-9A-F]{4}) \| [^|]+ \| ([^|]+) \| ([^|]+) \|$", section, re.M)
+    od = object_dictionary(shipped("canopen").bind(2, 5), 5, virtual_identity())
+    assert {int(index, 16) for index, _, _ in rows} == set(od.indices)
+    names = {0x03: "I16", 0x05: "U8", 0x06: "U16", 0x07: "U32", 0x08: "REAL32", 0x09: "VISIBLE_STRING", 0x11: "REAL64"}
+    for index, types, access in rows:
+        obj = od[int(index, 16)]
+        members = [obj] if isinstance(obj, canopen.objectdictionary.ODVariable) else [
+            v for v in obj.values() if v.name != "Highest sub-index supported"]
+        served = {names[v.data_type] for v in members}
+        listed = {t.split()[0] for t in types.split("/")}
+        assert served == listed or (types.strip() == "mixed" and len(served) > 1), (index, served, types)
+        assert {v.access_type for v in members} == {a.strip() for a in access.split("/")}, (index, access)
+
+
+def test_the_docs_list_the_shipped_register_map_as_it_is_served():
+    """The same for the Modbus face's table: each mapped register in a row of its object's type
+    and access, the mailbox where the profile puts it, and no row the map does not have."""
+    from hil.dut.profile import REPLY_WORDS, ROLES, mailbox_words, shipped
+
+    text = (ROOT / "docs" / "controller.md").read_text()
+    section = text[text.index("## Modbus face") :]
+    section = section[: section.index("\n## ", 1)]
+    rows = [(int(a), int(b or a), types, access) for a, b, types, access in
+            re.findall(r"^\| (\d+)(?:-(\d+))? \| [^|]+ \| ([^|]+) \| (ro|rw|wo) \|$", section, re.M)]
+    profile = shipped("modbus").bind(2)
+    hook = profile.edge_hook
+    mailbox = {(hook.reply_address, hook.reply_address + REPLY_WORDS - 1, "ro"),
+               (hook.request_address, hook.request_address + mailbox_words(profile) - 1, "wo")}
+    assert mailbox <= {(a, b, access) for a, b, _, access in rows}
+    listed = {r for a, b, _, _ in rows if (a, b) not in {(m[0], m[1]) for m in mailbox} for r in range(a, b + 1)}
+    assert listed == {r for o in profile.objects.values() for r in range(o.address, o.end)}
+    for o in profile.objects.values():
+        a, b, types, access = next(row for row in rows if row[0] <= o.address <= row[1])
+        assert o.type.upper() in types and access == {"r": "ro", "rw": "rw", "w": "wo"}[ROLES[o.role].access], o.role

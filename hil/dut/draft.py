@@ -41,6 +41,8 @@ PHRASES: dict[str, tuple[tuple[tuple[str, ...], ...], ...]] = {
     "band_projections": ((("band",), ("projection", "projections")),),
     "last_predicted_commutation": ((("predicted",), ("commutation",)),),
 }
+#: CiA 301's pre-defined error field: sub 0 the number of errors, subs 1.. the codes, newest first
+ERROR_FIELD = 0x1003
 #: words of a record's (or an object's) name that make a calibration role its read-back
 _APPLIED = ("applied", "active", "readback")
 
@@ -95,11 +97,11 @@ def draft_from_eds(path: str) -> str:
         applied = bool(set(words(parent)) & set(_APPLIED))
         for var in variables:
             type_ = CANOPEN_TYPE_CODES.get(var.data_type)
-            if type_ is None or var.index < 0x2000 and var.index != 0x1003:
+            if type_ is None or var.index < 0x2000 and var.index != ERROR_FIELD:
                 continue
             sub = var.subindex if not isinstance(obj, canopen.objectdictionary.ODVariable) else 0
             role = _guess(var.name, applied) if var.index >= 0x2000 else None
-            if var.index == 0x1003:
+            if var.index == ERROR_FIELD:
                 role = "fault_code" if sub >= 1 else None
             if role is not None and (role.startswith("x_") or not _access_allows(role, var.access_type)):
                 role = None
@@ -141,8 +143,8 @@ def draft_from_eds(path: str) -> str:
         if unit == "action":
             out.append("write = 1  # GUESS: the value that triggers it")
     if "fault_code" in found:
-        out += ["", "[objects.fault_count]  # GUESS: the pre-defined error field's count", "index = 0x1003",
-                "subindex = 0", 'type = "uint8"']
+        out += ["", "[objects.fault_count]  # GUESS: the pre-defined error field's count",
+                f"index = 0x{ERROR_FIELD:04X}", "subindex = 0", 'type = "uint8"']
     for e in extra:
         key = re.sub(r"[^a-z0-9]+", "_", e["name"].lower()).strip("_")[:40] or f"{e['index']:04x}"
         why = f"also matches {e['also']} (taken above)" if "also" in e else "no role guessed"

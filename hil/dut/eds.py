@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import configparser
 import io
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -235,8 +236,6 @@ def _tolerate_empty(eds: configparser.RawConfigParser, where: str) -> None:
 
 
 def _is_object(section: str) -> bool:
-    import re
-
     return re.fullmatch(r"[0-9A-Fa-f]{4}(sub[0-9A-Fa-f]+)?", section) is not None
 
 

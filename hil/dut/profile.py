@@ -119,6 +119,16 @@ CALIBRATION_ROLES = ("installation_offset", "pole_offset", "conditioning_delay_r
 #: the filter-settings roles in the order of ``bldc.contract.filter_vector``
 FILTER_ROLES = ("filter_forgetting", "filter_q0", "filter_r0", "filter_p0")
 ROLES = _roles()
+#: the read-only roles a controller reports in ``status()``, each with its key there (the same in
+#: ``VirtualController.status`` and every ``ControllerLink.status``): a new reading is a row of
+#: ROLES, an entry here and its object in each profile, and both faces serve it
+STATUS_ROLES = {
+    "speed_actual": "estimated_speed_rpm",
+    "filter_q_diag": "q_diag",
+    "filter_r_diag": "r_diag",
+    **{counter: counter for counter in COUNTERS},
+    "last_predicted_commutation": "last_predicted_commutation_s",
+}
 #: CiA 301 objects a CANopen role defaults to when the profile does not list it
 CANOPEN_DEFAULTS = {
     "identity_vendor": (0x1018, 1, "uint32"),

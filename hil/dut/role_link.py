@@ -9,7 +9,16 @@ link knows an index or an address.
 from __future__ import annotations
 
 from .link import LinkError, verify_calibration
-from .profile import CALIBRATION_ROLES, COUNTERS, FILTER_ROLES, DeviceObject, Profile, ProfileValueError
+from .profile import (
+    CALIBRATION_ROLES,
+    COUNTERS,
+    FILTER_ROLES,
+    ROLES,
+    STATUS_ROLES,
+    DeviceObject,
+    Profile,
+    ProfileValueError,
+)
 
 
 class RoleLink:
@@ -139,14 +148,13 @@ class RoleLink:
             v = self.read_role(role)
             return v if n is None else v[0]
 
-        out = {k: (int(v) if (v := get(k, 0)) is not None else None) for k in COUNTERS}
+        out = {}
+        for role, key in STATUS_ROLES.items():  # a one-element reading is a scalar, a count an int
+            v = get(role, None if ROLES[role].count != 1 else 0)
+            out[key] = int(v) if v is not None and role in COUNTERS else v
         out.update(
             strategy=get("strategy", 0),
             speed_setpoint_rpm=get("speed_setpoint", 0),
-            estimated_speed_rpm=get("speed_actual", 0),
-            q_diag=get("filter_q_diag"),
-            r_diag=get("filter_r_diag"),
-            last_predicted_commutation_s=get("last_predicted_commutation", 0),
             error_register=(int(v) if (v := get("error_register", 0)) is not None else None),
             faults=[(0.0, code) for code in self.faults()],
         )

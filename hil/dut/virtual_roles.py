@@ -14,7 +14,7 @@ from bldc.contract import filter_vector, with_filter_vector
 
 from ..calibration.corrections import Corrections
 from ..controller.virtual import VirtualController
-from .profile import CALIBRATION_ROLES, COUNTERS, FILTER_ROLES, ROLES, STRATEGY_NAMES, Profile
+from .profile import CALIBRATION_ROLES, COUNTERS, FILTER_ROLES, ROLES, STATUS_ROLES, STRATEGY_NAMES, Profile
 
 SPEED_RANGE_RPM = (0.0, 30000.0)  #: the set points the virtual controller accepts
 HISTORY = 8  #: latched fault codes kept, newest first
@@ -77,21 +77,11 @@ class VirtualRoles:
             return ([self.profile.device_fault(code) for code in self.history] + [0] * count)[:count]
         if role == "heartbeat_period":
             return [self.heartbeat_ms]
-        st = c.status()
-
-        def finite(v):
-            return v if math.isfinite(v) else 0.0
-
-        if role == "speed_actual":
-            return [finite(st["estimated_speed_rpm"])]
-        if role == "filter_q_diag":
-            return list(st["q_diag"])
-        if role == "filter_r_diag":
-            return list(st["r_diag"])
-        if role in COUNTERS:
-            return [int(st[role])]
-        if role == "last_predicted_commutation":
-            return [finite(st["last_predicted_commutation_s"])]
+        if role in STATUS_ROLES:
+            value = c.status()[STATUS_ROLES[role]]
+            values = list(value) if isinstance(value, (list, tuple)) else [value]
+            # a count stays an integer; a reading the controller does not have yet (NaN) reads 0
+            return [int(v) if role in COUNTERS else (v if math.isfinite(v) else 0.0) for v in values]
         raise KeyError(role)
 
     # --- writes -----------------------------------------------------------------------------------
