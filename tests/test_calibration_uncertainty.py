@@ -48,16 +48,17 @@ def test_the_generator_has_correlated_jitter_and_a_speed_range():
 
 
 def test_the_jackknife_sees_correlated_noise_that_least_squares_misses():
-    """Edge jitter correlated over about 20 edges (AR(1), lag-1 0.95): the contrasts of the pole
-    offsets average far fewer independent errors than edges; the white-noise figure is too small,
-    the stretch jackknife's is not."""
+    """Edge jitter correlated over about 20 edges (AR(1), lag-1 0.95). The pole pattern repeats every
+    6 p = 24 edges, where the AR(1) spectrum, 1 / (1 + rho^2 - 2 rho cos(2 pi / 24)), is 1.44 times
+    its mean: the pole offsets' errors are some 1.2 times what white noise of the same variance
+    gives. The white-noise figure misses that; the stretch jackknife does not."""
     cap = correlated_capture(11, jitter_correlation=(0.95, 0.95), jitter_rms_s=(20e-6, 20e-6))
     steps = hall_steps(cap.t_s, cap.sensor, cap.rising)
     fit = fit_ordinary(steps, Effects(pole_pairs=cap.pole_pairs), tick_s=33_333e-9)
     robust = uncertainty.robust_fit(fit)
     poles = [i for i, n in enumerate(fit.names) if n.startswith("pole_")]
     ratio = np.sqrt(np.diag(robust.cov)[poles] / np.diag(fit.cov)[poles])
-    assert np.median(ratio) > 1.3, ratio
+    assert np.median(ratio) > 1.1, ratio
     assert "jackknife" in robust.stderr_method
 
 
