@@ -161,10 +161,12 @@ def _print_ordinary_calibration(recording, out: dict) -> None:
     print(f"  timer_tick_s: {a['timer_tick_s'] or 'unknown'}; pole pairs: {a['pole_pairs_source']}")
     print(f"  rise_fall_delay_difference_s:    {pm(out['rise_fall_delay_difference_s'], 1e6, ' us')}")
     print(f"  rise_fall_angle_asymmetry_deg_e: {pm(out['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}")
-    ind = out["independent_estimate"]
+    print(f"  standard errors: {out['stderr_method']}")
+    ind = out["method_cross_check"]
     if ind:
         print(
-            f"  independent (sector widths vs speed): delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
+            "  method cross-check (sector widths vs speed; the same edges and model, not independent data): "
+            f"delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
             f"angle {pm(ind['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}"
         )
     inst = out["installation_offset_deg_e"]

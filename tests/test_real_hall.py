@@ -146,13 +146,16 @@ def test_an_ordinary_run_refuses_a_segment_name_in_its_edges(tmp_path):
 # --- calibration on the real captures ---------------------------------------------------------
 
 
-def test_spindle_delay_difference_matches_the_sector_width_estimate(spindle):
+def test_spindle_delay_difference_matches_the_sector_width_method_cross_check(spindle):
     _, _, out, _ = spindle
     d = out["rise_fall_delay_difference_s"]
-    ind = out["independent_estimate"]["rise_fall_delay_difference_s"]
-    # the issue measured about 130 us (wide-minus-narrow sectors growing with speed)
+    # the sector-width figure reads the same edges with the same model: a check of the method
+    assert out["independent_estimate"] is out["method_cross_check"]  # the former name, an alias
+    ind = out["method_cross_check"]["rise_fall_delay_difference_s"]
+    assert "method cross-check" in out["method_cross_check"]["method"]
+    # the issue measured about 130 us (wide-minus-narrow sectors growing with speed); whether its
+    # error is honest is checked by coverage and by the halves (tests/test_calibration_uncertainty.py)
     assert 110e-6 < d["value"] < 160e-6, d
-    assert d["stderr"] < 0.02 * d["value"]
     assert abs(d["value"] - ind["value"]) < 0.15 * ind["value"], (d, ind)
     assert out["assumptions"]["speed_range_sufficient"] and out["assumptions"]["speed_ratio"] > 3
     assert out["assumptions"]["direction"].startswith("reverse")
@@ -163,7 +166,7 @@ def test_spindle_delay_difference_matches_the_sector_width_estimate(spindle):
 def test_hoverboard_delay_and_pole_count(hboard):
     _, _, out, _ = hboard
     d = out["rise_fall_delay_difference_s"]
-    ind = out["independent_estimate"]["rise_fall_delay_difference_s"]
+    ind = out["method_cross_check"]["rise_fall_delay_difference_s"]
     assert 220e-6 < d["value"] < 320e-6, d  # the issue: about 270 us
     assert abs(d["value"] - ind["value"]) < 0.15 * ind["value"], (d, ind)
     # the source's harness says 30 poles: the pole pattern is found without being told

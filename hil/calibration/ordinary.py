@@ -30,7 +30,14 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 
 from .corrections import SENSORS
-from .uncertainty import MODEL_WEIGHT_IGNORED, bic_weight, block_starts, robust_fit, with_model_choice
+from .uncertainty import (
+    MODEL_WEIGHT_IGNORED,
+    bic_weight,
+    block_starts,
+    robust_fit,
+    stretch_jackknife_stderr,
+    with_model_choice,
+)
 
 #: the edge decoding (bit order, glitches, invalid states, stalls, reversals) is ``bldc.edges``
 SENSOR_OF_BOUNDARY = edges.SENSOR_OF_BOUNDARY
@@ -361,7 +368,9 @@ def speed_hz_e(steps: HallSteps) -> np.ndarray:
 
 @dataclass
 class IndependentDelay:
-    """The rise-minus-fall delay from sector widths alone (no trajectory model): per window of
+    """The method cross-check: the rise-minus-fall delay from sector widths alone (no trajectory
+    model). It reads the same edges with the same two-parameter model (delay and constant
+    asymmetry), so it checks the trajectory fit's method, not the data. Per window of
     seven edges starting at a rising edge, half the difference of the mean fall-to-rise and
     rise-to-fall sector widths in angle, regressed on the window's speed: slope = D, intercept =
     the constant asymmetry. Weights 1/2, 1, 1, 1/2 on the four rise-to-fall sectors cancel a
@@ -400,11 +409,18 @@ def independent_delay(steps: HallSteps) -> IndependentDelay | None:
     ws, hs = np.array(ws), np.array(hs)
     res = stats.linregress(ws, hs)
     f = ws / 360.0
+    # overlapping windows of correlated edges: the errors from a delete-a-stretch jackknife
+    def slope_and_intercept(keep: np.ndarray) -> tuple[float, float]:
+        r = stats.linregress(ws[keep], hs[keep])
+        return r.slope, r.intercept
+
+    jackknife = stretch_jackknife_stderr(slope_and_intercept, ws.size)
+    slope_se, intercept_se = (res.stderr, res.intercept_stderr) if jackknife is None else jackknife
     return IndependentDelay(
         float(res.slope),
-        float(res.stderr),
+        float(slope_se),
         float(res.intercept),
-        float(res.intercept_stderr),
+        float(intercept_se),
         int(ws.size),
         (float(np.percentile(f, 5)), float(np.percentile(f, 95))),
     )
@@ -710,6 +726,20 @@ def ordinary_calibration(
     undetermined["hysteresis_common_lag"] = "a lag common to every edge is invisible without an encoder"
     d_table = delay["value"] or 0.0
     ind = independent_delay(steps)
+    cross_check = (
+        None
+        if ind is None
+        else {
+            "method": (
+                "method cross-check, not an independent measurement: the same edges and the same two-parameter "
+                "model (delay and constant asymmetry) read from sector widths alone, half the fall-to-rise minus "
+                "rise-to-fall width vs speed (linregress; errors from a delete-a-stretch jackknife)"
+            ),
+            "rise_fall_delay_difference_s": _value(ind.delay_diff_s, ind.stderr_s),
+            "rise_fall_angle_asymmetry_deg_e": _value(ind.asymmetry_deg_e, ind.asymmetry_stderr_deg_e),
+            "windows": ind.windows,
+        }
+    )
     assumptions = {
         "pole_pairs": pole_pairs,
         "pole_pairs_source": p_source,
@@ -764,14 +794,8 @@ def ordinary_calibration(
         "uncertainty": {"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
         "stderr_method": fit.stderr_method,
         "conditioning_delay_table": {},
-        "independent_estimate": None
-        if ind is None
-        else {
-            "method": "sector widths alone: half the fall-to-rise minus rise-to-fall width vs speed (linregress)",
-            "rise_fall_delay_difference_s": _value(ind.delay_diff_s, ind.stderr_s),
-            "rise_fall_angle_asymmetry_deg_e": _value(ind.asymmetry_deg_e, ind.asymmetry_stderr_deg_e),
-            "windows": ind.windows,
-        },
+        "method_cross_check": cross_check,
+        "independent_estimate": cross_check,  # the same object under its former name (an alias)
         "assumptions": assumptions,
         "info": {
             "method": "ordinary run: trajectory splines and edge offsets by joint weighted least squares",

@@ -127,3 +127,22 @@ MODEL_WEIGHT_IGNORED = 1e-3
 def bic_weight(gain: float) -> float:
     """The posterior weight of a model whose BIC is ``gain`` lower than its alternative's."""
     return float(special.expit(gain / 2.0))
+
+
+def stretch_jackknife_stderr(estimate, n: int) -> np.ndarray | None:
+    """Standard errors of ``estimate(keep)`` (a vector from the items of the boolean mask ``keep``,
+    in order) by deleting one contiguous stretch of the ``n`` items at a time (``block_starts``),
+    t-scaled as ``robust_fit``; None with too few stretches."""
+    starts = block_starts(n)
+    g = starts.size
+    if g < MIN_BLOCKS:
+        return None
+    ends = np.append(starts[1:], n)
+    draws = []
+    for a, b in zip(starts, ends):
+        keep = np.ones(n, dtype=bool)
+        keep[a:b] = False
+        draws.append(np.asarray(estimate(keep), dtype=float))
+    draws = np.array(draws)
+    spread = np.sqrt((g - 1.0) / g * np.sum((draws - draws.mean(axis=0)) ** 2, axis=0))
+    return spread * t_over_normal(g)

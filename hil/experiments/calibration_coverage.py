@@ -155,10 +155,16 @@ def check_capture(cap: SyntheticCapture) -> list[Check]:
 
 @dataclass
 class CoverageRow:
+    """One figure over a coverage study: how often value +- Z stderr held the truth, how wide those
+    intervals were, and how far the estimates really were from the truth (an honest interval's
+    half-width is about Z times the RMS error; the RMS of z is about 1)."""
+
     figure: str
     n: int
     coverage: float
     mean_halfwidth: float
+    rms_error: float
+    rms_z: float
     unit: str
 
 
@@ -180,11 +186,10 @@ def coverage_study(n_captures: int, seed: int = 0, **capture_kwargs) -> tuple[li
         if not mine:
             continue
         z = np.array([c.z for c in mine])
-        rows.append(
-            CoverageRow(
-                fig, len(mine), float(np.mean(z <= Z)), float(Z * np.mean([c.stderr for c in mine])), UNITS[fig]
-            )
-        )
+        err = np.array([c.value - c.truth for c in mine])
+        halfwidth = Z * float(np.mean([c.stderr for c in mine]))
+        rms_error, rms_z = float(np.sqrt(np.mean(err**2))), float(np.sqrt(np.mean(z**2)))
+        rows.append(CoverageRow(fig, len(mine), float(np.mean(z <= Z)), halfwidth, rms_error, rms_z, UNITS[fig]))
     info = {
         "captures": n_captures,
         "seed": seed,
@@ -213,7 +218,7 @@ def half_split(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, tick_s: 
         (a, sa), (b, sb) = pairs
         if None in (a, sa, b, sb):
             return
-        rows.append({"figure": name, "halves": [a, b], "stderr": [sa, sb], "z": abs(a - b) / np.hypot(sa, sb)})
+        rows.append({"figure": name, "halves": [a, b], "stderr": [sa, sb], "z": float(abs(a - b) / np.hypot(sa, sb))})
 
     for key, name in (
         ("rise_fall_delay_difference_s", "delay_difference"),
