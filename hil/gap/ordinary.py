@@ -44,17 +44,23 @@ from .diagnose import Diagnosis, knob
 from .relevance import edge_relevance
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink, inliers
 
+#: the model of the whole run: its used edges in this many consecutive stretches, each with its
+#: own trajectory (the cells of the gap are per stretch)
+MODEL_STRETCHES = 10
 #: held-out design: the used edges in up to this many consecutive stretches, every other one held
 #: out: the bootstrap of the held-out shrink resamples the held-out stretches (blocks of time, so
 #: correlated residuals stay together)
 N_STRETCHES = 20
-#: a stretch holds at least this many used edges (its own trajectory, 48 cells), so a short capture
-#: gets fewer stretches (at least four: two held out)
+#: a held-out stretch holds at least this many used edges (its own trajectory, 48 cells), so a
+#: short capture gets fewer stretches (at least four: two held out)
 MIN_STRETCH_EDGES = 150
 
 
 def n_stretches(steps: HallSteps) -> int:
-    """How many stretches the held-out design cuts ``steps`` into (an even number, 4 to 20)."""
+    """How many stretches the held-out design cuts ``steps`` into (an even number, 4 to 20).
+    The whole run's model keeps ``MODEL_STRETCHES``: cut finer, the trajectories of short
+    stretches take up a slow pole pattern (the hoverboard's 15 pole pairs are found at 10
+    stretches, not at 18)."""
     used = int(steps.used().sum())
     return int(min(N_STRETCHES, max(4, 2 * (used // (2 * MIN_STRETCH_EDGES)))))
 #: speed bands of the cells (quantiles of the electrical speed)
@@ -262,8 +268,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     edges_b = np.quantile(f_hz[steps.used()], np.linspace(0, 1, N_SPEED_BANDS + 1))
     band = np.clip(np.searchsorted(edges_b, f_hz, side="right") - 1, 0, N_SPEED_BANDS - 1)
     band = np.where(np.isfinite(f_hz), band, 0)
-    n_st = n_stretches(steps)
-    st, stretch = _stretched(steps, n_st)
+    st, stretch = _stretched(steps, MODEL_STRETCHES)
     whole = _pipeline(st, tick, rec.stated_pole_pairs, stretch, band)
     sel, full = whole.sel, whole.full
     significant = whole.p_value < ALPHA
@@ -295,7 +300,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         rows[n]["relevance"] = whole.relevance[n]
     remainder_p = _p_value(_cells(st, full, stretch, band))
     unexplained = bool(significant and remainder_p < ALPHA)
-    shrink, after, interval, note = _heldout(st, stretch, n_st, band, tick, rec.stated_pole_pairs, bool(accepted))
+    shrink, after, interval, note = _heldout(steps, band, tick, rec.stated_pole_pairs, bool(accepted))
     confounded = [list(t) for t in sel.ties]
 
     def refit_chi2(m: str) -> float:
@@ -349,12 +354,14 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     )
 
 
-def _heldout(st: HallSteps, stretch, n_st: int, band, tick, stated_pole_pairs, any_accepted: bool):
+def _heldout(steps: HallSteps, band, tick, stated_pole_pairs, any_accepted: bool):
     """Every other stretch trains: the gap test, the knots, the pole pairs, the effects and their
     values are chosen there alone; the held-out stretches are then fitted with those effects fixed
     and only their own speed trajectory free. Returns (shrink, gap after, interval, note)."""
     if not any_accepted:
         return None, None, None, "no effect accepted"
+    n_st = n_stretches(steps)
+    st, stretch = _stretched(steps, n_st)
     train = np.isin(stretch, np.arange(0, n_st, 2))
     test = np.isin(stretch, np.arange(1, n_st, 2))
     try:
@@ -387,8 +394,7 @@ def _heldout(st: HallSteps, stretch, n_st: int, band, tick, stated_pole_pairs, a
 
 def report_fit(rec: Recording, d: Diagnosis) -> tuple[HallSteps, Fit]:
     """The stretched steps and the joint fit of the kept effects that ``d`` chose (for figures)."""
-    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
-    st, _ = _stretched(steps, n_stretches(steps))
+    st, _ = _stretched(hall_steps(rec.t_s, rec.sensor, rec.rising), MODEL_STRETCHES)
     kept = [a["effect"] for a in d.accepted + d.below_relevance]
     eff = _merge(kept, d.pole_pairs)
     return st, fit_ordinary(st, eff, tick_s=rec.timer_tick_s, knot_cycles=d.knot_cycles or KNOT_CYCLES)
