@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import struct
 from dataclasses import dataclass
 from typing import Protocol
@@ -149,11 +150,13 @@ def _duty_u16(duty: float) -> int:
 #: sample, 50 kHz by default, and the count goes with the sums).
 ADC_PERIOD_TICKS = 20
 ADC_PERIOD_S = ADC_PERIOD_TICKS * TICK_S
-#: the window an edge carries (the capture's conversion and the periodic ones) reaches this far
-#: before its capture: the largest conditioning delay a calibration table may carry (100 us, the
-#: built-in controller's table bound) and one conversion
-MAX_ADC_SAMPLES = 52
-ADC_LOOKBACK_S = (MAX_ADC_SAMPLES - 2) * ADC_PERIOD_S
+#: the largest conditioning delay a calibration table may carry (the built-in controller's table
+#: bound, ``hil.controller.virtual.validate_corrections``): the edge's current is read this long
+#: before its capture at most, so no ADC window needs to reach further back
+MAX_CONDITIONING_DELAY_S = 100e-6
+#: the most conversions an edge message carries: the capture's and the periodic ones back to
+#: MAX_CONDITIONING_DELAY_S and one beyond (the line through the oldest instant needs both ends)
+MAX_ADC_SAMPLES = math.ceil(MAX_CONDITIONING_DELAY_S / ADC_PERIOD_S - 1e-9) + 2
 #: one count of a conversion: 2 mA, so an I16 spans +-65.5 A (beyond it a conversion saturates)
 ADC_LSB_A = 2e-3
 NO_SAMPLES = 0xFFFF  #: the header's newest-conversion age when the message carries no window

@@ -26,6 +26,7 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .dut.traffic import traffic_summary  # standard library only
 from .report_html import html  # the HTML report's presentation (labels, summary, matrix rows)
 
 PROPERTY_PREFIX = "hil:"
@@ -233,6 +234,10 @@ class ReportWriter:
         for r in self.records:
             if r.get("dut") and r.get("dut_identity"):
                 duts.setdefault(r["dut"], r["dut_identity"])
+        traffic: dict[str, list] = {}
+        for r in self.records:
+            if r.get("dut") and r.get("traffic"):
+                traffic.setdefault(r["dut"], []).append(r["traffic"])
         verdict, reasons = self._overall(tests, matrix)
         counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
         waivers = [
@@ -258,6 +263,8 @@ class ReportWriter:
             "counts": counts,
             "session": self.session,
             "duts": duts,
+            # what the edges moved on each DUT's link, with the bus time (hil.dut.traffic)
+            "traffic": {dut: traffic_summary(counts) for dut, counts in traffic.items()},
             "waivers": waivers,
             "traceability": matrix,
             "tests": tests,
