@@ -31,7 +31,7 @@ def rms(values) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
 
 
-def adc_reach_s(link: ControllerLink) -> float:
+def adc_reach_s(link: ControllerLink | None) -> float:
     """How far before a capture the controller may read its ADC, so how far back an edge's window
     reaches: what its profile declares (``[edge_hook] adc_reach_s``), else the largest conditioning
     delay of the table the framework downloaded to it, else the edge message's bound (a table the
@@ -40,7 +40,7 @@ def adc_reach_s(link: ControllerLink) -> float:
     declared = profile.edge_hook.adc_reach_s if profile is not None else None
     if declared is not None:
         return declared
-    table = link.applied_calibration
+    table = getattr(link, "applied_calibration", None)
     return max(table.conditioning_delay_s.values()) if table is not None else MAX_CONDITIONING_DELAY_S
 
 
