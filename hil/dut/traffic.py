@@ -91,33 +91,17 @@ class LinkTraffic:
         self.bytes_from_device += response_bytes
 
     def as_dict(self) -> dict:
-        return asdict(self)
+        """The counts, with the bus time of CAN's (seconds add up, so a test's share is a difference)."""
+        out = {k: v for k, v in asdict(self).items() if k not in ("can_bits", "can_fd_s")}
+        if self.protocol == "modbus":
+            out.pop("frames_to_device"), out.pop("frames_from_device")
+        else:
+            out.pop("transactions")
+            out["bus_time_s"] = {"can_1mbit": self.can_bits / CAN_BIT_RATE, "can_fd_5mbit": self.can_fd_s}
+        return out
 
 
-def traffic_delta(after: dict, before: dict | None) -> dict:
+def traffic_delta(after: dict, before: dict) -> dict:
     """The counts one test added (``after`` minus ``before``, field by field)."""
-    before = before or {}
-    return {k: (v if isinstance(v, str) else v - before.get(k, 0)) for k, v in after.items()}
-
-
-def traffic_summary(counts: list[dict]) -> dict:
-    """The counts of many tests on one DUT summed, with the bus time they take: ``bus_time_s``
-    ``can_1mbit`` and ``can_fd_5mbit`` for CAN (worst-case stuffing); Modbus keeps transactions and
-    bytes (its time depends on the transport: TCP or the RTU's baud rate)."""
-    total: dict = {}
-    for c in counts:
-        for k, v in c.items():
-            total[k] = v if isinstance(v, str) else total.get(k, 0) + v
-    out = {k: total.get(k, 0) for k in ("protocol", "edges", "frames_to_device", "frames_from_device",
-                                         "bytes_to_device", "bytes_from_device")}
-    if total.get("protocol") == "modbus":
-        out["transactions"] = total.get("transactions", 0)
-    else:
-        edges = max(total.get("edges", 0), 1)
-        out["frames_per_edge"] = round((out["frames_to_device"] + out["frames_from_device"]) / edges, 2)
-        out["bus_time_s"] = {
-            "can_1mbit": round(total.get("can_bits", 0) / CAN_BIT_RATE, 1),
-            "can_fd_5mbit": round(total.get("can_fd_s", 0.0), 1),
-        }
-        out["stuffing"] = "worst case"
-    return out
+    return {k: (traffic_delta(v, before[k]) if isinstance(v, dict) else v if isinstance(v, str) else v - before[k])
+            for k, v in after.items()}
