@@ -450,12 +450,12 @@ def test_the_report_sums_each_duts_edge_traffic_and_shows_it_beside_the_controll
                 "dut_identity": {"vendor_id": 1}, "doc": "", "worker": "", "xfail_reason": "",
                 "not_testable": None, "traffic": traffic}
 
-    can = {"protocol": "canopen", "edges": 10, "frames_to_device": 100, "frames_from_device": 12,
+    on_can = {"protocol": "canopen", "edges": 10, "frames_to_device": 100, "frames_from_device": 12,
            "bytes_to_device": 800, "bytes_from_device": 96, "bus_time_s": {"can_1mbit": 0.01512, "can_fd_5mbit": 0.004}}
     modbus = {"protocol": "modbus", "edges": 10, "bytes_to_device": 500, "bytes_from_device": 350, "transactions": 11}
     writer = ReportWriter(tmp_path)
     for k in range(3):
-        writer.add(record(f"can{k}", "virtual-canopen", can))
+        writer.add(record(f"can{k}", "virtual-canopen", on_can))
     writer.add(record("modbus", "virtual-modbus", modbus))
     writer.add(record("no-link", "virtual-in-process", None))
     traffic = writer.content()["traffic"]
