@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 import enum
+import math
 import struct
 from dataclasses import dataclass
 from typing import Protocol
@@ -179,11 +180,13 @@ def _duty_u16(duty: float) -> int:
 #: sample, 50 kHz by default, and the count goes with the sums).
 ADC_PERIOD_TICKS = 20
 ADC_PERIOD_S = ADC_PERIOD_TICKS * TICK_S
-#: the window an edge carries (the capture's conversion and the periodic ones) reaches this far
-#: before its capture: the largest conditioning delay a calibration table may carry (100 us, the
-#: built-in controller's table bound) and one conversion
-MAX_ADC_SAMPLES = 52
-ADC_LOOKBACK_S = (MAX_ADC_SAMPLES - 2) * ADC_PERIOD_S
+#: the largest conditioning delay a calibration table may carry (the built-in controller's table
+#: bound, ``hil.controller.virtual.validate_corrections``): the edge's current is read this long
+#: before its capture at most, so no ADC window needs to reach further back
+MAX_CONDITIONING_DELAY_S = 100e-6
+#: the most conversions an edge message carries: the capture's and the periodic ones back to
+#: MAX_CONDITIONING_DELAY_S and one beyond (the line through the oldest instant needs both ends)
+MAX_ADC_SAMPLES = math.ceil(MAX_CONDITIONING_DELAY_S / ADC_PERIOD_S - 1e-9) + 2
 #: one count of a conversion: 2 mA, so an I16 spans +-65.5 A (beyond it a conversion saturates)
 ADC_LSB_A = 2e-3
 NO_SAMPLES = 0xFFFF  #: the header's newest-conversion age when the message carries no window
@@ -318,34 +321,54 @@ class EdgeMessage:
         conversion); the cycle's accumulated conversions ``adc_cycle_phase_currents_a`` (rows of
         three), when given."""
         ticks = _ticks(edge["t_capture_s"])
+        samples, age = _window_counts(edge, ticks)
+        sums, summed = _cycle_counts(edge)
         head = cls(ticks, int(edge["sensor"]), bool(edge["rising"]), seq)
-        samples, age = (), NO_SAMPLES
-        if edge.get("capture_phase_currents_a") is not None:
-            samples = (tuple(_adc_counts(edge["capture_phase_currents_a"]).tolist()),)
-            t = edge.get("adc_t_s")
-            if t is not None and len(t):
-                periodic = _adc_counts(edge["adc_phase_currents_a"])[::-1][: MAX_ADC_SAMPLES - 1]
-                samples += tuple(map(tuple, periodic.tolist()))
-                age = ticks - _ticks(t[-1])
-                if not 0 <= age < NO_SAMPLES:
-                    raise ValueError(f"edge ADC window: the newest conversion must precede the capture ({age} ticks)")
-        cycle = edge.get("adc_cycle_phase_currents_a")
-        counts = _adc_counts(cycle if cycle is not None else np.empty((0, 3)))[-0xFFFF:]
-        return head._with(age, samples, tuple(int(v) for v in counts.sum(axis=0)), len(counts))
+        return head._with(age, tuple(map(tuple, samples.tolist())), sums, summed)
 
     def to_edge(self, epoch_ticks: int = 0) -> dict:
         """As the controller sees it: its own clock is the capture timer (``epoch_ticks`` undoes the
         wrap); the window ascending in time, in amperes; the accumulators in ampere-conversions."""
-        t = (epoch_ticks + self.ticks) * TICK_S
-        edge = {"t_capture_s": t, "sensor": self.sensor, "rising": self.rising, "now_s": t,
-                "adc_cycle_sums_a": np.asarray(self.sums, dtype=float) * ADC_LSB_A,
-                "adc_cycle_conversions": self.summed}
-        if self.samples:
-            k = np.arange(len(self.samples) - 2, -1, -1)
-            periodic = (epoch_ticks + self.ticks - self.newest_sample_age_ticks - k * ADC_PERIOD_TICKS) * TICK_S
-            edge["adc_t_s"] = np.append(periodic, t)
-            edge["adc_phase_currents_a"] = np.asarray(self.samples[::-1], dtype=float) * ADC_LSB_A
-        return edge
+        return _received(self.ticks, self.sensor, self.rising, self.newest_sample_age_ticks, self.samples, self.sums,
+                         self.summed, epoch_ticks)
+
+
+def _window_counts(edge: dict, ticks: int) -> tuple[np.ndarray, int]:
+    """An edge's ADC window in counts, newest first (the capture's conversion, then the periodic
+    ones, at most MAX_ADC_SAMPLES), and the newest periodic conversion's age in ticks."""
+    if edge.get("capture_phase_currents_a") is None:
+        return np.empty((0, 3), dtype=np.int64), NO_SAMPLES
+    capture = _adc_counts(edge["capture_phase_currents_a"]).reshape(1, 3)
+    t = edge.get("adc_t_s")
+    if t is None or not len(t):
+        return capture, NO_SAMPLES
+    periodic = _adc_counts(edge["adc_phase_currents_a"]).reshape(-1, 3)[::-1][: MAX_ADC_SAMPLES - 1]
+    age = ticks - _ticks(t[-1])
+    if not 0 <= age < NO_SAMPLES:
+        raise ValueError(f"edge ADC window: the newest conversion must precede the capture ({age} ticks)")
+    return np.concatenate([capture, periodic]), age
+
+
+def _cycle_counts(edge: dict) -> tuple[tuple[int, int, int], int]:
+    """The accumulators: the cycle's conversions summed per phase (counts), and how many (the last 65535)."""
+    cycle = edge.get("adc_cycle_phase_currents_a")
+    counts = _adc_counts(cycle if cycle is not None else np.empty((0, 3)))[-0xFFFF:]
+    return tuple(int(v) for v in counts.sum(axis=0)), len(counts)
+
+
+def _received(ticks: int, sensor: int, rising: bool, age: int, samples, sums, summed: int, epoch_ticks: int) -> dict:
+    """The edge as the controller sees it (``EdgeMessage.to_edge``) from the message's fields;
+    ``samples`` newest first, in counts."""
+    t = (epoch_ticks + ticks) * TICK_S
+    edge = {"t_capture_s": t, "sensor": sensor, "rising": rising, "now_s": t,
+            "adc_cycle_sums_a": np.asarray(sums, dtype=float) * ADC_LSB_A,
+            "adc_cycle_conversions": summed}
+    if len(samples):
+        k = np.arange(len(samples) - 2, -1, -1)
+        periodic = (epoch_ticks + ticks - age - k * ADC_PERIOD_TICKS) * TICK_S
+        edge["adc_t_s"] = np.append(periodic, t)
+        edge["adc_phase_currents_a"] = np.asarray(samples[::-1], dtype=float) * ADC_LSB_A
+    return edge
 
 
 @dataclass(frozen=True)
@@ -389,12 +412,15 @@ class CommandMessage:
 
 def edge_as_received(edge: dict, epoch_ticks: int) -> dict:
     """What the controller receives for ``edge``: the message's fields as they cross any link
-    (``unpack(pack(m)) == m``: tests/test_dut.py), without building the bytes (the in-process
-    link's hot path)."""
+    (``unpack(pack(m)) == m``: tests/test_dut.py), without building the bytes or the message (the
+    in-process link's hot path)."""
     if int(edge["sensor"]) not in (0, 1, 2):
         raise ValueError(f"edge message flags: sensor must be 0-2, got {edge['sensor']!r}")
-    m = EdgeMessage.from_edge(edge, 0)
-    return dataclasses.replace(m, ticks=m.ticks % WRAP).to_edge(epoch_ticks)
+    ticks = _ticks(edge["t_capture_s"])
+    samples, age = _window_counts(edge, ticks)
+    sums, summed = _cycle_counts(edge)
+    return _received(ticks % WRAP, int(edge["sensor"]), bool(edge["rising"]), age if len(samples) > 1 else NO_SAMPLES,
+                     samples, sums, summed, epoch_ticks)
 
 
 def commands_as_received(commands, epoch_ticks: int) -> list:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import ADC_PERIOD_S, MAX_ADC_SAMPLES, Command
+from bldc.contract import ADC_PERIOD_S, MAX_ADC_SAMPLES, MAX_CONDITIONING_DELAY_S, Command
 from plant_models import PlantConfig, Simulation
 
 from .dut.link import ControllerLink
@@ -29,6 +29,19 @@ def p99_abs(values) -> float:
 
 def rms(values) -> float:
     return float(np.sqrt(np.mean(np.square(values))))
+
+
+def adc_reach_s(link: ControllerLink | None) -> float:
+    """How far before a capture the controller may read its ADC, so how far back an edge's window
+    reaches: what its profile declares (``[edge_hook] adc_reach_s``), else the largest conditioning
+    delay of the table the framework downloaded to it, else the edge message's bound (a table the
+    framework did not download may hold any delay). docs/controller.md, "The bus"."""
+    profile = getattr(link, "profile", None)
+    declared = profile.edge_hook.adc_reach_s if profile is not None else None
+    if declared is not None:
+        return declared
+    table = getattr(link, "applied_calibration", None)
+    return max(table.conditioning_delay_s.values()) if table is not None else MAX_CONDITIONING_DELAY_S
 
 
 class LinkSource:
@@ -59,10 +72,12 @@ class LinkSource:
         since the previous capture (one per plant sample); the plant's own current taken out."""
         t = edge["t_capture_s"]
         edge.pop("current_a", None)  # the plant's present current: not the controller's to have
-        # the periodic conversions (every ADC_PERIOD_S from t = 0) up to the capture, and the one
-        # the capture triggers
+        # the periodic conversions (every ADC_PERIOD_S from t = 0) up to the capture, back to one
+        # beyond the controller's reach (the capture stamp it rebuilds its window from is rounded
+        # to a tick), and the one the capture triggers
         newest = math.floor(t / ADC_PERIOD_S + 1e-9)
-        grid = np.arange(max(newest - MAX_ADC_SAMPLES + 2, 0), newest + 1) * ADC_PERIOD_S
+        oldest = math.floor((t - adc_reach_s(self.link)) / ADC_PERIOD_S) - 1
+        grid = np.arange(max(oldest, newest - MAX_ADC_SAMPLES + 2, 0), newest + 1) * ADC_PERIOD_S
         converted = sim.adc_conversions_at(np.append(grid, t))
         edge["adc_t_s"], edge["adc_phase_currents_a"] = grid, converted[:-1]
         edge["capture_phase_currents_a"] = converted[-1]

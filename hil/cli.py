@@ -621,14 +621,16 @@ def cmd_acceptance(args) -> int:
         "-o",
         "faulthandler_timeout=600",
     ]
-    for dut in args.dut or ["virtual:canopen", "virtual:modbus"]:
+    duts = args.dut or ["virtual:canopen", "virtual:modbus"]
+    for dut in duts:
         argv.append(f"--hil-dut={dut}")
     if args.plant:
         argv.append(f"--hil-plant={args.plant}")
     if args.budgets:
         argv.append(f"--hil-budgets={args.budgets}")
-    if args.workers:
-        argv += ["-n", args.workers]
+    argv += ["-n", args.workers or default_workers(duts)]
+    if argv[-1] != "0":  # a test per worker as each frees up: the suite's tests differ in length by 100x
+        argv += ["--dist", "worksteal"]
     extra = list(args.pytest_args)
     if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
         extra = extra[1:]
@@ -648,6 +650,20 @@ def cmd_acceptance(args) -> int:
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
         status = 2
     return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
+
+
+def default_workers(duts: list[str]) -> str:
+    """``hil acceptance``'s pytest-xdist workers without ``-n``: virtual controllers on every core
+    (up to four: each worker opens its own and compiles the filters once), a real one in this
+    process (it serves one session); "0" runs without workers."""
+    from .dut.spec import DutSpecError, parse_dut
+
+    try:
+        virtual = all(parse_dut(d).is_virtual for d in duts)
+    except DutSpecError:
+        return "0"  # pytest names the bad spec
+    cores = min(os.cpu_count() or 1, 4)
+    return str(cores) if virtual and cores > 1 else "0"
 
 
 def acceptance_exit(pytest_status: int, report_json: Path) -> int:
@@ -919,7 +935,12 @@ def _parser_acceptance(sub) -> None:
     p.add_argument(
         "--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)"
     )
-    p.add_argument("-n", "--workers", help="pytest-xdist workers (e.g. auto); each worker opens its own controller")
+    p.add_argument(
+        "-n",
+        "--workers",
+        help="pytest-xdist workers (e.g. auto, 0 for none); each worker opens its own controller "
+        "(default: a virtual controller on every core, up to 4; a real one without workers)",
+    )
     p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)

@@ -7,7 +7,7 @@ its outcome and a short label::
 
 and a test may say what it is doing while it works (``note("calibration campaign: ...")``),
 printed at once, so that a long test is never silent. Under pytest-xdist the lines come from
-the controlling process as the workers report; notes from workers are not shown.
+the controlling process as the workers report, a worker's notes with the test's report.
 """
 
 from __future__ import annotations
@@ -23,10 +23,17 @@ from .report_html import short_label
 _active: "Progress | None" = None
 
 
+_worker_item = None  #: under xdist, in a worker: the test running there (its notes travel on its reports)
+NOTE_PROPERTY = PROPERTY_PREFIX + "note"
+
+
 def note(text: str) -> None:
-    """Say what the running test is doing (a no-op unless the progress plugin is active here)."""
+    """Say what the running test is doing (a no-op unless the progress plugin is active here; in an
+    xdist worker the note goes with the test's report and is printed when the test ends)."""
     if _active is not None:
         _active.note(text)
+    elif _worker_item is not None:
+        _worker_item.user_properties.append((NOTE_PROPERTY, str(text)))
 
 
 class Progress:
@@ -87,6 +94,12 @@ class Progress:
         if report.when != "teardown":
             return
         reports = self.pending.pop(report.nodeid)
+        notes = [v for k, v in getattr(report, "user_properties", ()) if str(k) == NOTE_PROPERTY]
+        if notes:  # an xdist worker's notes, printed as the test ends
+            self.running = report.nodeid
+            for text in notes:
+                self.note(text)
+            self.running = None
         self.done += 1
         outcome = _outcome(reports)
         if any(
@@ -128,11 +141,26 @@ def _outcome(reports) -> str:
     return worst
 
 
+class _WorkerNotes:
+    """In an xdist worker: which test is running, so that its notes go with its reports."""
+
+    @pytest.hookimpl(wrapper=True)
+    def pytest_runtest_protocol(self, item, nextitem):
+        global _worker_item
+        _worker_item = item
+        try:
+            return (yield)
+        finally:
+            _worker_item = None
+
+
 def pytest_configure(config):
     global _active
     if not hasattr(config, "workerinput"):  # an xdist worker has no terminal of its own
         _active = Progress(config)
         config.pluginmanager.register(_active, "hil-progress")
+    else:
+        config.pluginmanager.register(_WorkerNotes(), "hil-progress-worker")
 
 
 def pytest_unconfigure(config):

@@ -471,7 +471,20 @@ def hil_link(hil_dut, request):
     )
     _require_testable(request.node, hil_dut.link)
     hil_dut.link.reset()
-    return hil_dut.link
+    before = _traffic(hil_dut.link)
+    yield hil_dut.link
+    if before is not None:  # what this test's edges moved on the link, summed per DUT in the report
+        from .dut.traffic import traffic_delta
+
+        request.node.user_properties.append(
+            (PROPERTY_PREFIX + "traffic", traffic_delta(_traffic(hil_dut.link), before))
+        )
+
+
+def _traffic(link) -> dict | None:
+    """The link's traffic counts so far (``hil.dut.traffic``), or None for a link without a bus."""
+    traffic = getattr(link, "traffic", None)
+    return traffic.as_dict() if traffic is not None else None
 
 
 def _require_testable(item, link) -> None:
@@ -777,6 +790,8 @@ class HilReporter:
                 record["dut"], record["dut_identity"] = value["id"], value["identity"]
             elif kind == "doc":
                 record["doc"] = value
+            elif kind == "traffic":
+                record["traffic"] = value
             elif kind == "not_testable" and outcome == "skipped":
                 record["not_testable"] = value
         json.dumps(record)  # everything in a record is plain data

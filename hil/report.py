@@ -125,6 +125,28 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
     return worst, (used if worst == "waived" else None)
 
 
+def traffic_total(counts: list[dict]) -> dict:
+    """The edge traffic of many tests on one DUT (``hil.dut.traffic``: counts, and for CAN the bus
+    time in seconds) summed; for CAN also the frames per edge, both ways."""
+    def add(total: dict, c: dict) -> dict:
+        for k, v in c.items():
+            if isinstance(v, dict):
+                total[k] = add(total.get(k, {}), v)
+            else:
+                total[k] = v if isinstance(v, str) else total.get(k, 0) + v
+        return total
+
+    total: dict = {}
+    for c in counts:
+        add(total, c)
+    if "bus_time_s" in total:
+        total["bus_time_s"] = {k: round(v, 1) for k, v in total["bus_time_s"].items()}
+        frames = total["frames_to_device"] + total["frames_from_device"]
+        total["frames_per_edge"] = round(frames / max(total["edges"], 1), 2)
+        total["stuffing"] = "worst case"
+    return total
+
+
 @dataclass
 class ReportWriter:
     directory: Path
@@ -233,6 +255,10 @@ class ReportWriter:
         for r in self.records:
             if r.get("dut") and r.get("dut_identity"):
                 duts.setdefault(r["dut"], r["dut_identity"])
+        traffic: dict[str, list] = {}
+        for r in self.records:
+            if r.get("dut") and r.get("traffic"):
+                traffic.setdefault(r["dut"], []).append(r["traffic"])
         verdict, reasons = self._overall(tests, matrix)
         counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
         waivers = [
@@ -258,6 +284,8 @@ class ReportWriter:
             "counts": counts,
             "session": self.session,
             "duts": duts,
+            # what the edges moved on each DUT's link, with the bus time (hil.dut.traffic)
+            "traffic": {dut: traffic_total(counts) for dut, counts in traffic.items()},
             "waivers": waivers,
             "traceability": matrix,
             "tests": tests,

@@ -2,6 +2,7 @@
 in-process ``virtual`` bus."""
 
 import itertools
+import math
 import struct
 import time
 
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from canopen.sdo.exceptions import SdoAbortedError
 
-from bldc.contract import Fault, Strategy
+from bldc.contract import ADC_PERIOD_S, Fault, Strategy
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
 from hil.calibration.campaign import CalibrationCampaign
@@ -304,3 +305,52 @@ def test_a_late_answer_to_another_request_is_not_taken_for_this_one():
     c.responses.put(own_abort)
     with pytest.raises(SdoAbortedError):  # its own abort still raises
         c.read_response()
+
+
+def test_each_edge_window_reaches_as_far_as_the_table_and_the_bus_time_counts_every_frame(pair, corrections):
+    """hil-edge/3: after a download, an edge carries the conversions back to the table's largest
+    delay and two beyond, not the bound's 52; the link counts each frame both ways, and the bus
+    time is 135 bits per 8-byte frame (worst-case stuffing) at 1 Mbit/s."""
+    from hil.dut.traffic import can_frame_bits
+
+    vc, dev, link = pair
+    link.download_calibration(corrections)
+    windows = []
+    send = link.edge
+    link.edge = lambda edge: (windows.append(len(edge["adc_t_s"]) + 1), send(edge))[1]
+    b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
+    b.run_setpoints([6000.0], hold_s=0.05, settle_s=0.02)
+    reach = max(link.applied_calibration.conditioning_delay_s.values())
+    assert 0 < reach < 50e-6 and len(windows) == b.source.edges == link.traffic.edges > 50
+    assert max(windows) == math.ceil(reach / ADC_PERIOD_S) + 3  # with the capture's conversion
+    t = link.traffic.as_dict()
+    assert t["frames_to_device"] == sum(windows) + 4 * len(windows)  # 3 accumulators and the header
+    assert len(windows) <= t["frames_from_device"] <= 4 * len(windows)
+    assert can_frame_bits(8) == 135
+    frames = t["frames_to_device"] + t["frames_from_device"]
+    assert t["bytes_to_device"] + t["bytes_from_device"] == 8 * frames
+    assert t["bus_time_s"]["can_1mbit"] == pytest.approx(frames * 135e-6, rel=1e-12)
+    assert 0 < t["bus_time_s"]["can_fd_5mbit"] < t["bus_time_s"]["can_1mbit"] / 2
+
+
+def test_the_short_window_gives_the_full_windows_commutations_to_the_bit(corrections, monkeypatch):
+    """The controller reads the same two conversions around its delay whatever the window's
+    length: the closed loop with the window reaching only as far as the table is the one with
+    the bound's full window, commutation for commutation."""
+    import hil.bench
+    from bldc.contract import MAX_CONDITIONING_DELAY_S
+
+    def run():
+        link = InProcessLink(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0))
+        link.download_calibration(corrections)
+        b = LockstepBench(CONFIG, link, initial_speed_rpm=6000.0, duty=steady_state(CONFIG.motor, 6000.0)["duty"])
+        b.run_setpoints([6000.0, 6400.0], hold_s=0.1, settle_s=0.05)
+        c = b.sim.commutations()
+        return c.t_s, c.error_deg_e
+
+    short = run()
+    monkeypatch.setattr(hil.bench, "adc_reach_s", lambda link: MAX_CONDITIONING_DELAY_S)
+    full = run()
+    assert short[0].size > 300
+    np.testing.assert_array_equal(short[0], full[0])
+    np.testing.assert_array_equal(short[1], full[1])

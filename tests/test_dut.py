@@ -245,3 +245,21 @@ def test_device_epoch_advances_on_a_timer_wrap_and_not_on_a_bad_stamp():
     assert next_epoch(WRAP, 1000, 990) == WRAP
     assert next_epoch(0, WRAP // 2, 0) == 0  # exactly half the range back: not past the half, no wrap
     assert next_epoch(0, WRAP // 2 + 1, 0) == WRAP
+
+
+def test_the_window_reaches_what_the_profile_declares_else_the_downloaded_table_else_the_bound(corrections):
+    """How far back an edge's ADC window reaches (docs/controller.md, "The bus")."""
+    import dataclasses
+    from types import SimpleNamespace
+
+    from bldc.contract import MAX_CONDITIONING_DELAY_S
+    from hil.bench import adc_reach_s
+    from hil.dut.profile import shipped
+
+    profile = shipped("modbus")
+    link = SimpleNamespace(profile=profile, applied_calibration=None)
+    assert adc_reach_s(link) == MAX_CONDITIONING_DELAY_S  # a table the framework did not download: any delay
+    link.applied_calibration = corrections
+    assert adc_reach_s(link) == max(corrections.conditioning_delay_s.values()) > 0
+    link.profile = dataclasses.replace(profile, edge_hook=dataclasses.replace(profile.edge_hook, adc_reach_s=30e-6))
+    assert adc_reach_s(link) == 30e-6

@@ -46,6 +46,8 @@ def _write(tmp_path, text: str) -> Path:
         ("[faults]\nmap = { 0x3101 = 'hall_trouble' }\n", "[faults].map.0x3101"),
         ("[edge_hook]\nkind='pdo'\nrx_cob_ids=[0x205]\ntx_cob_id=0x185\n", "[edge_hook].kind"),
         ("[edge_hook]\nkind='mailbox'\nrequest_address=200\n", "[edge_hook].reply_address"),
+        ("[edge_hook]\nkind='mailbox'\nrequest_address=200\nreply_address=300\nadc_reach_s=1e-3\n",
+         "[edge_hook].adc_reach_s"),
         ("[objects.speed_setpoint]\ntable='holding'\naddress=203\ntype='float32'\n"
          "[edge_hook]\nkind='mailbox'\nrequest_address=200\nreply_address=300\n", "[edge_hook].request_address"),
     ],

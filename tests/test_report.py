@@ -437,3 +437,32 @@ def test_requirement_verdict_table(tests, waiver_tests, verdict):
     waivers = [] if waiver_tests is None else [Waiver("REQ-R-001", "reason", "owner", tuple(waiver_tests))]
     got, waiver = requirement_verdict("REQ-R-001", tests, waivers)
     assert got == verdict and (waiver is not None) == (verdict == "waived")
+
+
+def test_the_report_sums_each_duts_edge_traffic_and_shows_it_beside_the_controllers(tmp_path):
+    """Each test's traffic (the plugin's per-test share of the link's counts) adds up per DUT into
+    the report's top-level ``traffic``, bus time included, and the HTML shows it."""
+    from hil.report import ReportWriter
+
+    def record(name, dut, traffic):
+        return {"nodeid": f"t.py::{name}", "outcome": "passed", "duration_s": 1.0, "message": "", "details": "",
+                "requirements": [], "measurements": [], "evidence": [], "dut": dut,
+                "dut_identity": {"vendor_id": 1}, "doc": "", "worker": "", "xfail_reason": "",
+                "not_testable": None, "traffic": traffic}
+
+    on_can = {"protocol": "canopen", "edges": 10, "frames_to_device": 100, "frames_from_device": 12,
+           "bytes_to_device": 800, "bytes_from_device": 96, "bus_time_s": {"can_1mbit": 0.01512, "can_fd_5mbit": 0.004}}
+    modbus = {"protocol": "modbus", "edges": 10, "bytes_to_device": 500, "bytes_from_device": 350, "transactions": 11}
+    writer = ReportWriter(tmp_path)
+    for k in range(3):
+        writer.add(record(f"can{k}", "virtual-canopen", on_can))
+    writer.add(record("modbus", "virtual-modbus", modbus))
+    writer.add(record("no-link", "virtual-in-process", None))
+    traffic = writer.content()["traffic"]
+    assert set(traffic) == {"virtual-canopen", "virtual-modbus"}
+    assert traffic["virtual-canopen"]["frames_to_device"] == 300 and traffic["virtual-canopen"]["edges"] == 30
+    assert traffic["virtual-canopen"]["bus_time_s"] == {"can_1mbit": 0.0, "can_fd_5mbit": 0.0}  # rounded to 0.1 s
+    assert traffic["virtual-canopen"]["frames_per_edge"] == 11.2
+    assert traffic["virtual-modbus"] == {**modbus, "edges": 10, "transactions": 11}
+    html = (tmp_path / "hil-report.html").read_text()
+    assert "11.2 frames per edge" in html and "11 transactions" in html

@@ -26,6 +26,7 @@ from .eds import object_dictionary, read_eds
 from .link import LinkError, LinkTimeout
 from .profile import Profile, bound_profile
 from .role_link import RoleLink
+from .traffic import LinkTraffic
 
 
 class MuxCheckedSdoClient(SdoClient):
@@ -173,6 +174,7 @@ class CanopenLink(RoleLink):
         self.boot_ups: queue.Queue = queue.Queue()
         self.network.subscribe(0x700 + node_id, lambda cid, data, ts: bytes(data) == b"\x00" and self.boot_ups.put(ts))
         self._seq = 0
+        self.traffic = LinkTraffic("canopen")  #: what the edges moved on the bus (hil.dut.traffic)
         self._send("NMT start", 0, bytes([NMT_START, node_id]))
 
     def _send(self, what: str, can_id: int, data: bytes) -> None:
@@ -259,11 +261,12 @@ class CanopenLink(RoleLink):
         seq = self._seq
         self._seq = (self._seq + 1) & 0x7F
         msg = EdgeMessage.from_edge(edge, seq)
-        if data_cob is not None:  # the accumulators and the window before their header: the header triggers
-            for frame in msg.data_frames():
-                self._send(f"ADC data frame {frame[7]} of edge #{seq}", data_cob, frame)
+        sent = msg.data_frames() if data_cob is not None else []
+        for frame in sent:  # the accumulators and the window before their header: the header triggers
+            self._send(f"ADC data frame {frame[7]} of edge #{seq}", data_cob, frame)
         self._send(f"edge #{seq}", edge_cob, msg.header())
-        commands = []
+        sent.append(msg.header())
+        commands, received = [], []
         deadline = time.monotonic() + self.timeout_s
         while True:
             try:
@@ -273,11 +276,13 @@ class CanopenLink(RoleLink):
                     f"{self.where}: no TPDO reply to edge #{seq} (t = {edge['t_capture_s']:.7f} s) within "
                     f"{self.timeout_s} s"
                 ) from None
+            received.append(frame)
             if frame.seq != seq:
                 continue  # a late frame of an earlier edge
             if not frame.keeps_everything:
                 commands.append(frame.to_command(epoch))
             if frame.last:
+                self.traffic.can_message(sent, [f.pack() for f in received])
                 return commands
 
     def close(self) -> None:

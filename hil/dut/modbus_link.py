@@ -12,6 +12,7 @@ from .link import LinkError, LinkTimeout
 from .modbus_codec import REPLY_FRAMES, bytes_of, registers_of
 from .profile import EDGE_HEADER_WORDS, REPLY_WORDS, Profile, bound_profile, mailbox_words
 from .role_link import RoleLink
+from .traffic import LinkTraffic
 
 
 class ModbusLink(RoleLink):
@@ -51,6 +52,7 @@ class ModbusLink(RoleLink):
         if not self.client.connect():
             raise LinkTimeout(f"{self.where}: cannot connect within {timeout_s} s")
         self._seq = 0
+        self.traffic = LinkTraffic("modbus")  #: what the edges moved (hil.dut.traffic)
 
     def _call(self, what: str, fn):
         from pymodbus.exceptions import ModbusException
@@ -115,6 +117,8 @@ class ModbusLink(RoleLink):
         ahead = rest[: max(len(rest) - room, 0)]
         for k in range(0, len(ahead), room):  # what does not fit, ahead of the header, in order
             part = ahead[k : k + room]
+            # PDUs: function 16 (code, address, quantity, byte count, registers), answered with 5 bytes
+            self.traffic.modbus_transaction(6 + 2 * len(part), 5)
             self._call(
                 f"ADC data of edge #{seq}",
                 lambda part=part: self.client.write_registers(
@@ -132,6 +136,10 @@ class ModbusLink(RoleLink):
                 device_id=self.unit,
             ),
         )
+        # function 23: code, read address and quantity, write address and quantity, byte count and
+        # the registers; answered with code, byte count and the registers read
+        self.traffic.modbus_transaction(10 + 2 * len(values), 2 + 2 * REPLY_WORDS)
+        self.traffic.edges += 1
         regs = r.registers
         if len(regs) != REPLY_WORDS or regs[0] > REPLY_FRAMES:
             raise LinkError(

@@ -19,7 +19,7 @@ import struct
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from bldc.contract import FAULT_NAMES, FILTER_COUNTERS, GUARD_TRIPS, STRATEGY_NAMES
+from bldc.contract import FAULT_NAMES, FILTER_COUNTERS, GUARD_TRIPS, MAX_CONDITIONING_DELAY_S, STRATEGY_NAMES
 from bldc.tomlfile import load_toml
 
 FORMAT = "hil-device-profile/1"
@@ -29,8 +29,9 @@ SHIPPED = {"canopen": PROFILES_DIR / "virtual-canopen.toml", "modbus": PROFILES_
 #: the framework's edge/command message versions a profile may name (``[edge_hook] layout``);
 #: absent means the current one, documented in docs/controller.md
 #: the edge and command message versions the framework speaks (hil-edge/1, whose 8-byte edge
-#: message carried currents the bench computed, is withdrawn)
-EDGE_LAYOUTS = ("hil-edge/2",)
+#: message carried currents the bench computed, is withdrawn; hil-edge/2 carried a fixed 100 us ADC
+#: window whatever the table needed, hil-edge/3 one as long as the controller's table reaches)
+EDGE_LAYOUTS = ("hil-edge/3",)
 
 # type -> (struct code, bytes); Modbus packs big-endian bytes in each register, CANopen little-endian
 TYPES = {
@@ -308,6 +309,9 @@ class EdgeHook:
     rx_cob_ids: tuple = ()  #: ints or "$NODEID+0x..." strings until bound
     tx_cob_id: int | str | None = None
     layout: str = EDGE_LAYOUTS[-1]
+    #: how far before a capture the device reads its ADC (its calibration table's delay bound),
+    #: when it says so; None: as far as the largest delay of the table the framework downloaded
+    adc_reach_s: float | None = None
 
 
 @dataclass(frozen=True)
@@ -396,7 +400,7 @@ def _eds_type(od, obj: DeviceObject) -> str | None:
 _TOP = {"format", "name", "protocol", "modbus", "objects", "faults", "edge_hook"}
 _OBJECT_KEYS = {"table", "address", "index", "subindex", "type", "scale", "offset", "unit", "count", "word_order",
                 "values", "write"}
-_HOOK_KEYS = {"kind", "request_address", "reply_address", "layout", "rx_cob_ids", "tx_cob_id"}
+_HOOK_KEYS = {"kind", "request_address", "reply_address", "layout", "rx_cob_ids", "tx_cob_id", "adc_reach_s"}
 
 
 def _int(v, where: str, lo: int = 0, hi: int = 0xFFFF) -> int:
@@ -635,6 +639,7 @@ def _edge_hook(table, where: str, protocol: str) -> EdgeHook:
             raise ProfileError(f"{where}.{key}", f"unknown key (known: {', '.join(sorted(_HOOK_KEYS))})")
     kind = _choice(table.get("kind"), f"{where}.kind", ("mailbox", "pdo", "none"))
     layout = _choice(table.get("layout", EDGE_LAYOUTS[-1]), f"{where}.layout", EDGE_LAYOUTS)
+    reach = _adc_reach(table.get("adc_reach_s"), f"{where}.adc_reach_s")
     if kind == "none":
         extra = set(table) - {"kind"}
         if extra:
@@ -648,7 +653,7 @@ def _edge_hook(table, where: str, protocol: str) -> EdgeHook:
                 raise ProfileError(f"{where}.{key}", "a mailbox has request_address and reply_address")
         req = _int(table.get("request_address"), f"{where}.request_address")
         rep = _int(table.get("reply_address"), f"{where}.reply_address")
-        return EdgeHook("mailbox", req, rep, layout=layout)
+        return EdgeHook("mailbox", req, rep, layout=layout, adc_reach_s=reach)
     if protocol != "canopen":
         raise ProfileError(f"{where}.kind", "PDOs are CANopen; a Modbus device takes a mailbox")
     for key in ("request_address", "reply_address"):
@@ -665,7 +670,17 @@ def _edge_hook(table, where: str, protocol: str) -> EdgeHook:
             raise ProfileError(f"{where}.{key}", f"not a COB-ID: {c!r}") from None
     if table.get("tx_cob_id") is None:
         raise ProfileError(f"{where}.tx_cob_id", "required")
-    return EdgeHook("pdo", rx_cob_ids=tuple(rx), tx_cob_id=table["tx_cob_id"], layout=layout)
+    return EdgeHook("pdo", rx_cob_ids=tuple(rx), tx_cob_id=table["tx_cob_id"], layout=layout, adc_reach_s=reach)
+
+
+def _adc_reach(value, where: str) -> float | None:
+    """``[edge_hook] adc_reach_s``: seconds, 0 to the edge message's bound (bldc.contract)."""
+    if value is None:
+        return None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0 <= value <= MAX_CONDITIONING_DELAY_S:
+        raise ProfileError(where, f"seconds within [0, {MAX_CONDITIONING_DELAY_S:g}] (the edge message's ADC window "
+                                  f"bound, docs/controller.md), got {value!r}")
+    return float(value)
 
 
 def shipped(protocol: str) -> Profile:

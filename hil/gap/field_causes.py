@@ -35,7 +35,7 @@ from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling
 
-from .diagnose import diagnose
+from .route import diagnose
 from .synthetic import (
     JITTER_S,
     KNOWN_MODEL,

@@ -29,7 +29,7 @@ from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 
 from .candidates import CANDIDATES
-from .diagnose import diagnose
+from .route import diagnose
 from .field_causes import plan_field_cases, run_field_case
 from .samples import (
     EFFECT_DOMAIN,

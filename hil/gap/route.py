@@ -1,0 +1,28 @@
+"""Which diagnosis a recording gets: the segments route against a plant model, or the ordinary-run
+route on capture times alone (docs/gap.md). Apart from both routes so that neither imports the other."""
+
+from __future__ import annotations
+
+from hil.calibration.ordinary import hall_steps
+from hil.recording import Recording
+
+from .diagnose import Diagnosis, diagnose_segments
+from .ordinary import diagnose_ordinary
+
+
+def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
+    """Diagnose ``rec``: the route follows the recording. With operating points (segments), against
+    ``model`` (a PlantConfig; None = the nominal motor, no effects); an ordinary run (capture
+    times only) against an ideal motor on a smooth trajectory (``model`` and ``candidates`` do not
+    apply and are named in ``not_assessed`` when given)."""
+    if rec.ordinary:
+        notes = []
+        if model is not None:
+            notes.append(
+                "--model: not used for an ordinary run (capture times only): the model is an ideal motor with ideal "
+                "sensors on a smooth speed trajectory"
+            )
+        if candidates is not None:
+            notes.append("candidates: an ordinary run has its own list (the effects capture times can see)")
+        return diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising), notes)
+    return diagnose_segments(rec, model, candidates)
