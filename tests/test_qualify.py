@@ -190,3 +190,31 @@ def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path)
     tests = {t["nodeid"].split("::")[-1]: t for t in report["tests"]}
     assert {k: (t["outcome"], t["failed_by"]) for k, t in tests.items()} == {
         "test_budget": ("failed", "assertion"), "test_raises": ("failed", "error"), "test_passes": ("passed", "")}
+
+
+#: the seeded defects of Sage-Husa's adaptation and the requirements on what it learns that each
+#: must fail (test_cases/test_sage_husa_learning.py); the control passes all three
+LEARNING_DEFECTS = {
+    None: set(),
+    "sage-husa-noise-without-memory": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
+    "sage-husa-r-frozen": {"REQ-PRED-003", "REQ-PRED-004"},
+    "sage-husa-r-update-wrong-sign": {"REQ-PRED-003", "REQ-PRED-004"},
+    "sage-husa-r-update-wrong-scale": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
+}
+
+
+@pytest.mark.parametrize("name", list(LEARNING_DEFECTS), ids=[n or "control" for n in LEARNING_DEFECTS])
+def test_broken_adaptation_fails_a_requirement_on_what_sage_husa_learns(name, tmp_path):
+    """Each defect of Sage-Husa's noise adaptation fails, by an assertion on a budget, the
+    requirements on its edge-noise estimate against the plant's truth; the shipped controller
+    passes them."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+           "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa_learning.py")]
+    if name is not None:
+        cmd += ["--hil-defect", name]
+    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "hil-report.json").read_text())
+    failed = {r for t in report["tests"] if t["outcome"] == "failed" and t["failed_by"] == "assertion"
+              for r in t["requirements"]}
+    assert failed == LEARNING_DEFECTS[name], report["verdict_reasons"]
+    assert not [t for t in report["tests"] if t["failed_by"] == "error"]

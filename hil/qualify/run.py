@@ -28,6 +28,7 @@ SUITE_ORDER = (
     "test_faults.py",
     "test_calibration_recovery.py",
     "test_signal_injection.py",
+    "test_sage_husa_learning.py",
     "test_sage_husa.py",
     "test_fault_injection.py",
 )
