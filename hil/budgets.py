@@ -48,6 +48,9 @@ class Budget:
     kind: str = "max"
     marginal: float | None = None
     description: str = ""
+    #: where the limit comes from: the pump's specification, the paper or a standard (never the
+    #: value it judges); docs/budgets.md, "Sources"
+    source: str = ""
 
 
 @dataclass(frozen=True)
@@ -160,7 +163,7 @@ def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list
 
 
 DEFAULTS_TOML = Path(__file__).with_name("default_budgets.toml")
-_BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description"}
+_BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description", "source"}
 _WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
 _SCOPE_KEYS = {"requirement", "reason", "owner", "expires"}
 
@@ -247,6 +250,8 @@ def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
     merged = asdict(inherited) if inherited is not None else {}
     if "limit" in table and "marginal" not in table:
         merged.pop("marginal", None)  # a marginal bound belongs to the limit it was set with
+    if "limit" in table and "source" not in table:
+        merged.pop("source", None)  # and so does the source the limit was derived from
     merged = {**merged, **table, "name": name}
     for key in ("limit", "marginal"):
         v = merged.get(key)

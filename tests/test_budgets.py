@@ -105,6 +105,22 @@ def test_the_defaults_are_consistent():
         assert budget.limit >= 0 and budget.requirement.startswith("REQ-")
 
 
+#: what a default budget's source may be (docs/budgets.md, "Sources"): never the value it judges
+BUDGET_SOURCES = ("spec S", "paper ", "statistics ", "standard ", "customer requirement ")
+
+
+def test_every_default_budget_names_its_source_and_an_override_drops_it(tmp_path):
+    b = Budgets.defaults()
+    for budget in b.budgets.values():
+        assert budget.source.startswith(BUDGET_SOURCES), f"{budget.name}: source {budget.source!r}"
+        assert "measured" not in budget.source, f"{budget.name} is set from a measured value: {budget.source!r}"
+    path = tmp_path / "b.toml"
+    path.write_text('[commutation_angle_p99]\nlimit = 0.3\n\n[pole_offset_error]\nmarginal = 0.03\n')
+    over = Budgets.from_toml(path)
+    assert over["commutation_angle_p99"].source == ""  # a new limit: the default's reasoning no longer holds
+    assert over["pole_offset_error"].source == b["pole_offset_error"].source
+
+
 def test_every_built_in_waiver_names_a_test_of_the_acceptance_suite():
     """A renamed test must not leave a waiver behind that waives nothing (or, worse, something else)."""
     from pathlib import Path
