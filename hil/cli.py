@@ -561,7 +561,8 @@ def find_suite(path: str | None) -> Path:
 
 def cmd_qualify(args) -> int:
     """The suite against each seeded defect: exit 0 when the control run PASSes and every defect is
-    caught, 1 when a defect survives or the control run fails, 2 on bad input."""
+    caught by an assertion, 1 when a defect survives or errors a test or the control run fails, 2
+    on bad input."""
     from .qualify.defects import CATALOGUE, load_defects
     from .qualify.run import qualify
 
@@ -582,8 +583,14 @@ def cmd_qualify(args) -> int:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
     d = result["detection"]
-    print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
-          f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
+    if d is None:
+        print(f"control run: {result['control_verdict']}; no detection figure: {result['no_detection_because']}")
+    else:
+        print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
+              f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
+    if result["errored"]:
+        print("errored (a test raised, no assertion failed; findings to fix, not catches): "
+              + ", ".join(result["errored"]))
     for req, names in result["requirements"].items():
         print(f"  {req:<14} catches {', '.join(names)}")
     if result["survivors"]:
@@ -593,7 +600,7 @@ def cmd_qualify(args) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
         print(f"written: {args.json}")
-    return 0 if result["control_verdict"] == "PASS" and not result["survivors"] else 1
+    return 0 if result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"] else 1
 
 
 def cmd_acceptance(args) -> int:

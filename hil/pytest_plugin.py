@@ -301,6 +301,10 @@ def pytest_runtest_makereport(item, call):
     exc = call.excinfo.value if call.excinfo is not None else None
     if exc is None or not (_explicit(item.config) or _uses_plugin(item)):
         return rep
+    if rep.failed and call.when == "call":
+        # a judged figure that missed its bound (an assertion, a budget, pytest.fail) or a test
+        # that could not judge (any other exception): only the first is evidence against the DUT
+        rep.user_properties.append((PROPERTY_PREFIX + "failed_by", failure_kind(exc)))
     if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
         _apply_waiver(item, rep)
     if (
@@ -344,6 +348,15 @@ def _apply_waiver(item, rep) -> None:
     path, line, _ = item.reportinfo()
     rep.outcome = "skipped"
     rep.longrepr = (str(path), (line or 0) + 1, f"WAIVED ({waiver.requirement}, owner {waiver.owner}): {waiver.reason}")
+
+
+def failure_kind(exc: BaseException) -> str:
+    """"assertion" for an assertion (a budget's too), pytest.fail, or a group of only those (a
+    search that found several failures); "error" for anything else."""
+    judged = (AssertionError, pytest.fail.Exception)
+    if isinstance(exc, BaseExceptionGroup):
+        return "assertion" if exc.split(judged)[1] is None else "error"
+    return "assertion" if isinstance(exc, judged) else "error"
 
 
 def _unreachable(exc: BaseException):
@@ -726,7 +739,7 @@ class HilReporter:
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
-        outcome, message, details, duration, xfail_reason = "passed", "", "", 0.0, ""
+        outcome, message, details, duration, xfail_reason, failed_by = "passed", "", "", 0.0, "", ""
         props: list = []
         for r in reports:
             duration += getattr(r, "duration", 0.0)
@@ -755,6 +768,9 @@ class HilReporter:
                 phase = "failed"
             if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
                 outcome = phase
+                failed_by = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(
+                    PROPERTY_PREFIX + "failed_by", "error" if phase in ("failed", "error") else ""
+                )
                 if waived is not None:
                     message, details = waived["message"], waived["details"]
                 elif r.failed or r.skipped:
@@ -774,6 +790,9 @@ class HilReporter:
             "worker": _worker_id(reports[-1]),
             "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
             "not_testable": None,
+            #: why a failed or errored test did: "assertion" (a judged figure missed its bound) or
+            #: "error" (it raised anything else, or failed outside its body); "" otherwise
+            "failed_by": failed_by if outcome in ("failed", "error") else "",
         }
         for key, value in props:
             key = str(key)

@@ -281,6 +281,18 @@ class Simulation:
             raise ConfigError("duty", f"must be in [0, 1], got {duty!r}")
         self.st[L.S_DUTY] = duty
 
+    def set_edge_jitter(self, time_rms_s: float) -> None:
+        """The Hall edges' RMS time jitter from the next edge on: a step of the edge noise in mid-run,
+        which an adaptive filter must track (the ``edge_jitter`` effect sets it from the start)."""
+        if not math.isfinite(time_rms_s) or not 0.0 <= time_rms_s <= 20e-6:
+            raise ConfigError("edge jitter time_rms_s", f"must be within [0, 20e-6] s, got {time_rms_s!r}")
+        self.p[L.P_JIT_T] = time_rms_s
+
+    @property
+    def edge_jitter_s(self) -> float:
+        """The Hall edges' RMS time jitter now (plant truth)."""
+        return float(self.p[L.P_JIT_T])
+
     def mark_segment(self, index: int) -> None:
         """Edges captured from now on belong to operating segment ``index``."""
         self._segment_marks.append((self.t_s, index))

@@ -15,6 +15,8 @@ seed draw the same examples and reach the same verdict (unseeded, a plain pytest
 examples each time while ``hil acceptance`` fixed them).
 """
 
+import json
+
 import pytest
 from hypothesis import example, given, seed, target
 from hypothesis import strategies as st
@@ -31,6 +33,10 @@ from plant_models import effects as fx
 #: which the report shows as "examples run" beside the seed)
 DEVIATION_EXAMPLES = 100
 FAULT_SEQUENCE_EXAMPLES = 50
+#: the fault-sequence search draws up to this many sequences to find FAULT_SEQUENCE_EXAMPLES
+#: distinct ones: a stateful search repeats itself (at seed 7, 56 draws held 34 distinct
+#: sequences); a repeat or a draw after the count is reached is not run
+FAULT_SEQUENCE_DRAWS = 8 * FAULT_SEQUENCE_EXAMPLES
 #: deviation sets the search once found the built-in controller failing, run in every search as
 #: explicit examples (for plants with their pole pairs): uneven calibrated sectors that read as a
 #: lost edge every turn (16.5 deg e p99; tests/test_findings.py keeps its stimulus)
@@ -67,14 +73,20 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(
     hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request
 ):
     worst = {"p99": 0.0, "effects": None, "speed": float("nan")}
-    examples = []
+    explicit = [
+        (tuple(fx.effect_from_mapping(e, f"FOUND_DEVIATION_SETS[{k}].") for k, e in enumerate(found)), speed_rpm)
+        for pole_pairs, speed_rpm, found in FOUND_DEVIATION_SETS
+        if pole_pairs == hil_plant_config.motor.pole_pairs
+    ]
+    examples = []  #: (speed, explicit?) of every example run
 
     @seed(hil_seed)
     @hil_settings(max_examples=DEVIATION_EXAMPLES)
     @given(effects=deviations(hil_plant_config.motor.pole_pairs), speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
     def check(effects, speed_rpm):
-        examples.append(speed_rpm)
-        note(f"search example {len(examples)}/{DEVIATION_EXAMPLES}: calibrated deviation set at {speed_rpm:.0f} rpm")
+        examples.append((speed_rpm, (effects, speed_rpm) in explicit))
+        note(f"search example {len(examples)}/{DEVIATION_EXAMPLES + len(explicit)}: calibrated deviation set at "
+             f"{speed_rpm:.0f} rpm")
         stim = Stimulus(
             "deviations",
             effects=[e.to_dict() for e in effects],
@@ -90,18 +102,19 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(
             worst.update(p99=p99, effects=[e.to_dict() for e in effects], speed=speed_rpm)
         judge(stim, outcome, request)
 
-    for pole_pairs, speed_rpm, found in FOUND_DEVIATION_SETS:
-        if pole_pairs == hil_plant_config.motor.pole_pairs:
-            effects = tuple(fx.effect_from_mapping(e, f"FOUND_DEVIATION_SETS[{k}].") for k, e in enumerate(found))
-            check = example(effects=effects, speed_rpm=speed_rpm)(check)
+    for effects, speed_rpm in explicit:
+        check = example(effects=effects, speed_rpm=speed_rpm)(check)
     try:
         check()
     finally:  # the evidence of the search so far, failed or not
-        hil_evidence.value("examples run", len(examples))
+        random_draws = sum(not was_explicit for _, was_explicit in examples)
+        hil_evidence.value("random draws", random_draws)
+        hil_evidence.value("explicit examples (found failing before, run on top)",
+                           sum(was_explicit for _, was_explicit in examples))
         hil_evidence.value("seed", hil_seed)
         hil_evidence.value("worst p99 found", worst["p99"], "deg_e")
         hil_evidence.text("worst example", f"{worst['speed']:.0f} rpm: {worst['effects']}")
-    assert len(examples) >= DEVIATION_EXAMPLES, f"the search ran {len(examples)} examples, not {DEVIATION_EXAMPLES}"
+    assert random_draws >= DEVIATION_EXAMPLES, f"the search ran {random_draws} random draws, not {DEVIATION_EXAMPLES}"
 
 
 @pytest.mark.requirement("REQ-ROB-002")
@@ -112,13 +125,17 @@ def test_fault_sequences_are_reported_and_recovered(
 
     effects = [e.to_dict() for e in paper_bench(with_deviations=True).effects]
     runs = []
+    with_fault: set[str] = set()  #: the distinct step sequences in which at least one fault acted
+    seen: set[str] = set()  #: every distinct step sequence run
+    skipped = [0]  #: draws not run (repeats, and draws after the count was reached)
 
     class FaultSequence(RuleBasedStateMachine):
-        @initialize(seconds=st.sampled_from([0.005, 0.01, 0.02]))
-        def start(self, seconds):
-            # every sequence runs the plant first: an empty sequence would count as an example
-            # without testing anything
-            self.steps, self.active = [["run", seconds]], []
+        @initialize(fault=wiring_fault_strategy(), seconds=st.sampled_from([0.005, 0.01, 0.02]))
+        def start(self, fault, seconds):
+            # every sequence switches a fault on and runs the plant with it: a sequence without a
+            # fault that acted would count as an example without testing anything
+            self.steps = [["on", fault.as_dict()], ["run", seconds]]
+            self.active = [] if fault.one_shot else [fault]
 
         @rule(seconds=st.sampled_from([0.005, 0.01, 0.02]))
         def run_plant(self, seconds):
@@ -137,7 +154,13 @@ def test_fault_sequences_are_reported_and_recovered(
                 self.steps.append(["off", fault.as_dict()])
 
         def teardown(self):
-            note(f"search example {len(runs) + 1}/{FAULT_SEQUENCE_EXAMPLES}: fault sequence of {len(self.steps)} steps")
+            key = json.dumps(self.steps, sort_keys=True)
+            if key in seen or len(with_fault) >= FAULT_SEQUENCE_EXAMPLES:
+                skipped[0] += 1  # a repeat tests nothing new; past the count the search is done
+                return
+            seen.add(key)
+            note(f"search example {len(with_fault) + 1}/{FAULT_SEQUENCE_EXAMPLES}: fault sequence of "
+                 f"{len(self.steps)} steps")
             stim = Stimulus(
                 "fault_sequence",
                 effects=effects,
@@ -147,6 +170,8 @@ def test_fault_sequences_are_reported_and_recovered(
                 plant=hil_plant_config.to_dict(),
             )
             outcome = run(stim, hil_link, hil_budgets)
+            if outcome.values["acted"]:
+                with_fault.add(key)
             runs.append(
                 [
                     len(self.steps),
@@ -160,12 +185,16 @@ def test_fault_sequences_are_reported_and_recovered(
     try:
         run_state_machine_as_test(
             seed(hil_seed)(FaultSequence),
-            settings=hil_settings(max_examples=FAULT_SEQUENCE_EXAMPLES, stateful_step_count=6),
+            settings=hil_settings(max_examples=FAULT_SEQUENCE_DRAWS, stateful_step_count=6),
         )
     finally:  # the evidence of the search so far, failed or not
-        hil_evidence.value("examples run", len(runs))
+        hil_evidence.value("sequences with a fault", len(with_fault))
+        hil_evidence.value("sequences run", len(runs))
+        hil_evidence.value("draws not run (repeats, or after the count was reached)", skipped[0])
         hil_evidence.value("seed", hil_seed)
         hil_evidence.table(
             "fault sequences run", ["steps", "faults that acted", "codes reported", "recovered p99 deg e"], runs
         )
-    assert len(runs) >= FAULT_SEQUENCE_EXAMPLES, f"the search ran {len(runs)} sequences, not {FAULT_SEQUENCE_EXAMPLES}"
+    assert len(with_fault) >= FAULT_SEQUENCE_EXAMPLES, (
+        f"the search ran {len(with_fault)} distinct sequences in which a fault acted, not {FAULT_SEQUENCE_EXAMPLES}"
+    )

@@ -120,6 +120,16 @@ def test_the_defaults_are_the_registrys_budgets_each_under_its_requirement():
     assert all(titles[rid] == r.statement for rid, r in REQUIREMENTS.items())
 
 
+#: what a default budget's source may be (docs/budgets.md, "Sources"): never the value it judges
+BUDGET_SOURCES = ("spec S", "paper ", "statistics ", "standard ", "customer requirement ")
+
+
+def test_every_default_budget_names_its_source():
+    for budget in Budgets.defaults().budgets.values():
+        assert budget.limit_source.startswith(BUDGET_SOURCES), f"{budget.name}: source {budget.limit_source!r}"
+        assert "measured" not in budget.limit_source, f"{budget.name} is set from a measured value"
+
+
 def test_a_limit_of_a_budgets_file_drops_the_defaults_marginal_bound_and_source(tmp_path):
     base = Budgets({"x": Budget("x", "REQ-X-001", "deg_e", 1.0, marginal=0.8, limit_source="spec 4.2")})
     path = tmp_path / "b.toml"

@@ -105,7 +105,9 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
     assert result["out_of_scope"] == {"REQ-PROT-002": result["out_of_scope"]["REQ-PROT-002"]}
     mutants = {m["name"]: m for m in result["mutants"]}
     assert mutants["no-table-validation"]["killed"] and "REQ-CAL-005" in mutants["no-table-validation"]["killed_by"]
+    assert mutants["no-table-validation"]["caught_by"] == "assertion"
     assert not mutants["current-limit-not-enforced"]["killed"]
+    assert mutants["current-limit-not-enforced"]["caught_by"] is None and result["errored"] == []
     assert result["detection"] == {"killed": 1, "total": 2, "ratio": 0.5}
     assert result["survivors"] == ["current-limit-not-enforced"]
     assert "caught 1 of 2 defects (50 %)" in r.stdout
@@ -116,3 +118,103 @@ def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
     assert r.returncode == 2 and "built-in controller" in r.stderr
     r = _hil("qualify", "--only", "no-such-defect", "--report-dir", str(tmp_path))
     assert r.returncode == 2 and "unknown defect(s) no-such-defect" in r.stderr
+
+
+def test_a_failure_is_an_assertion_only_when_a_judged_bound_was_missed():
+    from hil.budgets import BudgetExceeded
+    from hil.pytest_plugin import failure_kind
+
+    assert failure_kind(AssertionError("p99 0.6 > 0.5")) == "assertion"
+    assert issubclass(BudgetExceeded, AssertionError)
+    with pytest.raises(pytest.fail.Exception) as failed:
+        pytest.fail("a search ran 3 examples, not 50")
+    assert failure_kind(failed.value) == "assertion"
+    assert failure_kind(KeyError("r_diag")) == "error"
+    assert failure_kind(ExceptionGroup("two", [AssertionError("a"), AssertionError("b")])) == "assertion"
+    assert failure_kind(ExceptionGroup("mixed", [AssertionError("a"), ValueError("b")])) == "error"
+
+
+def test_a_test_that_errors_is_a_finding_not_a_catch():
+    from hil.qualify.run import what_caught
+
+    def test(nodeid, outcome, failed_by="", reqs=("REQ-CAL-005",)):
+        return {"nodeid": nodeid, "outcome": outcome, "failed_by": failed_by, "requirements": list(reqs)}
+
+    errored = {"tests": [test("a", "passed"), test("b", "failed", "error"), test("c", "error", "error")]}
+    assert what_caught(errored) == ("error", [], ["b", "c"])
+    judged = {"tests": [test("b", "failed", "error"), test("d", "failed", "assertion", ("REQ-ROB-002",))]}
+    assert what_caught(judged) == ("assertion", ["REQ-ROB-002"], ["b", "d"])
+    assert what_caught({"tests": [test("a", "passed")]}) == (None, [], [])
+
+
+def test_no_detection_figure_without_a_passing_control(tmp_path, monkeypatch):
+    from types import SimpleNamespace
+
+    from hil.qualify import run as R
+
+    def fake(name, description, defect, args):
+        if defect is None:
+            return R.Run(name, description, "FAIL", False, "assertion", ["REQ-SPD-001"], ["t::speed"])
+        return R.Run(name, description, "FAIL", defect == "no-table-validation",
+                     "assertion" if defect == "no-table-validation" else "error")
+
+    monkeypatch.setattr(R, "_run", fake)
+    args = SimpleNamespace(defects=None, only=["no-table-validation", "never-resynchronises"], dut="virtual:modbus",
+                           budgets=None, report_dir=str(tmp_path), workers=1, seed=0)
+    result = R.qualify(args, progress=lambda line: None)
+    assert result["detection"] is None
+    why = result["no_detection_because"]
+    assert "control run's verdict is FAIL" in why and "t::speed" in why
+    assert result["errored"] == ["never-resynchronises"] and result["survivors"] == []
+    mutants = {m["name"]: m for m in result["mutants"]}
+    assert mutants["no-table-validation"]["caught_by"] == "assertion"
+    assert mutants["never-resynchronises"]["caught_by"] == "error" and not mutants["never-resynchronises"]["killed"]
+
+
+def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path):
+    """Through the plugin: a budget that fails and a test that raises are both pytest failures;
+    the report tells them apart (``tests[].failed_by``), and hil qualify counts only the first."""
+    (tmp_path / "test_kinds.py").write_text(
+        "import pytest\n\n"
+        "@pytest.mark.requirement('REQ-COMM-001')\n"
+        "def test_budget(hil_budget):\n    hil_budget('commutation_angle_p99', 0.7)\n\n"
+        "@pytest.mark.requirement('REQ-COMM-001')\n"
+        "def test_raises(hil_evidence):\n    {}['r_diag']\n\n"
+        "@pytest.mark.requirement('REQ-COMM-001')\n"
+        "def test_passes(hil_budget):\n    hil_budget('commutation_angle_p99', 0.1)\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_kinds.py",
+                    "--hil-report-dir", "rep"], cwd=tmp_path, env=env, capture_output=True, timeout=300)
+    report = json.loads((tmp_path / "rep" / "hil-report.json").read_text())
+    tests = {t["nodeid"].split("::")[-1]: t for t in report["tests"]}
+    assert {k: (t["outcome"], t["failed_by"]) for k, t in tests.items()} == {
+        "test_budget": ("failed", "assertion"), "test_raises": ("failed", "error"), "test_passes": ("passed", "")}
+
+
+#: the seeded defects of Sage-Husa's adaptation and the requirements on what it learns that each
+#: must fail (test_cases/test_sage_husa_learning.py); the control passes all three
+LEARNING_DEFECTS = {
+    None: set(),
+    "sage-husa-noise-without-memory": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
+    "sage-husa-r-frozen": {"REQ-PRED-003", "REQ-PRED-004"},
+    "sage-husa-r-update-wrong-sign": {"REQ-PRED-003", "REQ-PRED-004"},
+    "sage-husa-r-update-wrong-scale": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
+}
+
+
+@pytest.mark.parametrize("name", list(LEARNING_DEFECTS), ids=[n or "control" for n in LEARNING_DEFECTS])
+def test_broken_adaptation_fails_a_requirement_on_what_sage_husa_learns(name, tmp_path):
+    """Each defect of Sage-Husa's noise adaptation fails, by an assertion on a budget, the
+    requirements on its edge-noise estimate against the plant's truth; the shipped controller
+    passes them."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+           "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa_learning.py")]
+    if name is not None:
+        cmd += ["--hil-defect", name]
+    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "hil-report.json").read_text())
+    failed = {r for t in report["tests"] if t["outcome"] == "failed" and t["failed_by"] == "assertion"
+              for r in t["requirements"]}
+    assert failed == LEARNING_DEFECTS[name], report["verdict_reasons"]
+    assert not [t for t in report["tests"] if t["failed_by"] == "error"]

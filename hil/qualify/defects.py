@@ -29,6 +29,7 @@ from bldc.contract import Fault, Strategy
 from ..calibration.corrections import SENSORS, Corrections
 from ..controller.virtual import VirtualController
 from ..predictors import KalmanPredictor, MotorModel
+from ..predictors import filters as F
 
 
 @dataclass(frozen=True)
@@ -224,3 +225,63 @@ class LostEdgeAgainstLastSector(VirtualController):
             return None, self.missing_edge_interval_ratio
         return self._intervals[-1], self.missing_edge_interval_ratio
 
+
+
+@defect("sage-husa-noise-without-memory", "Sage-Husa's noise estimates with almost no memory: R's forgetting "
+        "factor near 0 over an interval of 2 edges, Q's near 0 every edge (each estimate is the last edges' alone)")
+class NoiseWithoutMemory(VirtualController):
+    def _build_logic(self, speed_loop) -> None:
+        self.filter_settings = dataclasses.replace(self.filter_settings, r_forgetting_b=1e-3, r_interval=2,
+                                                   forgetting_b=1e-3, adapt_interval=1)
+        super()._build_logic(speed_loop)
+
+
+class _EdgeNoiseUpdate:
+    """A Sage-Husa predictor whose update of the edge-angle noise variance R_theta is wrong:
+    ``wrong(before, after)`` is what the firmware stores where the filter computed ``after``."""
+
+    def __init__(self, predictor, wrong):
+        self._predictor, self._wrong = predictor, wrong
+
+    def update(self, t_s, current_a):
+        state = self._predictor.state
+        before = float(state[F.ST.R])
+        predicted = self._predictor.update(t_s, current_a)
+        after = float(state[F.ST.R])
+        if after != before:
+            state[F.ST.R] = self._wrong(before, after)
+        return predicted
+
+    def __getattr__(self, name):
+        return getattr(self._predictor, name)
+
+
+class _WrongEdgeNoiseUpdate(VirtualController):
+    def wrong(self, before: float, after: float) -> float:
+        raise NotImplementedError
+
+    def _build_logic(self, speed_loop) -> None:
+        super()._build_logic(speed_loop)
+        if self.strategy is Strategy.SAGE_HUSA:
+            self._predictor = self._logic.predictor = _EdgeNoiseUpdate(self._logic.predictor, self.wrong)
+
+
+@defect("sage-husa-r-frozen", "Sage-Husa's edge-noise variance R set once (its first estimate) and never updated "
+        "after (each later update written to a copy the filter does not use)")
+class EdgeNoiseFrozen(_WrongEdgeNoiseUpdate):
+    def wrong(self, before, after):
+        return before if before > 0.0 else after
+
+
+@defect("sage-husa-r-update-wrong-sign", "Sage-Husa's edge-noise variance R updated with the wrong sign (the "
+        "step R_new - R_old subtracted; R floored at 0)")
+class EdgeNoiseWrongSign(_WrongEdgeNoiseUpdate):
+    def wrong(self, before, after):
+        return max(before - (after - before), 0.0)
+
+
+@defect("sage-husa-r-update-wrong-scale", "Sage-Husa's edge-noise variance R stored at a quarter of each update "
+        "(a fixed-point scale 2 bits off)")
+class EdgeNoiseWrongScale(_WrongEdgeNoiseUpdate):
+    def wrong(self, before, after):
+        return 0.25 * after

@@ -2,8 +2,11 @@
 
 The control run (the built-in controller as shipped) must PASS; each defect then runs the same
 suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). A defect is
-killed when the run's verdict is not PASS; the requirements that failed are what caught it. The
-suite's files run cheapest first, so a killed defect costs seconds, a survivor the whole suite.
+caught when a test failed an assertion (a judged figure outside its bound: ``caught_by =
+"assertion"``); the requirements that failed are what caught it. A test that errored (an
+exception other than an assertion: ``caught_by = "error"``) judged nothing: a finding to fix,
+not a kill. Without a control run that PASSes there is no detection figure. The suite's files
+run cheapest first, so a caught defect costs seconds, a survivor the whole suite.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ SUITE_ORDER = (
     "test_faults.py",
     "test_calibration_recovery.py",
     "test_signal_injection.py",
+    "test_sage_husa_learning.py",
     "test_sage_husa.py",
     "test_fault_injection.py",
 )
@@ -37,7 +41,10 @@ class Run:
     name: str
     description: str
     verdict: str  #: the report's verdict: PASS, FAIL, or "no report"
-    killed: bool
+    killed: bool  #: caught by an assertion
+    #: "assertion" (a test failed a judged bound), "error" (a test raised something else and
+    #: none failed an assertion), or None (nothing failed)
+    caught_by: str | None = None
     killed_by: list[str] = field(default_factory=list)  #: requirement ids that failed
     failed_tests: list[str] = field(default_factory=list)
     duration_s: float = 0.0
@@ -84,6 +91,18 @@ def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tupl
     return str(out), lacking
 
 
+def what_caught(report: dict) -> tuple[str | None, list[str], list[str]]:
+    """From a run's HIL report: ``caught_by`` ("assertion" when a test failed an assertion,
+    "error" when tests only errored, None), the requirements of the tests that failed an
+    assertion, and every failed or errored test. A verdict short of PASS for another reason (a
+    requirement the run could not test) or a test that errored is not a catch."""
+    failed = [t for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
+    kinds = {t.get("failed_by") or "error" for t in failed}
+    caught_by = "assertion" if "assertion" in kinds else ("error" if kinds else None)
+    requirements = sorted({r for t in failed if t.get("failed_by") == "assertion" for r in t.get("requirements", [])})
+    return caught_by, requirements, [t["nodeid"] for t in failed]
+
+
 def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
     cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", args.dut,
@@ -107,16 +126,15 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_json = report_dir / "hil-report.json"
     if not report_json.is_file():
         tail = " | ".join(output.strip().splitlines()[-3:])
-        return Run(name, description, "no report", False, duration_s=duration, report=str(report_json),
+        return Run(name, description, "no report", False, None, duration_s=duration, report=str(report_json),
                    note=note or f"the run wrote no report: {tail}")
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
-    failed_reqs = [r["id"] for r in report.get("traceability", []) if r.get("verdict") in ("fail", "error")]
-    failed_tests = [t["nodeid"] for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
-    # caught: a test of the suite failed (a verdict short of PASS for another reason, a requirement
-    # the run could not test, is not a catch)
-    return Run(name, description, verdict, bool(failed_tests), failed_reqs, failed_tests, duration, str(report_json),
-               note)
+    caught_by, failed_reqs, failed_tests = what_caught(report)
+    if caught_by == "error":
+        note = (note + "; " if note else "") + "a test errored (no assertion failed): a finding to fix, not a catch"
+    return Run(name, description, verdict, caught_by == "assertion", caught_by, failed_reqs, failed_tests, duration,
+               str(report_json), note)
 
 
 def qualify(args, progress=print) -> dict:
@@ -142,7 +160,8 @@ def qualify(args, progress=print) -> dict:
             run = future.result()
             runs.append(run)
             caught = ", ".join(run.killed_by) or "-"
-            state = "control" if run.name == "control" else ("killed" if run.killed else "SURVIVED")
+            state = "control" if run.name == "control" else (
+                "killed" if run.killed else ("ERRORED" if run.caught_by == "error" else "SURVIVED"))
             progress(f"{run.name:<34} {state:<9} {run.verdict:<9} {run.duration_s:6.1f} s  caught by: {caught}"
                      + (f"  ({run.note})" if run.note else ""))
     control, mutants = runs[0], runs[1:]
@@ -159,12 +178,18 @@ def qualify(args, progress=print) -> dict:
         "out_of_scope": out_of_scope,
         "control": asdict(control),
         "mutants": [asdict(m) for m in mutants],
+        # a detection figure only over a control run that PASSes: against a failing control a
+        # "caught" defect may be the control's own failure
         "detection": {
             "killed": len(killed),
             "total": len(mutants),
             "ratio": len(killed) / len(mutants) if mutants else None,
-        },
+        } if control.verdict == "PASS" else None,
+        "no_detection_because": None if control.verdict == "PASS" else (
+            f"the control run's verdict is {control.verdict}, not PASS: a defect's failure could be the "
+            f"control's own ({', '.join(control.failed_tests) or control.note or 'see its report'})"),
+        "errored": [m.name for m in mutants if m.caught_by == "error"],
         "requirements": {req: sorted(names_) for req, names_ in sorted(by_requirement.items())},
-        "survivors": [m.name for m in mutants if not m.killed],
+        "survivors": [m.name for m in mutants if m.caught_by is None],
         "duration_s": time.monotonic() - started,
     }
