@@ -167,3 +167,20 @@ def test_the_registry_names_real_controller_strategies():
     named = {e.strategy: e.name for e in PREDICTORS.values() if e.strategy}
     assert named == {"KF": "kf", "SAGE_HUSA": "sage_husa"}
     assert all(s in Strategy.__members__ for s in named)
+
+
+def test_rebuilt_puts_a_model_based_predictor_on_another_model_with_its_settings():
+    """The tuning objective rebuilds each candidate on each pump's own model (and in kinematic
+    form with the current channel unobserved); the firmware peers have no model and stay as they are."""
+    from hil.experiments.peer_settings import TUNED
+    from hil.predictors.registry import KINEMATIC_MODEL, KINEMATIC_R_I, build, rebuilt, settings_of
+
+    pump = MotorModel(3, 2e-4, (0.05,), (1e-7,))
+    for name in ("kf", "sage_husa", "vb_akf"):
+        p = build(name, TUNED[name], KINEMATIC_MODEL)
+        q = rebuilt(p, pump)
+        assert type(q) is type(p) and q.model is pump and settings_of(q) == settings_of(p)
+    kin = rebuilt(build("kf", TUNED["kf"], pump), pump, kinematic=True)
+    assert kin.model is KINEMATIC_MODEL and settings_of(kin)["r0_diag"][1] == KINEMATIC_R_I
+    pll = build("pll", TUNED["pll"], pump)
+    assert rebuilt(pll, pump) is pll
