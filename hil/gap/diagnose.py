@@ -41,7 +41,7 @@ from .selection import (
     heldout_shrink,
 )
 
-__all__ = ["ALPHA", "Diagnosis", "diagnose", "equal_within_noise", "knob"]
+__all__ = ["ALPHA", "Diagnosis", "diagnose_segments", "equal_within_noise", "knob"]
 
 
 @dataclass
@@ -337,28 +337,6 @@ def _edge_selection(cells: Cells, names: list[str]) -> tuple[float, EdgeSelectio
     if p0 >= ALPHA:
         return p0, EdgeSelection(Selection([], [], {}, [], chi2_0, chi2_0, cells.mean.size), {}, {})
     return p0, _select(cells, names)
-
-
-def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
-    """Diagnose ``rec``: the route follows the recording. With operating points (segments), against
-    ``model`` (a PlantConfig; None = the nominal motor, no effects); an ordinary run (capture
-    times only) against an ideal motor on a smooth trajectory (``model`` and ``candidates`` do not
-    apply and are named in ``not_assessed`` when given)."""
-    if rec.ordinary:
-        from hil.calibration.ordinary import hall_steps
-
-        from .ordinary import diagnose_ordinary
-
-        notes = []
-        if model is not None:
-            notes.append(
-                "--model: not used for an ordinary run (capture times only): the model is an ideal motor with ideal "
-                "sensors on a smooth speed trajectory"
-            )
-        if candidates is not None:
-            notes.append("candidates: an ordinary run has its own list (the effects capture times can see)")
-        return diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising), notes)
-    return diagnose_segments(rec, model, candidates)
 
 
 def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None = None) -> Diagnosis:
