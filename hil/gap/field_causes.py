@@ -35,7 +35,7 @@ from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling
 
-from .route import diagnose
+from .diagnose import diagnose_segments
 from .synthetic import (
     JITTER_S,
     KNOWN_MODEL,
@@ -218,7 +218,7 @@ def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: i
 def run_field_case(job) -> dict:
     i, kind, names, snr, seed, electrical = job
     rec, implied, _ = make_field_case(names, snr, seed, electrical=electrical)
-    d = diagnose(rec, KNOWN_MODEL)
+    d = diagnose_segments(rec, KNOWN_MODEL)
     top = [r["effect"] for r in d.ranking] if d.significant else ["none"]
     accepted = [a["effect"] for a in d.accepted]
     perr = None

@@ -311,7 +311,9 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         return _chi2(fit_ordinary(st, _merge(sel.fitted + [m], whole.pole_pairs), tick_s=tick,
                                   knot_cycles=whole.knot_cycles), whole.none)[0]
 
-    confounded += [p for p in confounded_rivals(sel, accepted, whole.names, refit_chi2) if p not in confounded]
+    # what each explains alone: its share of the squared gap (see the ranking)
+    rivals = confounded_rivals(sel, accepted, whole.names, refit_chi2, alone=share_alone)
+    confounded += [p for p in rivals if p not in confounded]
     if "conditioning_delay" in accepted and "hysteresis" in accepted:
         # both earned their place; they are confounded only if this capture cannot separate them
         delay, delay_se = full.get("delay_diff_s")

@@ -33,6 +33,10 @@ ALPHA = 1e-3
 BIC_MIN = 10.0
 #: a rival that alone explains at least this share of what an accepted effect explains alone
 CONFOUND_RATIO = 0.9
+#: only a substantial accepted effect has confounded rivals: alone it explains at least this share
+#: of what the best candidate explains alone (a small effect kept after a large one would pair
+#: with every rival the large one already explains)
+CONFOUND_MIN_SHARE = 0.1
 #: residuals beyond this many robust standard deviations are outliers (a missed edge, a bump)
 OUTLIER_SD = 6.0
 #: bootstrap draws of the held-out shrink and its interval (5-95 %)
@@ -153,21 +157,28 @@ def forward_select(
 
 
 def confounded_rivals(
-    sel: Selection, accepted: list[str], names: list[str], refit_chi2: Callable[[str], float]
+    sel: Selection,
+    accepted: list[str],
+    names: list[str],
+    refit_chi2: Callable[[str], float],
+    alone: dict[str, float] | None = None,
 ) -> list[list[str]]:
-    """Rivals the data cannot tell from an accepted effect: alone they explain at least
-    ``CONFOUND_RATIO`` as much (and physically), and refitted after the kept set they lower the
-    chi-square by less than ``BIC_MIN`` (``refit_chi2(m)``: the remainder with ``m`` added)."""
+    """Rivals the data cannot tell from a substantial accepted effect (``CONFOUND_MIN_SHARE``):
+    alone they explain at least ``CONFOUND_RATIO`` as much (and physically), and refitted after
+    the kept set they lower the chi-square by less than ``BIC_MIN`` (``refit_chi2(m)``: the
+    remainder with ``m`` added). ``alone``: what each candidate explains alone in the route's own
+    measure (default: the chi-square it removes alone)."""
+    alone = alone if alone is not None else {n: t.gain for n, t in sel.first.items()}
     pairs: list[list[str]] = []
+    g_best = max(alone.values(), default=0.0)
     for n in accepted:
-        g_n = sel.first[n].gain if n in sel.first else 0.0
-        if g_n <= 0:
+        g_n = alone.get(n, 0.0)
+        if g_n <= 0 or g_n < CONFOUND_MIN_SHARE * g_best:
             continue
         for m in names:
             if m == n or m in sel.fitted or m not in sel.first:
                 continue
-            t = sel.first[m]
-            if t.gain < CONFOUND_RATIO * g_n or not t.physical:
+            if alone.get(m, 0.0) < CONFOUND_RATIO * g_n or not sel.first[m].physical:
                 continue
             if sel.chi2_end - refit_chi2(m) < BIC_MIN:
                 pair = sorted([n, m])

@@ -29,7 +29,7 @@ from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 
 from .candidates import CANDIDATES
-from .route import diagnose
+from .diagnose import diagnose_segments
 from .field_causes import plan_field_cases, run_field_case
 from .samples import (
     EFFECT_DOMAIN,
@@ -411,7 +411,7 @@ def _run_case(job) -> dict:
         # kinematic generator's constant speed
         electrical = (kind == "null" and i % 2 == 1) or (kind == "single" and i % 4 == 3)
         rec, truth = make_case(names, snr, case_seed, ool=ool, electrical=electrical or None)
-    d = diagnose(rec, KNOWN_MODEL)
+    d = diagnose_segments(rec, KNOWN_MODEL)
     top = [r["effect"] for r in d.ranking] if d.significant else ["none"]
     accepted = [a["effect"] for a in d.accepted]
     perr = None
