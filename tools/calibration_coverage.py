@@ -54,9 +54,8 @@ def main() -> None:
     report: dict = {
         "commit": commit.stdout.strip(),
         "command": "python tools/calibration_coverage.py",
-        "args": vars(args),
+        "args": {**vars(args), "json": str(args.json) if args.json else None},
     }
-    report["args"]["json"] = str(args.json) if args.json else None
     if args.captures:
         rows, info = coverage_study(args.captures, args.seed)
         report["coverage"] = {"info": info, "rows": [r.__dict__ for r in rows]}
