@@ -14,7 +14,8 @@ effect library: the rotor's speed ripple locked to the six-step commutation, an 
 boundary falling with 1/speed^2; it is the rotor that moves, so calibration never corrects it).
 They are chosen by the selection engine (hil.gap.selection); for the held-out check the gap
 test, knots, pole count, effects and values are chosen on every other stretch of time alone and
-judged on the stretches held out, where only the trajectory is refitted. What capture times cannot attribute is listed in ``not_assessed``.
+judged on the stretches held out, where only the trajectory is refitted. What capture times
+cannot attribute is listed in ``not_assessed``.
 """
 
 from __future__ import annotations
