@@ -4,10 +4,11 @@ Where: per-edge residuals against the model, localised per sensor, polarity, pol
 region and mechanical order, gated against the noise floor estimated inside each residual
 cell (segment x sensor x polarity x pole). Which: every candidate effect is scored by the
 chi-square it removes from the cell means (weighted by effective sample sizes corrected for
-autocorrelation), accepted by forward selection with a BIC penalty and a physical-bounds check;
-pairs that explain the same pattern equally are reported as confounded with the knob that
-separates them; a significant remainder is "unexplained". How far: the accepted effects are
-fitted on all but one operating point and the gap is measured on the one held out, in turn.
+autocorrelation), accepted by the selection engine (hil.gap.selection: forward selection with a
+BIC penalty, parsimony ties and a physical-bounds check); pairs that explain the same pattern
+equally are reported as confounded with the knob that separates them; a significant remainder is
+"unexplained". How far: on all but one operating point the gap is tested and the effects are
+chosen and fitted, and the gap is measured on the one held out, in turn.
 
 The gap metric is the RMS over edges of the systematic residual (the cell means), in degrees
 electrical: per-edge noise cannot be removed by any model and would cap the shrink.

@@ -12,8 +12,10 @@ The candidates are the effects capture times can see, each a set of columns of t
 (per magnet pole, when the pole count is stated or found) and ``torque_ripple`` (beyond the
 effect library: the rotor's speed ripple locked to the six-step commutation, an angle per sector
 boundary falling with 1/speed^2; it is the rotor that moves, so calibration never corrects it).
-They are added by BIC, fitted on every other stretch of time and judged on the stretches held
-out, where only the trajectory is refitted. What capture times cannot attribute is listed in ``not_assessed``.
+They are chosen by the selection engine (hil.gap.selection); for the held-out check the gap
+test, knots, pole count, effects and values are chosen on every other stretch of time alone and
+judged on the stretches held out, where only the trajectory is refitted. What capture times
+cannot attribute is listed in ``not_assessed``.
 """
 
 from __future__ import annotations
