@@ -27,13 +27,13 @@ real captures: ``tools/calibration_coverage.py`` and docs/real-captures.md.
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
+from typing import Any
 
 import numpy as np
 from scipy import linalg, special, stats
 
-if TYPE_CHECKING:
-    from .ordinary import Fit
+#: an ``ordinary.Fit`` (not imported: ``ordinary`` imports this module)
+Fit = Any
 
 #: contiguous stretches the jackknife deletes one at a time: a variance with 19 degrees of freedom
 #: (its own scatter some 16 %, and t/z = 1.07), stretches of hundreds of edges on a capture of ten
