@@ -47,6 +47,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--captures", type=int, default=200)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--duration-s", type=float, default=6.0, help="length of each synthetic capture")
+    ap.add_argument("--jitter-rms-us", type=float, nargs=2, default=(3.0, 20.0), help="range of the edge jitter RMS")
+    ap.add_argument("--jitter-lag1", type=float, nargs=2, default=(0.5, 0.85), help="range of its lag-1 correlation")
+    ap.add_argument("--pole-pairs", type=int, default=4)
     ap.add_argument("--halves", action="store_true", help="also split each shipped real capture in halves")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args()
@@ -57,7 +61,14 @@ def main() -> None:
         "args": {**vars(args), "json": str(args.json) if args.json else None},
     }
     if args.captures:
-        rows, info = coverage_study(args.captures, args.seed)
+        rows, info = coverage_study(
+            args.captures,
+            args.seed,
+            duration_s=args.duration_s,
+            jitter_rms_s=tuple(v * 1e-6 for v in args.jitter_rms_us),
+            jitter_correlation=tuple(args.jitter_lag1),
+            pole_pairs=args.pole_pairs,
+        )
         report["coverage"] = {"info": info, "rows": [r.__dict__ for r in rows]}
         print(
             f"coverage of value +- {Z:.2f} stderr over {args.captures} synthetic captures (seed {args.seed}, "

@@ -27,15 +27,13 @@ real captures: ``tools/calibration_coverage.py`` and docs/real-captures.md.
 from __future__ import annotations
 
 import dataclasses
-from typing import TypeVar
+from typing import Any
 
 import numpy as np
 from scipy import linalg, special, stats
 
-#: the ordinary-run calibration's fit (hil.calibration.ordinary.Fit, a dataclass with names, coef,
-#: cov and the per-stretch score and information): named by a type variable, not imported, so that
-#: the fit's module may import this one
-Fit = TypeVar("Fit")
+#: an ``ordinary.Fit`` (not imported: ``ordinary`` imports this module)
+Fit = Any
 
 #: contiguous stretches the jackknife deletes one at a time: a variance with 19 degrees of freedom
 #: (its own scatter some 16 %, and t/z = 1.07), stretches of hundreds of edges on a capture of ten
