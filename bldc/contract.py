@@ -137,6 +137,18 @@ def _duty_u16(duty: float) -> int:
     return int(round(min(max(duty, 0.0), 1.0) * DUTY_SCALE))
 
 
+#: The largest conditioning delay (rise or fall, s) a calibration table may carry, and the effect
+#: library's bound on a plant's. Physics: a delay must stay well inside a sector at the top speed,
+#: at most half of one (beyond it, an edge the circuit holds back is captured after the middle of
+#: the next sector, and the Hall code at the capture no longer names the sector the rotor is in).
+#: Sector time at N rpm and p pole pairs: 60 / (360 p N / 60) s. Real open-collector wiring (pull-up
+#: into a 1 nF filter and the cable) is measured at 134 us rise minus fall on a spindle motor (top
+#: 333 Hz e: 500 us sectors) and 276 us on a hoverboard hub motor; the slowest-commutating motors
+#: with such wiring are many-pole hub motors: 15 pole pairs at a top speed of 600 rpm is 150 Hz e,
+#: a 1.11 ms sector, half of it 556 us; 500 us is that rounded down. A motor faster than that
+#: bounds its own delay tighter (the calibration checks half a sector at the capture's top speed).
+MAX_CONDITIONING_DELAY_S = 500e-6
+
 #: The controller's ADC as the bench emulates it (docs/controller.md, "What the controller's
 #: peripherals hold"). Its three phase-current sensors are converted at the capture event (an
 #: injected conversion the capture timer triggers, as MCU timers can) and every ADC_PERIOD_TICKS

@@ -737,6 +737,8 @@ def cmd_acceptance(args) -> int:
         argv.append(f"--hil-plant={args.plant}")
     if args.budgets:
         argv.append(f"--hil-budgets={args.budgets}")
+    if args.delay_draws:
+        argv.append(f"--hil-delay-draws={args.delay_draws}")
     if args.workers:
         argv += ["-n", args.workers]
     extra = list(args.pytest_args)
@@ -841,6 +843,10 @@ def build_parser() -> argparse.ArgumentParser:
     q = ps.add_parser("check", help="validate a plant TOML file")
     q.add_argument("plant")
     q.set_defaults(func=cmd_plant_check)
+    from .twin.cli import add_parser as add_twin_parser, add_plant_parser  # docs/twin.md
+
+    add_plant_parser(ps)
+    add_twin_parser(sub)
 
     p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
     p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
@@ -1009,6 +1015,8 @@ def build_parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--plant", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
+    p.add_argument("--delay-draws", choices=("library", "real-wiring"),
+                   help="REQ-ROB-001's conditioning delays: 0-50 us (library, default) or 0-300 us (real-wiring)")
     p.add_argument(
         "--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)"
     )

@@ -1,0 +1,367 @@
+"""A plant built from a Hall capture: what the project's calibration of the capture found, as
+effects of the effect library, and what the capture cannot tell, from a base plant.
+
+The calibration (``hil.calibration.ordinary``) fits the rotor's trajectory and the deviations
+jointly; here its figures become the twin's effects:
+
+* ``installation_offset``: the relative offsets (sum zero) plus the base's mean (the absolute
+  reference is not in capture times);
+* ``pole_offset``: the pole table (sum zero per polarity) when a pole count is stated or found;
+* ``switching_asymmetry``: each sensor's rise-minus-fall angle, constant in angle;
+* ``conditioning_delay``: the rise-minus-fall delay difference on the later polarity over the
+  base's common part;
+* ``edge_jitter``: the residuals of the full fit (trajectory, offsets, poles, delay, the rotor's
+  sector-locked ripple) less the timer's quantisation, as white time jitter plus AR(1) angle
+  jitter: the variance per speed band gives the two RMS values (time jitter is constant in time,
+  angle jitter grows in time as the speed falls), the lag-1 autocovariance of the angle residuals
+  gives the colour;
+* ``timer_quantization``: the capture's tick.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import optimize
+
+from bldc.params import ConfigError
+from plant_models import PRESETS, PlantConfig
+from plant_models import effects as fx
+
+from ..calibration.corrections import SENSORS
+from ..calibration.ordinary import (
+    _RISE_LABELS,
+    _SENSOR_LABELS,
+    Effects,
+    Fit,
+    HallSteps,
+    _sum_zero_basis,
+    calibrate_ordinary,
+    fit_ordinary,
+    hall_steps,
+)
+from ..recording import Recording, read_recording
+
+#: residual lags whose autocorrelation the twin check compares
+ACF_LAGS = 12
+#: the base plant when none is given
+DEFAULT_BASE = "paper-bench"
+#: the reference electrical speed of the calibration's ripple columns (ordinary.effect_columns)
+RIPPLE_REF_HZ_E = 10.0
+
+
+def load_capture(path: str | Path, pole_pairs: int | None = None) -> Recording:
+    """A recording directory (hil-recording/1), or a capture file (VCD, sigrok .sr, CSV) read as
+    ``hil recording import`` reads it."""
+    path = Path(path)
+    if path.is_file() and path.suffix.lower() in (".vcd", ".sr", ".csv"):
+        from ..signals.hall import capture_recording, read_hall_capture
+
+        rec = capture_recording(read_hall_capture(path), pole_pairs, source=path.name)
+        rec.path = path
+        return rec
+    if not path.exists():
+        raise ConfigError(str(path), "no such recording directory or capture file (.vcd, .sr, .csv)")
+    return read_recording(path)
+
+
+def load_base(base: str | None) -> PlantConfig:
+    """A preset name or a plant TOML file."""
+    base = base or DEFAULT_BASE
+    if base in PRESETS:
+        return PRESETS[base]()
+    return PlantConfig.from_toml(base)
+
+
+@dataclass
+class NoiseModel:
+    """Edge noise beyond the timer's quantisation, from the full fit's residuals."""
+
+    time_rms_s: float
+    angle_rms_deg_e: float
+    correlation: float
+    acf: list[float]  #: autocorrelation of the angle residuals, lags 1..ACF_LAGS
+    band_speed_hz_e: list[float]
+    band_excess_var_s2: list[float]
+    kind: str = ""
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class CaptureAnalysis:
+    """The capture as the project's calibration sees it, and the full fit behind it."""
+
+    rec: Recording
+    steps: HallSteps
+    calibration: dict
+    fit: Fit  #: trajectory, offsets, poles, delay and (where the capture shows it) the ripple
+    pole_pairs: int | None
+    tick_s: float | None
+    ripple: bool
+    asymmetry_deg_e: dict[str, tuple[float, float]]  #: per sensor rise minus fall (value, stderr)
+    noise: NoiseModel
+    extra: dict = field(default_factory=dict)
+
+
+def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> CaptureAnalysis:
+    """Calibrate the capture (``hil calibrate``'s ordinary-run route) and fit the full model."""
+    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
+    tick = rec.timer_tick_s
+    out, _ = calibrate_ordinary(
+        steps, tick_s=tick, pole_pairs=pole_pairs or rec.stated_pole_pairs, source=source or str(rec.path or "")
+    )
+    a = out["assumptions"]
+    p = a["pole_pairs"] if out["pole_offset_deg_e"] else None
+    ripple = str(a["sector_locked_speed_ripple"]).startswith("modelled")
+    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a["knot_cycles"])
+    return CaptureAnalysis(
+        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick)
+    )
+
+
+def _label_combination(fit: Fit, sgn: int, weights: np.ndarray, prefix: str = "static") -> tuple[float, float] | None:
+    """A combination of the six per-label offsets (sum-zero basis) of one direction."""
+    dname = "fwd" if sgn > 0 else "rev"
+    keys = [f"{prefix}_{dname}_{j}" for j in range(5)]
+    if keys[0] not in fit.names:
+        return None
+    z = _sum_zero_basis(6)
+    return fit.combination(dict(zip(keys, weights @ z)))
+
+
+def _inverse_variance(vals: list[tuple[float, float]]) -> tuple[float, float]:
+    v = np.array([a for a, _ in vals])
+    w = 1.0 / np.maximum(np.array([b for _, b in vals]), 1e-12) ** 2
+    return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
+
+
+def sensor_asymmetry(fit: Fit) -> dict[str, tuple[float, float]]:
+    """Each sensor's rise-minus-fall trail (deg e, constant in angle), both directions combined."""
+    out = {}
+    for x, name in enumerate(SENSORS):
+        vals = []
+        for sgn in (1, -1):
+            rise = [j for j in _SENSOR_LABELS[x] if j in _RISE_LABELS[sgn]]
+            fall = [j for j in _SENSOR_LABELS[x] if j not in _RISE_LABELS[sgn]]
+            w = np.zeros(6)
+            w[rise], w[fall] = sgn, -sgn  # static offsets are spatial: they trail by sgn * offset
+            r = _label_combination(fit, sgn, w)
+            if r is not None:
+                vals.append(r)
+        out[name] = _inverse_variance(vals) if vals else (0.0, float("nan"))
+    return out
+
+
+def ripple_pattern_deg_e(fit: Fit, sgn: int) -> np.ndarray | None:
+    """The sector-locked ripple's angle per boundary label at RIPPLE_REF_HZ_E (scales as 1/speed^2)."""
+    dname = "fwd" if sgn > 0 else "rev"
+    keys = [f"ripple_{dname}_{j}" for j in range(5)]
+    if keys[0] not in fit.names:
+        return None
+    c = np.array([fit.coef[fit.names.index(k)] for k in keys])
+    return _sum_zero_basis(6) @ c
+
+
+def residual_acf(x: np.ndarray, lags: int = ACF_LAGS) -> list[float]:
+    x = x - x.mean()
+    d = float(np.dot(x, x)) or 1.0
+    return [float(np.dot(x[:-k], x[k:]) / d) for k in range(1, lags + 1)]
+
+
+def noise_model(fit: Fit, steps: HallSteps, tick_s: float | None) -> NoiseModel:
+    """White time jitter plus AR(1) angle jitter from the residuals (quantisation taken off)."""
+    r, tau = fit.residual_s, fit.tau_s_per_deg
+    keep = np.abs(r / fit.sigma_s) < 6.0
+    # robust variance per speed decile (outliers left out), less the quantisation's tick^2 / 12
+    q_var = (tick_s or 0.0) ** 2 / 12.0
+    edges = np.quantile(tau, np.linspace(0, 1, 11))
+    band = np.clip(np.searchsorted(edges, tau, side="right") - 1, 0, 9)
+    tau_b, var_b = [], []
+    for b in range(10):
+        sel = (band == b) & keep
+        if sel.sum() < 20:
+            continue
+        tau_b.append(float(np.median(tau[sel])))
+        var_b.append(float(np.var(r[sel])) - q_var)
+    tau_b, var_b = np.array(tau_b), np.array(var_b)
+    # excess = sigma_t^2 + sigma_theta^2 tau^2, both >= 0 (scipy's non-negative least squares)
+    scale = np.array([1.0, float(np.median(tau_b)) ** 2])
+    sol, _ = optimize.nnls(np.column_stack([np.ones_like(tau_b), tau_b**2]) / scale, var_b)
+    sol = sol / scale
+    time_rms, angle_rms = math.sqrt(sol[0]), math.sqrt(sol[1])
+    # the colour: lag-1 autocovariance of the angle residuals over neighbouring edges of a run
+    ang = np.where(keep, r / tau, 0.0)
+    same_run = (np.diff(steps.run[fit.index]) == 0) & keep[1:] & keep[:-1]
+    cov1 = float(np.mean(ang[1:][same_run] * ang[:-1][same_run])) if same_run.any() else 0.0
+    rho = min(max(cov1 / sol[1], 0.0), 0.95) if sol[1] > 0 else 0.0
+    kind = (
+        ("coloured AR(1)" if rho > 0.05 else "white")
+        + (" angle jitter" if angle_rms > 0 else "")
+        + (" and white time jitter" if time_rms > 0 else "")
+    )
+    return NoiseModel(
+        time_rms_s=time_rms,
+        angle_rms_deg_e=angle_rms,
+        correlation=rho,
+        acf=residual_acf((r / tau)[keep]),
+        band_speed_hz_e=[float(1.0 / (360.0 * t)) for t in tau_b],
+        band_excess_var_s2=[float(v) for v in var_b],
+        kind=kind.strip(),
+    )
+
+
+@dataclass
+class Twin:
+    config: PlantConfig
+    measured: list[tuple[str, str]]  #: (what, from the capture)
+    assumed: list[tuple[str, str]]  #: (what, from the base and why)
+    notes: list[str]
+    analysis: CaptureAnalysis
+
+
+def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
+    if v < lo or v > hi:
+        notes.append(f"{what}: {v:.4g} clipped to the effect library's bound [{lo:g}, {hi:g}]")
+    return min(max(v, lo), hi)
+
+
+def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str) -> Twin:
+    """The twin plant: the capture's calibration as effects, the rest from ``base``."""
+    cal = an.calibration
+    measured, assumed, notes = [], [], []
+    p = an.pole_pairs or base.motor.pole_pairs
+    motor = dataclasses.replace(base.motor, pole_pairs=int(p))
+    if an.pole_pairs:
+        measured.append(("motor.pole_pairs", f"{p} ({cal['assumptions']['pole_pairs_source']})"))
+    else:
+        assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
+    effects: list[fx.Effect] = []
+    # installation offsets: the capture's relative ones around the base's mean
+    base_inst = base.effect("installation_offset")
+    mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
+    rel = cal["installation_offset_deg_e"]
+    lim = fx.InstallationOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+    inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", notes) for s in SENSORS)
+    effects.append(fx.InstallationOffset(offset_deg_e=inst))
+    measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
+    assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base ({base_name}); "
+                    "capture times give only differences (an encoder or Line-BEMF gives the rest)"))
+    poles = cal["pole_offset_deg_e"]
+    if poles and len(poles) == 2 * p:
+        lim = fx.PoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", notes)
+                                                        for j, v in enumerate(poles))))
+        measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
+                         "(sum zero per polarity: pole 0 is where the capture starts)"))
+    else:
+        notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
+    asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
+    effects.append(fx.SwitchingAsymmetry(rise_minus_fall_deg_e=tuple(asym[s] for s in SENSORS)))
+    measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
+                     ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + " deg e"))
+    d = cal["rise_fall_delay_difference_s"]
+    d_value = d["value"] if d.get("value") is not None else 0.0
+    if d.get("value") is None:
+        notes.append(f"rise-minus-fall delay not determined ({d.get('reason')}): the twin has none beyond the base's")
+    base_delay = base.effect("conditioning_delay")
+    common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
+    rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
+    effects.append(fx.ConditioningDelay(rise_delay_s=rise, fall_delay_s=fall))
+    measured.append(("conditioning_delay (rise minus fall)", f"{d_value * 1e6:+.1f} us"))
+    assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({base_name}): a lag of "
+                    "every edge is a time shift of the trajectory, invisible without an encoder"))
+    nm = an.noise
+    lim_t = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]
+    lim_a = fx.EdgeJitter.__dataclass_fields__["angle_rms_deg_e"].metadata["high"]
+    effects.append(fx.EdgeJitter(time_rms_s=_clip(nm.time_rms_s, 0.0, lim_t, "edge_jitter.time_rms_s", notes),
+                                 angle_rms_deg_e=_clip(nm.angle_rms_deg_e, 0.0, lim_a, "edge_jitter.angle_rms_deg_e",
+                                                       notes),
+                                 correlation=nm.correlation))
+    measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
+                     f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
+                     "the timer's quantisation)"))
+    if an.tick_s:
+        effects.append(fx.TimerQuantization(tick_s=an.tick_s))
+        measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling)"))
+    else:
+        notes.append("the capture states no timer tick: none in the twin")
+    # what the capture cannot tell, from the base
+    arm = base.effect("armature_reaction")
+    if arm:
+        effects.append(arm)
+    assumed.append(("armature_reaction", f"{'from the base' if arm else 'none (the base has none)'}: needs phase "
+                    "currents and a reference angle"))
+    hyst = base.effect("hysteresis")
+    if hyst:
+        effects.append(hyst)
+    assumed.append(("hysteresis (common lag)", f"{'from the base' if hyst else 'none (the base has none)'}: "
+                    "a lag common to every edge is invisible without an encoder"))
+    for e in base.effects:
+        if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
+            effects.append(e)
+    assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                    f"from the base ({base_name}): capture times say nothing of them"))
+    # the delay against the base motor's top speed: where the twin runs beyond the capture
+    speeds = cal["assumptions"]["speed_range_hz_e"]
+    notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
+                 "extrapolates (a delay grows with speed, the jitter model holds)")
+    name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
+    config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
+                         effects=tuple(effects), name=name)
+    return Twin(config, measured, assumed, notes, an)
+
+
+# --- TOML ------------------------------------------------------------------------------------
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, float):
+        return repr(float(v)) if math.isfinite(v) else "nan"
+    return str(v)
+
+
+def twin_toml(twin: Twin, source: str, base_name: str) -> str:
+    """The plant TOML of ``twin``, with what was measured and what was assumed as comments."""
+    c = twin.config
+    lines = [f"# Plant twin of the Hall capture {source}, written by `hil plant from-capture`.",
+             f"# Base (what the capture cannot tell): {base_name}.", "#", "# MEASURED from the capture:"]
+    lines += [f"#   {what}: {how}" for what, how in twin.measured]
+    lines += ["#", "# ASSUMED (from the base; a capture of Hall times alone cannot tell them):"]
+    lines += [f"#   {what}: {how}" for what, how in twin.assumed]
+    if twin.notes:
+        lines += ["#", "# NOTES:"] + [f"#   {n}" for n in twin.notes]
+    lines += ["", f"name = {_toml_value(c.name)}", "", "[motor]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.motor).items()]
+    lines += ["", "[inverter]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.inverter).items()]
+    lines += ["", "[current_sensor]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.current_sensor).items()]
+    measured_names = {"installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay",
+                      "edge_jitter", "timer_quantization"}
+    for e in c.effects:
+        d = e.to_dict()
+        tag = "measured" if e.name in measured_names else "assumed: from the base"
+        lines += ["", f"[[effects]]  # {tag}"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()]
+    return "\n".join(lines) + "\n"
+
+
+def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None) -> tuple[Twin, str]:
+    """The twin of a capture and its TOML text."""
+    rec = load_capture(recording, pole_pairs)
+    base_name = base or DEFAULT_BASE
+    base_config = load_base(base)
+    twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name)
+    text = twin_toml(twin, Path(str(recording)).name, base_name)
+    return twin, text
