@@ -121,6 +121,52 @@ class PoleOffset(Effect):
 
 
 @dataclass(frozen=True)
+class SensorPoleOffset(Effect):
+    """Each sensor sees each magnet pole boundary at its own offset (beyond the per-pole table).
+
+    Physics: the pole offsets shift a boundary alike for every sensor; a sensor that switches
+    away from the field's zero (B_op != 0) crosses a weaker or stronger pole's boundary at a
+    different angle, and sensors at different gaps see the magnetisation's shape differently, so
+    the offset of boundary j at sensor X is ``offset_deg_e[X * 2p + j]`` (spatial, as pole
+    offsets: it leads in reverse). Real captures show such a pattern, constant in speed, in
+    what the per-pole table leaves (docs/twin.md).
+    Fingerprint: a pattern of 6p edges repeating every mechanical turn, different per sensor.
+    """
+
+    name: ClassVar[str] = "sensor_pole_offset"
+    layer: ClassVar[str] = "sensor"
+    fingerprint: ClassVar[Mapping[str, str]] = {
+        "signature": "per-sensor, per-pole pattern repeating every mechanical turn",
+        "scales_with": "nothing (constant in angle); flips sign with direction",
+        "knob": "6p-edge block analysis per sensor",
+    }
+    offset_deg_e: tuple[float, ...] = bounded(
+        (), low=-5.0, high=5.0, unit="deg_e",
+        doc="shift of boundary j at sensor X, index X * 2p + j (sensors A, B, C); length 6 * pole_pairs",
+    )
+
+    def check(self, pole_pairs, prefix):
+        super().check(pole_pairs, prefix)
+        if self.offset_deg_e and len(self.offset_deg_e) != 6 * pole_pairs:
+            raise ConfigError(
+                f"{prefix}offset_deg_e",
+                f"expected {6 * pole_pairs} values (3 sensors x {2 * pole_pairs} poles), got {len(self.offset_deg_e)}",
+            )
+
+    @classmethod
+    def strategy(cls, pole_pairs: int = 2):
+        from hypothesis import strategies as st
+
+        one = st.floats(-5.0, 5.0, allow_nan=False)
+        return st.builds(cls, offset_deg_e=st.tuples(*([one] * (6 * pole_pairs))))
+
+    def contribute(self, plant):
+        if self.offset_deg_e:
+            table = np.asarray(self.offset_deg_e, dtype=float).reshape(3, 2 * plant.pole_pairs)
+            plant.switch_offset_deg_e = plant.switch_offset_deg_e + table[:, :, None]
+
+
+@dataclass(frozen=True)
 class ConditioningCircuit:
     """The paper's Hall conditioning circuit (Fig. 3a), open-drain sensor.
 
@@ -531,6 +577,7 @@ EFFECTS: dict[str, type[Effect]] = {
     for cls in (
         InstallationOffset,
         PoleOffset,
+        SensorPoleOffset,
         ConditioningDelay,
         ArmatureReaction,
         Hysteresis,

@@ -120,9 +120,62 @@ def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> 
     p = a["pole_pairs"] if out["pole_offset_deg_e"] else None
     ripple = str(a["sector_locked_speed_ripple"]).startswith("modelled")
     fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a["knot_cycles"])
-    return CaptureAnalysis(
-        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick)
+    table, resid, test = sensor_pole_pattern(fit, steps, p)
+    an = CaptureAnalysis(
+        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick, resid)
     )
+    an.extra["sensor_pole_offset"] = {"table_deg_e": None if table is None else [float(v) for v in table], **test}
+    return an
+
+
+#: the per-sensor, per-pole pattern is kept when its chi-square over the 6p positions has a
+#: p-value below this (white residuals would give such a pattern once in ten thousand captures)
+PATTERN_P_VALUE = 1e-4
+
+
+def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.ndarray | None, np.ndarray, dict]:
+    """The residuals' mean per position in the mechanical turn (6p edges: each sensor at each pole
+    boundary), as a spatial table [sensor * 2p + pole], and the residuals without it. Kept only
+    when it stands out of the noise (chi-square of the position means against their standard
+    errors); the least-squares residual is already free of the per-pole, per-sensor and
+    rise-minus-fall parts, so this is what they leave."""
+    from scipy import stats
+
+    from ..calibration.ordinary import SENSOR_OF_BOUNDARY, pole_of_boundary
+
+    r = fit.residual_s
+    if not p:
+        return None, r, {"kept": False, "reason": "no pole count: no mechanical turn to fold the residuals over"}
+    tau = fit.tau_s_per_deg
+    keep = np.abs(r / fit.sigma_s) < 6.0
+    m = steps.boundary[fit.index]
+    d = steps.direction[fit.index].astype(float)
+    pos = np.mod(m, 6 * p)
+    ang = r / tau  # deg e, trailing positive
+    means, ses = np.zeros(6 * p), np.full(6 * p, np.inf)
+    for j in range(6 * p):
+        sel = keep & (pos == j)
+        if sel.sum() >= 5:
+            means[j] = float(np.mean(d[sel] * ang[sel]))  # spatial: a trail in reverse is a lead
+            ses[j] = float(np.std(ang[sel]) / np.sqrt(sel.sum()))
+    chi2 = float(np.sum((means / ses) ** 2))
+    p_value = float(stats.chi2.sf(chi2, 6 * p))
+    test = {"chi2": chi2, "positions": 6 * p, "p_value": p_value, "rms_deg_e": float(np.sqrt(np.mean(means**2)))}
+    if p_value >= PATTERN_P_VALUE:
+        return None, r, {"kept": False, "reason": f"p-value {p_value:.2g}: not beyond the noise", **test}
+    probe = np.arange(6 * p)
+    where = SENSOR_OF_BOUNDARY[probe % 3] * 2 * p + pole_of_boundary(probe, p)
+    grid = np.zeros(6 * p)
+    grid[where] = means
+    # what the calibration's tables already hold is taken out (within each polarity of the poles:
+    # the per-sensor mean is an installation offset or switching asymmetry, the per-pole mean a
+    # pole offset), so the twin does not count it twice
+    grid = grid.reshape(3, 2 * p)
+    for parity in (0, 1):
+        block = grid[:, parity::2]
+        grid[:, parity::2] = block - block.mean(axis=1, keepdims=True) - block.mean(axis=0) + block.mean()
+    table = grid.reshape(-1)
+    return table, r - d * table[where][pos] * tau, {"kept": True, **test}
 
 
 def _label_combination(fit: Fit, sgn: int, weights: np.ndarray, prefix: str = "static") -> tuple[float, float] | None:
@@ -174,32 +227,49 @@ def residual_acf(x: np.ndarray, lags: int = ACF_LAGS) -> list[float]:
     return [float(np.dot(x[:-k], x[k:]) / d) for k in range(1, lags + 1)]
 
 
-def noise_model(fit: Fit, steps: HallSteps, tick_s: float | None) -> NoiseModel:
-    """White time jitter plus AR(1) angle jitter from the residuals (quantisation taken off)."""
-    r, tau = fit.residual_s, fit.tau_s_per_deg
-    keep = np.abs(r / fit.sigma_s) < 6.0
-    # robust variance per speed decile (outliers left out), less the quantisation's tick^2 / 12
+def noise_model(
+    fit: Fit, steps: HallSteps, tick_s: float | None, residual_s: np.ndarray | None = None
+) -> NoiseModel:
+    """White time jitter plus AR(1) angle jitter from the residuals, quantisation taken off.
+
+    Per speed decile, the residuals' variance within 4.5 robust standard deviations of their
+    median (a rare bump of a slow rotor does not set the level the other edges see; a Gaussian or
+    the uniform quantisation loses nothing there, so the parts still add) less the
+    quantisation's tick^2 / 12 is
+    ``sigma_t^2 + sigma_theta^2 tau^2``; both are fitted by non-negative least squares, each decile
+    weighted by its total variance (the standard error of a variance is proportional to it).
+    The colour: the lag-1 autocorrelation of
+    the residuals standardised per decile, over neighbouring edges of a run, divided by the share
+    of the angle jitter in their variance (quantisation and time jitter are white)."""
+    r = fit.residual_s if residual_s is None else residual_s
+    tau = fit.tau_s_per_deg
     q_var = (tick_s or 0.0) ** 2 / 12.0
     edges = np.quantile(tau, np.linspace(0, 1, 11))
     band = np.clip(np.searchsorted(edges, tau, side="right") - 1, 0, 9)
+    sd = np.ones_like(r)
     tau_b, var_b = [], []
     for b in range(10):
-        sel = (band == b) & keep
+        sel = band == b
         if sel.sum() < 20:
             continue
+        dev = np.abs(r[sel] - np.median(r[sel]))
+        mad = 1.4826 * float(np.median(dev))
+        var = float(np.var(r[sel][dev < 4.5 * mad])) if mad > 0 else 0.0
+        sd[sel] = max(math.sqrt(var), 1e-12)
         tau_b.append(float(np.median(tau[sel])))
-        var_b.append(float(np.var(r[sel])) - q_var)
+        var_b.append(max(var - q_var, 0.0))
     tau_b, var_b = np.array(tau_b), np.array(var_b)
-    # excess = sigma_t^2 + sigma_theta^2 tau^2, both >= 0 (scipy's non-negative least squares)
+    design = np.column_stack([np.ones_like(tau_b), tau_b**2])
+    rel = 1.0 / (var_b + q_var + 1e-30)  # a band variance's standard error is proportional to its total
     scale = np.array([1.0, float(np.median(tau_b)) ** 2])
-    sol, _ = optimize.nnls(np.column_stack([np.ones_like(tau_b), tau_b**2]) / scale, var_b)
+    sol, _ = optimize.nnls(design * rel[:, None] / scale, var_b * rel)
     sol = sol / scale
     time_rms, angle_rms = math.sqrt(sol[0]), math.sqrt(sol[1])
-    # the colour: lag-1 autocovariance of the angle residuals over neighbouring edges of a run
-    ang = np.where(keep, r / tau, 0.0)
-    same_run = (np.diff(steps.run[fit.index]) == 0) & keep[1:] & keep[:-1]
-    cov1 = float(np.mean(ang[1:][same_run] * ang[:-1][same_run])) if same_run.any() else 0.0
-    rho = min(max(cov1 / sol[1], 0.0), 0.95) if sol[1] > 0 else 0.0
+    z = np.clip(r / sd, -6.0, 6.0)
+    same_run = np.diff(steps.run[fit.index]) == 0
+    acf1 = float(np.mean(z[1:][same_run] * z[:-1][same_run]) / np.mean(z**2)) if same_run.any() else 0.0
+    share = float(np.mean(sol[1] * tau**2 / (sol[0] + sol[1] * tau**2 + q_var))) if sol[1] > 0 else 0.0
+    rho = min(max(acf1 / share, 0.0), 0.95) if share > 0 else 0.0
     kind = (
         ("coloured AR(1)" if rho > 0.05 else "white")
         + (" angle jitter" if angle_rms > 0 else "")
@@ -209,7 +279,7 @@ def noise_model(fit: Fit, steps: HallSteps, tick_s: float | None) -> NoiseModel:
         time_rms_s=time_rms,
         angle_rms_deg_e=angle_rms,
         correlation=rho,
-        acf=residual_acf((r / tau)[keep]),
+        acf=residual_acf(z),
         band_speed_hz_e=[float(1.0 / (360.0 * t)) for t in tau_b],
         band_excess_var_s2=[float(v) for v in var_b],
         kind=kind.strip(),
@@ -231,8 +301,14 @@ def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
     return min(max(v, lo), hi)
 
 
-def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str) -> Twin:
-    """The twin plant: the capture's calibration as effects, the rest from ``base``."""
+#: the effects a controller's calibration table can hold (``--table-only``)
+TABLE_EFFECTS = ("installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay")
+
+
+def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
+                      capture_tick_in_plant: bool = False, table_only: bool = False) -> Twin:
+    """The twin plant: the capture's calibration as effects, the rest from ``base``. ``table_only``:
+    only the deviations a calibration table can hold (no residual pattern, no edge noise)."""
     cal = an.calibration
     measured, assumed, notes = [], [], []
     p = an.pole_pairs or base.motor.pole_pairs
@@ -261,6 +337,15 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str) ->
                          "(sum zero per polarity: pole 0 is where the capture starts)"))
     else:
         notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
+    pattern = an.extra.get("sensor_pole_offset", {})
+    if pattern.get("kept") and len(pattern["table_deg_e"]) == 6 * p:
+        lim = fx.SensorPoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        table = tuple(_clip(v, -lim, lim, f"sensor_pole_offset_deg_e[{j}]", notes)
+                      for j, v in enumerate(pattern["table_deg_e"]))
+        effects.append(fx.SensorPoleOffset(offset_deg_e=table))
+        measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
+                         f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
+                         f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
     asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
     effects.append(fx.SwitchingAsymmetry(rise_minus_fall_deg_e=tuple(asym[s] for s in SENSORS)))
     measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
@@ -286,11 +371,19 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str) ->
     measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
                      f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
                      "the timer's quantisation)"))
-    if an.tick_s:
+    if an.tick_s and capture_tick_in_plant:
         effects.append(fx.TimerQuantization(tick_s=an.tick_s))
-        measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling)"))
+        measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling, kept in the "
+                         "plant: the controller sees edges this coarse)"))
+    elif an.tick_s:
+        base_tick = base.effect("timer_quantization")
+        if base_tick:
+            effects.append(base_tick)
+        measured.append(("capture timer tick (the instrument's)", f"{an.tick_s * 1e6:.4g} us: `hil twin check` "
+                         "samples the twin at it; not the controller's capture timer, so not a plant effect here "
+                         "(`--capture-tick-in-plant` keeps it)"))
     else:
-        notes.append("the capture states no timer tick: none in the twin")
+        notes.append("the capture states no timer tick")
     # what the capture cannot tell, from the base
     arm = base.effect("armature_reaction")
     if arm:
@@ -311,6 +404,11 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str) ->
     speeds = cal["assumptions"]["speed_range_hz_e"]
     notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
                  "extrapolates (a delay grows with speed, the jitter model holds)")
+    if table_only:
+        left = [e.name for e in effects if e.layer in ("sensor", "timing") and e.name not in TABLE_EFFECTS]
+        effects = [e for e in effects if e.layer not in ("sensor", "timing") or e.name in TABLE_EFFECTS]
+        notes.append(f"--table-only: left out {', '.join(left) or 'nothing'} (what no calibration table holds: "
+                     "the twin judges the calibration of the motor's real deviations, not its noise floor)")
     name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
     config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
                          effects=tuple(effects), name=name)
@@ -347,8 +445,11 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     lines += ["", "[inverter]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.inverter).items()]
     lines += ["", "[current_sensor]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.current_sensor).items()]
-    measured_names = {"installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay",
-                      "edge_jitter", "timer_quantization"}
+    measured_names = {"installation_offset", "pole_offset", "sensor_pole_offset", "switching_asymmetry",
+                      "conditioning_delay", "edge_jitter"}
+    if twin.analysis.tick_s and any(e.name == "timer_quantization" and e.tick_s == twin.analysis.tick_s
+                                    for e in c.effects):
+        measured_names.add("timer_quantization")
     for e in c.effects:
         d = e.to_dict()
         tag = "measured" if e.name in measured_names else "assumed: from the base"
@@ -357,11 +458,13 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     return "\n".join(lines) + "\n"
 
 
-def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None) -> tuple[Twin, str]:
+def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None,
+                 capture_tick_in_plant: bool = False, table_only: bool = False) -> tuple[Twin, str]:
     """The twin of a capture and its TOML text."""
     rec = load_capture(recording, pole_pairs)
     base_name = base or DEFAULT_BASE
     base_config = load_base(base)
-    twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name)
+    twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name,
+                             capture_tick_in_plant, table_only)
     text = twin_toml(twin, Path(str(recording)).name, base_name)
     return twin, text

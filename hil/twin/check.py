@@ -130,68 +130,20 @@ def _ratios(real_rows: dict, twin_rows: dict) -> list[dict]:
     return out
 
 
-def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on: tuple[str, ...] = (),
-               log=print) -> dict:
-    """The comparison of a capture and its twin (JSON contract in docs/twin.md)."""
-    config = PlantConfig.from_toml(plant)
-    for c in take_on:
-        if c not in CANDIDATES:
-            raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join(CANDIDATES)})")
-    rec = load_capture(recording, config.motor.pole_pairs)
-    log(f"{recording}: calibrating the capture ({len(rec)} edges)")
-    real = analyse(rec, config.motor.pole_pairs, source=str(recording))
-    if real.pole_pairs is not None and real.pole_pairs != config.motor.pole_pairs:
-        raise ValueError(f"{plant}: motor.pole_pairs {config.motor.pole_pairs}, the capture's {real.pole_pairs}")
-    real_rows = predictor_rows(rec, str(recording))
-    ripple = "sector_locked_speed_ripple" in take_on
-    log("running the twin along the capture's trajectory" + (" with its sector-locked ripple" if ripple else ""))
-    twin, twin_rows = _analyse_twin(config, real, seed, ripple, f"twin of {recording}")
-    real_fig, twin_fig = calibration_figures(real), calibration_figures(twin)
-    lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
-    bins = np.linspace(lo, hi, WIDTH_BINS + 1)
+def _compare(real: CaptureAnalysis, real_fig: dict, real_rows: dict, twin: CaptureAnalysis, twin_rows: dict,
+             bins: np.ndarray) -> dict:
+    """One twin run against the capture: every figure side by side and what differs."""
+    twin_fig = calibration_figures(twin)
     w_real, w_twin = sector_widths(real, bins), sector_widths(twin, bins)
     width_diff = w_twin["mean_deg_e"] - w_real["mean_deg_e"]
     width_se = np.hypot(w_twin["stderr_deg_e"], w_real["stderr_deg_e"])
-    acf_real, acf_twin = np.array(real.noise.acf), np.array(twin.noise.acf)
     acf_se = 1.0 / math.sqrt(max(real.fit.index.size, 1))  # an autocorrelation estimate of white noise
     figs = _figure_differences(real_fig, twin_fig)
     preds = _ratios(real_rows, twin_rows)
-    differences = _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se)
-    # what the twin lacks: each candidate the capture names, added in turn
-    variants = {}
-    if differences and real.ripple and not ripple:
-        log("differences beyond the uncertainty: adding the capture's sector-locked speed ripple to the twin")
-        tw2, rows2 = _analyse_twin(config, real, seed, True, f"twin of {recording} with ripple")
-        f2 = _figure_differences(real_fig, calibration_figures(tw2))
-        p2 = _ratios(real_rows, rows2)
-        w2 = sector_widths(tw2, bins)
-        d2 = _differences(f2, p2, w2["mean_deg_e"] - w_real["mean_deg_e"],
-                          np.hypot(w2["stderr_deg_e"], w_real["stderr_deg_e"]), acf_real, np.array(tw2.noise.acf),
-                          acf_se)
-        remaining = {d["what"] for d in d2}
-        for d in differences:
-            d["explained_by_adding"] = d["what"] not in remaining
-            if d["explained_by_adding"]:
-                d["added"] = "sector_locked_speed_ripple"
-        variants["sector_locked_speed_ripple"] = {
-            "what": CANDIDATES["sector_locked_speed_ripple"], "predictors": p2,
-            "calibration": calibration_figures(tw2), "differences": d2,
-            "take_on": f"hil twin check {recording} {plant} --take-on sector_locked_speed_ripple"}
-    elif not real.ripple:
-        for d in differences:
-            d["explained_by_adding"] = False
     return {
-        "recording": str(recording),
-        "twin": str(plant),
-        "seed": seed,
-        "taken_on": list(take_on),
-        "replay": "kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
-                  "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
-                  f"tick {(real.tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)",
-        "edges": {"real": int(len(rec)), "twin": int(twin.rec.t_s.size)},
+        "edges": {"real": int(real.rec.t_s.size), "twin": int(twin.rec.t_s.size)},
         "calibration": {"real": real_fig, "twin": twin_fig, "comparison": figs},
-        "noise": {"real": real.noise.to_json(), "twin": twin.noise.to_json(),
-                  "acf_stderr": acf_se},
+        "noise": {"real": real.noise.to_json(), "twin": twin.noise.to_json(), "acf_stderr": acf_se},
         "sector_widths": {"speed_bins_hz_e": [float(v) for v in bins],
                           "slots": "label of the edge opening the sector (boundary 60 m deg e, m mod 6)",
                           "real_deg_e": _nan_list(w_real["mean_deg_e"]),
@@ -200,13 +152,82 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
                           "twin_stderr_deg_e": _nan_list(w_twin["stderr_deg_e"]),
                           "max_abs_difference_deg_e": float(np.nanmax(np.abs(width_diff)))},
         "predictors": preds,
+        "differences": _differences(figs, preds, width_diff, width_se, np.array(real.noise.acf),
+                                    np.array(twin.noise.acf), acf_se, real.pole_pairs),
+    }
+
+
+def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on: tuple[str, ...] | None = None,
+               log=print) -> dict:
+    """The comparison of a capture and its twin (JSON contract in docs/twin.md). ``take_on``: the
+    additions the twin runs with; None takes on what the capture's own calibration modelled (the
+    rotor's sector-locked ripple, part of the trajectory the twin follows). The twin without them
+    is compared too, and its differences say which addition closes them."""
+    config = PlantConfig.from_toml(plant)
+    for c in take_on or ():
+        if c not in CANDIDATES:
+            raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join(CANDIDATES)})")
+    rec = load_capture(recording, config.motor.pole_pairs)
+    log(f"{recording}: calibrating the capture ({len(rec)} edges)")
+    real = analyse(rec, config.motor.pole_pairs, source=str(recording))
+    if real.pole_pairs is not None and real.pole_pairs != config.motor.pole_pairs:
+        raise ValueError(f"{plant}: motor.pole_pairs {config.motor.pole_pairs}, the capture's {real.pole_pairs}")
+    if take_on is None:
+        take_on = ("sector_locked_speed_ripple",) if real.ripple else ()
+    real_rows = predictor_rows(rec, str(recording))
+    real_fig = calibration_figures(real)
+    lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
+    bins = np.linspace(lo, hi, WIDTH_BINS + 1)
+    log("running the twin along the capture's trajectory")
+    plain, plain_rows = _analyse_twin(config, real, seed, False, f"twin of {recording}")
+    bare = _compare(real, real_fig, real_rows, plain, plain_rows, bins)
+    main = bare
+    variants = {}
+    ripple_possible = real.ripple and ripple_pattern_available(real)
+    if ripple_possible and ("sector_locked_speed_ripple" in take_on or bare["differences"]):
+        log("adding the capture's sector-locked speed ripple to the twin's trajectory")
+        tw2, rows2 = _analyse_twin(config, real, seed, True, f"twin of {recording} with ripple")
+        with_ripple = _compare(real, real_fig, real_rows, tw2, rows2, bins)
+        remaining = {d["what"] for d in with_ripple["differences"]}
+        for d in bare["differences"]:
+            d["explained_by_adding"] = d["what"] not in remaining
+            if d["explained_by_adding"]:
+                d["added"] = "sector_locked_speed_ripple"
+        if "sector_locked_speed_ripple" in take_on:
+            main = with_ripple
+            variants["without_additions"] = {"predictors": bare["predictors"], "calibration": bare["calibration"],
+                                             "differences": bare["differences"]}
+        else:
+            variants["sector_locked_speed_ripple"] = {
+                "what": CANDIDATES["sector_locked_speed_ripple"], "predictors": with_ripple["predictors"],
+                "calibration": with_ripple["calibration"], "differences": with_ripple["differences"],
+                "take_on": f"hil twin check {recording} {plant} --take-on sector_locked_speed_ripple"}
+    else:
+        for d in bare["differences"]:
+            d["explained_by_adding"] = False
+    for d in main["differences"]:
+        d.setdefault("explained_by_adding", False)
+    return {
+        "recording": str(recording),
+        "twin": str(plant),
+        "seed": seed,
+        "taken_on": list(take_on) if ripple_possible else [],
+        "replay": "kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
+                  "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
+                  f"tick {(real.tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)",
+        **main,
         "ratio_band": list(RATIO_BAND),
-        "differences": differences,
+        # what the twin as written lacks, and whether an addition the capture names closes it
+        "differences_without_additions": bare["differences"],
         "variants": variants,
     }
 
 
-def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se) -> list[dict]:
+def ripple_pattern_available(an: CaptureAnalysis) -> bool:
+    return any(n.startswith("ripple_") for n in an.fit.names)
+
+
+def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, pole_pairs=None) -> list[dict]:
     out = []
     for k, f in figs.items():
         if f["beyond"]:
@@ -226,9 +247,16 @@ def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se) 
                               f"({z[s, j]:.1f} standard errors)"})
     lag = int(np.argmax(np.abs(acf_twin - acf_real)))
     if abs(acf_twin[lag] - acf_real[lag]) > 4.0 * acf_se:
+        where = ""
+        if lag + 1 <= 2:
+            where = ": neighbouring edges, a colour of the edge noise the twin's jitter does not reproduce"
+        elif pole_pairs and (lag + 1) % (3 * pole_pairs) == 0:
+            where = ": half a mechanical turn, a pattern of the mechanical turn the twin lacks"
+        elif (lag + 1) % 6 == 0 or (lag + 1) % 3 == 0:
+            where = ": a pattern of the electrical cycle (sector-locked) the twin lacks"
         out.append({"what": "residual autocorrelation",
                     "effect": f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin {acf_twin[lag]:+.3f} "
-                              f"(standard error {acf_se:.3f})"})
+                              f"(standard error {acf_se:.3f}){where}"})
     return out
 
 

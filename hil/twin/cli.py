@@ -12,7 +12,8 @@ def cmd_plant_from_capture(args) -> int:
 
     from .capture import from_capture
 
-    twin, text = from_capture(args.recording, args.base, args.pole_pairs)
+    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant,
+                              args.table_only)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(text)
     PlantConfig.from_toml(args.out)  # what `hil plant check` reads: the file must load as written
@@ -32,7 +33,8 @@ def cmd_twin_check(args) -> int:
     from .check import format_check, twin_check
     from .report import write_html
 
-    result = twin_check(args.recording, args.plant, seed=args.seed, take_on=tuple(args.take_on or ()),
+    take_on = None if args.take_on is None else tuple(c for c in args.take_on if c != "none")
+    result = twin_check(args.recording, args.plant, seed=args.seed, take_on=take_on,
                         log=lambda m: print(m, file=sys.stderr))
     print(format_check(result))
     Path(args.json).parent.mkdir(parents=True, exist_ok=True)
@@ -50,6 +52,12 @@ def add_plant_parser(plant_sub) -> None:
     q.add_argument("-o", "--out", required=True, help="plant TOML to write")
     q.add_argument("--base", help="preset or plant TOML for what a capture cannot tell (default: paper-bench)")
     q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (else the capture's pole pattern)")
+    q.add_argument("--capture-tick-in-plant", action="store_true",
+                   help="keep the capture's sampling tick as the plant's timer quantisation (for a controller "
+                   "that samples its Hall lines that coarsely); by default only `hil twin check` applies it")
+    q.add_argument("--table-only", action="store_true",
+                   help="only the deviations a calibration table holds (installation, pole, switching asymmetry, "
+                   "delays): no residual pattern, no edge noise")
     q.set_defaults(func=cmd_plant_from_capture)
 
 
@@ -62,6 +70,7 @@ def add_parser(sub) -> None:
     q.add_argument("--json", required=True, help="write the comparison here")
     q.add_argument("--html", help="and as a page with the figures")
     q.add_argument("--seed", type=int, default=0, help="the twin's noise seed (default 0)")
-    q.add_argument("--take-on", action="append", choices=["sector_locked_speed_ripple"],
-                   help="run the twin with this addition the capture shows (repeatable)")
+    q.add_argument("--take-on", action="append", choices=["sector_locked_speed_ripple", "none"],
+                   help="run the twin with this addition (repeatable; 'none' for the twin as written); default: "
+                   "what the capture's own calibration modelled (its sector-locked ripple)")
     q.set_defaults(func=cmd_twin_check)

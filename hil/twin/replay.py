@@ -61,7 +61,12 @@ def twin_edges(config: PlantConfig, an: CaptureAnalysis, seed: int = 0, ripple: 
 
 
 def twin_recording(config: PlantConfig, an: CaptureAnalysis, seed: int = 0, ripple: bool = False) -> Recording:
-    """The twin's capture as an ordinary-run recording (what the logic analyser would have shown)."""
+    """The twin's capture as an ordinary-run recording (what the logic analyser would have shown):
+    sampled at the capture's tick (the instrument's, where the twin does not carry it already)."""
+    if an.tick_s and not config.effect("timer_quantization"):
+        from plant_models import effects as fx
+
+        config = config.with_effects(fx.TimerQuantization(tick_s=an.tick_s))
     e = twin_edges(config, an, seed, ripple)
     order = np.argsort(e.t_capture_s, kind="stable")
     tick = an.tick_s
