@@ -107,7 +107,7 @@ def test_a_twin_of_another_pole_count_is_refused(spindle_twin, tmp_path, capsys)
     # the per-pole tables no longer fit: plant check names the field
     wrong.write_text(text)
     assert main(["plant", "check", str(wrong)]) == 2
-    assert "pole_offset" in capsys.readouterr().err
+    assert "offset_deg_e: expected 6 values (one per magnet pole)" in capsys.readouterr().err
 
 
 def test_a_capture_too_short_is_refused(tmp_path, capsys):
