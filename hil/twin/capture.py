@@ -131,6 +131,9 @@ def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> 
 #: the per-sensor, per-pole pattern is kept when its chi-square over the 6p positions has a
 #: p-value below this (white residuals would give such a pattern once in ten thousand captures)
 PATTERN_P_VALUE = 1e-4
+#: ... and when the faster half of the edges shows it as the slower half does (the amplitude ratio
+#: in this range; a speed ripple locked to the rotor's position would fall with speed squared)
+PATTERN_SLOPE = (0.5, 2.0)
 
 
 def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.ndarray | None, np.ndarray, dict]:
@@ -160,9 +163,30 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
             ses[j] = float(np.std(ang[sel]) / np.sqrt(sel.sum()))
     chi2 = float(np.sum((means / ses) ** 2))
     p_value = float(stats.chi2.sf(chi2, 6 * p))
-    test = {"chi2": chi2, "positions": 6 * p, "p_value": p_value, "rms_deg_e": float(np.sqrt(np.mean(means**2)))}
+    # constant in angle, or the rotor's motion? The pattern of the slower and of the faster half of
+    # the edges: a sensor's offset is the same in both (slope 1), a position-locked speed ripple
+    # (cogging) falls with speed squared
+    fast = 1.0 / tau > np.median(1.0 / tau)
+    half, half_var = np.zeros((2, 6 * p)), np.zeros((2, 6 * p))
+    for h, sel_h in enumerate((~fast, fast)):
+        for j in range(6 * p):
+            sel = keep & sel_h & (pos == j)
+            half[h, j] = float(np.mean(d[sel] * ang[sel])) if sel.sum() >= 3 else np.nan
+            half_var[h, j] = float(np.var(ang[sel]) / sel.sum()) if sel.sum() >= 3 else np.nan
+    ok = np.isfinite(half).all(axis=0)
+    # the amplitude ratio of the two halves' patterns, each half's power less what its noise adds
+    # (a regression on a noisy half would be biased towards 0)
+    power = [float(np.mean(half[h, ok] ** 2) - np.mean(half_var[h, ok])) for h in (0, 1)]
+    same_sign = float(np.dot(half[0, ok], half[1, ok])) > 0
+    slope = (math.sqrt(power[1] / power[0]) * (1.0 if same_sign else -1.0)
+             if ok.sum() > 2 and min(power) > 0 else float("nan"))
+    test = {"chi2": chi2, "positions": 6 * p, "p_value": p_value, "rms_deg_e": float(np.sqrt(np.mean(means**2))),
+            "fast_over_slow_slope": slope}
     if p_value >= PATTERN_P_VALUE:
         return None, r, {"kept": False, "reason": f"p-value {p_value:.2g}: not beyond the noise", **test}
+    if not PATTERN_SLOPE[0] <= slope <= PATTERN_SLOPE[1]:  # (nan: not seen in one half)
+        return None, r, {"kept": False, "reason": f"the faster half shows {slope:.2f} times the slower half's "
+                         "pattern: it changes with speed (the rotor's motion, not the sensors)", **test}
     probe = np.arange(6 * p)
     where = SENSOR_OF_BOUNDARY[probe % 3] * 2 * p + pole_of_boundary(probe, p)
     grid = np.zeros(6 * p)

@@ -37,11 +37,14 @@ CANDIDATES = {
 }
 
 
-def predictor_rows(rec, source: str) -> dict[str, float | None]:
+def predictor_rows(rec, source: str) -> dict:
     """Commutation-error RMS (deg e) per predictor, as ``hil predictors compare RECORDING`` scores it
     (calibrated on the first half, scored on the second). The one place the twin check calls the
     predictors: a registry of predictors replaces this adapter when there is one."""
-    result = peers.compare_recording(rec, source)
+    try:
+        result = peers.compare_recording(rec, source)
+    except ValueError as exc:  # a capture the comparison refuses (too few edges, a correction that reorders)
+        return {"error": str(exc)}
     return {r["name"]: r["angle_rms_deg_e"] for r in result["predictors"]}
 
 
@@ -122,7 +125,13 @@ def _figure_differences(real: dict, twin: dict) -> dict[str, dict]:
 
 def _ratios(real_rows: dict, twin_rows: dict) -> list[dict]:
     out = []
-    for name, r in real_rows.items():
+    for side, rows in (("real", real_rows), ("twin", twin_rows)):
+        if "error" in rows:
+            out.append({"name": "all", "real_rms_deg_e": None, "twin_rms_deg_e": None, "ratio": None,
+                        "within_band": False, "error": f"{side}: {rows['error']}"})
+    names = [n for n in (real_rows if "error" not in real_rows else twin_rows) if n != "error"]
+    for name in names:
+        r = real_rows.get(name)
         t = twin_rows.get(name)
         ratio = t / r if r and t is not None and r > 0 else None
         out.append({"name": name, "real_rms_deg_e": r, "twin_rms_deg_e": t, "ratio": ratio,
@@ -235,7 +244,9 @@ def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, 
                         "effect": f"real {f['real']:.4g}, twin {f['twin']:.4g}: "
                                   f"{abs(f['difference']) / f['combined_stderr']:.1f} combined standard errors apart"})
     for p in preds:
-        if not p["within_band"]:
+        if p.get("error"):
+            out.append({"what": "predictors", "effect": f"the comparison refused the capture: {p['error']}"})
+        elif not p["within_band"]:
             out.append({"what": f"predictor: {p['name']}",
                         "effect": f"commutation-error RMS real {p['real_rms_deg_e']}, twin {p['twin_rms_deg_e']}: "
                                   f"ratio {p['ratio']} outside {RATIO_BAND[0]}-{RATIO_BAND[1]}"})
@@ -247,13 +258,17 @@ def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, 
                               f"({z[s, j]:.1f} standard errors)"})
     lag = int(np.argmax(np.abs(acf_twin - acf_real)))
     if abs(acf_twin[lag] - acf_real[lag]) > 4.0 * acf_se:
-        where = ""
-        if lag + 1 <= 2:
+        n, where = lag + 1, ""
+        if n <= 2:
             where = ": neighbouring edges, a colour of the edge noise the twin's jitter does not reproduce"
-        elif pole_pairs and (lag + 1) % (3 * pole_pairs) == 0:
+        elif pole_pairs and n % (6 * pole_pairs) == 0:
+            where = ": a whole mechanical turn, a pattern of the mechanical turn the twin lacks"
+        elif pole_pairs and n % (3 * pole_pairs) == 0:
             where = ": half a mechanical turn, a pattern of the mechanical turn the twin lacks"
-        elif (lag + 1) % 6 == 0 or (lag + 1) % 3 == 0:
-            where = ": a pattern of the electrical cycle (sector-locked) the twin lacks"
+        elif n % 6 == 0:
+            where = ": a whole electrical cycle, a sector-locked pattern the twin lacks"
+        elif n % 3 == 0:
+            where = ": half an electrical cycle, a sector-locked pattern the twin lacks"
         out.append({"what": "residual autocorrelation",
                     "effect": f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin {acf_twin[lag]:+.3f} "
                               f"(standard error {acf_se:.3f}){where}"})
