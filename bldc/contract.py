@@ -168,6 +168,18 @@ def _duty_u16(duty: float) -> int:
     return int(round(min(max(duty, 0.0), 1.0) * DUTY_SCALE))
 
 
+#: The largest conditioning delay (rise or fall, s) a calibration table may carry, and the effect
+#: library's bound on a plant's. Physics: a delay must stay well inside a sector at the top speed,
+#: at most half of one (beyond it, an edge the circuit holds back is captured after the middle of
+#: the next sector, and the Hall code at the capture no longer names the sector the rotor is in).
+#: Sector time at N rpm and p pole pairs: 60 / (360 p N / 60) s. Real open-collector wiring (pull-up
+#: into a 1 nF filter and the cable) is measured at 134 us rise minus fall on a spindle motor (top
+#: 333 Hz e: 500 us sectors) and 276 us on a hoverboard hub motor; the slowest-commutating motors
+#: with such wiring are many-pole hub motors: 15 pole pairs at a top speed of 600 rpm is 150 Hz e,
+#: a 1.11 ms sector, half of it 556 us; 500 us is that rounded down. A motor faster than that
+#: bounds its own delay tighter (the calibration checks half a sector at the capture's top speed).
+MAX_CONDITIONING_DELAY_S = 500e-6
+
 #: The controller's ADC as the bench emulates it (docs/controller.md, "What the controller's
 #: peripherals hold"). Its three phase-current sensors are converted at the capture event (an
 #: injected conversion the capture timer triggers, as MCU timers can) and every ADC_PERIOD_TICKS
@@ -180,12 +192,10 @@ def _duty_u16(duty: float) -> int:
 #: sample, 50 kHz by default, and the count goes with the sums).
 ADC_PERIOD_TICKS = 20
 ADC_PERIOD_S = ADC_PERIOD_TICKS * TICK_S
-#: the largest conditioning delay a calibration table may carry (the built-in controller's table
-#: bound, ``hil.controller.virtual.validate_corrections``): the edge's current is read this long
-#: before its capture at most, so no ADC window needs to reach further back
-MAX_CONDITIONING_DELAY_S = 100e-6
 #: the most conversions an edge message carries: the capture's and the periodic ones back to
-#: MAX_CONDITIONING_DELAY_S and one beyond (the line through the oldest instant needs both ends)
+#: MAX_CONDITIONING_DELAY_S (the built-in controller's table bound: the edge's current is read this
+#: long before its capture at most) and one beyond (the line through the oldest instant needs both
+#: ends). A message carries only as many as the controller's own table reaches (hil-edge/3)
 MAX_ADC_SAMPLES = math.ceil(MAX_CONDITIONING_DELAY_S / ADC_PERIOD_S - 1e-9) + 2
 #: one count of a conversion: 2 mA, so an I16 spans +-65.5 A (beyond it a conversion saturates)
 ADC_LSB_A = 2e-3
@@ -195,6 +205,7 @@ _SAMPLE_FMT = "<hhhBB"
 _SUM_FMT = "<iHBB"
 #: the data frames' indices of the three accumulators (conversions take 0..MAX_ADC_SAMPLES - 1)
 ACCUMULATOR_INDEX = 0xFD
+assert MAX_ADC_SAMPLES <= ACCUMULATOR_INDEX, "a conversion's frame index would collide with the accumulators'"
 
 
 def _adc_counts(current_a) -> np.ndarray:

@@ -635,6 +635,8 @@ def cmd_acceptance(args) -> int:
         argv.append(f"--hil-plant={args.plant}")
     if args.budgets:
         argv.append(f"--hil-budgets={args.budgets}")
+    if args.delay_draws:
+        argv.append(f"--hil-delay-draws={args.delay_draws}")
     argv += ["-n", args.workers or default_workers(duts)]
     if argv[-1] != "0":  # a test per worker as each frees up: the suite's tests differ in length by 100x
         argv += ["--dist", "worksteal"]
@@ -752,6 +754,10 @@ def _parser_plant(sub) -> None:
     q = ps.add_parser("check", help="validate a plant TOML file")
     q.add_argument("plant")
     q.set_defaults(func=cmd_plant_check)
+    from .twin.cli import add_parser as add_twin_parser, add_plant_parser  # docs/twin.md
+
+    add_plant_parser(ps)
+    add_twin_parser(sub)
 
 
 def _parser_calibrate(sub) -> None:
@@ -936,6 +942,8 @@ def _parser_acceptance(sub) -> None:
     )
     p.add_argument("--plant", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
+    p.add_argument("--delay-draws", choices=("library", "real-wiring"),
+                   help="REQ-ROB-001's conditioning delays: 0-50 us (library, default) or 0-300 us (real-wiring)")
     p.add_argument(
         "--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)"
     )

@@ -72,6 +72,13 @@ def pytest_addoption(parser):
     )
     group.addoption("--hil-seed", type=int, default=None, help="base seed for plant randomness (default 0)")
     group.addoption(
+        "--hil-delay-draws",
+        choices=("library", "real-wiring"),
+        default="library",
+        help="range REQ-ROB-001 draws conditioning delays from: library (the stated 0-50 us, default) or "
+        "real-wiring (0-300 us, open-collector Hall outputs with pull-up, filter and cable)",
+    )
+    group.addoption(
         "--hil-defect",
         default=None,
         metavar="NAME",

@@ -20,6 +20,7 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
+from bldc.contract import MAX_CONDITIONING_DELAY_S
 from bldc.params import ConfigError, bounded, from_mapping, strategy_for, validate
 
 from .compiled import CompiledPlant
@@ -120,6 +121,52 @@ class PoleOffset(Effect):
 
 
 @dataclass(frozen=True)
+class SensorPoleOffset(Effect):
+    """Each sensor sees each magnet pole boundary at its own offset (beyond the per-pole table).
+
+    Physics: the pole offsets shift a boundary alike for every sensor; a sensor that switches
+    away from the field's zero (B_op != 0) crosses a weaker or stronger pole's boundary at a
+    different angle, and sensors at different gaps see the magnetisation's shape differently, so
+    the offset of boundary j at sensor X is ``offset_deg_e[X * 2p + j]`` (spatial, as pole
+    offsets: it leads in reverse). Real captures show such a pattern, constant in speed, in
+    what the per-pole table leaves (docs/twin.md).
+    Fingerprint: a pattern of 6p edges repeating every mechanical turn, different per sensor.
+    """
+
+    name: ClassVar[str] = "sensor_pole_offset"
+    layer: ClassVar[str] = "sensor"
+    fingerprint: ClassVar[Mapping[str, str]] = {
+        "signature": "per-sensor, per-pole pattern repeating every mechanical turn",
+        "scales_with": "nothing (constant in angle); flips sign with direction",
+        "knob": "6p-edge block analysis per sensor",
+    }
+    offset_deg_e: tuple[float, ...] = bounded(
+        (), low=-5.0, high=5.0, unit="deg_e",
+        doc="shift of boundary j at sensor X, index X * 2p + j (sensors A, B, C); length 6 * pole_pairs",
+    )
+
+    def check(self, pole_pairs, prefix):
+        super().check(pole_pairs, prefix)
+        if self.offset_deg_e and len(self.offset_deg_e) != 6 * pole_pairs:
+            raise ConfigError(
+                f"{prefix}offset_deg_e",
+                f"expected {6 * pole_pairs} values (3 sensors x {2 * pole_pairs} poles), got {len(self.offset_deg_e)}",
+            )
+
+    @classmethod
+    def strategy(cls, pole_pairs: int = 2):
+        from hypothesis import strategies as st
+
+        one = st.floats(-5.0, 5.0, allow_nan=False)
+        return st.builds(cls, offset_deg_e=st.tuples(*([one] * (6 * pole_pairs))))
+
+    def contribute(self, plant):
+        if self.offset_deg_e:
+            table = np.asarray(self.offset_deg_e, dtype=float).reshape(3, 2 * plant.pole_pairs)
+            plant.switch_offset_deg_e = plant.switch_offset_deg_e + table[:, :, None]
+
+
+@dataclass(frozen=True)
 class ConditioningCircuit:
     """The paper's Hall conditioning circuit (Fig. 3a), open-drain sensor.
 
@@ -165,6 +212,13 @@ class ConditioningCircuit:
         return rise, fall
 
 
+#: the ranges a search draws conditioning delays from (s): "library", the stated range of the
+#: acceptance search (REQ-ROB-001: the paper's circuit class, 1 nF into a few kOhm, up to 50 us);
+#: "real-wiring", open-collector Hall outputs with pull-up, filter and cable as real motors show
+#: them (134 and 276 us rise minus fall on the shipped captures): up to 300 us
+DRAW_DELAY_S = {"library": 50e-6, "real-wiring": 300e-6}
+
+
 @dataclass(frozen=True)
 class ConditioningDelay(Effect):
     """Delay of the Hall conditioning circuit (paper Section 2.5), rising and falling apart.
@@ -183,8 +237,26 @@ class ConditioningDelay(Effect):
         "scales_with": "speed (constant in time)",
         "knob": "speed sweep",
     }
-    rise_delay_s: float = bounded(0.0, low=0.0, high=50e-6, unit="s", doc="delay of captured rising edges")
-    fall_delay_s: float = bounded(0.0, low=0.0, high=50e-6, unit="s", doc="delay of captured falling edges")
+    rise_delay_s: float = bounded(
+        0.0, low=0.0, high=MAX_CONDITIONING_DELAY_S, unit="s", doc="delay of captured rising edges"
+    )
+    fall_delay_s: float = bounded(
+        0.0, low=0.0, high=MAX_CONDITIONING_DELAY_S, unit="s", doc="delay of captured falling edges"
+    )
+
+    @classmethod
+    def strategy(cls, pole_pairs: int = 2, max_delay_s: float | None = None):
+        """Both delays drawn from [0, ``max_delay_s``]: by default the stated range of the acceptance
+        search (``DRAW_DELAY_S['library']``, a paper-bench-like circuit), or a real-wiring range."""
+        from hypothesis import strategies as st
+
+        high = DRAW_DELAY_S["library"] if max_delay_s is None else float(max_delay_s)
+        if not 0.0 < high <= MAX_CONDITIONING_DELAY_S:
+            raise ConfigError(
+                "conditioning_delay.max_delay_s", f"must be in (0, {MAX_CONDITIONING_DELAY_S}] s, got {high!r}"
+            )
+        one = st.floats(0.0, high, allow_nan=False)
+        return st.builds(cls, rise_delay_s=one, fall_delay_s=one)
 
     @classmethod
     def from_circuit(cls, circuit: ConditioningCircuit) -> "ConditioningDelay":
@@ -272,6 +344,39 @@ class Hysteresis(Effect):
 
 
 @dataclass(frozen=True)
+class SwitchingAsymmetry(Effect):
+    """Rising and falling edges of a sensor apart by a constant angle (its switching points).
+
+    Physics: a Hall switch turns on at its operate point B_op on a rising field and off at its
+    release point B_rp on a falling one; when |B_op| != |B_rp| (or the open-collector output's
+    threshold is off centre) the rising edge trails the field's zero crossing by a different
+    angle than the falling edge, in either direction of rotation. ``rise_minus_fall_deg_e[X]``:
+    sensor X's rising edges trail by half of it, its falling edges lead by half (the common part
+    is hysteresis). Spatially this is an N/S-alternating shift of the boundaries the sensor sees.
+    Fingerprint: rise minus fall constant in angle (a delay grows with speed), any direction.
+    """
+
+    name: ClassVar[str] = "switching_asymmetry"
+    layer: ClassVar[str] = "sensor"
+    fingerprint: ClassVar[Mapping[str, str]] = {
+        "signature": "rising and falling edges of a sensor apart by a constant angle",
+        "scales_with": "nothing (constant in angle); the same in either direction",
+        "knob": "speed sweep (tells it from a conditioning delay)",
+    }
+    rise_minus_fall_deg_e: tuple[float, float, float] = bounded(
+        (0.0, 0.0, 0.0), low=-10.0, high=10.0, unit="deg_e", length=3,
+        doc="rising minus falling edge lag of sensors A, B, C",
+    )
+
+    def contribute(self, plant):
+        # boundary k of pole k: rising edges at even k forward, at odd k in reverse; a spatial
+        # +a/2 on even boundaries and -a/2 on odd ones makes rising trail and falling lead both ways
+        half = 0.5 * np.asarray(self.rise_minus_fall_deg_e, dtype=float)
+        parity = np.where(np.arange(2 * plant.pole_pairs) % 2 == 0, 1.0, -1.0)
+        plant.switch_offset_deg_e = plant.switch_offset_deg_e + half[:, None, None] * parity[None, :, None]
+
+
+@dataclass(frozen=True)
 class EdgeJitter(Effect):
     """Random edge-time disturbance (paper's type III interference).
 
@@ -289,7 +394,10 @@ class EdgeJitter(Effect):
         "knob": "-",
     }
     time_rms_s: float = bounded(0.0, low=0.0, high=20e-6, unit="s", doc="RMS of the time-domain jitter")
-    angle_rms_deg_e: float = bounded(0.0, low=0.0, high=2.0, unit="deg_e", doc="RMS of the angle-domain jitter")
+    #: up to 10 deg e: three RMS stay inside half a sector (30 deg e), beyond which edges would
+    #: reorder; a many-pole hub motor's rotor vibration reaches several deg e (0.5 deg mechanical
+    #: at 15 pole pairs is 7.5 deg e)
+    angle_rms_deg_e: float = bounded(0.0, low=0.0, high=10.0, unit="deg_e", doc="RMS of the angle-domain jitter")
     correlation: float = bounded(0.0, low=0.0, high=0.95, unit="1", doc="AR(1) coefficient across edges")
 
     def contribute(self, plant):
@@ -313,7 +421,9 @@ class TimerQuantization(Effect):
         "scales_with": "constant in time",
         "knob": "lag-1 autocorrelation -0.5 of sector times",
     }
-    tick_s: float = bounded(0.0, low=0.0, high=1e-5, unit="s", doc="capture timer resolution (0 = none)")
+    #: up to 100 us: an MCU capture timer ticks in ns, a logic analyser samples at 10 kHz or faster
+    #: (the shipped real captures: 30 kHz, 33.3 us)
+    tick_s: float = bounded(0.0, low=0.0, high=1e-4, unit="s", doc="capture timer resolution (0 = none)")
 
     def contribute(self, plant):
         plant.timer_tick_s = max(plant.timer_tick_s, self.tick_s)
@@ -467,9 +577,11 @@ EFFECTS: dict[str, type[Effect]] = {
     for cls in (
         InstallationOffset,
         PoleOffset,
+        SensorPoleOffset,
         ConditioningDelay,
         ArmatureReaction,
         Hysteresis,
+        SwitchingAsymmetry,
         EdgeJitter,
         TimerQuantization,
         Eccentricity,

@@ -65,6 +65,9 @@ def simulate_edges(
     logs = []
     theta0 = float(start_angle_deg_e)
     t0 = float(start_time_s)
+    # the coloured jitter runs on across segment seams (AR(1) over successive captured edges,
+    # not restarted at each operating point: a trajectory of many short segments keeps its colour)
+    jitter_state = {"angle": None, "time": None}
     for index, op in enumerate(profile):
         op.check(index)
         d = op.direction
@@ -89,7 +92,7 @@ def simulate_edges(
         switch = np.concatenate([q[2] for q in parts])
         if cp.jitter_angle_rms_deg_e > 0:
             order = np.argsort(d * switch, kind="stable")
-            jit = _ar1(rng, order.size, cp.jitter_correlation)
+            jit = _ar1(rng, order.size, cp.jitter_correlation, jitter_state, "angle")
             switch[order] += cp.jitter_angle_rms_deg_e * jit
         tau_raw = _time_at(d * (switch - theta0), w0, acc)
         ideal = 180.0 * boundary + SENSOR_POSITION_DEG_E[sensor]
@@ -102,7 +105,9 @@ def simulate_edges(
         delay = np.where(rising, cp.rise_delay_s, cp.fall_delay_s)
         tau_cond = tau_raw + delay
         if cp.jitter_time_rms_s > 0:
-            tau_cond = tau_cond + cp.jitter_time_rms_s * _ar1(rng, tau_cond.size, cp.jitter_correlation)
+            tau_cond = tau_cond + cp.jitter_time_rms_s * _ar1(
+                rng, tau_cond.size, cp.jitter_correlation, jitter_state, "time"
+            )
         t_cond = t0 + tau_cond
         t_cap = np.floor(t_cond / cp.timer_tick_s) * cp.timer_tick_s if cp.timer_tick_s > 0 else t_cond.copy()
         theta_cap = theta0 + d * (w0 * tau_cond + 0.5 * acc * tau_cond**2)
@@ -144,11 +149,16 @@ def _time_at(travel_deg: np.ndarray, w0: float, acc: float) -> np.ndarray:
     return 2.0 * travel_deg / (w0 + np.sqrt(disc))
 
 
-def _ar1(rng: np.random.Generator, n: int, rho: float) -> np.ndarray:
-    """Unit-RMS stationary AR(1) sequence (white when rho = 0)."""
+def _ar1(rng: np.random.Generator, n: int, rho: float, state: dict | None = None, key: str = "") -> np.ndarray:
+    """Unit-RMS stationary AR(1) sequence (white when rho = 0); with ``state``, it continues from
+    ``state[key]``, the last value of the previous call (a stationary start when None)."""
     w = rng.standard_normal(n)
     if rho == 0.0 or n == 0:
         return w
-    x0 = rng.standard_normal()
+    x0 = state.get(key) if state is not None else None
+    if x0 is None:
+        x0 = rng.standard_normal()
     y, _ = lfilter([math.sqrt(1 - rho * rho)], [1.0, -rho], w, zi=[rho * x0])
+    if state is not None:
+        state[key] = float(y[-1])
     return y

@@ -54,12 +54,13 @@ FOUND_DEVIATION_SETS = [
 ]
 
 
-def deviations(pole_pairs: int):
+def deviations(pole_pairs: int, delay_draws: str = "library"):
     """The calibratable effects, each drawn by the effect library's own strategy, inside its full
-    physical bounds (installation +-10 deg e, poles +-5 deg e, armature +-2 deg e/A, delays to
-    50 us)."""
+    physical bounds (installation +-10 deg e, poles +-5 deg e, armature +-2 deg e/A), delays in the
+    stated range: to 50 us, or to 300 us with ``--hil-delay-draws real-wiring`` (fx.DRAW_DELAY_S)."""
     return st.tuples(fx.InstallationOffset.strategy(pole_pairs), fx.PoleOffset.strategy(pole_pairs),
-                     fx.ArmatureReaction.strategy(pole_pairs), fx.ConditioningDelay.strategy(pole_pairs))
+                     fx.ArmatureReaction.strategy(pole_pairs),
+                     fx.ConditioningDelay.strategy(pole_pairs, fx.DRAW_DELAY_S[delay_draws]))
 
 
 def judge(stimulus, outcome, request):
@@ -79,10 +80,13 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(
         if pole_pairs == hil_plant_config.motor.pole_pairs
     ]
     examples = []  #: (speed, explicit?) of every example run
+    delay_draws = request.config.getoption("--hil-delay-draws")
+    hil_evidence.text("conditioning delays drawn", f"{delay_draws}: 0-{fx.DRAW_DELAY_S[delay_draws] * 1e6:.0f} us")
 
     @seed(hil_seed)
     @hil_settings(max_examples=DEVIATION_EXAMPLES)
-    @given(effects=deviations(hil_plant_config.motor.pole_pairs), speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
+    @given(effects=deviations(hil_plant_config.motor.pole_pairs, delay_draws),
+           speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
     def check(effects, speed_rpm):
         examples.append((speed_rpm, (effects, speed_rpm) in explicit))
         note(f"search example {len(examples)}/{DEVIATION_EXAMPLES + len(explicit)}: calibrated deviation set at "

@@ -174,7 +174,7 @@ def test_fault_sends_emcy_and_sets_error_register_and_history(pair):
 def test_invalid_calibration_is_refused_with_emcy(pair, corrections):
     vc, dev, link = pair
     bad = corrections.__class__.from_json_dict(corrections.to_json_dict())
-    bad.conditioning_delay_s["rise"] = 1e-3  # beyond the 100 us the controller accepts
+    bad.conditioning_delay_s["rise"] = 1e-3  # beyond the 500 us the controller accepts (MAX_CONDITIONING_DELAY_S)
     with pytest.raises(LinkError, match="0x06090030"):
         link.download_calibration(bad)
     _, frame = link.emcy.get(timeout=1.0)

@@ -767,6 +767,7 @@ def ordinary_calibration(
             f"not assumed: the trajectory is a cubic spline with a knot every {kc} electrical cycles "
             f"(chosen by BIC), fitted jointly with the offsets"
         ),
+        "knot_cycles": kc,
         "sector_locked_speed_ripple": (
             "modelled (an angle per sector boundary falling with 1/speed^2: the rotor's commutation torque "
             "ripple; not a sensor deviation, not in the tables)"

@@ -1,0 +1,494 @@
+"""A plant built from a Hall capture: what the project's calibration of the capture found, as
+effects of the effect library, and what the capture cannot tell, from a base plant.
+
+The calibration (``hil.calibration.ordinary``) fits the rotor's trajectory and the deviations
+jointly; here its figures become the twin's effects:
+
+* ``installation_offset``: the relative offsets (sum zero) plus the base's mean (the absolute
+  reference is not in capture times);
+* ``pole_offset``: the pole table (sum zero per polarity) when a pole count is stated or found;
+* ``switching_asymmetry``: each sensor's rise-minus-fall angle, constant in angle;
+* ``conditioning_delay``: the rise-minus-fall delay difference on the later polarity over the
+  base's common part;
+* ``edge_jitter``: the residuals of the full fit (trajectory, offsets, poles, delay, the rotor's
+  sector-locked ripple) less the timer's quantisation, as white time jitter plus AR(1) angle
+  jitter: the variance per speed band gives the two RMS values (time jitter is constant in time,
+  angle jitter grows in time as the speed falls), the lag-1 autocovariance of the angle residuals
+  gives the colour;
+* ``timer_quantization``: the capture's tick.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from scipy import optimize
+
+from bldc.params import ConfigError
+from plant_models import PRESETS, PlantConfig
+from plant_models import effects as fx
+
+from ..calibration.corrections import SENSORS
+from ..calibration.ordinary import (
+    _RISE_LABELS,
+    _SENSOR_LABELS,
+    Effects,
+    Fit,
+    HallSteps,
+    _sum_zero_basis,
+    calibrate_ordinary,
+    fit_ordinary,
+    hall_steps,
+)
+from ..recording import Recording, read_recording
+
+#: residual lags whose autocorrelation the twin check compares
+ACF_LAGS = 12
+#: the base plant when none is given
+DEFAULT_BASE = "paper-bench"
+#: the reference electrical speed of the calibration's ripple columns (ordinary.effect_columns)
+RIPPLE_REF_HZ_E = 10.0
+
+
+def load_capture(path: str | Path, pole_pairs: int | None = None) -> Recording:
+    """A recording directory (hil-recording/1), or a capture file (VCD, sigrok .sr, CSV) read as
+    ``hil recording import`` reads it."""
+    path = Path(path)
+    if path.is_file() and path.suffix.lower() in (".vcd", ".sr", ".csv"):
+        from ..signals.hall import capture_recording, read_hall_capture
+
+        rec = capture_recording(read_hall_capture(path), pole_pairs, source=path.name)
+        rec.path = path
+        return rec
+    if not path.exists():
+        raise ConfigError(str(path), "no such recording directory or capture file (.vcd, .sr, .csv)")
+    return read_recording(path)
+
+
+def load_base(base: str | None) -> PlantConfig:
+    """A preset name or a plant TOML file."""
+    base = base or DEFAULT_BASE
+    if base in PRESETS:
+        return PRESETS[base]()
+    return PlantConfig.from_toml(base)
+
+
+@dataclass
+class NoiseModel:
+    """Edge noise beyond the timer's quantisation, from the full fit's residuals."""
+
+    time_rms_s: float
+    angle_rms_deg_e: float
+    correlation: float
+    acf: list[float]  #: autocorrelation of the angle residuals, lags 1..ACF_LAGS
+    band_speed_hz_e: list[float]
+    band_excess_var_s2: list[float]
+    kind: str = ""
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+@dataclass
+class CaptureAnalysis:
+    """The capture as the project's calibration sees it, and the full fit behind it."""
+
+    rec: Recording
+    steps: HallSteps
+    calibration: dict
+    fit: Fit  #: trajectory, offsets, poles, delay and (where the capture shows it) the ripple
+    pole_pairs: int | None
+    tick_s: float | None
+    ripple: bool
+    asymmetry_deg_e: dict[str, tuple[float, float]]  #: per sensor rise minus fall (value, stderr)
+    noise: NoiseModel
+    extra: dict = field(default_factory=dict)
+
+
+def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> CaptureAnalysis:
+    """Calibrate the capture (``hil calibrate``'s ordinary-run route) and fit the full model."""
+    steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
+    tick = rec.timer_tick_s
+    out, _ = calibrate_ordinary(
+        steps, tick_s=tick, pole_pairs=pole_pairs or rec.stated_pole_pairs, source=source or str(rec.path or "")
+    )
+    a = out["assumptions"]
+    p = a["pole_pairs"] if out["pole_offset_deg_e"] else None
+    ripple = str(a["sector_locked_speed_ripple"]).startswith("modelled")
+    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a["knot_cycles"])
+    table, resid, test = sensor_pole_pattern(fit, steps, p)
+    an = CaptureAnalysis(
+        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick, resid)
+    )
+    an.extra["sensor_pole_offset"] = {"table_deg_e": None if table is None else [float(v) for v in table], **test}
+    return an
+
+
+#: the per-sensor, per-pole pattern is kept when its chi-square over the 6p positions has a
+#: p-value below this (white residuals would give such a pattern once in ten thousand captures)
+PATTERN_P_VALUE = 1e-4
+#: ... and when the faster half of the edges shows it as the slower half does (the amplitude ratio
+#: in this range; a speed ripple locked to the rotor's position would fall with speed squared)
+PATTERN_SLOPE = (0.5, 2.0)
+
+
+def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.ndarray | None, np.ndarray, dict]:
+    """The residuals' mean per position in the mechanical turn (6p edges: each sensor at each pole
+    boundary), as a spatial table [sensor * 2p + pole], and the residuals without it. Kept only
+    when it stands out of the noise (chi-square of the position means against their standard
+    errors); the least-squares residual is already free of the per-pole, per-sensor and
+    rise-minus-fall parts, so this is what they leave."""
+    from scipy import stats
+
+    from ..calibration.ordinary import SENSOR_OF_BOUNDARY, pole_of_boundary
+
+    r = fit.residual_s
+    if not p:
+        return None, r, {"kept": False, "reason": "no pole count: no mechanical turn to fold the residuals over"}
+    tau = fit.tau_s_per_deg
+    keep = np.abs(r / fit.sigma_s) < 6.0
+    m = steps.boundary[fit.index]
+    d = steps.direction[fit.index].astype(float)
+    pos = np.mod(m, 6 * p)
+    ang = r / tau  # deg e, trailing positive
+    means, ses = np.zeros(6 * p), np.full(6 * p, np.inf)
+    for j in range(6 * p):
+        sel = keep & (pos == j)
+        if sel.sum() >= 5:
+            means[j] = float(np.mean(d[sel] * ang[sel]))  # spatial: a trail in reverse is a lead
+            ses[j] = float(np.std(ang[sel]) / np.sqrt(sel.sum()))
+    chi2 = float(np.sum((means / ses) ** 2))
+    p_value = float(stats.chi2.sf(chi2, 6 * p))
+    # constant in angle, or the rotor's motion? The pattern of the slower and of the faster half of
+    # the edges: a sensor's offset is the same in both (slope 1), a position-locked speed ripple
+    # (cogging) falls with speed squared
+    fast = 1.0 / tau > np.median(1.0 / tau)
+    half, half_var = np.zeros((2, 6 * p)), np.zeros((2, 6 * p))
+    for h, sel_h in enumerate((~fast, fast)):
+        for j in range(6 * p):
+            sel = keep & sel_h & (pos == j)
+            half[h, j] = float(np.mean(d[sel] * ang[sel])) if sel.sum() >= 3 else np.nan
+            half_var[h, j] = float(np.var(ang[sel]) / sel.sum()) if sel.sum() >= 3 else np.nan
+    ok = np.isfinite(half).all(axis=0)
+    # the amplitude ratio of the two halves' patterns, each half's power less what its noise adds
+    # (a regression on a noisy half would be biased towards 0)
+    power = [float(np.mean(half[h, ok] ** 2) - np.mean(half_var[h, ok])) for h in (0, 1)]
+    same_sign = float(np.dot(half[0, ok], half[1, ok])) > 0
+    slope = (math.sqrt(power[1] / power[0]) * (1.0 if same_sign else -1.0)
+             if ok.sum() > 2 and min(power) > 0 else float("nan"))
+    test = {"chi2": chi2, "positions": 6 * p, "p_value": p_value, "rms_deg_e": float(np.sqrt(np.mean(means**2))),
+            "fast_over_slow_slope": slope}
+    if p_value >= PATTERN_P_VALUE:
+        return None, r, {"kept": False, "reason": f"p-value {p_value:.2g}: not beyond the noise", **test}
+    if not PATTERN_SLOPE[0] <= slope <= PATTERN_SLOPE[1]:  # (nan: not seen in one half)
+        return None, r, {"kept": False, "reason": f"the faster half shows {slope:.2f} times the slower half's "
+                         "pattern: it changes with speed (the rotor's motion, not the sensors)", **test}
+    probe = np.arange(6 * p)
+    where = SENSOR_OF_BOUNDARY[probe % 3] * 2 * p + pole_of_boundary(probe, p)
+    grid = np.zeros(6 * p)
+    grid[where] = means
+    # what the calibration's tables already hold is taken out (within each polarity of the poles:
+    # the per-sensor mean is an installation offset or switching asymmetry, the per-pole mean a
+    # pole offset), so the twin does not count it twice
+    grid = grid.reshape(3, 2 * p)
+    for parity in (0, 1):
+        block = grid[:, parity::2]
+        grid[:, parity::2] = block - block.mean(axis=1, keepdims=True) - block.mean(axis=0) + block.mean()
+    table = grid.reshape(-1)
+    return table, r - d * table[where][pos] * tau, {"kept": True, **test}
+
+
+def _label_combination(fit: Fit, sgn: int, weights: np.ndarray, prefix: str = "static") -> tuple[float, float] | None:
+    """A combination of the six per-label offsets (sum-zero basis) of one direction."""
+    dname = "fwd" if sgn > 0 else "rev"
+    keys = [f"{prefix}_{dname}_{j}" for j in range(5)]
+    if keys[0] not in fit.names:
+        return None
+    z = _sum_zero_basis(6)
+    return fit.combination(dict(zip(keys, weights @ z)))
+
+
+def _inverse_variance(vals: list[tuple[float, float]]) -> tuple[float, float]:
+    v = np.array([a for a, _ in vals])
+    w = 1.0 / np.maximum(np.array([b for _, b in vals]), 1e-12) ** 2
+    return float(np.sum(w * v) / np.sum(w)), float(1.0 / np.sqrt(np.sum(w)))
+
+
+def sensor_asymmetry(fit: Fit) -> dict[str, tuple[float, float]]:
+    """Each sensor's rise-minus-fall trail (deg e, constant in angle), both directions combined."""
+    out = {}
+    for x, name in enumerate(SENSORS):
+        vals = []
+        for sgn in (1, -1):
+            rise = [j for j in _SENSOR_LABELS[x] if j in _RISE_LABELS[sgn]]
+            fall = [j for j in _SENSOR_LABELS[x] if j not in _RISE_LABELS[sgn]]
+            w = np.zeros(6)
+            w[rise], w[fall] = sgn, -sgn  # static offsets are spatial: they trail by sgn * offset
+            r = _label_combination(fit, sgn, w)
+            if r is not None:
+                vals.append(r)
+        out[name] = _inverse_variance(vals) if vals else (0.0, float("nan"))
+    return out
+
+
+def ripple_pattern_deg_e(fit: Fit, sgn: int) -> np.ndarray | None:
+    """The sector-locked ripple's angle per boundary label at RIPPLE_REF_HZ_E (scales as 1/speed^2)."""
+    dname = "fwd" if sgn > 0 else "rev"
+    keys = [f"ripple_{dname}_{j}" for j in range(5)]
+    if keys[0] not in fit.names:
+        return None
+    c = np.array([fit.coef[fit.names.index(k)] for k in keys])
+    return _sum_zero_basis(6) @ c
+
+
+def residual_acf(x: np.ndarray, lags: int = ACF_LAGS) -> list[float]:
+    x = x - x.mean()
+    d = float(np.dot(x, x)) or 1.0
+    return [float(np.dot(x[:-k], x[k:]) / d) for k in range(1, lags + 1)]
+
+
+def noise_model(
+    fit: Fit, steps: HallSteps, tick_s: float | None, residual_s: np.ndarray | None = None
+) -> NoiseModel:
+    """White time jitter plus AR(1) angle jitter from the residuals, quantisation taken off.
+
+    Per speed decile, the residuals' variance within 4.5 robust standard deviations of their
+    median (a rare bump of a slow rotor does not set the level the other edges see; a Gaussian or
+    the uniform quantisation loses nothing there, so the parts still add) less the
+    quantisation's tick^2 / 12 is
+    ``sigma_t^2 + sigma_theta^2 tau^2``; both are fitted by non-negative least squares, each decile
+    weighted by its total variance (the standard error of a variance is proportional to it).
+    The colour: the lag-1 autocorrelation of
+    the residuals standardised per decile, over neighbouring edges of a run, divided by the share
+    of the angle jitter in their variance (quantisation and time jitter are white)."""
+    r = fit.residual_s if residual_s is None else residual_s
+    tau = fit.tau_s_per_deg
+    q_var = (tick_s or 0.0) ** 2 / 12.0
+    edges = np.quantile(tau, np.linspace(0, 1, 11))
+    band = np.clip(np.searchsorted(edges, tau, side="right") - 1, 0, 9)
+    sd = np.ones_like(r)
+    tau_b, var_b = [], []
+    for b in range(10):
+        sel = band == b
+        if sel.sum() < 20:
+            continue
+        dev = np.abs(r[sel] - np.median(r[sel]))
+        mad = 1.4826 * float(np.median(dev))
+        var = float(np.var(r[sel][dev < 4.5 * mad])) if mad > 0 else 0.0
+        sd[sel] = max(math.sqrt(var), 1e-12)
+        tau_b.append(float(np.median(tau[sel])))
+        var_b.append(max(var - q_var, 0.0))
+    tau_b, var_b = np.array(tau_b), np.array(var_b)
+    design = np.column_stack([np.ones_like(tau_b), tau_b**2])
+    rel = 1.0 / (var_b + q_var + 1e-30)  # a band variance's standard error is proportional to its total
+    scale = np.array([1.0, float(np.median(tau_b)) ** 2])
+    sol, _ = optimize.nnls(design * rel[:, None] / scale, var_b * rel)
+    sol = sol / scale
+    time_rms, angle_rms = math.sqrt(sol[0]), math.sqrt(sol[1])
+    z = np.clip(r / sd, -6.0, 6.0)
+    same_run = np.diff(steps.run[fit.index]) == 0
+    acf1 = float(np.mean(z[1:][same_run] * z[:-1][same_run]) / np.mean(z**2)) if same_run.any() else 0.0
+    share = float(np.mean(sol[1] * tau**2 / (sol[0] + sol[1] * tau**2 + q_var))) if sol[1] > 0 else 0.0
+    rho = min(max(acf1 / share, 0.0), 0.95) if share > 0 else 0.0
+    kind = (
+        ("coloured AR(1)" if rho > 0.05 else "white")
+        + (" angle jitter" if angle_rms > 0 else "")
+        + (" and white time jitter" if time_rms > 0 else "")
+    )
+    return NoiseModel(
+        time_rms_s=time_rms,
+        angle_rms_deg_e=angle_rms,
+        correlation=rho,
+        acf=residual_acf(z),
+        band_speed_hz_e=[float(1.0 / (360.0 * t)) for t in tau_b],
+        band_excess_var_s2=[float(v) for v in var_b],
+        kind=kind.strip(),
+    )
+
+
+@dataclass
+class Twin:
+    config: PlantConfig
+    measured: list[tuple[str, str]]  #: (what, from the capture)
+    assumed: list[tuple[str, str]]  #: (what, from the base and why)
+    notes: list[str]
+    analysis: CaptureAnalysis
+
+
+def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
+    if v < lo or v > hi:
+        notes.append(f"{what}: {v:.4g} clipped to the effect library's bound [{lo:g}, {hi:g}]")
+    return min(max(v, lo), hi)
+
+
+#: the effects a controller's calibration table can hold (``--table-only``)
+TABLE_EFFECTS = ("installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay")
+
+
+def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
+                      capture_tick_in_plant: bool = False, table_only: bool = False) -> Twin:
+    """The twin plant: the capture's calibration as effects, the rest from ``base``. ``table_only``:
+    only the deviations a calibration table can hold (no residual pattern, no edge noise)."""
+    cal = an.calibration
+    measured, assumed, notes = [], [], []
+    p = an.pole_pairs or base.motor.pole_pairs
+    motor = dataclasses.replace(base.motor, pole_pairs=int(p))
+    if an.pole_pairs:
+        measured.append(("motor.pole_pairs", f"{p} ({cal['assumptions']['pole_pairs_source']})"))
+    else:
+        assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
+    effects: list[fx.Effect] = []
+    # installation offsets: the capture's relative ones around the base's mean
+    base_inst = base.effect("installation_offset")
+    mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
+    rel = cal["installation_offset_deg_e"]
+    lim = fx.InstallationOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+    inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", notes) for s in SENSORS)
+    effects.append(fx.InstallationOffset(offset_deg_e=inst))
+    measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
+    assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base ({base_name}); "
+                    "capture times give only differences (an encoder or Line-BEMF gives the rest)"))
+    poles = cal["pole_offset_deg_e"]
+    if poles and len(poles) == 2 * p:
+        lim = fx.PoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", notes)
+                                                        for j, v in enumerate(poles))))
+        measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
+                         "(sum zero per polarity: pole 0 is where the capture starts)"))
+    else:
+        notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
+    pattern = an.extra.get("sensor_pole_offset", {})
+    if pattern.get("kept") and len(pattern["table_deg_e"]) == 6 * p:
+        lim = fx.SensorPoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        table = tuple(_clip(v, -lim, lim, f"sensor_pole_offset_deg_e[{j}]", notes)
+                      for j, v in enumerate(pattern["table_deg_e"]))
+        effects.append(fx.SensorPoleOffset(offset_deg_e=table))
+        measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
+                         f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
+                         f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
+    asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
+    effects.append(fx.SwitchingAsymmetry(rise_minus_fall_deg_e=tuple(asym[s] for s in SENSORS)))
+    measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
+                     ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + " deg e"))
+    d = cal["rise_fall_delay_difference_s"]
+    d_value = d["value"] if d.get("value") is not None else 0.0
+    if d.get("value") is None:
+        notes.append(f"rise-minus-fall delay not determined ({d.get('reason')}): the twin has none beyond the base's")
+    base_delay = base.effect("conditioning_delay")
+    common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
+    rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
+    effects.append(fx.ConditioningDelay(rise_delay_s=rise, fall_delay_s=fall))
+    measured.append(("conditioning_delay (rise minus fall)", f"{d_value * 1e6:+.1f} us"))
+    assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({base_name}): a lag of "
+                    "every edge is a time shift of the trajectory, invisible without an encoder"))
+    nm = an.noise
+    lim_t = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]
+    lim_a = fx.EdgeJitter.__dataclass_fields__["angle_rms_deg_e"].metadata["high"]
+    effects.append(fx.EdgeJitter(time_rms_s=_clip(nm.time_rms_s, 0.0, lim_t, "edge_jitter.time_rms_s", notes),
+                                 angle_rms_deg_e=_clip(nm.angle_rms_deg_e, 0.0, lim_a, "edge_jitter.angle_rms_deg_e",
+                                                       notes),
+                                 correlation=nm.correlation))
+    measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
+                     f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
+                     "the timer's quantisation)"))
+    if an.tick_s and capture_tick_in_plant:
+        effects.append(fx.TimerQuantization(tick_s=an.tick_s))
+        measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling, kept in the "
+                         "plant: the controller sees edges this coarse)"))
+    elif an.tick_s:
+        base_tick = base.effect("timer_quantization")
+        if base_tick:
+            effects.append(base_tick)
+        measured.append(("capture timer tick (the instrument's)", f"{an.tick_s * 1e6:.4g} us: `hil twin check` "
+                         "samples the twin at it; not the controller's capture timer, so not a plant effect here "
+                         "(`--capture-tick-in-plant` keeps it)"))
+    else:
+        notes.append("the capture states no timer tick")
+    # what the capture cannot tell, from the base
+    arm = base.effect("armature_reaction")
+    if arm:
+        effects.append(arm)
+    assumed.append(("armature_reaction", f"{'from the base' if arm else 'none (the base has none)'}: needs phase "
+                    "currents and a reference angle"))
+    hyst = base.effect("hysteresis")
+    if hyst:
+        effects.append(hyst)
+    assumed.append(("hysteresis (common lag)", f"{'from the base' if hyst else 'none (the base has none)'}: "
+                    "a lag common to every edge is invisible without an encoder"))
+    for e in base.effects:
+        if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
+            effects.append(e)
+    assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                    f"from the base ({base_name}): capture times say nothing of them"))
+    # the delay against the base motor's top speed: where the twin runs beyond the capture
+    speeds = cal["assumptions"]["speed_range_hz_e"]
+    notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
+                 "extrapolates (a delay grows with speed, the jitter model holds)")
+    if table_only:
+        left = [e.name for e in effects if e.layer in ("sensor", "timing") and e.name not in TABLE_EFFECTS]
+        effects = [e for e in effects if e.layer not in ("sensor", "timing") or e.name in TABLE_EFFECTS]
+        notes.append(f"--table-only: left out {', '.join(left) or 'nothing'} (what no calibration table holds: "
+                     "the twin judges the calibration of the motor's real deviations, not its noise floor)")
+    name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
+    config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
+                         effects=tuple(effects), name=name)
+    return Twin(config, measured, assumed, notes, an)
+
+
+# --- TOML ------------------------------------------------------------------------------------
+
+
+def _toml_value(v) -> str:
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if isinstance(v, (list, tuple)):
+        return "[" + ", ".join(_toml_value(x) for x in v) + "]"
+    if isinstance(v, str):
+        return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(v, float):
+        return repr(float(v)) if math.isfinite(v) else "nan"
+    return str(v)
+
+
+def twin_toml(twin: Twin, source: str, base_name: str) -> str:
+    """The plant TOML of ``twin``, with what was measured and what was assumed as comments."""
+    c = twin.config
+    lines = [f"# Plant twin of the Hall capture {source}, written by `hil plant from-capture`.",
+             f"# Base (what the capture cannot tell): {base_name}.", "#", "# MEASURED from the capture:"]
+    lines += [f"#   {what}: {how}" for what, how in twin.measured]
+    lines += ["#", "# ASSUMED (from the base; a capture of Hall times alone cannot tell them):"]
+    lines += [f"#   {what}: {how}" for what, how in twin.assumed]
+    if twin.notes:
+        lines += ["#", "# NOTES:"] + [f"#   {n}" for n in twin.notes]
+    lines += ["", f"name = {_toml_value(c.name)}", "", "[motor]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.motor).items()]
+    lines += ["", "[inverter]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.inverter).items()]
+    lines += ["", "[current_sensor]"]
+    lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.current_sensor).items()]
+    measured_names = {"installation_offset", "pole_offset", "sensor_pole_offset", "switching_asymmetry",
+                      "conditioning_delay", "edge_jitter"}
+    if twin.analysis.tick_s and any(e.name == "timer_quantization" and e.tick_s == twin.analysis.tick_s
+                                    for e in c.effects):
+        measured_names.add("timer_quantization")
+    for e in c.effects:
+        d = e.to_dict()
+        tag = "measured" if e.name in measured_names else "assumed: from the base"
+        lines += ["", f"[[effects]]  # {tag}"]
+        lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()]
+    return "\n".join(lines) + "\n"
+
+
+def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None,
+                 capture_tick_in_plant: bool = False, table_only: bool = False) -> tuple[Twin, str]:
+    """The twin of a capture and its TOML text."""
+    rec = load_capture(recording, pole_pairs)
+    base_name = base or DEFAULT_BASE
+    base_config = load_base(base)
+    twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name,
+                             capture_tick_in_plant, table_only)
+    text = twin_toml(twin, Path(str(recording)).name, base_name)
+    return twin, text

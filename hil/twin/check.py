@@ -1,0 +1,303 @@
+"""``hil twin check``: the twin along the capture's own trajectory, put through the capture's analysis.
+
+Both the capture and the twin's capture go through the same steps: the ordinary-run calibration
+(each figure with its standard error), the sector widths against speed per edge slot, the
+residuals' autocorrelation, and every predictor of ``hil predictors compare`` scored on the second
+half. Where a figure differs beyond its uncertainty, the candidates the capture's own calibration
+names (the rotor's sector-locked speed ripple, which it fits as a nuisance) are added to the twin
+one at a time, and a difference the addition closes is marked ``explained_by_adding``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from plant_models import PlantConfig
+
+from ..calibration.corrections import SENSORS
+from ..calibration.ordinary import speed_hz_e
+from ..experiments import peers
+from .capture import CaptureAnalysis, analyse, load_capture
+from .replay import twin_recording
+
+#: the judged band of the twin/real commutation-error ratio
+RATIO_BAND = (0.67, 1.5)
+#: a calibration figure differs when real and twin are further apart than this many combined
+#: standard errors
+SIGMA_BAND = 3.0
+#: speed bins of the sector-width comparison (over the capture's 5-95 % speed range)
+WIDTH_BINS = 8
+#: what the twin can take on, and what it is
+CANDIDATES = {
+    "sector_locked_speed_ripple": "the rotor's speed ripple locked to the sectors (commutation torque ripple: an "
+    "angle per sector boundary falling with 1/speed^2), which the capture's calibration fitted as a nuisance",
+}
+
+
+def predictor_rows(rec, source: str) -> dict:
+    """Commutation-error RMS (deg e) per predictor, as ``hil predictors compare RECORDING`` scores it
+    (calibrated on the first half, scored on the second). The one place the twin check calls the
+    predictors: a registry of predictors replaces this adapter when there is one."""
+    try:
+        result = peers.compare_recording(rec, source)
+    except ValueError as exc:  # a capture the comparison refuses (too few edges, a correction that reorders)
+        return {"error": str(exc)}
+    return {r["name"]: r["angle_rms_deg_e"] for r in result["predictors"]}
+
+
+def _vs(value, stderr) -> dict:
+    return {"value": None if value is None else float(value),
+            "stderr": None if stderr is None or not math.isfinite(stderr) else float(stderr)}
+
+
+def calibration_figures(an: CaptureAnalysis) -> dict:
+    cal = an.calibration
+    unc = cal["uncertainty"]
+    ind = cal.get("independent_estimate") or {}
+    return {
+        "rise_fall_delay_difference_s": _vs(cal["rise_fall_delay_difference_s"]["value"],
+                                            cal["rise_fall_delay_difference_s"]["stderr"]),
+        "rise_fall_angle_asymmetry_deg_e": _vs(cal["rise_fall_angle_asymmetry_deg_e"]["value"],
+                                               cal["rise_fall_angle_asymmetry_deg_e"]["stderr"]),
+        "independent_rise_fall_delay_difference_s": ind.get("rise_fall_delay_difference_s"),
+        **{f"installation_offset_deg_e.{s}": _vs(cal["installation_offset_deg_e"][s],
+                                                 unc["installation_offset_deg_e"].get(s)) for s in SENSORS},
+        **{f"switching_asymmetry_deg_e.{s}": _vs(*an.asymmetry_deg_e[s]) for s in SENSORS},
+        **{f"pole_offset_deg_e[{j}]": _vs(v, s) for j, (v, s) in
+           enumerate(zip(cal["pole_offset_deg_e"], unc["pole_offset_deg_e"]))},
+        "trajectory_residual_rms_deg_e": _vs(cal["assumptions"]["trajectory_residual_rms_deg_e"], None),
+        "edge_jitter_angle_rms_deg_e": _vs(an.noise.angle_rms_deg_e, None),
+        "edge_jitter_time_rms_s": _vs(an.noise.time_rms_s, None),
+        "edge_jitter_correlation": _vs(an.noise.correlation, None),
+        "sector_locked_speed_ripple": cal["assumptions"]["sector_locked_speed_ripple"],
+        "edges_used": cal["assumptions"]["edges_used"],
+    }
+
+
+def sector_widths(an: CaptureAnalysis, bins: np.ndarray) -> dict:
+    """Mean sector width (deg e) per edge slot (the label of the edge opening the sector, and its
+    polarity) and speed bin, with standard errors."""
+    steps = an.steps
+    f = speed_hz_e(steps)
+    used = np.nonzero(steps.used())[0]
+    k = used[:-1][(steps.run[used[1:]] == steps.run[used[:-1]])]
+    width = 360.0 * 0.5 * (f[k] + f[k + 1]) * (steps.t_s[k + 1] - steps.t_s[k])
+    speed = 0.5 * (f[k] + f[k + 1])
+    label = np.mod(steps.boundary[k], 6)
+    b = np.digitize(speed, bins) - 1
+    mean = np.full((6, bins.size - 1), np.nan)
+    se = np.full((6, bins.size - 1), np.nan)
+    for s in range(6):
+        for j in range(bins.size - 1):
+            sel = (label == s) & (b == j)
+            if sel.sum() >= 5:
+                mean[s, j] = float(np.mean(width[sel]))
+                se[s, j] = float(np.std(width[sel]) / math.sqrt(sel.sum()))
+    return {"mean_deg_e": mean, "stderr_deg_e": se}
+
+
+def _nan_list(a: np.ndarray) -> list:
+    return [[None if not np.isfinite(v) else float(v) for v in row] for row in a]
+
+
+def _analyse_twin(config: PlantConfig, real: CaptureAnalysis, seed: int, ripple: bool, name: str):
+    rec = twin_recording(config, real, seed=seed, ripple=ripple)
+    an = analyse(rec, real.pole_pairs, source=name)
+    return an, predictor_rows(rec, name)
+
+
+def _figure_differences(real: dict, twin: dict) -> dict[str, dict]:
+    out = {}
+    for k, r in real.items():
+        t = twin.get(k)
+        if not isinstance(r, dict) or not isinstance(t, dict) or r.get("value") is None or t.get("value") is None:
+            continue
+        if r.get("stderr") is None or t.get("stderr") is None:
+            continue
+        se = math.hypot(r["stderr"], t["stderr"])
+        out[k] = {"real": r["value"], "twin": t["value"], "difference": t["value"] - r["value"],
+                  "combined_stderr": se, "beyond": abs(t["value"] - r["value"]) > SIGMA_BAND * se}
+    return out
+
+
+def _ratios(real_rows: dict, twin_rows: dict) -> list[dict]:
+    out = []
+    for side, rows in (("real", real_rows), ("twin", twin_rows)):
+        if "error" in rows:
+            out.append({"name": "all", "real_rms_deg_e": None, "twin_rms_deg_e": None, "ratio": None,
+                        "within_band": False, "error": f"{side}: {rows['error']}"})
+    names = [n for n in (real_rows if "error" not in real_rows else twin_rows) if n != "error"]
+    for name in names:
+        r = real_rows.get(name)
+        t = twin_rows.get(name)
+        ratio = t / r if r and t is not None and r > 0 else None
+        out.append({"name": name, "real_rms_deg_e": r, "twin_rms_deg_e": t, "ratio": ratio,
+                    "within_band": ratio is not None and RATIO_BAND[0] <= ratio <= RATIO_BAND[1]})
+    return out
+
+
+def _compare(real: CaptureAnalysis, real_fig: dict, real_rows: dict, twin: CaptureAnalysis, twin_rows: dict,
+             bins: np.ndarray) -> dict:
+    """One twin run against the capture: every figure side by side and what differs."""
+    twin_fig = calibration_figures(twin)
+    w_real, w_twin = sector_widths(real, bins), sector_widths(twin, bins)
+    width_diff = w_twin["mean_deg_e"] - w_real["mean_deg_e"]
+    width_se = np.hypot(w_twin["stderr_deg_e"], w_real["stderr_deg_e"])
+    acf_se = 1.0 / math.sqrt(max(real.fit.index.size, 1))  # an autocorrelation estimate of white noise
+    figs = _figure_differences(real_fig, twin_fig)
+    preds = _ratios(real_rows, twin_rows)
+    return {
+        "edges": {"real": int(real.rec.t_s.size), "twin": int(twin.rec.t_s.size)},
+        "calibration": {"real": real_fig, "twin": twin_fig, "comparison": figs},
+        "noise": {"real": real.noise.to_json(), "twin": twin.noise.to_json(), "acf_stderr": acf_se},
+        "sector_widths": {"speed_bins_hz_e": [float(v) for v in bins],
+                          "slots": "label of the edge opening the sector (boundary 60 m deg e, m mod 6)",
+                          "real_deg_e": _nan_list(w_real["mean_deg_e"]),
+                          "twin_deg_e": _nan_list(w_twin["mean_deg_e"]),
+                          "real_stderr_deg_e": _nan_list(w_real["stderr_deg_e"]),
+                          "twin_stderr_deg_e": _nan_list(w_twin["stderr_deg_e"]),
+                          "max_abs_difference_deg_e": float(np.nanmax(np.abs(width_diff)))},
+        "predictors": preds,
+        "differences": _differences(figs, preds, width_diff, width_se, np.array(real.noise.acf),
+                                    np.array(twin.noise.acf), acf_se, real.pole_pairs),
+    }
+
+
+def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on: tuple[str, ...] | None = None,
+               log=print) -> dict:
+    """The comparison of a capture and its twin (JSON contract in docs/twin.md). ``take_on``: the
+    additions the twin runs with; None takes on what the capture's own calibration modelled (the
+    rotor's sector-locked ripple, part of the trajectory the twin follows). The twin without them
+    is compared too, and its differences say which addition closes them."""
+    config = PlantConfig.from_toml(plant)
+    for c in take_on or ():
+        if c not in CANDIDATES:
+            raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join(CANDIDATES)})")
+    rec = load_capture(recording, config.motor.pole_pairs)
+    log(f"{recording}: calibrating the capture ({len(rec)} edges)")
+    real = analyse(rec, config.motor.pole_pairs, source=str(recording))
+    if real.pole_pairs is not None and real.pole_pairs != config.motor.pole_pairs:
+        raise ValueError(f"{plant}: motor.pole_pairs {config.motor.pole_pairs}, the capture's {real.pole_pairs}")
+    if take_on is None:
+        take_on = ("sector_locked_speed_ripple",) if real.ripple else ()
+    real_rows = predictor_rows(rec, str(recording))
+    real_fig = calibration_figures(real)
+    lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
+    bins = np.linspace(lo, hi, WIDTH_BINS + 1)
+    log("running the twin along the capture's trajectory")
+    plain, plain_rows = _analyse_twin(config, real, seed, False, f"twin of {recording}")
+    bare = _compare(real, real_fig, real_rows, plain, plain_rows, bins)
+    main = bare
+    variants = {}
+    ripple_possible = real.ripple and ripple_pattern_available(real)
+    if ripple_possible and ("sector_locked_speed_ripple" in take_on or bare["differences"]):
+        log("adding the capture's sector-locked speed ripple to the twin's trajectory")
+        tw2, rows2 = _analyse_twin(config, real, seed, True, f"twin of {recording} with ripple")
+        with_ripple = _compare(real, real_fig, real_rows, tw2, rows2, bins)
+        remaining = {d["what"] for d in with_ripple["differences"]}
+        for d in bare["differences"]:
+            d["explained_by_adding"] = d["what"] not in remaining
+            if d["explained_by_adding"]:
+                d["added"] = "sector_locked_speed_ripple"
+        if "sector_locked_speed_ripple" in take_on:
+            main = with_ripple
+            variants["without_additions"] = {"predictors": bare["predictors"], "calibration": bare["calibration"],
+                                             "differences": bare["differences"]}
+        else:
+            variants["sector_locked_speed_ripple"] = {
+                "what": CANDIDATES["sector_locked_speed_ripple"], "predictors": with_ripple["predictors"],
+                "calibration": with_ripple["calibration"], "differences": with_ripple["differences"],
+                "take_on": f"hil twin check {recording} {plant} --take-on sector_locked_speed_ripple"}
+    else:
+        for d in bare["differences"]:
+            d["explained_by_adding"] = False
+    for d in main["differences"]:
+        d.setdefault("explained_by_adding", False)
+    return {
+        "recording": str(recording),
+        "twin": str(plant),
+        "seed": seed,
+        "taken_on": list(take_on) if ripple_possible else [],
+        "replay": "kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
+                  "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
+                  f"tick {(real.tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)",
+        **main,
+        "ratio_band": list(RATIO_BAND),
+        # what the twin as written lacks, and whether an addition the capture names closes it
+        "differences_without_additions": bare["differences"],
+        "variants": variants,
+    }
+
+
+def ripple_pattern_available(an: CaptureAnalysis) -> bool:
+    return any(n.startswith("ripple_") for n in an.fit.names)
+
+
+def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, pole_pairs=None) -> list[dict]:
+    out = []
+    for k, f in figs.items():
+        if f["beyond"]:
+            out.append({"what": f"calibration: {k}",
+                        "effect": f"real {f['real']:.4g}, twin {f['twin']:.4g}: "
+                                  f"{abs(f['difference']) / f['combined_stderr']:.1f} combined standard errors apart"})
+    for p in preds:
+        if p.get("error"):
+            out.append({"what": "predictors", "effect": f"the comparison refused the capture: {p['error']}"})
+        elif not p["within_band"]:
+            out.append({"what": f"predictor: {p['name']}",
+                        "effect": f"commutation-error RMS real {p['real_rms_deg_e']}, twin {p['twin_rms_deg_e']}: "
+                                  f"ratio {p['ratio']} outside {RATIO_BAND[0]}-{RATIO_BAND[1]}"})
+    z = np.abs(width_diff) / np.where(width_se > 0, width_se, np.nan)
+    if np.nanmax(z, initial=0.0) > 5.0:
+        s, j = np.unravel_index(np.nanargmax(z), z.shape)
+        out.append({"what": "sector widths against speed",
+                    "effect": f"slot {s}, speed bin {j}: twin - real {width_diff[s, j]:+.2f} deg e "
+                              f"({z[s, j]:.1f} standard errors)"})
+    lag = int(np.argmax(np.abs(acf_twin - acf_real)))
+    if abs(acf_twin[lag] - acf_real[lag]) > 4.0 * acf_se:
+        n, where = lag + 1, ""
+        if n <= 2:
+            where = ": neighbouring edges, a colour of the edge noise the twin's jitter does not reproduce"
+        elif pole_pairs and n % (6 * pole_pairs) == 0:
+            where = ": a whole mechanical turn, a pattern of the mechanical turn the twin lacks"
+        elif pole_pairs and n % (3 * pole_pairs) == 0:
+            where = ": half a mechanical turn, a pattern of the mechanical turn the twin lacks"
+        elif n % 6 == 0:
+            where = ": a whole electrical cycle, a sector-locked pattern the twin lacks"
+        elif n % 3 == 0:
+            where = ": half an electrical cycle, a sector-locked pattern the twin lacks"
+        out.append({"what": "residual autocorrelation",
+                    "effect": f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin {acf_twin[lag]:+.3f} "
+                              f"(standard error {acf_se:.3f}){where}"})
+    return out
+
+
+def format_check(result: dict) -> str:
+    c = result["calibration"]
+    lines = [f"{result['recording']} against its twin {result['twin']}"]
+    for k in ("rise_fall_delay_difference_s", "rise_fall_angle_asymmetry_deg_e", "trajectory_residual_rms_deg_e",
+              "edge_jitter_angle_rms_deg_e", "edge_jitter_correlation"):
+        r, t = c["real"].get(k) or {}, c["twin"].get(k) or {}
+        scale, unit = (1e6, "us") if k.endswith("_s") else (1.0, "")
+
+        def f(d):
+            if d.get("value") is None:
+                return "-"
+            se = d.get("stderr")
+            return f"{d['value'] * scale:.4g}" + (f" +- {se * scale:.2g}" if se is not None else "")
+
+        lines.append(f"  {k:<34} real {f(r):>18}  twin {f(t):>18} {unit}")
+    widest = result["sector_widths"]["max_abs_difference_deg_e"]
+    lines.append(f"  sector widths: largest twin - real difference {widest:.2f} deg e")
+    lines.append(f"  {'predictor':<16}{'real RMS':>10}{'twin RMS':>10}{'ratio':>8}")
+    for p in result["predictors"]:
+        fmt = lambda v: "-" if v is None else (f"{v:.3f}" if abs(v) < 1e4 else f"{v:.2e}")  # noqa: E731
+        lines.append(f"  {p['name']:<16}{fmt(p['real_rms_deg_e']):>10}{fmt(p['twin_rms_deg_e']):>10}"
+                     f"{fmt(p['ratio']):>8}{'' if p['within_band'] else '  outside ' + str(RATIO_BAND)}")
+    for d in result["differences"]:
+        lines.append(f"  differs: {d['what']}: {d['effect']}"
+                     + ("; closed by adding " + d["added"] if d.get("explained_by_adding") else ""))
+    return "\n".join(lines)

@@ -1,0 +1,76 @@
+"""The twin's commands: ``hil plant from-capture`` and ``hil twin check`` (docs/twin.md)."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+
+def cmd_plant_from_capture(args) -> int:
+    from plant_models import PlantConfig
+
+    from .capture import from_capture
+
+    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant,
+                              args.table_only)
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(text)
+    PlantConfig.from_toml(args.out)  # what `hil plant check` reads: the file must load as written
+    print(f"{args.recording}: twin plant written to {args.out}")
+    print("  measured from the capture:")
+    for what, how in twin.measured:
+        print(f"    {what}: {how}")
+    print(f"  assumed (from the base {args.base or 'paper-bench'}):")
+    for what, how in twin.assumed:
+        print(f"    {what}: {how}")
+    for note in twin.notes:
+        print(f"  note: {note}", file=sys.stderr)
+    return 0
+
+
+def cmd_twin_check(args) -> int:
+    from .check import format_check, twin_check
+    from .report import write_html
+
+    take_on = None if args.take_on is None else tuple(c for c in args.take_on if c != "none")
+    result = twin_check(args.recording, args.plant, seed=args.seed, take_on=take_on,
+                        log=lambda m: print(m, file=sys.stderr))
+    print(format_check(result))
+    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+    print(f"wrote {args.json}")
+    if args.html:
+        write_html(result, args.html)
+        print(f"wrote {args.html}")
+    return 0
+
+
+def add_plant_parser(plant_sub) -> None:
+    q = plant_sub.add_parser("from-capture", help="a plant TOML whose Hall system reproduces a capture (docs/twin.md)")
+    q.add_argument("recording", help="hil-recording/1 directory, or a capture file (VCD, sigrok .sr, CSV)")
+    q.add_argument("-o", "--out", required=True, help="plant TOML to write")
+    q.add_argument("--base", help="preset or plant TOML for what a capture cannot tell (default: paper-bench)")
+    q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (else the capture's pole pattern)")
+    q.add_argument("--capture-tick-in-plant", action="store_true",
+                   help="keep the capture's sampling tick as the plant's timer quantisation (for a controller "
+                   "that samples its Hall lines that coarsely); by default only `hil twin check` applies it")
+    q.add_argument("--table-only", action="store_true",
+                   help="only the deviations a calibration table holds (installation, pole, switching asymmetry, "
+                   "delays): no residual pattern, no edge noise")
+    q.set_defaults(func=cmd_plant_from_capture)
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("twin", help="a plant twin of a capture, checked against it (docs/twin.md)")
+    ts = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    q = ts.add_parser("check", help="run the twin along the capture's trajectory and compare the analyses")
+    q.add_argument("recording", help="hil-recording/1 directory, or a capture file (VCD, sigrok .sr, CSV)")
+    q.add_argument("plant", help="the twin's plant TOML (hil plant from-capture)")
+    q.add_argument("--json", required=True, help="write the comparison here")
+    q.add_argument("--html", help="and as a page with the figures")
+    q.add_argument("--seed", type=int, default=0, help="the twin's noise seed (default 0)")
+    q.add_argument("--take-on", action="append", choices=["sector_locked_speed_ripple", "none"],
+                   help="run the twin with this addition (repeatable; 'none' for the twin as written); default: "
+                   "what the capture's own calibration modelled (its sector-locked ripple)")
+    q.set_defaults(func=cmd_twin_check)

@@ -1,0 +1,198 @@
+"""The twin of a Hall capture (docs/twin.md): built from the shipped real captures, checked against
+them; the delay bounds from real hardware; the effects the twin needs."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from hypothesis import given, seed, settings
+
+from bldc.contract import MAX_CONDITIONING_DELAY_S, CalibrationTableError
+from bldc.params import ConfigError
+from bldc.tomlfile import load_toml
+from hil.calibration.corrections import Corrections
+from hil.cli import main
+from hil.controller.virtual import validate_corrections
+from plant_models import PlantConfig
+from plant_models import effects as fx
+from plant_models.kinematic import OperatingPoint, simulate_edges
+
+DATA = Path(__file__).parent / "data" / "real-hall"
+SPINDLE = DATA / "20260618-spindle-hw.vcd"
+HBOARD = DATA / "20250616-hboard-cycle.vcd"
+#: the judged bands (issue 34): the twin's rise-minus-fall delay within 10 % of the capture's; the
+#: twin/real commutation-error ratio within 0.67-1.5 for sector hold and the PLL
+DELAY_TOLERANCE = 0.10
+RATIO_BAND = (0.67, 1.5)
+
+
+@pytest.fixture(scope="module")
+def spindle_twin(tmp_path_factory):
+    out = tmp_path_factory.mktemp("twin") / "spindle.toml"
+    assert main(["plant", "from-capture", str(SPINDLE), "-o", str(out)]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def spindle_check(spindle_twin, tmp_path_factory):
+    from hil.twin.check import twin_check
+
+    return twin_check(SPINDLE, spindle_twin, log=lambda m: None)
+
+
+def test_from_capture_writes_a_plant_that_plant_check_accepts(spindle_twin, capsys):
+    assert main(["plant", "check", str(spindle_twin)]) == 0
+    assert "valid; motor 2 pole pairs" in capsys.readouterr().out
+    text = spindle_twin.read_text()
+    assert "# ASSUMED" in text and "# MEASURED" in text
+    for what in ("absolute: the mean", "common part", "armature_reaction", "motor (R, L, ke, J"):
+        assert what in text, what
+    effects = load_toml(spindle_twin)["effects"]
+    names = [e["name"] for e in effects]
+    for name in ("installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay", "edge_jitter"):
+        assert name in names
+    delay = next(e for e in effects if e["name"] == "conditioning_delay")
+    # the capture's calibration: 133.5 +- 0.7 us rise minus fall (docs/real-captures.md)
+    assert abs(delay["rise_delay_s"] - delay["fall_delay_s"] - 133.5e-6) < 3e-6
+
+
+def test_the_twin_reproduces_the_spindles_delay_and_predictor_errors(spindle_check):
+    cal = spindle_check["calibration"]
+    real = cal["real"]["rise_fall_delay_difference_s"]["value"]
+    twin = cal["twin"]["rise_fall_delay_difference_s"]["value"]
+    assert abs(twin - real) <= DELAY_TOLERANCE * abs(real), (real, twin)
+    ratios = {p["name"]: p["ratio"] for p in spindle_check["predictors"]}
+    for name in ("sector_hold", "pll"):
+        assert RATIO_BAND[0] <= ratios[name] <= RATIO_BAND[1], (name, ratios[name])
+    # the relative installation offsets come back to their standard errors' scale
+    for s in "ABC":
+        c = cal["comparison"][f"installation_offset_deg_e.{s}"]
+        assert abs(c["difference"]) < 0.2, (s, c)
+
+
+def test_the_twin_check_json_keeps_its_contract(spindle_check, spindle_twin, tmp_path):
+    for key in ("recording", "twin", "calibration", "predictors", "differences", "sector_widths", "noise"):
+        assert key in spindle_check
+    d = spindle_check["calibration"]["real"]["rise_fall_delay_difference_s"]
+    assert set(d) == {"value", "stderr"} and d["stderr"] > 0
+    row = spindle_check["predictors"][0]
+    assert set(row) >= {"name", "real_rms_deg_e", "twin_rms_deg_e", "ratio"}
+    for diff in spindle_check["differences"]:
+        assert set(diff) >= {"what", "effect", "explained_by_adding"}
+    from hil.twin.report import write_html
+
+    write_html(spindle_check, tmp_path / "check.html")
+    assert "data:image/png;base64," in (tmp_path / "check.html").read_text()
+
+
+@pytest.mark.parametrize(
+    "argv, expected",
+    [
+        (["plant", "from-capture", "no-such-capture.vcd", "-o", "x.toml"], "no-such-capture.vcd"),
+        (["twin", "check", str(SPINDLE), "no-such-twin.toml", "--json", "x.json"], "no-such-twin.toml"),
+    ],
+)
+def test_bad_input_is_one_line_naming_the_file(argv, expected, tmp_path, monkeypatch, capsys):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert expected in err and "Traceback" not in err
+
+
+def test_a_twin_of_another_pole_count_is_refused(spindle_twin, tmp_path, capsys):
+    wrong = tmp_path / "wrong.toml"
+    text = spindle_twin.read_text().replace("pole_pairs = 2", "pole_pairs = 3")
+    # the per-pole tables no longer fit: plant check names the field
+    wrong.write_text(text)
+    assert main(["plant", "check", str(wrong)]) == 2
+    assert "offset_deg_e: expected 6 values (one per magnet pole)" in capsys.readouterr().err
+
+
+def test_a_capture_too_short_is_refused(tmp_path, capsys):
+    vcd = tmp_path / "short.vcd"
+    lines = ["$timescale 1 ns $end", "$var wire 1 a hall_a $end", "$var wire 1 b hall_b $end",
+             "$var wire 1 c hall_c $end", "$enddefinitions $end", "#0", "1a", "0b", "1c"]
+    state = [1, 0, 1]
+    for k, x in enumerate([2, 1, 0, 2, 1, 0, 2, 1]):  # a few forward steps only
+        state[x] ^= 1
+        lines += [f"#{(k + 1) * 1000000}", f"{state[x]}{'abc'[x]}"]
+    vcd.write_text("\n".join(lines) + "\n")
+    assert main(["plant", "from-capture", str(vcd), "-o", str(tmp_path / "t.toml")]) == 2
+    assert "edges" in capsys.readouterr().err
+    assert not (tmp_path / "t.toml").exists()
+
+
+# --- bounds from real hardware -----------------------------------------------------------------
+
+
+def test_a_real_wiring_delay_is_inside_the_library_and_the_controller_table():
+    # the hoverboard's 276 us rise minus fall: a plant and a table may carry it
+    fx.ConditioningDelay(rise_delay_s=300e-6, fall_delay_s=0.0).check(2, "effects[0].")
+    c = Corrections()
+    c.pole_offset_deg_e = [0.0] * 4
+    c.conditioning_delay_s = {"rise": 300e-6, "fall": 0.0}
+    validate_corrections(c, 2)
+    c.conditioning_delay_s = {"rise": 1.2 * MAX_CONDITIONING_DELAY_S, "fall": 0.0}
+    with pytest.raises(CalibrationTableError, match="conditioning_delay_s.rise"):
+        validate_corrections(c, 2)
+    with pytest.raises(ConfigError, match="rise_delay_s"):
+        too_long = 1.2 * MAX_CONDITIONING_DELAY_S
+        PlantConfig.from_dict({"effects": [{"name": "conditioning_delay", "rise_delay_s": too_long}]})
+
+
+def test_the_bound_is_half_a_sector_of_a_hub_motor_at_its_top_speed():
+    pole_pairs, top_rpm = 15, 600.0
+    sector_s = 60.0 / (360.0 * pole_pairs * top_rpm / 60.0)
+    assert MAX_CONDITIONING_DELAY_S <= 0.5 * sector_s
+    assert MAX_CONDITIONING_DELAY_S >= fx.DRAW_DELAY_S["real-wiring"] >= 300e-6
+
+
+@seed(34)
+@settings(max_examples=50, deadline=None, database=None)
+@given(library=fx.ConditioningDelay.strategy(2),
+       real=fx.ConditioningDelay.strategy(2, fx.DRAW_DELAY_S["real-wiring"]))
+def test_rob_001_draws_keep_their_stated_range_and_the_option_widens_it(library, real):
+    assert max(library.rise_delay_s, library.fall_delay_s) <= 50e-6
+    assert max(real.rise_delay_s, real.fall_delay_s) <= 300e-6
+
+
+# --- the effects a twin needs ----------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("direction", [1, -1])
+def test_switching_asymmetry_makes_rising_edges_trail_and_falling_lead(direction):
+    a = (1.0, -0.6, 2.0)
+    config = PlantConfig().with_effects(fx.SwitchingAsymmetry(rise_minus_fall_deg_e=a))
+    e = simulate_edges(config, [OperatingPoint(0.05, 3000.0, direction=direction)])
+    ideal = 180.0 * e.boundary + np.array([0.0, 120.0, 240.0])[e.sensor]
+    trail = direction * (e.theta_e_switch_deg - ideal)  # positive: later than the ideal edge
+    for x in range(3):
+        rise = trail[(e.sensor == x) & e.rising]
+        fall = trail[(e.sensor == x) & ~e.rising]
+        assert np.allclose(rise, a[x] / 2) and np.allclose(fall, -a[x] / 2), (x, rise[:3], fall[:3])
+
+
+def test_sensor_pole_offset_needs_one_value_per_sensor_and_pole():
+    with pytest.raises(ConfigError, match=r"effects\[0\]\.offset_deg_e.*12 values"):
+        PlantConfig.from_dict({"effects": [{"name": "sensor_pole_offset", "offset_deg_e": [0.1] * 4}]})
+    table = [0.1 * k for k in range(12)]
+    config = PlantConfig().with_effects(fx.SensorPoleOffset(offset_deg_e=tuple(table)))
+    e = simulate_edges(config, [OperatingPoint(0.05, 3000.0)])
+    ideal = 180.0 * e.boundary + np.array([0.0, 120.0, 240.0])[e.sensor]
+    got = e.theta_e_switch_deg - ideal
+    assert np.allclose(got, np.array(table)[e.sensor * 4 + e.pole])
+
+
+def test_coloured_jitter_keeps_its_colour_across_short_segments():
+    rho = 0.8
+    config = PlantConfig().with_effects(fx.EdgeJitter(angle_rms_deg_e=1.0, correlation=rho))
+    profile = [OperatingPoint(60.0 / (360.0 * 2 * 3000.0 / 60.0), 3000.0)] * 3000  # one sector each
+    e = simulate_edges(config, profile, seed=3)
+    ideal = 180.0 * e.boundary + np.array([0.0, 120.0, 240.0])[e.sensor]
+    x = e.theta_e_switch_deg - ideal
+    lag1 = float(np.corrcoef(x[1:], x[:-1])[0, 1])
+    # 3000 edges: the lag-1 estimate's standard error is about 0.01
+    assert abs(lag1 - rho) < 0.05 and math.isclose(float(np.std(x)), 1.0, rel_tol=0.15)
