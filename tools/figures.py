@@ -233,20 +233,19 @@ def produce_pump_predictors(work: Path) -> Run:
     out = work / "pumps.json"
     _hil(run, work, "predictors", "compare", "--scenario", "pumps", "--json", str(out))
     result = json.loads(out.read_text())
-    run.seeds = list(_find(result, "pump_seeds") or [])
-    rows = [["predictor", "mean RMS deg e", "median RMS deg e", "max RMS deg e"]]
+    run.seeds = [int(s) for s in re.findall(r"\d+", result["source"].split("seeds", 1)[1].split(")")[0])]
+    columns = (("angle_rms_deg_e", "mean RMS"), ("angle_rms_median_deg_e", "median RMS"), ("angle_max_deg_e", "max"))
+    rows = [["predictor"] + [f"{label} deg e" for _, label in columns]]
     for p in result["predictors"]:
-        name = p["name"]
-        for key in ("mean_rms_deg_e", "median_rms_deg_e", "max_rms_deg_e"):
+        for key, _ in columns:
             if p.get(key) is not None:
-                run.figures[f"{name}.{key}"] = Figure(
+                run.figures[f"{p['name']}.{key}"] = Figure(
                     p[key], "deg e", "{:.3f}", tolerance_abs=0.005, tolerance_rel=0.03
                 )
-        rows.append([name] + [f"{p[k]:.3f}" if p.get(k) is not None else "n/a" for k in
-                              ("mean_rms_deg_e", "median_rms_deg_e", "max_rms_deg_e")])
-    ratio = _find(result, "sage_husa_over_kf_median")
-    if ratio is not None:
-        run.figures["sage_husa_over_kf_median"] = Figure(ratio, "", "{:.3f}", tolerance_abs=0.01)
+        rows.append([p["name"]] + [f"{p[k]:.3f}" if p.get(k) is not None else "n/a" for k, _ in columns])
+    run.figures["sage_husa_over_kf_median_rms"] = Figure(
+        result["sage_husa_over_kf_median_rms"], "", "{:.3f}", tolerance_abs=0.01
+    )
     run.tables["predictors"] = rows
     return run
 
