@@ -62,7 +62,7 @@ def test_every_docs_page_is_in_the_readme_table():
     """The tour ends with a table of docs/ pages: a page missing from it is one no reader finds."""
     listed = set(re.findall(r"^\| \[(docs/[\w-]+\.md)\]", README, re.M))
     pages = {f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")}
-    assert pages == listed, f"docs pages not in the README's table: {sorted(pages - listed)}; gone: {sorted(listed - pages)}"
+    assert pages == listed, f"not in the README's table: {sorted(pages - listed)}; no page: {sorted(listed - pages)}"
 
 
 def test_the_tour_is_one_numbered_sequence():
