@@ -7,6 +7,7 @@ from __future__ import annotations
 import importlib.util
 import json
 import os
+import sys
 from pathlib import Path
 
 import pytest
@@ -17,6 +18,7 @@ ROOT = Path(__file__).resolve().parents[1]
 def _figures_module():
     spec = importlib.util.spec_from_file_location("hil_figures_tool", ROOT / "tools" / "figures.py")
     mod = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = mod  # dataclasses look their module up while the tool is being loaded
     spec.loader.exec_module(mod)
     return mod
 

@@ -360,7 +360,7 @@ def figure(data: dict, key: str) -> Figure:
     try:
         return Figure(**data["groups"][group]["figures"][name])
     except KeyError:
-        raise KeyError(f"no figure {key!r} in {FIGURES_FILE.relative_to(ROOT)}") from None
+        raise KeyError(f"no figure {key!r} in docs/{FIGURES_FILE.name}") from None
 
 
 def render_table(data: dict, name: str) -> str:
