@@ -1,5 +1,6 @@
 """The README tells the truth: its demo output is what ``hil demo`` prints, its ``hil`` commands
-parse, the files and pictures it names exist, and its Python snippet runs."""
+parse, the files, pictures and pages it names exist, its tour is one numbered sequence, and the
+Python snippet it sends readers to (docs/plant.md) runs."""
 
 import re
 import shlex
@@ -13,9 +14,9 @@ ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text()
 
 
-def code_blocks(lang: str = "") -> list[str]:
-    """The README's fenced blocks in language ``lang`` ("" for plain ones)."""
-    return [body for tag, body in re.findall(r"^```(\w*)\n(.*?)^```", README, re.S | re.M) if tag == lang]
+def code_blocks(lang: str = "", text: str = README) -> list[str]:
+    """The fenced blocks of ``text`` (the README) in language ``lang`` ("" for plain ones)."""
+    return [body for tag, body in re.findall(r"^```(\w*)\n(.*?)^```", text, re.S | re.M) if tag == lang]
 
 
 def test_demo_output_in_the_readme_is_what_hil_demo_prints(tmp_path, capsys):
@@ -30,7 +31,7 @@ def test_demo_output_in_the_readme_is_what_hil_demo_prints(tmp_path, capsys):
 
 def test_every_hil_command_in_the_readme_parses():
     commands = re.findall(r"python -m hil ([^`\n]*?)(?:`|\n|  +#)", README)
-    assert len(commands) >= 15
+    assert len(commands) >= 12
     parser = build_parser()
     for command in commands:
         args = shlex.split(command.split("&&")[0])
@@ -48,21 +49,32 @@ def test_every_hil_command_in_the_readme_parses():
                 pytest.fail(f"README: `python -m hil {' '.join(variant)}` is not a valid command")
 
 
-def test_files_and_pictures_named_in_the_readme_exist():
+def test_files_pictures_and_pages_named_in_the_readme_exist():
     named = set(re.findall(r"\((docs/img/[^)]+\.png)\)", README)) | set(re.findall(r"(examples/[\w./-]+\w)", README))
-    assert {
-        "docs/img/acceptance-report.png",
-        "docs/img/gap-report.png",
-        "examples/my_pump.toml",
-        "examples/budgets.toml",
-    } <= named
-    missing = [n for n in named if not (ROOT / n).exists()]
+    assert {"docs/img/acceptance-report.png", "docs/img/demo-edge-errors.png"} <= named
+    linked = set(re.findall(r"\]\(((?!https?:)[^)#]+)(?:#[^)]*)?\)", README))
+    assert {"docs/acceptance.md", "docs/budgets.md", "docs/twin.md"} <= linked
+    missing = [n for n in named | linked if not (ROOT / n).exists()]
     assert not missing, f"README names files that do not exist: {missing}"
 
 
-def test_the_python_snippet_runs():
-    block = next(b for b in code_blocks("python") if "Simulation" in b)
+def test_every_docs_page_is_in_the_readme_table():
+    """The tour ends with a table of docs/ pages: a page missing from it is one no reader finds."""
+    listed = set(re.findall(r"^\| \[(docs/[\w-]+\.md)\]", README, re.M))
+    pages = {f"docs/{p.name}" for p in (ROOT / "docs").glob("*.md")}
+    assert pages == listed, f"not in the README's table: {sorted(pages - listed)}; no page: {sorted(listed - pages)}"
+
+
+def test_the_tour_is_one_numbered_sequence():
+    tour = README.split("## A five-minute tour", 1)[1].split("\n## ", 1)[0]
+    steps = [int(n) for n in re.findall(r"^\*\*(\d+)\. ", tour, re.M)]
+    assert steps == list(range(1, len(steps) + 1)) and 4 <= len(steps) <= 7, steps
+
+
+def test_the_plant_snippet_runs():
+    """README's table sends readers to docs/plant.md for the Python API; its snippet runs."""
+    block = next(b for b in code_blocks("python", (ROOT / "docs" / "plant.md").read_text()) if "Simulation" in b)
     namespace: dict = {}
-    exec(compile(block, "README.md", "exec"), namespace)
+    exec(compile(block, "docs/plant.md", "exec"), namespace)
     edges = namespace["edges"]
     assert len(edges.capture_error_deg_e) > 500 and namespace["samples"] is not None

@@ -1,0 +1,493 @@
+"""Every figure published in README.md and docs/, computed from the code at HEAD.
+
+    python tools/figures.py                 # compute every group, write docs/figures.json, render the docs
+    python tools/figures.py --only demo ... # compute these groups only (the others keep their values)
+    python tools/figures.py --quick         # recompute the quick subset; exit 1 on drift beyond tolerance
+    python tools/figures.py --render        # rewrite the docs from docs/figures.json (no computing)
+    python tools/figures.py --check         # exit 1 where a doc disagrees with docs/figures.json
+
+A figure lives in ``docs/figures.json`` with its value, unit, tolerance and the provenance of its group
+(commit, command, seeds, duration, machine). A document shows it between markers, which ``--render``
+fills in and ``--check`` (and ``tests/test_figures.py``) holds to the file:
+
+    <!-- fig:demo.rms_deg_e -->3.986<!-- /fig -->
+    <!-- figtable:pump_predictors -->
+    | ... rendered table ... |
+    <!-- /figtable -->
+
+So no published number is typed by hand: a doc that says something else fails the test, and a code
+change that moves a quick figure beyond its tolerance fails ``--quick`` in CI.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import re
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Callable
+
+ROOT = Path(__file__).resolve().parents[1]
+FIGURES_FILE = ROOT / "docs" / "figures.json"
+PUBLISHED = [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]
+REAL_CAPTURES = ROOT / "tests" / "data" / "real-hall"
+
+FIG_MARK = re.compile(r"<!-- fig:(?P<key>[\w.\-]+) -->(?P<text>.*?)<!-- /fig -->", re.S)
+TABLE_MARK = re.compile(
+    r"(?P<open><!-- figtable:(?P<name>[\w\-]+) -->\n)(?P<body>.*?)(?P<close><!-- /figtable -->)", re.S
+)
+
+
+@dataclass(frozen=True)
+class Figure:
+    """One published number. ``tolerance_abs``/``tolerance_rel``: how far a recomputation may drift
+    before ``--quick`` calls it a change (the larger of the two applies); ``fmt``: how docs show it."""
+
+    value: float | int | str | None
+    unit: str = ""
+    fmt: str = "{:.3g}"
+    tolerance_abs: float = 0.0
+    tolerance_rel: float = 0.0
+    reproducible: bool = True  # False for run times: published with provenance, never held to a tolerance
+
+    def text(self) -> str:
+        if self.value is None:
+            return "n/a"
+        if isinstance(self.value, str):
+            return self.value
+        return self.fmt.format(self.value)
+
+    def drift(self, recomputed: "Figure") -> str | None:
+        """Why ``recomputed`` is not this figure within tolerance, or None."""
+        a, b = self.value, recomputed.value
+        if not self.reproducible:
+            return None
+        if isinstance(a, str) or isinstance(b, str) or a is None or b is None:
+            return None if a == b else f"{a!r} -> {b!r}"
+        bound = max(self.tolerance_abs, self.tolerance_rel * abs(a))
+        if math.isfinite(a) and math.isfinite(b) and abs(b - a) <= bound:
+            return None
+        return f"{a:.6g} -> {b:.6g} (|change| {abs(b - a):.3g} > tolerance {bound:.3g} {self.unit})"
+
+    def to_json(self) -> dict:
+        return {k: v for k, v in self.__dict__.items()}
+
+
+@dataclass
+class Run:
+    """What a producer measured: its figures and how (the commands as a user types them, seeds)."""
+
+    figures: dict[str, Figure] = field(default_factory=dict)
+    commands: list[str] = field(default_factory=list)
+    seeds: list[int] = field(default_factory=list)
+    tables: dict[str, list[list[str]]] = field(default_factory=dict)
+    blocks: dict[str, str] = field(default_factory=dict)  # a command's output as printed, shown verbatim
+
+
+@dataclass(frozen=True)
+class Group:
+    name: str
+    what: str
+    quick: bool
+    produce: Callable[[Path], Run]
+
+
+_last_wall_s = 0.0
+
+
+def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subprocess.CompletedProcess:
+    """``python -m hil ARGS`` from the repository root, recorded in the run's commands."""
+    cmd = [sys.executable, "-m", "hil", *args]
+    shown = "python -m hil " + " ".join(shlex.quote(str(a)).replace(str(work), "$WORK") for a in args)
+    run.commands.append(shown)
+    global _last_wall_s
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
+    _last_wall_s = time.perf_counter() - t0
+    if done.returncode not in (0,):
+        raise RuntimeError(f"{shown} exited {done.returncode}:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    return done
+
+
+def _import_capture(run: Run, work: Path, vcd: str) -> Path:
+    out = work / Path(vcd).stem
+    if not out.exists():
+        _hil(run, work, "recording", "import", str(REAL_CAPTURES / vcd), "--out", str(out))
+    return out
+
+
+# ---------------------------------------------------------------- producers
+
+
+def produce_demo(work: Path) -> Run:
+    run = Run(seeds=[0])
+    done = _hil(run, work, "demo", "--out", str(work / "demo"))
+    m = re.search(r"all edges: mean ([\d.\-]+), RMS ([\d.]+), max \|err\| ([\d.]+)", done.stdout)
+    if not m:
+        raise RuntimeError(f"hil demo printed no summary line:\n{done.stdout[-1500:]}")
+    mean, rms, worst = (float(g) for g in m.groups())
+    tol = dict(tolerance_abs=0.01, unit="deg e", fmt="{:.3f}")
+    run.figures = {
+        "mean_deg_e": Figure(mean, **tol),
+        "rms_deg_e": Figure(rms, **tol),
+        "max_deg_e": Figure(worst, **tol),
+    }
+    # the table as printed, without the last line (where the recording was written)
+    run.blocks["output"] = "".join(line + "\n" for line in done.stdout.splitlines() if " written to " not in line)
+    run.figures["wall_s"] = Figure(_last_wall_s, "s", "{:.0f}", reproducible=False)
+    return run
+
+
+def _calibration_figures(corrections: dict) -> dict[str, Figure]:
+    """The ordinary-run calibration's headline figures with their standard errors."""
+    figures: dict[str, Figure] = {}
+    for key, name, scale, unit, fmt in (
+        ("rise_fall_delay_difference_s", "delay_difference_us", 1e6, "us", "{:.1f}"),
+        ("rise_fall_angle_asymmetry_deg_e", "asymmetry_deg_e", 1.0, "deg e", "{:.2f}"),
+    ):
+        item = corrections.get(key)
+        if not isinstance(item, dict) or item.get("value") is None:
+            continue
+        value, stderr = item["value"] * scale, (item.get("stderr") or 0.0) * scale
+        # a recomputation must agree within the figure's own stated uncertainty
+        figures[name] = Figure(value, unit, fmt, tolerance_abs=max(stderr, 1e-3 * abs(value)))
+        figures[name + "_stderr"] = Figure(stderr, unit, "{:.2f}", tolerance_abs=max(0.25 * stderr, 1e-6))
+    pp = _find(corrections, "pole_pairs")
+    if isinstance(pp, (int, float)):
+        figures["pole_pairs"] = Figure(int(pp), "", "{:d}")
+    return figures
+
+
+def _find(tree, key: str):
+    """The first value under ``key`` anywhere in a JSON tree (the calibration's keys are unique)."""
+    if isinstance(tree, dict):
+        if key in tree:
+            return tree[key]
+        for v in tree.values():
+            found = _find(v, key)
+            if found is not None:
+                return found
+    elif isinstance(tree, list):
+        for v in tree:
+            found = _find(v, key)
+            if found is not None:
+                return found
+    return None
+
+
+def _produce_real_calibration(vcd: str) -> Callable[[Path], Run]:
+    def produce(work: Path) -> Run:
+        run = Run()
+        rec = _import_capture(run, work, vcd)
+        out = work / f"{rec.name}-corrections.json"
+        _hil(run, work, "calibrate", str(rec), "--json", str(out))
+        run.figures = _calibration_figures(json.loads(out.read_text()))
+        if not run.figures:
+            raise RuntimeError(f"hil calibrate {rec}: no rise-fall figures in {out}")
+        return run
+
+    return produce
+
+
+def _produce_real_predictors(vcd: str) -> Callable[[Path], Run]:
+    def produce(work: Path) -> Run:
+        run = Run()
+        rec = _import_capture(run, work, vcd)
+        out = work / f"{rec.name}-predictors.json"
+        _hil(run, work, "predictors", "compare", str(rec), "--json", str(out))
+        result = json.loads(out.read_text())
+        rows = [["predictor", "RMS deg e", "p99 deg e", "max deg e", "edges scored"]]
+        for p in result["predictors"]:
+            run.figures[f"{p['name']}.rms_deg_e"] = Figure(
+                p["angle_rms_deg_e"], "deg e", "{:.2f}", tolerance_abs=0.02, tolerance_rel=0.02
+            )
+            rows.append(
+                [
+                    p["name"],
+                    f"{p['angle_rms_deg_e']:.2f}",
+                    f"{p['angle_p99_deg_e']:.2f}",
+                    f"{p['angle_max_deg_e']:.2f}",
+                    f"{p['edges_scored']:d}",
+                ]
+            )
+        best = min(result["predictors"], key=lambda p: p["angle_rms_deg_e"])
+        run.figures["best"] = Figure(best["name"])
+        run.tables["predictors"] = rows
+        return run
+
+    return produce
+
+
+def produce_pump_predictors(work: Path) -> Run:
+    run = Run()
+    out = work / "pumps.json"
+    _hil(run, work, "predictors", "compare", "--scenario", "pumps", "--json", str(out))
+    result = json.loads(out.read_text())
+    run.seeds = [int(s) for s in re.findall(r"\d+", result["source"].split("seeds", 1)[1].split(")")[0])]
+    columns = (("angle_rms_deg_e", "mean RMS"), ("angle_rms_median_deg_e", "median RMS"), ("angle_max_deg_e", "max"))
+    rows = [["predictor"] + [f"{label} deg e" for _, label in columns]]
+    for p in result["predictors"]:
+        for key, _ in columns:
+            if p.get(key) is not None:
+                run.figures[f"{p['name']}.{key}"] = Figure(
+                    p[key], "deg e", "{:.3f}", tolerance_abs=0.005, tolerance_rel=0.03
+                )
+        rows.append([p["name"]] + [f"{p[k]:.3f}" if p.get(k) is not None else "n/a" for k, _ in columns])
+    run.figures["sage_husa_over_kf_median_rms"] = Figure(
+        result["sage_husa_over_kf_median_rms"], "", "{:.3f}", tolerance_abs=0.01
+    )
+    run.tables["predictors"] = rows
+    return run
+
+
+def produce_acceptance(work: Path) -> Run:
+    """The README's first command, timed (wall and CPU time of the whole run)."""
+    run = Run()
+    t0, c0 = time.perf_counter(), _children_cpu_s()
+    report_dir = work / "acceptance"
+    try:
+        _hil(run, work, "acceptance", "--report-dir", str(report_dir))
+    except RuntimeError:
+        pass  # the verdict below says what happened
+    wall, cpu = time.perf_counter() - t0, _children_cpu_s() - c0
+    report = json.loads((report_dir / "hil-report.json").read_text())
+    run.commands[-1] = "python -m hil acceptance"
+    run.figures = {
+        "verdict": Figure(str(_find(report, "verdict"))),
+        "wall_s": Figure(wall, "s", "{:.0f}", reproducible=False),
+        "cpu_s": Figure(cpu, "s", "{:.0f}", reproducible=False),
+    }
+    return run
+
+
+def produce_test_suite(work: Path) -> Run:
+    """The README's second command (pytest only; the install is timed apart by CI)."""
+    run = Run(commands=["python -m pytest -q"])
+    t0 = time.perf_counter()
+    env = {**os.environ, "HIL_FIGURES_RUNNING": "1"}
+    done = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider"], cwd=ROOT,
+                          capture_output=True, text=True, env=env)
+    wall = time.perf_counter() - t0
+    m = re.search(r"(\d+) passed", done.stdout)
+    run.figures = {
+        "wall_s": Figure(wall, "s", "{:.0f}", reproducible=False),
+        "passed": Figure(int(m.group(1)) if m else 0, "", "{:d}", reproducible=False),
+        "exit_status": Figure(done.returncode, "", "{:d}"),
+    }
+    return run
+
+
+def _children_cpu_s() -> float:
+    t = os.times()
+    return t.children_user + t.children_system
+
+
+GROUPS: list[Group] = [
+    Group("demo", "README tour step 1: the paper-bench demo's captured-edge error", True, produce_demo),
+    Group("spindle_calibration", "docs/real-captures.md: the spindle capture calibrated", True,
+          _produce_real_calibration("20260618-spindle-hw.vcd")),
+    Group("hoverboard_calibration", "docs/real-captures.md: the hoverboard speed cycles calibrated", False,
+          _produce_real_calibration("20250616-hboard-cycle.vcd")),
+    Group("spindle_predictors", "docs/sage-husa.md: every predictor on the spindle capture", True,
+          _produce_real_predictors("20260618-spindle-hw.vcd")),
+    Group("pump_predictors", "docs/sage-husa.md: every predictor on the held-out pumps", False,
+          produce_pump_predictors),
+    Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance),
+    Group("test_suite", "README: the test command's run time", False, produce_test_suite),
+]
+
+
+# ---------------------------------------------------------------- the file and the docs
+
+
+def _provenance(group: Group, run: Run, duration_s: float) -> dict:
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
+    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
+                                capture_output=True, text=True).stdout.strip())
+    return {
+        "what": group.what,
+        "commit": commit + ("+uncommitted" if dirty else ""),
+        "commands": run.commands,
+        "seeds": run.seeds,
+        "duration_s": round(duration_s, 1),
+        "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "machine": f"{platform.machine()}, {os.cpu_count()} cores, Python {platform.python_version()}",
+        "quick": group.quick,
+    }
+
+
+def compute(groups: list[Group]) -> dict[str, dict]:
+    out = {}
+    with tempfile.TemporaryDirectory(prefix="hil-figures-") as tmp:
+        work = Path(tmp)
+        for g in groups:
+            print(f"figures: {g.name}: {g.what} ...", flush=True)
+            t0 = time.perf_counter()
+            run = g.produce(work)
+            dt = time.perf_counter() - t0
+            out[g.name] = {
+                "provenance": _provenance(g, run, dt),
+                "figures": {k: f.to_json() for k, f in run.figures.items()},
+                "tables": run.tables,
+                "blocks": run.blocks,
+            }
+            print(f"figures: {g.name}: {len(run.figures)} figures in {dt:.0f} s", flush=True)
+    return out
+
+
+def load() -> dict:
+    if not FIGURES_FILE.exists():
+        return {"groups": {}}
+    return json.loads(FIGURES_FILE.read_text())
+
+
+def save(data: dict) -> None:
+    FIGURES_FILE.write_text(json.dumps(data, indent=1, sort_keys=True) + "\n")
+
+
+def figure(data: dict, key: str) -> Figure:
+    group, _, name = key.partition(".")
+    try:
+        return Figure(**data["groups"][group]["figures"][name])
+    except KeyError:
+        raise KeyError(f"no figure {key!r} in docs/{FIGURES_FILE.name}") from None
+
+
+def render_table(data: dict, name: str) -> str:
+    """``GROUP-TABLE`` as a Markdown table (or ``GROUP-BLOCK`` as a code block) with its provenance."""
+    group, _, table = name.partition("-")
+    g = data["groups"].get(group, {})
+    prov = g.get("provenance")
+    if table in g.get("tables", {}):
+        rows = g["tables"][table]
+        lines = ["| " + " | ".join(rows[0]) + " |", "|" + "---|" * len(rows[0])]
+        lines += ["| " + " | ".join(r) + " |" for r in rows[1:]]
+        body = "\n".join(lines) + "\n"
+    elif table in g.get("blocks", {}):
+        body = "```\n" + g["blocks"][table] + "```\n"
+    else:
+        raise KeyError(f"no table or block {name!r} in {FIGURES_FILE.relative_to(ROOT)}")
+    return body + (
+        f"\n<sub>`python tools/figures.py --only {group}` at {prov['commit'][:10]}, {prov['date'][:10]}, "
+        f"{prov['duration_s']:.0f} s: `{'`; `'.join(prov['commands'])}`</sub>\n"
+    )
+
+
+def render_text(text: str, data: dict) -> str:
+    text = FIG_MARK.sub(lambda m: f"<!-- fig:{m['key']} -->{figure(data, m['key']).text()}<!-- /fig -->", text)
+    return TABLE_MARK.sub(lambda m: m["open"] + render_table(data, m["name"]) + m["close"], text)
+
+
+def disagreements(data: dict) -> list[str]:
+    """Where a published document says something other than the figures file."""
+    out = []
+    for path in PUBLISHED:
+        text = path.read_text()
+        for m in FIG_MARK.finditer(text):
+            line = text.count("\n", 0, m.start()) + 1
+            try:
+                want = figure(data, m["key"]).text()
+            except KeyError as e:
+                out.append(f"{path.relative_to(ROOT)}:{line}: {e.args[0]}")
+                continue
+            if m["text"] != want:
+                out.append(
+                    f"{path.relative_to(ROOT)}:{line}: {m['key']} reads {m['text']!r}, the figures file {want!r}"
+                )
+        for m in TABLE_MARK.finditer(text):
+            line = text.count("\n", 0, m.start()) + 1
+            try:
+                want = render_table(data, m["name"])
+            except KeyError as e:
+                out.append(f"{path.relative_to(ROOT)}:{line}: {e.args[0]}")
+                continue
+            if m["body"] != want:
+                out.append(f"{path.relative_to(ROOT)}:{line}: table {m['name']} differs from the figures file")
+    return out
+
+
+def render(data: dict) -> list[Path]:
+    changed = []
+    for path in PUBLISHED:
+        old = path.read_text()
+        new = render_text(old, data)
+        if new != old:
+            path.write_text(new)
+            changed.append(path)
+    return changed
+
+
+def drift(stored: dict, fresh: dict) -> list[str]:
+    out = []
+    for gname, g in fresh.items():
+        old = stored["groups"].get(gname)
+        if old is None:
+            out.append(f"{gname}: not in {FIGURES_FILE.relative_to(ROOT)}")
+            continue
+        for name, f in g["figures"].items():
+            if name not in old["figures"]:
+                out.append(f"{gname}.{name}: new figure, not in the file")
+                continue
+            why = Figure(**old["figures"][name]).drift(Figure(**f))
+            if why:
+                out.append(f"{gname}.{name}: {why}")
+        for name in old["figures"]:
+            if name not in g["figures"]:
+                out.append(f"{gname}.{name}: no longer computed")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    mode = ap.add_mutually_exclusive_group()
+    mode.add_argument("--quick", action="store_true", help="recompute the quick subset; exit 1 on drift")
+    mode.add_argument("--render", action="store_true", help="rewrite the docs from the figures file")
+    mode.add_argument("--check", action="store_true", help="exit 1 where a doc disagrees with the figures file")
+    ap.add_argument("--only", nargs="+", metavar="GROUP", choices=[g.name for g in GROUPS],
+                    help="compute these groups only")
+    args = ap.parse_args(argv)
+    data = load()
+    if args.check:
+        bad = disagreements(data)
+        print("\n".join(bad) if bad else f"figures: every published figure agrees with {FIGURES_FILE.name}")
+        return 1 if bad else 0
+    if args.render:
+        bad = disagreements(data)
+        missing = [b for b in bad if "no figure" in b or "no table" in b]
+        if missing:
+            print("\n".join(missing), file=sys.stderr)
+            return 1
+        for p in render(data):
+            print(f"rendered {p.relative_to(ROOT)}")
+        return 0
+    if args.only:
+        chosen = [g for g in GROUPS if g.name in args.only]
+    else:
+        chosen = [g for g in GROUPS if g.quick or not args.quick]
+    t0 = time.perf_counter()
+    fresh = compute(chosen)
+    if args.quick:
+        bad = drift(data, fresh)
+        print("\n".join(bad) if bad else f"figures: {len(chosen)} quick groups reproduce within tolerance "
+                                            f"({time.perf_counter() - t0:.0f} s)")
+        return 1 if bad else 0
+    data.setdefault("groups", {}).update(fresh)
+    save(data)
+    for p in render(data):
+        print(f"rendered {p.relative_to(ROOT)}")
+    print(f"figures: wrote {FIGURES_FILE.relative_to(ROOT)} ({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
