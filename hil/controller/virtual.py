@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from bldc.contract import CalibrationTableError, Command, Fault, Strategy
+from bldc.contract import MAX_CONDITIONING_DELAY_S, CalibrationTableError, Command, Fault, Strategy
 from bldc.hall import SECTOR_OF_CODE
 from bldc.motor import MotorParameters, steady_state
 from bldc.units import rad_e_per_s_to_rpm
@@ -55,8 +55,10 @@ def validate_corrections(c: Corrections, pole_pairs: int) -> None:
             raise CalibrationTableError(f"pole_offset_deg_e[{j}]", f"must be finite and within +-10 deg_e, got {v!r}")
     for k in ("rise", "fall"):
         v = c.conditioning_delay_s.get(k)
-        if v is None or not math.isfinite(v) or not 0.0 <= v <= 100e-6:
-            raise CalibrationTableError(f"conditioning_delay_s.{k}", f"must be within [0, 100e-6] s, got {v!r}")
+        if v is None or not math.isfinite(v) or not 0.0 <= v <= MAX_CONDITIONING_DELAY_S:
+            raise CalibrationTableError(
+                f"conditioning_delay_s.{k}", f"must be within [0, {MAX_CONDITIONING_DELAY_S:g}] s, got {v!r}"
+            )
     v = c.armature_reaction_deg_e_per_a
     if not math.isfinite(v) or abs(v) > 5.0:
         raise CalibrationTableError(
