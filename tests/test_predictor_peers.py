@@ -139,7 +139,7 @@ def test_the_registry_declares_every_predictor_once_and_builds_each_from_its_shi
     """Issue 31: one registry. Every entry builds from its tuned settings (and the model-based
     ones from their kinematic settings) into its declared class, whose settings read back equal;
     the shipped settings cover exactly the registry's names; an unknown name is refused."""
-    from hil.experiments.peer_settings import TUNED
+    from hil.predictors.peer_settings import TUNED
     from hil.predictors.registry import KINEMATIC_MODEL, MODEL_BASED, NAMES, PREDICTORS, build, settings_of
 
     assert set(TUNED) - {"kinematic"} == set(NAMES)
@@ -172,7 +172,7 @@ def test_the_registry_names_real_controller_strategies():
 def test_rebuilt_puts_a_model_based_predictor_on_another_model_with_its_settings():
     """The tuning objective rebuilds each candidate on each pump's own model (and in kinematic
     form with the current channel unobserved); the firmware peers have no model and stay as they are."""
-    from hil.experiments.peer_settings import TUNED
+    from hil.predictors.peer_settings import TUNED
     from hil.predictors.registry import KINEMATIC_MODEL, KINEMATIC_R_I, build, rebuilt, settings_of
 
     pump = MotorModel(3, 2e-4, (0.05,), (1e-7,))

@@ -240,7 +240,7 @@ def _row_json(name: str, rows, cost, settings) -> dict:
 
 
 def _tuned():
-    from .peer_settings import PROVENANCE, TUNED
+    from ..predictors.peer_settings import PROVENANCE, TUNED
 
     return TUNED, PROVENANCE
 
@@ -308,7 +308,7 @@ def training_score(name: str, pump_seed: int = SCORE_PUMP_SEED, kinematic: bool 
     settings of predictor ``name`` (``kinematic``: its kinematic form) on the training pump
     ``pump_seed``; ``PROVENANCE["training_score"]`` holds what the tuning measured, so a change in
     the code under the settings shows as a different figure."""
-    from .peer_settings import TUNED
+    from ..predictors.peer_settings import TUNED
 
     if pump_seed not in TRAIN_PUMP_SEEDS:
         raise ValueError(f"pump {pump_seed} is not a training pump ({TRAIN_PUMP_SEEDS[0]}-{TRAIN_PUMP_SEEDS[-1]})")
@@ -329,11 +329,12 @@ def tuning_main(argv=None) -> int:
 
     ap = argparse.ArgumentParser(description=tuning_main.__doc__.splitlines()[0])
     ap.add_argument("--train-seed", type=int, nargs="+", default=list(TRAIN_PUMP_SEEDS))
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("peer_settings.py"))
+    ap.add_argument("--out", type=Path, default=Path(__file__).parents[1] / "predictors" / "peer_settings.py")
     args = ap.parse_args(argv)
     if set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS):
         ap.error(f"training seeds {sorted(set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS))} are held out")
     t0 = time.monotonic()
+    commit = _commit()  # the code that runs, before anything is written
     runs = [pump_run(draw_pump(s)) for s in args.train_seed]
     print(f"{len(runs)} training pumps, {sum(r.t_corrected_s.size for r, _ in runs)} edges, "
           f"{time.monotonic() - t0:.0f} s")
@@ -355,7 +356,7 @@ def tuning_main(argv=None) -> int:
                   "training_score": {"pump_seed": args.train_seed[0], "angle_rms_deg_e": one_pump,
                                      "recomputed_by": "hil.experiments.peers.training_score"},
                   "search": "deterministic: seeded pumps, a fixed grid, Nelder-Mead from fixed simplices",
-                  "commit": _commit(), "tuning_wall_time_s": round(time.monotonic() - t0)}
+                  "commit": commit, "tuning_wall_time_s": round(time.monotonic() - t0)}
     defaults = settings_of(KalmanPredictor(KINEMATIC_MODEL, FilterSettings()))
 
     def compact(d: dict) -> dict:
