@@ -378,13 +378,18 @@ def tuning_main(argv=None) -> int:
     return 0
 
 
+#: what the tuning runs: an uncommitted change here makes the recorded commit "+dirty"
+CODE_DIRS = ("bldc", "plant_models", "hil", "tools")
+
+
 def _commit() -> str | None:
-    """The repository's commit the tuning ran at (with "+dirty" for uncommitted changes), if known."""
+    """The repository's commit the tuning ran at, if known, with "+dirty" where the code it runs
+    (bldc, plant_models, hil, tools) has uncommitted changes; tests and docs do not count."""
     root = Path(__file__).resolve().parents[2]
     try:
         head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=root, capture_output=True, text=True,
                               check=True).stdout.strip()
-        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE_DIRS], cwd=root,
                                capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return None
