@@ -39,7 +39,7 @@ from plant_models.plant import PAPER_BENCH_CIRCUIT
 from ..calibration.campaign import station_corrections
 from ..predictors.model import MotorModel
 from ..predictors.peers import MovingAveragePredictor, PllPredictor, VbAkfPredictor
-from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
+from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor, split_counters
 from ..predictors.registry import (
     KINEMATIC_MODEL,
     MA_FIFO_GRID,
@@ -143,12 +143,17 @@ def pump_run(pump: Pump) -> tuple[ScenarioRun, MotorModel]:
 def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
     """The tuning objective over (run, model) pairs: mean commutation angle RMS, each pump's
     predictor rebuilt on its own model (compare's objective takes one model for all runs);
-    ``kinematic``: the model-based filters in their kinematic form (``build``)."""
+    ``kinematic``: the model-based filters in their kinematic form (``build``). Infinite
+    (refused) where a run needed a covariance repair: the controller that ships the KF's and
+    Sage-Husa's settings raises EMCY 0xFF03 on one and REQ-PRED-001 asserts none (the closed-loop
+    tuning's rule, ``controller_tuning.replay_objective``; the same for every predictor)."""
     out = []
     for run, model in runs:
         p = rebuilt(predictor, model, kinematic)
         cur = np.zeros(run.t_corrected_s.size) if kinematic else run.mean_current_a
         r = p.run(run.t_corrected_s, cur)
+        if split_counters(r.guards)["covariance_repairs"]:
+            return math.inf
         out.append(score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e)
     value = float(np.mean(out))
     return value if math.isfinite(value) else math.inf
@@ -351,7 +356,8 @@ def tuning_main(argv=None) -> int:
     one_pump = {_score_key(n, k): objective(runs[:1], n, k) for n, k in forms}
     provenance = {"tool": "tools/predictor_tuning.py", "train_pump_seeds": list(args.train_seed),
                   "pump_range": {k: list(v) if isinstance(v, tuple) else v for k, v in PUMP_RANGE.items()},
-                  "objective": "mean commutation angle RMS (deg e) over the training pumps, ground truth",
+                  "objective": "mean commutation angle RMS (deg e) over the training pumps, ground truth; "
+                               "settings that need a covariance repair on any training pump refused",
                   "budgets": BUDGETS, "training_angle_rms_deg_e": training,
                   "training_score": {"pump_seed": args.train_seed[0], "angle_rms_deg_e": one_pump,
                                      "recomputed_by": "hil.experiments.peers.training_score"},
