@@ -5,7 +5,7 @@ guards) against filterpy's ``KalmanFilter.predict() + update()`` on the same 3-s
 (F and B from Eq. 9, H observing angle and current), measured in the same run; and the batch
 mode over a whole recorded edge sequence in filter steps per second on one core; then the batch
 cost per edge of every predictor ``hil predictors compare`` runs, with its shipped settings
-(hil/experiments/peer_settings.py), on the same edges.
+(hil/predictors/peer_settings.py), on the same edges.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def _timed(fn):
 def peer_costs(t, cur) -> dict[str, float]:
     """Batch run time per edge (us, best of 3 after a compile call) of each compared predictor."""
     from hil.experiments import peers
-    from hil.experiments.peer_settings import TUNED
+    from hil.predictors.peer_settings import TUNED
 
     model = MotorModel.from_plant(paper_bench().motor)
     out = {}

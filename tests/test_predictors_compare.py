@@ -33,7 +33,7 @@ def vcd_recording(path: Path, out: Path) -> Recording:
 
 
 def test_pumps_are_drawn_inside_the_stated_range_and_no_tuning_seed_is_held_out():
-    from hil.experiments.peer_settings import PROVENANCE
+    from hil.predictors.peer_settings import PROVENANCE
 
     assert not set(PROVENANCE["train_pump_seeds"]) & set(peers.HELD_OUT_PUMP_SEEDS)
     assert len(peers.HELD_OUT_PUMP_SEEDS) >= 20
@@ -125,7 +125,7 @@ def test_the_controller_defaults_are_the_training_pump_tuning():
     """Issue 26: the controller's filters come from the training pumps, not from the scenario
     REQ-PRED-002 judges (a hand edit of either side fails here)."""
     from hil.controller.virtual import VirtualController
-    from hil.experiments.controller_tuning import pump_defaults
+    from hil.predictors.registry import pump_defaults
     from hil.experiments.table5 import scenario_plant
 
     controller = VirtualController(scenario_plant().motor)

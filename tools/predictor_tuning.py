@@ -1,5 +1,5 @@
 """Tune every commutation predictor (sector hold, moving average, PLL, KF, Sage-Husa, VB-AKF) on
-the training pumps and write their settings, with provenance, to hil/experiments/peer_settings.py
+the training pumps and write their settings, with provenance, to hil/predictors/peer_settings.py
 (docs/sage-husa.md, "Peers").
 
     python tools/predictor_tuning.py [--train-seed S ...] [--out PATH]

@@ -30,7 +30,7 @@ from bldc.units import rad_e_per_s_to_rpm
 
 from ..calibration.corrections import SENSORS, Corrections
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
-from ..predictors import filters as F
+from ..predictors.registry import pump_defaults
 from .adc import edge_currents
 from .commutation import HallCommutation, SpeedPI
 
@@ -95,26 +95,11 @@ class VirtualController:
     #: steered by innovation whiteness and R_i never goes below its R0 (``compare.SH_DESIGN``).
     #: Nominal Q0, R0_i, b and b_R from the tuning on training pumps 2000-2007 (pumps drawn around
     #: this bench, none of them this controller's plant or any scenario seed it is judged on):
-    #: ``python tools/predictor_tuning.py`` (hil/experiments/peer_settings.py), rounded to two
-    #: digits (``controller_tuning.pump_defaults``; docs/sage-husa.md, "Peers")
-    filter_settings: FilterSettings = field(
-        default_factory=lambda: FilterSettings(
-            q0_diag=(0.00094, 1e-9, 0.0014),
-            r0_diag=(0.0, 0.0093),
-            adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT | F.ADAPT_R_CURRENT_FLOOR,
-            forgetting_b=0.974,
-            adapt_interval=60,
-            r_forgetting_b=0.84,
-            r_interval=30,
-            q_band_factor=100.0,
-        )
-    )
+    #: ``python tools/predictor_tuning.py`` writes hil/predictors/peer_settings.py, read here and
+    #: rounded to two digits (``registry.pump_defaults``; docs/sage-husa.md, "Peers")
+    filter_settings: FilterSettings = field(default_factory=lambda: pump_defaults()[0])
     #: the fixed-noise Kalman strategy's Q, R and gate, from the same tuning with the same budget
-    #: (``controller_tuning.pump_defaults``), rounded to two digits
-    kf_settings: FilterSettings = field(
-        default_factory=lambda: FilterSettings(q0_diag=(0.014, 1e-9, 0.0014), r0_diag=(0.00077, 0.0098),
-                                               gate_state_update=False)
-    )
+    kf_settings: FilterSettings = field(default_factory=lambda: pump_defaults()[1])
     model: MotorModel | None = None
     current_limit_a: float = 15.0
     #: the pump turns one way: a Hall step against it means edges were lost

@@ -53,6 +53,7 @@ from ..dut.in_process import InProcessLink
 from ..predictors import filters as F
 from ..predictors.model import MotorModel
 from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
+from ..predictors.registry import pump_defaults, rounded
 from . import compare
 from .closed_loop import HOLD_S, Recording, as_carried, commutation_time_mape_pct, record_link
 from .table5 import SETPOINTS_RPM, scenario_plant
@@ -74,9 +75,6 @@ SH_DESIGNS = {
 #: two of the forgetting factor's four values
 SH_GRID = dict(q_w=compare.SH_GRID["q_w"], q_i=compare.SH_GRID["q_i"], one_minus_b=(0.02, 0.005),
                one_minus_b_r=compare.SH_GRID["one_minus_b_r"], r_interval=(30.0, 120.0))
-#: significant digits the tuned values are rounded to before they become defaults (and before
-#: they are evaluated, so what is evaluated is what the defaults are)
-DIGITS = 2
 #: a design with R's current entry floored at its R0 searches compare's grid, where R0_i takes the
 #: place of R's interval, on the KF's two values (144 points still)
 assert (math.prod(len(v) for v in SH_GRID.values()) == math.prod(len(v) for v in compare.SH_GRID.values())
@@ -94,21 +92,6 @@ def replay_objective(recordings: list[Recording], predictor) -> float:
             return math.inf
         rms_deg_e.append(rms(err))
     return float(np.mean(rms_deg_e))
-
-
-def _round(v: float, digits: int = DIGITS) -> float:
-    return float(f"{v:.{digits}g}")
-
-
-def rounded(s: FilterSettings) -> FilterSettings:
-    """The settings with Q0, R0 and the forgetting factors' distance from 1 to DIGITS digits."""
-    return dataclasses.replace(
-        s,
-        q0_diag=tuple(_round(v) for v in s.q0_diag),
-        r0_diag=tuple(_round(v) for v in s.r0_diag),
-        forgetting_b=1.0 - _round(1.0 - s.forgetting_b),
-        r_forgetting_b=1.0 - _round(1.0 - s.r_forgetting_b),
-    )
 
 
 def record(seeds, hold_s: float = HOLD_S) -> list[Recording]:
@@ -300,16 +283,6 @@ PROFILES = {
     "low 3000-6000 rpm": tuple(float(v) for v in np.linspace(3000.0, 6000.0, 4)),
     "high 9000-14,000 rpm": tuple(float(v) for v in np.linspace(9000.0, 14000.0, 4)),
 }
-
-
-def pump_defaults() -> tuple[FilterSettings, FilterSettings]:
-    """Sage-Husa's and the KF's settings from the training-pump tuning (``peers.tune``, shipped in
-    ``peer_settings.TUNED``; no scenario seed of this controller's plant was seen), rounded to
-    DIGITS significant digits as the controller's defaults are."""
-    from .peer_settings import TUNED
-    from ..predictors.registry import filter_settings
-
-    return rounded(filter_settings(TUNED["sage_husa"])), rounded(filter_settings(TUNED["kf"]))
 
 
 @dataclass

@@ -21,9 +21,12 @@ Every predictor's settings come from ``peer_settings.TUNED``, written once by
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
+import subprocess
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -36,7 +39,7 @@ from plant_models.plant import PAPER_BENCH_CIRCUIT
 from ..calibration.campaign import station_corrections
 from ..predictors.model import MotorModel
 from ..predictors.peers import MovingAveragePredictor, PllPredictor, VbAkfPredictor
-from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor
+from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor, split_counters
 from ..predictors.registry import (
     KINEMATIC_MODEL,
     MA_FIFO_GRID,
@@ -140,12 +143,17 @@ def pump_run(pump: Pump) -> tuple[ScenarioRun, MotorModel]:
 def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
     """The tuning objective over (run, model) pairs: mean commutation angle RMS, each pump's
     predictor rebuilt on its own model (compare's objective takes one model for all runs);
-    ``kinematic``: the model-based filters in their kinematic form (``build``)."""
+    ``kinematic``: the model-based filters in their kinematic form (``build``). Infinite
+    (refused) where a run needed a covariance repair: the controller that ships the KF's and
+    Sage-Husa's settings raises EMCY 0xFF03 on one and REQ-PRED-001 asserts none (the closed-loop
+    tuning's rule, ``controller_tuning.replay_objective``; the same for every predictor)."""
     out = []
     for run, model in runs:
         p = rebuilt(predictor, model, kinematic)
         cur = np.zeros(run.t_corrected_s.size) if kinematic else run.mean_current_a
         r = p.run(run.t_corrected_s, cur)
+        if split_counters(r.guards)["covariance_repairs"]:
+            return math.inf
         out.append(score(run, "", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e)
     value = float(np.mean(out))
     return value if math.isfinite(value) else math.inf
@@ -237,7 +245,7 @@ def _row_json(name: str, rows, cost, settings) -> dict:
 
 
 def _tuned():
-    from .peer_settings import PROVENANCE, TUNED
+    from ..predictors.peer_settings import PROVENANCE, TUNED
 
     return TUNED, PROVENANCE
 
@@ -290,35 +298,71 @@ def compare_pumps(seeds=HELD_OUT_PUMP_SEEDS) -> dict:
             "predictors": preds, "pumps": per_pump}
 
 
+#: the training pump on which CI recomputes the shipped settings' training score (the first one
+#: the tuning saw; its whole profile, about 3000 edges: a second or two once compiled)
+SCORE_PUMP_SEED = TRAIN_PUMP_SEEDS[0]
+
+
+@functools.lru_cache(maxsize=4)
+def _training_pair(pump_seed: int) -> tuple[ScenarioRun, MotorModel]:
+    return pump_run(draw_pump(pump_seed))
+
+
+def training_score(name: str, pump_seed: int = SCORE_PUMP_SEED, kinematic: bool = False) -> float:
+    """The tuning objective (commutation angle RMS against the plant's truth, deg e) of the shipped
+    settings of predictor ``name`` (``kinematic``: its kinematic form) on the training pump
+    ``pump_seed``; ``PROVENANCE["training_score"]`` holds what the tuning measured, so a change in
+    the code under the settings shows as a different figure."""
+    from ..predictors.peer_settings import TUNED
+
+    if pump_seed not in TRAIN_PUMP_SEEDS:
+        raise ValueError(f"pump {pump_seed} is not a training pump ({TRAIN_PUMP_SEEDS[0]}-{TRAIN_PUMP_SEEDS[-1]})")
+    pair = _training_pair(pump_seed)
+    settings = TUNED["kinematic"][name] if kinematic else TUNED[name]
+    return _pair_objective([pair], build(name, settings, pair[1], kinematic=kinematic), kinematic)
+
+
+def _score_key(name: str, kinematic: bool) -> str:
+    return f"{name} (kinematic)" if kinematic else name
+
+
 def tuning_main(argv=None) -> int:
     """Tune every predictor on the training pumps and write ``peer_settings.py`` (run once, by
     tools/predictor_tuning.py)."""
     import argparse
     import pprint
-    from pathlib import Path
 
     ap = argparse.ArgumentParser(description=tuning_main.__doc__.splitlines()[0])
     ap.add_argument("--train-seed", type=int, nargs="+", default=list(TRAIN_PUMP_SEEDS))
-    ap.add_argument("--out", type=Path, default=Path(__file__).with_name("peer_settings.py"))
+    ap.add_argument("--out", type=Path, default=Path(__file__).parents[1] / "predictors" / "peer_settings.py")
     args = ap.parse_args(argv)
     if set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS):
         ap.error(f"training seeds {sorted(set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS))} are held out")
     t0 = time.monotonic()
+    commit = _commit()  # the code that runs, before anything is written
     runs = [pump_run(draw_pump(s)) for s in args.train_seed]
     print(f"{len(runs)} training pumps, {sum(r.t_corrected_s.size for r, _ in runs)} edges, "
           f"{time.monotonic() - t0:.0f} s")
     tuned = tune(runs)
     print("kinematic forms (no current, no motor data), for recordings:")
     tuned["kinematic"] = tune(runs, kinematic=True)
-    training = {name: _pair_objective(runs, build(name, tuned[name], runs[0][1])) for name in NAMES}
-    training.update({f"{name} (kinematic)": _pair_objective(runs, build(name, tuned["kinematic"][name], runs[0][1],
-                                                                          kinematic=True), kinematic=True)
-                     for name in tuned["kinematic"]})
+    forms = [(name, False) for name in NAMES] + [(name, True) for name in tuned["kinematic"]]
+
+    def objective(pairs, name, kinematic):
+        settings = tuned["kinematic"][name] if kinematic else tuned[name]
+        return _pair_objective(pairs, build(name, settings, pairs[0][1], kinematic=kinematic), kinematic)
+
+    training = {_score_key(n, k): objective(runs, n, k) for n, k in forms}
+    one_pump = {_score_key(n, k): objective(runs[:1], n, k) for n, k in forms}
     provenance = {"tool": "tools/predictor_tuning.py", "train_pump_seeds": list(args.train_seed),
                   "pump_range": {k: list(v) if isinstance(v, tuple) else v for k, v in PUMP_RANGE.items()},
-                  "objective": "mean commutation angle RMS (deg e) over the training pumps, ground truth",
+                  "objective": "mean commutation angle RMS (deg e) over the training pumps, ground truth; "
+                               "settings that need a covariance repair on any training pump refused",
                   "budgets": BUDGETS, "training_angle_rms_deg_e": training,
-                  "tuning_wall_time_s": round(time.monotonic() - t0)}
+                  "training_score": {"pump_seed": args.train_seed[0], "angle_rms_deg_e": one_pump,
+                                     "recomputed_by": "hil.experiments.peers.training_score"},
+                  "search": "deterministic: seeded pumps, a fixed grid, Nelder-Mead from fixed simplices",
+                  "commit": commit, "tuning_wall_time_s": round(time.monotonic() - t0)}
     defaults = settings_of(KalmanPredictor(KINEMATIC_MODEL, FilterSettings()))
 
     def compact(d: dict) -> dict:
@@ -338,6 +382,24 @@ def tuning_main(argv=None) -> int:
         print(f"  {name}: {v:.4f} deg e on the training pumps")
     print(f"wrote {args.out} in {time.monotonic() - t0:.0f} s")
     return 0
+
+
+#: what the tuning runs: an uncommitted change here makes the recorded commit "+dirty"
+CODE_DIRS = ("bldc", "plant_models", "hil", "tools")
+
+
+def _commit() -> str | None:
+    """The repository's commit the tuning ran at, if known, with "+dirty" where the code it runs
+    (bldc, plant_models, hil, tools) has uncommitted changes; tests and docs do not count."""
+    root = Path(__file__).resolve().parents[2]
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short=12", "HEAD"], cwd=root, capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", *CODE_DIRS], cwd=root,
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+    return head + ("+dirty" if dirty else "")
 
 
 # --- a recording ---------------------------------------------------------------------------------

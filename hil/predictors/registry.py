@@ -4,7 +4,7 @@ or motor data), the controller strategy that runs it, and the tuning space searc
 
 ``hil predictors compare``, the tuning (``tools/predictor_tuning.py``, ``hil.experiments.peers``)
 and the docs take names, classes and spaces from here; the tuned settings and their provenance
-are written by the tuning into ``hil.experiments.peer_settings`` (``TUNED[name]``,
+are written by the tuning into ``hil.predictors.peer_settings`` (``TUNED[name]``,
 ``TUNED["kinematic"][name]``, ``PROVENANCE``). A new predictor is one entry here, its class, and
 its search in ``hil.experiments.peers.tune``.
 """
@@ -43,6 +43,36 @@ def filter_settings(d: dict) -> FilterSettings:
     """``FilterSettings`` from a settings dict (lists as tuples; unknown keys ignored)."""
     fields = {f.name for f in dataclasses.fields(FilterSettings)}
     return FilterSettings(**{k: tuple(v) if isinstance(v, list) else v for k, v in d.items() if k in fields})
+
+
+#: significant digits the tuned filter values are rounded to before they become the controller's
+#: defaults (and before a closed-loop candidate is evaluated, so what is evaluated is what the
+#: defaults are)
+DIGITS = 2
+
+
+def _round(v: float, digits: int = DIGITS) -> float:
+    return float(f"{v:.{digits}g}")
+
+
+def rounded(s: FilterSettings) -> FilterSettings:
+    """The settings with Q0, R0 and the forgetting factors' distance from 1 to DIGITS digits."""
+    return dataclasses.replace(
+        s,
+        q0_diag=tuple(_round(v) for v in s.q0_diag),
+        r0_diag=tuple(_round(v) for v in s.r0_diag),
+        forgetting_b=1.0 - _round(1.0 - s.forgetting_b),
+        r_forgetting_b=1.0 - _round(1.0 - s.r_forgetting_b),
+    )
+
+
+def pump_defaults() -> tuple[FilterSettings, FilterSettings]:
+    """The controller's Sage-Husa and KF settings: the training-pump tuning shipped in
+    ``peer_settings.TUNED`` (no scenario seed of the controller's plant was seen), rounded to
+    DIGITS significant digits. Read from that file, never copied: a rerun of the tuning moves them."""
+    from .peer_settings import TUNED
+
+    return rounded(filter_settings(TUNED["sage_husa"])), rounded(filter_settings(TUNED["kf"]))
 
 
 def settings_of(predictor) -> dict:
