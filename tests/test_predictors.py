@@ -117,7 +117,10 @@ def _knocked_case(knock: float):
 @pytest.mark.parametrize("knock", [0.01, 0.03, 0.1])
 def test_divergence_guard_brings_a_locked_filter_back_to_the_kf(knock):
     rms, kf_rms = _knocked_case(knock)
-    assert rms[0] > 20 * kf_rms, (rms, kf_rms)  # the failure the guard exists for: locked
+    # the failure the fade exists for: locked. Without the fade only the lost-lock restart acts
+    # (filters.lost_lock: each time the state is a sector off), measured 8.5 / 4.7 / 2.7 deg e
+    # against the KF's 0.43 / 0.45 / 0.62 (above 20x the KF before that restart existed)
+    assert rms[0] > 4 * kf_rms, (rms, kf_rms)
     # measured 0.31 / 0.35 / 0.65 against the KF's 0.43 / 0.45 / 0.62 deg e
     assert rms[FilterSettings().divergence_run] < 1.5 * kf_rms, (rms, kf_rms)
 
@@ -144,7 +147,8 @@ def test_guards_fire_and_are_visible_when_q_starts_100x_too_large():
     sh = SageHusaPredictor(MODEL, FilterSettings(q0_diag=tuple(100 * q for q in NOMINAL_Q)))
     run = sh.run(e.t_conditioned_s, cur)
     assert sum(run.guards.values()) > 0
-    assert set(run.guards) == {"innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence"}
+    assert set(run.guards) == {"innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence",
+                               "lost_lock"}
     for m in (sh.p_matrix, sh.q_matrix, sh.r_matrix):
         assert np.allclose(m, m.T) and np.all(np.linalg.eigvalsh(m) > 0)
 

@@ -14,7 +14,10 @@ Guards (design of the filter: docs/sage-husa.md), each counted in ``guards``:
   GUARD_R_PD        the R estimate was not positive definite: eigenvalues floored (a repair);
   GUARD_P_PD        P lost positive definiteness after the Joseph update: eigenvalues floored;
   GUARD_DIVERGENCE  innovations beyond the gate and of one sign on ``divergence_run``
-                    consecutive cycles: the state, not the edge, is wrong; P is faded by NIS / 2.
+                    consecutive cycles: the state, not the edge, is wrong; P is faded by NIS / 2;
+  GUARD_LOST_LOCK   the state lost count of the sectors (``lost_lock``: speed not positive, or
+                    an angle innovation beyond a sector): it is restarted from the last interval.
+                    This check does not depend on the gate, which a tuned KF may have off.
 """
 
 from __future__ import annotations
@@ -94,8 +97,8 @@ ST = _layout("StateLayout", STATE_TABLE)
 FP = _layout("ParamLayout", PARAM_TABLE)
 N_STATE, N_FPARAMS = ST.SIZE, FP.SIZE
 
-GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD, GUARD_DIVERGENCE = range(6)
-N_GUARDS = 6
+GUARD_GATE, GUARD_Q_PD, GUARD_Q_BAND, GUARD_R_PD, GUARD_P_PD, GUARD_DIVERGENCE, GUARD_LOST_LOCK = range(7)
+N_GUARDS = 7
 #: which Eq. 12 estimates adapt (FP.ADAPTIVE holds the mask; 0 = plain Kalman filter)
 ADAPT_Q, ADAPT_R, ADAPT_SMALL_R, ADAPT_SMALL_Q = 1, 2, 4, 8
 ADAPT_ALL = 15
@@ -742,6 +745,39 @@ def coefficients(w_e, fp, tables):
             pp * np.interp(n_rpm, tables[0], tables[2]) * w_m * w_m / fp[FP.J])
 
 
+@njit(cache=True, inline="always")
+def lost_lock(w, innov_theta):
+    """True when the state no longer follows the edges: a speed that is not positive (within a
+    run of rotor steps the rotor turns one way: the edge decoder splits runs at reversals and
+    stalls), or an angle innovation beyond one sector. Each edge is the next 60 deg e boundary,
+    so a state whose predicted angle at the edge is off by more than a sector has lost count of
+    the sectors; no update from there recovers what the edge sequence states. A kinematic filter
+    that extrapolates a strong deceleration over a long low-speed cycle reaches a negative
+    speed, and its Eq. 7 prediction is then a time without end (4e10 deg e RMS on a hoverboard
+    capture); a filter whose R absorbed its own lag (VB-AKF) predicts a sector early on every
+    edge. Neither is fixed by a fade of P: the state is restarted (``restart``)."""
+    return not (w > 0.0 and abs(innov_theta) <= math.pi / 3.0)
+
+
+@njit(cache=True)
+def restart(s, dt, current):
+    """The state restarted from the interval that just ended, as at the first edge: speed
+    (pi / 3) / dt, angle 0 at this edge, the current measured; P the covariance of that
+    two-point estimate under the edge noise in use (var(w) = 2 R / dt^2, cov(w, theta) = R / dt,
+    var(theta) = R; ``_rebase_p``'s), the third state keeping its variance and decorrelated. The
+    noise statistics (Q, R, r, q) are kept: they describe the sensor and the plant, not the
+    lost state."""
+    s[ST.X] = (math.pi / 3.0) / dt
+    s[ST.X + 1] = 0.0
+    s[ST.X + 2] = current
+    r = s[ST.R]
+    if r > 0.0:
+        s[ST.P], s[ST.P + 1], s[ST.P + 3], s[ST.P + 4] = 2.0 * r / (dt * dt), r / dt, r / dt, r
+        for i in (2, 5, 6, 7):
+            s[ST.P + i] = 0.0
+    s[ST.GATED_RUN] = 0.0
+
+
 @njit(cache=True)
 def edge(s, fp, guards, dt, current, tables, wk):
     """One corrected edge that ended a cycle of ``dt`` seconds with mean |i| ``current``: the
@@ -756,6 +792,9 @@ def edge(s, fp, guards, dt, current, tables, wk):
     else:
         # the coefficients at the previous estimate: computed for the last prediction already
         step(s, fp, guards, math.pi / 3.0, current, dt, s[ST.COEF], s[ST.COEF + 1], wk)
+        if lost_lock(s[ST.X], math.pi / 3.0 - wk[25]):
+            restart(s, dt, current)
+            guards[GUARD_LOST_LOCK] += 1
     a, dl = coefficients(s[ST.X], fp, tables)
     s[ST.COEF] = a
     s[ST.COEF + 1] = dl

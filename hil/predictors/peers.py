@@ -277,10 +277,18 @@ def _vb_akf(t, cur, fp, tables, q0, r0, p0, tau, rho, n_iter, m, pred, w_out, gu
                 for j in range(m):
                     U[i, j] = U_i[i, j]
             x[1] -= SECTOR_RAD                       # re-reference: this edge is the new zero
-            if not (np.all(np.isfinite(x)) and x[0] > 0.0):
-                guards[0] += 1                          # lost: restart from the last interval
+            if not np.all(np.isfinite(x)) or F.lost_lock(x[0], innov[0]):
+                # lost (filters.lost_lock): restart from the last interval, R from its prior: the
+                # residuals that raised R were the lost state's error, not the edges' noise (Step 6
+                # adds them to B, R grew, the gain on the edges fell and the state ran a sector
+                # ahead: 40-60 deg e RMS on every real capture before this restart)
+                guards[0] += 1
                 x[0], x[1], x[2] = SECTOR_RAD / dt, 0.0, cur[k]
                 P[:, :] = p0
+                u = tau + m + 1.0
+                for i in range(m):
+                    for j in range(m):
+                        U[i, j] = (u - m - 1.0) * r0[i, j]
         a, dl = F.coefficients(x[0], fp, tables)
         st[F.ST.X], st[F.ST.X + 1], st[F.ST.X + 2] = x[0], x[1], x[2]
         pred[k] = t[k] + F.predict_next_s(st, a, dl)

@@ -116,7 +116,7 @@ class FilterSettings:
         return fp
 
 
-GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence")
+GUARD_NAMES = ("innovation_gate", "q_not_pd", "q_band", "r_not_pd", "p_not_pd", "divergence", "lost_lock")
 
 
 def split_counters(guards: dict[str, int]) -> dict[str, int]:
