@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bldc.units import rpm_to_deg_e_per_s
-from hil.experiments.peer_settings import TUNED
+from hil.predictors.peer_settings import TUNED
 from hil.predictors.registry import KINEMATIC_MODEL, MODEL_BASED, NAMES, build
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges
