@@ -108,7 +108,9 @@ _last_wall_s = 0.0
 def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subprocess.CompletedProcess:
     """``python -m hil ARGS`` from the repository root, recorded in the run's commands."""
     cmd = [sys.executable, "-m", "hil", *args]
-    shown = "python -m hil " + " ".join(shlex.quote(str(a)).replace(str(work), "$WORK") for a in args)
+    shown = "python -m hil " + " ".join(
+        shlex.quote(str(a)).replace(str(work), "$WORK").replace(str(ROOT) + "/", "") for a in args
+    )
     run.commands.append(shown)
     global _last_wall_s
     t0 = time.perf_counter()
