@@ -26,8 +26,12 @@ def _figures_module():
 figures = _figures_module()
 
 
+#: the groups tools/figures.py is computing while this suite runs inside its measurement
+COMPUTING = frozenset(filter(None, os.environ.get("HIL_FIGURES_RUNNING", "").split(",")))
+
+
 def test_every_published_figure_agrees_with_the_figures_file():
-    assert figures.disagreements(figures.load()) == []
+    assert figures.disagreements(figures.load(), COMPUTING) == []
 
 
 def test_the_docs_mark_the_figures_they_publish():
@@ -74,7 +78,7 @@ def test_every_figure_states_its_provenance():
         assert prov["commands"] and prov["date"] and prov["duration_s"] >= 0, name
 
 
-@pytest.mark.skipif(os.environ.get("HIL_FIGURES_RUNNING") == "1", reason="tools/figures.py is running this suite")
+@pytest.mark.skipif(bool(COMPUTING), reason="tools/figures.py is running this suite (it recomputes the figures itself)")
 def test_the_quick_figures_reproduce_at_head():
     """The CI subset: recompute every quick group (the demo, the spindle's calibration and its
     predictors, the shipped tuned settings' training score) and hold each figure to its tolerance."""
