@@ -20,7 +20,7 @@ from plant_models import PlantConfig
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
 from ..experiments import peers
-from .capture import UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
+from .capture import PARTLY_HELD, UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
 from .replay import twin_recording
 
 #: the judged band of the twin/real commutation-error ratio
@@ -114,6 +114,9 @@ def _beyond_table_figure(an: CaptureAnalysis, name: str) -> float:
     sensor and pole, or of its edge noise's angle jitter."""
     if name == "sensor_pole_offset":
         return float(an.extra.get("sensor_pole_offset", {}).get("rms_deg_e", 0.0))
+    if name == "switching_asymmetry":  # its per-sensor part: what the common part leaves
+        a = np.array([an.asymmetry_deg_e[s][0] for s in SENSORS])
+        return float(np.sqrt(np.mean((a - a.mean()) ** 2)))
     return float(an.noise.angle_rms_deg_e)
 
 
@@ -126,7 +129,8 @@ def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_the
     for name in left_out:
         r, t, w = (_beyond_table_figure(a, name) for a in (real, twin, with_them))
         closed = r > 0 and RATIO_BAND[0] <= w / r <= RATIO_BAND[1]
-        out.append({"what": f"left out of the twin: {name}",
+        out.append({"what": f"left out of the twin: {name}" + (f" beyond {PARTLY_HELD[name]}" if name in PARTLY_HELD
+                                                                 else ""),
                     "effect": f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): "
                               f"measured, but no calibration table holds it, so the twin's plant leaves it out "
                               f"(`hil plant from-capture {UNCALIBRATABLE[name]}` keeps it)",
@@ -244,7 +248,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
     # what the capture shows and no calibration table holds, left out of the twin's plant: named as
     # differences, and the twin run with them added says which other differences they explain
     beyond = uncalibratable_effects(real, config.motor.pole_pairs)
-    left_out = [n for n in beyond if config.effect(n) is None and _beyond_table_figure(real, n) > 0]
+    left_out = [n for n in beyond if config.effect(n) != beyond[n] and _beyond_table_figure(real, n) > 0]
     if left_out:
         log(f"adding what the twin leaves out ({', '.join(left_out)}) to the twin")
         ripple_on = main is not bare

@@ -63,6 +63,9 @@ def add_plant_parser(plant_sub) -> None:
     # asymmetry, delays); these add what the capture shows and no table holds (docs/twin.md)
     q.add_argument("--with-sensor-pole-pattern", action="store_true",
                    help="add the residual pattern per sensor and pole (sensor_pole_offset) the capture shows")
+    q.add_argument("--with-sensor-asymmetry", action="store_true",
+                   help="add each sensor's own rise-minus-fall angle (switching_asymmetry); by default the plant "
+                   "holds the part common to the three sensors")
     q.add_argument("--with-edge-noise", action="store_true",
                    help="add the capture's edge noise (edge_jitter: white time jitter, AR(1) angle jitter)")
     q.set_defaults(func=cmd_plant_from_capture)
