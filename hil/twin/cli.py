@@ -80,7 +80,10 @@ def add_parser(sub) -> None:
     q.add_argument("--json", required=True, help="write the comparison here")
     q.add_argument("--html", help="and as a page with the figures")
     q.add_argument("--seed", type=int, default=0, help="the twin's noise seed (default 0)")
-    q.add_argument("--take-on", action="append", choices=["sector_locked_speed_ripple", "none"],
+    q.add_argument("--take-on", action="append",
+                   choices=["sector_locked_speed_ripple", "sensor_pole_offset", "switching_asymmetry", "edge_jitter",
+                            "none"],
                    help="run the twin with this addition (repeatable; 'none' for the twin as written); default: "
-                   "what the capture's own calibration modelled (its sector-locked ripple)")
+                   "what the capture's own calibration modelled (its sector-locked ripple) and what the plant "
+                   "leaves out because no calibration table holds it (the motor as measured)")
     q.set_defaults(func=cmd_twin_check)
