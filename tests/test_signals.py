@@ -949,3 +949,26 @@ def test_free_running_carrier_commutations_are_exact_or_at_the_off_time_midpoint
         else:
             assert tc[i - 1] == pytest.approx(t_on, abs=1e-12)
     assert got.located_in_off_time == located
+
+
+@pytest.mark.parametrize("first_pair_done", [True, False])
+def test_a_commutation_the_start_already_made_is_not_missed(first_pair_done):
+    """The first pair the gates show is the controller's start, not a commutation. When the start is
+    1.5 us before an ideal commutation and already energises the pair it asks for (the twin of the
+    spindle's loopback: its Hall edges lead), that commutation is done, not missed; a start on the
+    previous pair that never commutates misses it."""
+    from hil.signals.commutations import Extracted
+    from hil.signals.score import Truth, score_extracted
+
+    n = np.arange(1, 21)
+    t_ideal = 1e-3 * n  # one sector per ms: 60,000 deg e per s, 5000 rpm at 2 pole pairs
+    truth = Truth(n=n, t_ideal_s=t_ideal, sector=n % 6, speed_rpm=np.full(n.size, 5000.0), pole_pairs=2,
+                  sample_rate_hz=1e6, meta={})
+    start = t_ideal[0] - 1.5e-6
+    first = truth.sector[0] if first_pair_done else (truth.sector[0] - 1) % 6
+    t_s = np.concatenate(([start], t_ideal[1:]))
+    sector = np.concatenate(([first], truth.sector[1:]))
+    ex = Extracted(t_s=t_s, sector=sector, initial=np.arange(t_s.size) == 0, start_s=0.0, end_s=25e-3)
+    got = score_extracted(truth, ex)
+    assert got.missed == (0 if first_pair_done else 1), got.missed_t_s
+    assert got.extra == 0 and got.commutations == n.size - 1

@@ -9,7 +9,8 @@ commutation.
 
 A commutation that matches no ideal one, or one already matched, is ``extra``; an ideal
 commutation inside the scored span that none matches is ``missed``. The scored span runs from
-the first energised pair the gates show (the controller's start, not itself a commutation) to
+the first energised pair the gates show (the controller's start, not itself a commutation; an
+ideal commutation into that pair up to half a sector later was done early at the start) to
 the end of the capture less the hold-off and half a sector (a commutation there could not be
 confirmed).
 """
@@ -247,7 +248,16 @@ def score_extracted(truth: Truth, ex: Extracted, hold_off_s: float = DEFAULT_HOL
     # expected: ideal commutations after the start whose commutation, up to half a sector late,
     # still has a whole hold-off window inside the capture
     half_sector_s = 30.0 / np.maximum(truth.omega_e_deg_s, 1e-9)
-    expected = np.nonzero((truth.t_ideal_s > start) & (truth.t_ideal_s + half_sector_s <= end))[0]
+    expected = (truth.t_ideal_s > start) & (truth.t_ideal_s + half_sector_s <= end)
+    # the first pair the gates show is the start, not a commutation; when it is already the pair an
+    # ideal commutation up to half a sector later asks for, the controller entered that sector
+    # early at its start: that commutation is done, not missed
+    if ex.initial.any():
+        first_sector = int(ex.sector[ex.initial][0])
+        first_sector = first_sector if sector_map is None else int(sector_map[first_sector])
+        entered = (truth.sector == first_sector) & (truth.t_ideal_s <= start + half_sector_s)
+        expected &= ~(entered & (np.cumsum(expected) == 1))
+    expected = np.nonzero(expected)[0]
     missed_rows = np.setdiff1d(expected, rows)
     res = truth.sample_rate_hz
     bound = 0.5 / res + (ex.resolution_s or 0.0)

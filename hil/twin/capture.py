@@ -317,6 +317,8 @@ class Twin:
     assumed: list[tuple[str, str]]  #: (what, from the base and why)
     notes: list[str]
     analysis: CaptureAnalysis
+    #: measured effects no calibration table holds, left out of the plant (UNCALIBRATABLE)
+    left_out: list[fx.Effect] = field(default_factory=list)
 
 
 def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
@@ -325,14 +327,73 @@ def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
     return min(max(v, lo), hi)
 
 
-#: the effects a controller's calibration table can hold (``--table-only``)
+#: the effects a controller's calibration table can hold: a twin's default plant
 TABLE_EFFECTS = ("installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay")
+#: what a capture shows that no calibration table holds, each with the option that adds it to the
+#: plant (docs/twin.md, "Why the default twin is what a table holds")
+UNCALIBRATABLE = {"sensor_pole_offset": "--with-sensor-pole-pattern", "switching_asymmetry": "--with-sensor-asymmetry",
+                  "edge_jitter": "--with-edge-noise"}
+#: ... of which the default plant holds a part: the switching asymmetry common to the three sensors
+#: (the pole table's two polarities hold it; the per-sensor rest no table of the built-in controller
+#: holds: installation per sensor, offset per pole, delay per polarity)
+PARTLY_HELD = {"switching_asymmetry": "the part common to the three sensors"}
+
+
+def common_switching_asymmetry(an: CaptureAnalysis) -> fx.SwitchingAsymmetry:
+    """The rise-minus-fall angle common to the three sensors, what a calibration table holds of it."""
+    mean = float(np.mean([an.asymmetry_deg_e[s][0] for s in SENSORS]))
+    return fx.SwitchingAsymmetry(rise_minus_fall_deg_e=(mean, mean, mean))
+
+
+def uncalibratable_effects(an: CaptureAnalysis, pole_pairs: int,
+                           notes: list[str] | None = None) -> dict[str, fx.Effect]:
+    """The capture's deviations no calibration table holds (UNCALIBRATABLE), as effects: its
+    residual pattern per sensor and pole (where it stands out) and its edge noise."""
+    notes = [] if notes is None else notes
+    out: dict[str, fx.Effect] = {}
+    pattern = an.extra.get("sensor_pole_offset", {})
+    if pattern.get("kept") and len(pattern["table_deg_e"]) == 6 * pole_pairs:
+        lim = fx.SensorPoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        out["sensor_pole_offset"] = fx.SensorPoleOffset(offset_deg_e=tuple(
+            _clip(v, -lim, lim, f"sensor_pole_offset_deg_e[{j}]", notes) for j, v in enumerate(pattern["table_deg_e"])))
+    out["switching_asymmetry"] = fx.SwitchingAsymmetry(
+        rise_minus_fall_deg_e=tuple(an.asymmetry_deg_e[s][0] for s in SENSORS))
+    nm = an.noise
+    lim_t = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]
+    lim_a = fx.EdgeJitter.__dataclass_fields__["angle_rms_deg_e"].metadata["high"]
+    out["edge_jitter"] = fx.EdgeJitter(
+        time_rms_s=_clip(nm.time_rms_s, 0.0, lim_t, "edge_jitter.time_rms_s", notes),
+        angle_rms_deg_e=_clip(nm.angle_rms_deg_e, 0.0, lim_a, "edge_jitter.angle_rms_deg_e", notes),
+        correlation=nm.correlation)
+    return out
+
+
+def suite_speed_notes(pole_pairs: int, delay_s: float, capture_top_hz_e: float) -> list[str]:
+    """What the acceptance suite's speeds (the paper pump's, up to the calibration campaign's top)
+    are on this twin: its electrical speed there against the capture's top, and the delay there
+    against half a sector (beyond it an edge is captured after the middle of the next sector)."""
+    from ..calibration.campaign import CalibrationCampaign
+
+    top_rpm = max(CalibrationCampaign().no_load_sweep_rpm)
+    top_hz_e = top_rpm / 60.0 * pole_pairs
+    half_sector_s = 0.5 / (6.0 * top_hz_e)
+    if top_hz_e <= 1.5 * capture_top_hz_e and abs(delay_s) <= half_sector_s:
+        return []
+    return [f"the acceptance suite runs at the paper pump's speeds, up to {top_rpm:.0f} rpm: {top_hz_e:.0f} Hz "
+            f"electrical on {pole_pairs} pole pairs, {top_hz_e / capture_top_hz_e:.1f} times the capture's top, where "
+            f"the {abs(delay_s) * 1e6:.0f} us delay is {abs(delay_s) / (2 * half_sector_s):.2f} of a sector "
+            f"(half a sector is the physical limit): the suite cannot judge this twin at its speeds (docs/twin.md)"]
 
 
 def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
-                      capture_tick_in_plant: bool = False, table_only: bool = False) -> Twin:
-    """The twin plant: the capture's calibration as effects, the rest from ``base``. ``table_only``:
-    only the deviations a calibration table can hold (no residual pattern, no edge noise)."""
+                      capture_tick_in_plant: bool = False, with_: tuple[str, ...] = ()) -> Twin:
+    """The twin plant: the capture's calibration as effects, the rest from ``base``. By default
+    only the deviations a calibration table can hold (TABLE_EFFECTS); ``with_`` names the measured
+    deviations no table holds (UNCALIBRATABLE) that the plant carries too. Each one left out is
+    listed in ``Twin.left_out`` (and in the TOML), and ``hil twin check`` names it as a difference."""
+    unknown = set(with_) - set(UNCALIBRATABLE)
+    if unknown:
+        raise ValueError(f"unknown addition(s) {', '.join(sorted(unknown))} (known: {', '.join(UNCALIBRATABLE)})")
     cal = an.calibration
     measured, assumed, notes = [], [], []
     p = an.pole_pairs or base.motor.pole_pairs
@@ -362,18 +423,17 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     else:
         notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
     pattern = an.extra.get("sensor_pole_offset", {})
-    if pattern.get("kept") and len(pattern["table_deg_e"]) == 6 * p:
-        lim = fx.SensorPoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
-        table = tuple(_clip(v, -lim, lim, f"sensor_pole_offset_deg_e[{j}]", notes)
-                      for j, v in enumerate(pattern["table_deg_e"]))
-        effects.append(fx.SensorPoleOffset(offset_deg_e=table))
+    beyond_table = uncalibratable_effects(an, p, notes)
+    if "sensor_pole_offset" in beyond_table:
+        effects.append(beyond_table["sensor_pole_offset"])
         measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
                          f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
                          f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
     asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
-    effects.append(fx.SwitchingAsymmetry(rise_minus_fall_deg_e=tuple(asym[s] for s in SENSORS)))
+    effects.append(beyond_table["switching_asymmetry"])
     measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
-                     ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + " deg e"))
+                     ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
+                     f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
     d = cal["rise_fall_delay_difference_s"]
     d_value = d["value"] if d.get("value") is not None else 0.0
     if d.get("value") is None:
@@ -386,12 +446,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({base_name}): a lag of "
                     "every edge is a time shift of the trajectory, invisible without an encoder"))
     nm = an.noise
-    lim_t = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]
-    lim_a = fx.EdgeJitter.__dataclass_fields__["angle_rms_deg_e"].metadata["high"]
-    effects.append(fx.EdgeJitter(time_rms_s=_clip(nm.time_rms_s, 0.0, lim_t, "edge_jitter.time_rms_s", notes),
-                                 angle_rms_deg_e=_clip(nm.angle_rms_deg_e, 0.0, lim_a, "edge_jitter.angle_rms_deg_e",
-                                                       notes),
-                                 correlation=nm.correlation))
+    effects.append(beyond_table["edge_jitter"])
     measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
                      f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
                      "the timer's quantisation)"))
@@ -428,15 +483,19 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     speeds = cal["assumptions"]["speed_range_hz_e"]
     notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
                  "extrapolates (a delay grows with speed, the jitter model holds)")
-    if table_only:
-        left = [e.name for e in effects if e.layer in ("sensor", "timing") and e.name not in TABLE_EFFECTS]
-        effects = [e for e in effects if e.layer not in ("sensor", "timing") or e.name in TABLE_EFFECTS]
-        notes.append(f"--table-only: left out {', '.join(left) or 'nothing'} (what no calibration table holds: "
-                     "the twin judges the calibration of the motor's real deviations, not its noise floor)")
+    notes += suite_speed_notes(int(p), d_value, speeds[1])
+    left_out = [(e, UNCALIBRATABLE[e.name]) for e in effects if e.name in UNCALIBRATABLE and e.name not in with_]
+    held = {"switching_asymmetry": common_switching_asymmetry(an)}
+    effects = [e if e.name not in UNCALIBRATABLE or e.name in with_ else held[e.name]
+               for e in effects if e.name not in UNCALIBRATABLE or e.name in with_ or e.name in held]
+    for e, option in left_out:
+        what = f"{e.name} beyond {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else e.name
+        notes.append(f"measured but NOT in this plant: {what} (no calibration table holds it; `{option}` "
+                     "adds it, and `hil twin check` names it as a difference the twin lacks)")
     name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
     config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
                          effects=tuple(effects), name=name)
-    return Twin(config, measured, assumed, notes, an)
+    return Twin(config, measured, assumed, notes, an, left_out=[e for e, _ in left_out])
 
 
 # --- TOML ------------------------------------------------------------------------------------
@@ -462,6 +521,11 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     lines += [f"#   {what}: {how}" for what, how in twin.measured]
     lines += ["#", "# ASSUMED (from the base; a capture of Hall times alone cannot tell them):"]
     lines += [f"#   {what}: {how}" for what, how in twin.assumed]
+    if twin.left_out:
+        lines += ["#", "# MEASURED BUT LEFT OUT (no calibration table holds them; the option adds them):"]
+        lines += [f"#   {e.name} ({UNCALIBRATABLE[e.name]})"
+                  + (f", the plant holds {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else "")
+                  + f": {e.to_dict()}" for e in twin.left_out]
     if twin.notes:
         lines += ["#", "# NOTES:"] + [f"#   {n}" for n in twin.notes]
     lines += ["", f"name = {_toml_value(c.name)}", "", "[motor]"]
@@ -483,12 +547,12 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
 
 
 def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None,
-                 capture_tick_in_plant: bool = False, table_only: bool = False) -> tuple[Twin, str]:
+                 capture_tick_in_plant: bool = False, with_: tuple[str, ...] = ()) -> tuple[Twin, str]:
     """The twin of a capture and its TOML text."""
     rec = load_capture(recording, pole_pairs)
     base_name = base or DEFAULT_BASE
     base_config = load_base(base)
     twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name,
-                             capture_tick_in_plant, table_only)
+                             capture_tick_in_plant, with_)
     text = twin_toml(twin, Path(str(recording)).name, base_name)
     return twin, text

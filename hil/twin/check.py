@@ -20,7 +20,7 @@ from plant_models import PlantConfig
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
 from ..experiments import peers
-from .capture import CaptureAnalysis, analyse, load_capture
+from .capture import PARTLY_HELD, UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
 from .replay import twin_recording
 
 #: the judged band of the twin/real commutation-error ratio
@@ -109,6 +109,35 @@ def _analyse_twin(config: PlantConfig, real: CaptureAnalysis, seed: int, ripple:
     return an, predictor_rows(rec, name)
 
 
+def _beyond_table_figure(an: CaptureAnalysis, name: str) -> float:
+    """What a capture shows of an effect no table holds: the RMS (deg e) of its residual pattern per
+    sensor and pole, or of its edge noise's angle jitter."""
+    if name == "sensor_pole_offset":
+        return float(an.extra.get("sensor_pole_offset", {}).get("rms_deg_e", 0.0))
+    if name == "switching_asymmetry":  # its per-sensor part: what the common part leaves
+        a = np.array([an.asymmetry_deg_e[s][0] for s in SENSORS])
+        return float(np.sqrt(np.mean((a - a.mean()) ** 2)))
+    return float(an.noise.angle_rms_deg_e)
+
+
+def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_them: CaptureAnalysis,
+                          left_out: list[str]) -> list[dict]:
+    """Each measured effect the twin leaves out (no table holds it) is a difference the twin lacks;
+    adding it explains it when the twin's capture then shows it as the real one does (RMS ratio in
+    RATIO_BAND)."""
+    out = []
+    for name in left_out:
+        r, t, w = (_beyond_table_figure(a, name) for a in (real, twin, with_them))
+        closed = r > 0 and RATIO_BAND[0] <= w / r <= RATIO_BAND[1]
+        out.append({"what": f"left out of the twin: {name}" + (f" beyond {PARTLY_HELD[name]}" if name in PARTLY_HELD
+                                                                 else ""),
+                    "effect": f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): "
+                              f"measured, but no calibration table holds it, so the twin's plant leaves it out "
+                              f"(`hil plant from-capture {UNCALIBRATABLE[name]}` keeps it)",
+                    "explained_by_adding": closed, **({"added": name} if closed else {})})
+    return out
+
+
 def _figure_differences(real: dict, twin: dict) -> dict[str, dict]:
     out = {}
     for k, r in real.items():
@@ -174,15 +203,18 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
     is compared too, and its differences say which addition closes them."""
     config = PlantConfig.from_toml(plant)
     for c in take_on or ():
-        if c not in CANDIDATES:
-            raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join(CANDIDATES)})")
+        if c not in CANDIDATES and c not in UNCALIBRATABLE:
+            raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join([*CANDIDATES, *UNCALIBRATABLE])})")
     rec = load_capture(recording, config.motor.pole_pairs)
     log(f"{recording}: calibrating the capture ({len(rec)} edges)")
     real = analyse(rec, config.motor.pole_pairs, source=str(recording))
     if real.pole_pairs is not None and real.pole_pairs != config.motor.pole_pairs:
         raise ValueError(f"{plant}: motor.pole_pairs {config.motor.pole_pairs}, the capture's {real.pole_pairs}")
-    if take_on is None:
-        take_on = ("sector_locked_speed_ripple",) if real.ripple else ()
+    # what the capture shows and no calibration table holds, left out of the twin's plant (docs/twin.md)
+    beyond = uncalibratable_effects(real, config.motor.pole_pairs)
+    left_out = [n for n in beyond if config.effect(n) != beyond[n] and _beyond_table_figure(real, n) > 0]
+    if take_on is None:  # the capture's own ripple and what the plant leaves out: the motor as measured
+        take_on = (("sector_locked_speed_ripple",) if real.ripple else ()) + tuple(left_out)
     real_rows = predictor_rows(rec, str(recording))
     real_fig = calibration_figures(real)
     lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
@@ -190,7 +222,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
     log("running the twin along the capture's trajectory")
     plain, plain_rows = _analyse_twin(config, real, seed, False, f"twin of {recording}")
     bare = _compare(real, real_fig, real_rows, plain, plain_rows, bins)
-    main = bare
+    main, main_an = bare, plain
     variants = {}
     ripple_possible = real.ripple and ripple_pattern_available(real)
     if ripple_possible and ("sector_locked_speed_ripple" in take_on or bare["differences"]):
@@ -203,7 +235,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
             if d["explained_by_adding"]:
                 d["added"] = "sector_locked_speed_ripple"
         if "sector_locked_speed_ripple" in take_on:
-            main = with_ripple
+            main, main_an = with_ripple, tw2
             variants["without_additions"] = {"predictors": bare["predictors"], "calibration": bare["calibration"],
                                              "differences": bare["differences"]}
         else:
@@ -216,11 +248,45 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
             d["explained_by_adding"] = False
     for d in main["differences"]:
         d.setdefault("explained_by_adding", False)
+    # what the plant leaves out: named as differences of the plant as written; the twin run with them
+    # added says which other differences they explain, and is the headline when taken on
+    written = main
+    added = [n for n in left_out if n in take_on]
+    adding = added or left_out  # what --take-on asked for, else (for the comparison) all of it
+    if left_out:
+        log(f"adding what the twin leaves out ({', '.join(adding)}) to the twin")
+        ripple_on = main is not bare
+        tw3, rows3 = _analyse_twin(config.with_effects(*(beyond[n] for n in adding)), real, seed, ripple_on,
+                                   f"twin of {recording} with {', '.join(adding)}")
+        with_left = _compare(real, real_fig, real_rows, tw3, rows3, bins)
+        remaining = {d["what"] for d in with_left["differences"]}
+        for d in written["differences"]:
+            if not d["explained_by_adding"] and d["what"] not in remaining:
+                d["explained_by_adding"], d["added"] = True, ", ".join(adding)
+        lacking = _left_out_differences(real, main_an, tw3, left_out)
+        written["differences"] += lacking
+        as_written = {"what": "the plant as written (what `hil acceptance --plant` runs), without "
+                      + ", ".join(left_out), "predictors": written["predictors"],
+                      "calibration": written["calibration"], "differences": written["differences"]}
+        if added:
+            for d in with_left["differences"]:
+                d.setdefault("explained_by_adding", False)
+            main = {**with_left, "differences": with_left["differences"] + [d for d in lacking
+                                                                           if d["explained_by_adding"]]}
+            variants["as_written"] = as_written
+        else:
+            variants["measured_but_left_out"] = {
+                "what": "the twin with what the capture shows and no calibration table holds: " + ", ".join(adding),
+                "predictors": with_left["predictors"], "calibration": with_left["calibration"],
+                "differences": with_left["differences"],
+                "take_on": f"hil twin check {recording} {plant}" + "".join(f" --take-on {n}" for n in left_out)}
     return {
         "recording": str(recording),
         "twin": str(plant),
         "seed": seed,
-        "taken_on": list(take_on) if ripple_possible else [],
+        "taken_on": (["sector_locked_speed_ripple"] if ripple_possible and "sector_locked_speed_ripple" in take_on
+                     else []) + added,
+        "left_out": left_out,
         "replay": "kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
                   "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
                   f"tick {(real.tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)",

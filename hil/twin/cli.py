@@ -10,10 +10,11 @@ from pathlib import Path
 def cmd_plant_from_capture(args) -> int:
     from plant_models import PlantConfig
 
-    from .capture import from_capture
+    from .capture import UNCALIBRATABLE, from_capture
 
-    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant,
-                              args.table_only)
+    with_ = tuple(name for name, option in UNCALIBRATABLE.items()
+                  if getattr(args, "with_" + option.removeprefix("--with-").replace("-", "_")))
+    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant, with_)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(text)
     PlantConfig.from_toml(args.out)  # what `hil plant check` reads: the file must load as written
@@ -24,6 +25,9 @@ def cmd_plant_from_capture(args) -> int:
     print(f"  assumed (from the base {args.base or 'paper-bench'}):")
     for what, how in twin.assumed:
         print(f"    {what}: {how}")
+    print("  measured but left out (no calibration table holds them):"
+          + "".join(f"\n    {e.name} ({UNCALIBRATABLE[e.name]} adds it)" for e in twin.left_out) if twin.left_out
+          else "  left out: nothing")
     for note in twin.notes:
         print(f"  note: {note}", file=sys.stderr)
     return 0
@@ -55,9 +59,15 @@ def add_plant_parser(plant_sub) -> None:
     q.add_argument("--capture-tick-in-plant", action="store_true",
                    help="keep the capture's sampling tick as the plant's timer quantisation (for a controller "
                    "that samples its Hall lines that coarsely); by default only `hil twin check` applies it")
-    q.add_argument("--table-only", action="store_true",
-                   help="only the deviations a calibration table holds (installation, pole, switching asymmetry, "
-                   "delays): no residual pattern, no edge noise")
+    # by default the plant holds what a calibration table can hold (installation, pole, switching
+    # asymmetry, delays); these add what the capture shows and no table holds (docs/twin.md)
+    q.add_argument("--with-sensor-pole-pattern", action="store_true",
+                   help="add the residual pattern per sensor and pole (sensor_pole_offset) the capture shows")
+    q.add_argument("--with-sensor-asymmetry", action="store_true",
+                   help="add each sensor's own rise-minus-fall angle (switching_asymmetry); by default the plant "
+                   "holds the part common to the three sensors")
+    q.add_argument("--with-edge-noise", action="store_true",
+                   help="add the capture's edge noise (edge_jitter: white time jitter, AR(1) angle jitter)")
     q.set_defaults(func=cmd_plant_from_capture)
 
 
@@ -70,7 +80,10 @@ def add_parser(sub) -> None:
     q.add_argument("--json", required=True, help="write the comparison here")
     q.add_argument("--html", help="and as a page with the figures")
     q.add_argument("--seed", type=int, default=0, help="the twin's noise seed (default 0)")
-    q.add_argument("--take-on", action="append", choices=["sector_locked_speed_ripple", "none"],
+    q.add_argument("--take-on", action="append",
+                   choices=["sector_locked_speed_ripple", "sensor_pole_offset", "switching_asymmetry", "edge_jitter",
+                            "none"],
                    help="run the twin with this addition (repeatable; 'none' for the twin as written); default: "
-                   "what the capture's own calibration modelled (its sector-locked ripple)")
+                   "what the capture's own calibration modelled (its sector-locked ripple) and what the plant "
+                   "leaves out because no calibration table holds it (the motor as measured)")
     q.set_defaults(func=cmd_twin_check)
