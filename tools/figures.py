@@ -363,13 +363,18 @@ GROUPS: list[Group] = [
 # ---------------------------------------------------------------- the file and the docs
 
 
-def _provenance(group: Group, run: Run, duration_s: float) -> dict:
+def _commit() -> str:
+    """HEAD, marked when tracked files differ from it."""
     commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
     dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
                                 capture_output=True, text=True).stdout.strip())
+    return commit + ("+uncommitted" if dirty else "")
+
+
+def _provenance(group: Group, run: Run, duration_s: float, commit: str) -> dict:
     return {
         "what": group.what,
-        "commit": commit + ("+uncommitted" if dirty else ""),
+        "commit": commit,
         "commands": run.commands,
         "seeds": run.seeds,
         "duration_s": round(duration_s, 1),
@@ -387,10 +392,11 @@ def compute(groups: list[Group]) -> dict[str, dict]:
         for g in groups:
             print(f"figures: {g.name}: {g.what} ...", flush=True)
             t0 = time.perf_counter()
+            commit = _commit()  # before the run: a run may write files of its own (the suite's screenshots)
             run = g.produce(work)
             dt = time.perf_counter() - t0
             out[g.name] = {
-                "provenance": _provenance(g, run, dt),
+                "provenance": _provenance(g, run, dt, commit),
                 "figures": {k: f.to_json() for k, f in run.figures.items()},
                 "tables": run.tables,
                 "blocks": run.blocks,
