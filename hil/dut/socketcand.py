@@ -65,9 +65,10 @@ class SocketcandLimits:
     idle_timeout_s: float = 300.0       #: raw mode: no command, or nothing read, for this long closes
     max_command_bytes: int = 128        #: '< send 1FFFFFFF 8 ff ff ff ff ff ff ff ff >' is 41
     #: frames the device has not yet taken; the oldest is dropped beyond this (a receive FIFO that
-    #: holds four whole edge messages of the longest window: bldc.contract.MAX_ADC_SAMPLES conversions,
-    #: three accumulators and the header)
-    max_backlog_frames: int = 4 * (MAX_ADC_SAMPLES + 4)
+    #: holds one whole edge message of the longest window, bldc.contract.MAX_ADC_SAMPLES conversions,
+    #: three accumulators and the header: 256 frames, four of the usual <= 56-frame ones; a larger
+    #: FIFO only lets a burst delay the next request longer: tests/test_serve_hardening.py)
+    max_backlog_frames: int = MAX_ADC_SAMPLES + 4
     overrun_log_interval_s: float = 10.0  #: a client that keeps overrunning the device: one line this often
 
 
