@@ -81,7 +81,8 @@ def test_every_figure_states_its_provenance():
 @pytest.mark.skipif(bool(COMPUTING), reason="tools/figures.py is running this suite (it recomputes the figures itself)")
 def test_the_quick_figures_reproduce_at_head():
     """The CI subset: recompute every quick group (the demo, the spindle's calibration and its
-    predictors, the shipped tuned settings' training score) and hold each figure to its tolerance."""
+    predictors) and hold each figure to its tolerance. The shipped tuned settings' training score is
+    held by tests/test_predictor_peers.py."""
     data = figures.load()
     quick = [g for g in figures.GROUPS if g.quick]
     fresh = figures.compute(quick)

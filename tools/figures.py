@@ -92,6 +92,7 @@ class Run:
     seeds: list[int] = field(default_factory=list)
     tables: dict[str, list[list[str]]] = field(default_factory=dict)
     blocks: dict[str, str] = field(default_factory=dict)  # a command's output as printed, shown verbatim
+    last_command_s: float = 0.0  #: wall time of the last command run (``_hil``)
 
 
 @dataclass(frozen=True)
@@ -102,9 +103,6 @@ class Group:
     produce: Callable[[Path], Run]
 
 
-_last_wall_s = 0.0
-
-
 def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subprocess.CompletedProcess:
     """``python -m hil ARGS`` from the repository root, recorded in the run's commands."""
     cmd = [sys.executable, "-m", "hil", *args]
@@ -112,11 +110,10 @@ def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subproces
         shlex.quote(str(a)).replace(str(work), "$WORK").replace(str(ROOT) + "/", "") for a in args
     )
     run.commands.append(shown)
-    global _last_wall_s
     t0 = time.perf_counter()
     done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=timeout_s)
-    _last_wall_s = time.perf_counter() - t0
-    if done.returncode not in (0,):
+    run.last_command_s = time.perf_counter() - t0
+    if done.returncode != 0:
         raise RuntimeError(f"{shown} exited {done.returncode}:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
     return done
 
@@ -146,7 +143,7 @@ def produce_demo(work: Path) -> Run:
     }
     # the table as printed, without the last line (where the recording was written)
     run.blocks["output"] = "".join(line + "\n" for line in done.stdout.splitlines() if " written to " not in line)
-    run.figures["wall_s"] = Figure(_last_wall_s, "s", "{:.0f}", reproducible=False)
+    run.figures["wall_s"] = Figure(run.last_command_s, "s", "{:.0f}", reproducible=False)
     return run
 
 
