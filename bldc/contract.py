@@ -180,6 +180,13 @@ def _duty_u16(duty: float) -> int:
 #: bounds its own delay tighter (the calibration checks half a sector at the capture's top speed).
 MAX_CONDITIONING_DELAY_S = 500e-6
 
+#: The largest pole-table entry (deg e) a calibration table may carry. The table holds each magnet
+#: boundary relative to pole N1's, so two of the effect library's pole offsets (+-5 deg e each) apart,
+#: and a rise-minus-fall switching asymmetry common to the three sensors falls on every other pole
+#: (the library bounds it at +-10 deg e): 5 + 5 + 10. It stays a third of a sector, so a table
+#: beyond it is garbage, not a magnet.
+MAX_POLE_TABLE_OFFSET_DEG_E = 20.0
+
 #: The controller's ADC as the bench emulates it (docs/controller.md, "What the controller's
 #: peripherals hold"). Its three phase-current sensors are converted at the capture event (an
 #: injected conversion the capture timer triggers, as MCU timers can) and every ADC_PERIOD_TICKS

@@ -7,6 +7,7 @@ side owns it, so it lives here, below both (``docs/architecture.md``).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -60,3 +61,28 @@ def steady_speed_rpm(motor: MotorParameters, duty: float, load_scale: float = 1.
     c = -ke * duty * motor.supply_v / r
     w = (-b + math.sqrt(b * b - 4 * a * c)) / (2 * a) if a > 0 else -c / b
     return rad_per_s_to_rpm(w)
+
+
+def speed_loop_gain_scale(motor: MotorParameters) -> float:
+    """How much more duty this motor needs per rpm than the paper pump's (``MotorParameters()``):
+    its back-EMF per rpm over its supply, 2 ke / V_dc, against the paper pump's. A speed loop tuned
+    in duty per rpm on the paper pump is the same loop on this motor with its gains times this
+    (its mechanical time constant J R / (2 ke^2) the same; exactly 1 on the paper pump)."""
+    paper = MotorParameters()
+    return (motor.ke_v_s_per_rad / motor.supply_v) / (paper.ke_v_s_per_rad / paper.supply_v)
+
+
+def rewound(motor: MotorParameters, speed_ratio: float) -> MotorParameters:
+    """``motor`` wound for a top speed ``speed_ratio`` times lower (more turns of thinner wire in
+    the same slots, and a load sized to it): the back-EMF, duty and phase current at the new top
+    speed are the old ones at the old top, and so is the mechanical time constant. ke scales by the
+    ratio k; the load torque at the top speed (fan M w^2, friction f w) by k, so M by k^3 and f by
+    k^2; the inertia by k^2 (J w / T the same); R, L and the supply stay."""
+    k = float(speed_ratio)
+    return dataclasses.replace(
+        motor,
+        ke_v_s_per_rad=motor.ke_v_s_per_rad * k,
+        inertia_kg_m2=motor.inertia_kg_m2 * k * k,
+        friction_n_m_s_per_rad=motor.friction_n_m_s_per_rad * k * k,
+        fan_coefficient_n_m_s2=motor.fan_coefficient_n_m_s2 * k**3,
+    )

@@ -393,7 +393,12 @@ class EdgeJitter(Effect):
         "scales_with": "nothing in angle (angle jitter) or speed (time jitter)",
         "knob": "-",
     }
-    time_rms_s: float = bounded(0.0, low=0.0, high=20e-6, unit="s", doc="RMS of the time-domain jitter")
+    #: three RMS inside the half sector that bounds a conditioning delay (MAX_CONDITIONING_DELAY_S: the
+    #: slowest-commutating motor, a many-pole hub motor at its top speed, whose slow field ramps
+    #: through the threshold make the largest time jitter)
+    time_rms_s: float = bounded(
+        0.0, low=0.0, high=MAX_CONDITIONING_DELAY_S / 3.0, unit="s", doc="RMS of the time-domain jitter"
+    )
     #: up to 10 deg e: three RMS stay inside half a sector (30 deg e), beyond which edges would
     #: reorder; a many-pole hub motor's rotor vibration reaches several deg e (0.5 deg mechanical
     #: at 15 pole pairs is 7.5 deg e)

@@ -45,6 +45,32 @@ class CurrentSensorParameters:
     noise_rms_a: float = bounded(0.0, low=0.0, high=1.0, unit="A", doc="white noise RMS per sample")
 
 
+#: The deviations a calibration table holds (paper Sections 2.1-2.4).
+CALIBRATED_DEVIATIONS = ("installation_offset", "pole_offset", "conditioning_delay", "armature_reaction")
+
+#: Mechanical turns every settling window holds (``PlantConfig.suite_settle_s``): two to learn the
+#: pole alignment (one whole turn compared, after one to fill it) and one of aligned commutation.
+SETTLE_MECHANICAL_TURNS = 3.0
+
+#: The paper pump's service range tops out at 10,000 rpm (Section 4.1: 5000-10,000 rpm) on its
+#: 2 pole pairs. The acceptance suite and the calibration campaign are written at its speeds.
+PAPER_TOP_SPEED_RPM = 10000.0
+PAPER_POLE_PAIRS = 2
+
+
+@dataclass(frozen=True)
+class OperatingRange:
+    """Where this motor runs in service. The acceptance suite and the calibration campaign name the
+    paper pump's speeds; on another motor they run at the same fractions of its top speed, and each
+    window holds at least the electrical periods it holds on the paper pump (``PlantConfig.suite_speed_rpm``,
+    ``suite_duration_s``). A twin of a capture tops out at the capture's own top speed unless told."""
+
+    top_speed_rpm: float = bounded(
+        PAPER_TOP_SPEED_RPM, low=0.0, high=200_000.0, unit="rpm", low_open=True,
+        doc="the fastest the motor runs in service",
+    )
+
+
 @dataclass(frozen=True)
 class PlantConfig:
     motor: MotorParameters = field(default_factory=MotorParameters)
@@ -52,11 +78,13 @@ class PlantConfig:
     current_sensor: CurrentSensorParameters = field(default_factory=CurrentSensorParameters)
     effects: tuple[Effect, ...] = ()
     name: str = "custom"
+    operating: OperatingRange = field(default_factory=OperatingRange)
 
     def __post_init__(self):
         validate(self.motor, "motor.")
         validate(self.inverter, "inverter.")
         validate(self.current_sensor, "current_sensor.")
+        validate(self.operating, "operating.")
         seen: set[str] = set()
         for i, eff in enumerate(self.effects):
             prefix = f"effects[{i}]."
@@ -76,6 +104,60 @@ class PlantConfig:
     def effect(self, name: str) -> Effect | None:
         return next((e for e in self.effects if e.name == name), None)
 
+    @property
+    def top_electrical_hz(self) -> float:
+        return self.operating.top_speed_rpm / 60.0 * self.motor.pole_pairs
+
+    def suite_speed_rpm(self, paper_rpm: float) -> float:
+        """The speed at which a step written at the paper pump's ``paper_rpm`` runs on this motor: the
+        same fraction of the top speed (identity on the paper pump)."""
+        return paper_rpm * (self.operating.top_speed_rpm / PAPER_TOP_SPEED_RPM)
+
+    def suite_duration_s(self, paper_s: float) -> float:
+        """A window written for the paper pump, stretched on a motor whose top electrical frequency is
+        lower so that it holds as many electrical periods (edges) as on the paper pump; never shortened."""
+        paper_top_hz = PAPER_TOP_SPEED_RPM / 60.0 * PAPER_POLE_PAIRS
+        return paper_s * max(1.0, paper_top_hz / self.top_electrical_hz)
+
+    def suite_settle_s(self, paper_s: float, speed_rpm: float) -> float:
+        """A settling window written for the paper pump (before anything is judged, from a start or
+        a resynchronisation), as ``suite_duration_s`` stretches it, and at least
+        ``SETTLE_MECHANICAL_TURNS`` turns at ``speed_rpm``: a controller that reads only Hall edges
+        learns which electrical period holds its calibration's pole N1 over whole mechanical turns,
+        and a rotor of many pole pairs turns those slowly (the paper pump's windows all hold more)."""
+        return max(self.suite_duration_s(paper_s), SETTLE_MECHANICAL_TURNS * 60.0 / speed_rpm)
+
+    def suite_deviations(self, effects) -> tuple[Effect, ...]:
+        """The acceptance suite's deviations (written for the paper pump) as they stand on this motor.
+
+        A deviation a calibration table holds that this motor carries itself (a twin's measured
+        installation and pole tables, its real delay) is the motor's: the suite's of that name is left
+        out, so the plant's own stays in force. A pole table written for another pole count repeats
+        around this rotor (``paper_pole_offsets_deg_e``'s rule). A time jitter stretches like a window
+        (``suite_duration_s``), so that it is the same angle at the same fraction of the top speed.
+        Every other effect passes unchanged."""
+        kept = []
+        for eff in effects:
+            if eff.name in CALIBRATED_DEVIATIONS and self._carries(eff.name):
+                continue
+            if isinstance(eff, fx.EdgeJitter) and eff.time_rms_s > 0.0:
+                eff = dataclasses.replace(eff, time_rms_s=self.suite_duration_s(eff.time_rms_s))
+            if isinstance(eff, fx.PoleOffset) and len(eff.offset_deg_e) != 2 * self.motor.pole_pairs:
+                n = len(eff.offset_deg_e)
+                eff = dataclasses.replace(
+                    eff, offset_deg_e=tuple(eff.offset_deg_e[k % n] for k in range(2 * self.motor.pole_pairs))
+                )
+            kept.append(eff)
+        return tuple(kept)
+
+    def _carries(self, name: str) -> bool:
+        """The motor carries a deviation of this name that is not all zeros."""
+        own = self.effect(name)
+        if own is None:
+            return False
+        values = [v for k, v in own.to_dict().items() if k != "name"]
+        return bool(np.any(np.concatenate([np.ravel(np.asarray(v, dtype=float)) for v in values]) != 0.0))
+
     def to_dict(self) -> dict[str, Any]:
         return {
             "name": self.name,
@@ -85,6 +167,7 @@ class PlantConfig:
                 k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(self.current_sensor).items()
             },
             "effects": [e.to_dict() for e in self.effects],
+            "operating": dataclasses.asdict(self.operating),
         }
 
     def config_hash(self) -> str:
@@ -92,7 +175,7 @@ class PlantConfig:
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> "PlantConfig":
-        known = {"name", "motor", "inverter", "current_sensor", "effects", "preset"}
+        known = {"name", "motor", "inverter", "current_sensor", "effects", "preset", "operating"}
         for key in data:
             if key not in known:
                 raise ConfigError(key, f"unknown section (known: {', '.join(sorted(known))})")
@@ -119,6 +202,7 @@ class PlantConfig:
             current_sensor=merged("current_sensor", base.current_sensor),
             effects=eff,
             name=str(data.get("name", base.name)),
+            operating=merged("operating", base.operating),
         )
 
     @classmethod
@@ -206,9 +290,13 @@ def paper_installation_offsets_deg_e() -> tuple[float, float, float]:
     return tuple(absolute_a + rel[x] - rel[0] for x in range(3))  # Eq. 5
 
 
-def paper_pole_offsets_deg_e() -> tuple[float, float, float, float]:
-    """Pole offsets of Table 2 in our convention (positive = trails; pole N1 = 0)."""
-    return (0.0,) + tuple(-pct / 100.0 * PAPER_PERCENT_BASE_DEG_E for pct in PAPER_TABLE2_POLE_PERCENT)
+def paper_pole_offsets_deg_e(pole_pairs: int = PAPER_POLE_PAIRS) -> tuple[float, ...]:
+    """Pole offsets of Table 2 in our convention (positive = trails; pole N1 = 0), one per magnet pole.
+
+    On a rotor with more poles than the paper's four, its four-pole pattern repeats around the
+    rotor (the last repetition cut short), so every pole carries a deviation of the paper's size."""
+    paper = (0.0,) + tuple(-pct / 100.0 * PAPER_PERCENT_BASE_DEG_E for pct in PAPER_TABLE2_POLE_PERCENT)
+    return tuple(paper[k % len(paper)] for k in range(2 * int(pole_pairs)))
 
 
 PRESETS = {"paper-bench": paper_bench, "paper-bench+deviations": lambda: paper_bench(True)}

@@ -23,32 +23,27 @@ DEVIATIONS = {
     "armature_reaction": ("REQ-CAL-004", (fx.ArmatureReaction(slope_deg_e_per_a=0.35),)),
 }
 DEVIATIONS["combined"] = ("REQ-COMM-001", sum((effects for _, effects in DEVIATIONS.values()), ()))
-SPEED_RPM = 8000.0  # high enough for the delay and the armature current to matter
+SPEED_RPM = 8000.0  # high enough for the delay and the armature current to matter (the paper pump's)
 JUDGED_FROM_S = 0.15  # commutations before this are the start-up transient, not judged
-
-
-def on_the_plants_delay(effects, plant):
-    """The deviations with the plant's own conditioning delay in place of the paper's, when the plant
-    has one (a twin of a real capture: its real delay, ``hil plant from-capture``)."""
-    own = plant.effect("conditioning_delay")
-    if own is None or (own.rise_delay_s == 0.0 and own.fall_delay_s == 0.0):
-        return effects
-    return tuple(own if e.name == "conditioning_delay" else e for e in effects)
 
 
 @pytest.mark.parametrize("deviation", [pytest.param(name, marks=pytest.mark.requirement(req, "REQ-CAL-005"))
                                        for name, (req, _) in DEVIATIONS.items()])
 def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_budget, hil_budgets, hil_evidence,
                                           hil_plant_config):
-    _, effects = DEVIATIONS[deviation]
-    effects = on_the_plants_delay(effects, hil_plant_config)
-    hil_evidence.text("deviations", ", ".join(str(e.to_dict()) for e in effects))
+    plant = hil_plant_config
+    # on a twin of a real capture its own measured tables and real delay stay in force
+    effects = plant.suite_deviations(DEVIATIONS[deviation][1])
+    speed_rpm = plant.suite_speed_rpm(SPEED_RPM)
+    judged_from_s = plant.suite_settle_s(JUDGED_FROM_S, speed_rpm)
+    hil_evidence.text("deviations", ", ".join(str(e.to_dict()) for e in plant.with_effects(*effects).effects))
     corrections = calibrate(effects)
     runs, figures = {}, {}
     for strategy in (Strategy.RAW, Strategy.CORRECTED):
-        bench = hil_bench(strategy, corrections=corrections, effects=effects, speed_rpm=SPEED_RPM)
-        bench.run_setpoints([SPEED_RPM], hold_s=0.25, settle_s=0.1)
-        err = bench.angle_errors_deg_e(JUDGED_FROM_S)
+        bench = hil_bench(strategy, corrections=corrections, effects=effects, speed_rpm=speed_rpm)
+        bench.run_setpoints([speed_rpm], hold_s=plant.suite_duration_s(0.25),
+                            settle_s=plant.suite_settle_s(0.1, speed_rpm))
+        err = bench.angle_errors_deg_e(judged_from_s)
         runs[strategy.name.lower()] = err
         c = bench.sim.commutations()
         figures[strategy.name.lower()] = (c.t_s, c.error_deg_e)
@@ -62,8 +57,8 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
         f"{deviation}: raw and corrected commutation error",
         commutation_error_figure(
             figures,
-            f"{deviation} at {SPEED_RPM:.0f} rpm",
-            judged_from_s=JUDGED_FROM_S,
+            f"{deviation} at {speed_rpm:.0f} rpm",
+            judged_from_s=judged_from_s,
             budget_deg_e=hil_budgets["commutation_angle_p99"].limit,
             budget_label="p99 budget of the corrected run",
         ),

@@ -11,14 +11,16 @@
   of raw Hall commutation's excess mean phase current (over the plant's ideal-commutation
   floor) that calibrated commutation removes, same plant, seed, speed and load.
 Every figure comes from the plant's ground truth (true phase currents and speed), not from what
-the controller reports.
+the controller reports. Speeds and windows are the paper pump's; on another motor (a twin) they
+are the same fractions of its top speed and hold as many electrical periods
+(``PlantConfig.suite_speed_rpm``, ``suite_duration_s``), on the deviations it carries itself.
 """
 
 import numpy as np
 import pytest
 
 from bldc.contract import Strategy
-from bldc.motor import steady_state
+from bldc.motor import speed_loop_gain_scale, steady_state
 from hil.bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
@@ -41,20 +43,24 @@ def _true_abs_currents(bench, since_s: float):
 
 
 @pytest.mark.requirement("REQ-CUR-001", "REQ-SPD-001")
-def test_a_speed_step_keeps_the_current_limit_and_settles(calibrate, hil_bench, hil_budget, hil_evidence):
-    corrections = calibrate(PAPER_EFFECTS)
-    bench = hil_bench(Strategy.CORRECTED, corrections=corrections, effects=PAPER_EFFECTS, speed_rpm=STEP_FROM_RPM)
-    (step_s,) = bench.run_setpoints([STEP_FROM_RPM], hold_s=0.0, settle_s=0.3)
-    bench.link.set_speed(STEP_TO_RPM)
-    bench.sim.run_until(step_s + STEP_HOLD_S)
+def test_a_speed_step_keeps_the_current_limit_and_settles(calibrate, hil_bench, hil_budget, hil_evidence,
+                                                          hil_plant_config):
+    plant = hil_plant_config
+    effects = plant.suite_deviations(PAPER_EFFECTS)
+    step_from_rpm, step_to_rpm = plant.suite_speed_rpm(STEP_FROM_RPM), plant.suite_speed_rpm(STEP_TO_RPM)
+    corrections = calibrate(effects)
+    bench = hil_bench(Strategy.CORRECTED, corrections=corrections, effects=effects, speed_rpm=step_from_rpm)
+    (step_s,) = bench.run_setpoints([step_from_rpm], hold_s=0.0, settle_s=plant.suite_settle_s(0.3, step_from_rpm))
+    bench.link.set_speed(step_to_rpm)
+    bench.sim.run_until(step_s + plant.suite_duration_s(STEP_HOLD_S))
     t, current, speed = _true_abs_currents(bench, step_s)
     peak_a = float(current.max())
-    band = SETTLING_BAND * STEP_TO_RPM
-    outside = np.nonzero(np.abs(speed - STEP_TO_RPM) > band)[0]
+    band = SETTLING_BAND * step_to_rpm
+    outside = np.nonzero(np.abs(speed - step_to_rpm) > band)[0]
     settled_s = float(t[outside[-1]] - step_s) if outside.size else 0.0
     if outside.size and outside[-1] == t.size - 1:
         settled_s = float("inf")  # still outside the band at the end of the window
-    overshoot = max(float(speed.max()) - STEP_TO_RPM, 0.0) / (STEP_TO_RPM - STEP_FROM_RPM)
+    overshoot = max(float(speed.max()) - step_to_rpm, 0.0) / (step_to_rpm - step_from_rpm)
     hil_evidence.value("peak phase current", peak_a, "A")
     hil_evidence.value("mean |i| over the step", float(current.mean()), "A")
     hil_evidence.value("speed overshoot", overshoot * 100.0, "%")
@@ -73,27 +79,29 @@ EFFICIENCY_SEEDS = 3
 FLOOR_LOOP_DT_S, FLOOR_KP_PER_RPM, FLOOR_KI_PER_RPM_S = 1e-3, 2e-4, 4e-3
 
 
-def ideal_commutation_mean_current_a(config, rpm: float, seed: int) -> float:
+def ideal_commutation_mean_current_a(config, rpm: float, seed: int, settle_s: float, window_s: float) -> float:
     """The physics floor: mean |i| of the same plant, seed, speed and load commutated at the true
-    rotor angle (the plant's oracle), held at ``rpm`` by the bench's own PI on the duty."""
+    rotor angle (the plant's oracle), held at ``rpm`` by the bench's own PI on the duty (the same
+    loop on a motor wound for another speed: ``speed_loop_gain_scale``)."""
+    gain_scale = speed_loop_gain_scale(config.motor)
     d0 = steady_state(config.motor, rpm)["duty"]
     sim = Simulation(config, OracleCommutation(), duty=d0, initial_speed_rpm=rpm, seed=seed,
                      max_step_s=ACCEPTANCE_MAX_STEP_S)
     integral = 0.0
-    while sim.t_s < EFFICIENCY_SETTLE_S + EFFICIENCY_WINDOW_S - 1e-9:
+    while sim.t_s < settle_s + window_s - 1e-9:
         sim.run_until(sim.t_s + FLOOR_LOOP_DT_S)
-        error = rpm - sim.speed_rpm
+        error = (rpm - sim.speed_rpm) * gain_scale
         integral += error * FLOOR_LOOP_DT_S
         sim.set_duty(min(max(d0 + FLOOR_KP_PER_RPM * error + FLOOR_KI_PER_RPM_S * integral, 0.0), 1.0))
     s = sim.samples()
-    return float(np.abs(np.asarray(s.i_true_a))[np.asarray(s.t_s) >= EFFICIENCY_SETTLE_S].mean())
+    return float(np.abs(np.asarray(s.i_true_a))[np.asarray(s.t_s) >= settle_s].mean())
 
 
-def mean_current_a(bench, rpm: float) -> tuple[float, float]:
+def mean_current_a(bench, rpm: float, settle_s: float, window_s: float) -> tuple[float, float]:
     """Mean |i| and mean speed over the judged window, the controller holding ``rpm``."""
     bench.link.set_speed(rpm)
-    bench.sim.run_until(EFFICIENCY_SETTLE_S + EFFICIENCY_WINDOW_S)
-    _, current, speed = _true_abs_currents(bench, EFFICIENCY_SETTLE_S)
+    bench.sim.run_until(settle_s + window_s)
+    _, current, speed = _true_abs_currents(bench, settle_s)
     return float(current.mean()), float(speed.mean())
 
 
@@ -109,21 +117,24 @@ def test_calibration_removes_the_excess_current_of_raw_commutation(
     controller's own raw baseline is capped by its current limiter (the built-in's binds at every
     speed here: 1.6 A against 2.3-2.9 A unlimited), and a capped baseline has no excess left to
     remove. That case is reported beside it."""
-    corrections = calibrate(PAPER_EFFECTS)
-    config = hil_plant_config.with_effects(*PAPER_EFFECTS)
+    effects = hil_plant_config.suite_deviations(PAPER_EFFECTS)
+    corrections = calibrate(effects)
+    config = hil_plant_config.with_effects(*effects)
     rows, shares = [], []
-    for rpm in EFFICIENCY_SPEEDS_RPM:
+    for paper_rpm in EFFICIENCY_SPEEDS_RPM:
+        rpm = config.suite_speed_rpm(paper_rpm)
+        window = (config.suite_settle_s(EFFICIENCY_SETTLE_S, rpm), config.suite_duration_s(EFFICIENCY_WINDOW_S))
         for seed in range(hil_seed, hil_seed + EFFICIENCY_SEEDS):
-            raw = mean_current_a(hil_bench(Strategy.RAW, corrections=corrections, effects=PAPER_EFFECTS,
-                                           speed_rpm=rpm, seed=seed), rpm)
-            cal = mean_current_a(hil_bench(Strategy.CORRECTED, corrections=corrections, effects=PAPER_EFFECTS,
-                                           speed_rpm=rpm, seed=seed), rpm)
+            raw = mean_current_a(hil_bench(Strategy.RAW, corrections=corrections, effects=effects,
+                                           speed_rpm=rpm, seed=seed), rpm, *window)
+            cal = mean_current_a(hil_bench(Strategy.CORRECTED, corrections=corrections, effects=effects,
+                                           speed_rpm=rpm, seed=seed), rpm, *window)
             # the paper's baseline: raw Hall commutation under a speed loop with no current limit
             reference = InProcessLink(VirtualController(config.motor, strategy=Strategy.RAW, current_limit_a=None))
             unlimited = mean_current_a(
                 LockstepBench(config, reference, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"],
-                              seed=seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S}), rpm)
-            floor_a = ideal_commutation_mean_current_a(config, rpm, seed)
+                              seed=seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S}), rpm, *window)
+            floor_a = ideal_commutation_mean_current_a(config, rpm, seed, *window)
             # the same operating point, or the comparison says nothing
             for name, (_, got) in (("raw", raw), ("calibrated", cal), ("unlimited raw", unlimited)):
                 assert abs(got - rpm) < 0.02 * rpm, f"{name} commutation held {got:.0f} rpm, not {rpm:.0f}"
@@ -139,7 +150,7 @@ def test_calibration_removes_the_excess_current_of_raw_commutation(
          "excess removed (unlimited raw)"],
         rows,
     )
-    paper = [r for r in rows if r[0] == 5700.0]
+    paper = [r for r in rows if r[0] == config.suite_speed_rpm(5700.0)]
     hil_evidence.value("calibrated / unlimited raw at 5700 rpm, mean over seeds (the paper: 0.372)",
                        float(np.mean([r[7] for r in paper])), "ratio")
     hil_evidence.value("calibrated / raw at 5700 rpm, mean over seeds (the controller's own limiter on its raw "

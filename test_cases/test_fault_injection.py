@@ -73,11 +73,13 @@ def judge(stimulus, outcome, request):
 def test_any_calibrated_deviation_set_meets_the_commutation_budget(
     hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request
 ):
+    plant = hil_plant_config
     worst = {"p99": 0.0, "effects": None, "speed": float("nan")}
     explicit = [
-        (tuple(fx.effect_from_mapping(e, f"FOUND_DEVIATION_SETS[{k}].") for k, e in enumerate(found)), speed_rpm)
+        (tuple(fx.effect_from_mapping(e, f"FOUND_DEVIATION_SETS[{k}].") for k, e in enumerate(found)),
+         plant.suite_speed_rpm(speed_rpm))
         for pole_pairs, speed_rpm, found in FOUND_DEVIATION_SETS
-        if pole_pairs == hil_plant_config.motor.pole_pairs
+        if pole_pairs == plant.motor.pole_pairs
     ]
     examples = []  #: (speed, explicit?) of every example run
     delay_draws = request.config.getoption("--hil-delay-draws")
@@ -86,7 +88,7 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(
     @seed(hil_seed)
     @hil_settings(max_examples=DEVIATION_EXAMPLES)
     @given(effects=deviations(hil_plant_config.motor.pole_pairs, delay_draws),
-           speed_rpm=st.sampled_from([4000.0, 7000.0, 10000.0]))
+           speed_rpm=st.sampled_from([plant.suite_speed_rpm(rpm) for rpm in (4000.0, 7000.0, 10000.0)]))
     def check(effects, speed_rpm):
         examples.append((speed_rpm, (effects, speed_rpm) in explicit))
         note(f"search example {len(examples)}/{DEVIATION_EXAMPLES + len(explicit)}: calibrated deviation set at "
@@ -96,8 +98,9 @@ def test_any_calibrated_deviation_set_meets_the_commutation_budget(
             effects=[e.to_dict() for e in effects],
             seed=hil_seed,
             speed_rpm=speed_rpm,
+            run_s=plant.suite_duration_s(Stimulus.run_s),
             test=request.node.nodeid,
-            plant=hil_plant_config.to_dict(),
+            plant=plant.to_dict(),
         )
         outcome = run(stim, hil_link, hil_budgets)
         p99 = outcome.values["commutation_angle_p99_deg_e"]
@@ -127,7 +130,8 @@ def test_fault_sequences_are_reported_and_recovered(
 ):
     from plant_models.plant import paper_bench
 
-    effects = [e.to_dict() for e in paper_bench(with_deviations=True).effects]
+    plant = hil_plant_config
+    effects = [e.to_dict() for e in plant.suite_deviations(paper_bench(with_deviations=True).effects)]
     runs = []
     with_fault: set[str] = set()  #: the distinct step sequences in which at least one fault acted
     seen: set[str] = set()  #: every distinct step sequence run
@@ -168,10 +172,12 @@ def test_fault_sequences_are_reported_and_recovered(
             stim = Stimulus(
                 "fault_sequence",
                 effects=effects,
-                steps=self.steps,
+                # the drawn run times are the paper pump's; as many electrical periods on this motor
+                steps=[[a, plant.suite_duration_s(x)] if a == "run" else [a, x] for a, x in self.steps],
                 seed=hil_seed,
+                speed_rpm=plant.suite_speed_rpm(Stimulus.speed_rpm),
                 test=request.node.nodeid,
-                plant=hil_plant_config.to_dict(),
+                plant=plant.to_dict(),
             )
             outcome = run(stim, hil_link, hil_budgets)
             if outcome.values["acted"]:

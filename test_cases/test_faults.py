@@ -18,8 +18,19 @@ from plant_models.plant import paper_bench
 DEVIATIONS = paper_bench(with_deviations=True).effects
 
 
-def sequence(fault) -> list:
-    return [["on", fault.as_dict()], ["run", 0.02], ["off", fault.as_dict()]]
+def sequence(fault, plant) -> list:
+    return [["on", fault.as_dict()], ["run", plant.suite_duration_s(0.02)], ["off", fault.as_dict()]]
+
+
+def on_the_plant(plant, **stimulus) -> dict:
+    """A fault-sequence stimulus's plant, deviations and speed on the run's plant (the paper pump's
+    deviations and speed, as ``PlantConfig.suite_deviations`` and ``suite_speed_rpm`` place them)."""
+    return dict(
+        effects=[e.to_dict() for e in plant.suite_deviations(DEVIATIONS)],
+        speed_rpm=plant.suite_speed_rpm(Stimulus.speed_rpm),
+        plant=plant.to_dict(),
+        **stimulus,
+    )
 
 
 @pytest.mark.parametrize("fault, requirement", [
@@ -33,11 +44,8 @@ def test_wiring_fault_gives_the_promised_fault(
     request.node.user_properties.append(("requirement", requirement))
     stim = Stimulus(
         "fault_sequence",
-        effects=[e.to_dict() for e in DEVIATIONS],
-        steps=sequence(fault),
-        seed=hil_seed,
-        test=request.node.nodeid,
-        plant=hil_plant_config.to_dict(),
+        **on_the_plant(hil_plant_config, steps=sequence(fault, hil_plant_config), seed=hil_seed,
+                       test=request.node.nodeid),
     )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
@@ -50,11 +58,8 @@ def test_wiring_fault_gives_the_promised_fault(
 def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
     stim = Stimulus(
         "fault_sequence",
-        effects=[e.to_dict() for e in DEVIATIONS],
-        steps=[["run", 0.1]],
-        seed=hil_seed,
-        test=request.node.nodeid,
-        plant=hil_plant_config.to_dict(),
+        **on_the_plant(hil_plant_config, steps=[["run", hil_plant_config.suite_duration_s(0.1)]], seed=hil_seed,
+                       test=request.node.nodeid),
     )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("healthy run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
@@ -62,16 +67,20 @@ def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hi
 
 
 @pytest.mark.requirement("REQ-FLT-004")
-def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_evidence):
+def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_plant_config, hil_evidence):
     """Q0 far too large (the current's entry 1 A^2, a thousand times the controller's): the
     textbook Eq. 12 update of R goes negative and loses positive definiteness, the guards must
     repair it (docs/sage-husa.md), and the controller must say so. (At Q0 x100 the filter no
     longer needs a repair since it adapts Q only once its gate acts.)"""
+    plant = hil_plant_config
     settings = FilterSettings(q0_diag=(10.0, 1e-7, 1.0), adapt_mask=7)
+    effects = plant.suite_deviations(DEVIATIONS)
+    speed_rpm = plant.suite_speed_rpm(6000.0)
     bench = hil_bench(
-        Strategy.SAGE_HUSA, corrections=calibrate(DEVIATIONS), effects=DEVIATIONS, filter_settings=settings
+        Strategy.SAGE_HUSA, corrections=calibrate(effects), effects=effects, filter_settings=settings,
+        speed_rpm=speed_rpm,
     )
-    bench.run_setpoints([6000.0], hold_s=0.3, settle_s=0.1)
+    bench.run_setpoints([speed_rpm], hold_s=plant.suite_duration_s(0.3), settle_s=plant.suite_settle_s(0.1, speed_rpm))
     st = hil_link.status()
     codes = [code for _, code in st["faults"]]
     hil_evidence.value("guard trips read back", st["guard_trips"])
@@ -83,8 +92,8 @@ def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_
 
 
 @pytest.mark.requirement("REQ-CAL-005")
-def test_invalid_calibration_is_refused(calibrate, hil_link, hil_evidence):
-    good = calibrate(DEVIATIONS)
+def test_invalid_calibration_is_refused(calibrate, hil_link, hil_plant_config, hil_evidence):
+    good = calibrate(hil_plant_config.suite_deviations(DEVIATIONS))
     bad = good.__class__.from_json_dict(good.to_json_dict())
     bad.pole_offset_deg_e = [25.0] + list(bad.pole_offset_deg_e[1:])  # finite, but beyond any magnet's tolerance
     with pytest.raises(LinkError) as info:

@@ -4,7 +4,9 @@ Speed stepped from 5000 to 10,000 rpm in seven set points under the controller's
 loop, with the pump load, paper-sized deviations (calibrated and downloaded) and random
 type III edge disturbances (3 us RMS jitter). The controller commutates with its Sage-Husa
 predictor, then with its fixed-noise Kalman filter and with the pre-calibration rule, on the
-same plant and seed; every commutation is scored against the true rotor angle.
+same plant and seed; every commutation is scored against the true rotor angle. On another motor
+(a twin) the speeds are the same fractions of its top speed, the windows hold as many electrical
+periods, and the motor's own calibrated deviations stand in for the paper's.
 """
 
 import numpy as np
@@ -28,17 +30,20 @@ SCENARIO_EFFECTS = SCENARIO_PLANT.effects
 SH_SETTINGS = VirtualController(SCENARIO_PLANT.motor).filter_settings
 
 
-def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS, setpoints_rpm=SETPOINTS_RPM,
+def run_scenario(hil_bench, plant, corrections, strategy, filter_settings=SH_SETTINGS, setpoints_rpm=SETPOINTS_RPM,
                  seed=None):
+    """The scenario on ``plant`` (the run's plant): ``setpoints_rpm`` are the paper pump's."""
+    setpoints_rpm = [plant.suite_speed_rpm(rpm) for rpm in setpoints_rpm]
     bench = hil_bench(
         strategy,
         corrections=corrections,
-        effects=SCENARIO_EFFECTS,
+        effects=plant.suite_deviations(SCENARIO_EFFECTS),
         speed_rpm=setpoints_rpm[0],
         filter_settings=filter_settings,
         seed=seed,
     )
-    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=HOLD_S, settle_s=0.3)
+    steps = bench.run_setpoints(setpoints_rpm, hold_s=plant.suite_duration_s(HOLD_S),
+                                settle_s=plant.suite_settle_s(0.3, setpoints_rpm[0]))
     c = bench.sim.commutations()
     keep = c.t_s >= steps[0]
     err = c.error_deg_e[keep]
@@ -46,14 +51,14 @@ def run_scenario(hil_bench, corrections, strategy, filter_settings=SH_SETTINGS, 
     return bench, (c.t_s, c.error_deg_e), steps[0], err, commutation_time_mape_pct(err)
 
 
-def run_strategies(calibrate, hil_bench, hil_link, strategies):
+def run_strategies(calibrate, hil_bench, hil_link, plant, strategies):
     """Each strategy on the same plant and seed: its row of figures, its error trace (start-up
     included), the instant the judged window starts and the controller's filter counters read
     back right after its run."""
-    corrections = calibrate(SCENARIO_EFFECTS)
+    corrections = calibrate(plant.suite_deviations(SCENARIO_EFFECTS))
     rows, traces, counters = {}, {}, {}
     for strategy in strategies:
-        _, trace, judged_from_s, err, mape = run_scenario(hil_bench, corrections, strategy)
+        _, trace, judged_from_s, err, mape = run_scenario(hil_bench, plant, corrections, strategy)
         rows[strategy] = [strategy.name, err.size, rms(err), p99_abs(err), float(np.max(np.abs(err))), mape]
         traces[strategy.name] = trace
         counters[strategy] = {k: hil_link.status()[k] for k in FILTER_COUNTERS}
@@ -64,9 +69,10 @@ ROW_COLUMNS = ["strategy", "commutations", "RMS deg e", "p99 deg e", "max deg e"
 
 
 @pytest.mark.requirement("REQ-PRED-001")
-def test_sage_husa_meets_its_budgets(calibrate, hil_bench, hil_link, hil_budget, hil_budgets, hil_evidence):
+def test_sage_husa_meets_its_budgets(calibrate, hil_bench, hil_link, hil_plant_config, hil_budget, hil_budgets,
+                                     hil_evidence):
     rows, traces, judged_from_s, counters = run_strategies(
-        calibrate, hil_bench, hil_link, (Strategy.SAGE_HUSA, Strategy.CORRECTED)
+        calibrate, hil_bench, hil_link, hil_plant_config, (Strategy.SAGE_HUSA, Strategy.CORRECTED)
     )
     hil_evidence.table(
         "paper scenario: commutation error against the true rotor angle", ROW_COLUMNS, list(rows.values())
@@ -100,21 +106,22 @@ REQ_PRED_002_SEEDS = 6
 
 
 @pytest.mark.requirement("REQ-PRED-002")
-def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_seed, hil_budget, hil_evidence):
+def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_plant_config, hil_seed, hil_budget,
+                                                 hil_evidence):
     """Against the controller's fixed-noise Kalman filter, both from the same tuning on training
     pumps (docs/sage-husa.md, "Peers"), over held-out seeds and three operating profiles, so that
     one seed cannot flip the verdict: stationary noise leaves adaptation little to win, so this is
     the honest bound."""
     from hil.experiments.controller_tuning import PROFILES
 
-    corrections = calibrate(SCENARIO_EFFECTS)
+    corrections = calibrate(hil_plant_config.suite_deviations(SCENARIO_EFFECTS))
     runs, traces, judged_from_s = [], {}, None
     for profile, setpoints in PROFILES.items():
         for seed in range(hil_seed, hil_seed + REQ_PRED_002_SEEDS):
             pair = {}
             for strategy in (Strategy.SAGE_HUSA, Strategy.KF):
-                _, trace, t0, err, _ = run_scenario(hil_bench, corrections, strategy, setpoints_rpm=setpoints,
-                                                    seed=seed)
+                _, trace, t0, err, _ = run_scenario(hil_bench, hil_plant_config, corrections, strategy,
+                                                    setpoints_rpm=setpoints, seed=seed)
                 pair[strategy] = rms(err)
                 if seed == hil_seed and setpoints == SETPOINTS_RPM:
                     traces[strategy.name], judged_from_s = trace, t0
@@ -141,23 +148,27 @@ def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_seed,
 
 
 @pytest.mark.requirement("REQ-PRED-003")
-def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, hil_link, hil_budget, hil_evidence):
+def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, hil_link, hil_plant_config, hil_budget,
+                                                         hil_evidence):
     """Started with R0 of the paper (edge-angle variance 0) and Q0 a hundred times too large (the
     controller keeps Q_w at that nominal and Q_i within its band, so the start is wrong
     throughout), the filter must learn an edge-angle noise variance of the size the plant
     actually injects (3 us jitter at the running speed), where a filter that adapts nothing keeps R0."""
-    corrections = calibrate(SCENARIO_EFFECTS)
+    plant = hil_plant_config
+    effects = plant.suite_deviations(SCENARIO_EFFECTS)
+    speed_rpm = plant.suite_speed_rpm(8000.0)
+    corrections = calibrate(effects)
     nominal = FilterSettings(q0_diag=(0.1, 1e-9, 1e-6))
     wrong = FilterSettings(
         q0_diag=tuple(100.0 * q for q in nominal.q0_diag), r0_diag=(0.0, 0.02), forgetting_b=0.995, q_band_factor=10.0
     )
     bench = hil_bench(
-        Strategy.SAGE_HUSA, corrections=corrections, effects=SCENARIO_EFFECTS, speed_rpm=8000.0, filter_settings=wrong
+        Strategy.SAGE_HUSA, corrections=corrections, effects=effects, speed_rpm=speed_rpm, filter_settings=wrong
     )
-    bench.run_setpoints([8000.0], hold_s=0.5, settle_s=0.2)
+    bench.run_setpoints([speed_rpm], hold_s=plant.suite_duration_s(0.5), settle_s=plant.suite_settle_s(0.2, speed_rpm))
     st = hil_link.status()
-    w_e = 8000.0 / 60.0 * 2 * np.pi * bench.config.motor.pole_pairs
-    injected_rad2 = (JITTER_S * w_e) ** 2
+    w_e = speed_rpm / 60.0 * 2 * np.pi * bench.config.motor.pole_pairs
+    injected_rad2 = (plant.suite_duration_s(JITTER_S) * w_e) ** 2  # the suite's jitter on this motor
     learned = st["r_diag"][0]
     hil_evidence.table(
         "noise statistics read back from the controller",
@@ -167,7 +178,7 @@ def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, h
             ["Q w ((rad/s)^2)", wrong.q0_diag[0], st["q_diag"][0], ""],
         ],
     )
-    err = bench.angle_errors_deg_e(0.4)
+    err = bench.angle_errors_deg_e(plant.suite_settle_s(0.4, speed_rpm))
     hil_evidence.value("commutation RMS with the wrong start", rms(err), "deg_e")
     hil_budget("learned_edge_noise_ratio", learned / injected_rad2)
     hil_budget("sage_husa_commutation_angle_rms", rms(err))
@@ -183,13 +194,22 @@ def test_sage_husa_commutation_instants_against_the_plants_ideal_instants(
     covariance repair read back from the controller."""
     from hil.experiments.closed_loop import record_link
 
-    corrections = calibrate(SCENARIO_EFFECTS)
+    from hil.experiments.closed_loop import HOLD_S as SCENARIO_HOLD_S
+    from hil.experiments.closed_loop import SETTLE_S as SCENARIO_SETTLE_S
+
+    plant = hil_plant_config
+    effects = plant.suite_deviations(SCENARIO_EFFECTS)
+    corrections = calibrate(effects)
+    setpoints_rpm = [plant.suite_speed_rpm(rpm) for rpm in SETPOINTS_RPM]
     r = record_link(
         hil_link,
-        hil_plant_config.with_effects(*SCENARIO_EFFECTS),
+        plant.with_effects(*effects),
         corrections,
         seed=hil_seed,
         filter_settings=SH_SETTINGS,
+        setpoints_rpm=setpoints_rpm,
+        hold_s=plant.suite_duration_s(SCENARIO_HOLD_S),
+        settle_s=plant.suite_settle_s(SCENARIO_SETTLE_S, setpoints_rpm[0]),
     )
     err = r.closed_loop_error_deg_e
     mape = commutation_time_mape_pct(err)

@@ -46,22 +46,25 @@ def read_edge_noise_rad2(link) -> float:
 _RUNS: dict = {}
 
 
-def learning_run(calibrate, hil_bench, hil_link, hil_seed) -> np.ndarray:
+def learning_run(calibrate, hil_bench, hil_link, hil_seed, plant) -> np.ndarray:
     """The three phases: per poll, the phase, the edges captured since the phase began, the true
     R_theta and the one read back."""
     key = (id(hil_link), hil_seed)
     if key in _RUNS:
         return _RUNS[key]
-    corrections = calibrate(PLANT.effects)
-    bench = hil_bench(Strategy.SAGE_HUSA, corrections=corrections, effects=PLANT.effects, speed_rpm=SPEED_RPM,
+    effects = plant.suite_deviations(PLANT.effects)
+    speed_rpm = plant.suite_speed_rpm(SPEED_RPM)
+    corrections = calibrate(effects)
+    bench = hil_bench(Strategy.SAGE_HUSA, corrections=corrections, effects=effects, speed_rpm=speed_rpm,
                       filter_settings=SH_SETTINGS)
-    bench.run_setpoints([SPEED_RPM], hold_s=0.0, settle_s=SETTLE_S)
-    w_e = SPEED_RPM / 60.0 * 2.0 * np.pi * bench.config.motor.pole_pairs
+    bench.run_setpoints([speed_rpm], hold_s=0.0, settle_s=plant.suite_settle_s(SETTLE_S, speed_rpm))
+    w_e = speed_rpm / 60.0 * 2.0 * np.pi * bench.config.motor.pole_pairs
     polls = []
-    for phase, jitter_s in enumerate(JITTER_PHASES_S):
+    for phase, paper_jitter_s in enumerate(JITTER_PHASES_S):
+        jitter_s = plant.suite_duration_s(paper_jitter_s)  # the same angle at the same fraction of the top speed
         bench.sim.set_edge_jitter(jitter_s)
         edges_at_start = len(bench.sim.edges())
-        end = bench.sim.t_s + PHASE_S
+        end = bench.sim.t_s + plant.suite_duration_s(PHASE_S)
         while bench.sim.t_s < end - 1e-9:
             bench.sim.run_until(bench.sim.t_s + POLL_S)
             polls.append((phase, len(bench.sim.edges()) - edges_at_start, (jitter_s * w_e) ** 2,
@@ -123,9 +126,9 @@ def _evidence(hil_evidence, polls, band, after_edges):
 
 @pytest.mark.requirement("REQ-PRED-003")
 def test_sage_husa_edge_noise_estimate_is_within_its_band_of_the_truth(
-    calibrate, hil_bench, hil_link, hil_seed, hil_budget, hil_budgets, hil_evidence
+    calibrate, hil_bench, hil_link, hil_plant_config, hil_seed, hil_budget, hil_budgets, hil_evidence
 ):
-    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed)
+    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed, hil_plant_config)
     band = band_of(hil_budgets)
     after = hil_budgets["edge_noise_tracking_edges"].limit
     _evidence(hil_evidence, polls, band, after)
@@ -137,9 +140,9 @@ def test_sage_husa_edge_noise_estimate_is_within_its_band_of_the_truth(
 
 @pytest.mark.requirement("REQ-PRED-004")
 def test_sage_husa_tracks_a_step_of_the_edge_noise(
-    calibrate, hil_bench, hil_link, hil_seed, hil_budget, hil_budgets, hil_evidence
+    calibrate, hil_bench, hil_link, hil_plant_config, hil_seed, hil_budget, hil_budgets, hil_evidence
 ):
-    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed)
+    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed, hil_plant_config)
     band = band_of(hil_budgets)
     _evidence(hil_evidence, polls, band, hil_budgets["edge_noise_tracking_edges"].limit)
     worst = max(tracking_edges(polls, phase, band) for phase in range(1, len(JITTER_PHASES_S)))
@@ -148,9 +151,9 @@ def test_sage_husa_tracks_a_step_of_the_edge_noise(
 
 @pytest.mark.requirement("REQ-PRED-005")
 def test_sage_husa_edge_noise_estimate_is_steady_while_the_noise_is(
-    calibrate, hil_bench, hil_link, hil_seed, hil_budget, hil_budgets, hil_evidence
+    calibrate, hil_bench, hil_link, hil_plant_config, hil_seed, hil_budget, hil_budgets, hil_evidence
 ):
-    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed)
+    polls = learning_run(calibrate, hil_bench, hil_link, hil_seed, hil_plant_config)
     after = hil_budgets["edge_noise_tracking_edges"].limit
     _evidence(hil_evidence, polls, band_of(hil_budgets), after)
     hil_budget("edge_noise_estimate_log_scatter", log_scatter(polls, after))

@@ -24,13 +24,18 @@ SETTLE_S = 0.05
 
 
 @pytest.mark.requirement("REQ-COMM-001")
-def test_corrected_commutation_through_the_pins(calibrate, hil_signals, hil_budget, hil_evidence):
+def test_corrected_commutation_through_the_pins(calibrate, hil_signals, hil_plant_config, hil_budget, hil_evidence):
+    plant = hil_plant_config
+    effects = plant.suite_deviations(EFFECTS)
+    speed_rpm = plant.suite_speed_rpm(SPEED_RPM)
+    settle_s = plant.suite_settle_s(SETTLE_S, speed_rpm)
+    duration_s = max(plant.suite_duration_s(0.5), settle_s + plant.suite_duration_s(0.5 - SETTLE_S))
     run = hil_signals.run(
-        effects=EFFECTS,
-        speed_rpm=SPEED_RPM,
-        duration_s=0.5,
+        effects=effects,
+        speed_rpm=speed_rpm,
+        duration_s=duration_s,
         strategy=Strategy.CORRECTED,
-        corrections=calibrate(EFFECTS),
+        corrections=calibrate(effects),
     )
     sc = run.score
     hil_evidence.text("source", f"{run.source}; stimulus {run.stimulus_dir}; gates {run.capture}")
@@ -44,10 +49,12 @@ def test_corrected_commutation_through_the_pins(calibrate, hil_signals, hil_budg
         f"{run.source}: {sc.missed} commutations missed, {sc.extra} extra "
         f"(at {sc.missed_t_s[:5].tolist()} / {sc.extra_t_s[:5].tolist()} s)"
     )
-    err = sc.angle_error_deg_e[sc.t_ideal_s >= SETTLE_S]
+    err = sc.angle_error_deg_e[sc.t_ideal_s >= settle_s]
     hil_evidence.value("commutations scored after the pole alignment", err.size)
     hil_evidence.value("angle error RMS through the pins", rms(err), "deg_e")
-    hil_evidence.value("timing bound of the sampled signals", sc.sample_bound_s * SPEED_RPM * 12.0, "deg_e")
-    assert err.size > 0.8 * (0.5 - SETTLE_S) * SPEED_RPM / 60.0 * 12, "too few commutations scored"
+    pole_pairs = plant.motor.pole_pairs
+    hil_evidence.value("timing bound of the sampled signals", sc.sample_bound_s * speed_rpm * 6.0 * pole_pairs,
+                       "deg_e")
+    assert err.size > 0.8 * (duration_s - settle_s) * speed_rpm / 60.0 * 6 * pole_pairs, "too few commutations scored"
     hil_budget("commutation_angle_p99", p99_abs(err))
     assert np.isfinite(err).all()

@@ -93,7 +93,7 @@ def test_calibration_download_read_back_and_refusal(device, corrections):
     link.download_calibration(corrections)
     assert link.identity()["vendor_id"] == 0x0B1D
     bad = corrections.__class__.from_json_dict(corrections.to_json_dict())
-    bad.pole_offset_deg_e[2] = 50.0  # beyond the +-10 deg_e the controller accepts
+    bad.pole_offset_deg_e[2] = 50.0  # beyond the +-20 deg_e the controller accepts (MAX_POLE_TABLE_OFFSET_DEG_E)
     with pytest.raises(LinkError, match="exception code 03"):
         link.download_calibration(bad)
     st_ = link.status()

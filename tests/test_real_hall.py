@@ -309,7 +309,7 @@ def test_synthetic_pole_offsets_recovered_and_out_of_bound_refused():
     # which recorded pole is pole 0 is unknown without an index pulse: best cyclic alignment (even shifts)
     err = min(np.max(np.abs(np.roll(est, 2 * k) - truth)) for k in range(4))
     assert err < 0.3, (est, truth)
-    big = poles * 8.0  # up to 16 deg e: beyond the controller's bound
+    big = poles * 12.0  # up to 24 deg e: beyond the controller's bound (MAX_POLE_TABLE_OFFSET_DEG_E)
     t, s, r = synthetic_run(pole_deg_e=big, pole_pairs=4, direction=1)
     out, _ = calibrate_ordinary(hall_steps(t, s, r), tick_s=TICK_S, pole_pairs=4)
     assert out["pole_offset_deg_e"] == []
@@ -319,12 +319,12 @@ def test_synthetic_pole_offsets_recovered_and_out_of_bound_refused():
 def test_calibrate_chooses_the_route_and_refuses_a_bad_pole_table_on_both():
     """``hil.calibration.calibrate``: an ordinary run (no segments) and the same edges cut into
     steady forward segments (the campaign route, no encoder) both come back as one
-    ``Calibration``; the 16 deg e pole table is refused on both (never in the table)."""
+    ``Calibration``; the 24 deg e pole table is refused on both (never in the table)."""
     from hil.calibration import calibrate
     from hil.calibration.route import Calibration
     from hil.recording import Recording, Segment
 
-    big = np.array([0.0, 2.0, -1.5, 1.0, -0.5, 1.5, -1.0, -1.5]) * 8.0
+    big = np.array([0.0, 2.0, -1.5, 1.0, -0.5, 1.5, -1.0, -1.5]) * 12.0
     t, s, r = synthetic_run(pole_deg_e=big, pole_pairs=4, direction=1)
     ordinary = Recording({"pole_pairs": 4}, [], t, s, r, np.zeros(t.size, dtype=np.int64), timer_tick_s=TICK_S)
     cuts = np.linspace(t[0], t[-1] + 1e-9, 11)

@@ -4,7 +4,8 @@ Low speeds without load for the pole offsets (the paper's 960 / 1107 / 1330 rpm)
 speed sweep for the conditioning delay, and loaded speeds (pump load, plus a throttled load at
 the same speeds so that current moves independently of speed) for the armature reaction.
 Every point runs a fixed number of mechanical turns in the kinematic mode, with the reference
-encoder recorded, and the whole run is one ``hil-recording/1``.
+encoder recorded, and the whole run is one ``hil-recording/1``. The speeds are the paper pump's;
+on another motor they are the same fractions of its top speed (``PlantConfig.suite_speed_rpm``).
 """
 
 from __future__ import annotations
@@ -42,7 +43,8 @@ class CalibrationCampaign:
             ops.append(self._point(config, rpm, load, f"load{load:g}_{rpm:.0f}"))
         return ops
 
-    def _point(self, config: PlantConfig, rpm: float, load_scale: float, name: str) -> OperatingPoint:
+    def _point(self, config: PlantConfig, paper_rpm: float, load_scale: float, name: str) -> OperatingPoint:
+        rpm = config.suite_speed_rpm(paper_rpm)
         current = steady_state(config.motor, rpm, load_scale)["current_a"]
         return OperatingPoint(self.turns_per_point * 60.0 / rpm, rpm, current, load_scale=load_scale, id=name)
 
@@ -63,8 +65,10 @@ def record_line_bemf_segments(
     sample_rate_hz: float = 100e3,
     reference_angle: bool = False,
 ) -> Recording:
-    """Electrical-plant segments at the paper's calibration speeds, commutating on raw Hall edges,
+    """Electrical-plant segments at the paper's calibration speeds (the same fractions of this motor's
+    top speed on another motor), commutating on raw Hall edges,
     with terminal voltages and phase currents sampled (through the current sensors): what the
     Line-BEMF step (Eq. 3-5) needs from the bench."""
+    speeds_rpm = [config.suite_speed_rpm(paper_rpm) for paper_rpm in speeds_rpm]
     ops = [OperatingPoint(turns * 60.0 / rpm, rpm, load_scale=1.0, id=f"linebemf_{rpm:.0f}") for rpm in speeds_rpm]
     return record_electrical(config, ops, seed=seed, sample_rate_hz=sample_rate_hz, reference_angle=reference_angle)

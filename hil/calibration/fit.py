@@ -182,9 +182,15 @@ def unpack(design: DesignMatrix, fit: WeightedFit, n_poles: int) -> Corrections:
             out.pole_offset_deg_e[k] = float(c)
             unc["pole_offset_deg_e"][k] = float(s)
         elif kind in ("rise", "fall"):
-            # a delay cannot be negative: a fit of a delay-free circuit lands at -1e-16 s, which a
-            # controller rightly refuses; a clearly negative fit is kept so the checks can flag it
-            out.conditioning_delay_s[kind] = 0.0 if -max(3 * s, 1e-12) <= c < 0 else float(c)
+            # a delay cannot be negative, and a controller rightly refuses a table that says so: a
+            # negative fit is projected onto the physical range (0), and a clearly negative one (beyond
+            # 3 standard errors: something the model lacks grows with speed, such as an armature
+            # reaction the segments' currents could not determine) is named in the table's info
+            if c < -max(3 * s, 1e-12):
+                out.info.setdefault("clipped_to_zero", {})[f"conditioning_delay_s.{kind}"] = (
+                    f"fitted {c * 1e6:+.3g} us (standard error {s * 1e6:.2g} us): a delay cannot be negative"
+                )
+            out.conditioning_delay_s[kind] = max(float(c), 0.0)
             unc.setdefault("conditioning_delay_s", {})[kind] = float(s)
         else:
             out.armature_reaction_deg_e_per_a = float(c)
@@ -230,6 +236,7 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
         "edges": int(len(rec)),
         "segments": [rec.segments[k].id for k in np.unique(rec.segment)],
         "residual_rms_deg_e": float(np.sqrt(np.mean(fit.residual**2))),
+        **out.info,  # what unpack projected onto the physical range
     }
     return out
 

@@ -28,6 +28,7 @@ from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
 from bldc import edges
+from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
 from .corrections import SENSORS
 from .uncertainty import (
@@ -52,8 +53,8 @@ KNOT_CYCLES = 4
 #: the speed range (highest over lowest 5-95 % electrical speed) below which a delay (growing
 #: with speed) and a constant angle cannot be told apart
 MIN_SPEED_RATIO = 1.5
-#: the controller's table bound on a pole offset (the paper's deviations are a few deg e)
-POLE_OFFSET_BOUND_DEG_E = 10.0
+#: the controller's table bound on a pole offset (its physics: bldc/contract.py)
+POLE_OFFSET_BOUND_DEG_E = MAX_POLE_TABLE_OFFSET_DEG_E
 #: default bound on a conditioning delay when the circuit is not stated: open-collector Hall
 #: outputs with a pull-up into a filter capacitor and cable capacitance are measured at 130-270 us
 #: (rise minus fall); 1 ms covers a 10 kOhm pull-up into 33 nF (3 RC to cross a 95 % threshold)

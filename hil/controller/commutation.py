@@ -91,11 +91,16 @@ class HallCommutation:
             return
         t, sensor, rising, count = (np.array(v) for v in zip(*self._history[-(n + 1):]))
         best, best_var = 0, math.inf
+        # sector times about their straight line: a speed that changes over the turn (a speed step, or
+        # the loop pulled by a fault) is a trend in them, and a trend over one turn correlates with a
+        # once-per-turn pole pattern (a many-pole rotor's eccentricity), so it would pick the shift
+        index = np.arange(n, dtype=float)
         for shift in range(0, 2 * self.pole_pairs, 2):  # whole electrical periods
             pole = (count + shift) % (2 * self.pole_pairs)
             w = 360.0 * self.pole_pairs / (t[-1] - t[0])
             corr = self.corrections.static_deg_e(sensor, pole)
-            var = np.var(np.diff(t - corr / w))
+            sector_s = np.diff(t - corr / w)
+            var = np.var(sector_s - np.polyval(np.polyfit(index, sector_s, 1), index))
             if var < best_var:
                 best, best_var = shift, var
         self._pole_shift = best
@@ -147,8 +152,11 @@ class HallCommutation:
         angle = self._first_angle_deg_e + 60.0 * self._edge_index
         boundary = int(round((angle - SENSOR_POSITION_DEG_E[x]) / 180.0))
         self._history.append((t, x, rising, boundary))
-        if len(self._history) > 64:
-            del self._history[:-64]
+        # two mechanical turns and an edge: the pole alignment compares one whole turn, and the speed
+        # that turns corrections into time is measured over one (a fixed 64 edges held only 5 pole pairs)
+        keep = 2 * 6 * self.pole_pairs + 2
+        if len(self._history) > keep:
+            del self._history[:-keep]
         sector = sector_of_levels(self._seen)
         if sector < 0:
             return []

@@ -19,13 +19,14 @@ from bldc.contract import (
     FILTER_COUNTERS,
     GUARD_TRIPS,
     MAX_CONDITIONING_DELAY_S,
+    MAX_POLE_TABLE_OFFSET_DEG_E,
     CalibrationTableError,
     Command,
     Fault,
     Strategy,
 )
 from bldc.hall import sector_of_levels
-from bldc.motor import MotorParameters, steady_state
+from bldc.motor import MotorParameters, speed_loop_gain_scale, steady_state
 from bldc.units import rad_e_per_s_to_rpm
 
 from ..calibration.corrections import SENSORS, Corrections
@@ -58,8 +59,11 @@ def validate_corrections(c: Corrections, pole_pairs: int) -> None:
             "pole_offset_deg_e", f"needs {2 * pole_pairs} entries, got {len(c.pole_offset_deg_e)}"
         )
     for j, v in enumerate(c.pole_offset_deg_e):
-        if not math.isfinite(v) or abs(v) > 10.0:
-            raise CalibrationTableError(f"pole_offset_deg_e[{j}]", f"must be finite and within +-10 deg_e, got {v!r}")
+        if not math.isfinite(v) or abs(v) > MAX_POLE_TABLE_OFFSET_DEG_E:  # its physics: bldc/contract.py
+            raise CalibrationTableError(
+                f"pole_offset_deg_e[{j}]",
+                f"must be finite and within +-{MAX_POLE_TABLE_OFFSET_DEG_E:g} deg_e, got {v!r}",
+            )
     for k in ("rise", "fall"):
         v = c.conditioning_delay_s.get(k)
         # the bound's physics (half a sector at the top speed of a many-pole hub motor): bldc/contract.py
@@ -109,10 +113,18 @@ class VirtualController:
     missing_edge_interval_ratio: float = 1.8
     #: ... than this multiple of the same sector's interval one mechanical turn earlier
     same_sector_interval_ratio: float = 1.3
-    kp_per_rpm: float = 1e-4
-    ki_per_rpm_s: float = 2e-3
+    #: speed loop gains, duty per rpm of error (and per rpm s): None = the reference tuning on the
+    #: paper pump (1e-4, 2e-3) times ``bldc.motor.speed_loop_gain_scale`` of this motor (the same
+    #: loop on a motor wound for another speed)
+    kp_per_rpm: float | None = None
+    ki_per_rpm_s: float | None = None
 
     def __post_init__(self):
+        scale = speed_loop_gain_scale(self.motor)
+        if self.kp_per_rpm is None:
+            self.kp_per_rpm = 1e-4 * scale
+        if self.ki_per_rpm_s is None:
+            self.ki_per_rpm_s = 2e-3 * scale
         self.faults: list[tuple[float, int]] = []
         self.error_register = 0
         self._fault_listeners = []
@@ -181,6 +193,9 @@ class VirtualController:
         self._last_t: float | None = None
         #: the last mechanical turn's sector intervals, oldest first (the missing-edge references)
         self._intervals: deque[float] = deque(maxlen=6 * self.motor.pole_pairs)
+        #: whether each of them was measured (False: a reference put in place of an interval that
+        #: spanned lost edges, or of a glitch)
+        self._measured: deque[bool] = deque(maxlen=6 * self.motor.pole_pairs)
 
     # --- run time -------------------------------------------------------------------------------
     def raise_fault(self, code: int, t_s: float) -> None:
@@ -225,22 +240,25 @@ class VirtualController:
         self._edges_since_motion += 1
         if rotor_motion:
             if self._last_t is not None:
-                dt = t - self._last_t
+                dt, measured = t - self._last_t, True
                 ref, ratio = self._reference_interval_s()
                 if ref is not None and dt > ratio * ref:
                     self._edge_lost(t)  # an interval of two or more sectors
                     # keep the edge count (and the pole assignment) right: sectors that passed
                     # minus the edges that did arrive
                     self._logic.count_lost_edges(max(round(dt / ref) - self._edges_since_motion, 0))
-                    dt = ref  # the interval of one sector stays the reference
+                    dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
                 elif ref is not None and dt * ratio < ref:
                     # far shorter than its reference (the rotor cannot speed up that much in one
                     # sector): a glitch that read as a step, e.g. a spike on a Hall state left
                     # wrong by a lost edge. Taken as the reference, it made every later sector
                     # read as lost edges, the edge count ran away and the corrections with it
-                    dt = ref
-                    self._intervals.clear()  # a step that was not a sector: the history is out of line
+                    dt, measured = ref, False
+                    # a step that was not a sector: the history is out of line
+                    self._intervals.clear()
+                    self._measured.clear()
                 self._intervals.append(dt)
+                self._measured.append(measured)
             self._last_t = t
             self._edges_since_motion = 0
         if self._resync_pending and self._normal_steps >= 6:
@@ -269,7 +287,9 @@ class VirtualController:
         interval so far, with ``missing_edge_interval_ratio``."""
         if not self._intervals:
             return None, self.missing_edge_interval_ratio
-        if len(self._intervals) == self._intervals.maxlen:
+        if len(self._intervals) == self._intervals.maxlen and self._measured[0]:
+            # (a reference put in place of an interval is no measurement of this sector: a long
+            # sector of a many-pole rotor, once read as a lost edge, would read as one every turn)
             return self._intervals[0], self.same_sector_interval_ratio
         return sum(self._intervals) / len(self._intervals), self.missing_edge_interval_ratio
     def _applied_delay_s(self, rising: bool) -> float:
@@ -284,6 +304,7 @@ class VirtualController:
         # the history no longer lines up with the sectors (one turn back is another sector now):
         # the references start again from the mean interval
         self._intervals.clear()
+        self._measured.clear()
         self._normal_steps, self._resync_pending = 0, True
 
     # --- read-backs -------------------------------------------------------------------------------

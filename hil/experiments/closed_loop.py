@@ -152,7 +152,7 @@ class _EdgeTap:
 
 def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S,
                 strategy: Strategy = Strategy.SAGE_HUSA, filter_settings=None,
-                setpoints_rpm=SETPOINTS_RPM) -> Recording:
+                setpoints_rpm=SETPOINTS_RPM, settle_s: float = SETTLE_S) -> Recording:
     """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``) with
     ``strategy`` commutating; ``filter_settings`` (b, Q0, R0, P0) written first when given;
     ``setpoints_rpm``: the operating profile (default: the paper's seven steps)."""
@@ -172,7 +172,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         seed=seed,
         sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
     )
-    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=hold_s, settle_s=SETTLE_S)
+    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=hold_s, settle_s=settle_s)
     c = bench.sim.commutations()
     status = link.status()
     edges = bench.sim.edges()

@@ -28,8 +28,11 @@ from pathlib import Path
 import numpy as np
 from scipy import optimize
 
+from bldc.motor import rewound
 from bldc.params import ConfigError
+from bldc.tomlfile import load_toml
 from plant_models import PRESETS, PlantConfig
+from plant_models.plant import OperatingRange
 from plant_models import effects as fx
 
 from ..calibration.corrections import SENSORS
@@ -368,26 +371,35 @@ def uncalibratable_effects(an: CaptureAnalysis, pole_pairs: int,
     return out
 
 
-def suite_speed_notes(pole_pairs: int, delay_s: float, capture_top_hz_e: float) -> list[str]:
-    """What the acceptance suite's speeds (the paper pump's, up to the calibration campaign's top)
-    are on this twin: its electrical speed there against the capture's top, and the delay there
-    against half a sector (beyond it an edge is captured after the middle of the next sector)."""
-    from ..calibration.campaign import CalibrationCampaign
-
-    top_rpm = max(CalibrationCampaign().no_load_sweep_rpm)
-    top_hz_e = top_rpm / 60.0 * pole_pairs
+def suite_speed_notes(pole_pairs: int, delay_s: float, top_speed_rpm: float, capture_top_hz_e: float) -> list[str]:
+    """Where the acceptance suite runs on this twin (the paper pump's speeds as fractions of the
+    twin's top speed, ``PlantConfig.suite_speed_rpm``): its top electrical speed against the capture's,
+    and the delay there against half a sector (beyond it an edge is captured after the middle of
+    the next sector, and no table can place it)."""
+    top_hz_e = top_speed_rpm / 60.0 * pole_pairs
     half_sector_s = 0.5 / (6.0 * top_hz_e)
-    if top_hz_e <= 1.5 * capture_top_hz_e and abs(delay_s) <= half_sector_s:
-        return []
-    return [f"the acceptance suite runs at the paper pump's speeds, up to {top_rpm:.0f} rpm: {top_hz_e:.0f} Hz "
-            f"electrical on {pole_pairs} pole pairs, {top_hz_e / capture_top_hz_e:.1f} times the capture's top, where "
-            f"the {abs(delay_s) * 1e6:.0f} us delay is {abs(delay_s) / (2 * half_sector_s):.2f} of a sector "
-            f"(half a sector is the physical limit): the suite cannot judge this twin at its speeds (docs/twin.md)"]
+    notes = [f"the acceptance suite runs at the paper pump's speeds as fractions of this motor's top, "
+             f"{top_speed_rpm:.0f} rpm ({top_hz_e:.0f} Hz electrical), each window holding as many electrical "
+             f"periods; there the {abs(delay_s) * 1e6:.0f} us delay is {abs(delay_s) / (2 * half_sector_s):.2f} "
+             "of a sector"]
+    if top_hz_e > 1.5 * capture_top_hz_e:
+        notes.append(f"the top speed is {top_hz_e / capture_top_hz_e:.1f} times the capture's: the suite judges "
+                     "the twin where the capture never ran it")
+    if abs(delay_s) > half_sector_s:
+        notes.append("the delay is beyond half a sector at the top speed (the physical limit): the suite cannot "
+                     "judge this twin there; state a lower --top-speed-rpm (docs/twin.md)")
+    return notes
 
 
 def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
-                      capture_tick_in_plant: bool = False, with_: tuple[str, ...] = ()) -> Twin:
-    """The twin plant: the capture's calibration as effects, the rest from ``base``. By default
+                      capture_tick_in_plant: bool = False, with_: tuple[str, ...] = (),
+                      top_speed_rpm: float | None = None, rewind_base: bool = False) -> Twin:
+    """The twin plant: the capture's calibration as effects, the rest from ``base``; its top speed
+    (where the acceptance suite's speeds end, ``OperatingRange``) is ``top_speed_rpm`` or else the
+    capture's own top (95th percentile): the suite then judges the twin where it was measured. With
+    ``rewind_base`` (a preset base: a stand-in, not this motor) the base motor is rewound for that top
+    speed (``bldc.motor.rewound``): the base pump's duty, current and dynamics at its top speed are
+    the twin's at its own, where a pump motor run at 3 % of its speed would idle at 1 % duty. By default
     only the deviations a calibration table can hold (TABLE_EFFECTS); ``with_`` names the measured
     deviations no table holds (UNCALIBRATABLE) that the plant carries too. Each one left out is
     listed in ``Twin.left_out`` (and in the TOML), and ``hil twin check`` names it as a difference."""
@@ -477,13 +489,28 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     for e in base.effects:
         if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
             effects.append(e)
-    assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
-                    f"from the base ({base_name}): capture times say nothing of them"))
-    # the delay against the base motor's top speed: where the twin runs beyond the capture
+    # the top speed: where the suite's speeds end; the delay there against half a sector
     speeds = cal["assumptions"]["speed_range_hz_e"]
     notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
                  "extrapolates (a delay grows with speed, the jitter model holds)")
-    notes += suite_speed_notes(int(p), d_value, speeds[1])
+    if top_speed_rpm is None:
+        top_speed_rpm = speeds[1] / p * 60.0
+        measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (the capture's top speed, 95th percentile; "
+                         "--top-speed-rpm states the motor's own)"))
+    else:
+        measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (given)"))
+    if rewind_base:
+        k = base.operating.top_speed_rpm / top_speed_rpm
+        motor = dataclasses.replace(rewound(base.motor, k), pole_pairs=int(p))
+        assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                        f"the base's ({base_name}, top {base.operating.top_speed_rpm:.0f} rpm) rewound for a "
+                        f"{top_speed_rpm:.0f} rpm top: ke x {k:.3g}, J and friction x {k * k:.3g}, fan load x "
+                        f"{k ** 3:.3g} (the base's duty, current and dynamics at its top are the twin's at its "
+                        "own); R, L, supply as the base: capture times say nothing of them"))
+    else:
+        assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                        f"from the base ({base_name}): capture times say nothing of them"))
+    notes += suite_speed_notes(int(p), d_value, top_speed_rpm, speeds[1])
     left_out = [(e, UNCALIBRATABLE[e.name]) for e in effects if e.name in UNCALIBRATABLE and e.name not in with_]
     held = {"switching_asymmetry": common_switching_asymmetry(an)}
     effects = [e if e.name not in UNCALIBRATABLE or e.name in with_ else held[e.name]
@@ -494,7 +521,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
                      "adds it, and `hil twin check` names it as a difference the twin lacks)")
     name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
     config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
-                         effects=tuple(effects), name=name)
+                         effects=tuple(effects), name=name, operating=OperatingRange(top_speed_rpm=top_speed_rpm))
     return Twin(config, measured, assumed, notes, an, left_out=[e for e, _ in left_out])
 
 
@@ -533,6 +560,7 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     lines += ["", "[inverter]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.inverter).items()]
     lines += ["", "[current_sensor]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.current_sensor).items()]
+    lines += ["", "[operating]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.operating).items()]
     measured_names = {"installation_offset", "pole_offset", "sensor_pole_offset", "switching_asymmetry",
                       "conditioning_delay", "edge_jitter"}
     if twin.analysis.tick_s and any(e.name == "timer_quantization" and e.tick_s == twin.analysis.tick_s
@@ -547,12 +575,15 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
 
 
 def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int | None = None,
-                 capture_tick_in_plant: bool = False, with_: tuple[str, ...] = ()) -> tuple[Twin, str]:
+                 capture_tick_in_plant: bool = False, with_: tuple[str, ...] = (),
+                 top_speed_rpm: float | None = None) -> tuple[Twin, str]:
     """The twin of a capture and its TOML text."""
     rec = load_capture(recording, pole_pairs)
     base_name = base or DEFAULT_BASE
     base_config = load_base(base)
+    if top_speed_rpm is None and base_name not in PRESETS and "operating" in load_toml(Path(base_name)):
+        top_speed_rpm = base_config.operating.top_speed_rpm  # the user's motor states its own top speed
     twin = twin_from_capture(analyse(rec, pole_pairs, source=str(recording)), base_config, base_name,
-                             capture_tick_in_plant, with_)
+                             capture_tick_in_plant, with_, top_speed_rpm, rewind_base=base_name in PRESETS)
     text = twin_toml(twin, Path(str(recording)).name, base_name)
     return twin, text

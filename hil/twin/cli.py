@@ -14,7 +14,8 @@ def cmd_plant_from_capture(args) -> int:
 
     with_ = tuple(name for name, option in UNCALIBRATABLE.items()
                   if getattr(args, "with_" + option.removeprefix("--with-").replace("-", "_")))
-    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant, with_)
+    twin, text = from_capture(args.recording, args.base, args.pole_pairs, args.capture_tick_in_plant, with_,
+                              args.top_speed_rpm)
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(text)
     PlantConfig.from_toml(args.out)  # what `hil plant check` reads: the file must load as written
@@ -56,6 +57,9 @@ def add_plant_parser(plant_sub) -> None:
     q.add_argument("-o", "--out", required=True, help="plant TOML to write")
     q.add_argument("--base", help="preset or plant TOML for what a capture cannot tell (default: paper-bench)")
     q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (else the capture's pole pattern)")
+    q.add_argument("--top-speed-rpm", type=float,
+                   help="the fastest the motor runs in service, where the acceptance suite's speeds end (default: "
+                   "the capture's top speed, so the suite judges the twin where it was measured)")
     q.add_argument("--capture-tick-in-plant", action="store_true",
                    help="keep the capture's sampling tick as the plant's timer quantisation (for a controller "
                    "that samples its Hall lines that coarsely); by default only `hil twin check` applies it")
