@@ -72,15 +72,19 @@ def speed_loop_gain_scale(motor: MotorParameters) -> float:
     return (motor.ke_v_s_per_rad / motor.supply_v) / (paper.ke_v_s_per_rad / paper.supply_v)
 
 
-def rewound(motor: MotorParameters, speed_ratio: float) -> MotorParameters:
-    """``motor`` wound for a top speed ``speed_ratio`` times lower (more turns of thinner wire in
-    the same slots, and a load sized to it): the back-EMF, duty and phase current at the new top
-    speed are the old ones at the old top, and so is the mechanical time constant. ke scales by the
-    ratio k; the load torque at the top speed (fan M w^2, friction f w) by k, so M by k^3 and f by
-    k^2; the inertia by k^2 (J w / T the same); R, L and the supply stay."""
+def rewound(motor: MotorParameters, speed_ratio: float, pole_pairs: int | None = None) -> MotorParameters:
+    """``motor`` for a top speed ``speed_ratio`` times lower (and ``pole_pairs``), the same motor per
+    unit of its top speed, supply voltage and current: the back-EMF, duty and phase current at the
+    new top speed are the old ones at the old top, and so are the electrical and mechanical time
+    constants per period. ke scales by the ratio k; the load torque at the top speed (fan M w^2,
+    friction f w) by k, so M by k^3 and f by k^2; the inertia by k^2 (J w / T the same); L by the
+    ratio of the top electrical frequencies (the same reactance at the top); R and the supply stay."""
     k = float(speed_ratio)
+    p = int(motor.pole_pairs if pole_pairs is None else pole_pairs)
     return dataclasses.replace(
         motor,
+        pole_pairs=p,
+        phase_inductance_h=motor.phase_inductance_h * k * motor.pole_pairs / p,
         ke_v_s_per_rad=motor.ke_v_s_per_rad * k,
         inertia_kg_m2=motor.inertia_kg_m2 * k * k,
         friction_n_m_s_per_rad=motor.friction_n_m_s_per_rad * k * k,

@@ -13,6 +13,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from bldc.contract import ADC_PERIOD_S, MAX_ADC_SAMPLES, MAX_CONDITIONING_DELAY_S, Command
+from bldc.motor import MotorParameters
 from plant_models import PlantConfig, Simulation
 
 from .dut.link import ControllerLink
@@ -20,6 +21,18 @@ from .dut.link import ControllerLink
 #: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,
 #: which moves fast right after a commutation, and a coarser step would blur it
 ACCEPTANCE_MAX_STEP_S = 2e-6
+
+
+def acceptance_max_step_s(config: PlantConfig) -> float:
+    """``ACCEPTANCE_MAX_STEP_S`` on the paper pump. On a motor whose currents move slower (its
+    electrical time constant L/R longer, and its top electrical frequency lower, as on a motor
+    ``bldc.motor.rewound`` for a lower top speed), as many steps per electrical period and per time
+    constant: stretched by the smaller of the two ratios, never shortened."""
+    paper = MotorParameters()
+    slower_currents = (config.motor.phase_inductance_h / config.motor.phase_resistance_ohm) / (
+        paper.phase_inductance_h / paper.phase_resistance_ohm
+    )
+    return ACCEPTANCE_MAX_STEP_S * max(1.0, min(config.suite_duration_s(1.0), slower_currents))
 
 
 def p99_abs(values) -> float:

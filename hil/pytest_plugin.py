@@ -535,7 +535,7 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from bldc.contract import Strategy
     from bldc.motor import steady_state
 
-    from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
+    from .bench import LockstepBench, acceptance_max_step_s
     from .progress import note
 
     benches = 0
@@ -573,7 +573,7 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
             initial_speed_rpm=speed_rpm,
             duty=steady_state(config.motor, speed_rpm)["duty"],
             seed=hil_seed if seed is None else seed,
-            sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+            sim_options={"max_step_s": acceptance_max_step_s(config)},
         )
 
     return make

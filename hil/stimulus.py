@@ -20,7 +20,7 @@ from bldc.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
 
-from .bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, p99_abs, rms
+from .bench import LockstepBench, acceptance_max_step_s, p99_abs, rms
 from .calibration.campaign import station_corrections
 from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
@@ -120,7 +120,7 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
         initial_speed_rpm=stimulus.speed_rpm,
         duty=steady_state(config.motor, stimulus.speed_rpm)["duty"],
         seed=stimulus.seed,
-        sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+        sim_options={"max_step_s": acceptance_max_step_s(config)},
     )
     if stimulus.kind == "deviations":
         # the settling windows as on the paper pump, and whole turns on a slow many-pole rotor (PlantConfig)

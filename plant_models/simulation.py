@@ -12,6 +12,7 @@ from bldc.hall import SECTOR_OF_CODE, SENSOR_POSITION_DEG_E
 from bldc.params import ConfigError
 from bldc.units import rad_per_s_to_rpm, rpm_to_rad_per_s
 
+from . import effects as fx
 from . import _kernel as K
 from . import _layout as L
 from .edgelog import EdgeLog, join_ideal
@@ -284,8 +285,9 @@ class Simulation:
     def set_edge_jitter(self, time_rms_s: float) -> None:
         """The Hall edges' RMS time jitter from the next edge on: a step of the edge noise in mid-run,
         which an adaptive filter must track (the ``edge_jitter`` effect sets it from the start)."""
-        if not math.isfinite(time_rms_s) or not 0.0 <= time_rms_s <= 20e-6:
-            raise ConfigError("edge jitter time_rms_s", f"must be within [0, 20e-6] s, got {time_rms_s!r}")
+        high = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]  # the effect library's bound
+        if not math.isfinite(time_rms_s) or not 0.0 <= time_rms_s <= high:
+            raise ConfigError("edge jitter time_rms_s", f"must be within [0, {high:g}] s, got {time_rms_s!r}")
         self.p[L.P_JIT_T] = time_rms_s
 
     @property

@@ -21,7 +21,7 @@ import pytest
 
 from bldc.contract import Strategy
 from bldc.motor import speed_loop_gain_scale, steady_state
-from hil.bench import ACCEPTANCE_MAX_STEP_S, LockstepBench
+from hil.bench import LockstepBench, acceptance_max_step_s
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.experiments.table5 import scenario_plant
@@ -86,7 +86,7 @@ def ideal_commutation_mean_current_a(config, rpm: float, seed: int, settle_s: fl
     gain_scale = speed_loop_gain_scale(config.motor)
     d0 = steady_state(config.motor, rpm)["duty"]
     sim = Simulation(config, OracleCommutation(), duty=d0, initial_speed_rpm=rpm, seed=seed,
-                     max_step_s=ACCEPTANCE_MAX_STEP_S)
+                     max_step_s=acceptance_max_step_s(config))
     integral = 0.0
     while sim.t_s < settle_s + window_s - 1e-9:
         sim.run_until(sim.t_s + FLOOR_LOOP_DT_S)
@@ -133,7 +133,8 @@ def test_calibration_removes_the_excess_current_of_raw_commutation(
             reference = InProcessLink(VirtualController(config.motor, strategy=Strategy.RAW, current_limit_a=None))
             unlimited = mean_current_a(
                 LockstepBench(config, reference, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"],
-                              seed=seed, sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S}), rpm, *window)
+                              seed=seed, sim_options={"max_step_s": acceptance_max_step_s(config)}),
+                rpm, *window)
             floor_a = ideal_commutation_mean_current_a(config, rpm, seed, *window)
             # the same operating point, or the comparison says nothing
             for name, (_, got) in (("raw", raw), ("calibrated", cal), ("unlimited raw", unlimited)):

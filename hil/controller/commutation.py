@@ -91,15 +91,19 @@ class HallCommutation:
             return
         t, sensor, rising, count = (np.array(v) for v in zip(*self._history[-(n + 1):]))
         best, best_var = 0, math.inf
-        # sector times about their straight line: a speed that changes over the turn (a speed step, or
-        # the loop pulled by a fault) is a trend in them, and a trend over one turn correlates with a
-        # once-per-turn pole pattern (a many-pole rotor's eccentricity), so it would pick the shift
+        # the edges as corrected for everything the table holds but the armature reaction (no current is
+        # kept per edge): a real delay left in (133 us on a spindle) makes the sectors far less even than
+        # a small pole table does, and the choice noise. Then the sector times about their straight
+        # line: a speed that changes over the turn (a speed step, or the loop pulled by a fault) is a
+        # trend in them, which a once-per-turn pole pattern (a many-pole rotor's eccentricity) resembles
         index = np.arange(n, dtype=float)
+        delay_s = np.where(rising, self.corrections.conditioning_delay_s["rise"],
+                           self.corrections.conditioning_delay_s["fall"])
         for shift in range(0, 2 * self.pole_pairs, 2):  # whole electrical periods
             pole = (count + shift) % (2 * self.pole_pairs)
             w = 360.0 * self.pole_pairs / (t[-1] - t[0])
             corr = self.corrections.static_deg_e(sensor, pole)
-            sector_s = np.diff(t - corr / w)
+            sector_s = np.diff(t - corr / w - delay_s)
             var = np.var(sector_s - np.polyval(np.polyfit(index, sector_s, 1), index))
             if var < best_var:
                 best, best_var = shift, var

@@ -20,7 +20,7 @@ from bldc.contract import FILTER_COUNTERS, Strategy, edge_as_received, filter_ve
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
-from ..bench import ACCEPTANCE_MAX_STEP_S, LockstepBench, rms
+from ..bench import LockstepBench, acceptance_max_step_s, rms
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..controller.adc import edge_currents
@@ -170,7 +170,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         initial_speed_rpm=first,
         duty=steady_state(config.motor, first)["duty"],
         seed=seed,
-        sim_options={"max_step_s": ACCEPTANCE_MAX_STEP_S},
+        sim_options={"max_step_s": acceptance_max_step_s(config)},
     )
     steps = bench.run_setpoints(list(setpoints_rpm), hold_s=hold_s, settle_s=settle_s)
     c = bench.sim.commutations()

@@ -501,12 +501,14 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
         measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (given)"))
     if rewind_base:
         k = base.operating.top_speed_rpm / top_speed_rpm
-        motor = dataclasses.replace(rewound(base.motor, k), pole_pairs=int(p))
+        motor = rewound(base.motor, k, int(p))
         assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
                         f"the base's ({base_name}, top {base.operating.top_speed_rpm:.0f} rpm) rewound for a "
-                        f"{top_speed_rpm:.0f} rpm top: ke x {k:.3g}, J and friction x {k * k:.3g}, fan load x "
-                        f"{k ** 3:.3g} (the base's duty, current and dynamics at its top are the twin's at its "
-                        "own); R, L, supply as the base: capture times say nothing of them"))
+                        f"{top_speed_rpm:.0f} rpm top on {p} pole pairs: ke x {k:.3g}, J and friction x "
+                        f"{k * k:.3g}, fan load x {k ** 3:.3g}, L x {k * base.motor.pole_pairs / p:.3g} (per unit "
+                        "of its top speed, supply and current the base motor: its duty, current and dynamics at "
+                        "its top are the twin's at its own); R, supply as the base: capture times say nothing of "
+                        "them"))
     else:
         assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
                         f"from the base ({base_name}): capture times say nothing of them"))
