@@ -6,6 +6,7 @@ bldc.contract; the reply comes back on its transmit COB-ID.
 
 from __future__ import annotations
 
+import os
 import queue
 import socket
 import struct
@@ -82,6 +83,10 @@ def _open_bus(where: str, interface: str, channel: str, timeout_s: float, bus_kw
             socket.create_connection((host, port), timeout=timeout_s).close()
         except OSError as exc:
             raise LinkError(f"{where}: cannot reach the socketcand server at {host}:{port}: {exc}") from None
+        # python-can's low-latency option (TCP_NODELAY, TCP_QUICKACK; not on Windows): without it an
+        # edge's header waits behind its data frames for the server's delayed ACK, about 33 ms an
+        # edge on loopback (30 edges/s, against 2,000 and more with it)
+        bus_kwargs = {"tcp_tune": os.name != "nt", **bus_kwargs}
     try:
         # python-can's virtual bus, with cheaper copies (hil.dut.virtual_can); any other through python-can
         bus = VirtualCanBus(channel=channel, **bus_kwargs) if interface == "virtual" else can.Bus(
