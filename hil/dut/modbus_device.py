@@ -323,7 +323,7 @@ class ModbusDevice:
         if self._mailbox is not None and table == "holding":
             first = address - self._mailbox[0]
             if 0 <= first and first + len(values) <= self._mailbox[1]:  # an edge message (or its part)
-                return self._write_mailbox(dict(zip(range(first, first + len(values)), values)))
+                return self._write_mailbox(first, values)
         cells = self.map.cells(table, address, len(values), self._mailbox, write=True)
         if cells is None:
             return ExcCodes.ILLEGAL_ADDRESS
@@ -340,7 +340,9 @@ class ModbusDevice:
         for role, elements in touched.items():
             if any(len(words) != objects[role].registers for words in elements.values()):
                 return ExcCodes.ILLEGAL_VALUE
-        if _split_header(mailbox):
+        first = min(mailbox, default=0)  # the mailbox's words of a write are one run of them
+        words = [mailbox[i] for i in sorted(mailbox)]
+        if _splits_the_header(first, len(words)):
             return ExcCodes.ILLEGAL_VALUE
         try:  # in address order: a staged table written with its apply action is applied whole
             for role in sorted(touched, key=lambda r: objects[r].address):
@@ -359,25 +361,22 @@ class ModbusDevice:
                 self.roles.write(role, present)
         except (ValueError, ProfileValueError):  # CalibrationTableError included
             return ExcCodes.ILLEGAL_VALUE
-        return self._write_mailbox(mailbox) if mailbox else None
+        return self._write_mailbox(first, words) if mailbox else None
 
-    def _write_mailbox(self, mailbox: dict[int, int]):
-        """The mailbox's words written (word index: value): a header written whole runs the
+    def _write_mailbox(self, first: int, words: list[int]):
+        """The mailbox's words from word ``first`` on written: a header written whole runs the
         edge; a part of a message's rest without it waits for the header."""
-        if _split_header(mailbox):
+        if _splits_the_header(first, len(words)):
             return ExcCodes.ILLEGAL_VALUE
-        for i, v in mailbox.items():
-            self._request[i] = v
-        header = [mailbox.get(i) for i in range(EDGE_HEADER_WORDS)]
-        rest = [mailbox[i] for i in sorted(mailbox) if i >= EDGE_HEADER_WORDS]
-        if None in header:  # a part of a message's rest, ahead of its header
-            self._rest_ahead += rest
+        self._request[first : first + len(words)] = words
+        if first:  # a part of a message's rest, ahead of its header
+            self._rest_ahead += words
             if len(self._rest_ahead) > MESSAGE_REST_WORDS:
                 self._rest_ahead = []
                 return ExcCodes.ILLEGAL_VALUE
             return None
         ahead, self._rest_ahead = self._rest_ahead, []
-        return self._edge(header + ahead + rest)
+        return self._edge(words[:EDGE_HEADER_WORDS] + ahead + words[EDGE_HEADER_WORDS:])
 
     def _edge(self, words: list[int]):
         """The edge message written to the mailbox: run the controller, leave the reply."""
@@ -394,10 +393,10 @@ class ModbusDevice:
         return None
 
 
-def _split_header(mailbox: dict[int, int]) -> bool:
-    """Whether a write to the mailbox covers a part of the header only (it is written whole)."""
-    written = sum(i in mailbox for i in range(EDGE_HEADER_WORDS))
-    return 0 < written < EDGE_HEADER_WORDS
+def _splits_the_header(first: int, count: int) -> bool:
+    """Whether ``count`` mailbox words from word ``first`` cover a part of the header only (it
+    is written whole)."""
+    return first < EDGE_HEADER_WORDS and (first > 0 or count < EDGE_HEADER_WORDS) and count > 0
 
 
 class RegisterMap:
