@@ -1,7 +1,8 @@
 """Lockstep throughput per link, run on demand: ``python benchmarks/bench_links.py``.
 
 Commutations per second through the lockstep bench (plant + controller, Sage-Husa strategy,
-6000 rpm) for the in-process link, CANopen on python-can's virtual bus, CANopen cross-process
+6000 rpm) for the in-process link, CANopen on python-can's virtual bus (through notifier threads,
+and inline as ``--dut virtual:canopen`` runs it: hil.dut.virtual_can), CANopen cross-process
 (socketcand protocol on loopback) and Modbus TCP, with CAN's physical bound beside them: at
 1 Mbit/s about 8,700 8-byte frames/s, and each edge takes at least two frames (RPDO in, TPDO
 out), so at most about 4,350 edges/s. Goals: in-process >= 20,000/s, CANopen virtual >= 3,000/s,
@@ -63,11 +64,17 @@ def main():
             ">= 20,000",
         )
     )
-    dev = CanopenDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA), node_id=5, channel="bench")
-    link = CanopenLink(node_id=5, channel="bench")
-    rows.append(("CANopen, python-can virtual bus", *rate(link, corrections, 0.5), ">= 3,000"))
-    link.close()
-    dev.close()
+    for inline, name in (
+        (False, "CANopen, virtual bus, notifier threads"),
+        (True, "CANopen, virtual bus, inline (--dut)"),
+    ):
+        channel = f"bench-{inline}"
+        dev = CanopenDevice(VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA), node_id=5, channel=channel,
+                            inline=inline)
+        link = CanopenLink(node_id=5, channel=channel, inline=inline)
+        rows.append((name, *rate(link, corrections, 0.5), ">= 3,000"))
+        link.close()
+        dev.close()
     ports = free_port(), free_port()
     proc = subprocess.Popen([sys.executable, "-m", "hil", "dut", "serve", "--canopen-port", str(ports[0]),
                              "--modbus-port", str(ports[1]), "--preset", "paper-bench+deviations"],

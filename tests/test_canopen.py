@@ -33,12 +33,14 @@ def corrections():
     return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
 
 
-@pytest.fixture
-def pair():
+@pytest.fixture(params=[False, True], ids=["notifier-threads", "inline"])
+def pair(request):
+    """A device and the link on one virtual channel: through python-can's notifier threads, and
+    with each frame taken in the sending thread as ``--dut virtual:canopen`` runs them."""
     channel = f"co{next(_channels)}"
     vc = VirtualController(CONFIG.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=6000.0)
-    dev = CanopenDevice(vc, node_id=5, channel=channel)
-    link = CanopenLink(node_id=5, channel=channel, timeout_s=0.5)
+    dev = CanopenDevice(vc, node_id=5, channel=channel, inline=request.param)
+    link = CanopenLink(node_id=5, channel=channel, timeout_s=0.5, inline=request.param)
     yield vc, dev, link
     link.close()
     dev.close()

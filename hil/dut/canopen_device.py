@@ -48,6 +48,7 @@ from .canopen_codec import (
 )
 from .eds import object_dictionary, virtual_identity
 from .profile import Profile, bound_profile
+from .virtual_can import VirtualCanBus, receive_inline
 from .virtual_roles import VirtualRoles
 
 #: the longest value any object of a dictionary built from a profile holds (VISIBLE_STRINGs are short); a
@@ -210,10 +211,13 @@ class CanopenDevice:
         interface: str = "virtual",
         channel: str = "hil",
         profile: Profile | str | None = None,
+        inline: bool = False,
         **bus_kwargs,
     ):
         """Node ``node_id`` on the bus, serving the dictionary of ``profile`` (default: the virtual
-        controller's own, hil/dut/profiles/virtual-canopen.toml) through the controller's roles."""
+        controller's own, hil/dut/profiles/virtual-canopen.toml) through the controller's roles.
+        ``inline``: on a python-can ``virtual`` channel, take each frame in the thread that sends
+        it, with no receive thread of its own (hil.dut.virtual_can: a host in the same process)."""
         self.profile = bound_profile("canopen", profile, controller.motor.pole_pairs, node_id)
         self.roles = VirtualRoles(controller, self.profile)
         self._cells = {
@@ -227,7 +231,13 @@ class CanopenDevice:
         # the notifier looks for a stop this often; close() waits for it (canopen's 1 s made
         # ``hil dut serve`` take up to a second longer to exit on SIGTERM)
         self.network.NOTIFIER_CYCLE = 0.05
-        self.network.connect(interface=interface, channel=channel, **bus_kwargs)
+        if inline:
+            if interface != "virtual":
+                raise ValueError(f"an inline device needs python-can's virtual interface, not {interface!r}")
+            self.network.bus = VirtualCanBus(channel=channel, **bus_kwargs)
+            receive_inline(self.network)
+        else:
+            self.network.connect(interface=interface, channel=channel, **bus_kwargs)
         self.node = canopen.LocalNode(node_id, object_dictionary(self.profile, node_id, virtual_identity()))
         self.network.add_node(self.node)
         self.od = self.node.object_dictionary

@@ -175,11 +175,16 @@ class ModbusDevice:
                     answers.append(struct.pack(">HHHB", tid, 0, len(answer) + 1, unit) + answer)
                 if answers:
                     writer.write(b"".join(answers))
-                    await asyncio.wait_for(writer.drain(), self.limits.idle_timeout_s)
+                    # the answers are in the kernel's buffer unless the client stops reading: only
+                    # then is there anything to wait for (wait_for wraps the wait in a task of its
+                    # own, two loop turns a request)
+                    if writer.transport.get_write_buffer_size():
+                        await asyncio.wait_for(writer.drain(), self.limits.idle_timeout_s)
                 timeout = self.limits.partial_timeout_s if buffer else self.limits.idle_timeout_s
                 try:
-                    chunk = await asyncio.wait_for(reader.read(4096), timeout)
-                except asyncio.TimeoutError:
+                    async with asyncio.timeout(timeout):  # no task of its own, as wait_for's
+                        chunk = await reader.read(4096)
+                except TimeoutError:
                     if buffer:
                         self._refuse("request incomplete after %.1f s: connection closed", timeout)
                     return
@@ -287,6 +292,11 @@ class ModbusDevice:
             return ExcCodes.DEVICE_FAILURE
 
     def _read(self, table: str, address: int, count: int):
+        if self._mailbox is not None and table == "holding":
+            request, words, reply = self._mailbox
+            clear_of_request = address + count <= request or request + words <= address
+            if clear_of_request and reply <= address and address + count <= reply + REPLY_WORDS:
+                return self._reply[address - reply : address - reply + count]  # an edge's reply
         cells = self.map.cells(table, address, count, self._mailbox, write=False)
         if cells is None:
             return ExcCodes.ILLEGAL_ADDRESS
@@ -310,6 +320,10 @@ class ModbusDevice:
                 for v in values]
 
     def _write(self, table: str, address: int, values: list[int]):
+        if self._mailbox is not None and table == "holding":
+            first = address - self._mailbox[0]
+            if 0 <= first and first + len(values) <= self._mailbox[1]:  # an edge message (or its part)
+                return self._write_mailbox(first, values)
         cells = self.map.cells(table, address, len(values), self._mailbox, write=True)
         if cells is None:
             return ExcCodes.ILLEGAL_ADDRESS
@@ -326,9 +340,10 @@ class ModbusDevice:
         for role, elements in touched.items():
             if any(len(words) != objects[role].registers for words in elements.values()):
                 return ExcCodes.ILLEGAL_VALUE
-        header = [mailbox.get(i) for i in range(EDGE_HEADER_WORDS)]
-        if mailbox and None in header and any(i < EDGE_HEADER_WORDS for i in mailbox):
-            return ExcCodes.ILLEGAL_VALUE  # the header is written whole
+        first = min(mailbox, default=0)  # the mailbox's words of a write are one run of them
+        words = [mailbox[i] for i in sorted(mailbox)]
+        if _splits_the_header(first, len(words)):
+            return ExcCodes.ILLEGAL_VALUE
         try:  # in address order: a staged table written with its apply action is applied whole
             for role in sorted(touched, key=lambda r: objects[r].address):
                 obj, elements = objects[role], touched[role]
@@ -346,19 +361,22 @@ class ModbusDevice:
                 self.roles.write(role, present)
         except (ValueError, ProfileValueError):  # CalibrationTableError included
             return ExcCodes.ILLEGAL_VALUE
-        if not mailbox:
-            return None
-        for i, v in mailbox.items():
-            self._request[i] = v
-        rest = [mailbox[i] for i in sorted(mailbox) if i >= EDGE_HEADER_WORDS]
-        if None in header:  # a part of a message's rest, ahead of its header
-            self._rest_ahead += rest
+        return self._write_mailbox(first, words) if mailbox else None
+
+    def _write_mailbox(self, first: int, words: list[int]):
+        """The mailbox's words from word ``first`` on written: a header written whole runs the
+        edge; a part of a message's rest without it waits for the header."""
+        if _splits_the_header(first, len(words)):
+            return ExcCodes.ILLEGAL_VALUE
+        self._request[first : first + len(words)] = words
+        if first:  # a part of a message's rest, ahead of its header
+            self._rest_ahead += words
             if len(self._rest_ahead) > MESSAGE_REST_WORDS:
                 self._rest_ahead = []
                 return ExcCodes.ILLEGAL_VALUE
             return None
         ahead, self._rest_ahead = self._rest_ahead, []
-        return self._edge(header + ahead + rest)
+        return self._edge(words[:EDGE_HEADER_WORDS] + ahead + words[EDGE_HEADER_WORDS:])
 
     def _edge(self, words: list[int]):
         """The edge message written to the mailbox: run the controller, leave the reply."""
@@ -373,6 +391,12 @@ class ModbusDevice:
         reply = [len(frames)] + sum((registers_of(f.pack()) for f in frames), [])
         self._reply = reply + [0] * (REPLY_WORDS - len(reply))
         return None
+
+
+def _splits_the_header(first: int, count: int) -> bool:
+    """Whether ``count`` mailbox words from word ``first`` cover a part of the header only (it
+    is written whole)."""
+    return first < EDGE_HEADER_WORDS and (first > 0 or count < EDGE_HEADER_WORDS) and count > 0
 
 
 class RegisterMap:

@@ -226,14 +226,17 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
         from .canopen_link import CanopenLink
 
         channel = f"hil-{os.getpid()}-{next(_channels)}"  # one bus per opened controller (and per xdist worker)
+        # both ends in this process: each frame is taken in the thread that sends it (hil.dut.virtual_can)
         device = CanopenDevice(
-            controller, node_id=o["node"], interface="virtual", channel=channel, profile=profile["profile"]
+            controller, node_id=o["node"], interface="virtual", channel=channel, profile=profile["profile"],
+            inline=True,
         )
         return _served(
             spec,
             device,
             lambda: CanopenLink(
-                node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"], **profile
+                node_id=o["node"], interface="virtual", channel=channel, timeout_s=o["timeout"], inline=True,
+                **profile,
             ),
         )
     from .modbus_device import ModbusDevice

@@ -20,6 +20,7 @@ bound ISO 11898-1 allows), so a real bus at that rate needs at most this long.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 
 #: the nominal (arbitration) and data bit rates the figures are for
@@ -29,6 +30,7 @@ CAN_FD_DATA_BIT_RATE = 5e6
 CAN_FD_LENGTHS = (0, 1, 2, 3, 4, 5, 6, 7, 8, 12, 16, 20, 24, 32, 48, 64)
 
 
+@functools.cache  # a link counts every frame it moves: one figure per length
 def can_frame_bits(data_bytes: int) -> int:
     """Bits of a classical CAN base frame with ``data_bytes`` (0-8), worst-case stuffing, with
     the 3-bit intermission."""
@@ -37,6 +39,7 @@ def can_frame_bits(data_bytes: int) -> int:
     return 47 + 8 * data_bytes + (33 + 8 * data_bytes) // 4
 
 
+@functools.cache
 def can_fd_frame_s(data_bytes: int) -> float:
     """Seconds a CAN FD base frame with bit-rate switch takes for ``data_bytes`` (padded to the
     next length CAN FD has), worst-case stuffing, 1 Mbit/s arbitration and 5 Mbit/s data."""
@@ -72,15 +75,17 @@ class LinkTraffic:
     def can_message(self, to_device: list[bytes], from_device: list[bytes]) -> None:
         """One edge on CAN: the frames sent to the device and those it answered with."""
         self.edges += 1
-        for frames, way in ((to_device, "to_device"), (from_device, "from_device")):
-            setattr(self, f"frames_{way}", getattr(self, f"frames_{way}") + len(frames))
-            setattr(self, f"bytes_{way}", getattr(self, f"bytes_{way}") + sum(map(len, frames)))
-            self.can_bits += sum(can_frame_bits(len(f)) for f in frames)
+        lengths_to, lengths_from = [len(f) for f in to_device], [len(f) for f in from_device]
+        self.frames_to_device += len(lengths_to)
+        self.frames_from_device += len(lengths_from)
+        self.bytes_to_device += sum(lengths_to)
+        self.bytes_from_device += sum(lengths_from)
+        self.can_bits += sum(map(can_frame_bits, lengths_to)) + sum(map(can_frame_bits, lengths_from))
         # on CAN FD: the message's bytes in as few frames as they need (a data frame's sequence
         # and index bytes are the classical framing's and not needed in one 64-byte frame, but
         # they are counted), each reply frame as it is
-        self.can_fd_s += can_fd_message_s(sum(map(len, to_device)))
-        self.can_fd_s += sum(can_fd_frame_s(len(f)) for f in from_device)
+        self.can_fd_s += can_fd_message_s(sum(lengths_to))
+        self.can_fd_s += sum(map(can_fd_frame_s, lengths_from))
 
     def modbus_transaction(self, request_bytes: int, response_bytes: int) -> None:
         """One Modbus request and its response (register bytes each way)."""
