@@ -372,8 +372,10 @@ def _produce_twin(vcd: str) -> Callable[[Path], Run]:
             if not req["traced"]:
                 continue
             run.figures[f"verdict.{req['id']}"] = Figure(str(req["verdict"]))
-            measured = [m for t in req["tests"] for m in t["measurements"] if m["requirement"] == req["id"]]
-            worst = min(measured, key=lambda m: m["margin"]) if measured else None
+            # every budget its tests judged (a calibration test judges REQ-COMM-001's angle budget too),
+            # the worst by its margin over its limit
+            measured = [m for t in req["tests"] for m in t["measurements"]]
+            worst = min(measured, key=lambda m: m["margin"] / max(abs(m["limit"]), 1e-12)) if measured else None
             bound = "-" if worst is None else "<=" if worst["limit_kind"] == "max" else ">="
             rows.append([req["id"], req["verdict"],
                          f"{worst['budget']} {worst['measured']:.3g} {worst['unit']} ({bound} {worst['limit']:g})"
