@@ -483,7 +483,8 @@ def cmd_dut_profile(args) -> int:
 def cmd_plant_check(args) -> int:
     config = PlantConfig.from_toml(args.plant)
     print(
-        f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs; effects: "
+        f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs, top speed "
+        f"{config.operating.top_speed_rpm:.0f} rpm; effects: "
         f"{', '.join(e.name for e in config.effects) or 'none'}; hash {config.config_hash()}"
     )
     return 0
