@@ -327,6 +327,9 @@ def produce_test_suite(work: Path) -> Run:
                           capture_output=True, text=True, env=env)
     wall = time.perf_counter() - t0
     m = re.search(r"(\d+) passed", done.stdout)
+    failed = [line for line in done.stdout.splitlines() if line.startswith(("FAILED ", "ERROR "))]
+    if failed:  # what made the exit status, kept with the figures
+        run.blocks["failures"] = "\n".join(failed) + "\n"
     run.figures = {
         "wall_s": Figure(wall, "s", "{:.0f}", reproducible=False),
         "passed": Figure(int(m.group(1)) if m else 0, "", "{:d}", reproducible=False),
