@@ -313,3 +313,29 @@ def test_after_a_fault_a_many_pole_rotor_is_realigned_while_its_speed_recovers(t
     outcome = run(stim, InProcessLink(VirtualController(plant.motor)), Budgets.defaults())
     assert outcome.values["acted"] == ["sensor_dropout"]
     assert outcome.ok, outcome.message
+
+
+REPLAYS = Path(__file__).parent / "data" / "replays"
+
+
+@pytest.mark.parametrize("replay, what", [
+    # REQ-ROB-001's draw on the hub's twin: a long sector read once as a lost edge at the start, and
+    # the interval put in its place became that sector's reference a turn later, so it read as a lost
+    # edge every turn and the pole alignment never held (18.8 deg e p99)
+    ("hub-twin-long-sector.json", "a substituted interval is never a same-sector reference"),
+    # REQ-ROB-002's sequence on the spindle's twin: after the faults the pole alignment was chosen on
+    # edges with the real 133 us delay left in, which made the choice noise (2.2 deg e p99 recovered)
+    ("spindle-twin-resync.json", "the alignment compares edges corrected for the delays"),
+])
+def test_what_the_suite_found_on_the_twins_passes_its_replay(replay, what):
+    """The stimuli the acceptance suite saved when it found two of the built-in controller's defects
+    on the shipped motors' twins (docs/twin.md), replayed against the controller: each now meets its
+    budget."""
+    from hil.budgets import Budgets
+    from hil.controller.virtual import VirtualController
+    from hil.dut.in_process import InProcessLink
+    from hil.stimulus import Stimulus, run
+
+    stimulus = Stimulus.load(REPLAYS / replay)
+    outcome = run(stimulus, InProcessLink(VirtualController(stimulus.plant_config().motor)), Budgets.defaults())
+    assert outcome.ok, f"{what}: {outcome.message}"
