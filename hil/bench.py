@@ -32,7 +32,7 @@ def acceptance_max_step_s(config: PlantConfig) -> float:
     slower_currents = (config.motor.phase_inductance_h / config.motor.phase_resistance_ohm) / (
         paper.phase_inductance_h / paper.phase_resistance_ohm
     )
-    return ACCEPTANCE_MAX_STEP_S * max(1.0, min(config.suite_duration_s(1.0), slower_currents))
+    return ACCEPTANCE_MAX_STEP_S * max(1.0, min(config.suite_time_scale, slower_currents))
 
 
 def p99_abs(values) -> float:

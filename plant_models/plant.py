@@ -113,11 +113,17 @@ class PlantConfig:
         same fraction of the top speed (identity on the paper pump)."""
         return paper_rpm * (self.operating.top_speed_rpm / PAPER_TOP_SPEED_RPM)
 
-    def suite_duration_s(self, paper_s: float) -> float:
-        """A window written for the paper pump, stretched on a motor whose top electrical frequency is
-        lower so that it holds as many electrical periods (edges) as on the paper pump; never shortened."""
+    @property
+    def suite_time_scale(self) -> float:
+        """How much longer a window must be on this motor than on the paper pump to hold as many
+        electrical periods (edges): the paper pump's top electrical frequency over this motor's, never
+        below 1."""
         paper_top_hz = PAPER_TOP_SPEED_RPM / 60.0 * PAPER_POLE_PAIRS
-        return paper_s * max(1.0, paper_top_hz / self.top_electrical_hz)
+        return max(1.0, paper_top_hz / self.top_electrical_hz)
+
+    def suite_duration_s(self, paper_s: float) -> float:
+        """A window written for the paper pump, stretched by ``suite_time_scale``; never shortened."""
+        return paper_s * self.suite_time_scale
 
     def suite_settle_s(self, paper_s: float, speed_rpm: float) -> float:
         """A settling window written for the paper pump (before anything is judged, from a start or
@@ -143,10 +149,7 @@ class PlantConfig:
             if isinstance(eff, fx.EdgeJitter) and eff.time_rms_s > 0.0:
                 eff = dataclasses.replace(eff, time_rms_s=self.suite_duration_s(eff.time_rms_s))
             if isinstance(eff, fx.PoleOffset) and len(eff.offset_deg_e) != 2 * self.motor.pole_pairs:
-                n = len(eff.offset_deg_e)
-                eff = dataclasses.replace(
-                    eff, offset_deg_e=tuple(eff.offset_deg_e[k % n] for k in range(2 * self.motor.pole_pairs))
-                )
+                eff = dataclasses.replace(eff, offset_deg_e=around_the_rotor(eff.offset_deg_e, self.motor.pole_pairs))
             kept.append(eff)
         return tuple(kept)
 
@@ -296,7 +299,14 @@ def paper_pole_offsets_deg_e(pole_pairs: int = PAPER_POLE_PAIRS) -> tuple[float,
     On a rotor with more poles than the paper's four, its four-pole pattern repeats around the
     rotor (the last repetition cut short), so every pole carries a deviation of the paper's size."""
     paper = (0.0,) + tuple(-pct / 100.0 * PAPER_PERCENT_BASE_DEG_E for pct in PAPER_TABLE2_POLE_PERCENT)
-    return tuple(paper[k % len(paper)] for k in range(2 * int(pole_pairs)))
+    return around_the_rotor(paper, pole_pairs)
+
+
+def around_the_rotor(pole_offsets_deg_e, pole_pairs: int) -> tuple[float, ...]:
+    """A pole table written for another pole count, on a rotor of ``pole_pairs``: its pattern repeats
+    around the rotor, the last repetition cut short (one entry per magnet pole)."""
+    n = len(pole_offsets_deg_e)
+    return tuple(float(pole_offsets_deg_e[k % n]) for k in range(2 * int(pole_pairs)))
 
 
 PRESETS = {"paper-bench": paper_bench, "paper-bench+deviations": lambda: paper_bench(True)}

@@ -99,9 +99,9 @@ class HallCommutation:
         index = np.arange(n, dtype=float)
         delay_s = np.where(rising, self.corrections.conditioning_delay_s["rise"],
                            self.corrections.conditioning_delay_s["fall"])
+        w = 360.0 * self.pole_pairs / (t[-1] - t[0])
         for shift in range(0, 2 * self.pole_pairs, 2):  # whole electrical periods
             pole = (count + shift) % (2 * self.pole_pairs)
-            w = 360.0 * self.pole_pairs / (t[-1] - t[0])
             corr = self.corrections.static_deg_e(sensor, pole)
             sector_s = np.diff(t - corr / w - delay_s)
             var = np.var(sector_s - np.polyval(np.polyfit(index, sector_s, 1), index))

@@ -191,11 +191,10 @@ class VirtualController:
         self._normal_steps = 6  # Hall steps in a row since the last lost edge
         self._resync_pending = False
         self._last_t: float | None = None
-        #: the last mechanical turn's sector intervals, oldest first (the missing-edge references)
-        self._intervals: deque[float] = deque(maxlen=6 * self.motor.pole_pairs)
-        #: whether each of them was measured (False: a reference put in place of an interval that
-        #: spanned lost edges, or of a glitch)
-        self._measured: deque[bool] = deque(maxlen=6 * self.motor.pole_pairs)
+        #: the last mechanical turn's sector intervals, oldest first (the missing-edge references), each
+        #: with whether it was measured (False: a reference put in place of an interval that spanned
+        #: lost edges, or of a glitch)
+        self._intervals: deque[tuple[float, bool]] = deque(maxlen=6 * self.motor.pole_pairs)
 
     # --- run time -------------------------------------------------------------------------------
     def raise_fault(self, code: int, t_s: float) -> None:
@@ -254,11 +253,8 @@ class VirtualController:
                     # wrong by a lost edge. Taken as the reference, it made every later sector
                     # read as lost edges, the edge count ran away and the corrections with it
                     dt, measured = ref, False
-                    # a step that was not a sector: the history is out of line
-                    self._intervals.clear()
-                    self._measured.clear()
-                self._intervals.append(dt)
-                self._measured.append(measured)
+                    self._intervals.clear()  # a step that was not a sector: the history is out of line
+                self._intervals.append((dt, measured))
             self._last_t = t
             self._edges_since_motion = 0
         if self._resync_pending and self._normal_steps >= 6:
@@ -287,11 +283,11 @@ class VirtualController:
         interval so far, with ``missing_edge_interval_ratio``."""
         if not self._intervals:
             return None, self.missing_edge_interval_ratio
-        if len(self._intervals) == self._intervals.maxlen and self._measured[0]:
+        if len(self._intervals) == self._intervals.maxlen and self._intervals[0][1]:
             # (a reference put in place of an interval is no measurement of this sector: a long
             # sector of a many-pole rotor, once read as a lost edge, would read as one every turn)
-            return self._intervals[0], self.same_sector_interval_ratio
-        return sum(self._intervals) / len(self._intervals), self.missing_edge_interval_ratio
+            return self._intervals[0][0], self.same_sector_interval_ratio
+        return sum(dt for dt, _ in self._intervals) / len(self._intervals), self.missing_edge_interval_ratio
     def _applied_delay_s(self, rising: bool) -> float:
         """The conditioning delay of the applied table for this polarity: the edge's current is read
         that long before the capture, where the armature field that moved the edge acted (0 before
@@ -304,7 +300,6 @@ class VirtualController:
         # the history no longer lines up with the sectors (one turn back is another sector now):
         # the references start again from the mean interval
         self._intervals.clear()
-        self._measured.clear()
         self._normal_steps, self._resync_pending = 0, True
 
     # --- read-backs -------------------------------------------------------------------------------
