@@ -149,6 +149,8 @@ def test_the_twin_check_json_keeps_its_contract(spindle_check, spindle_twin, tmp
     [
         (["plant", "from-capture", "no-such-capture.vcd", "-o", "x.toml"], "no-such-capture.vcd"),
         (["twin", "check", str(SPINDLE), "no-such-twin.toml", "--json", "x.json"], "no-such-twin.toml"),
+        (["plant", "from-capture", str(HBOARD), "-o", "x.toml", "--top-speed-rpm", "0"],
+         "--top-speed-rpm: must be > 0.0 rpm, got 0.0"),
     ],
 )
 def test_bad_input_is_one_line_naming_the_file(argv, expected, tmp_path, monkeypatch, capsys):

@@ -29,7 +29,7 @@ import numpy as np
 from scipy import optimize
 
 from bldc.motor import rewound
-from bldc.params import ConfigError
+from bldc.params import ConfigError, validate
 from bldc.tomlfile import load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.plant import OperatingRange
@@ -580,6 +580,11 @@ def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int
                  capture_tick_in_plant: bool = False, with_: tuple[str, ...] = (),
                  top_speed_rpm: float | None = None) -> tuple[Twin, str]:
     """The twin of a capture and its TOML text."""
+    if top_speed_rpm is not None:  # the plant's own bound on it, named as the option that gave it
+        try:
+            validate(OperatingRange(top_speed_rpm=float(top_speed_rpm)))
+        except ConfigError as exc:
+            raise ConfigError("--top-speed-rpm", str(exc).split(": ", 1)[1]) from None
     rec = load_capture(recording, pole_pairs)
     base_name = base or DEFAULT_BASE
     base_config = load_base(base)
