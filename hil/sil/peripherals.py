@@ -31,7 +31,7 @@ from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE
 from plant_models import _layout as L
 from plant_models.simulation import Commutations, Simulation
 
-from .firmware import Firmware, FirmwareInfo, SilInterfaceError
+from .firmware import Firmware, FirmwareInfo
 
 #: interrupt and call kinds, as the crash/hang record names them
 EVENTS = ("", "hil_sil_hall_isr", "hil_sil_compare_isr", "hil_sil_control_isr", "hil_sil_reset",
