@@ -52,6 +52,7 @@ from ._layout import (
     I_IDEAL_REGION,
     I_MODE,
     I_N_COMM,
+    GATE_PATTERN_BASE,
     I_N_EDGES,
     I_N_IDEAL,
     I_N_PENDING,
@@ -170,7 +171,20 @@ def _voltages(p, i, e, sector, drive_dir, duty, u, driven):
     vdc = p[P_VDC]
     for x in range(3):
         driven[x] = 0
-    if sector >= 0:
+    if sector >= GATE_PATTERN_BASE:
+        # a gate pattern as a firmware sets it (hil.sil): bit 2x the high switch of phase x,
+        # chopped at the duty, bit 2x+1 its low switch on; a leg with neither floats. Both
+        # switches of one leg are refused before they reach the plant (hil.sil.peripherals)
+        gates = sector - GATE_PATTERN_BASE
+        for x in range(3):
+            if gates & (1 << (2 * x)):
+                d = duty - p[P_DEAD] * p[P_FPWM] * (1.0 if i[x] >= 0.0 else -1.0)
+                u[x] = min(max(d, 0.0), 1.0) * vdc
+                driven[x] = 1
+            elif gates & (2 << (2 * x)):
+                u[x] = 0.0
+                driven[x] = 1
+    elif sector >= 0:
         hi = SECTOR_HIGH_PHASE[sector]
         lo = SECTOR_LOW_PHASE[sector]
         if drive_dir < 0:

@@ -52,6 +52,10 @@ I_RING_N = 25  # phase-current history rows written so far (the MCU ADC's ring, 
 N_ISTATE = 26
 
 MODE_EXTERNAL, MODE_RAW_HALL, MODE_ORACLE = 0, 1, 2
+#: the inverter's switch state: -1 all open, 0..5 a six-step sector (driven the way I_DIR says),
+#: GATE_PATTERN_BASE + g any other gate pattern g of a firmware (bit 2x high switch of phase x,
+#: 2x+1 its low switch: hil.sil)
+GATE_PATTERN_BASE = 8
 STOP_TIME, STOP_EDGE, STOP_FULL, STOP_NOISE = 0, 1, 2, 3
 
 # captured edge record

@@ -323,6 +323,17 @@ class Simulation:
         self.ist[L.I_CMD_COUNT] = live.shape[0]
 
     def run_until(self, t_stop_s: float) -> None:
+        while (edge := self.step_until(t_stop_s)) is not None:
+            edge["current_a"] = self.measured_mean_abs_current_a()
+            for cmd in self.source.on_edge(edge, self) or ():
+                self.schedule(cmd)
+        self._flush()
+
+    def step_until(self, t_stop_s: float) -> dict | None:
+        """Advance to ``t_stop_s``, or to the next captured edge when one comes first: its record
+        (capture and conditioned instants, sensor, polarity, the instant now), else None. The
+        edges' own loop (``run_until``), or a source that keeps its own events between them (the
+        firmware's interrupts, ``hil.sil``)."""
         while True:
             reason = K.run(
                 self.p, self.st, self.ist, self.switch_table, self.arm_table[0], self.arm_table[1], self.noise,
@@ -330,22 +341,20 @@ class Simulation:
                 float(t_stop_s),
             )
             if reason == L.STOP_TIME:
-                self._flush()
-                return
+                return None
             if reason == L.STOP_EDGE:
                 n = int(self.ist[L.I_N_EDGES])
+                row = self._edges[n - 1]
                 edge = {
-                    "t_capture_s": float(self._edges[n - 1, L.E_T_CAPTURE]),
-                    "sensor": int(self._edges[n - 1, L.E_SENSOR]),
-                    "rising": bool(self._edges[n - 1, L.E_RISING]),
+                    "t_capture_s": float(row[L.E_T_CAPTURE]),
+                    "t_conditioned_s": float(row[L.E_T_COND]),
+                    "sensor": int(row[L.E_SENSOR]),
+                    "rising": bool(row[L.E_RISING]),
                     "now_s": self.t_s,
-                    "current_a": self.measured_mean_abs_current_a(),
                 }
                 if n >= self._edges.shape[0]:
                     self._flush()
-                for cmd in self.source.on_edge(edge, self) or ():
-                    self.schedule(cmd)
-                continue
+                return edge
             if reason == L.STOP_NOISE:
                 self.noise[:] = self.rng.standard_normal(self.noise.size)
                 self.ist[L.I_NOISE] = 0

@@ -12,6 +12,8 @@ reach it, and ``open_dut`` gives the one ``ControllerLink`` the acceptance suite
     modbus-tcp:host=192.168.0.10,port=502,unit=1
     modbus-rtu:port=/dev/ttyUSB0,baud=115200,unit=1
     modbus-tcp:host=192.168.0.10,profile=acme-p3.toml        (the device's own register map: docs/device-profiles.md)
+    sil:firmware/reference                                   (C firmware in the loop: a folder with a sil.toml,
+    sil:build/libpump.so,profile=pump.toml                    or a shared library; docs/firmware-in-the-loop.md)
     virtual:modbus,profile=acme-p3.toml                      (the virtual controller served under that map)
 
 Every protocol form takes ``profile=FILE``, a device profile (``hil-device-profile/1``) mapping the
@@ -30,7 +32,7 @@ from bldc.motor import MotorParameters
 
 from .can_interfaces import unknown_can_interface
 
-KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu")
+KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu", "sil")
 VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
 #: keys each kind accepts, with a converter and a default (None: required)
 _KEYS = {
@@ -51,6 +53,13 @@ _KEYS = {
     },
     "modbus-rtu": {
         "port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0), "profile": (str, "")
+    },
+    # sil:PATH: the path comes first; hang: the wall time an interrupt may take; wrap_at: the
+    # simulated instant of the timer's (first) wrap; define: extra -D NAME[=VALUE] for a folder's
+    # build, joined by '+' (the seeded defects' switches); compiler: auto, system or ziglang
+    "sil": {
+        "path": (str, None), "profile": (str, ""), "timeout": (float, 1.0), "hang": (float, 1.0),
+        "wrap_at": (float, 0.25), "define": (str, ""), "compiler": (str, "auto"),
     },
 }
 _channels = itertools.count()
@@ -73,9 +82,11 @@ class DutSpec:
 
     @property
     def protocol(self) -> str:
-        """``canopen``, ``modbus`` or ``in-process``: which conformance tests apply."""
+        """``canopen``, ``modbus``, ``in-process`` or ``sil``: which conformance tests apply."""
         if self.is_virtual:
             return self.transport
+        if self.kind == "sil":
+            return "sil"
         return "canopen" if self.kind == "canopen" else "modbus"
 
     @property
@@ -104,6 +115,10 @@ def parse_dut(text: str) -> DutSpec:
             )
     keys = _KEYS[kind]
     options = {}
+    if kind == "sil":
+        first, _, more = rest.partition(",")
+        if first.strip() and "=" not in first:
+            options["path"], rest = first.strip(), more
     for part in filter(None, (p.strip() for p in rest.split(","))):
         key, eq, value = part.partition("=")
         key = key.strip().lower()
@@ -124,7 +139,9 @@ def parse_dut(text: str) -> DutSpec:
         raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
     if kind == "canopen" and (why := unknown_can_interface(options["interface"])):
         raise DutSpecError(f"--hil-dut {text!r}: {why}")
-    if options["profile"]:
+    if kind == "sil":
+        _check_sil(text, options)
+    elif options["profile"]:
         _check_profile(text, kind, transport, options["profile"])
     if options.get("eds"):
         _check_eds(text, options["eds"])
@@ -141,6 +158,33 @@ def _check_eds(text: str, path: str) -> None:
         raise DutSpecError(f"--hil-dut {text!r}: eds {exc}") from None
 
 
+def _check_sil(text: str, options: dict) -> None:
+    """A firmware path that is neither a shared library nor a folder with a readable sil.toml, a
+    profile that cannot be read or is not in CANopen form, or a bad option is refused before
+    anything is built."""
+    from pathlib import Path
+
+    path = Path(options["path"])
+    if not path.exists():
+        raise DutSpecError(f"--hil-dut {text!r}: {path}: no such file or folder")
+    if path.is_dir():
+        from ..sil.build import SilBuildError, read_build_spec
+        from bldc.tomlfile import TomlError
+
+        try:
+            read_build_spec(path)
+        except (SilBuildError, TomlError) as exc:
+            raise DutSpecError(f"--hil-dut {text!r}: {exc}") from None
+    elif options["define"]:
+        raise DutSpecError(f"--hil-dut {text!r}: define= needs a firmware folder with a sil.toml, not a library")
+    if not options["hang"] > 0:
+        raise DutSpecError(f"--hil-dut {text!r}: hang must be positive (seconds of wall time)")
+    if options["compiler"] not in ("auto", "system", "ziglang"):
+        raise DutSpecError(f"--hil-dut {text!r}: compiler must be auto, system or ziglang")
+    if options["profile"]:
+        _check_profile(text, "sil", "", options["profile"])
+
+
 def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
     """A profile that cannot be read, or is for the other protocol, is refused before anything opens."""
     from bldc.tomlfile import TomlError
@@ -151,7 +195,8 @@ def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
         profile = load_profile(path)
     except (ProfileError, TomlError) as exc:
         raise DutSpecError(f"--hil-dut {text!r}: profile {exc}") from None
-    protocol = transport if kind == "virtual" else ("canopen" if kind == "canopen" else "modbus")
+    # a firmware in the loop is described in its CANopen form (its object dictionary)
+    protocol = transport if kind == "virtual" else ("canopen" if kind in ("canopen", "sil") else "modbus")
     if protocol == "in-process":
         raise DutSpecError(f"--hil-dut {text!r}: the in-process link has no object dictionary for a profile")
     if profile.protocol != protocol:
@@ -205,6 +250,10 @@ def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Du
                 **bus,
             ),
         )
+    if spec.kind == "sil":
+        from ..sil import open_sil
+
+        return Dut(spec, open_sil(spec, motor))
     if spec.kind == "modbus-tcp":
         from .modbus_link import ModbusLink
 

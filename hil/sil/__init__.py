@@ -1,0 +1,64 @@
+"""Firmware in the loop (``hil-sil/1``): the suite against C firmware compiled for the PC.
+
+``--dut sil:PATH[,profile=FILE]``: PATH is a shared library exporting the ``hil_sil_*`` functions
+(``include/hil_sil.h``), or a folder with a ``sil.toml`` whose sources the framework compiles
+(``hil.sil.build``). The firmware runs in a process of its own (``hil.sil.worker``) beside the
+plant, behind emulated peripherals (``hil.sil.peripherals``); the suite reaches it through its
+object dictionary as a device profile maps it, and judges its commutation from the gates it
+switched (``hil.sil.link``). docs/firmware-in-the-loop.md.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from ..dut.link import LinkError
+
+
+def resolve_library(spec) -> tuple[Path, Path | None, str]:
+    """The shared library of a ``sil:`` DUT (built when PATH is a folder), the profile its
+    ``sil.toml`` names (None for a library), and one line on how it was obtained."""
+    from .build import SilBuildError, build, read_build_spec
+
+    path = Path(spec.options["path"])
+    if not path.is_dir():
+        return path.resolve(), None, f"library {path}"
+    build_spec = read_build_spec(path)
+    extra = []
+    for part in filter(None, spec.options["define"].split("+")):
+        name, _, value = part.partition("=")
+        extra.append((name.strip(), value.strip()))
+    try:
+        built = build(build_spec, tuple(extra), prefer=spec.options["compiler"])
+    except SilBuildError as exc:
+        raise LinkError(str(exc)) from None
+    how = f"{'cached build' if built.cached else 'built'} {built.key} with {built.toolchain}"
+    return built.library, build_spec.profile, how
+
+
+def open_sil(spec, motor):
+    """The SilLink of a ``sil:`` DUT, refused in one line when the library breaks the interface,
+    the profile cannot be read or the firmware is configured for other pole pairs than ``motor``."""
+    from ..dut.profile import ProfileError, bound_profile
+    from .firmware import SilInterfaceError
+    from .link import SilLink
+
+    library, built_profile, how = resolve_library(spec)
+    profile_path = spec.options["profile"] or built_profile
+    try:
+        profile = bound_profile("canopen", str(profile_path) if profile_path else None, motor.pole_pairs)
+    except ProfileError as exc:
+        raise LinkError(f"sil:{spec.options['path']}: profile {exc}") from None
+    try:
+        link = SilLink(library, profile, hang_s=spec.options["hang"], wrap_at_s=spec.options["wrap_at"],
+                       label=f"SIL firmware {spec.options['path']}")
+    except SilInterfaceError as exc:
+        raise LinkError(f"sil:{spec.options['path']}: {exc}") from None
+    link.build = how
+    if link.info.pole_pairs != motor.pole_pairs:
+        link.close()
+        raise LinkError(
+            f"sil:{spec.options['path']}: the firmware is configured for {link.info.pole_pairs} pole pairs "
+            f"(hil_sil_describe), the plant has {motor.pole_pairs}"
+        )
+    return link

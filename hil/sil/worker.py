@@ -1,0 +1,189 @@
+"""A firmware's own process: the library, the plant and the peripherals between them.
+
+One process per firmware instance: a firmware that crashes (a signal) or hangs (an interrupt
+that does not return) ends its process, never the run; the parent (``hil.sil.link``) names the
+event from the call record this process keeps in shared memory before every call into the
+firmware (``[seq, event, t_s, count, in_call]``), and the next test gets a freshly loaded,
+reset firmware.
+"""
+
+from __future__ import annotations
+
+import traceback
+
+import numpy as np
+
+from .firmware import Firmware, SilInterfaceError
+from .peripherals import DESCRIBE, OD_READ, OD_WRITE, RESET, FirmwareFault, Peripherals
+
+
+class _Worker:
+    def __init__(self, library: str, record: np.ndarray):
+        self.record = record
+        self.fw = Firmware(library)
+        self._enter(DESCRIBE)
+        self.info = self.fw.describe()
+        self._leave()
+        self.periph: Peripherals | None = None
+        self.emcy: list[tuple[float, int]] = []
+
+    def _enter(self, event: int, t_s: float = 0.0, count: float = -1.0) -> None:
+        r = self.record
+        r[1], r[2], r[3], r[4] = event, t_s, count, 1.0
+
+    def _leave(self) -> None:
+        self.record[4] = 0.0
+        self.record[0] += 1.0
+
+    def _now(self) -> tuple[float, int]:
+        p = self.periph
+        return (p.sim.t_s, p.count(p.sim.t_s)) if p is not None else (0.0, -1)
+
+    def _drain_emcy(self) -> None:
+        if self.periph is not None:
+            self.emcy += self.periph.emcy
+            self.periph.emcy = []
+        if self.fw.has_emcy:
+            t, _ = self._now()
+            while (code := self.fw.emcy()) is not None:
+                self.emcy.append((t, code))
+
+    # --- operations (the parent's requests) -------------------------------------------------------
+    def op_info(self):
+        return self.info
+
+    def op_od_read(self, index: int, sub: int, size: int):
+        self._enter(OD_READ, *self._now())
+        out = self.fw.od_read(index, sub, size)
+        self._leave()
+        self._drain_emcy()
+        return out
+
+    def op_od_write(self, index: int, sub: int, data: bytes):
+        self._enter(OD_WRITE, *self._now())
+        out = self.fw.od_write(index, sub, data)
+        self._leave()
+        self._drain_emcy()
+        return out
+
+    def op_power_cycle(self):
+        """``hil_sil_reset`` with the pins as the plant holds them (the last run's; before any
+        run, as a rotor at angle 0 would: A high, B low, C low is sector 0's code)."""
+        levels = self.periph.levels() if self.periph is not None else 0b001
+        self._enter(RESET, *self._now())
+        self.fw.reset(levels)
+        self._leave()
+        self.emcy = []
+        self._drain_emcy()
+        self.emcy = []  # what the firmware queued before the power cycle is gone with its RAM
+
+    def op_bench(self, config, seed: int, wrap_at_s: float, sim_kwargs: dict):
+        from plant_models.simulation import Simulation
+
+        from plant_models import _layout as L
+
+        class _Source:  # the firmware answers through its peripherals, not through commands
+            mode = L.MODE_EXTERNAL
+            latency_s = 0.0
+
+        sim = Simulation(config, _Source(), seed=seed, **sim_kwargs)
+        self._drain_emcy()
+        self.emcy = []
+        self.periph = Peripherals(self.fw, self.info, sim, seed=seed, wrap_at_s=wrap_at_s, record=self.record)
+        return sim.t_s
+
+    def op_run_until(self, t_s: float):
+        try:
+            self.periph.run_until(t_s)
+        finally:
+            self._drain_emcy()
+        return self.periph.sim.t_s, self.periph.interrupts
+
+    def op_emcy(self):
+        self._drain_emcy()
+        out, self.emcy = self.emcy, []
+        return out
+
+    def op_sim(self, name: str, *args):
+        """A plant result or setting: edges, samples, energy, set_edge_jitter, edge_jitter_s, speed_rpm."""
+        sim = self.periph.sim
+        attr = getattr(sim, name)
+        return attr(*args) if callable(attr) else attr
+
+    def op_commutations(self):
+        return self.periph.commutations()
+
+
+def main(conn, record: np.ndarray, library: str) -> None:
+    """The process's loop: one request, one answer, until ``close`` or the parent goes away."""
+    try:
+        worker = _Worker(library, record)
+    except SilInterfaceError as exc:
+        conn.send(("interface", str(exc)))
+        return
+    except BaseException as exc:  # noqa: BLE001 (sent to the parent, which raises it)
+        conn.send(("error", _portable(exc)))
+        return
+    conn.send(("ok", worker.info))
+    while True:
+        try:
+            op, args = conn.recv()
+        except (EOFError, OSError):
+            return
+        if op == "close":
+            conn.send(("ok", None))
+            return
+        try:
+            result = getattr(worker, f"op_{op}")(*args)
+        except (FirmwareFault, SilInterfaceError) as exc:
+            conn.send(("fault", str(exc)))
+            return  # the firmware's state can no longer be trusted: the next request gets a new process
+        except BaseException as exc:  # noqa: BLE001
+            conn.send(("error", _portable(exc)))
+            continue
+        conn.send(("ok", result))
+
+
+class _Duplex:
+    """Two one-way pipe ends as one connection (what ``multiprocessing.Pipe`` would give, over
+    descriptors a plain subprocess inherits)."""
+
+    def __init__(self, reader, writer):
+        self.reader, self.writer = reader, writer
+
+    def recv(self):
+        return self.reader.recv()
+
+    def send(self, obj) -> None:
+        self.writer.send(obj)
+
+    def poll(self, timeout: float = 0.0) -> bool:
+        return self.reader.poll(timeout)
+
+    def close(self) -> None:
+        self.reader.close()
+        self.writer.close()
+
+    @property
+    def closed(self) -> bool:
+        return self.reader.closed
+
+
+def _portable(exc: BaseException) -> BaseException:
+    """``exc`` if it pickles, else a RuntimeError carrying its text and traceback."""
+    import pickle
+
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:
+        return RuntimeError(f"{type(exc).__name__}: {exc}\n{''.join(traceback.format_exception(exc))}")
+
+
+if __name__ == "__main__":  # python -m hil.sil.worker READ_FD WRITE_FD RECORD_FILE LIBRARY (hil.sil.link starts it)
+    import sys
+    from multiprocessing.connection import Connection
+
+    read_fd, write_fd, record_file, library_path = sys.argv[1:5]
+    main(_Duplex(Connection(int(read_fd), writable=False), Connection(int(write_fd), readable=False)),
+         np.memmap(record_file, dtype=np.float64, mode="r+", shape=(5,)), library_path)
