@@ -43,27 +43,43 @@ static int64_t tb_ticks;
 static uint32_t tb_last;
 static uint8_t tb_valid;
 
-static int64_t tb_extend(uint32_t count)
+/* the 64-bit time of a counter value: the last one seen plus the counter's step since, taken
+   modulo the width and signed (a capture latched a little before the last interrupt's count is a
+   little in the past, not a wrap ahead); the clock advances to the newest count */
+static int64_t tb_at(uint32_t count)
 {
+    int64_t delta, t;
     count &= TIMER_MASK;
     if (!tb_valid) {
         tb_valid = 1u;
         tb_ticks = (int64_t)count; /* ticks since the timer started */
-    } else {
-#if defined(HIL_DEFECT_TIMER_WRAP)
-        tb_ticks += (int64_t)count - (int64_t)tb_last; /* not modular: a wrap steps back 2^bits */
-#else
-        tb_ticks += (int64_t)((count - tb_last) & TIMER_MASK);
-#endif
+        tb_last = count;
     }
-    tb_last = count;
+#if defined(HIL_DEFECT_TIMER_WRAP)
+    delta = (int64_t)count - (int64_t)tb_last; /* not modular: a wrap steps back 2^bits */
+    t = tb_ticks + delta;
+    if (delta > 0 || delta <= -(int64_t)TIMER_HALF) {
+        tb_ticks = t;
+        tb_last = count;
+    }
+#else
+    {
+        uint32_t d = (count - tb_last) & TIMER_MASK;
+        delta = d >= TIMER_HALF ? (int64_t)d - (int64_t)TIMER_MASK - 1 : (int64_t)d;
+    }
+    t = tb_ticks + delta;
+    if (delta > 0) {
+        tb_ticks = t;
+        tb_last = count;
+    }
+#endif
 #if defined(HIL_DEFECT_FLOAT_SECONDS)
     {   /* the firmware's clock as float32 seconds: 24 bits of mantissa for the whole run */
-        float s = (float)tb_ticks * SECONDS_PER_TICK;
+        float s = (float)t * SECONDS_PER_TICK;
         return (int64_t)(s * (float)TIMER_HZ);
     }
 #else
-    return tb_ticks;
+    return t;
 #endif
 }
 
@@ -81,6 +97,10 @@ typedef struct {
 
 #define QUEUE 8
 #define COMPARE_LEAD_TICKS 1  /* an instant this close is made now: an arm at the counter fires a wrap late */
+/* the Hall interrupt knows its capture's count, not the counter's present value, which is later by
+   the interrupt's latency: an instant closer than this to the capture is made at once (an arm
+   behind the counter would fire a wrap late) */
+#define HALL_GUARD_TICKS ((int64_t)(20e-6 * TIMER_HZ))
 static command_t queue[QUEUE];
 static int n_queue;
 static uint8_t out_gates;
@@ -123,14 +143,14 @@ static void rearm(int64_t now)
 }
 
 /* a command from ``at`` on (Python: Command(at_s, sector, duty)); made now when due */
-static void emit(int64_t now, int64_t at, int sector, float duty)
+static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
 {
     command_t c;
     int i;
     c.at = at + (int64_t)DEFECT_GATE_LATENCY_TICKS;
     c.sector = (int8_t)sector;
     c.duty = duty;
-    if (c.at - now <= COMPARE_LEAD_TICKS) {
+    if (c.at - now <= lead) {
 #if defined(HIL_DEFECT_LATE_COMPARE)
         late = c;      /* armed for an instant already due: the compare fires a wrap later */
         late_armed = 1u;
@@ -477,13 +497,13 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
         }
     }
     if (!L.corrected || !L.hc_has_last) {
-        emit(now, now, sector, duty);
+        emit(now, now, sector, duty, HALL_GUARD_TICKS);
     } else {
         int64_t predicted = 0, at;
         int got = 0;
         float current;
-        if (!L.has_sched || L.sched_sector != sector || L.sched_at <= now) emit(now, now, sector, duty);
-        else if (duty >= 0.0f) emit(now, now, -1, duty);
+        if (!L.has_sched || L.sched_sector != sector || L.sched_at <= now) emit(now, now, sector, duty, HALL_GUARD_TICKS);
+        else if (duty >= 0.0f) emit(now, now, -1, duty, HALL_GUARD_TICKS);
         /* K_T of Eq. 8 is per ampere of the cycle mean: the cycle's accumulators, else the edge's */
         current = cycle_a >= 0.0f ? cycle_a : (current_a >= 0.0f ? current_a : 0.0f);
 #if defined(HIL_DEFECT_PREDICTOR_FED_MILLIAMPERES)
@@ -504,7 +524,7 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
         L.has_sched = 1u;
         L.sched_sector = (int8_t)((sector + 1) % 6);
         L.sched_at = at;
-        emit(now, at, L.sched_sector, -1.0f);
+        emit(now, at, L.sched_sector, -1.0f, HALL_GUARD_TICKS);
     }
     L.hc_has_last = 1u;
     L.hc_last_t = t;
@@ -559,7 +579,7 @@ static void edge_lost(void)
 
 void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc[3])
 {
-    int64_t t = tb_extend(count);
+    int64_t t = tb_at(count);
     uint8_t rising, motion = 1u;
     float current_a, cycle_a = -1.0f, delay_s = 0.0f;
     int sector;
@@ -641,7 +661,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
 
 void ctl_control_isr(uint32_t count, const int16_t adc[3])
 {
-    int64_t now = tb_extend(count);
+    int64_t now = tb_at(count);
     adc_push(now, adc);
     cycle_sum[0] += adc[0];
     cycle_sum[1] += adc[1];
@@ -661,7 +681,7 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
 
 void ctl_compare_isr(uint32_t count)
 {
-    int64_t now = tb_extend(count);
+    int64_t now = tb_at(count);
 #if defined(HIL_DEFECT_LATE_COMPARE)
     if (late_armed && ((uint32_t)late.at & TIMER_MASK) == (count & TIMER_MASK)) {
         late_armed = 0u;
