@@ -141,3 +141,14 @@ class LockstepBench:
             self.link.set_speed(rpm)
             self.sim.run_until(steps[-1] + hold_s)
         return steps
+
+
+def make_bench(config: PlantConfig, link, **kwargs) -> LockstepBench:
+    """The bench for ``link``: its own when it has one (a firmware in the loop runs the plant beside
+    its peripherals: ``hil.sil``), else a LockstepBench that sends it every edge. ``link`` may be a
+    wrapper (``hil.faults.FaultInjector``) around either."""
+    wrapped = getattr(link, "mirror", False) is not False and getattr(link, "link", None)
+    if wrapped is not None and wrapped is not False and callable(getattr(wrapped, "bench", None)):
+        return wrapped.bench(config, wiring=link, **kwargs)  # the wiring faults go onto the firmware's pins
+    own = getattr(link, "bench", None)
+    return own(config, **kwargs) if callable(own) else LockstepBench(config, link, **kwargs)

@@ -100,15 +100,24 @@ class FaultInjector:
         self.log: list[tuple[float, str, str]] = []  #: (plant time, "on"/"off"/"acted", fault name)
         self._bits: dict[int, int] = {}
         self._t = 0.0
+        #: where the faults act when the edges do not pass through here (a firmware in the loop
+        #: gets them on its pins, in its own process: ``hil.sil``): called with ("on"|"off", fault)
+        self.mirror = None
 
     def __getattr__(self, name):  # everything but edges goes straight to the controller
         return getattr(self.link, name)
 
     def switch_on(self, fault: WiringFault) -> None:
+        if self.mirror is not None:
+            self.mirror("on", fault)
+            return
         self.active.append(fault)
         self.log.append((self._t, "on", fault.name))
 
     def switch_off(self, fault: WiringFault) -> None:
+        if self.mirror is not None:
+            self.mirror("off", fault)
+            return
         if fault in self.active:
             self.active.remove(fault)
             self.log.append((self._t, "off", fault.name))

@@ -244,7 +244,8 @@ def _check_configuration(config, report_dir) -> None:
         ReportWriter.clear(Path(report_dir))  # a run refused below must not leave the last run's verdict behind
     specs = dut_specs(config)
     workers = config.getoption("numprocesses", None)
-    real = [s.text for s in specs if not s.is_virtual]
+    # a firmware in the loop is opened once per worker too, each in its own process, like a virtual controller
+    real = [s.text for s in specs if not s.is_virtual and s.kind != "sil"]
     if controller and workers and real:
         raise pytest.UsageError(
             f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
@@ -507,25 +508,38 @@ def _traffic(link) -> dict | None:
     return traffic.as_dict() if traffic is not None else None
 
 
+def edge_hook_kind(link) -> str:
+    """How edges reach ``link``'s controller: its profile's edge hook, or ``pins`` for a firmware in
+    the loop (its interrupts see the plant's Hall pins; the profile's hook is ignored there)."""
+    return "pins" if getattr(link, "name", "") == "sil" else link.profile.edge_hook.kind
+
+
 def _require_testable(item, link) -> None:
-    """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source its
-    requirements need (hil.requirements); a link without a profile has everything."""
+    """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source every
+    one of its requirements needs (hil.requirements); a link without a profile has everything. When
+    only some lack it, the test runs and judges the others (``item.hil_not_testable`` names the
+    lacking ones, which the report lists as not testable)."""
+    item.hil_not_testable = set()
     profile = getattr(link, "profile", None)
     if profile is None:
         return
     from .requirements import missing_needs
 
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    for mark in item.iter_markers("requirement"):
+        rids |= {str(a) for a in mark.args}
     params = getattr(getattr(item, "callspec", None), "params", {})
     rids |= {v for v in params.values() if isinstance(v, str) and v.startswith("REQ-")}
-    missing = missing_needs(rids, profile.has, profile.edge_hook.kind, profile.fault_sources)
+    hook = edge_hook_kind(link)
+    missing = missing_needs(rids, profile.has, hook, profile.fault_sources)
     if missing:
         reason = f"not testable with the profile {profile.path}: it lacks {', '.join(missing)}"
         # the requirements the profile cannot show; the test's others are merely not tested by it
-        lacking = sorted(r for r in rids if missing_needs([r], profile.has, profile.edge_hook.kind,
-                                                         profile.fault_sources))
+        lacking = sorted(r for r in rids if missing_needs([r], profile.has, hook, profile.fault_sources))
         item.user_properties.append((PROPERTY_PREFIX + "not_testable", {"reason": reason, "requirements": lacking}))
-        pytest.skip(reason)
+        item.hil_not_testable = set(lacking)
+        if not rids or set(lacking) >= rids:
+            pytest.skip(reason)
 
 
 @pytest.fixture
@@ -535,8 +549,10 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     from bldc.contract import Strategy
     from bldc.motor import steady_state
 
-    from .bench import LockstepBench, acceptance_max_step_s
+    from .bench import acceptance_max_step_s, make_bench
+    from .dut.link import link_has
     from .progress import note
+    from .requirements import CALIBRATION
 
     benches = 0
 
@@ -562,12 +578,15 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
         benches += 1
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
-        if corrections is not None:
+        # a controller without the calibration roles or the strategy role is judged with its own
+        # calibration and strategy: nothing downloaded, nothing set (hil.requirements, ``uses``)
+        if corrections is not None and link_has(hil_link, *CALIBRATION):
             hil_link.download_calibration(corrections)
-        hil_link.set_strategy(int(strategy))
+        if link_has(hil_link, "strategy"):
+            hil_link.set_strategy(int(strategy))
         # plant steps of at most 2 us: the armature reaction follows the instantaneous current, which
         # moves fast right after a commutation; a coarser step would blur it (docs/acceptance.md)
-        return LockstepBench(
+        return make_bench(
             config,
             hil_link,
             initial_speed_rpm=speed_rpm,

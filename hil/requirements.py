@@ -50,9 +50,16 @@ class Requirement:
     #: what a device profile must offer (hil.dut.profile roles, docs/device-profiles.md); a profile
     #: that lacks one makes the requirement "not testable with this profile"
     roles: tuple[str, ...] = ()
-    edge_hook: bool = False  #: edges reach the controller (the lockstep bench)
-    fault_source: str | None = None  #: how its faults must be seen ("emcy")
+    #: closed loop: the plant's edges reach the controller (the lockstep edge hook, or a firmware's
+    #: own pins in the loop, ``hil.sil``) and its commutation is judged on the plant
+    edge_hook: bool = False
+    #: how its faults must be seen: "emcy", or "any" (the ``fault_code`` role or EMCY)
+    fault_source: str | None = None
     budgets: tuple[DefaultBudget, ...] = ()
+    #: roles used when the profile has them and not needed: without the strategy and the calibration
+    #: roles, a controller that calibrates itself or keeps its own tables is judged as it comes, with
+    #: the deviations present and nothing downloaded (the accuracy its user would get)
+    uses: tuple[str, ...] = ()
 
 
 #: role groups (hil.dut.profile roles) several requirements need
@@ -148,7 +155,7 @@ _REGISTRY = (
         "REQ-COMM-001", "Corrected commutation lands within the angle budget over the speed range",
         "the combined deviations (`test_calibration_recovery.py[combined]`); the same through the pins "
         "(`test_signal_injection.py`)",
-        "calibration.md#raw-versus-corrected-commutation-paper-section-43", _BENCH, edge_hook=True,
+        "calibration.md#raw-versus-corrected-commutation-paper-section-43", (), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
             'commutation_angle_p99', 'deg_e', 0.5,
             marginal=0.4,
@@ -313,29 +320,29 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-FLT-001", "An illegal Hall code (000/111) raises fault 0xFF01", _FLT_TEST + " (a Hall spike)",
-        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-002", "A missing edge raises fault 0xFF02", _FLT_TEST + " (a lost edge)",
-        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-003", "A Hall sensor drop-out is detected as a fault", _FLT_TEST + " (0xFF01 or 0xFF02)",
-        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-004", "A filter guard trip raises fault 0xFF03", "`test_faults.py`: a forced covariance repair",
-        _CONTROLLER_DOC, (*_BENCH, *FILTER_SETTINGS, GUARD_TRIPS, "fault_code"), edge_hook=True,
+        _CONTROLLER_DOC, (*_BENCH, *FILTER_SETTINGS, GUARD_TRIPS), edge_hook=True, fault_source="any",
     ),
     Requirement(
         "REQ-FLT-005", "No fault is raised on a healthy run", "`test_faults.py`: a healthy run raises none",
-        _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
+        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-ROB-001", "Any combination of bounded deviations, once calibrated, meets the commutation budget",
         "`test_fault_injection.py`: hypothesis over deviation sets (`target()` on the p99; 100 examples); the "
         "evidence carries `examples run` and the seed, and a search that ran fewer examples than it claims fails",
-        "acceptance.md#findings-and-the-search-bounds", _BENCH, edge_hook=True,
+        "acceptance.md#findings-and-the-search-bounds", (), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
             'any_deviations_commutation_angle_p99', 'deg_e', 1.0,
             marginal=0.5,
@@ -349,7 +356,7 @@ _REGISTRY = (
     Requirement(
         "REQ-ROB-002", "Faults switched on and off while running are reported and recovered from",
         "`test_fault_injection.py`: a stateful machine of wiring faults switched on and off (50 sequences)",
-        "acceptance.md#findings-and-the-search-bounds", (*_BENCH, "fault_code"), edge_hook=True,
+        "acceptance.md#findings-and-the-search-bounds", (), edge_hook=True, fault_source="any", uses=_BENCH,
         budgets=(DefaultBudget(
             'recovered_commutation_angle_p99', 'deg_e', 1.0,
             marginal=0.8,
@@ -364,7 +371,7 @@ _REGISTRY = (
         "REQ-CUR-001", "The phase current stays within the controller's current limit through a set-point step",
         f"`test_current.py`: the controller's own speed loop stepped {_SPEED_STEP} with calibrated commutation; "
         "peak phase current from the plant's true currents",
-        _CONTROLLER_DOC, _SPEED_LOOP, edge_hook=True,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
             'phase_current_peak_a', 'A', 15.0,
             marginal=13.5,
@@ -401,7 +408,7 @@ _REGISTRY = (
     Requirement(
         "REQ-SPD-001", "The controller's speed loop settles a set-point step without excessive overshoot",
         f"`test_current.py`: the same {_SPEED_STEP} step; overshoot and settling time from the plant's true speed",
-        _CONTROLLER_DOC, _SPEED_LOOP, edge_hook=True,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(
             DefaultBudget(
                 'speed_step_overshoot', 'fraction', 0.2,
@@ -434,7 +441,9 @@ REQUIREMENTS: dict[str, Requirement] = {r.id: r for r in _REGISTRY}
 def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list[str]:
     """What a device profile lacks for ``requirements`` (``has_role(role)``, its edge hook kind, its
     fault sources), one phrase each; empty when every requirement is testable through it. A
-    requirement the registry does not hold (a user's own budget's) needs nothing."""
+    requirement the registry does not hold (a user's own budget's) needs nothing. ``edge_hook`` is
+    the profile's ``[edge_hook] kind``, or ``"pins"`` for a firmware in the loop (its own Hall pins
+    close the loop; ``hil.sil``)."""
     out: list[str] = []
     for rid in sorted(set(requirements)):
         if (req := REQUIREMENTS.get(rid)) is None:
@@ -442,7 +451,11 @@ def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list
         out += [f"role {r}" for r in req.roles if not has_role(r) and f"role {r}" not in out]
         if req.edge_hook and edge_hook == "none" and "an edge hook" not in out:
             out.append("an edge hook")
-        if req.fault_source and req.fault_source not in fault_sources and f"fault source {req.fault_source}" not in out:
+        if req.fault_source == "any":
+            if not has_role("fault_code") and "emcy" not in fault_sources and "a fault source" not in out:
+                out.append("a fault source (the fault_code role or EMCY)")
+        elif (req.fault_source and req.fault_source not in fault_sources
+              and f"fault source {req.fault_source}" not in out):
             out.append(f"fault source {req.fault_source}")
     return out
 
@@ -463,8 +476,10 @@ def _roles_in_words(roles: tuple[str, ...]) -> str:
 
 def _needs_in_words(req: Requirement) -> str:
     parts = [_roles_in_words(req.roles)] if req.roles else []
-    parts += ["the edge hook"] if req.edge_hook else []
-    parts += [f"fault source {req.fault_source}"] if req.fault_source else []
+    parts += ["closed loop (the edge hook, or firmware in the loop)"] if req.edge_hook else []
+    parts += (["the fault_code role or EMCY"] if req.fault_source == "any"
+              else [f"fault source {req.fault_source}"] if req.fault_source else [])
+    parts += [f"uses {_roles_in_words(req.uses)} when present"] if req.uses else []
     return "; ".join(parts) or "–"
 
 

@@ -20,7 +20,9 @@ from bldc.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
 
-from .bench import LockstepBench, acceptance_max_step_s, p99_abs, rms
+from .bench import acceptance_max_step_s, make_bench, p99_abs, rms
+from .dut.link import link_has
+from .requirements import CALIBRATION
 from .calibration.campaign import station_corrections
 from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
@@ -110,11 +112,14 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     config = stimulus.plant_config()
     # both kinds commutate on corrected edges with the station's tables for this plant
     link.reset()
-    link.download_calibration(station_corrections(config, seed=stimulus.seed))
+    # a controller without the calibration or strategy roles is judged with its own (nothing downloaded)
+    if link_has(link, *CALIBRATION):
+        link.download_calibration(station_corrections(config, seed=stimulus.seed))
     strategy = strategy_named(stimulus.strategy) if stimulus.kind == "deviations" else Strategy.CORRECTED
-    link.set_strategy(int(strategy))
+    if link_has(link, "strategy"):
+        link.set_strategy(int(strategy))
     injector = FaultInjector(link)
-    bench = LockstepBench(
+    bench = make_bench(
         config,
         injector,
         initial_speed_rpm=stimulus.speed_rpm,

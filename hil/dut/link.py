@@ -43,6 +43,13 @@ class ControllerLink(Protocol):
     def close(self) -> None: ...
 
 
+def link_has(link, *roles: str) -> bool:
+    """Whether ``link``'s device profile maps every role (a link without a profile, the in-process
+    one, has all of them)."""
+    profile = getattr(link, "profile", None)
+    return profile is None or all(profile.has(r) for r in roles)
+
+
 def verify_calibration(written: Corrections, read_back: Corrections, tolerance: dict[str, float] | None = None) -> None:
     """Compare a downloaded table with its read-back (within the link's declared scaling)."""
     tol = {"deg_e": 1e-9, "s": 1e-15, "deg_e_per_a": 1e-9, **(tolerance or {})}

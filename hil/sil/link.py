@@ -245,13 +245,15 @@ class SilLink(RoleLink):
             out += [c for c in super().faults() if c not in out]
         return out
 
-    def bench(self, config, **kwargs) -> "SilBench":
+    def bench(self, config, wiring=None, **kwargs) -> "SilBench":
         if config.motor.pole_pairs != self.info.pole_pairs:
             raise LinkError(
                 f"{self.where}: the plant has {config.motor.pole_pairs} pole pairs, the firmware is configured for "
                 f"{self.info.pole_pairs} (hil_sil_describe)"
             )
-        return SilBench(config, self, **kwargs)
+        bench = SilBench(config, self, **kwargs)
+        bench.attach(wiring)
+        return bench
 
     def close(self) -> None:
         self.process.close()
@@ -260,14 +262,18 @@ class SilLink(RoleLink):
 class RemoteSimulation:
     """The plant of a SilBench, in the firmware's process: the part of ``Simulation`` the suite reads."""
 
-    def __init__(self, link: SilLink, config, seed: int, sim_kwargs: dict):
-        self.link, self.config = link, config
+    def __init__(self, link: SilLink, config, seed: int, sim_kwargs: dict, wiring=None):
+        self.link, self.config, self.wiring = link, config, wiring
         self._call = link.process.call
         self.t_s = self._call("bench", config, seed, link.wrap_at_s, sim_kwargs)
         self.interrupts: dict = {}
+        if wiring is not None:  # the faults switched on the parent's injector act on the pins, in the worker
+            wiring.mirror = lambda action, fault: self._call("wiring", action, fault.as_dict())
 
     def run_until(self, t_stop_s: float) -> None:
-        self.t_s, self.interrupts = self._call("run_until", float(t_stop_s))
+        self.t_s, self.interrupts, log = self._call("run_until", float(t_stop_s))
+        if self.wiring is not None:
+            self.wiring.log += log
 
     def commutations(self):
         """Every commutation the firmware's gates made, with the plant's true rotor angle."""
@@ -301,8 +307,12 @@ class SilBench(LockstepBench):
 
     def __post_init__(self):
         self.source = None
+        self.sim = None  # attach() starts the plant, with the wiring faults' injector when there is one
+
+    def attach(self, wiring=None) -> None:
         self.sim = RemoteSimulation(
             self.link, self.config, self.seed,
             {"duty": self.duty, "initial_speed_rpm": self.initial_speed_rpm, "sample_rate_hz": self.sample_rate_hz,
              "capacity": 1 << 18, **self.sim_options},
+            wiring,
         )

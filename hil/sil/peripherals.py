@@ -28,6 +28,7 @@ import numpy as np
 
 from bldc.contract import Command
 from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE
+from hil.faults import FaultInjector
 from plant_models import _layout as L
 from plant_models.simulation import Commutations, Simulation
 
@@ -101,9 +102,16 @@ class Peripherals:
         self._gates = -1
         self._sector = self._initial_sector = int(sim.ist[L.I_SECTOR])
         self.emcy: list[tuple[float, int]] = []  #: (t_s, code) popped during the run
+        #: the Hall pins as the firmware's GPIO reads them (bit 0 A, 1 B, 2 C), and the wiring
+        #: faults between the plant's conditioned edges and the pins
+        self.pins = self.levels()
+        self.injector = FaultInjector(self)
+        self._delivered: list[dict] = []
+        self._pending: list[dict] = []
+        self.next_pin_s = math.inf
         self.interrupts = {"hall": 0, "compare": 0, "control": 0}
         self._enter(RESET, 0.0, self.count(0.0))  # every run starts from a power cycle, the pins as they are
-        self.fw.reset(self.levels())
+        self.fw.reset(self.pins)
         self._outputs(RESET, 0.0, self.count(0.0))
 
     # --- the timer ---------------------------------------------------------------------------------
@@ -116,6 +124,11 @@ class Peripherals:
     def levels(self) -> int:
         ist = self.sim.ist
         return int(ist[L.I_SEEN]) | int(ist[L.I_SEEN + 1]) << 1 | int(ist[L.I_SEEN + 2]) << 2
+
+    def edge(self, edge: dict) -> list:
+        """The wiring faults' sink (``FaultInjector.link``): a pin change they let through."""
+        self._delivered.append(edge)
+        return []
 
     # --- the ADC ------------------------------------------------------------------------------------
     def _convert(self, currents_a) -> None:
@@ -196,11 +209,13 @@ class Peripherals:
     def run_until(self, t_stop_s: float) -> None:
         sim, fw = self.sim, self.fw
         while True:
-            target = min(t_stop_s, self.next_control_s, self.compare_s)
+            target = min(t_stop_s, self.next_control_s, self.compare_s, self.next_pin_s)
             edge = sim.step_until(target)
             if edge is not None:
                 self._hall([edge])
                 continue
+            if self.next_pin_s <= target + _EPS_S:
+                self._pins_due(self.next_pin_s)
             if self.compare_s <= target + _EPS_S:
                 t = self.compare_s
                 count = self.compare_count
@@ -223,22 +238,50 @@ class Peripherals:
                 return
 
     def _hall(self, edges: list[dict]) -> None:
-        sim, fw = self.sim, self.fw
+        """The Hall interrupts of the pin changes at this instant: each plant edge through the
+        wiring faults (``hil.faults.FaultInjector``, the same faults every link's edge stream
+        gets), then one interrupt per changed pin in the order A, B, C, each reading the levels
+        after all of them changed. A change the faults move later (a spike) waits for its instant."""
+        sim = self.sim
         now = sim.t_s
         while (more := sim.step_until(now)) is not None:  # pins that changed at the same instant
             edges.append(more)
-        edges.sort(key=lambda e: e["sensor"])
-        levels = self.levels()
+        self._delivered = []
         for e in edges:
-            t_c = min(e["t_conditioned_s"], now)
+            # the capture channel latches the counter at the pin change (after the conditioning
+            # circuit): the firmware's own timer quantises it, not the plant's timer effect
+            e["t_capture_s"] = min(e["t_conditioned_s"], now)
+            self.injector.edge(e)
+        due = [e for e in self._delivered if e["t_capture_s"] <= now + _EPS_S]
+        self._pending += [e for e in self._delivered if e["t_capture_s"] > now + _EPS_S]
+        self._pending.sort(key=lambda e: e["t_capture_s"])
+        self.next_pin_s = self._pending[0]["t_capture_s"] if self._pending else math.inf
+        self._interrupt_pins(due, now)
+
+    def _pins_due(self, t_s: float) -> None:
+        """The pin changes a wiring fault placed at ``t_s`` (a spike and its return)."""
+        due = [e for e in self._pending if e["t_capture_s"] <= t_s + _EPS_S]
+        self._pending = [e for e in self._pending if e["t_capture_s"] > t_s + _EPS_S]
+        self.next_pin_s = self._pending[0]["t_capture_s"] if self._pending else math.inf
+        self._interrupt_pins(due, t_s)
+
+    def _interrupt_pins(self, edges: list[dict], now: float) -> None:
+        if not edges:
+            return
+        fw = self.fw
+        for e in edges:
+            bit = 1 << int(e["sensor"])
+            self.pins = (self.pins | bit) if e["rising"] else (self.pins & ~bit)
+        for e in sorted(edges, key=lambda e: e["sensor"]):
+            t_c = e["t_capture_s"]
             count = self.count(t_c)
             if t_c >= now - _EPS_S:
                 self._convert_now()
-            else:  # jitter placed the change before the emission: the current at the change
-                sensed = sim.adc_conversions_at(np.array([t_c]))[0]  # through the sensors' gain and offset
+            else:  # jitter placed the change before its emission: the current at the change
+                sensed = self.sim.adc_conversions_at(np.array([t_c]))[0]  # through the sensors' gain and offset
                 self._convert([(sensed[k] - self._offset[k]) / self._gain[k] for k in range(3)])
             self._enter(HALL, now, count)
-            fw.hall_isr(count, e["sensor"], levels, fw.adc)
+            fw.hall_isr(count, int(e["sensor"]), self.pins, fw.adc)
             self.interrupts["hall"] += 1
             self._outputs(HALL, now, count)
 

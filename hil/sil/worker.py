@@ -69,7 +69,7 @@ class _Worker:
     def op_power_cycle(self):
         """``hil_sil_reset`` with the pins as the plant holds them (the last run's; before any
         run, as a rotor at angle 0 would: A high, B low, C low is sector 0's code)."""
-        levels = self.periph.levels() if self.periph is not None else 0b001
+        levels = self.periph.pins if self.periph is not None else 0b001
         self._enter(RESET, *self._now())
         self.fw.reset(levels)
         self._leave()
@@ -97,7 +97,15 @@ class _Worker:
             self.periph.run_until(t_s)
         finally:
             self._drain_emcy()
-        return self.periph.sim.t_s, self.periph.interrupts
+        log, self.periph.injector.log = self.periph.injector.log, []
+        return self.periph.sim.t_s, self.periph.interrupts, log
+
+    def op_wiring(self, action: str, fault: dict):
+        """Switch a wiring fault on or off between the plant and the pins (``hil.faults``)."""
+        from hil.faults import wiring_fault_from_dict
+
+        injector = self.periph.injector
+        (injector.switch_on if action == "on" else injector.switch_off)(wiring_fault_from_dict(fault))
 
     def op_emcy(self):
         self._drain_emcy()
