@@ -14,6 +14,9 @@
 #include "filter.h"
 #include "fw_config.h"
 #include "nvm.h"
+#ifdef FW_DEBUG
+#include <stdio.h>
+#endif
 
 /* ---- Hall geometry and the six-step table (bldc/hall.py) ------------------------------------ */
 static const int8_t SECTOR_OF_CODE[8] = {-1, 5, 3, 4, 1, 0, 2, -1}; /* code A*4 + B*2 + C */
@@ -97,10 +100,15 @@ typedef struct {
 
 #define QUEUE 8
 #define COMPARE_LEAD_TICKS 1  /* an instant this close is made now: an arm at the counter fires a wrap late */
-/* the Hall interrupt knows its capture's count, not the counter's present value, which is later by
-   the interrupt's latency: an instant closer than this to the capture is made at once (an arm
-   behind the counter would fire a wrap late) */
-#define HALL_GUARD_TICKS ((int64_t)(20e-6 * TIMER_HZ))
+/* The Hall interrupt knows its capture's count, not the counter's present value: when edge noise
+   places the conditioned edge before the physical switch (noise beyond the conditioning delay),
+   the capture was latched before the interrupt could run. An instant that close after the capture
+   is made at once (armed, it would lie behind the counter and fire a wrap late); the guard is
+   three standard deviations of the measured edge noise beyond the edge's conditioning delay, at
+   least two ticks, at most HALL_GUARD_MAX. The control interrupt makes anything a late arm missed. */
+#define HALL_GUARD_MIN_TICKS 2
+#define HALL_GUARD_MAX_TICKS ((int64_t)(20e-6 * TIMER_HZ))
+#define EDGE_NOISE_GAIN 0.05f
 static command_t queue[QUEUE];
 static int n_queue;
 static uint8_t out_gates;
@@ -111,6 +119,9 @@ static uint8_t late_armed;
 
 static void apply(const command_t *c)
 {
+#ifdef FW_DEBUG
+    fprintf(stderr, "apply at=%lld sector=%d\n", (long long)c->at, c->sector);
+#endif
     if (c->sector >= 0) {
         out_gates = gates_of_sector(c->sector);
         board_set_gates(out_gates);
@@ -142,7 +153,10 @@ static void rearm(int64_t now)
     board_compare_disarm(); /* nothing pending, or too far ahead for one wrap: armed later */
 }
 
-/* a command from ``at`` on (Python: Command(at_s, sector, duty)); made now when due */
+static void run_due(int64_t now, int64_t lead);
+
+/* a command from ``at`` on (Python: Command(at_s, sector, duty)); made now when due (within
+   ``lead`` of ``now``), else queued for the compare unit; queued ones now due are made too */
 static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
 {
     command_t c;
@@ -173,12 +187,15 @@ static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
     }
     queue[i] = c;
     n_queue++;
+#if !defined(HIL_DEFECT_LATE_COMPARE)
+    run_due(now, lead);
+#endif
     rearm(now);
 }
 
-static void run_due(int64_t now)
+static void run_due(int64_t now, int64_t lead)
 {
-    while (n_queue > 0 && queue[0].at - now <= COMPARE_LEAD_TICKS) {
+    while (n_queue > 0 && queue[0].at - now <= lead) {
         int i;
         apply(&queue[0]);
         for (i = 1; i < n_queue; i++) queue[i - 1] = queue[i];
@@ -289,6 +306,7 @@ static struct {
     int64_t last_prediction;
     float speed_est[EDGES_PER_TURN];
     int spd_n, spd_head;
+    float dtc_prev, edge_noise_var;  /* the edge noise (s^2), for the Hall interrupt's guard */
     /* SpeedPI */
     float setpoint_rpm, feedforward, integral;
 } L;
@@ -430,7 +448,7 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
     int sector, k;
     float angle, duty = -1.0f;
     int32_t boundary;
-    int64_t t_corr = t, now = t;
+    int64_t t_corr = t, now = t, guard = HALL_GUARD_MIN_TICKS;
 
     L.seen[x] = rising;
     L.edge_index++;
@@ -496,14 +514,26 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
             duty = pi_update(speed_rpm, seconds(t - L.hc_last_t), lo, hi);
         }
     }
+    if (L.corrected && L.hc_has_last && t_corr > L.hc_last_corr_t) {
+        /* the edge noise, from the corrected intervals' second differences (variance 6 sigma^2) */
+        float dtc = seconds(t_corr - L.hc_last_corr_t), g;
+        if (L.dtc_prev > 0.0f) {
+            float d2 = dtc - L.dtc_prev;
+            L.edge_noise_var += EDGE_NOISE_GAIN * (d2 * d2 / 6.0f - L.edge_noise_var);
+        }
+        L.dtc_prev = dtc;
+        g = 3.0f * sqrtf(L.edge_noise_var) - delay_of(rising);
+        if (g * (float)TIMER_HZ > (float)HALL_GUARD_MAX_TICKS) guard = HALL_GUARD_MAX_TICKS;
+        else if (g * (float)TIMER_HZ > (float)HALL_GUARD_MIN_TICKS) guard = (int64_t)(g * (float)TIMER_HZ);
+    }
     if (!L.corrected || !L.hc_has_last) {
-        emit(now, now, sector, duty, HALL_GUARD_TICKS);
+        emit(now, now, sector, duty, guard);
     } else {
         int64_t predicted = 0, at;
         int got = 0;
         float current;
-        if (!L.has_sched || L.sched_sector != sector || L.sched_at <= now) emit(now, now, sector, duty, HALL_GUARD_TICKS);
-        else if (duty >= 0.0f) emit(now, now, -1, duty, HALL_GUARD_TICKS);
+        if (!L.has_sched || L.sched_sector != sector || L.sched_at <= now) emit(now, now, sector, duty, guard);
+        else if (duty >= 0.0f) emit(now, now, -1, duty, guard);
         /* K_T of Eq. 8 is per ampere of the cycle mean: the cycle's accumulators, else the edge's */
         current = cycle_a >= 0.0f ? cycle_a : (current_a >= 0.0f ? current_a : 0.0f);
 #if defined(HIL_DEFECT_PREDICTOR_FED_MILLIAMPERES)
@@ -524,7 +554,10 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
         L.has_sched = 1u;
         L.sched_sector = (int8_t)((sector + 1) % 6);
         L.sched_at = at;
-        emit(now, at, L.sched_sector, -1.0f, HALL_GUARD_TICKS);
+#ifdef FW_DEBUG
+        fprintf(stderr, "edge t=%lld x=%d r=%d sector=%d tcorr=%lld pred=%lld shift=%d\n", (long long)t, x, rising, sector, (long long)t_corr, (long long)predicted, L.pole_shift);
+#endif
+        emit(now, at, L.sched_sector, -1.0f, guard);
     }
     L.hc_has_last = 1u;
     L.hc_last_t = t;
@@ -674,7 +707,7 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
     }
 #endif
 #if !defined(HIL_DEFECT_LATE_COMPARE)
-    run_due(now); /* a command too far ahead to arm when it was made */
+    run_due(now, COMPARE_LEAD_TICKS); /* a command too far ahead to arm when it was made */
 #endif
     rearm(now);
 }
@@ -682,13 +715,16 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
 void ctl_compare_isr(uint32_t count)
 {
     int64_t now = tb_at(count);
+#ifdef FW_DEBUG
+    fprintf(stderr, "compare now=%lld q=%d head=%lld\n", (long long)now, n_queue, n_queue ? (long long)queue[0].at : 0LL);
+#endif
 #if defined(HIL_DEFECT_LATE_COMPARE)
     if (late_armed && ((uint32_t)late.at & TIMER_MASK) == (count & TIMER_MASK)) {
         late_armed = 0u;
         apply(&late);
     }
 #endif
-    run_due(now);
+    run_due(now, COMPARE_LEAD_TICKS);
     rearm(now);
 }
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from bldc.contract import Strategy
 from bldc.motor import steady_state
-from hil.bench import acceptance_max_step_s
+from hil.bench import acceptance_max_step_s, make_bench
 from hil.dut.spec import open_dut
 from plant_models import effects as fx
 from plant_models import paper_bench
@@ -34,7 +34,7 @@ for name in strategies:
     link.reset()
     link.download_calibration(corrections)
     link.set_strategy(int(Strategy[name.upper()]))
-    bench = link.bench(config, initial_speed_rpm=speed, duty=steady_state(config.motor, speed)["duty"], seed=0,
+    bench = make_bench(config, link, initial_speed_rpm=speed, duty=steady_state(config.motor, speed)["duty"], seed=0,
                        sim_options={"max_step_s": acceptance_max_step_s(config)})
     bench.run_setpoints([speed], hold_s=hold_s, settle_s=0.1)
     err = bench.angle_errors_deg_e(0.15)
