@@ -430,7 +430,7 @@ def cmd_dut_check(args) -> int:
     """Read every readable object of the DUT's profile once (writes nothing) and say which
     requirements the profile makes testable; 1 when the device refuses an object."""
     from .requirements import REQUIREMENTS, missing_needs
-    from .dut.link import LinkError
+    from .dut.link import LinkError, edge_hook_kind
     from .dut.profile import ROLES
     from .dut.spec import open_dut
 
@@ -440,6 +440,12 @@ def cmd_dut_check(args) -> int:
         if profile is None:
             raise ValueError(f"{args.dut}: this link has no device profile to check")
         print(f"{dut.link.where}: profile {profile.path} ({profile.name})")
+        info = getattr(dut.link, "info", None)
+        if info is not None:  # a firmware in the loop: what it said of itself, and how it was built
+            print(f"firmware: {info.name!r}, hil-sil/{info.abi}, timer {info.timer_hz} Hz x {info.timer_bits} bit, "
+                  f"control {info.control_hz} Hz, ADC {info.amps_per_count:g} A/count, {info.pole_pairs} pole pairs, "
+                  f"compare unit {'yes' if info.has_compare else 'no'}, EMCY {'yes' if info.has_emcy else 'no'}; "
+                  f"{getattr(dut.link, 'build', '')}")
         print(f"{'role':<46}{'object':<18}{'raw':>24}  engineering")
         for role, obj in profile.objects.items():
             label = obj.label() + (f" x{obj.count}" if obj.count > 1 else "")
@@ -461,7 +467,7 @@ def cmd_dut_check(args) -> int:
             print(f"{role:<46}{label:<18}{', '.join(map(str, raws))[:24]:>24}  {shown} {unit}")
         print("requirements:")
         for rid, title in REQUIREMENTS.items():
-            missing = missing_needs([rid], profile.has, profile.edge_hook.kind, profile.fault_sources)
+            missing = missing_needs([rid], profile.has, edge_hook_kind(dut.link), profile.fault_sources)
             print(f"  {rid:<14}{'testable' if not missing else 'not testable: lacks ' + ', '.join(missing)}")
     if refused:
         print(f"hil dut check: the device refused {refused} object(s)", file=sys.stderr)

@@ -508,12 +508,6 @@ def _traffic(link) -> dict | None:
     return traffic.as_dict() if traffic is not None else None
 
 
-def edge_hook_kind(link) -> str:
-    """How edges reach ``link``'s controller: its profile's edge hook, or ``pins`` for a firmware in
-    the loop (its interrupts see the plant's Hall pins; the profile's hook is ignored there)."""
-    return "pins" if getattr(link, "name", "") == "sil" else link.profile.edge_hook.kind
-
-
 def _require_testable(item, link) -> None:
     """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source every
     one of its requirements needs (hil.requirements); a link without a profile has everything. When
@@ -523,6 +517,7 @@ def _require_testable(item, link) -> None:
     profile = getattr(link, "profile", None)
     if profile is None:
         return
+    from .dut.link import edge_hook_kind
     from .requirements import missing_needs
 
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}

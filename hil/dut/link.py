@@ -50,6 +50,12 @@ def link_has(link, *roles: str) -> bool:
     return profile is None or all(profile.has(r) for r in roles)
 
 
+def edge_hook_kind(link) -> str:
+    """How edges reach ``link``'s controller: its profile's edge hook, or ``pins`` for a firmware in
+    the loop (its interrupts see the plant's Hall pins; the profile's hook is ignored there)."""
+    return "pins" if getattr(link, "name", "") == "sil" else link.profile.edge_hook.kind
+
+
 def verify_calibration(written: Corrections, read_back: Corrections, tolerance: dict[str, float] | None = None) -> None:
     """Compare a downloaded table with its read-back (within the link's declared scaling)."""
     tol = {"deg_e": 1e-9, "s": 1e-15, "deg_e_per_a": 1e-9, **(tolerance or {})}

@@ -55,6 +55,7 @@ def open_sil(spec, motor):
     except SilInterfaceError as exc:
         raise LinkError(f"sil:{spec.options['path']}: {exc}") from None
     link.build = how
+    _drop_absent_defaults(link)
     if link.info.pole_pairs != motor.pole_pairs:
         link.close()
         raise LinkError(
@@ -62,3 +63,23 @@ def open_sil(spec, motor):
             f"(hil_sil_describe), the plant has {motor.pole_pairs}"
         )
     return link
+
+
+def _drop_absent_defaults(link) -> None:
+    """The CiA 301 objects a CANopen profile assumes when it does not list them (identity,
+    error register, heartbeat) are the firmware's only where its dictionary has them: one it answers
+    with "object does not exist" (0x06020000) or "sub-index does not exist" (0x06090011) is an absent
+    role, not a refusal (a heartbeat is a bus service a firmware in the loop need not keep)."""
+    from dataclasses import replace
+
+    absent = []
+    for role, obj in link.profile.objects.items():
+        if not obj.default or not obj.readable:
+            continue
+        for k in range(obj.count):
+            answer = link.process.call("od_read", obj.index, obj.subindex_of(k), obj.size)
+            if isinstance(answer, int) and (-answer) & 0xFFFFFFFF in (0x06020000, 0x06090011):
+                absent.append(role)
+                break
+    if absent:
+        link.profile = replace(link.profile, objects={r: o for r, o in link.profile.objects.items() if r not in absent})
