@@ -583,14 +583,15 @@ static void iv_push(float dt, uint8_t measured)
 /* the interval a sector is compared with to tell a lost edge or a glitch; 0 when none yet */
 static int reference_interval(float *ref, float *ratio)
 {
-    int k;
-    float s = 0.0f;
     *ratio = MISSING_EDGE_RATIO;
     if (L.iv_n == 0) return 0;
 #if defined(HIL_DEFECT_LOST_EDGE_AGAINST_LAST_SECTOR)
     *ref = L.iv_dt[(L.iv_head + L.iv_n - 1) % EDGES_PER_TURN];
     return 1;
 #else
+    {
+    int k;
+    float s = 0.0f;
     if (L.iv_n == EDGES_PER_TURN && L.iv_measured[L.iv_head]) { /* the same sector one turn back */
         *ref = L.iv_dt[L.iv_head];
         *ratio = SAME_SECTOR_RATIO;
@@ -599,6 +600,7 @@ static int reference_interval(float *ref, float *ratio)
     for (k = 0; k < L.iv_n; k++) s += L.iv_dt[(L.iv_head + k) % EDGES_PER_TURN];
     *ref = s / (float)L.iv_n;
     return 1;
+    }
 #endif
 }
 
