@@ -620,6 +620,9 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     int sector;
 
     if (pin > 2u) return;
+#ifdef FW_DEBUG
+    fprintf(stderr, "hall t=%lld pin=%d levels=%d\n", (long long)t, pin, levels);
+#endif
     adc_push(t, adc); /* the conversion the capture triggers */
     if (cycle_n > 0u) {
         cycle_a = (fabsf((float)cycle_sum[0]) + fabsf((float)cycle_sum[1]) + fabsf((float)cycle_sum[2])) /
