@@ -1,0 +1,840 @@
+/* control.c: the reference firmware's control logic, a port of the built-in Python controller
+   (hil/controller/virtual.py VirtualController.capture, hil/controller/commutation.py
+   HallCommutation.on_edge and SpeedPI, hil/controller/adc.py). Times are 64-bit tick counts of the
+   capture timer, extended in software from the free-running counter every interrupt sees;
+   intervals are differences of those (modular in the counter's width). */
+#include <math.h>
+#include <string.h>
+
+#include "board.h"
+#include "calib.h"
+#include "control.h"
+#include "defects.h"
+#include "faults.h"
+#include "filter.h"
+#include "fw_config.h"
+#include "nvm.h"
+#ifdef FW_DEBUG
+#include <stdio.h>
+#endif
+
+/* ---- Hall geometry and the six-step table (bldc/hall.py) ------------------------------------ */
+static const int8_t SECTOR_OF_CODE[8] = {-1, 5, 3, 4, 1, 0, 2, -1}; /* code A*4 + B*2 + C */
+static const uint8_t SECTOR_HIGH_PHASE[6] = {2, 2, 0, 0, 1, 1};
+static const uint8_t SECTOR_LOW_PHASE[6] = {0, 1, 1, 2, 2, 0};
+static const float SENSOR_POSITION_DEG_E[3] = {0.0f, 120.0f, 240.0f};
+
+static int sector_of_bits(const uint8_t bits[3])
+{
+    return SECTOR_OF_CODE[(bits[0] << 2) | (bits[1] << 1) | bits[2]];
+}
+
+static uint8_t gates_of_sector(int s)
+{
+    if (s < 0) return 0u;
+    return (uint8_t)((1u << (2u * SECTOR_HIGH_PHASE[s])) | (1u << (2u * SECTOR_LOW_PHASE[s] + 1u)));
+}
+
+static int mod_int(int32_t a, int32_t m)
+{
+    int32_t r = a % m;
+    return (int)(r < 0 ? r + m : r);
+}
+
+/* ---- time base: the counter extended to 64 bits ----------------------------------------------- */
+static int64_t tb_ticks;
+static uint32_t tb_last;
+static uint8_t tb_valid;
+
+/* the 64-bit time of a counter value: the last one seen plus the counter's step since, taken
+   modulo the width and signed (a capture latched a little before the last interrupt's count is a
+   little in the past, not a wrap ahead); the clock advances to the newest count */
+static int64_t tb_at(uint32_t count)
+{
+    int64_t delta, t;
+    count &= TIMER_MASK;
+    if (!tb_valid) {
+        tb_valid = 1u;
+        tb_ticks = (int64_t)count; /* ticks since the timer started */
+        tb_last = count;
+    }
+#if defined(HIL_DEFECT_TIMER_WRAP)
+    delta = (int64_t)count - (int64_t)tb_last; /* not modular: a wrap steps back 2^bits */
+    t = tb_ticks + delta;
+    if (delta > 0 || delta <= -(int64_t)TIMER_HALF) {
+        tb_ticks = t;
+        tb_last = count;
+    }
+#else
+    {
+        uint32_t d = (count - tb_last) & TIMER_MASK;
+        delta = d >= TIMER_HALF ? (int64_t)d - (int64_t)TIMER_MASK - 1 : (int64_t)d;
+    }
+    t = tb_ticks + delta;
+    if (delta > 0) {
+        tb_ticks = t;
+        tb_last = count;
+    }
+#endif
+#if defined(HIL_DEFECT_FLOAT_SECONDS)
+    {   /* the firmware's clock as float32 seconds: 24 bits of mantissa for the whole run */
+        float s = (float)t * SECONDS_PER_TICK;
+        return (int64_t)(s * (float)TIMER_HZ);
+    }
+#else
+    return t;
+#endif
+}
+
+static float seconds(int64_t ticks)
+{
+    return (float)ticks * SECONDS_PER_TICK;
+}
+
+/* ---- outputs: gates, duty, and the commands pending on the compare unit ---------------------- */
+typedef struct {
+    int64_t at;
+    int8_t sector; /* -1 keep */
+    float duty;    /* < 0 keep */
+} command_t;
+
+#define QUEUE 8
+#define COMPARE_LEAD_TICKS 1  /* an instant this close is made now: an arm at the counter fires a wrap late */
+/* The Hall interrupt knows its capture's count, not the counter's present value: when edge noise
+   places the conditioned edge before the physical switch (noise beyond the conditioning delay),
+   the capture was latched before the interrupt could run. An instant that close after the capture
+   is made at once (armed, it would lie behind the counter and fire a wrap late); the guard is
+   three standard deviations of the measured edge noise beyond the edge's conditioning delay, at
+   least two ticks, at most HALL_GUARD_MAX. The control interrupt makes anything a late arm missed. */
+#define HALL_GUARD_MIN_TICKS 2
+#define HALL_GUARD_MAX_TICKS ((int64_t)(20e-6 * TIMER_HZ))
+#define EDGE_NOISE_GAIN 0.05f
+static command_t queue[QUEUE];
+static int n_queue;
+static uint8_t out_gates;
+#if defined(HIL_DEFECT_LATE_COMPARE)
+static command_t late;       /* the due command armed on the compare instead of made */
+static uint8_t late_armed;
+#endif
+
+static void apply(const command_t *c)
+{
+#ifdef FW_DEBUG
+    fprintf(stderr, "apply at=%lld sector=%d\n", (long long)c->at, c->sector);
+#endif
+    if (c->sector >= 0) {
+        out_gates = gates_of_sector(c->sector);
+        board_set_gates(out_gates);
+    }
+    if (c->duty >= 0.0f) {
+        float d = c->duty > 1.0f ? 1.0f : c->duty;
+        board_set_duty((uint16_t)(d * 65535.0f + 0.5f));
+    }
+}
+
+static void rearm(int64_t now)
+{
+    if (n_queue > 0) {
+        int64_t ahead = queue[0].at - now;
+        if (ahead > COMPARE_LEAD_TICKS && ahead < (int64_t)TIMER_HALF) {
+            board_compare_arm((uint32_t)queue[0].at & TIMER_MASK);
+#if defined(HIL_DEFECT_LATE_COMPARE)
+            late_armed = 0u;
+#endif
+            return;
+        }
+    }
+#if defined(HIL_DEFECT_LATE_COMPARE)
+    if (late_armed) {
+        board_compare_arm((uint32_t)late.at & TIMER_MASK);
+        return;
+    }
+#endif
+    board_compare_disarm(); /* nothing pending, or too far ahead for one wrap: armed later */
+}
+
+static void run_due(int64_t now, int64_t lead);
+
+/* a command from ``at`` on (Python: Command(at_s, sector, duty)); made now when due (within
+   ``lead`` of ``now``), else queued for the compare unit; queued ones now due are made too */
+static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
+{
+    command_t c;
+    int i;
+    c.at = at + (int64_t)DEFECT_GATE_LATENCY_TICKS;
+    c.sector = (int8_t)sector;
+    c.duty = duty;
+    if (c.at - now <= lead) {
+#if defined(HIL_DEFECT_LATE_COMPARE)
+        late = c;      /* armed for an instant already due: the compare fires a wrap later */
+        late_armed = 1u;
+        rearm(now);
+        board_compare_arm((uint32_t)c.at & TIMER_MASK);
+        return;
+#else
+        apply(&c);
+        return;
+#endif
+    }
+    if (n_queue == QUEUE) { /* cannot happen at one schedule per edge; the oldest goes */
+        for (i = 1; i < QUEUE; i++) queue[i - 1] = queue[i];
+        n_queue--;
+    }
+    i = n_queue;
+    while (i > 0 && queue[i - 1].at > c.at) {
+        queue[i] = queue[i - 1];
+        i--;
+    }
+    queue[i] = c;
+    n_queue++;
+#if !defined(HIL_DEFECT_LATE_COMPARE)
+    run_due(now, lead);
+#endif
+    rearm(now);
+}
+
+static void run_due(int64_t now, int64_t lead)
+{
+    while (n_queue > 0 && queue[0].at - now <= lead) {
+        int i;
+        apply(&queue[0]);
+        for (i = 1; i < n_queue; i++) queue[i - 1] = queue[i];
+        n_queue--;
+    }
+}
+
+/* ---- ADC: a ring of conversions (control interrupt and capture) and the cycle accumulators -- */
+#define ADC_RING 32
+typedef struct {
+    int64_t t;
+    int16_t i[3];
+} conversion_t;
+static conversion_t adc_ring[ADC_RING];
+static int adc_n, adc_head; /* head: the oldest */
+static int32_t cycle_sum[3];
+static uint32_t cycle_n;
+
+static void adc_push(int64_t t, const int16_t adc[3])
+{
+    int at;
+    if (adc_n < ADC_RING) {
+        at = (adc_head + adc_n) % ADC_RING;
+        adc_n++;
+    } else {
+        at = adc_head;
+        adc_head = (adc_head + 1) % ADC_RING;
+    }
+    adc_ring[at].t = t;
+    adc_ring[at].i[0] = adc[0];
+    adc_ring[at].i[1] = adc[1];
+    adc_ring[at].i[2] = adc[2];
+}
+
+/* adc.current_at_a: mean |i| over the phases at t, each phase linear between the conversions
+   around t, held at the window's ends; -1 without conversions */
+static float adc_current_at(int64_t t)
+{
+    const conversion_t *c0, *c1;
+    float s = 0.0f;
+    int k, j;
+    if (adc_n == 0) return -1.0f;
+    c0 = &adc_ring[adc_head];
+    c1 = &adc_ring[(adc_head + adc_n - 1) % ADC_RING];
+    if (t < c0->t) {
+        c1 = c0;
+    } else if (t < c1->t) {
+        for (j = adc_n - 2; j >= 0; j--) {
+            c0 = &adc_ring[(adc_head + j) % ADC_RING];
+            if (c0->t <= t) break;
+        }
+        c1 = &adc_ring[(adc_head + j + 1) % ADC_RING];
+        if (c0->t == t) {
+            c1 = c0;
+        } else {
+            float frac = (float)(t - c0->t) / (float)(c1->t - c0->t);
+            for (k = 0; k < 3; k++) {
+                float i0 = (float)c0->i[k], i1 = (float)c1->i[k];
+                s += fabsf((i1 - i0) * frac + i0);
+            }
+            return s / 3.0f * AMPS_PER_COUNT;
+        }
+    }
+    for (k = 0; k < 3; k++) s += fabsf((float)c1->i[k]);
+    return s / 3.0f * AMPS_PER_COUNT;
+}
+
+/* ---- the control logic's state (what a logic restart rebuilds) ------------------------------- */
+typedef struct {
+    int64_t t;
+    uint8_t sensor, rising;
+    int32_t boundary;
+} hist_t;
+#define HIST_KEEP (2 * EDGES_PER_TURN + 2)
+
+static struct {
+    /* configuration the logic was built with */
+    uint8_t corrected;   /* corrections applied (every strategy but raw) */
+    uint8_t predictor;   /* a filter runs (kf, sage_husa) */
+    filter_t filt;
+    /* VirtualController.capture */
+    int8_t sector;
+    uint8_t sensors_seen;
+    uint8_t bits[3];
+    int32_t edges_since_motion, normal_steps;
+    uint8_t resync_pending;
+    uint8_t has_last_t;
+    int64_t last_t;
+    float iv_dt[EDGES_PER_TURN];
+    uint8_t iv_measured[EDGES_PER_TURN];
+    int iv_n, iv_head;
+    uint32_t guards_seen;
+    /* HallCommutation.on_edge */
+    uint8_t hc_has_last;
+    int64_t hc_last_t, hc_last_corr_t;
+    uint8_t seen[3];
+    int32_t edge_index;
+    float first_angle_deg_e;
+    hist_t hist[HIST_KEEP];
+    int hist_n, hist_head;
+    int32_t pole_shift;  /* -1: not learned yet */
+    uint8_t has_sched;
+    int8_t sched_sector;
+    int64_t sched_at;
+    int8_t last_sector;
+    int32_t index_at_last_sector;
+    uint8_t has_prediction;
+    int64_t last_prediction;
+    float speed_est[EDGES_PER_TURN];
+    int spd_n, spd_head;
+    float dtc_prev, edge_noise_var;  /* the edge noise (s^2), for the Hall interrupt's guard */
+    /* SpeedPI */
+    float setpoint_rpm, feedforward, integral;
+} L;
+
+/* the table the interrupts read (the applied one, through cal_effective) */
+static cal_table_t table;
+#if defined(HIL_DEFECT_TORN_TABLE)
+static cal_table_t table_next; /* apply copies this into ``table`` one value per control interrupt */
+static int torn_copy_at = CAL_N_VALUES;
+#endif
+
+/* ---- speed loop ----------------------------------------------------------------------------- */
+static float steady_duty(float rpm)
+{
+    float w = rpm * (2.0f * FW_PI_F / 60.0f);
+    float torque = MOTOR_FAN * w * w + MOTOR_FRICTION * w;
+    float current = torque / (2.0f * MOTOR_KE_V_S);
+    return (2.0f * MOTOR_R_OHM * current + 2.0f * MOTOR_KE_V_S * w) / MOTOR_SUPPLY_V;
+}
+
+static void duty_bounds(float speed_rpm, float *lo, float *hi)
+{
+#if defined(HIL_DEFECT_CURRENT_LIMIT_NOT_ENFORCED)
+    (void)speed_rpm;
+    *lo = 0.0f;
+    *hi = 1.0f;
+#else
+    float bemf = 2.0f * MOTOR_KE_V_S * speed_rpm * (2.0f * FW_PI_F / 60.0f);
+    float span = 2.0f * MOTOR_R_OHM * CURRENT_LIMIT_A;
+    float l = (bemf - span) / MOTOR_SUPPLY_V, h = (bemf + span) / MOTOR_SUPPLY_V;
+    *lo = l > 0.0f ? l : 0.0f;
+    *hi = h < 1.0f ? h : 1.0f;
+#endif
+}
+
+static float pi_update(float speed_rpm, float dt_s, float lo, float hi)
+{
+    float error = L.setpoint_rpm - speed_rpm;
+    float unclamped = L.feedforward + SPEED_KP_PER_RPM * error + SPEED_KI_PER_RPM_S * L.integral;
+    int pushing = (unclamped >= hi && error > 0.0f) || (unclamped <= lo && error < 0.0f);
+    float d;
+    if (fabsf(error) <= SPEED_INTEGRATE_WITHIN * L.setpoint_rpm && !pushing) L.integral += error * dt_s;
+    d = L.feedforward + SPEED_KP_PER_RPM * error + SPEED_KI_PER_RPM_S * L.integral;
+    d = d > lo ? d : lo;
+    return d < hi ? d : hi;
+}
+
+/* ---- history ring ----------------------------------------------------------------------------- */
+static hist_t *hist_back(int m) /* m = 1: the newest */
+{
+    return &L.hist[(L.hist_head + L.hist_n - m) % HIST_KEEP];
+}
+
+static void hist_append(int64_t t, uint8_t sensor, uint8_t rising, int32_t boundary)
+{
+    hist_t *h;
+    if (L.hist_n == HIST_KEEP) {
+        L.hist_head = (L.hist_head + 1) % HIST_KEEP;
+        L.hist_n--;
+    }
+    L.hist_n++;
+    h = hist_back(1);
+    h->t = t;
+    h->sensor = sensor;
+    h->rising = rising;
+    h->boundary = boundary;
+}
+
+/* ---- corrections (hil/calibration/corrections.py correction_one_deg_e) ----------------------- */
+static float delay_of(uint8_t rising)
+{
+    return rising ? table.delay_rise_s : table.delay_fall_s;
+}
+
+static float correction_deg_e(int sensor, uint8_t rising, int pole, float speed_rpm, float current_a)
+{
+    return table.installation_deg_e[sensor] + table.pole_deg_e[pole] +
+           speed_rpm * 6.0f * (float)POLE_PAIRS * delay_of(rising) + table.armature_deg_e_per_a * current_a;
+}
+
+/* the pole alignment whose corrections make one mechanical turn's sectors most even */
+static void sync_poles(void)
+{
+    enum { N = EDGES_PER_TURN };
+    float t_rel[N + 1], sector_s[N], best_var = INFINITY, w;
+    int k, shift, best = 0;
+    const hist_t *first;
+    if (L.pole_shift >= 0 || L.hist_n < 2 * N + 1) return;
+    first = hist_back(N + 1);
+    for (k = 0; k <= N; k++) t_rel[k] = seconds(hist_back(N + 1 - k)->t - first->t);
+    w = 360.0f * (float)POLE_PAIRS / t_rel[N];
+    for (shift = 0; shift < N_POLES; shift += 2) {
+        float prev = 0.0f, ibar = 0.5f * (float)(N - 1), ybar = 0.0f, sxy = 0.0f, sxx = 0.0f, slope, mean = 0.0f, var = 0.0f;
+        for (k = 0; k <= N; k++) {
+            const hist_t *h = hist_back(N + 1 - k);
+            int pole = mod_int(h->boundary + shift, N_POLES);
+            float corr = table.installation_deg_e[h->sensor] + table.pole_deg_e[pole];
+            float tc = t_rel[k] - corr / w - delay_of(h->rising);
+            if (k > 0) sector_s[k - 1] = tc - prev;
+            prev = tc;
+        }
+        for (k = 0; k < N; k++) ybar += sector_s[k];
+        ybar /= (float)N;
+        for (k = 0; k < N; k++) {
+            sxy += ((float)k - ibar) * (sector_s[k] - ybar);
+            sxx += ((float)k - ibar) * ((float)k - ibar);
+        }
+        slope = sxy / sxx;
+        for (k = 0; k < N; k++) sector_s[k] -= ybar + slope * ((float)k - ibar);
+        for (k = 0; k < N; k++) mean += sector_s[k];
+        mean /= (float)N;
+        for (k = 0; k < N; k++) var += (sector_s[k] - mean) * (sector_s[k] - mean);
+        var /= (float)N;
+        if (var < best_var) {
+            best = shift;
+            best_var = var;
+        }
+    }
+    L.pole_shift = best;
+}
+
+static void hc_resync(void)
+{
+#if !defined(HIL_DEFECT_NEVER_RESYNCHRONISES)
+    L.edge_index = -1;
+    L.hist_n = 0;
+    L.hist_head = 0;
+    L.pole_shift = -1;
+    L.has_sched = 0u;
+    L.last_sector = -1;
+    L.index_at_last_sector = -1;
+    if (L.predictor) filter_restart(&L.filt);
+#endif
+}
+
+/* HallCommutation.on_edge */
+static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, float cycle_a)
+{
+    int sector, k;
+    float angle, duty = -1.0f;
+    int32_t boundary;
+    int64_t t_corr = t, now = t, guard = HALL_GUARD_MIN_TICKS;
+
+    L.seen[x] = rising;
+    L.edge_index++;
+    if (L.edge_index == 0) {
+        L.first_angle_deg_e = SENSOR_POSITION_DEG_E[x] + (rising ? 0.0f : 180.0f);
+        if (!L.hc_has_last) { /* the other two sensors follow from which edge it was */
+            for (k = 0; k < 3; k++) {
+                float th = fmodf(L.first_angle_deg_e + 30.0f - SENSOR_POSITION_DEG_E[k] + 360.0f, 360.0f);
+                L.seen[k] = th < 180.0f ? 1u : 0u;
+            }
+        }
+    }
+    angle = L.first_angle_deg_e + 60.0f * (float)L.edge_index;
+    boundary = (int32_t)lroundf((angle - SENSOR_POSITION_DEG_E[x]) / 180.0f);
+    hist_append(t, x, rising, boundary);
+    sector = sector_of_bits(L.seen);
+    if (sector < 0) return;
+    if (sector == L.last_sector) { /* a glitch since the last valid edge, not rotor motion */
+        int drop = (int)(L.edge_index - L.index_at_last_sector);
+        L.hist_n = drop < L.hist_n ? L.hist_n - drop : 0;
+        L.edge_index = L.index_at_last_sector;
+        return;
+    }
+    L.last_sector = (int8_t)sector;
+    L.index_at_last_sector = L.edge_index;
+
+    if (L.corrected && L.hc_has_last) {
+        float w_e, speed_rpm, corr;
+        sync_poles();
+        if (L.hist_n > EDGES_PER_TURN) {
+            float span = seconds(t - hist_back(EDGES_PER_TURN + 1)->t);
+            w_e = 360.0f * (float)POLE_PAIRS / (span > 1e-9f ? span : 1e-9f);
+        } else {
+            float span = seconds(t - L.hc_last_t);
+            w_e = 60.0f / (span > 1e-9f ? span : 1e-9f);
+        }
+        speed_rpm = w_e / (6.0f * (float)POLE_PAIRS);
+        if (L.pole_shift >= 0) {
+            corr = correction_deg_e(x, rising, mod_int(boundary + L.pole_shift, N_POLES), speed_rpm, current_a);
+        } else { /* until the alignment is learned: the poles' mean for the pole's own */
+            float mean = 0.0f;
+            for (k = 0; k < N_POLES; k++) mean += table.pole_deg_e[k];
+            corr = correction_deg_e(x, rising, 0, speed_rpm, current_a) - table.pole_deg_e[0] + mean / (float)N_POLES;
+        }
+        t_corr = t - (int64_t)lroundf(corr / w_e * (float)TIMER_HZ);
+    }
+    if (L.hc_has_last && t_corr > L.hc_last_corr_t) {
+        float speed_rpm;
+        if (L.corrected && L.pole_shift < 0) { /* whole electrical periods until the alignment is known */
+            int periods = (L.hist_n - 1 < EDGES_PER_TURN ? L.hist_n - 1 : EDGES_PER_TURN) / 6;
+            speed_rpm = periods ? 60.0f * (float)periods / (float)POLE_PAIRS / seconds(t - hist_back(6 * periods + 1)->t)
+                                : 0.0f;
+        } else {
+            speed_rpm = (60.0f / seconds(t_corr - L.hc_last_corr_t)) / (6.0f * (float)POLE_PAIRS);
+        }
+        if (speed_rpm > 0.0f) {
+            float lo, hi;
+            int at = (L.spd_head + L.spd_n) % EDGES_PER_TURN;
+            if (L.spd_n < EDGES_PER_TURN) L.spd_n++;
+            else L.spd_head = (L.spd_head + 1) % EDGES_PER_TURN;
+            L.speed_est[at] = speed_rpm;
+            duty_bounds(speed_rpm, &lo, &hi);
+            duty = pi_update(speed_rpm, seconds(t - L.hc_last_t), lo, hi);
+        }
+    }
+    if (L.corrected && L.hc_has_last && t_corr > L.hc_last_corr_t) {
+        /* the edge noise, from the corrected intervals' second differences (variance 6 sigma^2) */
+        float dtc = seconds(t_corr - L.hc_last_corr_t), g;
+        if (L.dtc_prev > 0.0f) {
+            float d2 = dtc - L.dtc_prev;
+            L.edge_noise_var += EDGE_NOISE_GAIN * (d2 * d2 / 6.0f - L.edge_noise_var);
+        }
+        L.dtc_prev = dtc;
+        g = 3.0f * sqrtf(L.edge_noise_var) - delay_of(rising);
+        if (g * (float)TIMER_HZ > (float)HALL_GUARD_MAX_TICKS) guard = HALL_GUARD_MAX_TICKS;
+        else if (g * (float)TIMER_HZ > (float)HALL_GUARD_MIN_TICKS) guard = (int64_t)(g * (float)TIMER_HZ);
+    }
+    if (!L.corrected || !L.hc_has_last) {
+        emit(now, now, sector, duty, guard);
+    } else {
+        int64_t predicted = 0, at;
+        int got = 0;
+        float current;
+        if (!L.has_sched || L.sched_sector != sector || L.sched_at <= now) emit(now, now, sector, duty, guard);
+        else if (duty >= 0.0f) emit(now, now, -1, duty, guard);
+        /* K_T of Eq. 8 is per ampere of the cycle mean: the cycle's accumulators, else the edge's */
+        current = cycle_a >= 0.0f ? cycle_a : (current_a >= 0.0f ? current_a : 0.0f);
+#if defined(HIL_DEFECT_PREDICTOR_FED_MILLIAMPERES)
+        current *= 1000.0f;
+#endif
+        if (L.predictor) {
+            int r = filter_update(&L.filt, t_corr, current, &predicted);
+            if (r == 1) got = 1;
+            else if (r < 0) fault_raise(FAULT_INTERNAL); /* corrected edges out of order */
+        }
+        if (!got) { /* pre-calibration: 60 deg e after the corrected edge at the last cycle's speed */
+            int64_t dt = t_corr - L.hc_last_corr_t;
+            predicted = t_corr + (dt > 0 ? dt : 0);
+        }
+        L.has_prediction = 1u;
+        L.last_prediction = predicted;
+        at = predicted > now ? predicted : now;
+        L.has_sched = 1u;
+        L.sched_sector = (int8_t)((sector + 1) % 6);
+        L.sched_at = at;
+#ifdef FW_DEBUG
+        fprintf(stderr, "edge t=%lld x=%d r=%d sector=%d tcorr=%lld pred=%lld shift=%d\n", (long long)t, x, rising, sector, (long long)t_corr, (long long)predicted, L.pole_shift);
+#endif
+        emit(now, at, L.sched_sector, -1.0f, guard);
+    }
+    L.hc_has_last = 1u;
+    L.hc_last_t = t;
+    L.hc_last_corr_t = t_corr;
+}
+
+/* ---- VirtualController.capture: fault logic around the commutation -------------------------- */
+static void iv_clear(void)
+{
+    L.iv_n = 0;
+    L.iv_head = 0;
+}
+
+static void iv_push(float dt, uint8_t measured)
+{
+    int at = (L.iv_head + L.iv_n) % EDGES_PER_TURN;
+    if (L.iv_n < EDGES_PER_TURN) L.iv_n++;
+    else L.iv_head = (L.iv_head + 1) % EDGES_PER_TURN;
+    L.iv_dt[at] = dt;
+    L.iv_measured[at] = measured;
+}
+
+/* the interval a sector is compared with to tell a lost edge or a glitch; 0 when none yet */
+static int reference_interval(float *ref, float *ratio)
+{
+    *ratio = MISSING_EDGE_RATIO;
+    if (L.iv_n == 0) return 0;
+#if defined(HIL_DEFECT_LOST_EDGE_AGAINST_LAST_SECTOR)
+    *ref = L.iv_dt[(L.iv_head + L.iv_n - 1) % EDGES_PER_TURN];
+    return 1;
+#else
+    {
+    int k;
+    float s = 0.0f;
+    if (L.iv_n == EDGES_PER_TURN && L.iv_measured[L.iv_head]) { /* the same sector one turn back */
+        *ref = L.iv_dt[L.iv_head];
+        *ratio = SAME_SECTOR_RATIO;
+        return 1;
+    }
+    for (k = 0; k < L.iv_n; k++) s += L.iv_dt[(L.iv_head + k) % EDGES_PER_TURN];
+    *ref = s / (float)L.iv_n;
+    return 1;
+    }
+#endif
+}
+
+static void edge_lost(void)
+{
+    fault_raise(FAULT_MISSING_EDGE);
+    iv_clear();
+    L.normal_steps = 0;
+    L.resync_pending = 1u;
+}
+
+void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc[3])
+{
+    int64_t t = tb_at(count);
+    uint8_t rising, motion = 1u;
+    float current_a, cycle_a = -1.0f, delay_s = 0.0f;
+    int sector;
+
+    if (pin > 2u) return;
+#ifdef FW_DEBUG
+    fprintf(stderr, "hall t=%lld pin=%d levels=%d\n", (long long)t, pin, levels);
+#endif
+    adc_push(t, adc); /* the conversion the capture triggers */
+    if (cycle_n > 0u) {
+        cycle_a = (fabsf((float)cycle_sum[0]) + fabsf((float)cycle_sum[1]) + fabsf((float)cycle_sum[2])) /
+                  (3.0f * (float)cycle_n) * AMPS_PER_COUNT;
+    }
+    cycle_sum[0] = cycle_sum[1] = cycle_sum[2] = 0;
+    cycle_n = 0u;
+    if (L.has_last_t && t <= L.last_t) { /* a capture stamp that does not increase */
+        fault_raise(FAULT_CAPTURE_TIMING);
+        return;
+    }
+    rising = (uint8_t)((levels >> pin) & 1u);
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+    if (L.corrected) delay_s = delay_of(rising);
+#endif
+    current_a = adc_current_at(t - (int64_t)lroundf(delay_s * (float)TIMER_HZ));
+    if (current_a < 0.0f) current_a = 0.0f; /* no conversion yet: the current estimate, 0 A */
+
+    L.bits[pin] = rising;
+    sector = sector_of_bits(L.bits);
+    L.sensors_seen |= (uint8_t)(1u << pin);
+    if (L.sensors_seen == 7u) { /* the Hall state is known once every sensor has switched */
+        if (sector < 0) {
+            fault_raise(FAULT_ILLEGAL_HALL_CODE);
+            motion = 0u;
+        } else if (sector == L.sector) {
+            motion = 0u; /* back where the last valid edge left it: a spike or a bounce */
+        } else if (L.sector >= 0 && mod_int(sector - L.sector, 6) != 1) {
+            edge_lost(); /* a skipped sector, or a step against the direction of rotation */
+        } else if (L.sector >= 0) {
+            L.normal_steps++;
+        }
+        if (sector >= 0) L.sector = (int8_t)sector;
+    }
+    L.edges_since_motion++;
+    if (motion) {
+        if (L.has_last_t) {
+            float dt = seconds(t - L.last_t), ref, ratio;
+            uint8_t measured = 1u;
+            if (reference_interval(&ref, &ratio)) {
+                if (dt > ratio * ref) {
+                    long lost = lroundf(dt / ref) - (long)L.edges_since_motion;
+                    edge_lost();
+                    if (lost > 0) L.edge_index += (int32_t)lost; /* count_lost_edges */
+                    dt = ref;
+                    measured = 0u;
+                } else if (dt * ratio < ref) { /* a glitch that read as a step */
+                    dt = ref;
+                    measured = 0u;
+                    iv_clear();
+                }
+            }
+            iv_push(dt, measured);
+        }
+        L.has_last_t = 1u;
+        L.last_t = t;
+        L.edges_since_motion = 0;
+    }
+    if (L.resync_pending && L.normal_steps >= 6) {
+        hc_resync();
+        L.resync_pending = 0u;
+    }
+    hc_on_edge(t, pin, rising, current_a, cycle_a);
+    if (L.predictor) { /* guards firing while P settles from P0 (warm-up) are expected */
+        uint32_t trips = filter_covariance_repairs(&L.filt);
+        if (L.filt.k_step <= L.filt.fp.warmup) {
+            L.guards_seen = trips;
+        } else if (trips > L.guards_seen) {
+            L.guards_seen = trips;
+            fault_raise(FAULT_FILTER_GUARD_TRIP);
+        }
+    }
+}
+
+void ctl_control_isr(uint32_t count, const int16_t adc[3])
+{
+    int64_t now = tb_at(count);
+    adc_push(now, adc);
+    cycle_sum[0] += adc[0];
+    cycle_sum[1] += adc[1];
+    cycle_sum[2] += adc[2];
+    cycle_n++;
+#if defined(HIL_DEFECT_TORN_TABLE)
+    if (torn_copy_at < CAL_N_VALUES) { /* one value per interrupt: the Hall ISR reads it half-copied */
+        cal_set(&table, torn_copy_at, cal_get(&table_next, torn_copy_at));
+        torn_copy_at++;
+    }
+#endif
+#if !defined(HIL_DEFECT_LATE_COMPARE)
+    run_due(now, COMPARE_LEAD_TICKS); /* a command too far ahead to arm when it was made */
+#endif
+    rearm(now);
+}
+
+void ctl_compare_isr(uint32_t count)
+{
+    int64_t now = tb_at(count);
+#ifdef FW_DEBUG
+    fprintf(stderr, "compare now=%lld q=%d head=%lld\n", (long long)now, n_queue, n_queue ? (long long)queue[0].at : 0LL);
+#endif
+#if defined(HIL_DEFECT_LATE_COMPARE)
+    if (late_armed && ((uint32_t)late.at & TIMER_MASK) == (count & TIMER_MASK)) {
+        late_armed = 0u;
+        apply(&late);
+    }
+#endif
+    run_due(now, COMPARE_LEAD_TICKS);
+    rearm(now);
+}
+
+/* ---- configuration ------------------------------------------------------------------------- */
+void ctl_restart_logic(void)
+{
+    uint8_t strategy = nvm.strategy;
+    memset(&L, 0, sizeof L);
+    L.corrected = strategy != STRATEGY_RAW;
+    L.predictor = strategy == STRATEGY_KF || strategy == STRATEGY_SAGE_HUSA;
+#if defined(HIL_DEFECT_SAGE_HUSA_RUNS_KF)
+    if (strategy == STRATEGY_SAGE_HUSA) filter_init(&L.filt, &FILTER_KF_DEFAULT, 0);
+    else
+#endif
+    if (strategy == STRATEGY_SAGE_HUSA) filter_init(&L.filt, &nvm.sage_husa, 1);
+    else if (strategy == STRATEGY_KF) filter_init(&L.filt, &FILTER_KF_DEFAULT, 0);
+#if defined(HIL_DEFECT_TORN_TABLE)
+    cal_effective(&nvm.applied, &table_next);
+    torn_copy_at = 0;
+#else
+    cal_effective(&nvm.applied, &table);
+#endif
+    L.sector = -1;
+    L.normal_steps = 6;
+    L.edge_index = -1;
+    L.pole_shift = -1;
+    L.last_sector = -1;
+    L.index_at_last_sector = -1;
+    L.setpoint_rpm = nvm.speed_setpoint_rpm;
+    L.feedforward = steady_duty(nvm.speed_setpoint_rpm);
+}
+
+void ctl_set_speed(float rpm)
+{
+    L.setpoint_rpm = rpm;
+    L.feedforward = steady_duty(rpm);
+}
+
+void ctl_power_on(uint8_t levels)
+{
+    uint8_t bits[3];
+    command_t c;
+    tb_valid = 0u;
+    n_queue = 0;
+    adc_n = adc_head = 0;
+    cycle_sum[0] = cycle_sum[1] = cycle_sum[2] = 0;
+    cycle_n = 0u;
+#if defined(HIL_DEFECT_LATE_COMPARE)
+    late_armed = 0u;
+#endif
+#if defined(HIL_DEFECT_TORN_TABLE)
+    cal_zero(&table);
+#endif
+    board_compare_disarm();
+    ctl_restart_logic();
+    /* the motor is turning at power-on: drive the sector the Hall pins name at once */
+    bits[0] = (uint8_t)(levels & 1u);
+    bits[1] = (uint8_t)((levels >> 1) & 1u);
+    bits[2] = (uint8_t)((levels >> 2) & 1u);
+    c.at = 0;
+    c.sector = (int8_t)sector_of_bits(bits);
+    c.duty = L.feedforward;
+    if (c.sector < 0) {
+        out_gates = 0u;
+        board_set_gates(0u);
+    }
+    apply(&c);
+}
+
+/* ---- read-backs ------------------------------------------------------------------------------ */
+float ctl_speed_rpm(void)
+{
+    float s = 0.0f;
+    int k;
+    if (L.predictor && L.filt.x[0] != 0.0f) return L.filt.x[0] / (float)POLE_PAIRS * 60.0f / (2.0f * FW_PI_F);
+    if (L.spd_n == 0) return 0.0f;
+    for (k = 0; k < L.spd_n; k++) s += 1.0f / L.speed_est[k];
+    return (float)L.spd_n / s;
+}
+
+void ctl_filter_diag(float q[3], float r[2])
+{
+    int k;
+    for (k = 0; k < 3; k++) q[k] = L.predictor ? L.filt.Q[4 * k] : 0.0f;
+    for (k = 0; k < 2; k++) r[k] = L.predictor ? L.filt.R[3 * k] : 0.0f;
+}
+
+uint32_t ctl_guard_trips(void)
+{
+    return L.predictor ? filter_guard_total(&L.filt) : 0u;
+}
+
+void ctl_filter_counters(uint32_t c[4])
+{
+    if (!L.predictor) {
+        c[0] = c[1] = c[2] = c[3] = 0u;
+        return;
+    }
+    c[0] = L.filt.guards[GUARD_GATE];
+    c[1] = filter_covariance_repairs(&L.filt);
+    c[2] = L.filt.guards[GUARD_DIVERGENCE];
+    c[3] = L.filt.guards[GUARD_Q_BAND];
+}
+
+double ctl_last_prediction_s(void)
+{
+    return L.has_prediction ? (double)L.last_prediction / (double)TIMER_HZ : 0.0;
+}
