@@ -155,7 +155,8 @@ _REGISTRY = (
         "REQ-COMM-001", "Corrected commutation lands within the angle budget over the speed range",
         "the combined deviations (`test_calibration_recovery.py[combined]`); the same through the pins "
         "(`test_signal_injection.py`)",
-        "calibration.md#raw-versus-corrected-commutation-paper-section-43", ("speed_setpoint",), edge_hook=True, uses=_BENCH,
+        "calibration.md#raw-versus-corrected-commutation-paper-section-43", ("speed_setpoint",), edge_hook=True,
+        uses=_BENCH,
         budgets=(DefaultBudget(
             'commutation_angle_p99', 'deg_e', 0.5,
             marginal=0.4,
@@ -356,7 +357,8 @@ _REGISTRY = (
     Requirement(
         "REQ-ROB-002", "Faults switched on and off while running are reported and recovered from",
         "`test_fault_injection.py`: a stateful machine of wiring faults switched on and off (50 sequences)",
-        "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, fault_source="any", uses=_BENCH,
+        "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, fault_source="any",
+        uses=_BENCH,
         budgets=(DefaultBudget(
             'recovered_commutation_angle_p99', 'deg_e', 1.0,
             marginal=0.8,
