@@ -239,3 +239,30 @@ def test_the_timer_wraps_inside_the_run():
     before, after = p.count(0.0099995), p.count(0.0100005)
     assert before > 0xFF00 and after < 0x100
     assert math.isclose(p.ticks(0.25), 250000)
+
+
+# --- the firmware's own seeded defects (hil qualify --dut sil:DIR) ------------------------------------
+def test_the_reference_firmwares_defects_are_switches_its_sources_know():
+    from hil.qualify.run import firmware_defects
+
+    defects = firmware_defects(f"sil:{REFERENCE}")
+    assert len(defects) >= 8
+    sources = "".join(p.read_text() for p in (REFERENCE / "src").glob("*.c"))
+    sources += "".join(p.read_text() for p in (REFERENCE / "include").glob("*.h"))
+    for d in defects.values():
+        assert d.define.startswith("HIL_DEFECT_") and d.define in sources, d
+        assert all(r.startswith("REQ-") for r in d.requirements), d
+    firmware_only = {"HIL_DEFECT_TIMER_WRAP", "HIL_DEFECT_FLOAT_SECONDS", "HIL_DEFECT_LATE_COMPARE",
+                     "HIL_DEFECT_TORN_TABLE"}
+    assert firmware_only <= {d.define for d in defects.values()}
+
+
+def test_a_bad_defects_file_names_the_table_and_the_key(tmp_path):
+    from hil.qualify.run import firmware_defects
+
+    folder = tmp_path / "fw"
+    shutil.copytree(SIXSTEP, folder)
+    (folder / "defects.toml").write_text('format = "bldc-hil-firmware-defects/1"\n[[defect]]\nname = "x"\n'
+                                         'description = "y"\n')
+    with pytest.raises(ValueError, match=r"defects.toml: \[\[defect\]\]\[0\]\.define: required"):
+        firmware_defects(f"sil:{folder}")
