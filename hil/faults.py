@@ -108,14 +108,16 @@ class FaultInjector:
         return getattr(self.link, name)
 
     def switch_on(self, fault: WiringFault) -> None:
-        if self.mirror is not None:
+        self.active.append(fault)
+        if self.mirror is not None:  # it acts, and logs, where the pins are
             self.mirror("on", fault)
             return
-        self.active.append(fault)
         self.log.append((self._t, "on", fault.name))
 
     def switch_off(self, fault: WiringFault) -> None:
         if self.mirror is not None:
+            if fault in self.active:
+                self.active.remove(fault)
             self.mirror("off", fault)
             return
         if fault in self.active:

@@ -160,6 +160,10 @@ class Peripherals:
         r[3] = count
         r[4] = 1.0
 
+    def outputs_after(self, event: int, t_s: float, count: int) -> None:
+        """What the firmware left after a call outside the interrupts (an object-dictionary write)."""
+        self._outputs(event, t_s, count)
+
     def _outputs(self, event: int, t_s: float, count: int) -> None:
         """Read what the firmware left after an interrupt: gates and duty into the inverter, the
         compare unit, the EMCY queue; then close the call record."""

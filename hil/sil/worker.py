@@ -60,15 +60,21 @@ class _Worker:
         return out
 
     def op_od_write(self, index: int, sub: int, data: bytes):
-        self._enter(OD_WRITE, *self._now())
+        t, count = self._now()
+        self._enter(OD_WRITE, t, count)
         out = self.fw.od_write(index, sub, data)
-        self._leave()
+        if self.periph is not None:
+            # as on the chip, what the write changed (a set point's duty, a strategy's gates) is in
+            # force at once, not from the next interrupt
+            self.periph.outputs_after(OD_WRITE, t, count)
+        else:
+            self._leave()
         self._drain_emcy()
         return out
 
     def op_power_cycle(self):
         """``hil_sil_reset`` with the pins as the plant holds them (the last run's; before any
-        run, as a rotor at angle 0 would: A high, B low, C low is sector 0's code)."""
+        run, A high and B, C low: a legal Hall state)."""
         levels = self.periph.pins if self.periph is not None else 0b001
         self._enter(RESET, *self._now())
         self.fw.reset(levels)
