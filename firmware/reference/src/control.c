@@ -309,6 +309,7 @@ static struct {
     float dtc_prev, edge_noise_var;  /* the edge noise (s^2), for the Hall interrupt's guard */
     /* SpeedPI */
     float setpoint_rpm, feedforward, integral;
+    uint8_t pi_ran;
 } L;
 
 /* the table the interrupts read (the applied one, through cal_effective) */
@@ -512,6 +513,7 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
             L.speed_est[at] = speed_rpm;
             duty_bounds(speed_rpm, &lo, &hi);
             duty = pi_update(speed_rpm, seconds(t - L.hc_last_t), lo, hi);
+            L.pi_ran = 1u;
         }
     }
     if (L.corrected && L.hc_has_last && t_corr > L.hc_last_corr_t) {
@@ -766,6 +768,13 @@ void ctl_set_speed(float rpm)
 {
     L.setpoint_rpm = rpm;
     L.feedforward = steady_duty(rpm);
+    if (!L.pi_ran) { /* the speed loop has not run yet: start from the new set point's duty */
+        command_t c;
+        c.at = 0;
+        c.sector = -1;
+        c.duty = L.feedforward;
+        apply(&c);
+    }
 }
 
 void ctl_power_on(uint8_t levels)
@@ -791,7 +800,10 @@ void ctl_power_on(uint8_t levels)
     bits[2] = (uint8_t)((levels >> 2) & 1u);
     c.at = 0;
     c.sector = (int8_t)sector_of_bits(bits);
-    c.duty = L.feedforward;
+    /* the start-up duty: the default set point's feed-forward, whatever set point the NVM holds
+       (a set point written before the speed loop runs replaces it), so that a run does not
+       depend on the set point a previous run left */
+    c.duty = steady_duty(SPEED_SETPOINT_DEFAULT_RPM);
     if (c.sector < 0) {
         out_gates = 0u;
         board_set_gates(0u);
