@@ -4,6 +4,7 @@
    capture timer, extended in software from the free-running counter every interrupt sees;
    intervals are differences of those (modular in the counter's width). */
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #include "board.h"
@@ -112,6 +113,9 @@ typedef struct {
 static command_t queue[QUEUE];
 static int n_queue;
 static uint8_t out_gates;
+#define SWITCHES 4
+static int64_t switch_t[SWITCHES]; /* the last commutations (gates changed), a ring */
+static int switch_head, n_switch;
 #if defined(HIL_DEFECT_LATE_COMPARE)
 static command_t late;       /* the due command armed on the compare instead of made */
 static uint8_t late_armed;
@@ -123,7 +127,13 @@ static void apply(const command_t *c)
     fprintf(stderr, "apply at=%lld sector=%d\n", (long long)c->at, c->sector);
 #endif
     if (c->sector >= 0) {
-        out_gates = gates_of_sector(c->sector);
+        uint8_t g = gates_of_sector(c->sector);
+        if (g != out_gates) { /* a commutation: its instant, for the ADC's segments */
+            switch_t[switch_head] = c->at;
+            switch_head = (switch_head + 1) % SWITCHES;
+            if (n_switch < SWITCHES) n_switch++;
+        }
+        out_gates = g;
         board_set_gates(out_gates);
     }
     if (c->duty >= 0.0f) {
@@ -230,37 +240,67 @@ static void adc_push(int64_t t, const int16_t adc[3])
     adc_ring[at].i[2] = adc[2];
 }
 
-/* adc.current_at_a: mean |i| over the phases at t, each phase linear between the conversions
-   around t, held at the window's ends; -1 without conversions */
-static float adc_current_at(int64_t t)
+/* The mean |i| steps at each commutation (within ~10 us: the outgoing phase freewheels down) and
+   moves smoothly between them. With conversions 50 us apart a line across a commutation misses
+   the current at the edge by amperes; so the line is drawn through the conversions of the
+   commutation segment that holds t (after its commutation's transient, before the next
+   commutation), held at the segment's ends, as adc.current_at_a holds its window's. */
+#define ADC_TRANSIENT_TICKS ((int64_t)(10e-6 * TIMER_HZ))
+
+static float mean_abs(const conversion_t *c0, const conversion_t *c1, int64_t t)
 {
-    const conversion_t *c0, *c1;
     float s = 0.0f;
-    int k, j;
-    if (adc_n == 0) return -1.0f;
-    c0 = &adc_ring[adc_head];
-    c1 = &adc_ring[(adc_head + adc_n - 1) % ADC_RING];
-    if (t < c0->t) {
-        c1 = c0;
-    } else if (t < c1->t) {
-        for (j = adc_n - 2; j >= 0; j--) {
-            c0 = &adc_ring[(adc_head + j) % ADC_RING];
-            if (c0->t <= t) break;
-        }
-        c1 = &adc_ring[(adc_head + j + 1) % ADC_RING];
-        if (c0->t == t) {
-            c1 = c0;
-        } else {
-            float frac = (float)(t - c0->t) / (float)(c1->t - c0->t);
-            for (k = 0; k < 3; k++) {
-                float i0 = (float)c0->i[k], i1 = (float)c1->i[k];
-                s += fabsf((i1 - i0) * frac + i0);
-            }
-            return s / 3.0f * AMPS_PER_COUNT;
+    int k;
+    if (c1 == c0 || c1->t == c0->t || t <= c0->t) {
+        for (k = 0; k < 3; k++) s += fabsf((float)c0->i[k]);
+    } else if (t >= c1->t) {
+        for (k = 0; k < 3; k++) s += fabsf((float)c1->i[k]);
+    } else {
+        float frac = (float)(t - c0->t) / (float)(c1->t - c0->t);
+        for (k = 0; k < 3; k++) {
+            float i0 = (float)c0->i[k], i1 = (float)c1->i[k];
+            s += fabsf((i1 - i0) * frac + i0);
         }
     }
-    for (k = 0; k < 3; k++) s += fabsf((float)c1->i[k]);
     return s / 3.0f * AMPS_PER_COUNT;
+}
+
+/* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
+static float adc_current_at(int64_t t)
+{
+    int64_t lo = INT64_MIN, hi = INT64_MAX;
+    const conversion_t *before = 0, *after = 0, *first = 0, *last = 0;
+    int j;
+    if (adc_n == 0) return -1.0f;
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+    for (j = 0; j < n_switch; j++) { /* the segment [lo, hi) around t */
+        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
+        if (sw <= t && sw > lo) lo = sw;
+        if (sw > t && sw < hi) hi = sw;
+    }
+    if (lo != INT64_MIN) lo += ADC_TRANSIENT_TICKS;
+#endif
+    for (j = 0; j < adc_n; j++) {
+        const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+        if (c->t < lo || c->t >= hi) continue;
+        if (!first) first = c;
+        last = c;
+        if (c->t <= t) before = c;
+        else if (!after) after = c;
+    }
+    if (!first) { /* no conversion in the segment: the whole ring */
+        first = &adc_ring[adc_head];
+        last = &adc_ring[(adc_head + adc_n - 1) % ADC_RING];
+        before = after = 0;
+        for (j = 0; j < adc_n; j++) {
+            const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+            if (c->t <= t) before = c;
+            else if (!after) after = c;
+        }
+    }
+    if (!before) return mean_abs(first, first, t);
+    if (!after) return mean_abs(last, last, t);
+    return mean_abs(before, after, t);
 }
 
 /* ---- the control logic's state (what a logic restart rebuilds) ------------------------------- */
@@ -687,6 +727,9 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
         hc_resync();
         L.resync_pending = 0u;
     }
+#ifdef FW_DEBUG
+    fprintf(stderr, "cur t=%lld pin=%d r=%d I=%.3f cyc=%.3f\n", (long long)t, pin, rising, current_a, cycle_a);
+#endif
     hc_on_edge(t, pin, rising, current_a, cycle_a);
     if (L.predictor) { /* guards firing while P settles from P0 (warm-up) are expected */
         uint32_t trips = filter_covariance_repairs(&L.filt);
