@@ -124,7 +124,7 @@ static uint8_t late_armed;
 static void apply(const command_t *c)
 {
 #ifdef FW_DEBUG
-    fprintf(stderr, "apply at=%lld sector=%d\n", (long long)c->at, c->sector);
+    fprintf(stderr, "apply at=%lld sector=%d duty=%.4f\n", (long long)c->at, c->sector, c->duty);
 #endif
     if (c->sector >= 0) {
         uint8_t g = gates_of_sector(c->sector);
@@ -240,12 +240,14 @@ static void adc_push(int64_t t, const int16_t adc[3])
     adc_ring[at].i[2] = adc[2];
 }
 
-/* The mean |i| steps at each commutation (within ~10 us: the outgoing phase freewheels down) and
-   moves smoothly between them. With conversions 50 us apart a line across a commutation misses
-   the current at the edge by amperes; so the line is drawn through the conversions of the
-   commutation segment that holds t (after its commutation's transient, before the next
-   commutation), held at the segment's ends, as adc.current_at_a holds its window's. */
-#define ADC_TRANSIENT_TICKS ((int64_t)(10e-6 * TIMER_HZ))
+/* The mean |i| moves from one level to another at each commutation, in a ramp of about 9 us on
+   the paper pump (the outgoing phase's current freewheeling down), and smoothly between them. With
+   conversions 50 us apart a line across a commutation misses the current at the edge by amperes
+   (and the armature correction by degrees); the Python controller reads a 500 kHz window. So the
+   firmware uses what it knows, its own commutation instants: between two commutations, a line
+   through that segment's conversions (after the ramp), held at its ends; within a ramp, a line
+   from the segment before (at the commutation) to the segment after (at the ramp's end). */
+#define ADC_RAMP_TICKS ((int64_t)(9e-6 * TIMER_HZ))
 
 static float mean_abs(const conversion_t *c0, const conversion_t *c1, int64_t t)
 {
@@ -265,21 +267,11 @@ static float mean_abs(const conversion_t *c0, const conversion_t *c1, int64_t t)
     return s / 3.0f * AMPS_PER_COUNT;
 }
 
-/* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
-static float adc_current_at(int64_t t)
+/* the current at t from the conversions in [lo, hi) (a line, held at the ends); -1 if none */
+static float segment_current(int64_t lo, int64_t hi, int64_t t)
 {
-    int64_t lo = INT64_MIN, hi = INT64_MAX;
     const conversion_t *before = 0, *after = 0, *first = 0, *last = 0;
     int j;
-    if (adc_n == 0) return -1.0f;
-#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
-    for (j = 0; j < n_switch; j++) { /* the segment [lo, hi) around t */
-        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
-        if (sw <= t && sw > lo) lo = sw;
-        if (sw > t && sw < hi) hi = sw;
-    }
-    if (lo != INT64_MIN) lo += ADC_TRANSIENT_TICKS;
-#endif
     for (j = 0; j < adc_n; j++) {
         const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
         if (c->t < lo || c->t >= hi) continue;
@@ -288,19 +280,50 @@ static float adc_current_at(int64_t t)
         if (c->t <= t) before = c;
         else if (!after) after = c;
     }
-    if (!first) { /* no conversion in the segment: the whole ring */
-        first = &adc_ring[adc_head];
-        last = &adc_ring[(adc_head + adc_n - 1) % ADC_RING];
-        before = after = 0;
-        for (j = 0; j < adc_n; j++) {
-            const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
-            if (c->t <= t) before = c;
-            else if (!after) after = c;
-        }
-    }
+    if (!first) return -1.0f;
     if (!before) return mean_abs(first, first, t);
     if (!after) return mean_abs(last, last, t);
     return mean_abs(before, after, t);
+}
+
+/* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
+static float adc_current_at(int64_t t)
+{
+    int64_t lo = INT64_MIN, prev = INT64_MIN, hi = INT64_MAX;
+    float i;
+    int j;
+    if (adc_n == 0) return -1.0f;
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+    for (j = 0; j < n_switch; j++) { /* the commutations around t: prev < lo <= t < hi */
+        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
+        if (sw <= t && sw > lo) lo = sw;
+        if (sw > t && sw < hi) hi = sw;
+    }
+    for (j = 0; j < n_switch; j++) {
+        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
+        if (sw < lo && sw > prev) prev = sw;
+    }
+    if (lo != INT64_MIN && t < lo + ADC_RAMP_TICKS) { /* within the ramp of the commutation at lo */
+        float pre = segment_current(prev == INT64_MIN ? INT64_MIN : prev + ADC_RAMP_TICKS, lo, lo);
+        int64_t end = lo + ADC_RAMP_TICKS;
+        float post = segment_current(end, hi, end);
+        if (post < 0.0f) { /* nothing after the ramp yet: the newest conversion within it (the capture's) */
+            for (j = adc_n - 1; j >= 0; j--) {
+                const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+                if (c->t > t && c->t < end) {
+                    end = c->t;
+                    post = mean_abs(c, c, c->t);
+                    break;
+                }
+            }
+        }
+        if (pre >= 0.0f && post >= 0.0f) return pre + (post - pre) * (float)(t - lo) / (float)(end - lo);
+        if (pre >= 0.0f || post >= 0.0f) return pre >= 0.0f ? pre : post;
+    }
+    i = segment_current(lo == INT64_MIN ? INT64_MIN : lo + ADC_RAMP_TICKS, hi, t);
+    if (i >= 0.0f) return i;
+#endif
+    return segment_current(INT64_MIN, INT64_MAX, t); /* no conversion in the segment: the whole ring */
 }
 
 /* ---- the control logic's state (what a logic restart rebuilds) ------------------------------- */
