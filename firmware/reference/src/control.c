@@ -310,14 +310,15 @@ static float adc_current_at(int64_t t)
         if (post < 0.0f) { /* nothing after the ramp yet: the newest conversion within it (the capture's) */
             for (j = adc_n - 1; j >= 0; j--) {
                 const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
-                if (c->t > t && c->t < end) {
+                if (c->t >= t && c->t < end) {
                     end = c->t;
                     post = mean_abs(c, c, c->t);
                     break;
                 }
             }
         }
-        if (pre >= 0.0f && post >= 0.0f) return pre + (post - pre) * (float)(t - lo) / (float)(end - lo);
+        if (pre >= 0.0f && post >= 0.0f)
+            return end > lo ? pre + (post - pre) * (float)(t - lo) / (float)(end - lo) : post;
         if (pre >= 0.0f || post >= 0.0f) return pre >= 0.0f ? pre : post;
     }
     i = segment_current(lo == INT64_MIN ? INT64_MIN : lo + ADC_RAMP_TICKS, hi, t);
