@@ -2,6 +2,15 @@
 
 import os
 
+# pytester's in-process runs drop the modules first imported inside them; numpy >= 2.4 and SciPy's
+# C extensions refuse a second import in one process ("cannot load module more than once per
+# process"), so what the plant and the plugin import is imported here, ahead of every such run
+import numpy.fft  # noqa: F401
+import scipy.linalg  # noqa: F401
+import scipy.optimize  # noqa: F401
+import scipy.signal  # noqa: F401
+import scipy.stats  # noqa: F401
+
 import pytest
 
 pytest_plugins = ["pytester"]

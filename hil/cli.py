@@ -571,19 +571,20 @@ def cmd_qualify(args) -> int:
     caught by an assertion, 1 when a defect survives or errors a test or the control run fails, 2
     on bad input."""
     from .qualify.defects import CATALOGUE, load_defects
-    from .qualify.run import qualify
+    from .qualify.run import firmware_defects, qualify
 
     try:
         if args.defects:
             load_defects(args.defects)
+        catalogue = firmware_defects(args.dut) or CATALOGUE  # a firmware folder's own (defects.toml)
         if args.list:
-            for d in CATALOGUE.values():
+            for d in catalogue.values():
                 print(f"{d.name:<34} {d.description}")
             return 0
         args.only = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else None
         suite = find_suite(args.suite)
         args.suite = str(suite if suite.is_dir() else suite.parent)
-        print(f"hil qualify: {len(args.only or CATALOGUE)} defects against {args.dut}, {args.workers} at a time; "
+        print(f"hil qualify: {len(args.only or catalogue)} defects against {args.dut}, {args.workers} at a time; "
               f"reports in {args.report_dir}/")
         result = qualify(args)
     except (OSError, ValueError, TypeError) as exc:
@@ -671,11 +672,12 @@ def cmd_acceptance(args) -> int:
 def default_workers(duts: list[str]) -> str:
     """``hil acceptance``'s pytest-xdist workers without ``-n``: virtual controllers on every core
     (up to four: each worker opens its own and compiles the filters once), a real one in this
-    process (it serves one session); "0" runs without workers."""
+    process (it serves one session); "0" runs without workers. A firmware in the loop counts as
+    virtual: each worker loads its own instance, in a process of its own."""
     from .dut.spec import DutSpecError, parse_dut
 
     try:
-        virtual = all(parse_dut(d).is_virtual for d in duts)
+        virtual = all(parse_dut(d).is_virtual or parse_dut(d).kind == "sil" for d in duts)
     except DutSpecError:
         return "0"  # pytest names the bad spec
     cores = min(os.cpu_count() or 1, 4)

@@ -66,13 +66,16 @@ def test_status(test: dict, rid: str | None = None) -> str:
     A known failure (xfail) and an unexpected pass (xpass) are ``fail``; a skip is ``not tested``
     (the plugin turns a skip that hides an unreachable controller into an error), or ``not
     testable`` for a requirement the device's profile lacks what it needs for."""
+    lacking = test.get("not_testable") or {}  # the requirements the device's profile cannot show
+    if rid is not None and rid in lacking.get("requirements", ()) and test["outcome"] != "error":
+        # a test that ran for its other requirements judged nothing of this one
+        return "not testable"
     if test["outcome"] == "error":
         return "error"
     if test["outcome"] in _FAILING:
         return "fail"
     if test["outcome"] == "skipped":
-        lacking = test.get("not_testable") or {}  # the requirements the device's profile cannot show
-        return "not testable" if lacking and (rid is None or rid in lacking["requirements"]) else "not tested"
+        return "not testable" if lacking and rid is None else "not tested"
     verdicts = {m["verdict"] for m in _relevant(test, rid)}
     return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
 

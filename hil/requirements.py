@@ -155,7 +155,8 @@ _REGISTRY = (
         "REQ-COMM-001", "Corrected commutation lands within the angle budget over the speed range",
         "the combined deviations (`test_calibration_recovery.py[combined]`); the same through the pins "
         "(`test_signal_injection.py`)",
-        "calibration.md#raw-versus-corrected-commutation-paper-section-43", (), edge_hook=True, uses=_BENCH,
+        "calibration.md#raw-versus-corrected-commutation-paper-section-43", ("speed_setpoint",), edge_hook=True,
+        uses=_BENCH,
         budgets=(DefaultBudget(
             'commutation_angle_p99', 'deg_e', 0.5,
             marginal=0.4,
@@ -320,15 +321,15 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-FLT-001", "An illegal Hall code (000/111) raises fault 0xFF01", _FLT_TEST + " (a Hall spike)",
-        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-002", "A missing edge raises fault 0xFF02", _FLT_TEST + " (a lost edge)",
-        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-003", "A Hall sensor drop-out is detected as a fault", _FLT_TEST + " (0xFF01 or 0xFF02)",
-        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-FLT-004", "A filter guard trip raises fault 0xFF03", "`test_faults.py`: a forced covariance repair",
@@ -336,13 +337,13 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-FLT-005", "No fault is raised on a healthy run", "`test_faults.py`: a healthy run raises none",
-        _CONTROLLER_DOC, (), edge_hook=True, fault_source="any", uses=_BENCH,
+        _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, fault_source="any", uses=_BENCH,
     ),
     Requirement(
         "REQ-ROB-001", "Any combination of bounded deviations, once calibrated, meets the commutation budget",
         "`test_fault_injection.py`: hypothesis over deviation sets (`target()` on the p99; 100 examples); the "
         "evidence carries `examples run` and the seed, and a search that ran fewer examples than it claims fails",
-        "acceptance.md#findings-and-the-search-bounds", (), edge_hook=True, uses=_BENCH,
+        "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
             'any_deviations_commutation_angle_p99', 'deg_e', 1.0,
             marginal=0.5,
@@ -356,7 +357,8 @@ _REGISTRY = (
     Requirement(
         "REQ-ROB-002", "Faults switched on and off while running are reported and recovered from",
         "`test_fault_injection.py`: a stateful machine of wiring faults switched on and off (50 sequences)",
-        "acceptance.md#findings-and-the-search-bounds", (), edge_hook=True, fault_source="any", uses=_BENCH,
+        "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, fault_source="any",
+        uses=_BENCH,
         budgets=(DefaultBudget(
             'recovered_commutation_angle_p99', 'deg_e', 1.0,
             marginal=0.8,

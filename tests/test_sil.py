@@ -23,6 +23,7 @@ from plant_models import effects as fx
 from plant_models.simulation import Simulation
 
 SIXSTEP = Path(__file__).parent / "data" / "sil" / "sixstep"
+REFERENCE = Path(__file__).parent.parent / "firmware" / "reference"
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -81,17 +82,25 @@ def test_a_compile_error_is_one_error_naming_the_file(tmp_path):
 
 
 def test_the_pip_compiler_builds_the_firmware_without_a_system_compiler(tmp_path, monkeypatch):
-    """README's commands work where only Python and pip are: Zig's clang from the ziglang wheel."""
+    """README's commands work where only Python and pip are: Zig's clang from the ziglang wheel
+    builds the reference firmware (C99; a C++ firmware builds the same way, after Zig has
+    compiled its libc++ once, minutes on two cores, which this test does not spend), and the
+    library it builds runs."""
     monkeypatch.setenv("PATH", str(tmp_path))  # no cc, c++, gcc or clang on PATH
     monkeypatch.delenv("HIL_SIL_CC", raising=False)
     from hil.sil import build as build_module
 
     build_module.toolchain.cache_clear()
     try:
-        built = build(read_build_spec(SIXSTEP), prefer="auto")
+        built = build(read_build_spec(REFERENCE), prefer="auto")
     finally:
         build_module.toolchain.cache_clear()
     assert "ziglang" in built.toolchain and built.library.is_file()
+    monkeypatch.undo()
+    with opened(f"sil:{REFERENCE},compiler=ziglang") as dut:
+        assert dut.link.info.name.startswith("bldc-hil reference firmware")
+        b = bench(dut.link, 0.05)
+        assert b.sim.interrupts["control"] == 1000 and b.sim.interrupts["hall"] > 30
 
 
 # --- the interface, checked before anything runs ---------------------------------------------------
@@ -230,3 +239,30 @@ def test_the_timer_wraps_inside_the_run():
     before, after = p.count(0.0099995), p.count(0.0100005)
     assert before > 0xFF00 and after < 0x100
     assert math.isclose(p.ticks(0.25), 250000)
+
+
+# --- the firmware's own seeded defects (hil qualify --dut sil:DIR) ------------------------------------
+def test_the_reference_firmwares_defects_are_switches_its_sources_know():
+    from hil.qualify.run import firmware_defects
+
+    defects = firmware_defects(f"sil:{REFERENCE}")
+    assert len(defects) >= 8
+    sources = "".join(p.read_text() for p in (REFERENCE / "src").glob("*.c"))
+    sources += "".join(p.read_text() for p in (REFERENCE / "include").glob("*.h"))
+    for d in defects.values():
+        assert d.define.startswith("HIL_DEFECT_") and d.define in sources, d
+        assert all(r.startswith("REQ-") for r in d.requirements), d
+    firmware_only = {"HIL_DEFECT_TIMER_WRAP", "HIL_DEFECT_FLOAT_SECONDS", "HIL_DEFECT_LATE_COMPARE",
+                     "HIL_DEFECT_TORN_TABLE"}
+    assert firmware_only <= {d.define for d in defects.values()}
+
+
+def test_a_bad_defects_file_names_the_table_and_the_key(tmp_path):
+    from hil.qualify.run import firmware_defects
+
+    folder = tmp_path / "fw"
+    shutil.copytree(SIXSTEP, folder)
+    (folder / "defects.toml").write_text('format = "bldc-hil-firmware-defects/1"\n[[defect]]\nname = "x"\n'
+                                         'description = "y"\n')
+    with pytest.raises(ValueError, match=r"defects.toml: \[\[defect\]\]\[0\]\.define: required"):
+        firmware_defects(f"sil:{folder}")

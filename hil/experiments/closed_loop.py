@@ -20,7 +20,7 @@ from bldc.contract import FILTER_COUNTERS, Strategy, edge_as_received, filter_ve
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
-from ..bench import LockstepBench, acceptance_max_step_s, rms
+from ..bench import acceptance_max_step_s, make_bench, rms
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..controller.adc import edge_currents
@@ -163,10 +163,12 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
     link.download_calibration(corrections)
     link.set_strategy(int(strategy))
     first = setpoints_rpm[0]
-    tap = _EdgeTap(link, corrections)
-    bench = LockstepBench(
+    # a firmware in the loop takes its edges on its own pins (hil.sil): no edge message to tap, so
+    # the currents it computed at each edge are unknown and the offline replay's inputs are NaN
+    tap = None if callable(getattr(link, "bench", None)) else _EdgeTap(link, corrections)
+    bench = make_bench(
         config,
-        tap,
+        tap or link,
         initial_speed_rpm=first,
         duty=steady_state(config.motor, first)["duty"],
         seed=seed,
@@ -177,7 +179,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
     status = link.status()
     edges = bench.sim.edges()
     # corrected with the currents the controller computed at each edge's own instant
-    sent = np.asarray(tap.current_a[: len(edges)])
+    sent = np.asarray(tap.current_a[: len(edges)]) if tap is not None else np.full(len(edges), np.nan)
     t_corr = corrected_edge_times(edges.t_capture_s, edges.sensor, edges.rising, edges.pole, corrections, sent,
                                   config.motor.pole_pairs)
     k = np.nonzero(edges.t_capture_s[:-1] >= steps[0])[0]
@@ -185,7 +187,8 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         seed=seed,
         strategy=Strategy(int(strategy)).name,
         t_corrected_s=t_corr,
-        cycle_current_a=np.asarray(tap.cycle_current_a[: len(edges)], dtype=float),
+        cycle_current_a=(np.asarray(tap.cycle_current_a[: len(edges)], dtype=float) if tap is not None
+                         else np.full(len(edges), np.nan)),
         judged=k,
         t_ideal_next_s=edges.t_ideal_s[k + 1],
         w_true_next_deg_e_s=rpm_to_deg_e_per_s(edges.speed_rpm[k + 1], config.motor.pole_pairs),

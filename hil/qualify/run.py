@@ -70,14 +70,23 @@ def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tupl
     from ..dut.spec import parse_dut
 
     spec = parse_dut(dut)
-    if not spec.is_virtual or spec.transport not in ("canopen", "modbus"):
-        raise ValueError(f"hil qualify seeds defects into the built-in controller: give virtual:canopen or "
-                         f"virtual:modbus (with profile=FILE if you like), not {dut}")
-    path = spec.options.get("profile")
-    profile = load_profile(path) if path else shipped(spec.transport)
+    if spec.kind == "sil":  # a firmware in the loop: its own profile; its pins close the loop
+        from ..sil.build import read_build_spec
+
+        path = spec.options.get("profile") or (
+            read_build_spec(spec.options["path"]).profile if Path(spec.options["path"]).is_dir() else None)
+        profile = load_profile(path) if path else shipped("canopen")
+        hook = "pins"
+    elif not spec.is_virtual or spec.transport not in ("canopen", "modbus"):
+        raise ValueError(f"hil qualify seeds defects into the built-in controller or a firmware folder: give "
+                         f"virtual:canopen, virtual:modbus (with profile=FILE if you like) or sil:DIR, not {dut}")
+    else:
+        path = spec.options.get("profile")
+        profile = load_profile(path) if path else shipped(spec.transport)
+        hook = profile.edge_hook.kind
     lacking = {}
     for rid in REQUIREMENTS:
-        missing = missing_needs([rid], profile.has, profile.edge_hook.kind, profile.fault_sources)
+        missing = missing_needs([rid], profile.has, hook, profile.fault_sources)
         if missing:
             lacking[rid] = f"not testable on {dut} (its profile lacks {', '.join(missing)})"
     if not lacking:
@@ -103,13 +112,56 @@ def what_caught(report: dict) -> tuple[str | None, list[str], list[str]]:
     return caught_by, requirements, [t["nodeid"] for t in failed]
 
 
+FIRMWARE_DEFECTS_FORMAT = "bldc-hil-firmware-defects/1"
+
+
+@dataclass(frozen=True)
+class FirmwareDefect:
+    """A seeded defect of a firmware folder: a compile-time switch its ``defects.toml`` lists."""
+
+    name: str
+    define: str
+    description: str
+    requirements: tuple[str, ...] = ()
+
+
+def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
+    """The seeded defects of a ``sil:DIR`` firmware: ``DIR/defects.toml`` (format
+    ``bldc-hil-firmware-defects/1``: ``[[defect]]`` tables of name, define, description,
+    requirements), or {} for any other DUT. Errors name the file, the table and the key."""
+    from bldc.tomlfile import TomlError, load_toml
+
+    from ..dut.spec import parse_dut
+
+    spec = parse_dut(dut)
+    if spec.kind != "sil":
+        return {}
+    path = Path(spec.options["path"]) / "defects.toml"
+    if not path.is_file():
+        raise ValueError(f"{path}: no such file: a firmware's seeded defects are listed there "
+                         "(docs/firmware-in-the-loop.md)")
+    schema = {"format": None, "defect": [{"name": None, "define": None, "description": None, "requirements": None}]}
+    data = load_toml(path, schema)
+    if data.get("format") != FIRMWARE_DEFECTS_FORMAT:
+        raise TomlError(path, f"must be {FIRMWARE_DEFECTS_FORMAT!r}", key="format")
+    out = {}
+    for i, d in enumerate(data.get("defect", [])):
+        for key in ("name", "define", "description"):
+            if not isinstance(d.get(key), str) or not d[key]:
+                raise TomlError(path, "required, a non-empty string", table=f"[[defect]][{i}]", key=key)
+        out[d["name"]] = FirmwareDefect(d["name"], d["define"], d["description"], tuple(d.get("requirements", ())))
+    return out
+
+
 def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
-    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", args.dut,
+    firmware = getattr(args, "firmware_defects", None) or {}
+    dut = args.dut + (f",define={firmware[defect].define}" if defect in firmware else "")
+    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", dut,
            "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
     if args.budgets:
         cmd += ["--hil-budgets", args.budgets]
-    if defect is not None:
+    if defect is not None and defect not in firmware:
         cmd += ["--hil-defect", defect]
         if args.defects:
             cmd += ["--hil-defects", args.defects]
@@ -142,16 +194,18 @@ def qualify(args, progress=print) -> dict:
     at a time; the result as the JSON ``hil qualify`` writes."""
     if args.defects:
         load_defects(args.defects)
-    names = list(CATALOGUE) if not args.only else args.only
-    unknown = [n for n in names if n not in CATALOGUE]
+    # a firmware folder brings its own defects (compile-time switches); the built-in controller the catalogue's
+    args.firmware_defects = firmware_defects(args.dut)
+    catalogue = args.firmware_defects or CATALOGUE
+    names = list(catalogue) if not args.only else args.only
+    unknown = [n for n in names if n not in catalogue]
     if unknown:
-        raise ValueError(f"unknown defect(s) {', '.join(unknown)}; known: {', '.join(CATALOGUE)}")
+        raise ValueError(f"unknown defect(s) {', '.join(unknown)}; known: {', '.join(catalogue)}")
     args.budgets, out_of_scope = out_of_scope_budgets(args.dut, args.budgets, Path(args.report_dir))
     for rid, why in out_of_scope.items():
         progress(f"out of scope: {rid}: {why}")
-    jobs = [("control", "the built-in controller as shipped", None)] + [
-        (n, CATALOGUE[n].description, n) for n in names
-    ]
+    control = "the firmware as built" if args.firmware_defects else "the built-in controller as shipped"
+    jobs = [("control", control, None)] + [(n, catalogue[n].description, n) for n in names]
     started = time.monotonic()
     with ThreadPoolExecutor(max_workers=max(int(args.workers), 1)) as pool:
         futures = [pool.submit(_run, name, description, defect, args) for name, description, defect in jobs]

@@ -103,6 +103,15 @@ def hil_signals(pytestconfig, hil_plant_config, hil_seed, tmp_path) -> SignalBen
     -> SignalRun (stimulus, gate capture, score against truth.csv). The virtual controller plays
     the stimulus unless --hil-signals-stimulus/--hil-signals-capture name a bench capture."""
     opt = pytestconfig.getoption
+    if opt("--hil-signals-capture") is None:
+        # the loopback plays the built-in controller: it judges that controller, so it says nothing
+        # of a firmware in the loop or a device on a bus (their gates are judged on their own bench)
+        from ..pytest_plugin import dut_specs
+
+        others = [s.text for s in dut_specs(pytestconfig) if not s.is_virtual]
+        if others:
+            pytest.skip(f"the signal loopback plays the built-in controller, not {others[0]}: give "
+                        "--hil-signals-stimulus and --hil-signals-capture of that controller's gates")
     return SignalBench(
         hil_plant_config,
         hil_seed,
