@@ -110,9 +110,12 @@ typedef struct {
 #define HALL_GUARD_MIN_TICKS 2
 #define HALL_GUARD_MAX_TICKS ((int64_t)(20e-6 * TIMER_HZ))
 #define EDGE_NOISE_GAIN 0.05f
+/* half a sector at the highest set point */
+#define MIN_SECTOR_TICKS ((int64_t)(0.5 * 60.0 / (SPEED_SETPOINT_MAX_RPM * 6.0 * POLE_PAIRS) * TIMER_HZ))
 static command_t queue[QUEUE];
 static int n_queue;
 static uint8_t out_gates;
+static uint8_t pins_levels; /* the Hall pins as last read */
 #define SWITCHES 4
 static int64_t switch_t[SWITCHES]; /* the last commutations (gates changed), a ring */
 static int switch_head, n_switch;
@@ -374,6 +377,7 @@ static struct {
     /* SpeedPI */
     float setpoint_rpm, feedforward, integral;
     uint8_t pi_ran;
+    int8_t start_sector;   /* the pins' sector when the logic (re)started */
 } L;
 
 /* the table the interrupts read (the applied one, through cal_effective) */
@@ -508,7 +512,7 @@ static void hc_resync(void)
 }
 
 /* HallCommutation.on_edge */
-static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, float cycle_a)
+static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, uint8_t levels, float current_a, float cycle_a)
 {
     int sector, k;
     float angle, duty = -1.0f;
@@ -519,11 +523,13 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
     L.edge_index++;
     if (L.edge_index == 0) {
         L.first_angle_deg_e = SENSOR_POSITION_DEG_E[x] + (rising ? 0.0f : 180.0f);
-        if (!L.hc_has_last) { /* the other two sensors follow from which edge it was */
-            for (k = 0; k < 3; k++) {
-                float th = fmodf(L.first_angle_deg_e + 30.0f - SENSOR_POSITION_DEG_E[k] + 360.0f, 360.0f);
-                L.seen[k] = th < 180.0f ? 1u : 0u;
-            }
+        if (!L.hc_has_last) {
+            /* start-up: the Python controller infers the other two sensors from which edge this was
+               (the rotor turning forward); the firmware reads them on its pins. A first edge that
+               is not a forward one (the edge of a sensor the rotor stands at, moved back and forth
+               by the start-up current through the armature reaction) then commutates the sector
+               the pins name, not one 180 deg e away */
+            for (k = 0; k < 3; k++) L.seen[k] = (uint8_t)((levels >> k) & 1u);
         }
     }
     angle = L.first_angle_deg_e + 60.0f * (float)L.edge_index;
@@ -620,6 +626,17 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
         L.has_sched = 1u;
         L.sched_sector = (int8_t)((sector + 1) % 6);
         L.sched_at = at;
+        if (!got && t_corr - L.hc_last_corr_t < MIN_SECTOR_TICKS) {
+            /* not the Python controller's: an interval shorter than half a sector at the highest set
+               point is no sector (a sensor's edge moved back and forth at start-up, before any
+               reference interval); 60 deg e after it would commutate a sector early for a whole
+               sector. Commutated from the pins only; the next edge schedules again */
+            L.has_sched = 0u;
+            L.hc_has_last = 1u;
+            L.hc_last_t = t;
+            L.hc_last_corr_t = t_corr;
+            return;
+        }
 #ifdef FW_DEBUG
         fprintf(stderr, "edge t=%lld x=%d r=%d sector=%d tcorr=%lld pred=%lld shift=%d\n", (long long)t, x, rising, sector, (long long)t_corr, (long long)predicted, L.pole_shift);
 #endif
@@ -707,6 +724,19 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     current_a = adc_current_at(t - (int64_t)lroundf(delay_s * (float)TIMER_HZ));
     if (current_a < 0.0f) current_a = 0.0f; /* no conversion yet: the current estimate, 0 A */
 
+    pins_levels = levels;
+    if (!L.hc_has_last && L.start_sector >= 0) {
+        /* start-up (not the Python controller's, which does not see the pins at reset): the motor
+           turns forward from the sector the pins named at power-on; an edge that does not step
+           forward from it (a sensor the rotor stands at, its edge moved back and forth by the
+           start-up current through the armature reaction) is no rotor motion yet */
+        int s = SECTOR_OF_CODE[((levels & 1u) << 2) | (levels & 2u) | ((levels >> 2) & 1u)];
+        int step = s < 0 ? -1 : mod_int(s - L.start_sector, 6);
+        if (step != 1 && step != 2) {
+            L.bits[pin] = rising;
+            return;
+        }
+    }
     L.bits[pin] = rising;
     sector = sector_of_bits(L.bits);
     L.sensors_seen |= (uint8_t)(1u << pin);
@@ -754,7 +784,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
 #ifdef FW_DEBUG
     fprintf(stderr, "cur t=%lld pin=%d r=%d I=%.3f cyc=%.3f\n", (long long)t, pin, rising, current_a, cycle_a);
 #endif
-    hc_on_edge(t, pin, rising, current_a, cycle_a);
+    hc_on_edge(t, pin, rising, levels, current_a, cycle_a);
     if (L.predictor) { /* guards firing while P settles from P0 (warm-up) are expected */
         uint32_t trips = filter_covariance_repairs(&L.filt);
         if (L.filt.k_step <= L.filt.fp.warmup) {
@@ -829,6 +859,7 @@ void ctl_restart_logic(void)
     L.index_at_last_sector = -1;
     L.setpoint_rpm = nvm.speed_setpoint_rpm;
     L.feedforward = steady_duty(nvm.speed_setpoint_rpm);
+    L.start_sector = (int8_t)SECTOR_OF_CODE[((pins_levels & 1u) << 2) | (pins_levels & 2u) | ((pins_levels >> 2) & 1u)];
 }
 
 void ctl_set_speed(float rpm)
@@ -860,6 +891,7 @@ void ctl_power_on(uint8_t levels)
     cal_zero(&table);
 #endif
     board_compare_disarm();
+    pins_levels = levels;
     ctl_restart_logic();
     /* the motor is turning at power-on: drive the sector the Hall pins name at once */
     bits[0] = (uint8_t)(levels & 1u);
