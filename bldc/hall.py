@@ -50,6 +50,12 @@ for _s in range(6):
 del _s
 
 
+def pin_mask(a: int, b: int, c: int) -> int:
+    """The three Hall lines as a microcontroller's GPIO reads them into one value: bit 0 A, bit 1 B,
+    bit 2 C (``hil-sil/1``'s ``levels``; note the order is the reverse of ``hall_code``'s)."""
+    return int(a) | int(b) << 1 | int(c) << 2
+
+
 def sector_of_levels(levels) -> int:
     """The forward sector of one set of Hall line levels (A, B, C; 0 or 1 each), -1 for the
     illegal codes: the scalar form of ``SECTOR_OF_CODE[hall_code(levels)]`` for code that sees

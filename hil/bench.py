@@ -113,6 +113,14 @@ class LockstepBench:
     sim: Simulation = field(init=False)
 
     def __post_init__(self):
+        own = own_plant(self.link)
+        if own is not None:  # a firmware in the loop runs the plant beside its peripherals (hil.sil)
+            factory, wiring = own
+            self.source = None
+            self.sim = factory(self.config, self.seed, wiring=wiring, duty=self.duty,
+                               initial_speed_rpm=self.initial_speed_rpm, sample_rate_hz=self.sample_rate_hz,
+                               capacity=1 << 18, **self.sim_options)
+            return
         self.source = LinkSource(self.link)
         self.sim = Simulation(
             self.config,
@@ -143,12 +151,19 @@ class LockstepBench:
         return steps
 
 
-def make_bench(config: PlantConfig, link, **kwargs) -> LockstepBench:
-    """The bench for ``link``: its own when it has one (a firmware in the loop runs the plant beside
-    its peripherals: ``hil.sil``), else a LockstepBench that sends it every edge. ``link`` may be a
-    wrapper (``hil.faults.FaultInjector``) around either."""
+
+def own_plant(link):
+    """(the link's plant factory, the wiring faults' injector or None) when ``link`` runs the plant
+    itself (a firmware in the loop: ``hil.sil``; its ``simulation(config, seed, wiring=..., **sim
+    options)``), possibly inside a ``hil.faults.FaultInjector``, whose faults then act on the
+    firmware's pins; None when the bench sends the link every edge."""
     wrapped = getattr(link, "mirror", False) is not False and getattr(link, "link", None)
-    if wrapped is not None and wrapped is not False and callable(getattr(wrapped, "bench", None)):
-        return wrapped.bench(config, wiring=link, **kwargs)  # the wiring faults go onto the firmware's pins
-    own = getattr(link, "bench", None)
-    return own(config, **kwargs) if callable(own) else LockstepBench(config, link, **kwargs)
+    if wrapped and callable(getattr(wrapped, "simulation", None)):
+        return wrapped.simulation, link
+    own = getattr(link, "simulation", None)
+    return (own, None) if callable(own) else None
+
+
+def make_bench(config: PlantConfig, link, **kwargs) -> LockstepBench:
+    """The bench for ``link`` (kept as the one place a suite makes one)."""
+    return LockstepBench(config, link, **kwargs)

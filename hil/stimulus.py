@@ -22,7 +22,7 @@ from plant_models.effects import effect_from_mapping
 
 from .bench import acceptance_max_step_s, make_bench, p99_abs, rms
 from .dut.link import link_has
-from .requirements import CALIBRATION
+from .dut.profile import CALIBRATION_ROLES
 from .calibration.campaign import station_corrections
 from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
@@ -113,7 +113,7 @@ def run(stimulus: Stimulus, link, budgets) -> Outcome:
     # both kinds commutate on corrected edges with the station's tables for this plant
     link.reset()
     # a controller without the calibration or strategy roles is judged with its own (nothing downloaded)
-    if link_has(link, *CALIBRATION):
+    if link_has(link, *CALIBRATION_ROLES, "calibration_apply"):
         link.download_calibration(station_corrections(config, seed=stimulus.seed))
     strategy = strategy_named(stimulus.strategy) if stimulus.kind == "deviations" else Strategy.CORRECTED
     if link_has(link, "strategy"):

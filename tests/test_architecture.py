@@ -26,6 +26,7 @@ GROUP_OF_PREFIX = {
     "hil.controller": "controller",
     "hil.dut.link": "link",
     "hil.dut": "dut",
+    "hil.sil": "dut",  # a firmware in the loop is one more kind of DUT
     "hil.recording": "recording",
     "hil.traces": "recording",
     "hil.linebemf": "recording",
@@ -61,7 +62,8 @@ MAY_IMPORT = {
     "corrections": {"vocabulary"},
     "controller": {"vocabulary", "corrections", "predictors"},
     "link": {"vocabulary", "corrections"},
-    "dut": {"vocabulary", "plant", "predictors", "corrections", "controller", "link"},
+    # faults: the wiring faults act on a firmware's pins in its own process (hil.sil)
+    "dut": {"vocabulary", "plant", "predictors", "corrections", "controller", "link", "faults"},
     "recording": {"vocabulary", "plant"},
     "calibration": {"vocabulary", "corrections", "recording", "plant"},
     "faults": {"vocabulary"},

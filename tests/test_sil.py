@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from bldc.motor import MotorParameters, steady_state
+from hil.bench import LockstepBench
 from hil.dut.link import LinkError
 from hil.dut.spec import DutSpecError, open_dut, parse_dut
 from hil.sil.build import SilBuildError, build, read_build_spec
@@ -37,7 +38,7 @@ def _cache(tmp_path_factory):
 
 def bench(link, seconds: float, rpm: float = 6000.0, seed: int = 1, effects=()):
     config = PlantConfig().with_effects(*effects)
-    b = link.bench(config, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"], seed=seed,
+    b = LockstepBench(config, link, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"], seed=seed,
                    sim_options={"max_step_s": 2e-6})
     b.sim.run_until(seconds)
     return b

@@ -20,7 +20,7 @@ from bldc.contract import FILTER_COUNTERS, Strategy, edge_as_received, filter_ve
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
-from ..bench import acceptance_max_step_s, make_bench, rms
+from ..bench import acceptance_max_step_s, make_bench, own_plant, rms
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..controller.adc import edge_currents
@@ -165,7 +165,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
     first = setpoints_rpm[0]
     # a firmware in the loop takes its edges on its own pins (hil.sil): no edge message to tap, so
     # the currents it computed at each edge are unknown and the offline replay's inputs are NaN
-    tap = None if callable(getattr(link, "bench", None)) else _EdgeTap(link, corrections)
+    tap = None if own_plant(link) is not None else _EdgeTap(link, corrections)
     bench = make_bench(
         config,
         tap or link,

@@ -106,9 +106,10 @@ def hil_signals(pytestconfig, hil_plant_config, hil_seed, tmp_path) -> SignalBen
     if opt("--hil-signals-capture") is None:
         # the loopback plays the built-in controller: it judges that controller, so it says nothing
         # of a firmware in the loop or a device on a bus (their gates are judged on their own bench)
-        from ..pytest_plugin import dut_specs
+        from ..dut.spec import parse_dut
 
-        others = [s.text for s in dut_specs(pytestconfig) if not s.is_virtual]
+        texts = pytestconfig.getoption("--hil-dut") or pytestconfig.getini("hil_dut") or ["virtual"]
+        others = [t for t in texts if not parse_dut(t).is_virtual]
         if others:
             pytest.skip(f"the signal loopback plays the built-in controller, not {others[0]}: give "
                         "--hil-signals-stimulus and --hil-signals-capture of that controller's gates")

@@ -2,8 +2,9 @@
 of its own (``hil.sil.worker``), reached through its object dictionary and its peripherals.
 
 Roles go through the firmware's object dictionary as the device profile (CANopen form) maps them,
-exactly as on a CAN bench (``RoleLink``). Edges do not go through any message: a bench made by
-``bench()`` runs the plant beside the firmware, whose interrupts see the Hall pins, the ADC and
+exactly as on a CAN bench (``RoleLink``). Edges do not go through any message: a
+``hil.bench.LockstepBench`` of this link runs its plant (``simulation()``) beside the firmware,
+whose interrupts see the Hall pins, the ADC and
 the timer, and whose gates drive the plant's inverter. Commutation is judged from the gates.
 
 A firmware that crashes, hangs in an interrupt beyond ``hang_s`` of wall time, or breaks the
@@ -20,12 +21,10 @@ import sys
 import tempfile
 import time
 from multiprocessing.connection import Connection
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from ..bench import LockstepBench
 from ..dut.link import LinkError
 from ..dut.role_link import RoleLink
 from .firmware import FirmwareInfo, SilInterfaceError
@@ -117,8 +116,8 @@ class SilProcess:
             now = time.monotonic()
             if in_call:
                 if seq != seen_seq:
-                    seen_seq, seen_at = seq, now
-                elif now - seen_at > self.hang_s:
+                    seen_seq, seen_at, cpu_at = seq, now, self._cpu_s()
+                elif now - seen_at > self.hang_s and self._stuck(now - seen_at, self._cpu_s() - cpu_at):
                     where = self._record_text()
                     self._stop()
                     raise FirmwareFault(
@@ -130,6 +129,20 @@ class SilProcess:
             if limit_s is not None and now - started > limit_s:
                 self._stop()
                 raise LinkError(f"{self.label}: the firmware's process did not {op} within {limit_s:g} s")
+
+    def _cpu_s(self) -> float:
+        """CPU time the firmware's process has used (Linux /proc; NaN where it cannot be read)."""
+        try:
+            fields = Path(f"/proc/{self.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+            return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+        except (OSError, ValueError, IndexError):
+            return float("nan")
+
+    def _stuck(self, wall_s: float, cpu_s: float) -> bool:
+        """A call that has not returned for ``wall_s`` > hang_s hangs when the process spent at least
+        half of hang_s on the CPU meanwhile (a loop), or when ten times hang_s have passed (a wait
+        that burns nothing). A process the host did not schedule (a loaded machine) is not hung."""
+        return cpu_s != cpu_s or cpu_s >= 0.5 * self.hang_s or wall_s > 10.0 * self.hang_s
 
     def _record_text(self) -> str:
         seq, event, t_s, count, in_call = self._view.tolist()
@@ -223,7 +236,8 @@ class SilLink(RoleLink):
         self._emcy = []
 
     def edge(self, edge: dict):
-        raise LinkError(f"{self.where}: edges reach a firmware in the loop through its peripherals (use bench())")
+        raise LinkError(f"{self.where}: edges reach a firmware in the loop through its pins (a LockstepBench of "
+                        "this link runs the plant beside it)")
 
     def emcy_codes(self) -> list[int]:
         """The EMCY codes the firmware sent since the last power cycle or error reset, oldest first."""
@@ -245,22 +259,23 @@ class SilLink(RoleLink):
             out += [c for c in super().faults() if c not in out]
         return out
 
-    def bench(self, config, wiring=None, **kwargs) -> "SilBench":
+    def simulation(self, config, seed: int, wiring=None, **sim_kwargs) -> "RemoteSimulation":
+        """The plant of a bench, run in the firmware's process beside its peripherals
+        (``hil.bench.LockstepBench`` asks for it); ``wiring``: the faults' injector, acting on the pins."""
         if config.motor.pole_pairs != self.info.pole_pairs:
             raise LinkError(
                 f"{self.where}: the plant has {config.motor.pole_pairs} pole pairs, the firmware is configured for "
                 f"{self.info.pole_pairs} (hil_sil_describe)"
             )
-        bench = SilBench(config, self, **kwargs)
-        bench.attach(wiring)
-        return bench
+        return RemoteSimulation(self, config, seed, sim_kwargs, wiring)
 
     def close(self) -> None:
         self.process.close()
 
 
 class RemoteSimulation:
-    """The plant of a SilBench, in the firmware's process: the part of ``Simulation`` the suite reads."""
+    """The plant of a bench with a firmware in the loop, in the firmware's process: the part of
+    ``Simulation`` the suite reads."""
 
     def __init__(self, link: SilLink, config, seed: int, sim_kwargs: dict, wiring=None):
         self.link, self.config, self.wiring = link, config, wiring
@@ -299,20 +314,3 @@ class RemoteSimulation:
     def speed_rpm(self) -> float:
         return self._call("sim", "speed_rpm")
 
-
-@dataclass
-class SilBench(LockstepBench):
-    """A LockstepBench whose controller is a firmware in the loop: the same ``sim``, ``run_setpoints``
-    and ``angle_errors_deg_e``, the plant running in the firmware's process."""
-
-    def __post_init__(self):
-        self.source = None
-        self.sim = None  # attach() starts the plant, with the wiring faults' injector when there is one
-
-    def attach(self, wiring=None) -> None:
-        self.sim = RemoteSimulation(
-            self.link, self.config, self.seed,
-            {"duty": self.duty, "initial_speed_rpm": self.initial_speed_rpm, "sample_rate_hz": self.sample_rate_hz,
-             "capacity": 1 << 18, **self.sim_options},
-            wiring,
-        )

@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from bldc.contract import Command
-from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE
+from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE, pin_mask
 from hil.faults import FaultInjector
 from plant_models import _layout as L
 from plant_models.simulation import Commutations, Simulation
@@ -123,7 +123,7 @@ class Peripherals:
 
     def levels(self) -> int:
         ist = self.sim.ist
-        return int(ist[L.I_SEEN]) | int(ist[L.I_SEEN + 1]) << 1 | int(ist[L.I_SEEN + 2]) << 2
+        return pin_mask(ist[L.I_SEEN], ist[L.I_SEEN + 1], ist[L.I_SEEN + 2])
 
     def edge(self, edge: dict) -> list:
         """The wiring faults' sink (``FaultInjector.link``): a pin change they let through."""
