@@ -292,11 +292,12 @@ static float segment_current(int64_t lo, int64_t hi, int64_t t)
 /* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
 static float adc_current_at(int64_t t)
 {
+    if (adc_n == 0) return -1.0f;
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+  {
     int64_t lo = INT64_MIN, prev = INT64_MIN, hi = INT64_MAX;
     float i;
     int j;
-    if (adc_n == 0) return -1.0f;
-#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
     for (j = 0; j < n_switch; j++) { /* the commutations around t: prev < lo <= t < hi */
         int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
         if (sw <= t && sw > lo) lo = sw;
@@ -326,6 +327,7 @@ static float adc_current_at(int64_t t)
     }
     i = segment_current(lo == INT64_MIN ? INT64_MIN : lo + ADC_RAMP_TICKS, hi, t);
     if (i >= 0.0f) return i;
+  }
 #endif
     return segment_current(INT64_MIN, INT64_MAX, t); /* no conversion in the segment: the whole ring */
 }
