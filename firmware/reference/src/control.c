@@ -4,6 +4,7 @@
    capture timer, extended in software from the free-running counter every interrupt sees;
    intervals are differences of those (modular in the counter's width). */
 #include <math.h>
+#include <stdint.h>
 #include <string.h>
 
 #include "board.h"
@@ -109,9 +110,15 @@ typedef struct {
 #define HALL_GUARD_MIN_TICKS 2
 #define HALL_GUARD_MAX_TICKS ((int64_t)(20e-6 * TIMER_HZ))
 #define EDGE_NOISE_GAIN 0.05f
+/* half a sector at the highest set point */
+#define MIN_SECTOR_TICKS ((int64_t)(0.5 * 60.0 / (SPEED_SETPOINT_MAX_RPM * 6.0 * POLE_PAIRS) * TIMER_HZ))
 static command_t queue[QUEUE];
 static int n_queue;
 static uint8_t out_gates;
+static uint8_t pins_levels; /* the Hall pins as last read */
+#define SWITCHES 4
+static int64_t switch_t[SWITCHES]; /* the last commutations (gates changed), a ring */
+static int switch_head, n_switch;
 #if defined(HIL_DEFECT_LATE_COMPARE)
 static command_t late;       /* the due command armed on the compare instead of made */
 static uint8_t late_armed;
@@ -120,10 +127,16 @@ static uint8_t late_armed;
 static void apply(const command_t *c)
 {
 #ifdef FW_DEBUG
-    fprintf(stderr, "apply at=%lld sector=%d\n", (long long)c->at, c->sector);
+    fprintf(stderr, "apply at=%lld sector=%d duty=%.4f\n", (long long)c->at, c->sector, c->duty);
 #endif
     if (c->sector >= 0) {
-        out_gates = gates_of_sector(c->sector);
+        uint8_t g = gates_of_sector(c->sector);
+        if (g != out_gates) { /* a commutation: its instant, for the ADC's segments */
+            switch_t[switch_head] = c->at;
+            switch_head = (switch_head + 1) % SWITCHES;
+            if (n_switch < SWITCHES) n_switch++;
+        }
+        out_gates = g;
         board_set_gates(out_gates);
     }
     if (c->duty >= 0.0f) {
@@ -230,37 +243,93 @@ static void adc_push(int64_t t, const int16_t adc[3])
     adc_ring[at].i[2] = adc[2];
 }
 
-/* adc.current_at_a: mean |i| over the phases at t, each phase linear between the conversions
-   around t, held at the window's ends; -1 without conversions */
-static float adc_current_at(int64_t t)
+/* The mean |i| moves from one level to another at each commutation, in a ramp of about 9 us on
+   the paper pump (the outgoing phase's current freewheeling down), and smoothly between them. With
+   conversions 50 us apart a line across a commutation misses the current at the edge by amperes
+   (and the armature correction by degrees); the Python controller reads a 500 kHz window. So the
+   firmware uses what it knows, its own commutation instants: between two commutations, a line
+   through that segment's conversions (after the ramp), held at its ends; within a ramp, a line
+   from the segment before (at the commutation) to the segment after (at the ramp's end). */
+#define ADC_RAMP_TICKS ((int64_t)(9e-6 * TIMER_HZ))
+
+static float mean_abs(const conversion_t *c0, const conversion_t *c1, int64_t t)
 {
-    const conversion_t *c0, *c1;
     float s = 0.0f;
-    int k, j;
-    if (adc_n == 0) return -1.0f;
-    c0 = &adc_ring[adc_head];
-    c1 = &adc_ring[(adc_head + adc_n - 1) % ADC_RING];
-    if (t < c0->t) {
-        c1 = c0;
-    } else if (t < c1->t) {
-        for (j = adc_n - 2; j >= 0; j--) {
-            c0 = &adc_ring[(adc_head + j) % ADC_RING];
-            if (c0->t <= t) break;
-        }
-        c1 = &adc_ring[(adc_head + j + 1) % ADC_RING];
-        if (c0->t == t) {
-            c1 = c0;
-        } else {
-            float frac = (float)(t - c0->t) / (float)(c1->t - c0->t);
-            for (k = 0; k < 3; k++) {
-                float i0 = (float)c0->i[k], i1 = (float)c1->i[k];
-                s += fabsf((i1 - i0) * frac + i0);
-            }
-            return s / 3.0f * AMPS_PER_COUNT;
+    int k;
+    if (c1 == c0 || c1->t == c0->t || t <= c0->t) {
+        for (k = 0; k < 3; k++) s += fabsf((float)c0->i[k]);
+    } else if (t >= c1->t) {
+        for (k = 0; k < 3; k++) s += fabsf((float)c1->i[k]);
+    } else {
+        float frac = (float)(t - c0->t) / (float)(c1->t - c0->t);
+        for (k = 0; k < 3; k++) {
+            float i0 = (float)c0->i[k], i1 = (float)c1->i[k];
+            s += fabsf((i1 - i0) * frac + i0);
         }
     }
-    for (k = 0; k < 3; k++) s += fabsf((float)c1->i[k]);
     return s / 3.0f * AMPS_PER_COUNT;
+}
+
+/* the current at t from the conversions in [lo, hi) (a line, held at the ends); -1 if none */
+static float segment_current(int64_t lo, int64_t hi, int64_t t)
+{
+    const conversion_t *before = 0, *after = 0, *first = 0, *last = 0;
+    int j;
+    for (j = 0; j < adc_n; j++) {
+        const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+        if (c->t < lo || c->t >= hi) continue;
+        if (!first) first = c;
+        last = c;
+        if (c->t <= t) before = c;
+        else if (!after) after = c;
+    }
+    if (!first) return -1.0f;
+    if (!before) return mean_abs(first, first, t);
+    if (!after) return mean_abs(last, last, t);
+    return mean_abs(before, after, t);
+}
+
+/* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
+static float adc_current_at(int64_t t)
+{
+    if (adc_n == 0) return -1.0f;
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+  {
+    int64_t lo = INT64_MIN, prev = INT64_MIN, hi = INT64_MAX;
+    float i;
+    int j;
+    for (j = 0; j < n_switch; j++) { /* the commutations around t: prev < lo <= t < hi */
+        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
+        if (sw <= t && sw > lo) lo = sw;
+        if (sw > t && sw < hi) hi = sw;
+    }
+    for (j = 0; j < n_switch; j++) {
+        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
+        if (sw < lo && sw > prev) prev = sw;
+    }
+    if (lo != INT64_MIN && t < lo + ADC_RAMP_TICKS) { /* within the ramp of the commutation at lo */
+        float pre = segment_current(prev == INT64_MIN ? INT64_MIN : prev + ADC_RAMP_TICKS, lo, lo);
+        int64_t end = lo + ADC_RAMP_TICKS;
+        float post = segment_current(end, hi, end);
+        if (post < 0.0f) { /* nothing after the ramp yet: the newest conversion within it (the capture's) */
+            for (j = adc_n - 1; j >= 0; j--) {
+                const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+                if (c->t >= t && c->t < end) {
+                    end = c->t;
+                    post = mean_abs(c, c, c->t);
+                    break;
+                }
+            }
+        }
+        if (pre >= 0.0f && post >= 0.0f)
+            return end > lo ? pre + (post - pre) * (float)(t - lo) / (float)(end - lo) : post;
+        if (pre >= 0.0f || post >= 0.0f) return pre >= 0.0f ? pre : post;
+    }
+    i = segment_current(lo == INT64_MIN ? INT64_MIN : lo + ADC_RAMP_TICKS, hi, t);
+    if (i >= 0.0f) return i;
+  }
+#endif
+    return segment_current(INT64_MIN, INT64_MAX, t); /* no conversion in the segment: the whole ring */
 }
 
 /* ---- the control logic's state (what a logic restart rebuilds) ------------------------------- */
@@ -309,6 +378,8 @@ static struct {
     float dtc_prev, edge_noise_var;  /* the edge noise (s^2), for the Hall interrupt's guard */
     /* SpeedPI */
     float setpoint_rpm, feedforward, integral;
+    uint8_t pi_ran;
+    int8_t start_sector;   /* the pins' sector when the logic (re)started */
 } L;
 
 /* the table the interrupts read (the applied one, through cal_effective) */
@@ -443,7 +514,7 @@ static void hc_resync(void)
 }
 
 /* HallCommutation.on_edge */
-static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, float cycle_a)
+static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, uint8_t levels, float current_a, float cycle_a)
 {
     int sector, k;
     float angle, duty = -1.0f;
@@ -454,11 +525,13 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
     L.edge_index++;
     if (L.edge_index == 0) {
         L.first_angle_deg_e = SENSOR_POSITION_DEG_E[x] + (rising ? 0.0f : 180.0f);
-        if (!L.hc_has_last) { /* the other two sensors follow from which edge it was */
-            for (k = 0; k < 3; k++) {
-                float th = fmodf(L.first_angle_deg_e + 30.0f - SENSOR_POSITION_DEG_E[k] + 360.0f, 360.0f);
-                L.seen[k] = th < 180.0f ? 1u : 0u;
-            }
+        if (!L.hc_has_last) {
+            /* start-up: the Python controller infers the other two sensors from which edge this was
+               (the rotor turning forward); the firmware reads them on its pins. A first edge that
+               is not a forward one (the edge of a sensor the rotor stands at, moved back and forth
+               by the start-up current through the armature reaction) then commutates the sector
+               the pins name, not one 180 deg e away */
+            for (k = 0; k < 3; k++) L.seen[k] = (uint8_t)((levels >> k) & 1u);
         }
     }
     angle = L.first_angle_deg_e + 60.0f * (float)L.edge_index;
@@ -512,6 +585,7 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
             L.speed_est[at] = speed_rpm;
             duty_bounds(speed_rpm, &lo, &hi);
             duty = pi_update(speed_rpm, seconds(t - L.hc_last_t), lo, hi);
+            L.pi_ran = 1u;
         }
     }
     if (L.corrected && L.hc_has_last && t_corr > L.hc_last_corr_t) {
@@ -554,6 +628,17 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, float current_a, fl
         L.has_sched = 1u;
         L.sched_sector = (int8_t)((sector + 1) % 6);
         L.sched_at = at;
+        if (!got && t_corr - L.hc_last_corr_t < MIN_SECTOR_TICKS) {
+            /* not the Python controller's: an interval shorter than half a sector at the highest set
+               point is no sector (a sensor's edge moved back and forth at start-up, before any
+               reference interval); 60 deg e after it would commutate a sector early for a whole
+               sector. Commutated from the pins only; the next edge schedules again */
+            L.has_sched = 0u;
+            L.hc_has_last = 1u;
+            L.hc_last_t = t;
+            L.hc_last_corr_t = t_corr;
+            return;
+        }
 #ifdef FW_DEBUG
         fprintf(stderr, "edge t=%lld x=%d r=%d sector=%d tcorr=%lld pred=%lld shift=%d\n", (long long)t, x, rising, sector, (long long)t_corr, (long long)predicted, L.pole_shift);
 #endif
@@ -641,6 +726,19 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     current_a = adc_current_at(t - (int64_t)lroundf(delay_s * (float)TIMER_HZ));
     if (current_a < 0.0f) current_a = 0.0f; /* no conversion yet: the current estimate, 0 A */
 
+    pins_levels = levels;
+    if (!L.hc_has_last && L.start_sector >= 0) {
+        /* start-up (not the Python controller's, which does not see the pins at reset): the motor
+           turns forward from the sector the pins named at power-on; an edge that does not step
+           forward from it (a sensor the rotor stands at, its edge moved back and forth by the
+           start-up current through the armature reaction) is no rotor motion yet */
+        int s = SECTOR_OF_CODE[((levels & 1u) << 2) | (levels & 2u) | ((levels >> 2) & 1u)];
+        int step = s < 0 ? -1 : mod_int(s - L.start_sector, 6);
+        if (step != 1 && step != 2) {
+            L.bits[pin] = rising;
+            return;
+        }
+    }
     L.bits[pin] = rising;
     sector = sector_of_bits(L.bits);
     L.sensors_seen |= (uint8_t)(1u << pin);
@@ -685,7 +783,10 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
         hc_resync();
         L.resync_pending = 0u;
     }
-    hc_on_edge(t, pin, rising, current_a, cycle_a);
+#ifdef FW_DEBUG
+    fprintf(stderr, "cur t=%lld pin=%d r=%d I=%.3f cyc=%.3f\n", (long long)t, pin, rising, current_a, cycle_a);
+#endif
+    hc_on_edge(t, pin, rising, levels, current_a, cycle_a);
     if (L.predictor) { /* guards firing while P settles from P0 (warm-up) are expected */
         uint32_t trips = filter_covariance_repairs(&L.filt);
         if (L.filt.k_step <= L.filt.fp.warmup) {
@@ -760,12 +861,20 @@ void ctl_restart_logic(void)
     L.index_at_last_sector = -1;
     L.setpoint_rpm = nvm.speed_setpoint_rpm;
     L.feedforward = steady_duty(nvm.speed_setpoint_rpm);
+    L.start_sector = (int8_t)SECTOR_OF_CODE[((pins_levels & 1u) << 2) | (pins_levels & 2u) | ((pins_levels >> 2) & 1u)];
 }
 
 void ctl_set_speed(float rpm)
 {
     L.setpoint_rpm = rpm;
     L.feedforward = steady_duty(rpm);
+    if (!L.pi_ran) { /* the speed loop has not run yet: start from the new set point's duty */
+        command_t c;
+        c.at = 0;
+        c.sector = -1;
+        c.duty = L.feedforward;
+        apply(&c);
+    }
 }
 
 void ctl_power_on(uint8_t levels)
@@ -784,6 +893,7 @@ void ctl_power_on(uint8_t levels)
     cal_zero(&table);
 #endif
     board_compare_disarm();
+    pins_levels = levels;
     ctl_restart_logic();
     /* the motor is turning at power-on: drive the sector the Hall pins name at once */
     bits[0] = (uint8_t)(levels & 1u);
@@ -791,7 +901,10 @@ void ctl_power_on(uint8_t levels)
     bits[2] = (uint8_t)((levels >> 2) & 1u);
     c.at = 0;
     c.sector = (int8_t)sector_of_bits(bits);
-    c.duty = L.feedforward;
+    /* the start-up duty: the default set point's feed-forward, whatever set point the NVM holds
+       (a set point written before the speed loop runs replaces it), so that a run does not
+       depend on the set point a previous run left */
+    c.duty = steady_duty(SPEED_SETPOINT_DEFAULT_RPM);
     if (c.sector < 0) {
         out_gates = 0u;
         board_set_gates(0u);

@@ -21,8 +21,10 @@ const filter_vector_t FILTER_KF_DEFAULT = {0.98f, {0.013f, 1e-9f, 0.0016f}, {0.0
 #define WHITENESS_GAIN 4.0f
 #define CUSUM_UP 10.0f
 #define CUSUM_DOWN 0.1f
-/* float32 rounding of the Joseph form: a negative eigenvalue within this fraction of the largest
-   is rounding, not a lost covariance (the double-precision reference uses 1e-12) */
+/* float32 rounding: a negative eigenvalue within this fraction of the magnitude the matrix was
+   computed from (the largest eigenvalue, or for P the largest diagonal of P_k,k-1: the Joseph form
+   cancels terms that large, e.g. 5e4 - 991 x 50.4 in the first step on R_theta = 0) is rounding, not
+   a lost covariance (the double-precision reference uses 1e-12 of the largest eigenvalue) */
 #define REPAIR_REL_TOL 1e-5f
 
 int filter_vector_valid(const filter_vector_t *v)
@@ -143,8 +145,9 @@ static void jacobi_eig(float *a, int n, float *w, float *v)
     for (i = 0; i < n; i++) w[i] = a[i * n + i];
 }
 
-/* symmetrise m (n x n, row-major), floor its eigenvalues; 1 if it was indefinite (a repair) */
-static int sym_pd_floor(float *m, int n, float floor)
+/* symmetrise m (n x n, row-major), floor its eigenvalues; 1 if it was indefinite beyond the
+   rounding of values of magnitude ``scale`` (a repair) */
+static int sym_pd_floor(float *m, int n, float floor, float scale)
 {
     int i, j, k, ok = 0, repaired;
     float a[9], w[3], v[9], wmin, wmax;
@@ -173,6 +176,7 @@ static int sym_pd_floor(float *m, int n, float floor)
         if (w[i] < wmin) wmin = w[i];
         if (fabsf(w[i]) > wmax) wmax = fabsf(w[i]);
     }
+    if (scale > wmax) wmax = scale;
     repaired = wmin < -REPAIR_REL_TOL * (wmax > 1.0f ? wmax : 1.0f);
     for (i = 0; i < n; i++)
         if (w[i] < floor) w[i] = floor;
@@ -332,7 +336,7 @@ static void adapt_r(filter_t *f, uint32_t k, float innov0, float innov1, float n
     }
     f->R[1] = 0.0f;
     f->R[2] = 0.0f;
-    if (sym_pd_floor(f->R, 2, fp->floor)) f->guards[GUARD_R_PD] += 1u;
+    if (sym_pd_floor(f->R, 2, fp->floor, 0.0f)) f->guards[GUARD_R_PD] += 1u;
     if (f->R[3] < fp->r_i_floor) f->R[3] = fp->r_i_floor;
     restart_r_interval(f);
     f->k_interval_r = j + 1u;
@@ -399,7 +403,11 @@ static void kalman_update(filter_t *f, float innov0, float innov1, const float *
             p_new[3 * i + j] += g0 * (f->R[0] * h0 + f->R[1] * h1) + g1 * (f->R[2] * h0 + f->R[3] * h1);
         }
     }
-    if (sym_pd_floor(p_new, 3, 1e-12f)) f->guards[GUARD_P_PD] += 1u;
+    {
+        float scale = p_pred[0] > p_pred[4] ? p_pred[0] : p_pred[4];
+        if (p_pred[8] > scale) scale = p_pred[8];
+        if (sym_pd_floor(p_new, 3, 1e-12f, scale)) f->guards[GUARD_P_PD] += 1u;
+    }
 }
 
 static void adapt_q_whiteness(filter_t *f, uint32_t k, float innov0)
