@@ -23,7 +23,8 @@ struct Nvm { float setpoint_rpm = 5000.0f; } nvm;  // survives hil_sil_reset
 struct Ram {
   uint8_t gates = 0;
   float duty = 0.0f, integral = 0.0f, speed_rpm = 0.0f;
-  uint32_t last_edge = 0, edges = 0, ticks_since_edge = 0;
+  uint32_t last_edge = 0, edges = 0, ticks_since_edge = 0, sector_ticks = 0;
+  int hall_sector = 0;
   uint32_t faults[4] = {0, 0, 0, 0};
   uint8_t fault_count = 0, error_register = 0;
   uint16_t emcy[8] = {0};
@@ -50,6 +51,10 @@ void fault(uint16_t code) {
 void commutate(uint8_t levels) {
   int s = sector_of_levels(levels);
   if (s < 0) { fault(0x3101); return; }
+  ram.hall_sector = s;
+#ifdef SIXSTEP_ESTIMATED_ANGLE
+  if (ram.edges > 6) return;  // running: the control interrupt switches the gates from the estimate
+#endif
   ram.gates = gates_of(s);
 #ifdef SIXSTEP_SHOOT_THROUGH
   if (ram.edges == 200) ram.gates |= 0x03;  // both switches of leg A
@@ -88,6 +93,7 @@ HIL_SIL_EXPORT void hil_sil_hall_isr(uint32_t count, uint8_t pin, uint8_t levels
   if (ram.edges == 300) for (volatile int spin = 1; spin;) {}
 #endif
   uint32_t dt = (count - ram.last_edge) & kMask;
+  ram.sector_ticks = dt;
   if (ram.edges > 0 && dt > 0) {
     float sector_s = static_cast<float>(dt) / kTimerHz;
     ram.speed_rpm = 60.0f / (6.0f * kPolePairs * sector_s);
@@ -98,8 +104,19 @@ HIL_SIL_EXPORT void hil_sil_hall_isr(uint32_t count, uint8_t pin, uint8_t levels
   commutate(levels);
 }
 HIL_SIL_EXPORT void hil_sil_control_isr(uint32_t count, const int16_t adc[3]) {
-  (void)count; (void)adc;
+  (void)adc;
   ++ram.isr_calls;
+#ifdef SIXSTEP_ESTIMATED_ANGLE
+  // a FOC-style firmware: the rotor angle estimated at every PWM interrupt from the last Hall
+  // edge's sector boundary and the last sector's duration; the gates switch when the estimate
+  // crosses into the next sector (never ahead of the Hall state by more than that one sector)
+  if (ram.edges > 6 && ram.sector_ticks > 0) {
+    uint32_t since = (count - ram.last_edge) & kMask;
+    float advance = 60.0f * static_cast<float>(since) / static_cast<float>(ram.sector_ticks);
+    int s = ram.hall_sector + (advance >= 60.0f ? 1 : 0);
+    ram.gates = gates_of(s % 6);
+  }
+#endif
 #ifdef SIXSTEP_CRASH
   if (ram.isr_calls == 5000) { volatile int* null = nullptr; *null = 1; }
 #endif
