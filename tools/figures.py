@@ -409,8 +409,10 @@ def _produce_twin(vcd: str) -> Callable[[Path], Run]:
 
 
 def _tool(run: Run, script: str, *args: str, timeout_s: float = 3600) -> subprocess.CompletedProcess:
-    """``python tools/SCRIPT ARGS`` from the repository root, recorded in the run's commands."""
-    run.commands.append(" ".join(["python", f"tools/{script}", *args]))
+    """``python tools/SCRIPT ARGS`` from the repository root, recorded in the run's commands (the
+    scratch directory shown as $WORK)."""
+    run.commands.append(re.sub(r"\S*/hil-figures-[^/\s]+", "$WORK",
+                               " ".join(["python", f"tools/{script}", *map(shlex.quote, args)])))
     t0 = time.perf_counter()
     done = subprocess.run([sys.executable, str(ROOT / "tools" / script), *args], cwd=ROOT, capture_output=True,
                           text=True, timeout=timeout_s)
