@@ -414,8 +414,11 @@ def _tool(run: Run, script: str, *args: str, timeout_s: float = 3600) -> subproc
     run.commands.append(re.sub(r"\S*/hil-figures-[^/\s]+", "$WORK",
                                " ".join(["python", f"tools/{script}", *map(shlex.quote, args)])))
     t0 = time.perf_counter()
+    # a script's own directory comes first on its path, not the checkout's: without ROOT on
+    # PYTHONPATH it would import an installed copy of hil (an editable install of another checkout)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
     done = subprocess.run([sys.executable, str(ROOT / "tools" / script), *args], cwd=ROOT, capture_output=True,
-                          text=True, timeout=timeout_s)
+                          text=True, timeout=timeout_s, env=env)
     run.last_command_s = time.perf_counter() - t0
     if done.returncode != 0:
         raise RuntimeError(f"tools/{script} exited {done.returncode}:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
