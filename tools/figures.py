@@ -627,8 +627,8 @@ def produce_compare_correction(work: Path) -> Run:
     done = _hil(run, work, "compare-correction", "--plot", str(work / "headline.png"))
     rows = [["strategy", "speed fluctuation MSE", "mean phase current", "commutation error RMS", "p99"]]
     labels = {"raw": "raw Hall edges", "corrected": "corrected edges"}
-    found = re.findall(r"^(raw Hall edges|corrected edges)\s+([\d.e+\-]+) rpm2\s+[\d.e+\-]+ rpm2\s+([\d.]+) A\s+([\d.]+) de\s+([\d.]+) de",
-                       done.stdout, re.M)
+    found = re.findall(r"^(raw Hall edges|corrected edges)\s+([\d.e+\-]+) rpm2\s+[\d.e+\-]+ rpm2\s+"
+                       r"([\d.]+) A\s+([\d.]+) de\s+([\d.]+) de", done.stdout, re.M)
     red = re.search(r"speed MSE ([\d.\-]+)% .*mean phase current ([\d.\-]+)%", done.stdout)
     if len(found) != 2 or not red:
         raise RuntimeError(f"hil compare-correction printed no table:\n{done.stdout[-1500:]}")
