@@ -643,6 +643,27 @@ def produce_compare_correction(work: Path) -> Run:
     return run
 
 
+def produce_closed_loop(work: Path) -> Run:
+    """docs/sage-husa.md, "Closed loop": ``hil table5 --closed-loop`` (seed 0), Sage-Husa through the
+    controller on every link against its offline replay, and the filter's counters."""
+    run = Run(seeds=[0])
+    done = _hil(run, work, "table5", "--closed-loop", "--json", str(work / "closed-loop.json"))
+    found = re.findall(r"^(in-process|canopen|modbus)\s+(\d+)\s+([\d.]+)\s+([\d.]+)\s+([\d.]+)\s+(\d+)\s+"
+                       r"(\d+)\s+(\d+)\s+(\d+)\s*$", done.stdout, re.M)
+    if len(found) != 3:
+        raise RuntimeError(f"hil table5 --closed-loop printed no table:\n{done.stdout[-1500:]}")
+    rows = [["link", "commutations", "closed loop RMS deg e", "offline RMS deg e", "ratio", "gated edges",
+             "covariance repairs", "divergence fades", "band projections"]]
+    for link, n, cl, off, ratio, gated, repairs, fades, band in found:
+        rows.append([link, n, cl, off, ratio, gated, repairs, fades, band])
+        key = link.replace("-", "_")
+        run.figures[f"{key}.ratio"] = Figure(float(ratio), "", "{:.3f}", tolerance_abs=0.01)
+        run.figures[f"{key}.closed_loop_rms_deg_e"] = Figure(float(cl), "deg e", "{:.4f}", tolerance_rel=0.03)
+        run.figures[f"{key}.repairs"] = Figure(int(repairs), "", "{:d}")
+    run.tables["links"] = rows
+    return run
+
+
 def produce_req_pred_002_spread(work: Path) -> Run:
     """docs/sage-husa.md, REQ-PRED-002: the controller's defaults, Sage-Husa over the KF per operating
     profile over ten held-out seeds, in-process (``tools/req_pred_002_spread.py``)."""
@@ -700,6 +721,8 @@ GROUPS: list[Group] = [
     Group("gap_validation", "docs/gap.md: hil gap validate at its default size", False, produce_gap_validation),
     Group("compare_correction", "docs/calibration.md: raw versus corrected commutation (paper Section 4.3)", False,
           produce_compare_correction),
+    Group("closed_loop", "docs/sage-husa.md: Sage-Husa through the controller against its offline replay", False,
+          produce_closed_loop),
     Group("table5", "docs/sage-husa.md: Table 5's comparison under the four protocols", False, produce_table5),
     Group("req_pred_002_spread", "docs/sage-husa.md: REQ-PRED-002 per operating profile, held-out seeds", False,
           produce_req_pred_002_spread),
