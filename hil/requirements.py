@@ -24,6 +24,8 @@ from pathlib import Path
 
 from bldc.contract import FILTER_COUNTERS, GUARD_TRIPS
 
+from .budget_sources import derived
+
 
 @dataclass(frozen=True)
 class DefaultBudget:
@@ -95,43 +97,36 @@ _REGISTRY = (
         "REQ-CAL-001", "Installation deviations of the Hall sensors are removed by the pre-calibration (paper Eq. 1-5)",
         _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
         budgets=(DefaultBudget(
-            'installation_offset_error', 'deg_e', 0.05,
-            marginal=0.04,
+            'installation_offset_error', 'deg_e',
             description='calibrated installation offsets against truth',
-            limit_source="spec S2 (each calibrated quantity uses at most a tenth of S1's 0.5 deg e)",
+            **derived('installation_offset_error'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
         "REQ-CAL-002", "Magnet-pole deviations are removed by the pre-calibration (paper Eq. 6)",
         _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
         budgets=(DefaultBudget(
-            'pole_offset_error', 'deg_e', 0.05,
-            marginal=0.04,
+            'pole_offset_error', 'deg_e',
             description='calibrated pole offsets against truth',
-            limit_source="spec S2 (a tenth of S1's 0.5 deg e)",
+            **derived('pole_offset_error'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
         "REQ-CAL-003", "Conditioning-circuit (RC) delays are removed, rising and falling edges apart (paper Eq. 7-8)",
         _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
         budgets=(DefaultBudget(
-            'conditioning_delay_error', 's', 5e-07,
-            marginal=4e-07,
+            'conditioning_delay_error', 's',
             description='calibrated rise and fall delays against truth',
-            limit_source='spec S2 (0.5 us is 0.06 deg e at 10,000 rpm, 2 pole pairs: a tenth of S1)',
+            **derived('conditioning_delay_error'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
         "REQ-CAL-004", "Armature-reaction deviation is removed as a function of phase current",
         _CAL_TEST, _CAL_DOC, _BENCH, edge_hook=True,
         budgets=(DefaultBudget(
-            'armature_slope_error', 'fraction', 0.05,
-            marginal=0.04,
+            'armature_slope_error', 'fraction',
             description='calibrated armature-reaction slope, relative error',
-            limit_source=(
-                'spec S2 (5 % of 0.35 deg e/A at 2.8 A, the mean phase current at 10,000 rpm with pump load, is 0.05 '
-                'deg e: a tenth of S1)'
-            ),
+            **derived('armature_slope_error'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -141,14 +136,10 @@ _REGISTRY = (
         "`test_protocol.py`)",
         _CONTROLLER_DOC, (*CALIBRATION, "fault_code"),
         budgets=(DefaultBudget(
-            'calibrated_fraction_removed', 'fraction', 0.9,
-            marginal=0.95,
+            'calibrated_fraction_removed', 'fraction',
             kind='min',
             description='share of the raw commutation angle RMS that the downloaded calibration removes',
-            limit_source=(
-                'spec S1/S2 (90 % of the 3-4 deg e raw RMS of paper-sized deviations removed leaves 0.3-0.4 deg e, '
-                'inside S1)'
-            ),
+            **derived('calibrated_fraction_removed'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -158,12 +149,9 @@ _REGISTRY = (
         "calibration.md#raw-versus-corrected-commutation-paper-section-43", ("speed_setpoint",), edge_hook=True,
         uses=_BENCH,
         budgets=(DefaultBudget(
-            'commutation_angle_p99', 'deg_e', 0.5,
-            marginal=0.4,
+            'commutation_angle_p99', 'deg_e',
             description='p99 commutation angle error after calibration (paper 4.3 scenario)',
-            limit_source=(
-                'spec S1 (torque ripple from commutation timing <= 1 %: delta / 60 deg e <= 0.6 deg e; p99 0.5)'
-            ),
+            **derived('commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -171,41 +159,34 @@ _REGISTRY = (
         _PRED_TEST, _PRED_DOC, (*_BENCH, *FILTER_SETTINGS, *COUNTERS), edge_hook=True,
         budgets=(
             DefaultBudget(
-                'sage_husa_commutation_angle_rms', 'deg_e', 1.0,
-                marginal=0.8,
+                'sage_husa_commutation_angle_rms', 'deg_e',
                 description=(
                     "RMS commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"
                 ),
-                limit_source="spec S4 (through speed steps: twice S1's p99 as an RMS)",
+                **derived('sage_husa_commutation_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
             DefaultBudget(
-                'sage_husa_commutation_angle_p99', 'deg_e', 2.5,
-                marginal=2.0,
+                'sage_husa_commutation_angle_p99', 'deg_e',
                 description=(
                     "p99 commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"
                 ),
-                limit_source='spec S4 (through speed steps: five times S1 for the worst 1 % of commutations)',
+                **derived('sage_husa_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
             DefaultBudget(
-                'sage_husa_commutation_time_mape', '%', 1.0,
-                marginal=0.5,
+                'sage_husa_commutation_time_mape', '%',
                 description=(
                     "mean absolute commutation time error of the Sage-Husa predictor against the plant's ideal "
                     'commutation instants, over the ideal commutation interval (60 deg e), paper scenario (1 % is 0.6'
                     ' deg e)'
                 ),
-                limit_source=(
-                    'paper Table 5 (commutation time MAPE: pre-calibration 0.87 %, KF 0.77 %, Sage-Husa 0.66 % of the'
-                    " interval; the simplest method's, rounded up)"
-                ),
+                **derived('sage_husa_commutation_time_mape'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
             DefaultBudget(
-                'commutation_time_mape', 'percent', 1.0,
-                marginal=0.9,
+                'commutation_time_mape', 'percent',
                 description=(
                     'MAPE of the predicted commutation instant over the ideal interval (paper Table 5 scenario)'
                 ),
-                limit_source='paper Table 5 (as sage_husa_commutation_time_mape)',
+                **derived('commutation_time_mape'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
         ),
     ),
@@ -213,16 +194,12 @@ _REGISTRY = (
         "REQ-PRED-002", "The Sage-Husa predictor is no worse than the fixed-noise Kalman filter",
         _PRED_TEST, _PRED_DOC, (*_BENCH, *FILTER_SETTINGS), edge_hook=True,
         budgets=(DefaultBudget(
-            'sage_husa_over_kf_angle_rms', 'ratio', 1.05,
-            marginal=1.0,
+            'sage_husa_over_kf_angle_rms', 'ratio',
             description=(
                 "Sage-Husa commutation angle RMS over the tuned Kalman filter's, same scenario (issue 4: no worse by "
                 'more than 5 %)'
             ),
-            limit_source=(
-                'customer requirement (issue 4: no worse than the KF by more than 5 %); looser than the paper, which '
-                'reports Sage-Husa 14.7 % better (Table 5: 0.66 / 0.77)'
-            ),
+            **derived('sage_husa_over_kf_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -232,67 +209,54 @@ _REGISTRY = (
         "(jitter w_e)^2 once converged",
         "sage-husa.md#what-adapts-and-the-guards", (*_BENCH, *FILTER_SETTINGS, *FILTER_STATE), edge_hook=True,
         budgets=(DefaultBudget(
-            'learned_edge_noise_ratio', 'ratio', 0.25,
-            marginal=0.5,
+            'learned_edge_noise_ratio', 'ratio',
             kind='min',
             description=(
                 'edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects (a '
                 'filter that adapts nothing stays at R0 = 0)'
             ),
-            limit_source=(
-                'statistics (from a start 100x wrong: within a factor 4 of the truth, twice the REQ-PRED-003 band for'
-                " a wrong start's longer transient)"
-            ),
+            **derived('learned_edge_noise_ratio'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),
         DefaultBudget(
-            'edge_noise_estimate_low', 'ratio', 0.5,
-            marginal=0.6,
+            'edge_noise_estimate_low', 'ratio',
             kind='min',
             description=(
                 'lowest R_theta read back over the true edge-angle noise variance, converged, through 3-9-3 us jitter'
                 ' at 8000 rpm'
             ),
-            limit_source=(
-                'statistics (a factor 2 is 2.7 relative standard errors of a variance from 30 edges, sqrt(2/30))'
-            ),
+            **derived('edge_noise_estimate_low'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),
         DefaultBudget(
-            'edge_noise_estimate_high', 'ratio', 2.0,
-            marginal=1.6,
+            'edge_noise_estimate_high', 'ratio',
             description=(
                 'highest R_theta read back over the true edge-angle noise variance, converged, through 3-9-3 us '
                 'jitter at 8000 rpm'
             ),
-            limit_source='statistics (as edge_noise_estimate_low)',
+            **derived('edge_noise_estimate_high'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
         "REQ-PRED-004", "The Sage-Husa predictor's edge-noise estimate tracks a step of the edge noise",
         _LEARN_TEST, _LEARN_DOC, (*_BENCH, *FILTER_SETTINGS, *FILTER_STATE), edge_hook=True,
         budgets=(DefaultBudget(
-            'edge_noise_tracking_edges', 'edges', 100,
-            marginal=64,
+            'edge_noise_tracking_edges', 'edges',
             description=(
                 'edges from a step of the edge jitter (3 to 9 us, 9 to 3 us) until R_theta stays within the '
                 'REQ-PRED-003 band of the truth'
             ),
-            limit_source=(
-                "statistics (an exponential forgetter of 30 edges' memory needs 30 ln 8 = 62 edges after a ninefold "
-                'fall)'
-            ),
+            **derived('edge_noise_tracking_edges'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
         "REQ-PRED-005", "The Sage-Husa predictor's edge-noise estimate is steady while the edge noise is",
         _LEARN_TEST, _LEARN_DOC, (*_BENCH, *FILTER_SETTINGS, *FILTER_STATE), edge_hook=True,
         budgets=(DefaultBudget(
-            'edge_noise_estimate_log_scatter', 'ln ratio', 0.26,
-            marginal=0.2,
+            'edge_noise_estimate_log_scatter', 'ln ratio',
             description=(
                 "standard deviation of ln R_theta about each steady phase's mean, polled every 5 ms while the jitter "
                 'is steady'
             ),
-            limit_source='statistics (the scatter of ln of a variance from 30 Gaussian samples, sqrt(2/30))',
+            **derived('edge_noise_estimate_log_scatter'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -305,13 +269,9 @@ _REGISTRY = (
         "`test_protocol.py`: heartbeat against 0x1017, EMCY with 0x1001/0x1003 on a refused calibration",
         _CANOPEN_DOC, ("heartbeat_period", "error_register", "fault_code", *CALIBRATION), fault_source="emcy",
         budgets=(DefaultBudget(
-            'heartbeat_period_error', 'fraction', 0.05,
-            marginal=0.03,
+            'heartbeat_period_error', 'fraction',
             description='mean heartbeat period against 0x1017 (CiA 301), relative',
-            limit_source=(
-                'standard CiA 301 (0x1017 producer heartbeat time); tolerance ours: 5 % keeps a consumer set to 1.1x '
-                'the period from timing out'
-            ),
+            **derived('heartbeat_period_error'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -345,13 +305,12 @@ _REGISTRY = (
         "evidence carries `examples run` and the seed, and a search that ran fewer examples than it claims fails",
         "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
-            'any_deviations_commutation_angle_p99', 'deg_e', 1.0,
-            marginal=0.5,
+            'any_deviations_commutation_angle_p99', 'deg_e',
             description=(
                 'p99 commutation angle error, corrected, for any drawn set of calibratable deviations (property '
                 'search)'
             ),
-            limit_source="spec S3 (twice S1 for any deviation set within the effect library's physical bounds)",
+            **derived('any_deviations_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -360,13 +319,12 @@ _REGISTRY = (
         "acceptance.md#findings-and-the-search-bounds", ("speed_setpoint",), edge_hook=True, fault_source="any",
         uses=_BENCH,
         budgets=(DefaultBudget(
-            'recovered_commutation_angle_p99', 'deg_e', 1.0,
-            marginal=0.8,
+            'recovered_commutation_angle_p99', 'deg_e',
             description=(
                 'p99 commutation angle error in the 30 ms before the end of a 60 ms recovery window after a wiring '
                 'fault'
             ),
-            limit_source='spec S3 (twice S1 in the 30 ms that end a 60 ms recovery after a wiring fault)',
+            **derived('recovered_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -375,16 +333,12 @@ _REGISTRY = (
         "peak phase current from the plant's true currents",
         _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(DefaultBudget(
-            'phase_current_peak_a', 'A', 15.0,
-            marginal=13.5,
+            'phase_current_peak_a', 'A',
             description=(
                 "peak phase current (plant truth) through a 5000 to 5500 rpm step of the controller's own speed loop:"
                 " the built-in controller's current limit (set your controller's)"
             ),
-            limit_source=(
-                "spec S5 (the controller's configured current limit, 15 A, inside the bench's LA25-P current sensors'"
-                ' 25 A nominal range)'
-            ),
+            **derived('phase_current_peak_a'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -393,18 +347,14 @@ _REGISTRY = (
         "pump load, paper-sized deviations, same plant and seed (the paper's efficiency figure)",
         "calibration.md#raw-versus-corrected-commutation-paper-section-43", _SPEED_LOOP, edge_hook=True,
         budgets=(DefaultBudget(
-            'raw_excess_current_removed', 'fraction', 0.94,
-            marginal=0.97,
+            'raw_excess_current_removed', 'fraction',
             kind='min',
             description=(
                 "share of raw Hall commutation's excess mean phase current (over the ideal-commutation floor) that "
                 'calibrated commutation removes, raw baseline without a current limit, 5000/5700/7000 rpm x 3 seeds, '
                 'pump load, paper-sized deviations, worst case'
             ),
-            limit_source=(
-                "paper Section 4.3 (0.372 at 5700 rpm) and our plant's ideal-commutation floor there (0.335): (1 - "
-                '0.372) / (1 - 0.335) = 0.944'
-            ),
+            **derived('raw_excess_current_removed'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
     ),
     Requirement(
@@ -413,24 +363,17 @@ _REGISTRY = (
         _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         budgets=(
             DefaultBudget(
-                'speed_step_overshoot', 'fraction', 0.2,
-                marginal=0.15,
+                'speed_step_overshoot', 'fraction',
                 description='speed overshoot (plant truth) of a 5000 to 5500 rpm set-point step, over the step size',
-                limit_source=(
-                    'spec S6 (a 10 % step may overshoot by 2 % of the set point: anode flow +2 %, head ~ n^2 +4 %)'
-                ),
+                **derived('speed_step_overshoot'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
             DefaultBudget(
-                'speed_step_settling_s', 's', 1.0,
-                marginal=0.8,
+                'speed_step_settling_s', 's',
                 description=(
                     'time from a 5000 to 5500 rpm set-point step until the true speed stays within +-2 % of the set '
                     'point'
                 ),
-                limit_source=(
-                    'spec S6 (DOE fuel-cell system transient target: 10-90 % rated power in 1 s; the pump follows the'
-                    ' stack within it)'
-                ),
+                **derived('speed_step_settling_s'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
         ),
     ),

@@ -92,6 +92,60 @@ def test_halves_of_the_low_speed_captures_agree_on_the_delay(name):
     assert delay["z"] <= 3.0, delay
 
 
+#: the figures whose halves disagree on the low-speed captures (docs/real-captures.md, "Halves")
+LOW_SPEED_DRIFT = {
+    "20250616-back-and-forth.vcd": ["rise_fall_angle_asymmetry_deg_e"],
+    "20250615-new-slow.vcd": ["pole_offset_deg_e.0", "pole_offset_deg_e.2"],
+}
+
+
+def _whole(out: dict, key: str) -> tuple[float, float]:
+    if "." in key:
+        table, item = key.split(".")
+        values, errors = out[table], out["uncertainty"][table]
+        index = int(item) if item.isdigit() else item
+        return values[index], errors[index]
+    return out[key]["value"], out[key]["stderr"]
+
+
+@pytest.mark.parametrize("name", sorted(LOW_SPEED_DRIFT), ids=["slow", "back-and-forth"])
+def test_a_capture_whose_halves_disagree_says_so_and_its_interval_holds_both(name):
+    """Issue 39: the halves of a low-speed capture disagree by more than their errors allow. The
+    calibration of the whole capture fits each half alone, says the capture is not stationary and
+    by how much, and widens the figure's error by half the halves' difference: the stated interval
+    (value +- 1.96 stderr) then holds both halves' values."""
+    from hil.calibration.ordinary import STATIONARITY_Z, calibrate_ordinary
+
+    cap = read_hall_capture(DATA / name)
+    out, _ = calibrate_ordinary(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s)
+    st = out["stationarity"]
+    assert st["stationary"] is False and st["statement"].startswith("NOT stationary")
+    for key in LOW_SPEED_DRIFT[name]:
+        f = st["figures"][key]
+        assert f["z"] > STATIONARITY_Z and key in st["statement"], f
+        value, stderr = _whole(out, key)
+        assert stderr >= f["widen_by"] > 0
+        for half in f["halves"]:
+            assert abs(half - value) <= Z * stderr, (key, half, value, stderr)
+    assert "widened" in out["stderr_method"]
+
+
+def test_a_stationary_capture_keeps_its_errors():
+    """The hoverboard's speed cycles: its halves agree, nothing is widened."""
+    cap = read_hall_capture(DATA / "20250616-hboard-cycle.vcd")
+    out, _ = calibrate_ordinary_with_pole_pairs(cap, 15)
+    st = out["stationarity"]
+    assert st["stationary"] is True and all(not f["widen_by"] for f in st["figures"].values()), st["statement"]
+    assert "stderr_stationary" not in out["rise_fall_delay_difference_s"]
+
+
+def calibrate_ordinary_with_pole_pairs(cap, pole_pairs):
+    from hil.calibration.ordinary import calibrate_ordinary
+
+    return calibrate_ordinary(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s,
+                              pole_pairs=pole_pairs)
+
+
 def test_interval_quantile_is_the_normal_one():
     assert Z == pytest.approx(1.96, abs=0.001)
     assert uncertainty.t_over_normal(20) == pytest.approx(2.093 / 1.960, rel=1e-3)

@@ -137,11 +137,14 @@ def test_grid_order_and_seeds(tmp_path):
 def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
     table = read_table(serial_run.paths["table"])
     assert len(table) == 6 and set(table["verdict"]) <= {"pass", "marginal", "fail"}
+    from hil.budgets import Budgets
+
+    limit = Budgets.defaults()["commutation_angle_p99"].limit  # the default (hil/budget_sources.py): 0.6 deg e
     for _, row in table.iterrows():
         offset = row["installation_offset.offset_deg_e"]  # sensor A's, the largest of the pattern
         assert abs(row["angle_p99_deg_e"] - offset) < 0.05, row
-        assert row["commutation_angle_p99.margin"] == pytest.approx(0.5 - row["angle_p99_deg_e"])
-        assert row["verdict"] == ("fail" if offset > 0.5 else "pass")
+        assert row["commutation_angle_p99.margin"] == pytest.approx(limit - row["angle_p99_deg_e"])
+        assert row["verdict"] == ("fail" if offset > limit else "pass")
     failing = table[table["verdict"] == "fail"]
     assert len(failing) == 2
     from hil.budgets import Budgets

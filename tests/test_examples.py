@@ -37,7 +37,7 @@ def test_example_budgets_waive_the_known_defect_and_loosen_a_limit(pytester):
             assert False, "commutation back within budget only after 80 ms"
 
         def test_commutation(hil_budget):
-            hil_budget("commutation_angle_p99", 0.55)  # fails the default 0.5 deg e, marginal under the example's 0.6
+            hil_budget("commutation_angle_p99", 0.65)  # fails the default 0.6 deg e, marginal under the example's 0.7
     """)
     result = pytester.runpytest(
         "--hil-budgets", str(EXAMPLES / "budgets.toml"), "--hil-report-dir", "rep", "-p", "no:cacheprovider"
@@ -52,7 +52,7 @@ def test_example_budgets_waive_the_known_defect_and_loosen_a_limit(pytester):
     )
     assert (
         req["REQ-COMM-001"]["verdict"] == "marginal"
-        and req["REQ-COMM-001"]["tests"][0]["measurements"][0]["limit"] == 0.6
+        and req["REQ-COMM-001"]["tests"][0]["measurements"][0]["limit"] == 0.7
     )
     html = (pytester.path / "rep" / "hil-report.html").read_text()
     assert "WAIVED" in html and "controls team lead" in html

@@ -599,6 +599,73 @@ def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
     return bound_s, bound_why
 
 
+#: halves of a capture that disagree by more than this many standard errors: it is not stationary
+STATIONARITY_Z = 3.0
+
+
+def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: float,
+                  pole_pairs: int | None) -> dict:
+    """Each figure fitted on the first and on the second half of the used edges alone (the whole
+    capture's model and knot spacing). A figure whose halves differ by z = |a - b| / hypot(se_a, se_b)
+    above ``STATIONARITY_Z`` was not constant through the capture (a delay that drifts with
+    temperature, a speed ripple the model lacks at low speed): its standard error is widened by
+    half the halves' difference (in quadrature), so the stated interval holds both halves, and the
+    result says by how much."""
+    used = np.nonzero(steps.used())[0]
+    out: dict = {"method": "the whole capture's model on each half of the used edges alone (by edge count); "
+                           f"a figure is not stationary where its halves differ by z > {STATIONARITY_Z:g}",
+                 "figures": {}, "stationary": True, "statement": "the halves agree within their errors"}
+    halves = []
+    for sel_idx in (used[: used.size // 2], used[used.size // 2:]):
+        sel = np.zeros(steps.t_s.size, dtype=bool)
+        sel[sel_idx] = True
+        try:
+            hf = robust_fit(fit_ordinary(steps, eff, select=sel, tick_s=tick_s, knot_cycles=kc))
+            pf = (robust_fit(fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=eff.ripple), select=sel,
+                                          tick_s=tick_s, knot_cycles=kc)) if pole_pairs else None)
+        except (OrdinaryRunError, np.linalg.LinAlgError, ValueError) as exc:
+            out.update(statement=f"not checked: a half could not be fitted alone ({exc})", stationary=True)
+            return out
+        figs = {}
+        if "delay_diff_s" in hf.names:
+            figs["rise_fall_delay_difference_s"] = hf.get("delay_diff_s")
+        asym = _by_direction(
+            hf, steps, lambda sgn, z: sgn * (z[list(_RISE_LABELS[sgn])].mean(0) - z[list(_RISE_LABELS[-sgn])].mean(0))
+        )
+        if asym:
+            figs["rise_fall_angle_asymmetry_deg_e"] = asym
+        for x, name in enumerate(SENSORS):
+            r = _by_direction(hf, steps, lambda sgn, z, labels=list(_SENSOR_LABELS[x]): z[labels].mean(0))
+            if r:
+                figs[f"installation_offset_deg_e.{name}"] = r
+        if pf is not None:
+            z = _sum_zero_basis(pole_pairs)
+            for parity in (0, 1):
+                keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
+                for i in range(pole_pairs):
+                    figs[f"pole_offset_deg_e.{2 * i + parity}"] = pf.combination(dict(zip(keys, z[i])))
+        halves.append(figs)
+    worst = []
+    for key in halves[0].keys() & halves[1].keys():
+        (a, sa), (b, sb) = halves[0][key], halves[1][key]
+        if None in (a, sa, b, sb):
+            continue
+        z = float(abs(a - b) / max(np.hypot(sa, sb), 1e-300))
+        widen = float(abs(a - b) / 2) if z > STATIONARITY_Z else 0.0
+        out["figures"][key] = {"halves": [float(a), float(b)], "stderr": [float(sa), float(sb)], "z": z,
+                               "widen_by": widen}
+        if widen:
+            worst.append((z, key, a, b, widen))
+    if worst:
+        worst.sort(reverse=True)
+        out["stationary"] = False
+        out["statement"] = "NOT stationary: " + "; ".join(
+            f"{key} halves {a:.4g} / {b:.4g} (z = {z:.1f}), its standard error widened by {w:.3g}"
+            for z, key, a, b, w in worst
+        )
+    return out
+
+
 def calibrate_ordinary(
     steps: HallSteps,
     *,
@@ -718,6 +785,22 @@ def ordinary_calibration(
             table_fit = pf
     else:
         undetermined["pole_offset_deg_e"] = p_source
+    # stationarity: the same model on each half of the used edges; a figure whose halves disagree
+    # beyond their errors drifted during the capture, and its error says so (docs/real-captures.md)
+    stationarity = _stationarity(steps, Effects(ripple=ripple), tick_s, kc, pole_pairs if poles else None)
+    for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
+        drift = stationarity["figures"].get(key)
+        if drift and drift["widen_by"] and item["stderr"] is not None:
+            item["stderr_stationary"] = item["stderr"]
+            item["stderr"] = float(np.hypot(item["stderr"], drift["widen_by"]))
+    for x in SENSORS:
+        drift = stationarity["figures"].get(f"installation_offset_deg_e.{x}")
+        if drift and drift["widen_by"] and inst_se.get(x) is not None:
+            inst_se[x] = float(np.hypot(inst_se[x], drift["widen_by"]))
+    for j in range(len(poles_se)):
+        drift = stationarity["figures"].get(f"pole_offset_deg_e.{j}")
+        if drift and drift["widen_by"]:
+            poles_se[j] = float(np.hypot(poles_se[j], drift["widen_by"]))
     undetermined["conditioning_delay_s"] = (
         "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
         "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
@@ -794,7 +877,10 @@ def ordinary_calibration(
         "refused": refused,
         "undetermined": undetermined,
         "uncertainty": {"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
-        "stderr_method": fit.stderr_method,
+        "stderr_method": fit.stderr_method + (
+            "; widened where the capture's halves disagree (stationarity)" if not stationarity["stationary"] else ""
+        ),
+        "stationarity": stationarity,
         "conditioning_delay_table": {},
         "method_cross_check": cross_check,
         "independent_estimate": cross_check,  # the same object under its former name (an alias)

@@ -1,0 +1,111 @@
+"""Every default budget's limit recomputed by hand from the inputs its derivation states
+(hil/budget_sources.py, docs/budgets.md "Sources"): the arithmetic, not the words."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from hil import budget_sources as bs
+from hil.budgets import Budgets
+
+#: budget -> the limit recomputed here from the paper's printed values and the stated parameters
+#: (written out again, not imported, so a changed input or formula in the module shows here)
+BY_HAND = {
+    # example: a 1 % torque-ripple allowance, a dip of delta / 60 deg e
+    "commutation_angle_p99": 60 * 0.01,
+    # paper Table 3, C1 at 960 / 1107 / 1330 rpm
+    "installation_offset_error": 0.953 - 0.875,
+    # paper Table 2, HallAF1, percent of the 60 deg e interval
+    "pole_offset_error": (1.67 - 1.46) / 100 * 60,
+    # Table 3's 0.078 deg e at 10,000 rpm, 2 pole pairs
+    "conditioning_delay_error": 0.078 / (10_000 / 60 * 360 * 2),
+    # Table 3's 0.078 deg e over 0.35 deg e/A x 2.8 A
+    "armature_slope_error": 0.078 / (0.35 * 2.8),
+    # Table 5, Sage-Husa 0.0066 of 60 deg e, Gaussian RMS and p99
+    "sage_husa_commutation_angle_rms": 0.0066 * 60 * math.sqrt(math.pi / 2),
+    "sage_husa_commutation_angle_p99": 2.5758293 * 0.0066 * 60 * math.sqrt(math.pi / 2),
+    "sage_husa_commutation_time_mape": 0.66,
+    "commutation_time_mape": 0.66,
+    "sage_husa_over_kf_angle_rms": 1.05,
+    # Section 4.4: 120 commutation cycles; three relative standard errors sqrt(2 / n)
+    "edge_noise_estimate_low": math.exp(-3 * math.sqrt(2 / 120)),
+    "edge_noise_estimate_high": math.exp(3 * math.sqrt(2 / 120)),
+    "edge_noise_estimate_log_scatter": math.sqrt(2 / 120),
+    "edge_noise_tracking_edges": 2 * 120,
+    "learned_edge_noise_ratio": 1 / 4,
+    "heartbeat_period_error": (1.1 - 1) / 2,
+    "any_deviations_commutation_angle_p99": 2 * 0.5,
+    "recovered_commutation_angle_p99": 2 * 0.5,
+    "phase_current_peak_a": 15.0,
+    # Section 4.3: 37.2 %; the paper bench's floor 0.335
+    "raw_excess_current_removed": (1 - 0.372) / (1 - 0.335),
+    "speed_step_overshoot": 0.02 / 0.10,
+    "speed_step_settling_s": 1.0,
+}
+
+
+def _raw_rms_by_hand() -> float:
+    """Tables 2-4 through Eq. 5-6: installation offsets (absolute 4.22 % of 60 deg e on A, the
+    relative corrections -0.930, 0.021, 0.908 deg) plus each pole's offset (0, -1.59, -0.03, -0.22 %)."""
+    absolute = 4.22 / 100 * 60
+    install = [absolute + r + 0.930 for r in (-0.930, 0.021, 0.908)]
+    poles = [0.0, -1.59 / 100 * 60, -0.03 / 100 * 60, -0.22 / 100 * 60]
+    edges = [i + p for p in poles for i in install]
+    return math.sqrt(sum(e * e for e in edges) / len(edges))
+
+
+BY_HAND["calibrated_fraction_removed"] = 1 - (0.6 / 2.5758293) / _raw_rms_by_hand()
+
+
+def test_every_default_budget_is_recomputed_here():
+    assert set(BY_HAND) == set(Budgets.defaults().budgets) == set(bs.DERIVATIONS)
+
+
+@pytest.mark.parametrize("name", sorted(BY_HAND))
+def test_the_default_limit_is_its_arithmetic(name):
+    assert Budgets.defaults()[name].limit == pytest.approx(BY_HAND[name], rel=1e-6), bs.DERIVATIONS[name].source
+
+
+def test_the_stated_inputs_are_the_papers_printed_values():
+    """The module's tables are the paper's (the copy a reviewer reads): a typo in an input shows."""
+    assert bs.PAPER_TABLE3_DEG["C1"] == (0.875, 0.933, 0.953)
+    assert bs.PAPER_TABLE3_WEIGHTED_DEG == (-0.930, 0.021, 0.908)
+    assert bs.PAPER_TABLE2_PERCENT["AF1"] == (1.67, 1.54, 1.46)
+    assert bs.PAPER_TABLE2_WEIGHTED_PERCENT == (1.59, 0.03, 0.22)
+    assert bs.PAPER_TABLE4_WEIGHTED_PERCENT == 4.22
+    assert bs.PAPER_TABLE5_TIME_MAPE == {"pre-calibration": 0.0087, "kf": 0.0077, "sage_husa": 0.0066}
+    assert (bs.PAPER_SEC43_CURRENT_RATIO, bs.PAPER_NOISE_INTERVAL_EDGES, bs.PAPER_LA25P_RANGE_A) == (0.372, 120, 25.0)
+    assert (bs.PAPER_POLE_PAIRS, bs.PAPER_TOP_SPEED_RPM) == (2, 10_000.0)
+
+
+def test_the_stated_bench_parameters_are_the_paper_benchs():
+    """The physics inputs that are bench parameters are the plant's (docs/plant.md), not free numbers."""
+    from plant_models import plant
+
+    assert bs.PAPER_POLE_PAIRS == plant.PAPER_POLE_PAIRS and bs.PAPER_TOP_SPEED_RPM == plant.PAPER_TOP_SPEED_RPM
+    assert bs.PAPER_TABLE3_WEIGHTED_DEG == plant.PAPER_TABLE3_RELATIVE_DEG_E
+    assert bs.PAPER_TABLE2_WEIGHTED_PERCENT == plant.PAPER_TABLE2_POLE_PERCENT
+    assert bs.PAPER_TABLE4_WEIGHTED_PERCENT == plant.PAPER_TABLE4_ABSOLUTE_PERCENT
+    assert bs.PAPER_PERCENT_BASE_DEG_E == plant.PAPER_PERCENT_BASE_DEG_E
+
+
+def test_every_source_is_outside_the_project_or_says_it_is_an_example():
+    for d in bs.DERIVATIONS.values():
+        assert d.kind in bs.KINDS, d.budget
+        assert d.source.startswith(("paper: ", "standard: ", "physics: ", "example for your own specification: "))
+        assert "spec S" not in d.source.replace("earlier spec S", ""), f"{d.budget} cites the retired S1-S6"
+        if d.kind == "paper":
+            assert any(w in d.cite for w in ("Table", "Section", "Figure")), d.budget
+
+
+def test_the_phase_current_example_lies_inside_the_papers_sensor_range():
+    d = bs.DERIVATIONS["phase_current_peak_a"]
+    assert d.inputs["configured_limit_a"] <= d.inputs["sensor_range_a"] == 25.0
+
+
+def test_every_marginal_bound_lies_on_the_passing_side():
+    for name, b in Budgets.defaults().budgets.items():
+        if b.marginal is not None:
+            assert (b.marginal <= b.limit) if b.kind == "max" else (b.marginal >= b.limit), name
