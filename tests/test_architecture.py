@@ -35,6 +35,7 @@ GROUP_OF_PREFIX = {
     "hil.bench": "bench",
     "hil.stimulus": "bench",
     "hil.budgets": "verdicts",
+    "hil.budget_sources": "verdicts",
     "hil.requirements": "verdicts",
     "hil.report": "verdicts",
     "hil.report_html": "verdicts",
