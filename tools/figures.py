@@ -697,6 +697,52 @@ def produce_req_pred_002_spread(work: Path) -> Run:
     return run
 
 
+def produce_sil_reference(work: Path) -> Run:
+    """docs/firmware-in-the-loop.md: the reference firmware (C, through ``sil:``) beside the built-in
+    controller (in-process), per judged budget, on seeds 0 and 1 (``tools/sil_compare.py``)."""
+    run = Run(seeds=[0, 1])
+    out = work / "sil-compare.json"
+    _tool(run, "sil_compare.py", "--json", str(out), "--seeds", "0,1")
+    result = json.loads(out.read_text())
+    rows = [["requirement", "budget", "test", "built-in (Python)", "reference firmware (C)", "C - Python",
+             "seed spread", "beyond it"]]
+    for r in result["rows"]:
+        rows.append([r["requirement"], f"`{r['budget']}`", f"`{r['test'].split('::')[-1]}`", f"{r['python']:.4g}",
+                     f"{r['c']:.4g}", f"{r['difference']:+.3g}", f"{r['seed_spread']:.2g}",
+                     "yes" if r["beyond_uncertainty"] else "no"])
+    run.tables["budgets"] = rows
+    run.figures["python_verdicts"] = Figure(result["verdicts"]["python"])
+    run.figures["c_verdicts"] = Figure(result["verdicts"]["c"])
+    run.figures["beyond"] = Figure(sum(r["beyond_uncertainty"] for r in result["rows"]), "", "{:d}",
+                                   tolerance_abs=3)
+    run.figures["compared"] = Figure(len(result["rows"]), "", "{:d}")
+    run.figures["wall_s"] = Figure(run.last_command_s, "s", "{:.0f}", reproducible=False)
+    return run
+
+
+def produce_sil_speed(work: Path) -> Run:
+    """docs/firmware-in-the-loop.md, "Speed": the acceptance suite through the reference firmware
+    beside in-process and CANopen in one run (``benchmarks/bench_sil.py``); run times, never held."""
+    run = Run()
+    out = work / "bench-sil.json"
+    cmd = [sys.executable, str(ROOT / "benchmarks" / "bench_sil.py"), "--json", str(out)]
+    run.commands.append("python benchmarks/bench_sil.py --json $WORK/bench-sil.json")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT), os.environ.get("PYTHONPATH")]))}
+    done = subprocess.run(cmd, cwd=ROOT, capture_output=True, text=True, timeout=7200, env=env)
+    if done.returncode != 0:
+        raise RuntimeError(f"benchmarks/bench_sil.py exited {done.returncode}:\n{done.stderr[-2000:]}")
+    result = json.loads(out.read_text())
+    rows = [["DUT", "wall s", "CPU s", "wall / in-process", "verdict", "load before"]]
+    for name, r in result["runs"].items():
+        rows.append([name, f"{r['wall_s']:.0f}", f"{r['cpu_s']:.0f}", f"{r['wall_ratio_to_in_process']:.2f}",
+                     r["verdict"], f"{r['load_before']:.1f}"])
+    run.tables["runs"] = rows
+    sil = result["runs"]["sil (reference firmware, C)"]
+    run.figures["sil_over_in_process"] = Figure(sil["wall_ratio_to_in_process"], "", "{:.2f}", reproducible=False)
+    run.figures["first_build_s"] = Figure(result["build"]["wall_s"], "s", "{:.0f}", reproducible=False)
+    return run
+
+
 def _children_cpu_s() -> float:
     t = os.times()
     return t.children_user + t.children_system
@@ -730,6 +776,10 @@ GROUPS: list[Group] = [
           _produce_twin("20260618-spindle-hw.vcd")),
     Group("hoverboard_twin", "docs/twin.md: the hoverboard's twin, checked and put through the suite", False,
           _produce_twin("20250616-hboard-cycle.vcd")),
+    Group("sil_reference", "docs/firmware-in-the-loop.md: the reference firmware beside the built-in controller",
+          False, produce_sil_reference),
+    Group("sil_speed", "docs/firmware-in-the-loop.md: the suite's run time through the reference firmware", False,
+          produce_sil_speed),
     Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance),
     Group("test_suite", "README: the test command's run time", False, produce_test_suite),
 ]
