@@ -443,8 +443,8 @@ def cmd_dut_serve(args) -> int:
     # stderr); the Modbus server's refusals are debug lines (docs/controller.md)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
-          strategy=int(strategy_named(args.strategy)), preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout,
-          profile=args.profile)
+          strategy=int(strategy_named(args.strategy)), preset=args.preset, bus_name=args.bus_name,
+          idle_timeout_s=args.idle_timeout, profile=args.profile)
     return 0
 
 
@@ -688,10 +688,17 @@ def cmd_acceptance(args) -> int:
         "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
         "HIL_COMMAND": " ".join([program, *sys.argv[1:]]),
     }  # what the report names as the run's command
+    # the numba code compiled once, in this process, while pytest starts; its workers wait for it
+    # and load it from the cache instead of each compiling it (hil/compile_ahead.py)
+    from .compile_ahead import CompileAhead
+
+    ahead = CompileAhead(env).start()
     try:
-        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
+        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env={**env, **ahead.env()}).returncode
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
         status = 2
+    finally:
+        ahead.close()
     return acceptance_exit(status, Path(args.out) / "hil-report.json")
 
 

@@ -144,7 +144,7 @@ def add_recording(p, extra: str = "", *, nargs=None) -> None:
 
 
 __all__ = [
-    "DEFAULT_PRESET", "Deprecated", "MOVED_COMMANDS", "PRESET_NAMES", "RECORDING_HELP",
-    "STRATEGY_HELP", "add_deprecated", "add_json", "add_out", "add_plant_source", "add_preset", "add_progress", "add_recording",
+    "DEFAULT_PRESET", "Deprecated", "MOVED_COMMANDS", "PRESET_NAMES", "RECORDING_HELP", "STRATEGY_HELP",
+    "add_deprecated", "add_json", "add_out", "add_plant_source", "add_preset", "add_progress", "add_recording",
     "add_strategy", "add_workers", "deprecated", "modernize", "strategy", "workers",
 ]

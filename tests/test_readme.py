@@ -25,8 +25,8 @@ def test_demo_output_in_the_readme_is_what_hil_demo_prints(tmp_path, capsys):
     assert main(["paper", "demo", "-o", str(tmp_path / "demo")]) == 0
     printed = capsys.readouterr().out.splitlines()
     shown = block.rstrip("\n").splitlines()
-    assert printed[: len(shown)] == shown, "README's demo output differs from `python -m hil paper demo`:\n" + "\n".join(
-        printed[: len(shown)]
+    assert printed[: len(shown)] == shown, (
+        "README's demo output differs from `python -m hil paper demo`:\n" + "\n".join(printed[: len(shown)])
     )
 
 
