@@ -292,6 +292,18 @@ def pytest_report_collectionfinish(config, items):
     return None
 
 
+@pytest.hookimpl(wrapper=True)
+def pytest_runtestloop(session):
+    """Under ``hil acceptance`` (a worker, or the one process): wait for the numba code it compiles
+    ahead while pytest starts (hil/compile_ahead.py), then load it from the cache instead of
+    compiling it again here."""
+    if "HIL_COMPILE_LOCK" in __import__("os").environ:
+        from .compile_ahead import wait_for_compile_ahead
+
+        wait_for_compile_ahead()
+    return (yield)
+
+
 def pytest_generate_tests(metafunc):
     if "hil_dut_spec" in metafunc.fixturenames:
         specs = dut_specs(metafunc.config)
