@@ -612,7 +612,7 @@ def cmd_qualify(args) -> int:
         args.suite = str(suite if suite.is_dir() else suite.parent)
         print(f"hil qualify: {len(args.only or CATALOGUE)} defects against {args.dut}, {args.workers} at a time; "
               f"reports in {args.out}/")
-        result = qualify(args)
+        result = _under_compile_ahead(qualify, args)
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
@@ -635,6 +635,22 @@ def cmd_qualify(args) -> int:
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
         print(f"written: {args.json}")
     return 0 if result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"] else 1
+
+
+def _under_compile_ahead(run, *args):
+    """``run(*args)`` with the numba code compiled once, ahead, for the pytest runs it starts (they
+    inherit HIL_COMPILE_LOCK and wait for it: hil/compile_ahead.py), not once per run."""
+    from .compile_ahead import LOCK_ENV, CompileAhead
+
+    root = str(Path(__file__).resolve().parent.parent)
+    ahead = CompileAhead({**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get(
+        "PYTHONPATH")])])}).start()
+    os.environ.update(ahead.env())
+    try:
+        return run(*args)
+    finally:
+        os.environ.pop(LOCK_ENV, None)
+        ahead.close()
 
 
 def cmd_acceptance(args) -> int:

@@ -84,9 +84,10 @@ class CompileAhead:
     def close(self) -> None:
         """pytest has ended: remove the lock file; a compile still running (pytest stopped early)
         is stopped, nothing waits for it."""
-        if self._proc is not None and self._proc.poll() is None:
-            self._proc.terminate()
-            self._proc.wait()
+        if self._proc is not None:
+            if self._proc.poll() is None:
+                self._proc.terminate()
+            self._proc.wait()  # reaped: its CPU time counts among this process's children
         if self._path:
             Path(self._path).unlink(missing_ok=True)
 
