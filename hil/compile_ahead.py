@@ -7,8 +7,10 @@ the controller's filters and the signal scorer itself, at the same time: about 1
 while pytest starts, collects and spawns its workers; each worker waits for that compile before
 its first test (the plugin's ``pytest_runtestloop``, through the lock file named by
 ``HIL_COMPILE_LOCK``) and then loads the code from numba's cache. One compile instead of one per
-worker, overlapped with the start. With a warm cache the process is a few seconds of imports and
-cache loads, overlapped too.
+worker, overlapped with the start. The process leaves a mark beside numba's cache (numba's and
+Python's versions, the stamp of every source with numba code); while the mark holds, the cache is
+warm and nothing is started (a warm run pays nothing: the check imports neither numba nor the
+plant).
 
 What was measured before deciding (docs/acceptance.md, "The first run"): compiling the plant
 kernel without numba's IR inlining halves its compile but slows the plant by a fifth to a
@@ -26,6 +28,54 @@ from pathlib import Path
 
 #: the environment variable naming the lock file the workers wait on
 LOCK_ENV = "HIL_COMPILE_LOCK"
+#: the packages whose modules hold numba code (their sources stamp the cache, as numba's own index
+#: stamps each cached function with its file's modification time and size)
+NUMBA_PACKAGES = ("plant_models", "hil.predictors", "hil.signals", "hil.controller", "bldc")
+
+
+def _stamp() -> tuple[Path, dict] | None:
+    """(where the "compiled" mark goes, what it must say): the numba cache directory (NUMBA_CACHE_DIR,
+    else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
+    ``NUMBA_PACKAGES``. Found without importing them (no numba, no plant: a warm run pays nothing)."""
+    import importlib.metadata
+    import importlib.util
+
+    sources = {}
+    for package in NUMBA_PACKAGES:
+        spec = importlib.util.find_spec(package)
+        if spec is None or not spec.submodule_search_locations:
+            return None
+        for folder in spec.submodule_search_locations:
+            for path in sorted(Path(folder).glob("*.py")):
+                st = path.stat()
+                sources[str(path)] = [st.st_mtime_ns, st.st_size]
+    plant = Path(importlib.util.find_spec("plant_models").submodule_search_locations[0])
+    cache = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else plant / "__pycache__"
+    what = {"numba": importlib.metadata.version("numba"), "python": sys.version, "sources": sources}
+    return cache / "hil-compiled.json", what
+
+
+def compiled_already() -> bool:
+    """Whether ``compile_numba_code`` ran to its end against these very sources and this cache (the
+    mark it leaves); a cache emptied since only means the workers compile, as they did before."""
+    import json
+
+    try:
+        mark, what = _stamp()
+        return json.loads(mark.read_text()) == what
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def _mark_compiled() -> None:
+    import json
+
+    try:
+        mark, what = _stamp()
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.write_text(json.dumps(what))
+    except (OSError, TypeError):
+        pass
 
 
 def compile_numba_code() -> None:
@@ -64,6 +114,8 @@ class CompileAhead:
         try:
             import fcntl
         except ImportError:  # no flock (Windows): the workers compile as they did
+            return self
+        if compiled_already():  # a warm cache: nothing to compile, nobody waits
             return self
         fd, path = tempfile.mkstemp(prefix="hil-compile-", suffix=".lock")
         try:
@@ -111,6 +163,7 @@ def main() -> int:
     """The process CompileAhead starts: compile; its inherited lock goes when it exits."""
     try:
         compile_numba_code()
+        _mark_compiled()
     except Exception as exc:  # the workers compile for themselves, as before
         print(f"hil: compiling ahead failed ({type(exc).__name__}: {exc}); the workers compile for themselves",
               file=sys.stderr)

@@ -22,6 +22,7 @@ def _ahead(monkeypatch, body: str) -> ahead_mod.CompileAhead:
     """A CompileAhead whose process runs ``body`` instead of the compile."""
     real_popen = subprocess.Popen
     monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: real_popen([sys.executable, "-c", body], **kw))
+    monkeypatch.setattr(ahead_mod, "compiled_already", lambda: False)
     return ahead_mod.CompileAhead({**os.environ, "PYTHONPATH": str(ROOT)}).start()
 
 
@@ -59,6 +60,23 @@ def test_a_failed_compile_says_so_in_one_line(monkeypatch, capsys):
         "hil: compiling ahead failed (RuntimeError: no compiler); the workers compile for themselves")
 
 
+def test_the_mark_says_compiled_until_a_source_changes(tmp_path, monkeypatch):
+    pkg = tmp_path / "src" / "toy_numba"
+    pkg.mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "kernel.py").write_text("x = 1\n")
+    monkeypatch.syspath_prepend(str(tmp_path / "src"))
+    monkeypatch.setattr(ahead_mod, "NUMBA_PACKAGES", ("toy_numba",))
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
+    assert not ahead_mod.compiled_already()
+    ahead_mod._mark_compiled()
+    assert ahead_mod.compiled_already()
+    ahead = ahead_mod.CompileAhead().start()  # a warm cache: no process, no lock, nobody waits
+    assert ahead._proc is None and ahead.env() == {}
+    (pkg / "kernel.py").write_text("x = 22\n")
+    assert not ahead_mod.compiled_already()
+
+
 def test_hil_acceptance_runs_pytest_under_the_lock(monkeypatch, tmp_path):
     from hil import cli
 
@@ -76,6 +94,7 @@ def test_hil_acceptance_runs_pytest_under_the_lock(monkeypatch, tmp_path):
         return subprocess.CompletedProcess(cmd, 0)
 
     monkeypatch.setattr(ahead_mod.CompileAhead, "start", start)
+    monkeypatch.setattr(ahead_mod, "compiled_already", lambda: False)
     monkeypatch.setattr(subprocess, "run", fake_run)
     cli.main(["acceptance", "-o", str(tmp_path / "rep"), "-j", "0"])
     assert seen["lock"] and seen["held"]
