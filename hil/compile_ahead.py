@@ -6,7 +6,8 @@ the controller's filters and the signal scorer itself, at the same time: about 1
 ``hil acceptance`` compiles them once, in a process of its own (``python -m hil.compile_ahead``),
 while pytest starts, collects and spawns its workers; each worker waits for that compile before
 its first test (the plugin's ``pytest_runtestloop``, through the lock file named by
-``HIL_COMPILE_LOCK``) and then loads the code from numba's cache. One compile instead of one per
+``HIL_COMPILE_LOCK``) and then loads all of the code from numba's cache before the first test
+(no test meets a load while a link's reply is timed). One compile instead of one per
 worker, overlapped with the start. The process leaves a mark beside numba's cache (numba's and
 Python's versions, the stamp of every source with numba code); while the mark holds, the cache is
 warm and nothing is started (a warm run pays nothing: the check imports neither numba nor the
@@ -157,6 +158,15 @@ def wait_for_compile_ahead() -> None:
             fcntl.flock(f, fcntl.LOCK_UN)
     except (ImportError, OSError):  # no lock to wait on: compile here, as before
         return
+
+
+def load_compiled() -> None:
+    """In a worker, after the compile ahead: the same calls, now loading every function from the
+    cache (a second or two), before any test runs. A failure here is left to the tests to meet."""
+    try:
+        compile_numba_code()
+    except Exception:
+        pass
 
 
 def main() -> int:

@@ -294,13 +294,15 @@ def pytest_report_collectionfinish(config, items):
 
 @pytest.hookimpl(wrapper=True)
 def pytest_runtestloop(session):
-    """Under ``hil acceptance`` (a worker, or the one process): wait for the numba code it compiles
-    ahead while pytest starts (hil/compile_ahead.py), then load it from the cache instead of
-    compiling it again here."""
+    """Under ``hil acceptance`` on a cold cache (a worker, or the one process): wait for the numba
+    code it compiles ahead while pytest starts (hil/compile_ahead.py), then load all of it from the
+    cache before the first test, so no test meets a load (or a compile) while a link's reply is
+    timed."""
     if "HIL_COMPILE_LOCK" in __import__("os").environ:
-        from .compile_ahead import wait_for_compile_ahead
+        from .compile_ahead import load_compiled, wait_for_compile_ahead
 
         wait_for_compile_ahead()
+        load_compiled()
     return (yield)
 
 
