@@ -9,16 +9,25 @@ import os
 import sys
 from pathlib import Path
 
-from bldc.params import describe
-from plant_models import EFFECTS, PRESETS, ConfigError, PlantConfig
+from . import cli_grammar as grammar
 
-from .recording import RecordingError, read_recording
+# nothing heavy at the top (tests/test_cli_grammar.py): ``hil --help`` builds every parser without
+# numpy, numba, scipy or the plant; each command imports what it runs
 
 
-def _plant(args) -> PlantConfig:
-    if getattr(args, "plant", None):
-        return PlantConfig.from_toml(args.plant)
-    return PRESETS[args.preset]()
+def _plant(args):
+    """The plant of ``--plant TOML`` or ``--preset NAME``."""
+    from plant_models import PRESETS, PlantConfig
+
+    return PlantConfig.from_toml(args.plant) if getattr(args, "plant", None) else PRESETS[args.preset]()
+
+
+def load_recording(path, pole_pairs: int | None = None):
+    """A RECORDING argument, the same forms in every command (docs/cli.md): a hil-recording/1
+    directory, or a Hall capture file read as ``hil recording import`` reads it."""
+    from .twin.capture import load_capture
+
+    return load_capture(path, pole_pairs)
 
 
 def cmd_demo(args) -> int:
@@ -29,12 +38,13 @@ def cmd_demo(args) -> int:
 
 
 def cmd_recording_check(args) -> int:
-    rec = read_recording(args.recording)
+    rec = load_recording(args.recording)
+    form = "hil-recording/1" if Path(args.recording).is_dir() else "Hall capture"
     channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
     if rec.ordinary:
         pp = rec.stated_pole_pairs
         print(
-            f"{args.recording}: hil-recording/1, {len(rec)} edges, one ordinary run (no segments: speed, direction "
+            f"{args.recording}: {form}, {len(rec)} edges, one ordinary run (no segments: speed, direction "
             f"and reversals come from the edges), pole_pairs {pp if pp else 'not stated'}, timer_tick_s "
             f"{rec.timer_tick_s or 'unknown'}, samples {f'yes ({channels})' if rec.samples else 'no'}"
         )
@@ -104,7 +114,7 @@ def cmd_calibrate(args) -> int:
         rec = CalibrationCampaign(turns_per_point=args.turns).run(config, seed=args.seed)
         write_recording(rec, args.recording)
         print(f"campaign: {len(rec.segments)} operating points, {len(rec)} edges written to {args.recording}")
-    rec = read_recording(args.recording)
+    rec = load_recording(args.recording)
     cal = calibrate(
         rec, circuit=Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s), source=str(args.recording)
     )
@@ -209,7 +219,7 @@ def cmd_table5(args) -> int:
     if args.closed_loop:
         from .experiments.closed_loop import closed_loop
 
-        result = closed_loop(seed=args.seed[0] if args.seed else 0)
+        result = closed_loop(seed=args.seeds[0] if args.seeds else 0)
         print(result.format())
         if args.json:
             _write_json(args.json, result.to_json())
@@ -217,7 +227,7 @@ def cmd_table5(args) -> int:
     from .experiments.compare import EVAL_SEEDS, TRAIN_SEEDS, run_protocol
 
     result = run_protocol(
-        args.protocol, eval_seeds=tuple(args.seed or EVAL_SEEDS), train_seeds=tuple(args.train_seed or TRAIN_SEEDS)
+        args.protocol, eval_seeds=tuple(args.seeds or EVAL_SEEDS), train_seeds=tuple(args.train_seeds or TRAIN_SEEDS)
     )
     import textwrap
 
@@ -236,7 +246,7 @@ def cmd_predictors_compare(args) -> int:
     if args.recording and args.scenario:
         raise ValueError("give a RECORDING or --scenario, not both")
     if args.recording:
-        result = peers.compare_recording(read_recording(args.recording), args.recording)
+        result = peers.compare_recording(load_recording(args.recording), args.recording)
     elif (args.scenario or "paper") == "paper":
         result = peers.compare_paper()
     else:
@@ -257,9 +267,11 @@ def cmd_gap_diagnose(args) -> int:
     from .gap import diagnose
     from .gap.report import format_text, write_html
 
+    from plant_models import PlantConfig
+
     path = Path(args.recording)
-    if path.is_dir():
-        rec = read_recording(args.recording)
+    if path.is_dir() or (path.suffix.lower() in (".vcd", ".sr") and not args.meta):  # RECORDING's own forms
+        rec = load_recording(args.recording)
     else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
         from .traces import TRACE_SUFFIXES, TraceMapping, read_trace
 
@@ -267,7 +279,8 @@ def cmd_gap_diagnose(args) -> int:
             raise ValueError(f"{path}: no such file or directory")
         if path.suffix.lower() not in TRACE_SUFFIXES:
             raise ValueError(
-                f"{path}: not a recording or a trace file (a hil-recording/1 directory, or a trace: "
+                f"{path}: not a recording or a trace file (a hil-recording/1 directory, a Hall capture .vcd or .sr, "
+                "or a trace: "
                 f"{', '.join(TRACE_SUFFIXES)})"
             )
         if not args.meta:
@@ -294,8 +307,12 @@ def cmd_gap_validate(args) -> int:
 
     # a terminal gets the live bar (count, rate, time left, redrawn between results); a log file or
     # pipe gets one line per tenth of the work
-    live = not args.no_progress and sys.stderr.isatty()
-    progress = Progress("recordings diagnosed") if not args.no_progress and not live else None
+    live = args.progress and sys.stderr.isatty()
+    progress = Progress("recordings diagnosed") if args.progress and not live else None
+    if args.json is None:  # the old default path, for one release
+        args.json = "reports/gap-validate.json"
+        grammar.deprecated("hil gap validate (no --json: writes reports/gap-validate.json)",
+                           "hil gap validate --json reports/gap-validate.json")
     report = run_validation(
         per_effect=args.per_effect,
         null=args.null,
@@ -303,7 +320,7 @@ def cmd_gap_validate(args) -> int:
         out_of_library=args.out_of_library,
         seed=args.seed,
         progress=progress,
-        jobs=args.jobs,
+        jobs=(os.cpu_count() or 1) if args.workers == "auto" else max(args.workers, 1),
         generator=args.generator,
         scheduler=args.scheduler,
         bar=live,
@@ -384,7 +401,10 @@ def cmd_campaign(args) -> int:
 
     spec = load_spec(args.spec)
     out = args.out or f"reports/campaign-{re.sub(r'[^A-Za-z0-9_.-]+', '_', spec.name)}"
-    result = run_campaign(spec, out, scheduler=args.scheduler, workers=args.workers, progress=not args.no_progress)
+    scheduler, workers = args.scheduler, None if args.workers == "auto" else args.workers
+    if workers == 0:  # no worker processes: in this process
+        scheduler, workers = scheduler or "serial", None
+    result = run_campaign(spec, out, scheduler=scheduler, workers=workers, progress=args.progress)
     s = result.summary()
     print(
         f"campaign {spec.name}: {s['points_done']}/{s['points_planned']} "
@@ -413,6 +433,8 @@ def _print_cause_confusion(report, min_snr: float) -> None:
 
 
 def cmd_dut_serve(args) -> int:
+    from bldc.contract import strategy_named
+
     from .dut.serve import serve
 
     if args.canopen_port is None and args.modbus_port is None:
@@ -421,8 +443,8 @@ def cmd_dut_serve(args) -> int:
     # stderr); the Modbus server's refusals are debug lines (docs/controller.md)
     logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     serve(args.canopen_port, args.modbus_port, host=args.host, node_id=args.node_id, unit=args.unit,
-          strategy=args.strategy, preset=args.preset, bus_name=args.bus_name, idle_timeout_s=args.idle_timeout,
-          profile=args.profile)
+          strategy=int(strategy_named(args.strategy)), preset=args.preset, bus_name=args.bus_name,
+          idle_timeout_s=args.idle_timeout, profile=args.profile)
     return 0
 
 
@@ -435,7 +457,7 @@ def cmd_dut_check(args) -> int:
     from .dut.spec import open_dut
 
     refused = 0
-    with open_dut(args.dut, PRESETS[args.preset]().motor) as dut:
+    with open_dut(args.dut, _plant(args).motor) as dut:
         profile = getattr(dut.link, "profile", None)
         if profile is None:
             raise ValueError(f"{args.dut}: this link has no device profile to check")
@@ -478,15 +500,17 @@ def cmd_dut_profile(args) -> int:
     from .dut.draft import draft_from_eds
 
     text = draft_from_eds(args.from_eds)
-    if args.output:
-        Path(args.output).write_text(text)
-        print(f"{args.output}: drafted from {args.from_eds}; finish every line marked GUESS")
+    if args.out:
+        Path(args.out).write_text(text)
+        print(f"{args.out}: drafted from {args.from_eds}; finish every line marked GUESS")
     else:
         print(text, end="")
     return 0
 
 
 def cmd_plant_check(args) -> int:
+    from plant_models import PlantConfig
+
     config = PlantConfig.from_toml(args.plant)
     print(
         f"{args.plant}: valid; motor {config.motor.pole_pairs} pole pairs, top speed "
@@ -499,6 +523,9 @@ def cmd_plant_check(args) -> int:
 def effects_markdown() -> str:
     """The effect library as a Markdown reference (docs/effects.md is generated from this)."""
     import inspect
+
+    from bldc.params import describe
+    from plant_models import EFFECTS
 
     lines = [
         "# The effect library",
@@ -540,6 +567,9 @@ def effects_markdown() -> str:
 
 
 def cmd_effects(args) -> int:
+    from bldc.params import describe
+    from plant_models import EFFECTS
+
     if args.markdown:
         print(effects_markdown())
         return 0
@@ -581,12 +611,15 @@ def cmd_qualify(args) -> int:
             for d in catalogue.values():
                 print(f"{d.name:<34} {d.description}")
             return 0
+        args.report_dir = args.out  # hil.qualify reads the report directory by its old name
+        if args.workers == "auto":
+            args.workers = os.cpu_count() or 1
         args.only = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else None
         suite = find_suite(args.suite)
         args.suite = str(suite if suite.is_dir() else suite.parent)
         print(f"hil qualify: {len(args.only or catalogue)} defects against {args.dut}, {args.workers} at a time; "
-              f"reports in {args.report_dir}/")
-        result = qualify(args)
+              f"reports in {args.out}/")
+        result = _under_compile_ahead(qualify, args)
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
@@ -611,6 +644,22 @@ def cmd_qualify(args) -> int:
     return 0 if result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"] else 1
 
 
+def _under_compile_ahead(run, *args):
+    """``run(*args)`` with the numba code compiled once, ahead, for the pytest runs it starts (they
+    inherit HIL_COMPILE_LOCK and wait for it: hil/compile_ahead.py), not once per run."""
+    from .compile_ahead import LOCK_ENV, CompileAhead
+
+    root = str(Path(__file__).resolve().parent.parent)
+    ahead = CompileAhead({**os.environ, "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get(
+        "PYTHONPATH")])])}).start()
+    os.environ.update(ahead.env())
+    try:
+        return run(*args)
+    finally:
+        os.environ.pop(LOCK_ENV, None)
+        ahead.close()
+
+
 def cmd_acceptance(args) -> int:
     import subprocess
 
@@ -630,7 +679,7 @@ def cmd_acceptance(args) -> int:
         "-q",
         "-o",
         "console_output_style=classic",
-        f"--hil-report-dir={args.report_dir}",
+        f"--hil-report-dir={args.out}",
         f"--hil-seed={args.seed}",
         f"--hypothesis-seed={args.seed}",
         "-o",
@@ -645,13 +694,13 @@ def cmd_acceptance(args) -> int:
         argv.append(f"--hil-budgets={args.budgets}")
     if args.delay_draws:
         argv.append(f"--hil-delay-draws={args.delay_draws}")
-    argv += ["-n", args.workers or default_workers(duts)]
+    argv += ["-n", str(default_workers(duts) if args.workers == "auto" else args.workers)]
     if argv[-1] != "0":  # a test per worker as each frees up: the suite's tests differ in length by 100x
         argv += ["--dist", "worksteal"]
     extra = list(args.pytest_args)
     if extra[:1] == ["--"]:  # argparse keeps the separator in a REMAINDER; pytest would take it for a path
         extra = extra[1:]
-    ReportWriter.clear(Path(args.report_dir))  # pytest may refuse the arguments before the plugin can
+    ReportWriter.clear(Path(args.out))  # pytest may refuse the arguments before the plugin can
     # pytest runs in a fresh interpreter: here hil and plant_models are imported already, and
     # pytest would warn that it cannot rewrite the asserts of its plugin's packages
     # the same hil (and plant_models) as this command, wherever the interpreter would find another
@@ -662,11 +711,18 @@ def cmd_acceptance(args) -> int:
         "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
         "HIL_COMMAND": " ".join([program, *sys.argv[1:]]),
     }  # what the report names as the run's command
+    # the numba code compiled once, in this process, while pytest starts; its workers wait for it
+    # and load it from the cache instead of each compiling it (hil/compile_ahead.py)
+    from .compile_ahead import CompileAhead
+
+    ahead = CompileAhead(env).start()
     try:
-        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env=env).returncode
+        status = subprocess.run([sys.executable, "-m", "pytest", *argv, *extra], env={**env, **ahead.env()}).returncode
     except KeyboardInterrupt:  # pytest has seen the interrupt too and written its reports
         status = 2
-    return acceptance_exit(status, Path(args.report_dir) / "hil-report.json")
+    finally:
+        ahead.close()
+    return acceptance_exit(status, Path(args.out) / "hil-report.json")
 
 
 def default_workers(duts: list[str]) -> str:
@@ -716,25 +772,34 @@ def cmd_replay(args) -> int:
     return 0 if outcome.ok else 1
 
 
+def _parser_paper(sub) -> None:
+    p = sub.add_parser("paper", help="the paper's experiments: the demo bench, Section 4.3, Table 5")
+    ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    _parser_demo(ps)
+    _parser_compare_correction(ps)
+    _parser_table5(ps)
+
+
 def _parser_demo(sub) -> None:
     p = sub.add_parser("demo", help="paper-bench run with paper-sized deviations; prints the edge errors")
     p.add_argument("--speed-rpm", type=float, default=5700.0)
     p.add_argument("--duration-s", type=float, default=0.5)
-    p.add_argument("--out", default="reports/demo-recording", help="where to write the recording")
+    grammar.add_out(p, "the recording directory to write (default: reports/demo-recording)",
+                    default="reports/demo-recording")
     p.set_defaults(func=cmd_demo)
 
 
 def _parser_recording(sub) -> None:
     p = sub.add_parser("recording", help="bench recordings (hil-recording/1)")
     rs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
-    q = rs.add_parser("check", help="validate a recording directory")
-    q.add_argument("recording")
+    q = rs.add_parser("check", help="validate a recording (or read a capture) and summarise it")
+    grammar.add_recording(q)
     q.set_defaults(func=cmd_recording_check)
     q = rs.add_parser(
         "import", help="a logic-analyser capture of the three Hall lines (VCD, sigrok .sr, CSV) as a recording"
     )
     q.add_argument("capture", help="VCD, sigrok session (.sr) or CSV (time or sample index, three levels)")
-    q.add_argument("--out", required=True, help="recording directory to write")
+    grammar.add_out(q, "the recording directory to write", required=True)
     q.add_argument(
         "--channels", help="A=NAME,B=NAME,C=NAME (default: hall_a, hall_b, hall_c if present, else the first three)"
     )
@@ -751,36 +816,34 @@ def _parser_plant(sub) -> None:
     p = sub.add_parser("plant", help="the plant model")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("simulate", help="write a kinematic-mode recording of steady operating points")
-    g = q.add_mutually_exclusive_group()
-    g.add_argument("--plant", help="plant TOML file")
-    g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
+    grammar.add_plant_source(q)
     q.add_argument("--speeds-rpm", type=float, nargs="+", default=[1000.0, 5000.0, 10000.0])
     q.add_argument("--current-a", type=float, default=0.0)
     q.add_argument("--duration-s", type=float, default=0.5)
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument("--out", required=True)
+    grammar.add_out(q, "the recording directory to write", required=True)
     q.set_defaults(func=cmd_plant_simulate)
     q = ps.add_parser("check", help="validate a plant TOML file")
-    q.add_argument("plant")
+    q.add_argument("plant", metavar="PLANT", help="plant TOML file")
     q.set_defaults(func=cmd_plant_check)
-    from .twin.cli import add_parser as add_twin_parser, add_plant_parser  # docs/twin.md
 
-    add_plant_parser(ps)
-    add_twin_parser(sub)
+
+def _parser_twin(sub) -> None:
+    from .twin.cli import add_parser  # docs/twin.md
+
+    add_parser(sub)
 
 
 def _parser_calibrate(sub) -> None:
     p = sub.add_parser("calibrate", help="compute the Hall correction tables from a recording")
-    p.add_argument("recording", help="hil-recording/1 directory (written first with --campaign)")
-    p.add_argument("--json", help="write the corrections here")
+    grammar.add_recording(p, "with --campaign: the recording directory the campaign writes first")
+    grammar.add_json(p, "the corrections")
     p.add_argument(
         "--campaign",
         action="store_true",
         help="first run the calibration campaign on the plant and record it to RECORDING",
     )
-    g = p.add_mutually_exclusive_group()
-    g.add_argument("--plant", help="plant TOML for --campaign")
-    g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
+    grammar.add_plant_source(p, "plant TOML for --campaign")
     p.add_argument("--turns", type=int, default=200, help="mechanical turns per operating point (--campaign)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--pullup-ohm", type=float, help="Hall pull-up resistor (with --filter-farad: the delay bound)")
@@ -788,7 +851,8 @@ def _parser_calibrate(sub) -> None:
     p.add_argument(
         "--delay-max-s", type=float, help="stated maximum conditioning delay (default: 1 ms, open-collector wiring)"
     )
-    p.add_argument("--plot", help="ordinary run: save sector width against speed, before and after calibration (PNG)")
+    p.add_argument("--plot", metavar="PATH",
+                   help="ordinary run: save sector width against speed, before and after calibration (PNG)")
     p.set_defaults(func=cmd_calibrate)
 
 
@@ -799,7 +863,8 @@ def _parser_compare_correction(sub) -> None:
     p.add_argument("--speed-rpm", type=float, default=5700.0)
     p.add_argument("--turns", type=int, default=10)
     p.add_argument("--seed", type=int, default=0)
-    p.add_argument("--plot", default="reports/headline-5700rpm.png")
+    p.add_argument("--plot", metavar="PATH", default="reports/headline-5700rpm.png",
+                   help="the speed traces (PNG; default: %(default)s)")
     p.set_defaults(func=cmd_compare_correction)
 
 
@@ -818,9 +883,11 @@ def _parser_table5(sub) -> None:
         action="store_true",
         help="run the paper scenario through the controller on every link, then replay its edges offline",
     )
-    p.add_argument("--seed", type=int, nargs="+", help="evaluation seeds (default: 0 3 4 ... 11; closed loop: 0)")
-    p.add_argument("--train-seed", type=int, nargs="+", help="tuning seeds (default: 1 2 12 13)")
-    p.add_argument("--json", help="write the result as JSON (keys in docs/sage-husa.md)")
+    p.add_argument("--seeds", type=int, nargs="+", help="evaluation seeds (default: 0 3 4 ... 11; closed loop: 0)")
+    p.add_argument("--train-seeds", type=int, nargs="+", help="tuning seeds (default: 1 2 12 13)")
+    grammar.add_deprecated(p, "--seed", dest="seeds", new="--seeds", type=int, nargs="+")
+    grammar.add_deprecated(p, "--train-seed", dest="train_seeds", new="--train-seeds", type=int, nargs="+")
+    grammar.add_json(p, "the result (keys in docs/sage-husa.md)")
     p.set_defaults(func=cmd_table5)
 
 
@@ -828,10 +895,9 @@ def _parser_predictors(sub) -> None:
     p = sub.add_parser("predictors", help="commutation predictors: the firmware peers, KF, Sage-Husa, VB-AKF")
     ps = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = ps.add_parser("compare", help="every predictor on a scenario or a recording, with its shipped settings")
-    q.add_argument("recording", nargs="?", help="hil-recording/1 directory (calibrated as `hil calibrate` "
-                   "does, scored on the second half)")
+    grammar.add_recording(q, "calibrated as `hil calibrate` does, scored on the second half", nargs="?")
     q.add_argument("--scenario", choices=["paper", "pumps"], help="the paper's speed steps (default) or held-out pumps")
-    q.add_argument("--json", help="write the figures here (keys in docs/sage-husa.md)")
+    grammar.add_json(q, "the figures (keys in docs/sage-husa.md)")
     q.set_defaults(func=cmd_predictors_compare)
 
 
@@ -839,16 +905,14 @@ def _parser_gap(sub) -> None:
     p = sub.add_parser("gap", help="sim-to-real gap: diagnose a recording, or validate the diagnosis")
     gs = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
     q = gs.add_parser("diagnose", help="where the gap lies, which effect causes it, how far it shrinks")
-    q.add_argument(
-        "recording", help="hil-recording/1 directory, or a trace file (.mf4, .csv, .parquet) with --meta and --mapping"
-    )
+    grammar.add_recording(q, "or a trace file (.mf4, .parquet, .csv) with --meta and --mapping")
     q.add_argument(
         "--model", help="plant TOML with the effects the model already knows (default: nominal motor of meta.json)"
     )
     q.add_argument("--meta", help="meta.json (motor, segments) for a trace file")
     q.add_argument("--mapping", help="TOML column mapping for a trace file (docs/gap.md)")
-    q.add_argument("--json")
-    q.add_argument("--html")
+    grammar.add_json(q, "the diagnosis")
+    q.add_argument("--html", metavar="PATH", help="write the diagnosis as a page with its figures here")
     q.set_defaults(func=cmd_gap_diagnose)
     q = gs.add_parser("validate", help="inject, withhold, diagnose, score")
     q.add_argument(
@@ -858,25 +922,22 @@ def _parser_gap(sub) -> None:
     q.add_argument("--two", type=int, default=60)
     q.add_argument("--out-of-library", type=int, default=100)
     q.add_argument("--seed", type=int, default=0)
-    q.add_argument(
-        "--jobs",
-        type=int,
-        default=os.cpu_count() or 1,
-        help="local worker processes (default: one per core; 1: in this process)",
-    )
+    grammar.add_workers(q, "local worker processes (default auto: one per core; 0: in this process)")
+    grammar.add_deprecated(q, "--jobs", dest="workers", new="-j/--workers", type=int,
+                           convert=lambda n: 0 if n <= 1 else n)  # --jobs 1 ran in this process
     q.add_argument(
         "--scheduler",
-        help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --jobs "
+        help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' or 'serial' (default: local, --workers "
         "workers)",
     )
-    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    grammar.add_progress(q)
     q.add_argument(
         "--generator",
         choices=("library", "field"),
         default="library",
         help="library: withhold the library's effects; field: withhold physical causes of the field-level Hall model",
     )
-    q.add_argument("--json", default="reports/gap-validate.json")
+    grammar.add_json(q, "the validation (summaries and every case)")
     q.set_defaults(func=cmd_gap_validate)
 
 
@@ -885,12 +946,12 @@ def _parser_campaign(sub) -> None:
         "campaign", help="sweep deviations, faults, operating points and strategies; envelope map (docs/campaigns.md)"
     )
     p.add_argument("spec", help="campaign SPEC TOML")
-    p.add_argument("--out", help="output directory (default: reports/campaign-NAME)")
+    grammar.add_out(p, "output directory (default: reports/campaign-NAME)", metavar="DIR")
     p.add_argument(
         "--scheduler", help="Dask scheduler: tcp://HOST:PORT of a running cluster, 'local' (default) or 'serial'"
     )
-    p.add_argument("--workers", type=int, help="workers of the local cluster (default: one per core)")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    grammar.add_workers(p, "workers of the local cluster (default auto: one per core; 0: in this process)")
+    grammar.add_progress(p)
     p.set_defaults(func=cmd_campaign)
 
 
@@ -917,12 +978,8 @@ def _parser_dut(sub) -> None:
     q.add_argument("--host", default="127.0.0.1", help="bind address (default loopback; 0.0.0.0 only if you mean it)")
     q.add_argument("--node-id", type=int, default=5)
     q.add_argument("--unit", type=int, default=1)
-    q.add_argument(
-        "--strategy", type=int, default=3, choices=[0, 1, 2, 3], help="0 raw, 1 corrected, 2 KF, 3 Sage-Husa"
-    )
-    q.add_argument(
-        "--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor the controller is set up for"
-    )
+    grammar.add_strategy(q, "the controller's commutation strategy (default: sage_husa)", default="sage_husa")
+    grammar.add_preset(q, "the motor the controller is set up for")
     q.add_argument(
         "--profile",
         help="serve under this device profile (hil-device-profile/1, docs/device-profiles.md) instead of the "
@@ -933,11 +990,12 @@ def _parser_dut(sub) -> None:
         "check", help="read every object of a DUT's profile once (writes nothing); which requirements it makes testable"
     )
     q.add_argument("--dut", required=True, help="controller spec with profile=FILE (hil/dut/spec.py)")
-    q.add_argument("--preset", default="paper-bench", choices=sorted(PRESETS), help="the motor (its pole pairs)")
+    grammar.add_preset(q, "the motor (its pole pairs)")
     q.set_defaults(func=cmd_dut_check)
     q = ds.add_parser("profile", help="draft a device profile from an EDS, every guess marked")
     q.add_argument("--from-eds", required=True, help="the device's EDS file")
-    q.add_argument("-o", "--output", help="write the draft here (default: standard output)")
+    grammar.add_out(q, "write the draft here (default: standard output)")
+    grammar.add_deprecated(q, "--output", dest="out", new="-o/--out")
     q.set_defaults(func=cmd_dut_profile)
 
 
@@ -949,22 +1007,22 @@ def _parser_acceptance(sub) -> None:
     p.add_argument(
         "--dut", action="append", help="controller spec (repeatable; default: virtual:canopen and virtual:modbus)"
     )
-    p.add_argument("--plant", help="plant TOML (default: the paper-bench preset)")
+    p.add_argument("--plant", metavar="TOML", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.add_argument("--delay-draws", choices=("library", "real-wiring"),
                    help="REQ-ROB-001's conditioning delays: 0-50 us (library, default) or 0-300 us (real-wiring)")
-    p.add_argument(
-        "--report-dir", default="reports", help="where the HTML, JSON and JUnit reports go (default: reports)"
-    )
+    grammar.add_out(p, "where the HTML, JSON and JUnit reports go (default: reports)", default="reports",
+                    metavar="DIR")
+    grammar.add_deprecated(p, "--report-dir", dest="out", new="-o/--out")
     p.add_argument(
         "--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search (default 0)"
     )
-    p.add_argument(
-        "-n",
-        "--workers",
-        help="pytest-xdist workers (e.g. auto, 0 for none); each worker opens its own controller "
-        "(default: a virtual controller on every core, up to 4; a real one without workers)",
+    grammar.add_workers(
+        p,
+        "pytest-xdist workers, each opening its own controller (default auto: a virtual controller on every core, "
+        "up to 4; a real one in one process; 0: no workers)",
     )
+    grammar.add_deprecated(p, "-n", dest="workers", new="-j/--workers", type=grammar.workers)
     p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
@@ -980,12 +1038,13 @@ def _parser_qualify(sub) -> None:
     p.add_argument("--only", help="comma-separated defect names (default: the whole catalogue)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
     p.add_argument("--seed", type=int, default=0, help="base seed of the plant and of the hypothesis search")
-    p.add_argument(
-        "--report-dir", default="reports/qualify", help="one acceptance report per run (default: reports/qualify)"
-    )
-    p.add_argument("-n", "--workers", type=int, default=2, help="runs at a time (default 2)")
+    grammar.add_out(p, "one acceptance report per run (default: reports/qualify)", default="reports/qualify",
+                    metavar="DIR")
+    grammar.add_deprecated(p, "--report-dir", dest="out", new="-o/--out")
+    grammar.add_workers(p, "runs at a time (default 2; auto: one per core)", default=2)
+    grammar.add_deprecated(p, "-n", dest="workers", new="-j/--workers", type=grammar.workers)
     p.add_argument("--suite", help="the acceptance suite: a directory (default: ./test_cases)")
-    p.add_argument("--json", help="write the result as JSON here")
+    grammar.add_json(p, "the result")
     p.add_argument("--list", action="store_true", help="list the defects and exit")
     p.set_defaults(func=cmd_qualify)
 
@@ -1014,14 +1073,14 @@ def _parser_signals(sub) -> None:
 
 #: every command's parser, in the order ``hil --help`` lists them: each function adds its one
 #: subparser (and its actions) to ``sub``; a new command adds its function here (one line), and
-#: a command of its own module registers with that module's ``add_parser``
+#: a command of its own module registers with that module's ``add_parser``. The grammar every
+#: option follows is docs/cli.md (hil/cli_grammar.py; tests/test_cli_grammar.py walks the parsers)
 COMMAND_PARSERS = (
-    _parser_demo,
+    _parser_paper,
     _parser_recording,
     _parser_plant,
+    _parser_twin,
     _parser_calibrate,
-    _parser_compare_correction,
-    _parser_table5,
     _parser_predictors,
     _parser_gap,
     _parser_campaign,
@@ -1037,7 +1096,8 @@ COMMAND_PARSERS = (
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="hil",
-        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers.",
+        description="HIL verification of Hall calibration and Sage-Husa commutation for BLDC pump controllers. "
+        "The options' grammar: docs/cli.md.",
     )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for add in COMMAND_PARSERS:
@@ -1046,16 +1106,16 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from .dut.link import LinkError
-
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args = parser.parse_args(grammar.modernize(sys.argv[1:] if argv is None else argv))
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    from .dut.link import LinkError
+
     try:
         return int(args.func(args) or 0)
-    except (ConfigError, RecordingError, ValueError) as exc:
+    except ValueError as exc:  # ConfigError, RecordingError, SignalError: bad input, one line
         print(f"hil: error: {exc}", file=sys.stderr)
         return 2
     except LinkError as exc:  # a controller that refused, misbehaved or stopped answering

@@ -293,6 +293,20 @@ def pytest_report_collectionfinish(config, items):
     return None
 
 
+@pytest.hookimpl(wrapper=True)
+def pytest_runtestloop(session):
+    """Under ``hil acceptance`` on a cold cache (a worker, or the one process): wait for the numba
+    code it compiles ahead while pytest starts (hil/compile_ahead.py), then load all of it from the
+    cache before the first test, so no test meets a load (or a compile) while a link's reply is
+    timed."""
+    if "HIL_COMPILE_LOCK" in __import__("os").environ:
+        from .compile_ahead import load_compiled, wait_for_compile_ahead
+
+        wait_for_compile_ahead()
+        load_compiled()
+    return (yield)
+
+
 def pytest_generate_tests(metafunc):
     if "hil_dut_spec" in metafunc.fixturenames:
         specs = dut_specs(metafunc.config)

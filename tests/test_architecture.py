@@ -20,6 +20,7 @@ PACKAGES = ("bldc", "hil", "plant_models")
 #: module prefix -> group, the longest prefix wins (the rows of the table in docs/architecture.md)
 GROUP_OF_PREFIX = {
     "bldc": "vocabulary",
+    "hil.cli_grammar": "vocabulary",
     "plant_models": "plant",
     "hil.predictors": "predictors",
     "hil.calibration.corrections": "corrections",

@@ -115,7 +115,7 @@ def hil(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 def acceptance_run(tmp_path_factory):
     """The default ``hil acceptance`` (both virtual links), run once from the repository."""
     reports = tmp_path_factory.mktemp("acceptance")
-    run = hil("acceptance", "--report-dir", str(reports), cwd=ROOT)
+    run = hil("acceptance", "-o", str(reports), cwd=ROOT)
     assert (reports / "hil-report.html").is_file(), (
         f"no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
     )

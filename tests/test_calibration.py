@@ -213,7 +213,7 @@ def test_corrected_commutation_meets_angle_budget_at_5700_rpm(capsys, tmp_path):
     assert corrected.rms_deg_e < raw.rms_deg_e / 10
     from hil.cli import main
 
-    assert main(["compare-correction", "--plot", str(tmp_path / "h.png")]) == 0
+    assert main(["paper", "compare-correction", "--plot", str(tmp_path / "h.png")]) == 0
     out = capsys.readouterr().out
     assert "paper 92.0%" in out and (tmp_path / "h.png").stat().st_size > 10_000
 

@@ -9,7 +9,7 @@ from hil.cli import main
 def test_hil_help_lists_subcommands(capsys):
     assert main([]) == 0
     out = capsys.readouterr().out
-    for sub in ("demo", "recording", "plant", "effects"):
+    for sub in ("paper", "recording", "plant", "twin", "effects"):
         assert sub in out
 
 
@@ -19,7 +19,7 @@ def test_console_script_is_installed():
 
 
 def test_demo_prints_edge_errors_and_writes_a_valid_recording(tmp_path, capsys):
-    assert main(["demo", "--duration-s", "0.1", "--out", str(tmp_path / "demo")]) == 0
+    assert main(["paper", "demo", "--duration-s", "0.1", "-o", str(tmp_path / "demo")]) == 0
     out = capsys.readouterr().out
     assert "A  rise    0" in out and "all edges" in out
     assert main(["recording", "check", str(tmp_path / "demo")]) == 0

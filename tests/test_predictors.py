@@ -588,7 +588,7 @@ def test_table5_cli_writes_exactly_the_documented_json_keys(tmp_path, capsys):
     from hil.cli import main
 
     out = tmp_path / "paper.json"
-    assert main(["table5", "--protocol", "paper", "--seed", "0", "--json", str(out)]) == 0
+    assert main(["paper", "table5", "--protocol", "paper", "--seeds", "0", "--json", str(out)]) == 0
     printed = capsys.readouterr().out
     assert all(len(line) <= 100 for line in printed.splitlines()), printed
     assert "mean signed error" in printed and "constant-stage edges" in printed and "Q0 x100" in printed

@@ -169,7 +169,7 @@ def test_acceptance_through_the_foreign_profile(served, tmp_path):
     """Every requirement a Modbus device can show passes; the CANopen-only heartbeat requirement is
     not testable (never green) until a budgets file puts it out of scope, with reason and owner."""
     dut = f"modbus-tcp:host=127.0.0.1,port={served},profile={FOREIGN}"
-    r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), timeout=1200)
+    r = _run("acceptance", "--dut", dut, "-o", str(tmp_path / "a"), timeout=1200)
     content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
     verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
     assert verdicts.pop("REQ-PROT-002") == "not testable"
@@ -179,7 +179,7 @@ def test_acceptance_through_the_foreign_profile(served, tmp_path):
     assert content["verdict_reasons"] == ["REQ-PROT-002: not testable with this profile"]
     budgets = _write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\n'
                      'reason = "Modbus: no heartbeat, no EMCY"\nowner = "test bench team"\n')
-    r = _run("acceptance", "--dut", dut, "--budgets", str(budgets), "--report-dir", str(tmp_path / "b"),
+    r = _run("acceptance", "--dut", dut, "--budgets", str(budgets), "-o", str(tmp_path / "b"),
              "--suite", "test_cases/test_protocol.py", "--", "-k", "not refused_calibration", timeout=600)
     content = json.loads((tmp_path / "b" / "hil-report.json").read_text())
     req = next(q for q in content["traceability"] if q["id"] == "REQ-PROT-002")
@@ -229,7 +229,7 @@ def test_the_foreign_canopen_profile_passes_acceptance(tmp_path):
     """The virtual controller under a foreign object dictionary (0x3000 objects, scaled integers,
     its own strategy numbers and EMCY codes, RPDO3/4 and TPDO2): every requirement passes, the
     heartbeat and EMCY ones included."""
-    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "--report-dir", str(tmp_path),
+    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "-o", str(tmp_path),
              timeout=1200)
     content = json.loads((tmp_path / "hil-report.json").read_text())
     verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
@@ -255,7 +255,7 @@ def test_the_foreign_canopen_profile_served_over_socketcand_is_checked_and_confo
         assert check.returncode == 0, check.stderr
         assert "0x3010:01 x3" in check.stdout and "REQ-PROT-002  testable" in check.stdout
         # over the socketcand port, the conformance suite (a lockstep bench there takes minutes per test)
-        r = _run("acceptance", "--dut", dut, "--report-dir", str(tmp_path / "a"), "--suite",
+        r = _run("acceptance", "--dut", dut, "-o", str(tmp_path / "a"), "--suite",
                  "test_cases/test_protocol.py", timeout=600)
         content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
         verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}

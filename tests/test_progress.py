@@ -53,7 +53,7 @@ def test_acceptance_runs_pytest_in_a_fresh_interpreter(pytester):
     """
     )
     assert (
-        main(["acceptance", "--suite", str(pytester.path), "--report-dir", "rep", "--dut", "virtual:in-process"]) == 0
+        main(["acceptance", "--suite", str(pytester.path), "-o", "rep", "--dut", "virtual:in-process"]) == 0
     )
 
 

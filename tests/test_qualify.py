@@ -98,7 +98,7 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
         shutil.copy(ROOT / "test_cases" / name, suite / name)
     out = tmp_path / "q.json"
     r = _hil("qualify", "--suite", str(suite), "--only", "no-table-validation,current-limit-not-enforced",
-             "--report-dir", str(tmp_path / "reports"), "--json", str(out))
+             "-o", str(tmp_path / "reports"), "--json", str(out))
     assert r.returncode == 1, r.stdout + r.stderr  # a survivor
     result = json.loads(out.read_text())
     assert result["control_verdict"] == "PASS"
@@ -114,9 +114,9 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
 
 
 def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
-    r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "--report-dir", str(tmp_path))
+    r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "-o", str(tmp_path))
     assert r.returncode == 2 and "built-in controller" in r.stderr
-    r = _hil("qualify", "--only", "no-such-defect", "--report-dir", str(tmp_path))
+    r = _hil("qualify", "--only", "no-such-defect", "-o", str(tmp_path))
     assert r.returncode == 2 and "unknown defect(s) no-such-defect" in r.stderr
 
 

@@ -32,7 +32,7 @@ RATIO_BAND = (0.67, 1.5)
 @pytest.fixture(scope="module")
 def spindle_twin(tmp_path_factory):
     out = tmp_path_factory.mktemp("twin") / "spindle.toml"
-    assert main(["plant", "from-capture", str(SPINDLE), "-o", str(out)]) == 0
+    assert main(["twin", "from-capture", str(SPINDLE), "-o", str(out)]) == 0
     return out
 
 
@@ -107,7 +107,7 @@ def test_the_check_names_what_the_default_twin_leaves_out_and_adding_it_explains
 
 def test_the_options_add_what_no_table_holds(tmp_path, capsys):
     out = tmp_path / "hboard.toml"
-    assert main(["plant", "from-capture", str(HBOARD), "-o", str(out), "--with-sensor-pole-pattern",
+    assert main(["twin", "from-capture", str(HBOARD), "-o", str(out), "--with-sensor-pole-pattern",
                  "--with-sensor-asymmetry", "--with-edge-noise"]) == 0
     printed = capsys.readouterr()
     assert "left out: nothing" in printed.out
@@ -123,7 +123,7 @@ def test_the_options_add_what_no_table_holds(tmp_path, capsys):
     assert "rewound for a 305 rpm top" in printed.out
     # a top speed where the delay spans four sectors (the paper pump's 10,000 rpm on 15 pole pairs):
     # said, not left for the acceptance run to find
-    assert main(["plant", "from-capture", str(HBOARD), "-o", str(out), "--top-speed-rpm", "10000"]) == 0
+    assert main(["twin", "from-capture", str(HBOARD), "-o", str(out), "--top-speed-rpm", "10000"]) == 0
     printed = capsys.readouterr()
     assert "the delay is beyond half a sector at the top speed" in printed.err
     assert "times the capture's: the suite judges the twin where the capture never ran it" in printed.err
@@ -178,7 +178,7 @@ def test_a_capture_too_short_is_refused(tmp_path, capsys):
         state[x] ^= 1
         lines += [f"#{(k + 1) * 1000000}", f"{state[x]}{'abc'[x]}"]
     vcd.write_text("\n".join(lines) + "\n")
-    assert main(["plant", "from-capture", str(vcd), "-o", str(tmp_path / "t.toml")]) == 2
+    assert main(["twin", "from-capture", str(vcd), "-o", str(tmp_path / "t.toml")]) == 2
     assert "edges" in capsys.readouterr().err
     assert not (tmp_path / "t.toml").exists()
 
@@ -268,11 +268,11 @@ def test_a_hub_motor_twin_runs_the_suite_with_every_calibration_requirement_pass
     import sys
 
     twin = tmp_path / "hub.toml"
-    assert main(["plant", "from-capture", str(HBOARD), "-o", str(twin)]) == 0
+    assert main(["twin", "from-capture", str(HBOARD), "-o", str(twin)]) == 0
     root = Path(__file__).parent.parent
     run = subprocess.run(
-        [sys.executable, "-m", "hil", "acceptance", "--plant", str(twin), "--dut", "virtual:in-process", "-n", "0",
-         "--report-dir", str(tmp_path / "report"), "--suite", "test_cases/test_calibration_recovery.py"],
+        [sys.executable, "-m", "hil", "acceptance", "--plant", str(twin), "--dut", "virtual:in-process", "-j", "0",
+         "-o", str(tmp_path / "report"), "--suite", "test_cases/test_calibration_recovery.py"],
         capture_output=True, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, timeout=900,
     )
     report = json.loads((tmp_path / "report" / "hil-report.json").read_text())
@@ -305,7 +305,7 @@ def test_after_a_fault_a_many_pole_rotor_is_realigned_while_its_speed_recovers(t
     base = tmp_path / "base.toml"
     base.write_text('preset = "paper-bench"\n')
     twin = tmp_path / "hub.toml"
-    assert main(["plant", "from-capture", str(HBOARD), "-o", str(twin), "--base", str(base)]) == 0
+    assert main(["twin", "from-capture", str(HBOARD), "-o", str(twin), "--base", str(base)]) == 0
     plant = PlantConfig.from_toml(twin)
     fault = SensorDropout(sensor=1).as_dict()
     stim = Stimulus("fault_sequence",

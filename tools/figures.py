@@ -140,7 +140,7 @@ def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subproces
 def _import_capture(run: Run, work: Path, vcd: str) -> Path:
     out = work / Path(vcd).stem
     if not out.exists():
-        _hil(run, work, "recording", "import", str(REAL_CAPTURES / vcd), "--out", str(out))
+        _hil(run, work, "recording", "import", str(REAL_CAPTURES / vcd), "-o", str(out))
     return out
 
 
@@ -149,10 +149,10 @@ def _import_capture(run: Run, work: Path, vcd: str) -> Path:
 
 def produce_demo(work: Path) -> Run:
     run = Run(seeds=[0])
-    done = _hil(run, work, "demo", "--out", str(work / "demo"))
+    done = _hil(run, work, "paper", "demo", "-o", str(work / "demo"))
     m = re.search(r"all edges: mean ([\d.\-]+), RMS ([\d.]+), max \|err\| ([\d.]+)", done.stdout)
     if not m:
-        raise RuntimeError(f"hil demo printed no summary line:\n{done.stdout[-1500:]}")
+        raise RuntimeError(f"hil paper demo printed no summary line:\n{done.stdout[-1500:]}")
     mean, rms, worst = (float(g) for g in m.groups())
     tol = dict(tolerance_abs=0.01, unit="deg e", fmt="{:.3f}")
     run.figures = {
@@ -323,7 +323,7 @@ def produce_acceptance(work: Path) -> Run:
     t0, c0 = time.perf_counter(), _children_cpu_s()
     report_dir = work / "acceptance"
     try:
-        _hil(run, work, "acceptance", "--report-dir", str(report_dir))
+        _hil(run, work, "acceptance", "-o", str(report_dir))
     except RuntimeError:
         pass  # the verdict below says what happened
     wall, cpu = time.perf_counter() - t0, _children_cpu_s() - c0
@@ -358,13 +358,13 @@ def produce_test_suite(work: Path) -> Run:
 
 
 def _produce_twin(vcd: str) -> Callable[[Path], Run]:
-    """docs/twin.md: the capture's twin (``hil plant from-capture``), checked against the capture
+    """docs/twin.md: the capture's twin (``hil twin from-capture``), checked against the capture
     (``hil twin check``) and put through the acceptance suite in-process (``hil acceptance --plant``)."""
 
     def produce(work: Path) -> Run:
         run = Run(seeds=[0])
         twin = work / f"{Path(vcd).stem}-twin.toml"
-        _hil(run, work, "plant", "from-capture", str(REAL_CAPTURES / vcd), "-o", str(twin))
+        _hil(run, work, "twin", "from-capture", str(REAL_CAPTURES / vcd), "-o", str(twin))
         check = work / f"{Path(vcd).stem}-twin-check.json"
         _hil(run, work, "twin", "check", str(REAL_CAPTURES / vcd), str(twin), "--json", str(check))
         result = json.loads(check.read_text())
@@ -380,7 +380,7 @@ def _produce_twin(vcd: str) -> Callable[[Path], Run]:
         report_dir = work / f"{Path(vcd).stem}-acceptance"
         t0 = time.perf_counter()
         try:
-            _hil(run, work, "acceptance", "--plant", str(twin), "--dut", "virtual:in-process", "--report-dir",
+            _hil(run, work, "acceptance", "--plant", str(twin), "--dut", "virtual:in-process", "-o",
                  str(report_dir))
         except RuntimeError:
             pass  # a FAIL verdict exits 1; the report says what happened

@@ -1,4 +1,4 @@
-"""Sage-Husa through the controller against the same filter offline (``hil table5 --closed-loop``).
+"""Sage-Husa through the controller against the same filter offline (``hil paper table5 --closed-loop``).
 
 The paper scenario (seven set points 5000-10,000 rpm, calibration downloaded, 3 us type III
 jitter) runs in lockstep through the virtual controller on each link; the controller predicts

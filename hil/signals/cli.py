@@ -1,4 +1,7 @@
-"""The ``hil signals`` subcommands (export, score, loopback); hil/cli.py registers them."""
+"""The ``hil signals`` subcommands (export, score, loopback); hil/cli.py registers them.
+
+The parsers follow the command line's grammar (docs/cli.md, ``hil.cli_grammar``) and import
+nothing heavy: each command imports what it runs, so ``hil --help`` stays fast."""
 
 from __future__ import annotations
 
@@ -7,15 +10,11 @@ import shlex
 import sys
 from pathlib import Path
 
-from bldc.contract import STRATEGY_NAMES
+from .. import cli_grammar as grammar
 
-from .capture import GateMapping
-from .commutations import DEFAULT_HOLD_OFF_S
-from .errors import SignalError
-from .export import ExportSettings, export, ideal, load_effects
-from .loopback import run_loopback
-from .score import score, write_html
-from .trajectory import parse_profile
+#: the score's default hold-off as the help states it (tests/test_cli_grammar.py holds it equal to
+#: ``hil.signals.commutations.DEFAULT_HOLD_OFF_S``)
+HOLD_OFF_HELP_US = 100
 
 
 def _plant(args):
@@ -37,13 +36,17 @@ def _command(args) -> str:
 
 
 def cmd_export(args) -> int:
+    from .errors import SignalError
+    from .export import ExportSettings, export, ideal, load_effects
+    from .trajectory import parse_profile
+
     config = _plant(args)
     if args.effects:
         config = config.with_effects(*load_effects(args.effects))
     if args.no_deviations:
         config = ideal(config)
-    if args.profile:
-        points = parse_profile(args.profile)
+    if args.speed_profile:
+        points = parse_profile(args.speed_profile)
         duration = args.duration_s if args.duration_s is not None else points[-1][0]
     else:
         points = [(0.0, args.speed_rpm)]
@@ -88,6 +91,8 @@ def cmd_export(args) -> int:
 
 
 def _mapping(args):
+    from .capture import GateMapping
+
     if args.mapping and args.channels:
         raise ValueError("give --mapping or --channels, not both")
     if args.mapping:
@@ -96,7 +101,11 @@ def _mapping(args):
 
 
 def cmd_score(args) -> int:
-    sc = score(args.stimulus, args.capture, _mapping(args), args.hold_off_s)
+    from .commutations import DEFAULT_HOLD_OFF_S
+    from .score import score, write_html
+
+    hold_off_s = DEFAULT_HOLD_OFF_S if args.hold_off_s is None else args.hold_off_s
+    sc = score(args.stimulus, args.capture, _mapping(args), hold_off_s)
     print(f"{args.capture} against {Path(args.stimulus) / 'truth.csv'}:")
     print(sc.summary())
     if args.json:
@@ -110,15 +119,17 @@ def cmd_score(args) -> int:
 
 
 def cmd_loopback(args) -> int:
+    from bldc.contract import strategy_named
     from plant_models import PlantConfig
 
     from ..controller.virtual import VirtualController
     from ..dut.in_process import InProcessLink
+    from .loopback import run_loopback
 
     meta = json.loads((Path(args.stimulus) / "meta.json").read_text())
     config = PlantConfig.from_dict(meta["plant"])
     controller = VirtualController(
-        config.motor, strategy=STRATEGY_NAMES[args.strategy], speed_setpoint_rpm=args.speed_rpm
+        config.motor, strategy=strategy_named(args.strategy), speed_setpoint_rpm=args.speed_rpm
     )
     tick = args.capture_tick_s if args.capture_tick_s is not None else config.compile().timer_tick_s
     res = run_loopback(
@@ -137,8 +148,6 @@ def cmd_loopback(args) -> int:
 
 
 def add_parser(sub) -> None:
-    from plant_models import PRESETS
-
     p = sub.add_parser(
         "signals", help="real-bench signals: stimulus an instrument plays, gate captures scored against truth"
     )
@@ -147,15 +156,15 @@ def add_parser(sub) -> None:
     q = ss.add_parser(
         "export", help="write stimulus.vcd (Hall pins, current-sensor volts), stimulus.csv, truth.csv, meta.json"
     )
-    q.add_argument("--out", required=True, help="output directory")
-    g = q.add_mutually_exclusive_group()
-    g.add_argument("--plant", help="plant TOML")
-    g.add_argument("--preset", default="paper-bench+deviations", choices=sorted(PRESETS))
+    grammar.add_out(q, "the stimulus directory to write", required=True, metavar="DIR")
+    grammar.add_plant_source(q, "plant TOML")
     g = q.add_mutually_exclusive_group()
     g.add_argument("--speed-rpm", type=float, default=6000.0, help="constant speed (default 6000)")
     g.add_argument(
-        "--profile", help='speed breakpoints "t:rpm,t:rpm,..." from t = 0, linear between (forward rotation)'
+        "--speed-profile", help='speed breakpoints "t:rpm,t:rpm,..." from t = 0, linear between (forward rotation)'
     )
+    # --profile is a device profile elsewhere (hil dut serve)
+    grammar.add_deprecated(g, "--profile", dest="speed_profile", new="--speed-profile")
     q.add_argument("--duration-s", type=float, help="length (default: 1 s, or the profile's last breakpoint)")
     q.add_argument("--sample-rate-hz", type=float, default=1e6, help="instrument sample rate (default 1 MHz)")
     q.add_argument("--effects", help="TOML with [[effects]] tables added to the plant's")
@@ -168,28 +177,27 @@ def add_parser(sub) -> None:
     q.add_argument("--no-currents", action="store_true", help="Hall pins only")
     q.add_argument("--no-csv", action="store_true", help="do not write stimulus.csv")
     q.add_argument("--csv-max-bytes", type=float, default=2e9, help="skip stimulus.csv above this size (default 2 GB)")
-    q.add_argument("--progress", action="store_true", help="report progress on stderr")
+    grammar.add_progress(q)
     q.set_defaults(func=cmd_export)
 
     q = ss.add_parser("score", help="score a gate capture (VCD, sigrok .sr, CSV) against the stimulus' truth")
     q.add_argument("stimulus", help="the directory `hil signals export` wrote")
     q.add_argument("capture", help="gate capture: .vcd, .sr (sigrok/PulseView session) or .csv with a time column")
-    q.add_argument("--json", help="write the score (docs/signals.md) here")
-    q.add_argument("--html", help="write a one-page summary here")
+    grammar.add_json(q, "the score (docs/signals.md)")
+    q.add_argument("--html", metavar="PATH", help="write a one-page summary here")
     q.add_argument("--mapping", help="TOML channel mapping (docs/signals.md)")
     q.add_argument("--channels", help="AH=D0,AL=D1,... (capture channel of each gate)")
     q.add_argument(
         "--hold-off-s",
         type=float,
-        default=DEFAULT_HOLD_OFF_S,
-        help=f"hold-off (default {DEFAULT_HOLD_OFF_S * 1e6:g} us)",
+        help=f"hold-off (default {HOLD_OFF_HELP_US:g} us)",
     )
     q.set_defaults(func=cmd_score)
 
     q = ss.add_parser("loopback", help="play a stimulus into the virtual controller and write its gates as a VCD")
     q.add_argument("stimulus", help="the directory `hil signals export` wrote")
-    q.add_argument("--out", required=True, help="gate VCD to write")
-    q.add_argument("--strategy", default="raw", choices=list(STRATEGY_NAMES))
+    grammar.add_out(q, "the gate VCD to write", required=True)
+    grammar.add_strategy(q, "the virtual controller's commutation strategy (default: raw)", default="raw")
     q.add_argument("--speed-rpm", type=float, default=6000.0, help="the controller's speed set point")
     q.add_argument(
         "--capture-tick-s",

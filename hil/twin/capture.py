@@ -545,7 +545,7 @@ def _toml_value(v) -> str:
 def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     """The plant TOML of ``twin``, with what was measured and what was assumed as comments."""
     c = twin.config
-    lines = [f"# Plant twin of the Hall capture {source}, written by `hil plant from-capture`.",
+    lines = [f"# Plant twin of the Hall capture {source}, written by `hil twin from-capture`.",
              f"# Base (what the capture cannot tell): {base_name}.", "#", "# MEASURED from the capture:"]
     lines += [f"#   {what}: {how}" for what, how in twin.measured]
     lines += ["#", "# ASSUMED (from the base; a capture of Hall times alone cannot tell them):"]

@@ -133,7 +133,7 @@ def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_the
                                                                  else ""),
                     "effect": f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): "
                               f"measured, but no calibration table holds it, so the twin's plant leaves it out "
-                              f"(`hil plant from-capture {UNCALIBRATABLE[name]}` keeps it)",
+                              f"(`hil twin from-capture {UNCALIBRATABLE[name]}` keeps it)",
                     "explained_by_adding": closed, **({"added": name} if closed else {})})
     return out
 

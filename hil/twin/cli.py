@@ -1,10 +1,13 @@
-"""The twin's commands: ``hil plant from-capture`` and ``hil twin check`` (docs/twin.md)."""
+"""The twin's commands, under one noun: ``hil twin from-capture`` makes it, ``hil twin check`` checks it
+(docs/twin.md). ``hil plant from-capture`` is the old spelling of the first (one release)."""
 
 from __future__ import annotations
 
 import json
 import sys
 from pathlib import Path
+
+from .. import cli_grammar as grammar
 
 
 def cmd_plant_from_capture(args) -> int:
@@ -42,19 +45,20 @@ def cmd_twin_check(args) -> int:
     result = twin_check(args.recording, args.plant, seed=args.seed, take_on=take_on,
                         log=lambda m: print(m, file=sys.stderr))
     print(format_check(result))
-    Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-    Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.json}")
+    if args.json:
+        Path(args.json).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        print(f"wrote {args.json}")
     if args.html:
         write_html(result, args.html)
         print(f"wrote {args.html}")
     return 0
 
 
-def add_plant_parser(plant_sub) -> None:
-    q = plant_sub.add_parser("from-capture", help="a plant TOML whose Hall system reproduces a capture (docs/twin.md)")
-    q.add_argument("recording", help="hil-recording/1 directory, or a capture file (VCD, sigrok .sr, CSV)")
-    q.add_argument("-o", "--out", required=True, help="plant TOML to write")
+def _add_from_capture(twin_sub) -> None:
+    q = twin_sub.add_parser("from-capture", help="make a twin: a plant TOML whose Hall system reproduces a capture")
+    grammar.add_recording(q)
+    grammar.add_out(q, "the twin's plant TOML to write", required=True)
     q.add_argument("--base", help="preset or plant TOML for what a capture cannot tell (default: paper-bench)")
     q.add_argument("--pole-pairs", type=int, help="the motor's pole pairs, if known (else the capture's pole pattern)")
     q.add_argument("--top-speed-rpm", type=float,
@@ -76,13 +80,14 @@ def add_plant_parser(plant_sub) -> None:
 
 
 def add_parser(sub) -> None:
-    p = sub.add_parser("twin", help="a plant twin of a capture, checked against it (docs/twin.md)")
+    p = sub.add_parser("twin", help="a plant twin of a capture: made from it, checked against it (docs/twin.md)")
     ts = p.add_subparsers(dest="sub", metavar="ACTION", required=True)
+    _add_from_capture(ts)
     q = ts.add_parser("check", help="run the twin along the capture's trajectory and compare the analyses")
-    q.add_argument("recording", help="hil-recording/1 directory, or a capture file (VCD, sigrok .sr, CSV)")
-    q.add_argument("plant", help="the twin's plant TOML (hil plant from-capture)")
-    q.add_argument("--json", required=True, help="write the comparison here")
-    q.add_argument("--html", help="and as a page with the figures")
+    grammar.add_recording(q)
+    q.add_argument("plant", metavar="PLANT", help="the twin's plant TOML (hil twin from-capture)")
+    grammar.add_json(q, "the comparison")
+    q.add_argument("--html", metavar="PATH", help="write the comparison as a page with the figures here")
     q.add_argument("--seed", type=int, default=0, help="the twin's noise seed (default 0)")
     q.add_argument("--take-on", action="append",
                    choices=["sector_locked_speed_ripple", "sensor_pole_offset", "switching_asymmetry", "edge_jitter",

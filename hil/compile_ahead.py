@@ -1,0 +1,184 @@
+"""The numba code of an acceptance run compiled once, ahead, while pytest starts (issue 40, item 5).
+
+On a fresh numba cache every pytest-xdist worker of ``hil acceptance`` compiled the plant kernel,
+the controller's filters and the signal scorer itself, at the same time: about 17 s of CPU each
+(15 s of it the plant kernel), so the first run paid the compile once per worker. Now
+``hil acceptance`` compiles them once, in a process of its own (``python -m hil.compile_ahead``),
+while pytest starts, collects and spawns its workers; each worker waits for that compile before
+its first test (the plugin's ``pytest_runtestloop``, through the lock file named by
+``HIL_COMPILE_LOCK``) and then loads all of the code from numba's cache before the first test
+(no test meets a load while a link's reply is timed). One compile instead of one per
+worker, overlapped with the start. The process leaves a mark beside numba's cache (numba's and
+Python's versions, the stamp of every source with numba code); while the mark holds, the cache is
+warm and nothing is started (a warm run pays nothing: the check imports neither numba nor the
+plant).
+
+What was measured before deciding (docs/acceptance.md, "The first run"): compiling the plant
+kernel without numba's IR inlining halves its compile but slows the plant by a fifth to a
+third; the signatures compiled twice are literal specialisations (a branch pruned per call site);
+a cache shipped with the package is invalid on a fresh clone (numba keys it to the source files'
+modification times and the CPU). The plant's numerics are untouched: the same code is compiled.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import tempfile
+from pathlib import Path
+
+#: the environment variable naming the lock file the workers wait on
+LOCK_ENV = "HIL_COMPILE_LOCK"
+#: the packages whose modules hold numba code (their sources stamp the cache, as numba's own index
+#: stamps each cached function with its file's modification time and size)
+NUMBA_PACKAGES = ("plant_models", "hil.predictors", "hil.signals", "hil.controller", "bldc")
+
+
+def _stamp() -> tuple[Path, dict] | None:
+    """(where the "compiled" mark goes, what it must say): the numba cache directory (NUMBA_CACHE_DIR,
+    else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
+    ``NUMBA_PACKAGES``. Found without importing them (no numba, no plant: a warm run pays nothing)."""
+    import importlib.metadata
+    import importlib.util
+
+    sources = {}
+    for package in NUMBA_PACKAGES:
+        spec = importlib.util.find_spec(package)
+        if spec is None or not spec.submodule_search_locations:
+            return None
+        for folder in spec.submodule_search_locations:
+            for path in sorted(Path(folder).glob("*.py")):
+                st = path.stat()
+                sources[str(path)] = [st.st_mtime_ns, st.st_size]
+    plant = Path(importlib.util.find_spec("plant_models").submodule_search_locations[0])
+    cache = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else plant / "__pycache__"
+    what = {"numba": importlib.metadata.version("numba"), "python": sys.version, "sources": sources}
+    return cache / "hil-compiled.json", what
+
+
+def compiled_already() -> bool:
+    """Whether ``compile_numba_code`` ran to its end against these very sources and this cache (the
+    mark it leaves); a cache emptied since only means the workers compile, as they did before."""
+    import json
+
+    try:
+        mark, what = _stamp()
+        return json.loads(mark.read_text()) == what
+    except (OSError, ValueError, TypeError):
+        return False
+
+
+def _mark_compiled() -> None:
+    import json
+
+    try:
+        mark, what = _stamp()
+        mark.parent.mkdir(parents=True, exist_ok=True)
+        mark.write_text(json.dumps(what))
+    except (OSError, TypeError):
+        pass
+
+
+def compile_numba_code() -> None:
+    """Call each numba function an acceptance run calls, once, on a tiny case: the plant kernel
+    and the controller's filters (Sage-Husa on the lockstep bench), the signal export, loopback
+    and scorer. Loads from numba's cache when it is warm; compiles and writes it when it is cold."""
+    from bldc.contract import Strategy
+    from plant_models import paper_bench
+
+    from .bench import LockstepBench
+    from .controller.virtual import VirtualController
+    from .dut.in_process import InProcessLink
+    from .signals.fixtures import SignalBench
+
+    config = paper_bench(True)
+    link = InProcessLink(VirtualController(config.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=5000.0))
+    LockstepBench(config, link).sim.run_until(0.05)
+    with tempfile.TemporaryDirectory(prefix="hil-compile-") as work:
+        SignalBench(config, 0, Path(work), None, None, None).run(speed_rpm=6000.0, duration_s=0.02)
+
+
+class CompileAhead:
+    """``compile_numba_code`` in a process of its own (``python -m hil.compile_ahead``), which holds
+    an exclusive lock on a file until it is done; ``env()`` names the file for the processes that
+    must wait (``wait_for_compile_ahead``). A process, not a thread: nothing is imported into the
+    caller (``hil acceptance`` may run inside a test)."""
+
+    def __init__(self, env: dict[str, str] | None = None):
+        self._env = env
+        self._path: str | None = None
+        self._proc = None
+
+    def start(self) -> CompileAhead:
+        import subprocess
+
+        try:
+            import fcntl
+        except ImportError:  # no flock (Windows): the workers compile as they did
+            return self
+        if compiled_already():  # a warm cache: nothing to compile, nobody waits
+            return self
+        fd, path = tempfile.mkstemp(prefix="hil-compile-", suffix=".lock")
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX)  # taken before any worker exists: none can pass it early
+            # the child inherits the locked file: the lock goes when the child exits
+            self._proc = subprocess.Popen([sys.executable, "-m", "hil.compile_ahead"], pass_fds=(fd,),
+                                          env=self._env, stdout=subprocess.DEVNULL)
+            self._path = path
+        except OSError:
+            Path(path).unlink(missing_ok=True)
+        finally:
+            os.close(fd)
+        return self
+
+    def env(self) -> dict[str, str]:
+        return {LOCK_ENV: self._path} if self._path else {}
+
+    def close(self) -> None:
+        """pytest has ended: remove the lock file; a compile still running (pytest stopped early)
+        is stopped, nothing waits for it."""
+        if self._proc is not None:
+            if self._proc.poll() is None:
+                self._proc.terminate()
+            self._proc.wait()  # reaped: its CPU time counts among this process's children
+        if self._path:
+            Path(self._path).unlink(missing_ok=True)
+
+
+def wait_for_compile_ahead() -> None:
+    """Block until the compile ahead (if this process was started under one) is done."""
+    path = os.environ.get(LOCK_ENV)
+    if not path:
+        return
+    try:
+        import fcntl
+
+        with open(path) as f:
+            fcntl.flock(f, fcntl.LOCK_SH)
+            fcntl.flock(f, fcntl.LOCK_UN)
+    except (ImportError, OSError):  # no lock to wait on: compile here, as before
+        return
+
+
+def load_compiled() -> None:
+    """In a worker, after the compile ahead: the same calls, now loading every function from the
+    cache (a second or two), before any test runs. A failure here is left to the tests to meet."""
+    try:
+        compile_numba_code()
+    except Exception:
+        pass
+
+
+def main() -> int:
+    """The process CompileAhead starts: compile; its inherited lock goes when it exits."""
+    try:
+        compile_numba_code()
+        _mark_compiled()
+    except Exception as exc:  # the workers compile for themselves, as before
+        print(f"hil: compiling ahead failed ({type(exc).__name__}: {exc}); the workers compile for themselves",
+              file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
