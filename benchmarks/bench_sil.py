@@ -49,7 +49,7 @@ def main() -> int:
     for name, dut in PEERS.items():
         reports = tempfile.mkdtemp(prefix="bench-sil-")
         load = os.getloadavg()[0]
-        wall, cpu, code = timed([sys.executable, "-m", "hil", "acceptance", "--dut", dut, "--report-dir", reports],
+        wall, cpu, code = timed([sys.executable, "-m", "hil", "acceptance", "--dut", dut, "--out", reports],
                                 env)
         verdict = json.loads((Path(reports) / "hil-report.json").read_text()).get("verdict", "?") if (
             Path(reports) / "hil-report.json").is_file() else "no report"

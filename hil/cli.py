@@ -989,7 +989,7 @@ def _parser_dut(sub) -> None:
     q = ds.add_parser(
         "check", help="read every object of a DUT's profile once (writes nothing); which requirements it makes testable"
     )
-    q.add_argument("--dut", required=True, help="controller spec with profile=FILE (hil/dut/spec.py)")
+    q.add_argument("--dut", required=True, help="controller spec with profile=FILE, or sil:FIRMWARE (hil/dut/spec.py)")
     grammar.add_preset(q, "the motor (its pole pairs)")
     q.set_defaults(func=cmd_dut_check)
     q = ds.add_parser("profile", help="draft a device profile from an EDS, every guess marked")
@@ -1005,7 +1005,9 @@ def _parser_acceptance(sub) -> None:
         help="run the acceptance suite against the virtual controller (CANopen and Modbus) and write the reports",
     )
     p.add_argument(
-        "--dut", action="append", help="controller spec (repeatable; default: virtual:canopen and virtual:modbus)"
+        "--dut", action="append",
+        help="controller spec (repeatable; default: virtual:canopen and virtual:modbus); sil:FIRMWARE for C firmware "
+             "in the loop (docs/firmware-in-the-loop.md)"
     )
     p.add_argument("--plant", metavar="TOML", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
@@ -1033,7 +1035,9 @@ def _parser_qualify(sub) -> None:
         "qualify",
         help="qualify the acceptance suite: run it against each seeded firmware defect of the built-in controller",
     )
-    p.add_argument("--dut", default="virtual:modbus", help="the built-in controller's form (default: virtual:modbus)")
+    p.add_argument("--dut", default="virtual:modbus",
+                   help="the built-in controller's form (default: virtual:modbus), or sil:DIR: a firmware folder and "
+                        "the seeded defects of its defects.toml")
     p.add_argument("--defects", help="a Python file of further @defect classes (hil.qualify.defects)")
     p.add_argument("--only", help="comma-separated defect names (default: the whole catalogue)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")

@@ -26,7 +26,7 @@ DUTS = {"python": "virtual:in-process", "c": "sil:firmware/reference"}
 
 def run(dut: str, seed: int) -> dict:
     reports = Path(tempfile.mkdtemp(prefix="sil-compare-"))
-    subprocess.run([sys.executable, "-m", "hil", "acceptance", "--dut", dut, "--seed", str(seed), "--report-dir",
+    subprocess.run([sys.executable, "-m", "hil", "acceptance", "--dut", dut, "--seed", str(seed), "--out",
                     str(reports)], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return json.loads((reports / "hil-report.json").read_text())
 
