@@ -142,6 +142,82 @@ def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_dut, hil_link, calib
     )
 
 
+def _sil_probe(link, kind):
+    """A request to a firmware's object dictionary that CiA 301 says must be refused with ``kind``'s
+    abort code, as (what, the firmware's answer). A firmware has no EDS: an index or sub-index
+    that answers with data exists, and the next one is tried."""
+    profile = link.profile
+    if kind == "no object":
+        mapped = {o.index for o in profile.objects.values()}
+        for index in (i for i in range(0x5FFF, 0x5F00, -1) if i not in mapped):
+            answer = link.od_read(index, 0, 8)
+            if isinstance(answer, int):
+                return f"read 0x{index:04X}", answer
+        pytest.fail("0x5F01-0x5FFF all answered with data: no index the firmware lacks to probe")
+    if kind == "no sub-index":
+        obj = max((o for o in profile.objects.values() if o.subindex), key=lambda o: o.subindex + o.count)
+        for sub in range(obj.subindex + obj.count, 0xFF):
+            answer = link.od_read(obj.index, sub, 8)
+            if isinstance(answer, int):
+                return f"read 0x{obj.index:04X}:{sub:02X}", answer
+        pytest.fail(f"every sub-index of 0x{obj.index:04X} answered with data")
+    if kind == "read-only":
+        obj = next(o for o in profile.objects.values() if o.role in ROLES and ROLES[o.role].access == "r")
+        return f"write {obj.label()} ({obj.role})", link.od_write(obj.index, obj.subindex, obj.pack_le(0))
+    if kind == "value range":
+        obj = profile.get("strategy")
+        value = max(obj.values.values()) + 1
+        return f"write {obj.label()} (strategy) = {value}", link.od_write(obj.index, obj.subindex,
+                                                                            obj.pack_le(value))
+    if kind == "length":  # one byte more than a writable object holds
+        obj = next(o for o in profile.objects.values() if o.role in ROLES and "w" in ROLES[o.role].access
+                   and not o.is_action)
+        return (f"write {obj.label()} ({obj.role}) with {obj.size + 1} bytes",
+                link.od_write(obj.index, obj.subindex, obj.pack_le(0) + b"\0"))
+    if kind == "write-only":  # an action the profile maps (apply, reset, clear faults) is only written
+        obj = next((o for o in profile.objects.values() if o.is_action and o.index >= 0x2000), None)
+        if obj is None:
+            pytest.skip("the profile maps no action in the dictionary to read")
+        return f"read {obj.label()} ({obj.role})", link.od_read(obj.index, obj.subindex, 8)
+    raise ValueError(kind)
+
+
+@pytest.mark.requirement("REQ-PROT-003")
+@pytest.mark.parametrize("kind", list(ABORT), ids=[k.replace(" ", "-") for k in ABORT])
+def test_object_dictionary_abort_codes_of_a_firmware(kind, hil_dut, hil_link, hil_evidence):
+    """The same CiA 301 answers from a firmware in the loop's own dictionary (``hil_sil_od_read``/
+    ``_write``), which a CAN bench would later see through its SDO server."""
+    _need(hil_dut, "sil")
+    what, answer = _sil_probe(hil_link, kind)
+    assert isinstance(answer, int) and answer < 0, f"{what}: answered {answer!r}, CiA 301 requires an abort"
+    code = (-answer) & 0xFFFFFFFF
+    hil_evidence.value(f"abort code for '{what}'", f"0x{code:08X}")
+    assert code == ABORT[kind], f"{what}: SDO abort 0x{code:08X}, CiA 301 requires 0x{ABORT[kind]:08X} ({kind})"
+
+
+@pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-005")
+def test_refused_calibration_sends_emcy_and_sets_0x1001_on_a_firmware(hil_dut, hil_link, calibrate, hil_evidence):
+    """A firmware in the loop: the refused table's EMCY (``hil_sil_emcy``), the error register and
+    the newest latched fault, as on the bus (its heartbeat is a bus service: judged on a CAN bench)."""
+    _need(hil_dut, "sil")
+    bad = calibrate(())
+    bad = bad.__class__.from_json_dict({**bad.to_json_dict(), "conditioning_delay_s": {"rise": 1e-3, "fall": 0.0}})
+    before = len(hil_link.emcy_codes())
+    with pytest.raises(LinkError, match="0x06090030"):
+        hil_link.download_calibration(bad)
+    codes = hil_link.emcy_codes()
+    assert len(codes) > before, "the refused table sent no EMCY (hil_sil_emcy popped none)"
+    code = codes[-1]
+    error_register = int(hil_link.read_role("error_register")[0])
+    hil_evidence.value("EMCY error code", f"0x{code:04X}")
+    hil_evidence.value("error register", f"0x{error_register:02X}")
+    assert error_register & 0x01, "the error register's generic bit must be set with the EMCY"
+    faults = hil_link.faults()
+    assert faults and faults[0] == hil_link.profile.framework_fault(code), (
+        f"the newest latched fault must be the EMCY's code 0x{code:04X} (latched: {faults})"
+    )
+
+
 def _modbus_ask(link, pdu: bytes) -> bytes:
     with socket.create_connection((link.host, link.port), timeout=link.timeout_s) as s:
         s.sendall(struct.pack(">HHHB", 0x1234, 0, len(pdu) + 1, link.unit) + pdu)

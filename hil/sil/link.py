@@ -202,6 +202,15 @@ class SilLink(RoleLink):
         self._emcy: list[tuple[float, int]] = []  #: EMCY codes since the last power cycle
 
     # --- the object dictionary ----------------------------------------------------------------
+    def od_read(self, index: int, sub: int, size: int) -> bytes | int:
+        """One object's bytes, or the firmware's (negative) SDO abort code: the raw answer, for
+        conformance tests of the dictionary itself."""
+        return self.process.call("od_read", index, sub, size)
+
+    def od_write(self, index: int, sub: int, data: bytes) -> int:
+        """0, or the firmware's (negative) SDO abort code."""
+        return self.process.call("od_write", index, sub, bytes(data))
+
     def _abort(self, what: str, code: int) -> LinkError:
         return LinkError(f"{self.where}: {what} refused with SDO abort 0x{(-code) & 0xFFFFFFFF:08X}")
 
