@@ -49,7 +49,11 @@ def test_report_escapes_markup_and_traces_requirements(pytester):
     assert req["REQ-X-001"]["verdict"] == "pass" and len(req["REQ-X-001"]["tests"]) == 2
     assert req["REQ-COMM-001"]["verdict"] == "fail"
     failing = next(t for t in content["tests"] if t["nodeid"].endswith("test_fails"))
-    assert "measured 0.7 deg_e exceeds the limit of at most 0.5 deg_e" in failing["message"]
+    from hil.requirements import REQUIREMENTS
+
+    # the default limit, derived from its source (hil/budget_sources.py)
+    limit = next(b.limit for r in REQUIREMENTS.values() for b in r.budgets if b.name == "commutation_angle_p99")
+    assert f"measured 0.7 deg_e exceeds the limit of at most {limit:g} deg_e" in failing["message"]
     xml = (pytester.path / "rep" / "hil-report-junit.xml").read_text()
     assert 'name="requirement" value="REQ-X-001"' in xml and 'name="measurement:commutation_angle_p99"' in xml
 
