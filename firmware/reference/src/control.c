@@ -489,6 +489,7 @@ static cal_table_t table;
 #if defined(HIL_DEFECT_TORN_TABLE)
 static cal_table_t table_next; /* apply copies this into ``table`` one value per control interrupt */
 static int torn_copy_at = CAL_N_VALUES;
+static unsigned torn_tick;
 #endif
 
 /* ---- speed loop ----------------------------------------------------------------------------- */
@@ -909,7 +910,10 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
     cycle_sum[2] += adc[2];
     cycle_n++;
 #if defined(HIL_DEFECT_TORN_TABLE)
-    if (torn_copy_at < CAL_N_VALUES) { /* one value per interrupt: the Hall ISR reads it half-copied */
+    /* the 1 kHz background task (every CONTROL_HZ / 1000th control interrupt) copies one value per
+       tick: the Hall ISR reads a half-copied table for CAL_N_VALUES ms */
+    if (torn_copy_at < CAL_N_VALUES && ++torn_tick >= CONTROL_HZ / 1000) {
+        torn_tick = 0u;
         cal_set(&table, torn_copy_at, cal_get(&table_next, torn_copy_at));
         torn_copy_at++;
     }
@@ -952,6 +956,7 @@ void ctl_restart_logic(void)
 #if defined(HIL_DEFECT_TORN_TABLE)
     cal_effective(&nvm.applied, &table_next);
     torn_copy_at = 0;
+    torn_tick = 0u;
 #else
     cal_effective(&nvm.applied, &table);
 #endif
