@@ -297,6 +297,7 @@ static float segment_current(int64_t lo, int64_t hi, int64_t t)
     return mean_abs(before, after, t);
 }
 
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
 /* the phase currents (A) at t from the segment [lo, hi): a line through its last two conversions at
    or before t (held with one); 0 when it has none */
 static int segment_phases(int64_t lo, int64_t hi, int64_t t, float i[3])
@@ -364,6 +365,8 @@ static int transient_mean_abs(int sw, const float i0[3], float dt, float *mean, 
     *ext = t1;
     return 1;
 }
+
+#endif
 
 /* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
 static float adc_current_at(int64_t t)
