@@ -27,6 +27,7 @@ SUITE_ORDER = (
     "test_protocol.py",
     "test_faults.py",
     "test_calibration_recovery.py",
+    "test_live_calibration.py",
     "test_signal_injection.py",
     "test_sage_husa_learning.py",
     "test_sage_husa.py",

@@ -29,7 +29,8 @@
    HIL_DEFECT_TIMER_WRAP      intervals from a signed difference of raw counts: wrong across a counter wrap
    HIL_DEFECT_FLOAT_SECONDS   time kept as float32 seconds since the timer started: resolution lost as it runs
    HIL_DEFECT_LATE_COMPARE    a commutation already due is armed on the compare (fires a wrap late), not made now
-   HIL_DEFECT_TORN_TABLE      apply copies the table the ISRs read one value per control interrupt (torn reads)
+   HIL_DEFECT_TORN_TABLE      apply hands the table to the 1 kHz background task, which copies one value per tick into
+                              the table the ISRs read (torn reads for 10 ms)
 */
 #ifndef DEFECTS_H
 #define DEFECTS_H

@@ -39,6 +39,7 @@
 #define N_POLES (2 * POLE_PAIRS)
 #define EDGES_PER_TURN (6 * POLE_PAIRS)
 #define MOTOR_R_OHM 0.0655f
+#define MOTOR_L_H 60e-6f                         /* phase inductance */
 #define MOTOR_KE_V_S 0.0216f                     /* flat-top phase BEMF per mechanical rad/s */
 #define MOTOR_J_KG_M2 0.0039f
 #define MOTOR_FRICTION 1e-5f                     /* N m s/rad */

@@ -5,6 +5,7 @@
    intervals are differences of those (modular in the counter's width). */
 #include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 #include <string.h>
 
 #include "board.h"
@@ -118,6 +119,9 @@ static uint8_t out_gates;
 static uint8_t pins_levels; /* the Hall pins as last read */
 #define SWITCHES 4
 static int64_t switch_t[SWITCHES]; /* the last commutations (gates changed), a ring */
+static uint8_t switch_from[SWITCHES], switch_to[SWITCHES]; /* the gates before and after each */
+static float switch_duty[SWITCHES]; /* the duty in force at each */
+static float out_duty;
 static int switch_head, n_switch;
 #if defined(HIL_DEFECT_LATE_COMPARE)
 static command_t late;       /* the due command armed on the compare instead of made */
@@ -133,6 +137,9 @@ static void apply(const command_t *c)
         uint8_t g = gates_of_sector(c->sector);
         if (g != out_gates) { /* a commutation: its instant, for the ADC's segments */
             switch_t[switch_head] = c->at;
+            switch_from[switch_head] = out_gates;
+            switch_to[switch_head] = g;
+            switch_duty[switch_head] = c->duty >= 0.0f ? (c->duty > 1.0f ? 1.0f : c->duty) : out_duty;
             switch_head = (switch_head + 1) % SWITCHES;
             if (n_switch < SWITCHES) n_switch++;
         }
@@ -141,6 +148,7 @@ static void apply(const command_t *c)
     }
     if (c->duty >= 0.0f) {
         float d = c->duty > 1.0f ? 1.0f : c->duty;
+        out_duty = d;
         board_set_duty((uint16_t)(d * 65535.0f + 0.5f));
     }
 }
@@ -289,6 +297,77 @@ static float segment_current(int64_t lo, int64_t hi, int64_t t)
     return mean_abs(before, after, t);
 }
 
+#if !defined(HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE)
+/* the phase currents (A) at t from the segment [lo, hi): a line through its last two conversions at
+   or before t (held with one); 0 when it has none */
+static int segment_phases(int64_t lo, int64_t hi, int64_t t, float i[3])
+{
+    const conversion_t *a = 0, *b = 0;
+    int j, k;
+    for (j = 0; j < adc_n; j++) {
+        const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+        if (c->t < lo || c->t >= hi || c->t > t) continue;
+        a = b;
+        b = c;
+    }
+    if (!b) return 0;
+    for (k = 0; k < 3; k++) {
+        float v = (float)b->i[k];
+        if (a && b->t > a->t) v += ((float)b->i[k] - (float)a->i[k]) * (float)(t - b->t) / (float)(b->t - a->t);
+        i[k] = v * AMPS_PER_COUNT;
+    }
+    return 1;
+}
+
+/* The commutation transient of the six-step bridge (H_PWM-L_ON, averaged over the PWM period),
+   from what the firmware knows: the gates before and after the commutation, the duty, the back-EMF
+   at its speed estimate (flat tops: the conducting phases at +-E, the outgoing one still at its
+   own), the motor's R and L and the phase currents at the commutation. The outgoing phase
+   freewheels through its diode (to 0 V when its current is positive, to the supply when negative)
+   until its current dies; meanwhile all three phases conduct, then the incoming pair alone. Each
+   phase moves at (u - u_n - e - R i) / L, a line over the microseconds this covers (L/R ~ 1 ms).
+   The mean |i| at dt seconds after the commutation; *ext the time the outgoing current dies.
+   0 when the gates are not a six-step commutation. */
+static int transient_mean_abs(int sw, const float i0[3], float dt, float *mean, float *ext)
+{
+    uint8_t from = switch_from[sw], to = switch_to[sw];
+    int x, hi = -1, lo = -1, out = -1;
+    float d = switch_duty[sw], w_m = ctl_speed_rpm() * (2.0f * FW_PI_F / 60.0f), E, u[3], e[3], k[3], i[3];
+    float un, t1 = 0.0f, s = 0.0f;
+    for (x = 0; x < 3; x++) {
+        uint8_t before = (uint8_t)((from >> (2 * x)) & 3u), after = (uint8_t)((to >> (2 * x)) & 3u);
+        if (after == 1u) hi = x;
+        else if (after == 2u) lo = x;
+        else if (before != 0u) out = x;
+    }
+    if (hi < 0 || lo < 0 || out < 0 || w_m <= 0.0f) return 0;
+    E = MOTOR_KE_V_S * w_m;
+    u[hi] = d * MOTOR_SUPPLY_V;
+    e[hi] = E;
+    u[lo] = 0.0f;
+    e[lo] = -E;
+    u[out] = i0[out] > 0.0f ? 0.0f : MOTOR_SUPPLY_V;
+    e[out] = ((from >> (2 * out)) & 1u) ? E : -E;
+    un = (u[0] + u[1] + u[2] - e[0] - e[1] - e[2]) / 3.0f;
+    for (x = 0; x < 3; x++) k[x] = (u[x] - un - e[x] - MOTOR_R_OHM * i0[x]) / MOTOR_L_H;
+    if (i0[out] * k[out] < 0.0f) t1 = -i0[out] / k[out];
+    if (dt <= t1) {
+        for (x = 0; x < 3; x++) i[x] = i0[x] + k[x] * dt;
+    } else { /* the incoming pair alone from t1 */
+        float ip = 0.5f * ((i0[hi] + k[hi] * t1) - (i0[lo] + k[lo] * t1));
+        ip += (d * MOTOR_SUPPLY_V - 2.0f * E - 2.0f * MOTOR_R_OHM * ip) / (2.0f * MOTOR_L_H) * (dt - t1);
+        i[hi] = ip;
+        i[lo] = -ip;
+        i[out] = 0.0f;
+    }
+    for (x = 0; x < 3; x++) s += fabsf(i[x]);
+    *mean = s / 3.0f;
+    *ext = t1;
+    return 1;
+}
+
+#endif
+
 /* adc.current_at_a: mean |i| over the phases at t; -1 without conversions */
 static float adc_current_at(int64_t t)
 {
@@ -297,15 +376,41 @@ static float adc_current_at(int64_t t)
   {
     int64_t lo = INT64_MIN, prev = INT64_MIN, hi = INT64_MAX;
     float i;
-    int j;
+    int j, lo_at = -1;
     for (j = 0; j < n_switch; j++) { /* the commutations around t: prev < lo <= t < hi */
-        int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
-        if (sw <= t && sw > lo) lo = sw;
+        int at = (switch_head + SWITCHES - 1 - j) % SWITCHES;
+        int64_t sw = switch_t[at];
+        if (sw <= t && sw > lo) {
+            lo = sw;
+            lo_at = at;
+        }
         if (sw > t && sw < hi) hi = sw;
     }
     for (j = 0; j < n_switch; j++) {
         int64_t sw = switch_t[(switch_head + SWITCHES - 1 - j) % SWITCHES];
         if (sw < lo && sw > prev) prev = sw;
+    }
+    if (lo_at >= 0) { /* within a commutation's transient: its model, anchored on the conversions in it */
+        float i0[3], m, ext, mc, ec;
+        if (segment_phases(prev == INT64_MIN ? INT64_MIN : prev + ADC_RAMP_TICKS, lo, lo, i0) &&
+            transient_mean_abs(lo_at, i0, seconds(t - lo), &m, &ext)) {
+            int64_t end = lo + (int64_t)(ext * (float)TIMER_HZ) + ADC_RAMP_TICKS / 9;
+            const conversion_t *near = 0;
+            if (end < lo + ADC_RAMP_TICKS) end = lo + ADC_RAMP_TICKS;
+            if (end > hi) end = hi;
+            if (t < end) {
+                for (j = 0; j < adc_n; j++) { /* the conversion within the transient nearest t (the capture's) */
+                    const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+                    if (c->t <= lo || c->t >= end) continue;
+                    if (!near || llabs(c->t - t) < llabs(near->t - t)) near = c;
+                }
+                if (near && transient_mean_abs(lo_at, i0, seconds(near->t - lo), &mc, &ec)) {
+                    float w = near->t <= t ? 1.0f : (float)(t - lo) / (float)(near->t - lo);
+                    m += (mean_abs(near, near, near->t) - mc) * w;
+                }
+                return m > 0.0f ? m : 0.0f;
+            }
+        }
     }
     if (lo != INT64_MIN && t < lo + ADC_RAMP_TICKS) { /* within the ramp of the commutation at lo */
         float pre = segment_current(prev == INT64_MIN ? INT64_MIN : prev + ADC_RAMP_TICKS, lo, lo);
@@ -387,6 +492,7 @@ static cal_table_t table;
 #if defined(HIL_DEFECT_TORN_TABLE)
 static cal_table_t table_next; /* apply copies this into ``table`` one value per control interrupt */
 static int torn_copy_at = CAL_N_VALUES;
+static unsigned torn_tick;
 #endif
 
 /* ---- speed loop ----------------------------------------------------------------------------- */
@@ -807,7 +913,10 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
     cycle_sum[2] += adc[2];
     cycle_n++;
 #if defined(HIL_DEFECT_TORN_TABLE)
-    if (torn_copy_at < CAL_N_VALUES) { /* one value per interrupt: the Hall ISR reads it half-copied */
+    /* the 1 kHz background task (every CONTROL_HZ / 1000th control interrupt) copies one value per
+       tick: the Hall ISR reads a half-copied table for CAL_N_VALUES ms */
+    if (torn_copy_at < CAL_N_VALUES && ++torn_tick >= CONTROL_HZ / 1000) {
+        torn_tick = 0u;
         cal_set(&table, torn_copy_at, cal_get(&table_next, torn_copy_at));
         torn_copy_at++;
     }
@@ -850,6 +959,7 @@ void ctl_restart_logic(void)
 #if defined(HIL_DEFECT_TORN_TABLE)
     cal_effective(&nvm.applied, &table_next);
     torn_copy_at = 0;
+    torn_tick = 0u;
 #else
     cal_effective(&nvm.applied, &table);
 #endif
