@@ -11,6 +11,7 @@ import pytest
 from bldc.contract import Fault, Strategy
 from hil.dut.link import LinkError
 from hil.faults import HallSpike, LostEdge, SensorDropout
+from hil.judging import not_judged
 from hil.predictors import FilterSettings
 from hil.stimulus import Stimulus, run
 from plant_models.plant import paper_bench
@@ -50,8 +51,21 @@ def test_wiring_fault_gives_the_promised_fault(
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     hil_evidence.value("promised fault codes", ", ".join(f"0x{c:04X}" for c in fault.promised))
-    assert outcome.ok, outcome.message
-    hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
+    # two judgements, each its own requirement's: the fault codes (this fault's pass/fail
+    # requirement) and the recovery (REQ-ROB-002's budget); both recorded before either fails
+    budget_missed = None
+    try:
+        hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
+    except AssertionError as exc:
+        budget_missed = exc
+    codes_wrong = [p for p in outcome.message.split("; ") if "recovered_commutation_angle_p99" not in p] \
+        if not outcome.ok else []
+    if codes_wrong and budget_missed is not None:
+        raise ExceptionGroup("the fault codes and the recovery",
+                             [AssertionError("; ".join(codes_wrong)), budget_missed])
+    if budget_missed is not None:
+        raise budget_missed
+    assert not codes_wrong, "; ".join(codes_wrong)
 
 
 @pytest.mark.requirement("REQ-FLT-005")
@@ -63,7 +77,8 @@ def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hi
     )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("healthy run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
-    assert outcome.ok and not outcome.values["codes"], outcome.message
+    # REQ-FLT-005 judges the fault codes alone (the commutation is other requirements')
+    assert not outcome.values["codes"], f"fault code(s) {outcome.values['codes']} raised on a healthy run"
 
 
 @pytest.mark.requirement("REQ-FLT-004")
@@ -85,7 +100,8 @@ def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_
     codes = [code for _, code in st["faults"]]
     hil_evidence.value("guard trips read back", st["guard_trips"])
     hil_evidence.value("fault codes", ", ".join(f"0x{c:04X}" for c in codes) or "none")
-    assert st["guard_trips"] > 0, "the guards never fired with Q0 100x too large: the scenario did not provoke them"
+    not_judged(st["guard_trips"] > 0,
+               "the guards never fired with Q0 100x too large: the scenario did not provoke them")
     assert Fault.FILTER_GUARD_TRIP in codes, (
         f"{st['guard_trips']} guard trips but no fault 0x{Fault.FILTER_GUARD_TRIP:04X} (faults: {codes})"
     )

@@ -121,7 +121,8 @@ def test_the_defaults_are_the_registrys_budgets_each_under_its_requirement():
 
 
 #: what a default budget's source may be (docs/budgets.md, "Sources"): never the value it judges
-BUDGET_SOURCES = ("spec S", "paper ", "statistics ", "standard ", "customer requirement ")
+BUDGET_SOURCES = ("spec S", "paper ", "statistics ", "standard ", "customer requirement ",
+                  "example for your specification")
 
 
 def test_every_default_budget_names_its_source():
