@@ -266,6 +266,15 @@ _REGISTRY = (
             ),
         ),
         DefaultBudget(
+            'learned_edge_noise_ratio_high', 'ratio', 4.0,
+            marginal=2.0,
+            description=(
+                'edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects, from '
+                'the upper side (a runaway estimate grows past it)'
+            ),
+            limit_source='statistics (as learned_edge_noise_ratio: within a factor 4 of the truth, 1 / 0.25 = 4)',
+        ),
+        DefaultBudget(
             'edge_noise_estimate_low', 'ratio', 0.5,
             marginal=0.6,
             kind='min',
@@ -316,6 +325,20 @@ _REGISTRY = (
                 'is steady'
             ),
             limit_source='statistics (the scatter of ln of a variance from 30 Gaussian samples, sqrt(2/30))',
+        ),
+        DefaultBudget(
+            'edge_noise_estimate_log_scatter_low', 'ln ratio', 0.028,
+            marginal=0.035,
+            kind='min',
+            description=(
+                "standard deviation of ln R_theta about each steady phase's mean, from below: an estimate of a "
+                'random noise that does not move is not estimating it (a frozen R scatters by 0)'
+            ),
+            limit_source=(
+                'statistics (a variance estimated from at most the 640 edges of a steady 0.4 s phase at 8000 rpm, 2 '
+                'pole pairs (8000 / 60 x 12 x 0.4), scatters by sqrt(2/640) = 0.056 in ln; half of it; a longer '
+                'memory could not track a step within REQ-PRED-004)'
+            ),
         ),),
         judges=('noise-learning',),
     ),

@@ -181,6 +181,7 @@ def test_sage_husa_learns_the_edge_noise_it_was_not_told(calibrate, hil_bench, h
     err = bench.angle_errors_deg_e(plant.suite_settle_s(0.4, speed_rpm))
     hil_evidence.value("commutation RMS with the wrong start", rms(err), "deg_e")
     hil_budget("learned_edge_noise_ratio", learned / injected_rad2)
+    hil_budget("learned_edge_noise_ratio_high", learned / injected_rad2)  # a runaway estimate
     hil_budget("sage_husa_commutation_angle_rms", rms(err))
 
 

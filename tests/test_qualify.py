@@ -280,8 +280,9 @@ def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path)
 LEARNING_DEFECTS = {
     None: set(),
     "sage-husa-noise-without-memory": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
-    "sage-husa-r-frozen": {"REQ-PRED-003", "REQ-PRED-004"},
-    "sage-husa-r-update-wrong-sign": {"REQ-PRED-003", "REQ-PRED-004"},
+    "sage-husa-r-frozen": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},  # 005: a frozen R does not scatter
+    "sage-husa-r-runaway": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
+    "sage-husa-r-update-wrong-sign": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},  # held at its floor: no scatter
     "sage-husa-r-update-wrong-scale": {"REQ-PRED-003", "REQ-PRED-004", "REQ-PRED-005"},
 }
 

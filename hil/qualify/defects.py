@@ -343,3 +343,13 @@ class EdgeNoiseWrongSign(_WrongEdgeNoiseUpdate):
 class EdgeNoiseWrongScale(_WrongEdgeNoiseUpdate):
     def wrong(self, before, after):
         return 0.25 * after
+
+
+@defect("sage-husa-r-runaway", "Sage-Husa's edge-noise variance R updated without the (1 - d) factor on the old "
+        "estimate (R = R + d term, not (1 - d) R + d term): it accumulates every interval's noise and runs away",
+        "noise-learning")
+class EdgeNoiseRunaway(_WrongEdgeNoiseUpdate):
+    def wrong(self, before, after):
+        # after = (1 - d) before + d term, d = 1 - b_R once the interval count has grown: the old
+        # estimate kept whole is after + d before
+        return after + (1.0 - self.filter_settings.r_forgetting_b) * before
