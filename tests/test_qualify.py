@@ -333,3 +333,20 @@ def test_the_lost_edge_defect_reads_its_reference_from_the_last_sector():
     c = CATALOGUE["lost-edge-against-last-sector"].controller(MOTOR)
     c._intervals.extend([(1e-3, True), (2e-3, True)])
     assert c._reference_interval_s() == (2e-3, c.missing_edge_interval_ratio)
+
+
+@pytest.mark.parametrize("name", [None, "predictor-current-phase-sum"], ids=["control", "phase-sum"])
+def test_a_wrong_current_input_of_the_predictor_fails_req_pred_006_alone(name, tmp_path):
+    """The predictor's Eq. 8 current input three times too large (the phases' mean |i| summed, not
+    averaged) stays inside REQ-PRED-001's budgets (its RMS 0.47 deg e against 1), and the fixed-noise
+    KF shares it (REQ-PRED-002's ratio); through the speed steps it does no better than the
+    constant-speed rule, which REQ-PRED-006 fails. The shipped controller passes both."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+           "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa.py"),
+           "-k", "meets_its or constant_speed"]
+    if name is not None:
+        cmd += ["--hil-defect", name]
+    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "hil-report.json").read_text())
+    failed = {m["requirement"] for t in report["tests"] for m in t["measurements"] if m["verdict"] == "fail"}
+    assert failed == ({"REQ-PRED-006"} if name else set()), report["verdict_reasons"]

@@ -166,6 +166,17 @@ class PredictorMilliamps(VirtualController):
             self._logic.predictor = _InMilliamps(self._logic.predictor)
 
 
+@defect("predictor-current-phase-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed as the sum "
+        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "edge-current")
+class PredictorCurrentPhaseSum(VirtualController):
+    def capture(self, edge):
+        # the cycle accumulators summed over the phases and divided by the conversions alone
+        # (hil.controller.adc.cycle_mean_current_a divides by three times them)
+        if edge.get("adc_cycle_conversions"):
+            edge = {**edge, "adc_cycle_sums_a": 3.0 * np.asarray(edge["adc_cycle_sums_a"], dtype=float)}
+        return super().capture(edge)
+
+
 class _GateLatency(VirtualController):
     latency_s: float = 0.0
 
