@@ -468,8 +468,10 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-CUR-002", "Calibrated commutation lowers the mean phase current against raw Hall commutation (paper 4.3)",
-        "`test_current.py`: mean phase current with calibrated commutation over raw Hall commutation at 5700 rpm, "
-        "pump load, paper-sized deviations, same plant and seed (the paper's efficiency figure)",
+        "`test_current.py`: mean phase current with calibrated commutation against raw Hall commutation (without a "
+        "current limit) and the ideal-commutation floor, at 5000, 5700 and 7000 rpm x 3 seeds, pump load, "
+        "paper-sized deviations, same plant and seed (the paper's efficiency figure); each strategy on its own speed "
+        "measurement (docs/twin.md: not yet the same one)",
         "calibration.md#raw-versus-corrected-commutation-paper-section-43", _SPEED_LOOP, edge_hook=True,
         budgets=(DefaultBudget(
             'raw_excess_current_removed', 'fraction', 0.94,
