@@ -350,3 +350,31 @@ def test_a_wrong_current_input_of_the_predictor_fails_req_pred_006_alone(name, t
     report = json.loads((tmp_path / "hil-report.json").read_text())
     failed = {m["requirement"] for t in report["tests"] for m in t["measurements"] if m["verdict"] == "fail"}
     assert failed == ({"REQ-PRED-006"} if name else set()), report["verdict_reasons"]
+
+
+def test_the_report_tells_a_setup_check_and_a_device_failure_and_runs_only_the_requirements_asked(tmp_path):
+    """Through the plugin: a setup check that fails is an error of the run, "not judged"; a device that
+    answers exception 04 fails its requirement ("device failure"); --hil-requirements runs only the
+    tests traced to the requirements it names (a marker, a parameter's marker or value)."""
+    (tmp_path / "test_kinds.py").write_text(
+        "import pytest\n"
+        "from hil.dut.link import LinkError\n"
+        "from hil.judging import not_judged\n\n"
+        "@pytest.mark.requirement('REQ-FLT-004')\n"
+        "def test_setup(hil_evidence):\n    not_judged(False, 'the guards never fired')\n\n"
+        "@pytest.mark.requirement('REQ-FLT-001')\n"
+        "def test_device(hil_evidence):\n"
+        "    raise LinkError('Modbus unit 1 at h:1: edge #2 (t = 0.0017 s) refused with exception code 04')\n\n"
+        "@pytest.mark.parametrize('rid', ['REQ-FLT-002', 'REQ-FLT-003'])\n"
+        "def test_param(rid, request, hil_evidence):\n    request.node.user_properties.append(('requirement', rid))\n\n"
+        "@pytest.mark.requirement('REQ-SPD-001')\n"
+        "def test_other(hil_evidence):\n    pass\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_kinds.py",
+                    "--hil-report-dir", "rep", "--hil-requirements", "REQ-FLT-004,REQ-FLT-001,REQ-FLT-003"],
+                   cwd=tmp_path, env=env, capture_output=True, timeout=300)
+    report = json.loads((tmp_path / "rep" / "hil-report.json").read_text())
+    tests = {t["nodeid"].split("::")[-1]: (t["outcome"], t["failed_by"]) for t in report["tests"]}
+    assert tests == {"test_setup": ("error", "not judged"), "test_device": ("failed", "device failure"),
+                     "test_param[REQ-FLT-003]": ("passed", "")}
