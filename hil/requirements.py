@@ -598,11 +598,14 @@ def _bound(b: DefaultBudget) -> str:
 
 def requirements_table() -> str:
     """The requirement table of docs/acceptance.md (markdown), one row per requirement."""
-    rows = ["| requirement | what it asks | tested by | default budgets | the device profile must offer |",
-            "|---|---|---|---|---|"]
+    rows = ["| requirement | what it asks | tested by | default budgets | the defects it judges | "
+            "the device profile must offer |",
+            "|---|---|---|---|---|---|"]
     for r in REQUIREMENTS.values():
         budgets = "; ".join(_bound(b) for b in r.budgets) or "– (pass or fail)"
-        rows.append(f"| [{r.id}]({r.doc}) | {r.statement} | {r.tested_by} | {budgets} | {_needs_in_words(r)} |")
+        judges = ", ".join(r.judges) or "–"
+        rows.append(f"| [{r.id}]({r.doc}) | {r.statement} | {r.tested_by} | {budgets} | {judges} | "
+                    f"{_needs_in_words(r)} |")
     return "\n".join(rows) + "\n"
 
 
