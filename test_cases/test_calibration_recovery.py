@@ -59,10 +59,22 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
             figures,
             f"{deviation} at {speed_rpm:.0f} rpm",
             judged_from_s=judged_from_s,
-            budget_deg_e=hil_budgets["commutation_angle_p99"].limit,
+            budget_deg_e=hil_budgets[
+                f"{deviation}_corrected_angle_p99" if deviation != "combined" else "commutation_angle_p99"].limit,
             budget_label="p99 budget of the corrected run",
         ),
     )
     hil_evidence.value("raw commutation RMS (what calibration has to remove)", rms(raw), "deg_e")
-    hil_budget("commutation_angle_p99", p99(corrected))
-    hil_budget("calibrated_fraction_removed", 1.0 - rms(corrected) / rms(raw))
+    # each deviation's own requirement judges its scenario (REQ-CAL-001..004); the combined one is
+    # REQ-COMM-001's; all of them REQ-CAL-005's share removed. Both recorded before either fails
+    missed = []
+    for name, value in ((f"{deviation}_corrected_angle_p99" if deviation != "combined" else "commutation_angle_p99",
+                         p99(corrected)), ("calibrated_fraction_removed", 1.0 - rms(corrected) / rms(raw))):
+        try:
+            hil_budget(name, value)
+        except AssertionError as exc:
+            missed.append(exc)
+    if len(missed) > 1:
+        raise ExceptionGroup("budgets missed", missed)
+    if missed:
+        raise missed[0]
