@@ -35,7 +35,8 @@ from pathlib import Path
 
 from .defects import CATALOGUE, load_defects
 
-#: the acceptance suite's files, cheapest and most discriminating first (the property searches last)
+#: the acceptance suite's files, cheapest and most discriminating first (the property searches last;
+#: the current and speed-loop tests before them, or a speed-loop defect costs the whole suite)
 SUITE_ORDER = (
     "test_protocol.py",
     "test_faults.py",
@@ -43,6 +44,7 @@ SUITE_ORDER = (
     "test_signal_injection.py",
     "test_sage_husa_learning.py",
     "test_sage_husa.py",
+    "test_current.py",
     "test_fault_injection.py",
 )
 #: a run that has not finished after this long is stopped and reported as undecided
