@@ -425,7 +425,10 @@ _REGISTRY = (
         judges=('fault-handling',),
     ),
     Requirement(
-        "REQ-FLT-005", "No fault is raised on a healthy run", "`test_faults.py`: a healthy run raises none",
+        "REQ-FLT-005", "No fault is raised on a healthy run",
+        "`test_faults.py`: a healthy run raises none, on the paper's deviations and on a plant whose calibrated "
+        "sectors are as uneven as the effect library's bounds allow (a lost edge told from a neighbouring sector "
+        "reads them as lost edges)",
         _CONTROLLER_DOC, (*_BENCH, "fault_code"), edge_hook=True,
         judges=('fault-handling',),
     ),
