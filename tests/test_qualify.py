@@ -378,3 +378,18 @@ def test_the_report_tells_a_setup_check_and_a_device_failure_and_runs_only_the_r
     tests = {t["nodeid"].split("::")[-1]: (t["outcome"], t["failed_by"]) for t in report["tests"]}
     assert tests == {"test_setup": ("error", "not judged"), "test_device": ("failed", "device failure"),
                      "test_param[REQ-FLT-003]": ("passed", "")}
+
+
+def test_lost_edge_against_last_sector_is_caught_by_a_healthy_run_with_uneven_sectors(tmp_path):
+    """The defect raises 0xFF02 on a healthy plant whose calibrated sectors are uneven: REQ-FLT-005's
+    check fails (a judged assertion, no error), on the uneven plant only."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+           "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_faults.py"), "-k", "healthy",
+           "--hil-defect", "lost-edge-against-last-sector"]
+    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "hil-report.json").read_text())
+    outcomes = {t["nodeid"].split("-")[-1].rstrip("]"): (t["outcome"], t["failed_by"]) for t in report["tests"]}
+    assert outcomes == {"deviations": ("passed", ""), "sectors": ("failed", "assertion")}, outcomes
+    from hil.qualify.run import what_caught
+
+    assert what_caught(report)[:2] == ("check", ["REQ-FLT-005"])
