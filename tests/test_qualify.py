@@ -207,6 +207,11 @@ def test_the_sensitivity_table_is_per_requirement_and_defect():
               defect_class="speed-loop")
     missed = Run("speed-loop-proportional-x0.1", "kp x0.1", "PASS", False, None, defect_class="speed-loop",
                  measurements=[{**_verdict("speed_step_overshoot", "REQ-SPD-001", "pass", 0.05), "test": "t::spd"}])
+    # a pass/fail requirement that ran and passed shows no measurement: it ran all the same
+    faults = Run("no-missing-edge-fault", "no 0xFF02", "PASS", False, None, defect_class="fault-handling",
+                 requirements_run=["REQ-FLT-001"])
+    by_requirement = {c["requirement"]: c for c in sensitivity([faults])}
+    assert by_requirement["REQ-FLT-001"]["ran"] and not by_requirement["REQ-FLT-003"]["ran"]
     cells = sensitivity([run, missed])
     assert [(c["requirement"], c["defect"], c["caught"], c["margin"]) for c in cells] == [
         ("REQ-SPD-001", "speed-loop-integral-x10", True, -0.29),

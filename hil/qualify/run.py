@@ -71,6 +71,9 @@ class Run:
     #: every budget judged in the run: requirement, budget, verdict, margin, test
     measurements: list[dict] = field(default_factory=list)
     defect_class: str = ""
+    #: the requirements of every test that ran to a verdict (passed or failed): a pass/fail
+    #: requirement that ran and passed has no measurement to show for it
+    requirements_run: list[str] = field(default_factory=list)
 
 
 #: what caught a defect, the strongest evidence first
@@ -179,7 +182,7 @@ def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
             mine = [x for x in m.measurements if x["requirement"] == rid]
             c = caught.get(rid)
             margin = c["margin"] if c is not None else (min(x["margin"] for x in mine) if mine else None)
-            ran = bool(mine) or c is not None
+            ran = bool(mine) or c is not None or rid in m.requirements_run
             cells.append({"requirement": rid, "defect": m.name, "defect_class": m.defect_class,
                           "named": rid in named, "caught": c is not None, "by": c["by"] if c else None,
                           "margin": margin, "ran": ran})
@@ -242,8 +245,10 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
     elif caught_by == "not judged":
         note = (note + "; " if note else "") + "a setup check failed (the scenario did not provoke what it judges)"
+    ran = sorted({r for t in report.get("tests", []) if t.get("outcome") in ("passed", "failed")
+                  for r in t.get("requirements", [])})
     return Run(name, description, verdict, caught_by in CATCH_KINDS, caught_by, failed_reqs, failed_tests, duration,
-               str(report_json), note, catches, judged_measurements(report), defect_class)
+               str(report_json), note, catches, judged_measurements(report), defect_class, ran)
 
 
 def qualify(args, progress=print) -> dict:
