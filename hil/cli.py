@@ -609,7 +609,7 @@ def cmd_qualify(args) -> int:
         catalogue = firmware_defects(args.dut) or CATALOGUE  # a firmware folder's own (defects.toml)
         if args.list:
             for d in catalogue.values():
-                print(f"{d.name:<34} {d.description}")
+                print(f"{d.name:<34} {d.defect_class or '-':<19} {d.description}")
             return 0
         args.report_dir = args.out  # hil.qualify reads the report directory by its old name
         if args.workers == "auto":
@@ -630,8 +630,11 @@ def cmd_qualify(args) -> int:
         print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
               f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
     if result["errored"]:
-        print("errored (a test raised, no assertion failed; findings to fix, not catches): "
+        print("errored (a test raised, nothing was caught; findings to fix, not catches): "
               + ", ".join(result["errored"]))
+    if result.get("not_judged"):
+        print("not judged (a setup check failed: the scenario did not provoke what the test judges): "
+              + ", ".join(result["not_judged"]))
     for req, names in result["requirements"].items():
         print(f"  {req:<14} catches {', '.join(names)}")
     if result["survivors"]:
@@ -641,7 +644,14 @@ def cmd_qualify(args) -> int:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
         print(f"written: {args.json}")
-    return 0 if result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"] else 1
+    if getattr(args, "table", None):
+        from .qualify.run import sensitivity_markdown
+
+        Path(args.table).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.table).write_text(sensitivity_markdown(result))
+        print(f"written: {args.table}")
+    return 0 if (result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"]
+                 and not result.get("not_judged")) else 1
 
 
 def _under_compile_ahead(run, *args):
@@ -1050,6 +1060,10 @@ def _parser_qualify(sub) -> None:
     p.add_argument("--suite", help="the acceptance suite: a directory (default: ./test_cases)")
     grammar.add_json(p, "the result")
     p.add_argument("--list", action="store_true", help="list the defects and exit")
+    p.add_argument("--sensitivity", action="store_true",
+                   help="run each defect without -x on the tests of the requirements that name its class: the "
+                        "sensitivity table (requirement x defect, caught by its own budget, with the margin)")
+    p.add_argument("--table", help="write the sensitivity table (markdown) here")
     p.set_defaults(func=cmd_qualify)
 
 

@@ -88,6 +88,12 @@ def pytest_addoption(parser):
         "--hil-defects", default=None, metavar="FILE", help="a Python file of further @defect classes (hil qualify)"
     )
     group.addoption(
+        "--hil-requirements",
+        default=None,
+        metavar="IDS",
+        help="run only the tests traced to these requirements (comma-separated; hil qualify --sensitivity)",
+    )
+    group.addoption(
         "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
     )
     group.addoption(
@@ -374,11 +380,22 @@ def _apply_waiver(item, rep) -> None:
 
 def failure_kind(exc: BaseException) -> str:
     """"assertion" for an assertion (a budget's too), pytest.fail, or a group of only those (a
-    search that found several failures); "error" for anything else."""
+    search that found several failures); "device failure" when the controller signalled its own
+    failure on valid input (hil.judging: a Modbus exception 04, an SDO abort 0x08000000 or
+    0x06060000); "not judged" for a setup check that found the scenario did not provoke what the
+    test judges (hil.judging.NotJudged); "error" for anything else."""
+    from .judging import NotJudged, device_failure
+
     judged = (AssertionError, pytest.fail.Exception)
     if isinstance(exc, BaseExceptionGroup):
-        return "assertion" if exc.split(judged)[1] is None else "error"
-    return "assertion" if isinstance(exc, judged) else "error"
+        if exc.split(judged)[1] is None:
+            return "assertion"
+        return "not judged" if exc.split(NotJudged)[1] is None else "error"
+    if isinstance(exc, judged):
+        return "assertion"
+    if isinstance(exc, NotJudged):
+        return "not judged"
+    return "device failure" if device_failure(exc) else "error"
 
 
 def _unreachable(exc: BaseException):
@@ -401,6 +418,27 @@ def _unreachable(exc: BaseException):
         seen.add(id(cause))
         cause = cause.__cause__ or cause.__context__
     return None
+
+
+def traced_requirements(item) -> set[str]:
+    """The requirements a collected test is traced to before it runs: its ``requirement`` marks
+    (a parameter's included) and the requirement IDs among its parameters."""
+    rids = {str(rid) for mark in item.iter_markers("requirement") for rid in mark.args}
+    params = getattr(getattr(item, "callspec", None), "params", {})
+    return rids | {v for v in params.values() if isinstance(v, str) and v.startswith("REQ-")}
+
+
+def pytest_collection_modifyitems(config, items):
+    wanted = config.getoption("--hil-requirements", None)
+    if not wanted:
+        return
+    wanted = {w.strip() for w in wanted.split(",") if w.strip()}
+    keep, drop = [], []
+    for item in items:
+        (keep if traced_requirements(item) & wanted else drop).append(item)
+    if drop:
+        config.hook.pytest_deselected(items=drop)
+        items[:] = keep
 
 
 @pytest.hookimpl(tryfirst=True)
@@ -789,7 +827,13 @@ class HilReporter:
                     unreachable = any(
                         str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ())
                     )
-                    phase = "failed" if r.when == "call" and not unreachable else "error"
+                    # a setup check that found the scenario did not provoke what the test judges: no
+                    # evidence either way (hil.judging.not_judged)
+                    unjudged = any(
+                        str(k) == PROPERTY_PREFIX + "failed_by" and v == "not judged"
+                        for k, v in getattr(r, "user_properties", ())
+                    )
+                    phase = "failed" if r.when == "call" and not unreachable and not unjudged else "error"
                 elif r.skipped:
                     phase = "skipped"
                 else:

@@ -3,8 +3,10 @@
 * The current limit: the controller's own speed loop stepped from 5000 to 5500 rpm with
   calibrated commutation (a speed loop asks for more torque than the limit allows: the
   acceleration is current-limited); the peak phase current, read from the plant's true
-  currents, must stay within the controller's limit. The step's overshoot and settling time
-  (into +-2 % of the set point) judge the speed loop.
+  currents, must stay within the controller's limit.
+* The speed loop itself (REQ-SPD-001): a 2 % step the current limit does not bound (a 10 % step
+  is a current-limited ramp, the same for every loop's gains): overshoot, decay ratio, settling
+  into +-10 % of the step and the holding current over the load's need (hil.experiments.speed_step).
 * The efficiency figure (the paper's headline, Section 4.3: the phase current falls to 37.2 %
   once the Hall deviations are calibrated): at the paper's operating point, 5700 rpm, and at
   5000 and 7000 rpm, over three seeds, with the pump load and paper-sized deviations, the share
@@ -24,13 +26,12 @@ from bldc.motor import speed_loop_gain_scale, steady_state
 from hil.bench import LockstepBench, acceptance_max_step_s
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
+from hil.judging import not_judged
 from hil.experiments.table5 import scenario_plant
 from plant_models import OracleCommutation, Simulation
 
 STEP_FROM_RPM, STEP_TO_RPM = 5000.0, 5500.0
 STEP_HOLD_S = 1.2
-#: the speed band the step must settle into and stay in (of the set point)
-SETTLING_BAND = 0.02
 EFFICIENCY_SETTLE_S, EFFICIENCY_WINDOW_S = 0.4, 0.4
 #: the paper's deviations (installation, pole, RC, armature, edge jitter), as in its Section 4
 PAPER_EFFECTS = scenario_plant().effects
@@ -42,9 +43,8 @@ def _true_abs_currents(bench, since_s: float):
     return np.asarray(s.t_s)[keep], np.abs(np.asarray(s.i_true_a))[keep], np.asarray(s.speed_rpm)[keep]
 
 
-@pytest.mark.requirement("REQ-CUR-001", "REQ-SPD-001")
-def test_a_speed_step_keeps_the_current_limit_and_settles(calibrate, hil_bench, hil_budget, hil_evidence,
-                                                          hil_plant_config):
+@pytest.mark.requirement("REQ-CUR-001")
+def test_a_speed_step_keeps_the_current_limit(calibrate, hil_bench, hil_budget, hil_evidence, hil_plant_config):
     plant = hil_plant_config
     effects = plant.suite_deviations(PAPER_EFFECTS)
     step_from_rpm, step_to_rpm = plant.suite_speed_rpm(STEP_FROM_RPM), plant.suite_speed_rpm(STEP_TO_RPM)
@@ -53,21 +53,42 @@ def test_a_speed_step_keeps_the_current_limit_and_settles(calibrate, hil_bench, 
     (step_s,) = bench.run_setpoints([step_from_rpm], hold_s=0.0, settle_s=plant.suite_settle_s(0.3, step_from_rpm))
     bench.link.set_speed(step_to_rpm)
     bench.sim.run_until(step_s + plant.suite_duration_s(STEP_HOLD_S))
-    t, current, speed = _true_abs_currents(bench, step_s)
+    _, current, _ = _true_abs_currents(bench, step_s)
     peak_a = float(current.max())
-    band = SETTLING_BAND * step_to_rpm
-    outside = np.nonzero(np.abs(speed - step_to_rpm) > band)[0]
-    settled_s = float(t[outside[-1]] - step_s) if outside.size else 0.0
-    if outside.size and outside[-1] == t.size - 1:
-        settled_s = float("inf")  # still outside the band at the end of the window
-    overshoot = max(float(speed.max()) - step_to_rpm, 0.0) / (step_to_rpm - step_from_rpm)
     hil_evidence.value("peak phase current", peak_a, "A")
     hil_evidence.value("mean |i| over the step", float(current.mean()), "A")
-    hil_evidence.value("speed overshoot", overshoot * 100.0, "%")
-    hil_evidence.value("settling time (+-2 % of the set point)", settled_s, "s")
     hil_budget("phase_current_peak_a", peak_a)
-    hil_budget("speed_step_overshoot", overshoot)
-    hil_budget("speed_step_settling_s", settled_s)
+
+
+@pytest.mark.requirement("REQ-SPD-001")
+def test_the_speed_loop_settles_a_step_the_current_limit_does_not_bound(
+    calibrate, hil_bench, hil_budget, hil_evidence, hil_plant_config
+):
+    """The controller's own speed loop stepped by 2 % (5000 to 5100 rpm on the paper pump): small
+    enough that the current limit never acts, so the response is the loop's own
+    (hil.experiments.speed_step). Overshoot and decay ratio (the quarter-amplitude decay), settling
+    into +-10 % of the step, and the holding current over the load's need, all from the plant's
+    true speed and currents."""
+    from hil.experiments import speed_step as S
+
+    plant = hil_plant_config
+    effects = plant.suite_deviations(PAPER_EFFECTS)
+    step_from_rpm, step_to_rpm = plant.suite_speed_rpm(S.STEP_FROM_RPM), plant.suite_speed_rpm(S.STEP_TO_RPM)
+    bench = hil_bench(Strategy.CORRECTED, corrections=calibrate(effects), effects=effects, speed_rpm=step_from_rpm)
+    response, holding, peak_a, (ts, averaged) = S.run_step(
+        bench, plant, step_from_rpm, step_to_rpm, settle_s=plant.suite_settle_s(0.3, step_from_rpm),
+        hold_s=plant.suite_duration_s(S.HOLD_S))
+    hil_evidence.value("step", step_to_rpm - step_from_rpm, "rpm")
+    hil_evidence.value("peak phase current (the current limit must not act)", peak_a, "A")
+    hil_evidence.value("excursions about the set point, over the step",
+                       " ".join(f"{x:+.3f}" for x in response.excursions) or "none")
+    grid = np.linspace(0.0, ts[-1], 16)
+    hil_evidence.table("true speed averaged over a turn, from the step", ["t s", "rpm"],
+                       [[float(t), float(np.interp(t, ts, averaged))] for t in grid])
+    hil_budget("speed_step_overshoot", response.overshoot)
+    hil_budget("speed_step_decay_ratio", response.decay_ratio)
+    hil_budget("speed_step_settling_s", response.settling_s)
+    hil_budget("speed_hold_current_over_load", holding)
 
 
 #: REQ-CUR-002's operating points: the paper's (5700 rpm, its Figures 8 and 9) and one on either
@@ -138,7 +159,8 @@ def test_calibration_removes_the_excess_current_of_raw_commutation(
             floor_a = ideal_commutation_mean_current_a(config, rpm, seed, *window)
             # the same operating point, or the comparison says nothing
             for name, (_, got) in (("raw", raw), ("calibrated", cal), ("unlimited raw", unlimited)):
-                assert abs(got - rpm) < 0.02 * rpm, f"{name} commutation held {got:.0f} rpm, not {rpm:.0f}"
+                not_judged(abs(got - rpm) < 0.02 * rpm, f"{name} commutation held {got:.0f} rpm, not {rpm:.0f}: "
+                           "not the same operating point (the speed loop is REQ-SPD-001's)")
             share = (raw[0] - cal[0]) / (raw[0] - floor_a)
             share_unlimited = (unlimited[0] - cal[0]) / (unlimited[0] - floor_a)
             shares.append(share_unlimited)

@@ -11,8 +11,10 @@ import pytest
 from bldc.contract import Fault, Strategy
 from hil.dut.link import LinkError
 from hil.faults import HallSpike, LostEdge, SensorDropout
+from hil.judging import not_judged
 from hil.predictors import FilterSettings
 from hil.stimulus import Stimulus, run
+from plant_models.effects import effect_from_mapping
 from plant_models.plant import paper_bench
 
 DEVIATIONS = paper_bench(with_deviations=True).effects
@@ -22,12 +24,26 @@ def sequence(fault, plant) -> list:
     return [["on", fault.as_dict()], ["run", plant.suite_duration_s(0.02)], ["off", fault.as_dict()]]
 
 
-def on_the_plant(plant, **stimulus) -> dict:
+#: a healthy plant whose calibrated sectors are as uneven as the effect library's bounds allow (the
+#: deviation set REQ-ROB-001's search once found reading as a lost edge every turn, at its speed):
+#: no fault may be raised on it either
+UNEVEN_SECTORS = (
+    tuple(effect_from_mapping(e) for e in [
+        {"name": "installation_offset", "offset_deg_e": [2.3955, 1.8000, -8.9772]},
+        {"name": "pole_offset", "offset_deg_e": [-0.8301, -4.7743, -4.7151, 1.5470]},
+        {"name": "armature_reaction", "slope_deg_e_per_a": 0.0},
+        {"name": "conditioning_delay", "rise_delay_s": 14e-6, "fall_delay_s": 50e-6},
+    ]),
+    7000.0,
+)
+
+
+def on_the_plant(plant, deviations=DEVIATIONS, speed_rpm=Stimulus.speed_rpm, **stimulus) -> dict:
     """A fault-sequence stimulus's plant, deviations and speed on the run's plant (the paper pump's
     deviations and speed, as ``PlantConfig.suite_deviations`` and ``suite_speed_rpm`` place them)."""
     return dict(
-        effects=[e.to_dict() for e in plant.suite_deviations(DEVIATIONS)],
-        speed_rpm=plant.suite_speed_rpm(Stimulus.speed_rpm),
+        effects=[e.to_dict() for e in plant.suite_deviations(deviations)],
+        speed_rpm=plant.suite_speed_rpm(speed_rpm),
         plant=plant.to_dict(),
         **stimulus,
     )
@@ -50,20 +66,38 @@ def test_wiring_fault_gives_the_promised_fault(
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     hil_evidence.value("promised fault codes", ", ".join(f"0x{c:04X}" for c in fault.promised))
-    assert outcome.ok, outcome.message
-    hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
+    # two judgements, each its own requirement's: the fault codes (this fault's pass/fail
+    # requirement) and the recovery (REQ-ROB-002's budget); both recorded before either fails
+    budget_missed = None
+    try:
+        hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
+    except AssertionError as exc:
+        budget_missed = exc
+    codes_wrong = [p for p in outcome.message.split("; ") if "recovered_commutation_angle_p99" not in p] \
+        if not outcome.ok else []
+    if codes_wrong and budget_missed is not None:
+        raise ExceptionGroup("the fault codes and the recovery",
+                             [AssertionError("; ".join(codes_wrong)), budget_missed])
+    if budget_missed is not None:
+        raise budget_missed
+    assert not codes_wrong, "; ".join(codes_wrong)
 
 
 @pytest.mark.requirement("REQ-FLT-005")
-def test_healthy_run_raises_no_fault(hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed, request):
+@pytest.mark.parametrize("plant_kind", ["paper-deviations", "uneven-sectors"])
+def test_healthy_run_raises_no_fault(plant_kind, hil_link, hil_plant_config, hil_budgets, hil_evidence, hil_seed,
+                                     request):
+    deviations, speed_rpm = (DEVIATIONS, Stimulus.speed_rpm) if plant_kind == "paper-deviations" else UNEVEN_SECTORS
     stim = Stimulus(
         "fault_sequence",
-        **on_the_plant(hil_plant_config, steps=[["run", hil_plant_config.suite_duration_s(0.1)]], seed=hil_seed,
+        **on_the_plant(hil_plant_config, deviations, speed_rpm,
+                       steps=[["run", hil_plant_config.suite_duration_s(0.1)]], seed=hil_seed,
                        test=request.node.nodeid),
     )
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("healthy run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
-    assert outcome.ok and not outcome.values["codes"], outcome.message
+    # REQ-FLT-005 judges the fault codes alone (the commutation is other requirements')
+    assert not outcome.values["codes"], f"fault code(s) {outcome.values['codes']} raised on a healthy run"
 
 
 @pytest.mark.requirement("REQ-FLT-004")
@@ -85,7 +119,8 @@ def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_
     codes = [code for _, code in st["faults"]]
     hil_evidence.value("guard trips read back", st["guard_trips"])
     hil_evidence.value("fault codes", ", ".join(f"0x{c:04X}" for c in codes) or "none")
-    assert st["guard_trips"] > 0, "the guards never fired with Q0 100x too large: the scenario did not provoke them"
+    not_judged(st["guard_trips"] > 0,
+               "the guards never fired with Q0 100x too large: the scenario did not provoke them")
     assert Fault.FILTER_GUARD_TRIP in codes, (
         f"{st['guard_trips']} guard trips but no fault 0x{Fault.FILTER_GUARD_TRIP:04X} (faults: {codes})"
     )

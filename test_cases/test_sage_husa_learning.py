@@ -9,7 +9,8 @@ jitter is 3 us, steps to 9 us (nine times the variance) and back. R_theta is rea
 
 * REQ-PRED-003: once converged, R_theta is within a factor of 2 of the truth;
 * REQ-PRED-004: after each step, R_theta is within that band again within a stated number of edges;
-* REQ-PRED-005: while the noise is steady, R_theta is steady (the scatter of its logarithm).
+* REQ-PRED-005: while the noise is steady, R_theta is steady (the scatter of its logarithm), yet
+  moves as an estimate of a random noise must (a frozen R_theta does not scatter at all).
 
 Converged means: from the end of the settling time, and from the tracking budget's number of
 edges after each step. Without the ``filter_r_diag`` role the requirements are not testable.
@@ -156,4 +157,6 @@ def test_sage_husa_edge_noise_estimate_is_steady_while_the_noise_is(
     polls = learning_run(calibrate, hil_bench, hil_link, hil_seed, hil_plant_config)
     after = hil_budgets["edge_noise_tracking_edges"].limit
     _evidence(hil_evidence, polls, band_of(hil_budgets), after)
-    hil_budget("edge_noise_estimate_log_scatter", log_scatter(polls, after))
+    scatter = log_scatter(polls, after)
+    hil_budget("edge_noise_estimate_log_scatter", scatter)
+    hil_budget("edge_noise_estimate_log_scatter_low", scatter)  # a frozen estimate does not scatter at all

@@ -284,3 +284,37 @@ def test_a_bad_defects_file_names_the_table_and_the_key(tmp_path):
                                          'description = "y"\n')
     with pytest.raises(ValueError, match=r"defects.toml: \[\[defect\]\]\[0\]\.define: required"):
         firmware_defects(f"sil:{folder}")
+
+
+def test_a_firmware_defect_has_an_optional_class_that_the_sensitivity_run_uses(tmp_path, monkeypatch):
+    """defects.toml's optional ``class`` (a DEFECT_CLASSES key) is the defect's class: hil qualify
+    --sensitivity builds it (define=) and runs the tests of the requirements naming its class, no -x."""
+    import argparse
+    import subprocess
+
+    from hil.qualify import run as qrun
+
+    folder = tmp_path / "fw"
+    shutil.copytree(SIXSTEP, folder)
+    body = ('format = "bldc-hil-firmware-defects/1"\n[[defect]]\nname = "x"\ndefine = "HIL_DEFECT_X"\n'
+            'description = "y"\n')
+    (folder / "defects.toml").write_text(body + 'class = "speed-loop"\n')
+    defects = qrun.firmware_defects(f"sil:{folder}")
+    assert defects["x"].defect_class == "speed-loop"
+    (folder / "defects.toml").write_text(body)
+    assert qrun.firmware_defects(f"sil:{folder}")["x"].defect_class == ""
+    (folder / "defects.toml").write_text(body + 'class = "no-such-class"\n')
+    with pytest.raises(ValueError, match=r"defects.toml: \[\[defect\]\]\[0\]\.class"):
+        qrun.firmware_defects(f"sil:{folder}")
+
+    seen = []
+    monkeypatch.setattr(subprocess, "run",
+                        lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 1, "", ""))
+    args = argparse.Namespace(report_dir=str(tmp_path / "r"), dut=f"sil:{folder}", seed=0, budgets=None, defects=None,
+                              suite=str(REFERENCE.parent.parent / "test_cases"), sensitivity=True,
+                              firmware_defects={"x": qrun.FirmwareDefect("x", "HIL_DEFECT_X", "y", (), "speed-loop")})
+    r = qrun._run("x", "y", "x", args)
+    cmd = seen[0]
+    assert r.defect_class == "speed-loop" and "-x" not in cmd and "--hil-defect" not in cmd
+    assert cmd[cmd.index("--hil-dut") + 1] == f"sil:{folder},define=HIL_DEFECT_X"
+    assert cmd[cmd.index("--hil-requirements") + 1] == "REQ-SPD-001"

@@ -743,6 +743,42 @@ def produce_sil_speed(work: Path) -> Run:
     return run
 
 
+def produce_qualify(work: Path) -> Run:
+    """docs/qualify.md: ``hil qualify --sensitivity`` (each defect on the tests of the requirements
+    that name its class, no -x): the sensitivity table and the detection figure. The command exits
+    1 when a defect survives; what it saw is published either way."""
+    run = Run(seeds=[0])
+    out = work / "qualify.json"
+    args = ["qualify", "--sensitivity", "--json", str(out), "--report-dir", str(work / "qualify")]
+    run.commands.append("python -m hil " + " ".join(a.replace(str(work), "$WORK") for a in args))
+    t0 = time.perf_counter()
+    done = subprocess.run([sys.executable, "-m", "hil", *args], cwd=ROOT, capture_output=True, text=True,
+                          timeout=4 * 3600)
+    run.last_command_s = time.perf_counter() - t0
+    if done.returncode not in (0, 1) or not out.is_file():
+        raise RuntimeError(f"hil qualify exited {done.returncode}:\n{done.stdout[-2000:]}\n{done.stderr[-2000:]}")
+    result = json.loads(out.read_text())
+    d = result["detection"] or {"killed": None, "total": len(result["mutants"])}
+    run.figures = {
+        "control_verdict": Figure(result["control_verdict"], fmt="{}"),
+        "caught": Figure(d["killed"], fmt="{}"),
+        "defects": Figure(d["total"], fmt="{}"),
+        "wall_s": Figure(run.last_command_s, "s", "{:.0f}", reproducible=False),
+    }
+    rows = [["defect", "class", "requirement", "names the class", "verdict", "by", "margin"]]
+    for c in result["sensitivity"]:
+        rows.append([f"`{c['defect']}`", c["defect_class"] or "-", c["requirement"], "yes" if c["named"] else "no",
+                     "**caught**" if c["caught"] else ("missed" if c["ran"] else "not run"),
+                     (c["by"] or "-").removeprefix("budget "),
+                     "-" if c["margin"] is None else f"{c['margin']:+.3g}"])
+    run.tables["sensitivity"] = rows
+    run.tables["outcomes"] = [["defect", "caught by", "what caught it", "requirements"]] + [
+        [f"`{m['name']}`", m["caught_by"] or "survived",
+         "; ".join(sorted({c["by"].removeprefix("budget ") for c in m["catches"]})) or "-",
+         ", ".join(m["killed_by"]) or "-"] for m in result["mutants"]]
+    return run
+
+
 def _children_cpu_s() -> float:
     t = os.times()
     return t.children_user + t.children_system
@@ -782,6 +818,7 @@ GROUPS: list[Group] = [
           produce_sil_speed),
     Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance),
     Group("test_suite", "README: the test command's run time", False, produce_test_suite),
+    Group("qualify", "docs/qualify.md: hil qualify --sensitivity, the sensitivity table", False, produce_qualify),
 ]
 
 

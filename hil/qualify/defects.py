@@ -37,13 +37,20 @@ class Defect:
     name: str
     description: str
     controller: type[VirtualController]
+    #: the defect class (hil.requirements.DEFECT_CLASSES): the requirements that name it must catch it
+    defect_class: str = ""
 
 
 CATALOGUE: dict[str, Defect] = {}
 
 
-def defect(name: str, description: str):
-    """Register a controller class as the seeded defect ``name`` (a VirtualController subclass)."""
+def defect(name: str, description: str, defect_class: str = ""):
+    """Register a controller class as the seeded defect ``name`` (a VirtualController subclass) of
+    ``defect_class`` (one of hil.requirements.DEFECT_CLASSES; a user's defect may leave it empty)."""
+    from ..requirements import DEFECT_CLASSES
+
+    if defect_class and defect_class not in DEFECT_CLASSES:
+        raise ValueError(f"defect {name!r}: unknown defect class {defect_class!r}; known: {', '.join(DEFECT_CLASSES)}")
 
     def register(cls):
         if not (isinstance(cls, type) and issubclass(cls, VirtualController)):
@@ -52,7 +59,7 @@ def defect(name: str, description: str):
             raise ValueError(f"defect {name!r} is registered twice ({CATALOGUE[name].controller.__qualname__}, "
                              f"{cls.__qualname__})")
         CATALOGUE[name] = Defect(name, description, dataclasses.dataclass(cls) if "__dataclass_fields__" not in
-                                 cls.__dict__ else cls)
+                                 cls.__dict__ else cls, defect_class)
         return cls
 
     return register
@@ -86,20 +93,23 @@ class _WrongTable(VirtualController):
             self._logic.corrections = self.applied(self.corrections)
 
 
-@defect("pole-table-one-pole-off", "the pole offsets applied one magnet pole late (table index off by one)")
+@defect("pole-table-one-pole-off", "the pole offsets applied one magnet pole late (table index off by one)",
+        "calibration-table")
 class PoleTableOneOff(_WrongTable):
     def applied(self, table):
         return dataclasses.replace(table, pole_offset_deg_e=list(np.roll(table.pole_offset_deg_e, 1)))
 
 
-@defect("rise-fall-delays-swapped", "the rising edges corrected with the falling-edge delay and vice versa")
+@defect("rise-fall-delays-swapped", "the rising edges corrected with the falling-edge delay and vice versa",
+        "calibration-table")
 class DelaysSwapped(_WrongTable):
     def applied(self, table):
         d = table.conditioning_delay_s
         return dataclasses.replace(table, conditioning_delay_s={"rise": d["fall"], "fall": d["rise"]})
 
 
-@defect("installation-on-wrong-sensor", "sensor A's installation offset applied to B, B's to C, C's to A")
+@defect("installation-on-wrong-sensor", "sensor A's installation offset applied to B, B's to C, C's to A",
+        "calibration-table")
 class InstallationRotated(_WrongTable):
     def applied(self, table):
         off = table.installation_offset_deg_e
@@ -107,27 +117,29 @@ class InstallationRotated(_WrongTable):
         return dataclasses.replace(table, installation_offset_deg_e=rotated)
 
 
-@defect("armature-sign-inverted", "the armature-reaction correction applied with the wrong sign")
+@defect("armature-sign-inverted", "the armature-reaction correction applied with the wrong sign", "calibration-table")
 class ArmatureSign(_WrongTable):
     def applied(self, table):
         return dataclasses.replace(table, armature_reaction_deg_e_per_a=-table.armature_reaction_deg_e_per_a)
 
 
-@defect("delay-applied-at-90-percent", "the conditioning delays applied at 90 % (a timer prescaler rounded)")
+@defect("delay-applied-at-90-percent", "the conditioning delays applied at 90 % (a timer prescaler rounded)",
+        "calibration-table")
 class DelayNinety(_WrongTable):
     def applied(self, table):
         delays = {k: 0.9 * v for k, v in table.conditioning_delay_s.items()}
         return dataclasses.replace(table, conditioning_delay_s=delays)
 
 
-@defect("table-never-applied", "the table is accepted and read back, but the commutation runs on an empty one")
+@defect("table-never-applied", "the table is accepted and read back, but the commutation runs on an empty one",
+        "calibration-table")
 class TableNeverApplied(_WrongTable):
     def applied(self, table):
         return Corrections(pole_offset_deg_e=[0.0] * len(table.pole_offset_deg_e))
 
 
 @defect("current-sampled-at-capture", "the edge's current read from the ADC at the capture interrupt, not one "
-        "conditioning delay before it where the armature field moved the edge")
+        "conditioning delay before it where the armature field moved the edge", "edge-current")
 class CurrentAtCapture(VirtualController):
     def _applied_delay_s(self, rising: bool) -> float:
         return 0.0
@@ -146,12 +158,23 @@ class _InMilliamps:
         return getattr(self._predictor, name)
 
 
-@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A")
+@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A", "edge-current")
 class PredictorMilliamps(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
         if self._logic.predictor is not None:
             self._logic.predictor = _InMilliamps(self._logic.predictor)
+
+
+@defect("predictor-current-phase-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed as the sum "
+        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "edge-current")
+class PredictorCurrentPhaseSum(VirtualController):
+    def capture(self, edge):
+        # the cycle accumulators summed over the phases and divided by the conversions alone
+        # (hil.controller.adc.cycle_mean_current_a divides by three times them)
+        if edge.get("adc_cycle_conversions"):
+            edge = {**edge, "adc_cycle_sums_a": 3.0 * np.asarray(edge["adc_cycle_sums_a"], dtype=float)}
+        return super().capture(edge)
 
 
 class _GateLatency(VirtualController):
@@ -162,17 +185,17 @@ class _GateLatency(VirtualController):
         return [dataclasses.replace(c, at_s=c.at_s + self.latency_s) for c in super().capture(edge)]
 
 
-@defect("gate-latency-5us", "5 us of gate-driver latency not compensated")
+@defect("gate-latency-5us", "5 us of gate-driver latency not compensated", "commutation-timing")
 class GateLatency5(_GateLatency):
     latency_s: float = 5e-6
 
 
-@defect("gate-latency-25us", "25 us of gate-driver latency not compensated")
+@defect("gate-latency-25us", "25 us of gate-driver latency not compensated", "commutation-timing")
 class GateLatency25(_GateLatency):
     latency_s: float = 25e-6
 
 
-@defect("sage-husa-runs-kf", "the Sage-Husa strategy selects the fixed-noise Kalman filter")
+@defect("sage-husa-runs-kf", "the Sage-Husa strategy selects the fixed-noise Kalman filter", "predictor-model")
 class SageHusaIsKf(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
@@ -181,21 +204,22 @@ class SageHusaIsKf(VirtualController):
             self._predictor = self._logic.predictor = KalmanPredictor(model, self.kf_settings)
 
 
-@defect("sage-husa-without-adaptation", "Sage-Husa with its noise adaptation (Eq. 12) switched off")
+@defect("sage-husa-without-adaptation", "Sage-Husa with its noise adaptation (Eq. 12) switched off", "noise-learning")
 class NoAdaptation(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         self.filter_settings = dataclasses.replace(self.filter_settings, adapt_mask=0)
         super()._build_logic(speed_loop)
 
 
-@defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)")
+@defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)", "fault-handling")
 class NoMissingEdgeFault(VirtualController):
     def raise_fault(self, code, t_s):
         if int(code) != Fault.MISSING_EDGE:
             super().raise_fault(code, t_s)
 
 
-@defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)")
+@defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)",
+        "table-validation")
 class NoTableValidation(VirtualController):
     def download_calibration(self, corrections):
         self.corrections = corrections
@@ -203,14 +227,15 @@ class NoTableValidation(VirtualController):
 
 
 @defect("current-limit-not-enforced", "the speed loop's duty is clamped to 0..1 but never limited to keep the "
-        "phase current within the limit")
+        "phase current within the limit", "current-limit")
 class NoCurrentLimit(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
         self._logic._duty_bounds = lambda speed_rpm: (0.0, 1.0)
 
 
-@defect("never-resynchronises", "after lost edges the edge count (and the pole table) is never resynchronised")
+@defect("never-resynchronises", "after lost edges the edge count (and the pole table) is never resynchronised",
+        "fault-handling")
 class NeverResyncs(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
@@ -218,17 +243,61 @@ class NeverResyncs(VirtualController):
 
 
 @defect("lost-edge-against-last-sector", "a lost edge told from the last sector's interval (x1.8), so uneven "
-        "calibrated sectors read as lost edges")
+        "calibrated sectors read as lost edges", "fault-handling")
 class LostEdgeAgainstLastSector(VirtualController):
     def _reference_interval_s(self):
         if not self._intervals:
             return None, self.missing_edge_interval_ratio
-        return self._intervals[-1], self.missing_edge_interval_ratio
+        last_s, _measured = self._intervals[-1]  # the references are (interval, measured) pairs
+        return last_s, self.missing_edge_interval_ratio
+
+
+class _SpeedGains(VirtualController):
+    """A speed loop commissioned with a gain off by ``kp_factor`` / ``ki_factor`` (a gain entered in
+    the wrong unit, a scale left from another motor)."""
+
+    kp_factor: float = 1.0
+    ki_factor: float = 1.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        self.kp_per_rpm *= self.kp_factor
+        self.ki_per_rpm_s *= self.ki_factor
+        self.reset()
+
+
+@defect("speed-loop-integral-x10", "the speed PI's integral gain ten times the commissioned one", "speed-loop")
+class SpeedIntegralX10(_SpeedGains):
+    ki_factor: float = 10.0
+
+
+@defect("speed-loop-integral-x20", "the speed PI's integral gain twenty times the commissioned one", "speed-loop")
+class SpeedIntegralX20(_SpeedGains):
+    ki_factor: float = 20.0
+
+
+@defect("speed-loop-integral-x100", "the speed PI's integral gain a hundred times the commissioned one",
+        "speed-loop")
+class SpeedIntegralX100(_SpeedGains):
+    ki_factor: float = 100.0
+
+
+@defect("speed-loop-proportional-x10", "the speed PI's proportional gain ten times the commissioned one",
+        "speed-loop")
+class SpeedProportionalX10(_SpeedGains):
+    kp_factor: float = 10.0
+
+
+@defect("speed-loop-proportional-x0.1", "the speed PI's proportional gain a tenth of the commissioned one",
+        "speed-loop")
+class SpeedProportionalTenth(_SpeedGains):
+    kp_factor: float = 0.1
 
 
 
 @defect("sage-husa-noise-without-memory", "Sage-Husa's noise estimates with almost no memory: R's forgetting "
-        "factor near 0 over an interval of 2 edges, Q's near 0 every edge (each estimate is the last edges' alone)")
+        "factor near 0 over an interval of 2 edges, Q's near 0 every edge (each estimate is the last edges' alone)",
+        "noise-learning")
 class NoiseWithoutMemory(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         self.filter_settings = dataclasses.replace(self.filter_settings, r_forgetting_b=1e-3, r_interval=2,
@@ -267,21 +336,31 @@ class _WrongEdgeNoiseUpdate(VirtualController):
 
 
 @defect("sage-husa-r-frozen", "Sage-Husa's edge-noise variance R set once (its first estimate) and never updated "
-        "after (each later update written to a copy the filter does not use)")
+        "after (each later update written to a copy the filter does not use)", "noise-learning")
 class EdgeNoiseFrozen(_WrongEdgeNoiseUpdate):
     def wrong(self, before, after):
         return before if before > 0.0 else after
 
 
 @defect("sage-husa-r-update-wrong-sign", "Sage-Husa's edge-noise variance R updated with the wrong sign (the "
-        "step R_new - R_old subtracted; R floored at 0)")
+        "step R_new - R_old subtracted; R floored at 0)", "noise-learning")
 class EdgeNoiseWrongSign(_WrongEdgeNoiseUpdate):
     def wrong(self, before, after):
         return max(before - (after - before), 0.0)
 
 
 @defect("sage-husa-r-update-wrong-scale", "Sage-Husa's edge-noise variance R stored at a quarter of each update "
-        "(a fixed-point scale 2 bits off)")
+        "(a fixed-point scale 2 bits off)", "noise-learning")
 class EdgeNoiseWrongScale(_WrongEdgeNoiseUpdate):
     def wrong(self, before, after):
         return 0.25 * after
+
+
+@defect("sage-husa-r-runaway", "Sage-Husa's edge-noise variance R updated without the (1 - d) factor on the old "
+        "estimate (R = R + d term, not (1 - d) R + d term): it accumulates every interval's noise and runs away",
+        "noise-learning")
+class EdgeNoiseRunaway(_WrongEdgeNoiseUpdate):
+    def wrong(self, before, after):
+        # after = (1 - d) before + d term, d = 1 - b_R once the interval count has grown: the old
+        # estimate kept whole is after + d before
+        return after + (1.0 - self.filter_settings.r_forgetting_b) * before

@@ -1,12 +1,25 @@
 """``hil qualify``: the acceptance suite run against each seeded firmware defect.
 
 The control run (the built-in controller as shipped) must PASS; each defect then runs the same
-suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). A defect is
-caught when a test failed an assertion (a judged figure outside its bound: ``caught_by =
-"assertion"``); the requirements that failed are what caught it. A test that errored (an
-exception other than an assertion: ``caught_by = "error"``) judged nothing: a finding to fix,
-not a kill. Without a control run that PASSes there is no detection figure. The suite's files
-run cheapest first, so a caught defect costs seconds, a survivor the whole suite.
+suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). What the run saw
+(``what_caught``), test by test from its HIL report:
+
+* a failed **budget** (a measurement whose verdict is fail): caught by that budget's requirement,
+  whichever test's marker measured it;
+* a failed pass/fail **check** (an assertion with no failed budget): caught by the test's
+  requirements that have no budget of their own (a pass/fail requirement), else by those of its
+  requirements none of whose budgets passed in it;
+* a **device failure** (the controller signalled its own failure on valid input: a Modbus
+  exception 04, an SDO abort 0x08000000 or 0x06060000; hil.judging): a failed requirement, the
+  test's;
+* **not judged** (a setup check found that the scenario did not provoke what the test judges) and
+  **error** (anything else): nothing caught, a finding to fix.
+
+With ``--sensitivity`` each defect runs without ``-x``, restricted to the tests of the
+requirements that name its class (``hil.requirements``, ``judges``), and the result holds the
+sensitivity table: requirement x defect -> caught by that requirement's own budget or check, with
+the margin (``sensitivity_markdown``). Without a control run that PASSes there is no detection
+figure.
 """
 
 from __future__ import annotations
@@ -22,7 +35,8 @@ from pathlib import Path
 
 from .defects import CATALOGUE, load_defects
 
-#: the acceptance suite's files, cheapest and most discriminating first (the property searches last)
+#: the acceptance suite's files, cheapest and most discriminating first (the property searches last;
+#: the current and speed-loop tests before them, or a speed-loop defect costs the whole suite)
 SUITE_ORDER = (
     "test_protocol.py",
     "test_faults.py",
@@ -31,6 +45,7 @@ SUITE_ORDER = (
     "test_signal_injection.py",
     "test_sage_husa_learning.py",
     "test_sage_husa.py",
+    "test_current.py",
     "test_fault_injection.py",
 )
 #: a run that has not finished after this long is stopped and reported as undecided
@@ -42,15 +57,28 @@ class Run:
     name: str
     description: str
     verdict: str  #: the report's verdict: PASS, FAIL, or "no report"
-    killed: bool  #: caught by an assertion
-    #: "assertion" (a test failed a judged bound), "error" (a test raised something else and
-    #: none failed an assertion), or None (nothing failed)
+    killed: bool  #: caught by a failed budget, check or device failure of a requirement
+    #: "budget", "check" or "device failure" (what caught it, the strongest first), "not judged" (only
+    #: setup checks failed), "error" (a test raised something else and nothing caught it), or None
     caught_by: str | None = None
     killed_by: list[str] = field(default_factory=list)  #: requirement ids that failed
     failed_tests: list[str] = field(default_factory=list)
     duration_s: float = 0.0
     report: str = ""
     note: str = ""
+    #: what failed, one entry per requirement and cause: requirement, by ("budget NAME", "check",
+    #: "device failure"), margin (budgets), test
+    catches: list[dict] = field(default_factory=list)
+    #: every budget judged in the run: requirement, budget, verdict, margin, test
+    measurements: list[dict] = field(default_factory=list)
+    defect_class: str = ""
+    #: the requirements of every test that ran to a verdict (passed or failed): a pass/fail
+    #: requirement that ran and passed has no measurement to show for it
+    requirements_run: list[str] = field(default_factory=list)
+
+
+#: what caught a defect, the strongest evidence first
+CATCH_KINDS = ("budget", "check", "device failure")
 
 
 def suite_files(suite: Path) -> list[str]:
@@ -101,16 +129,91 @@ def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tupl
     return str(out), lacking
 
 
-def what_caught(report: dict) -> tuple[str | None, list[str], list[str]]:
-    """From a run's HIL report: ``caught_by`` ("assertion" when a test failed an assertion,
-    "error" when tests only errored, None), the requirements of the tests that failed an
-    assertion, and every failed or errored test. A verdict short of PASS for another reason (a
-    requirement the run could not test) or a test that errored is not a catch."""
+def what_caught(report: dict, registry: dict | None = None) -> tuple[str | None, list[str], list[str], list[dict]]:
+    """From a run's HIL report: ``caught_by`` (``CATCH_KINDS``, "not judged", "error" or None), the
+    requirements that caught the defect, every failed or errored test, and the catches (requirement,
+    by, margin, test). Module docstring: a budget's failure is its requirement's, whatever test
+    measured it; a setup check or an error catches nothing."""
+    if registry is None:
+        from ..requirements import REQUIREMENTS as registry
     failed = [t for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
-    kinds = {t.get("failed_by") or "error" for t in failed}
-    caught_by = "assertion" if "assertion" in kinds else ("error" if kinds else None)
-    requirements = sorted({r for t in failed if t.get("failed_by") == "assertion" for r in t.get("requirements", [])})
-    return caught_by, requirements, [t["nodeid"] for t in failed]
+    catches: list[dict] = []
+    kinds = set()
+    for t in failed:
+        kind = t.get("failed_by") or "error"
+        kinds.add(kind)
+        measurements = t.get("measurements", [])
+        if kind == "assertion":
+            over = [m for m in measurements if m.get("verdict") == "fail"]
+            if over:
+                catches += [{"requirement": m["requirement"], "by": f"budget {m['budget']}", "margin": m["margin"],
+                             "test": t["nodeid"]} for m in over]
+                continue
+            reqs = list(t.get("requirements", []))
+            passfail = [r for r in reqs if r in registry and not registry[r].budgets]
+            passed = {m["requirement"] for m in measurements if m.get("verdict") != "fail"}
+            owners = passfail or [r for r in reqs if r not in passed] or reqs
+            catches += [{"requirement": r, "by": "check", "margin": None, "test": t["nodeid"]} for r in owners]
+        elif kind == "device failure":
+            catches += [{"requirement": r, "by": "device failure", "margin": None, "test": t["nodeid"]}
+                        for r in t.get("requirements", [])]
+    by = {c["by"].split(" ")[0] if c["by"].startswith("budget") else c["by"] for c in catches}
+    caught_by = next((k for k in CATCH_KINDS if k in by), None)
+    if caught_by is None and failed:
+        caught_by = "not judged" if kinds == {"not judged"} else "error"
+    return caught_by, sorted({c["requirement"] for c in catches}), [t["nodeid"] for t in failed], catches
+
+
+def judged_measurements(report: dict) -> list[dict]:
+    """Every budget verdict of a run: requirement, budget, verdict, margin, test."""
+    return [{"requirement": m["requirement"], "budget": m["budget"], "verdict": m["verdict"], "margin": m["margin"],
+             "test": t["nodeid"]} for t in report.get("tests", []) for m in t.get("measurements", [])]
+
+
+def naming(defect_class: str, registry: dict | None = None) -> list[str]:
+    """The requirements that name ``defect_class`` among the defects they judge."""
+    if registry is None:
+        from ..requirements import REQUIREMENTS as registry
+    return [r.id for r in registry.values() if defect_class and defect_class in r.judges]
+
+
+def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
+    """The sensitivity table: one cell per (requirement, defect) where the requirement names the
+    defect's class or caught it. ``caught`` by its own budget or check; ``by`` and ``margin`` (the
+    failed budget's, else the smallest margin of its budgets in the run: how close it came);
+    ``ran`` False when no test of the requirement ran (the run stopped earlier, or was restricted)."""
+    if registry is None:
+        from ..requirements import REQUIREMENTS as registry
+    cells = []
+    for m in mutants:
+        named = naming(m.defect_class, registry)
+        caught = {c["requirement"]: c for c in m.catches}
+        for rid in named + [r for r in sorted(caught) if r not in named]:
+            mine = [x for x in m.measurements if x["requirement"] == rid]
+            c = caught.get(rid)
+            margin = c["margin"] if c is not None else (min(x["margin"] for x in mine) if mine else None)
+            ran = bool(mine) or c is not None or rid in m.requirements_run
+            cells.append({"requirement": rid, "defect": m.name, "defect_class": m.defect_class,
+                          "named": rid in named, "caught": c is not None, "by": c["by"] if c else None,
+                          "margin": margin, "ran": ran})
+    return cells
+
+
+def sensitivity_markdown(result: dict) -> str:
+    """The sensitivity table of a ``hil qualify`` result as markdown, one row per (defect,
+    requirement) cell of ``sensitivity``: whether the requirement names the defect's class, what
+    caught it (the failed budget and its margin, a check, a device failure) or, missed, its budgets'
+    smallest margin in the run ("not run" where none of its tests ran)."""
+    rows = ["| defect | class | requirement | names the class | verdict | by | margin |",
+            "|---|---|---|---|---|---|---|"]
+    for c in result.get("sensitivity") or []:
+        verdict = "caught" if c["caught"] else ("missed" if c["ran"] else "not run")
+        by = (c["by"] or "").removeprefix("budget ")
+        margin = "" if c["margin"] is None else f"{c['margin']:+.3g}"
+        rows.append(f"| `{c['defect']}` | {c['defect_class'] or '–'} | {c['requirement']} | "
+                    f"{'yes' if c['named'] else 'no'} | {'**caught**' if c['caught'] else verdict} | {by or '–'} | "
+                    f"{margin or '–'} |")
+    return "\n".join(rows) + "\n"
 
 
 FIRMWARE_DEFECTS_FORMAT = "bldc-hil-firmware-defects/1"
@@ -124,15 +227,19 @@ class FirmwareDefect:
     define: str
     description: str
     requirements: tuple[str, ...] = ()
+    #: its class (``hil.requirements.DEFECT_CLASSES``; defects.toml's optional ``class``), "" when unclassed
+    defect_class: str = ""
 
 
 def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     """The seeded defects of a ``sil:DIR`` firmware: ``DIR/defects.toml`` (format
     ``bldc-hil-firmware-defects/1``: ``[[defect]]`` tables of name, define, description,
-    requirements), or {} for any other DUT. Errors name the file, the table and the key."""
+    requirements, and optionally class, a ``DEFECT_CLASSES`` key), or {} for any other DUT. Errors
+    name the file, the table and the key."""
     from bldc.tomlfile import TomlError, load_toml
 
     from ..dut.spec import parse_dut
+    from ..requirements import DEFECT_CLASSES
 
     spec = parse_dut(dut)
     if spec.kind != "sil":
@@ -141,7 +248,8 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     if not path.is_file():
         raise ValueError(f"{path}: no such file: a firmware's seeded defects are listed there "
                          "(docs/firmware-in-the-loop.md)")
-    schema = {"format": None, "defect": [{"name": None, "define": None, "description": None, "requirements": None}]}
+    schema = {"format": None, "defect": [{"name": None, "define": None, "description": None, "requirements": None,
+                                   "class": None}]}
     data = load_toml(path, schema)
     if data.get("format") != FIRMWARE_DEFECTS_FORMAT:
         raise TomlError(path, f"must be {FIRMWARE_DEFECTS_FORMAT!r}", key="format")
@@ -150,7 +258,12 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
         for key in ("name", "define", "description"):
             if not isinstance(d.get(key), str) or not d[key]:
                 raise TomlError(path, "required, a non-empty string", table=f"[[defect]][{i}]", key=key)
-        out[d["name"]] = FirmwareDefect(d["name"], d["define"], d["description"], tuple(d.get("requirements", ())))
+        defect_class = d.get("class", "")
+        if not isinstance(defect_class, str) or (defect_class and defect_class not in DEFECT_CLASSES):
+            raise TomlError(path, f"must be one of {', '.join(DEFECT_CLASSES)}", table=f"[[defect]][{i}]",
+                            key="class")
+        out[d["name"]] = FirmwareDefect(d["name"], d["define"], d["description"], tuple(d.get("requirements", ())),
+                                        defect_class)
     return out
 
 
@@ -158,14 +271,25 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
     firmware = getattr(args, "firmware_defects", None) or {}
     dut = args.dut + (f",define={firmware[defect].define}" if defect in firmware else "")
-    cmd = [sys.executable, "-m", "pytest", "-q", "-x", "-p", "no:cacheprovider", "--hil-dut", dut,
+    sensitive = bool(getattr(args, "sensitivity", False))
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", dut,
            "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
+    if not sensitive:
+        cmd.insert(4, "-x")
     if args.budgets:
         cmd += ["--hil-budgets", args.budgets]
+    if defect is None:
+        defect_class = ""
+    else:
+        defect_class = (firmware[defect] if defect in firmware else CATALOGUE[defect]).defect_class
     if defect is not None and defect not in firmware:
         cmd += ["--hil-defect", defect]
         if args.defects:
             cmd += ["--hil-defects", args.defects]
+    if sensitive and naming(defect_class):
+        # the tests of the requirements that name its class, every one of them (no -x); a firmware
+        # defect (a compile-time switch in the DUT) as a catalogue one
+        cmd += ["--hil-requirements", ",".join(naming(defect_class))]
     cmd += suite_files(Path(args.suite))
     started = time.monotonic()
     note = ""
@@ -180,14 +304,18 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     if not report_json.is_file():
         tail = " | ".join(output.strip().splitlines()[-3:])
         return Run(name, description, "no report", False, None, duration_s=duration, report=str(report_json),
-                   note=note or f"the run wrote no report: {tail}")
+                   note=note or f"the run wrote no report: {tail}", defect_class=defect_class)
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
-    caught_by, failed_reqs, failed_tests = what_caught(report)
+    caught_by, failed_reqs, failed_tests, catches = what_caught(report)
     if caught_by == "error":
-        note = (note + "; " if note else "") + "a test errored (no assertion failed): a finding to fix, not a catch"
-    return Run(name, description, verdict, caught_by == "assertion", caught_by, failed_reqs, failed_tests, duration,
-               str(report_json), note)
+        note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
+    elif caught_by == "not judged":
+        note = (note + "; " if note else "") + "a setup check failed (the scenario did not provoke what it judges)"
+    ran = sorted({r for t in report.get("tests", []) if t.get("outcome") in ("passed", "failed")
+                  for r in t.get("requirements", [])})
+    return Run(name, description, verdict, caught_by in CATCH_KINDS, caught_by, failed_reqs, failed_tests, duration,
+               str(report_json), note, catches, judged_measurements(report), defect_class, ran)
 
 
 def qualify(args, progress=print) -> dict:
@@ -216,7 +344,8 @@ def qualify(args, progress=print) -> dict:
             runs.append(run)
             caught = ", ".join(run.killed_by) or "-"
             state = "control" if run.name == "control" else (
-                "killed" if run.killed else ("ERRORED" if run.caught_by == "error" else "SURVIVED"))
+                "killed" if run.killed else {"error": "ERRORED", "not judged": "NOT JUDGED"}.get(run.caught_by,
+                                                                                           "SURVIVED"))
             progress(f"{run.name:<34} {state:<9} {run.verdict:<9} {run.duration_s:6.1f} s  caught by: {caught}"
                      + (f"  ({run.note})" if run.note else ""))
     control, mutants = runs[0], runs[1:]
@@ -244,7 +373,9 @@ def qualify(args, progress=print) -> dict:
             f"the control run's verdict is {control.verdict}, not PASS: a defect's failure could be the "
             f"control's own ({', '.join(control.failed_tests) or control.note or 'see its report'})"),
         "errored": [m.name for m in mutants if m.caught_by == "error"],
+        "not_judged": [m.name for m in mutants if m.caught_by == "not judged"],
+        "sensitivity": sensitivity(mutants),
         "requirements": {req: sorted(names_) for req, names_ in sorted(by_requirement.items())},
-        "survivors": [m.name for m in mutants if m.caught_by is None],
+        "survivors": [m.name for m in mutants if not m.killed and m.caught_by not in ("error", "not judged")],
         "duration_s": time.monotonic() - started,
     }
