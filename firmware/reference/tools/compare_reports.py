@@ -3,7 +3,9 @@ xdist workers (tests and requirements matched by nodeid / id, not by the order t
 
     python firmware/reference/tools/compare_reports.py A/hil-report.json B/hil-report.json
 """
-import json, re, sys
+import json
+import re
+import sys
 IGN = re.compile(r"(duration|time|date|elapsed|started|finished|wall|_s_wall|timestamp|when|host|report_dir|path|html|worker)", re.I)
 def keyed(x):
     """a list of tests or requirements (finished in worker order) as a dict by nodeid / id"""
