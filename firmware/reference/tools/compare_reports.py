@@ -6,7 +6,8 @@ xdist workers (tests and requirements matched by nodeid / id, not by the order t
 import json
 import re
 import sys
-IGN = re.compile(r"(duration|time|date|elapsed|started|finished|wall|_s_wall|timestamp|when|host|report_dir|path|html|worker)", re.I)
+IGN = re.compile(r"(duration|time|date|elapsed|started|finished|wall|_s_wall|timestamp|when|host|report_dir|path"
+                 r"|html|worker)", re.I)
 def keyed(x):
     """a list of tests or requirements (finished in worker order) as a dict by nodeid / id"""
     if isinstance(x, list) and x and all(isinstance(e, dict) for e in x):
