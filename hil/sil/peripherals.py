@@ -39,6 +39,21 @@ EVENTS = ("", "hil_sil_hall_isr", "hil_sil_compare_isr", "hil_sil_control_isr", 
           "hil_sil_od_read", "hil_sil_od_write", "hil_sil_describe")
 HALL, COMPARE, CONTROL, RESET, OD_READ, OD_WRITE, DESCRIBE = range(1, 8)
 SHOOT_THROUGH = -100
+
+
+def enter_call(record, event: int, t_s: float, count: float) -> None:
+    """Open the call record (``[seq, event, t_s, count, in_call]``, shared with the parent, which
+    names a crash or hang from it) before a call into the firmware."""
+    record[1] = event
+    record[2] = t_s
+    record[3] = count
+    record[4] = 1.0
+
+
+def leave_call(record) -> None:
+    """Close the call record after the firmware returned (a new sequence number: not stuck)."""
+    record[4] = 0.0
+    record[0] += 1.0
 LEG_NAMES = ("A", "B", "C")
 _EPS_S = 1e-12
 
@@ -154,11 +169,7 @@ class Peripherals:
 
     # --- calls into the firmware --------------------------------------------------------------------
     def _enter(self, event: int, t_s: float, count: int) -> None:
-        r = self.record
-        r[1] = event
-        r[2] = t_s
-        r[3] = count
-        r[4] = 1.0
+        enter_call(self.record, event, t_s, count)
 
     def outputs_after(self, event: int, t_s: float, count: int) -> None:
         """What the firmware left after a call outside the interrupts (an object-dictionary write)."""
@@ -194,9 +205,7 @@ class Peripherals:
         if fw.has_emcy:
             while (code := fw.emcy()) is not None:
                 self.emcy.append((t_s, code))
-        r = self.record
-        r[4] = 0.0
-        r[0] += 1.0
+        leave_call(self.record)
 
     def _arm(self, count: int, t_s: float) -> None:
         k_now = self.ticks(t_s)

@@ -14,7 +14,7 @@ import traceback
 import numpy as np
 
 from .firmware import Firmware, SilInterfaceError
-from .peripherals import DESCRIBE, OD_READ, OD_WRITE, RESET, FirmwareFault, Peripherals
+from .peripherals import DESCRIBE, OD_READ, OD_WRITE, RESET, FirmwareFault, Peripherals, enter_call, leave_call
 
 
 class _Worker:
@@ -28,12 +28,10 @@ class _Worker:
         self.emcy: list[tuple[float, int]] = []
 
     def _enter(self, event: int, t_s: float = 0.0, count: float = -1.0) -> None:
-        r = self.record
-        r[1], r[2], r[3], r[4] = event, t_s, count, 1.0
+        enter_call(self.record, event, t_s, count)
 
     def _leave(self) -> None:
-        self.record[4] = 0.0
-        self.record[0] += 1.0
+        leave_call(self.record)
 
     def _now(self) -> tuple[float, int]:
         p = self.periph
