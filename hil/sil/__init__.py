@@ -14,6 +14,9 @@ from pathlib import Path
 
 from ..dut.link import LinkError
 
+#: the node id a profile's $NODEID resolves to on SIL (the built-in map's; nothing is sent on a bus)
+SIL_NODE_ID = 5
+
 
 def resolve_library(spec) -> tuple[Path, Path | None, str]:
     """The shared library of a ``sil:`` DUT (built when PATH is a folder), the profile its
@@ -46,7 +49,10 @@ def open_sil(spec, motor):
     library, built_profile, how = resolve_library(spec)
     profile_path = spec.options["profile"] or built_profile
     try:
-        profile = bound_profile("canopen", str(profile_path) if profile_path else None, motor.pole_pairs)
+        # a firmware in the loop has no bus: its profile's edge hook is ignored, and a $NODEID in it is
+        # resolved with the built-in map's node so that a CAN bench's profile serves unchanged
+        profile = bound_profile("canopen", str(profile_path) if profile_path else None, motor.pole_pairs,
+                                node_id=SIL_NODE_ID)
     except ProfileError as exc:
         raise LinkError(f"sil:{spec.options['path']}: profile {exc}") from None
     try:
