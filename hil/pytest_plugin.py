@@ -220,6 +220,10 @@ def pytest_configure(config):
     config.addinivalue_line(
         "markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)"
     )
+    config.addinivalue_line(
+        "markers", "dut_protocol(name): the test is a probe of that protocol only (canopen, modbus, sil); it is "
+        "not collected for a DUT that speaks another",
+    )
     report_dir = _option(config, "report_dir")
     if _explicit(config):
         _check_configuration(config, report_dir)
@@ -428,14 +432,22 @@ def traced_requirements(item) -> set[str]:
     return rids | {v for v in params.values() if isinstance(v, str) and v.startswith("REQ-")}
 
 
+def _protocol_applies(item) -> bool:
+    """False for a ``dut_protocol`` probe parametrized with a DUT that speaks another protocol: a
+    Modbus exception probe sent to a CANopen node is not a test that could pass or fail, so it is
+    not collected (pytest counts it as deselected) rather than listed as a skip in the matrix."""
+    mark = item.get_closest_marker("dut_protocol")
+    spec = getattr(getattr(item, "callspec", None), "params", {}).get("hil_dut_spec")
+    return mark is None or spec is None or spec.protocol == mark.args[0]
+
+
 def pytest_collection_modifyitems(config, items):
     wanted = config.getoption("--hil-requirements", None)
-    if not wanted:
-        return
-    wanted = {w.strip() for w in wanted.split(",") if w.strip()}
+    wanted = {w.strip() for w in wanted.split(",") if w.strip()} if wanted else None
     keep, drop = [], []
     for item in items:
-        (keep if traced_requirements(item) & wanted else drop).append(item)
+        applies = _protocol_applies(item) and (wanted is None or traced_requirements(item) & wanted)
+        (keep if applies else drop).append(item)
     if drop:
         config.hook.pytest_deselected(items=drop)
         items[:] = keep

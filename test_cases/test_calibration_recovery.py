@@ -27,6 +27,13 @@ SPEED_RPM = 8000.0  # high enough for the delay and the armature current to matt
 JUDGED_FROM_S = 0.15  # commutations before this are the start-up transient, not judged
 
 
+def _four_digits(value) -> str:
+    """A parameter of an effect as read: numbers to four significant digits, lists element-wise."""
+    if isinstance(value, (list, tuple)):
+        return ", ".join(_four_digits(v) for v in value)
+    return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
 @pytest.mark.parametrize("deviation", [pytest.param(name, marks=pytest.mark.requirement(req, "REQ-CAL-005"))
                                        for name, (req, _) in DEVIATIONS.items()])
 def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_budget, hil_budgets, hil_evidence,
@@ -36,7 +43,9 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
     effects = plant.suite_deviations(DEVIATIONS[deviation][1])
     speed_rpm = plant.suite_speed_rpm(SPEED_RPM)
     judged_from_s = plant.suite_settle_s(JUDGED_FROM_S, speed_rpm)
-    hil_evidence.text("deviations", ", ".join(str(e.to_dict()) for e in plant.with_effects(*effects).effects))
+    injected = [e.to_dict() for e in plant.with_effects(*effects).effects]
+    hil_evidence.table("deviations injected into the plant", ["effect", "parameter", "value"],
+                       [[d["name"], key, _four_digits(v)] for d in injected for key, v in d.items() if key != "name"])
     corrections = calibrate(effects)
     runs, figures = {}, {}
     # a controller that calibrates itself, or keeps tables of its own shape, has no strategy or

@@ -83,10 +83,10 @@ def _probe(od, profile, kind):
     raise ValueError(kind)
 
 
+@pytest.mark.dut_protocol("canopen")
 @pytest.mark.requirement("REQ-PROT-003")
 @pytest.mark.parametrize("kind", list(ABORT), ids=[k.replace(" ", "-") for k in ABORT])
-def test_sdo_abort_codes(kind, hil_dut, hil_link, hil_evidence):
-    _need(hil_dut, "canopen")
+def test_sdo_abort_codes(kind, hil_link, hil_evidence):
     what, request = _probe(hil_link.node.object_dictionary, hil_link.profile, kind)
     with pytest.raises(SdoAbortedError) as info:
         request(hil_link.node.sdo)
@@ -121,9 +121,9 @@ def test_heartbeat_period_matches_0x1017(hil_dut, hil_link, hil_budget, hil_evid
     hil_budget("heartbeat_period_error", abs(float(np.median(intervals)) / (period_ms / 1e3) - 1.0))
 
 
+@pytest.mark.dut_protocol("canopen")
 @pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-005")
-def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_dut, hil_link, calibrate, hil_evidence):
-    _need(hil_dut, "canopen")
+def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_link, calibrate, hil_evidence):
     bad = calibrate(())
     bad = bad.__class__.from_json_dict({**bad.to_json_dict(), "conditioning_delay_s": {"rise": 1e-3, "fall": 0.0}})
     while not hil_link.emcy.empty():
@@ -182,12 +182,12 @@ def _sil_probe(link, kind):
     raise ValueError(kind)
 
 
+@pytest.mark.dut_protocol("sil")
 @pytest.mark.requirement("REQ-PROT-003")
 @pytest.mark.parametrize("kind", list(ABORT), ids=[k.replace(" ", "-") for k in ABORT])
-def test_object_dictionary_abort_codes_of_a_firmware(kind, hil_dut, hil_link, hil_evidence):
+def test_object_dictionary_abort_codes_of_a_firmware(kind, hil_link, hil_evidence):
     """The same CiA 301 answers from a firmware in the loop's own dictionary (``hil_sil_od_read``/
     ``_write``), which a CAN bench would later see through its SDO server."""
-    _need(hil_dut, "sil")
     what, answer = _sil_probe(hil_link, kind)
     assert isinstance(answer, int) and answer < 0, f"{what}: answered {answer!r}, CiA 301 requires an abort"
     code = (-answer) & 0xFFFFFFFF
@@ -195,11 +195,11 @@ def test_object_dictionary_abort_codes_of_a_firmware(kind, hil_dut, hil_link, hi
     assert code == ABORT[kind], f"{what}: SDO abort 0x{code:08X}, CiA 301 requires 0x{ABORT[kind]:08X} ({kind})"
 
 
+@pytest.mark.dut_protocol("sil")
 @pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-005")
-def test_refused_calibration_sends_emcy_and_sets_0x1001_on_a_firmware(hil_dut, hil_link, calibrate, hil_evidence):
+def test_refused_calibration_sends_emcy_and_sets_0x1001_on_a_firmware(hil_link, calibrate, hil_evidence):
     """A firmware in the loop: the refused table's EMCY (``hil_sil_emcy``), the error register and
     the newest latched fault, as on the bus (its heartbeat is a bus service: judged on a CAN bench)."""
-    _need(hil_dut, "sil")
     bad = calibrate(())
     bad = bad.__class__.from_json_dict({**bad.to_json_dict(), "conditioning_delay_s": {"rise": 1e-3, "fall": 0.0}})
     before = len(hil_link.emcy_codes())
@@ -262,10 +262,10 @@ def _modbus_probe(profile, kind: str) -> tuple[str, bytes, int]:
     return f"write the read-only {ro.role} at {ro.address}", struct.pack(">BHH", 6, ro.address, 0), 0x02
 
 
+@pytest.mark.dut_protocol("modbus")
 @pytest.mark.requirement("REQ-PROT-003")
 @pytest.mark.parametrize("kind", MODBUS_PROBES)
-def test_modbus_exception_codes(kind, hil_dut, hil_link, hil_evidence):
-    _need(hil_dut, "modbus")
+def test_modbus_exception_codes(kind, hil_link, hil_evidence):
     if hil_link.serial_port is not None:
         pytest.skip("raw ADUs are sent over TCP only")
     name, pdu, code = _modbus_probe(hil_link.profile, kind)

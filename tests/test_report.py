@@ -273,6 +273,31 @@ def test_a_skip_that_does_not_apply_to_this_dut_leaves_a_pass_standing(pytester)
     ] == "PASS"
 
 
+def test_a_probe_of_another_protocol_is_not_collected_for_a_dut(pytester):
+    """A ``dut_protocol`` probe runs for the DUTs that speak its protocol and is deselected, never
+    listed as a skip, for the others; an unmarked test runs for every DUT."""
+    pytester.makepyfile(
+        test_two="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-PROT-003")
+        @pytest.mark.dut_protocol("modbus")
+        def test_exception_probe(hil_dut_spec):
+            assert hil_dut_spec.protocol == "modbus"
+
+        @pytest.mark.requirement("REQ-PROT-001")
+        def test_any(hil_dut_spec):
+            pass
+    """
+    )
+    duts = ["--hil-dut", "virtual:canopen", "--hil-dut", "virtual:modbus"]
+    result = pytester.runpytest("--hil-report-dir", "rep", *duts)
+    result.assert_outcomes(passed=3, deselected=1)
+    content = report(pytester)
+    assert [t["nodeid"].split("::")[1] for t in content["tests"]].count("test_exception_probe[virtual-modbus]") == 1
+    assert {r["id"]: r["verdict"] for r in content["traceability"]}["REQ-PROT-003"] == "pass"
+
+
 def test_a_traced_requirement_that_no_test_answered_for_fails_the_run(pytester):
     pytester.makepyfile(
         test_two="""
