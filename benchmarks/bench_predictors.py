@@ -83,12 +83,11 @@ def _timed(fn):
 def peer_costs(t, cur) -> dict[str, float]:
     """Batch run time per edge (us, best of 3 after a compile call) of each compared predictor."""
     from hil.experiments import peers
-    from hil.predictors.peer_settings import TUNED
 
     model = MotorModel.from_plant(paper_bench().motor)
     out = {}
-    for name in peers.NAMES:
-        p = peers.build(name, TUNED[name], model)
+    for name in peers.PREDICTORS:
+        p = peers.build(name, peers.shipped_settings(name), model)
         p.run(t[:100], cur[:100])
         out[name] = min(_timed(lambda: p.run(t, cur)) for _ in range(3)) / t.size * 1e6
     return out

@@ -269,19 +269,21 @@ def cmd_gap_diagnose(args) -> int:
 
     from plant_models import PlantConfig
 
+    from .signals.capture import CAPTURE_FORMATS
+    from .traces import TRACE_FORMATS, TraceMapping, read_trace
+
     path = Path(args.recording)
-    if path.is_dir() or (path.suffix.lower() in (".vcd", ".sr") and not args.meta):  # RECORDING's own forms
+    # a suffix both tables read (.csv, .txt) is a trace here: the gap diagnosis wants its segments
+    captures_only = [s for s in CAPTURE_FORMATS if s not in TRACE_FORMATS]
+    if path.is_dir() or (path.suffix.lower() in captures_only and not args.meta):  # RECORDING's own forms
         rec = load_recording(args.recording)
     else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        from .traces import TRACE_SUFFIXES, TraceMapping, read_trace
-
         if not path.exists():
             raise ValueError(f"{path}: no such file or directory")
-        if path.suffix.lower() not in TRACE_SUFFIXES:
+        if path.suffix.lower() not in TRACE_FORMATS:
             raise ValueError(
-                f"{path}: not a recording or a trace file (a hil-recording/1 directory, a Hall capture .vcd or .sr, "
-                "or a trace: "
-                f"{', '.join(TRACE_SUFFIXES)})"
+                f"{path}: not a recording or a trace file (a hil-recording/1 directory, a Hall capture "
+                f"{' or '.join(captures_only)}, or a trace: {', '.join(TRACE_FORMATS)})"
             )
         if not args.meta:
             raise ValueError(

@@ -95,8 +95,40 @@ class _Table:
         return values, stamps
 
 
-#: the file types read as traces (anything else is neither a trace nor a recording directory)
-TRACE_SUFFIXES = (".mf4", ".mdf", ".dat", ".parquet", ".pq", ".csv", ".txt")
+def _open_mdf(path: Path) -> _Table:
+    from asammdf import MDF
+
+    return _Table(path, signals=MDF(str(path)))
+
+
+def _open_parquet(path: Path) -> _Table:
+    import pandas as pd
+
+    frame = pd.read_parquet(path)
+    return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
+
+
+def _open_csv(path: Path) -> _Table:
+    import pandas as pd
+
+    for _ in _lines(path, MAX_TABLE_BYTES):  # line length, NUL bytes, UTF-8: refused at their line
+        pass
+    try:
+        frame = pd.read_csv(path, skipinitialspace=True, encoding="utf-8-sig")
+    except (pd.errors.ParserError, ValueError) as exc:
+        raise RecordingError(path, None, None, f"not a readable CSV: {' '.join(str(exc).split())[:200]}") from None
+    frame.columns = [str(c).strip() for c in frame.columns]
+    return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
+
+
+#: the trace table formats by file suffix (lower case), the file types read as traces: the one
+#: place a new trace format is registered (the Hall capture formats, logic levels without a mapping, are
+#: ``hil.signals.capture.CAPTURE_FORMATS``)
+TRACE_FORMATS = {
+    ".mf4": _open_mdf, ".mdf": _open_mdf, ".dat": _open_mdf,
+    ".parquet": _open_parquet, ".pq": _open_parquet,
+    ".csv": _open_csv, ".txt": _open_csv,
+}
 
 
 def _open(path: Path) -> _Table:
@@ -104,27 +136,12 @@ def _open(path: Path) -> _Table:
     if not path.is_file():
         raise RecordingError(path, None, None, "missing file")
     _checked_size(path, MAX_TABLE_BYTES)
-    if suffix in (".mf4", ".mdf", ".dat"):
-        from asammdf import MDF
-
-        return _Table(path, signals=MDF(str(path)))
-    if suffix in (".parquet", ".pq"):
-        import pandas as pd
-
-        frame = pd.read_parquet(path)
-        return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
-    if suffix in (".csv", ".txt"):
-        import pandas as pd
-
-        for _ in _lines(path, MAX_TABLE_BYTES):  # line length, NUL bytes, UTF-8: refused at their line
-            pass
-        try:
-            frame = pd.read_csv(path, skipinitialspace=True, encoding="utf-8-sig")
-        except (pd.errors.ParserError, ValueError) as exc:
-            raise RecordingError(path, None, None, f"not a readable CSV: {' '.join(str(exc).split())[:200]}") from None
-        frame.columns = [str(c).strip() for c in frame.columns]
-        return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
-    raise RecordingError(path, None, None, f"unknown trace format {suffix!r} (MDF4 .mf4, Parquet .parquet, CSV .csv)")
+    opener = TRACE_FORMATS.get(suffix)
+    if opener is None:
+        raise RecordingError(
+            path, None, None, f"unknown trace format {suffix!r} (MDF4 .mf4, Parquet .parquet, CSV .csv)"
+        )
+    return opener(path)
 
 
 def _edges_from_levels(table: _Table, m: TraceMapping):

@@ -2,9 +2,14 @@
 
 Each effect is a frozen dataclass whose fields carry units in their names and physical bounds
 (:func:`bldc.params.bounded`). Defaults are neutral: an effect built with its defaults
-changes nothing. Each effect knows how to write itself into the compiled plant
-(:meth:`Effect.contribute`), draws itself for hypothesis (:meth:`Effect.strategy`) and
-describes its fingerprint for the gap diagnosis (:attr:`Effect.fingerprint`).
+changes nothing. Each effect is declared once, here, with everything the rest of the house asks
+of it: how it writes itself into the compiled plant (:meth:`Effect.contribute`), its draw for
+hypothesis (:meth:`Effect.strategy`), its fingerprint and knob text for the gap diagnosis
+(:attr:`Effect.fingerprint`, :attr:`Effect.knob_record`, :attr:`Effect.knob_shows`,
+:attr:`Effect.pair_knobs`), its linear edge-angle signature if the diagnosis fits it
+(:meth:`Effect.edge_signature`), and its random draw and parameter vector for the diagnosis's
+validation (:meth:`Effect.unit_draw`, :attr:`Effect.validation`, :meth:`Effect.fit_error`).
+Registered in :data:`EFFECTS`, an effect is simulated, listed, diagnosed and validated.
 
 Sign convention (paper Section 2): a positive angular deviation means the captured edge trails
 the ideal one in forward rotation. Installation and pole offsets are spatial displacements, so
@@ -16,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 
@@ -27,12 +32,82 @@ from .compiled import CompiledPlant
 
 
 @dataclass(frozen=True)
+class EdgeSignature:
+    """How the gap diagnosis (``hil.gap``) fits an effect's mean edge-angle signature: a linear block
+    over the residual cells.
+
+    ``columns`` maps the cells' features to an (n_cells, k) design block in deg_e per unit
+    coefficient. The features (``hil.gap.diagnose.build_cells``) are arrays with one value per
+    cell: ``sensor`` (0-2), ``rising`` (1/0), ``pole`` (0 .. 2p-1), ``direction`` (+1/-1), ``w_e``
+    (deg_e/s), ``current`` (A, mean |i|), ``load``, ``segment``; and the int ``pole_pairs``.
+    ``params`` maps the k fitted coefficients to the effect's parameters (its own units and sign),
+    ``physical`` (coefficients, standard errors) says whether a fit is inside the effect's bounds,
+    ``param_stderr`` gives the parameters' standard errors where they are not linear in the
+    coefficients (None: ``params(stderr)``)."""
+
+    columns: Callable[[Mapping[str, Any]], np.ndarray]
+    params: Callable[[np.ndarray], dict]
+    physical: Callable[[np.ndarray, np.ndarray], bool]
+    param_stderr: Callable[[np.ndarray, np.ndarray], dict] | None = None
+    #: invisible in relative errors (a recording referenced to the turn, no encoder): a common
+    #: shift or a lag equal on every edge
+    needs_encoder: bool = False
+
+
+def bounds_of(cls: type, field_name: str) -> tuple[float | None, float | None]:
+    """(low, high) of an effect field, as its ``bounded`` metadata states them."""
+    for f in dataclasses.fields(cls):
+        if f.name == field_name:
+            return f.metadata.get("low"), f.metadata.get("high")
+    raise KeyError(f"{cls.__name__} has no field {field_name!r}")
+
+
+def magnitude_within(cls: type, field_name: str) -> Callable[[np.ndarray, np.ndarray], bool]:
+    """Fitted coefficients plausible when each |value| is at most the field's high bound plus three
+    standard errors (a field bounded symmetrically about 0)."""
+    high = bounds_of(cls, field_name)[1]
+    return lambda c, se: bool(np.all(np.abs(c) <= high + 3 * se))
+
+
+def not_below(cls: type, field_name: str) -> Callable[[np.ndarray, np.ndarray], bool]:
+    """Fitted coefficients plausible when none is below the field's low bound by three standard errors."""
+    low = bounds_of(cls, field_name)[0]
+    return lambda c, se: bool(np.all(c >= low - 3 * se))
+
+
+#: validation scaling laws (``hil.gap.validate``): how a unit draw becomes an effect at a given
+#: signal-to-noise ratio
+VALIDATION_LAWS = (
+    "edge",      #: every magnitude of the unit draw alike, to the RMS of its edge-angle signature
+    "tick",      #: a capture timer's tick from its quantisation noise (the signature is a variance too)
+    "jitter",    #: an extra edge jitter component (a variance effect)
+    "sampled",   #: ``magnitude_field`` alone, linear, to the RMS of its sampled-signal signature
+    "knee",      #: ``magnitude_field`` is a knee the signature falls with: secant steps in log-log
+)
+
+
+@dataclass(frozen=True)
 class Effect:
     name: ClassVar[str] = ""
     #: where the effect acts: "sensor" (edge angle), "timing" (edge time), "electrical", "mechanical"
     layer: ClassVar[str] = ""
     #: fingerprint for the gap diagnosis (docs/gap.md, Fingerprints)
     fingerprint: ClassVar[Mapping[str, str]] = {}
+    #: the two halves of the gap diagnosis's knob sentence (``hil.gap.diagnose.knob``): what to
+    #: record to expose the effect, and how it shows there (None: "more operating points", "has its
+    #: own fingerprint")
+    knob_record: ClassVar[str | None] = None
+    knob_shows: ClassVar[str | None] = None
+    #: the sentence that separates it from one other effect (by that effect's name), where the two
+    #: halves would not say it; a pair's sentence sits on one of its two effects
+    pair_knobs: ClassVar[Mapping[str, str]] = {}
+    #: how the diagnosis's validation scales a unit draw to a signal-to-noise ratio (one of
+    #: VALIDATION_LAWS); None: the validation does not draw it
+    validation: ClassVar[str | None] = None
+    #: the field the "sampled" and "knee" laws scale
+    magnitude_field: ClassVar[str] = ""
+    #: the parameters the validation compares, fitted against injected (:meth:`params_vector`)
+    vector_fields: ClassVar[tuple[str, ...]] = ()
 
     def contribute(self, plant: CompiledPlant) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -45,6 +120,34 @@ class Effect:
     def strategy(cls, pole_pairs: int = 2):
         """Hypothesis strategy drawing this effect inside its documented bounds."""
         return strategy_for(cls)
+
+    @classmethod
+    def edge_signature(cls) -> EdgeSignature | None:
+        """Its mean edge-angle signature as the gap diagnosis fits it; None: it leaves none (or is
+        diagnosed elsewhere: edge jitter as a variance, the electrical ones from the samples)."""
+        return None
+
+    @classmethod
+    def unit_draw(cls, rng: np.random.Generator, pole_pairs: int) -> "Effect":
+        """A random direction in the effect's parameter space for the validation, scaled to the
+        signal-to-noise ratio by its ``validation`` law."""
+        raise NotImplementedError(f"effect {cls.name!r} has no validation draw (validation = {cls.validation!r})")
+
+    @classmethod
+    def params_vector(cls, params: Mapping[str, Any]) -> np.ndarray:
+        """The compared parameters (``vector_fields``) of ``params`` as one vector."""
+        if not cls.vector_fields:
+            raise KeyError(f"effect {cls.name!r} declares no vector_fields to compare")
+        out: list[float] = []
+        for k in cls.vector_fields:
+            v = params[k]
+            out.extend(v if isinstance(v, (list, tuple)) else [v])
+        return np.asarray(out, dtype=float)
+
+    def fit_error(self, params: Mapping[str, Any]) -> float:
+        """Relative error of fitted ``params`` against this (injected) effect's."""
+        t, f = self.params_vector(dataclasses.asdict(self)), self.params_vector(params)
+        return float(np.linalg.norm(f - t) / max(np.linalg.norm(t), 1e-12))
 
     def to_dict(self) -> dict[str, Any]:
         out: dict[str, Any] = {"name": self.name}
@@ -70,10 +173,29 @@ class InstallationOffset(Effect):
         "scales_with": "nothing (constant in angle); flips sign with direction",
         "knob": "-",
     }
+    knob_record: ClassVar[str] = "a segment in reverse"
+    knob_shows: ClassVar[str] = (
+        "an installation offset is a fixed place on the stator, so each sensor's error changes sign in the "
+        "trailing frame when the rotor turns the other way"
+    )
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("offset_deg_e",)
     offset_deg_e: tuple[float, float, float] = bounded(
         (0.0, 0.0, 0.0), low=-10.0, high=10.0, unit="deg_e", length=3,
         doc="offset of sensors A, B, C; positive = edges trail",
     )
+
+    @classmethod
+    def edge_signature(cls):
+        return EdgeSignature(
+            lambda c: np.column_stack([c["direction"] * (c["sensor"] == x) for x in range(3)]),
+            lambda k: {"offset_deg_e": [float(v) for v in k]},
+            magnitude_within(cls, "offset_deg_e"),
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(tuple(rng.uniform(-1, 1, 3)))
 
     def contribute(self, plant):
         plant.sensor_offset_deg_e += np.asarray(self.offset_deg_e, dtype=float)
@@ -96,6 +218,18 @@ class PoleOffset(Effect):
         "scales_with": "nothing (constant in angle); flips sign with direction",
         "knob": "6p-edge block analysis",
     }
+    knob_record: ClassVar[str] = "at least 30 mechanical turns per operating point"
+    knob_shows: ClassVar[str] = "a pole offset is any per-pole pattern repeating every mechanical turn"
+    pair_knobs: ClassVar[Mapping[str, str]] = {
+        "eccentricity": (
+            "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order "
+            "sinusoid over the turn (two parameters), a pole offset any per-pole pattern; only the pattern's "
+            "departure from a sinusoid, resolved by more turns, separates them, and while they are equal within "
+            "noise the eccentricity is kept for having fewer parameters."
+        ),
+    }
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("offset_deg_e",)
     offset_deg_e: tuple[float, ...] = bounded(
         (0.0, 0.0, 0.0, 0.0), low=-5.0, high=5.0, unit="deg_e",
         doc="shift of the boundary starting each magnet pole; length 2 * pole_pairs",
@@ -115,6 +249,24 @@ class PoleOffset(Effect):
 
         one = st.floats(-5.0, 5.0, allow_nan=False)
         return st.builds(cls, offset_deg_e=st.tuples(*([one] * (2 * pole_pairs))))
+
+    @classmethod
+    def edge_signature(cls):
+        def columns(c):
+            return np.column_stack([c["direction"] * (c["pole"] == j) for j in range(2 * c["pole_pairs"])])
+
+        return EdgeSignature(columns, lambda k: {"offset_deg_e": [float(v) for v in k]},
+                             magnitude_within(cls, "offset_deg_e"))
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(tuple(rng.uniform(-1, 1, 2 * pole_pairs)))
+
+    def fit_error(self, params):
+        # the common part is shared with installation offsets: only the pattern about its mean counts
+        t, f = self.params_vector(dataclasses.asdict(self)), self.params_vector(params)
+        t, f = t - t.mean(), f - f.mean()
+        return float(np.linalg.norm(f - t) / max(np.linalg.norm(t), 1e-12))
 
     def contribute(self, plant):
         plant.pole_offset_deg_e += np.asarray(self.offset_deg_e, dtype=float)
@@ -237,6 +389,24 @@ class ConditioningDelay(Effect):
         "scales_with": "speed (constant in time)",
         "knob": "speed sweep",
     }
+    knob_record: ClassVar[str] = "three or more speeds at one load"
+    knob_shows: ClassVar[str] = (
+        "a delay constant in time grows in angle with speed, and rising and falling edges differ"
+    )
+    pair_knobs: ClassVar[Mapping[str, str]] = {
+        "armature_reaction": (
+            "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the "
+            "speed and stays, armature reaction follows the phase current and moves; under a pump load alone speed "
+            "and current rise together."
+        ),
+        "timer_quantization": (
+            "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising "
+            "with falling edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags "
+            "and differs between the edges."
+        ),
+    }
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("rise_delay_s", "fall_delay_s")
     rise_delay_s: float = bounded(
         0.0, low=0.0, high=MAX_CONDITIONING_DELAY_S, unit="s", doc="delay of captured rising edges"
     )
@@ -264,6 +434,19 @@ class ConditioningDelay(Effect):
         rise, fall = circuit.delays_s()
         return cls(rise_delay_s=rise, fall_delay_s=fall)
 
+    @classmethod
+    def edge_signature(cls):
+        return EdgeSignature(
+            lambda c: np.column_stack([c["w_e"] * c["rising"], c["w_e"] * (1 - c["rising"])]),
+            lambda k: {"rise_delay_s": float(k[0]), "fall_delay_s": float(k[1])},
+            not_below(cls, "rise_delay_s"),
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        rise = rng.uniform(0.3, 1.0)
+        return cls(rise * 1e-5, rng.uniform(0.0, 1.0) * rise * 1e-5)
+
     def contribute(self, plant):
         plant.rise_delay_s += self.rise_delay_s
         plant.fall_delay_s += self.fall_delay_s
@@ -287,6 +470,10 @@ class ArmatureReaction(Effect):
         "scales_with": "phase current (load)",
         "knob": "load sweep at fixed speed",
     }
+    knob_record: ClassVar[str] = "two loads (pump load and throttled or braked) at one speed"
+    knob_shows: ClassVar[str] = "armature reaction follows the phase current, not the speed"
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("slope_deg_e_per_a",)
     slope_deg_e_per_a: float = bounded(0.0, low=-2.0, high=2.0, unit="deg_e/A", doc="edge lag per ampere")
     table_current_a: tuple[float, ...] = bounded((), low=0.0, high=1e3, unit="A", doc="table currents")
     table_offset_deg_e: tuple[float, ...] = bounded((), low=-30.0, high=30.0, unit="deg_e", doc="table offsets")
@@ -311,6 +498,18 @@ class ArmatureReaction(Effect):
         if self.table_current_a:
             return np.interp(current_a, self.table_current_a, self.table_offset_deg_e)
         return self.slope_deg_e_per_a * np.asarray(current_a, dtype=float)
+
+    @classmethod
+    def edge_signature(cls):
+        return EdgeSignature(
+            lambda c: c["current"][:, None],
+            lambda k: {"slope_deg_e_per_a": float(k[0])},
+            magnitude_within(cls, "slope_deg_e_per_a"),
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(float(rng.choice([-1, 1]) * rng.uniform(0.5, 1.0)))
 
     def contribute(self, plant):
         if self.table_current_a:
@@ -337,7 +536,32 @@ class Hysteresis(Effect):
         "scales_with": "nothing (constant in angle)",
         "knob": "a segment in reverse (hysteresis lags both ways; an installation offset flips)",
     }
+    knob_record: ClassVar[str] = "a segment in reverse"
+    knob_shows: ClassVar[str] = (
+        "hysteresis lags the switching in either direction of rotation, alike for every sensor"
+    )
+    pair_knobs: ClassVar[Mapping[str, str]] = {
+        "installation_offset": (
+            "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation "
+            "offset is a fixed place on the stator and changes sign in the trailing frame when the rotor reverses."
+        ),
+    }
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("lag_deg_e",)
     lag_deg_e: float = bounded(0.0, low=0.0, high=5.0, unit="deg_e", doc="switching lag after the field zero")
+
+    @classmethod
+    def edge_signature(cls):
+        return EdgeSignature(
+            lambda c: np.ones((c["sensor"].size, 1)),
+            lambda k: {"lag_deg_e": float(k[0])},
+            not_below(cls, "lag_deg_e"),
+            needs_encoder=True,
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(1.0)
 
     def contribute(self, plant):
         plant.hysteresis_deg_e += self.lag_deg_e
@@ -393,6 +617,10 @@ class EdgeJitter(Effect):
         "scales_with": "nothing in angle (angle jitter) or speed (time jitter)",
         "knob": "-",
     }
+    knob_record: ClassVar[str] = "a run at a second speed"
+    knob_shows: ClassVar[str] = "jitter in time grows in angle with speed while jitter in angle does not"
+    validation: ClassVar[str] = "jitter"
+    vector_fields: ClassVar[tuple[str, ...]] = ("time_rms_s",)
     #: three RMS inside the half sector that bounds a conditioning delay (MAX_CONDITIONING_DELAY_S: the
     #: slowest-commutating motor, a many-pole hub motor at its top speed, whose slow field ramps
     #: through the threshold make the largest time jitter)
@@ -426,9 +654,28 @@ class TimerQuantization(Effect):
         "scales_with": "constant in time",
         "knob": "lag-1 autocorrelation -0.5 of sector times",
     }
+    knob_record: ClassVar[str] = (
+        "the capture timer's tick in meta.json, or a run at a finer timer resolution"
+    )
+    knob_shows: ClassVar[str] = "a capture timer makes every edge lead by half a tick, rising and falling alike"
+    validation: ClassVar[str] = "tick"
+    vector_fields: ClassVar[tuple[str, ...]] = ("tick_s",)
     #: up to 100 us: an MCU capture timer ticks in ns, a logic analyser samples at 10 kHz or faster
     #: (the shipped real captures: 30 kHz, 33.3 us)
     tick_s: float = bounded(0.0, low=0.0, high=1e-4, unit="s", doc="capture timer resolution (0 = none)")
+
+    @classmethod
+    def edge_signature(cls):
+        return EdgeSignature(
+            lambda c: (-0.5 * c["w_e"])[:, None],  # the timer floors: mean lag -tick/2 in time
+            lambda k: {"tick_s": float(k[0])},
+            not_below(cls, "tick_s"),
+            needs_encoder=True,
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(1e-6)
 
     def contribute(self, plant):
         plant.timer_tick_s = max(plant.timer_tick_s, self.tick_s)
@@ -452,8 +699,45 @@ class Eccentricity(Effect):
         "scales_with": "nothing (constant in angle)",
         "knob": "6p-edge block analysis (order 1 of the mechanical turn)",
     }
+    knob_record: ClassVar[str] = "at least 30 mechanical turns per operating point"
+    knob_shows: ClassVar[str] = (
+        "an eccentricity is a first-order sinusoid over the mechanical turn, whose two parameters the per-pole "
+        "pattern must match"
+    )
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("amplitude_deg_e",)
     amplitude_deg_e: float = bounded(0.0, low=0.0, high=3.0, unit="deg_e", doc="peak boundary shift")
     phase_rad: float = bounded(0.0, low=0.0, high=2 * math.pi, unit="rad", doc="phase of the gap minimum")
+
+    @classmethod
+    def edge_signature(cls):
+        high = bounds_of(cls, "amplitude_deg_e")[1]
+
+        def columns(c):
+            ang = 2 * np.pi * c["pole"] / (2 * c["pole_pairs"])
+            return np.column_stack([c["direction"] * np.sin(ang), c["direction"] * np.cos(ang)])
+
+        def param_stderr(k, se):
+            """First-order propagation of the sine and cosine coefficients' errors to amplitude and phase."""
+            amp = max(float(np.hypot(*k)), 1e-300)
+            return {
+                "amplitude_deg_e": float(np.hypot(k[0] * se[0], k[1] * se[1]) / amp),
+                "phase_rad": float(np.hypot(k[1] * se[0], k[0] * se[1]) / amp**2),
+            }
+
+        return EdgeSignature(
+            columns,
+            lambda k: {
+                "amplitude_deg_e": float(np.hypot(*k)),
+                "phase_rad": float(np.mod(np.arctan2(k[1], k[0]), 2 * np.pi)),
+            },
+            lambda c, se: bool(np.hypot(*c) <= high + 3 * np.hypot(*se)),
+            param_stderr,
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(1.0, float(rng.uniform(0, 2 * math.pi)))
 
     def contribute(self, plant):
         k = np.arange(2 * plant.pole_pairs)
@@ -478,9 +762,29 @@ class CoggingTorque(Effect):
         "scales_with": "largest at low speed",
         "knob": "low-speed run",
     }
+    knob_record: ClassVar[str] = "the lowest speed the pump holds, with the reference encoder"
+    knob_shows: ClassVar[str] = (
+        "cogging's speed ripple grows as the speed falls and sits at a fixed number of periods per turn"
+    )
+    validation: ClassVar[str] = "sampled"
+    magnitude_field: ClassVar[str] = "amplitude_n_m"
     amplitude_n_m: float = bounded(0.0, low=0.0, high=0.1, unit="N m", doc="peak cogging torque")
     periods_per_rev: int = bounded(12, low=1, high=96, unit="1/rev", integer=True, doc="cogging periods per turn")
     phase_rad: float = bounded(0.0, low=0.0, high=2 * math.pi, unit="rad", doc="phase")
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(0.01, int(rng.choice([6, 8, 12, 18, 24])), float(rng.uniform(0, 2 * math.pi)))
+
+    @classmethod
+    def params_vector(cls, params):
+        a, ph = params["amplitude_n_m"], params["phase_rad"]  # amplitude and phase as one phasor
+        return np.array([a * math.cos(ph), a * math.sin(ph)])
+
+    def fit_error(self, params):
+        if params["periods_per_rev"] != self.periods_per_rev:
+            return float("inf")  # the wrong order: no magnitude is right
+        return super().fit_error(params)
 
     def contribute(self, plant):
         plant.cogging_amplitude_n_m = self.amplitude_n_m
@@ -503,8 +807,24 @@ class WindingTemperature(Effect):
         "scales_with": "run time (heat soak)",
         "knob": "heat soak",
     }
+    knob_record: ClassVar[str] = "two loads at one speed"
+    knob_shows: ClassVar[str] = "a resistance change shows in proportion to the current"
+    pair_knobs: ClassVar[Mapping[str, str]] = {
+        "magnet_temperature": (
+            "Record two loads at one speed: a resistance change (winding temperature) follows the current, a "
+            "back-EMF change (magnet temperature) follows the speed; under a pump load alone current and speed "
+            "move together."
+        ),
+    }
+    validation: ClassVar[str] = "sampled"
+    magnitude_field: ClassVar[str] = "temperature_rise_k"
+    vector_fields: ClassVar[tuple[str, ...]] = ("temperature_rise_k",)
     temperature_rise_k: float = bounded(0.0, low=-40.0, high=150.0, unit="K", doc="above the reference temperature")
     alpha_per_k: float = bounded(0.00393, low=0.0, high=0.01, unit="1/K", doc="resistance temperature coefficient")
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(10.0)  # a heat soak: the -40 K bound would cap a cold draw near SNR 1
 
     def contribute(self, plant):
         plant.phase_resistance_ohm *= 1.0 + self.alpha_per_k * self.temperature_rise_k
@@ -525,8 +845,17 @@ class MagnetTemperature(Effect):
         "scales_with": "run time (heat soak)",
         "knob": "heat soak",
     }
+    knob_record: ClassVar[str] = "two speeds at one load"
+    knob_shows: ClassVar[str] = "a back-EMF change shows in proportion to the speed"
+    validation: ClassVar[str] = "sampled"
+    magnitude_field: ClassVar[str] = "temperature_rise_k"
+    vector_fields: ClassVar[tuple[str, ...]] = ("temperature_rise_k",)
     temperature_rise_k: float = bounded(0.0, low=-40.0, high=150.0, unit="K", doc="above the reference temperature")
     alpha_br_per_k: float = bounded(-0.0012, low=-0.005, high=0.0, unit="1/K", doc="remanence temperature coefficient")
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(float(rng.choice([-1, 1]) * 10.0))
 
     def contribute(self, plant):
         plant.ke_v_s_per_rad *= 1.0 + self.alpha_br_per_k * self.temperature_rise_k
@@ -569,27 +898,38 @@ class Saturation(Effect):
         "scales_with": "phase current above the knee",
         "knob": "current threshold (load)",
     }
+    knob_record: ClassVar[str] = "one operating point at high load"
+    knob_shows: ClassVar[str] = "saturation shows only above its knee current"
+    validation: ClassVar[str] = "knee"
+    magnitude_field: ClassVar[str] = "saturation_current_a"
+    vector_fields: ClassVar[tuple[str, ...]] = ("saturation_current_a",)
     saturation_current_a: float = bounded(20.0, low=0.1, high=1e3, unit="A", doc="knee current")
     min_inductance_fraction: float = bounded(1.0, low=0.1, high=1.0, unit="1", doc="floor of L(i)/L (1 = none)")
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(10.0, 0.1)  # the knee law's first step; the floor at the library's lower bound
 
     def contribute(self, plant):
         plant.saturation_current_a = self.saturation_current_a
         plant.min_inductance_fraction = self.min_inductance_fraction
 
 
+#: the registry: an effect listed here is simulated, listed by ``hil effects``, read from TOML, and, by
+#: its declaration, diagnosed and validated; its order is the order the gap diagnosis tries them in
 EFFECTS: dict[str, type[Effect]] = {
     cls.name: cls
     for cls in (
         InstallationOffset,
         PoleOffset,
         SensorPoleOffset,
+        Eccentricity,
+        Hysteresis,
         ConditioningDelay,
         ArmatureReaction,
-        Hysteresis,
         SwitchingAsymmetry,
         EdgeJitter,
         TimerQuantization,
-        Eccentricity,
         CoggingTorque,
         WindingTemperature,
         MagnetTemperature,

@@ -140,10 +140,11 @@ def test_the_registry_declares_every_predictor_once_and_builds_each_from_its_shi
     ones from their kinematic settings) into its declared class, whose settings read back equal;
     the shipped settings cover exactly the registry's names; an unknown name is refused."""
     from hil.predictors.peer_settings import TUNED
-    from hil.predictors.registry import KINEMATIC_MODEL, MODEL_BASED, NAMES, PREDICTORS, build, settings_of
+    from hil.predictors.registry import KINEMATIC_MODEL, PREDICTORS, build, settings_of
 
-    assert set(TUNED) - {"kinematic"} == set(NAMES)
-    assert set(TUNED["kinematic"]) == set(MODEL_BASED) == {"kf", "sage_husa", "vb_akf"}
+    assert set(TUNED) - {"kinematic"} == set(PREDICTORS)
+    model_based = {n for n, e in PREDICTORS.items() if e.model_based}
+    assert set(TUNED["kinematic"]) == model_based == {"kf", "sage_husa", "vb_akf"}
     t = np.cumsum(np.full(400, 1e-3))
     for name, entry in PREDICTORS.items():
         forms = [(TUNED[name], False)] + ([(TUNED["kinematic"][name], True)] if entry.model_based else [])
@@ -201,11 +202,11 @@ def test_the_shipped_settings_keep_their_training_score_on_the_first_training_pu
     to rerun tools/predictor_tuning.py (docs/sage-husa.md, "Peers")."""
     from hil.experiments import peers
     from hil.predictors.peer_settings import PROVENANCE, TUNED
-    from hil.predictors.registry import NAMES
+    from hil.predictors.registry import PREDICTORS
 
     recorded = PROVENANCE["training_score"]
     assert recorded["pump_seed"] == peers.SCORE_PUMP_SEED == PROVENANCE["train_pump_seeds"][0]
-    forms = [(n, False) for n in NAMES] + [(n, True) for n in TUNED["kinematic"]]
+    forms = [(n, False) for n in PREDICTORS] + [(n, True) for n in TUNED["kinematic"]]
     assert set(recorded["angle_rms_deg_e"]) == {peers._score_key(n, k) for n, k in forms}
     drift = {}
     for name, kinematic in forms:

@@ -62,7 +62,7 @@ def test_real_capture_all_six_finite_and_a_model_filter_no_worse_than_sector_hol
     """Held-out real capture (no tuning saw any real capture): the judged bound of issue 26."""
     out, _ = spindle_compared
     rows = {r["name"]: r for r in out["predictors"]}
-    assert set(rows) == set(peers.NAMES)
+    assert set(rows) == set(peers.PREDICTORS)
     for r in rows.values():
         assert all(k in r for k in CONTRACT)
         assert all(math.isfinite(r[k]) for k in ("angle_rms_deg_e", "angle_p99_deg_e", "angle_max_deg_e"))
@@ -103,7 +103,7 @@ def test_cli_writes_the_contract(spindle, tmp_path):
     assert hil_main(["predictors", "compare", str(spindle.path), "--json", str(out)]) == 0
     data = json.loads(out.read_text())
     assert {"source", "reference", "predictors"} <= set(data)
-    assert [r["name"] for r in data["predictors"]] == list(peers.NAMES)
+    assert [r["name"] for r in data["predictors"]] == list(peers.PREDICTORS)
 
 
 def test_cli_refuses_a_recording_and_a_scenario(spindle, capsys):
@@ -116,7 +116,7 @@ def test_pumps_contract_on_two_held_out_pumps():
     assert len(out["pumps"]) == 2
     for pump in out["pumps"]:
         assert "pole_pairs" in pump["params"]
-        assert [r["name"] for r in pump["predictors"]] == list(peers.NAMES)
+        assert [r["name"] for r in pump["predictors"]] == list(peers.PREDICTORS)
         assert all(math.isfinite(r["angle_rms_deg_e"]) for r in pump["predictors"])
     assert out["settings_provenance"]["train_pump_seeds"]
 
@@ -138,7 +138,7 @@ def test_paper_scenario_contract_and_the_model_filters_beat_sector_hold():
     better than sector hold, which predicts none (measured 0.07 against 0.6 deg e)."""
     out = peers.compare_paper(seeds=(0,), hold_s=0.5)
     rows = {r["name"]: r for r in out["predictors"]}
-    assert list(rows) == list(peers.NAMES)
+    assert list(rows) == list(peers.PREDICTORS)
     for r in rows.values():
         assert all(k in r for k in CONTRACT)
         assert all(math.isfinite(r[k]) for k in ("angle_rms_deg_e", "angle_p99_deg_e", "angle_max_deg_e",

@@ -13,7 +13,7 @@ import pytest
 
 from bldc.units import rpm_to_deg_e_per_s
 from hil.predictors.peer_settings import TUNED
-from hil.predictors.registry import KINEMATIC_MODEL, MODEL_BASED, NAMES, build
+from hil.predictors.registry import KINEMATIC_MODEL, PREDICTORS, build
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
@@ -38,7 +38,7 @@ def slow_capture():
 
 
 def _rms_deg_e(name, t, truth, w):
-    kin = name in MODEL_BASED
+    kin = PREDICTORS[name].model_based
     p = build(name, TUNED["kinematic"][name] if kin else TUNED[name], KINEMATIC_MODEL, kinematic=kin)
     r = p.run(t, np.zeros(t.size))
     k = np.arange(1, t.size - 1)
@@ -52,7 +52,7 @@ def test_no_predictor_loses_count_of_the_sectors_at_low_speed(slow_capture):
     Sage-Husa filter's speed went negative over a long decelerating cycle and its Eq. 7
     prediction ran to 1e9 s: 4.9e11 deg e RMS here (the KF's 4e10 on the hoverboard capture);
     measured after: sector hold 17.4, Sage-Husa 31.1, VB-AKF 34.6 deg e, each restart counted."""
-    figures = {name: _rms_deg_e(name, *slow_capture) for name in NAMES}
+    figures = {name: _rms_deg_e(name, *slow_capture) for name in PREDICTORS}
     for name in ("sector_hold", "moving_average", "sage_husa", "vb_akf"):
         assert figures[name][0] < 60.0, (name, figures[name])
     assert figures["sage_husa"][1]["lost_lock"] > 0, figures["sage_husa"]

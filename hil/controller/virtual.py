@@ -9,9 +9,11 @@ Modbus) and the in-process link all drive this one object.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections import deque
 from dataclasses import dataclass, field
+from typing import ClassVar, Mapping
 
 import numpy as np
 
@@ -31,7 +33,7 @@ from bldc.units import rad_e_per_s_to_rpm
 
 from ..calibration.corrections import SENSORS, Corrections
 from ..predictors import FilterSettings, KalmanPredictor, MotorModel, SageHusaPredictor
-from ..predictors.registry import pump_defaults
+from ..predictors.registry import for_strategy, pump_defaults
 from .adc import edge_currents
 from .commutation import HallCommutation, SpeedPI
 
@@ -119,6 +121,20 @@ class VirtualController:
     kp_per_rpm: float | None = None
     ki_per_rpm_s: float | None = None
 
+    #: the field holding the settings of a predictor the controller configures itself (bus-written,
+    #: tuned by ``hil.experiments.controller_tuning``); any other predictor a strategy runs takes
+    #: the shipped tuning (``peer_settings.TUNED``)
+    SETTINGS_FIELDS: ClassVar[Mapping[str, str]] = {"sage_husa": "filter_settings", "kf": "kf_settings"}
+
+    def predictor_settings(self, name: str) -> dict:
+        """The settings the controller runs predictor ``name`` with (as the registry's ``make`` reads them)."""
+        attr = self.SETTINGS_FIELDS.get(name)
+        if attr is None:
+            from ..predictors.peer_settings import TUNED
+
+            return TUNED[name]
+        return dataclasses.asdict(getattr(self, attr))
+
     def __post_init__(self):
         scale = speed_loop_gain_scale(self.motor)
         if self.kp_per_rpm is None:
@@ -152,12 +168,12 @@ class VirtualController:
         self._logic.speed.feedforward = steady_state(self.motor, rpm)["duty"]
 
     def _build_logic(self, speed_loop: SpeedPI) -> None:
+        # the registry names the predictor each strategy runs (none: RAW and CORRECTED commutate at the edges)
+        entry = for_strategy(self.strategy.name)
         predictor = None
-        model = self.model or MotorModel.from_plant(self.motor)
-        if self.strategy is Strategy.KF:
-            predictor = KalmanPredictor(model, self.kf_settings)
-        elif self.strategy is Strategy.SAGE_HUSA:
-            predictor = SageHusaPredictor(model, self.filter_settings)
+        if entry is not None:
+            model = self.model or MotorModel.from_plant(self.motor)
+            predictor = entry.make(self.predictor_settings(entry.name), model, False)
         corrections = (
             None
             if self.strategy is Strategy.RAW

@@ -26,6 +26,15 @@ from scipy.optimize import minimize
 from ..predictors import filters as F
 from ..predictors.model import MotorModel
 from ..predictors.predictors import FilterSettings, KalmanPredictor, PrecalibrationPredictor, SageHusaPredictor
+from ..predictors.registry import (  # noqa: F401 - the filters' design and grids, declared with the predictors
+    B_R_RANGE,
+    B_RANGE,
+    KF_GRID,
+    R_INTERVAL_RANGE,
+    SH_DESIGN,
+    SH_GRID,
+    sh_settings,
+)
 from .identify import identify
 from .table5 import Bursts, ScenarioRun, Table5Row, run_scenario, score
 
@@ -47,24 +56,6 @@ Q0_SCAN = (0.01, 0.1, 1.0, 10.0, 100.0)
 TRAIN_SEEDS = (1, 2, 12, 13)
 EVAL_SEEDS = (0, 3, 4, 5, 6, 7, 8, 9, 10, 11)
 SH_ADAPT = 3  # Q and R; the noise means r and q (Eq. 12) stay at r0 = q0 = 0, see docs
-#: Sage-Husa's own design outside the paper protocol: R every 30 edges (a burst of 0.4 s holds
-#: about 20 such intervals at 5000-10,000 rpm), Q band x100 around its start. Q_w is steered by
-#: innovation whiteness every 60 edges (``filters.ADAPT_Q_WHITE``) and Q_i by Eq. 12: a one-step
-#: innovation carries almost nothing of Q_w (dt^2 Q_w is about 1/200 of R_theta), so its Eq. 12
-#: recursion falls to the band floor where no process noise is, and the filter then cannot follow
-#: a load its model has wrong (1000 drawn conditions within 1.05 x KF + 0.01 deg e: 90.9 % with
-#: Eq. 12 on Q_w, 95.6 % with whiteness; docs/sage-husa.md, Robustness). R's current entry never
-#: below its R0 (``filters.ADAPT_R_CURRENT_FLOOR``): it stands for the acceleration input's error
-#: as well as the sensor's noise, which is all Eq. 12 learns (``tuned``: -4.0 % angle RMS with
-#: R_i free, +3.0 % floored at its tuned R0; robustness 96.0 %)
-SH_DESIGN = dict(
-    adapt_mask=F.ADAPT_R | F.ADAPT_Q_WHITE | F.ADAPT_Q_CURRENT | F.ADAPT_R_CURRENT_FLOOR,
-    adapt_interval=60,
-    r_interval=30,
-    r_forgetting_b=0.9,
-    forgetting_b=0.98,
-    q_band_factor=100.0,
-)
 #: what the bursts protocol's statement changes in that design, each from the stated disturbance:
 #: inside a burst R has not learned yet every edge may be gated, so the divergence run is derived
 #: for p_gated = 1 (23 at 12,000 rpm; 3 fires by chance in a quarter of a burst's gated
@@ -74,23 +65,12 @@ SH_DESIGN = dict(
 #: set-point step (docs/sage-husa.md)
 BURSTS_SH = dict(SH_DESIGN, adapt_mask=F.ADAPT_R | F.ADAPT_Q_CURRENT,
                  divergence_run=F.divergence_run_for(F.CHI2_2DOF_999, F.MAX_EDGE_RATE_HZ, p_gated=1.0))
-#: coarse grids (log-spaced) from which both filters' refinement starts: 144 points each
-KF_GRID = dict(
-    q_w=(1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0), q_i=(1e-5, 1e-3, 1e-1), r_theta=(1e-6, 1e-5, 1e-4, 1e-3), r_i=(1e-2, 1.0)
-)
-SH_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.02, 0.005), one_minus_b_r=(0.7, 0.1),
-               r_i=KF_GRID["r_i"])
 BURSTS_GRID = dict(q_w=KF_GRID["q_w"], q_i=KF_GRID["q_i"], one_minus_b=(0.05, 0.02, 0.005, 0.001),
                    one_minus_b_r=(0.7, 0.1))
 #: Nelder-Mead evaluations after the grid, the same budget for both filters
 REFINE_EVALUATIONS = 80
 #: grid points the refinement starts from (each gets an equal share of the evaluations)
 REFINE_STARTS = 2
-#: Q's forgetting factor within the usual 0.95 (docs/sage-husa.md) and a memory of 10,000 cycles; R's per interval
-B_RANGE = (0.95, 0.9999)
-B_R_RANGE = (0.05, 0.999)
-#: R's interval where a search has it: a tenth of the paper's 120 edges to twice it
-R_INTERVAL_RANGE = (12, 240)
 W_REF_RAD_S = 1571.0  # 7500 rpm, 2 pole pairs: the middle of the profile (oracle schedule reference)
 
 
@@ -142,21 +122,6 @@ def tune_kf(
         if best is None or value < best[0]:
             best = (value, s)
     return best[1]
-
-
-def sh_settings(design: dict, point: dict[str, float]) -> FilterSettings:
-    """Sage-Husa's settings at one point of a search: ``design`` with the nominal Q_w and Q_i, the
-    forgetting factors of Q and R (as 1 - b, clipped to their ranges) and, where the search has
-    it, R's interval (rounded to whole edges, clipped to R_INTERVAL_RANGE) and R's current entry."""
-    extra = {}
-    if "r_i" in point:  # R0's current entry, for a design that floors R_i there (filters.ADAPT_R_CURRENT_FLOOR)
-        extra["r0_diag"] = (design.get("r0_diag", FilterSettings().r0_diag)[0], point["r_i"])
-    if "r_interval" in point:
-        extra["r_interval"] = min(max(int(round(point["r_interval"])), R_INTERVAL_RANGE[0]), R_INTERVAL_RANGE[1])
-    return FilterSettings(**{**design, "q0_diag": (point["q_w"], 1e-9, point["q_i"]),
-                             "forgetting_b": min(max(1.0 - point["one_minus_b"], B_RANGE[0]), B_RANGE[1]),
-                             "r_forgetting_b": min(max(1.0 - point["one_minus_b_r"], B_R_RANGE[0]), B_R_RANGE[1]),
-                             **extra})
 
 
 def tune_sh(runs: list, model: MotorModel, design: dict | None = None, grid: dict | None = None,

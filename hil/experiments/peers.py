@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import itertools
 import math
 import subprocess
 import time
@@ -38,19 +39,10 @@ from plant_models.plant import PAPER_BENCH_CIRCUIT
 
 from ..calibration.campaign import station_corrections
 from ..predictors.model import MotorModel
-from ..predictors.peers import MovingAveragePredictor, PllPredictor, VbAkfPredictor
-from ..predictors.predictors import FilterSettings, KalmanPredictor, SageHusaPredictor, split_counters
+from ..predictors.predictors import FilterSettings, KalmanPredictor, split_counters
 from ..predictors.registry import (
     KINEMATIC_MODEL,
-    MA_FIFO_GRID,
-    MODEL_BASED,
-    NAMES,
-    PLL_BW_GRID_RAD_S,
     PREDICTORS,
-    VB_ITERATIONS,
-    VB_ONE_MINUS_RHO,
-    VB_R_THETA,
-    VB_TAU,
     build,
     rebuilt,
     settings_of,
@@ -69,14 +61,6 @@ PUMP_RANGE = dict(pole_pairs=(1, 4), inertia_factor=(0.3, 3.0), fan_factor=(0.5,
 PUMP_SETPOINTS, PUMP_HOLD_S, PUMP_MIN_SPAN_RPM, PUMP_MAX_DUTY = 5, 0.6, 2000.0, 0.95
 HELD_OUT_PUMP_SEEDS = tuple(range(1000, 1024))
 TRAIN_PUMP_SEEDS = tuple(range(2000, 2008))
-#: the tuning's budget: at most compare's (a 144-point grid, then 80 Nelder-Mead evaluations from
-#: its 2 best points) per option; predictors with fewer knobs search exhaustively with fewer (the
-#: spaces are declared with the predictors, ``hil.predictors.registry``)
-VB_GRID = dict(q_w=compare.KF_GRID["q_w"], q_i=compare.KF_GRID["q_i"], r_theta=VB_R_THETA, tau=VB_TAU,
-               one_minus_rho=VB_ONE_MINUS_RHO)
-assert math.prod(len(v) for v in VB_GRID.values()) == math.prod(len(v) for v in compare.KF_GRID.values())
-
-
 @dataclass
 class Pump:
     seed: int
@@ -159,57 +143,48 @@ def _pair_objective(runs, predictor, kinematic: bool = False) -> float:
     return value if math.isfinite(value) else math.inf
 
 
+def search(entry, objective, model0: MotorModel, kinematic: bool = False) -> tuple[float, object]:
+    """The best predictor in ``entry``'s tuning space (the registry's data): for each option set,
+    the axes' grid searched (exhaustively, or then refined: ``compare._grid_then_refine``); the
+    best over the option sets (the first on a tie). ``objective(predictor)`` is minimised; returns
+    (its value, the predictor)."""
+    space = entry.tuning_space
+    best = None
+    for opts in space.option_sets():
+        def make(x, opts=opts):
+            return entry.make(space.settings(space.point(x), opts), model0, kinematic)
+
+        if not space.axes:
+            x = ()
+        elif space.exhaustive:
+            x = min(itertools.product(*space.grid.values()), key=lambda x: objective(make(x)))
+        else:
+            x = compare._grid_then_refine(lambda x: objective(make(x)), space.grid)
+        p = make(x)
+        value = objective(p)
+        if best is None or value < best[0]:
+            best = (value, p)
+    return best
+
+
 def tune(runs: list[tuple[ScenarioRun, MotorModel]], kinematic: bool = False, log=print) -> dict[str, dict]:
     """Each predictor's settings minimising the mean commutation angle RMS over ``runs`` (training
-    pumps), each search at most compare's budget per option (stated in ``BUDGETS``);
-    ``kinematic``: only the model-based filters, in their kinematic form (for recordings)."""
+    pumps), each searched in its registry tuning space (``search``), at most compare's budget per
+    option (stated in ``BUDGETS``); ``kinematic``: only the model-based filters, in their
+    kinematic form (for recordings)."""
     model0 = KINEMATIC_MODEL if kinematic else runs[0][1]
-
-    def objective(r, predictor):
-        return _pair_objective(r, predictor, kinematic)
-
     tuned: dict[str, dict] = {}
     t0 = time.monotonic()
-    if not kinematic:
-        tuned["sector_hold"] = {}
-        best = min((objective(runs, MovingAveragePredictor(n)), n) for n in MA_FIFO_GRID)
-        tuned["moving_average"] = MovingAveragePredictor(best[1]).settings
-        log(f"moving_average: fifo {best[1]} ({best[0]:.4f} deg e) {time.monotonic() - t0:.0f} s")
-        best = None
-        for two in (False, True):
-            bw = compare._grid_then_refine(
-                lambda x, two=two: objective(runs, PllPredictor(min(max(x[0], 1.0), 1e5), two)),
-                {"bw": PLL_BW_GRID_RAD_S})
-            p = PllPredictor(min(max(bw[0], 1.0), 1e5), two)
-            value = objective(runs, p)
-            if best is None or value < best[0]:
-                best = (value, p)
-        tuned["pll"] = best[1].settings
-        log(f"pll: {tuned['pll']} ({best[0]:.4f} deg e) {time.monotonic() - t0:.0f} s")
-    kf = KalmanPredictor(model0, compare.tune_kf(runs, model0, objective=objective))
-    tuned["kf"] = settings_of(kf)
-    log(f"kf: ({objective(runs, kf):.4f} deg e) {time.monotonic() - t0:.0f} s")
-    sh = SageHusaPredictor(model0, compare.tune_sh(runs, model0, objective=objective))
-    tuned["sage_husa"] = settings_of(sh)
-    log(f"sage_husa: ({objective(runs, sh):.4f} deg e) {time.monotonic() - t0:.0f} s")
-    best = None
-    for iterations in VB_ITERATIONS:
-        def vb(x, iterations=iterations):
-            p = dict(zip(VB_GRID, x))
-            return VbAkfPredictor(model0, (p["q_w"], 1e-9, p["q_i"]), (p["r_theta"], compare.KF_GRID["r_i"][1]),
-                                  tau=p["tau"], rho=1.0 - min(p["one_minus_rho"], 0.5), iterations=iterations,
-                                  use_current=not kinematic)
-
-        x = compare._grid_then_refine(lambda x, vb=vb: objective(runs, vb(x)), VB_GRID)
-        value = objective(runs, vb(x))
-        if best is None or value < best[0]:
-            best = (value, vb(x))
-        log(f"vb_akf, {iterations} iterations: {value:.4f} deg e, {time.monotonic() - t0:.0f} s")
-    tuned["vb_akf"] = best[1].settings
+    for name, entry in PREDICTORS.items():
+        if kinematic and not entry.model_based:
+            continue
+        value, p = search(entry, lambda predictor: _pair_objective(runs, predictor, kinematic), model0, kinematic)
+        tuned[name] = settings_of(p)
+        log(f"{name}: {tuned[name]} ({value:.4f} deg e) {time.monotonic() - t0:.0f} s")
     return tuned
 
 
-BUDGETS = {name: entry.tuning_space for name, entry in PREDICTORS.items()}
+BUDGETS = {name: entry.tuning_space.describe() for name, entry in PREDICTORS.items()}
 
 
 # --- evaluation ------------------------------------------------------------------------------------
@@ -250,14 +225,30 @@ def _tuned():
     return TUNED, PROVENANCE
 
 
+def shipped_settings(name: str, kinematic: bool = False) -> dict:
+    """The tuned settings of predictor ``name`` (``peer_settings.TUNED``, or its kinematic form's);
+    a predictor whose tuning space has no setting needs no tuning: the settings of its empty point."""
+    from ..predictors.peer_settings import TUNED
+
+    block = TUNED["kinematic"] if kinematic else TUNED
+    if name in block:
+        return block[name]
+    space = PREDICTORS[name].tuning_space
+    if not space.axes and not space.options:
+        return space.settings({}, {})
+    form = " (kinematic form)" if kinematic else ""
+    raise ValueError(f"predictor {name!r}{form} has no tuned settings in hil/predictors/peer_settings.py: "
+                     "run tools/predictor_tuning.py")
+
+
 def compare_paper(seeds=compare.EVAL_SEEDS, hold_s: float = 1.0) -> dict:
     tuned, provenance = _tuned()
     config = scenario_plant()
     model = identify(config, seed=compare.TRAIN_SEEDS[0]).model
     pairs = [(run_scenario(config, station_corrections(config, seed=s), hold_s=hold_s, seed=s), model) for s in seeds]
     preds = []
-    for name in NAMES:
-        p = build(name, tuned[name], model)
+    for name in PREDICTORS:
+        p = build(name, shipped_settings(name), model)
         rows, cost = _figures(name, p, pairs)
         preds.append(_row_json(name, rows, cost, settings_of(p)))
     return {"source": f"scenario paper: 7 set points 5000-10,000 rpm held {hold_s:g} s, seeds {list(seeds)}",
@@ -273,11 +264,11 @@ def compare_pumps(seeds=HELD_OUT_PUMP_SEEDS) -> dict:
     pairs = [pump_run(p) for p in pumps]
     per_pump = [{"params": p.params, "predictors": []} for p in pumps]
     preds = []
-    for name in NAMES:
-        p = build(name, tuned[name], pairs[0][1])
+    for name in PREDICTORS:
+        p = build(name, shipped_settings(name), pairs[0][1])
         rows, cost = [], []
         for j, pair in enumerate(pairs):
-            q = build(name, tuned[name], pair[1])
+            q = build(name, shipped_settings(name), pair[1])
             r, c = _figures(name, q, [pair])
             rows += r
             cost += c
@@ -313,12 +304,10 @@ def training_score(name: str, pump_seed: int = SCORE_PUMP_SEED, kinematic: bool 
     settings of predictor ``name`` (``kinematic``: its kinematic form) on the training pump
     ``pump_seed``; ``PROVENANCE["training_score"]`` holds what the tuning measured, so a change in
     the code under the settings shows as a different figure."""
-    from ..predictors.peer_settings import TUNED
-
     if pump_seed not in TRAIN_PUMP_SEEDS:
         raise ValueError(f"pump {pump_seed} is not a training pump ({TRAIN_PUMP_SEEDS[0]}-{TRAIN_PUMP_SEEDS[-1]})")
     pair = _training_pair(pump_seed)
-    settings = TUNED["kinematic"][name] if kinematic else TUNED[name]
+    settings = shipped_settings(name, kinematic)
     return _pair_objective([pair], build(name, settings, pair[1], kinematic=kinematic), kinematic)
 
 
@@ -346,7 +335,7 @@ def tuning_main(argv=None) -> int:
     tuned = tune(runs)
     print("kinematic forms (no current, no motor data), for recordings:")
     tuned["kinematic"] = tune(runs, kinematic=True)
-    forms = [(name, False) for name in NAMES] + [(name, True) for name in tuned["kinematic"]]
+    forms = [(name, False) for name in PREDICTORS] + [(name, True) for name in tuned["kinematic"]]
 
     def objective(pairs, name, kinematic):
         settings = tuned["kinematic"][name] if kinematic else tuned[name]
@@ -499,9 +488,9 @@ def compare_recording(rec, source: str, edges: RecordingEdges | None = None) -> 
     if kinematic:
         current = np.zeros(tc.size)
     preds = []
-    for name in NAMES:
-        kin = kinematic and name in MODEL_BASED
-        settings = tuned["kinematic"][name] if kin else tuned[name]
+    for name, entry in PREDICTORS.items():
+        kin = kinematic and entry.model_based
+        settings = shipped_settings(name, kin)
         p = build(name, settings, KINEMATIC_MODEL if kinematic else model, kinematic=kin)
         p.run(tc[:64], current[:64])
         t0 = time.perf_counter()

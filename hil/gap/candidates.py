@@ -1,15 +1,21 @@
 """Candidate explanations: each effect of the library that leaves a mean edge-angle signature,
 as a linear design block over the residual cells, and the map from fitted coefficients back to
-the effect's parameters (in the library's own units and sign convention)."""
+the effect's parameters (in the library's own units and sign convention).
+
+The blocks are the effects' own declarations (``plant_models.effects``, ``Effect.edge_signature``):
+this module only views the registry ``EFFECTS`` as candidates, at the time it is asked, so an
+effect registered there is a candidate without a line here."""
 
 from __future__ import annotations
 
+import functools
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
 
-from plant_models.effects import EFFECTS
+from plant_models.effects import EFFECTS, Effect
 
 
 @dataclass(frozen=True)
@@ -21,6 +27,8 @@ class Candidate:
     #: (coef, stderr) -> standard errors of the parameters; None: the parameters are linear in the
     #: coefficients, so they are ``params(stderr)``
     param_stderr: Callable[[np.ndarray, np.ndarray], dict] | None = None
+    #: invisible without an encoder (a recording referenced to the turn)
+    needs_encoder: bool = False
 
     def stderr(self, coef: np.ndarray, se: np.ndarray) -> dict:
         """Standard errors of ``params(coef)`` (model-based: from the weighted fit of the cells)."""
@@ -33,84 +41,33 @@ class Candidate:
         return dict(EFFECTS[self.name].fingerprint)
 
 
-def _not_below(lo: float) -> Callable[[np.ndarray, np.ndarray], bool]:
-    return lambda c, se: bool(np.all(c >= lo - 3 * se))
+@functools.lru_cache(maxsize=None)
+def _candidate(cls: type[Effect]) -> Candidate | None:
+    sig = cls.edge_signature()
+    if sig is None:
+        return None
+    return Candidate(cls.name, sig.columns, sig.params, sig.physical, sig.param_stderr, sig.needs_encoder)
 
 
-def _installation(c):
-    return np.column_stack([c["direction"] * (c["sensor"] == x) for x in range(3)])
+class _Candidates(Mapping):
+    """The registered effects that declare an edge signature, in the registry's order (read on each
+    use: a registration after import counts)."""
+
+    def __getitem__(self, name: str) -> Candidate:
+        cls = EFFECTS.get(name)
+        cand = _candidate(cls) if cls is not None else None
+        if cand is None:
+            raise KeyError(name)
+        return cand
+
+    def __iter__(self) -> Iterator[str]:
+        return (name for name, cls in EFFECTS.items() if _candidate(cls) is not None)
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
 
 
-def _pole(c):
-    n = 2 * c["pole_pairs"]
-    return np.column_stack([c["direction"] * (c["pole"] == j) for j in range(n)])
-
-
-def _eccentricity(c):
-    n = 2 * c["pole_pairs"]
-    ang = 2 * np.pi * c["pole"] / n
-    return np.column_stack([c["direction"] * np.sin(ang), c["direction"] * np.cos(ang)])
-
-
-def _eccentricity_stderr(k, se):
-    """First-order propagation of the sine and cosine coefficients' errors to amplitude and phase."""
-    amp = max(float(np.hypot(*k)), 1e-300)
-    return {
-        "amplitude_deg_e": float(np.hypot(k[0] * se[0], k[1] * se[1]) / amp),
-        "phase_rad": float(np.hypot(k[1] * se[0], k[0] * se[1]) / amp**2),
-    }
-
-
-def _delay(c):
-    return np.column_stack([c["w_e"] * c["rising"], c["w_e"] * (1 - c["rising"])])
-
-
-def _quantization(c):
-    return (-0.5 * c["w_e"])[:, None]  # the timer floors: mean lag -tick/2 in time
-
-
-CANDIDATES: dict[str, Candidate] = {
-    "installation_offset": Candidate(
-        "installation_offset",
-        _installation,
-        lambda k: {"offset_deg_e": [float(v) for v in k]},
-        lambda c, se: bool(np.all(np.abs(c) <= 10 + 3 * se)),
-    ),
-    "pole_offset": Candidate(
-        "pole_offset",
-        _pole,
-        lambda k: {"offset_deg_e": [float(v) for v in k]},
-        lambda c, se: bool(np.all(np.abs(c) <= 5 + 3 * se)),
-    ),
-    "eccentricity": Candidate(
-        "eccentricity",
-        _eccentricity,
-        lambda k: {
-            "amplitude_deg_e": float(np.hypot(*k)),
-            "phase_rad": float(np.mod(np.arctan2(k[1], k[0]), 2 * np.pi)),
-        },
-        lambda c, se: bool(np.hypot(*c) <= 3 + 3 * np.hypot(*se)),
-        _eccentricity_stderr,
-    ),
-    "hysteresis": Candidate(
-        "hysteresis", lambda c: np.ones((c["sensor"].size, 1)), lambda k: {"lag_deg_e": float(k[0])}, _not_below(0.0)
-    ),
-    "conditioning_delay": Candidate(
-        "conditioning_delay",
-        _delay,
-        lambda k: {"rise_delay_s": float(k[0]), "fall_delay_s": float(k[1])},
-        _not_below(0.0),
-    ),
-    "armature_reaction": Candidate(
-        "armature_reaction",
-        lambda c: c["current"][:, None],
-        lambda k: {"slope_deg_e_per_a": float(k[0])},
-        lambda c, se: bool(np.all(np.abs(c) <= 2 + 3 * se)),
-    ),
-    "timer_quantization": Candidate(
-        "timer_quantization", _quantization, lambda k: {"tick_s": float(k[0])}, _not_below(0.0)
-    ),
-}
+CANDIDATES: Mapping[str, Candidate] = _Candidates()
 
 #: Library effects with no mean edge-angle signature are diagnosed elsewhere: edge_jitter as a
 #: variance effect (diagnose._noise_gap), the electrical and mechanical ones from the sampled

@@ -24,6 +24,7 @@ from scipy import stats
 from scipy.optimize import nnls
 
 from hil.recording import Recording
+from plant_models.effects import EFFECTS
 
 from .candidates import CANDIDATES
 from .fitting import cell_rms
@@ -350,7 +351,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
     names = list(candidates or CANDIDATES)
     if r.reference == "turn":
         # relative errors: common shifts and equal lags are invisible without an encoder
-        names = [n for n in names if n not in ("hysteresis", "timer_quantization")]
+        names = [n for n in names if not CANDIDATES[n].needs_encoder]
     n_cells = cells.mean.size
     p0, es = _edge_selection(cells, names)
     significant = p0 < ALPHA
@@ -587,75 +588,18 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
     return p, params, max(min(explained, 1.0), 0.0), before, after, shrink
 
 
-#: per effect: what to record to expose it, and how it shows there (the two halves of a knob)
-KNOB_RECORD = {
-    "installation_offset": "a segment in reverse",
-    "hysteresis": "a segment in reverse",
-    "pole_offset": "at least 30 mechanical turns per operating point",
-    "eccentricity": "at least 30 mechanical turns per operating point",
-    "conditioning_delay": "three or more speeds at one load",
-    "armature_reaction": "two loads (pump load and throttled or braked) at one speed",
-    "timer_quantization": "the capture timer's tick in meta.json, or a run at a finer timer resolution",
-    "edge_jitter": "a run at a second speed",
-    "winding_temperature": "two loads at one speed",
-    "magnet_temperature": "two speeds at one load",
-    "saturation": "one operating point at high load",
-    "cogging_torque": "the lowest speed the pump holds, with the reference encoder",
-}
-KNOB_SHOWS = {
-    "installation_offset": "an installation offset is a fixed place on the stator, so each sensor's error changes sign "
-    "in the trailing frame when the rotor turns the other way",
-    "hysteresis": "hysteresis lags the switching in either direction of rotation, alike for every sensor",
-    "pole_offset": "a pole offset is any per-pole pattern repeating every mechanical turn",
-    "eccentricity": "an eccentricity is a first-order sinusoid over the mechanical turn, whose two parameters the "
-    "per-pole pattern must match",
-    "conditioning_delay": "a delay constant in time grows in angle with speed, and rising and falling edges differ",
-    "armature_reaction": "armature reaction follows the phase current, not the speed",
-    "timer_quantization": "a capture timer makes every edge lead by half a tick, rising and falling alike",
-    "edge_jitter": "jitter in time grows in angle with speed while jitter in angle does not",
-    "winding_temperature": "a resistance change shows in proportion to the current",
-    "magnet_temperature": "a back-EMF change shows in proportion to the speed",
-    "saturation": "saturation shows only above its knee current",
-    "cogging_torque": "cogging's speed ripple grows as the speed falls and sits at a fixed number of periods per turn",
-}
-_PAIR_KNOBS = {
-    frozenset({"conditioning_delay", "armature_reaction"}): (
-        "Record two loads at the same speed (throttle or brake the pump): a conditioning delay follows the speed "
-        "and stays, armature reaction follows the phase current and moves; under a pump load alone speed and "
-        "current rise together."
-    ),
-    frozenset({"hysteresis", "installation_offset"}): (
-        "Record a segment in reverse: hysteresis lags in either direction of rotation, while an installation "
-        "offset is a fixed place on the stator and changes sign in the trailing frame when the rotor reverses."
-    ),
-    frozenset({"conditioning_delay", "timer_quantization"}): (
-        "Record with the capture timer's tick in meta.json (or at a finer timer resolution) and compare rising "
-        "with falling edges: the timer makes every edge lead by half a tick alike, a conditioning delay lags and "
-        "differs between the edges."
-    ),
-    frozenset({"winding_temperature", "magnet_temperature"}): (
-        "Record two loads at one speed: a resistance change (winding temperature) follows the current, a back-EMF"
-        " change (magnet temperature) follows the speed; under a pump load alone current and speed move together."
-    ),
-    frozenset({"pole_offset", "eccentricity"}): (
-        "Record more mechanical turns per operating point (30 or more): an eccentricity is a first-order sinusoid"
-        " over the turn (two parameters), a pole offset any per-pole pattern; only the pattern's departure from a"
-        " sinusoid, resolved by more turns, separates them, and while they are equal within noise the "
-        "eccentricity is kept for having fewer parameters."
-    ),
-}
-
-
 def knob(a: str, b: str) -> str:
     """The experiment that separates ``a`` from ``b``, as a full sentence: what to record and
-    why it tells them apart."""
-    pair = _PAIR_KNOBS.get(frozenset({a, b}))
+    why it tells them apart (each effect's declaration holds its halves and its pair sentences)."""
+    ca, cb = EFFECTS.get(a), EFFECTS.get(b)
+    pair = (ca.pair_knobs.get(b) if ca else None) or (cb.pair_knobs.get(a) if cb else None)
     if pair:
         return pair
-    rec_a, rec_b = KNOB_RECORD.get(a, "more operating points"), KNOB_RECORD.get(b, "more operating points")
+    rec_a = (ca.knob_record if ca else None) or "more operating points"
+    rec_b = (cb.knob_record if cb else None) or "more operating points"
     record = rec_a if rec_a == rec_b else f"{rec_a} and {rec_b}"
-    shows_a = KNOB_SHOWS.get(a, f"{a} has its own fingerprint")
-    shows_b = KNOB_SHOWS.get(b, f"{b} has its own fingerprint")
+    shows_a = (ca.knob_shows if ca else None) or f"{a} has its own fingerprint"
+    shows_b = (cb.knob_shows if cb else None) or f"{b} has its own fingerprint"
     return f"Record {record}: {shows_a}, while {shows_b}."
 
 

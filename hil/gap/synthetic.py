@@ -8,7 +8,6 @@ Shared by the library-effect validation (``validate``) and the field-model valid
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 
@@ -92,35 +91,7 @@ def record_electrical_case(config: PlantConfig, ops, seed: int, noisy: bool = Tr
 
 
 def param_error(truth: fx.Effect, accepted: dict) -> float:
-    """Relative error of the fitted magnitude against the injected one."""
-    t = params_vector(truth.name, dataclasses.asdict(truth))
-    f = params_vector(truth.name, accepted["params"])
-    if truth.name == "cogging_torque" and accepted["params"]["periods_per_rev"] != truth.periods_per_rev:
-        return float("inf")  # the wrong order: no magnitude is right
-    if truth.name == "pole_offset":  # the common part is shared with installation offsets
-        t, f = t - t.mean(), f - f.mean()
-    return float(np.linalg.norm(f - t) / max(np.linalg.norm(t), 1e-12))
+    """Relative error of the fitted magnitude against the injected one (the effect's declaration
+    says which parameters count: ``Effect.fit_error``)."""
+    return truth.fit_error(accepted["params"])
 
-
-def params_vector(name, params) -> np.ndarray:
-    if name == "cogging_torque":  # amplitude and phase as one phasor
-        a, ph = params["amplitude_n_m"], params["phase_rad"]
-        return np.array([a * math.cos(ph), a * math.sin(ph)])
-    keys = {
-        "edge_jitter": ["time_rms_s"],
-        "installation_offset": ["offset_deg_e"],
-        "pole_offset": ["offset_deg_e"],
-        "eccentricity": ["amplitude_deg_e"],
-        "hysteresis": ["lag_deg_e"],
-        "conditioning_delay": ["rise_delay_s", "fall_delay_s"],
-        "armature_reaction": ["slope_deg_e_per_a"],
-        "timer_quantization": ["tick_s"],
-        "winding_temperature": ["temperature_rise_k"],
-        "magnet_temperature": ["temperature_rise_k"],
-        "saturation": ["saturation_current_a"],
-    }[name]
-    out = []
-    for k in keys:
-        v = params[k]
-        out.extend(v if isinstance(v, (list, tuple)) else [v])
-    return np.asarray(out, dtype=float)

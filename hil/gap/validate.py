@@ -51,29 +51,17 @@ from .synthetic import (
     signature_rms,
 )
 
-EDGE_EFFECTS = tuple(CANDIDATES) + ("edge_jitter",)
+#: the edge effects the validation withholds: every candidate of the diagnosis, then the library's
+#: edge-noise effects (their declared validation law is "jitter")
+EDGE_EFFECTS = tuple(CANDIDATES) + tuple(n for n, c in fx.EFFECTS.items() if c.validation == "jitter")
 EFFECT_NAMES = EDGE_EFFECTS + SAMPLE_EFFECTS
 SAMPLE_OUT_OF_LIBRARY = ("current_offset", "current_gain")
 
 
 def _unit_effect(name: str, rng: np.random.Generator, pole_pairs: int) -> fx.Effect:
-    """A random direction in the effect's parameter space (scaled to the SNR afterwards)."""
-    if name == "installation_offset":
-        return fx.InstallationOffset(tuple(rng.uniform(-1, 1, 3)))
-    if name == "pole_offset":
-        return fx.PoleOffset(tuple(rng.uniform(-1, 1, 2 * pole_pairs)))
-    if name == "eccentricity":
-        return fx.Eccentricity(1.0, float(rng.uniform(0, 2 * math.pi)))
-    if name == "hysteresis":
-        return fx.Hysteresis(1.0)
-    if name == "conditioning_delay":
-        rise = rng.uniform(0.3, 1.0)
-        return fx.ConditioningDelay(rise * 1e-5, rng.uniform(0.0, 1.0) * rise * 1e-5)
-    if name == "armature_reaction":
-        return fx.ArmatureReaction(float(rng.choice([-1, 1]) * rng.uniform(0.5, 1.0)))
-    if name == "timer_quantization":
-        return fx.TimerQuantization(1e-6)
-    raise KeyError(name)
+    """A random direction in the effect's parameter space (scaled to the SNR afterwards): the
+    effect's declared draw."""
+    return fx.EFFECTS[name].unit_draw(rng, pole_pairs)
 
 
 def _scale(effect: fx.Effect, factor: float) -> fx.Effect:
@@ -112,26 +100,32 @@ def make_case(
     truth = []
     snr_achieved = snr
     for name in effects_withheld:
-        if name == "edge_jitter":  # an extra jitter component the model does not know
+        law = fx.EFFECTS[name].validation
+        if law == "jitter":  # an extra jitter component the model does not know
             extra = snr * JITTER_S
             noise = [fx.EdgeJitter(time_rms_s=math.hypot(JITTER_S, extra))]
             truth.append(fx.EdgeJitter(time_rms_s=extra))
             continue
-        if name in SAMPLE_EFFECTS:
+        if law in ("sampled", "knee"):
             eff, achieved = _sample_effect(name, snr, seed, base, ops, rng)
             truth.append(eff)
             snr_achieved = min(snr_achieved, achieved)
             continue
         unit = _unit_effect(name, rng, p)
-        if name == "timer_quantization":
+        if law == "tick":  # the bench's capture timer, coarser: its quantisation noise is the signature
             mean_w_deg_e_s = rpm_to_deg_e_per_s(np.mean([op.speed_rpm for op in ops]), p)
-            eff = fx.TimerQuantization(min(1e-5, 2 * snr * noise_rms(ops, p) / mean_w_deg_e_s * math.sqrt(3)))
-        else:
+            eff = dataclasses.replace(
+                unit, tick_s=min(1e-5, 2 * snr * noise_rms(ops, p) / mean_w_deg_e_s * math.sqrt(3))
+            )
+        elif law == "edge":
             sig = signature_rms(base, [unit], ops, seed)
             eff = _scale(unit, snr * noise_rms(ops, p) / max(sig, 1e-12))
+        else:
+            raise ValueError(f"effect {name!r}: validation law {law!r} is not one of {', '.join(fx.VALIDATION_LAWS)}")
         truth.append(eff)
-    known_tick = not any(e.name == "timer_quantization" for e in truth)
-    injected = [t for t in truth if t.name != "edge_jitter"]  # withheld jitter is already in ``noise``
+    known_tick = not any(isinstance(e, fx.TimerQuantization) for e in truth)
+    # withheld jitter is already in ``noise``
+    injected = [t for t in truth if not isinstance(t, fx.EdgeJitter)]
     config = base.with_effects(*noise, *injected, *([fx.TimerQuantization(TICK_S)] if known_tick else []))
     if electrical:
         if ool in SAMPLE_OUT_OF_LIBRARY:
@@ -167,25 +161,23 @@ def _noise(config: PlantConfig, ops, seed: int, domain: str) -> float:
     return float(np.sqrt(np.mean(_sample_rows(nominal, domain) ** 2)))
 
 
-#: magnitude field of each sampled-signal effect (the others, e.g. temperature coefficients, stay)
-_MAGNITUDE = {
-    "winding_temperature": "temperature_rise_k",
-    "magnet_temperature": "temperature_rise_k",
-    "cogging_torque": "amplitude_n_m",
-}
-
-
 def _sample_effect(name: str, snr: float, seed: int, base: PlantConfig, ops, rng) -> tuple[fx.Effect, float]:
-    """A sampled-signal effect scaled to ``snr`` (the knee of saturation by bisection in log),
-    within the library's bounds; returns it with the SNR it actually has."""
+    """A sampled-signal effect scaled to ``snr`` by its declared law, from its declared unit draw
+    (a knee by bisection in log), within the library's bounds; returns it with the SNR it
+    actually has."""
+    cls = fx.EFFECTS[name]
     domain = EFFECT_DOMAIN[name]
     noise = _noise(base, ops, seed, domain)
-    if name == "saturation":
-        # the signature falls roughly as knee^-2: secant steps in log-log from a 10 A knee
+    unit = cls.unit_draw(rng, base.motor.pole_pairs)
+    key = cls.magnitude_field
+    low, high = fx.bounds_of(cls, key)
+    if cls.validation == "knee":
+        # the signature falls roughly as knee^-2: secant steps in log-log from the unit draw's knee
         target = snr * noise
-        log_k, log_s = [math.log(10.0)], []
+        log_k, log_s = [math.log(getattr(unit, key))], []
         for _ in range(5):
-            sig = _signature(base.with_effects(fx.Saturation(math.exp(log_k[-1]), 0.1)), ops, seed, domain)
+            sig = _signature(base.with_effects(dataclasses.replace(unit, **{key: math.exp(log_k[-1])})), ops, seed,
+                             domain)
             log_s.append(math.log(max(sig, 1e-30)))
             if abs(log_s[-1] - math.log(target)) < 0.01:
                 break
@@ -194,22 +186,13 @@ def _sample_effect(name: str, snr: float, seed: int, base: PlantConfig, ops, rng
             )
             slope = min(slope, -0.2)  # keep the step finite where the signature flattens
             log_k.append(
-                float(np.clip(log_k[-1] + (math.log(target) - log_s[-1]) / slope, math.log(0.1), math.log(1000.0)))
+                float(np.clip(log_k[-1] + (math.log(target) - log_s[-1]) / slope, math.log(low), math.log(high)))
             )
-        eff = fx.Saturation(float(math.exp(log_k[len(log_s) - 1])), 0.1)
+        eff = dataclasses.replace(unit, **{key: float(math.exp(log_k[len(log_s) - 1]))})
         return eff, math.exp(log_s[-1]) / noise
-    if name == "winding_temperature":
-        unit = fx.WindingTemperature(10.0)  # a heat soak: the -40 K bound would cap a cold draw near SNR 1
-    elif name == "magnet_temperature":
-        unit = fx.MagnetTemperature(float(rng.choice([-1, 1]) * 10.0))
-    else:
-        unit = fx.CoggingTorque(0.01, int(rng.choice([6, 8, 12, 18, 24])), float(rng.uniform(0, 2 * math.pi)))
-    key = _MAGNITUDE[name]
     sig = _signature(base.with_effects(unit), ops, seed, domain)
     wanted = getattr(unit, key) * snr * noise / max(sig, 1e-30)
-    f = dataclasses.fields(unit)
-    meta = next(x.metadata for x in f if x.name == key)
-    got = float(np.clip(wanted, meta["low"], meta["high"]))
+    got = float(np.clip(wanted, low, high))
     # the signatures are linear in the magnitude: a clipped magnitude has a proportionally lower SNR
     return dataclasses.replace(unit, **{key: got}), snr * got / wanted
 
@@ -419,7 +402,7 @@ def _run_case(job) -> dict:
     if kind == "single":
         hit = next((a for a in d.accepted if a["effect"] == truth[0].name), None)
         perr = param_error(truth[0], hit) if hit else None
-        if truth[0].name == "edge_jitter":
+        if type(truth[0]).validation == "jitter":
             shrink = d.noise_gap.get("heldout_shrink")
         elif truth[0].name in SAMPLE_EFFECTS:
             shrink = d.samples.get(EFFECT_DOMAIN[truth[0].name], {}).get("heldout_shrink")

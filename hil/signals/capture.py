@@ -1,4 +1,7 @@
-"""Logic-analyser captures of the six gate signals: VCD, sigrok session (.sr), CSV with time.
+"""Logic-analyser captures of the six gate signals (and the three Hall lines): VCD, sigrok
+session (.sr), CSV with time. Every format is one :class:`CaptureFormat` in :data:`CAPTURE_FORMATS`
+(suffix -> reader); the gate import, the Hall import (``hil recording import``, ``hall.py``) and every
+command that takes a RECORDING read a capture file through that table alone.
 
 Every reader yields the capture as a stream of state changes in bounded chunks: ``(t_s, state)``
 arrays where ``state`` packs the six gates (bit 0 AH, 1 AL, 2 BH, 3 BL, 4 CH, 5 CL; 1 = switch
@@ -15,7 +18,7 @@ import re
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 
@@ -99,16 +102,14 @@ class Capture:
         self.mapping = mapping or GateMapping()
         if not self.path.is_file():
             raise SignalError(str(path), "missing capture file")
-        suffix = self.path.suffix.lower()
-        if suffix not in (".vcd", ".sr", ".csv", ".txt"):
-            raise SignalError(str(path), f"unknown capture format {suffix!r} (VCD .vcd, sigrok session .sr, CSV .csv)")
-        self.kind = {".vcd": "vcd", ".sr": "sigrok", ".csv": "csv", ".txt": "csv"}[suffix]
+        self.format = capture_format(self.path)
+        self.kind = self.format.name
         self.end_s: float | None = None
         self.start_s: float | None = None
         self.sample_period_s: float | None = None  #: time resolution of the capture
 
     def states(self, chunk: int = 1 << 20) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        source = {"vcd": self._vcd, "sigrok": self._sigrok, "csv": self._csv}[self.kind](chunk)
+        source = self.format.read(self, chunk)
         inv = self.mapping.invert_mask
         last = -1
         for t, s in source:
@@ -383,3 +384,118 @@ def _parse_rate(text: str, where: str) -> float:
     if not m:
         raise SignalError(where, f"cannot read sample rate {text!r}")
     return float(m.group(1)) * {"": 1.0, "k": 1e3, "M": 1e6, "G": 1e9}[m.group(2)]
+
+
+# --- channel names and time base of each format (what the Hall import asks of a capture) -------------
+
+#: CSV times are whole multiples of the step to this relative tolerance (printed decimals)
+CSV_STEP_TOLERANCE = 1e-3
+
+
+def time_step(t_s: np.ndarray, unit_s: float | None) -> float | None:
+    """The greatest common step of the time stamps: on integer ticks of ``unit_s`` (a VCD), or,
+    for printed decimal times (``unit_s`` None), the smallest step if every step is a whole
+    multiple of it within CSV_STEP_TOLERANCE."""
+    if t_s.size < 2:
+        return None
+    d = np.diff(t_s)
+    d = d[d > 0]
+    if not d.size:
+        return None
+    if unit_s is not None:
+        ticks = np.round(d / unit_s).astype(np.int64)
+        return float(np.gcd.reduce(ticks)) * unit_s
+    step = float(d.min())
+    ratio = d / step
+    if np.all(np.abs(ratio - np.round(ratio)) < CSV_STEP_TOLERANCE * np.maximum(ratio, 1.0)):
+        return step
+    return None
+
+
+def _vcd_channels(path: Path, time_column: str | None) -> list[str]:
+    return [v.name for v in VcdReader(path).variables if v.size == 1]
+
+
+def _vcd_time_base(cap: "Capture", t_s: np.ndarray) -> tuple[float | None, str]:
+    unit = VcdReader(cap.path).timescale.seconds
+    return time_step(t_s, unit), f"the greatest common step of the VCD's time stamps ({unit:g} s timescale)"
+
+
+def _sigrok_channels(path: Path, time_column: str | None) -> list[str]:
+    try:
+        with zipfile.ZipFile(path) as zf:
+            meta = configparser.ConfigParser(interpolation=None)
+            meta.read_string(zf.read("metadata").decode())
+    except (zipfile.BadZipFile, KeyError):
+        raise SignalError(str(path), "not a sigrok session file (a zip archive with 'metadata')") from None
+    dev = next((s for s in meta.sections() if s.startswith("device")), None)
+    if dev is None:
+        raise SignalError(f"{path}: metadata", "no [device N] section")
+    probes = sorted((int(k[5:]), v) for k, v in meta[dev].items() if re.fullmatch(r"probe\d+", k))
+    return [v for _, v in probes]
+
+
+def _sigrok_time_base(cap: "Capture", t_s: np.ndarray) -> tuple[float | None, str]:
+    return cap.sample_period_s, "the sigrok session's sample rate"
+
+
+def _csv_channels(path: Path, time_column: str | None) -> list[str]:
+    _, header, _ = _csv_header(path)
+    cols = [c.strip() for c in header]
+    t = time_column if time_column is not None else cols[0]
+    return [c for c in cols if c != t]
+
+
+def _csv_time_base(cap: "Capture", t_s: np.ndarray) -> tuple[float | None, str]:
+    return time_step(t_s, None), "the smallest step of the CSV's times (every step a whole multiple of it)"
+
+
+@dataclass(frozen=True)
+class CaptureFormat:
+    """One capture file format, declared once: how its file is read and what it says of itself."""
+
+    name: str  #: the reader's name (``Capture.kind``)
+    label: str  #: how messages name it ("VCD", "sigrok session")
+    #: (capture, chunk) -> the stream of ``(t_s, state)`` arrays (see the module doc); the reader
+    #: sets ``capture.end_s`` at the end and may set ``capture.sample_period_s``
+    read: Callable[["Capture", int], Iterator[tuple[np.ndarray, np.ndarray]]]
+    #: (path, time column or None) -> the capture's logic channel names, in file order
+    channels: Callable[[Path, str | None], list[str]]
+    #: (capture after reading, its change times) -> (the time base in s or None, how it was found)
+    time_base: Callable[["Capture", np.ndarray], tuple[float | None, str]]
+    #: the time is a column of the file (a table): ``--time-column`` and ``--sample-rate-hz``
+    #: (the column counts samples) apply
+    time_column: bool = False
+
+
+_CSV = CaptureFormat("csv", "CSV", Capture._csv, _csv_channels, _csv_time_base, time_column=True)
+
+#: every capture format by file suffix (lower case): the one place a new format is registered
+CAPTURE_FORMATS: dict[str, CaptureFormat] = {
+    ".vcd": CaptureFormat("vcd", "VCD", Capture._vcd, _vcd_channels, _vcd_time_base),
+    ".sr": CaptureFormat("sigrok", "sigrok session", Capture._sigrok, _sigrok_channels, _sigrok_time_base),
+    ".csv": _CSV,
+    ".txt": _CSV,
+}
+
+
+def known_formats() -> str:
+    """The registered formats as messages name them: "VCD .vcd, sigrok session .sr, CSV .csv/.txt"."""
+    by_label: dict[str, list[str]] = {}
+    for suffix, fmt in CAPTURE_FORMATS.items():
+        by_label.setdefault(fmt.label, []).append(suffix)
+    return ", ".join(f"{label} {'/'.join(suffixes)}" for label, suffixes in by_label.items())
+
+
+def capture_format(path: Path) -> CaptureFormat:
+    """The format of a capture file, by its suffix; unknown suffixes are refused with the known ones."""
+    suffix = path.suffix.lower()
+    fmt = CAPTURE_FORMATS.get(suffix)
+    if fmt is None:
+        raise SignalError(str(path), f"unknown capture format {suffix!r} ({known_formats()})")
+    return fmt
+
+
+def is_capture_file(path: Path) -> bool:
+    """A file whose suffix a registered capture format reads."""
+    return path.is_file() and path.suffix.lower() in CAPTURE_FORMATS

@@ -1,5 +1,5 @@
-"""Hall-line captures in: a logic analyser's VCD, sigrok session (.sr) or CSV, as an ordinary-run
-recording (``hil recording import``).
+"""Hall-line captures in: a logic analyser's file in any format of ``capture.CAPTURE_FORMATS`` (VCD,
+sigrok session .sr, CSV), as an ordinary-run recording (``hil recording import``).
 
 The three Hall lines are read with the same readers as the gate captures (:class:`Capture`), each
 level change becomes an edge (sensor, rise or fall, time), and the capture's time base becomes
@@ -20,15 +20,12 @@ import numpy as np
 
 from hil.recording import Recording
 
-from .capture import Capture, GateMapping, _csv_header
+from .capture import Capture, GateMapping, _csv_header, capture_format
 from .errors import SignalError
-from .vcd import VcdReader
 
 HALL_SIGNALS = ("A", "B", "C")
 #: the wire names looked for first; else the capture's first three channels
 DEFAULT_CHANNELS = ("hall_a", "hall_b", "hall_c")
-#: CSV times are whole multiples of the step to this relative tolerance (printed decimals)
-CSV_STEP_TOLERANCE = 1e-3
 
 
 @dataclass
@@ -59,34 +56,9 @@ def parse_channels(text: str) -> dict[str, str]:
     return out
 
 
-def _available(path: Path, kind: str, time_column: str | None) -> list[str]:
-    """The capture's channel names, in file order."""
-    if kind == "vcd":
-        return [v.name for v in VcdReader(path).variables if v.size == 1]
-    if kind == "csv":
-        _, header, _ = _csv_header(path)
-        cols = [c.strip() for c in header]
-        t = time_column if time_column is not None else cols[0]
-        return [c for c in cols if c != t]
-    import configparser
-    import zipfile
-
-    try:
-        with zipfile.ZipFile(path) as zf:
-            meta = configparser.ConfigParser(interpolation=None)
-            meta.read_string(zf.read("metadata").decode())
-    except (zipfile.BadZipFile, KeyError):
-        raise SignalError(str(path), "not a sigrok session file (a zip archive with 'metadata')") from None
-    dev = next((s for s in meta.sections() if s.startswith("device")), None)
-    if dev is None:
-        raise SignalError(f"{path}: metadata", "no [device N] section")
-    probes = sorted((int(k[5:]), v) for k, v in meta[dev].items() if re.fullmatch(r"probe\d+", k))
-    return [v for _, v in probes]
-
-
-def default_channels(path: Path, kind: str, time_column: str | None = None) -> dict[str, str]:
+def default_channels(path: Path, time_column: str | None = None) -> dict[str, str]:
     """``hall_a``/``hall_b``/``hall_c`` (any case) if the capture has them, else its first three channels."""
-    names = _available(path, kind, time_column)
+    names = capture_format(path).channels(path, time_column)
     low = {n.lower(): n for n in names}
     if all(c in low for c in DEFAULT_CHANNELS):
         return {s: low[c] for s, c in zip(HALL_SIGNALS, DEFAULT_CHANNELS)}
@@ -95,26 +67,6 @@ def default_channels(path: Path, kind: str, time_column: str | None = None) -> d
             str(path), f"three Hall channels are needed, the capture has {len(names)}: {', '.join(names)}"
         )
     return dict(zip(HALL_SIGNALS, names[:3]))
-
-
-def time_step(t_s: np.ndarray, unit_s: float | None) -> float | None:
-    """The greatest common step of the time stamps: on integer ticks of ``unit_s`` (a VCD), or,
-    for printed decimal times (``unit_s`` None), the smallest step if every step is a whole
-    multiple of it within CSV_STEP_TOLERANCE."""
-    if t_s.size < 2:
-        return None
-    d = np.diff(t_s)
-    d = d[d > 0]
-    if not d.size:
-        return None
-    if unit_s is not None:
-        ticks = np.round(d / unit_s).astype(np.int64)
-        return float(np.gcd.reduce(ticks)) * unit_s
-    step = float(d.min())
-    ratio = d / step
-    if np.all(np.abs(ratio - np.round(ratio)) < CSV_STEP_TOLERANCE * np.maximum(ratio, 1.0)):
-        return step
-    return None
 
 
 def read_hall_capture(
@@ -129,11 +81,11 @@ def read_hall_capture(
     """The Hall edges of a capture file (VCD, sigrok .sr, CSV with a time or sample-index column)."""
     path = Path(path)
     probe = Capture(path)  # checks the file and its kind
-    chosen = channels or default_channels(path, probe.kind, time_column)
+    chosen = channels or default_channels(path, time_column)
     time_scale = None
-    if probe.kind == "csv" and sample_rate_hz:
+    if probe.format.time_column and sample_rate_hz:
         time_scale = 1.0 / sample_rate_hz  # the time column counts samples
-    elif probe.kind == "csv":
+    elif probe.format.time_column:
         _, header, _ = _csv_header(path)
         t_name = (time_column or header[0]).strip()
         if re.fullmatch(r"(?i)(sample|samples|sample_?index|index|n|k)", t_name):
@@ -169,15 +121,8 @@ def read_hall_capture(
     # the time base
     if sample_rate_hz:
         tick, how = 1.0 / sample_rate_hz, f"--sample-rate-hz {sample_rate_hz:g}"
-    elif probe.kind == "sigrok":
-        tick, how = cap.sample_period_s, "the sigrok session's sample rate"
-    elif probe.kind == "vcd":
-        unit = VcdReader(path).timescale.seconds
-        tick = time_step(t, unit)
-        how = f"the greatest common step of the VCD's time stamps ({unit:g} s timescale)"
     else:
-        tick = time_step(t, None)
-        how = "the smallest step of the CSV's times (every step a whole multiple of it)"
+        tick, how = probe.format.time_base(cap, t)
     notes = []
     if tick is None:
         how = "unknown: the time stamps have no common step; give --sample-rate-hz"

@@ -58,17 +58,19 @@ RIPPLE_REF_HZ_E = 10.0
 
 
 def load_capture(path: str | Path, pole_pairs: int | None = None) -> Recording:
-    """A recording directory (hil-recording/1), or a capture file (VCD, sigrok .sr, CSV) read as
-    ``hil recording import`` reads it."""
+    """A recording directory (hil-recording/1), or a capture file (any format of
+    ``hil.signals.capture.CAPTURE_FORMATS``) read as ``hil recording import`` reads it."""
+    from ..signals.capture import is_capture_file, known_formats
+
     path = Path(path)
-    if path.is_file() and path.suffix.lower() in (".vcd", ".sr", ".csv"):
+    if is_capture_file(path):
         from ..signals.hall import capture_recording, read_hall_capture
 
         rec = capture_recording(read_hall_capture(path), pole_pairs, source=path.name)
         rec.path = path
         return rec
     if not path.exists():
-        raise ConfigError(str(path), "no such recording directory or capture file (.vcd, .sr, .csv)")
+        raise ConfigError(str(path), f"no such recording directory or capture file ({known_formats()})")
     return read_recording(path)
 
 

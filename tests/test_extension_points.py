@@ -1,0 +1,210 @@
+"""Each extension point is one place (docs/architecture.md, "Where a new thing goes"): a toy effect,
+a toy predictor and a toy capture format, each registered in its one table and nowhere else, are
+diagnosed, compared and read by the code that never heard of them."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import ClassVar, Mapping
+
+import numpy as np
+import pytest
+
+from bldc.params import bounded
+from plant_models import effects as fx
+from plant_models import paper_bench
+from plant_models.kinematic import OperatingPoint
+
+
+# --- a toy effect: every rising edge leads by a constant angle, falling edges untouched ----------------
+
+@dataclass(frozen=True)
+class RisingLead(fx.Effect):
+    """Rising edges lead by ``lead_deg_e`` in either direction of rotation; falling ones do not move."""
+
+    name: ClassVar[str] = "rising_lead"
+    layer: ClassVar[str] = "sensor"
+    fingerprint: ClassVar[Mapping[str, str]] = {
+        "signature": "rising edges lead, falling edges do not",
+        "scales_with": "nothing (constant in angle)",
+        "knob": "-",
+    }
+    knob_record: ClassVar[str] = "a segment in reverse"
+    knob_shows: ClassVar[str] = "a rising lead moves the rising edges alone, in either direction"
+    validation: ClassVar[str] = "edge"
+    vector_fields: ClassVar[tuple[str, ...]] = ("lead_deg_e",)
+    lead_deg_e: float = bounded(0.0, low=0.0, high=10.0, unit="deg_e", doc="lead of every rising edge")
+
+    @classmethod
+    def edge_signature(cls):
+        return fx.EdgeSignature(
+            lambda c: -np.asarray(c["rising"], dtype=float)[:, None],  # a lead is a negative (trailing) error
+            lambda k: {"lead_deg_e": float(k[0])},
+            fx.not_below(cls, "lead_deg_e"),
+        )
+
+    @classmethod
+    def unit_draw(cls, rng, pole_pairs):
+        return cls(1.0)
+
+    def contribute(self, plant):
+        # a switching asymmetry of -lead (rising edges lead by half, falling trail by half, both
+        # ways) and a common lead of half: rising edges lead by all of it, falling ones stay
+        half = -0.5 * self.lead_deg_e
+        parity = np.where(np.arange(2 * plant.pole_pairs) % 2 == 0, 1.0, -1.0)
+        plant.switch_offset_deg_e = plant.switch_offset_deg_e + half * parity[None, :, None]
+        plant.hysteresis_deg_e += half
+
+
+def test_a_toy_effect_registered_in_the_library_alone_is_drawn_and_diagnosed(monkeypatch):
+    from hil.gap.candidates import CANDIDATES
+    from hil.gap.diagnose import diagnose_segments, knob
+    from hil.gap.synthetic import KNOWN_MODEL, param_error
+    from hil.gap.validate import make_case
+
+    assert "rising_lead" not in CANDIDATES
+    monkeypatch.setitem(fx.EFFECTS, RisingLead.name, RisingLead)
+    assert "rising_lead" in CANDIDATES
+    rec, truth = make_case(["rising_lead"], 8.0, seed=3)  # the validation's own draw and scaling
+    assert isinstance(truth[0], RisingLead) and truth[0].lead_deg_e > 0
+    d = diagnose_segments(rec, KNOWN_MODEL)
+    assert d.significant and d.accepted[0]["effect"] == "rising_lead", d.ranking
+    assert param_error(truth[0], d.accepted[0]) < 0.2
+    assert "a rising lead moves the rising edges alone" in knob("rising_lead", "conditioning_delay")
+
+
+# --- a toy capture format: a text file of "time levels" lines, levels as three 0/1 characters ----------
+
+_TOY_CHANNELS = ["hall_a", "hall_b", "hall_c"]
+
+
+def _toy_rows(path):
+    rows = [line.split() for line in path.read_text().splitlines() if line.strip()]
+    return np.array([float(t) for t, _ in rows]), [levels for _, levels in rows]
+
+
+def _toy_read(cap, chunk):
+    t, levels = _toy_rows(cap.path)
+    bits = [_TOY_CHANNELS.index(cap.mapping.channels[s]) for s in cap.mapping.signals]
+    state = np.array([sum(int(lv[b]) << j for j, b in enumerate(bits)) for lv in levels], dtype=np.int64)
+    cap.end_s = float(t[-1])
+    yield t, state
+
+
+def _toy_time_base(cap, t_s):
+    from hil.signals.capture import time_step
+
+    return time_step(t_s, 1e-9), "the greatest common step of the toy file's times (printed in ns)"
+
+
+def _write_toy(path, t_s, sensor, rising):
+    """The Hall levels after every edge, and before the first (each line low before its first rise)."""
+    level = [0 if rising[sensor == x][0] else 1 for x in range(3)]
+    lines = [f"{t_s[0] - 1e-3:.9f} {''.join(map(str, level))}"]
+    for t, x, up in zip(t_s, sensor, rising):
+        level[x] = int(up)
+        lines.append(f"{t:.9f} {''.join(map(str, level))}")
+    path.write_text("\n".join(lines) + "\n")
+
+
+@pytest.fixture
+def toy_format(monkeypatch):
+    from hil.signals import capture
+
+    fmt = capture.CaptureFormat("toy", "toy text", _toy_read, lambda path, time_column: list(_TOY_CHANNELS),
+                                _toy_time_base)
+    monkeypatch.setitem(capture.CAPTURE_FORMATS, ".toy", fmt)
+    return fmt
+
+
+@pytest.fixture
+def kinematic_run():
+    from hil.recording import record_kinematic
+
+    # the capture timer ticks in whole microseconds: the time base the import finds
+    config = paper_bench().with_effects(fx.InstallationOffset((1.0, -0.5, 0.3)), fx.EdgeJitter(time_rms_s=1e-6),
+                                        fx.TimerQuantization(tick_s=1e-6))
+    return record_kinematic(config, [OperatingPoint(0.4, 6000.0, 1.0, id="run")], seed=5)
+
+
+def test_a_toy_capture_format_registered_in_the_table_alone_is_read_by_the_recording_import(
+    tmp_path, toy_format, kinematic_run
+):
+    from hil.cli import load_recording, main
+    from hil.recording import read_recording
+
+    rec = kinematic_run
+    path = tmp_path / "bench.toy"
+    _write_toy(path, rec.t_s, rec.sensor, rec.rising)
+    assert main(["recording", "import", str(path), "--pole-pairs", "2", "-o", str(tmp_path / "imported")]) == 0
+    imported = read_recording(tmp_path / "imported")
+    assert len(imported) == len(rec) and imported.timer_tick_s == pytest.approx(1e-6, rel=1e-6)
+    got = load_recording(path, pole_pairs=2)  # every command's RECORDING argument
+    assert len(got) == len(rec)
+    assert np.array_equal(got.sensor, rec.sensor) and np.array_equal(got.rising, rec.rising)
+    assert np.max(np.abs(got.t_s - rec.t_s)) < 1e-9
+
+
+def test_an_unregistered_suffix_is_refused_with_the_registered_ones(tmp_path):
+    from hil.signals.capture import Capture
+    from hil.signals.errors import SignalError
+
+    path = tmp_path / "bench.toy"
+    path.write_text("0.0 000\n")
+    with pytest.raises(SignalError, match=r"unknown capture format '\.toy' \(VCD \.vcd, .*CSV \.csv/\.txt\)"):
+        Capture(path)
+
+
+# --- a toy predictor: the next edge one mean of the last two sector times after this one ---------------
+
+class TwoSectorPredictor:
+    """Next edge one mean of the last two sector times after this one (no setting)."""
+
+    name = "two_sector"
+    settings: ClassVar[dict] = {}
+
+    def run(self, t_corrected_s, mean_current_a=None):
+        from hil.predictors.model import SECTOR_RAD
+        from hil.predictors.predictors import PredictionRun
+
+        t = np.asarray(t_corrected_s, dtype=float)
+        pred, w = np.full(t.size, np.nan), np.full(t.size, np.nan)
+        dt = (t[2:] - t[:-2]) / 2.0
+        pred[2:] = t[2:] + dt
+        w[2:] = SECTOR_RAD / dt
+        return PredictionRun(pred, w)
+
+
+#: the recording's calibration (an ordinary run, hil calibrate's) fits a trajectory with more knots than a
+#: short steady run resolves; its solver says so, and the comparison is unaffected
+@pytest.mark.filterwarnings("ignore::scipy.linalg.LinAlgWarning")
+def test_a_toy_predictor_registered_in_the_registry_alone_is_compared(monkeypatch, kinematic_run):
+    from hil.experiments import peers
+    from hil.predictors import registry
+
+    entry = registry.PredictorEntry("two_sector", TwoSectorPredictor, lambda s, m, k: TwoSectorPredictor(), False,
+                                    None, registry.TuningSpace(lambda p, o: {}))
+    monkeypatch.setitem(registry.PREDICTORS, entry.name, entry)
+    rec = dataclasses.replace(kinematic_run, motor={"pole_pairs": 2})
+    result = peers.compare_recording(rec, "toy run")
+    rows = {r["name"]: r for r in result["predictors"]}
+    assert set(rows) == set(registry.PREDICTORS)
+    toy, hold = rows["two_sector"], rows["sector_hold"]
+    # on a steady run with white edge jitter, averaging two sectors halves the interval's noise
+    assert 0 < toy["angle_rms_deg_e"] < hold["angle_rms_deg_e"]
+    assert "two_sector" in peers.format_result(result)
+
+
+def test_the_controller_runs_the_predictor_the_registry_names_for_its_strategy(monkeypatch):
+    from bldc.contract import Strategy
+    from hil.controller.virtual import VirtualController
+    from hil.predictors import registry
+
+    c = VirtualController(paper_bench().motor, strategy=Strategy.KF)
+    assert type(c._predictor) is registry.PREDICTORS["kf"].cls
+    entry = dataclasses.replace(registry.PREDICTORS["sage_husa"], strategy="KF")  # KF now runs Sage-Husa's entry
+    monkeypatch.setitem(registry.PREDICTORS, "kf", dataclasses.replace(registry.PREDICTORS["kf"], strategy=None))
+    monkeypatch.setitem(registry.PREDICTORS, "sage_husa", entry)
+    c.reset()
+    assert type(c._predictor) is entry.cls
