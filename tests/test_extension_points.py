@@ -61,11 +61,11 @@ def test_a_toy_effect_registered_in_the_library_alone_is_drawn_and_diagnosed(mon
     from hil.gap.candidates import CANDIDATES
     from hil.gap.diagnose import diagnose_segments, knob
     from hil.gap.synthetic import KNOWN_MODEL, param_error
-    from hil.gap.validate import make_case
+    from hil.gap.validate import effect_names, make_case
 
     assert "rising_lead" not in CANDIDATES
     monkeypatch.setitem(fx.EFFECTS, RisingLead.name, RisingLead)
-    assert "rising_lead" in CANDIDATES
+    assert "rising_lead" in CANDIDATES and "rising_lead" in effect_names()  # diagnosed, and validated
     rec, truth = make_case(["rising_lead"], 8.0, seed=3)  # the validation's own draw and scaling
     assert isinstance(truth[0], RisingLead) and truth[0].lead_deg_e > 0
     d = diagnose_segments(rec, KNOWN_MODEL)

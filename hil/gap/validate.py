@@ -51,10 +51,18 @@ from .synthetic import (
     signature_rms,
 )
 
-#: the edge effects the validation withholds: every candidate of the diagnosis, then the library's
-#: edge-noise effects (their declared validation law is "jitter")
-EDGE_EFFECTS = tuple(CANDIDATES) + tuple(n for n, c in fx.EFFECTS.items() if c.validation == "jitter")
-EFFECT_NAMES = EDGE_EFFECTS + SAMPLE_EFFECTS
+def edge_effects() -> tuple[str, ...]:
+    """The edge effects the validation withholds: every candidate of the diagnosis, then the
+    library's edge-noise effects (their declared validation law is "jitter"); read from the
+    registry when asked."""
+    return tuple(CANDIDATES) + tuple(n for n, c in fx.EFFECTS.items() if c.validation == "jitter")
+
+
+def effect_names() -> tuple[str, ...]:
+    """Every effect the validation withholds: the edge effects, then the sampled-signal ones."""
+    return edge_effects() + SAMPLE_EFFECTS
+
+
 SAMPLE_OUT_OF_LIBRARY = ("current_offset", "current_gain")
 
 
@@ -299,7 +307,7 @@ class ValidationReport:
                 if any(c["electrical"] == (gen == "electrical") for c in single)
             },
             "edge_effects_on_electrical_plant": {
-                "cases": len(edge_el := [c for c in single if c["electrical"] and c["truth"][0] in EDGE_EFFECTS]),
+                "cases": len(edge_el := [c for c in single if c["electrical"] and c["truth"][0] in edge_effects()]),
                 "top1_rate": float(np.mean([c["top1"] == c["truth"][0] for c in edge_el])) if edge_el else None,
             },
         }
@@ -333,11 +341,12 @@ def run_validation(
     if generator == "field":
         return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler, bar)
     plan = []
-    for name in EFFECT_NAMES:
+    names = effect_names()
+    for name in names:
         plan += [("single", [name], None)] * per_effect
     plan += [("null", [], None)] * null
     for _ in range(two):
-        a, b = rng.choice(EFFECT_NAMES, 2, replace=False)
+        a, b = rng.choice(names, 2, replace=False)
         plan.append(("two", [str(a), str(b)], None))
     ool_kinds = ("sensor_delay", "speed_squared") + SAMPLE_OUT_OF_LIBRARY
     plan += [("out_of_library", [], ool_kinds[i % len(ool_kinds)]) for i in range(out_of_library)]
