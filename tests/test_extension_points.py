@@ -208,3 +208,38 @@ def test_the_controller_runs_the_predictor_the_registry_names_for_its_strategy(m
     monkeypatch.setitem(registry.PREDICTORS, "sage_husa", entry)
     c.reset()
     assert type(c._predictor) is entry.cls
+
+
+# --- the declarations themselves ------------------------------------------------------------------
+
+def test_every_pair_knob_names_a_registered_effect_and_sits_on_one_side_only():
+    for name, cls in fx.EFFECTS.items():
+        for other, sentence in cls.pair_knobs.items():
+            assert other in fx.EFFECTS and other != name, (name, other)
+            assert name not in fx.EFFECTS[other].pair_knobs, f"{name}/{other}: declared on both effects"
+            assert sentence.startswith("Record ") and sentence.endswith("."), (name, other)
+
+
+def test_the_tuning_searches_each_registered_space_as_data():
+    """``peers.search`` knows no predictor: it reads the entry's axes, grids and options. On a
+    known objective it finds the known optimum of an exhaustive space (moving average) and of a
+    refined one with an option (PLL)."""
+    import math
+
+    from hil.experiments.peers import search
+    from hil.predictors.registry import KINEMATIC_MODEL, PREDICTORS
+
+    value, p = search(PREDICTORS["moving_average"], lambda p: (p.fifo_edges - 30) ** 2, KINEMATIC_MODEL)
+    assert (value, p.fifo_edges) == (0, 30)
+
+    def pll_objective(p):
+        return (math.log(p.bandwidth_rad_s / 365.0)) ** 2 + (0.0 if p.two_edge else 1.0)
+
+    value, p = search(PREDICTORS["pll"], pll_objective, KINEMATIC_MODEL)
+    assert p.two_edge and p.bandwidth_rad_s == pytest.approx(365.0, rel=0.02)
+    for name, entry in PREDICTORS.items():  # every grid corner of every option set builds its predictor
+        space = entry.tuning_space
+        for opts in space.option_sets():
+            for corner in (min, max):
+                point = {k: corner(a.grid) for k, a in space.axes.items()}
+                assert type(entry.make(space.settings(point, opts), KINEMATIC_MODEL, False)) is entry.cls, name
