@@ -9,6 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .sensor import ARMATURE_SHIFT_LIMIT_DEG_E
+
 
 @dataclass
 class CompiledPlant:
@@ -55,7 +57,8 @@ class CompiledPlant:
         if self.armature_table_current_a.size:
             out = np.interp(current_a, self.armature_table_current_a, self.armature_table_offset_deg_e)
         else:
-            out = self.armature_slope_deg_e_per_a * current_a
+            limit = ARMATURE_SHIFT_LIMIT_DEG_E
+            out = np.clip(self.armature_slope_deg_e_per_a * current_a, -limit, limit)
         if self.field_lag_deg_e.size:
             out = out + np.interp(current_a, self.field_current_a, self.field_lag_deg_e)
         return out
@@ -67,7 +70,8 @@ class CompiledPlant:
             return self.armature_table_current_a, self.armature_table_offset_deg_e
         grid = np.union1d(self.armature_table_current_a, self.field_current_a)
         if not self.armature_table_current_a.size:  # a slope becomes exact on a grid reaching far enough
-            grid = np.union1d(grid, [1e4])
+            slope = abs(self.armature_slope_deg_e_per_a)
+            grid = np.union1d(grid, [1e4, *([ARMATURE_SHIFT_LIMIT_DEG_E / slope] if slope else [])])  # and its knee
         return grid, self.armature_offset_deg_e(grid)
 
     def switch_table_deg_e(self) -> np.ndarray:

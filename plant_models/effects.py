@@ -29,6 +29,7 @@ from bldc.contract import MAX_CONDITIONING_DELAY_S
 from bldc.params import ConfigError, bounded, from_mapping, strategy_for, validate
 
 from .compiled import CompiledPlant
+from .sensor import ARMATURE_SHIFT_LIMIT_DEG_E
 
 
 @dataclass(frozen=True)
@@ -458,8 +459,10 @@ class ArmatureReaction(Effect):
 
     Physics: the stator MMF adds to the magnet field and moves its zero crossings by an angle
     that grows with the phase current; linear (``slope_deg_e_per_a``) by default, or a table of
-    (mean phase current, offset) points interpolated linearly (clamped at its ends).
-    The current is the mean of |i| over the three phases at the edge.
+    (mean phase current, offset) points interpolated linearly (clamped at its ends). Either
+    saturates at ``ARMATURE_SHIFT_LIMIT_DEG_E`` (30 deg e): the field the sensor sees turns
+    towards the armature's, never past it. The current is the mean of |i| over the three phases
+    at the edge.
     Fingerprint: lag growing with phase current (load), both edges alike.
     """
 
@@ -476,7 +479,9 @@ class ArmatureReaction(Effect):
     vector_fields: ClassVar[tuple[str, ...]] = ("slope_deg_e_per_a",)
     slope_deg_e_per_a: float = bounded(0.0, low=-2.0, high=2.0, unit="deg_e/A", doc="edge lag per ampere")
     table_current_a: tuple[float, ...] = bounded((), low=0.0, high=1e3, unit="A", doc="table currents")
-    table_offset_deg_e: tuple[float, ...] = bounded((), low=-30.0, high=30.0, unit="deg_e", doc="table offsets")
+    table_offset_deg_e: tuple[float, ...] = bounded(
+        (), low=-ARMATURE_SHIFT_LIMIT_DEG_E, high=ARMATURE_SHIFT_LIMIT_DEG_E, unit="deg_e", doc="table offsets"
+    )
 
     def check(self, pole_pairs, prefix):
         super().check(pole_pairs, prefix)
@@ -497,7 +502,8 @@ class ArmatureReaction(Effect):
     def offset_deg_e(self, current_a: np.ndarray) -> np.ndarray:
         if self.table_current_a:
             return np.interp(current_a, self.table_current_a, self.table_offset_deg_e)
-        return self.slope_deg_e_per_a * np.asarray(current_a, dtype=float)
+        shift = self.slope_deg_e_per_a * np.asarray(current_a, dtype=float)
+        return np.clip(shift, -ARMATURE_SHIFT_LIMIT_DEG_E, ARMATURE_SHIFT_LIMIT_DEG_E)  # as the plant's sensors
 
     @classmethod
     def edge_signature(cls):

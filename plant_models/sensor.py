@@ -40,11 +40,21 @@ from ._layout import (
 )
 
 
+#: the largest armature-reaction shift of a switching angle, deg e (the bound of
+#: ``ArmatureReaction``'s table too). The shift is the turn of the field the sensor sees, the
+#: magnet's plus the armature's, so it grows with the current only while the armature field is
+#: small beside the magnet's and can never pass the armature field's own direction; the linear
+#: form saturates at the library's bound instead of carrying a 2 deg e/A slope to 1000 deg e at
+#: the 500 A a stalled commutation drives through the plant's windings (that moved the edges on,
+#: the commutation after them, and the current further up: a runaway no sensor has)
+ARMATURE_SHIFT_LIMIT_DEG_E = 30.0
+
+
 @_kernel_inline
 def _armature(p, arm_i, arm_deg, current):
     if arm_i.size > 0:
         return _interp(current, arm_i, arm_deg)
-    return p[P_ARM_SLOPE] * current
+    return min(max(p[P_ARM_SLOPE] * current, -ARMATURE_SHIFT_LIMIT_DEG_E), ARMATURE_SHIFT_LIMIT_DEG_E)
 
 
 @_kernel_inline

@@ -113,7 +113,7 @@ def hil(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def acceptance_run(tmp_path_factory):
-    """The default ``hil acceptance`` (both virtual links), run once from the repository."""
+    """The default ``hil acceptance`` (the virtual controller over CANopen), run once from the repository."""
     reports = tmp_path_factory.mktemp("acceptance")
     run = hil("acceptance", "-o", str(reports), cwd=ROOT)
     assert (reports / "hil-report.html").is_file(), (

@@ -89,20 +89,23 @@ class HallCommutation:
         n = 6 * self.pole_pairs
         if self._pole_shift is not None or len(self._history) < 2 * n + 1:
             return
-        t, sensor, rising, count = (np.array(v) for v in zip(*self._history[-(n + 1):]))
+        t, sensor, rising, count, current = (np.array(v) for v in zip(*self._history[-(n + 1):]))
         best, best_var = 0, math.inf
-        # the edges as corrected for everything the table holds but the armature reaction (no current is
-        # kept per edge): a real delay left in (133 us on a spindle) makes the sectors far less even than
-        # a small pole table does, and the choice noise. Then the sector times about their straight
-        # line: a speed that changes over the turn (a speed step, or the loop pulled by a fault) is a
-        # trend in them, which a once-per-turn pole pattern (a many-pole rotor's eccentricity) resembles
+        # the edges as corrected for everything the table holds: a real delay left in (133 us on a
+        # spindle) makes the sectors far less even than a small pole table does, and so does the
+        # armature lag of a start-up's changing current (2 deg e/A at 3-10 A against pole offsets a
+        # degree apart from one alignment to the next), and the choice is noise. Then the sector
+        # times about their straight line: a speed that changes over the turn (a speed step, or the
+        # loop pulled by a fault) is a trend in them, which a once-per-turn pole pattern (a many-pole
+        # rotor's eccentricity) resembles
         index = np.arange(n, dtype=float)
         delay_s = np.where(rising, self.corrections.conditioning_delay_s["rise"],
                            self.corrections.conditioning_delay_s["fall"])
         w = 360.0 * self.pole_pairs / (t[-1] - t[0])
         for shift in range(0, 2 * self.pole_pairs, 2):  # whole electrical periods
             pole = (count + shift) % (2 * self.pole_pairs)
-            corr = self.corrections.static_deg_e(sensor, pole)
+            armature = self.corrections.armature_reaction_deg_e_per_a * current
+            corr = self.corrections.static_deg_e(sensor, pole) + armature
             sector_s = np.diff(t - corr / w - delay_s)
             var = np.var(sector_s - np.polyval(np.polyfit(index, sector_s, 1), index))
             if var < best_var:
@@ -155,7 +158,10 @@ class HallCommutation:
         # magnet boundary of this edge, from its place in the edge sequence (forward rotation)
         angle = self._first_angle_deg_e + 60.0 * self._edge_index
         boundary = int(round((angle - SENSOR_POSITION_DEG_E[x]) / 180.0))
-        self._history.append((t, x, rising, boundary))
+        # the current the armature correction reads at this edge, kept for the pole alignment
+        edge_current_a = edge.get("current_a", self.current_estimate_a) if self.use_measured_current \
+            else self.current_estimate_a
+        self._history.append((t, x, rising, boundary, float(edge_current_a)))
         # two mechanical turns and an edge: the pole alignment compares one whole turn, and the speed
         # that turns corrections into time is measured over one (a fixed 64 edges held only 5 pole pairs)
         keep = 2 * 6 * self.pole_pairs + 2
