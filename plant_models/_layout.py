@@ -6,6 +6,12 @@ from __future__ import annotations
 
 from numba import njit
 
+from ._numba_cache import drop_stale_cache
+
+# before any of the package's numba functions is first called (numba reads its cache then): its
+# index stamps the kernel with _kernel.py alone, which inlines sensor.py's and this module's code
+drop_stale_cache()
+
 _kernel_jit = njit(cache=True, _nrt=False)
 _kernel_inline = njit(cache=True, inline="always", _nrt=False)
 
