@@ -442,6 +442,7 @@ typedef struct {
     int64_t t;
     uint8_t sensor, rising;
     int32_t boundary;
+    float current_a; /* what the armature correction read at this edge: the pole alignment uses it */
 } hist_t;
 #define HIST_KEEP (2 * EDGES_PER_TURN + 2)
 
@@ -537,7 +538,7 @@ static hist_t *hist_back(int m) /* m = 1: the newest */
     return &L.hist[(L.hist_head + L.hist_n - m) % HIST_KEEP];
 }
 
-static void hist_append(int64_t t, uint8_t sensor, uint8_t rising, int32_t boundary)
+static void hist_append(int64_t t, uint8_t sensor, uint8_t rising, int32_t boundary, float current_a)
 {
     hist_t *h;
     if (L.hist_n == HIST_KEEP) {
@@ -550,6 +551,7 @@ static void hist_append(int64_t t, uint8_t sensor, uint8_t rising, int32_t bound
     h->sensor = sensor;
     h->rising = rising;
     h->boundary = boundary;
+    h->current_a = current_a;
 }
 
 /* ---- corrections (hil/calibration/corrections.py correction_one_deg_e) ----------------------- */
@@ -580,7 +582,10 @@ static void sync_poles(void)
         for (k = 0; k <= N; k++) {
             const hist_t *h = hist_back(N + 1 - k);
             int pole = mod_int(h->boundary + shift, N_POLES);
-            float corr = table.installation_deg_e[h->sensor] + table.pole_deg_e[pole];
+            /* the armature lag too: a start-up current's (2 deg e/A at 3-10 A) outweighs pole offsets
+               a degree apart from one alignment to the next */
+            float corr = table.installation_deg_e[h->sensor] + table.pole_deg_e[pole] +
+                         table.armature_deg_e_per_a * h->current_a;
             float tc = t_rel[k] - corr / w - delay_of(h->rising);
             if (k > 0) sector_s[k - 1] = tc - prev;
             prev = tc;
@@ -642,7 +647,7 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, uint8_t levels, flo
     }
     angle = L.first_angle_deg_e + 60.0f * (float)L.edge_index;
     boundary = (int32_t)lroundf((angle - SENSOR_POSITION_DEG_E[x]) / 180.0f);
-    hist_append(t, x, rising, boundary);
+    hist_append(t, x, rising, boundary, current_a >= 0.0f ? current_a : 0.0f);
     sector = sector_of_bits(L.seen);
     if (sector < 0) return;
     if (sector == L.last_sector) { /* a glitch since the last valid edge, not rotor motion */
