@@ -626,10 +626,14 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     ):
         nonlocal benches
         config = (config or hil_plant_config).with_effects(*effects)
+        # a controller without the calibration roles or the strategy role is judged with its own
+        # calibration and strategy: nothing downloaded, nothing set (hil.requirements, ``uses``)
+        download = corrections is not None and link_has(hil_link, *CALIBRATION)
+        set_strategy = link_has(hil_link, "strategy")
         note(
-            f"lockstep bench: {Strategy(int(strategy)).name.lower().replace('_', '-')} commutation from "
-            f"{speed_rpm:.0f} rpm"
-            f"{', calibration downloaded' if corrections is not None else ''}, effects: "
+            f"lockstep bench: "
+            f"{Strategy(int(strategy)).name.lower().replace('_', '-') if set_strategy else 'its own'} commutation "
+            f"from {speed_rpm:.0f} rpm{', calibration downloaded' if download else ''}, effects: "
             f"{', '.join(e.name for e in effects) or 'none'}"
         )
         if benches:  # hil_link reset the controller for the first bench; each later one starts from a reset too
@@ -637,11 +641,9 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
         benches += 1
         if filter_settings is not None:
             hil_link.set_filter_settings(filter_settings)
-        # a controller without the calibration roles or the strategy role is judged with its own
-        # calibration and strategy: nothing downloaded, nothing set (hil.requirements, ``uses``)
-        if corrections is not None and link_has(hil_link, *CALIBRATION):
+        if download:
             hil_link.download_calibration(corrections)
-        if link_has(hil_link, "strategy"):
+        if set_strategy:
             hil_link.set_strategy(int(strategy))
         # plant steps of at most 2 us: the armature reaction follows the instantaneous current, which
         # moves fast right after a commutation; a coarser step would blur it (docs/acceptance.md)
@@ -902,7 +904,9 @@ class HilReporter:
                 record["doc"] = value
             elif kind == "traffic":
                 record["traffic"] = value
-            elif kind == "not_testable" and outcome == "skipped":
+            elif kind == "not_testable":
+                # kept whatever the outcome: a test that ran for its other requirements judged
+                # nothing of these (hil.report.test_status), so its pass or failure is not theirs
                 record["not_testable"] = value
         json.dumps(record)  # everything in a record is plain data
         return record

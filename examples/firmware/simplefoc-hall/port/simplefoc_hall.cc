@@ -29,11 +29,14 @@ constexpr float kRadPerSToRpm = 60.0f / _2PI;
 constexpr float kDutyPerRpm = 0.342f / 6000.0f;  // the plant motor's duty at no load, per rpm
 constexpr float kSpeedKp = 1e-4f, kSpeedKi = 2e-3f, kDutyMax = 0.95f;
 constexpr int kFaultSlots = 4, kEmcySlots = 8;
+constexpr long kEdgesBeforeSpeedLoop = 6;
+constexpr float kVelocityLpfTf_s = 0.005f;  // SimpleFOC's DEF_VEL_FILTER_Tf
+constexpr float kVelocityLpfAlpha = kVelocityLpfTf_s / (kVelocityLpfTf_s + 1.0f / kControlHz);
 
 struct Nvm { float setpoint_rpm = 5000.0f; } nvm;  // survives hil_sil_reset
 struct Ram {
   uint8_t gates = 0;
-  float duty = 0.0f, integral = 0.0f, speed_rpm = 0.0f;
+  float duty = 0.0f, integral = 0.0f, speed_rpm = 0.0f, velocity_lpf_rad_s = 0.0f;
   uint32_t faults[kFaultSlots] = {};
   uint8_t fault_count = 0, error_register = 0;
   uint16_t emcy[kEmcySlots] = {};
@@ -123,11 +126,23 @@ HIL_SIL_EXPORT void hil_sil_control_isr(uint32_t count, const int16_t adc[3]) {
   commutate();
   // BLDCMotor::move()'s velocity loop, on the duty: SimpleFOC's velocity is mechanical rad/s and
   // zero once the last edge is older than twice the last sector's duration
-  ram.speed_rpm = sensor().getVelocity() * kRadPerSToRpm;
+  // BLDCMotor filters the sensor's velocity before its loop (LPF_velocity, SimpleFOC's default
+  // time constant): the raw one is one sector's duration, and zero while the edge it waits for is
+  // later than twice the last interval, which uneven sectors at speed make it now and then
+  float velocity_rad_s = sensor().getVelocity();
+  ram.velocity_lpf_rad_s = kVelocityLpfAlpha * ram.velocity_lpf_rad_s + (1.0f - kVelocityLpfAlpha) * velocity_rad_s;
+  ram.speed_rpm = ram.velocity_lpf_rad_s * kRadPerSToRpm;
+  // SimpleFOC's velocity stays zero until two sectors in one direction were timed: a PI running
+  // before that sees the whole set point as error and slams the duty to its limit, and the
+  // armature current's lag then holds the motor there (the template waits for six edges too)
+  if (sensor().total_interrupts < kEdgesBeforeSpeedLoop) return;
   float error = nvm.setpoint_rpm - ram.speed_rpm;
-  ram.integral += error * (kSpeedKi / kControlHz);
-  float duty = nvm.setpoint_rpm * kDutyPerRpm + kSpeedKp * error + ram.integral;
-  ram.duty = duty < 0.0f ? 0.0f : (duty > kDutyMax ? kDutyMax : duty);
+  float feedforward = nvm.setpoint_rpm * kDutyPerRpm;
+  // the integral stops where the duty does (anti-windup): a zero velocity after a wiring fault
+  // must not leave a wound-up duty behind once the speed reads again
+  ram.integral = _constrain(ram.integral + error * (kSpeedKi / kControlHz), -feedforward, kDutyMax - feedforward);
+  float duty = feedforward + kSpeedKp * error + ram.integral;
+  ram.duty = _constrain(duty, 0.0f, kDutyMax);
 }
 
 HIL_SIL_EXPORT uint8_t hil_sil_gates(void) { return ram.gates; }
