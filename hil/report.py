@@ -233,14 +233,17 @@ class ReportWriter:
             for t in traced:
                 status = test_status(t, rid)
                 w = find_waiver(self.waivers, rid, t["nodeid"]) if status == "fail" else None
+                # a test that ran for its other requirements says why it could not show this one;
+                # its message and figures are theirs
+                lacking = t.get("not_testable") if status == "not testable" else None
                 rows.append(
                     {
                         "nodeid": t["nodeid"],
                         "dut": t.get("dut", ""),
                         "outcome": t["outcome"],
                         "verdict": "waived" if w else status,
-                        "message": t["message"],
-                        "measurements": _relevant(t, rid),
+                        "message": lacking["reason"] if lacking else t["message"],
+                        "measurements": [] if lacking else _relevant(t, rid),
                         "waiver": w.as_dict() if w else None,
                     }
                 )
@@ -321,7 +324,9 @@ class ReportWriter:
         for r in matrix:
             if r["traced"] and r["verdict"] in ("fail", "error", *_UNANSWERED):
                 why = next((t["message"] for t in r["tests"] if t["verdict"] == "not testable"), "")
-                reasons.append(f"{r['id']}: {r['verdict']}" + (" with this profile" if why else ""))
+                # "with this profile" explains a requirement no test could show, never a failure
+                profile = " with this profile" if why and r["verdict"] == "not testable" else ""
+                reasons.append(f"{r['id']}: {r['verdict']}{profile}")
         if not self.complete:
             reasons.append(f"incomplete: {self.incomplete_reason}")
         ran = [t for t in tests if t["outcome"] != "skipped"]

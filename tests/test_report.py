@@ -495,3 +495,31 @@ def test_the_report_sums_each_duts_edge_traffic_and_shows_it_beside_the_controll
     assert traffic["virtual-modbus"] == {**modbus, "edges": 10, "transactions": 11}
     html = (tmp_path / "hil-report.html").read_text()
     assert "11.2 frames per edge" in html and "11 transactions" in html
+
+
+def test_a_requirement_the_profile_cannot_show_is_not_testable_though_its_test_ran_and_passed(
+    pytester, monkeypatch, tmp_path
+):
+    """A test traced to two requirements runs for the one the DUT's profile can show (REQ-COMM-001)
+    and judges nothing of the other (REQ-CAL-005: the six-step firmware maps no calibration role):
+    its pass is the first's alone; the other stays not testable, never pass."""
+    from pathlib import Path
+
+    sixstep = Path(__file__).resolve().parent / "data" / "sil" / "sixstep"
+    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path / "sil-cache"))
+    pytester.makepyfile(
+        test_own="""
+        import pytest
+
+        @pytest.mark.requirement("REQ-COMM-001", "REQ-CAL-005")
+        def test_own_commutation(hil_link, request):
+            assert request.node.hil_not_testable == {"REQ-CAL-005"}
+    """
+    )
+    pytester.runpytest("--hil-report-dir", "rep", "--hil-dut", f"sil:{sixstep}").assert_outcomes(passed=1)
+    content = report(pytester)
+    req = {r["id"]: r["verdict"] for r in content["traceability"]}
+    assert req["REQ-COMM-001"] == "pass" and req["REQ-CAL-005"] == "not testable"
+    assert content["verdict_reasons"] == ["REQ-CAL-005: not testable with this profile"]
+    (row,) = next(r for r in content["traceability"] if r["id"] == "REQ-CAL-005")["tests"]
+    assert row["message"].startswith("not testable with the profile") and row["measurements"] == []
