@@ -18,8 +18,9 @@ constexpr uint32_t kControlHz = 20000u;
 constexpr uint8_t kPolePairs = 2;
 // SimpleFOC numbers the sector of Hall code 001 zero (HallSensor.h: ELECTRIC_SECTORS); the drive
 // below numbers sectors from the rotor angle where code 101 begins. The offset between the two is
-// what SimpleFOC's BLDCMotor keeps as zero_electric_angle (five sectors, 300 deg e, here), given by the user as
-// the motor's wiring fixes it: nothing here measures or corrects the sensors' placement.
+// what SimpleFOC's BLDCMotor keeps as zero_electric_angle (five sectors, 300 deg e, here), given
+// by the user as the motor's wiring fixes it: nothing here measures or corrects the sensors'
+// placement.
 constexpr int kZeroElectricSectors = 5;
 // the phases each drive sector switches (high side chopped at the duty, low side on)
 constexpr int kHigh[6] = {2, 2, 0, 0, 1, 1};
