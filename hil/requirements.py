@@ -244,7 +244,7 @@ _REGISTRY = (
             ),
             **derived('sage_husa_over_kf_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
-        judges=('predictor-model',),
+        judges=('predictor-model', 'noise-learning'),
     ),
     Requirement(
         "REQ-PRED-003", "The Sage-Husa predictor adapts its noise statistics to the measured edge noise",
@@ -286,7 +286,7 @@ _REGISTRY = (
             ),
             **derived('edge_noise_estimate_high'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),
-        judges=('noise-learning',),
+        judges=('noise-learning', 'predictor-model'),
     ),
     Requirement(
         "REQ-PRED-004", "The Sage-Husa predictor's edge-noise estimate tracks a step of the edge noise",

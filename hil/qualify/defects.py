@@ -218,6 +218,22 @@ class NoMissingEdgeFault(VirtualController):
             super().raise_fault(code, t_s)
 
 
+@defect("no-illegal-code-fault", "an illegal Hall code (000/111) is dropped as a glitch but never reported (no "
+        "0xFF01)", "fault-handling")
+class NoIllegalCodeFault(VirtualController):
+    def raise_fault(self, code, t_s):
+        if int(code) != Fault.ILLEGAL_HALL_CODE:
+            super().raise_fault(code, t_s)
+
+
+@defect("no-guard-trip-fault", "a filter guard repairs the covariance but the trip is never reported (no 0xFF03)",
+        "fault-handling")
+class NoGuardTripFault(VirtualController):
+    def raise_fault(self, code, t_s):
+        if int(code) != Fault.FILTER_GUARD_TRIP:
+            super().raise_fault(code, t_s)
+
+
 @defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)",
         "table-validation")
 class NoTableValidation(VirtualController):
