@@ -524,7 +524,8 @@ def test_engine_gives_a_tie_within_noise_to_fewer_parameters():
 
 
 def test_engine_names_a_rival_confounded_only_when_its_refit_earns_nothing():
-    from hil.gap.selection import BIC_MIN, confounded_rivals
+    from hil.gap.selection import confounded_rivals
+    from hil.stats import BIC_MIN
 
     sel = _toy_engine({"a": (1000.0, 1), "b": (950.0, 1)})
     assert sel.fitted == ["a"]

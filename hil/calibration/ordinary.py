@@ -30,6 +30,7 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
+from ..stats import BIC_MIN, bic_gain, inliers
 from .corrections import SENSORS
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
@@ -77,7 +78,7 @@ def hall_steps(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray) -> HallS
         raise OrdinaryRunError(f"{e} (four electrical cycles)" if "edges:" in str(e) else str(e)) from None
 
 
-def _sum_zero_basis(k: int) -> np.ndarray:
+def sum_zero_basis(k: int) -> np.ndarray:
     """k x (k - 1) columns spanning the vectors that sum to zero (Helmert-like)."""
     q, _ = np.linalg.qr(np.column_stack([np.ones(k), np.eye(k)[:, : k - 1]]))
     return q[:, 1:k]
@@ -160,7 +161,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
             here = steps.direction[idx] == sgn
             if not here.any():
                 continue
-            z = _sum_zero_basis(6)
+            z = sum_zero_basis(6)
             cols.append((np.eye(6)[lab] @ z) * (tau * d * here)[:, None])
             names += [f"static_{dname}_{j}" for j in range(5)]
     sensor = SENSOR_OF_BOUNDARY[np.mod(lab, 3)]
@@ -169,7 +170,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
         if not here.any():
             continue
         if eff.install and not eff.static:
-            cols.append((np.eye(3)[sensor] @ _sum_zero_basis(3)) * (tau * d * here)[:, None])
+            cols.append((np.eye(3)[sensor] @ sum_zero_basis(3)) * (tau * d * here)[:, None])
             names += [f"inst_{dname}_{j}" for j in range(2)]
         if eff.switching and not eff.static:
             half = np.where(steps.rising[idx], 0.5, -0.5)  # trails on rising edges, leads on falling
@@ -181,7 +182,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
             if here.any():
                 # (w_ref / w)^2 with w_ref = 10 Hz electrical: the coefficient is the angle at 10 Hz
                 scale = (10.0 * 360.0 * tau) ** 2
-                cols.append((np.eye(6)[lab] @ _sum_zero_basis(6)) * (tau * scale * here)[:, None])
+                cols.append((np.eye(6)[lab] @ sum_zero_basis(6)) * (tau * scale * here)[:, None])
                 names += [f"ripple_{dname}_{j}" for j in range(5)]
     if eff.delay:
         cols.append(np.where(steps.rising[idx], 0.5, -0.5)[:, None])
@@ -189,7 +190,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
     if eff.pole_pairs:
         p = eff.pole_pairs
         b = pole_of_boundary(steps.boundary[idx], p)
-        z = _sum_zero_basis(p)
+        z = sum_zero_basis(p)
         for parity in (0, 1):
             ind = np.zeros((idx.size, p))
             sel = np.mod(b, 2) == parity
@@ -267,9 +268,8 @@ def fit_ordinary(
         solved = (s_mat, e_cols, w, resid)
         # noise per speed band: quantisation and jitter grow differently with speed
         sigma = _band_sigma(resid, tau, keep, tick_s)
-        # outliers (a missed edge, a bump): beyond 6 robust sd, left out of the next pass
-        z = np.abs(resid) / sigma
-        new_keep = z < 6.0
+        # outliers (a missed edge, a bump): beyond the project's cut (hil.stats), left out of the next pass
+        new_keep = inliers(resid, sigma)
         outliers = int(np.sum(~new_keep))
         keep = new_keep
         # the trajectory's slope at each edge (the deviations move edges along it)
@@ -459,8 +459,8 @@ def choose_pole_pairs(
 
     A magnet's pole boundaries repeat every mechanical turn (6 p edges); without the motor's
     pole count, each candidate p is fitted on the same trajectory splines as ``base`` and the
-    smallest BIC kept, provided it beats the model without pole offsets by a clear margin (10
-    BIC units, with the noise of ``base``)."""
+    smallest BIC kept, provided it beats the model without pole offsets by a clear margin
+    (``hil.stats.BIC_MIN``, with the noise of ``base``)."""
     n_edges = int(steps.used().sum())
     best: tuple[int | None, float] = (None, 0.0)
     for p in range(2, max_pole_pairs + 1):
@@ -470,8 +470,8 @@ def choose_pole_pairs(
             f = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick_s, knot_cycles=knot_cycles)
         except OrdinaryRunError:
             break
-        gain = -_chi2(f, base) - (len(f.names) - len(base.names)) * np.log(n_edges)
-        if gain > max(best[1], 10.0):
+        gain = bic_gain(-_chi2(f, base), len(f.names) - len(base.names), n_edges)
+        if gain > max(best[1], BIC_MIN):
             best = (p, gain)
     if best[0] is None:
         return None, "no pole pattern stands out (no pole count is assumed; pole offsets not determined)"
@@ -485,7 +485,7 @@ def _chi2(f: Fit, noise: Fit) -> float:
     """Weighted residual sum of squares of ``f`` minus that of ``noise`` (same edges, the noise of
     ``noise``), over the edges neither fit left out as outliers."""
     sigma = noise.sigma_s
-    keep = (np.abs(noise.residual_s / sigma) < 6.0) & (np.abs(f.residual_s / f.sigma_s) < 6.0)
+    keep = inliers(noise.residual_s, sigma) & inliers(f.residual_s, f.sigma_s)
     return float(np.sum((f.residual_s[keep] / sigma[keep]) ** 2) - np.sum((noise.residual_s[keep] / sigma[keep]) ** 2))
 
 
@@ -495,8 +495,8 @@ RIPPLE_SE_GROWTH = 1.5
 KNOT_CYCLE_CHOICES = (2, 3, 4, 6, 8)
 #: beyond half a sector an "installation offset" is a wiring or labelling error, not an offset
 INSTALLATION_BOUND_DEG_E = 30.0
-_RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
-_SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
+RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
+SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
 
 
 def choose_knots(steps: HallSteps, tick_s: float | None, eff: Effects | None = None) -> tuple[float, Fit]:
@@ -509,7 +509,7 @@ def choose_knots(steps: HallSteps, tick_s: float | None, eff: Effects | None = N
         except OrdinaryRunError:
             continue
         n_spline = _n_spline(steps, kc)
-        keep = np.abs(f.residual_s / f.sigma_s) < 6.0
+        keep = inliers(f.residual_s, f.sigma_s)
         n = int(keep.sum())
         rss = float(np.sum(f.residual_s[keep] ** 2 / f.tau_s_per_deg[keep] ** 2))  # in angle: speed-fair
         bic = n * np.log(max(rss / max(n, 1), 1e-30)) + (n_spline + len(f.names)) * np.log(max(n, 2))
@@ -539,7 +539,7 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
         keys = [f"static_{dname}_{j}" for j in range(5)]
         if keys[0] not in fit.names:
             continue
-        z = _sum_zero_basis(6)
+        z = sum_zero_basis(6)
         vals.append(fit.combination(dict(zip(keys, make(sgn, z)))))
     if not vals:
         return None
@@ -630,16 +630,16 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
         if "delay_diff_s" in hf.names:
             figs["rise_fall_delay_difference_s"] = hf.get("delay_diff_s")
         asym = _by_direction(
-            hf, steps, lambda sgn, z: sgn * (z[list(_RISE_LABELS[sgn])].mean(0) - z[list(_RISE_LABELS[-sgn])].mean(0))
+            hf, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
         )
         if asym:
             figs["rise_fall_angle_asymmetry_deg_e"] = asym
         for x, name in enumerate(SENSORS):
-            r = _by_direction(hf, steps, lambda sgn, z, labels=list(_SENSOR_LABELS[x]): z[labels].mean(0))
+            r = _by_direction(hf, steps, lambda sgn, z, labels=list(SENSOR_LABELS[x]): z[labels].mean(0))
             if r:
                 figs[f"installation_offset_deg_e.{name}"] = r
         if pf is not None:
-            z = _sum_zero_basis(pole_pairs)
+            z = sum_zero_basis(pole_pairs)
             for parity in (0, 1):
                 keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
                 for i in range(pole_pairs):
@@ -700,8 +700,8 @@ def ordinary_calibration(
     # shows it (BIC), never written as a correction
     ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
     n_used = int(steps.used().sum())
-    ripple_gain = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used)
-    ripple = ripple_gain > 10.0
+    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
+    ripple = ripple_gain > BIC_MIN
     # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
     # constant angle: their standard errors may grow by half at most
     ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
@@ -723,7 +723,7 @@ def ordinary_calibration(
     # the rise-minus-fall asymmetry, as a delay (time) and as a constant angle
     d_val, d_se = fit.get("delay_diff_s")
     asym = _by_direction(
-        fit, steps, lambda sgn, z: sgn * (z[list(_RISE_LABELS[sgn])].mean(0) - z[list(_RISE_LABELS[-sgn])].mean(0))
+        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
     )
     delay = _value(d_val, d_se)
     angle = _value(*asym) if asym else _value(None, None, reason="no static offsets fitted")
@@ -742,7 +742,7 @@ def ordinary_calibration(
     # installation offsets (relative: sum zero), both edges of a sensor alike
     inst, inst_se = {}, {}
     for x, name in enumerate(SENSORS):
-        labels = list(_SENSOR_LABELS[x])
+        labels = list(SENSOR_LABELS[x])
         r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
         inst[name], inst_se[name] = r if r else (0.0, None)
     refusal = installation_refusal(inst)
@@ -769,7 +769,7 @@ def ordinary_calibration(
                 steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
             )
             pf = with_model_choice(pf, pf_other, other_weight, other_what)
-        z = _sum_zero_basis(pole_pairs)
+        z = sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)
         for parity in (0, 1):

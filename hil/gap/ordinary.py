@@ -44,7 +44,8 @@ from hil.recording import Recording
 from ..plots import pyplot
 from .diagnose import Diagnosis, knob
 from .relevance import edge_relevance
-from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink, inliers
+from ..stats import inliers
+from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 #: the model of the whole run: its used edges in this many consecutive stretches, each with its
 #: own trajectory (the cells of the gap are per stretch)

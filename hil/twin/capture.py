@@ -37,17 +37,18 @@ from plant_models import effects as fx
 
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import (
-    _RISE_LABELS,
-    _SENSOR_LABELS,
+    RISE_LABELS,
+    SENSOR_LABELS,
     Effects,
     Fit,
     HallSteps,
-    _sum_zero_basis,
+    sum_zero_basis,
     calibrate_ordinary,
     fit_ordinary,
     hall_steps,
 )
 from ..recording import Recording, read_recording
+from ..stats import OUTLIER_SD, chi2_test, inliers
 
 #: residual lags whose autocorrelation the twin check compares
 ACF_LAGS = 12
@@ -145,15 +146,13 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
     when it stands out of the noise (chi-square of the position means against their standard
     errors); the least-squares residual is already free of the per-pole, per-sensor and
     rise-minus-fall parts, so this is what they leave."""
-    from scipy import stats
-
     from ..calibration.ordinary import SENSOR_OF_BOUNDARY, pole_of_boundary
 
     r = fit.residual_s
     if not p:
         return None, r, {"kept": False, "reason": "no pole count: no mechanical turn to fold the residuals over"}
     tau = fit.tau_s_per_deg
-    keep = np.abs(r / fit.sigma_s) < 6.0
+    keep = inliers(r, fit.sigma_s)
     m = steps.boundary[fit.index]
     d = steps.direction[fit.index].astype(float)
     pos = np.mod(m, 6 * p)
@@ -164,8 +163,7 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
         if sel.sum() >= 5:
             means[j] = float(np.mean(d[sel] * ang[sel]))  # spatial: a trail in reverse is a lead
             ses[j] = float(np.std(ang[sel]) / np.sqrt(sel.sum()))
-    chi2 = float(np.sum((means / ses) ** 2))
-    p_value = float(stats.chi2.sf(chi2, 6 * p))
+    chi2, p_value = chi2_test(means, ses)
     # constant in angle, or the rotor's motion? The pattern of the slower and of the faster half of
     # the edges: a sensor's offset is the same in both (slope 1), a position-locked speed ripple
     # (cogging) falls with speed squared
@@ -211,7 +209,7 @@ def _label_combination(fit: Fit, sgn: int, weights: np.ndarray, prefix: str = "s
     keys = [f"{prefix}_{dname}_{j}" for j in range(5)]
     if keys[0] not in fit.names:
         return None
-    z = _sum_zero_basis(6)
+    z = sum_zero_basis(6)
     return fit.combination(dict(zip(keys, weights @ z)))
 
 
@@ -227,8 +225,8 @@ def sensor_asymmetry(fit: Fit) -> dict[str, tuple[float, float]]:
     for x, name in enumerate(SENSORS):
         vals = []
         for sgn in (1, -1):
-            rise = [j for j in _SENSOR_LABELS[x] if j in _RISE_LABELS[sgn]]
-            fall = [j for j in _SENSOR_LABELS[x] if j not in _RISE_LABELS[sgn]]
+            rise = [j for j in SENSOR_LABELS[x] if j in RISE_LABELS[sgn]]
+            fall = [j for j in SENSOR_LABELS[x] if j not in RISE_LABELS[sgn]]
             w = np.zeros(6)
             w[rise], w[fall] = sgn, -sgn  # static offsets are spatial: they trail by sgn * offset
             r = _label_combination(fit, sgn, w)
@@ -245,7 +243,7 @@ def ripple_pattern_deg_e(fit: Fit, sgn: int) -> np.ndarray | None:
     if keys[0] not in fit.names:
         return None
     c = np.array([fit.coef[fit.names.index(k)] for k in keys])
-    return _sum_zero_basis(6) @ c
+    return sum_zero_basis(6) @ c
 
 
 def residual_acf(x: np.ndarray, lags: int = ACF_LAGS) -> list[float]:
@@ -292,7 +290,7 @@ def noise_model(
     sol, _ = optimize.nnls(design * rel[:, None] / scale, var_b * rel)
     sol = sol / scale
     time_rms, angle_rms = math.sqrt(sol[0]), math.sqrt(sol[1])
-    z = np.clip(r / sd, -6.0, 6.0)
+    z = np.clip(r / sd, -OUTLIER_SD, OUTLIER_SD)  # an outlier weighs no more than the cut
     same_run = np.diff(steps.run[fit.index]) == 0
     acf1 = float(np.mean(z[1:][same_run] * z[:-1][same_run]) / np.mean(z**2)) if same_run.any() else 0.0
     share = float(np.mean(sol[1] * tau**2 / (sol[0] + sol[1] * tau**2 + q_var))) if sol[1] > 0 else 0.0
