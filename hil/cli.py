@@ -123,9 +123,9 @@ def cmd_calibrate(args) -> int:
         _print_ordinary_calibration(args.recording, out)
     else:
         _print_segment_calibration(args.recording, cal.corrections)
-    for r in out["refused"]:
-        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
-    for quantity, why in out["undetermined"].items():
+    for r in cal.refused:
+        print(f"  REFUSED {r.field}: {r.reason}", file=sys.stderr)
+    for quantity, why in cal.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
     if args.json:
         _write_json(args.json, out)

@@ -283,8 +283,8 @@ def test_the_segment_route_applies_the_stated_delay_bound():
     assert kept.route == "segments" and kept.refused == []
     assert kept.corrections.conditioning_delay_s["rise"] == pytest.approx(6.6e-6, abs=1e-6)
     cal = calibrate_recording(rec, circuit=Circuit(delay_max_s=1e-6))
-    assert [r["field"] for r in cal.refused] == ["conditioning_delay_s.rise"]
-    assert "stated maximum 1 us" in cal.refused[0]["reason"]
+    assert [r.field for r in cal.refused] == ["conditioning_delay_s.rise"]
+    assert "stated maximum 1 us" in cal.refused[0].reason
     assert cal.corrections.conditioning_delay_s["rise"] == 0.0
     assert cal.to_json_dict()["conditioning_delay_s"]["rise"] == 0.0
 
@@ -304,7 +304,7 @@ def test_the_station_calibrates_through_the_front_door():
     direct = calibrate_recording(campaign.run(config, seed=3), circuit=circuit)
     station = station_calibration(config, seed=3, campaign=campaign, circuit=circuit)
     assert station.route == "segments"
-    assert station.refused == direct.refused and [r["field"] for r in station.refused] == ["conditioning_delay_s.rise"]
+    assert station.refused == direct.refused and [r.field for r in station.refused] == ["conditioning_delay_s.rise"]
     table = station_corrections(config, seed=3, campaign=campaign, circuit=circuit)
     assert table.conditioning_delay_s["rise"] == 0.0 == direct.corrections.conditioning_delay_s["rise"]
     assert fit_corrections(campaign.run(config, seed=3)).conditioning_delay_s["rise"] > 5e-6

@@ -43,9 +43,9 @@ from ..calibration.ordinary import (
     Fit,
     HallSteps,
     sum_zero_basis,
-    calibrate_ordinary,
     fit_ordinary,
     hall_steps,
+    ordinary_calibration,
 )
 from ..recording import Recording, read_recording
 from ..stats import OUTLIER_SD, chi2_test, inliers
@@ -117,16 +117,17 @@ def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> 
     """Calibrate the capture (``hil calibrate``'s ordinary-run route) and fit the full model."""
     steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
     tick = rec.timer_tick_s
-    out, _ = calibrate_ordinary(
+    cal = ordinary_calibration(
         steps, tick_s=tick, pole_pairs=pole_pairs or rec.stated_pole_pairs, source=source or str(rec.path or "")
     )
-    a = out["assumptions"]
-    p = a["pole_pairs"] if out["pole_offset_deg_e"] else None
-    ripple = str(a["sector_locked_speed_ripple"]).startswith("modelled")
-    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a["knot_cycles"])
+    a = cal.ordinary.assumptions
+    p = a.pole_pairs if cal.corrections.pole_offset_deg_e else None
+    ripple = a.ripple_modelled
+    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a.knot_cycles)
     table, resid, test = sensor_pole_pattern(fit, steps, p)
     an = CaptureAnalysis(
-        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick, resid)
+        rec, steps, cal.to_json(), fit, a.pole_pairs, tick, ripple, sensor_asymmetry(fit),
+        noise_model(fit, steps, tick, resid),
     )
     an.extra["sensor_pole_offset"] = {"table_deg_e": None if table is None else [float(v) for v in table], **test}
     return an

@@ -1,0 +1,80 @@
+"""Saved result files keep working: each file in tests/data/results/ was written by the code
+before the results became typed (issue 40); the same command today writes the same keys and the
+same values (numbers to rounding), the legacy alias keys included."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+SAVED = ROOT / "tests" / "data" / "results"
+
+
+def differences(saved, now, where: str = "") -> list[str]:
+    """Where ``now`` differs from ``saved``: a key missing or added, a type, a string, a number
+    beyond rounding, a list's length."""
+    if isinstance(saved, dict) and isinstance(now, dict):
+        out = [f"{where}/{k}: missing" for k in saved.keys() - now.keys()]
+        out += [f"{where}/{k}: added" for k in now.keys() - saved.keys()]
+        for k in saved.keys() & now.keys():
+            out += differences(saved[k], now[k], f"{where}/{k}")
+        return out
+    if isinstance(saved, list) and isinstance(now, list):
+        if len(saved) != len(now):
+            return [f"{where}: {len(saved)} items saved, {len(now)} now"]
+        return [d for i, (a, b) in enumerate(zip(saved, now)) for d in differences(a, b, f"{where}[{i}]")]
+    numbers = (int, float)
+    if isinstance(saved, numbers) and isinstance(now, numbers) and not isinstance(saved, bool):
+        ok = math.isclose(saved, now, rel_tol=1e-9, abs_tol=1e-15) or (math.isnan(saved) and math.isnan(now))
+        return [] if ok else [f"{where}: {saved!r} saved, {now!r} now"]
+    return [] if saved == now and type(saved) is type(now) else [f"{where}: {saved!r} saved, {now!r} now"]
+
+
+def test_the_comparison_sees_a_renamed_key_and_a_changed_value():
+    """A guard on the guard."""
+    saved = {"a": {"value": 1.0, "reason": "x"}, "b": [1, 2], "c": None}
+    assert differences(saved, json.loads(json.dumps(saved))) == []
+    assert differences(saved, {"a": {"val": 1.0, "reason": "x"}, "b": [1, 2], "c": None})
+    assert differences(saved, {"a": {"value": 1.1, "reason": "x"}, "b": [1, 2], "c": None})
+    assert differences(saved, {"a": {"value": 1.0, "reason": "y"}, "b": [1], "c": None})
+    assert differences(saved, {"a": {"value": 1.0, "reason": "x"}, "b": [1, 2], "c": 0.0})
+
+
+def _saved(name: str) -> dict:
+    return json.loads((SAVED / name).read_text())
+
+
+@pytest.mark.parametrize(
+    "name, capture, circuit",
+    [
+        ("calibration-ordinary-new-slow.json", "20250615-new-slow.vcd", {}),
+        ("calibration-ordinary-back-and-forth-refused.json", "20250616-back-and-forth.vcd", {"delay_max_s": 1e-5}),
+    ],
+)
+def test_an_ordinary_run_calibration_writes_the_saved_json(name, capture, circuit):
+    from hil.calibration import calibrate
+    from hil.calibration.ordinary import Circuit
+    from hil.twin.capture import load_capture
+
+    source = f"tests/data/real-hall/{capture}"
+    cal = calibrate(load_capture(ROOT / source), circuit=Circuit(**circuit), source=source)
+    now = json.loads(json.dumps(cal.to_json()))
+    assert cal.to_json_dict() == cal.to_json()  # the former name, kept
+    assert differences(_saved(name), now) == []
+    assert now["independent_estimate"] == now["method_cross_check"]  # the legacy alias key
+
+
+def test_a_campaign_calibration_writes_the_saved_json():
+    from hil.calibration import calibrate
+    from hil.calibration.campaign import CalibrationCampaign
+    from hil.calibration.ordinary import Circuit
+    from plant_models import PRESETS
+
+    rec = CalibrationCampaign(turns_per_point=40).run(PRESETS["paper-bench+deviations"](), seed=3)
+    cal = calibrate(rec, circuit=Circuit(delay_max_s=1e-6))
+    now = json.loads(json.dumps(cal.to_json()))
+    assert differences(_saved("calibration-segments-campaign-refused.json"), now) == []
