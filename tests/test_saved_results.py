@@ -34,6 +34,15 @@ def differences(saved, now, where: str = "") -> list[str]:
     return [] if saved == now and type(saved) is type(now) else [f"{where}: {saved!r} saved, {now!r} now"]
 
 
+def key_paths(obj, where: str = "") -> set[str]:
+    """Every key path of ``obj`` (a list's items merged under ``[]``): the shape a reader relies on."""
+    if isinstance(obj, dict):
+        return {p for k, v in obj.items() for p in {f"{where}/{k}"} | key_paths(v, f"{where}/{k}")}
+    if isinstance(obj, list):
+        return {p for item in obj for p in key_paths(item, f"{where}[]")}
+    return set()
+
+
 def test_the_comparison_sees_a_renamed_key_and_a_changed_value():
     """A guard on the guard."""
     saved = {"a": {"value": 1.0, "reason": "x"}, "b": [1, 2], "c": None}
@@ -42,6 +51,7 @@ def test_the_comparison_sees_a_renamed_key_and_a_changed_value():
     assert differences(saved, {"a": {"value": 1.1, "reason": "x"}, "b": [1, 2], "c": None})
     assert differences(saved, {"a": {"value": 1.0, "reason": "y"}, "b": [1], "c": None})
     assert differences(saved, {"a": {"value": 1.0, "reason": "x"}, "b": [1, 2], "c": 0.0})
+    assert key_paths({"a": [{"x": 1}, {"y": 2}]}) == {"/a", "/a[]/x", "/a[]/y"}
 
 
 def _saved(name: str) -> dict:
@@ -78,3 +88,21 @@ def test_a_campaign_calibration_writes_the_saved_json():
     cal = calibrate(rec, circuit=Circuit(delay_max_s=1e-6))
     now = json.loads(json.dumps(cal.to_json()))
     assert differences(_saved("calibration-segments-campaign-refused.json"), now) == []
+
+
+def test_a_gap_diagnosis_writes_the_saved_json():
+    """``hil gap diagnose tests/data/real-hall/20250615-new-slow.vcd --json``: the ordinary-run route."""
+    from hil.gap import diagnose
+    from hil.twin.capture import load_capture
+
+    d = diagnose(load_capture(ROOT / "tests" / "data" / "real-hall" / "20250615-new-slow.vcd"), None)
+    now = json.loads(json.dumps(d.to_json()))
+    assert differences(_saved("gap-diagnosis-ordinary-new-slow.json"), now) == []
+
+
+def test_a_twin_check_writes_the_saved_keys(spindle_check):
+    """``hil twin check`` of the spindle capture against its twin: the same keys (its values hold
+    paths and a simulated twin's figures; tests/test_twin.py judges those)."""
+    now = json.loads(json.dumps(spindle_check))
+    saved = _saved("twin-check-spindle.json")
+    assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))

@@ -165,6 +165,12 @@ class OrdinaryAssumptions:
     delay_bound_why: str  #: where the delay bound comes from (the circuit, or half a sector)
     pole_offset_bound_deg_e: float
 
+    def sector_locked_speed_ripple(self) -> str:
+        if self.ripple_modelled:
+            return ("modelled (an angle per sector boundary falling with 1/speed^2: the rotor's commutation torque "
+                    "ripple; not a sensor deviation, not in the tables)")
+        return "not modelled: not seen (BIC), or not separable from the delay over this speed range"
+
     def direction(self) -> str:
         if self.reverse_edges == 0:
             return "forward (Hall sequence A, B, C)"
@@ -195,12 +201,7 @@ class OrdinaryAssumptions:
                 "cycles (chosen by BIC), fitted jointly with the offsets"
             ),
             "knot_cycles": self.knot_cycles,
-            "sector_locked_speed_ripple": (
-                "modelled (an angle per sector boundary falling with 1/speed^2: the rotor's commutation torque "
-                "ripple; not a sensor deviation, not in the tables)"
-                if self.ripple_modelled
-                else "not modelled: not seen (BIC), or not separable from the delay over this speed range"
-            ),
+            "sector_locked_speed_ripple": self.sector_locked_speed_ripple(),
             "trajectory_residual_rms_deg_e": self.trajectory_residual_rms_deg_e,
             "delay_bound_s": self.delay_bound_s,
             "delay_bound": self.delay_bound_why,

@@ -47,6 +47,7 @@ from ..calibration.ordinary import (
     hall_steps,
     ordinary_calibration,
 )
+from ..calibration.result import Calibration
 from ..recording import Recording, read_recording
 from ..stats import OUTLIER_SD, chi2_test, inliers
 
@@ -103,7 +104,7 @@ class CaptureAnalysis:
 
     rec: Recording
     steps: HallSteps
-    calibration: dict
+    calibration: Calibration  #: the capture's ordinary-run calibration (``to_json()``: what ``hil calibrate`` writes)
     fit: Fit  #: trajectory, offsets, poles, delay and (where the capture shows it) the ripple
     pole_pairs: int | None
     tick_s: float | None
@@ -126,7 +127,7 @@ def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> 
     fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a.knot_cycles)
     table, resid, test = sensor_pole_pattern(fit, steps, p)
     an = CaptureAnalysis(
-        rec, steps, cal.to_json(), fit, a.pole_pairs, tick, ripple, sensor_asymmetry(fit),
+        rec, steps, cal, fit, a.pole_pairs, tick, ripple, sensor_asymmetry(fit),
         noise_model(fit, steps, tick, resid),
     )
     an.extra["sensor_pole_offset"] = {"table_deg_e": None if table is None else [float(v) for v in table], **test}
@@ -410,21 +411,21 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     p = an.pole_pairs or base.motor.pole_pairs
     motor = dataclasses.replace(base.motor, pole_pairs=int(p))
     if an.pole_pairs:
-        measured.append(("motor.pole_pairs", f"{p} ({cal['assumptions']['pole_pairs_source']})"))
+        measured.append(("motor.pole_pairs", f"{p} ({cal.ordinary.assumptions.pole_pairs_source})"))
     else:
         assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
     effects: list[fx.Effect] = []
     # installation offsets: the capture's relative ones around the base's mean
     base_inst = base.effect("installation_offset")
     mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
-    rel = cal["installation_offset_deg_e"]
+    rel = cal.corrections.installation_offset_deg_e
     lim = fx.InstallationOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
     inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", notes) for s in SENSORS)
     effects.append(fx.InstallationOffset(offset_deg_e=inst))
     measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
     assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base ({base_name}); "
                     "capture times give only differences (an encoder or Line-BEMF gives the rest)"))
-    poles = cal["pole_offset_deg_e"]
+    poles = cal.corrections.pole_offset_deg_e
     if poles and len(poles) == 2 * p:
         lim = fx.PoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
         effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", notes)
@@ -432,7 +433,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
         measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
                          "(sum zero per polarity: pole 0 is where the capture starts)"))
     else:
-        notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
+        notes.append("no pole offsets: " + cal.undetermined.get("pole_offset_deg_e", "refused by the calibration"))
     pattern = an.extra.get("sensor_pole_offset", {})
     beyond_table = uncalibratable_effects(an, p, notes)
     if "sensor_pole_offset" in beyond_table:
@@ -445,10 +446,10 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
                      ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
                      f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
-    d = cal["rise_fall_delay_difference_s"]
-    d_value = d["value"] if d.get("value") is not None else 0.0
-    if d.get("value") is None:
-        notes.append(f"rise-minus-fall delay not determined ({d.get('reason')}): the twin has none beyond the base's")
+    d = cal.ordinary.rise_fall_delay_difference_s
+    d_value = d.value if d.value is not None else 0.0
+    if d.value is None:
+        notes.append(f"rise-minus-fall delay not determined ({d.reason}): the twin has none beyond the base's")
     base_delay = base.effect("conditioning_delay")
     common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
     rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
@@ -489,7 +490,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
         if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
             effects.append(e)
     # the top speed: where the suite's speeds end; the delay there against half a sector
-    speeds = cal["assumptions"]["speed_range_hz_e"]
+    speeds = cal.ordinary.assumptions.speed_range_hz_e
     notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
                  "extrapolates (a delay grows with speed, the jitter model holds)")
     if top_speed_rpm is None:

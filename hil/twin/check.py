@@ -19,6 +19,7 @@ from plant_models import PlantConfig
 
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
+from ..calibration.result import Estimate
 from ..experiments import peers
 from .capture import PARTLY_HELD, UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
 from .replay import twin_recording
@@ -54,26 +55,26 @@ def _vs(value, stderr) -> dict:
 
 
 def calibration_figures(an: CaptureAnalysis) -> dict:
-    cal = an.calibration
-    unc = cal["uncertainty"]
-    ind = cal.get("independent_estimate") or {}
+    cal, o = an.calibration.corrections, an.calibration.ordinary
+    unc = cal.uncertainty
+    delay, angle = o.rise_fall_delay_difference_s, o.rise_fall_angle_asymmetry_deg_e
+    # the method cross-check's delay as the calibration writes it (no stderr filtering: a copy)
+    ind = None if o.cross_check is None else Estimate(o.cross_check.delay_diff_s, o.cross_check.stderr_s).to_json()
     return {
-        "rise_fall_delay_difference_s": _vs(cal["rise_fall_delay_difference_s"]["value"],
-                                            cal["rise_fall_delay_difference_s"]["stderr"]),
-        "rise_fall_angle_asymmetry_deg_e": _vs(cal["rise_fall_angle_asymmetry_deg_e"]["value"],
-                                               cal["rise_fall_angle_asymmetry_deg_e"]["stderr"]),
-        "independent_rise_fall_delay_difference_s": ind.get("rise_fall_delay_difference_s"),
-        **{f"installation_offset_deg_e.{s}": _vs(cal["installation_offset_deg_e"][s],
+        "rise_fall_delay_difference_s": _vs(delay.value, delay.stderr),
+        "rise_fall_angle_asymmetry_deg_e": _vs(angle.value, angle.stderr),
+        "independent_rise_fall_delay_difference_s": ind,
+        **{f"installation_offset_deg_e.{s}": _vs(cal.installation_offset_deg_e[s],
                                                  unc["installation_offset_deg_e"].get(s)) for s in SENSORS},
         **{f"switching_asymmetry_deg_e.{s}": _vs(*an.asymmetry_deg_e[s]) for s in SENSORS},
         **{f"pole_offset_deg_e[{j}]": _vs(v, s) for j, (v, s) in
-           enumerate(zip(cal["pole_offset_deg_e"], unc["pole_offset_deg_e"]))},
-        "trajectory_residual_rms_deg_e": _vs(cal["assumptions"]["trajectory_residual_rms_deg_e"], None),
+           enumerate(zip(cal.pole_offset_deg_e, unc["pole_offset_deg_e"]))},
+        "trajectory_residual_rms_deg_e": _vs(o.assumptions.trajectory_residual_rms_deg_e, None),
         "edge_jitter_angle_rms_deg_e": _vs(an.noise.angle_rms_deg_e, None),
         "edge_jitter_time_rms_s": _vs(an.noise.time_rms_s, None),
         "edge_jitter_correlation": _vs(an.noise.correlation, None),
-        "sector_locked_speed_ripple": cal["assumptions"]["sector_locked_speed_ripple"],
-        "edges_used": cal["assumptions"]["edges_used"],
+        "sector_locked_speed_ripple": o.assumptions.sector_locked_speed_ripple(),
+        "edges_used": o.assumptions.edges_used,
     }
 
 
@@ -217,7 +218,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
         take_on = (("sector_locked_speed_ripple",) if real.ripple else ()) + tuple(left_out)
     real_rows = predictor_rows(rec, str(recording))
     real_fig = calibration_figures(real)
-    lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
+    lo, hi = real.calibration.ordinary.assumptions.speed_range_hz_e
     bins = np.linspace(lo, hi, WIDTH_BINS + 1)
     log("running the twin along the capture's trajectory")
     plain, plain_rows = _analyse_twin(config, real, seed, False, f"twin of {recording}")
