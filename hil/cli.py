@@ -623,35 +623,35 @@ def cmd_qualify(args) -> int:
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
-    d = result["detection"]
-    if d is None:
-        print(f"control run: {result['control_verdict']}; no detection figure: {result['no_detection_because']}")
+    out = result.to_json()
+    if result.control_passed:
+        print(f"control run: {result.control.verdict}; caught {len(result.killed)} of {len(result.mutants)} defects "
+              f"({100 * (result.detection_ratio or 0):.0f} %) in {result.duration_s:.0f} s")
     else:
-        print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
-              f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
-    if result["errored"]:
+        print(f"control run: {result.control.verdict}; no detection figure: {out['no_detection_because']}")
+    if result.errored:
         print("errored (a test raised, nothing was caught; findings to fix, not catches): "
-              + ", ".join(result["errored"]))
-    if result.get("not_judged"):
+              + ", ".join(result.errored))
+    if result.not_judged:
         print("not judged (a setup check failed: the scenario did not provoke what the test judges): "
-              + ", ".join(result["not_judged"]))
-    for req, names in result["requirements"].items():
+              + ", ".join(result.not_judged))
+    for req, names in result.requirements().items():
         print(f"  {req:<14} catches {', '.join(names)}")
-    if result["survivors"]:
+    if result.survivors:
         print("survivors (findings: add the requirement that catches them, or state why harmless): "
-              + ", ".join(result["survivors"]))
+              + ", ".join(result.survivors))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
         print(f"written: {args.json}")
     if getattr(args, "table", None):
         from .qualify.run import sensitivity_markdown
 
         Path(args.table).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.table).write_text(sensitivity_markdown(result))
+        Path(args.table).write_text(sensitivity_markdown(out))
         print(f"written: {args.table}")
-    return 0 if (result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"]
-                 and not result.get("not_judged")) else 1
+    return 0 if (result.control_passed and not result.survivors and not result.errored
+                 and not result.not_judged) else 1
 
 
 def _under_compile_ahead(run, *args):

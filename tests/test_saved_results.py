@@ -106,3 +106,48 @@ def test_a_twin_check_writes_the_saved_keys(spindle_check):
     now = json.loads(json.dumps(spindle_check))
     saved = _saved("twin-check-spindle.json")
     assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
+
+
+#: the runs of the saved qualify result (tests/data/results/qualify-canned-runs.json), canned: a
+#: control that PASSes, a defect caught by a budget, one that errored, one that survived
+def _canned_runs():
+    from hil.qualify.run import Run
+
+    test = "test_cases/test_calibration_recovery.py::test_x"
+    return {
+        None: Run("control", "the built-in controller as shipped", "PASS", False, None, [], [], 12.5, "rep/control", "",
+                  [], [{"requirement": "REQ-COMM-001", "budget": "commutation_angle_p99", "verdict": "PASS",
+                        "margin": 0.4, "test": test}], "", ["REQ-COMM-001", "REQ-SPD-001"]),
+        "pole-table-one-pole-off": Run(
+            "pole-table-one-pole-off", "d1", "FAIL", True, "budget", ["REQ-COMM-001"], [test], 20.0, "rep/p", "",
+            [{"requirement": "REQ-COMM-001", "by": "budget commutation_angle_p99", "margin": -0.3, "test": test}],
+            [{"requirement": "REQ-COMM-001", "budget": "commutation_angle_p99", "verdict": "FAIL", "margin": -0.3,
+              "test": test}], "table", ["REQ-COMM-001"]),
+        "never-resynchronises": Run("never-resynchronises", "d2", "FAIL", False, "error", [],
+                                    ["test_cases/test_faults.py::test_y"], 8.0, "rep/n", "raised KeyError", [], [],
+                                    "fault-handling", ["REQ-FAULT-001"]),
+        "current-limit-not-enforced": Run(
+            "current-limit-not-enforced", "d3", "PASS", False, None, [], [], 30.0, "rep/c", "", [],
+            [{"requirement": "REQ-CUR-001", "budget": "peak_current", "verdict": "PASS", "margin": 0.05,
+              "test": "test_cases/test_current.py::test_z"}], "current", ["REQ-CUR-001"]),
+    }
+
+
+def test_a_qualify_result_writes_the_saved_json(tmp_path, monkeypatch):
+    """``hil qualify`` with its runs canned (the suite is not run): the result today writes the same
+    keys and values as the saved one (its duration aside), and its typed figures agree with them."""
+    from types import SimpleNamespace
+
+    from hil.qualify import run as R
+
+    runs = _canned_runs()
+    monkeypatch.setattr(R, "_run", lambda name, description, defect, args: runs[defect])
+    args = SimpleNamespace(defects=None, only=[n for n in runs if n], dut="virtual:modbus", budgets=None,
+                           report_dir=str(tmp_path), workers=1, seed=0)
+    result = R.qualify(args, progress=lambda line: None)
+    now = json.loads(json.dumps(result.to_json()))
+    saved = _saved("qualify-canned-runs.json")
+    assert differences({**saved, "duration_s": 0.0}, {**now, "duration_s": 0.0}) == []
+    assert result.survivors == saved["survivors"] and result.errored == saved["errored"]
+    assert result.requirements() == saved["requirements"]
+    assert result.detection_ratio == saved["detection"]["ratio"]
