@@ -118,9 +118,8 @@ def cmd_calibrate(args) -> int:
     cal = calibrate(
         rec, circuit=Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s), source=str(args.recording)
     )
-    out = cal.to_json_dict()
     if cal.route == "ordinary":
-        _print_ordinary_calibration(args.recording, out)
+        _print_ordinary_calibration(args.recording, cal)
     else:
         _print_segment_calibration(args.recording, cal.corrections)
     for r in cal.refused:
@@ -128,7 +127,7 @@ def cmd_calibrate(args) -> int:
     for quantity, why in cal.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
     if args.json:
-        _write_json(args.json, out)
+        _write_json(args.json, cal.to_json())
     if args.plot and cal.route == "ordinary":
         from .gap.ordinary import save_sector_width_figure
 
@@ -150,40 +149,43 @@ def _print_segment_calibration(recording, corr) -> None:
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
 
 
-def _print_ordinary_calibration(recording, out: dict) -> None:
-    a = out["assumptions"]
+def _print_ordinary_calibration(recording, cal) -> None:
+    """An ordinary run's calibration (a typed ``hil.calibration.result.Calibration``) for the reader."""
+    from .calibration.result import Estimate
 
-    def pm(d, scale=1.0, unit=""):
-        if d.get("value") is None:
-            return f"not given: {d.get('reason')}"
-        return f"{d['value'] * scale:+.4g} +- {d['stderr'] * scale:.2g}{unit}"
+    o, a, corr = cal.ordinary, cal.ordinary.assumptions, cal.corrections
 
-    print(f"{recording}: {out['info']['method']}")
-    print(f"  direction: {a['direction']}; {a['edges_used']} of {a['edges']} edges in {a['runs']} run(s)")
+    def pm(e, scale=1.0, unit=""):
+        if e.value is None:
+            return f"not given: {e.reason}"
+        return f"{e.value * scale:+.4g} +- {e.stderr * scale:.2g}{unit}"
+
+    print(f"{recording}: {corr.info['method']}")
+    print(f"  direction: {a.direction()}; {a.edges_used} of {a.edges} edges in {a.runs} run(s)")
     print(
-        f"  speed range: {a['speed_range_hz_e'][0]:.1f}-{a['speed_range_hz_e'][1]:.1f} Hz electrical (5-95 %); "
-        f"steadiness: {a['steadiness']}"
+        f"  speed range: {a.speed_range_hz_e[0]:.1f}-{a.speed_range_hz_e[1]:.1f} Hz electrical (5-95 %); "
+        f"steadiness: {a.steadiness()}"
     )
     print(
-        f"  removed: {a['glitches_removed']} glitch(es), {a['invalid_states_dropped']} invalid-state edge(s), "
-        f"{a['stalls_split']} stall(s) split, {a['reversals']} reversal(s) split, {a['outlier_edges']} outlier(s)"
+        f"  removed: {a.glitches_removed} glitch(es), {a.invalid_states_dropped} invalid-state edge(s), "
+        f"{a.stalls_split} stall(s) split, {a.reversals} reversal(s) split, {a.outlier_edges} outlier(s)"
     )
-    print(f"  timer_tick_s: {a['timer_tick_s'] or 'unknown'}; pole pairs: {a['pole_pairs_source']}")
-    print(f"  rise_fall_delay_difference_s:    {pm(out['rise_fall_delay_difference_s'], 1e6, ' us')}")
-    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(out['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}")
-    print(f"  standard errors: {out['stderr_method']}")
-    ind = out["method_cross_check"]
+    print(f"  timer_tick_s: {a.timer_tick_s or 'unknown'}; pole pairs: {a.pole_pairs_source}")
+    print(f"  rise_fall_delay_difference_s:    {pm(o.rise_fall_delay_difference_s, 1e6, ' us')}")
+    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(o.rise_fall_angle_asymmetry_deg_e, 1.0, ' deg e')}")
+    print(f"  standard errors: {o.stderr_method()}")
+    ind = o.cross_check
     if ind:
         print(
             "  method cross-check (sector widths vs speed; the same edges and model, not independent data): "
-            f"delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
-            f"angle {pm(ind['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}"
+            f"delay {pm(Estimate(ind.delay_diff_s, ind.stderr_s), 1e6, ' us')}, "
+            f"angle {pm(Estimate(ind.asymmetry_deg_e, ind.asymmetry_stderr_deg_e), 1.0, ' deg e')}"
         )
-    inst = out["installation_offset_deg_e"]
+    inst = corr.installation_offset_deg_e
     print(f"  installation_offset_deg_e (relative): {', '.join(f'{k} {v:+.3f}' for k, v in inst.items())}")
-    poles = out["pole_offset_deg_e"]
+    poles = corr.pole_offset_deg_e
     print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
-    print(f"  delay bound: {a['delay_bound_s'] * 1e6:.0f} us ({a['delay_bound']})")
+    print(f"  delay bound: {a.delay_bound_s * 1e6:.0f} us ({a.delay_bound_why})")
 
 
 def cmd_compare_correction(args) -> int:

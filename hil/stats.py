@@ -31,7 +31,7 @@ def bic_gain(chi2_drop: float, k_new: int, n_obs: int, search_penalty: float = 0
     return float(chi2_drop - k_new * math.log(max(n_obs, 2)) - search_penalty)
 
 
-def chi2_p_value(chi2: float, dof: int) -> float:
+def chi2_p_value(chi2: float, dof: float) -> float:
     """The probability that white noise of ``dof`` degrees of freedom gives a chi-square at least ``chi2``."""
     from scipy import stats
 

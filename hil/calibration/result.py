@@ -171,6 +171,10 @@ class OrdinaryAssumptions:
                     "ripple; not a sensor deviation, not in the tables)")
         return "not modelled: not seen (BIC), or not separable from the delay over this speed range"
 
+    def steadiness(self) -> str:
+        return (f"not assumed: the trajectory is a cubic spline with a knot every {self.knot_cycles} electrical "
+                "cycles (chosen by BIC), fitted jointly with the offsets")
+
     def direction(self) -> str:
         if self.reverse_edges == 0:
             return "forward (Hall sequence A, B, C)"
@@ -196,10 +200,7 @@ class OrdinaryAssumptions:
             "speed_range_hz_e": list(self.speed_range_hz_e),
             "speed_ratio": self.speed_ratio,
             "speed_range_sufficient": bool(self.speed_ratio >= self.min_speed_ratio),
-            "steadiness": (
-                f"not assumed: the trajectory is a cubic spline with a knot every {self.knot_cycles} electrical "
-                "cycles (chosen by BIC), fitted jointly with the offsets"
-            ),
+            "steadiness": self.steadiness(),
             "knot_cycles": self.knot_cycles,
             "sector_locked_speed_ripple": self.sector_locked_speed_ripple(),
             "trajectory_residual_rms_deg_e": self.trajectory_residual_rms_deg_e,

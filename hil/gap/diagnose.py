@@ -20,11 +20,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import nnls
 
 from hil.recording import Recording
 
+from ..stats import chi2_p_value
 from .candidates import CANDIDATES
 from .fitting import cell_rms
 from .fitting import wls as _wls
@@ -244,7 +244,7 @@ def _select(cells: Cells, candidates: list[str]) -> EdgeSelection:
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
 
     def remainder_p(fitted: list[str], t: Trial) -> float:
-        return float(stats.chi2.sf(t.chi2, max(n_cells - _rank(fitted, cells), 1)))
+        return chi2_p_value(t.chi2, max(n_cells - _rank(fitted, cells), 1))
 
     sel = forward_select(candidates, _try_add(cells), chi2_0, n_cells, remainder_p)
     below: dict[str, dict] = {}
@@ -334,7 +334,7 @@ def edge_features(r: EdgeResiduals) -> dict:
 def _edge_selection(cells: Cells, names: list[str]) -> tuple[float, EdgeSelection]:
     """The gap's p-value against the noise floor, and the selection when it is significant."""
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
-    p0 = float(stats.chi2.sf(chi2_0, cells.mean.size))
+    p0 = chi2_p_value(chi2_0, cells.mean.size)
     if p0 >= ALPHA:
         return p0, EdgeSelection(Selection([], [], {}, [], chi2_0, chi2_0, cells.mean.size), {}, {})
     return p0, _select(cells, names)
@@ -392,7 +392,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
             (below if n in es.below else accepted).append(row)
             col += k
     dof_end = max(n_cells - _rank(sel.fitted, cells), 1)
-    unexplained = bool(significant and stats.chi2.sf(sel.chi2_end, dof_end) < ALPHA)
+    unexplained = bool(significant and chi2_p_value(sel.chi2_end, dof_end) < ALPHA)
     confounded, knobs = [], {}
 
     def confound(a: str, b: str) -> None:
@@ -467,7 +467,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         },
         below_relevance=below,
         pole_pairs=rec.pole_pairs,
-        remainder_p_value=float(stats.chi2.sf(sel.chi2_end, dof_end)),
+        remainder_p_value=chi2_p_value(sel.chi2_end, dof_end),
         ranking_bic_gain={n: round(t.delta_bic, 1) for n, t in sel.first.items()},
     )
     edge_error = None
@@ -560,7 +560,7 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
     # pooled test: sum of dof * measured / expected is chi-square with sum(dof) under the model
     with np.errstate(divide="ignore"):
         stat = float(np.sum(dof * var_m / np.maximum(var_e, 1e-300)))
-    p = float(stats.chi2.sf(stat, np.sum(dof))) if np.all(var_e > 0) else 0.0
+    p = chi2_p_value(stat, float(np.sum(dof))) if np.all(var_e > 0) else 0.0
     excess = var_m - var_e
 
     def fit(idx):

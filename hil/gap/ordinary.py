@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from bldc.edges import electrical_speed_hz
 from hil.calibration.ordinary import (
@@ -42,9 +41,9 @@ from hil.calibration.ordinary import (
 from hil.recording import Recording
 
 from ..plots import pyplot
+from ..stats import chi2_p_value, inliers
 from .diagnose import Diagnosis, knob
 from .relevance import edge_relevance
-from ..stats import inliers
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 #: the model of the whole run: its used edges in this many consecutive stretches, each with its
@@ -158,7 +157,7 @@ def _gap(cells: dict) -> float:
 
 def _p_value(cells: dict) -> float:
     chi2 = float(np.sum(cells["mean"] ** 2 / np.maximum(cells["var_of_mean"], 1e-12)))
-    return float(stats.chi2.sf(chi2, cells["n"].size))
+    return chi2_p_value(chi2, cells["n"].size)
 
 
 def _chi2(fit: Fit, ref: Fit) -> tuple[float, int]:
