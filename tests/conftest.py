@@ -28,7 +28,7 @@ def spindle_twin(tmp_path_factory):
 
 @pytest.fixture(scope="session")
 def spindle_check(spindle_twin):
-    """``twin_check`` of the spindle capture against its twin (run once a session)."""
+    """``twin_check`` of the spindle capture against its twin (run once a session), as its JSON."""
     from hil.twin.check import twin_check
 
-    return twin_check(SPINDLE, spindle_twin, log=lambda m: None)
+    return twin_check(SPINDLE, spindle_twin, log=lambda m: None).to_json()
