@@ -42,7 +42,7 @@ from hil.recording import Recording
 
 from ..plots import pyplot
 from ..stats import chi2_p_value, inliers
-from .diagnose import Diagnosis, knob
+from .diagnose import Diagnosis, RankedEffect, knob
 from .relevance import edge_relevance
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
@@ -291,14 +291,11 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         share_added[t.name] = max(prev - now, 0.0)
         prev = now
     rest = sorted((n for n in whole.names if n not in sel.fitted), key=lambda n: -share_alone[n])
-    ranking = []
-    for n in sel.fitted + rest:
-        row = {"effect": n, "score": round(share_alone[n], 4)}
-        if n in share_added:
-            row["share_added"] = round(float(share_added[n]), 4)
-        if n in below:
-            row["below_relevance"] = True
-        ranking.append(row)
+    ranking = [
+        RankedEffect(n, round(share_alone[n], 4),
+                     round(float(share_added[n]), 4) if n in share_added else None, n in below)
+        for n in sel.fitted + rest
+    ]
     rows = {}
     for n in sel.fitted:
         params, stderr = _params(n, full)
