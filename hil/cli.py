@@ -118,17 +118,16 @@ def cmd_calibrate(args) -> int:
     cal = calibrate(
         rec, circuit=Circuit(args.pullup_ohm, args.filter_farad, args.delay_max_s), source=str(args.recording)
     )
-    out = cal.to_json_dict()
     if cal.route == "ordinary":
-        _print_ordinary_calibration(args.recording, out)
+        _print_ordinary_calibration(args.recording, cal)
     else:
         _print_segment_calibration(args.recording, cal.corrections)
-    for r in out["refused"]:
-        print(f"  REFUSED {r['field']}: {r['reason']}", file=sys.stderr)
-    for quantity, why in out["undetermined"].items():
+    for r in cal.refused:
+        print(f"  REFUSED {r.field}: {r.reason}", file=sys.stderr)
+    for quantity, why in cal.undetermined.items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
     if args.json:
-        _write_json(args.json, out)
+        _write_json(args.json, cal.to_json())
     if args.plot and cal.route == "ordinary":
         from .gap.ordinary import save_sector_width_figure
 
@@ -150,40 +149,43 @@ def _print_segment_calibration(recording, corr) -> None:
     print(f"  armature_reaction:         {corr.armature_reaction_deg_e_per_a:+.4f} deg_e/A")
 
 
-def _print_ordinary_calibration(recording, out: dict) -> None:
-    a = out["assumptions"]
+def _print_ordinary_calibration(recording, cal) -> None:
+    """An ordinary run's calibration (a typed ``hil.calibration.result.Calibration``) for the reader."""
+    from .calibration.result import Estimate
 
-    def pm(d, scale=1.0, unit=""):
-        if d.get("value") is None:
-            return f"not given: {d.get('reason')}"
-        return f"{d['value'] * scale:+.4g} +- {d['stderr'] * scale:.2g}{unit}"
+    o, a, corr = cal.ordinary, cal.ordinary.assumptions, cal.corrections
 
-    print(f"{recording}: {out['info']['method']}")
-    print(f"  direction: {a['direction']}; {a['edges_used']} of {a['edges']} edges in {a['runs']} run(s)")
+    def pm(e, scale=1.0, unit=""):
+        if e.value is None:
+            return f"not given: {e.reason}"
+        return f"{e.value * scale:+.4g} +- {e.stderr * scale:.2g}{unit}"
+
+    print(f"{recording}: {corr.info['method']}")
+    print(f"  direction: {a.direction()}; {a.edges_used} of {a.edges} edges in {a.runs} run(s)")
     print(
-        f"  speed range: {a['speed_range_hz_e'][0]:.1f}-{a['speed_range_hz_e'][1]:.1f} Hz electrical (5-95 %); "
-        f"steadiness: {a['steadiness']}"
+        f"  speed range: {a.speed_range_hz_e[0]:.1f}-{a.speed_range_hz_e[1]:.1f} Hz electrical (5-95 %); "
+        f"steadiness: {a.steadiness()}"
     )
     print(
-        f"  removed: {a['glitches_removed']} glitch(es), {a['invalid_states_dropped']} invalid-state edge(s), "
-        f"{a['stalls_split']} stall(s) split, {a['reversals']} reversal(s) split, {a['outlier_edges']} outlier(s)"
+        f"  removed: {a.glitches_removed} glitch(es), {a.invalid_states_dropped} invalid-state edge(s), "
+        f"{a.stalls_split} stall(s) split, {a.reversals} reversal(s) split, {a.outlier_edges} outlier(s)"
     )
-    print(f"  timer_tick_s: {a['timer_tick_s'] or 'unknown'}; pole pairs: {a['pole_pairs_source']}")
-    print(f"  rise_fall_delay_difference_s:    {pm(out['rise_fall_delay_difference_s'], 1e6, ' us')}")
-    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(out['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}")
-    print(f"  standard errors: {out['stderr_method']}")
-    ind = out["method_cross_check"]
+    print(f"  timer_tick_s: {a.timer_tick_s or 'unknown'}; pole pairs: {a.pole_pairs_source}")
+    print(f"  rise_fall_delay_difference_s:    {pm(o.rise_fall_delay_difference_s, 1e6, ' us')}")
+    print(f"  rise_fall_angle_asymmetry_deg_e: {pm(o.rise_fall_angle_asymmetry_deg_e, 1.0, ' deg e')}")
+    print(f"  standard errors: {o.stderr_method()}")
+    ind = o.cross_check
     if ind:
         print(
             "  method cross-check (sector widths vs speed; the same edges and model, not independent data): "
-            f"delay {pm(ind['rise_fall_delay_difference_s'], 1e6, ' us')}, "
-            f"angle {pm(ind['rise_fall_angle_asymmetry_deg_e'], 1.0, ' deg e')}"
+            f"delay {pm(Estimate(ind.delay_diff_s, ind.stderr_s), 1e6, ' us')}, "
+            f"angle {pm(Estimate(ind.asymmetry_deg_e, ind.asymmetry_stderr_deg_e), 1.0, ' deg e')}"
         )
-    inst = out["installation_offset_deg_e"]
+    inst = corr.installation_offset_deg_e
     print(f"  installation_offset_deg_e (relative): {', '.join(f'{k} {v:+.3f}' for k, v in inst.items())}")
-    poles = out["pole_offset_deg_e"]
+    poles = corr.pole_offset_deg_e
     print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
-    print(f"  delay bound: {a['delay_bound_s'] * 1e6:.0f} us ({a['delay_bound']})")
+    print(f"  delay bound: {a.delay_bound_s * 1e6:.0f} us ({a.delay_bound_why})")
 
 
 def cmd_compare_correction(args) -> int:
@@ -625,35 +627,35 @@ def cmd_qualify(args) -> int:
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
-    d = result["detection"]
-    if d is None:
-        print(f"control run: {result['control_verdict']}; no detection figure: {result['no_detection_because']}")
+    out = result.to_json()
+    if result.control_passed:
+        print(f"control run: {result.control.verdict}; caught {len(result.killed)} of {len(result.mutants)} defects "
+              f"({100 * (result.detection_ratio or 0):.0f} %) in {result.duration_s:.0f} s")
     else:
-        print(f"control run: {result['control_verdict']}; caught {d['killed']} of {d['total']} defects "
-              f"({100 * (d['ratio'] or 0):.0f} %) in {result['duration_s']:.0f} s")
-    if result["errored"]:
+        print(f"control run: {result.control.verdict}; no detection figure: {out['no_detection_because']}")
+    if result.errored:
         print("errored (a test raised, nothing was caught; findings to fix, not catches): "
-              + ", ".join(result["errored"]))
-    if result.get("not_judged"):
+              + ", ".join(result.errored))
+    if result.not_judged:
         print("not judged (a setup check failed: the scenario did not provoke what the test judges): "
-              + ", ".join(result["not_judged"]))
-    for req, names in result["requirements"].items():
+              + ", ".join(result.not_judged))
+    for req, names in result.requirements().items():
         print(f"  {req:<14} catches {', '.join(names)}")
-    if result["survivors"]:
+    if result.survivors:
         print("survivors (findings: add the requirement that catches them, or state why harmless): "
-              + ", ".join(result["survivors"]))
+              + ", ".join(result.survivors))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.json).write_text(json.dumps(result, indent=2) + "\n")
+        Path(args.json).write_text(json.dumps(out, indent=2) + "\n")
         print(f"written: {args.json}")
     if getattr(args, "table", None):
         from .qualify.run import sensitivity_markdown
 
         Path(args.table).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.table).write_text(sensitivity_markdown(result))
+        Path(args.table).write_text(sensitivity_markdown(out))
         print(f"written: {args.table}")
-    return 0 if (result["control_verdict"] == "PASS" and not result["survivors"] and not result["errored"]
-                 and not result.get("not_judged")) else 1
+    return 0 if (result.control_passed and not result.survivors and not result.errored
+                 and not result.not_judged) else 1
 
 
 def _under_compile_ahead(run, *args):

@@ -33,7 +33,7 @@ PROPERTY_PREFIX = "hil:"
 OUTCOME_ORDER = ("failed", "error", "xpassed", "xfailed", "skipped", "passed")
 
 
-def _atomic_write(path: Path, text: str | bytes) -> None:
+def atomic_write(path: Path, text: str | bytes) -> None:
     tmp = path.with_name(f".{path.name}.tmp")
     with open(tmp, "wb") as f:
         f.write(text.encode("utf-8", "replace") if isinstance(text, str) else text)
@@ -352,9 +352,9 @@ class ReportWriter:
     # --- rendering -------------------------------------------------------------------------------
     def render(self) -> None:
         content = self.content()
-        _atomic_write(self.paths["json"], json.dumps(content, indent=1, default=str))
-        _atomic_write(self.paths["junit"], junit_xml(content))
-        _atomic_write(self.paths["html"], html(content, self.directory, VERDICTS))
+        atomic_write(self.paths["json"], json.dumps(content, indent=1, default=str))
+        atomic_write(self.paths["junit"], junit_xml(content))
+        atomic_write(self.paths["html"], html(content, self.directory, VERDICTS))
 
 
 #: characters XML 1.0 does not allow (section 2.2), lone surrogates included

@@ -31,7 +31,7 @@ from bldc.hall import (
 )
 from bldc.units import rad_per_s_to_rpm
 
-from ._layout import (
+from .layout import (
     CURRENT_RING,
     I_RING_N,
     E_BOUNDARY,

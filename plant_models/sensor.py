@@ -1,7 +1,7 @@
 """The Hall sensor layer of the plant: where each sensor output switches, and when the MCU sees it.
 
 Compiled with numba and inlined into the kernel's step loop (``_kernel``); everything here acts
-on the kernel's state vectors (``_layout``).
+on the kernel's state vectors (``layout``).
 
 Where: the switching angle of sensor x around its region (``set_targets``) is its position
 (``bldc.hall``) plus the installation, pole and field-model offsets and angle jitter; hysteresis
@@ -16,7 +16,7 @@ import math
 
 from bldc.hall import SENSOR_POSITION_DEG_E
 
-from ._layout import (
+from .layout import (
     E_SENSOR,
     I_DIR,
     I_LAST_CROSS,

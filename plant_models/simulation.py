@@ -14,7 +14,7 @@ from bldc.units import rad_per_s_to_rpm, rpm_to_rad_per_s
 
 from . import effects as fx
 from . import _kernel as K
-from . import _layout as L
+from . import layout as L
 from .edgelog import EdgeLog, join_ideal
 from .plant import CompiledPlant, PlantConfig
 from .sensor import set_targets

@@ -21,6 +21,7 @@ PACKAGES = ("bldc", "hil", "plant_models")
 GROUP_OF_PREFIX = {
     "bldc": "vocabulary",
     "hil.cli_grammar": "vocabulary",
+    "hil.stats": "vocabulary",
     "plant_models": "plant",
     "hil.predictors": "predictors",
     "hil.calibration.corrections": "corrections",
@@ -341,3 +342,111 @@ def test_the_contract_states_no_device_address():
 
     text = MODULES["bldc.contract"].read_text()
     assert not re.findall(r"0x2[0-9A-Fa-f]{3}|(?:Modbus|holding) registers? \d", text)
+
+
+#: the modules the private-name rule reads: the packages and the tools
+_PRIVATE_RULE_MODULES = {**MODULES, **{f"tools.{p.stem}": p for p in sorted((ROOT / "tools").glob("*.py"))}}
+
+
+def room(module: str) -> str:
+    """A module's room: the directory right under ``hil/`` it lives in (``hil.calibration``,
+    ``hil.twin``), ``hil`` for the modules beside them, the top-level package otherwise."""
+    parts = module.split(".")
+    if parts[0] == "hil" and len(parts) > 1 and (ROOT / "hil" / parts[1]).is_dir():
+        return ".".join(parts[:2])
+    return parts[0]
+
+
+def _private(name: str) -> bool:
+    return name.startswith("_") and not (name.startswith("__") and name.endswith("__"))
+
+
+def _foreign_private_names(module: str, path: Path, source: str | None = None) -> list[tuple[int, str]]:
+    """(line, what) for each private name of another room that ``module`` (at ``path``; its text
+    ``source``, read from the file if None) reaches: ``from X import _name``, ``import X._name``,
+    or ``X._name`` where X is a module of ours bound by an import."""
+    package = module if path.name == "__init__.py" else module.rpartition(".")[0]
+    tree = ast.parse(path.read_text() if source is None else source, str(path))
+    bound: dict[str, str] = {}  # local name -> module of ours it is bound to
+    found = []
+
+    def home(name: str) -> str | None:
+        """The module of ours that ``name`` (dotted) is, or whose attribute it is."""
+        while name and name not in MODULES:
+            if "." not in name:
+                return None
+            name = name.rpartition(".")[0]
+        return name or None
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                target = home(a.name)
+                if target is None:
+                    continue
+                if a.asname:
+                    bound[a.asname] = a.name
+                else:
+                    bound[a.name.split(".")[0]] = a.name.split(".")[0]
+                if any(_private(p) for p in a.name.split(".")) and room(target) != room(module):
+                    found.append((node.lineno, f"import {a.name}"))
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                anchor = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                base = ".".join(anchor + ([node.module] if node.module else []))
+            target = home(base)
+            if target is None:
+                continue
+            for a in node.names:
+                full = f"{base}.{a.name}"
+                if full in MODULES:
+                    bound[a.asname or a.name] = full
+                where = home(full) if full in MODULES else target
+                if (_private(a.name) or any(_private(p) for p in base.split("."))) and room(where) != room(module):
+                    found.append((node.lineno, f"from {base} import {a.name}"))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Attribute) and _private(node.attr):
+            chain, value = [node.attr], node.value
+            while isinstance(value, ast.Attribute):
+                chain.append(value.attr)
+                value = value.value
+            if not isinstance(value, ast.Name) or value.id not in bound:
+                continue
+            owner = ".".join([bound[value.id], *reversed(chain[1:])])
+            target = home(owner)
+            if target is not None and room(target) != room(module):
+                found.append((node.lineno, f"{owner}.{node.attr}"))
+    return found
+
+
+def test_the_private_name_rule_sees_each_form():
+    """A guard on the guard: each form of reaching another room's private name is seen, and a
+    room's own private names and public names of another room are not."""
+    cases = {
+        "from hil.calibration.ordinary import _chi2": 1,
+        "from ..calibration.ordinary import _chi2, fit_ordinary": 1,
+        "from ..calibration import ordinary\nordinary._chi2(a, b)": 1,
+        "import hil.calibration.ordinary as o\no._chi2(a, b)": 1,
+        "import hil.calibration.ordinary\nhil.calibration.ordinary._chi2(a, b)": 1,
+        "from plant_models import _kernel": 1,
+        "from .capture import _something": 0,  # the twin's own
+        "from ..calibration.ordinary import fit_ordinary": 0,
+        "from ..calibration import ordinary\nordinary.__doc__": 0,
+    }
+    probe = ROOT / "hil" / "twin" / "probe.py"  # a module of the twin's room (not written)
+    for source, n in cases.items():
+        got = _foreign_private_names("hil.twin.probe", probe, source)
+        assert len(got) == n, (source, got)
+
+
+def test_no_module_reaches_another_rooms_private_names():
+    """A name starting with ``_`` is its room's business: a module of another room that needs it
+    needs it public (or in a shared module), so the room can change it without breaking a caller
+    it cannot see."""
+    wrong = [
+        f"{path.relative_to(ROOT)}:{line}: {what}"
+        for module, path in _PRIVATE_RULE_MODULES.items()
+        for line, what in _foreign_private_names(module, path)
+    ]
+    assert not wrong, "private names of another room:\n" + "\n".join(wrong)

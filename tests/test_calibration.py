@@ -283,7 +283,29 @@ def test_the_segment_route_applies_the_stated_delay_bound():
     assert kept.route == "segments" and kept.refused == []
     assert kept.corrections.conditioning_delay_s["rise"] == pytest.approx(6.6e-6, abs=1e-6)
     cal = calibrate_recording(rec, circuit=Circuit(delay_max_s=1e-6))
-    assert [r["field"] for r in cal.refused] == ["conditioning_delay_s.rise"]
-    assert "stated maximum 1 us" in cal.refused[0]["reason"]
+    assert [r.field for r in cal.refused] == ["conditioning_delay_s.rise"]
+    assert "stated maximum 1 us" in cal.refused[0].reason
     assert cal.corrections.conditioning_delay_s["rise"] == 0.0
     assert cal.to_json_dict()["conditioning_delay_s"]["rise"] == 0.0
+
+
+def test_the_station_calibrates_through_the_front_door():
+    """``station_corrections`` (the acceptance fixture's, the experiments' tables) goes through
+    ``calibrate()``: a delay the stated circuit bounds is refused by the station as by
+    ``calibrate()`` on the same campaign, with the same reason, and is 0 in the station's table,
+    where the bare fit would have written it."""
+    from hil.calibration import calibrate as calibrate_recording
+    from hil.calibration.campaign import station_calibration, station_corrections
+    from hil.calibration.ordinary import Circuit
+
+    config = paper_bench().with_effects(fx.ConditioningDelay(rise_delay_s=6.6e-6, fall_delay_s=0.5e-6), *NOISE)
+    campaign = CalibrationCampaign(turns_per_point=40)
+    circuit = Circuit(delay_max_s=1e-6)
+    direct = calibrate_recording(campaign.run(config, seed=3), circuit=circuit)
+    station = station_calibration(config, seed=3, campaign=campaign, circuit=circuit)
+    assert station.route == "segments"
+    assert station.refused == direct.refused and [r.field for r in station.refused] == ["conditioning_delay_s.rise"]
+    table = station_corrections(config, seed=3, campaign=campaign, circuit=circuit)
+    assert table.conditioning_delay_s["rise"] == 0.0 == direct.corrections.conditioning_delay_s["rise"]
+    assert fit_corrections(campaign.run(config, seed=3)).conditioning_delay_s["rise"] > 5e-6
+    assert table.to_json_dict() == direct.corrections.to_json_dict()

@@ -14,8 +14,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 from bldc.contract import ADC_PERIOD_S, Fault, Strategy
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
-from hil.calibration.fit import fit_corrections
+from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_device import CanopenDevice
 from hil.dut.canopen_link import CanopenLink
@@ -30,7 +29,7 @@ _channels = itertools.count()
 
 @pytest.fixture(scope="module")
 def corrections():
-    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+    return station_corrections(CONFIG, seed=0)
 
 
 @pytest.fixture(params=[False, True], ids=["notifier-threads", "inline"])

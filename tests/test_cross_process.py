@@ -13,8 +13,7 @@ import pytest
 from bldc.contract import Strategy
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
-from hil.calibration.fit import fit_corrections
+from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_link import CanopenLink
 from hil.dut.in_process import InProcessLink
@@ -55,7 +54,7 @@ def server():
 
 @pytest.fixture(scope="module")
 def corrections():
-    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+    return station_corrections(CONFIG, seed=0)
 
 
 def commutations(link, corrections, hold_s=0.05):

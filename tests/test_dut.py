@@ -23,9 +23,8 @@ from bldc.contract import (
 )
 from bldc.motor import steady_state
 from hil.bench import LinkSource, LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
+from hil.calibration.campaign import station_corrections
 from hil.calibration.corrections import Corrections
-from hil.calibration.fit import fit_corrections
 from hil.controller.adc import edge_currents
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
@@ -38,7 +37,7 @@ CONFIG = paper_bench(with_deviations=True)
 
 @pytest.fixture(scope="module")
 def corrections():
-    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+    return station_corrections(CONFIG, seed=0)
 
 
 def bench(strategy, corrections, speed=6000.0):

@@ -255,7 +255,7 @@ def test_a_capture_jittered_before_the_switch_carries_the_angle_at_capture():
 def test_parameter_vector_table_fills_every_slot_once_from_the_plant():
     """The kernel's parameter vector is declared once (PLANT_PARAMS + RUN_PARAMS): every slot
     exactly once, and Simulation packs each from the field the table names."""
-    from plant_models import _layout as L
+    from plant_models import layout as L
 
     slots = [index for index, _ in L.PLANT_PARAMS + L.RUN_PARAMS]
     assert sorted(slots) == list(range(L.N_PARAMS))

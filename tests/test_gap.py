@@ -60,7 +60,7 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
     d = diagnose(rec, KNOWN_MODEL)
     assert d.significant and not d.unexplained
     assert [a["effect"] for a in d.accepted] == [name], d.ranking[:3]
-    assert d.ranking[0]["effect"] == name
+    assert d.ranking[0].effect == name
     # temperatures, knee and cogging phasor within 5 % (the bar is 20 %): the residuals are exact
     # physics of the plant, so a larger error means a discretisation or sign slip somewhere
     assert param_error(truth[0], d.accepted[0]) < 0.05
@@ -370,7 +370,7 @@ def test_rotor_fixed_eccentricity_ranks_first_over_pole_offset_by_parsimony():
     for seed in range(4):
         rec, implied, _ = make_field_case(["dynamic_eccentricity"], snr=6.0, seed=300 + seed)
         d = diagnose(rec, KNOWN_MODEL)
-        assert d.ranking[0]["effect"] == "eccentricity" and d.accepted[0]["effect"] == "eccentricity", d.ranking[:3]
+        assert d.ranking[0].effect == "eccentricity" and d.accepted[0]["effect"] == "eccentricity", d.ranking[:3]
         assert "pole_offset" not in [a["effect"] for a in d.accepted]
         assert param_error(implied[0], d.accepted[0]) < 0.2
 
@@ -393,7 +393,7 @@ def test_tiny_effect_is_detected_but_below_practical_relevance():
     assert not any(a["effect"] == "installation_offset" for a in d.accepted)
     below = next(b for b in d.below_relevance if b["effect"] == "installation_offset")
     assert below["relevance"]["value"] < below["relevance"]["floor"] == pytest.approx(0.05)
-    assert any(r["effect"] == "installation_offset" and r.get("below_relevance") for r in d.ranking)
+    assert any(r.effect == "installation_offset" and r.below_relevance for r in d.ranking)
 
 
 def test_every_knob_is_a_full_sentence():
@@ -524,7 +524,8 @@ def test_engine_gives_a_tie_within_noise_to_fewer_parameters():
 
 
 def test_engine_names_a_rival_confounded_only_when_its_refit_earns_nothing():
-    from hil.gap.selection import BIC_MIN, confounded_rivals
+    from hil.gap.selection import confounded_rivals
+    from hil.stats import BIC_MIN
 
     sel = _toy_engine({"a": (1000.0, 1), "b": (950.0, 1)})
     assert sel.fitted == ["a"]
@@ -564,4 +565,4 @@ def test_report_prints_named_parameters_with_units_and_errors(tmp_path):
     text = format_text(d, "rec")
     assert "{" not in text and not re.search(r"\d{7,}", text)
     assert "share alone" in text
-    assert sum(r.get("share_added", 0.0) for r in d.ranking) <= 1.0 + 1e-9
+    assert sum(r.share_added or 0.0 for r in d.ranking) <= 1.0 + 1e-9

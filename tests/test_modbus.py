@@ -13,8 +13,7 @@ from hypothesis import strategies as st
 from bldc.contract import Fault, Strategy
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
-from hil.calibration.fit import fit_corrections
+from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.dut.link import LinkError, LinkTimeout
@@ -27,7 +26,7 @@ CONFIG = paper_bench(with_deviations=True)
 
 @pytest.fixture(scope="module")
 def corrections():
-    return fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+    return station_corrections(CONFIG, seed=0)
 
 
 @pytest.fixture

@@ -249,7 +249,7 @@ def test_no_detection_figure_without_a_passing_control(tmp_path, monkeypatch):
     # (the fake's "assertion" is no catch kind of what_caught; only killed counts here)
     args = SimpleNamespace(defects=None, only=["no-table-validation", "never-resynchronises"], dut="virtual:modbus",
                            budgets=None, report_dir=str(tmp_path), workers=1, seed=0)
-    result = R.qualify(args, progress=lambda line: None)
+    result = R.qualify(args, progress=lambda line: None).to_json()
     assert result["detection"] is None
     why = result["no_detection_because"]
     assert "control run's verdict is FAIL" in why and "t::speed" in why

@@ -336,7 +336,7 @@ def test_calibrate_chooses_the_route_and_refuses_a_bad_pole_table_on_both():
     for rec, route in ((ordinary, "ordinary"), (segmented, "segments")):
         cal = calibrate(rec)
         assert isinstance(cal, Calibration) and cal.route == route
-        assert "pole_offset_deg_e" in [x["field"] for x in cal.refused], (route, cal.refused)
+        assert "pole_offset_deg_e" in [x.field for x in cal.refused], (route, cal.refused)
         assert cal.to_json_dict()["pole_offset_deg_e"] == [] and cal.corrections.pole_offset_deg_e == []
 
 

@@ -29,20 +29,6 @@ DELAY_TOLERANCE = 0.10
 RATIO_BAND = (0.67, 1.5)
 
 
-@pytest.fixture(scope="module")
-def spindle_twin(tmp_path_factory):
-    out = tmp_path_factory.mktemp("twin") / "spindle.toml"
-    assert main(["twin", "from-capture", str(SPINDLE), "-o", str(out)]) == 0
-    return out
-
-
-@pytest.fixture(scope="module")
-def spindle_check(spindle_twin, tmp_path_factory):
-    from hil.twin.check import twin_check
-
-    return twin_check(SPINDLE, spindle_twin, log=lambda m: None)
-
-
 def test_from_capture_writes_a_plant_that_plant_check_accepts(spindle_twin, capsys):
     assert main(["plant", "check", str(spindle_twin)]) == 0
     assert "valid; motor 2 pole pairs" in capsys.readouterr().out

@@ -13,8 +13,7 @@ import pytest
 from bldc.contract import Strategy
 from bldc.motor import steady_state
 from hil.bench import LockstepBench
-from hil.calibration.campaign import CalibrationCampaign
-from hil.calibration.fit import fit_corrections
+from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_device import CanopenDevice
 from hil.dut.canopen_link import CanopenLink
@@ -54,7 +53,7 @@ def _frames_of_a_run(inline: bool, corrections) -> list[tuple[int, bytes]]:
 
 
 def test_the_same_run_puts_the_same_frames_on_the_bus_inline_and_through_notifier_threads():
-    corrections = fit_corrections(CalibrationCampaign().run(CONFIG, seed=0))
+    corrections = station_corrections(CONFIG, seed=0)
     threaded, inline = _frames_of_a_run(False, corrections), _frames_of_a_run(True, corrections)
     assert len(threaded) > 500
     assert {cob for cob, _ in threaded} >= {0x205, 0x305, 0x185, 0x605, 0x585}  # RPDO1, RPDO2, TPDO1, SDO

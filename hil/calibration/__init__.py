@@ -2,7 +2,8 @@
 
 ``calibrate(recording)`` is the entry point: it chooses the route (``route``: campaign segments,
 ``fit``; or an ordinary run, ``ordinary``), applies the same bounds and refusals on both, and
-returns one ``Calibration``. ``corrections`` is the table the controller applies (light: numpy
+returns one typed ``Calibration`` (``result``); the calibration station (``campaign``) goes
+through it too. ``corrections`` is the table the controller applies (light: numpy
 only, imported by the controller); ``campaign`` and ``steps`` drive and read the calibration runs.
 This package imports nothing at import time, so the controller's import of ``corrections`` stays light.
 """

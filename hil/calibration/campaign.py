@@ -17,7 +17,8 @@ from hil.recording import Recording, record_electrical, record_kinematic
 from plant_models import PlantConfig
 from plant_models.kinematic import OperatingPoint
 
-from .fit import fit_corrections
+from .corrections import Corrections
+from .route import Calibration, Circuit, calibrate
 
 
 @dataclass(frozen=True)
@@ -52,9 +53,30 @@ class CalibrationCampaign:
         return record_kinematic(config, self.operating_points(config), seed=seed)
 
 
-def station_corrections(config: PlantConfig, seed: int = 0):
-    """The calibration station end to end: run the campaign on the plant, fit the tables."""
-    return fit_corrections(CalibrationCampaign().run(config, seed=seed))
+def station_calibration(
+    config: PlantConfig,
+    seed: int = 0,
+    *,
+    campaign: CalibrationCampaign | None = None,
+    circuit: Circuit | None = None,
+) -> Calibration:
+    """The calibration station end to end: run the campaign on the plant and calibrate its recording
+    through the front door (``route.calibrate``), so a station table gets the same bounds and
+    refusals as any other calibration (a refused entry is neutral in the table, its reason in
+    ``refused``)."""
+    rec = (campaign or CalibrationCampaign()).run(config, seed=seed)
+    return calibrate(rec, circuit=circuit, source="calibration station campaign")
+
+
+def station_corrections(
+    config: PlantConfig,
+    seed: int = 0,
+    *,
+    campaign: CalibrationCampaign | None = None,
+    circuit: Circuit | None = None,
+) -> Corrections:
+    """The station's table the controller applies (``station_calibration``'s corrections)."""
+    return station_calibration(config, seed, campaign=campaign, circuit=circuit).corrections
 
 
 def record_line_bemf_segments(

@@ -30,7 +30,19 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
-from .corrections import SENSORS
+from ..stats import BIC_MIN, bic_gain, inliers
+from .corrections import SENSORS, Corrections
+from .result import (
+    ORDINARY_METHOD,
+    Calibration,
+    Estimate,
+    Halves,
+    IndependentDelay,
+    OrdinaryAssumptions,
+    OrdinaryFindings,
+    Refusal,
+    Stationarity,
+)
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
     bic_weight,
@@ -77,7 +89,7 @@ def hall_steps(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray) -> HallS
         raise OrdinaryRunError(f"{e} (four electrical cycles)" if "edges:" in str(e) else str(e)) from None
 
 
-def _sum_zero_basis(k: int) -> np.ndarray:
+def sum_zero_basis(k: int) -> np.ndarray:
     """k x (k - 1) columns spanning the vectors that sum to zero (Helmert-like)."""
     q, _ = np.linalg.qr(np.column_stack([np.ones(k), np.eye(k)[:, : k - 1]]))
     return q[:, 1:k]
@@ -160,7 +172,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
             here = steps.direction[idx] == sgn
             if not here.any():
                 continue
-            z = _sum_zero_basis(6)
+            z = sum_zero_basis(6)
             cols.append((np.eye(6)[lab] @ z) * (tau * d * here)[:, None])
             names += [f"static_{dname}_{j}" for j in range(5)]
     sensor = SENSOR_OF_BOUNDARY[np.mod(lab, 3)]
@@ -169,7 +181,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
         if not here.any():
             continue
         if eff.install and not eff.static:
-            cols.append((np.eye(3)[sensor] @ _sum_zero_basis(3)) * (tau * d * here)[:, None])
+            cols.append((np.eye(3)[sensor] @ sum_zero_basis(3)) * (tau * d * here)[:, None])
             names += [f"inst_{dname}_{j}" for j in range(2)]
         if eff.switching and not eff.static:
             half = np.where(steps.rising[idx], 0.5, -0.5)  # trails on rising edges, leads on falling
@@ -181,7 +193,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
             if here.any():
                 # (w_ref / w)^2 with w_ref = 10 Hz electrical: the coefficient is the angle at 10 Hz
                 scale = (10.0 * 360.0 * tau) ** 2
-                cols.append((np.eye(6)[lab] @ _sum_zero_basis(6)) * (tau * scale * here)[:, None])
+                cols.append((np.eye(6)[lab] @ sum_zero_basis(6)) * (tau * scale * here)[:, None])
                 names += [f"ripple_{dname}_{j}" for j in range(5)]
     if eff.delay:
         cols.append(np.where(steps.rising[idx], 0.5, -0.5)[:, None])
@@ -189,7 +201,7 @@ def effect_columns(steps: HallSteps, idx: np.ndarray, tau: np.ndarray, eff: Effe
     if eff.pole_pairs:
         p = eff.pole_pairs
         b = pole_of_boundary(steps.boundary[idx], p)
-        z = _sum_zero_basis(p)
+        z = sum_zero_basis(p)
         for parity in (0, 1):
             ind = np.zeros((idx.size, p))
             sel = np.mod(b, 2) == parity
@@ -267,9 +279,8 @@ def fit_ordinary(
         solved = (s_mat, e_cols, w, resid)
         # noise per speed band: quantisation and jitter grow differently with speed
         sigma = _band_sigma(resid, tau, keep, tick_s)
-        # outliers (a missed edge, a bump): beyond 6 robust sd, left out of the next pass
-        z = np.abs(resid) / sigma
-        new_keep = z < 6.0
+        # outliers (a missed edge, a bump): beyond the project's cut (hil.stats), left out of the next pass
+        new_keep = inliers(resid, sigma)
         outliers = int(np.sum(~new_keep))
         keep = new_keep
         # the trajectory's slope at each edge (the deviations move edges along it)
@@ -367,25 +378,8 @@ def speed_hz_e(steps: HallSteps) -> np.ndarray:
     return edges.electrical_speed_hz(steps.t_s, window_sectors=2, run=steps.run)
 
 
-@dataclass
-class IndependentDelay:
-    """The method cross-check: the rise-minus-fall delay from sector widths alone (no trajectory
-    model). It reads the same edges with the same two-parameter model (delay and constant
-    asymmetry), so it checks the trajectory fit's method, not the data. Per window of
-    seven edges starting at a rising edge, half the difference of the mean fall-to-rise and
-    rise-to-fall sector widths in angle, regressed on the window's speed: slope = D, intercept =
-    the constant asymmetry. Weights 1/2, 1, 1, 1/2 on the four rise-to-fall sectors cancel a
-    linear change of speed inside the window."""
-
-    delay_diff_s: float
-    stderr_s: float
-    asymmetry_deg_e: float
-    asymmetry_stderr_deg_e: float
-    windows: int
-    speed_range_hz_e: tuple[float, float]
-
-
 def independent_delay(steps: HallSteps) -> IndependentDelay | None:
+    """The method cross-check (``result.IndependentDelay``), or None with fewer than ten windows."""
     ws, hs = [], []
     for r in np.unique(steps.run[steps.run >= 0]):
         idx = np.nonzero(steps.run == r)[0]
@@ -459,8 +453,8 @@ def choose_pole_pairs(
 
     A magnet's pole boundaries repeat every mechanical turn (6 p edges); without the motor's
     pole count, each candidate p is fitted on the same trajectory splines as ``base`` and the
-    smallest BIC kept, provided it beats the model without pole offsets by a clear margin (10
-    BIC units, with the noise of ``base``)."""
+    smallest BIC kept, provided it beats the model without pole offsets by a clear margin
+    (``hil.stats.BIC_MIN``, with the noise of ``base``)."""
     n_edges = int(steps.used().sum())
     best: tuple[int | None, float] = (None, 0.0)
     for p in range(2, max_pole_pairs + 1):
@@ -470,8 +464,8 @@ def choose_pole_pairs(
             f = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick_s, knot_cycles=knot_cycles)
         except OrdinaryRunError:
             break
-        gain = -_chi2(f, base) - (len(f.names) - len(base.names)) * np.log(n_edges)
-        if gain > max(best[1], 10.0):
+        gain = bic_gain(-_chi2(f, base), len(f.names) - len(base.names), n_edges)
+        if gain > max(best[1], BIC_MIN):
             best = (p, gain)
     if best[0] is None:
         return None, "no pole pattern stands out (no pole count is assumed; pole offsets not determined)"
@@ -485,7 +479,7 @@ def _chi2(f: Fit, noise: Fit) -> float:
     """Weighted residual sum of squares of ``f`` minus that of ``noise`` (same edges, the noise of
     ``noise``), over the edges neither fit left out as outliers."""
     sigma = noise.sigma_s
-    keep = (np.abs(noise.residual_s / sigma) < 6.0) & (np.abs(f.residual_s / f.sigma_s) < 6.0)
+    keep = inliers(noise.residual_s, sigma) & inliers(f.residual_s, f.sigma_s)
     return float(np.sum((f.residual_s[keep] / sigma[keep]) ** 2) - np.sum((noise.residual_s[keep] / sigma[keep]) ** 2))
 
 
@@ -495,8 +489,8 @@ RIPPLE_SE_GROWTH = 1.5
 KNOT_CYCLE_CHOICES = (2, 3, 4, 6, 8)
 #: beyond half a sector an "installation offset" is a wiring or labelling error, not an offset
 INSTALLATION_BOUND_DEG_E = 30.0
-_RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
-_SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
+RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
+SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
 
 
 def choose_knots(steps: HallSteps, tick_s: float | None, eff: Effects | None = None) -> tuple[float, Fit]:
@@ -509,7 +503,7 @@ def choose_knots(steps: HallSteps, tick_s: float | None, eff: Effects | None = N
         except OrdinaryRunError:
             continue
         n_spline = _n_spline(steps, kc)
-        keep = np.abs(f.residual_s / f.sigma_s) < 6.0
+        keep = inliers(f.residual_s, f.sigma_s)
         n = int(keep.sum())
         rss = float(np.sum(f.residual_s[keep] ** 2 / f.tau_s_per_deg[keep] ** 2))  # in angle: speed-fair
         bic = n * np.log(max(rss / max(n, 1), 1e-30)) + (n_spline + len(f.names)) * np.log(max(n, 2))
@@ -528,10 +522,6 @@ def _n_spline(steps: HallSteps, knot_cycles: float) -> int:
     return n
 
 
-def _value(v: float | None, s: float | None, **extra) -> dict:
-    return {"value": v, "stderr": s, **extra}
-
-
 def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | None:
     """A quantity measured in each direction present, combined by inverse variance."""
     vals = []
@@ -539,7 +529,7 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
         keys = [f"static_{dname}_{j}" for j in range(5)]
         if keys[0] not in fit.names:
             continue
-        z = _sum_zero_basis(6)
+        z = sum_zero_basis(6)
         vals.append(fit.combination(dict(zip(keys, make(sgn, z)))))
     if not vals:
         return None
@@ -553,39 +543,38 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     return mean, float(birge / np.sqrt(np.sum(w)))
 
 
-def pole_table_refusal(poles: list[float]) -> dict | None:
+def pole_table_refusal(poles: list[float]) -> Refusal | None:
     """The refusal of a pole table with an entry beyond the controller's bound, or None. A table
     with a hole would be worse than none: the whole table is refused."""
     out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
     if not out:
         return None
-    return {
-        "field": "pole_offset_deg_e",
-        "reason": f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
+    return Refusal(
+        "pole_offset_deg_e",
+        f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
         f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is not the "
         "motor's, or a speed change inside a segment taken as steady); the table is not written",
-    }
+    )
 
 
-def installation_refusal(inst: dict[str, float]) -> dict | None:
+def installation_refusal(inst: dict[str, float]) -> Refusal | None:
     """The refusal of installation offsets beyond half a sector (a wiring or labelling error), or None."""
     bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
     if not bad:
         return None
-    return {
-        "field": "installation_offset_deg_e",
-        "reason": f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
+    return Refusal(
+        "installation_offset_deg_e",
+        f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
         f"+-{INSTALLATION_BOUND_DEG_E:.0f}: a wiring or channel-mapping error, not an offset",
-    }
+    )
 
 
-def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> dict | None:
+def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> Refusal | None:
     """The refusal of a conditioning delay beyond its bound (``Circuit.bound_s``, or half a sector
     at the top speed), or None."""
     if value_s is None or abs(value_s) <= bound_s:
         return None
-    reason = f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})"
-    return {"field": field, "reason": reason}
+    return Refusal(field, f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})")
 
 
 def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
@@ -604,7 +593,7 @@ STATIONARITY_Z = 3.0
 
 
 def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: float,
-                  pole_pairs: int | None) -> dict:
+                  pole_pairs: int | None) -> Stationarity:
     """Each figure fitted on the first and on the second half of the used edges alone (the whole
     capture's model and knot spacing). A figure whose halves differ by z = |a - b| / hypot(se_a, se_b)
     above ``STATIONARITY_Z`` was not constant through the capture (a delay that drifts with
@@ -612,9 +601,7 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
     half the halves' difference (in quadrature), so the stated interval holds both halves, and the
     result says by how much."""
     used = np.nonzero(steps.used())[0]
-    out: dict = {"method": "the whole capture's model on each half of the used edges alone (by edge count); "
-                           f"a figure is not stationary where its halves differ by z > {STATIONARITY_Z:g}",
-                 "figures": {}, "stationary": True, "statement": "the halves agree within their errors"}
+    out = Stationarity(STATIONARITY_Z)
     halves = []
     for sel_idx in (used[: used.size // 2], used[used.size // 2:]):
         sel = np.zeros(steps.t_s.size, dtype=bool)
@@ -624,45 +611,34 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
             pf = (robust_fit(fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=eff.ripple), select=sel,
                                           tick_s=tick_s, knot_cycles=kc)) if pole_pairs else None)
         except (OrdinaryRunError, np.linalg.LinAlgError, ValueError) as exc:
-            out.update(statement=f"not checked: a half could not be fitted alone ({exc})", stationary=True)
+            out.not_checked = str(exc)
             return out
         figs = {}
         if "delay_diff_s" in hf.names:
             figs["rise_fall_delay_difference_s"] = hf.get("delay_diff_s")
         asym = _by_direction(
-            hf, steps, lambda sgn, z: sgn * (z[list(_RISE_LABELS[sgn])].mean(0) - z[list(_RISE_LABELS[-sgn])].mean(0))
+            hf, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
         )
         if asym:
             figs["rise_fall_angle_asymmetry_deg_e"] = asym
         for x, name in enumerate(SENSORS):
-            r = _by_direction(hf, steps, lambda sgn, z, labels=list(_SENSOR_LABELS[x]): z[labels].mean(0))
+            r = _by_direction(hf, steps, lambda sgn, z, labels=list(SENSOR_LABELS[x]): z[labels].mean(0))
             if r:
                 figs[f"installation_offset_deg_e.{name}"] = r
         if pf is not None:
-            z = _sum_zero_basis(pole_pairs)
+            z = sum_zero_basis(pole_pairs)
             for parity in (0, 1):
                 keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
                 for i in range(pole_pairs):
                     figs[f"pole_offset_deg_e.{2 * i + parity}"] = pf.combination(dict(zip(keys, z[i])))
         halves.append(figs)
-    worst = []
     for key in halves[0].keys() & halves[1].keys():
         (a, sa), (b, sb) = halves[0][key], halves[1][key]
         if None in (a, sa, b, sb):
             continue
         z = float(abs(a - b) / max(np.hypot(sa, sb), 1e-300))
         widen = float(abs(a - b) / 2) if z > STATIONARITY_Z else 0.0
-        out["figures"][key] = {"halves": [float(a), float(b)], "stderr": [float(sa), float(sb)], "z": z,
-                               "widen_by": widen}
-        if widen:
-            worst.append((z, key, a, b, widen))
-    if worst:
-        worst.sort(reverse=True)
-        out["stationary"] = False
-        out["statement"] = "NOT stationary: " + "; ".join(
-            f"{key} halves {a:.4g} / {b:.4g} (z = {z:.1f}), its standard error widened by {w:.3g}"
-            for z, key, a, b, w in worst
-        )
+        out.figures[key] = Halves((float(a), float(b)), (float(sa), float(sb)), z, widen)
     return out
 
 
@@ -675,9 +651,9 @@ def calibrate_ordinary(
     source: str = "",
 ) -> tuple[dict, Fit]:
     """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
-    and the fit it comes from (``ordinary_calibration`` also gives the fit of the table's effects)."""
-    out, fit, _ = ordinary_calibration(steps, tick_s=tick_s, pole_pairs=pole_pairs, circuit=circuit, source=source)
-    return out, fit
+    and the fit it comes from (``ordinary_calibration`` gives the typed ``Calibration``)."""
+    cal = ordinary_calibration(steps, tick_s=tick_s, pole_pairs=pole_pairs, circuit=circuit, source=source)
+    return cal.to_json(), cal.fit
 
 
 def ordinary_calibration(
@@ -687,12 +663,12 @@ def ordinary_calibration(
     pole_pairs: int | None = None,
     circuit: Circuit | None = None,
     source: str = "",
-) -> tuple[dict, Fit, Fit]:
-    """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
-    the fit it comes from, and the fit whose effects the table holds (with the pole offsets, when
-    they were determined and not refused)."""
+) -> Calibration:
+    """The calibration of an ordinary run: its table, refusals and figures, with the fit they come
+    from and the fit whose effects the table holds (with the pole offsets, when they were
+    determined and not refused); ``to_json()`` is what ``hil calibrate`` writes (docs/calibration.md)."""
     circuit = circuit or Circuit()
-    refused: list[dict] = []
+    refused: list[Refusal] = []
     undetermined: dict[str, str] = {}
     kc, fit = choose_knots(steps, tick_s)
     # the rotor's speed ripple locked to the sectors (commutation torque ripple, largest at low
@@ -700,8 +676,8 @@ def ordinary_calibration(
     # shows it (BIC), never written as a correction
     ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
     n_used = int(steps.used().sum())
-    ripple_gain = -_chi2(ripple_fit, fit) - (len(ripple_fit.names) - len(fit.names)) * np.log(n_used)
-    ripple = ripple_gain > 10.0
+    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
+    ripple = ripple_gain > BIC_MIN
     # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
     # constant angle: their standard errors may grow by half at most
     ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
@@ -723,26 +699,26 @@ def ordinary_calibration(
     # the rise-minus-fall asymmetry, as a delay (time) and as a constant angle
     d_val, d_se = fit.get("delay_diff_s")
     asym = _by_direction(
-        fit, steps, lambda sgn, z: sgn * (z[list(_RISE_LABELS[sgn])].mean(0) - z[list(_RISE_LABELS[-sgn])].mean(0))
+        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
     )
-    delay = _value(d_val, d_se)
-    angle = _value(*asym) if asym else _value(None, None, reason="no static offsets fitted")
+    delay = Estimate(d_val, d_se)
+    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
     if ratio < MIN_SPEED_RATIO:
         why = (
             f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
             "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
         )
-        delay = _value(None, None, reason=why)
-        angle = _value(None, None, reason=why)
+        delay = Estimate(None, None, reason=why)
+        angle = Estimate(None, None, reason=why)
     bound_s, bound_why = delay_bound_s(circuit, top)
-    refusal = delay_refusal("rise_fall_delay_difference_s", delay["value"], bound_s, bound_why)
+    refusal = delay_refusal("rise_fall_delay_difference_s", delay.value, bound_s, bound_why)
     if refusal:
         refused.append(refusal)
-        delay = _value(None, None, reason=refusal["reason"], fitted=delay["value"])
+        delay = Estimate(None, None, reason=refusal.reason, fitted=delay.value)
     # installation offsets (relative: sum zero), both edges of a sensor alike
     inst, inst_se = {}, {}
     for x, name in enumerate(SENSORS):
-        labels = list(_SENSOR_LABELS[x])
+        labels = list(SENSOR_LABELS[x])
         r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
         inst[name], inst_se[name] = r if r else (0.0, None)
     refusal = installation_refusal(inst)
@@ -769,7 +745,7 @@ def ordinary_calibration(
                 steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
             )
             pf = with_model_choice(pf, pf_other, other_weight, other_what)
-        z = _sum_zero_basis(pole_pairs)
+        z = sum_zero_basis(pole_pairs)
         table = np.zeros(2 * pole_pairs)
         se = np.zeros(2 * pole_pairs)
         for parity in (0, 1):
@@ -789,18 +765,18 @@ def ordinary_calibration(
     # beyond their errors drifted during the capture, and its error says so (docs/real-captures.md)
     stationarity = _stationarity(steps, Effects(ripple=ripple), tick_s, kc, pole_pairs if poles else None)
     for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
-        drift = stationarity["figures"].get(key)
-        if drift and drift["widen_by"] and item["stderr"] is not None:
-            item["stderr_stationary"] = item["stderr"]
-            item["stderr"] = float(np.hypot(item["stderr"], drift["widen_by"]))
+        drift = stationarity.figures.get(key)
+        if drift and drift.widen_by and item.stderr is not None:
+            item.stderr_stationary = item.stderr
+            item.stderr = float(np.hypot(item.stderr, drift.widen_by))
     for x in SENSORS:
-        drift = stationarity["figures"].get(f"installation_offset_deg_e.{x}")
-        if drift and drift["widen_by"] and inst_se.get(x) is not None:
-            inst_se[x] = float(np.hypot(inst_se[x], drift["widen_by"]))
+        drift = stationarity.figures.get(f"installation_offset_deg_e.{x}")
+        if drift and drift.widen_by and inst_se.get(x) is not None:
+            inst_se[x] = float(np.hypot(inst_se[x], drift.widen_by))
     for j in range(len(poles_se)):
-        drift = stationarity["figures"].get(f"pole_offset_deg_e.{j}")
-        if drift and drift["widen_by"]:
-            poles_se[j] = float(np.hypot(poles_se[j], drift["widen_by"]))
+        drift = stationarity.figures.get(f"pole_offset_deg_e.{j}")
+        if drift and drift.widen_by:
+            poles_se[j] = float(np.hypot(poles_se[j], drift.widen_by))
     undetermined["conditioning_delay_s"] = (
         "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
         "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
@@ -808,86 +784,81 @@ def ordinary_calibration(
     )
     undetermined["armature_reaction_deg_e_per_a"] = "needs a reference angle and phase currents"
     undetermined["hysteresis_common_lag"] = "a lag common to every edge is invisible without an encoder"
-    d_table = delay["value"] or 0.0
-    ind = independent_delay(steps)
-    cross_check = (
-        None
-        if ind is None
-        else {
-            "method": (
-                "method cross-check, not an independent measurement: the same edges and the same two-parameter "
-                "model (delay and constant asymmetry) read from sector widths alone, half the fall-to-rise minus "
-                "rise-to-fall width vs speed (linregress; errors from a delete-a-stretch jackknife)"
-            ),
-            "rise_fall_delay_difference_s": _value(ind.delay_diff_s, ind.stderr_s),
-            "rise_fall_angle_asymmetry_deg_e": _value(ind.asymmetry_deg_e, ind.asymmetry_stderr_deg_e),
-            "windows": ind.windows,
-        }
+    d_table = delay.value or 0.0
+    assumptions = OrdinaryAssumptions(
+        pole_pairs=pole_pairs,
+        pole_pairs_source=p_source,
+        timer_tick_s=tick_s,
+        forward_edges=n_fwd,
+        reverse_edges=n_rev,
+        edges=int(steps.t_s.size),
+        edges_used=int(used.sum()),
+        runs=int(steps.run.max() + 1) if used.any() else 0,
+        reversals=steps.reversals,
+        stalls_split=steps.stalls,
+        glitches_removed=steps.glitches,
+        invalid_states_dropped=steps.invalid_states,
+        short_runs_dropped=steps.short_runs_dropped,
+        outlier_edges=fit.outliers,
+        speed_range_hz_e=(lo, hi),
+        speed_ratio=ratio,
+        min_speed_ratio=MIN_SPEED_RATIO,
+        knot_cycles=kc,
+        ripple_modelled=bool(ripple),
+        trajectory_residual_rms_deg_e=float(np.sqrt(np.median((fit.residual_s / fit.tau_s_per_deg) ** 2) / 0.4549)),
+        delay_bound_s=bound_s,
+        delay_bound_why=bound_why,
+        pole_offset_bound_deg_e=POLE_OFFSET_BOUND_DEG_E,
     )
-    assumptions = {
-        "pole_pairs": pole_pairs,
-        "pole_pairs_source": p_source,
-        "timer_tick_s": tick_s,
-        "direction": (
-            "forward (Hall sequence A, B, C)"
-            if n_rev == 0
-            else "reverse (Hall sequence A, C, B)"
-            if n_fwd == 0
-            else f"both: {n_fwd} forward and {n_rev} reverse edges"
-        ),
-        "edges": int(steps.t_s.size),
-        "edges_used": int(used.sum()),
-        "runs": int(steps.run.max() + 1) if used.any() else 0,
-        "reversals": steps.reversals,
-        "stalls_split": steps.stalls,
-        "glitches_removed": steps.glitches,
-        "invalid_states_dropped": steps.invalid_states,
-        "short_runs_dropped": steps.short_runs_dropped,
-        "outlier_edges": fit.outliers,
-        "speed_range_hz_e": [lo, hi],
-        "speed_ratio": ratio,
-        "speed_range_sufficient": bool(ratio >= MIN_SPEED_RATIO),
-        "steadiness": (
-            f"not assumed: the trajectory is a cubic spline with a knot every {kc} electrical cycles "
-            f"(chosen by BIC), fitted jointly with the offsets"
-        ),
-        "knot_cycles": kc,
-        "sector_locked_speed_ripple": (
-            "modelled (an angle per sector boundary falling with 1/speed^2: the rotor's commutation torque "
-            "ripple; not a sensor deviation, not in the tables)"
-            if ripple
-            else "not modelled: not seen (BIC), or not separable from the delay over this speed range"
-        ),
-        "trajectory_residual_rms_deg_e": float(np.sqrt(np.median((fit.residual_s / fit.tau_s_per_deg) ** 2) / 0.4549)),
-        "delay_bound_s": bound_s,
-        "delay_bound": bound_why,
-        "pole_offset_bound_deg_e": POLE_OFFSET_BOUND_DEG_E,
-        "bounds_note": (
-            "these bounds judge a calibration; the acceptance suite's fault draws (REQ-ROB-001) keep the "
-            "effect library's own ranges"
-        ),
-    }
-    return {
-        "installation_offset_deg_e": inst,
-        "pole_offset_deg_e": poles,
-        "conditioning_delay_s": {"rise": max(d_table, 0.0), "fall": max(-d_table, 0.0)},
-        "armature_reaction_deg_e_per_a": 0.0,
-        "rise_fall_delay_difference_s": delay,
-        "rise_fall_angle_asymmetry_deg_e": angle,
-        "refused": refused,
-        "undetermined": undetermined,
-        "uncertainty": {"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
-        "stderr_method": fit.stderr_method + (
-            "; widened where the capture's halves disagree (stationarity)" if not stationarity["stationary"] else ""
-        ),
-        "stationarity": stationarity,
-        "conditioning_delay_table": {},
-        "method_cross_check": cross_check,
-        "independent_estimate": cross_check,  # the same object under its former name (an alias)
-        "assumptions": assumptions,
-        "info": {
-            "method": "ordinary run: trajectory splines and edge offsets by joint weighted least squares",
-            "source": source,
-            "edges": int(steps.t_s.size),
-        },
-    }, fit, table_fit
+    table = Corrections(
+        installation_offset_deg_e=inst,
+        pole_offset_deg_e=poles,
+        conditioning_delay_s={"rise": max(d_table, 0.0), "fall": max(-d_table, 0.0)},
+        armature_reaction_deg_e_per_a=0.0,
+        undetermined=undetermined,
+        uncertainty={"installation_offset_deg_e": inst_se, "pole_offset_deg_e": poles_se},
+        delay_table={},
+        info={"method": ORDINARY_METHOD, "source": source, "edges": int(steps.t_s.size)},
+    )
+    findings = OrdinaryFindings(
+        rise_fall_delay_difference_s=delay,
+        rise_fall_angle_asymmetry_deg_e=angle,
+        fit_stderr_method=fit.stderr_method,
+        stationarity=stationarity,
+        cross_check=independent_delay(steps),
+        assumptions=assumptions,
+        source=source,
+    )
+    return Calibration("ordinary", table, refused, findings, steps, fit, table_fit)
+
+
+def edge_corrections_s(cal: Calibration, steps: HallSteps, idx: np.ndarray) -> np.ndarray:
+    """Ordinary run: how late each edge ``idx`` of ``steps`` (decoded like the calibration's
+    edges, the same boundary numbering) is captured by the sensor effects the table holds
+    (refused ones left out; the rotor's own sector-locked speed ripple is not a sensor
+    effect). Subtract it from the capture times for the corrected instants. The time per
+    degree at each edge is the electrical turn around it (six sectors, so the deviations
+    themselves average out)."""
+    if cal.route != "ordinary" or cal.table_fit is None:
+        raise ValueError("edge corrections from capture times need the ordinary-run route")
+    f = cal.table_fit
+    eff = Effects(
+        static=any(n.startswith("static_") for n in f.names),
+        delay="delay_diff_s" in f.names,
+        pole_pairs=sum(n.startswith("pole_0_") for n in f.names) + 1 if "pole_0_0" in f.names else None,
+    )
+    hz = edges.electrical_speed_hz(steps.t_s, window_sectors=6, run=steps.run)[idx]
+    tau = 1.0 / (360.0 * hz)
+    cols, names = effect_columns(steps, idx, tau, eff)
+    refused = {r.field for r in cal.refused}
+    coef = np.array(
+        [
+            0.0
+            if (n == "delay_diff_s" and "rise_fall_delay_difference_s" in refused)
+            or (n.startswith("static_") and "installation_offset_deg_e" in refused)
+            or n not in f.names
+            else f.coef[f.names.index(n)]
+            for n in names
+        ]
+    )
+    return cols @ coef if names else np.zeros(idx.size)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from jinja2 import Environment, select_autoescape
 
-from ..report import _atomic_write
+from ..report import atomic_write
 
 #: at most this many failing points are listed (the table has them all)
 MAX_LISTED = 200
@@ -36,5 +36,5 @@ def write_report(result, path: str | Path) -> Path:
         errors=[r for r in result.rows if r["verdict"] == "error"],
         budgets_file=result.spec.budgets_file,
     )
-    _atomic_write(path, html)
+    atomic_write(path, html)
     return path

@@ -10,8 +10,7 @@ import numpy as np
 from bldc.motor import steady_state
 from plant_models import Simulation, paper_bench
 
-from ..calibration.campaign import CalibrationCampaign
-from ..calibration.fit import fit_corrections
+from ..calibration.campaign import station_corrections
 from ..controller.commutation import HallCommutation, SpeedPI
 from ..plots import pyplot, save
 
@@ -72,7 +71,7 @@ def _fluctuation_mse(t_s: np.ndarray, speed_rpm: np.ndarray) -> float:
 def compare(speed_rpm: float = 5700.0, turns: int = 10, settle_s: float = 4.0, seed: int = 0, config=None):
     """Calibrate the paper bench, then run raw and corrected commutation on the same plant."""
     config = config or paper_bench(with_deviations=True)
-    corrections = fit_corrections(CalibrationCampaign().run(config, seed=seed))
+    corrections = station_corrections(config, seed=seed)
     raw = run_strategy(config, None, speed_rpm, settle_s, turns, seed, "raw Hall edges")
     corrected = run_strategy(config, corrections, speed_rpm, settle_s, turns, seed, "corrected edges")
     return raw, corrected, corrections

@@ -411,7 +411,7 @@ class RecordingEdges:
     first_scored: int  #: the first scored edge: the second half of the run (the predictors settle on the first)
     dropped: int  #: edges outside the run (bounces, invalid states, reversals, stalls, short runs)
     direction: int  #: +1 forward (A, B, C), -1 reverse
-    calibration: object  #: the recording's ``hil.calibration.route.Calibration``
+    calibration: object  #: the recording's ``hil.calibration.result.Calibration``
 
 
 def recording_edges(rec) -> RecordingEdges:
@@ -423,7 +423,7 @@ def recording_edges(rec) -> RecordingEdges:
     from bldc.edges import longest_run
 
     from ..calibration import calibrate
-    from ..calibration.ordinary import hall_steps
+    from ..calibration.ordinary import edge_corrections_s, hall_steps
 
     ordinary = dataclasses.replace(rec, segments=[], segment=np.zeros(len(rec), dtype=np.int64),
                                    ref_angle_mech_deg=None)
@@ -434,7 +434,7 @@ def recording_edges(rec) -> RecordingEdges:
                          "of rotor steps; at least 200 are needed (half to calibrate)")
     half = idx.size // 2
     cal = calibrate(ordinary)
-    t_corrected = steps.t_s[idx] - cal.edge_corrections_s(steps, idx)
+    t_corrected = steps.t_s[idx] - edge_corrections_s(cal, steps, idx)
     return RecordingEdges(steps.t_s[idx], t_corrected, half, int(steps.t_s.size - idx.size),
                           int(steps.direction[idx[0]]), cal)
 

@@ -20,12 +20,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy import stats
 from scipy.optimize import nnls
 
 from hil.recording import Recording
 from plant_models.effects import EFFECTS
 
+from ..stats import chi2_p_value
 from .candidates import CANDIDATES
 from .fitting import cell_rms
 from .fitting import wls as _wls
@@ -139,9 +139,27 @@ def _remove_collinear(x: np.ndarray) -> np.ndarray:
 
 
 @dataclass
+class RankedEffect:
+    """A candidate's row of the ranking: what it explains alone, and (kept) what it adds."""
+
+    effect: str
+    score: float  #: its share of the gap fitted alone (rounded to 4 places; shares of rivals overlap)
+    share_added: float | None = None  #: kept: its share added after the effects chosen before it
+    below_relevance: bool = False  #: kept, but too small to matter
+
+    def to_json(self) -> dict:
+        out: dict = {"effect": self.effect, "score": self.score}
+        if self.share_added is not None:
+            out["share_added"] = self.share_added
+        if self.below_relevance:
+            out["below_relevance"] = True
+        return out
+
+
+@dataclass
 class Diagnosis:
     significant: bool
-    ranking: list[dict]
+    ranking: list[RankedEffect]
     accepted: list[dict]
     confounded: list[list[str]]
     unexplained: bool
@@ -179,7 +197,7 @@ class Diagnosis:
             "repeatability": self.repeatability,
             "ranking_bic_gain": self.ranking_bic_gain,
             "significant": self.significant,
-            "ranking": self.ranking,
+            "ranking": [r.to_json() for r in self.ranking],
             "accepted": self.accepted,
             "confounded": self.confounded,
             "unexplained": self.unexplained,
@@ -245,7 +263,7 @@ def _select(cells: Cells, candidates: list[str]) -> EdgeSelection:
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
 
     def remainder_p(fitted: list[str], t: Trial) -> float:
-        return float(stats.chi2.sf(t.chi2, max(n_cells - _rank(fitted, cells), 1)))
+        return chi2_p_value(t.chi2, max(n_cells - _rank(fitted, cells), 1))
 
     sel = forward_select(candidates, _try_add(cells), chi2_0, n_cells, remainder_p)
     below: dict[str, dict] = {}
@@ -335,7 +353,7 @@ def edge_features(r: EdgeResiduals) -> dict:
 def _edge_selection(cells: Cells, names: list[str]) -> tuple[float, EdgeSelection]:
     """The gap's p-value against the noise floor, and the selection when it is significant."""
     chi2_0 = float(np.sum(cells.weight * cells.mean**2))
-    p0 = float(stats.chi2.sf(chi2_0, cells.mean.size))
+    p0 = chi2_p_value(chi2_0, cells.mean.size)
     if p0 >= ALPHA:
         return p0, EdgeSelection(Selection([], [], {}, [], chi2_0, chi2_0, cells.mean.size), {}, {})
     return p0, _select(cells, names)
@@ -362,7 +380,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
     # ranking: accepted first (in order), then the ones detected below practical relevance, then
     # by single-effect score (scores equal to three decimals: fewer parameters first)
     rest = sorted((n for n in names if n not in sel.fitted), key=lambda n: (-round(sel.share_alone(n), 3), k_of[n]))
-    ranking = [{"effect": n, "score": round(sel.share_alone(n), 4)} for n in accepted_names + below_names + rest]
+    ranking = [RankedEffect(n, round(sel.share_alone(n), 4)) for n in accepted_names + below_names + rest]
     excess = max(sel.chi2_0 - n_cells, 1e-12)
     chi2_prev = sel.chi2_0
     share_added = {}
@@ -371,10 +389,8 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         share_added[n] = round(max(chi2_prev - chi2_i, 0.0) / excess, 4)
         chi2_prev = chi2_i
     for row in ranking:
-        if row["effect"] in share_added:
-            row["share_added"] = share_added[row["effect"]]
-        if row["effect"] in es.below:
-            row["below_relevance"] = True
+        row.share_added = share_added.get(row.effect)
+        row.below_relevance = row.effect in es.below
     # fitted parameters of every kept effect, jointly on all data
     accepted, below = [], []
     if sel.fitted:
@@ -393,7 +409,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
             (below if n in es.below else accepted).append(row)
             col += k
     dof_end = max(n_cells - _rank(sel.fitted, cells), 1)
-    unexplained = bool(significant and stats.chi2.sf(sel.chi2_end, dof_end) < ALPHA)
+    unexplained = bool(significant and chi2_p_value(sel.chi2_end, dof_end) < ALPHA)
     confounded, knobs = [], {}
 
     def confound(a: str, b: str) -> None:
@@ -423,7 +439,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
     expected = expected_noise_var(cells.features["w_e"], model, rec.timer_tick_s, tick_fit)
     p_noise, jitter_params, jitter_score, noise_before, noise_after, noise_shrink = _noise_gap(cells, expected)
     noise_significant = p_noise < ALPHA
-    jitter_row = {"effect": "edge_jitter", "score": round(jitter_score if noise_significant else 0.0, 4)}
+    jitter_row = RankedEffect("edge_jitter", round(jitter_score if noise_significant else 0.0, 4))
     if noise_significant:
         rel = jitter_relevance(
             jitter_params["time_rms_s"], jitter_params["angle_rms_deg_e"], cells.features["w_e"], cells.n
@@ -434,7 +450,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
             ranking.insert(len(accepted_names), jitter_row)
         else:
             below.append(row)
-            jitter_row["below_relevance"] = True
+            jitter_row.below_relevance = True
             ranking.insert(len(accepted_names) + len(below_names), jitter_row)
     else:
         ranking.append(jitter_row)
@@ -468,7 +484,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         },
         below_relevance=below,
         pole_pairs=rec.pole_pairs,
-        remainder_p_value=float(stats.chi2.sf(sel.chi2_end, dof_end)),
+        remainder_p_value=chi2_p_value(sel.chi2_end, dof_end),
         ranking_bic_gain={n: round(t.delta_bic, 1) for n, t in sel.first.items()},
     )
     edge_error = None
@@ -519,14 +535,12 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
                     "below": any(a["effect"] == name for a in dom.below_relevance) and dom.significant,
                 }
             )
-    accepted_extra = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if x["accepted"]]
-    below_extra = [
-        {"effect": x["effect"], "score": x["score"], "below_relevance": True} for x in extra_rows if x["below"]
-    ]
-    rest = [{"effect": x["effect"], "score": x["score"]} for x in extra_rows if not (x["accepted"] or x["below"])]
-    n_acc = sum(1 for r in d.ranking[:edge_rows] if not r.get("below_relevance"))
+    accepted_extra = [RankedEffect(x["effect"], x["score"]) for x in extra_rows if x["accepted"]]
+    below_extra = [RankedEffect(x["effect"], x["score"], below_relevance=True) for x in extra_rows if x["below"]]
+    rest = [RankedEffect(x["effect"], x["score"]) for x in extra_rows if not (x["accepted"] or x["below"])]
+    n_acc = sum(1 for r in d.ranking[:edge_rows] if not r.below_relevance)
     head, head_below = d.ranking[:n_acc], d.ranking[n_acc:edge_rows]
-    tail = sorted(d.ranking[edge_rows:] + rest, key=lambda x: -x["score"])
+    tail = sorted(d.ranking[edge_rows:] + rest, key=lambda x: -x.score)
     d.ranking = head + accepted_extra + head_below + below_extra + tail
     sampled_gap = [dom for dom in sorted(domains.values(), key=lambda x: x.p_value) if dom.significant]
     if sampled_gap and d.p_value >= ALPHA:  # no mean edge gap: the headline is the sampled signal's
@@ -561,7 +575,7 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
     # pooled test: sum of dof * measured / expected is chi-square with sum(dof) under the model
     with np.errstate(divide="ignore"):
         stat = float(np.sum(dof * var_m / np.maximum(var_e, 1e-300)))
-    p = float(stats.chi2.sf(stat, np.sum(dof))) if np.all(var_e > 0) else 0.0
+    p = chi2_p_value(stat, float(np.sum(dof))) if np.all(var_e > 0) else 0.0
     excess = var_m - var_e
 
     def fit(idx):

@@ -219,7 +219,7 @@ def run_field_case(job) -> dict:
     i, kind, names, snr, seed, electrical = job
     rec, implied, _ = make_field_case(names, snr, seed, electrical=electrical)
     d = diagnose_segments(rec, KNOWN_MODEL)
-    top = [r["effect"] for r in d.ranking] if d.significant else ["none"]
+    top = [r.effect for r in d.ranking] if d.significant else ["none"]
     accepted = [a["effect"] for a in d.accepted]
     perr = None
     if kind == "single":

@@ -23,7 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy import stats
 
 from bldc.edges import electrical_speed_hz
 from hil.calibration.ordinary import (
@@ -42,9 +41,10 @@ from hil.calibration.ordinary import (
 from hil.recording import Recording
 
 from ..plots import pyplot
-from .diagnose import Diagnosis, knob
+from ..stats import chi2_p_value, inliers
+from .diagnose import Diagnosis, RankedEffect, knob
 from .relevance import edge_relevance
-from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink, inliers
+from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 #: the model of the whole run: its used edges in this many consecutive stretches, each with its
 #: own trajectory (the cells of the gap are per stretch)
@@ -157,7 +157,7 @@ def _gap(cells: dict) -> float:
 
 def _p_value(cells: dict) -> float:
     chi2 = float(np.sum(cells["mean"] ** 2 / np.maximum(cells["var_of_mean"], 1e-12)))
-    return float(stats.chi2.sf(chi2, cells["n"].size))
+    return chi2_p_value(chi2, cells["n"].size)
 
 
 def _chi2(fit: Fit, ref: Fit) -> tuple[float, int]:
@@ -291,14 +291,11 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         share_added[t.name] = max(prev - now, 0.0)
         prev = now
     rest = sorted((n for n in whole.names if n not in sel.fitted), key=lambda n: -share_alone[n])
-    ranking = []
-    for n in sel.fitted + rest:
-        row = {"effect": n, "score": round(share_alone[n], 4)}
-        if n in share_added:
-            row["share_added"] = round(float(share_added[n]), 4)
-        if n in below:
-            row["below_relevance"] = True
-        ranking.append(row)
+    ranking = [
+        RankedEffect(n, round(share_alone[n], 4),
+                     round(float(share_added[n]), 4) if n in share_added else None, n in below)
+        for n in sel.fitted + rest
+    ]
     rows = {}
     for n in sel.fitted:
         params, stderr = _params(n, full)

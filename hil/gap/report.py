@@ -125,11 +125,9 @@ def format_text(d: Diagnosis, name: str) -> str:
     accepted = {a["effect"] for a in d.accepted}
     lines.append("  ranking (share alone: each effect fitted on its own; share added: in the order chosen)")
     for i, r in enumerate(d.ranking[:6], 1):
-        verdict = (
-            "accepted" if r["effect"] in accepted else ("below relevance" if r.get("below_relevance") else "")
-        )
-        added = f"  added {r['share_added']:.3f}" if "share_added" in r else ""
-        lines.append(f"  {i}. {r['effect']:<22} share alone {r['score']:.3f}{added}   {verdict}".rstrip())
+        verdict = "accepted" if r.effect in accepted else ("below relevance" if r.below_relevance else "")
+        added = f"  added {r.share_added:.3f}" if r.share_added is not None else ""
+        lines.append(f"  {i}. {r.effect:<22} share alone {r.score:.3f}{added}   {verdict}".rstrip())
     for a in d.accepted:
         lines.append(f"  accepted {a['effect']}: {format_params(a)}")
     for b in d.below_relevance:

@@ -39,6 +39,7 @@ from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from bldc.units import rpm_to_rad_per_s
 from hil.recording import Recording
 
+from ..stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
@@ -374,7 +375,7 @@ class SampleCells:
         t = np.abs(resid) / np.sqrt(self.var[rows])
         p_cell = np.clip(2 * stats.t.sf(t, np.maximum(self.n_rep[rows] - 1, 1)), 1e-300, 1.0)
         stat = float(np.sum(stats.chi2.isf(p_cell, 1)))
-        return float(stats.chi2.sf(stat, max(resid.size - n_params, 1)))
+        return chi2_p_value(stat, max(resid.size - n_params, 1))
 
 
 def build_cells(r: SampleResiduals, min_replicates: int = 4) -> SampleCells:

@@ -5,12 +5,13 @@ of an ordinary run) states its candidates as fits it can make; this module decid
 of rules:
 
 - one significance level (``ALPHA``) for the gap, the remainder and the stop of the selection;
-- one BIC rule (``bic_gain`` >= ``BIC_MIN``) and one physical-bounds check (the route's);
+- one BIC rule (``hil.stats.bic_gain`` >= ``BIC_MIN``) and one physical-bounds check (the route's);
 - one parsimony rule: candidates whose explained chi-square is equal within noise to the best
   one are tied, and the tie goes to the fewest new parameters;
 - one confounding rule with its refit check: a rival that alone explains at least
   ``CONFOUND_RATIO`` as much as an accepted effect and earns nothing once the accepted set is in;
-- one outlier cut (``OUTLIER_SD`` robust standard deviations);
+- one outlier cut (``hil.stats.inliers``: ``OUTLIER_SD`` robust standard deviations, the
+  calibration's and the twin's too);
 - one held-out shrink with its interval from a bootstrap over blocks (operating points or
   stretches of time): residuals correlated inside a block stay together, so the interval holds
   under correlated noise where a bootstrap over edges or cells would be too narrow.
@@ -24,35 +25,23 @@ from typing import Callable
 
 import numpy as np
 
+# the outlier cut and the BIC rule are the project's (hil.stats), shared with the calibration and the twin
+from ..stats import BIC_MIN, bic_gain
+
 #: significance of a gap against its noise floor, of a remainder after the accepted effects, and
 #: the selection's stop. 1e-3: a diagnosis tests dozens to hundreds of cells per recording and a
 #: user runs it on many recordings; at 1e-3 a null recording raises a false gap once in a
 #: thousand (0 of 100 on the validation), while a real effect at SNR 3 gives p far below it.
 ALPHA = 1e-3
-#: minimum BIC improvement (chi-square drop less k ln n) for an effect to earn its place
-BIC_MIN = 10.0
 #: a rival that alone explains at least this share of what an accepted effect explains alone
 CONFOUND_RATIO = 0.9
 #: only a substantial accepted effect has confounded rivals: alone it explains at least this share
 #: of what the best candidate explains alone (a small effect kept after a large one would pair
 #: with every rival the large one already explains)
 CONFOUND_MIN_SHARE = 0.1
-#: residuals beyond this many robust standard deviations are outliers (a missed edge, a bump)
-OUTLIER_SD = 6.0
 #: bootstrap draws of the held-out shrink and its interval (5-95 %)
 N_BOOT = 300
 INTERVAL_PERCENT = (5.0, 95.0)
-
-
-def inliers(resid: np.ndarray, sigma: np.ndarray) -> np.ndarray:
-    """Residuals within ``OUTLIER_SD`` robust standard deviations."""
-    return np.abs(resid / sigma) < OUTLIER_SD
-
-
-def bic_gain(chi2_drop: float, k_new: int, n_obs: int, search_penalty: float = 0.0) -> float:
-    """BIC improvement of adding ``k_new`` parameters that lower the chi-square by ``chi2_drop``
-    over ``n_obs`` observations (a searched shape parameter adds ``search_penalty``)."""
-    return float(chi2_drop - k_new * math.log(max(n_obs, 2)) - search_penalty)
 
 
 def explained_noise_sd(gain: float, k: int) -> float:

@@ -404,7 +404,7 @@ def _run_case(job) -> dict:
         electrical = (kind == "null" and i % 2 == 1) or (kind == "single" and i % 4 == 3)
         rec, truth = make_case(names, snr, case_seed, ool=ool, electrical=electrical or None)
     d = diagnose_segments(rec, KNOWN_MODEL)
-    top = [r["effect"] for r in d.ranking] if d.significant else ["none"]
+    top = [r.effect for r in d.ranking] if d.significant else ["none"]
     accepted = [a["effect"] for a in d.accepted]
     perr = None
     shrink = d.heldout_shrink

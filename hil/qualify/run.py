@@ -318,9 +318,83 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
                str(report_json), note, catches, judged_measurements(report), defect_class, ran)
 
 
-def qualify(args, progress=print) -> dict:
+@dataclass
+class Qualification:
+    """A ``hil qualify`` result: the control run and one run per defect; the figures (what was
+    caught, by which requirement, what survived) follow from the runs, and ``to_json()`` is the
+    JSON ``hil qualify --json`` writes (docs/qualify.md)."""
+
+    dut: str
+    seed: int
+    out_of_scope: dict[str, str]  #: requirement -> why the DUT cannot be judged on it
+    control: Run
+    mutants: list[Run]
+    duration_s: float
+
+    @property
+    def control_passed(self) -> bool:
+        return self.control.verdict == "PASS"
+
+    @property
+    def killed(self) -> list[Run]:
+        return [m for m in self.mutants if m.killed]
+
+    @property
+    def errored(self) -> list[str]:
+        return [m.name for m in self.mutants if m.caught_by == "error"]
+
+    @property
+    def not_judged(self) -> list[str]:
+        return [m.name for m in self.mutants if m.caught_by == "not judged"]
+
+    @property
+    def survivors(self) -> list[str]:
+        return [m.name for m in self.mutants if not m.killed and m.caught_by not in ("error", "not judged")]
+
+    @property
+    def detection_ratio(self) -> float | None:
+        """Killed over all defects; None without a passing control run (against a failing control
+        a "caught" defect may be the control's own failure) or without defects."""
+        return len(self.killed) / len(self.mutants) if self.control_passed and self.mutants else None
+
+    def requirements(self) -> dict[str, list[str]]:
+        """Requirement -> the defects its failure caught."""
+        by_requirement: dict[str, list[str]] = {}
+        for m in self.killed:
+            for req in m.killed_by:
+                by_requirement.setdefault(req, []).append(m.name)
+        return {req: sorted(names) for req, names in sorted(by_requirement.items())}
+
+    def to_json(self) -> dict:
+        control = self.control
+        return {
+            "format": "hil-qualify/1",
+            "dut": self.dut,
+            "seed": self.seed,
+            "control_verdict": control.verdict,
+            "out_of_scope": self.out_of_scope,
+            "control": asdict(control),
+            "mutants": [asdict(m) for m in self.mutants],
+            "detection": {
+                "killed": len(self.killed),
+                "total": len(self.mutants),
+                "ratio": self.detection_ratio,
+            } if self.control_passed else None,
+            "no_detection_because": None if self.control_passed else (
+                f"the control run's verdict is {control.verdict}, not PASS: a defect's failure could be the "
+                f"control's own ({', '.join(control.failed_tests) or control.note or 'see its report'})"),
+            "errored": self.errored,
+            "not_judged": self.not_judged,
+            "sensitivity": sensitivity(self.mutants),
+            "requirements": self.requirements(),
+            "survivors": self.survivors,
+            "duration_s": self.duration_s,
+        }
+
+
+def qualify(args, progress=print) -> Qualification:
     """Control run and one run per defect (``args.only`` or the whole catalogue), ``args.workers``
-    at a time; the result as the JSON ``hil qualify`` writes."""
+    at a time; ``to_json()`` of the result is the JSON ``hil qualify`` writes."""
     if args.defects:
         load_defects(args.defects)
     # a firmware folder brings its own defects (compile-time switches); the built-in controller the catalogue's
@@ -348,34 +422,4 @@ def qualify(args, progress=print) -> dict:
                                                                                            "SURVIVED"))
             progress(f"{run.name:<34} {state:<9} {run.verdict:<9} {run.duration_s:6.1f} s  caught by: {caught}"
                      + (f"  ({run.note})" if run.note else ""))
-    control, mutants = runs[0], runs[1:]
-    killed = [m for m in mutants if m.killed]
-    by_requirement: dict[str, list[str]] = {}
-    for m in killed:
-        for req in m.killed_by:
-            by_requirement.setdefault(req, []).append(m.name)
-    return {
-        "format": "hil-qualify/1",
-        "dut": args.dut,
-        "seed": args.seed,
-        "control_verdict": control.verdict,
-        "out_of_scope": out_of_scope,
-        "control": asdict(control),
-        "mutants": [asdict(m) for m in mutants],
-        # a detection figure only over a control run that PASSes: against a failing control a
-        # "caught" defect may be the control's own failure
-        "detection": {
-            "killed": len(killed),
-            "total": len(mutants),
-            "ratio": len(killed) / len(mutants) if mutants else None,
-        } if control.verdict == "PASS" else None,
-        "no_detection_because": None if control.verdict == "PASS" else (
-            f"the control run's verdict is {control.verdict}, not PASS: a defect's failure could be the "
-            f"control's own ({', '.join(control.failed_tests) or control.note or 'see its report'})"),
-        "errored": [m.name for m in mutants if m.caught_by == "error"],
-        "not_judged": [m.name for m in mutants if m.caught_by == "not judged"],
-        "sensitivity": sensitivity(mutants),
-        "requirements": {req: sorted(names_) for req, names_ in sorted(by_requirement.items())},
-        "survivors": [m.name for m in mutants if not m.killed and m.caught_by not in ("error", "not judged")],
-        "duration_s": time.monotonic() - started,
-    }
+    return Qualification(args.dut, args.seed, out_of_scope, runs[0], runs[1:], time.monotonic() - started)

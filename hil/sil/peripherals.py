@@ -29,7 +29,7 @@ import numpy as np
 from bldc.contract import Command
 from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE, pin_mask
 from hil.faults import FaultInjector
-from plant_models import _layout as L
+from plant_models import layout as L
 from plant_models.simulation import Commutations, Simulation
 
 from .firmware import Firmware, FirmwareInfo
@@ -64,7 +64,7 @@ class FirmwareFault(RuntimeError):
 
 
 def _gate_table() -> np.ndarray:
-    """The plant's switch state of every gate pattern (``plant_models._layout``): a six-step
+    """The plant's switch state of every gate pattern (``plant_models.layout``): a six-step
     sector 0..5, -1 all open, ``GATE_PATTERN_BASE + g`` another pattern, SHOOT_THROUGH refused."""
     table = np.empty(64, dtype=np.int64)
     six_step = {(int(SECTOR_HIGH_PHASE[s]), int(SECTOR_LOW_PHASE[s])): s for s in range(6)}

@@ -84,7 +84,7 @@ class _Worker:
     def op_bench(self, config, seed: int, wrap_at_s: float, sim_kwargs: dict):
         from plant_models.simulation import Simulation
 
-        from plant_models import _layout as L
+        from plant_models import layout as L
 
         class _Source:  # the firmware answers through its peripherals, not through commands
             mode = L.MODE_EXTERNAL

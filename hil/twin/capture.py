@@ -37,17 +37,19 @@ from plant_models import effects as fx
 
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import (
-    _RISE_LABELS,
-    _SENSOR_LABELS,
+    RISE_LABELS,
+    SENSOR_LABELS,
     Effects,
     Fit,
     HallSteps,
-    _sum_zero_basis,
-    calibrate_ordinary,
+    sum_zero_basis,
     fit_ordinary,
     hall_steps,
+    ordinary_calibration,
 )
+from ..calibration.result import Calibration
 from ..recording import Recording, read_recording
+from ..stats import OUTLIER_SD, chi2_test, inliers
 
 #: residual lags whose autocorrelation the twin check compares
 ACF_LAGS = 12
@@ -104,7 +106,7 @@ class CaptureAnalysis:
 
     rec: Recording
     steps: HallSteps
-    calibration: dict
+    calibration: Calibration  #: the capture's ordinary-run calibration (``to_json()``: what ``hil calibrate`` writes)
     fit: Fit  #: trajectory, offsets, poles, delay and (where the capture shows it) the ripple
     pole_pairs: int | None
     tick_s: float | None
@@ -118,16 +120,17 @@ def analyse(rec: Recording, pole_pairs: int | None = None, source: str = "") -> 
     """Calibrate the capture (``hil calibrate``'s ordinary-run route) and fit the full model."""
     steps = hall_steps(rec.t_s, rec.sensor, rec.rising)
     tick = rec.timer_tick_s
-    out, _ = calibrate_ordinary(
+    cal = ordinary_calibration(
         steps, tick_s=tick, pole_pairs=pole_pairs or rec.stated_pole_pairs, source=source or str(rec.path or "")
     )
-    a = out["assumptions"]
-    p = a["pole_pairs"] if out["pole_offset_deg_e"] else None
-    ripple = str(a["sector_locked_speed_ripple"]).startswith("modelled")
-    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a["knot_cycles"])
+    a = cal.ordinary.assumptions
+    p = a.pole_pairs if cal.corrections.pole_offset_deg_e else None
+    ripple = a.ripple_modelled
+    fit = fit_ordinary(steps, Effects(pole_pairs=p, ripple=ripple), tick_s=tick, knot_cycles=a.knot_cycles)
     table, resid, test = sensor_pole_pattern(fit, steps, p)
     an = CaptureAnalysis(
-        rec, steps, out, fit, a["pole_pairs"], tick, ripple, sensor_asymmetry(fit), noise_model(fit, steps, tick, resid)
+        rec, steps, cal, fit, a.pole_pairs, tick, ripple, sensor_asymmetry(fit),
+        noise_model(fit, steps, tick, resid),
     )
     an.extra["sensor_pole_offset"] = {"table_deg_e": None if table is None else [float(v) for v in table], **test}
     return an
@@ -147,15 +150,13 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
     when it stands out of the noise (chi-square of the position means against their standard
     errors); the least-squares residual is already free of the per-pole, per-sensor and
     rise-minus-fall parts, so this is what they leave."""
-    from scipy import stats
-
     from ..calibration.ordinary import SENSOR_OF_BOUNDARY, pole_of_boundary
 
     r = fit.residual_s
     if not p:
         return None, r, {"kept": False, "reason": "no pole count: no mechanical turn to fold the residuals over"}
     tau = fit.tau_s_per_deg
-    keep = np.abs(r / fit.sigma_s) < 6.0
+    keep = inliers(r, fit.sigma_s)
     m = steps.boundary[fit.index]
     d = steps.direction[fit.index].astype(float)
     pos = np.mod(m, 6 * p)
@@ -166,8 +167,7 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
         if sel.sum() >= 5:
             means[j] = float(np.mean(d[sel] * ang[sel]))  # spatial: a trail in reverse is a lead
             ses[j] = float(np.std(ang[sel]) / np.sqrt(sel.sum()))
-    chi2 = float(np.sum((means / ses) ** 2))
-    p_value = float(stats.chi2.sf(chi2, 6 * p))
+    chi2, p_value = chi2_test(means, ses)
     # constant in angle, or the rotor's motion? The pattern of the slower and of the faster half of
     # the edges: a sensor's offset is the same in both (slope 1), a position-locked speed ripple
     # (cogging) falls with speed squared
@@ -213,7 +213,7 @@ def _label_combination(fit: Fit, sgn: int, weights: np.ndarray, prefix: str = "s
     keys = [f"{prefix}_{dname}_{j}" for j in range(5)]
     if keys[0] not in fit.names:
         return None
-    z = _sum_zero_basis(6)
+    z = sum_zero_basis(6)
     return fit.combination(dict(zip(keys, weights @ z)))
 
 
@@ -229,8 +229,8 @@ def sensor_asymmetry(fit: Fit) -> dict[str, tuple[float, float]]:
     for x, name in enumerate(SENSORS):
         vals = []
         for sgn in (1, -1):
-            rise = [j for j in _SENSOR_LABELS[x] if j in _RISE_LABELS[sgn]]
-            fall = [j for j in _SENSOR_LABELS[x] if j not in _RISE_LABELS[sgn]]
+            rise = [j for j in SENSOR_LABELS[x] if j in RISE_LABELS[sgn]]
+            fall = [j for j in SENSOR_LABELS[x] if j not in RISE_LABELS[sgn]]
             w = np.zeros(6)
             w[rise], w[fall] = sgn, -sgn  # static offsets are spatial: they trail by sgn * offset
             r = _label_combination(fit, sgn, w)
@@ -247,7 +247,7 @@ def ripple_pattern_deg_e(fit: Fit, sgn: int) -> np.ndarray | None:
     if keys[0] not in fit.names:
         return None
     c = np.array([fit.coef[fit.names.index(k)] for k in keys])
-    return _sum_zero_basis(6) @ c
+    return sum_zero_basis(6) @ c
 
 
 def residual_acf(x: np.ndarray, lags: int = ACF_LAGS) -> list[float]:
@@ -294,7 +294,7 @@ def noise_model(
     sol, _ = optimize.nnls(design * rel[:, None] / scale, var_b * rel)
     sol = sol / scale
     time_rms, angle_rms = math.sqrt(sol[0]), math.sqrt(sol[1])
-    z = np.clip(r / sd, -6.0, 6.0)
+    z = np.clip(r / sd, -OUTLIER_SD, OUTLIER_SD)  # an outlier weighs no more than the cut
     same_run = np.diff(steps.run[fit.index]) == 0
     acf1 = float(np.mean(z[1:][same_run] * z[:-1][same_run]) / np.mean(z**2)) if same_run.any() else 0.0
     share = float(np.mean(sol[1] * tau**2 / (sol[0] + sol[1] * tau**2 + q_var))) if sol[1] > 0 else 0.0
@@ -413,21 +413,21 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     p = an.pole_pairs or base.motor.pole_pairs
     motor = dataclasses.replace(base.motor, pole_pairs=int(p))
     if an.pole_pairs:
-        measured.append(("motor.pole_pairs", f"{p} ({cal['assumptions']['pole_pairs_source']})"))
+        measured.append(("motor.pole_pairs", f"{p} ({cal.ordinary.assumptions.pole_pairs_source})"))
     else:
         assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
     effects: list[fx.Effect] = []
     # installation offsets: the capture's relative ones around the base's mean
     base_inst = base.effect("installation_offset")
     mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
-    rel = cal["installation_offset_deg_e"]
+    rel = cal.corrections.installation_offset_deg_e
     lim = fx.InstallationOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
     inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", notes) for s in SENSORS)
     effects.append(fx.InstallationOffset(offset_deg_e=inst))
     measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
     assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base ({base_name}); "
                     "capture times give only differences (an encoder or Line-BEMF gives the rest)"))
-    poles = cal["pole_offset_deg_e"]
+    poles = cal.corrections.pole_offset_deg_e
     if poles and len(poles) == 2 * p:
         lim = fx.PoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
         effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", notes)
@@ -435,7 +435,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
         measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
                          "(sum zero per polarity: pole 0 is where the capture starts)"))
     else:
-        notes.append("no pole offsets: " + cal["undetermined"].get("pole_offset_deg_e", "refused by the calibration"))
+        notes.append("no pole offsets: " + cal.undetermined.get("pole_offset_deg_e", "refused by the calibration"))
     pattern = an.extra.get("sensor_pole_offset", {})
     beyond_table = uncalibratable_effects(an, p, notes)
     if "sensor_pole_offset" in beyond_table:
@@ -448,10 +448,10 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
                      ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
                      f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
-    d = cal["rise_fall_delay_difference_s"]
-    d_value = d["value"] if d.get("value") is not None else 0.0
-    if d.get("value") is None:
-        notes.append(f"rise-minus-fall delay not determined ({d.get('reason')}): the twin has none beyond the base's")
+    d = cal.ordinary.rise_fall_delay_difference_s
+    d_value = d.value if d.value is not None else 0.0
+    if d.value is None:
+        notes.append(f"rise-minus-fall delay not determined ({d.reason}): the twin has none beyond the base's")
     base_delay = base.effect("conditioning_delay")
     common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
     rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
@@ -492,7 +492,7 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
         if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
             effects.append(e)
     # the top speed: where the suite's speeds end; the delay there against half a sector
-    speeds = cal["assumptions"]["speed_range_hz_e"]
+    speeds = cal.ordinary.assumptions.speed_range_hz_e
     notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
                  "extrapolates (a delay grows with speed, the jitter model holds)")
     if top_speed_rpm is None:

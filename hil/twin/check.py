@@ -10,7 +10,9 @@ one at a time, and a difference the addition closes is marked ``explained_by_add
 
 from __future__ import annotations
 
+import dataclasses
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +21,7 @@ from plant_models import PlantConfig
 
 from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
+from ..calibration.result import Estimate
 from ..experiments import peers
 from .capture import PARTLY_HELD, UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
 from .replay import twin_recording
@@ -35,6 +38,100 @@ CANDIDATES = {
     "sector_locked_speed_ripple": "the rotor's speed ripple locked to the sectors (commutation torque ripple: an "
     "angle per sector boundary falling with 1/speed^2), which the capture's calibration fitted as a nuisance",
 }
+
+
+@dataclass
+class Difference:
+    """A way the twin's capture differs from the real one beyond their uncertainty."""
+
+    what: str  #: the figure that differs ("calibration: NAME", "predictor: NAME", ...)
+    effect: str  #: how far apart, with the numbers
+    #: whether running the twin with an addition closed it; None where no addition was tried on it
+    explained_by_adding: bool | None = None
+    added: str | None = None  #: the addition that closed it
+
+    def to_json(self) -> dict:
+        out: dict = {"what": self.what, "effect": self.effect}
+        if self.explained_by_adding is not None:
+            out["explained_by_adding"] = self.explained_by_adding
+        if self.added is not None:
+            out["added"] = self.added
+        return out
+
+
+@dataclass
+class Comparison:
+    """One twin run against the capture: every figure side by side, and what differs."""
+
+    edges_real: int
+    edges_twin: int
+    calibration: dict  #: real, twin: ``calibration_figures``; comparison: ``_figure_differences``
+    noise: dict  #: real, twin: ``NoiseModel.to_json()``; acf_stderr
+    sector_widths: dict
+    predictors: list[dict]  #: ``_ratios``
+    differences: list[Difference]
+
+    def to_json(self) -> dict:
+        return {
+            "edges": {"real": self.edges_real, "twin": self.edges_twin},
+            "calibration": self.calibration,
+            "noise": self.noise,
+            "sector_widths": self.sector_widths,
+            "predictors": self.predictors,
+            "differences": [d.to_json() for d in self.differences],
+        }
+
+
+@dataclass
+class Variant:
+    """The twin run another way (with or without an addition), beside the headline."""
+
+    comparison: Comparison
+    what: str | None = None  #: what this twin is (None: the twin without additions)
+    take_on: str | None = None  #: the command that makes it the headline
+
+    def to_json(self) -> dict:
+        c = self.comparison.to_json()
+        out = {} if self.what is None else {"what": self.what}
+        out.update(predictors=c["predictors"], calibration=c["calibration"], differences=c["differences"])
+        if self.take_on is not None:
+            out["take_on"] = self.take_on
+        return out
+
+
+@dataclass
+class TwinCheck:
+    """``hil twin check``'s result: the capture and its twin compared (JSON contract in docs/twin.md)."""
+
+    recording: str
+    twin_plant: str  #: the twin's plant TOML
+    seed: int
+    taken_on: list[str]  #: the additions the headline twin runs with
+    left_out: list[str]  #: what the capture shows and the twin's plant leaves out
+    capture_tick_s: float | None  #: the capture's timer tick, the twin's replay samples at it
+    headline: Comparison
+    without_additions: list[Difference]  #: the twin as written, against the capture
+    variants: dict[str, Variant] = field(default_factory=dict)
+
+    def replay(self) -> str:
+        return ("kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
+                "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
+                f"tick {(self.capture_tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)")
+
+    def to_json(self) -> dict:
+        return {
+            "recording": self.recording,
+            "twin": self.twin_plant,
+            "seed": self.seed,
+            "taken_on": self.taken_on,
+            "left_out": self.left_out,
+            "replay": self.replay(),
+            **self.headline.to_json(),
+            "ratio_band": list(RATIO_BAND),
+            # what the twin as written lacks, and whether an addition the capture names closes it
+            "differences_without_additions": [d.to_json() for d in self.without_additions],
+            "variants": {name: v.to_json() for name, v in self.variants.items()},
+        }
 
 
 def predictor_rows(rec, source: str) -> dict:
@@ -54,26 +151,26 @@ def _vs(value, stderr) -> dict:
 
 
 def calibration_figures(an: CaptureAnalysis) -> dict:
-    cal = an.calibration
-    unc = cal["uncertainty"]
-    ind = cal.get("independent_estimate") or {}
+    cal, o = an.calibration.corrections, an.calibration.ordinary
+    unc = cal.uncertainty
+    delay, angle = o.rise_fall_delay_difference_s, o.rise_fall_angle_asymmetry_deg_e
+    # the method cross-check's delay as the calibration writes it (no stderr filtering: a copy)
+    ind = None if o.cross_check is None else Estimate(o.cross_check.delay_diff_s, o.cross_check.stderr_s).to_json()
     return {
-        "rise_fall_delay_difference_s": _vs(cal["rise_fall_delay_difference_s"]["value"],
-                                            cal["rise_fall_delay_difference_s"]["stderr"]),
-        "rise_fall_angle_asymmetry_deg_e": _vs(cal["rise_fall_angle_asymmetry_deg_e"]["value"],
-                                               cal["rise_fall_angle_asymmetry_deg_e"]["stderr"]),
-        "independent_rise_fall_delay_difference_s": ind.get("rise_fall_delay_difference_s"),
-        **{f"installation_offset_deg_e.{s}": _vs(cal["installation_offset_deg_e"][s],
+        "rise_fall_delay_difference_s": _vs(delay.value, delay.stderr),
+        "rise_fall_angle_asymmetry_deg_e": _vs(angle.value, angle.stderr),
+        "independent_rise_fall_delay_difference_s": ind,
+        **{f"installation_offset_deg_e.{s}": _vs(cal.installation_offset_deg_e[s],
                                                  unc["installation_offset_deg_e"].get(s)) for s in SENSORS},
         **{f"switching_asymmetry_deg_e.{s}": _vs(*an.asymmetry_deg_e[s]) for s in SENSORS},
         **{f"pole_offset_deg_e[{j}]": _vs(v, s) for j, (v, s) in
-           enumerate(zip(cal["pole_offset_deg_e"], unc["pole_offset_deg_e"]))},
-        "trajectory_residual_rms_deg_e": _vs(cal["assumptions"]["trajectory_residual_rms_deg_e"], None),
+           enumerate(zip(cal.pole_offset_deg_e, unc["pole_offset_deg_e"]))},
+        "trajectory_residual_rms_deg_e": _vs(o.assumptions.trajectory_residual_rms_deg_e, None),
         "edge_jitter_angle_rms_deg_e": _vs(an.noise.angle_rms_deg_e, None),
         "edge_jitter_time_rms_s": _vs(an.noise.time_rms_s, None),
         "edge_jitter_correlation": _vs(an.noise.correlation, None),
-        "sector_locked_speed_ripple": cal["assumptions"]["sector_locked_speed_ripple"],
-        "edges_used": cal["assumptions"]["edges_used"],
+        "sector_locked_speed_ripple": o.assumptions.sector_locked_speed_ripple(),
+        "edges_used": o.assumptions.edges_used,
     }
 
 
@@ -121,7 +218,7 @@ def _beyond_table_figure(an: CaptureAnalysis, name: str) -> float:
 
 
 def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_them: CaptureAnalysis,
-                          left_out: list[str]) -> list[dict]:
+                          left_out: list[str]) -> list[Difference]:
     """Each measured effect the twin leaves out (no table holds it) is a difference the twin lacks;
     adding it explains it when the twin's capture then shows it as the real one does (RMS ratio in
     RATIO_BAND)."""
@@ -129,12 +226,12 @@ def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_the
     for name in left_out:
         r, t, w = (_beyond_table_figure(a, name) for a in (real, twin, with_them))
         closed = r > 0 and RATIO_BAND[0] <= w / r <= RATIO_BAND[1]
-        out.append({"what": f"left out of the twin: {name}" + (f" beyond {PARTLY_HELD[name]}" if name in PARTLY_HELD
-                                                                 else ""),
-                    "effect": f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): "
-                              f"measured, but no calibration table holds it, so the twin's plant leaves it out "
-                              f"(`hil twin from-capture {UNCALIBRATABLE[name]}` keeps it)",
-                    "explained_by_adding": closed, **({"added": name} if closed else {})})
+        out.append(Difference(
+            f"left out of the twin: {name}" + (f" beyond {PARTLY_HELD[name]}" if name in PARTLY_HELD else ""),
+            f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): measured, but no "
+            f"calibration table holds it, so the twin's plant leaves it out (`hil twin from-capture "
+            f"{UNCALIBRATABLE[name]}` keeps it)",
+            closed, name if closed else None))
     return out
 
 
@@ -169,7 +266,7 @@ def _ratios(real_rows: dict, twin_rows: dict) -> list[dict]:
 
 
 def _compare(real: CaptureAnalysis, real_fig: dict, real_rows: dict, twin: CaptureAnalysis, twin_rows: dict,
-             bins: np.ndarray) -> dict:
+             bins: np.ndarray) -> Comparison:
     """One twin run against the capture: every figure side by side and what differs."""
     twin_fig = calibration_figures(twin)
     w_real, w_twin = sector_widths(real, bins), sector_widths(twin, bins)
@@ -178,25 +275,25 @@ def _compare(real: CaptureAnalysis, real_fig: dict, real_rows: dict, twin: Captu
     acf_se = 1.0 / math.sqrt(max(real.fit.index.size, 1))  # an autocorrelation estimate of white noise
     figs = _figure_differences(real_fig, twin_fig)
     preds = _ratios(real_rows, twin_rows)
-    return {
-        "edges": {"real": int(real.rec.t_s.size), "twin": int(twin.rec.t_s.size)},
-        "calibration": {"real": real_fig, "twin": twin_fig, "comparison": figs},
-        "noise": {"real": real.noise.to_json(), "twin": twin.noise.to_json(), "acf_stderr": acf_se},
-        "sector_widths": {"speed_bins_hz_e": [float(v) for v in bins],
+    return Comparison(
+        int(real.rec.t_s.size), int(twin.rec.t_s.size),
+        calibration={"real": real_fig, "twin": twin_fig, "comparison": figs},
+        noise={"real": real.noise.to_json(), "twin": twin.noise.to_json(), "acf_stderr": acf_se},
+        sector_widths={"speed_bins_hz_e": [float(v) for v in bins],
                           "slots": "label of the edge opening the sector (boundary 60 m deg e, m mod 6)",
                           "real_deg_e": _nan_list(w_real["mean_deg_e"]),
                           "twin_deg_e": _nan_list(w_twin["mean_deg_e"]),
                           "real_stderr_deg_e": _nan_list(w_real["stderr_deg_e"]),
                           "twin_stderr_deg_e": _nan_list(w_twin["stderr_deg_e"]),
                           "max_abs_difference_deg_e": float(np.nanmax(np.abs(width_diff)))},
-        "predictors": preds,
-        "differences": _differences(figs, preds, width_diff, width_se, np.array(real.noise.acf),
-                                    np.array(twin.noise.acf), acf_se, real.pole_pairs),
-    }
+        predictors=preds,
+        differences=_differences(figs, preds, width_diff, width_se, np.array(real.noise.acf),
+                                 np.array(twin.noise.acf), acf_se, real.pole_pairs),
+    )
 
 
 def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on: tuple[str, ...] | None = None,
-               log=print) -> dict:
+               log=print) -> TwinCheck:
     """The comparison of a capture and its twin (JSON contract in docs/twin.md). ``take_on``: the
     additions the twin runs with; None takes on what the capture's own calibration modelled (the
     rotor's sector-locked ripple, part of the trajectory the twin follows). The twin without them
@@ -217,7 +314,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
         take_on = (("sector_locked_speed_ripple",) if real.ripple else ()) + tuple(left_out)
     real_rows = predictor_rows(rec, str(recording))
     real_fig = calibration_figures(real)
-    lo, hi = real.calibration["assumptions"]["speed_range_hz_e"]
+    lo, hi = real.calibration.ordinary.assumptions.speed_range_hz_e
     bins = np.linspace(lo, hi, WIDTH_BINS + 1)
     log("running the twin along the capture's trajectory")
     plain, plain_rows = _analyse_twin(config, real, seed, False, f"twin of {recording}")
@@ -225,29 +322,26 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
     main, main_an = bare, plain
     variants = {}
     ripple_possible = real.ripple and ripple_pattern_available(real)
-    if ripple_possible and ("sector_locked_speed_ripple" in take_on or bare["differences"]):
+    if ripple_possible and ("sector_locked_speed_ripple" in take_on or bare.differences):
         log("adding the capture's sector-locked speed ripple to the twin's trajectory")
         tw2, rows2 = _analyse_twin(config, real, seed, True, f"twin of {recording} with ripple")
         with_ripple = _compare(real, real_fig, real_rows, tw2, rows2, bins)
-        remaining = {d["what"] for d in with_ripple["differences"]}
-        for d in bare["differences"]:
-            d["explained_by_adding"] = d["what"] not in remaining
-            if d["explained_by_adding"]:
-                d["added"] = "sector_locked_speed_ripple"
+        remaining = {d.what for d in with_ripple.differences}
+        for d in bare.differences:
+            d.explained_by_adding = d.what not in remaining
+            if d.explained_by_adding:
+                d.added = "sector_locked_speed_ripple"
         if "sector_locked_speed_ripple" in take_on:
             main, main_an = with_ripple, tw2
-            variants["without_additions"] = {"predictors": bare["predictors"], "calibration": bare["calibration"],
-                                             "differences": bare["differences"]}
+            variants["without_additions"] = Variant(bare)
         else:
-            variants["sector_locked_speed_ripple"] = {
-                "what": CANDIDATES["sector_locked_speed_ripple"], "predictors": with_ripple["predictors"],
-                "calibration": with_ripple["calibration"], "differences": with_ripple["differences"],
-                "take_on": f"hil twin check {recording} {plant} --take-on sector_locked_speed_ripple"}
+            variants["sector_locked_speed_ripple"] = Variant(
+                with_ripple, CANDIDATES["sector_locked_speed_ripple"],
+                f"hil twin check {recording} {plant} --take-on sector_locked_speed_ripple")
     else:
-        for d in bare["differences"]:
-            d["explained_by_adding"] = False
-    for d in main["differences"]:
-        d.setdefault("explained_by_adding", False)
+        for d in bare.differences:
+            d.explained_by_adding = False
+    _not_closed_unless_found(main.differences)
     # what the plant leaves out: named as differences of the plant as written; the twin run with them
     # added says which other differences they explain, and is the headline when taken on
     written = main
@@ -259,69 +353,58 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
         tw3, rows3 = _analyse_twin(config.with_effects(*(beyond[n] for n in adding)), real, seed, ripple_on,
                                    f"twin of {recording} with {', '.join(adding)}")
         with_left = _compare(real, real_fig, real_rows, tw3, rows3, bins)
-        remaining = {d["what"] for d in with_left["differences"]}
-        for d in written["differences"]:
-            if not d["explained_by_adding"] and d["what"] not in remaining:
-                d["explained_by_adding"], d["added"] = True, ", ".join(adding)
+        remaining = {d.what for d in with_left.differences}
+        for d in written.differences:
+            if not d.explained_by_adding and d.what not in remaining:
+                d.explained_by_adding, d.added = True, ", ".join(adding)
         lacking = _left_out_differences(real, main_an, tw3, left_out)
-        written["differences"] += lacking
-        as_written = {"what": "the plant as written (what `hil acceptance --plant` runs), without "
-                      + ", ".join(left_out), "predictors": written["predictors"],
-                      "calibration": written["calibration"], "differences": written["differences"]}
+        written.differences += lacking  # in place: the twin as written lacks them wherever it is shown
+        as_written = Variant(written, "the plant as written (what `hil acceptance --plant` runs), without "
+                             + ", ".join(left_out))
         if added:
-            for d in with_left["differences"]:
-                d.setdefault("explained_by_adding", False)
-            main = {**with_left, "differences": with_left["differences"] + [d for d in lacking
-                                                                           if d["explained_by_adding"]]}
+            _not_closed_unless_found(with_left.differences)
+            main = dataclasses.replace(with_left, differences=with_left.differences + [d for d in lacking
+                                                                                      if d.explained_by_adding])
             variants["as_written"] = as_written
         else:
-            variants["measured_but_left_out"] = {
-                "what": "the twin with what the capture shows and no calibration table holds: " + ", ".join(adding),
-                "predictors": with_left["predictors"], "calibration": with_left["calibration"],
-                "differences": with_left["differences"],
-                "take_on": f"hil twin check {recording} {plant}" + "".join(f" --take-on {n}" for n in left_out)}
-    return {
-        "recording": str(recording),
-        "twin": str(plant),
-        "seed": seed,
-        "taken_on": (["sector_locked_speed_ripple"] if ripple_possible and "sector_locked_speed_ripple" in take_on
-                     else []) + added,
-        "left_out": left_out,
-        "replay": "kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
-                  "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
-                  f"tick {(real.tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)",
-        **main,
-        "ratio_band": list(RATIO_BAND),
-        # what the twin as written lacks, and whether an addition the capture names closes it
-        "differences_without_additions": bare["differences"],
-        "variants": variants,
-    }
+            variants["measured_but_left_out"] = Variant(
+                with_left, "the twin with what the capture shows and no calibration table holds: " + ", ".join(adding),
+                f"hil twin check {recording} {plant}" + "".join(f" --take-on {n}" for n in left_out))
+    taken_on = (["sector_locked_speed_ripple"] if ripple_possible and "sector_locked_speed_ripple" in take_on
+                else []) + added
+    return TwinCheck(str(recording), str(plant), seed, taken_on, left_out, real.tick_s, main, bare.differences,
+                     variants)
+
+
+def _not_closed_unless_found(differences: list[Difference]) -> None:
+    """The headline's differences say whether an addition closed them: not, where none was found to."""
+    for d in differences:
+        if d.explained_by_adding is None:
+            d.explained_by_adding = False
 
 
 def ripple_pattern_available(an: CaptureAnalysis) -> bool:
     return any(n.startswith("ripple_") for n in an.fit.names)
 
 
-def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, pole_pairs=None) -> list[dict]:
+def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, pole_pairs=None) -> list[Difference]:
     out = []
     for k, f in figs.items():
         if f["beyond"]:
-            out.append({"what": f"calibration: {k}",
-                        "effect": f"real {f['real']:.4g}, twin {f['twin']:.4g}: "
-                                  f"{abs(f['difference']) / f['combined_stderr']:.1f} combined standard errors apart"})
+            out.append(Difference(f"calibration: {k}", f"real {f['real']:.4g}, twin {f['twin']:.4g}: "
+                                  f"{abs(f['difference']) / f['combined_stderr']:.1f} combined standard errors apart"))
     for p in preds:
         if p.get("error"):
-            out.append({"what": "predictors", "effect": f"the comparison refused the capture: {p['error']}"})
+            out.append(Difference("predictors", f"the comparison refused the capture: {p['error']}"))
         elif not p["within_band"]:
-            out.append({"what": f"predictor: {p['name']}",
-                        "effect": f"commutation-error RMS real {p['real_rms_deg_e']}, twin {p['twin_rms_deg_e']}: "
-                                  f"ratio {p['ratio']} outside {RATIO_BAND[0]}-{RATIO_BAND[1]}"})
+            out.append(Difference(f"predictor: {p['name']}",
+                                  f"commutation-error RMS real {p['real_rms_deg_e']}, twin {p['twin_rms_deg_e']}: "
+                                  f"ratio {p['ratio']} outside {RATIO_BAND[0]}-{RATIO_BAND[1]}"))
     z = np.abs(width_diff) / np.where(width_se > 0, width_se, np.nan)
     if np.nanmax(z, initial=0.0) > 5.0:
         s, j = np.unravel_index(np.nanargmax(z), z.shape)
-        out.append({"what": "sector widths against speed",
-                    "effect": f"slot {s}, speed bin {j}: twin - real {width_diff[s, j]:+.2f} deg e "
-                              f"({z[s, j]:.1f} standard errors)"})
+        out.append(Difference("sector widths against speed", f"slot {s}, speed bin {j}: twin - real "
+                              f"{width_diff[s, j]:+.2f} deg e ({z[s, j]:.1f} standard errors)"))
     lag = int(np.argmax(np.abs(acf_twin - acf_real)))
     if abs(acf_twin[lag] - acf_real[lag]) > 4.0 * acf_se:
         n, where = lag + 1, ""
@@ -335,13 +418,13 @@ def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, 
             where = ": a whole electrical cycle, a sector-locked pattern the twin lacks"
         elif n % 3 == 0:
             where = ": half an electrical cycle, a sector-locked pattern the twin lacks"
-        out.append({"what": "residual autocorrelation",
-                    "effect": f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin {acf_twin[lag]:+.3f} "
-                              f"(standard error {acf_se:.3f}){where}"})
+        out.append(Difference("residual autocorrelation", f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin "
+                              f"{acf_twin[lag]:+.3f} (standard error {acf_se:.3f}){where}"))
     return out
 
 
 def format_check(result: dict) -> str:
+    """A twin check's JSON (``TwinCheck.to_json()``, or a saved file) for the reader."""
     c = result["calibration"]
     lines = [f"{result['recording']} against its twin {result['twin']}"]
     for k in ("rise_fall_delay_difference_s", "rise_fall_angle_asymmetry_deg_e", "trajectory_residual_rms_deg_e",

@@ -43,7 +43,7 @@ def cmd_twin_check(args) -> int:
 
     take_on = None if args.take_on is None else tuple(c for c in args.take_on if c != "none")
     result = twin_check(args.recording, args.plant, seed=args.seed, take_on=take_on,
-                        log=lambda m: print(m, file=sys.stderr))
+                        log=lambda m: print(m, file=sys.stderr)).to_json()
     print(format_check(result))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
