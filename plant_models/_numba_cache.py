@@ -1,7 +1,7 @@
 """Keep numba's on-disk cache of the plant's kernel true to its sources.
 
 numba's cache index stamps a cached function with the modification time and size of its own
-file only. The kernel (``_kernel.py``) inlines functions of ``sensor.py`` and ``_layout.py``, so an
+file only. The kernel (``_kernel.py``) inlines functions of ``sensor.py`` and ``layout.py``, so an
 edit there left the compiled kernel stale and every run used the old code without a word (an edit
 to the armature lag did). One stamp of every source of the package is kept beside the cache; when
 it differs, the package's index files go, and numba compiles afresh at the first call.
