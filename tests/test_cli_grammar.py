@@ -206,7 +206,11 @@ def test_twin_check_writes_json_only_when_asked(tmp_path, monkeypatch, capsys):
     import hil.twin.check as check
     import hil.twin.report as report
 
-    monkeypatch.setattr(check, "twin_check", lambda *a, **k: {"fake": True})
+    class Checked:  # twin_check's typed result (TwinCheck): only its JSON is read here
+        def to_json(self):
+            return {"fake": True}
+
+    monkeypatch.setattr(check, "twin_check", lambda *a, **k: Checked())
     monkeypatch.setattr(check, "format_check", lambda r: "compared")
     monkeypatch.setattr(report, "write_html", lambda *a: None)
     monkeypatch.chdir(tmp_path)
