@@ -87,6 +87,10 @@ def test_table_applied_while_the_motor_runs(calibrate, hil_bench, hil_budget, hi
         f"{b.size} commutations from the first apply with the equivalent table, {a.size} with the original: "
         "the apply changed the commutation sequence"
     )
+    assert a.size, (
+        f"no commutation from the first apply at {judged_from:.3f} s on: the controller stopped switching "
+        "its gates from one sector to the next while the motor ran"
+    )
     diff = np.abs(b - a)
     worst = int(np.argmax(diff))
     hil_evidence.table(

@@ -113,6 +113,34 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
     assert "caught 1 of 2 defects (50 %)" in r.stdout
 
 
+def test_a_setup_check_that_stops_the_first_run_is_no_verdict_the_whole_suite_runs(tmp_path):
+    """-x stops a defect's run at its first failing test; when that is a setup check (the scenario
+    did not provoke what the test judges), the defect is not judged by it: the whole suite runs,
+    and a later test's failed budget is the catch."""
+    suite = tmp_path / "suite"
+    suite.mkdir()
+    (suite / "test_a_setup.py").write_text(
+        "import pytest\nfrom hil.judging import not_judged\n\n"
+        "@pytest.mark.requirement('REQ-FLT-004')\n"
+        "def test_guards(request, hil_evidence):\n"
+        "    not_judged(request.config.getoption('--hil-defect') is None, 'the guards never fired')\n"
+    )
+    (suite / "test_b_budget.py").write_text(
+        "import pytest\n\n"
+        "@pytest.mark.requirement('REQ-COMM-001')\n"
+        "def test_commutation(request, hil_budget):\n"
+        "    hil_budget('commutation_angle_p99', 0.9 if request.config.getoption('--hil-defect') else 0.1)\n"
+    )
+    out = tmp_path / "q.json"
+    r = _hil("qualify", "--suite", str(suite), "--only", "gate-latency-25us", "-o", str(tmp_path / "reports"),
+             "--json", str(out))
+    result = json.loads(out.read_text())
+    assert result["control_verdict"] == "PASS", r.stdout + r.stderr
+    (mutant,) = result["mutants"]
+    assert mutant["killed"] and mutant["caught_by"] == "budget" and mutant["killed_by"] == ["REQ-COMM-001"], mutant
+    assert "stopped at a setup check" in mutant["note"] and r.returncode == 0
+
+
 def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
     r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "-o", str(tmp_path))
     assert r.returncode == 2 and "built-in controller" in r.stderr

@@ -267,14 +267,14 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     return out
 
 
-def _run(name: str, description: str, defect: str | None, args) -> Run:
+def _run(name: str, description: str, defect: str | None, args, stop_at_first: bool = True) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
     firmware = getattr(args, "firmware_defects", None) or {}
     dut = args.dut + (f",define={firmware[defect].define}" if defect in firmware else "")
     sensitive = bool(getattr(args, "sensitivity", False))
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", dut,
            "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
-    if not sensitive:
+    if not sensitive and stop_at_first:
         cmd.insert(4, "-x")
     if args.budgets:
         cmd += ["--hil-budgets", args.budgets]
@@ -308,6 +308,13 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
     caught_by, failed_reqs, failed_tests, catches = what_caught(report)
+    if caught_by == "not judged" and defect is not None and not sensitive and stop_at_first:
+        # -x stopped at a setup check (the scenario did not provoke what that test judges): no
+        # verdict on the defect, so the whole suite runs, and what catches it there is the catch
+        again = _run(name, description, defect, args, stop_at_first=False)
+        again.note = ((again.note + "; ") if again.note else "") + (
+            f"the first run stopped at a setup check ({', '.join(failed_tests)}); the whole suite then ran")
+        return again
     if caught_by == "error":
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
     elif caught_by == "not judged":
