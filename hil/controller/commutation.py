@@ -158,10 +158,10 @@ class HallCommutation:
         # magnet boundary of this edge, from its place in the edge sequence (forward rotation)
         angle = self._first_angle_deg_e + 60.0 * self._edge_index
         boundary = int(round((angle - SENSOR_POSITION_DEG_E[x]) / 180.0))
-        # the current the armature correction reads at this edge, kept for the pole alignment
-        edge_current_a = edge.get("current_a", self.current_estimate_a) if self.use_measured_current \
-            else self.current_estimate_a
-        self._history.append((t, x, rising, boundary, float(edge_current_a)))
+        # the current the armature correction reads at this edge, kept for the pole alignment too
+        edge_current_a = float(edge.get("current_a", self.current_estimate_a) if self.use_measured_current
+                               else self.current_estimate_a)
+        self._history.append((t, x, rising, boundary, edge_current_a))
         # two mechanical turns and an edge: the pole alignment compares one whole turn, and the speed
         # that turns corrections into time is measured over one (a fixed 64 edges held only 5 pole pairs)
         keep = 2 * 6 * self.pole_pairs + 2
@@ -189,19 +189,16 @@ class HallCommutation:
             else:
                 w_e = 60.0 / max(t - self._last_t, 1e-9)
             speed_rpm = deg_e_per_s_to_rpm(w_e, self.pole_pairs)
-            current = self.current_estimate_a
-            if self.use_measured_current:
-                current = edge.get("current_a", current)
             if self._pole_shift is not None:
                 pole = (boundary + self._pole_shift) % (2 * self.pole_pairs)
-                t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, float(current)) / w_e
+                t_corr = t - self.corrections.correction_one_deg_e(x, rising, pole, speed_rpm, edge_current_a) / w_e
             else:
                 # the pole alignment is learned over the first turns; until then every correction
                 # but the pole's applies, with the poles' mean for it (the installation offset,
                 # the delays and above all the armature lag, which left uncorrected grows with
                 # the current it causes)
                 offsets = self.corrections.pole_offset_deg_e
-                static = self.corrections.correction_one_deg_e(x, rising, 0, speed_rpm, float(current)) - offsets[0]
+                static = self.corrections.correction_one_deg_e(x, rising, 0, speed_rpm, edge_current_a) - offsets[0]
                 t_corr = t - (static + sum(offsets) / len(offsets)) / w_e
         # speed from the (corrected) sector time, as a simple controller measures it
         duty = None

@@ -211,27 +211,32 @@ class NoAdaptation(VirtualController):
         super()._build_logic(speed_loop)
 
 
-@defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)", "fault-handling")
-class NoMissingEdgeFault(VirtualController):
+class _UnreportedFault(VirtualController):
+    """The controller handles ``unreported`` (the edge dropped, the covariance repaired) but never
+    latches or sends its code: a missing case in the firmware's fault switch."""
+
+    unreported: Fault
+
     def raise_fault(self, code, t_s):
-        if int(code) != Fault.MISSING_EDGE:
+        if int(code) != self.unreported:
             super().raise_fault(code, t_s)
+
+
+@defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)", "fault-handling")
+class NoMissingEdgeFault(_UnreportedFault):
+    unreported = Fault.MISSING_EDGE
 
 
 @defect("no-illegal-code-fault", "an illegal Hall code (000/111) is dropped as a glitch but never reported (no "
         "0xFF01)", "fault-handling")
-class NoIllegalCodeFault(VirtualController):
-    def raise_fault(self, code, t_s):
-        if int(code) != Fault.ILLEGAL_HALL_CODE:
-            super().raise_fault(code, t_s)
+class NoIllegalCodeFault(_UnreportedFault):
+    unreported = Fault.ILLEGAL_HALL_CODE
 
 
 @defect("no-guard-trip-fault", "a filter guard repairs the covariance but the trip is never reported (no 0xFF03)",
         "fault-handling")
-class NoGuardTripFault(VirtualController):
-    def raise_fault(self, code, t_s):
-        if int(code) != Fault.FILTER_GUARD_TRIP:
-            super().raise_fault(code, t_s)
+class NoGuardTripFault(_UnreportedFault):
+    unreported = Fault.FILTER_GUARD_TRIP
 
 
 @defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)",
