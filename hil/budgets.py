@@ -89,6 +89,16 @@ class BudgetExceeded(AssertionError):
         super().__init__(verdict.message())
 
 
+class BudgetsExceeded(AssertionError):
+    """Every budget a test missed, raised when its body has returned: the fixture ``hil_budget``
+    records a miss and lets the test go on, so that each requirement the test traces to is judged
+    by its own budgets and checks (a missed recovery budget is not a failed fault code)."""
+
+    def __init__(self, verdicts: list[Verdict]):
+        self.verdicts = list(verdicts)
+        super().__init__("\n".join(v.message() for v in self.verdicts))
+
+
 _BUDGET_KEYS = {"requirement", "unit", "limit", "marginal", "kind", "description", "limit_source"}
 _WAIVER_KEYS = {"requirement", "reason", "owner", "tests", "expires"}
 _SCOPE_KEYS = {"requirement", "reason", "owner", "expires"}

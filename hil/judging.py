@@ -1,7 +1,10 @@
 """What a failing acceptance test says about the controller (``tests[].failed_by`` in the report).
 
-* ``"assertion"``: a judged figure missed its bound (a budget, or a stated pass/fail check of the
-  test's requirement): evidence against the controller.
+* ``"budget"``: only budgets were missed (``hil_budget`` records each miss and lets the test go
+  on; the test fails with all of them when its body returns): evidence against the controller,
+  and each requirement the test traces to has its own budgets' verdict.
+* ``"assertion"``: a judged figure missed its bound (a stated pass/fail check of the test's
+  requirement, or a budget beside a failed check): evidence against the controller.
 * ``"device failure"``: the controller signalled its own failure while being judged on valid
   input (a Modbus exception 04, server device failure; an SDO abort 0x08000000, general error, or
   0x06060000, hardware error): a failed requirement, not an error of the framework.

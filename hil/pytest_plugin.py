@@ -323,6 +323,29 @@ def pytest_generate_tests(metafunc):
         metafunc.parametrize("hil_dut_spec", specs, ids=[s.id for s in specs], scope="session")
 
 
+#: the budgets a test missed so far (``hil_budget``), raised together when its body returns
+_MISSED_BUDGETS = pytest.StashKey[list]()
+
+
+def _in_hypothesis_example() -> bool:
+    """True inside a hypothesis example (``@given``), where a miss must raise at once."""
+    control = sys.modules.get("hypothesis.control")
+    return control is not None and control.currently_in_test_context()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_call(item):
+    """A test whose body returned after ``hil_budget`` recorded misses fails with all of them (a
+    body that raised fails with its own exception; the misses are in the report either way)."""
+    result = yield
+    missed = item.stash.get(_MISSED_BUDGETS, [])
+    if missed:
+        from .budgets import BudgetsExceeded
+
+        raise BudgetsExceeded(missed)
+    return result
+
+
 @pytest.hookimpl(wrapper=True, tryfirst=True)
 def pytest_runtest_makereport(item, call):
     """Outermost, so it sees pytest's xfail handling: a setup or teardown that raised under an
@@ -338,7 +361,7 @@ def pytest_runtest_makereport(item, call):
         # that could not judge (any other exception): only the first is evidence against the DUT
         rep.user_properties.append((PROPERTY_PREFIX + "failed_by", failure_kind(exc)))
     if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
-        _apply_waiver(item, rep)
+        _apply_waiver(item, rep, exc)
     if (
         rep.skipped
         and hasattr(rep, "wasxfail")
@@ -364,12 +387,17 @@ def pytest_runtest_makereport(item, call):
     return rep
 
 
-def _apply_waiver(item, rep) -> None:
+def _apply_waiver(item, rep, exc: BaseException) -> None:
     """A failure that a waiver in the budgets covers under every requirement the test traces to
-    becomes a skip whose reason is the waiver (pytest's exit status, its own JUnit and the HIL
-    report then agree); the failure itself travels on to the HIL report, which shows it beside
-    the waiver. Docs: docs/budgets.md, Waivers."""
-    rids = {str(v) for k, v in item.user_properties if k == "requirement"}
+    (under every requirement whose budget it missed, when it missed only budgets) becomes a skip
+    whose reason is the waiver (pytest's exit status, its own JUnit and the HIL report then agree);
+    the failure itself travels on to the HIL report, which shows it beside the waiver. Docs:
+    docs/budgets.md, Waivers."""
+    if failure_kind(exc) == "budget":
+        rids = {json.loads(v)["requirement"] for k, v in item.user_properties
+                if str(k).startswith("budget:") and json.loads(v)["verdict"] == "fail"}
+    else:
+        rids = {str(v) for k, v in item.user_properties if k == "requirement"}
     if not rids:  # a waiver covers a test under the requirements it traces to: none, no waiver
         return
     waiver = test_waiver(_budgets(item.config).waivers, rids, item.nodeid)
@@ -383,18 +411,25 @@ def _apply_waiver(item, rep) -> None:
 
 
 def failure_kind(exc: BaseException) -> str:
-    """"assertion" for an assertion (a budget's too), pytest.fail, or a group of only those (a
-    search that found several failures); "device failure" when the controller signalled its own
-    failure on valid input (hil.judging: a Modbus exception 04, an SDO abort 0x08000000 or
-    0x06060000); "not judged" for a setup check that found the scenario did not provoke what the
-    test judges (hil.judging.NotJudged); "error" for anything else."""
+    """"budget" when only budgets were missed (``hil_budget``: each requirement the test traces to
+    then has the verdict of its own budgets); "assertion" for any other assertion, pytest.fail, or
+    a group of only those (a search that found several failures); "device failure" when the
+    controller signalled its own failure on valid input (hil.judging: a Modbus exception 04, an
+    SDO abort 0x08000000 or 0x06060000); "not judged" for a setup check that found the scenario
+    did not provoke what the test judges (hil.judging.NotJudged); "error" for anything else."""
+    from .budgets import BudgetExceeded, BudgetsExceeded
     from .judging import NotJudged, device_failure
 
     judged = (AssertionError, pytest.fail.Exception)
+    budgets = (BudgetExceeded, BudgetsExceeded)
     if isinstance(exc, BaseExceptionGroup):
+        if exc.split(budgets)[1] is None:
+            return "budget"
         if exc.split(judged)[1] is None:
             return "assertion"
         return "not judged" if exc.split(NotJudged)[1] is None else "error"
+    if isinstance(exc, budgets):
+        return "budget"
     if isinstance(exc, judged):
         return "assertion"
     if isinstance(exc, NotJudged):
@@ -675,10 +710,18 @@ def hil_budget(hil_budgets, request):
 
         v = hil_budgets.check(name, measured)
         # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
-        request.node.user_properties.append((f"budget:{name}", json.dumps(v.as_dict())))
-        request.node.user_properties.append(("requirement", v.requirement))
+        props = request.node.user_properties
+        if ("requirement", v.requirement) not in props:
+            # tied to the test by this budget alone: the test's other checks are not its evidence
+            props.append((PROPERTY_PREFIX + "budget_only", v.requirement))
+        props.append((f"budget:{name}", json.dumps(v.as_dict())))
+        props.append(("requirement", v.requirement))
         if v.verdict == "fail":
-            raise BudgetExceeded(v)
+            if _in_hypothesis_example():
+                raise BudgetExceeded(v)  # hypothesis finds and shrinks a failing example by its exception
+            # the test goes on, so each requirement it traces to is judged by its own budgets and
+            # checks; pytest_runtest_call fails it with every missed budget once the body returns
+            request.node.stash.setdefault(_MISSED_BUDGETS, []).append(v)
         return v
 
     return check
@@ -875,6 +918,9 @@ class HilReporter:
             "message": message,
             "details": details,
             "requirements": [],
+            #: the requirements tied to the test only by a budget it measured: judged by their
+            #: budgets alone, whatever the test's other checks found
+            "budget_only": [],
             "measurements": [],
             "evidence": [],
             "dut": "",
@@ -883,13 +929,16 @@ class HilReporter:
             "worker": _worker_id(reports[-1]),
             "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
             "not_testable": None,
-            #: why a failed or errored test did: "assertion" (a judged figure missed its bound) or
-            #: "error" (it raised anything else, or failed outside its body); "" otherwise
+            #: why a failed or errored test did (failure_kind): "budget" (only budgets were missed:
+            #: each requirement has its own budgets' verdict), "assertion" (a check failed),
+            #: "device failure", "not judged" or "error"; "" otherwise
             "failed_by": failed_by if outcome in ("failed", "error") else "",
         }
         for key, value in props:
             key = str(key)
-            if key == "requirement" and value not in record["requirements"]:
+            if key == PROPERTY_PREFIX + "budget_only" and value not in record["budget_only"]:
+                record["budget_only"].append(value)
+            elif key == "requirement" and value not in record["requirements"]:
                 record["requirements"].append(value)
             elif key.startswith("budget:"):
                 record["measurements"].append(json.loads(value))

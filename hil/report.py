@@ -72,6 +72,14 @@ def test_status(test: dict, rid: str | None = None) -> str:
         return "not testable"
     if test["outcome"] == "error":
         return "error"
+    if test["outcome"] == "failed" and rid is not None and (
+        test.get("failed_by") == "budget" or rid in test.get("budget_only", ())
+    ):
+        # the failure was only missed budgets, or ``rid`` is tied to the test by its budgets alone:
+        # ``rid`` is judged by its own budgets (one with none here was judged by the test's checks,
+        # which all held)
+        verdicts = {m["verdict"] for m in test["measurements"] if m["requirement"] == rid}
+        return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
     if test["outcome"] in _FAILING:
         return "fail"
     if test["outcome"] == "skipped":

@@ -66,20 +66,11 @@ def test_wiring_fault_gives_the_promised_fault(
     outcome = run(stim, hil_link, hil_budgets)
     hil_evidence.table("fault run", ["quantity", "value"], [[k, v] for k, v in outcome.values.items()])
     hil_evidence.value("promised fault codes", ", ".join(f"0x{c:04X}" for c in fault.promised))
-    # two judgements, each its own requirement's: the fault codes (this fault's pass/fail
-    # requirement) and the recovery (REQ-ROB-002's budget); both recorded before either fails
-    budget_missed = None
-    try:
-        hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
-    except AssertionError as exc:
-        budget_missed = exc
+    # two judgements, each its own requirement's: the recovery (REQ-ROB-002's budget, recorded
+    # and judged on its own whatever the codes) and the fault codes (this fault's requirement)
+    hil_budget("recovered_commutation_angle_p99", outcome.values["recovered_p99_deg_e"])
     codes_wrong = [p for p in outcome.message.split("; ") if "recovered_commutation_angle_p99" not in p] \
         if not outcome.ok else []
-    if codes_wrong and budget_missed is not None:
-        raise ExceptionGroup("the fault codes and the recovery",
-                             [AssertionError("; ".join(codes_wrong)), budget_missed])
-    if budget_missed is not None:
-        raise budget_missed
     assert not codes_wrong, "; ".join(codes_wrong)
 
 

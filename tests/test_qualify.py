@@ -160,6 +160,12 @@ def test_a_failure_is_an_assertion_only_when_a_judged_bound_was_missed():
     assert failure_kind(KeyError("r_diag")) == "error"
     assert failure_kind(ExceptionGroup("two", [AssertionError("a"), AssertionError("b")])) == "assertion"
     assert failure_kind(ExceptionGroup("mixed", [AssertionError("a"), ValueError("b")])) == "error"
+    # only budgets missed: each requirement of the test keeps its own budgets' verdict
+    from hil.budgets import BudgetsExceeded, Verdict
+
+    missed = Verdict("commutation_angle_p99", "REQ-COMM-001", 0.7, 0.6, "deg_e", -0.1, "fail")
+    assert failure_kind(BudgetsExceeded([missed])) == "budget" == failure_kind(BudgetExceeded(missed))
+    assert failure_kind(ExceptionGroup("both", [BudgetExceeded(missed), AssertionError("code")])) == "assertion"
 
 
 def test_a_test_that_errors_is_a_finding_not_a_catch():
@@ -289,7 +295,8 @@ def test_no_detection_figure_without_a_passing_control(tmp_path, monkeypatch):
 
 def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path):
     """Through the plugin: a budget that fails and a test that raises are both pytest failures;
-    the report tells them apart (``tests[].failed_by``), and hil qualify counts only the first."""
+    the report tells them apart (``tests[].failed_by``: "budget" when only budgets were missed), and
+    hil qualify counts only the first."""
     (tmp_path / "test_kinds.py").write_text(
         "import pytest\n\n"
         "@pytest.mark.requirement('REQ-COMM-001')\n"
@@ -305,7 +312,7 @@ def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path)
     report = json.loads((tmp_path / "rep" / "hil-report.json").read_text())
     tests = {t["nodeid"].split("::")[-1]: t for t in report["tests"]}
     assert {k: (t["outcome"], t["failed_by"]) for k, t in tests.items()} == {
-        "test_budget": ("failed", "assertion"), "test_raises": ("failed", "error"), "test_passes": ("passed", "")}
+        "test_budget": ("failed", "budget"), "test_raises": ("failed", "error"), "test_passes": ("passed", "")}
 
 
 #: the seeded defects of Sage-Husa's adaptation and the requirements on what it learns that each
@@ -331,7 +338,7 @@ def test_broken_adaptation_fails_a_requirement_on_what_sage_husa_learns(name, tm
         cmd += ["--hil-defect", name]
     subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
     report = json.loads((tmp_path / "hil-report.json").read_text())
-    failed = {r for t in report["tests"] if t["outcome"] == "failed" and t["failed_by"] == "assertion"
+    failed = {r for t in report["tests"] if t["outcome"] == "failed" and t["failed_by"] in ("assertion", "budget")
               for r in t["requirements"]}
     assert failed == LEARNING_DEFECTS[name], report["verdict_reasons"]
     assert not [t for t in report["tests"] if t["failed_by"] == "error"]

@@ -523,3 +523,43 @@ def test_a_requirement_the_profile_cannot_show_is_not_testable_though_its_test_r
     assert content["verdict_reasons"] == ["REQ-CAL-005: not testable with this profile"]
     (row,) = next(r for r in content["traceability"] if r["id"] == "REQ-CAL-005")["tests"]
     assert row["message"].startswith("not testable with the profile") and row["measurements"] == []
+
+
+#: one test, two requirements: a fault code (a check, the marker's) and a recovery (a budget)
+TWO_REQUIREMENTS = """
+import os
+import pytest
+
+@pytest.mark.requirement("REQ-FLT-001")
+@pytest.mark.parametrize("recovery_deg_e, codes_ok", [(0.1, True), (9.0, True), (0.1, False), (9.0, False)],
+                         ids=["both-hold", "recovery-missed", "codes-wrong", "both-wrong"])
+def test_fault(recovery_deg_e, codes_ok, hil_budget):
+    hil_budget("recovered_commutation_angle_p99", recovery_deg_e)
+    hil_budget("commutation_angle_p99", 0.1)  # a second budget after the miss is still judged
+    assert codes_ok, "fault code 0x1001 never reported"
+"""
+
+
+def test_each_requirement_of_a_test_has_its_own_verdict(pytester):
+    """A missed budget does not stop the test: every budget and check is judged, and each
+    requirement the test traces to reads its own: a missed recovery budget fails REQ-ROB-002, not
+    the fault-code requirement whose check held; a failed check fails the requirements the test
+    is tied to by its marker, not the one it reaches only through a budget that held."""
+    pytester.makepyfile(test_two=TWO_REQUIREMENTS)
+    pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, failed=3)
+    tests = {t["nodeid"].split("[")[1].rstrip("]"): t for t in report(pytester)["tests"]}
+    from hil.report import test_status
+
+    verdicts = {k: (t["failed_by"], test_status(t, "REQ-FLT-001"), test_status(t, "REQ-ROB-002"))
+                for k, t in tests.items()}
+    assert verdicts == {
+        "both-hold": ("", "pass", "pass"),
+        "recovery-missed": ("budget", "pass", "fail"),
+        "codes-wrong": ("assertion", "fail", "pass"),
+        "both-wrong": ("assertion", "fail", "fail"),
+    }
+    missed = tests["recovery-missed"]
+    assert [m["budget"] for m in missed["measurements"]] == ["recovered_commutation_angle_p99",
+                                                               "commutation_angle_p99"]
+    assert "recovered_commutation_angle_p99 (REQ-ROB-002): measured 9" in missed["message"]
+    assert tests["codes-wrong"]["budget_only"] == ["REQ-ROB-002", "REQ-COMM-001"]
