@@ -1,3 +1,6 @@
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -32,3 +35,23 @@ def spindle_check(spindle_twin):
     from hil.twin.check import twin_check
 
     return twin_check(SPINDLE, spindle_twin, log=lambda m: None).to_json()
+
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="session")
+def default_acceptance(tmp_path_factory):
+    """README's ``python -m hil acceptance`` (the acceptance suite, test_cases/, against the
+    built-in controller over CANopen on pytest-xdist workers), run once a session from the
+    repository: the completed process and its report directory. This is the test suite's one run
+    of test_cases/ (tests/test_acceptance_run.py holds its verdict; tests/test_browser.py lays out
+    and prints its report)."""
+    reports = tmp_path_factory.mktemp("acceptance")
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    run = subprocess.run([sys.executable, "-m", "hil", "acceptance", "-o", str(reports)],
+                         capture_output=True, text=True, cwd=ROOT, env=env, timeout=1800)
+    assert (reports / "hil-report.json").is_file(), (
+        f"hil acceptance wrote no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
+    )
+    return run, reports

@@ -112,14 +112,9 @@ def hil(*args: str, cwd: Path) -> subprocess.CompletedProcess:
 
 
 @pytest.fixture(scope="module")
-def acceptance_run(tmp_path_factory):
-    """The default ``hil acceptance`` (the virtual controller over CANopen), run once from the repository."""
-    reports = tmp_path_factory.mktemp("acceptance")
-    run = hil("acceptance", "-o", str(reports), cwd=ROOT)
-    assert (reports / "hil-report.html").is_file(), (
-        f"no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
-    )
-    return run, reports
+def acceptance_run(default_acceptance):
+    """The default ``hil acceptance`` run (tests/conftest.py: one a session)."""
+    return default_acceptance
 
 
 def test_acceptance_report_fits_1400_px_and_gives_the_readme_screenshot(acceptance_run, tmp_path):
@@ -127,25 +122,6 @@ def test_acceptance_report_fits_1400_px_and_gives_the_readme_screenshot(acceptan
     page = reports / "hil-report.html"
     assert_no_horizontal_overflow(page, tmp_path)
     screenshot(page, IMG / "acceptance-report.png", tmp_path)
-
-
-def test_default_acceptance_prints_no_warning_and_shows_progress(acceptance_run):
-    run, reports = acceptance_run
-    output = run.stdout + run.stderr
-    # pytest's warnings summary, or any Python warning category (PytestAssertRewriteWarning, ...)
-    assert not re.search(r"warnings summary|\b\w*Warning\b", output), (
-        f"hil acceptance printed a warning:\n{output[-4000:]}"
-    )
-    n = len(json.loads((reports / "hil-report.json").read_text())["tests"])
-    progress = re.findall(
-        rf"^\[ *(\d+)/{n} +\d+:\d\d\] (passed|failed|skipped|xfailed|xpassed|error|waived) +\S", run.stdout, re.M
-    )
-    assert [int(k) for k, _ in progress] == list(range(1, n + 1)), (
-        f"expected one progress line per test, 1 to {n}:\n{run.stdout[:3000]}"
-    )
-    assert re.search(r"^ +\.\.\. calibration campaign", run.stdout, re.M), (
-        "the calibration campaign does not say what it does"
-    )
 
 
 def test_gap_report_fits_1400_px_and_gives_the_readme_screenshot(tmp_path):
