@@ -439,18 +439,20 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-CUR-002", "Calibrated commutation lowers the mean phase current against raw Hall commutation (paper 4.3)",
-        "`test_current.py`: mean phase current with calibrated commutation against raw Hall commutation (without a "
-        "current limit) and the ideal-commutation floor, at 5000, 5700 and 7000 rpm x 3 seeds, pump load, "
-        "paper-sized deviations, same plant and seed (the paper's efficiency figure); each strategy on its own speed "
-        "measurement (docs/twin.md: not yet the same one)",
+        "`test_current.py`: the commutation's effect on the mean phase current, the speed loop taken out: the "
+        "controller's calibrated commutation (its errors against the true angle, replayed), raw Hall commutation and "
+        "the ideal commutation, each held at the same speed by the bench's own loop on the true speed, at 5000, "
+        "5700 and 7000 rpm x 3 seeds, pump load, paper-sized deviations, same plant and seed "
+        "(hil.experiments.commutation_current); the controller's own current on its own loop reported",
         "calibration.md#raw-versus-corrected-commutation-paper-section-43", _SPEED_LOOP, edge_hook=True,
         budgets=(DefaultBudget(
             'raw_excess_current_removed', 'fraction',
             kind='min',
             description=(
                 "share of raw Hall commutation's excess mean phase current (over the ideal-commutation floor) that "
-                'calibrated commutation removes, raw baseline without a current limit, 5000/5700/7000 rpm x 3 seeds, '
-                'pump load, paper-sized deviations, worst case'
+                "the controller's calibrated commutation removes, every strategy under the bench's loop on the true "
+                "speed at the same set point, 5000/5700/7000 rpm x 3 seeds, pump load, paper-sized deviations, "
+                "worst case"
             ),
             **derived('raw_excess_current_removed'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),

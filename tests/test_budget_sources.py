@@ -39,8 +39,8 @@ BY_HAND = {
     "any_deviations_commutation_angle_p99": 2 * 0.5,
     "recovered_commutation_angle_p99": 2 * 0.5,
     "phase_current_peak_a": 15.0,
-    # Section 4.3: 37.2 %; the paper bench's floor 0.335
-    "raw_excess_current_removed": (1 - 0.372) / (1 - 0.335),
+    # example: half of raw Hall commutation's excess current (the paper's 37.2 % is its whole controller's)
+    "raw_excess_current_removed": 1 / 2,
     # example: Ziegler and Nichols (1942), quarter-amplitude decay
     "speed_step_overshoot": math.sqrt(1 / 4),
     "speed_step_decay_ratio": 1 / 4,
