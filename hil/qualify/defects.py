@@ -212,31 +212,38 @@ class NoAdaptation(VirtualController):
 
 
 class _UnreportedFault(VirtualController):
-    """The controller handles ``unreported`` (the edge dropped, the covariance repaired) but never
-    latches or sends its code: a missing case in the firmware's fault switch."""
+    """The controller handles the faults ``unreported`` (the edge dropped, the covariance
+    repaired) but never latches or sends their codes: a missing case in the firmware's fault
+    switch."""
 
-    unreported: Fault
+    unreported: tuple[Fault, ...]
 
     def raise_fault(self, code, t_s):
-        if int(code) != self.unreported:
+        if int(code) not in self.unreported:
             super().raise_fault(code, t_s)
 
 
 @defect("no-missing-edge-fault", "a lost edge is counted but never reported (no 0xFF02)", "fault-handling")
 class NoMissingEdgeFault(_UnreportedFault):
-    unreported = Fault.MISSING_EDGE
+    unreported = (Fault.MISSING_EDGE,)
 
 
 @defect("no-illegal-code-fault", "an illegal Hall code (000/111) is dropped as a glitch but never reported (no "
         "0xFF01)", "fault-handling")
 class NoIllegalCodeFault(_UnreportedFault):
-    unreported = Fault.ILLEGAL_HALL_CODE
+    unreported = (Fault.ILLEGAL_HALL_CODE,)
+
+
+@defect("no-hall-fault-reports", "the Hall faults are handled but none is reported (no 0xFF01, no 0xFF02): a sensor "
+        "that drops out goes unseen", "fault-handling")
+class NoHallFaultReports(_UnreportedFault):
+    unreported = (Fault.ILLEGAL_HALL_CODE, Fault.MISSING_EDGE)
 
 
 @defect("no-guard-trip-fault", "a filter guard repairs the covariance but the trip is never reported (no 0xFF03)",
         "fault-handling")
 class NoGuardTripFault(_UnreportedFault):
-    unreported = Fault.FILTER_GUARD_TRIP
+    unreported = (Fault.FILTER_GUARD_TRIP,)
 
 
 @defect("no-table-validation", "a calibration table is applied without checking it (NaN, out of range, wrong size)",
