@@ -343,6 +343,17 @@ def _derivations() -> list[Derivation]:
         "the pump follows the stack within the stack's transient. The target is outside; its use as a "
         "settling time into +-10 % of a 2 % step is ours", "1 s", 1.0, 0.8, doe_transient_s=1.0))
     out.append(_d(
+        "speed_limited_step_overshoot", "example",
+        "the same Ziegler and Nichols (1942) bound as the small step's, on the current-limited 10 % step once the "
+        "limit releases: a loop whose integral winds up through the ramp overshoots by most of the step",
+        "sqrt(0.25) = 0.5 of the step", math.sqrt(zn_decay), 0.45, decay_ratio=zn_decay))
+    out.append(_d(
+        "speed_load_step_recovery_s", "example",
+        "the same 1 s as the step's settling time (chosen from the US DOE's fuel-cell system transient target, "
+        "10-90 % of rated power in 1 s), for the speed to return within the settling band's width (0.2 % of the "
+        "set point) after the pump's load torque steps to 1.5 times its own", "1 s", 1.0, 0.8,
+        doe_transient_s=1.0))
+    out.append(_d(
         "speed_hold_current_over_load", "example",
         "the mean phase current holding the new set point over the current its load needs there (the "
         "denominator is physics from the motor parameters: fan and friction torque over 2 ke, 0.74 A per phase "

@@ -461,10 +461,12 @@ _REGISTRY = (
     Requirement(
         "REQ-SPD-001",
         "The controller's speed loop settles a set-point step the current limit does not bound, without ringing or "
-        "chatter",
+        "chatter, does not wind up through a current-limited step, and rejects a load step",
         "`test_current.py`: the controller's own speed loop stepped 2 % (5000 to 5100 rpm: about 10 A of its 15 A "
         "limit, so the response is the loop's own); overshoot, decay ratio and settling from the plant's true speed "
-        "averaged over a turn, the holding current from its true currents (`hil/experiments/speed_step.py`)",
+        "averaged over a turn, the holding current from its true currents; the overshoot once the current limit "
+        "releases on REQ-CUR-001's 10 % step; the recovery from a load step (the pump's load torque x1.5 at "
+        "5000 rpm) (`hil/experiments/speed_step.py`)",
         "controller.md#the-speed-loop", ("speed_setpoint",), edge_hook=True, uses=_BENCH,
         judges=("speed-loop",),
         budgets=(
@@ -499,6 +501,24 @@ _REGISTRY = (
                     'needs there (physics: fan and friction torque over 2 ke, two phases of three conducting)'
                 ),
                 **derived('speed_hold_current_over_load'),  # limit, marginal, limit_source: hil/budget_sources.py
+            ),
+            DefaultBudget(
+                'speed_limited_step_overshoot', 'fraction',
+                description=(
+                    'first overshoot of the true speed (averaged over a turn) past the set point of the '
+                    'current-limited 10 % step (5000 to 5500 rpm, REQ-CUR-001\'s), over the step: the integral must '
+                    'not wind up through the ramp'
+                ),
+                **derived('speed_limited_step_overshoot'),  # limit, marginal, limit_source: hil/budget_sources.py
+            ),
+            DefaultBudget(
+                'speed_load_step_recovery_s', 's',
+                description=(
+                    'time from a load step at a held 5000 rpm (the pump\'s load torque x1.5) until the true speed '
+                    '(averaged over a turn) stays within 0.2 % of the set point (the settling band\'s width); inf when '
+                    'it never returns (no integral action)'
+                ),
+                **derived('speed_load_step_recovery_s'),  # limit, marginal, limit_source: hil/budget_sources.py
             ),
         ),
     ),

@@ -282,6 +282,18 @@ class Simulation:
             raise ConfigError("duty", f"must be in [0, 1], got {duty!r}")
         self.st[L.S_DUTY] = duty
 
+    #: the largest load step ``set_load_scale`` takes: a pump whose load torque triples at the same
+    #: speed (a valve from nearly shut to open) is a bench fault, not a disturbance
+    MAX_LOAD_SCALE = 3.0
+
+    def set_load_scale(self, scale: float) -> None:
+        """The pump's load torque ``scale`` times the plant's own at every speed from now on (the
+        fan coefficient scaled: a valve opening, the flow rising): a load disturbance a speed loop
+        with integral action must reject."""
+        if not math.isfinite(scale) or not 0.0 < scale <= self.MAX_LOAD_SCALE:
+            raise ConfigError("load scale", f"must be within (0, {self.MAX_LOAD_SCALE:g}], got {scale!r}")
+        self.p[L.P_FAN] = self.plant.fan_coefficient_n_m_s2 * scale
+
     def set_edge_jitter(self, time_rms_s: float) -> None:
         """The Hall edges' RMS time jitter from the next edge on: a step of the edge noise in mid-run,
         which an adaptive filter must track (the ``edge_jitter`` effect sets it from the start)."""

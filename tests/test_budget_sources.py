@@ -45,6 +45,8 @@ BY_HAND = {
     "speed_step_overshoot": math.sqrt(1 / 4),
     "speed_step_decay_ratio": 1 / 4,
     "speed_step_settling_s": 1.0,
+    "speed_limited_step_overshoot": math.sqrt(1 / 4),
+    "speed_load_step_recovery_s": 1.0,
     "speed_hold_current_over_load": 1 + 0.25,
     # REQ-CAL-001..004: REQ-COMM-001's limit on each deviation alone
     "installation_corrected_angle_p99": 60 * 0.01,

@@ -1,5 +1,7 @@
 """REQ-SPD-001's figures (hil.experiments.speed_step): the step analysis on synthetic responses, and
-the seeded speed-loop gain errors against the shipped loop on the lockstep bench (in process)."""
+the seeded speed-loop commissioning errors (gains, the integral left out, anti-windup left out)
+against the shipped loop on the lockstep bench (in process): the small step, the current-limited
+step and the load step."""
 
 import math
 
@@ -50,6 +52,10 @@ def test_settling_is_into_the_band_for_good_and_inf_when_never():
     assert S.step_response(t, np.full_like(t, 5000.0), 5000.0, 5100.0).settling_s == math.inf
 
 
+#: REQ-CUR-001's current-limited step, on which REQ-SPD-001 judges the overshoot once the limit releases
+LIMITED_STEP_TO_RPM = 5500.0
+
+
 @pytest.fixture(scope="module")
 def responses():
     """Each speed-loop defect's step on the paper pump with the paper scenario's 3 us edge jitter (no
@@ -58,16 +64,22 @@ def responses():
     config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=3e-6))
     out = {}
     for name in (None, *[n for n, d in CATALOGUE.items() if d.defect_class == "speed-loop"]):
-        controller = (CATALOGUE[name].controller if name else VirtualController)(config.motor)
-        link = InProcessLink(controller)
-        link.set_strategy(int(Strategy.CORRECTED))
+        make = CATALOGUE[name].controller if name else VirtualController
         rpm = S.STEP_FROM_RPM
-        bench = LockstepBench(config, link, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"], seed=1,
-                              sim_options={"max_step_s": acceptance_max_step_s(config)})
-        response, holding, peak, _ = S.run_step(bench, config, rpm, S.STEP_TO_RPM, settle_s=0.3)
+
+        def bench(make=make):
+            link = InProcessLink(make(config.motor))
+            link.set_strategy(int(Strategy.CORRECTED))
+            return LockstepBench(config, link, initial_speed_rpm=rpm, duty=steady_state(config.motor, rpm)["duty"],
+                                 seed=1, sim_options={"max_step_s": acceptance_max_step_s(config)})
+
+        response, holding, peak, _ = S.run_step(bench(), config, rpm, S.STEP_TO_RPM, settle_s=0.3)
+        limited, _, _, _ = S.run_step(bench(), config, rpm, LIMITED_STEP_TO_RPM, settle_s=0.3, hold_s=1.2)
+        load, _ = S.run_load_step(bench(), rpm, settle_s=0.3)
         out[name] = {"speed_step_overshoot": response.overshoot, "speed_step_decay_ratio": response.decay_ratio,
                      "speed_step_settling_s": response.settling_s, "speed_hold_current_over_load": holding,
-                     "peak": peak}
+                     "speed_limited_step_overshoot": limited.overshoot,
+                     "speed_load_step_recovery_s": load.recovery_s, "peak": peak}
     return out
 
 

@@ -27,6 +27,7 @@ import numpy as np
 from bldc.contract import Fault, Strategy
 
 from ..calibration.corrections import SENSORS, Corrections
+from ..controller.commutation import SpeedPI
 from ..controller.virtual import VirtualController
 from ..predictors import KalmanPredictor, MotorModel
 from ..predictors import filters as F
@@ -321,6 +322,26 @@ class SpeedProportionalX10(_SpeedGains):
 class SpeedProportionalTenth(_SpeedGains):
     kp_factor: float = 0.1
 
+
+@defect("speed-loop-integral-zero", "the speed PI's integral gain left at zero (a proportional loop on the "
+        "feedforward: it holds a set point only at the load the feedforward assumes)", "speed-loop")
+class SpeedIntegralZero(_SpeedGains):
+    ki_factor: float = 0.0
+
+
+@defect("speed-loop-no-anti-windup", "the speed PI integrates on while the duty is held at the current limit's "
+        "bound (anti-windup left out)", "speed-loop")
+class SpeedNoAntiWindup(VirtualController):
+    def _build_logic(self, speed_loop: SpeedPI) -> None:
+        super()._build_logic(_WindingUp(**dataclasses.asdict(speed_loop)))
+
+
+@dataclass
+class _WindingUp(SpeedPI):
+    def update(self, speed_rpm: float, dt_s: float, low: float = 0.0, high: float = 1.0) -> float:
+        error = self.setpoint_rpm - speed_rpm
+        self.integral += error * dt_s
+        return min(max(self.feedforward + self.kp_per_rpm * error + self.ki_per_rpm_s * self.integral, low), high)
 
 
 @defect("sage-husa-noise-without-memory", "Sage-Husa's noise estimates with almost no memory: R's forgetting "
