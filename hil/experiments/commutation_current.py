@@ -148,10 +148,12 @@ class CommutationCurrent:
 
 
 def commutation_current(config, controller_errors_deg_e: np.ndarray, rpm: float, seed: int, settle_s: float,
-                        window_s: float) -> CommutationCurrent:
-    """The three strategies of the module docstring at ``rpm``, on the same plant and seed."""
+                        window_s: float, floor: BenchRun | None = None) -> CommutationCurrent:
+    """The three strategies of the module docstring at ``rpm``, on the same plant and seed. ``floor``:
+    the ideal commutation's run at ``rpm`` when already made (it draws nothing from the seed but
+    rounding: the oracle commutates on the true angle, and the seed moves only what the sensors see)."""
     return CommutationCurrent(
-        floor=bench_run(config, OracleCommutation(), rpm, seed, settle_s, window_s),
+        floor=floor or bench_run(config, OracleCommutation(), rpm, seed, settle_s, window_s),
         raw_hall=bench_run(config, RawHallCommutation(), rpm, seed, settle_s, window_s),
         controller=bench_run(config, AngleReplay(controller_errors_deg_e), rpm, seed, settle_s, window_s),
     )
