@@ -256,7 +256,10 @@ class Budgets:
     def check(self, name: str, measured: float) -> Verdict:
         b = self[name]
         if not isinstance(measured, (int, float)) or not math.isfinite(measured):
-            return Verdict(b.name, b.requirement, float("nan"), b.limit, b.unit, float("-inf"), "fail", b.kind)
+            # never judged a pass: not a number, or "never" (inf: a settling that never came); the
+            # record keeps which, so "inf edges" reads as the estimate never tracking, not as nan
+            value = float(measured) if isinstance(measured, (int, float)) else float("nan")
+            return Verdict(b.name, b.requirement, value, b.limit, b.unit, float("-inf"), "fail", b.kind)
         margin = (b.limit - measured) if b.kind == "max" else (measured - b.limit)
         # exactly at the limit is inside it (a limit is "at most" / "at least"); exactly at the
         # marginal bound is a plain pass (the band lies beyond the bound)

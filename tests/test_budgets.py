@@ -21,6 +21,9 @@ def test_verdicts_and_margins():
     v = b.check("commutation_angle_p99", 0.72)
     assert v.verdict == "fail" and v.margin == pytest.approx(-0.12)
     assert b.check("commutation_angle_p99", math.nan).verdict == "fail"
+    # "never" (a settling that never came) fails and is recorded as such, not as nan
+    never = b.check("edge_noise_tracking_edges", math.inf)
+    assert never.verdict == "fail" and never.measured == math.inf and "measured inf edges" in never.message()
 
 
 def test_failure_message_names_budget_requirement_value_and_limit():
