@@ -405,16 +405,17 @@ def _run_case(job) -> dict:
         rec, truth = make_case(names, snr, case_seed, ool=ool, electrical=electrical or None)
     d = diagnose_segments(rec, KNOWN_MODEL)
     top = [r.effect for r in d.ranking] if d.significant else ["none"]
-    accepted = [a["effect"] for a in d.accepted]
+    accepted = [a.effect for a in d.accepted]
     perr = None
     shrink = d.heldout_shrink
     if kind == "single":
-        hit = next((a for a in d.accepted if a["effect"] == truth[0].name), None)
+        hit = next((a for a in d.accepted if a.effect == truth[0].name), None)
         perr = param_error(truth[0], hit) if hit else None
         if type(truth[0]).validation == "jitter":
-            shrink = d.noise_gap.get("heldout_shrink")
+            shrink = d.noise_gap.heldout_shrink
         elif truth[0].name in SAMPLE_EFFECTS:
-            shrink = d.samples.get(EFFECT_DOMAIN[truth[0].name], {}).get("heldout_shrink")
+            domain = d.samples.get(EFFECT_DOMAIN[truth[0].name])
+            shrink = domain.heldout_shrink if domain else None
     return {
         "kind": kind,
         "truth": [t.name for t in truth] or ([ool] if ool else names),
