@@ -167,12 +167,27 @@ def test_a_segments_gap_diagnosis_writes_the_saved_json(name, case):
     assert differences(_saved(name), now) == []
 
 
-def test_a_twin_check_writes_the_saved_keys(spindle_check):
-    """``hil twin check`` of the spindle capture against its twin: the same keys (its values hold
-    paths and a simulated twin's figures; tests/test_twin.py judges those)."""
+def _with_paths(obj, paths: dict[str, str]):
+    """``obj`` with each of ``paths`` replaced by its value in every string."""
+    if isinstance(obj, dict):
+        return {k: _with_paths(v, paths) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_with_paths(v, paths) for v in obj]
+    if isinstance(obj, str):
+        for old, new in paths.items():
+            obj = obj.replace(old, new)
+    return obj
+
+
+def test_a_twin_check_writes_the_saved_json(spindle_check):
+    """``hil twin check`` of the spindle capture against its twin: the same keys and values (the
+    twin's replay is seeded), the paths aside: the saved file names the capture as the README's
+    command does and the twin where it was written."""
     now = json.loads(json.dumps(spindle_check))
     saved = _saved("twin-check-spindle.json")
     assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
+    paths = {now["recording"]: saved["recording"], now["twin"]: saved["twin"]}
+    assert differences(saved, _with_paths(now, paths)) == []
 
 
 #: the runs of the saved qualify result (tests/data/results/qualify-canned-runs.json), canned: a
