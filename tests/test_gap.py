@@ -487,21 +487,6 @@ def test_gap_html_has_no_horizontal_overflow_at_1400_px(tmp_path):
     assert overflow <= 0, f"page is {overflow} px wider than the 1400 px window"
 
 
-def test_progress_moves_smoothly_on_a_file():
-    import io
-
-    from hil.gap.progress import Progress
-
-    out = io.StringIO()
-    progress = Progress("recordings diagnosed", stream=out)
-    for i in range(1, 101):
-        progress(i, 100)
-    progress.close()
-    lines = out.getvalue().splitlines()
-    assert len(lines) == 11 and lines[-1].startswith("  100/100 recordings diagnosed (100%)")  # one line per 10 %
-    assert "left" in lines[5]
-
-
 # --- the one selection engine (hil/gap/selection.py) -------------------------------------------
 
 
