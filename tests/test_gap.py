@@ -410,6 +410,20 @@ def test_every_knob_is_a_full_sentence():
             ), (a, b, text)
 
 
+def test_a_confounded_pair_s_knob_follows_the_selection_s_order_and_the_route():
+    """A tie at selection names the kept effect first in its knob (the JSON lists the pair sorted);
+    an ordinary run has its own knob for some pairs (capture times alone: a speed sweep)."""
+    from hil.gap.result import ORDINARY_KNOBS, ORDINARY_ROUTE, Confounded, knob
+
+    tie = Confounded(["installation_offset", "pole_offset"], ("pole_offset", "installation_offset"))
+    assert knob("pole_offset", "installation_offset") != knob("installation_offset", "pole_offset")
+    assert tie.knob("segments") == knob("pole_offset", "installation_offset")
+    assert Confounded(tie.names).knob("segments") == knob("installation_offset", "pole_offset")
+    pair = Confounded(["conditioning_delay", "hysteresis"])
+    assert pair.knob(ORDINARY_ROUTE) == ORDINARY_KNOBS["conditioning_delay/hysteresis"]
+    assert pair.knob("segments") == knob("conditioning_delay", "hysteresis")
+
+
 def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
     """No encoder: the voltage equation's angle comes from the Hall edges. An installation
     offset then bends the back-EMF's phase; the accepted edge effect puts the edges back where
