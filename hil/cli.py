@@ -306,13 +306,8 @@ def cmd_gap_diagnose(args) -> int:
 
 
 def cmd_gap_validate(args) -> int:
-    from .gap.progress import Progress
     from .gap.validate import run_validation
 
-    # a terminal gets the live bar (count, rate, time left, redrawn between results); a log file or
-    # pipe gets one line per tenth of the work
-    live = args.progress and sys.stderr.isatty()
-    progress = Progress("recordings diagnosed") if args.progress and not live else None
     if args.json is None:  # the old default path, for one release
         args.json = "reports/gap-validate.json"
         grammar.deprecated("hil gap validate (no --json: writes reports/gap-validate.json)",
@@ -323,14 +318,11 @@ def cmd_gap_validate(args) -> int:
         two=args.two,
         out_of_library=args.out_of_library,
         seed=args.seed,
-        progress=progress,
+        progress=args.progress,
         jobs=(os.cpu_count() or 1) if args.workers == "auto" else max(args.workers, 1),
         generator=args.generator,
         scheduler=args.scheduler,
-        bar=live,
     )
-    if progress:
-        progress.close()
     if report.dispatch.get("interrupted"):
         print(
             f"interrupted: {len(report.cases)} recordings diagnosed (the summary below covers those)", file=sys.stderr

@@ -1,7 +1,15 @@
-"""Progress lines for long HIL runs (pytest plugin: ``-p hil.progress``; ``hil acceptance`` loads it).
+"""Progress of long work, the one mechanism for every command (issue 40).
 
-Instead of pytest's dots, each finished test prints one line with its count, the elapsed time,
-its outcome and a short label::
+``Meter``: counted work on stderr (campaign points, gap validation recordings, signal export
+chunks): one line redrawn in place on a terminal, and redrawn between results too, so the
+elapsed time and the time left never sit still; a line per tenth of the work into a log file or
+a pipe::
+
+      45/100 campaign points (45%), 3.61/s, 12 s elapsed, about 15 s left
+
+The pytest plugin (``-p hil.progress``; ``hil acceptance`` loads it): instead of pytest's dots,
+each finished test prints one line with its count, the elapsed time, its outcome and a short
+label::
 
     [ 3/56  0:21] passed   calibration removes the deviation · virtual-canopen-installation  (16.2 s)
 
@@ -13,12 +21,84 @@ the controlling process as the workers report, a worker's notes with the test's 
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 
 import pytest
 
 from .report import OUTCOME_ORDER, PROPERTY_PREFIX
 from .report_html import short_label
+
+#: a terminal's line is redrawn at most this often, and at least this often while work goes on
+REDRAW_S = 0.5
+
+
+class Meter:
+    """Counted work on ``stream`` (stderr): ``advance()`` as each piece ends, ``tick()`` while
+    waiting (a terminal's line moves between results), ``close()`` at the end; or call it with
+    ``(done, total)`` where only the worker knows the total."""
+
+    def __init__(self, what: str, total: int | None = None, *, stream=None, enabled: bool = True,
+                 redraw_s: float = REDRAW_S):
+        self.what, self.total, self.enabled, self.redraw_s = what, total, enabled, redraw_s
+        self.stream = stream or sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.done = 0
+        self.t0 = time.monotonic()
+        self._last_draw = -float("inf")
+        self._last_decile = -1
+        self._drawn = False
+
+    def line(self) -> str:
+        done, total = self.done, self.total or 0
+        elapsed = time.monotonic() - self.t0
+        share = f" ({done / total:.0%})" if total else ""
+        rate = f", {done / elapsed:.3g}/s" if done and elapsed > 0 else ""
+        left = f", about {_duration(elapsed / done * (total - done))} left" if done and done < total else ""
+        return f"  {done}/{total or '?'} {self.what}{share}{rate}, {_duration(elapsed)} elapsed{left}"
+
+    def advance(self, n: int = 1) -> None:
+        self.done += n
+        self._draw()
+
+    def __call__(self, done: int, total: int) -> None:
+        self.done, self.total = done, total
+        self._draw()
+
+    def tick(self) -> None:
+        """While waiting for the next result: a terminal's line shows the time going on."""
+        if self.enabled and self.tty and self._drawn and time.monotonic() - self._last_draw >= self.redraw_s:
+            self._write_in_place()
+
+    def _draw(self) -> None:
+        if not self.enabled or not self.total:
+            return
+        if self.tty:
+            if self.done >= self.total or time.monotonic() - self._last_draw >= self.redraw_s:
+                self._write_in_place()
+            return
+        decile = (10 * self.done) // self.total
+        if decile != self._last_decile:  # a log gets a line per tenth, not a flood
+            self._last_decile = decile
+            print(self.line(), file=self.stream, flush=True)
+
+    def _write_in_place(self) -> None:
+        self.stream.write("\r" + self.line().ljust(78))
+        self.stream.flush()
+        self._last_draw, self._drawn = time.monotonic(), True
+
+    def close(self) -> None:
+        if self.tty and self._drawn:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._drawn = False
+
+
+def _duration(seconds: float) -> str:
+    if seconds < 90:
+        return f"{seconds:.0f} s"
+    return f"{seconds / 60:.1f} min"
+
 
 _active: "Progress | None" = None
 

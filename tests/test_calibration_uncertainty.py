@@ -71,13 +71,13 @@ HALVES = [("20260618-spindle-hw.vcd", 2), ("20250616-hboard-cycle.vcd", 15)]
 @pytest.mark.parametrize("name,pole_pairs", HALVES, ids=["spindle", "hboard-cycle"])
 def test_halves_of_a_real_capture_agree_within_their_errors(name, pole_pairs):
     cap = read_hall_capture(DATA / name)
-    rows, outs = half_split(cap.t_s, cap.sensor, cap.rising, cap.timer_tick_s, pole_pairs)
+    rows, cals = half_split(cap.t_s, cap.sensor, cap.rising, cap.timer_tick_s, pole_pairs)
     figures = {r["figure"] for r in rows}
     assert {"delay_difference", "asymmetry", "installation A"} <= figures
     assert sum(f.startswith("pole") for f in figures) == 2 * pole_pairs
     worst = max(rows, key=lambda r: r["z"])
     assert worst["z"] <= 3.0, worst
-    assert all("jackknife" in o["stderr_method"] for o in outs)
+    assert all("jackknife" in c.ordinary.stderr_method() for c in cals)
 
 
 @pytest.mark.parametrize(
@@ -99,13 +99,15 @@ LOW_SPEED_DRIFT = {
 }
 
 
-def _whole(out: dict, key: str) -> tuple[float, float]:
+def _whole(cal, key: str) -> tuple[float, float]:
+    """A figure of a calibration and its standard error: a table entry (``TABLE.ITEM``) or a figure."""
     if "." in key:
         table, item = key.split(".")
-        values, errors = out[table], out["uncertainty"][table]
+        values, errors = getattr(cal.corrections, table), cal.corrections.uncertainty[table]
         index = int(item) if item.isdigit() else item
         return values[index], errors[index]
-    return out[key]["value"], out[key]["stderr"]
+    figure = getattr(cal.ordinary, key)
+    return figure.value, figure.stderr
 
 
 @pytest.mark.parametrize("name", sorted(LOW_SPEED_DRIFT), ids=["slow", "back-and-forth"])
@@ -114,36 +116,31 @@ def test_a_capture_whose_halves_disagree_says_so_and_its_interval_holds_both(nam
     calibration of the whole capture fits each half alone, says the capture is not stationary and
     by how much, and widens the figure's error by half the halves' difference: the stated interval
     (value +- 1.96 stderr) then holds both halves' values."""
-    from hil.calibration.ordinary import STATIONARITY_Z, calibrate_ordinary
+    from hil.calibration.ordinary import STATIONARITY_Z, ordinary_calibration
 
     cap = read_hall_capture(DATA / name)
-    out, _ = calibrate_ordinary(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s)
-    st = out["stationarity"]
-    assert st["stationary"] is False and st["statement"].startswith("NOT stationary")
+    cal = ordinary_calibration(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s)
+    st = cal.ordinary.stationarity
+    assert st.stationary is False and st.statement().startswith("NOT stationary")
     for key in LOW_SPEED_DRIFT[name]:
-        f = st["figures"][key]
-        assert f["z"] > STATIONARITY_Z and key in st["statement"], f
-        value, stderr = _whole(out, key)
-        assert stderr >= f["widen_by"] > 0
-        for half in f["halves"]:
+        f = st.figures[key]
+        assert f.z > STATIONARITY_Z and key in st.statement(), f
+        value, stderr = _whole(cal, key)
+        assert stderr >= f.widen_by > 0
+        for half in f.value_halves:
             assert abs(half - value) <= Z * stderr, (key, half, value, stderr)
-    assert "widened" in out["stderr_method"]
+    assert "widened" in cal.ordinary.stderr_method()
 
 
 def test_a_stationary_capture_keeps_its_errors():
     """The hoverboard's speed cycles: its halves agree, nothing is widened."""
     cap = read_hall_capture(DATA / "20250616-hboard-cycle.vcd")
-    out, _ = calibrate_ordinary_with_pole_pairs(cap, 15)
-    st = out["stationarity"]
-    assert st["stationary"] is True and all(not f["widen_by"] for f in st["figures"].values()), st["statement"]
-    assert "stderr_stationary" not in out["rise_fall_delay_difference_s"]
+    from hil.calibration.ordinary import ordinary_calibration
 
-
-def calibrate_ordinary_with_pole_pairs(cap, pole_pairs):
-    from hil.calibration.ordinary import calibrate_ordinary
-
-    return calibrate_ordinary(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s,
-                              pole_pairs=pole_pairs)
+    cal = ordinary_calibration(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s, pole_pairs=15)
+    st = cal.ordinary.stationarity
+    assert st.stationary is True and all(not f.widen_by for f in st.figures.values()), st.statement()
+    assert cal.ordinary.rise_fall_delay_difference_s.stderr_stationary is None
 
 
 def test_interval_quantile_is_the_normal_one():

@@ -69,7 +69,7 @@ def test_a_toy_effect_registered_in_the_library_alone_is_drawn_and_diagnosed(mon
     rec, truth = make_case(["rising_lead"], 8.0, seed=3)  # the validation's own draw and scaling
     assert isinstance(truth[0], RisingLead) and truth[0].lead_deg_e > 0
     d = diagnose_segments(rec, KNOWN_MODEL)
-    assert d.significant and d.accepted[0]["effect"] == "rising_lead", d.ranking
+    assert d.significant and d.accepted[0].effect == "rising_lead", d.ranking
     assert param_error(truth[0], d.accepted[0]) < 0.2
     assert "a rising lead moves the rising edges alone" in knob("rising_lead", "conditioning_delay")
 

@@ -23,9 +23,9 @@ def test_withheld_effect_is_found_fitted_and_shrinks_the_gap(name):
     rec, truth = make_case([name], snr=3.0, seed=101)
     d = diagnose(rec, KNOWN_MODEL)  # the model knows the bench's base jitter, not the withheld effect
     assert d.significant
-    assert d.accepted[0]["effect"] == name, d.ranking[:3]
+    assert d.accepted[0].effect == name, d.ranking[:3]
     assert param_error(truth[0], d.accepted[0]) < 0.2
-    shrink = d.noise_gap["heldout_shrink"] if name == "edge_jitter" else d.heldout_shrink
+    shrink = d.noise_gap.heldout_shrink if name == "edge_jitter" else d.heldout_shrink
     assert shrink >= 0.8
     assert not d.unexplained
 
@@ -33,9 +33,9 @@ def test_withheld_effect_is_found_fitted_and_shrinks_the_gap(name):
 def test_a_model_without_noise_sees_the_bench_jitter():
     rec, _ = make_case([], snr=1.0, seed=4)
     d = diagnose(rec)  # nominal motor: no jitter at all
-    assert d.significant and d.noise_gap["significant"] and not d.heldout_shrink
-    jitter = next(a for a in d.accepted if a["effect"] == "edge_jitter")
-    assert jitter["params"]["time_rms_s"] == pytest.approx(1e-6, rel=0.1)
+    assert d.significant and d.noise_gap.significant and not d.heldout_shrink
+    jitter = next(a for a in d.accepted if a.effect == "edge_jitter")
+    assert jitter.params["time_rms_s"] == pytest.approx(1e-6, rel=0.1)
 
 
 def test_null_recording_is_not_significant():
@@ -59,14 +59,14 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
     assert rec.samples is not None and rec.meta_extra["validation_snr"] == pytest.approx(4.0)
     d = diagnose(rec, KNOWN_MODEL)
     assert d.significant and not d.unexplained
-    assert [a["effect"] for a in d.accepted] == [name], d.ranking[:3]
+    assert [a.effect for a in d.accepted] == [name], d.ranking[:3]
     assert d.ranking[0].effect == name
     # temperatures, knee and cogging phasor within 5 % (the bar is 20 %): the residuals are exact
     # physics of the plant, so a larger error means a discretisation or sign slip somewhere
     assert param_error(truth[0], d.accepted[0]) < 0.05
     domain = d.samples[EFFECT_DOMAIN[name]]
-    assert domain["heldout_shrink"] >= 0.8
-    assert d.heldout_shrink == domain["heldout_shrink"]  # the edges show nothing: the headline is this signal's
+    assert domain.heldout_shrink >= 0.8
+    assert d.heldout_shrink == domain.heldout_shrink  # the edges show nothing: the headline is this signal's
     assert EFFECT_DOMAIN[name] in d.gap_metric
 
 
@@ -80,9 +80,10 @@ def test_winding_and_magnet_temperature_are_confounded_when_current_follows_spee
     )
     ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
     d = diagnose(record_electrical(config, ops, seed=1, voltage_noise_v=0.005), KNOWN_MODEL)
-    assert [a["effect"] for a in d.accepted] == ["winding_temperature"]
-    assert ["magnet_temperature", "winding_temperature"] in d.confounded
-    assert "two loads at one speed" in d.knobs["magnet_temperature/winding_temperature"]
+    assert [a.effect for a in d.accepted] == ["winding_temperature"]
+    pair = next((c for c in d.confounded if c.names == ["magnet_temperature", "winding_temperature"]), None)
+    assert pair is not None, d.confounded
+    assert "two loads at one speed" in pair.knob(d.route)
     rec, _ = make_case(["winding_temperature"], snr=4.0, seed=202)  # with a load change at 2000/5000/8000 rpm
     assert diagnose(rec, KNOWN_MODEL).confounded == []
 
@@ -93,7 +94,7 @@ def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace
     for seed in range(3):
         rec, _ = make_case([], snr=1.0, seed=seed, electrical=True)
         d = diagnose(rec, KNOWN_MODEL)
-        assert not d.significant, (seed, d.samples["voltage"]["p_value"], d.samples["speed"]["p_value"])
+        assert not d.significant, (seed, d.samples["voltage"].p_value, d.samples["speed"].p_value)
         assert set(d.samples) == {"voltage", "speed"}
     config = paper_bench().with_effects(
         fx.EdgeJitter(time_rms_s=JITTER_S), fx.TimerQuantization(TICK_S), fx.DeadTime(3e-6)
@@ -124,9 +125,9 @@ def test_sampled_diagnosis_survives_the_written_format(tmp_path):
     rec, _ = make_case(["magnet_temperature"], snr=3.0, seed=4)
     back = read_recording(write_recording(rec, tmp_path / "rec"))
     a, b = diagnose(rec, KNOWN_MODEL), diagnose(back, KNOWN_MODEL)
-    assert [x["effect"] for x in b.accepted] == ["magnet_temperature"]
-    assert b.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(
-        a.accepted[0]["params"]["temperature_rise_k"], rel=1e-6
+    assert [x.effect for x in b.accepted] == ["magnet_temperature"]
+    assert b.accepted[0].params["temperature_rise_k"] == pytest.approx(
+        a.accepted[0].params["temperature_rise_k"], rel=1e-6
     )
 
 
@@ -157,9 +158,9 @@ def test_confounded_pair_is_named_with_its_knob():
     )
     d = diagnose(record_kinematic(config, ops, seed=2))
     assert d.significant
-    pairs = [set(p) for p in d.confounded]
-    assert {"armature_reaction", "conditioning_delay"} in pairs, (d.ranking[:3], d.confounded)
-    assert "load" in d.knobs["armature_reaction/conditioning_delay"]
+    pair = next((c for c in d.confounded if set(c.names) == {"armature_reaction", "conditioning_delay"}), None)
+    assert pair is not None, (d.ranking[:3], d.confounded)
+    assert "load" in pair.knob(d.route)
 
 
 def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
@@ -168,9 +169,9 @@ def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
     )
     d = diagnose(record_kinematic(config, [OperatingPoint(0.2, 4000.0)], seed=1))
     assert d.heldout_shrink is None and "single segment" in d.heldout_note
-    assert d.accepted[0]["effect"] == "installation_offset"
-    assert set(d.localisation["per_sensor"]) == {"A", "B", "C"}
-    assert d.localisation["order_spectrum"]["mechanical_order"][0] == 0
+    assert d.accepted[0].effect == "installation_offset"
+    assert set(d.localisation.per_sensor_deg_e) == {"A", "B", "C"}
+    assert d.localisation.order_spectrum.mechanical_order[0] == 0
 
 
 def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
@@ -181,10 +182,10 @@ def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
     )
     rec = record_electrical(config, [OperatingPoint(0.3, 6000.0, load_scale=1.0)], seed=2, voltage_noise_v=0.005)
     d = diagnose(rec, KNOWN_MODEL)
-    assert [a["effect"] for a in d.accepted] == ["magnet_temperature"]
-    assert d.accepted[0]["params"]["temperature_rise_k"] == pytest.approx(20.0, rel=0.05)
+    assert [a.effect for a in d.accepted] == ["magnet_temperature"]
+    assert d.accepted[0].params["temperature_rise_k"] == pytest.approx(20.0, rel=0.05)
     assert d.heldout_shrink is None and "single segment" in d.heldout_note
-    assert d.samples["voltage"]["localisation"]["per_segment"]
+    assert d.samples["voltage"].localisation.per_segment
 
 
 def test_without_encoder_relative_pattern_is_still_localised():
@@ -196,7 +197,7 @@ def test_without_encoder_relative_pattern_is_still_localised():
     rec = record_kinematic(config, profile(config), seed=4, reference_angle=False)
     d = diagnose(rec)
     assert d.reference == "turn" and d.significant
-    assert d.accepted[0]["effect"] in ("pole_offset", "eccentricity")
+    assert d.accepted[0].effect in ("pole_offset", "eccentricity")
 
 
 def test_json_holds_what_the_format_document_lists(tmp_path, capsys):
@@ -264,8 +265,8 @@ def test_trace_formats_give_the_same_diagnosis(tmp_path, delay_case, ext):
     back = read_trace(path, TraceMapping(threshold=2.5, ref_angle_mech_deg="encoder_deg"), meta)
     assert abs(len(back) - len(rec)) <= 2
     d = diagnose(back)
-    assert d.accepted[0]["effect"] == "conditioning_delay"
-    assert d.accepted[0]["params"]["rise_delay_s"] == pytest.approx(truth[0].rise_delay_s, rel=0.2)
+    assert d.accepted[0].effect == "conditioning_delay"
+    assert d.accepted[0].params["rise_delay_s"] == pytest.approx(truth[0].rise_delay_s, rel=0.2)
 
 
 def test_trace_cli_with_mapping_and_errors(tmp_path, delay_case, capsys):
@@ -341,7 +342,7 @@ def test_sampled_diagnosis_needs_only_the_motor_keys_of_the_format(tmp_path):
     (path / "meta.json").write_text(json.dumps(meta))
     (path / "ground_truth.csv").unlink(missing_ok=True)
     d = diagnose(read_recording(path))
-    cogging = next(a for a in d.accepted if a["effect"] == "cogging_torque")
+    cogging = next(a for a in d.accepted if a.effect == "cogging_torque")
     assert param_error(truth[0], cogging) < 0.05 and not d.unexplained
 
 
@@ -357,7 +358,7 @@ def test_demo_recording_accepts_only_effects_the_demo_has(tmp_path):
     result = run_demo(duration_s=0.3, out_dir=tmp_path / "demo")
     d = diagnose(read_recording(result["recording"]))
     present = {e.name for e in result["config"].effects}
-    accepted = {a["effect"] for a in d.accepted}
+    accepted = {a.effect for a in d.accepted}
     assert accepted and accepted <= present, (accepted, present)
     assert "cogging_torque" not in accepted
 
@@ -370,8 +371,8 @@ def test_rotor_fixed_eccentricity_ranks_first_over_pole_offset_by_parsimony():
     for seed in range(4):
         rec, implied, _ = make_field_case(["dynamic_eccentricity"], snr=6.0, seed=300 + seed)
         d = diagnose(rec, KNOWN_MODEL)
-        assert d.ranking[0].effect == "eccentricity" and d.accepted[0]["effect"] == "eccentricity", d.ranking[:3]
-        assert "pole_offset" not in [a["effect"] for a in d.accepted]
+        assert d.ranking[0].effect == "eccentricity" and d.accepted[0].effect == "eccentricity", d.ranking[:3]
+        assert "pole_offset" not in [a.effect for a in d.accepted]
         assert param_error(implied[0], d.accepted[0]) < 0.2
 
 
@@ -390,9 +391,9 @@ def test_tiny_effect_is_detected_but_below_practical_relevance():
     ops = [OperatingPoint(100 * 60 / rpm, rpm, direction=d) for rpm in (2000.0, 4000.0) for d in (1, -1)]
     d = diagnose(record_kinematic(config, ops, seed=1), paper_bench())
     assert d.p_value < 1e-3
-    assert not any(a["effect"] == "installation_offset" for a in d.accepted)
-    below = next(b for b in d.below_relevance if b["effect"] == "installation_offset")
-    assert below["relevance"]["value"] < below["relevance"]["floor"] == pytest.approx(0.05)
+    assert not any(a.effect == "installation_offset" for a in d.accepted)
+    below = next(b for b in d.below_relevance if b.effect == "installation_offset")
+    assert below.relevance.value < below.relevance.floor == pytest.approx(0.05)
     assert any(r.effect == "installation_offset" and r.below_relevance for r in d.ranking)
 
 
@@ -409,6 +410,20 @@ def test_every_knob_is_a_full_sentence():
             ), (a, b, text)
 
 
+def test_a_confounded_pair_s_knob_follows_the_selection_s_order_and_the_route():
+    """A tie at selection names the kept effect first in its knob (the JSON lists the pair sorted);
+    an ordinary run has its own knob for some pairs (capture times alone: a speed sweep)."""
+    from hil.gap.result import ORDINARY_KNOBS, ORDINARY_ROUTE, Confounded, knob
+
+    tie = Confounded(["installation_offset", "pole_offset"], ("pole_offset", "installation_offset"))
+    assert knob("pole_offset", "installation_offset") != knob("installation_offset", "pole_offset")
+    assert tie.knob("segments") == knob("pole_offset", "installation_offset")
+    assert Confounded(tie.names).knob("segments") == knob("installation_offset", "pole_offset")
+    pair = Confounded(["conditioning_delay", "hysteresis"])
+    assert pair.knob(ORDINARY_ROUTE) == ORDINARY_KNOBS["conditioning_delay/hysteresis"]
+    assert pair.knob("segments") == knob("conditioning_delay", "hysteresis")
+
+
 def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
     """No encoder: the voltage equation's angle comes from the Hall edges. An installation
     offset then bends the back-EMF's phase; the accepted edge effect puts the edges back where
@@ -419,8 +434,8 @@ def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
     rec = record_electrical_case(config, profile(config)[:3], seed=5)
     rec.ref_angle_mech_deg = None
     d = diagnose(rec, KNOWN_MODEL)
-    assert d.reference == "turn" and d.accepted[0]["effect"] == "installation_offset"
-    sampled = {a["effect"] for a in d.accepted} & set(EFFECT_DOMAIN)
+    assert d.reference == "turn" and d.accepted[0].effect == "installation_offset"
+    sampled = {a.effect for a in d.accepted} & set(EFFECT_DOMAIN)
     assert not sampled, d.accepted
 
 
@@ -486,21 +501,6 @@ def test_gap_html_has_no_horizontal_overflow_at_1400_px(tmp_path):
     assert overflow <= 0, f"page is {overflow} px wider than the 1400 px window"
 
 
-def test_progress_moves_smoothly_on_a_file():
-    import io
-
-    from hil.gap.progress import Progress
-
-    out = io.StringIO()
-    progress = Progress("recordings diagnosed", stream=out)
-    for i in range(1, 101):
-        progress(i, 100)
-    progress.close()
-    lines = out.getvalue().splitlines()
-    assert len(lines) == 11 and lines[-1].startswith("  100/100 recordings diagnosed (100%)")  # one line per 10 %
-    assert "left" in lines[5]
-
-
 # --- the one selection engine (hil/gap/selection.py) -------------------------------------------
 
 
@@ -557,11 +557,11 @@ def test_report_prints_named_parameters_with_units_and_errors(tmp_path):
 
     rec, _ = make_case(["conditioning_delay"], snr=6.0, seed=4)
     d = diagnose(rec, KNOWN_MODEL)
-    row = next(a for a in d.accepted if a["effect"] == "conditioning_delay")
+    row = next(a for a in d.accepted if a.effect == "conditioning_delay")
     rows = {r["parameter"]: r for r in param_rows(row)}
     assert rows["rise delay"]["unit"] == "us" and rows["rise delay"]["stderr"]
     # the table's value is the fit's, in us, to 4 significant digits
-    assert float(rows["rise delay"]["value"]) == pytest.approx(row["params"]["rise_delay_s"] * 1e6, rel=1e-3)
+    assert float(rows["rise delay"]["value"]) == pytest.approx(row.params["rise_delay_s"] * 1e6, rel=1e-3)
     text = format_text(d, "rec")
     assert "{" not in text and not re.search(r"\d{7,}", text)
     assert "share alone" in text

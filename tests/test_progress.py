@@ -89,3 +89,74 @@ def test_a_waived_failure_reads_waived(pytester):
         str(budgets),
     )
     assert re.search(r"^\[1/1 +\d+:\d\d\] waived +known defect", result.stdout.str(), re.M), result.stdout.str()
+
+
+# --- counted work: hil.progress.Meter (campaigns, gap validation, signal export) --------------
+
+
+def test_a_meter_into_a_log_prints_a_line_per_tenth():
+    import io
+
+    from hil.progress import Meter
+
+    out = io.StringIO()
+    meter = Meter("recordings diagnosed", 100, stream=out)
+    for _ in range(100):
+        meter.advance()
+    meter.close()
+    lines = out.getvalue().splitlines()
+    assert len(lines) == 11 and lines[-1].startswith("  100/100 recordings diagnosed (100%)")  # one line per 10 %
+    assert "left" in lines[5] and "/s" in lines[5]
+
+
+class _Terminal:
+    """A stream that says it is a terminal and records what was written."""
+
+    def __init__(self):
+        self.text = ""
+
+    def isatty(self):
+        return True
+
+    def write(self, s):
+        self.text += s
+
+    def flush(self):
+        pass
+
+
+def test_a_meter_on_a_terminal_moves_between_results_and_ends_its_line(monkeypatch):
+    """One line redrawn in place; while no result arrives, ``tick`` redraws it (elapsed and time
+    left move); closing ends the line."""
+    from hil import progress
+
+    clock = [100.0]
+    monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])
+    term = _Terminal()
+    meter = progress.Meter("campaign points", 4, stream=term, redraw_s=0.5)
+    meter.advance()
+    assert term.text.count("\r") == 1 and "1/4 campaign points (25%)" in term.text
+    meter.tick()  # no time passed: nothing new
+    assert term.text.count("\r") == 1
+    clock[0] += 61.0
+    meter.tick()  # a minute without a result: the line still moves
+    assert term.text.count("\r") == 2 and term.text.rstrip().endswith("61 s elapsed, about 3.0 min left")
+    for _ in range(3):
+        meter.advance()  # the last one is drawn whatever the time
+    assert "4/4 campaign points (100%)" in term.text.rsplit("\r", 1)[1]
+    meter.close()
+    assert term.text.endswith("\n") and "\n" not in term.text[:-1]
+
+
+def test_dispatch_counts_its_jobs_through_the_meter(capsys):
+    """The campaign scheduler's progress is the Meter's (no second mechanism); off, it is silent."""
+    import math
+
+    from hil.campaign.scheduler import dispatch
+
+    got = {}
+    dispatch(math.sqrt, [float(i) for i in range(20)], got.__setitem__, scheduler="serial", label="squares")
+    lines = capsys.readouterr().err.splitlines()
+    assert len(got) == 20 and len(lines) == 11 and lines[-1].startswith("  20/20 squares (100%)"), lines
+    dispatch(math.sqrt, [4.0], got.__setitem__, scheduler="serial", label="squares", progress=False)
+    assert capsys.readouterr().err == ""

@@ -16,9 +16,9 @@ import pytest
 from hil.calibration.ordinary import (
     Circuit,
     Effects,
-    calibrate_ordinary,
     fit_ordinary,
     hall_steps,
+    ordinary_calibration,
     pole_of_boundary,
 )
 from hil.cli import main
@@ -42,15 +42,13 @@ def _steps(path):
 @pytest.fixture(scope="module")
 def spindle():
     cap, steps = _steps(SPINDLE)
-    out, fit = calibrate_ordinary(steps, tick_s=cap.timer_tick_s)
-    return cap, steps, out, fit
+    return cap, steps, ordinary_calibration(steps, tick_s=cap.timer_tick_s)
 
 
 @pytest.fixture(scope="module")
 def hboard():
     cap, steps = _steps(HBOARD)
-    out, fit = calibrate_ordinary(steps, tick_s=cap.timer_tick_s)
-    return cap, steps, out, fit
+    return cap, steps, ordinary_calibration(steps, tick_s=cap.timer_tick_s)
 
 
 # --- import ---------------------------------------------------------------------------------
@@ -147,52 +145,53 @@ def test_an_ordinary_run_refuses_a_segment_name_in_its_edges(tmp_path):
 
 
 def test_spindle_delay_difference_matches_the_sector_width_method_cross_check(spindle):
-    _, _, out, _ = spindle
-    d = out["rise_fall_delay_difference_s"]
+    _, _, cal = spindle
+    d, ind = cal.ordinary.rise_fall_delay_difference_s, cal.ordinary.cross_check
     # the sector-width figure reads the same edges with the same model: a check of the method
+    out = cal.to_json()
     assert out["independent_estimate"] is out["method_cross_check"]  # the former name, an alias
-    ind = out["method_cross_check"]["rise_fall_delay_difference_s"]
     assert "method cross-check" in out["method_cross_check"]["method"]
     # the issue measured about 130 us (wide-minus-narrow sectors growing with speed); whether its
     # error is honest is checked by coverage and by the halves (tests/test_calibration_uncertainty.py)
-    assert 110e-6 < d["value"] < 160e-6, d
-    assert abs(d["value"] - ind["value"]) < 0.15 * ind["value"], (d, ind)
-    assert out["assumptions"]["speed_range_sufficient"] and out["assumptions"]["speed_ratio"] > 3
-    assert out["assumptions"]["direction"].startswith("reverse")
-    assert all(abs(v) <= 10.0 for v in out["pole_offset_deg_e"])
-    assert out["refused"] == []
+    assert 110e-6 < d.value < 160e-6, d
+    assert abs(d.value - ind.delay_diff_s) < 0.15 * ind.delay_diff_s, (d, ind)
+    a = cal.ordinary.assumptions
+    assert a.speed_range_sufficient and a.speed_ratio > 3
+    assert a.direction().startswith("reverse")
+    assert all(abs(v) <= 10.0 for v in cal.corrections.pole_offset_deg_e)
+    assert cal.refused == []
 
 
 def test_hoverboard_delay_and_pole_count(hboard):
-    _, _, out, _ = hboard
-    d = out["rise_fall_delay_difference_s"]
-    ind = out["method_cross_check"]["rise_fall_delay_difference_s"]
-    assert 220e-6 < d["value"] < 320e-6, d  # the issue: about 270 us
-    assert abs(d["value"] - ind["value"]) < 0.15 * ind["value"], (d, ind)
+    _, _, cal = hboard
+    d, ind = cal.ordinary.rise_fall_delay_difference_s, cal.ordinary.cross_check
+    assert 220e-6 < d.value < 320e-6, d  # the issue: about 270 us
+    assert abs(d.value - ind.delay_diff_s) < 0.15 * ind.delay_diff_s, (d, ind)
     # the source's harness says 30 poles: the pole pattern is found without being told
-    assert out["assumptions"]["pole_pairs"] == 15
-    assert len(out["pole_offset_deg_e"]) == 30 and all(abs(v) <= 10.0 for v in out["pole_offset_deg_e"])
+    assert cal.ordinary.assumptions.pole_pairs == 15
+    poles = cal.corrections.pole_offset_deg_e
+    assert len(poles) == 30 and all(abs(v) <= 10.0 for v in poles)
 
 
 def test_mirrored_capture_runs_forward_and_gives_the_same_delay(spindle):
-    cap, _, out, _ = spindle
+    cap, _, cal = spindle
     # swap the B and C lines: the same motor read with the Hall sequence A, B, C (forward)
     sensor = np.array([0, 2, 1])[cap.sensor]
     steps = hall_steps(cap.t_s, sensor, cap.rising)
     assert np.sum(steps.direction > 0) > 0.99 * cap.t_s.size
-    fwd, _ = calibrate_ordinary(steps, tick_s=cap.timer_tick_s, pole_pairs=2)
-    assert fwd["assumptions"]["direction"].startswith("forward")
-    a, b = fwd["rise_fall_delay_difference_s"]["value"], out["rise_fall_delay_difference_s"]["value"]
+    fwd = ordinary_calibration(steps, tick_s=cap.timer_tick_s, pole_pairs=2)
+    assert fwd.ordinary.assumptions.direction().startswith("forward")
+    a, b = fwd.ordinary.rise_fall_delay_difference_s.value, cal.ordinary.rise_fall_delay_difference_s.value
     assert abs(a - b) < 0.01 * b
 
 
 def test_a_stated_delay_bound_refuses_the_delay(spindle):
-    cap, steps, _, _ = spindle
-    out, _ = calibrate_ordinary(steps, tick_s=cap.timer_tick_s, pole_pairs=2, circuit=Circuit(delay_max_s=50e-6))
-    d = out["rise_fall_delay_difference_s"]
-    assert d["value"] is None and d["stderr"] is None and "50 us" in d["reason"]
-    assert [r["field"] for r in out["refused"]] == ["rise_fall_delay_difference_s"]
-    assert 110e-6 < d["fitted"] < 160e-6
+    cap, steps, _ = spindle
+    cal = ordinary_calibration(steps, tick_s=cap.timer_tick_s, pole_pairs=2, circuit=Circuit(delay_max_s=50e-6))
+    d = cal.ordinary.rise_fall_delay_difference_s
+    assert d.value is None and d.stderr is None and "50 us" in d.reason
+    assert [r.field for r in cal.refused] == ["rise_fall_delay_difference_s"]
+    assert 110e-6 < d.fitted < 160e-6
 
 
 @pytest.mark.parametrize("path", [BACK_AND_FORTH, SLOW], ids=["back-and-forth", "slow"])
@@ -282,13 +281,13 @@ def test_synthetic_ordinary_run_recovers_delay_and_asymmetry():
     t, s, r = synthetic_run()
     steps = hall_steps(t, s, r)
     assert np.all(steps.direction[steps.used()] == -1)
-    out, _ = calibrate_ordinary(steps, tick_s=TICK_S, pole_pairs=4)
-    d = out["rise_fall_delay_difference_s"]
-    a = out["rise_fall_angle_asymmetry_deg_e"]
-    assert abs(d["value"] - 150e-6) < max(4 * d["stderr"], 3e-6), d
+    cal = ordinary_calibration(steps, tick_s=TICK_S, pole_pairs=4)
+    d = cal.ordinary.rise_fall_delay_difference_s
+    a = cal.ordinary.rise_fall_angle_asymmetry_deg_e
+    assert abs(d.value - 150e-6) < max(4 * d.stderr, 3e-6), d
     # the constant asymmetry: the mean rise-minus-fall switching offset, 1/3 deg e
-    assert abs(a["value"] - np.mean([1.0, -0.5, 0.5])) < max(4 * a["stderr"], 0.05), a
-    inst = out["installation_offset_deg_e"]
+    assert abs(a.value - np.mean([1.0, -0.5, 0.5])) < max(4 * a.stderr, 0.05), a
+    inst = cal.corrections.installation_offset_deg_e
     truth = np.array([0.8, -0.3, -0.5]) - np.mean([0.8, -0.3, -0.5])
     assert np.max(np.abs(np.array([inst[k] for k in "ABC"]) - truth)) < 0.1, inst
 
@@ -297,9 +296,9 @@ def test_synthetic_pole_offsets_recovered_and_out_of_bound_refused():
     poles = np.array([0.0, 2.0, -1.5, 1.0, -0.5, 1.5, -1.0, -1.5])
     t, s, r = synthetic_run(pole_deg_e=poles, pole_pairs=4, direction=1)
     steps = hall_steps(t, s, r)
-    out, _ = calibrate_ordinary(steps, tick_s=TICK_S)
-    assert out["assumptions"]["pole_pairs"] == 4  # found, not told
-    est = np.array(out["pole_offset_deg_e"])
+    cal = ordinary_calibration(steps, tick_s=TICK_S)
+    assert cal.ordinary.assumptions.pole_pairs == 4  # found, not told
+    est = np.array(cal.corrections.pole_offset_deg_e)
     # our table is unique up to a shift per pole parity (the N and S boundaries' common parts
     # are the installation and rise-fall terms): compare after removing each parity's mean
     truth = poles.copy()
@@ -311,9 +310,9 @@ def test_synthetic_pole_offsets_recovered_and_out_of_bound_refused():
     assert err < 0.3, (est, truth)
     big = poles * 12.0  # up to 24 deg e: beyond the controller's bound (MAX_POLE_TABLE_OFFSET_DEG_E)
     t, s, r = synthetic_run(pole_deg_e=big, pole_pairs=4, direction=1)
-    out, _ = calibrate_ordinary(hall_steps(t, s, r), tick_s=TICK_S, pole_pairs=4)
-    assert out["pole_offset_deg_e"] == []
-    assert [x["field"] for x in out["refused"]] == ["pole_offset_deg_e"]
+    cal = ordinary_calibration(hall_steps(t, s, r), tick_s=TICK_S, pole_pairs=4)
+    assert list(cal.corrections.pole_offset_deg_e) == []
+    assert [x.field for x in cal.refused] == ["pole_offset_deg_e"]
 
 
 def test_calibrate_chooses_the_route_and_refuses_a_bad_pole_table_on_both():

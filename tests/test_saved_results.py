@@ -100,12 +100,94 @@ def test_a_gap_diagnosis_writes_the_saved_json():
     assert differences(_saved("gap-diagnosis-ordinary-new-slow.json"), now) == []
 
 
-def test_a_twin_check_writes_the_saved_keys(spindle_check):
-    """``hil twin check`` of the spindle capture against its twin: the same keys (its values hold
-    paths and a simulated twin's figures; tests/test_twin.py judges those)."""
+def _sampled_confounded():
+    """Pump load over a narrow speed range, a winding 80 K warm (tests/test_gap.py's confounded
+    temperatures): samples, a sampled effect accepted, a confounded pair and its knob."""
+    from hil.recording import record_electrical
+    from plant_models import effects as fx
+    from plant_models import paper_bench
+    from plant_models.kinematic import OperatingPoint
+
+    config = paper_bench().with_effects(
+        fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0)
+    )
+    ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
+    return record_electrical(config, ops, seed=1, voltage_noise_v=0.005), "known"
+
+
+def _below_relevance():
+    """0.02 deg e of installation offset (tests/test_gap.py's tiny effect): detected, below relevance."""
+    from hil.recording import record_kinematic
+    from plant_models import effects as fx
+    from plant_models import paper_bench
+    from plant_models.kinematic import OperatingPoint
+
+    config = paper_bench().with_effects(fx.InstallationOffset((0.02, -0.02, 0.0)), fx.TimerQuantization(1e-7))
+    ops = [OperatingPoint(100 * 60 / rpm, rpm, direction=d) for rpm in (2000.0, 4000.0) for d in (1, -1)]
+    return record_kinematic(config, ops, seed=1), "paper_bench"
+
+
+def _edge_confounded():
+    """Armature lag with the load tied to speed (tests/test_gap.py's confounded pair) against the
+    nominal motor: an edge effect with its standard errors, the bench jitter, four confounded pairs."""
+    from bldc.motor import steady_state
+    from hil.recording import record_kinematic
+    from plant_models import effects as fx
+    from plant_models import paper_bench
+    from plant_models.kinematic import OperatingPoint
+
+    m = paper_bench().motor
+    ops = [
+        OperatingPoint(30 * 60 / rpm, rpm, steady_state(m, rpm)["current_a"] * 2 / 3)
+        for rpm in (8000.0, 8500.0, 9000.0)
+    ]
+    config = paper_bench().with_effects(
+        fx.ArmatureReaction(0.2), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
+    )
+    return record_kinematic(config, ops, seed=2), None
+
+
+@pytest.mark.parametrize(
+    "name, case",
+    [
+        ("gap-diagnosis-segments-sampled-confounded.json", _sampled_confounded),
+        ("gap-diagnosis-segments-below-relevance.json", _below_relevance),
+        ("gap-diagnosis-segments-edge-confounded.json", _edge_confounded),
+    ],
+)
+def test_a_segments_gap_diagnosis_writes_the_saved_json(name, case):
+    """The segments route, written by ``hil.gap.diagnose`` on the simulated recording of ``case``."""
+    from hil.gap import diagnose
+    from hil.gap.synthetic import KNOWN_MODEL
+    from plant_models import paper_bench
+
+    rec, model = case()
+    d = diagnose(rec, {"known": KNOWN_MODEL, "paper_bench": paper_bench(), None: None}[model])
+    now = json.loads(json.dumps(d.to_json()))
+    assert differences(_saved(name), now) == []
+
+
+def _with_paths(obj, paths: dict[str, str]):
+    """``obj`` with each of ``paths`` replaced by its value in every string."""
+    if isinstance(obj, dict):
+        return {k: _with_paths(v, paths) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_with_paths(v, paths) for v in obj]
+    if isinstance(obj, str):
+        for old, new in paths.items():
+            obj = obj.replace(old, new)
+    return obj
+
+
+def test_a_twin_check_writes_the_saved_json(spindle_check):
+    """``hil twin check`` of the spindle capture against its twin: the same keys and values (the
+    twin's replay is seeded), the paths aside: the saved file names the capture as the README's
+    command does and the twin where it was written."""
     now = json.loads(json.dumps(spindle_check))
     saved = _saved("twin-check-spindle.json")
     assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
+    paths = {now["recording"]: saved["recording"], now["twin"]: saved["twin"]}
+    assert differences(saved, _with_paths(now, paths)) == []
 
 
 #: the runs of the saved qualify result (tests/data/results/qualify-canned-runs.json), canned: a

@@ -19,7 +19,7 @@ import subprocess
 import time
 from pathlib import Path
 
-from hil.calibration.ordinary import calibrate_ordinary, hall_steps
+from hil.calibration.ordinary import hall_steps, ordinary_calibration
 from hil.experiments.calibration_coverage import Z, coverage_study, half_split
 from hil.signals.hall import read_hall_capture
 
@@ -89,13 +89,14 @@ def main() -> None:
         for path in CAPTURES:
             t0 = time.process_time()
             cap = read_hall_capture(path)
-            whole, _ = calibrate_ordinary(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s)
-            pole_pairs = whole["assumptions"]["pole_pairs"]
+            whole = ordinary_calibration(hall_steps(cap.t_s, cap.sensor, cap.rising), tick_s=cap.timer_tick_s)
+            pole_pairs = whole.ordinary.assumptions.pole_pairs
+            whole_json = whole.to_json()  # the report keeps the figures as `hil calibrate --json` writes them
             halves, _ = half_split(cap.t_s, cap.sensor, cap.rising, cap.timer_tick_s, pole_pairs)
             report["halves"][path.stem] = {
                 "pole_pairs": pole_pairs,
                 "rows": halves,
-                "whole": {k: whole[k] for k in WHOLE_KEYS},
+                "whole": {k: whole_json[k] for k in WHOLE_KEYS},
                 "cpu_s": time.process_time() - t0,
             }
             for h in halves:

@@ -642,20 +642,6 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
     return out
 
 
-def calibrate_ordinary(
-    steps: HallSteps,
-    *,
-    tick_s: float | None = None,
-    pole_pairs: int | None = None,
-    circuit: Circuit | None = None,
-    source: str = "",
-) -> tuple[dict, Fit]:
-    """The calibration of an ordinary run, as the JSON ``hil calibrate`` writes (docs/calibration.md),
-    and the fit it comes from (``ordinary_calibration`` gives the typed ``Calibration``)."""
-    cal = ordinary_calibration(steps, tick_s=tick_s, pole_pairs=pole_pairs, circuit=circuit, source=source)
-    return cal.to_json(), cal.fit
-
-
 def ordinary_calibration(
     steps: HallSteps,
     *,

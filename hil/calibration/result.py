@@ -165,6 +165,11 @@ class OrdinaryAssumptions:
     delay_bound_why: str  #: where the delay bound comes from (the circuit, or half a sector)
     pole_offset_bound_deg_e: float
 
+    @property
+    def speed_range_sufficient(self) -> bool:
+        """Wide enough to tell a delay (grows with speed) from a constant angle."""
+        return bool(self.speed_ratio >= self.min_speed_ratio)
+
     def sector_locked_speed_ripple(self) -> str:
         if self.ripple_modelled:
             return ("modelled (an angle per sector boundary falling with 1/speed^2: the rotor's commutation torque "
@@ -199,7 +204,7 @@ class OrdinaryAssumptions:
             "outlier_edges": self.outlier_edges,
             "speed_range_hz_e": list(self.speed_range_hz_e),
             "speed_ratio": self.speed_ratio,
-            "speed_range_sufficient": bool(self.speed_ratio >= self.min_speed_ratio),
+            "speed_range_sufficient": self.speed_range_sufficient,
             "steadiness": self.steadiness(),
             "knot_cycles": self.knot_cycles,
             "sector_locked_speed_ripple": self.sector_locked_speed_ripple(),

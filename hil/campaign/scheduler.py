@@ -18,8 +18,9 @@ Failure handling:
 * Ctrl-C (KeyboardInterrupt) cancels what is left and returns with ``interrupted = True``; every
   result received so far has been handed to ``on_result``.
 
-The progress bar (tqdm, on stderr) shows count, rate and time left and is redrawn every half
-second whether or not a job finished, so it never sits still while work goes on.
+The progress (``hil.progress.Meter`` on stderr) shows count, share, rate and time left; on a
+terminal it is redrawn every half second whether or not a job finished, so it never sits still
+while work goes on, and a log gets a line per tenth of the jobs.
 """
 
 from __future__ import annotations
@@ -28,17 +29,17 @@ import functools
 import hashlib
 import logging
 import os
-import sys
 import time
 import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
+
+if TYPE_CHECKING:
+    from ..progress import Meter
 
 #: how long a remote scheduler may take to show a first worker before the run is refused
 WORKER_WAIT_S = 60.0
-#: progress-bar redraw period: the bar moves (elapsed, rate, time left) even between results
-REFRESH_S = 0.5
 #: submission order of the jobs on Dask: index * SPREAD mod 1 (the golden ratio's fraction)
 SPREAD = (5 ** 0.5 - 1) / 2
 
@@ -98,19 +99,6 @@ def _call(fn: Callable, index: int, job: Any) -> tuple[int, Any, str, str]:
         return index, TaskError(f"{type(exc).__name__}: {exc}", traceback.format_exc()), where, code_fingerprint()
 
 
-def _redraw_s() -> float:
-    """A terminal redraws in place; a log file gets a line every few seconds, not a flood."""
-    return REFRESH_S if sys.stderr.isatty() else 5.0
-
-
-def _bar(total: int, label: str, enabled: bool):
-    from tqdm import tqdm
-
-    tty = sys.stderr.isatty()
-    return tqdm(total=total, desc=label, unit=" " + label.split()[-1].rstrip("s"), disable=not enabled, file=sys.stderr,
-                mininterval=_redraw_s(), smoothing=0.05, dynamic_ncols=tty, ncols=None if tty else 100)
-
-
 def local_workers(requested: int | None = None) -> int:
     """``requested``, or the cores this process may run on."""
     if requested:
@@ -120,11 +108,14 @@ def local_workers(requested: int | None = None) -> int:
 
 def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *, scheduler: str | None = None,
              workers: int | None = None, label: str = "jobs", progress: bool = True) -> DispatchInfo:
-    """Run ``fn`` over ``jobs`` on ``scheduler``; ``workers`` sizes a local cluster (default: the cores)."""
+    """Run ``fn`` over ``jobs`` on ``scheduler``; ``workers`` sizes a local cluster (default: the cores);
+    ``label`` names the jobs in the progress line (and the Dask task keys)."""
+    from ..progress import Meter  # here: a Dask worker importing this module for _call needs no progress
+
     scheduler = scheduler or "local"
     info = DispatchInfo(scheduler)
     t0 = time.perf_counter()
-    bar = _bar(len(jobs), label, progress)
+    bar = Meter(label, len(jobs), enabled=progress)
     try:
         if scheduler == "serial":
             _serial(fn, jobs, on_result, info, bar)
@@ -138,14 +129,14 @@ def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *,
     return info
 
 
-def _serial(fn, jobs, on_result, info: DispatchInfo, bar) -> None:
+def _serial(fn, jobs, on_result, info: DispatchInfo, bar: Meter) -> None:
     try:
         for i, job in enumerate(jobs):
             _, value, where, _ = _call(fn, i, job)
             if where not in info.workers:
                 info.workers.append(where)
             on_result(i, value)
-            bar.update(1)
+            bar.advance()
     except KeyboardInterrupt:
         info.interrupted = True
 
@@ -173,7 +164,7 @@ def _connect(scheduler: str, workers: int | None):
     return client, None
 
 
-def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers: int | None, label: str) -> None:
+def _dask(fn, jobs, on_result, info: DispatchInfo, bar: Meter, scheduler: str, workers: int | None, label: str) -> None:
     from distributed import as_completed
 
     t0 = time.perf_counter()
@@ -193,14 +184,11 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
         ]
         index_of = {f.key: i for i, f in zip(order, futures)}
         done = as_completed(futures, with_results=True, raise_errors=False)
-        drawn = time.monotonic()
         while not done.is_empty():
             batch = done.next_batch(block=False)
             if not batch:
                 time.sleep(0.1)
-                if time.monotonic() - drawn >= _redraw_s():  # elapsed, rate and time left move between results
-                    bar.refresh()
-                    drawn = time.monotonic()
+                bar.tick()  # elapsed, rate and time left move between results
                 continue
             for future, result in batch:
                 if future.status != "finished":  # the task never returned (KilledWorker, cancelled)
@@ -219,7 +207,7 @@ def _dask(fn, jobs, on_result, info: DispatchInfo, bar, scheduler: str, workers:
                         info.workers.append(where)
                 future.release()
                 on_result(i, value)
-                bar.update(1)
+                bar.advance()
     except KeyboardInterrupt:
         info.interrupted = True
         client.cancel(futures)

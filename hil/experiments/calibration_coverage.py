@@ -7,7 +7,7 @@ phase, a few percent each), Hall sensors with installation offsets, rise-minus-f
 asymmetries, magnet pole offsets and a rise-minus-fall conditioning delay, edge times with
 AR(1) jitter correlated from edge to edge, and a logic analyser's timer quantisation (floor to
 the sample grid, random phase). The calibration is run on each capture as a user runs it
-(``calibrate_ordinary``) and each reported figure's interval, value +- z * stderr, is checked
+(``ordinary_calibration``) and each reported figure's interval, value +- z * stderr, is checked
 against the truth.
 """
 
@@ -20,7 +20,8 @@ import numpy as np
 from scipy import stats
 
 from hil.calibration.corrections import SENSORS
-from hil.calibration.ordinary import calibrate_ordinary, hall_steps, pole_of_boundary
+from hil.calibration.ordinary import hall_steps, ordinary_calibration, pole_of_boundary
+from hil.calibration.result import Calibration
 
 #: the moteus captures' sample period (30 kHz)
 TICK_S = 33_333e-9
@@ -126,19 +127,20 @@ class Check:
 def check_capture(cap: SyntheticCapture) -> list[Check]:
     """Calibrate ``cap`` with its pole count stated and compare every figure with the truth."""
     steps = hall_steps(cap.t_s, cap.sensor, cap.rising)
-    out, _ = calibrate_ordinary(steps, tick_s=TICK_S, pole_pairs=cap.pole_pairs)
+    cal = ordinary_calibration(steps, tick_s=TICK_S, pole_pairs=cap.pole_pairs)
+    table = cal.corrections
     checks = []
-    d = out["rise_fall_delay_difference_s"]
-    if d["value"] is not None:
-        checks.append(Check("delay_difference", d["value"] * 1e6, d["stderr"] * 1e6, cap.delay_difference_s * 1e6))
-    a = out["rise_fall_angle_asymmetry_deg_e"]
-    if a["value"] is not None:
-        checks.append(Check("asymmetry", a["value"], a["stderr"], cap.asymmetry_deg_e))
-    inst, inst_se = out["installation_offset_deg_e"], out["uncertainty"]["installation_offset_deg_e"]
+    d = cal.ordinary.rise_fall_delay_difference_s
+    if d.value is not None:
+        checks.append(Check("delay_difference", d.value * 1e6, d.stderr * 1e6, cap.delay_difference_s * 1e6))
+    a = cal.ordinary.rise_fall_angle_asymmetry_deg_e
+    if a.value is not None:
+        checks.append(Check("asymmetry", a.value, a.stderr, cap.asymmetry_deg_e))
+    inst, inst_se = table.installation_offset_deg_e, table.uncertainty["installation_offset_deg_e"]
     for x, name in enumerate(SENSORS):
         if inst_se.get(name):
             checks.append(Check("installation", inst[name], inst_se[name], float(cap.installation_deg_e[x])))
-    poles, poles_se = out["pole_offset_deg_e"], out["uncertainty"]["pole_offset_deg_e"]
+    poles, poles_se = table.pole_offset_deg_e, table.uncertainty["pole_offset_deg_e"]
     if poles:
         # the calibration numbers the poles from its own boundary count: map each of its poles to
         # the true one through the edges they share
@@ -199,19 +201,21 @@ def coverage_study(n_captures: int, seed: int = 0, **capture_kwargs) -> tuple[li
     return rows, info
 
 
-def half_split(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, tick_s: float, pole_pairs: int | None):
+def half_split(
+    t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, tick_s: float, pole_pairs: int | None
+) -> tuple[list[dict], list[Calibration]]:
     """Each half of a capture (by edge count) calibrated alone: per figure the two values, their
-    standard errors and z = |a - b| / hypot(se_a, se_b)."""
+    standard errors and z = |a - b| / hypot(se_a, se_b); and the two calibrations."""
     whole = hall_steps(t_s, sensor, rising)
     half = t_s.size // 2
-    outs = []
+    cals = []
     for first, sl in ((0, slice(0, half)), (half, slice(half, None))):
         steps = hall_steps(t_s[sl], sensor[sl], rising[sl])
         # number the boundaries (and so the poles) as the whole capture does
         both = np.nonzero((steps.direction != 0) & (whole.direction[sl] != 0))[0]
         if both.size:
             steps.boundary += whole.boundary[first + both[0]] - steps.boundary[both[0]]
-        outs.append(calibrate_ordinary(steps, tick_s=tick_s, pole_pairs=pole_pairs)[0])
+        cals.append(ordinary_calibration(steps, tick_s=tick_s, pole_pairs=pole_pairs))
     rows = []
 
     def add(name, pairs):
@@ -220,17 +224,15 @@ def half_split(t_s: np.ndarray, sensor: np.ndarray, rising: np.ndarray, tick_s: 
             return
         rows.append({"figure": name, "halves": [a, b], "stderr": [sa, sb], "z": float(abs(a - b) / np.hypot(sa, sb))})
 
-    for key, name in (
-        ("rise_fall_delay_difference_s", "delay_difference"),
-        ("rise_fall_angle_asymmetry_deg_e", "asymmetry"),
-    ):
-        add(name, [(o[key]["value"], o[key]["stderr"]) for o in outs])
+    add("delay_difference", [(c.ordinary.rise_fall_delay_difference_s.value,
+                              c.ordinary.rise_fall_delay_difference_s.stderr) for c in cals])
+    add("asymmetry", [(c.ordinary.rise_fall_angle_asymmetry_deg_e.value,
+                       c.ordinary.rise_fall_angle_asymmetry_deg_e.stderr) for c in cals])
+    tables = [c.corrections for c in cals]
     for x in SENSORS:
-        add(
-            f"installation {x}",
-            [(o["installation_offset_deg_e"][x], o["uncertainty"]["installation_offset_deg_e"].get(x)) for o in outs],
-        )
-    if all(len(o["pole_offset_deg_e"]) == 2 * (pole_pairs or 0) and pole_pairs for o in outs):
+        add(f"installation {x}",
+            [(t.installation_offset_deg_e[x], t.uncertainty["installation_offset_deg_e"].get(x)) for t in tables])
+    if pole_pairs and all(len(t.pole_offset_deg_e) == 2 * pole_pairs for t in tables):
         for j in range(2 * pole_pairs):
-            add(f"pole {j}", [(o["pole_offset_deg_e"][j], o["uncertainty"]["pole_offset_deg_e"][j]) for o in outs])
-    return rows, outs
+            add(f"pole {j}", [(t.pole_offset_deg_e[j], t.uncertainty["pole_offset_deg_e"][j]) for t in tables])
+    return rows, cals

@@ -23,15 +23,25 @@ import numpy as np
 from scipy.optimize import nnls
 
 from hil.recording import Recording
-from plant_models.effects import EFFECTS
 
 from ..stats import chi2_p_value
 from .candidates import CANDIDATES
 from .fitting import cell_rms
 from .fitting import wls as _wls
-from .relevance import edge_relevance, jitter_relevance
+from .relevance import Relevance, edge_relevance, jitter_relevance
 from .residuals import EdgeResiduals, model_prediction, residuals
-from .samples import NO_TRACE, SAMPLE_EFFECTS, diagnose_samples
+from .result import (
+    EdgeLocalisation,
+    FittedEffect,
+    NoiseGap,
+    OrderSpectrum,
+    OrdinaryLocalisation,
+    RegionResidual,
+    SplitHalf,
+    Confounded,
+    knob,
+)
+from .samples import NO_TRACE, SAMPLE_EFFECTS, DomainDiagnosis, diagnose_samples
 from .selection import (
     ALPHA,
     BlockSums,
@@ -160,23 +170,22 @@ class RankedEffect:
 class Diagnosis:
     significant: bool
     ranking: list[RankedEffect]
-    accepted: list[dict]
-    confounded: list[list[str]]
+    accepted: list[FittedEffect]
+    confounded: list[Confounded]
     unexplained: bool
     gap_before: float
     gap_after_heldout: float | None
     heldout_shrink: float | None
     heldout_interval: list[float] | None = None
     heldout_note: str = ""
-    knobs: dict[str, str] = field(default_factory=dict)
-    localisation: dict = field(default_factory=dict)
-    noise_floor_deg_e: dict = field(default_factory=dict)
+    localisation: EdgeLocalisation | OrdinaryLocalisation | None = None
+    noise_floor_deg_e: dict[str, float] = field(default_factory=dict)  #: per segment id (ordinary: one figure)
     p_value: float = 1.0
     reference: str = "encoder"
     not_assessed: list[str] = field(default_factory=list)
-    noise_gap: dict = field(default_factory=dict)
-    samples: dict = field(default_factory=dict)
-    below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, too small to matter
+    noise_gap: NoiseGap | None = None  #: None: an ordinary run (no per-segment noise to test)
+    samples: dict[str, DomainDiagnosis] = field(default_factory=dict)  #: per sampled domain (voltage, speed)
+    below_relevance: list[FittedEffect] = field(default_factory=list)  #: detected, fitted, too small to matter
     gap_metric: str = "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
     #: "segments" (a recording with operating points) or "ordinary run" (capture times only)
     route: str = "segments"
@@ -184,7 +193,7 @@ class Diagnosis:
     pole_pairs_source: str = "stated in the recording"
     knot_cycles: float | None = None  #: an ordinary run's trajectory knot spacing (electrical cycles)
     remainder_p_value: float | None = None  #: the remainder after the kept effects, against the noise floor
-    repeatability: dict = field(default_factory=dict)  #: an ordinary run's split-half figures
+    repeatability: SplitHalf | None = None  #: an ordinary run's split-half figures
     ranking_bic_gain: dict[str, float] = field(default_factory=dict)  #: BIC gain of each candidate alone
 
     def to_json(self) -> dict:
@@ -194,36 +203,36 @@ class Diagnosis:
             "pole_pairs_source": self.pole_pairs_source,
             "knot_cycles": self.knot_cycles,
             "remainder_p_value": self.remainder_p_value,
-            "repeatability": self.repeatability,
+            "repeatability": self.repeatability.to_json() if self.repeatability else {},
             "ranking_bic_gain": self.ranking_bic_gain,
             "significant": self.significant,
             "ranking": [r.to_json() for r in self.ranking],
-            "accepted": self.accepted,
-            "confounded": self.confounded,
+            "accepted": [a.to_json(self.route) for a in self.accepted],
+            "confounded": [c.names for c in self.confounded],
             "unexplained": self.unexplained,
             "gap_before": self.gap_before,
             "gap_after_heldout": self.gap_after_heldout,
             "heldout_shrink": self.heldout_shrink,
             "heldout_interval": self.heldout_interval,
             "heldout_note": self.heldout_note,
-            "knobs": self.knobs,
+            "knobs": {"/".join(c.names): c.knob(self.route) for c in self.confounded},
             "gap_metric": self.gap_metric,
             "p_value": self.p_value,
             "reference": self.reference,
             "noise_floor_deg_e": self.noise_floor_deg_e,
-            "localisation": self.localisation,
+            "localisation": self.localisation.to_json() if self.localisation else {},
             "not_assessed": self.not_assessed,
-            "noise_gap": self.noise_gap,
-            "samples": self.samples,
-            "below_relevance": self.below_relevance,
+            "noise_gap": self.noise_gap.to_json() if self.noise_gap else {},
+            "samples": {k: v.to_json() for k, v in self.samples.items()},
+            "below_relevance": [b.to_json(self.route) for b in self.below_relevance],
         }
 
 
 @dataclass
 class EdgeSelection:
     sel: Selection  #: the engine's selection (order, single-effect trials, ties)
-    below: dict[str, dict]  #: of the kept effects, the ones below practical relevance (name -> relevance)
-    relevance: dict[str, dict]  #: relevance of every kept effect
+    below: dict[str, Relevance]  #: of the kept effects, the ones below practical relevance
+    relevance: dict[str, Relevance]  #: relevance of every kept effect
 
     @property
     def fitted(self) -> list[str]:
@@ -266,14 +275,14 @@ def _select(cells: Cells, candidates: list[str]) -> EdgeSelection:
         return chi2_p_value(t.chi2, max(n_cells - _rank(fitted, cells), 1))
 
     sel = forward_select(candidates, _try_add(cells), chi2_0, n_cells, remainder_p)
-    below: dict[str, dict] = {}
-    relevance: dict[str, dict] = {}
+    below: dict[str, Relevance] = {}
+    relevance: dict[str, Relevance] = {}
     pred_now = np.zeros_like(cells.mean)
     for t in sel.steps:
         rel = edge_relevance(t.fit - pred_now, cells.n)
-        relevance[t.name] = rel.to_json()
+        relevance[t.name] = rel
         if not rel.relevant:
-            below[t.name] = rel.to_json()
+            below[t.name] = rel
         pred_now = t.fit
     sel.chi2_end = _parsimony_swaps(cells, candidates, sel, below, relevance)
     return EdgeSelection(sel, below, relevance)
@@ -319,9 +328,9 @@ def _parsimony_swaps(cells, candidates, sel: Selection, below, relevance) -> flo
                 fitted[i] = b
                 below.pop(a, None)
                 relevance.pop(a, None)
-                relevance[b] = rel.to_json()
+                relevance[b] = rel
                 if not rel.relevant:
-                    below[b] = rel.to_json()
+                    below[b] = rel
                 sel.ties.append([b, a])
                 chi2_now = chi2_alt
                 swapped = True
@@ -400,23 +409,17 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         for n in sel.fitted:
             k = CANDIDATES[n].columns(cells.features).shape[1]
             c, s_c = coef[col : col + k], se[col : col + k]
-            row = {
-                "effect": n,
-                "params": CANDIDATES[n].params(c),
-                "stderr": CANDIDATES[n].stderr(c, s_c),
-                "relevance": es.relevance[n],
-            }
+            row = FittedEffect(n, CANDIDATES[n].params(c), CANDIDATES[n].stderr(c, s_c), es.relevance[n])
             (below if n in es.below else accepted).append(row)
             col += k
     dof_end = max(n_cells - _rank(sel.fitted, cells), 1)
     unexplained = bool(significant and chi2_p_value(sel.chi2_end, dof_end) < ALPHA)
-    confounded, knobs = [], {}
+    confounded: list[Confounded] = []
 
     def confound(a: str, b: str) -> None:
         pair = sorted([a, b])
-        if pair not in confounded:
-            confounded.append(pair)
-            knobs["/".join(pair)] = knob(a, b)
+        if all(c.names != pair for c in confounded):
+            confounded.append(Confounded(pair, (a, b)))
 
     # equal within noise at selection: the smaller model was kept, the rival stays named
     for chosen, rival in sel.ties:
@@ -435,7 +438,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
     if below_names and not accepted_names:
         note = "every detected edge effect is below practical relevance"
     # the noise: edge jitter is a variance effect; accepted quantisation adds its own variance
-    tick_fit = next((a["params"]["tick_s"] for a in accepted + below if a["effect"] == "timer_quantization"), 0.0)
+    tick_fit = next((a.params["tick_s"] for a in accepted + below if a.effect == "timer_quantization"), 0.0)
     expected = expected_noise_var(cells.features["w_e"], model, rec.timer_tick_s, tick_fit)
     p_noise, jitter_params, jitter_score, noise_before, noise_after, noise_shrink = _noise_gap(cells, expected)
     noise_significant = p_noise < ALPHA
@@ -444,7 +447,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         rel = jitter_relevance(
             jitter_params["time_rms_s"], jitter_params["angle_rms_deg_e"], cells.features["w_e"], cells.n
         )
-        row = {"effect": "edge_jitter", "params": jitter_params, "relevance": rel.to_json()}
+        row = FittedEffect("edge_jitter", jitter_params, relevance=rel)
         if rel.relevant:
             accepted.append(row)
             ranking.insert(len(accepted_names), jitter_row)
@@ -467,14 +470,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         heldout_shrink=shrink,
         heldout_interval=interval,
         heldout_note=note,
-        noise_gap={
-            "p_value": p_noise,
-            "significant": noise_significant,
-            "before_deg_e": noise_before,
-            "after_heldout_deg_e": noise_after,
-            "heldout_shrink": noise_shrink,
-        },
-        knobs=knobs,
+        noise_gap=NoiseGap(p_noise, noise_significant, noise_before, noise_after, noise_shrink),
         localisation=localise(r, cells),
         p_value=p0,
         reference=r.reference,
@@ -505,7 +501,7 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
     When the edges show no gap but a sampled signal does, the headline gap figures are that
     signal's (``gap_metric`` says which)."""
     domains = diagnose_samples(rec, model, edge_error_deg_e)
-    d.samples = {k: v.to_json() for k, v in domains.items()}
+    d.samples = domains
     assessed = {n for dom in domains.values() for n in dom.first_scores}
     d.not_assessed = [f"{n}: {reason}" for n, reason in NO_TRACE.items()]
     d.not_assessed += [
@@ -523,16 +519,14 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
             d.accepted.extend(dom.accepted)
             d.below_relevance.extend(dom.below_relevance)
             d.unexplained = d.unexplained or dom.unexplained
-            for pair in dom.confounded:
-                d.confounded.append(pair)
-                d.knobs["/".join(pair)] = knob(*pair)
+            d.confounded.extend(Confounded(pair) for pair in dom.confounded)
         for name, score in dom.first_scores.items():
             extra_rows.append(
                 {
                     "effect": name,
                     "score": round(score if dom.significant else 0.0, 4),
-                    "accepted": any(a["effect"] == name for a in dom.accepted) and dom.significant,
-                    "below": any(a["effect"] == name for a in dom.below_relevance) and dom.significant,
+                    "accepted": any(a.effect == name for a in dom.accepted) and dom.significant,
+                    "below": any(a.effect == name for a in dom.below_relevance) and dom.significant,
                 }
             )
     accepted_extra = [RankedEffect(x["effect"], x["score"]) for x in extra_rows if x["accepted"]]
@@ -602,21 +596,6 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
     return p, params, max(min(explained, 1.0), 0.0), before, after, shrink
 
 
-def knob(a: str, b: str) -> str:
-    """The experiment that separates ``a`` from ``b``, as a full sentence: what to record and
-    why it tells them apart (each effect's declaration holds its halves and its pair sentences)."""
-    ca, cb = EFFECTS.get(a), EFFECTS.get(b)
-    pair = (ca.pair_knobs.get(b) if ca else None) or (cb.pair_knobs.get(a) if cb else None)
-    if pair:
-        return pair
-    rec_a = (ca.knob_record if ca else None) or "more operating points"
-    rec_b = (cb.knob_record if cb else None) or "more operating points"
-    record = rec_a if rec_a == rec_b else f"{rec_a} and {rec_b}"
-    shows_a = (ca.knob_shows if ca else None) or f"{a} has its own fingerprint"
-    shows_b = (cb.knob_shows if cb else None) or f"{b} has its own fingerprint"
-    return f"Record {record}: {shows_a}, while {shows_b}."
-
-
 def _heldout(cells: Cells, names: list[str]):
     """Leave one operating point out: on the other segments the gap is tested, the effects are
     chosen and fitted (the held-out segment influences neither), and they predict the held-out
@@ -661,29 +640,22 @@ def _heldout(cells: Cells, names: list[str]):
     return res.shrink, res.after, res.interval, note
 
 
-def localise(r: EdgeResiduals, cells: Cells) -> dict:
-    out: dict = {}
+def localise(r: EdgeResiduals, cells: Cells) -> EdgeLocalisation:
     res = r.residual_deg_e
-    out["per_sensor"] = {"ABC"[x]: float(np.mean(res[r.sensor == x])) for x in range(3) if np.any(r.sensor == x)}
-    out["per_polarity"] = {
-        k: float(np.mean(res[r.rising == v])) for k, v in (("rise", 1), ("fall", 0)) if np.any(r.rising == v)
-    }
-    out["per_pole"] = {str(j): float(np.mean(res[r.pole == j])) for j in range(2 * r.pole_pairs) if np.any(r.pole == j)}
     regions = []
     for s in np.unique(r.segment):
         sel = r.segment == s
         regions.append(
-            {
-                "segment": int(s),
-                "speed_rpm": float(r.w_e_deg_s[sel][0] / (6 * r.pole_pairs)),
-                "current_a": float(r.current_a[sel][0]),
-                "load_scale": float(r.load_scale[sel][0]),
-                "direction": int(r.direction[sel][0]),
-                "mean_deg_e": float(np.mean(res[sel])),
-                "rms_deg_e": float(np.sqrt(np.mean(res[sel] ** 2))),
-            }
+            RegionResidual(
+                segment=int(s),
+                speed_rpm=float(r.w_e_deg_s[sel][0] / (6 * r.pole_pairs)),
+                current_a=float(r.current_a[sel][0]),
+                load_scale=float(r.load_scale[sel][0]),
+                direction=int(r.direction[sel][0]),
+                mean_deg_e=float(np.mean(res[sel])),
+                rms_deg_e=float(np.sqrt(np.mean(res[sel] ** 2))),
+            )
         )
-    out["per_region"] = regions
     # order spectrum: edges are samples in angle, 6p per mechanical turn; the turn-averaged
     # pattern's DFT gives mechanical orders 0 .. 3p
     n = 6 * r.pole_pairs
@@ -696,7 +668,12 @@ def localise(r: EdgeResiduals, cells: Cells) -> dict:
             continue
         pattern = res_s[:m].reshape(-1, n).mean(axis=0)
         spectra.append(np.abs(np.fft.rfft(pattern)) / n)
-    if spectra:
-        amp = np.mean(spectra, axis=0)
-        out["order_spectrum"] = {"mechanical_order": list(range(amp.size)), "amplitude_deg_e": [float(v) for v in amp]}
-    return out
+    return EdgeLocalisation(
+        per_sensor_deg_e={"ABC"[x]: float(np.mean(res[r.sensor == x])) for x in range(3) if np.any(r.sensor == x)},
+        per_polarity_deg_e={
+            k: float(np.mean(res[r.rising == v])) for k, v in (("rise", 1), ("fall", 0)) if np.any(r.rising == v)
+        },
+        per_pole_deg_e={j: float(np.mean(res[r.pole == j])) for j in range(2 * r.pole_pairs) if np.any(r.pole == j)},
+        per_region=regions,
+        order_spectrum=OrderSpectrum([float(v) for v in np.mean(spectra, axis=0)]) if spectra else None,
+    )

@@ -220,10 +220,10 @@ def run_field_case(job) -> dict:
     rec, implied, _ = make_field_case(names, snr, seed, electrical=electrical)
     d = diagnose_segments(rec, KNOWN_MODEL)
     top = [r.effect for r in d.ranking] if d.significant else ["none"]
-    accepted = [a["effect"] for a in d.accepted]
+    accepted = [a.effect for a in d.accepted]
     perr = None
     if kind == "single":
-        hit = next((a for a in d.accepted if a["effect"] == implied[0].name), None)
+        hit = next((a for a in d.accepted if a.effect == implied[0].name), None)
         perr = param_error(implied[0], hit) if hit else None
     return {
         "kind": kind,
@@ -237,8 +237,8 @@ def run_field_case(job) -> dict:
         "top1": accepted[0] if accepted else "none",
         "top3": top[:3],
         "accepted": accepted,
-        "below_relevance": [b["effect"] for b in d.below_relevance],
-        "confounded": d.confounded,
+        "below_relevance": [b.effect for b in d.below_relevance],
+        "confounded": [c.names for c in d.confounded],
         "unexplained": d.unexplained,
         "param_error": perr,
         "heldout_shrink": d.heldout_shrink,

@@ -42,8 +42,16 @@ from hil.recording import Recording
 
 from ..plots import pyplot
 from ..stats import chi2_p_value, inliers
-from .diagnose import Diagnosis, RankedEffect, knob
-from .relevance import edge_relevance
+from .diagnose import Diagnosis, RankedEffect
+from .relevance import Relevance, edge_relevance
+from .result import (
+    ORDINARY_ROUTE,
+    Confounded,
+    FittedEffect,
+    OrdinaryLocalisation,
+    SensorPolarityMean,
+    SplitHalf,
+)
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 #: the model of the whole run: its used edges in this many consecutive stretches, each with its
@@ -78,11 +86,6 @@ CANDIDATE_EFFECTS = {
     # beyond the effect library's list: the rotor's speed ripple locked to the six-step
     # commutation (torque ripple over J w^2), largest at low speed; it moves the rotor, not a sensor
     "torque_ripple": Effects(static=False, delay=False, ripple=True),
-}
-KNOBS = {
-    "conditioning_delay/hysteresis": "a speed sweep: a delay grows with speed, asymmetric switching points do not",
-    "conditioning_delay/torque_ripple": "a speed sweep at another load: the ripple falls with 1/speed^2",
-    "hysteresis/torque_ripple": "a speed sweep: the ripple falls with 1/speed^2, switching points stay",
 }
 NOT_ASSESSED = [
     "a lag common to every edge (the common part of hysteresis and of the conditioning delays, armature "
@@ -189,16 +192,6 @@ def _params(name: str, fit: Fit) -> tuple[dict, dict]:
     return {key: v}, {key: e}
 
 
-#: what each ordinary-run parameter means (the report prints it beside the table)
-MEANING = {
-    "hysteresis": "per sensor and direction, rise minus fall, constant in angle",
-    "torque_ripple": "per sensor boundary, sum zero, falls with 1/speed^2: the rotor's sector-locked speed ripple",
-    "installation_offset": "per sensor, sum zero",
-    "pole_offset": "per pole boundary, sum zero",
-    "conditioning_delay": "rising edges' delay minus falling edges' delay, constant in time",
-}
-
-
 @dataclass
 class _Pipeline:
     """What the capture (or its training stretches) chooses: knots, pole pairs, effects, fits."""
@@ -208,7 +201,7 @@ class _Pipeline:
     pole_note: str
     names: list[str]
     sel: Selection
-    relevance: dict[str, dict]
+    relevance: dict[str, Relevance]
     none: Fit  #: the trajectory alone
     full: Fit  #: the trajectory with the chosen effects
     p_value: float
@@ -258,10 +251,10 @@ def _pipeline(
         sel = forward_select(names, try_add, chi2_0, n_obs, remainder_p)
     else:
         sel = Selection([], [], {}, [], chi2_0, chi2_0, n_obs)
-    relevance: dict[str, dict] = {}
+    relevance: dict[str, Relevance] = {}
     before = np.zeros(f0.index.size)
     for t in sel.steps:
-        relevance[t.name] = edge_relevance(t.fit.trail_deg_e - before, np.ones(before.size)).to_json()
+        relevance[t.name] = edge_relevance(t.fit.trail_deg_e - before, np.ones(before.size))
         before = t.fit.trail_deg_e
     single_gap = {n: _gap(_cells(steps, sel.first[n].fit, stretch, band)) for n in sel.first}
     return _Pipeline(kc, pole_pairs, p_note, names, sel, relevance, f0, fit_set(sel.fitted), p0, single_gap)
@@ -279,7 +272,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     sel, full = whole.sel, whole.full
     significant = whole.p_value < ALPHA
     gap_before = _gap(_cells(st, whole.none, stretch, band))
-    below = {n for n, r in whole.relevance.items() if r["value"] < r["floor"]}
+    below = {n for n, r in whole.relevance.items() if not r.relevant}
     accepted = [n for n in sel.fitted if n not in below]
     # shares of the squared gap (the cell means' systematic part: a per-edge chi-square carries the
     # trajectory fit's own noise estimate, which already holds the pattern)
@@ -299,8 +292,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
     rows = {}
     for n in sel.fitted:
         params, stderr = _params(n, full)
-        rows[n] = {"effect": n, "params": params, "stderr": stderr, "meaning": MEANING[n]}
-        rows[n]["relevance"] = whole.relevance[n]
+        rows[n] = FittedEffect(n, params, stderr, whole.relevance[n])
     remainder_p = _p_value(_cells(st, full, stretch, band))
     unexplained = bool(significant and remainder_p < ALPHA)
     shrink, after, interval, note = _heldout(steps, band, tick, rec.stated_pole_pairs, bool(accepted))
@@ -319,7 +311,6 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         pair = ["conditioning_delay", "hysteresis"]
         if _delay_switch_corr(full) > CONFOUND_CORR and delay_se > 0.1 * abs(delay) and pair not in confounded:
             confounded.append(pair)
-    knobs = {"/".join(p): KNOBS.get("/".join(p)) or knob(*p) for p in confounded}
     not_assessed = list(NOT_ASSESSED) + list(notes or [])
     if not whole.pole_pairs:
         not_assessed.append(f"pole_offset: {whole.pole_note}")
@@ -329,14 +320,13 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         ranking=ranking,
         accepted=[rows[n] for n in accepted],
         below_relevance=[rows[n] for n in sel.fitted if n in below],
-        confounded=confounded,
+        confounded=[Confounded(pair) for pair in confounded],
         unexplained=unexplained,
         gap_before=gap_before,
         gap_after_heldout=after,
         heldout_shrink=shrink,
         heldout_interval=interval,
         heldout_note=note,
-        knobs=knobs,
         localisation=_localise(st, whole.none),
         noise_floor_deg_e={
             "edge_angle_rms": float(np.sqrt(np.median((whole.none.residual_s / whole.none.tau_s_per_deg) ** 2)))
@@ -349,7 +339,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
             "trajectory (cell means per stretch, direction, sensor boundary and speed band, noise removed), "
             "deg electrical"
         ),
-        route="ordinary run",
+        route=ORDINARY_ROUTE,
         pole_pairs=whole.pole_pairs,
         pole_pairs_source=whole.pole_note,
         knot_cycles=whole.knot_cycles,
@@ -374,7 +364,7 @@ def _heldout(steps: HallSteps, band, tick, stated_pole_pairs, any_accepted: bool
         t = _pipeline(train_steps, tick, stated_pole_pairs, stretch, band, choice=train_steps)
     except OrdinaryRunError as exc:
         return None, None, None, f"held-out shrink cannot be measured: {exc}"
-    chosen = [n for n in t.sel.fitted if t.relevance[n]["value"] >= t.relevance[n]["floor"]]
+    chosen = [n for n in t.sel.fitted if t.relevance[n].relevant]
     if not chosen:
         return 0.0, None, None, "the training stretches alone chose no effect"
     f_train = fit_ordinary(st, _merge(chosen, t.pole_pairs), select=train, tick_s=tick, knot_cycles=t.knot_cycles)
@@ -401,7 +391,7 @@ def _heldout(steps: HallSteps, band, tick, stated_pole_pairs, any_accepted: bool
 def report_fit(rec: Recording, d: Diagnosis) -> tuple[HallSteps, Fit]:
     """The stretched steps and the joint fit of the kept effects that ``d`` chose (for figures)."""
     st, _ = _stretched(hall_steps(rec.t_s, rec.sensor, rec.rising), MODEL_STRETCHES)
-    kept = [a["effect"] for a in d.accepted + d.below_relevance]
+    kept = [a.effect for a in d.accepted + d.below_relevance]
     eff = _merge(kept, d.pole_pairs)
     return st, fit_ordinary(st, eff, tick_s=rec.timer_tick_s, knot_cycles=d.knot_cycles or KNOT_CYCLES)
 
@@ -418,21 +408,21 @@ def _delay_switch_corr(fit: Fit) -> float:
     return abs(cov_dw) / np.sqrt(max(fit.cov[i, i] * var_w, 1e-300))
 
 
-def _localise(st: HallSteps, f: Fit) -> dict:
+def _localise(st: HallSteps, f: Fit) -> OrdinaryLocalisation:
     """Mean angle residual of the trajectory-only fit per sensor and polarity (deg e, + = trails)."""
     idx = f.index
     r = f.residual_s / f.tau_s_per_deg
     keep = inliers(f.residual_s, f.sigma_s)
     sensor = SENSOR_OF_BOUNDARY[np.mod(st.label[idx], 3)]
-    out = {}
+    out = []
     for x, name in enumerate("ABC"):
         for rising, pol in ((True, "rise"), (False, "fall")):
             sel = keep & (sensor == x) & (st.rising[idx] == rising)
-            out[f"{name}_{pol}_mean_deg_e"] = float(np.mean(r[sel])) if sel.any() else None
-    return {"by_sensor_and_polarity": out}
+            out.append(SensorPolarityMean(name, pol, float(np.mean(r[sel])) if sel.any() else None))
+    return OrdinaryLocalisation(out)
 
 
-def split_half(steps: HallSteps, eff: Effects, tick: float | None, kc: float) -> dict:
+def split_half(steps: HallSteps, eff: Effects, tick: float | None, kc: float) -> SplitHalf:
     """The same model fitted on the first and the second half of the run (by edge count): how far
     the estimates repeat on the same motor."""
     used = np.nonzero(steps.used())[0]
@@ -445,22 +435,23 @@ def split_half(steps: HallSteps, eff: Effects, tick: float | None, kc: float) ->
         try:
             halves.append(fit_ordinary(steps, eff, select=sel, tick_s=tick, knot_cycles=kc))
         except OrdinaryRunError as exc:
-            return {"note": f"no split-half figure: {exc}"}
-    out: dict = {"halves": "first and second half of the used edges, each fitted alone"}
+            return SplitHalf(failure=str(exc))
+    delay = stderr = None
     if "delay_diff_s" in halves[0].names and "delay_diff_s" in halves[1].names:
         (a, sa), (b, sb) = halves[0].get("delay_diff_s"), halves[1].get("delay_diff_s")
-        out["rise_fall_delay_difference_s"] = [a, b]
-        out["rise_fall_delay_difference_stderr_s"] = [sa, sb]
-        out["delay_relative_difference"] = abs(a - b) / max(abs(a + b) / 2, 1e-12)
-        out["delay_difference_z"] = abs(a - b) / max(np.hypot(sa, sb), 1e-300)
+        delay, stderr = (a, b), (sa, sb)
     # the static offsets of each half as angles per sensor boundary and direction
     common = [n for n in halves[0].names if n in halves[1].names and n != "delay_diff_s"]
-    if common:
-        va = np.array([halves[0].get(n)[0] for n in common])
-        vb = np.array([halves[1].get(n)[0] for n in common])
-        out["static_parameters_rms_difference_deg_e"] = float(np.sqrt(np.mean((va - vb) ** 2)))
-        out["static_parameters_rms_deg_e"] = float(np.sqrt(np.mean(((va + vb) / 2) ** 2)))
-    return out
+    if not common:
+        return SplitHalf(delay_diff_s=delay, delay_diff_stderr_s=stderr)
+    va = np.array([halves[0].get(n)[0] for n in common])
+    vb = np.array([halves[1].get(n)[0] for n in common])
+    return SplitHalf(
+        delay_diff_s=delay,
+        delay_diff_stderr_s=stderr,
+        static_rms_difference_deg_e=float(np.sqrt(np.mean((va - vb) ** 2))),
+        static_rms_deg_e=float(np.sqrt(np.mean(((va + vb) / 2) ** 2))),
+    )
 
 
 # --- report ------------------------------------------------------------------------------------

@@ -19,6 +19,7 @@ from .candidates import CANDIDATES
 from .diagnose import Diagnosis, _design, build_cells
 from .fitting import wls as _wls
 from .residuals import model_prediction, residuals
+from .result import ORDINARY_MEANING, ORDINARY_ROUTE, FittedEffect, SplitHalf
 
 #: the HTML lives in hil/templates (package data), beside the compliance report's
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
@@ -64,19 +65,19 @@ def _unit(name: str) -> tuple[str, str, float]:
     return name.replace("_", " "), "", 1.0
 
 
-def param_rows(a: dict) -> list[dict]:
+def param_rows(a: FittedEffect) -> list[dict]:
     """An accepted (or below-floor) effect's parameters as rows: parameter, value, standard error
     and unit, rounded (4 significant digits, the error 2). A list is one row per sensor (three
     entries) or per pole; a dict of contrasts one row per named contrast."""
     rows = []
-    stderr = a.get("stderr", {})
-    for key, value in a["params"].items():
+    stderr = a.stderr or {}
+    for key, value in a.params.items():
         label, unit, scale = _unit(key)
         err = stderr.get(key)
         if isinstance(value, dict):
             items = [(f"{label} [{k}]", v, (err or {}).get(k)) for k, v in value.items()]
         elif isinstance(value, (list, tuple)):
-            names = _SENSORS if len(value) == 3 and a["effect"] == "installation_offset" else range(len(value))
+            names = _SENSORS if len(value) == 3 and a.effect == "installation_offset" else range(len(value))
             items = [(f"{label} [{n}]", v, err[i] if err else None) for i, (n, v) in enumerate(zip(names, value))]
         else:
             items = [(label, value, err)]
@@ -93,7 +94,7 @@ def param_rows(a: dict) -> list[dict]:
     return rows
 
 
-def format_params(a: dict) -> str:
+def format_params(a: FittedEffect) -> str:
     """One line: ``name = value +- error unit`` per parameter."""
     parts = []
     for r in param_rows(a):
@@ -105,39 +106,36 @@ def format_params(a: dict) -> str:
 def format_text(d: Diagnosis, name: str) -> str:
     """The terminal summary of a diagnosis (every route)."""
     lines = []
-    what = "ordinary run, " if d.route == "ordinary run" else ""
+    what = "ordinary run, " if d.route == ORDINARY_ROUTE else ""
     lines.append(
         f"{name}: {what}gap {d.gap_before:.4g} ({d.gap_metric}), "
         f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (p = {d.p_value:.2g})"
     )
-    if d.route == "ordinary run":
+    if d.route == ORDINARY_ROUTE:
         lines.append(f"  pole pairs: {d.pole_pairs_source}")
     for dname, dom in d.samples.items():
-        shrink = (
-            f", held-out shrink {dom['heldout_shrink']:.1%}"
-            if dom["heldout_shrink"] is not None and dom["accepted"]
-            else ""
-        )
+        measured = dom.heldout_shrink is not None and dom.accepted
+        shrink = f", held-out shrink {dom.heldout_shrink:.1%}" if measured else ""
         lines.append(
-            f"  sampled {dname}: gap {dom['gap_before']:.3g} {dom['unit']}, p = {dom['p_value']:.2g}"
-            f"{', unexplained remainder' if dom['unexplained'] else ''}{shrink}"
+            f"  sampled {dname}: gap {dom.gap_before:.3g} {dom.unit}, p = {dom.p_value:.2g}"
+            f"{', unexplained remainder' if dom.unexplained else ''}{shrink}"
         )
-    accepted = {a["effect"] for a in d.accepted}
+    accepted = {a.effect for a in d.accepted}
     lines.append("  ranking (share alone: each effect fitted on its own; share added: in the order chosen)")
     for i, r in enumerate(d.ranking[:6], 1):
         verdict = "accepted" if r.effect in accepted else ("below relevance" if r.below_relevance else "")
         added = f"  added {r.share_added:.3f}" if r.share_added is not None else ""
         lines.append(f"  {i}. {r.effect:<22} share alone {r.score:.3f}{added}   {verdict}".rstrip())
     for a in d.accepted:
-        lines.append(f"  accepted {a['effect']}: {format_params(a)}")
+        lines.append(f"  accepted {a.effect}: {format_params(a)}")
     for b in d.below_relevance:
-        rel = b.get("relevance", {})
+        rel = b.relevance  # below relevance: judged against its floor, so it has one
         lines.append(
-            f"  detected, below practical relevance: {b['effect']} ({rel.get('value', float('nan')):.3g} < floor "
-            f"{rel.get('floor', float('nan')):.3g} {rel.get('unit', '')}: {rel.get('meaning', '')})"
+            f"  detected, below practical relevance: {b.effect} ({rel.value:.3g} < floor {rel.floor:.3g} {rel.unit}: "
+            f"{rel.meaning})"
         )
-    for pair in d.confounded:
-        lines.append(f"  confounded: {' / '.join(pair)}; knob: {d.knobs['/'.join(pair)]}")
+    for c in d.confounded:
+        lines.append(f"  confounded: {' / '.join(c.names)}; knob: {c.knob(d.route)}")
     lines.append(f"  unexplained remainder: {'yes' if d.unexplained else 'no'}")
     if d.heldout_shrink is not None and d.gap_after_heldout is not None:
         lo, hi = d.heldout_interval or (float("nan"), float("nan"))
@@ -148,19 +146,19 @@ def format_text(d: Diagnosis, name: str) -> str:
     else:
         lines.append(f"  held-out: {d.heldout_note}")
     rep = d.repeatability
-    if d.route == "ordinary run":
+    if rep is not None:
         parts = []
-        if "rise_fall_delay_difference_s" in rep:
-            a, b = rep["rise_fall_delay_difference_s"]
+        if rep.delay_diff_s is not None:
+            a, b = rep.delay_diff_s
+            apart = f"{rep.delay_relative_difference:.1%} apart"
+            parts.append(f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({apart})")
+        if rep.static_rms_difference_deg_e is not None:
             parts.append(
-                f"delay difference {a * 1e6:.1f} / {b * 1e6:.1f} us ({rep['delay_relative_difference']:.1%} apart)"
+                f"other parameters differ by {rep.static_rms_difference_deg_e:.3g} deg e RMS (their "
+                f"RMS {rep.static_rms_deg_e:.3g})"
             )
-        if "static_parameters_rms_difference_deg_e" in rep:
-            parts.append(
-                f"other parameters differ by {rep['static_parameters_rms_difference_deg_e']:.3g} deg e RMS (their "
-                f"RMS {rep['static_parameters_rms_deg_e']:.3g})"
-            )
-        lines.append(f"  split-half repeatability: {'; '.join(parts) or rep.get('note', 'no figure')}")
+        failed = f"no split-half figure: {rep.failure}" if rep.failure else "no figure"
+        lines.append(f"  split-half repeatability: {'; '.join(parts) or failed}")
     lines += [f"  not assessed: {n}" for n in d.not_assessed]
     return "\n".join(lines)
 
@@ -201,19 +199,19 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     ax.set_ylabel("residual [deg e]")
     ax.legend(ncol=6, fontsize=7)
     out.append(("Edge-error pattern", _png(fig)))
-    spec = diagnosis.localisation.get("order_spectrum")
+    spec = diagnosis.localisation.order_spectrum
     if spec:
-        out.append(("Order spectrum", _bars(spec["mechanical_order"], spec["amplitude_deg_e"], "amplitude [deg e]")))
-    regions = diagnosis.localisation["per_region"]
+        out.append(("Order spectrum", _bars(spec.mechanical_order, spec.amplitude, "amplitude [deg e]")))
+    regions = diagnosis.localisation.per_region
     fig, ax = plt.subplots(figsize=(6, 3.5))
     sc = ax.scatter(
-        [g["speed_rpm"] for g in regions],
-        [g["current_a"] for g in regions],
-        c=[g["mean_deg_e"] for g in regions],
+        [g.speed_rpm for g in regions],
+        [g.current_a for g in regions],
+        c=[g.mean_deg_e for g in regions],
         s=120,
         marker="o",
         cmap="coolwarm",
-        edgecolors=["k" if g["direction"] > 0 else "r" for g in regions],
+        edgecolors=["k" if g.direction > 0 else "r" for g in regions],
     )
     fig.colorbar(sc, ax=ax, label="mean residual [deg e]")
     ax.set_xlabel("speed [rpm]")
@@ -221,7 +219,7 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     ax.set_title("operating regions (red edge: reverse)", fontsize=9)
     out.append(("Operating-region map", _png(fig)))
 
-    names = [a["effect"] for a in diagnosis.accepted if a["effect"] in CANDIDATES]  # the mean edge effects
+    names = [a.effect for a in diagnosis.accepted if a.effect in CANDIDATES]  # the mean edge effects
     if names:
         x = _design(names, cells)
         coef, _, _ = _wls(x, cells.mean, cells.weight)
@@ -232,15 +230,15 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
         ax.set_ylabel("residual [deg e]")
         ax.legend(fontsize=8)
         out.append(("Before / after", _png(fig)))
-    speed = diagnosis.samples.get("speed", {}).get("localisation", {}).get("order_spectrum")
+    speed = diagnosis.samples["speed"].localisation.order_spectrum if "speed" in diagnosis.samples else None
     if speed:
         out.append(
             (
                 "Speed residual: order spectrum (cogging shows at its periods per turn)",
-                _bars(speed["mechanical_order"], speed["amplitude_rad_s"], "speed residual [rad/s]"),
+                _bars(speed.mechanical_order, speed.amplitude, "speed residual [rad/s]"),
             )
         )
-    volt = diagnosis.samples.get("voltage", {}).get("localisation", {}).get("per_electrical_angle_v")
+    volt = diagnosis.samples["voltage"].localisation.per_electrical_angle_v if "voltage" in diagnosis.samples else {}
     if volt:
         fig, ax = plt.subplots(figsize=(6, 3))
         ax.plot([float(k) for k in volt], list(volt.values()), "o-")
@@ -250,11 +248,14 @@ def figures(r, cells, diagnosis) -> list[tuple[str, str]]:
     return out
 
 
-def repeatability_rows(rep: dict) -> list[dict]:
-    """An ordinary run's split-half figures as rows (first half, second half, unit)."""
+def repeatability_rows(rep: SplitHalf | None) -> list[dict]:
+    """An ordinary run's split-half figures as rows (first half, second half, unit); ``key`` is
+    the figure's key in the JSON."""
+    if rep is None:
+        return []
     rows = []
-    if "rise_fall_delay_difference_s" in rep:
-        (a, b), (sa, sb) = rep["rise_fall_delay_difference_s"], rep["rise_fall_delay_difference_stderr_s"]
+    if rep.delay_diff_s is not None:
+        (a, b), (sa, sb) = rep.delay_diff_s, rep.delay_diff_stderr_s
         rows.append(
             {
                 "figure": "rise-minus-fall delay difference",
@@ -267,22 +268,21 @@ def repeatability_rows(rep: dict) -> list[dict]:
             {
                 "figure": "halves apart (relative; in standard errors)",
                 "key": "delay_relative_difference",
-                "value": f"{100 * rep['delay_relative_difference']:.2g} %; z = {sig(rep['delay_difference_z'], 2)}",
+                "value": f"{100 * rep.delay_relative_difference:.2g} %; z = {sig(rep.delay_difference_z, 2)}",
                 "unit": "",
             }
         )
-    if "static_parameters_rms_difference_deg_e" in rep:
+    if rep.static_rms_difference_deg_e is not None:
         rows.append(
             {
                 "figure": "other parameters: RMS difference of the halves (their RMS)",
                 "key": "static_parameters_rms_difference_deg_e",
-                "value": f"{sig(rep['static_parameters_rms_difference_deg_e'], 3)} "
-                f"({sig(rep['static_parameters_rms_deg_e'], 3)})",
+                "value": f"{sig(rep.static_rms_difference_deg_e, 3)} ({sig(rep.static_rms_deg_e, 3)})",
                 "unit": "deg e",
             }
         )
-    if "note" in rep:
-        rows.append({"figure": "note", "key": "note", "value": rep["note"], "unit": ""})
+    if rep.failure is not None:
+        rows.append({"figure": "note", "key": "note", "value": f"no split-half figure: {rep.failure}", "unit": ""})
     return rows
 
 
@@ -300,27 +300,34 @@ def write_html(path, name, rec, diagnosis: Diagnosis, model=None) -> Path:
     params = env.from_string(PARAMS_TEMPLATE)
     loc = diagnosis.localisation
     spectrum = []
-    if diagnosis.route == "ordinary run":
+    ordinary = diagnosis.route == ORDINARY_ROUTE
+    if ordinary:
         figs = _ordinary_figures(rec, diagnosis)
     else:
         pred = model_prediction(model, rec) if model is not None else None
         r = residuals(rec, pred)
         figs = figures(r, build_cells(r), diagnosis)
-        spec = loc.get("order_spectrum")
-        if spec:
-            top = sorted(zip(spec["mechanical_order"], spec["amplitude_deg_e"]), key=lambda oa: -oa[1])[:8]
-            spectrum = sorted(top)
+        if loc.order_spectrum:
+            spec = loc.order_spectrum
+            spectrum = sorted(sorted(zip(spec.mechanical_order, spec.amplitude), key=lambda oa: -oa[1])[:8])
     html = env.from_string(TEMPLATE).render(
         name=name,
         d=diagnosis,
-        accepted=[a["effect"] for a in diagnosis.accepted],
-        below=[a["effect"] for a in diagnosis.below_relevance],
+        accepted=[a.effect for a in diagnosis.accepted],
+        below=[a.effect for a in diagnosis.below_relevance],
         figures=figs,
         loc=loc,
+        localisation_tables=[] if ordinary else [
+            ("Per sensor", "sensor", loc.per_sensor_deg_e),
+            ("Per edge polarity", "edge", loc.per_polarity_deg_e),
+            ("Per magnet pole", "pole", loc.per_pole_deg_e),
+        ],
         spectrum=spectrum,
         segment_ids=rec.segment_ids,
         repeatability=repeatability_rows(diagnosis.repeatability),
-        params_table=lambda a: Markup(params.render(a=a, rows=param_rows(a))),
+        params_table=lambda a: Markup(
+            params.render(a=a, meaning=ORDINARY_MEANING.get(a.effect) if ordinary else None, rows=param_rows(a))
+        ),
     )
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

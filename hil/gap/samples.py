@@ -43,6 +43,7 @@ from ..stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
+from .result import FittedEffect, OrderSpectrum, SampleLocalisation, SegmentResidual
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
@@ -611,7 +612,7 @@ class DomainDiagnosis:
     unit: str
     significant: bool
     p_value: float
-    accepted: list[dict]
+    accepted: list[FittedEffect]
     first_scores: dict[str, float]
     unexplained: bool
     gap_before: float
@@ -619,30 +620,27 @@ class DomainDiagnosis:
     heldout_shrink: float | None
     heldout_interval: list[float] | None
     heldout_note: str
-    localisation: dict
+    localisation: SampleLocalisation
     chi2_excess: float
     confounded: list[list[str]] = field(default_factory=list)
-    below_relevance: list[dict] = field(default_factory=list)  #: detected, fitted, but too small to matter
+    below_relevance: list[FittedEffect] = field(default_factory=list)  #: detected, fitted, too small to matter
 
     def to_json(self) -> dict:
         return {
-            k: getattr(self, k)
-            for k in (
-                "domain",
-                "unit",
-                "significant",
-                "p_value",
-                "accepted",
-                "below_relevance",
-                "unexplained",
-                "confounded",
-                "gap_before",
-                "gap_after_heldout",
-                "heldout_shrink",
-                "heldout_interval",
-                "heldout_note",
-                "localisation",
-            )
+            "domain": self.domain,
+            "unit": self.unit,
+            "significant": self.significant,
+            "p_value": self.p_value,
+            "accepted": [a.to_json() for a in self.accepted],
+            "below_relevance": [b.to_json() for b in self.below_relevance],
+            "unexplained": self.unexplained,
+            "confounded": self.confounded,
+            "gap_before": self.gap_before,
+            "gap_after_heldout": self.gap_after_heldout,
+            "heldout_shrink": self.heldout_shrink,
+            "heldout_interval": self.heldout_interval,
+            "heldout_note": self.heldout_note,
+            "localisation": self.localisation.to_json(),
         } | {
             "ranking": [
                 {"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])
@@ -670,7 +668,7 @@ def diagnose_domain(
     accepted = sel.fitted
     unexplained = bool(significant and cells.significance(current.resid, _n_params(cands, accepted)) < ALPHA)
     accepted_rows, below = _rows(cands, current, accepted, shapes, motor, env)
-    below_names = {b["effect"] for b in below}
+    below_names = {b.effect for b in below}
     kept = [n for n in accepted if n not in below_names]
     gap_before = cell_rms(cells.mean, cells.n)
     any_kept = bool([n for n in kept if n != REFERENCE])
@@ -740,14 +738,10 @@ def _rows(cands, fit: _Fit, names, shapes, motor, env):
         if n == REFERENCE:
             continue
         coef, se = _own(fit, cands, n)
-        row = {"effect": n, "params": cands[n].params(coef, s, motor), "stderr": _stderr(cands[n], coef, se, s, motor)}
-        if env is not None:
-            rel = sample_relevance(n, row["params"], motor, env)
-            row["relevance"] = rel.to_json()
-            if not rel.relevant:
-                below.append(row)
-                continue
-        accepted_rows.append(row)
+        params = cands[n].params(coef, s, motor)
+        rel = sample_relevance(n, params, motor, env) if env is not None else None
+        row = FittedEffect(n, params, _stderr(cands[n], coef, se, s, motor), rel)
+        (accepted_rows if row.relevant else below).append(row)
     return accepted_rows, below
 
 
@@ -778,7 +772,7 @@ def _heldout(r, cells, cands, names, motor, env, any_kept: bool):
         train = np.nonzero(~test)[0]
         _, sel, shapes, f = _select_domain(r, cells, cands, names, motor, rows=train)
         _, below = _rows(cands, f, sel.fitted, shapes, motor, env)
-        drop = {b["effect"] for b in below}
+        drop = {b.effect for b in below}
         if drop:
             kept = [(n, sh) for n, sh in zip(sel.fitted, shapes) if n not in drop]
             f = _fit(r, cells, cands, [n for n, _ in kept], [sh for _, sh in kept], rows=train)
@@ -793,11 +787,11 @@ def _heldout(r, cells, cands, names, motor, env, any_kept: bool):
     return res.shrink, res.after, res.interval, note
 
 
-def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> dict:
-    out = {"per_segment": {}}
+def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> SampleLocalisation:
+    per_segment = []
     for s in np.unique(cells.segment):
         sel = cells.segment == s
-        out["per_segment"][segment_ids[s]] = {"rms": cell_rms(cells.mean[sel], cells.n[sel]), "cells": int(sel.sum())}
+        per_segment.append(SegmentResidual(segment_ids[s], cell_rms(cells.mean[sel], cells.n[sel]), int(sel.sum())))
     if r.domain == "speed":
         # order spectrum of the turn-averaged speed residual: cogging appears at its periods per turn
         spectra = []
@@ -808,13 +802,12 @@ def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) ->
             )
             spectra.append(np.abs(np.fft.rfft(pattern)) / MECHANICAL_BINS * 2)
         amp = np.mean(spectra, axis=0)
-        out["order_spectrum"] = {"mechanical_order": list(range(amp.size)), "amplitude_rad_s": [float(v) for v in amp]}
-    else:
-        pattern = np.bincount(cells_bin := (r.bin % ELECTRICAL_BINS), r.y, minlength=ELECTRICAL_BINS) / np.maximum(
-            np.bincount(cells_bin, minlength=ELECTRICAL_BINS), 1
-        )
-        out["per_electrical_angle_v"] = {f"{int(k * 360 / ELECTRICAL_BINS)}": float(v) for k, v in enumerate(pattern)}
-    return out
+        return SampleLocalisation(per_segment, order_spectrum=OrderSpectrum([float(v) for v in amp], unit="rad_s"))
+    pattern = np.bincount(cells_bin := (r.bin % ELECTRICAL_BINS), r.y, minlength=ELECTRICAL_BINS) / np.maximum(
+        np.bincount(cells_bin, minlength=ELECTRICAL_BINS), 1
+    )
+    angle = {int(k * 360 / ELECTRICAL_BINS): float(v) for k, v in enumerate(pattern)}
+    return SampleLocalisation(per_segment, per_electrical_angle_v=angle)
 
 
 def envelope(rec: Recording, motor: NominalMotor) -> OperatingEnvelope:

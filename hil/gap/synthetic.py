@@ -18,6 +18,8 @@ from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
+from .result import FittedEffect
+
 JITTER_S = 1e-6
 TICK_S = 1e-7
 #: the sampled signals' measurement noise in the electrical recordings (white, per sample)
@@ -90,8 +92,8 @@ def record_electrical_case(config: PlantConfig, ops, seed: int, noisy: bool = Tr
     )
 
 
-def param_error(truth: fx.Effect, accepted: dict) -> float:
+def param_error(truth: fx.Effect, accepted: FittedEffect) -> float:
     """Relative error of the fitted magnitude against the injected one (the effect's declaration
     says which parameters count: ``Effect.fit_error``)."""
-    return truth.fit_error(accepted["params"])
+    return truth.fit_error(accepted.params)
 

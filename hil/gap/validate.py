@@ -322,15 +322,14 @@ def run_validation(
     two: int = 14,
     out_of_library: int = 24,
     seed: int = 0,
-    progress=None,
+    progress: bool = False,
     jobs: int = 1,
     generator: str = "library",
     scheduler: str | None = None,
-    bar: bool = False,
 ) -> ValidationReport:
     """Draw the cases (all randomness from ``seed``), diagnose each: in this process (``jobs`` 1),
     on a local Dask cluster of ``jobs`` workers, or on the Dask ``scheduler`` at an address
-    (hil.campaign.scheduler); ``bar`` draws the progress bar.
+    (hil.campaign.scheduler); ``progress``: the count of recordings diagnosed on stderr.
 
     ``generator``: "library" withholds the library's effects (kinematic and electrical plant);
     "field" withholds physical causes of the field-level Hall model (hil.gap.field_causes),
@@ -339,7 +338,7 @@ def run_validation(
         raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
     rng = np.random.default_rng(seed)
     if generator == "field":
-        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler, bar)
+        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler)
     plan = []
     names = effect_names()
     for name in names:
@@ -356,10 +355,10 @@ def run_validation(
         (i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)))
         for i, (kind, names, ool) in enumerate(plan)
     ]
-    return _run(cases, _run_case, progress, jobs, scheduler, bar)
+    return _run(cases, _run_case, progress, jobs, scheduler)
 
 
-def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar: bool) -> ValidationReport:
+def _run(cases: list, run_case, progress: bool, jobs: int, scheduler: str | None) -> ValidationReport:
     """Diagnose every case (see run_validation for where), kept in plan order, reporting each as it ends."""
     report = ValidationReport()
     # one task per case, results kept in case order: the report is the same on any scheduler
@@ -373,8 +372,6 @@ def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar:
             )
         else:
             results[i] = case
-        if progress:
-            progress(len(results) + len(report.errors), len(cases))
 
     report.dispatch = dispatch(
         run_case,
@@ -382,8 +379,8 @@ def _run(cases: list, run_case, progress, jobs: int, scheduler: str | None, bar:
         on_result,
         scheduler=scheduler or ("serial" if jobs <= 1 else "local"),
         workers=jobs,
-        label="recordings",
-        progress=bar,
+        label="recordings diagnosed",
+        progress=progress,
     ).as_dict()
     report.cases = [results[i] for i in sorted(results)]
     report.errors.sort(key=lambda e: e["index"])
@@ -405,16 +402,17 @@ def _run_case(job) -> dict:
         rec, truth = make_case(names, snr, case_seed, ool=ool, electrical=electrical or None)
     d = diagnose_segments(rec, KNOWN_MODEL)
     top = [r.effect for r in d.ranking] if d.significant else ["none"]
-    accepted = [a["effect"] for a in d.accepted]
+    accepted = [a.effect for a in d.accepted]
     perr = None
     shrink = d.heldout_shrink
     if kind == "single":
-        hit = next((a for a in d.accepted if a["effect"] == truth[0].name), None)
+        hit = next((a for a in d.accepted if a.effect == truth[0].name), None)
         perr = param_error(truth[0], hit) if hit else None
         if type(truth[0]).validation == "jitter":
-            shrink = d.noise_gap.get("heldout_shrink")
+            shrink = d.noise_gap.heldout_shrink
         elif truth[0].name in SAMPLE_EFFECTS:
-            shrink = d.samples.get(EFFECT_DOMAIN[truth[0].name], {}).get("heldout_shrink")
+            domain = d.samples.get(EFFECT_DOMAIN[truth[0].name])
+            shrink = domain.heldout_shrink if domain else None
     return {
         "kind": kind,
         "truth": [t.name for t in truth] or ([ool] if ool else names),

@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import json
 import shlex
-import sys
 from pathlib import Path
 
 from .. import cli_grammar as grammar
@@ -71,11 +70,11 @@ def cmd_export(args) -> int:
         deviations=not args.no_deviations,
     )
 
-    def progress(i, n):
-        if args.progress and (i % 20 == 0 or i == n):
-            print(f"  {i}/{n} chunks", file=sys.stderr)
+    from ..progress import Meter
 
+    progress = Meter("chunks written", enabled=args.progress)
     res = export(args.out, settings, progress)
+    progress.close()
     print(
         f"{args.out}: {res.n_edges} Hall edges, {res.n_commutations} ideal commutations over {duration:g} s "
         f"at {args.sample_rate_hz:g} Hz (Hall timing within +-{0.5e6 / args.sample_rate_hz:.3g} us of the plant); "

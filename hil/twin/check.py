@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,14 +22,24 @@ from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
 from ..calibration.result import Estimate
 from ..experiments import peers
-from .capture import PARTLY_HELD, UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
+from .capture import UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
 from .replay import twin_recording
+from .result import (
+    RATIO_BAND,
+    AutocorrelationDifference,
+    Comparison,
+    Difference,
+    FigureComparison,
+    FigureDifference,
+    LeftOutDifference,
+    PredictorDifference,
+    PredictorRatio,
+    SectorWidths,
+    TwinCheck,
+    Variant,
+    WidthDifference,
+)
 
-#: the judged band of the twin/real commutation-error ratio
-RATIO_BAND = (0.67, 1.5)
-#: a calibration figure differs when real and twin are further apart than this many combined
-#: standard errors
-SIGMA_BAND = 3.0
 #: speed bins of the sector-width comparison (over the capture's 5-95 % speed range)
 WIDTH_BINS = 8
 #: what the twin can take on, and what it is
@@ -38,100 +47,6 @@ CANDIDATES = {
     "sector_locked_speed_ripple": "the rotor's speed ripple locked to the sectors (commutation torque ripple: an "
     "angle per sector boundary falling with 1/speed^2), which the capture's calibration fitted as a nuisance",
 }
-
-
-@dataclass
-class Difference:
-    """A way the twin's capture differs from the real one beyond their uncertainty."""
-
-    what: str  #: the figure that differs ("calibration: NAME", "predictor: NAME", ...)
-    effect: str  #: how far apart, with the numbers
-    #: whether running the twin with an addition closed it; None where no addition was tried on it
-    explained_by_adding: bool | None = None
-    added: str | None = None  #: the addition that closed it
-
-    def to_json(self) -> dict:
-        out: dict = {"what": self.what, "effect": self.effect}
-        if self.explained_by_adding is not None:
-            out["explained_by_adding"] = self.explained_by_adding
-        if self.added is not None:
-            out["added"] = self.added
-        return out
-
-
-@dataclass
-class Comparison:
-    """One twin run against the capture: every figure side by side, and what differs."""
-
-    edges_real: int
-    edges_twin: int
-    calibration: dict  #: real, twin: ``calibration_figures``; comparison: ``_figure_differences``
-    noise: dict  #: real, twin: ``NoiseModel.to_json()``; acf_stderr
-    sector_widths: dict
-    predictors: list[dict]  #: ``_ratios``
-    differences: list[Difference]
-
-    def to_json(self) -> dict:
-        return {
-            "edges": {"real": self.edges_real, "twin": self.edges_twin},
-            "calibration": self.calibration,
-            "noise": self.noise,
-            "sector_widths": self.sector_widths,
-            "predictors": self.predictors,
-            "differences": [d.to_json() for d in self.differences],
-        }
-
-
-@dataclass
-class Variant:
-    """The twin run another way (with or without an addition), beside the headline."""
-
-    comparison: Comparison
-    what: str | None = None  #: what this twin is (None: the twin without additions)
-    take_on: str | None = None  #: the command that makes it the headline
-
-    def to_json(self) -> dict:
-        c = self.comparison.to_json()
-        out = {} if self.what is None else {"what": self.what}
-        out.update(predictors=c["predictors"], calibration=c["calibration"], differences=c["differences"])
-        if self.take_on is not None:
-            out["take_on"] = self.take_on
-        return out
-
-
-@dataclass
-class TwinCheck:
-    """``hil twin check``'s result: the capture and its twin compared (JSON contract in docs/twin.md)."""
-
-    recording: str
-    twin_plant: str  #: the twin's plant TOML
-    seed: int
-    taken_on: list[str]  #: the additions the headline twin runs with
-    left_out: list[str]  #: what the capture shows and the twin's plant leaves out
-    capture_tick_s: float | None  #: the capture's timer tick, the twin's replay samples at it
-    headline: Comparison
-    without_additions: list[Difference]  #: the twin as written, against the capture
-    variants: dict[str, Variant] = field(default_factory=dict)
-
-    def replay(self) -> str:
-        return ("kinematic (plant_models.kinematic.simulate_edges): the twin's rotor passes each sector boundary "
-                "when the capture's fitted trajectory did, at constant speed in between, at the capture's timer "
-                f"tick {(self.capture_tick_s or 0) * 1e6:.4g} us; no phase current (armature reaction does not act)")
-
-    def to_json(self) -> dict:
-        return {
-            "recording": self.recording,
-            "twin": self.twin_plant,
-            "seed": self.seed,
-            "taken_on": self.taken_on,
-            "left_out": self.left_out,
-            "replay": self.replay(),
-            **self.headline.to_json(),
-            "ratio_band": list(RATIO_BAND),
-            # what the twin as written lacks, and whether an addition the capture names closes it
-            "differences_without_additions": [d.to_json() for d in self.without_additions],
-            "variants": {name: v.to_json() for name, v in self.variants.items()},
-        }
 
 
 def predictor_rows(rec, source: str) -> dict:
@@ -174,9 +89,9 @@ def calibration_figures(an: CaptureAnalysis) -> dict:
     }
 
 
-def sector_widths(an: CaptureAnalysis, bins: np.ndarray) -> dict:
+def sector_widths(an: CaptureAnalysis, bins: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Mean sector width (deg e) per edge slot (the label of the edge opening the sector, and its
-    polarity) and speed bin, with standard errors."""
+    polarity) and speed bin, and its standard error."""
     steps = an.steps
     f = speed_hz_e(steps)
     used = np.nonzero(steps.used())[0]
@@ -193,11 +108,7 @@ def sector_widths(an: CaptureAnalysis, bins: np.ndarray) -> dict:
             if sel.sum() >= 5:
                 mean[s, j] = float(np.mean(width[sel]))
                 se[s, j] = float(np.std(width[sel]) / math.sqrt(sel.sum()))
-    return {"mean_deg_e": mean, "stderr_deg_e": se}
-
-
-def _nan_list(a: np.ndarray) -> list:
-    return [[None if not np.isfinite(v) else float(v) for v in row] for row in a]
+    return mean, se
 
 
 def _analyse_twin(config: PlantConfig, real: CaptureAnalysis, seed: int, ripple: bool, name: str):
@@ -220,22 +131,17 @@ def _beyond_table_figure(an: CaptureAnalysis, name: str) -> float:
 def _left_out_differences(real: CaptureAnalysis, twin: CaptureAnalysis, with_them: CaptureAnalysis,
                           left_out: list[str]) -> list[Difference]:
     """Each measured effect the twin leaves out (no table holds it) is a difference the twin lacks;
-    adding it explains it when the twin's capture then shows it as the real one does (RMS ratio in
-    RATIO_BAND)."""
+    adding it explains it when the twin's capture then shows it as the real one does."""
     out = []
     for name in left_out:
-        r, t, w = (_beyond_table_figure(a, name) for a in (real, twin, with_them))
-        closed = r > 0 and RATIO_BAND[0] <= w / r <= RATIO_BAND[1]
-        out.append(Difference(
-            f"left out of the twin: {name}" + (f" beyond {PARTLY_HELD[name]}" if name in PARTLY_HELD else ""),
-            f"the capture shows {r:.3f} deg e RMS, the twin {t:.3f} ({w:.3f} with it added): measured, but no "
-            f"calibration table holds it, so the twin's plant leaves it out (`hil twin from-capture "
-            f"{UNCALIBRATABLE[name]}` keeps it)",
-            closed, name if closed else None))
+        d = LeftOutDifference(name, *(_beyond_table_figure(a, name) for a in (real, twin, with_them)))
+        d.explained_by_adding, d.added = d.closed, name if d.closed else None
+        out.append(d)
     return out
 
 
-def _figure_differences(real: dict, twin: dict) -> dict[str, dict]:
+def _figure_differences(real: dict, twin: dict) -> dict[str, FigureComparison]:
+    """The figures both captures give with a standard error, side by side."""
     out = {}
     for k, r in real.items():
         t = twin.get(k)
@@ -243,52 +149,30 @@ def _figure_differences(real: dict, twin: dict) -> dict[str, dict]:
             continue
         if r.get("stderr") is None or t.get("stderr") is None:
             continue
-        se = math.hypot(r["stderr"], t["stderr"])
-        out[k] = {"real": r["value"], "twin": t["value"], "difference": t["value"] - r["value"],
-                  "combined_stderr": se, "beyond": abs(t["value"] - r["value"]) > SIGMA_BAND * se}
+        out[k] = FigureComparison(r["value"], t["value"], math.hypot(r["stderr"], t["stderr"]))
     return out
 
 
-def _ratios(real_rows: dict, twin_rows: dict) -> list[dict]:
-    out = []
-    for side, rows in (("real", real_rows), ("twin", twin_rows)):
-        if "error" in rows:
-            out.append({"name": "all", "real_rms_deg_e": None, "twin_rms_deg_e": None, "ratio": None,
-                        "within_band": False, "error": f"{side}: {rows['error']}"})
+def _ratios(real_rows: dict, twin_rows: dict) -> list[PredictorRatio]:
+    out = [PredictorRatio("all", None, None, error=f"{side}: {rows['error']}")
+           for side, rows in (("real", real_rows), ("twin", twin_rows)) if "error" in rows]
     names = [n for n in (real_rows if "error" not in real_rows else twin_rows) if n != "error"]
-    for name in names:
-        r = real_rows.get(name)
-        t = twin_rows.get(name)
-        ratio = t / r if r and t is not None and r > 0 else None
-        out.append({"name": name, "real_rms_deg_e": r, "twin_rms_deg_e": t, "ratio": ratio,
-                    "within_band": ratio is not None and RATIO_BAND[0] <= ratio <= RATIO_BAND[1]})
-    return out
+    return out + [PredictorRatio(name, real_rows.get(name), twin_rows.get(name)) for name in names]
 
 
 def _compare(real: CaptureAnalysis, real_fig: dict, real_rows: dict, twin: CaptureAnalysis, twin_rows: dict,
              bins: np.ndarray) -> Comparison:
     """One twin run against the capture: every figure side by side and what differs."""
     twin_fig = calibration_figures(twin)
-    w_real, w_twin = sector_widths(real, bins), sector_widths(twin, bins)
-    width_diff = w_twin["mean_deg_e"] - w_real["mean_deg_e"]
-    width_se = np.hypot(w_twin["stderr_deg_e"], w_real["stderr_deg_e"])
+    (real_w, real_se), (twin_w, twin_se) = sector_widths(real, bins), sector_widths(twin, bins)
+    widths = SectorWidths([float(v) for v in bins], real_w, twin_w, real_se, twin_se)
     acf_se = 1.0 / math.sqrt(max(real.fit.index.size, 1))  # an autocorrelation estimate of white noise
     figs = _figure_differences(real_fig, twin_fig)
     preds = _ratios(real_rows, twin_rows)
     return Comparison(
-        int(real.rec.t_s.size), int(twin.rec.t_s.size),
-        calibration={"real": real_fig, "twin": twin_fig, "comparison": figs},
-        noise={"real": real.noise.to_json(), "twin": twin.noise.to_json(), "acf_stderr": acf_se},
-        sector_widths={"speed_bins_hz_e": [float(v) for v in bins],
-                          "slots": "label of the edge opening the sector (boundary 60 m deg e, m mod 6)",
-                          "real_deg_e": _nan_list(w_real["mean_deg_e"]),
-                          "twin_deg_e": _nan_list(w_twin["mean_deg_e"]),
-                          "real_stderr_deg_e": _nan_list(w_real["stderr_deg_e"]),
-                          "twin_stderr_deg_e": _nan_list(w_twin["stderr_deg_e"]),
-                          "max_abs_difference_deg_e": float(np.nanmax(np.abs(width_diff)))},
-        predictors=preds,
-        differences=_differences(figs, preds, width_diff, width_se, np.array(real.noise.acf),
-                                 np.array(twin.noise.acf), acf_se, real.pole_pairs),
+        int(real.rec.t_s.size), int(twin.rec.t_s.size), real_fig, twin_fig, figs, real.noise, twin.noise, acf_se,
+        widths, preds, _differences(figs, preds, widths, np.array(real.noise.acf), np.array(twin.noise.acf), acf_se,
+                                    real.pole_pairs),
     )
 
 
@@ -387,39 +271,19 @@ def ripple_pattern_available(an: CaptureAnalysis) -> bool:
     return any(n.startswith("ripple_") for n in an.fit.names)
 
 
-def _differences(figs, preds, width_diff, width_se, acf_real, acf_twin, acf_se, pole_pairs=None) -> list[Difference]:
-    out = []
-    for k, f in figs.items():
-        if f["beyond"]:
-            out.append(Difference(f"calibration: {k}", f"real {f['real']:.4g}, twin {f['twin']:.4g}: "
-                                  f"{abs(f['difference']) / f['combined_stderr']:.1f} combined standard errors apart"))
-    for p in preds:
-        if p.get("error"):
-            out.append(Difference("predictors", f"the comparison refused the capture: {p['error']}"))
-        elif not p["within_band"]:
-            out.append(Difference(f"predictor: {p['name']}",
-                                  f"commutation-error RMS real {p['real_rms_deg_e']}, twin {p['twin_rms_deg_e']}: "
-                                  f"ratio {p['ratio']} outside {RATIO_BAND[0]}-{RATIO_BAND[1]}"))
-    z = np.abs(width_diff) / np.where(width_se > 0, width_se, np.nan)
+def _differences(figs: dict[str, FigureComparison], preds: list[PredictorRatio], widths: SectorWidths,
+                 acf_real, acf_twin, acf_se, pole_pairs=None) -> list[Difference]:
+    out: list[Difference] = [FigureDifference(k, f) for k, f in figs.items() if f.beyond]
+    out += [PredictorDifference(p) for p in preds if p.error or not p.within_band]
+    diff = widths.difference_deg_e
+    se = widths.combined_stderr_deg_e
+    z = np.abs(diff) / np.where(se > 0, se, np.nan)
     if np.nanmax(z, initial=0.0) > 5.0:
         s, j = np.unravel_index(np.nanargmax(z), z.shape)
-        out.append(Difference("sector widths against speed", f"slot {s}, speed bin {j}: twin - real "
-                              f"{width_diff[s, j]:+.2f} deg e ({z[s, j]:.1f} standard errors)"))
+        out.append(WidthDifference(int(s), int(j), float(diff[s, j]), float(z[s, j])))
     lag = int(np.argmax(np.abs(acf_twin - acf_real)))
     if abs(acf_twin[lag] - acf_real[lag]) > 4.0 * acf_se:
-        n, where = lag + 1, ""
-        if n <= 2:
-            where = ": neighbouring edges, a colour of the edge noise the twin's jitter does not reproduce"
-        elif pole_pairs and n % (6 * pole_pairs) == 0:
-            where = ": a whole mechanical turn, a pattern of the mechanical turn the twin lacks"
-        elif pole_pairs and n % (3 * pole_pairs) == 0:
-            where = ": half a mechanical turn, a pattern of the mechanical turn the twin lacks"
-        elif n % 6 == 0:
-            where = ": a whole electrical cycle, a sector-locked pattern the twin lacks"
-        elif n % 3 == 0:
-            where = ": half an electrical cycle, a sector-locked pattern the twin lacks"
-        out.append(Difference("residual autocorrelation", f"lag {lag + 1}: real {acf_real[lag]:+.3f}, twin "
-                              f"{acf_twin[lag]:+.3f} (standard error {acf_se:.3f}){where}"))
+        out.append(AutocorrelationDifference(lag + 1, float(acf_real[lag]), float(acf_twin[lag]), acf_se, pole_pairs))
     return out
 
 

@@ -1,0 +1,242 @@
+"""The typed parts of a gap diagnosis (issue 40): figures with their units in their names, effect
+names, no sentences. The JSON a diagnosis writes (docs/recording-format.md) is built by each
+part's ``to_json`` alone; the sentences of the JSON and of the reports (a confounded pair's knob,
+the pattern an ordinary run's parameters describe, a split-half figure's caveat) are made here
+from those values, so the JSON and the renderers (hil.gap.report) say the same."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from plant_models.effects import EFFECTS
+
+from .relevance import Relevance
+
+#: a parameter's value: a number, one per sensor or pole, or named contrasts
+ParamValue = float | list[float] | dict[str, float]
+
+ORDINARY_ROUTE = "ordinary run"
+
+#: what the parameters of an effect an ordinary run fits describe (its JSON rows' ``meaning``)
+ORDINARY_MEANING = {
+    "hysteresis": "per sensor and direction, rise minus fall, constant in angle",
+    "torque_ripple": "per sensor boundary, sum zero, falls with 1/speed^2: the rotor's sector-locked speed ripple",
+    "installation_offset": "per sensor, sum zero",
+    "pole_offset": "per pole boundary, sum zero",
+    "conditioning_delay": "rising edges' delay minus falling edges' delay, constant in time",
+}
+
+#: an ordinary run's own knobs: capture times alone, so the experiment is a speed sweep
+ORDINARY_KNOBS = {
+    "conditioning_delay/hysteresis": "a speed sweep: a delay grows with speed, asymmetric switching points do not",
+    "conditioning_delay/torque_ripple": "a speed sweep at another load: the ripple falls with 1/speed^2",
+    "hysteresis/torque_ripple": "a speed sweep: the ripple falls with 1/speed^2, switching points stay",
+}
+
+
+def knob(a: str, b: str) -> str:
+    """The experiment that separates ``a`` from ``b``, as a full sentence: what to record and
+    why it tells them apart (each effect's declaration holds its halves and its pair sentences)."""
+    ca, cb = EFFECTS.get(a), EFFECTS.get(b)
+    pair = (ca.pair_knobs.get(b) if ca else None) or (cb.pair_knobs.get(a) if cb else None)
+    if pair:
+        return pair
+    rec_a = (ca.knob_record if ca else None) or "more operating points"
+    rec_b = (cb.knob_record if cb else None) or "more operating points"
+    record = rec_a if rec_a == rec_b else f"{rec_a} and {rec_b}"
+    shows_a = (ca.knob_shows if ca else None) or f"{a} has its own fingerprint"
+    shows_b = (cb.knob_shows if cb else None) or f"{b} has its own fingerprint"
+    return f"Record {record}: {shows_a}, while {shows_b}."
+
+
+@dataclass(frozen=True)
+class Confounded:
+    """Two effects the recording cannot tell apart (the JSON's ``confounded`` pair and its knob)."""
+
+    names: list[str]  #: as the result lists them
+    #: the order the knob sentence names them in when it is not ``names``' (a tie at selection:
+    #: the effect kept first, its rival second)
+    knob_order: tuple[str, str] | None = None
+
+    def knob(self, route: str) -> str:
+        """The experiment that separates them (an ordinary run has its own for some pairs)."""
+        own = ORDINARY_KNOBS.get("/".join(self.names)) if route == ORDINARY_ROUTE else None
+        return own or knob(*(self.knob_order or self.names))
+
+
+@dataclass
+class FittedEffect:
+    """An effect fitted to the recording: its named parameters (units in the names), their
+    standard errors (a searched shape parameter has none), and what it does against its floor."""
+
+    effect: str
+    params: dict[str, ParamValue]
+    stderr: dict[str, ParamValue] | None = None  #: None: the fit gives none (the edge jitter's)
+    relevance: Relevance | None = None  #: None: no operating envelope to judge it against
+
+    @property
+    def relevant(self) -> bool:
+        return self.relevance is None or self.relevance.relevant
+
+    def to_json(self, route: str = "segments") -> dict:
+        out: dict = {"effect": self.effect, "params": self.params}
+        if self.stderr is not None:
+            out["stderr"] = self.stderr
+        if route == ORDINARY_ROUTE and self.effect in ORDINARY_MEANING:
+            out["meaning"] = ORDINARY_MEANING[self.effect]
+        if self.relevance is not None:
+            out["relevance"] = self.relevance.to_json()
+        return out
+
+
+@dataclass(frozen=True)
+class NoiseGap:
+    """The per-edge noise against the model's (a variance effect: the edge jitter): the pooled
+    chi-square test of the excess and its held-out shrink over segments."""
+
+    p_value: float
+    significant: bool
+    before_deg_e: float  #: RMS over edges of measured minus expected noise RMS
+    after_heldout_deg_e: float | None  #: None: a single segment
+    heldout_shrink: float | None
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class RegionResidual:
+    """The edge residual of one operating point (segment)."""
+
+    segment: int  #: index into the recording's segments
+    speed_rpm: float
+    current_a: float
+    load_scale: float
+    direction: int  #: +1 forward, -1 reverse
+    mean_deg_e: float
+    rms_deg_e: float
+
+    def to_json(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class OrderSpectrum:
+    """Amplitude of the turn-averaged residual per mechanical order (0 .. 3 p for edges)."""
+
+    amplitude: list[float]  #: in the unit of the residual it is the spectrum of (``unit``)
+    unit: str = "deg_e"
+
+    @property
+    def mechanical_order(self) -> list[int]:
+        return list(range(len(self.amplitude)))
+
+    def to_json(self) -> dict:
+        return {"mechanical_order": self.mechanical_order, f"amplitude_{self.unit}": self.amplitude}
+
+
+@dataclass(frozen=True)
+class EdgeLocalisation:
+    """Where the mean edge residual (deg e, + = trails) of a recording with segments sits."""
+
+    per_sensor_deg_e: dict[str, float]  #: "A", "B", "C"
+    per_polarity_deg_e: dict[str, float]  #: "rise", "fall"
+    per_pole_deg_e: dict[int, float]  #: magnet pole index
+    per_region: list[RegionResidual]
+    order_spectrum: OrderSpectrum | None = None  #: None: no segment holds a whole mechanical turn
+
+    def to_json(self) -> dict:
+        out: dict = {
+            "per_sensor": self.per_sensor_deg_e,
+            "per_polarity": self.per_polarity_deg_e,
+            "per_pole": {str(k): v for k, v in self.per_pole_deg_e.items()},
+            "per_region": [g.to_json() for g in self.per_region],
+        }
+        if self.order_spectrum is not None:
+            out["order_spectrum"] = self.order_spectrum.to_json()
+        return out
+
+
+@dataclass(frozen=True)
+class SensorPolarityMean:
+    sensor: str  #: "A", "B", "C"
+    polarity: str  #: "rise", "fall"
+    mean_deg_e: float | None  #: None: no inlying edge of this sensor and polarity
+
+
+@dataclass(frozen=True)
+class OrdinaryLocalisation:
+    """An ordinary run's mean angle residual of the trajectory-only fit per sensor and polarity."""
+
+    by_sensor_and_polarity: list[SensorPolarityMean]
+
+    def to_json(self) -> dict:
+        return {
+            "by_sensor_and_polarity": {
+                f"{m.sensor}_{m.polarity}_mean_deg_e": m.mean_deg_e for m in self.by_sensor_and_polarity
+            }
+        }
+
+
+@dataclass(frozen=True)
+class SplitHalf:
+    """An ordinary run's model fitted on the first and on the second half of its used edges alone:
+    how far the estimates repeat on the same motor."""
+
+    failure: str | None = None  #: why a half could not be fitted (then no figure)
+    delay_diff_s: tuple[float, float] | None = None  #: rise-minus-fall delay difference of each half
+    delay_diff_stderr_s: tuple[float, float] | None = None
+    static_rms_difference_deg_e: float | None = None  #: the other parameters' RMS difference of the halves
+    static_rms_deg_e: float | None = None  #: their RMS (the mean of the halves)
+
+    @property
+    def delay_relative_difference(self) -> float:
+        a, b = self.delay_diff_s
+        return abs(a - b) / max(abs(a + b) / 2, 1e-12)
+
+    @property
+    def delay_difference_z(self) -> float:
+        (a, b), (sa, sb) = self.delay_diff_s, self.delay_diff_stderr_s
+        return abs(a - b) / max(math.hypot(sa, sb), 1e-300)
+
+    def to_json(self) -> dict:
+        if self.failure is not None:
+            return {"note": f"no split-half figure: {self.failure}"}
+        out: dict = {"halves": "first and second half of the used edges, each fitted alone"}
+        if self.delay_diff_s is not None:
+            out["rise_fall_delay_difference_s"] = list(self.delay_diff_s)
+            out["rise_fall_delay_difference_stderr_s"] = list(self.delay_diff_stderr_s)
+            out["delay_relative_difference"] = self.delay_relative_difference
+            out["delay_difference_z"] = self.delay_difference_z
+        if self.static_rms_difference_deg_e is not None:
+            out["static_parameters_rms_difference_deg_e"] = self.static_rms_difference_deg_e
+            out["static_parameters_rms_deg_e"] = self.static_rms_deg_e
+        return out
+
+
+@dataclass(frozen=True)
+class SegmentResidual:
+    """A sampled signal's systematic residual on one operating point (in the domain's unit)."""
+
+    segment_id: str
+    rms: float
+    cells: int
+
+
+@dataclass(frozen=True)
+class SampleLocalisation:
+    """Where a sampled signal's residual sits: per segment, and over the mechanical turn (speed:
+    its order spectrum, where cogging shows) or the electrical turn (voltage)."""
+
+    per_segment: list[SegmentResidual]
+    order_spectrum: OrderSpectrum | None = None  #: the speed residual's
+    per_electrical_angle_v: dict[int, float] = field(default_factory=dict)  #: the voltage residual's, by deg e
+
+    def to_json(self) -> dict:
+        out: dict = {"per_segment": {g.segment_id: {"rms": g.rms, "cells": g.cells} for g in self.per_segment}}
+        if self.order_spectrum is not None:
+            out["order_spectrum"] = self.order_spectrum.to_json()
+        if self.per_electrical_angle_v:
+            out["per_electrical_angle_v"] = {str(k): v for k, v in self.per_electrical_angle_v.items()}
+        return out
