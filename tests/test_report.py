@@ -1,6 +1,7 @@
 """The compliance reports: escaping, incremental writing (a killed run keeps what it finished), xdist merge."""
 
 import json
+import re
 
 import can  # noqa: F401  imported before any in-process pytester run: its snapshot of sys.modules would
 
@@ -563,3 +564,21 @@ def test_each_requirement_of_a_test_has_its_own_verdict(pytester):
                                                                "commutation_angle_p99"]
     assert "recovered_commutation_angle_p99 (REQ-ROB-002): measured 9" in missed["message"]
     assert tests["codes-wrong"]["budget_only"] == ["REQ-ROB-002", "REQ-COMM-001"]
+
+
+def test_a_missed_budget_inside_a_hypothesis_example_raises_at_once_so_the_search_shrinks(pytester):
+    pytester.makepyfile(test_search="""
+from hypothesis import given, settings, strategies as st
+
+@settings(max_examples=50, database=None, derandomize=True)
+@given(p99=st.floats(0.0, 9.0))
+def test_search(p99, hil_budget):
+    hil_budget("commutation_angle_p99", p99)
+""")
+    result = pytester.runpytest("--hil-report-dir", "rep")
+    result.assert_outcomes(failed=1)
+    test = report(pytester)["tests"][0]
+    # hypothesis saw the miss as the example's failure and shrank it to the simplest float over the
+    # limit (a deferred miss would have let every example pass, and the test fail unshrunk at its end)
+    assert "Failing test case" in test["details"] and test["failed_by"] == "budget", test["details"][-800:]
+    assert re.search(r"p99=1\.0,", test["details"]), test["details"][-800:]
