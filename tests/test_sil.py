@@ -318,3 +318,21 @@ def test_a_firmware_defect_has_an_optional_class_that_the_sensitivity_run_uses(t
     assert r.defect_class == "speed-loop" and "-x" not in cmd and "--hil-defect" not in cmd
     assert cmd[cmd.index("--hil-dut") + 1] == f"sil:{folder},define=HIL_DEFECT_X"
     assert cmd[cmd.index("--hil-requirements") + 1] == "REQ-SPD-001"
+
+
+def test_the_firmware_benchs_plant_offers_everything_the_suite_asks_of_a_bench_plant():
+    """A bench with a firmware in the loop runs its plant in the firmware's process
+    (``RemoteSimulation``): every ``bench.sim`` method or property the acceptance suite uses must be
+    there too, or a test errors on a firmware alone (the load step's ``set_load_scale`` did)."""
+    import re
+    from pathlib import Path
+
+    from hil.sil.link import RemoteSimulation
+
+    root = Path(__file__).resolve().parents[1]
+    sources = [*sorted((root / "test_cases").glob("*.py")), root / "hil" / "experiments" / "speed_step.py"]
+    used = {name for path in sources for name in re.findall(r"\bbench\.sim\.([a-z_]+)", path.read_text())}
+    assert {"run_until", "set_load_scale", "set_edge_jitter"} <= used  # the scan sees the suite
+    # (t_s is an attribute each bench sets as its plant runs)
+    missing = sorted(name for name in used if not hasattr(RemoteSimulation, name) and name != "t_s")
+    assert not missing, f"RemoteSimulation lacks {missing}"

@@ -315,6 +315,9 @@ class RemoteSimulation:
     def set_edge_jitter(self, time_rms_s: float) -> None:
         self._call("sim", "set_edge_jitter", time_rms_s)
 
+    def set_load_scale(self, scale: float) -> None:
+        self._call("sim", "set_load_scale", scale)
+
     @property
     def edge_jitter_s(self) -> float:
         return self._call("sim", "edge_jitter_s")

@@ -117,7 +117,8 @@ class _Worker:
         return out
 
     def op_sim(self, name: str, *args):
-        """A plant result or setting: edges, samples, energy, set_edge_jitter, edge_jitter_s, speed_rpm."""
+        """A plant result or setting: edges, samples, energy, set_edge_jitter, set_load_scale, edge_jitter_s,
+        speed_rpm."""
         sim = self.periph.sim
         attr = getattr(sim, name)
         return attr(*args) if callable(attr) else attr
