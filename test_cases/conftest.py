@@ -28,19 +28,3 @@ def calibrate(hil_plant_config, hil_seed):
 
     return run
 
-
-#: the suite's longest tests (REQ-PRED-002's 36 scenario runs, REQ-ROB-001's and REQ-ROB-002's
-#: searches), run first: pytest-xdist's work stealing then fills the other workers around them,
-#: where one started last would leave the run waiting on it alone
-LONGEST_FIRST = ("test_sage_husa_is_no_worse_than_the_tuned_kf",
-                 "test_any_calibrated_deviation_set_meets_the_commutation",
-                 "test_fault_sequences_are_reported_and_recovered")
-
-
-def pytest_collection_modifyitems(config, items):
-    rank = {name: k for k, name in enumerate(LONGEST_FIRST)}
-
-    def order(item):
-        return next((k for name, k in rank.items() if item.name.startswith(name)), len(rank))
-
-    items.sort(key=order)  # stable: the rest keep pytest's order
