@@ -27,4 +27,3 @@ def calibrate(hil_plant_config, hil_seed):
         return cache[key]
 
     return run
-
