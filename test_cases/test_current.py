@@ -40,7 +40,7 @@ def _true_abs_currents(bench, since_s: float):
     return np.asarray(s.t_s)[keep], np.abs(np.asarray(s.i_true_a))[keep], np.asarray(s.speed_rpm)[keep]
 
 
-@pytest.mark.requirement("REQ-CUR-001")
+@pytest.mark.requirement("REQ-CUR-001", "REQ-SPD-001")  # SPD-001: the overshoot once the limit releases
 def test_a_speed_step_keeps_the_current_limit(calibrate, hil_bench, hil_budget, hil_evidence, hil_plant_config):
     plant = hil_plant_config
     effects = plant.suite_deviations(PAPER_EFFECTS)
