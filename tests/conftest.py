@@ -52,8 +52,10 @@ def _start_default_acceptance() -> None:
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
     # files, not pipes: a pipe would fill and stall the run while nobody reads it
     out, err = tempfile.TemporaryFile(mode="w+"), tempfile.TemporaryFile(mode="w+")
-    proc = subprocess.Popen([sys.executable, "-m", "hil", "acceptance", "-o", str(reports)], cwd=ROOT, env=env,
-                            stdout=out, stderr=err, text=True)
+    # in one process (-j 0): beside the session's own tests a second worker only doubles the
+    # imports and the calibration campaign, it finds no idle core
+    proc = subprocess.Popen([sys.executable, "-m", "hil", "acceptance", "-j", "0", "-o", str(reports)], cwd=ROOT,
+                            env=env, stdout=out, stderr=err, text=True)
     _DEFAULT_ACCEPTANCE.update(proc=proc, reports=reports, out=out, err=err)
 
 
@@ -79,11 +81,10 @@ def pytest_sessionfinish(session, exitstatus):
 @pytest.fixture(scope="session")
 def default_acceptance():
     """README's ``python -m hil acceptance`` (the acceptance suite, test_cases/, against the
-    built-in controller over CANopen on pytest-xdist workers), run once a session from the
-    repository, in the background from the end of collection: the completed process and its
-    report directory. This is the test suite's one run of
-    test_cases/ (tests/test_acceptance_run.py holds its verdict; tests/test_browser.py lays out and
-    prints its report)."""
+    built-in controller over CANopen), run once a session from the repository, in one process and
+    in the background from the end of collection: the completed process and its report directory.
+    This is the test suite's one run of test_cases/ (tests/test_acceptance_run.py holds its
+    verdict; tests/test_browser.py lays out and prints its report)."""
     if not _DEFAULT_ACCEPTANCE:  # collected by a plugin that bypassed the hook: start it here
         _start_default_acceptance()
     proc, reports = _DEFAULT_ACCEPTANCE["proc"], _DEFAULT_ACCEPTANCE["reports"]

@@ -62,6 +62,7 @@ def responses():
     other deviation, corrected commutation on an empty table, seed 1), and the shipped loop's. The
     jitter matters: a proportional gain ten times too high chatters on the speed measurement's noise."""
     config = paper_bench().with_effects(fx.EdgeJitter(time_rms_s=3e-6))
+    budgets = Budgets.defaults()
     out = {}
     for name in (None, *[n for n, d in CATALOGUE.items() if d.defect_class == "speed-loop"]):
         make = CATALOGUE[name].controller if name else VirtualController
@@ -74,12 +75,16 @@ def responses():
                                  seed=1, sim_options={"max_step_s": acceptance_max_step_s(config)})
 
         response, holding, peak, _ = S.run_step(bench(), config, rpm, S.STEP_TO_RPM, settle_s=0.3)
-        limited, _, _, _ = S.run_step(bench(), config, rpm, LIMITED_STEP_TO_RPM, settle_s=0.3, hold_s=1.2)
-        load, _ = S.run_load_step(bench(), rpm, settle_s=0.3)
         out[name] = {"speed_step_overshoot": response.overshoot, "speed_step_decay_ratio": response.decay_ratio,
                      "speed_step_settling_s": response.settling_s, "speed_hold_current_over_load": holding,
-                     "speed_limited_step_overshoot": limited.overshoot,
-                     "speed_load_step_recovery_s": load.recovery_s, "peak": peak}
+                     "peak": peak}
+        if name is None or "fail" not in {budgets.check(b, v).verdict for b, v in out[name].items() if b != "peak"}:
+            # the current-limited step and the load step, for the shipped loop and for a defect the
+            # small step lets through (the others have failed REQ-SPD-001 already)
+            limited, _, _, _ = S.run_step(bench(), config, rpm, LIMITED_STEP_TO_RPM, settle_s=0.3, hold_s=1.2)
+            load, _ = S.run_load_step(bench(), rpm, settle_s=0.3)
+            out[name].update(speed_limited_step_overshoot=limited.overshoot,
+                             speed_load_step_recovery_s=load.recovery_s)
     return out
 
 
