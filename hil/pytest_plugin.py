@@ -323,14 +323,19 @@ def pytest_generate_tests(metafunc):
         metafunc.parametrize("hil_dut_spec", specs, ids=[s.id for s in specs], scope="session")
 
 
-#: the budgets a test missed so far (``hil_budget``), raised together when its body returns
-_MISSED_BUDGETS = pytest.StashKey[list]()
-
-
 def _in_hypothesis_example() -> bool:
     """True inside a hypothesis example (``@given``), where a miss must raise at once."""
     control = sys.modules.get("hypothesis.control")
     return control is not None and control.currently_in_test_context()
+
+
+def _missed_budgets(item) -> list:
+    """The budgets ``hil_budget`` recorded as missed on ``item`` (its ``budget:`` properties, the
+    record the report reads too)."""
+    from .budgets import Verdict
+
+    recorded = [json.loads(v) for k, v in item.user_properties if str(k).startswith("budget:")]
+    return [Verdict(**m) for m in recorded if m["verdict"] == "fail"]
 
 
 @pytest.hookimpl(wrapper=True)
@@ -338,7 +343,7 @@ def pytest_runtest_call(item):
     """A test whose body returned after ``hil_budget`` recorded misses fails with all of them (a
     body that raised fails with its own exception; the misses are in the report either way)."""
     result = yield
-    missed = item.stash.get(_MISSED_BUDGETS, [])
+    missed = _missed_budgets(item)
     if missed:
         from .budgets import BudgetsExceeded
 
@@ -359,9 +364,10 @@ def pytest_runtest_makereport(item, call):
     if rep.failed and call.when == "call":
         # a judged figure that missed its bound (an assertion, a budget, pytest.fail) or a test
         # that could not judge (any other exception): only the first is evidence against the DUT
-        rep.user_properties.append((PROPERTY_PREFIX + "failed_by", failure_kind(exc)))
-    if rep.failed and call.when == "call" and not hasattr(rep, "wasxfail"):
-        _apply_waiver(item, rep, exc)
+        kind = failure_kind(exc)
+        rep.user_properties.append((PROPERTY_PREFIX + "failed_by", kind))
+        if not hasattr(rep, "wasxfail"):
+            _apply_waiver(item, rep, kind)
     if (
         rep.skipped
         and hasattr(rep, "wasxfail")
@@ -387,15 +393,14 @@ def pytest_runtest_makereport(item, call):
     return rep
 
 
-def _apply_waiver(item, rep, exc: BaseException) -> None:
+def _apply_waiver(item, rep, kind: str) -> None:
     """A failure that a waiver in the budgets covers under every requirement the test traces to
     (under every requirement whose budget it missed, when it missed only budgets) becomes a skip
     whose reason is the waiver (pytest's exit status, its own JUnit and the HIL report then agree);
     the failure itself travels on to the HIL report, which shows it beside the waiver. Docs:
     docs/budgets.md, Waivers."""
-    if failure_kind(exc) == "budget":
-        rids = {json.loads(v)["requirement"] for k, v in item.user_properties
-                if str(k).startswith("budget:") and json.loads(v)["verdict"] == "fail"}
+    if kind == "budget":
+        rids = {v.requirement for v in _missed_budgets(item)}
     else:
         rids = {str(v) for k, v in item.user_properties if k == "requirement"}
     if not rids:  # a waiver covers a test under the requirements it traces to: none, no waiver
@@ -721,7 +726,6 @@ def hil_budget(hil_budgets, request):
                 raise BudgetExceeded(v)  # hypothesis finds and shrinks a failing example by its exception
             # the test goes on, so each requirement it traces to is judged by its own budgets and
             # checks; pytest_runtest_call fails it with every missed budget once the body returns
-            request.node.stash.setdefault(_MISSED_BUDGETS, []).append(v)
         return v
 
     return check

@@ -24,6 +24,7 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
+from hil.experiments import speed_step as S
 from hil.judging import not_judged
 from hil.experiments.table5 import scenario_plant
 
@@ -32,12 +33,6 @@ STEP_HOLD_S = 1.2
 EFFICIENCY_SETTLE_S, EFFICIENCY_WINDOW_S = 0.4, 0.4
 #: the paper's deviations (installation, pole, RC, armature, edge jitter), as in its Section 4
 PAPER_EFFECTS = scenario_plant().effects
-
-
-def _true_abs_currents(bench, since_s: float):
-    s = bench.sim.samples()
-    keep = np.asarray(s.t_s) >= since_s
-    return np.asarray(s.t_s)[keep], np.abs(np.asarray(s.i_true_a))[keep], np.asarray(s.speed_rpm)[keep]
 
 
 @pytest.mark.requirement("REQ-CUR-001", "REQ-SPD-001")  # SPD-001: the overshoot once the limit releases
@@ -50,16 +45,13 @@ def test_a_speed_step_keeps_the_current_limit(calibrate, hil_bench, hil_budget, 
     (step_s,) = bench.run_setpoints([step_from_rpm], hold_s=0.0, settle_s=plant.suite_settle_s(0.3, step_from_rpm))
     bench.link.set_speed(step_to_rpm)
     bench.sim.run_until(step_s + plant.suite_duration_s(STEP_HOLD_S))
-    _, current, _ = _true_abs_currents(bench, step_s)
+    t, speed, current = S.since(bench, step_s)
     peak_a = float(current.max())
     hil_evidence.value("peak phase current", peak_a, "A")
     hil_evidence.value("mean |i| over the step", float(current.mean()), "A")
     hil_budget("phase_current_peak_a", peak_a)
     # the speed loop once the limit releases (REQ-SPD-001's budget): an integral that wound up
     # through the current-limited ramp overshoots by most of the step
-    from hil.experiments import speed_step as S
-
-    t, speed, _ = S.since(bench, step_s)
     ts, averaged = S.turn_average(t, speed, step_to_rpm)
     limited = S.step_response(ts, averaged, step_from_rpm, step_to_rpm)
     hil_evidence.value("overshoot once the current limit releases, over the step", limited.overshoot, "fraction")
@@ -75,8 +67,6 @@ def test_the_speed_loop_settles_a_step_the_current_limit_does_not_bound(
     (hil.experiments.speed_step). Overshoot and decay ratio (the quarter-amplitude decay), settling
     into +-10 % of the step, and the holding current over the load's need, all from the plant's
     true speed and currents."""
-    from hil.experiments import speed_step as S
-
     plant = hil_plant_config
     effects = plant.suite_deviations(PAPER_EFFECTS)
     step_from_rpm, step_to_rpm = plant.suite_speed_rpm(S.STEP_FROM_RPM), plant.suite_speed_rpm(S.STEP_TO_RPM)
@@ -103,8 +93,6 @@ def test_the_speed_loop_rejects_a_load_step(calibrate, hil_bench, hil_budget, hi
     as large again (a valve opening; hil.experiments.speed_step.run_load_step): the speed must be
     back within the settling band's width of the set point (0.2 %) within the settling time and
     stay there. A loop without integral action settles off the set point and never recovers."""
-    from hil.experiments import speed_step as S
-
     plant = hil_plant_config
     effects = plant.suite_deviations(PAPER_EFFECTS)
     rpm = plant.suite_speed_rpm(S.STEP_FROM_RPM)
@@ -136,7 +124,7 @@ def mean_current_a(bench, rpm: float, settle_s: float, window_s: float) -> tuple
     """Mean |i| and mean speed over the judged window, the controller holding ``rpm``."""
     bench.link.set_speed(rpm)
     bench.sim.run_until(settle_s + window_s)
-    _, current, speed = _true_abs_currents(bench, settle_s)
+    _, speed, current = S.since(bench, settle_s)
     return float(current.mean()), float(speed.mean())
 
 
