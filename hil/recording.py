@@ -20,7 +20,6 @@ from typing import Any
 import numpy as np
 
 from bldc.motor import steady_state
-from bldc.units import rpm_to_deg_e_per_s
 from plant_models import RawHallCommutation, Simulation
 from plant_models.edgelog import EdgeLog
 from plant_models.kinematic import simulate_edges
@@ -592,9 +591,7 @@ def recording_from_edges(
     keep = edges.segment >= 0
     e = edges.take(keep)
     # true angle at the timer's capture instant (the reference encoder's view)
-    # the electrical plant logs signed speed, the kinematic one magnitudes
-    w_e_deg_s = rpm_to_deg_e_per_s(np.abs(e.speed_rpm), pp)
-    theta_cap = e.theta_e_capture_deg - e.direction * w_e_deg_s * (e.t_conditioned_s - e.t_capture_s)
+    theta_cap = e.theta_e_stamp_deg(pp)
     angle_mech = np.mod(theta_cap / pp, 360.0)
     angle_mech[angle_mech >= 360.0] = 0.0
     truth = {

@@ -7,6 +7,7 @@ from dataclasses import dataclass, fields
 import numpy as np
 
 from bldc.hall import ideal_edge_angle_deg_e
+from bldc.units import rpm_to_deg_e_per_s
 
 
 @dataclass
@@ -42,6 +43,18 @@ class EdgeLog:
     def capture_error_deg_e(self) -> np.ndarray:
         """Angle error of the conditioned edge (before timer quantisation), positive = trails."""
         return self.direction * (self.theta_e_capture_deg - self.ideal_angle_deg_e)
+
+    def theta_e_stamp_deg(self, pole_pairs: int) -> np.ndarray:
+        """True electrical angle (unwrapped) at the instant the controller's timer stamped the edge:
+        the conditioned instant's angle moved on by the quantisation, at the speed there (its
+        magnitude in the direction of motion: the electrical plant logs signed speed, the
+        kinematic one magnitudes)."""
+        w_e_deg_s = rpm_to_deg_e_per_s(np.abs(self.speed_rpm), pole_pairs)
+        return self.theta_e_capture_deg - self.direction * w_e_deg_s * (self.t_conditioned_s - self.t_capture_s)
+
+    def stamp_error_deg_e(self, pole_pairs: int) -> np.ndarray:
+        """Angle error of the edge as the controller's timer stamped it, positive = trails."""
+        return self.direction * (self.theta_e_stamp_deg(pole_pairs) - self.ideal_angle_deg_e)
 
     def take(self, index) -> "EdgeLog":
         return EdgeLog(**{f.name: getattr(self, f.name)[index] for f in fields(self)})

@@ -62,9 +62,7 @@ def plant_edge_noise_rad2(edges, pole_pairs: int) -> float:
     at the instant the timer stamped it, within its class (sensor, polarity, pole), as half the
     variance of the differences between consecutive edges of the class (a drift of the class's
     mean over the run, a slowly changing current's lag, is not noise)."""
-    w_deg_e_per_s = edges.speed_rpm / 60.0 * 360.0 * pole_pairs
-    error_rad = np.radians(edges.capture_error_deg_e
-                           + edges.direction * w_deg_e_per_s * (edges.t_capture_s - edges.t_conditioned_s))
+    error_rad = np.radians(edges.stamp_error_deg_e(pole_pairs))
     classes = edges.sensor * 4 * pole_pairs + edges.rising * 2 * pole_pairs + edges.pole
     diffs = [np.diff(error_rad[classes == k]) for k in np.unique(classes)]
     diffs = np.concatenate([d for d in diffs if d.size]) if diffs else np.array([])
