@@ -67,7 +67,7 @@ def pytest_collection_modifyitems(session, config, items):
     if not users:
         return
     items[:] = [item for item in items if item not in users] + users
-    if not _DEFAULT_ACCEPTANCE:
+    if not _DEFAULT_ACCEPTANCE and not config.option.collectonly:
         _start_default_acceptance()
 
 
