@@ -34,9 +34,9 @@ LOCK_ENV = "HIL_COMPILE_LOCK"
 NUMBA_PACKAGES = ("plant_models", "hil.predictors", "hil.signals", "hil.controller", "bldc")
 
 
-def _stamp() -> tuple[Path, dict] | None:
-    """(where the "compiled" mark goes, what it must say): the numba cache directory (NUMBA_CACHE_DIR,
-    else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
+def _stamp(part: str) -> tuple[Path, dict] | None:
+    """(where the mark of ``part``'s compile goes, what it must say): the numba cache directory
+    (NUMBA_CACHE_DIR, else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
     ``NUMBA_PACKAGES``. Found without importing them (no numba, no plant: a warm run pays nothing)."""
     import importlib.metadata
     import importlib.util
@@ -53,61 +53,84 @@ def _stamp() -> tuple[Path, dict] | None:
     plant = Path(importlib.util.find_spec("plant_models").submodule_search_locations[0])
     cache = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else plant / "__pycache__"
     what = {"numba": importlib.metadata.version("numba"), "python": sys.version, "sources": sources}
-    return cache / "hil-compiled.json", what
+    return cache / f"hil-compiled-{part}.json", what
 
 
-def compiled_already() -> bool:
-    """Whether ``compile_numba_code`` ran to its end against these very sources and this cache (the
-    mark it leaves); a cache emptied since only means the workers compile, as they did before."""
+def compiled_already(part: str | None = None) -> bool:
+    """Whether ``compile_numba_code(part)`` (each part, for None) ran to its end against these very
+    sources and this cache (the mark it leaves); a cache emptied since only means the workers
+    compile, as they did before."""
     import json
 
+    if part is None:
+        return all(compiled_already(p) for p in PARTS)
     try:
-        mark, what = _stamp()
+        mark, what = _stamp(part)
         return json.loads(mark.read_text()) == what
     except (OSError, ValueError, TypeError):
         return False
 
 
-def _mark_compiled() -> None:
+def _mark_compiled(part: str) -> None:
     import json
 
     try:
-        mark, what = _stamp()
+        mark, what = _stamp(part)
         mark.parent.mkdir(parents=True, exist_ok=True)
         mark.write_text(json.dumps(what))
     except (OSError, TypeError):
         pass
 
 
-def compile_numba_code() -> None:
-    """Call each numba function an acceptance run calls, once, on a tiny case: the plant kernel
-    and the controller's filters (Sage-Husa on the lockstep bench), the signal export, loopback
-    and scorer. Loads from numba's cache when it is warm; compiles and writes it when it is cold."""
-    from bldc.contract import Strategy
-    from plant_models import paper_bench
+#: the compile split in parts that share no numba function, one process each (the machine's two
+#: cores): the plant kernel alone takes about 15 s, the controller's filters 14 s, the signal
+#: extractor 5 s (docs/acceptance.md, "The first run")
+PARTS = ("plant", "controller")
 
-    from .bench import LockstepBench
-    from .controller.virtual import VirtualController
-    from .dut.in_process import InProcessLink
-    from .signals.fixtures import SignalBench
 
-    config = paper_bench(True)
-    link = InProcessLink(VirtualController(config.motor, strategy=Strategy.SAGE_HUSA, speed_setpoint_rpm=5000.0))
-    LockstepBench(config, link).sim.run_until(0.05)
-    with tempfile.TemporaryDirectory(prefix="hil-compile-") as work:
-        SignalBench(config, 0, Path(work), None, None, None).run(speed_rpm=6000.0, duration_s=0.02)
+def compile_numba_code(part: str | None = None) -> None:
+    """Call each numba function an acceptance run calls, once, on a tiny case; loads from numba's
+    cache when it is warm, compiles and writes it when it is cold. ``part``: "plant" (the plant
+    kernel, on a lockstep bench whose controller runs no filter), "controller" (the controller's
+    filters as a device warms them, and the signal extractor on a tiny six-step capture), or None
+    (both)."""
+    if part in (None, "plant"):
+        from bldc.contract import Strategy
+        from plant_models import paper_bench
+
+        from .bench import LockstepBench
+        from .controller.virtual import VirtualController
+        from .dut.in_process import InProcessLink
+
+        config = paper_bench(True)
+        controller = VirtualController(config.motor, strategy=Strategy.CORRECTED, speed_setpoint_rpm=5000.0)
+        LockstepBench(config, InProcessLink(controller)).sim.run_until(0.05)
+    if part in (None, "controller"):
+        import numpy as np
+
+        from .controller.virtual import warm_up
+        from .signals.commutations import Extractor
+
+        warm_up()
+        # any gate states do: numba compiles for the argument types, not the values
+        states = np.arange(24, dtype=np.int64) % 64
+        extractor = Extractor(resolution_s=1e-6)
+        extractor.feed(np.arange(states.size) * 25e-6, states)
+        extractor.finish(states.size * 25e-6)
 
 
 class CompileAhead:
-    """``compile_numba_code`` in a process of its own (``python -m hil.compile_ahead``), which holds
-    an exclusive lock on a file until it is done; ``env()`` names the file for the processes that
-    must wait (``wait_for_compile_ahead``). A process, not a thread: nothing is imported into the
-    caller (``hil acceptance`` may run inside a test)."""
+    """``compile_numba_code`` in processes of their own (``python -m hil.compile_ahead PART``, one
+    per part not yet compiled, side by side), which together hold an exclusive lock on a file until
+    the last is done; ``env()`` names the file for the processes that must wait
+    (``wait_for_compile_ahead``). Processes, not threads: nothing is imported into the caller
+    (``hil acceptance`` may run inside a test). Started under a compile ahead already (its lock in
+    the environment: the test session's, around the acceptance run it starts), it starts nothing."""
 
     def __init__(self, env: dict[str, str] | None = None):
         self._env = env
         self._path: str | None = None
-        self._proc = None
+        self._procs: list = []
 
     def start(self) -> CompileAhead:
         import subprocess
@@ -116,16 +139,22 @@ class CompileAhead:
             import fcntl
         except ImportError:  # no flock (Windows): the workers compile as they did
             return self
-        if compiled_already():  # a warm cache: nothing to compile, nobody waits
+        upstream = (self._env if self._env is not None else os.environ).get(LOCK_ENV)
+        if upstream and Path(upstream).exists():  # an enclosing compile ahead: its waiters wait for it
+            return self
+        parts = [p for p in PARTS if not compiled_already(p)]
+        if not parts:  # a warm cache: nothing to compile, nobody waits
             return self
         fd, path = tempfile.mkstemp(prefix="hil-compile-", suffix=".lock")
         try:
             fcntl.flock(fd, fcntl.LOCK_EX)  # taken before any worker exists: none can pass it early
-            # the child inherits the locked file: the lock goes when the child exits
-            self._proc = subprocess.Popen([sys.executable, "-m", "hil.compile_ahead"], pass_fds=(fd,),
-                                          env=self._env, stdout=subprocess.DEVNULL)
+            # each child inherits the locked file: the lock goes when the last child exits
+            for part in parts:
+                self._procs.append(subprocess.Popen([sys.executable, "-m", "hil.compile_ahead", part], pass_fds=(fd,),
+                                                    env=self._env, stdout=subprocess.DEVNULL))
             self._path = path
         except OSError:
+            self.close()
             Path(path).unlink(missing_ok=True)
         finally:
             os.close(fd)
@@ -137,10 +166,10 @@ class CompileAhead:
     def close(self) -> None:
         """pytest has ended: remove the lock file; a compile still running (pytest stopped early)
         is stopped, nothing waits for it."""
-        if self._proc is not None:
-            if self._proc.poll() is None:
-                self._proc.terminate()
-            self._proc.wait()  # reaped: its CPU time counts among this process's children
+        for proc in self._procs:
+            if proc.poll() is None:
+                proc.terminate()
+            proc.wait()  # reaped: its CPU time counts among this process's children
         if self._path:
             Path(self._path).unlink(missing_ok=True)
 
@@ -169,11 +198,15 @@ def load_compiled() -> None:
         pass
 
 
-def main() -> int:
-    """The process CompileAhead starts: compile; its inherited lock goes when it exits."""
+def main(argv: list[str] | None = None) -> int:
+    """The process CompileAhead starts, for one part (every part without an argument): compile, and
+    mark it compiled; its inherited lock goes when it exits."""
+    args = sys.argv[1:] if argv is None else argv
+    parts = args[:1] if args else list(PARTS)
     try:
-        compile_numba_code()
-        _mark_compiled()
+        for part in parts:
+            compile_numba_code(part)
+            _mark_compiled(part)
     except Exception as exc:  # the workers compile for themselves, as before
         print(f"hil: compiling ahead failed ({type(exc).__name__}: {exc}); the workers compile for themselves",
               file=sys.stderr)

@@ -308,8 +308,8 @@ def pytest_runtestloop(session):
     """Under ``hil acceptance`` on a cold cache (a worker, or the one process): wait for the numba
     code it compiles ahead while pytest starts (hil/compile_ahead.py), then load all of it from the
     cache before the first test, so no test meets a load (or a compile) while a link's reply is
-    timed."""
-    if "HIL_COMPILE_LOCK" in __import__("os").environ:
+    timed. A session none of whose tests uses the plugin waits for nothing and loads nothing."""
+    if "HIL_COMPILE_LOCK" in __import__("os").environ and any(map(_uses_plugin, session.items)):
         from .compile_ahead import load_compiled, wait_for_compile_ahead
 
         wait_for_compile_ahead()

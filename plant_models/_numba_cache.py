@@ -22,7 +22,12 @@ def cache_dirs() -> list[Path]:
     ``NUMBA_CACHE_DIR`` in a folder named after the package."""
     root = os.environ.get("NUMBA_CACHE_DIR")
     if root:
-        return sorted(p for p in Path(root).glob(f"{PACKAGE_DIR.name}_*") if p.is_dir())
+        # the folder numba itself names for this very package (another clone's is another folder;
+        # it need not exist yet: the stamp goes in before numba's first write, or numba's first
+        # cache would be taken for a stale one by the next process and compiled again)
+        from numba.core.caching import _CacheLocator
+
+        return [Path(root) / _CacheLocator.get_suitable_cache_subpath(str(PACKAGE_DIR / "_kernel.py"))]
     return [PACKAGE_DIR / "__pycache__"]
 
 

@@ -1,7 +1,10 @@
 import os
+import shutil
+import signal
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -41,22 +44,97 @@ def spindle_check(spindle_twin):
 ROOT = Path(__file__).resolve().parent.parent
 
 
-#: README's ``python -m hil acceptance``, started in the background once the session has collected
-#: a test that needs it (``pytest_collection_modifyitems``): the process and its report directory
-_DEFAULT_ACCEPTANCE: dict = {}
+#: the directory the session's processes (the xdist controller and its workers) share: the numba
+#: compile ahead's lock is beside, the default acceptance run's report, output and exit code inside
+RUN_DIR_ENV = "HIL_TEST_RUN_DIR"
 _ACCEPTANCE_TIMEOUT_S = 1800
+#: the run in the background: its output, and its exit code once it has ended (written last)
+_WRAPPER = ("import pathlib, subprocess, sys\n"
+            "d = pathlib.Path(sys.argv[1])\n"
+            "with open(d / 'stdout', 'w') as out, open(d / 'stderr', 'w') as err:\n"
+            "    rc = subprocess.run(sys.argv[2:], stdout=out, stderr=err).returncode\n"
+            "(d / 'rc.part').write_text(str(rc))\n"
+            "(d / 'rc.part').rename(d / 'rc')\n")
+
+
+def _is_worker(config) -> bool:
+    return hasattr(config, "workerinput")
+
+
+def pytest_configure(config):
+    """In the session's first process (the xdist controller, or the one process): the run directory,
+    and the numba code compiled once, ahead, in two processes (hil/compile_ahead.py), for every
+    worker and for the default acceptance run; the workers (spawned later) inherit both."""
+    if _is_worker(config) or config.option.collectonly:
+        return
+    from hil.compile_ahead import CompileAhead
+
+    os.environ[RUN_DIR_ENV] = tempfile.mkdtemp(prefix="hil-test-run-")
+    ahead = CompileAhead(dict(os.environ)).start()
+    os.environ.update(ahead.env())
+    config.stash[_AHEAD] = ahead
+
+
+_AHEAD = pytest.StashKey()
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtestloop(session):
+    """Each worker waits for the compile ahead, then loads the compiled code, before its first test
+    (the plugin does the same for a session that uses its fixtures; most of these tests drive the
+    plant directly)."""
+    from hil.compile_ahead import LOCK_ENV, load_compiled, wait_for_compile_ahead
+
+    if os.environ.get(LOCK_ENV) and not session.config.option.collectonly:
+        wait_for_compile_ahead()
+        load_compiled()
+    return (yield)
+
+
+def pytest_unconfigure(config):
+    """The session has ended (every worker too): a default acceptance run still going is stopped
+    (the session stopped before it needed it), the compile ahead closed, the run directory gone."""
+    if _is_worker(config):
+        return
+    folder = os.environ.pop(RUN_DIR_ENV, None)
+    if folder:
+        pid = Path(folder, "pid")
+        if pid.exists() and not Path(folder, "rc").exists():
+            try:
+                os.killpg(int(pid.read_text()), signal.SIGKILL)
+            except (ProcessLookupError, PermissionError, ValueError):
+                pass
+        shutil.rmtree(folder, ignore_errors=True)
+    ahead = config.stash.get(_AHEAD, None)
+    if ahead is not None:
+        from hil.compile_ahead import LOCK_ENV
+
+        os.environ.pop(LOCK_ENV, None)
+        ahead.close()
+
+
+def _run_dir() -> Path:
+    folder = os.environ.get(RUN_DIR_ENV)
+    if not folder:  # a process the controller's pytest_configure did not run in: a directory of its own
+        folder = os.environ[RUN_DIR_ENV] = tempfile.mkdtemp(prefix="hil-test-run-")
+    return Path(folder)
 
 
 def _start_default_acceptance() -> None:
-    reports = Path(tempfile.mkdtemp(prefix="hil-default-acceptance-"))
+    """README's ``python -m hil acceptance``, started once per session, whichever worker claims it
+    first (an atomic mkdir): each worker collects every test, and each started a run of its own."""
+    folder = _run_dir()
+    try:
+        (folder / "claimed").mkdir()
+    except FileExistsError:
+        return
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])])}
-    # files, not pipes: a pipe would fill and stall the run while nobody reads it
-    out, err = tempfile.TemporaryFile(mode="w+"), tempfile.TemporaryFile(mode="w+")
     # in one process (-j 0): beside the session's own tests a second worker only doubles the
     # imports and the calibration campaign, it finds no idle core
-    proc = subprocess.Popen([sys.executable, "-m", "hil", "acceptance", "-j", "0", "-o", str(reports)], cwd=ROOT,
-                            env=env, stdout=out, stderr=err, text=True)
-    _DEFAULT_ACCEPTANCE.update(proc=proc, reports=reports, out=out, err=err)
+    cmd = [sys.executable, "-m", "hil", "acceptance", "-j", "0", "-o", str(folder / "reports")]
+    proc = subprocess.Popen([sys.executable, "-c", _WRAPPER, str(folder), *cmd], cwd=ROOT, env=env,
+                            start_new_session=True, stdin=subprocess.DEVNULL)
+    (folder / "pid").write_text(str(proc.pid))
 
 
 def pytest_collection_modifyitems(session, config, items):
@@ -67,15 +145,8 @@ def pytest_collection_modifyitems(session, config, items):
     if not users:
         return
     items[:] = [item for item in items if item not in users] + users
-    if not _DEFAULT_ACCEPTANCE and not config.option.collectonly:
+    if not config.option.collectonly:
         _start_default_acceptance()
-
-
-def pytest_sessionfinish(session, exitstatus):
-    proc = _DEFAULT_ACCEPTANCE.get("proc")
-    if proc is not None and proc.poll() is None:  # the session stopped before it needed the run
-        proc.kill()
-        proc.wait()
 
 
 @pytest.fixture(scope="session")
@@ -85,18 +156,16 @@ def default_acceptance():
     in the background from the end of collection: the completed process and its report directory.
     This is the test suite's one run of test_cases/ (tests/test_acceptance_run.py holds its
     verdict; tests/test_browser.py lays out and prints its report)."""
-    if not _DEFAULT_ACCEPTANCE:  # collected by a plugin that bypassed the hook: start it here
-        _start_default_acceptance()
-    proc, reports = _DEFAULT_ACCEPTANCE["proc"], _DEFAULT_ACCEPTANCE["reports"]
-    try:
-        proc.wait(timeout=_ACCEPTANCE_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        proc.wait()
-    out, err = (_DEFAULT_ACCEPTANCE[k] for k in ("out", "err"))
-    out.seek(0)
-    err.seek(0)
-    run = subprocess.CompletedProcess(proc.args, proc.returncode, stdout=out.read(), stderr=err.read())
+    _start_default_acceptance()  # collected by a plugin that bypassed the hook: start it here
+    folder = _run_dir()
+    deadline = time.monotonic() + _ACCEPTANCE_TIMEOUT_S
+    while not (folder / "rc").exists():
+        assert time.monotonic() < deadline, f"hil acceptance gave no exit code in {_ACCEPTANCE_TIMEOUT_S} s"
+        time.sleep(0.5)
+    text = {name: (folder / name).read_text() for name in ("stdout", "stderr")}
+    run = subprocess.CompletedProcess(["python", "-m", "hil", "acceptance"], int((folder / "rc").read_text()),
+                                      stdout=text["stdout"], stderr=text["stderr"])
+    reports = folder / "reports"
     assert (reports / "hil-report.json").is_file(), (
         f"hil acceptance wrote no report (exit {run.returncode}):\n{run.stdout[-3000:]}\n{run.stderr[-3000:]}"
     )

@@ -20,9 +20,10 @@ fcntl = pytest.importorskip("fcntl")
 
 def _ahead(monkeypatch, body: str) -> ahead_mod.CompileAhead:
     """A CompileAhead whose process runs ``body`` instead of the compile."""
+    monkeypatch.delenv(ahead_mod.LOCK_ENV, raising=False)  # this session's own compile ahead
     real_popen = subprocess.Popen
     monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: real_popen([sys.executable, "-c", body], **kw))
-    monkeypatch.setattr(ahead_mod, "compiled_already", lambda: False)
+    monkeypatch.setattr(ahead_mod, "compiled_already", lambda part=None: False)
     return ahead_mod.CompileAhead({**os.environ, "PYTHONPATH": str(ROOT)}).start()
 
 
@@ -43,19 +44,40 @@ def test_a_waiting_process_passes_only_when_the_compile_is_done(monkeypatch):
     ahead_mod.wait_for_compile_ahead()
 
 
+def test_the_parts_compile_side_by_side_and_the_lock_holds_until_the_last_is_done(monkeypatch):
+    """One process per part (the plant kernel, the controller's code: they share no numba function),
+    both at once; a waiter passes when the slower has ended."""
+    ahead = _ahead(monkeypatch, "import time; time.sleep(1.5)")
+    assert len(ahead._procs) == len(ahead_mod.PARTS) == 2
+    started = time.perf_counter()
+    env = {**os.environ, **ahead.env(), "PYTHONPATH": str(ROOT)}
+    subprocess.run([sys.executable, "-c", "from hil.compile_ahead import wait_for_compile_ahead as w; w()"],
+                   env=env, check=True, cwd=ROOT)
+    assert 1.0 <= time.perf_counter() - started < 2.9  # side by side, not one after the other
+    ahead.close()
+
+
+def test_a_compile_ahead_inside_another_starts_nothing(monkeypatch):
+    """``hil acceptance`` run by the test session, which compiles ahead for itself and the run."""
+    outer = _ahead(monkeypatch, "import time; time.sleep(2)")
+    inner = ahead_mod.CompileAhead({**os.environ, **outer.env()}).start()
+    assert inner._procs == [] and inner.env() == {}
+    outer.close()
+
+
 def test_a_compile_still_running_when_pytest_ends_is_stopped(monkeypatch):
     ahead = _ahead(monkeypatch, "import time; time.sleep(60)")
     started = time.perf_counter()
     ahead.close()
-    assert time.perf_counter() - started < 10 and ahead._proc.poll() is not None
+    assert time.perf_counter() - started < 10 and ahead._procs and all(p.poll() is not None for p in ahead._procs)
 
 
 def test_a_failed_compile_says_so_in_one_line(monkeypatch, capsys):
-    def broken():
+    def broken(part=None):
         raise RuntimeError("no compiler")
 
     monkeypatch.setattr(ahead_mod, "compile_numba_code", broken)
-    assert ahead_mod.main() == 0
+    assert ahead_mod.main(["plant"]) == 0
     assert capsys.readouterr().err.strip() == (
         "hil: compiling ahead failed (RuntimeError: no compiler); the workers compile for themselves")
 
@@ -69,10 +91,12 @@ def test_the_mark_says_compiled_until_a_source_changes(tmp_path, monkeypatch):
     monkeypatch.setattr(ahead_mod, "NUMBA_PACKAGES", ("toy_numba",))
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "cache"))
     assert not ahead_mod.compiled_already()
-    ahead_mod._mark_compiled()
+    ahead_mod._mark_compiled("plant")
+    assert ahead_mod.compiled_already("plant") and not ahead_mod.compiled_already()  # a part is not the whole
+    ahead_mod._mark_compiled("controller")
     assert ahead_mod.compiled_already()
     ahead = ahead_mod.CompileAhead().start()  # a warm cache: no process, no lock, nobody waits
-    assert ahead._proc is None and ahead.env() == {}
+    assert ahead._procs == [] and ahead.env() == {}
     (pkg / "kernel.py").write_text("x = 22\n")
     assert not ahead_mod.compiled_already()
 
@@ -93,10 +117,11 @@ def test_hil_acceptance_runs_pytest_under_the_lock(monkeypatch, tmp_path):
         seen["held"] = Path(seen["lock"]).exists()
         return subprocess.CompletedProcess(cmd, 0)
 
+    monkeypatch.delenv(ahead_mod.LOCK_ENV, raising=False)  # this session's own compile ahead
     monkeypatch.setattr(ahead_mod.CompileAhead, "start", start)
-    monkeypatch.setattr(ahead_mod, "compiled_already", lambda: False)
+    monkeypatch.setattr(ahead_mod, "compiled_already", lambda part=None: False)
     monkeypatch.setattr(subprocess, "run", fake_run)
     cli.main(["acceptance", "-o", str(tmp_path / "rep"), "-j", "0"])
     assert seen["lock"] and seen["held"]
     assert not Path(seen["lock"]).exists()  # removed when pytest ended
-    assert ahead["it"]._proc.poll() is not None  # and the compile stopped, nothing waiting for it
+    assert all(p.poll() is not None for p in ahead["it"]._procs)  # and the compile stopped, nothing waiting for it
