@@ -1,23 +1,24 @@
 """The numba code of an acceptance run compiled once, ahead, while pytest starts (issue 40, item 5).
 
 On a fresh numba cache every pytest-xdist worker of ``hil acceptance`` compiled the plant kernel,
-the controller's filters and the signal scorer itself, at the same time: about 17 s of CPU each
-(15 s of it the plant kernel), so the first run paid the compile once per worker. Now
-``hil acceptance`` compiles them once, in a process of its own (``python -m hil.compile_ahead``),
-while pytest starts, collects and spawns its workers; each worker waits for that compile before
-its first test (the plugin's ``pytest_runtestloop``, through the lock file named by
-``HIL_COMPILE_LOCK``) and then loads all of the code from numba's cache before the first test
-(no test meets a load while a link's reply is timed). One compile instead of one per
-worker, overlapped with the start. The process leaves a mark beside numba's cache (numba's and
-Python's versions, the stamp of every source with numba code); while the mark holds, the cache is
-warm and nothing is started (a warm run pays nothing: the check imports neither numba nor the
-plant).
+the controller's filters and the signal extractor itself, at the same time, so the first run paid
+the compile once per worker. Now ``hil acceptance`` compiles them once, in processes of their own
+(``python -m hil.compile_ahead PART``), while pytest starts, collects and spawns its workers; each
+worker waits for that compile before its first test (the plugin's ``pytest_runtestloop``, through
+the lock file named by ``HIL_COMPILE_LOCK``) and then loads all of the code from numba's cache
+before the first test (no test meets a load while a link's reply is timed). The compile is split
+in two parts that share no numba function, side by side on two cores: the plant kernel (about
+15 s of CPU alone) and the controller's code (its filters, 14 s, and the signal extractor, 5 s).
+Each part leaves a mark beside numba's cache (numba's and Python's versions, the stamp of every
+source with numba code); while the marks hold, the cache is warm and nothing is started (a warm
+run pays nothing: the check imports neither numba nor the plant). The test session compiles ahead
+the same way, once for its workers and the acceptance run it starts (``tests/conftest.py``).
 
 What was measured before deciding (docs/acceptance.md, "The first run"): compiling the plant
 kernel without numba's IR inlining halves its compile but slows the plant by a fifth to a
 third; the signatures compiled twice are literal specialisations (a branch pruned per call site);
-a cache shipped with the package is invalid on a fresh clone (numba keys it to the source files'
-modification times and the CPU). The plant's numerics are untouched: the same code is compiled.
+a cache shipped with the package is invalid on another machine (numba keys it to the CPU's name
+and features). The plant's numerics are untouched: the same code is compiled.
 """
 
 from __future__ import annotations
