@@ -395,6 +395,10 @@ class Simulation:
             self.ist[idx] = 0
 
     # --- results -----------------------------------------------------------------------------
+    def edge_count(self) -> int:
+        """How many edges the plant has logged (``len(edges())`` without building the log)."""
+        return sum(c.shape[0] for c in self._edge_chunks) + int(self.ist[L.I_N_EDGES])
+
     def edges(self) -> EdgeLog:
         self._flush()
         if not self._edge_chunks:

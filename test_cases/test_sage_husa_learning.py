@@ -87,12 +87,12 @@ def learning_run(calibrate, hil_bench, hil_link, hil_seed, plant) -> np.ndarray:
     for phase, paper_jitter_s in enumerate(JITTER_PHASES_S):
         jitter_s = plant.suite_duration_s(paper_jitter_s)  # the same angle at the same fraction of the top speed
         bench.sim.set_edge_jitter(jitter_s)
-        edges_at_start = len(bench.sim.edges())
+        edges_at_start = bench.sim.edge_count()
         end = bench.sim.t_s + plant.suite_duration_s(PHASE_S)
         mine = []
         while bench.sim.t_s < end - 1e-9:
             bench.sim.run_until(bench.sim.t_s + POLL_S)
-            mine.append([phase, len(bench.sim.edges()) - edges_at_start, (jitter_s * w_e) ** 2,
+            mine.append([phase, bench.sim.edge_count() - edges_at_start, (jitter_s * w_e) ** 2,
                          read_edge_noise_rad2(hil_link)])
         whole = plant_edge_noise_rad2(bench.sim.edges().take(slice(edges_at_start, None)),
                                       bench.config.motor.pole_pairs)

@@ -27,3 +27,18 @@ def test_a_jitter_step_changes_the_edges_jitter_from_the_next_edge_on():
     assert np.std(before) == pytest.approx(3e-6, rel=0.1) and np.std(after) == pytest.approx(9e-6, rel=0.1)
     with pytest.raises(ConfigError, match="edge jitter"):
         sim.set_edge_jitter(200e-6)  # beyond the effect library's bound (a third of the delay bound)
+
+
+def test_the_edge_count_is_the_logs_length_at_every_poll():
+    """What the learning run polls every 5 ms (``Simulation.edge_count``): the edges logged so far,
+    flushed or not, without building the log each time."""
+    config = paper_bench()
+    rpm = 8000.0
+    sim = Simulation(config, OracleCommutation(), duty=steady_state(config.motor, rpm)["duty"],
+                     initial_speed_rpm=rpm, seed=3)
+    counts = []
+    for k in range(1, 8):
+        sim.run_until(0.005 * k)
+        assert sim.edge_count() == len(sim.edges())
+        counts.append(sim.edge_count())
+    assert counts[0] > 0 and np.all(np.diff(counts) > 0)

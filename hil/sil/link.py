@@ -306,6 +306,9 @@ class RemoteSimulation:
     def edges(self):
         return self._call("sim", "edges")
 
+    def edge_count(self) -> int:
+        return self._call("sim", "edge_count")
+
     def samples(self):
         return self._call("sim", "samples")
 
