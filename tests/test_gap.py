@@ -6,6 +6,8 @@ import re
 import numpy as np
 import pytest
 
+import gap_cases
+
 from hil.cli import main
 from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
@@ -73,13 +75,7 @@ def test_withheld_sampled_signal_effect_is_found_fitted_and_shrinks_the_gap(name
 def test_winding_and_magnet_temperature_are_confounded_when_current_follows_speed():
     """Pump load only over a narrow speed range: a resistance change (follows current) and a
     back-EMF change (follows speed) explain nearly the same; the report names the knob."""
-    from hil.recording import record_electrical
-
-    config = paper_bench().with_effects(
-        fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0)
-    )
-    ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
-    d = diagnose(record_electrical(config, ops, seed=1, voltage_noise_v=0.005), KNOWN_MODEL)
+    d = diagnose(gap_cases.temperatures_confounded(), KNOWN_MODEL)
     assert [a.effect for a in d.accepted] == ["winding_temperature"]
     pair = next((c for c in d.confounded if c.names == ["magnet_temperature", "winding_temperature"]), None)
     assert pair is not None, d.confounded
@@ -146,17 +142,7 @@ def test_confounded_pair_is_named_with_its_knob():
     """Forward only, current tied to speed by the pump load over a narrow speed range: the
     armature lag (~ w^2) and a conditioning delay (~ w) are then alike. (Over a wide range the
     curvature separates them, and the diagnosis does so.)"""
-    from bldc.motor import steady_state
-
-    m = paper_bench().motor
-    ops = [
-        OperatingPoint(30 * 60 / rpm, rpm, steady_state(m, rpm)["current_a"] * 2 / 3)
-        for rpm in (8000.0, 8500.0, 9000.0)
-    ]
-    config = paper_bench().with_effects(
-        fx.ArmatureReaction(0.2), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
-    )
-    d = diagnose(record_kinematic(config, ops, seed=2))
+    d = diagnose(gap_cases.armature_lag_confounded())
     assert d.significant
     pair = next((c for c in d.confounded if set(c.names) == {"armature_reaction", "conditioning_delay"}), None)
     assert pair is not None, (d.ranking[:3], d.confounded)
@@ -387,9 +373,7 @@ def test_equal_within_noise_uses_the_explained_chi_square_spread():
 def test_tiny_effect_is_detected_but_below_practical_relevance():
     """0.02 deg_e of installation offset, seen through 100 turns at a 0.1 us timer with no
     jitter, is significant but a twenty-fifth of the commutation budget: not accepted."""
-    config = paper_bench().with_effects(fx.InstallationOffset((0.02, -0.02, 0.0)), fx.TimerQuantization(1e-7))
-    ops = [OperatingPoint(100 * 60 / rpm, rpm, direction=d) for rpm in (2000.0, 4000.0) for d in (1, -1)]
-    d = diagnose(record_kinematic(config, ops, seed=1), paper_bench())
+    d = diagnose(gap_cases.tiny_installation_offset(), paper_bench())
     assert d.p_value < 1e-3
     assert not any(a.effect == "installation_offset" for a in d.accepted)
     below = next(b for b in d.below_relevance if b.effect == "installation_offset")

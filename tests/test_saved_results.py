@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+import gap_cases
+
 ROOT = Path(__file__).resolve().parents[1]
 SAVED = ROOT / "tests" / "data" / "results"
 
@@ -101,50 +103,15 @@ def test_a_gap_diagnosis_writes_the_saved_json():
 
 
 def _sampled_confounded():
-    """Pump load over a narrow speed range, a winding 80 K warm (tests/test_gap.py's confounded
-    temperatures): samples, a sampled effect accepted, a confounded pair and its knob."""
-    from hil.recording import record_electrical
-    from plant_models import effects as fx
-    from plant_models import paper_bench
-    from plant_models.kinematic import OperatingPoint
-
-    config = paper_bench().with_effects(
-        fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0)
-    )
-    ops = [OperatingPoint(0.3, rpm, load_scale=1.0, id=f"pump_{rpm:.0f}") for rpm in (7000.0, 7500.0, 8000.0)]
-    return record_electrical(config, ops, seed=1, voltage_noise_v=0.005), "known"
+    return gap_cases.temperatures_confounded(), "known"
 
 
 def _below_relevance():
-    """0.02 deg e of installation offset (tests/test_gap.py's tiny effect): detected, below relevance."""
-    from hil.recording import record_kinematic
-    from plant_models import effects as fx
-    from plant_models import paper_bench
-    from plant_models.kinematic import OperatingPoint
-
-    config = paper_bench().with_effects(fx.InstallationOffset((0.02, -0.02, 0.0)), fx.TimerQuantization(1e-7))
-    ops = [OperatingPoint(100 * 60 / rpm, rpm, direction=d) for rpm in (2000.0, 4000.0) for d in (1, -1)]
-    return record_kinematic(config, ops, seed=1), "paper_bench"
+    return gap_cases.tiny_installation_offset(), "paper_bench"
 
 
 def _edge_confounded():
-    """Armature lag with the load tied to speed (tests/test_gap.py's confounded pair) against the
-    nominal motor: an edge effect with its standard errors, the bench jitter, four confounded pairs."""
-    from bldc.motor import steady_state
-    from hil.recording import record_kinematic
-    from plant_models import effects as fx
-    from plant_models import paper_bench
-    from plant_models.kinematic import OperatingPoint
-
-    m = paper_bench().motor
-    ops = [
-        OperatingPoint(30 * 60 / rpm, rpm, steady_state(m, rpm)["current_a"] * 2 / 3)
-        for rpm in (8000.0, 8500.0, 9000.0)
-    ]
-    config = paper_bench().with_effects(
-        fx.ArmatureReaction(0.2), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
-    )
-    return record_kinematic(config, ops, seed=2), None
+    return gap_cases.armature_lag_confounded(), None
 
 
 @pytest.mark.parametrize(
