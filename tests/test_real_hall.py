@@ -225,7 +225,10 @@ def test_gap_diagnose_names_the_delay_and_shrinks_the_held_out_gap(tmp_path, cap
     assert main(["gap", "diagnose", str(rec_dir), "--json", str(out_json), "--html", str(out_html)]) == 0
     d = json.loads(out_json.read_text())
     # every key a diagnosis with segments writes (heldout_shrink included), plus the run's own
-    assert set(d) >= {f.name for f in dataclasses.fields(Diagnosis)} | {"repeatability", "pole_pairs"}
+    # (the headline's sampled signal, gap_sampled, is written worded, as gap_metric)
+    fields = {f.name for f in dataclasses.fields(Diagnosis)} - {"gap_sampled"} | {"gap_metric"}
+    assert set(d) >= fields | {"repeatability", "pole_pairs"}
+    assert d["gap_metric"].startswith("RMS over edges of the systematic edge-angle residual against an ideal motor")
     assert d["significant"] and d["gap_before"] > 3.0
     assert d["ranking"][0]["effect"] == "conditioning_delay" and d["ranking"][0]["score"] > 0.9
     delay = next(a for a in d["accepted"] if a["effect"] == "conditioning_delay")["params"]

@@ -39,6 +39,7 @@ from .result import (
     RegionResidual,
     SplitHalf,
     Confounded,
+    gap_metric,
     knob,
 )
 from .samples import NO_TRACE, SAMPLE_EFFECTS, DomainDiagnosis, diagnose_samples
@@ -186,7 +187,8 @@ class Diagnosis:
     noise_gap: NoiseGap | None = None  #: None: an ordinary run (no per-segment noise to test)
     samples: dict[str, DomainDiagnosis] = field(default_factory=dict)  #: per sampled domain (voltage, speed)
     below_relevance: list[FittedEffect] = field(default_factory=list)  #: detected, fitted, too small to matter
-    gap_metric: str = "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
+    #: (domain, unit) of the sampled signal whose gap the headline figures are; None: the edges'
+    gap_sampled: tuple[str, str] | None = None
     #: "segments" (a recording with operating points) or "ordinary run" (capture times only)
     route: str = "segments"
     pole_pairs: int | None = None
@@ -195,6 +197,11 @@ class Diagnosis:
     remainder_p_value: float | None = None  #: the remainder after the kept effects, against the noise floor
     repeatability: SplitHalf | None = None  #: an ordinary run's split-half figures
     ranking_bic_gain: dict[str, float] = field(default_factory=dict)  #: BIC gain of each candidate alone
+
+    @property
+    def gap_metric(self) -> str:
+        """What the gap figures measure, worded (``hil.gap.result.gap_metric``)."""
+        return gap_metric(self.route, self.gap_sampled)
 
     def to_json(self) -> dict:
         return {
@@ -539,7 +546,7 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
     sampled_gap = [dom for dom in sorted(domains.values(), key=lambda x: x.p_value) if dom.significant]
     if sampled_gap and d.p_value >= ALPHA:  # no mean edge gap: the headline is the sampled signal's
         dom = sampled_gap[0]
-        d.gap_metric = f"RMS over samples of the systematic {dom.domain} residual (cell means), {dom.unit}"
+        d.gap_sampled = (dom.domain, dom.unit)
         d.gap_before, d.gap_after_heldout, d.heldout_shrink = dom.gap_before, dom.gap_after_heldout, dom.heldout_shrink
         d.heldout_interval, d.heldout_note = dom.heldout_interval, dom.heldout_note
     d.significant = d.significant or bool(sampled_gap)

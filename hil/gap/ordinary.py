@@ -334,11 +334,6 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         p_value=whole.p_value,
         reference="none (capture times only: an ordinary run)",
         not_assessed=not_assessed,
-        gap_metric=(
-            "RMS over edges of the systematic edge-angle residual against an ideal motor on a smooth speed "
-            "trajectory (cell means per stretch, direction, sensor boundary and speed band, noise removed), "
-            "deg electrical"
-        ),
         route=ORDINARY_ROUTE,
         pole_pairs=whole.pole_pairs,
         pole_pairs_source=whole.pole_note,

@@ -35,6 +35,20 @@ ORDINARY_KNOBS = {
 }
 
 
+def gap_metric(route: str, sampled: tuple[str, str] | None = None) -> str:
+    """What the gap figures measure, as the reports word it: the edges' systematic angle residual
+    (against the encoder, or on an ordinary run against an ideal motor on a smooth trajectory), or
+    a sampled signal's, ``sampled`` = (domain, unit), when that signal's gap is the headline."""
+    if sampled is not None:
+        domain, unit = sampled
+        return f"RMS over samples of the systematic {domain} residual (cell means), {unit}"
+    if route == ORDINARY_ROUTE:
+        return ("RMS over edges of the systematic edge-angle residual against an ideal motor on a smooth speed "
+                "trajectory (cell means per stretch, direction, sensor boundary and speed band, noise removed), "
+                "deg electrical")
+    return "RMS over edges of the systematic edge-angle residual (cell means), deg electrical"
+
+
 def knob(a: str, b: str) -> str:
     """The experiment that separates ``a`` from ``b``, as a full sentence: what to record and
     why it tells them apart (each effect's declaration holds its halves and its pair sentences)."""

@@ -43,7 +43,7 @@ from ..stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
-from .result import FittedEffect, OrderSpectrum, SampleLocalisation, SegmentResidual
+from .result import FittedEffect, OrderSpectrum, SampleLocalisation, SegmentResidual, gap_metric
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
@@ -645,7 +645,7 @@ class DomainDiagnosis:
             "ranking": [
                 {"effect": n, "score": round(s, 4)} for n, s in sorted(self.first_scores.items(), key=lambda kv: -kv[1])
             ],
-            "gap_metric": f"RMS over samples of the systematic {self.domain} residual (cell means), {self.unit}",
+            "gap_metric": gap_metric("samples", (self.domain, self.unit)),
         }
 
 
