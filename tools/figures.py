@@ -337,6 +337,29 @@ def produce_acceptance(work: Path) -> Run:
     return run
 
 
+def produce_first_run(work: Path) -> Run:
+    """README's first command on a fresh clone of HEAD (its numba cache empty: the compile
+    included), then again on the warm cache: wall time of each and the first result's instant."""
+    run = Run(commands=["git clone <repository> fresh && cd fresh", "python -m hil acceptance",
+                        "python -m hil acceptance"])
+    clone = work / "fresh"
+    subprocess.run(["git", "clone", "-q", str(ROOT), str(clone)], check=True)
+    env = {k: v for k, v in os.environ.items() if k not in ("NUMBA_CACHE_DIR", "PYTHONPATH")}
+    for which in ("fresh", "warm"):
+        t0 = time.perf_counter()
+        done = subprocess.run([sys.executable, "-m", "hil", "acceptance", "-o", str(work / which)], cwd=clone,
+                              env=env, capture_output=True, text=True, timeout=1800)
+        wall = time.perf_counter() - t0
+        # the progress lines: "[ 1/37  0:18] passed   <test>" (count, elapsed m:ss, outcome)
+        first = re.search(r"^\[\s*\d+/\d+\s+(\d+):(\d\d)\] (?:passed|failed|skipped|error)", done.stdout, re.M)
+        verdict = re.search(r"hil acceptance: (\w+)", done.stdout)
+        run.figures[f"{which}_wall_s"] = Figure(wall, "s", "{:.0f}", reproducible=False)
+        run.figures[f"{which}_first_result_s"] = Figure(
+            60 * int(first[1]) + int(first[2]) if first else None, "s", "{}", reproducible=False)
+        run.figures[f"{which}_verdict"] = Figure(verdict[1] if verdict else f"exit {done.returncode}", fmt="{}")
+    return run
+
+
 def produce_test_suite(work: Path) -> Run:
     """The README's second command (pytest only; the install is timed apart by CI)."""
     run = Run(commands=["python -m pytest -q"])
@@ -818,6 +841,8 @@ GROUPS: list[Group] = [
           produce_sil_speed),
     Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance),
     Group("test_suite", "README: the test command's run time", False, produce_test_suite),
+    Group("first_run", "docs/acceptance.md: the default acceptance on a fresh clone, compile included, then warm",
+          False, produce_first_run),
     Group("qualify", "docs/qualify.md: hil qualify --sensitivity, the sensitivity table", False, produce_qualify),
 ]
 
