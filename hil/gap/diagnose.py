@@ -39,6 +39,7 @@ from .result import (
     RegionResidual,
     SplitHalf,
     Confounded,
+    HeldOut,
     gap_metric,
     knob,
 )
@@ -178,7 +179,7 @@ class Diagnosis:
     gap_after_heldout: float | None
     heldout_shrink: float | None
     heldout_interval: list[float] | None = None
-    heldout_note: str = ""
+    heldout: HeldOut = HeldOut()  #: how the held-out figures were measured, or why not
     localisation: EdgeLocalisation | OrdinaryLocalisation | None = None
     noise_floor_deg_e: dict[str, float] = field(default_factory=dict)  #: per segment id (ordinary: one figure)
     p_value: float = 1.0
@@ -197,6 +198,10 @@ class Diagnosis:
     remainder_p_value: float | None = None  #: the remainder after the kept effects, against the noise floor
     repeatability: SplitHalf | None = None  #: an ordinary run's split-half figures
     ranking_bic_gain: dict[str, float] = field(default_factory=dict)  #: BIC gain of each candidate alone
+
+    @property
+    def heldout_note(self) -> str:
+        return self.heldout.text()
 
     @property
     def gap_metric(self) -> str:
@@ -438,12 +443,12 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
 
     for pair in confounded_rivals(sel, accepted_names, names, refit_chi2):
         confound(*pair)
-    shrink, after, interval, note = _heldout(cells, names) if accepted_names else (None, None, None, "")
+    shrink, after, interval, held = _heldout(cells, names) if accepted_names else (None, None, None, HeldOut())
     if not accepted_names:
-        shrink, note = (0.0, "no effect accepted") if np.unique(cells.features["segment"]).size > 1 else (
-            None, "held-out shrink cannot be measured: the recording has a single segment")
+        shrink, held = (0.0, HeldOut("no effect accepted")) if np.unique(cells.features["segment"]).size > 1 else (
+            None, HeldOut("single segment"))
     if below_names and not accepted_names:
-        note = "every detected edge effect is below practical relevance"
+        held = HeldOut("below relevance")
     # the noise: edge jitter is a variance effect; accepted quantisation adds its own variance
     tick_fit = next((a.params["tick_s"] for a in accepted + below if a.effect == "timer_quantization"), 0.0)
     expected = expected_noise_var(cells.features["w_e"], model, rec.timer_tick_s, tick_fit)
@@ -465,7 +470,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
     else:
         ranking.append(jitter_row)
     if not significant and noise_significant and shrink is None and noise_shrink is not None:
-        note = "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
+        held = HeldOut("noise only")
     diagnosis = Diagnosis(
         significant=significant or noise_significant,
         ranking=ranking,
@@ -476,7 +481,7 @@ def diagnose_segments(rec: Recording, model=None, candidates: list[str] | None =
         gap_after_heldout=after,
         heldout_shrink=shrink,
         heldout_interval=interval,
-        heldout_note=note,
+        heldout=held,
         noise_gap=NoiseGap(p_noise, noise_significant, noise_before, noise_after, noise_shrink),
         localisation=localise(r, cells),
         p_value=p0,
@@ -548,7 +553,7 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
         dom = sampled_gap[0]
         d.gap_sampled = (dom.domain, dom.unit)
         d.gap_before, d.gap_after_heldout, d.heldout_shrink = dom.gap_before, dom.gap_after_heldout, dom.heldout_shrink
-        d.heldout_interval, d.heldout_note = dom.heldout_interval, dom.heldout_note
+        d.heldout_interval, d.heldout = dom.heldout_interval, dom.heldout
     d.significant = d.significant or bool(sampled_gap)
 
 
@@ -606,11 +611,11 @@ def _noise_gap(cells: Cells, expected: np.ndarray):
 def _heldout(cells: Cells, names: list[str]):
     """Leave one operating point out: on the other segments the gap is tested, the effects are
     chosen and fitted (the held-out segment influences neither), and they predict the held-out
-    one. Returns (shrink, gap after, 5-95 % interval from a bootstrap over segments, note)."""
+    one. Returns (shrink, gap after, 5-95 % interval from a bootstrap over segments, how: HeldOut)."""
     seg = cells.features["segment"]
     segments = np.unique(seg)
     if segments.size < 2:
-        return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
+        return None, None, None, HeldOut("single segment")
     pred = np.zeros_like(cells.mean)
     fitted_ok = np.zeros(cells.mean.size, dtype=bool)
     differ = 0
@@ -633,18 +638,13 @@ def _heldout(cells: Cells, names: list[str]):
         pred[test] = x[test][:, keep] @ coef
         fitted_ok[test] = True
     if not fitted_ok.any():
-        return None, None, None, "held-out shrink cannot be measured: no operating point is predicted from the others"
+        return None, None, None, HeldOut("unpredicted")
     ok = fitted_ok
     res = heldout_shrink(
         BlockSums.of(seg[ok], cells.n[ok], cells.mean[ok]), BlockSums.of(seg[ok], cells.n[ok], (cells.mean - pred)[ok])
     )
-    note = (
-        f"leave-one-operating-point-out over {res.blocks} segments: the gap test, the effect choice and the fit "
-        "see only the other segments; interval: 5-95 % bootstrap over segments"
-    )
-    if differ:
-        note += f"; on {differ} of them the other segments chose no effect"
-    return res.shrink, res.after, res.interval, note
+    held = HeldOut("leave one out", segments=res.blocks, segments_choosing_nothing=differ)
+    return res.shrink, res.after, res.interval, held
 
 
 def localise(r: EdgeResiduals, cells: Cells) -> EdgeLocalisation:

@@ -47,6 +47,7 @@ from .relevance import Relevance, edge_relevance
 from .result import (
     ORDINARY_ROUTE,
     Confounded,
+    HeldOut,
     FittedEffect,
     OrdinaryLocalisation,
     SensorPolarityMean,
@@ -295,7 +296,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         rows[n] = FittedEffect(n, params, stderr, whole.relevance[n])
     remainder_p = _p_value(_cells(st, full, stretch, band))
     unexplained = bool(significant and remainder_p < ALPHA)
-    shrink, after, interval, note = _heldout(steps, band, tick, rec.stated_pole_pairs, bool(accepted))
+    shrink, after, interval, held = _heldout(steps, band, tick, rec.stated_pole_pairs, bool(accepted))
     confounded = [list(t) for t in sel.ties]
 
     def refit_chi2(m: str) -> float:
@@ -326,7 +327,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
         gap_after_heldout=after,
         heldout_shrink=shrink,
         heldout_interval=interval,
-        heldout_note=note,
+        heldout=held,
         localisation=_localise(st, whole.none),
         noise_floor_deg_e={
             "edge_angle_rms": float(np.sqrt(np.median((whole.none.residual_s / whole.none.tau_s_per_deg) ** 2)))
@@ -347,9 +348,9 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
 def _heldout(steps: HallSteps, band, tick, stated_pole_pairs, any_accepted: bool):
     """Every other stretch trains: the gap test, the knots, the pole pairs, the effects and their
     values are chosen there alone; the held-out stretches are then fitted with those effects fixed
-    and only their own speed trajectory free. Returns (shrink, gap after, interval, note)."""
+    and only their own speed trajectory free. Returns (shrink, gap after, interval, how: HeldOut)."""
     if not any_accepted:
-        return None, None, None, "no effect accepted"
+        return None, None, None, HeldOut("no effect accepted")
     n_st = n_stretches(steps)
     st, stretch = _stretched(steps, n_st)
     train = np.isin(stretch, np.arange(0, n_st, 2))
@@ -358,29 +359,19 @@ def _heldout(steps: HallSteps, band, tick, stated_pole_pairs, any_accepted: bool
         train_steps = replace(st, run=np.where(train, st.run, -1))
         t = _pipeline(train_steps, tick, stated_pole_pairs, stretch, band, choice=train_steps)
     except OrdinaryRunError as exc:
-        return None, None, None, f"held-out shrink cannot be measured: {exc}"
+        return None, None, None, HeldOut("not measurable", reason=str(exc))
     chosen = [n for n in t.sel.fitted if t.relevance[n].relevant]
     if not chosen:
-        return 0.0, None, None, "the training stretches alone chose no effect"
+        return 0.0, None, None, HeldOut("training chose none")
     f_train = fit_ordinary(st, _merge(chosen, t.pole_pairs), select=train, tick_s=tick, knot_cycles=t.knot_cycles)
     h0 = fit_ordinary(st, _merge([], t.pole_pairs), select=test, tick_s=tick, knot_cycles=t.knot_cycles)
     h1 = fit_ordinary(
         st, _merge(chosen, t.pole_pairs), select=test, tick_s=tick, knot_cycles=t.knot_cycles, fixed_from=f_train
     )
     res = heldout_shrink(_blocks(_cells(st, h0, stretch, band)), _blocks(_cells(st, h1, stretch, band)))
-    note = (
-        f"{n_st} equal stretches of the run (by edge count): on the odd ones alone the gap test, the knot "
-        f"spacing ({t.knot_cycles:g} electrical cycles), the pole pairs ({t.pole_pairs or 'none'}), the effects "
-        f"({', '.join(chosen)}) and their values were chosen; they are judged on the even ones with only the speed "
-        f"trajectory refitted there; gap there before {res.before:.3g} deg e; interval: 5-95 % bootstrap over the "
-        f"{res.blocks} held-out stretches"
-    )
-    if res.shrink is not None and res.shrink <= 0:
-        note += (
-            "; the chosen effects do not hold on the held-out stretches (the gap grew): treat them as not "
-            "established by this capture"
-        )
-    return res.shrink, res.after, res.interval, note
+    held = HeldOut("stretches", stretches=n_st, knot_cycles=t.knot_cycles, pole_pairs=t.pole_pairs,
+                   chosen=tuple(chosen), gap_before_deg_e=res.before, segments=res.blocks, shrink=res.shrink)
+    return res.shrink, res.after, res.interval, held
 
 
 def report_fit(rec: Recording, d: Diagnosis) -> tuple[HallSteps, Fit]:

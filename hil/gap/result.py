@@ -35,6 +35,66 @@ ORDINARY_KNOBS = {
 }
 
 
+@dataclass(frozen=True)
+class HeldOut:
+    """How the held-out gap (``heldout_shrink``) was measured, or why it was not: a kind and the
+    figures that go with it; ``text()`` words it for the reports (the JSON's ``heldout_note``)."""
+
+    #: "" (not reached), "no effect accepted", "single segment", "below relevance", "noise only",
+    #: "unpredicted", "leave one out", "not measurable", "training chose none", "stretches"
+    kind: str = ""
+    domain: str = "edges"  #: "edges" or "samples" (whose choice includes shape parameters)
+    segments: int | None = None  #: leave one out: the segments held out in turn
+    segments_choosing_nothing: int = 0  #: leave one out: those where the others chose no effect
+    reason: str = ""  #: not measurable: why (the run's own error)
+    stretches: int | None = None  #: an ordinary run's equal stretches (odd: training, even: judged)
+    knot_cycles: float | None = None  #: the training stretches' knot spacing, electrical cycles
+    pole_pairs: int | None = None  #: the training stretches' pole pairs (None: none found)
+    chosen: tuple[str, ...] = ()  #: the effects the training stretches chose
+    gap_before_deg_e: float | None = None  #: the gap on the held-out stretches before the effects
+    shrink: float | None = None  #: the held-out shrink (a gap that grew is said so)
+
+    def text(self) -> str:
+        k = self.kind
+        if k == "no effect accepted":
+            return "no effect accepted"
+        if k == "single segment":
+            return "held-out shrink cannot be measured: the recording has a single segment"
+        if k == "below relevance":
+            what = "edge effect" if self.domain == "edges" else "effect"
+            return f"every detected {what} is below practical relevance"
+        if k == "noise only":
+            return "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
+        if k == "unpredicted":
+            return "held-out shrink cannot be measured: no operating point is predicted from the others"
+        if k == "not measurable":
+            return f"held-out shrink cannot be measured: {self.reason}"
+        if k == "training chose none":
+            return "the training stretches alone chose no effect"
+        if k == "leave one out":
+            choice = "the effect choice and the fit" if self.domain == "edges" else (
+                "the effect choice, shape parameters and fit")
+            text = (f"leave-one-operating-point-out over {self.segments} segments: the gap test, {choice} see only "
+                    "the other segments; interval: 5-95 % bootstrap over segments")
+            if self.segments_choosing_nothing:
+                text += f"; on {self.segments_choosing_nothing} of them the other segments chose no effect"
+            return text
+        if k == "stretches":
+            text = (
+                f"{self.stretches} equal stretches of the run (by edge count): on the odd ones alone the gap test, "
+                f"the knot spacing ({self.knot_cycles:g} electrical cycles), the pole pairs "
+                f"({self.pole_pairs or 'none'}), the effects ({', '.join(self.chosen)}) and their values were "
+                "chosen; they are judged on the even ones with only the speed trajectory refitted there; gap there "
+                f"before {self.gap_before_deg_e:.3g} deg e; interval: 5-95 % bootstrap over the {self.segments} "
+                "held-out stretches"
+            )
+            if self.shrink is not None and self.shrink <= 0:
+                text += ("; the chosen effects do not hold on the held-out stretches (the gap grew): treat them "
+                         "as not established by this capture")
+            return text
+        return ""
+
+
 def gap_metric(route: str, sampled: tuple[str, str] | None = None) -> str:
     """What the gap figures measure, as the reports word it: the edges' systematic angle residual
     (against the encoder, or on an ordinary run against an ideal motor on a smooth trajectory), or

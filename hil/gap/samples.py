@@ -43,7 +43,7 @@ from ..stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
-from .result import FittedEffect, OrderSpectrum, SampleLocalisation, SegmentResidual, gap_metric
+from .result import FittedEffect, HeldOut, OrderSpectrum, SampleLocalisation, SegmentResidual, gap_metric
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
 ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
@@ -619,7 +619,7 @@ class DomainDiagnosis:
     gap_after_heldout: float | None
     heldout_shrink: float | None
     heldout_interval: list[float] | None
-    heldout_note: str
+    heldout: HeldOut
     localisation: SampleLocalisation
     chi2_excess: float
     confounded: list[list[str]] = field(default_factory=list)
@@ -639,7 +639,7 @@ class DomainDiagnosis:
             "gap_after_heldout": self.gap_after_heldout,
             "heldout_shrink": self.heldout_shrink,
             "heldout_interval": self.heldout_interval,
-            "heldout_note": self.heldout_note,
+            "heldout_note": self.heldout.text(),
             "localisation": self.localisation.to_json(),
         } | {
             "ranking": [
@@ -672,9 +672,9 @@ def diagnose_domain(
     kept = [n for n in accepted if n not in below_names]
     gap_before = cell_rms(cells.mean, cells.n)
     any_kept = bool([n for n in kept if n != REFERENCE])
-    shrink, after, interval, note = _heldout(r, cells, cands, names, motor, env, any_kept)
+    shrink, after, interval, held = _heldout(r, cells, cands, names, motor, env, any_kept)
     if below and not any_kept:
-        note = "every detected effect is below practical relevance"
+        held = HeldOut("below relevance", "samples")
     kept_shapes = [s for n, s in zip(accepted, shapes) if n in kept]
 
     def refit_chi2(m: str) -> float:
@@ -692,7 +692,7 @@ def diagnose_domain(
         after,
         shrink,
         interval,
-        note,
+        held,
         _localise(r, cells, segment_ids),
         sel.chi2_0 - n_cells,
         confounded_rivals(sel, [n for n in kept if n != REFERENCE], names, refit_chi2),
@@ -763,9 +763,9 @@ def _heldout(r, cells, cands, names, motor, env, any_kept: bool):
     are chosen on the other segments alone and predict the held-out one."""
     segs = np.unique(cells.segment)
     if segs.size < 2:
-        return None, None, None, "held-out shrink cannot be measured: the recording has a single segment"
+        return None, None, None, HeldOut("single segment", "samples")
     if not any_kept:
-        return 0.0, None, None, "no effect accepted"
+        return 0.0, None, None, HeldOut("no effect accepted", "samples")
     pred_resid = np.full(cells.mean.size, np.nan)
     for s in segs:
         test = cells.segment == s
@@ -780,11 +780,7 @@ def _heldout(r, cells, cands, names, motor, env, any_kept: bool):
     ok = np.isfinite(pred_resid)
     seg, n = cells.segment[ok], cells.n[ok]
     res = heldout_shrink(BlockSums.of(seg, n, cells.mean[ok]), BlockSums.of(seg, n, pred_resid[ok]))
-    note = (
-        f"leave-one-operating-point-out over {res.blocks} segments: the gap test, the effect choice, shape "
-        "parameters and fit see only the other segments; interval: 5-95 % bootstrap over segments"
-    )
-    return res.shrink, res.after, res.interval, note
+    return res.shrink, res.after, res.interval, HeldOut("leave one out", "samples", segments=res.blocks)
 
 
 def _localise(r: SampleResiduals, cells: SampleCells, segment_ids: list[str]) -> SampleLocalisation:
