@@ -44,9 +44,11 @@ def spindle_check(spindle_twin):
 ROOT = Path(__file__).resolve().parent.parent
 
 
-#: the directory the session's processes (the xdist controller and its workers) share: the numba
-#: compile ahead's lock is beside, the default acceptance run's report, output and exit code inside
+#: the directory the session's processes (the xdist controller and its workers) share: the default
+#: acceptance run's claim, process id, report, output and exit code
 RUN_DIR_ENV = "HIL_TEST_RUN_DIR"
+#: the session's compile ahead (in the first process), closed when the session ends
+_AHEAD = pytest.StashKey()
 _ACCEPTANCE_TIMEOUT_S = 1800
 #: the run in the background: its output, and its exit code once it has ended (written last)
 _WRAPPER = ("import pathlib, subprocess, sys\n"
@@ -73,9 +75,6 @@ def pytest_configure(config):
     ahead = CompileAhead(dict(os.environ)).start()
     os.environ.update(ahead.env())
     config.stash[_AHEAD] = ahead
-
-
-_AHEAD = pytest.StashKey()
 
 
 @pytest.hookimpl(wrapper=True)
