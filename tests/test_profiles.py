@@ -241,7 +241,9 @@ def test_the_foreign_canopen_profile_passes_acceptance(tmp_path):
     """The virtual controller under a foreign object dictionary (0x3000 objects, scaled integers,
     its own strategy numbers and EMCY codes, RPDO3/4 and TPDO2): every requirement passes, the
     heartbeat and EMCY ones included (``FOREIGN_MAP_TESTS``)."""
-    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "-o", str(tmp_path),
+    # in one process (-j 0): a second worker opens a second controller and calibrates again, beside a
+    # session that already keeps both cores busy
+    r = _run("acceptance", "--dut", f"virtual:canopen,profile={FOREIGN_CANOPEN}", "-o", str(tmp_path), "-j", "0",
              "--", "-k", FOREIGN_MAP_TESTS, timeout=1200)
     content = json.loads((tmp_path / "hil-report.json").read_text())
     verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}

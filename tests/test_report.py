@@ -419,7 +419,8 @@ def test_acceptance_passes_arguments_after_the_separator_and_exits_on_the_verdic
     from hil.cli import main
 
     pytester.makepyfile(test_cal=CAL_SUITE)  # a suite needs no conftest.py
-    common = ["acceptance", "--suite", str(pytester.path), "-o", "rep", "--dut", "virtual:in-process"]
+    # in one process (-j 0): the workers are not what this test is about, and each run paid for two
+    common = ["acceptance", "--suite", str(pytester.path), "-o", "rep", "--dut", "virtual:in-process", "-j", "0"]
     assert main(common + ["--", "-k", "no_such_test"]) == pytest.ExitCode.NO_TESTS_COLLECTED
     assert report(pytester)["verdict"] == "NO TESTS"
     assert main(common + ["--", "-k", "pole_offsets"]) == 0
