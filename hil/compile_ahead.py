@@ -35,9 +35,9 @@ LOCK_ENV = "HIL_COMPILE_LOCK"
 NUMBA_PACKAGES = ("plant_models", "hil.predictors", "hil.signals", "hil.controller", "bldc")
 
 
-def _stamp(part: str) -> tuple[Path, dict] | None:
-    """(where the mark of ``part``'s compile goes, what it must say): the numba cache directory
-    (NUMBA_CACHE_DIR, else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
+def _stamp() -> tuple[Path, dict] | None:
+    """(where the parts' marks go, what each must say): the numba cache directory (NUMBA_CACHE_DIR,
+    else the plant's ``__pycache__``), numba's and Python's versions, the stamp of every source of
     ``NUMBA_PACKAGES``. Found without importing them (no numba, no plant: a warm run pays nothing)."""
     import importlib.metadata
     import importlib.util
@@ -54,32 +54,51 @@ def _stamp(part: str) -> tuple[Path, dict] | None:
     plant = Path(importlib.util.find_spec("plant_models").submodule_search_locations[0])
     cache = Path(os.environ["NUMBA_CACHE_DIR"]) if os.environ.get("NUMBA_CACHE_DIR") else plant / "__pycache__"
     what = {"numba": importlib.metadata.version("numba"), "python": sys.version, "sources": sources}
-    return cache / f"hil-compiled-{part}.json", what
+    return cache, what
+
+
+def _mark(cache: Path, part: str) -> Path:
+    return cache / f"hil-compiled-{part}.json"
+
+
+def uncompiled_parts() -> list[str]:
+    """The parts whose ``compile_numba_code(part)`` has not run to its end against these very
+    sources and this cache (the mark it leaves; the sources are stamped once for all parts); a
+    cache emptied since only means the workers compile, as they did before."""
+    import json
+
+    stamp = _stamp()
+    if stamp is None:
+        return list(PARTS)
+    cache, what = stamp
+    todo = []
+    for part in PARTS:
+        try:
+            if json.loads(_mark(cache, part).read_text()) == what:
+                continue
+        except (OSError, ValueError):
+            pass
+        todo.append(part)
+    return todo
 
 
 def compiled_already(part: str | None = None) -> bool:
-    """Whether ``compile_numba_code(part)`` (each part, for None) ran to its end against these very
-    sources and this cache (the mark it leaves); a cache emptied since only means the workers
-    compile, as they did before."""
-    import json
-
-    if part is None:
-        return all(compiled_already(p) for p in PARTS)
-    try:
-        mark, what = _stamp(part)
-        return json.loads(mark.read_text()) == what
-    except (OSError, ValueError, TypeError):
-        return False
+    """Whether ``part`` (every part, for None) is compiled (``uncompiled_parts``)."""
+    todo = uncompiled_parts()
+    return not todo if part is None else part not in todo
 
 
 def _mark_compiled(part: str) -> None:
     import json
 
+    stamp = _stamp()
+    if stamp is None:
+        return
+    cache, what = stamp
     try:
-        mark, what = _stamp(part)
-        mark.parent.mkdir(parents=True, exist_ok=True)
-        mark.write_text(json.dumps(what))
-    except (OSError, TypeError):
+        cache.mkdir(parents=True, exist_ok=True)
+        _mark(cache, part).write_text(json.dumps(what))
+    except OSError:
         pass
 
 
@@ -143,7 +162,7 @@ class CompileAhead:
         upstream = (self._env if self._env is not None else os.environ).get(LOCK_ENV)
         if upstream and Path(upstream).exists():  # an enclosing compile ahead: its waiters wait for it
             return self
-        parts = [p for p in PARTS if not compiled_already(p)]
+        parts = uncompiled_parts()
         if not parts:  # a warm cache: nothing to compile, nobody waits
             return self
         fd, path = tempfile.mkstemp(prefix="hil-compile-", suffix=".lock")
@@ -190,9 +209,17 @@ def wait_for_compile_ahead() -> None:
         return
 
 
+_loaded = False  #: load_compiled has run in this process
+
+
 def load_compiled() -> None:
     """In a worker, after the compile ahead: the same calls, now loading every function from the
-    cache (a second or two), before any test runs. A failure here is left to the tests to meet."""
+    cache (a second or two), before any test runs; once per process (the test session's conftest
+    and the plugin both ask). A failure here is left to the tests to meet."""
+    global _loaded
+    if _loaded:
+        return
+    _loaded = True
     try:
         compile_numba_code()
     except Exception:

@@ -23,7 +23,7 @@ def _ahead(monkeypatch, body: str) -> ahead_mod.CompileAhead:
     monkeypatch.delenv(ahead_mod.LOCK_ENV, raising=False)  # this session's own compile ahead
     real_popen = subprocess.Popen
     monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: real_popen([sys.executable, "-c", body], **kw))
-    monkeypatch.setattr(ahead_mod, "compiled_already", lambda part=None: False)
+    monkeypatch.setattr(ahead_mod, "uncompiled_parts", lambda: list(ahead_mod.PARTS))
     return ahead_mod.CompileAhead({**os.environ, "PYTHONPATH": str(ROOT)}).start()
 
 
@@ -119,7 +119,7 @@ def test_hil_acceptance_runs_pytest_under_the_lock(monkeypatch, tmp_path):
 
     monkeypatch.delenv(ahead_mod.LOCK_ENV, raising=False)  # this session's own compile ahead
     monkeypatch.setattr(ahead_mod.CompileAhead, "start", start)
-    monkeypatch.setattr(ahead_mod, "compiled_already", lambda part=None: False)
+    monkeypatch.setattr(ahead_mod, "uncompiled_parts", lambda: list(ahead_mod.PARTS))
     monkeypatch.setattr(subprocess, "run", fake_run)
     cli.main(["acceptance", "-o", str(tmp_path / "rep"), "-j", "0"])
     assert seen["lock"] and seen["held"]
