@@ -33,6 +33,7 @@ BudgetExceeded with a message a person understands.
 from __future__ import annotations
 
 import datetime
+import functools
 import math
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -203,6 +204,11 @@ def _budget(name: str, table, inherited: Budget | None, where: str) -> Budget:
     return Budget(**merged)
 
 
+@functools.cache
+def _default_budgets() -> dict[str, Budget]:
+    return Budgets.defaults().budgets
+
+
 class Budgets:
     def __init__(self, budgets: dict[str, Budget], source: str = "defaults", waivers: tuple[Waiver, ...] = ()):
         self.budgets, self.source, self.waivers = budgets, source, tuple(waivers)
@@ -253,8 +259,14 @@ class Budgets:
                 budgets[key] = _budget(key, table, budgets.get(key), f"{where}: [{key}]")
         return cls(budgets, str(path), tuple(waivers))
 
-    def check(self, name: str, measured: float) -> Verdict:
+    def check(self, name: str, measured: float, scenario=None) -> Verdict:
+        """``measured`` against budget ``name``. ``scenario``: a ``hil.budget_sources.Derivation`` of
+        this budget for the scenario the figure comes from (REQ-CAL-005's share removed depends on
+        how much the scenario had to remove); it sets the limit where the budget is the built-in
+        default, and a user's own limit (a budgets file) stands."""
         b = self[name]
+        if scenario is not None and self._is_default(b):
+            b = replace(b, limit=scenario.limit, marginal=scenario.marginal, limit_source=scenario.source)
         if not isinstance(measured, (int, float)) or not math.isfinite(measured):
             # never judged a pass: not a number, or "never" (inf: a settling that never came); the
             # record keeps which, so "inf edges" reads as the estimate never tracking, not as nan
@@ -272,6 +284,11 @@ class Budgets:
         else:
             verdict = "pass"
         return Verdict(b.name, b.requirement, float(measured), b.limit, b.unit, float(margin), verdict, b.kind)
+
+    @staticmethod
+    def _is_default(b: Budget) -> bool:
+        default = _default_budgets().get(b.name)
+        return default is not None and (b.limit, b.limit_source) == (default.limit, default.limit_source)
 
     def require(self, name: str, measured: float) -> Verdict:
         """Check and raise BudgetExceeded on a fail (marginal passes)."""

@@ -710,13 +710,14 @@ def hil_budgets(pytestconfig):
 
 @pytest.fixture
 def hil_budget(hil_budgets, request):
-    """``hil_budget(name, measured)``: check a measurement against its budget, record the verdict
-    (report and JUnit property), and fail the test on a fail with a message naming the budget."""
+    """``hil_budget(name, measured[, scenario])``: check a measurement against its budget (``scenario``:
+    the budget's derivation for the test's scenario, ``Budgets.check``), record the verdict (report
+    and JUnit property), and fail the test on a fail with a message naming the budget."""
 
-    def check(name: str, measured: float):
+    def check(name: str, measured: float, scenario=None):
         from .budgets import BudgetExceeded
 
-        v = hil_budgets.check(name, measured)
+        v = hil_budgets.check(name, measured, scenario)
         # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
         props = request.node.user_properties
         if ("requirement", v.requirement) not in props:

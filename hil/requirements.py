@@ -423,7 +423,7 @@ _REGISTRY = (
         judges=('fault-handling',),
     ),
     Requirement(
-        "REQ-CUR-001", "The phase current stays within the controller's current limit through a set-point step",
+        "REQ-CUR-001", "The phase current stays within the drive's rated current through a set-point step",
         f"`test_current.py`: the controller's own speed loop stepped {_SPEED_STEP} with calibrated commutation; "
         "peak phase current from the plant's true currents",
         _CONTROLLER_DOC, ("speed_setpoint",), edge_hook=True, uses=_BENCH,
@@ -431,7 +431,7 @@ _REGISTRY = (
             'phase_current_peak_a', 'A',
             description=(
                 "peak phase current (plant truth) through a 5000 to 5500 rpm step of the controller's own speed loop:"
-                " the built-in controller's current limit (set your controller's)"
+                " the smaller of the plant's current-sensor range and switch rating (its TOML's; the paper bench's)"
             ),
             **derived('phase_current_peak_a'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),

@@ -30,6 +30,11 @@ class InverterParameters:
     """
 
     pwm_frequency_hz: float = bounded(20e3, low=0.0, high=1e6, unit="Hz", low_open=True, doc="PWM carrier")
+    #: the paper bench's switches are Infineon IPB200N25N3 G (paper Section 4.1): 64 A continuous drain
+    #: current at 25 C case (Infineon datasheet IPB200N25N3 G, rev. 2.x, "I_D")
+    switch_current_rating_a: float = bounded(
+        64.0, low=0.0, high=1e4, unit="A", low_open=True, doc="continuous current rating of the inverter's switches"
+    )
 
 
 @dataclass(frozen=True)
@@ -43,6 +48,9 @@ class CurrentSensorParameters:
         (0.0, 0.0, 0.0), low=-1.0, high=1.0, unit="A", length=3, doc="offset A, B, C"
     )
     noise_rms_a: float = bounded(0.0, low=0.0, high=1.0, unit="A", doc="white noise RMS per sample")
+    #: the paper bench's LA25-P measures 0-25 A (paper Table 1)
+    range_a: float = bounded(25.0, low=0.0, high=1e4, unit="A", low_open=True,
+                             doc="measurement range: a current beyond it is not seen by the controller")
 
 
 #: The deviations a calibration table holds (paper Sections 2.1-2.4).

@@ -13,6 +13,8 @@ import pytest
 from bldc.contract import Strategy
 from hil.bench import p99_abs as p99
 from hil.bench import rms
+from hil.budget_sources import fraction_removed_for
+from hil.calibration.corrections import SENSORS, Corrections
 from hil.plots import commutation_error_figure
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
@@ -24,6 +26,19 @@ DEVIATIONS = {
     "armature_reaction": ("REQ-CAL-004", (fx.ArmatureReaction(slope_deg_e_per_a=0.35),)),
 }
 DEVIATIONS["combined"] = ("REQ-COMM-001", sum((effects for _, effects in DEVIATIONS.values()), ()))
+#: each deviation's own table entry, judged as the controller applies it (its read-back) against the
+#: plant's truth (``Corrections.from_plant``): the budget and the error of the entry
+TABLE_ERRORS = {
+    "installation": ("installation_offset_error", lambda got, true: max(
+        abs(got.installation_offset_deg_e[s] - true.installation_offset_deg_e[s]) for s in SENSORS)),
+    "pole": ("pole_offset_error", lambda got, true: float(np.max(np.abs(
+        np.subtract(got.pole_offset_deg_e, true.pole_offset_deg_e))))),
+    "conditioning_delay": ("conditioning_delay_error", lambda got, true: max(
+        abs(got.conditioning_delay_s[k] - true.conditioning_delay_s[k]) for k in ("rise", "fall"))),
+    "armature_reaction": ("armature_slope_error", lambda got, true: abs(
+        got.armature_reaction_deg_e_per_a - true.armature_reaction_deg_e_per_a) / abs(
+        true.armature_reaction_deg_e_per_a)),
+}
 SPEED_RPM = 8000.0  # high enough for the delay and the armature current to matter (the paper pump's)
 JUDGED_FROM_S = 0.15  # commutations before this are the start-up transient, not judged
 
@@ -33,6 +48,16 @@ def _four_digits(value) -> str:
     if isinstance(value, (list, tuple)):
         return ", ".join(_four_digits(v) for v in value)
     return f"{value:.4g}" if isinstance(value, float) else str(value)
+
+
+def _entries(c: Corrections) -> dict:
+    """A correction table's entries, for the evidence."""
+    return {
+        "installation_offset_deg_e (A, B, C)": [c.installation_offset_deg_e[s] for s in SENSORS],
+        "pole_offset_deg_e": list(c.pole_offset_deg_e),
+        "conditioning_delay_s (rise, fall)": [c.conditioning_delay_s[k] for k in ("rise", "fall")],
+        "armature_reaction_deg_e_per_a": c.armature_reaction_deg_e_per_a,
+    }
 
 
 @pytest.mark.parametrize("deviation", [pytest.param(name, marks=pytest.mark.requirement(req, "REQ-CAL-005"))
@@ -71,6 +96,13 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
         c = bench.sim.commutations()
         figures[strategy.name.lower()] = (c.t_s, c.error_deg_e)
     corrected = runs["corrected"]
+    truth = Corrections.from_plant(plant.with_effects(*effects))
+    # what the scenario's edges carry, by the plant's truth table (never the controller's raw run):
+    # REQ-CAL-005's limit for this scenario (hil/budget_sources.py, fraction_removed_for)
+    e = bench.sim.edges()
+    keep = e.t_capture_s >= judged_from_s
+    raw_truth_deg_e = rms(truth.correction_deg_e(e.sensor[keep], e.rising[keep], e.pole[keep], e.speed_rpm[keep],
+                                                 e.mean_abs_current_a[keep]))
     hil_evidence.table(
         "commutation angle error against the true rotor angle (deg e)",
         ["strategy", "commutations", "mean", "RMS", "p99"],
@@ -91,15 +123,28 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
     # REQ-COMM-001's; all of them REQ-CAL-005's share removed (not for a controller's own calibration).
     # All recorded before any fails
     judged = [(f"{deviation}_corrected_angle_p99" if deviation != "combined" else "commutation_angle_p99",
-               p99(corrected))]
+               p99(corrected), None)]
     if not own:
         raw = runs["raw"]
         hil_evidence.value("raw commutation RMS (what calibration has to remove)", rms(raw), "deg_e")
-        judged.append(("calibrated_fraction_removed", 1.0 - rms(corrected) / rms(raw)))
+        hil_evidence.value("raw deviation RMS of the judged edges, by the plant's truth table", raw_truth_deg_e,
+                           "deg_e")
+        judged.append(("calibrated_fraction_removed", 1.0 - rms(corrected) / rms(raw),
+                       fraction_removed_for(raw_truth_deg_e)))
+        if deviation in TABLE_ERRORS:
+            # the table the controller applies, as its profile reads it back, against the plant's truth
+            applied = hil_link.applied_calibration
+            name, error = TABLE_ERRORS[deviation]
+            if applied is None:
+                raise AssertionError(f"{name}: the controller's applied table was not read back after the download")
+            got, true = _entries(applied), _entries(truth)
+            hil_evidence.table("the applied table against the plant's truth", ["entry", "applied", "truth"],
+                               [[k, _four_digits(got[k]), _four_digits(true[k])] for k in got])
+            judged.append((name, error(applied, truth), None))
     missed = []
-    for name, value in judged:
+    for name, value, scenario in judged:
         try:
-            hil_budget(name, value)
+            hil_budget(name, value, scenario)
         except AssertionError as exc:
             missed.append(exc)
     if len(missed) > 1:

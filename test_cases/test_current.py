@@ -3,7 +3,8 @@
 * The current limit: the controller's own speed loop stepped from 5000 to 5500 rpm with
   calibrated commutation (a speed loop asks for more torque than the limit allows: the
   acceleration is current-limited); the peak phase current, read from the plant's true
-  currents, must stay within the controller's limit.
+  currents, must stay within the drive's rating: what its current sensors can see and its
+  switches carry (the plant TOML's ratings).
 * The speed loop itself (REQ-SPD-001): a 2 % step the current limit does not bound (a 10 % step
   is a current-limited ramp, the same for every loop's gains): overshoot, decay ratio, settling
   into +-10 % of the step and the holding current over the load's need (hil.experiments.speed_step).
@@ -24,6 +25,7 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
+from hil.budget_sources import current_limit_for
 from hil.experiments import speed_step as S
 from hil.judging import not_judged
 from hil.experiments.table5 import scenario_plant
@@ -49,7 +51,9 @@ def test_a_speed_step_keeps_the_current_limit(calibrate, hil_bench, hil_budget, 
     peak_a = float(current.max())
     hil_evidence.value("peak phase current", peak_a, "A")
     hil_evidence.value("mean |i| over the step", float(current.mean()), "A")
-    hil_budget("phase_current_peak_a", peak_a)
+    # the drive's own ratings (the plant TOML's current sensors and switches) set the limit
+    hil_budget("phase_current_peak_a", peak_a, current_limit_for(
+        plant.current_sensor.range_a, plant.inverter.switch_current_rating_a, where=f"the plant {plant.name!r}"))
     # the speed loop once the limit releases (REQ-SPD-001's budget): an integral that wound up
     # through the current-limited ramp overshoots by most of the step
     ts, averaged = S.turn_average(t, speed, step_to_rpm)

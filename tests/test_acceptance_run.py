@@ -29,6 +29,20 @@ def test_the_default_acceptance_passes_every_requirement(default_acceptance):
     assert content["complete"] and content["session"]["seed"] is not None
 
 
+def test_every_listed_budget_is_measured(default_acceptance):
+    """A compliance report lists no budget it never judged: every default budget of every requirement
+    the run answered has at least one measurement in the report (a budget no test passes to
+    ``hil_budget`` fails here, named with its requirement)."""
+    _, reports = default_acceptance
+    content = json.loads((reports / "hil-report.json").read_text())
+    from hil.requirements import REQUIREMENTS
+
+    measured = {m["budget"] for t in content["tests"] for m in t["measurements"]}
+    answered = {r["id"] for r in content["traceability"] if r["traced"]}
+    never = sorted(f"{b.name} ({rid})" for rid in answered for b in REQUIREMENTS[rid].budgets if b.name not in measured)
+    assert not never, f"listed and never measured: {', '.join(never)}"
+
+
 def test_default_acceptance_prints_no_warning_and_shows_progress(default_acceptance):
     run, reports = default_acceptance
     output = run.stdout + run.stderr

@@ -21,8 +21,10 @@ BY_HAND = {
     "pole_offset_error": (1.67 - 1.46) / 100 * 60,
     # Table 3's 0.078 deg e at 10,000 rpm, 2 pole pairs
     "conditioning_delay_error": 0.078 / (10_000 / 60 * 360 * 2),
-    # Table 3's 0.078 deg e over 0.35 deg e/A x 2.8 A
-    "armature_slope_error": 0.078 / (0.35 * 2.8),
+    # Table 3's 0.078 deg e over 0.35 deg e/A x the mean |i| at 10,000 rpm: fan 1.5e-7 w^2 + friction 1e-5 w
+    # over 2 ke (0.0216), two of three phases conducting
+    "armature_slope_error": 0.078 / (0.35 * 2 / 3 * (1.5e-7 * (10_000 * math.pi / 30) ** 2
+                                                     + 1e-5 * 10_000 * math.pi / 30) / (2 * 0.0216)),
     # Table 5, Sage-Husa 0.0066 of 60 deg e, Gaussian RMS and p99
     "sage_husa_commutation_angle_rms": 0.0066 * 60 * math.sqrt(math.pi / 2),
     "sage_husa_commutation_angle_p99": 2.5758293 * 0.0066 * 60 * math.sqrt(math.pi / 2),
@@ -36,9 +38,11 @@ BY_HAND = {
     "edge_noise_tracking_edges": 2 * 120,
     "learned_edge_noise_ratio": 1 / 4,
     "heartbeat_period_error": (1.1 - 1) / 2,
-    "any_deviations_commutation_angle_p99": 2 * 0.5,
-    "recovered_commutation_angle_p99": 2 * 0.5,
-    "phase_current_peak_a": 15.0,
+    # REQ-COMM-001's 1 % torque ripple, for any calibrated deviation set and after a recovery
+    "any_deviations_commutation_angle_p99": 60 * 0.01,
+    "recovered_commutation_angle_p99": 60 * 0.01,
+    # the paper bench's LA25-P range (Table 1) and IPB200N25N3 G rating (Infineon datasheet): min(25, 64)
+    "phase_current_peak_a": min(25.0, 64.0),
     # example: half of raw Hall commutation's excess current (the paper's 37.2 % is its whole controller's)
     "raw_excess_current_removed": 1 / 2,
     # example: Ziegler and Nichols (1942), quarter-amplitude decay
@@ -116,9 +120,34 @@ def test_every_source_is_outside_the_project_or_says_it_is_an_example():
             assert any(w in d.cite for w in ("Table", "Section", "Figure")), d.budget
 
 
-def test_the_phase_current_example_lies_inside_the_papers_sensor_range():
+def test_the_current_limit_is_the_plants_own_ratings():
+    """The default is the paper bench's ratings, and they are the plant's defaults (one set of numbers)."""
+    from plant_models.plant import CurrentSensorParameters, InverterParameters
+
     d = bs.DERIVATIONS["phase_current_peak_a"]
-    assert d.inputs["configured_limit_a"] <= d.inputs["sensor_range_a"] == 25.0
+    assert d.inputs == {"sensor_range_a": CurrentSensorParameters().range_a,
+                        "switch_rating_a": InverterParameters().switch_current_rating_a}
+    assert bs.current_limit_for(10.0, 64.0).limit == 10.0 and bs.current_limit_for(25.0, 20.0).limit == 20.0
+
+
+def test_the_share_removed_is_derived_for_the_scenarios_own_raw_error():
+    """REQ-CAL-005: a scenario with less to remove may remove a smaller share and still meet the
+    commutation limit (sigma = 0.6 / 2.576 deg e of residual RMS)."""
+    sigma = 0.6 / 2.5758293
+    for raw in (0.45, 1.0, 3.3, 10.0):
+        assert bs.fraction_removed_for(raw).limit == pytest.approx(1 - sigma / raw, rel=1e-6)
+    assert bs.fraction_removed_for(0.1).limit == 0.0  # less raw error than the residual allowed: nothing to remove
+
+
+def test_a_scenario_limit_applies_to_the_default_and_never_over_a_users_own(tmp_path):
+    derived_for = bs.fraction_removed_for(0.45)
+    v = Budgets.defaults().check("calibrated_fraction_removed", 0.6, derived_for)
+    assert v.verdict != "fail" and v.limit == pytest.approx(derived_for.limit)
+    assert Budgets.defaults().check("calibrated_fraction_removed", 0.6).verdict == "fail"  # the paper's 0.929
+    own = tmp_path / "budgets.toml"
+    own.write_text("[calibrated_fraction_removed]\nlimit = 0.7\n")
+    mine = Budgets.from_toml(own)
+    assert mine.check("calibrated_fraction_removed", 0.6, derived_for).limit == 0.7
 
 
 def test_every_marginal_bound_lies_on_the_passing_side():
