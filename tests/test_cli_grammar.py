@@ -218,3 +218,19 @@ def test_twin_check_writes_json_only_when_asked(tmp_path, monkeypatch, capsys):
     assert "compared" in capsys.readouterr().out and list(tmp_path.iterdir()) == []
     assert main(["twin", "check", "cap.vcd", "twin.toml", "--json", "c.json"]) == 0
     assert (tmp_path / "c.json").is_file()
+
+
+#: the parsers outside ``hil`` (module, main): the same spellings, old ones hidden and named
+SIDE_PARSERS = [("hil.dut.eds", "main"), ("hil.experiments.controller_tuning", "main"),
+                ("hil.experiments.peers", "tuning_main")]
+
+
+@pytest.mark.parametrize("module, main", SIDE_PARSERS, ids=[m for m, _ in SIDE_PARSERS])
+def test_the_side_parsers_speak_the_grammar(module, main, capsys):
+    import importlib
+
+    with pytest.raises(SystemExit):
+        getattr(importlib.import_module(module), main)(["--help"])
+    shown = set(re.findall(r"(?<![\w-])(--?[a-z][\w-]*)", capsys.readouterr().out))
+    assert not shown & OLD_SPELLINGS, f"{module} shows {sorted(shown & OLD_SPELLINGS)}"
+    assert not {"--seed", "--output"} & shown, f"{module} shows an old spelling"

@@ -1,7 +1,7 @@
 """Tune the virtual controller's Sage-Husa and Kalman filter alike on its own closed loop, then
 judge both through the controller on held-out seeds (REQ-PRED-002; docs/sage-husa.md).
 
-    python tools/controller_tuning.py [--train-seed S ...] [--seed S ...] [--hold S] [--json OUT]
+    python tools/controller_tuning.py [--train-seeds S ...] [--seeds S ...] [--hold S] [--json OUT]
 
 Records the paper scenario through the in-process controller for the training seeds (default
 1 2 12 13), tunes both filters on the replays with the ``tuned`` protocol's search, rounds the

@@ -2,7 +2,7 @@
 the training pumps and write their settings, with provenance, to hil/predictors/peer_settings.py
 (docs/sage-husa.md, "Peers").
 
-    python tools/predictor_tuning.py [--train-seed S ...] [--out PATH]
+    python tools/predictor_tuning.py [--train-seeds S ...] [--out PATH]
 
 Run once; ``hil predictors compare`` only evaluates those settings, on pumps no tuning saw.
 """

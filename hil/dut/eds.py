@@ -262,16 +262,19 @@ def main(argv: list[str] | None = None) -> int:
 
     parser = argparse.ArgumentParser(prog="python -m hil.dut.eds", description=main.__doc__)
     parser.add_argument("profile", help="a CANopen device profile (hil-device-profile/1)")
-    parser.add_argument("-o", "--output", help="write the EDS here (default: standard output)")
+    from .. import cli_grammar as grammar
+
+    grammar.add_out(parser, "write the EDS here (default: standard output)")
+    grammar.add_deprecated(parser, "--output", dest="out", new="-o/--out")
     args = parser.parse_args(argv)
     profile = load_profile(args.profile)
     if profile.protocol != "canopen":
         parser.error(f"{args.profile} is a {profile.protocol} profile; an EDS describes a CANopen device")
     own = Path(args.profile).resolve() == (PROFILES_DIR / "virtual-canopen.toml").resolve()
-    name = Path(args.output).name if args.output else "device.eds"
+    name = Path(args.out).name if args.out else "device.eds"
     text = eds_text(profile, virtual_identity() if own else None, name)
-    if args.output:
-        Path(args.output).write_text(text)
+    if args.out:
+        Path(args.out).write_text(text)
     else:
         print(text, end="")
     return 0

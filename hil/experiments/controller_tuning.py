@@ -228,11 +228,17 @@ def main(argv=None) -> int:
     import time
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--train-seed", type=int, nargs="+", default=list(TRAIN_SEEDS))
-    ap.add_argument("--seed", type=int, nargs="+", default=list(EVAL_SEEDS), help="held-out evaluation seeds")
+    from hil import cli_grammar as grammar
+
+    ap.add_argument("--train-seeds", type=int, nargs="+", default=list(TRAIN_SEEDS), dest="train_seed")
+    grammar.add_deprecated(ap, "--train-seed", dest="train_seed", new="--train-seeds", type=int, nargs="+")
+    ap.add_argument("--seeds", type=int, nargs="+", default=list(EVAL_SEEDS), dest="seed",
+                    help="held-out evaluation seeds")
+    grammar.add_deprecated(ap, "--seed", dest="seed", new="--seeds", type=int, nargs="+")
     ap.add_argument("--hold", type=float, default=HOLD_S, help="seconds per set point (default %(default)s)")
-    ap.add_argument("--json", type=Path, help="write the settings and the per-seed figures here")
+    grammar.add_json(ap, "the settings and the per-seed figures")
     args = ap.parse_args(argv)
+    args.json = Path(args.json) if args.json else None
     if set(args.seed) & set(args.train_seed):
         ap.error(f"evaluation seeds {sorted(set(args.seed) & set(args.train_seed))} are also training seeds")
     def say(line: str) -> None:  # 100 columns at most

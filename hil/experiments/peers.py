@@ -322,9 +322,14 @@ def tuning_main(argv=None) -> int:
     import pprint
 
     ap = argparse.ArgumentParser(description=tuning_main.__doc__.splitlines()[0])
-    ap.add_argument("--train-seed", type=int, nargs="+", default=list(TRAIN_PUMP_SEEDS))
-    ap.add_argument("--out", type=Path, default=Path(__file__).parents[1] / "predictors" / "peer_settings.py")
+    from hil import cli_grammar as grammar
+
+    ap.add_argument("--train-seeds", type=int, nargs="+", default=list(TRAIN_PUMP_SEEDS), dest="train_seed")
+    grammar.add_deprecated(ap, "--train-seed", dest="train_seed", new="--train-seeds", type=int, nargs="+")
+    grammar.add_out(ap, "where the tuned settings go", default=str(Path(__file__).parents[1] / "predictors"
+                                                                   / "peer_settings.py"))
     args = ap.parse_args(argv)
+    args.out = Path(args.out)
     if set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS):
         ap.error(f"training seeds {sorted(set(args.train_seed) & set(HELD_OUT_PUMP_SEEDS))} are held out")
     t0 = time.monotonic()
