@@ -557,7 +557,15 @@ static void hist_append(int64_t t, uint8_t sensor, uint8_t rising, int32_t bound
 /* ---- corrections (hil/calibration/corrections.py correction_one_deg_e) ----------------------- */
 static float delay_of(uint8_t rising)
 {
+#if defined(HIL_DEFECT_TIME_PRODUCT_OVERFLOW)
+    /* the delay taken to whole timer ticks through nanoseconds: ns x TIMER_HZ is 6.6e10 for 6.6 us at
+       10 MHz, beyond 2^32, so an unsigned long (64 bits on a PC, 32 on a Cortex-M) wraps on the part */
+    unsigned long ns = (unsigned long)lroundf((rising ? table.delay_rise_s : table.delay_fall_s) * 1e9f);
+    unsigned long ticks = ns * (unsigned long)TIMER_HZ / 1000000000ul;
+    return (float)ticks * SECONDS_PER_TICK;
+#else
     return rising ? table.delay_rise_s : table.delay_fall_s;
+#endif
 }
 
 static float correction_deg_e(int sensor, uint8_t rising, int pole, float speed_rpm, float current_a)
@@ -819,6 +827,24 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
 #ifdef FW_DEBUG
     fprintf(stderr, "hall t=%lld pin=%d levels=%d\n", (long long)t, pin, levels);
 #endif
+#if defined(HIL_DEFECT_STACK_HUNGRY_ISR)
+    {   /* a 4.4 kB scratch window of past intervals on the interrupt's stack (a median filter's
+           buffer): on a PC's megabytes nothing happens, on a 4 kB main stack it overflows */
+        volatile float window[1100];
+        int k;
+        for (k = 0; k < 1100; k++) window[k] = (float)k;
+        delay_s = window[(uint32_t)t % 1100u] * 0.0f;
+    }
+#endif
+#if defined(HIL_DEFECT_UNALIGNED_64BIT_ACCESS)
+    {   /* the capture time packed into a byte record behind its one-byte pin field, stored through
+           an int64_t pointer: the compiler emits STRD, which faults unaligned on a Cortex-M
+           (UsageFault UNALIGNED); x86 does not care */
+        static uint8_t record[16];
+        record[0] = pin;
+        *(volatile int64_t *)(void *)&record[1] = t;
+    }
+#endif
     adc_push(t, adc); /* the conversion the capture triggers */
     if (cycle_n > 0u) {
         cycle_a = (fabsf((float)cycle_sum[0]) + fabsf((float)cycle_sum[1]) + fabsf((float)cycle_sum[2])) /
@@ -909,9 +935,21 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     }
 }
 
+#if defined(HIL_DEFECT_DOUBLE_IN_CONTROL_ISR)
+static double current_lp_a[3]; /* a low-passed phase current nobody needs at 20 kHz */
+#endif
+
 void ctl_control_isr(uint32_t count, const int16_t adc[3])
 {
     int64_t now = tb_at(count);
+#if defined(HIL_DEFECT_DOUBLE_IN_CONTROL_ISR)
+    {   /* a first-order low pass in double, its coefficient recomputed every period: on a PC two
+           instructions, on a Cortex-M4F (single-precision FPU) software exp, multiplies and adds */
+        double alpha = 1.0 - exp(-1.0 / ((double)CONTROL_HZ * 1e-3));
+        int k;
+        for (k = 0; k < 3; k++) current_lp_a[k] += alpha * ((double)adc[k] * (double)AMPS_PER_COUNT - current_lp_a[k]);
+    }
+#endif
     adc_push(now, adc);
     cycle_sum[0] += adc[0];
     cycle_sum[1] += adc[1];
