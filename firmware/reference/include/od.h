@@ -5,12 +5,15 @@
 
 #include <stdint.h>
 
-#define SDO_NO_OBJECT 0x06020000L
-#define SDO_NO_SUBINDEX 0x06090011L
-#define SDO_READ_ONLY 0x06010002L
-#define SDO_WRITE_ONLY 0x06010001L
-#define SDO_LENGTH 0x06070010L
-#define SDO_RANGE 0x06090030L
+#include "hil_sil_util.h"
+
+/* the CiA 301 abort codes of hil_sil_util.h, by this firmware's short names */
+#define SDO_NO_OBJECT HIL_SDO_NO_OBJECT
+#define SDO_NO_SUBINDEX HIL_SDO_NO_SUBINDEX
+#define SDO_READ_ONLY HIL_SDO_READ_ONLY
+#define SDO_WRITE_ONLY HIL_SDO_WRITE_ONLY
+#define SDO_LENGTH HIL_SDO_LENGTH
+#define SDO_RANGE HIL_SDO_VALUE_INVALID
 
 int32_t od_read(uint16_t index, uint8_t sub, uint8_t *buf, uint32_t size);
 int32_t od_write(uint16_t index, uint8_t sub, const uint8_t *buf, uint32_t size);

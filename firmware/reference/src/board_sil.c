@@ -2,6 +2,7 @@
    interrupts and the object dictionary are handed to the control logic, and what the logic drives
    through board.h is held here for the framework's getters. */
 #include "hil_sil.h"
+#include "hil_sil_util.h"
 
 #include "board.h"
 #include "control.h"
@@ -28,9 +29,7 @@ static uint8_t gates;
 static uint16_t duty;
 static uint8_t compare_armed;
 static uint32_t compare_count;
-#define EMCY_QUEUE 16
-static uint16_t emcy[EMCY_QUEUE];
-static uint8_t emcy_head, emcy_n;
+static hil_emcy_queue emcy; /* the CAN controller's transmit queue */
 
 /* ---- board.h ------------------------------------------------------------------------------- */
 void board_set_gates(uint8_t g) { gates = (uint8_t)(g & 0x3Fu); }
@@ -43,9 +42,7 @@ void board_compare_arm(uint32_t count)
 void board_compare_disarm(void) { compare_armed = 0u; }
 void board_emcy_send(uint16_t code)
 {
-    if (emcy_n == EMCY_QUEUE) return; /* the CAN controller's queue is full: the frame is lost */
-    emcy[(emcy_head + emcy_n) % EMCY_QUEUE] = code;
-    emcy_n++;
+    (void)hil_emcy_push(&emcy, code); /* a full queue loses the frame */
 }
 
 /* ---- hil-sil/1 ----------------------------------------------------------------------------- */
@@ -66,7 +63,7 @@ void hil_sil_reset(uint8_t levels)
     gates = 0u;
     duty = 0u;
     compare_armed = 0u;
-    emcy_head = emcy_n = 0u;
+    hil_emcy_clear(&emcy);
     faults_power_on();
     ctl_power_on(levels);
 }
@@ -110,9 +107,5 @@ int32_t hil_sil_od_write(uint16_t index, uint8_t sub, const uint8_t *buf, uint32
 
 int hil_sil_emcy(uint16_t *code)
 {
-    if (emcy_n == 0u) return 0;
-    *code = emcy[emcy_head];
-    emcy_head = (uint8_t)((emcy_head + 1u) % EMCY_QUEUE);
-    emcy_n--;
-    return 1;
+    return hil_emcy_pop(&emcy, code);
 }

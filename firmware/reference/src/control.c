@@ -15,26 +15,18 @@
 #include "faults.h"
 #include "filter.h"
 #include "fw_config.h"
+#include "hil_sil_util.h"
 #include "nvm.h"
 #ifdef FW_DEBUG
 #include <stdio.h>
 #endif
 
-/* ---- Hall geometry and the six-step table (bldc/hall.py) ------------------------------------ */
-static const int8_t SECTOR_OF_CODE[8] = {-1, 5, 3, 4, 1, 0, 2, -1}; /* code A*4 + B*2 + C */
-static const uint8_t SECTOR_HIGH_PHASE[6] = {2, 2, 0, 0, 1, 1};
-static const uint8_t SECTOR_LOW_PHASE[6] = {0, 1, 1, 2, 2, 0};
+/* ---- Hall geometry and the six-step table (bldc/hall.py; the tables are hil_sil_util.h's) ------- */
 static const float SENSOR_POSITION_DEG_E[3] = {0.0f, 120.0f, 240.0f};
 
 static int sector_of_bits(const uint8_t bits[3])
 {
-    return SECTOR_OF_CODE[(bits[0] << 2) | (bits[1] << 1) | bits[2]];
-}
-
-static uint8_t gates_of_sector(int s)
-{
-    if (s < 0) return 0u;
-    return (uint8_t)((1u << (2u * SECTOR_HIGH_PHASE[s])) | (1u << (2u * SECTOR_LOW_PHASE[s] + 1u)));
+    return HIL_SECTOR_OF_CODE[(bits[0] << 2) | (bits[1] << 1) | bits[2]];
 }
 
 static int mod_int(int32_t a, int32_t m)
@@ -134,7 +126,7 @@ static void apply(const command_t *c)
     fprintf(stderr, "apply at=%lld sector=%d duty=%.4f\n", (long long)c->at, c->sector, c->duty);
 #endif
     if (c->sector >= 0) {
-        uint8_t g = gates_of_sector(c->sector);
+        uint8_t g = hil_gates_of_sector(c->sector);
         if (g != out_gates) { /* a commutation: its instant, for the ADC's segments */
             switch_t[switch_head] = c->at;
             switch_from[switch_head] = out_gates;
@@ -869,7 +861,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
            turns forward from the sector the pins named at power-on; an edge that does not step
            forward from it (a sensor the rotor stands at, its edge moved back and forth by the
            start-up current through the armature reaction) is no rotor motion yet */
-        int s = SECTOR_OF_CODE[((levels & 1u) << 2) | (levels & 2u) | ((levels >> 2) & 1u)];
+        int s = hil_sector_of_levels(levels);
         int step = s < 0 ? -1 : mod_int(s - L.start_sector, 6);
         if (step != 1 && step != 2) {
             L.bits[pin] = rising;
@@ -1014,7 +1006,7 @@ void ctl_restart_logic(void)
     L.index_at_last_sector = -1;
     L.setpoint_rpm = nvm.speed_setpoint_rpm;
     L.feedforward = steady_duty(nvm.speed_setpoint_rpm);
-    L.start_sector = (int8_t)SECTOR_OF_CODE[((pins_levels & 1u) << 2) | (pins_levels & 2u) | ((pins_levels >> 2) & 1u)];
+    L.start_sector = (int8_t)hil_sector_of_levels(pins_levels);
 }
 
 void ctl_set_speed(float rpm)

@@ -3,6 +3,7 @@
 #include "board.h"
 #include "fw_config.h"
 #include "defects.h"
+#include "hil_sil_util.h"
 
 #define MAX_LATCHED 8
 
@@ -28,7 +29,7 @@ void fault_raise(uint16_t code)
     for (i = 0u; i < n_latched; i++)
         if (latched[i] == code) return; /* reported once per code until the faults are cleared */
     if (n_latched < MAX_LATCHED) latched[n_latched++] = code;
-    error_register |= 0x01u | 0x80u; /* generic + manufacturer specific */
+    error_register |= HIL_ERR_REG_GENERIC | HIL_ERR_REG_MANUFACTURER;
     for (i = (uint8_t)(FAULT_HISTORY - 1u); i > 0u; i--) history[i] = history[i - 1u];
     history[0] = code;
     if (n_history < FAULT_HISTORY) n_history++;

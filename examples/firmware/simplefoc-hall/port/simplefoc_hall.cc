@@ -9,6 +9,7 @@
 #include <new>
 
 #include "hil_sil.h"
+#include "hil_sil_util.h"
 #include "sil_board.h"
 #include "../vendor/src/sensors/HallSensor.h"
 
@@ -22,14 +23,11 @@ constexpr uint8_t kPolePairs = 2;
 // by the user as the motor's wiring fixes it: nothing here measures or corrects the sensors'
 // placement.
 constexpr int kZeroElectricSectors = 5;
-// the phases each drive sector switches (high side chopped at the duty, low side on)
-constexpr int kHigh[6] = {2, 2, 0, 0, 1, 1};
-constexpr int kLow[6] = {0, 1, 1, 2, 2, 0};
 constexpr uint16_t kIllegalHallCode = 0x3101;
 constexpr float kRadPerSToRpm = 60.0f / _2PI;
 constexpr float kDutyPerRpm = 0.342f / 6000.0f;  // the plant motor's duty at no load, per rpm
 constexpr float kSpeedKp = 1e-4f, kSpeedKi = 2e-3f, kDutyMax = 0.95f;
-constexpr int kFaultSlots = 4, kEmcySlots = 8;
+constexpr int kFaultSlots = 4;
 constexpr long kEdgesBeforeSpeedLoop = 6;
 constexpr float kVelocityLpfTf_s = 0.005f;  // SimpleFOC's DEF_VEL_FILTER_Tf
 constexpr float kVelocityLpfAlpha = kVelocityLpfTf_s / (kVelocityLpfTf_s + 1.0f / kControlHz);
@@ -40,8 +38,7 @@ struct Ram {
   float duty = 0.0f, integral = 0.0f, speed_rpm = 0.0f, velocity_lpf_rad_s = 0.0f;
   uint32_t faults[kFaultSlots] = {};
   uint8_t fault_count = 0, error_register = 0;
-  uint16_t emcy[kEmcySlots] = {};
-  uint8_t emcy_n = 0;
+  hil_emcy_queue emcy = {};
 } ram;
 
 // The sensor is a global object on the MCU: static storage zeroed at power-on, then constructed.
@@ -54,17 +51,13 @@ void doA() { sensor().handleA(); }
 void doB() { sensor().handleB(); }
 void doC() { sensor().handleC(); }
 
-uint8_t gates_of(int sector) {
-  return static_cast<uint8_t>((1u << (2 * kHigh[sector])) | (2u << (2 * kLow[sector])));
-}
-
 void fault(uint16_t code) {
   for (int k = 0; k < ram.fault_count; ++k) if (ram.faults[k] == code) return;
   for (int k = kFaultSlots - 1; k > 0; --k) ram.faults[k] = ram.faults[k - 1];
   ram.faults[0] = code;
   if (ram.fault_count < kFaultSlots) ++ram.fault_count;
-  ram.error_register |= 0x81;  // generic + manufacturer-specific (CiA 301)
-  if (ram.emcy_n < kEmcySlots) ram.emcy[ram.emcy_n++] = code;
+  ram.error_register |= HIL_ERR_REG_GENERIC | HIL_ERR_REG_MANUFACTURER;
+  hil_emcy_push(&ram.emcy, code);
 }
 
 // BLDCMotor::loopFOC's first half, six-step: the sensor's update(), then the electrical angle
@@ -77,7 +70,7 @@ void commutate() {
   if (s.hall_state == 0 || s.hall_state == 7) fault(kIllegalHallCode);
   float electrical = _normalizeAngle(_electricalAngle(s.getMechanicalAngle(), kPolePairs));
   int simplefoc_sector = static_cast<int>(std::lround(electrical / _PI_3)) % 6;
-  ram.gates = gates_of((simplefoc_sector + kZeroElectricSectors) % 6);
+  ram.gates = hil_gates_of_sector((simplefoc_sector + kZeroElectricSectors) % 6);
 }
 
 // SimpleFOC's sector callback runs inside the Hall interrupt, after the sensor took the edge:
@@ -85,7 +78,7 @@ void commutate() {
 void on_sector_change(int) { commutate(); }
 
 template <typename T> int32_t put(uint8_t* buf, uint32_t size, T v) {
-  if (size < sizeof(T)) return -0x06070010;
+  if (size < sizeof(T)) return -HIL_SDO_LENGTH;
   std::memcpy(buf, &v, sizeof(T));
   return sizeof(T);
 }
@@ -149,16 +142,10 @@ HIL_SIL_EXPORT void hil_sil_control_isr(uint32_t count, const int16_t adc[3]) {
 HIL_SIL_EXPORT uint8_t hil_sil_gates(void) { return ram.gates; }
 HIL_SIL_EXPORT uint16_t hil_sil_duty(void) { return static_cast<uint16_t>(ram.duty * 65535.0f); }
 
-HIL_SIL_EXPORT int hil_sil_emcy(uint16_t* code) {
-  if (ram.emcy_n == 0) return 0;
-  *code = ram.emcy[0];
-  for (int k = 1; k < ram.emcy_n; ++k) ram.emcy[k - 1] = ram.emcy[k];
-  --ram.emcy_n;
-  return 1;
-}
+HIL_SIL_EXPORT int hil_sil_emcy(uint16_t* code) { return hil_emcy_pop(&ram.emcy, code); }
 
 HIL_SIL_EXPORT int32_t hil_sil_od_read(uint16_t index, uint8_t sub, uint8_t* buf, uint32_t size) {
-  constexpr int32_t kNoSub = -0x06090011;
+  constexpr int32_t kNoSub = -HIL_SDO_NO_SUBINDEX;
   switch (index) {
     case 0x1001: return sub ? kNoSub : put<uint8_t>(buf, size, ram.error_register);
     case 0x1003:
@@ -170,20 +157,20 @@ HIL_SIL_EXPORT int32_t hil_sil_od_read(uint16_t index, uint8_t sub, uint8_t* buf
       return sub <= 4 ? put<uint32_t>(buf, size, sub) : kNoSub;
     case 0x2200: return sub ? kNoSub : put<float>(buf, size, nvm.setpoint_rpm);
     case 0x2201: return sub ? kNoSub : put<int32_t>(buf, size, static_cast<int32_t>(ram.speed_rpm));
-    default: return -0x06020000;
+    default: return -HIL_SDO_NO_OBJECT;
   }
 }
 
 HIL_SIL_EXPORT int32_t hil_sil_od_write(uint16_t index, uint8_t sub, const uint8_t* buf, uint32_t size) {
   if (index == 0x2200 && sub == 0) {
-    if (size != 4) return -0x06070010;
+    if (size != 4) return -HIL_SDO_LENGTH;
     float v;
     std::memcpy(&v, buf, 4);
-    if (!(v >= 0.0f && v <= 20000.0f)) return -0x06090030;  // value range exceeded
+    if (!(v >= 0.0f && v <= 20000.0f)) return -HIL_SDO_VALUE_INVALID;
     nvm.setpoint_rpm = v;
     return 0;
   }
-  if (index == 0x2201 || index == 0x1018 || index == 0x1001 || index == 0x1003) return -0x06010002;  // read-only
-  return -0x06020000;
+  if (index == 0x2201 || index == 0x1018 || index == 0x1001 || index == 0x1003) return -HIL_SDO_READ_ONLY;
+  return -HIL_SDO_NO_OBJECT;
 }
 }  // extern "C"
