@@ -36,8 +36,8 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-from hil.sil.build import (CXX_SUFFIXES, HEADER_DIR, BuildSpec, SilBuildError, _key, _language_flags, _run,
-                           _std_flags, _version, cached_build)
+from hil.sil.build import (CXX_SUFFIXES, HEADER_DIR, BuildSpec, SilBuildError, Toolchain, cache_key, cached_build,
+                           compiler_version, language_flags, run_compiler, std_flags)
 
 from .target import Core, Target
 
@@ -106,13 +106,13 @@ def support_object(core: Core) -> Path:
     z = zig()
     source = SUPPORT.read_bytes()
     key = "pil-support-" + hashlib.sha256(core.zig_cpu.encode() + core.zig_abi.encode() + source
-                                          + _version((*z, "cc")).encode()).hexdigest()[:20]
+                                          + compiler_version((*z, "cc")).encode()).hexdigest()[:20]
 
     def make(work: Path, log: list[str]) -> None:
         cmd = [*z, "build-obj", "-target", f"thumb-freestanding-{core.zig_abi}", f"-mcpu={core.zig_cpu}",
                "-OReleaseFast", "-ffunction-sections", "-fno-stack-check", str(SUPPORT),
                f"-femit-bin={work / 'libc_extra.o'}", "--cache-dir", str(work / "zig-cache")]
-        _run(cmd, _Where(SUPPORT), log, f"building {SUPPORT.name} for {core.name}")
+        run_compiler(cmd, _Where(SUPPORT), log, f"building {SUPPORT.name} for {core.name}")
 
     obj, _, _ = cached_build(key, "libc_extra.o", make)
     return obj
@@ -134,16 +134,14 @@ def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, s
     """The ELF of ``spec`` for ``target``'s core (built now, or taken from the cache). The linker
     drops what nothing references, as a firmware's release link does, but the ``hil-sil/1``
     exports and the functions named in ``keep``."""
-    from hil.sil.build import Toolchain
-
     core = target.core
     z = zig()
     cc, cxx = (*z, "cc"), (*z, "c++")
-    tc = Toolchain(cc, cxx, _version(cc), "ziglang")
+    tc = Toolchain(cc, cxx, compiler_version(cc), "ziglang")
     script = linker_script(target)
     salt = {"pil": core.name, "target_flags": target.flags, "script": script, "keep": keep,
             "support": hashlib.sha256(SUPPORT.read_bytes()).hexdigest()}
-    key = "pil-" + _key(spec, tc, extra_defines, salt)
+    key = "pil-" + cache_key(spec, tc, extra_defines, salt)
     support = support_object(core)
     flags = (*spec.flags, *target.flags)
 
@@ -156,16 +154,16 @@ def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, s
             any_cxx |= cxx
             obj = work / f"{k:03d}-{src.stem}.o"
             lang = ["-fno-exceptions", "-fno-rtti"] if cxx else []
-            cmd = [*(tc.cxx if cxx else tc.cc), *_std_flags(flags, cxx), *common, *lang,
-                   *_language_flags(flags, cxx), "-c", str(src), "-o", str(obj)]
-            _run(cmd, spec, log, f"compiling {src} for {core.name}")
+            cmd = [*(tc.cxx if cxx else tc.cc), *std_flags(flags, cxx), *common, *lang,
+                   *language_flags(flags, cxx), "-c", str(src), "-o", str(obj)]
+            run_compiler(cmd, spec, log, f"compiling {src} for {core.name}")
             objects.append(str(obj))
         (work / "target.ld").write_text(script)
         kept = [f"-Wl,-u,{name}" for name in (*EXPORTS, *keep)]
         cmd = [*tc.cc, "-target", f"thumb-freestanding-{core.zig_abi}", f"-mcpu={core.zig_cpu}", "-g",
                "-nostartfiles", "-Wl,--gc-sections", *kept, "-T", str(work / "target.ld"), *objects, str(support),
                "-o", str(work / "firmware.elf")]
-        _run(cmd, spec, log, f"linking for {core.name}")
+        run_compiler(cmd, spec, log, f"linking for {core.name}")
 
     elf, cached, _ = cached_build(key, "firmware.elf", make)
     return BuiltElf(elf, key, f"zig cc {tc.version} for {core.name} ({core.isa}, FPU {core.fpu})", cached)

@@ -134,6 +134,7 @@ class _Frame:
     start_cycle: int
     hang_at: float
     charge: bool                 #: False: a framework read, its cycles are given back
+    start_instructions: int = 0
     pc: int = 0                  #: where run() starts or resumes it
     prev: Block = START          #: the block before the next one (taken-branch accounting)
     saved: object = None         #: the registers of the call it preempted
@@ -145,7 +146,8 @@ class _Frame:
 @dataclass
 class CallStats:
     calls: int = 0
-    cycles: list[int] = field(default_factory=list)
+    cycles: list[int] = field(default_factory=list)  #: per call, exception entry and return included
+    instructions: list[int] = field(default_factory=list)  #: per call, preempting interrupts' included
     soft_float: Counter = field(default_factory=Counter)
     stack_bytes: int = 0  #: the deepest stack of any call of this kind (bytes below the top)
 
@@ -406,7 +408,7 @@ class Core:
         address = self.symbol(symbol)
         uc = self.uc
         frame = _Frame(symbol, address, interrupt, label or symbol, self.cycles, self.cycles + self.budget_cycles,
-                       charge, pc=address)
+                       charge, self.instructions, pc=address)
         if self._frames:
             outer = self._frames[-1]
             outer.prev = self._prev
@@ -471,6 +473,7 @@ class Core:
                 s = self.stats[frame.label]
                 s.calls += 1
                 s.cycles.append(spent)
+                s.instructions.append(self.instructions - frame.start_instructions)
         if self._frames:
             outer = self._frames[-1]
             self.uc.context_restore(outer.saved)

@@ -136,7 +136,7 @@ class PilFirmware:
                 continue
             c = np.asarray(s.cycles, dtype=float)
             figures = {"median": float(np.median(c)), "p99": float(np.percentile(c, 99)), "max": float(c.max())}
-            kinds[kind] = {"calls": s.calls, "cycles": figures,
+            kinds[kind] = {"calls": s.calls, "cycles": figures, "instructions_median": float(np.median(s.instructions)),
                            "us": {k: v / clock * 1e6 for k, v in figures.items()},
                            "soft_float": dict(sorted(s.soft_float.items())), "stack_bytes": s.stack_bytes}
         t = self.target
