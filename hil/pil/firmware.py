@@ -60,7 +60,9 @@ class PilFirmware:
         """An output register read (no time of the firmware's)."""
         return self.core.call(symbol, *args, charge=False)
 
-    def _adc(self) -> int:
+    def load_adc(self) -> int:
+        """``adc`` into the ADC's result registers; their address, the interrupts' ``adc`` argument
+        (a scheduler that starts an interrupt with ``core.begin`` passes it)."""
         self.core.write(ADC_BASE, self.adc.tobytes())
         return ADC_BASE
 
@@ -79,10 +81,10 @@ class PilFirmware:
         self._run("hil_sil_reset", levels & 0xFF)
 
     def hall_isr(self, count: int, pin: int, levels: int, adc=None) -> None:
-        self._run("hil_sil_hall_isr", count, pin & 0xFF, levels & 0xFF, self._adc(), interrupt=True, label="hall")
+        self._run("hil_sil_hall_isr", count, pin & 0xFF, levels & 0xFF, self.load_adc(), interrupt=True, label="hall")
 
     def control_isr(self, count: int, adc=None) -> None:
-        self._run("hil_sil_control_isr", count, self._adc(), interrupt=True, label="control")
+        self._run("hil_sil_control_isr", count, self.load_adc(), interrupt=True, label="control")
 
     def _compare_isr(self, count: int) -> None:
         self._run("hil_sil_compare_isr", count, interrupt=True, label="compare")
