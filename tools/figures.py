@@ -5,10 +5,13 @@
     python tools/figures.py --quick         # recompute the quick subset; exit 1 on drift beyond tolerance
     python tools/figures.py --render        # rewrite the docs from docs/figures.json (no computing)
     python tools/figures.py --check         # exit 1 where a doc disagrees with docs/figures.json, a group's
-                                            # content is not what the tool wrote, or its commit is not HEAD's ancestor
+                                            # content is not what the tool wrote, its commit is not HEAD's
+                                            # ancestor, or a group recomputed differs: every group whose
+                                            # declared inputs changed since its commit is recomputed
+    python tools/figures.py --stale         # the groups --check would recompute, and why
     python tools/figures.py --check --all   # the release check: recompute EVERY group and compare figures and
                                             # table cells with the file (slow: the whole test suite is one group);
-                                            # its date is kept in the file and shown in README.md
+                                            # its record is kept in the file and shown in README.md
     python tools/figures.py --check --only G ...  # the same for some groups
 
 A figure lives in ``docs/figures.json`` with its value, unit, tolerance and the provenance of its group
@@ -23,17 +26,25 @@ fills in and ``--check`` (and ``tests/test_figures.py``) holds to the file:
 So no published number is typed by hand: a doc that says something else fails the test, and a code
 change that moves a quick figure beyond its tolerance fails ``--quick`` in CI.
 
-What ``--check`` (and ``tests/test_figures.py``) holds without recomputing anything:
+What ``--check`` holds:
 
 - every marked figure and table of the docs is the file's;
 - every group's content (figures, tables, blocks, provenance) hashes to the digest the tool wrote
-  with it: a number, a table cell or a provenance commit edited by hand in the file fails;
+  with it: a number, a table cell or a provenance commit edited by hand in the file fails. The digest
+  has no key, and a key would not help: in an open repository anyone can read it, and a forger runs
+  the tool's own ``digest()``. It catches an edit by hand, never a forgery;
 - every group's provenance commit is a commit of this repository and an ancestor of HEAD
   (``git merge-base --is-ancestor``); in a clone without history (``git clone --depth 1``, an
-  archive) the check says that it could not check, and does not pass it silently.
+  archive) the check says that it could not check, and does not pass it silently;
+- every group whose declared inputs (``Group.inputs``: the code it runs and the data it reads)
+  changed between its provenance commit and the working tree, or whose commit is not an ancestor, is
+  recomputed and compared figure by figure and cell by cell: such a group cannot pass on its file
+  entry. A forged cell whose group names an old commit (the root commit, say) is recomputed and fails.
 
-Recomputing is what catches a forger who also rewrites the digest: ``--quick`` (CI) recomputes
-the quick groups, ``--check --all`` (before each release) every group, figures and table cells.
+What only a recompute catches: a figure rewritten with a provenance commit newer than its group's
+last input change (the forger names HEAD). ``tests/test_figures.py`` recomputes the quick groups on
+every CI run, ``tests/test_figures_rotation.py`` one of the rotating groups in turn
+(:func:`rotation_group`); ``--check --all`` (before each release) recomputes every group.
 """
 
 from __future__ import annotations
@@ -117,10 +128,20 @@ class Run:
 
 @dataclass(frozen=True)
 class Group:
+    """A set of figures computed together. ``inputs``: globs of the tracked paths whose change can
+    change its figures (``!glob`` leaves paths out); ``--check`` recomputes the group when one of
+    them changed since its provenance commit. ``quick``: recomputed by every CI run;
+    ``rotation``: one of these is recomputed by each CI run, chosen by the commit
+    (:func:`rotation_group`): groups that take at most a minute with the plant compiled, so that the
+    suite (about eight and a half minutes) stays within its ten (docs/architecture.md, "Published
+    figures", names the others and what covers them)."""
+
     name: str
     what: str
     quick: bool
     produce: Callable[[Path], Run]
+    inputs: tuple[str, ...]
+    rotation: bool = False
 
 
 def _hil(run: Run, work: Path, *args: str, timeout_s: float = 3600) -> subprocess.CompletedProcess:
@@ -830,43 +851,75 @@ def _children_cpu_s() -> float:
     return t.children_user + t.children_system
 
 
+# ---------------------------------------------------------------- what each group reads
+# Every group's producer is code of this file (its parsing and its tables): until each producer has
+# a file of its own, a change here is a change to every group's inputs.
+PRODUCERS = ("tools/figures.py",)
+#: what ``python -m hil`` runs, and what any script importing ``hil`` may reach. Not narrower: every
+#: command goes through hil/cli.py, which imports each command's modules inside its function, and the
+#: imports of the files it reaches (anywhere in a file: tests/test_figures.py follows them) reach all
+#: but a handful of the three packages' modules; their data (report templates, device profiles, the
+#: firmware-in-the-loop header) are read by the same code.
+HIL = (*PRODUCERS, "hil/**", "bldc/**", "plant_models/**")
+#: the acceptance suite as ``hil acceptance`` and ``hil qualify`` run it: pytest on test_cases/ from the
+#: repository's root, so the root conftest.py and pyproject.toml's pytest settings apply
+SUITE = (*HIL, "test_cases/**", "conftest.py", "pyproject.toml")
+#: the reference firmware, built and run through ``sil:firmware/reference``
+FIRMWARE = ("firmware/reference/**",)
+
+
+def _capture(vcd: str) -> str:
+    return str((REAL_CAPTURES / vcd).relative_to(ROOT))
+
+
+SPINDLE, HOVERBOARD = "20260618-spindle-hw.vcd", "20250616-hboard-cycle.vcd"
+ALL_CAPTURES = _capture("*.vcd")
+
 GROUPS: list[Group] = [
-    Group("demo", "README tour step 1: the paper-bench demo's captured-edge error", True, produce_demo),
+    Group("demo", "README tour step 1: the paper-bench demo's captured-edge error", True, produce_demo, HIL),
     Group("spindle_calibration", "docs/real-captures.md: the spindle capture calibrated", True,
-          _produce_real_calibration("20260618-spindle-hw.vcd")),
+          _produce_real_calibration(SPINDLE), (*HIL, _capture(SPINDLE))),
     Group("hoverboard_calibration", "docs/real-captures.md: the hoverboard speed cycles calibrated", False,
-          _produce_real_calibration("20250616-hboard-cycle.vcd")),
+          _produce_real_calibration(HOVERBOARD), (*HIL, _capture(HOVERBOARD)), rotation=True),
     Group("spindle_predictors", "docs/sage-husa.md: every predictor on the spindle capture", True,
-          _produce_real_predictors("20260618-spindle-hw.vcd")),
+          _produce_real_predictors(SPINDLE), (*HIL, _capture(SPINDLE))),
     Group("pump_predictors", "docs/sage-husa.md: every predictor on the held-out pumps", False,
-          produce_pump_predictors),
+          produce_pump_predictors, HIL, rotation=True),
     Group("paper_predictors", "docs/sage-husa.md: every predictor in the paper's speed-step scenario", False,
-          produce_paper_predictors),
+          produce_paper_predictors, HIL, rotation=True),
     Group("capture_halves", "docs/real-captures.md: each shipped capture whole and in halves", False,
-          produce_capture_halves),
+          produce_capture_halves, (*HIL, "tools/calibration_coverage.py", ALL_CAPTURES)),
     Group("gap_captures", "docs/real-captures.md, docs/gap.md: hil gap diagnose on each shipped capture", False,
-          produce_gap_captures),
-    Group("gap_validation", "docs/gap.md: hil gap validate at its default size", False, produce_gap_validation),
+          produce_gap_captures, (*HIL, ALL_CAPTURES)),
+    Group("gap_validation", "docs/gap.md: hil gap validate at its default size", False, produce_gap_validation,
+          HIL),
     Group("compare_correction", "docs/calibration.md: raw versus corrected commutation (paper Section 4.3)", False,
-          produce_compare_correction),
+          produce_compare_correction, HIL, rotation=True),
     Group("closed_loop", "docs/sage-husa.md: Sage-Husa through the controller against its offline replay", False,
-          produce_closed_loop),
-    Group("table5", "docs/sage-husa.md: Table 5's comparison under the four protocols", False, produce_table5),
+          produce_closed_loop, HIL, rotation=True),
+    Group("table5", "docs/sage-husa.md: Table 5's comparison under the four protocols", False, produce_table5,
+          HIL),
     Group("req_pred_002_spread", "docs/sage-husa.md: REQ-PRED-002 per operating profile, held-out seeds", False,
-          produce_req_pred_002_spread),
+          produce_req_pred_002_spread, (*HIL, "tools/req_pred_002_spread.py")),
     Group("spindle_twin", "docs/twin.md: the spindle's twin, checked and put through the suite", False,
-          _produce_twin("20260618-spindle-hw.vcd")),
+          _produce_twin(SPINDLE), (*SUITE, _capture(SPINDLE))),
     Group("hoverboard_twin", "docs/twin.md: the hoverboard's twin, checked and put through the suite", False,
-          _produce_twin("20250616-hboard-cycle.vcd")),
+          _produce_twin(HOVERBOARD), (*SUITE, _capture(HOVERBOARD))),
     Group("sil_reference", "docs/firmware-in-the-loop.md: the reference firmware beside the built-in controller",
-          False, produce_sil_reference),
+          False, produce_sil_reference, (*SUITE, *FIRMWARE, "tools/sil_compare.py")),
     Group("sil_speed", "docs/firmware-in-the-loop.md: the suite's run time through the reference firmware", False,
-          produce_sil_speed),
-    Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance),
-    Group("test_suite", "README: the test command's run time", False, produce_test_suite),
+          produce_sil_speed, (*SUITE, *FIRMWARE, "benchmarks/bench_sil.py")),
+    Group("acceptance", "README: the default acceptance run's verdict and run time", False, produce_acceptance,
+          SUITE),
+    # everything the suite reads but the figures' own output: each figures commit rewrites the file and
+    # the pages, and the suite's tests of them (tests/test_figures.py, tests/test_readme.py) run in CI on
+    # every commit anyway, as the whole suite does
+    Group("test_suite", "README: the test command's run time", False, produce_test_suite,
+          ("**", "!docs/figures.json", "!docs/*.md", "!README.md")),
     Group("first_run", "docs/acceptance.md: the default acceptance on a fresh clone, compile included, then warm",
-          False, produce_first_run),
-    Group("qualify", "docs/qualify.md: hil qualify --sensitivity, the sensitivity table", False, produce_qualify),
+          False, produce_first_run, SUITE),
+    Group("qualify", "docs/qualify.md: hil qualify --sensitivity, the sensitivity table", False, produce_qualify,
+          SUITE),
 ]
 
 
@@ -875,9 +928,8 @@ GROUPS: list[Group] = [
 
 def _commit() -> str:
     """HEAD, marked when tracked files differ from it."""
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    dirty = bool(subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT,
-                                capture_output=True, text=True).stdout.strip())
+    commit = _git("rev-parse", "HEAD").stdout.strip()
+    dirty = bool(_git("status", "--porcelain", "--untracked-files=no").stdout.strip())
     return commit + ("+uncommitted" if dirty else "")
 
 
@@ -961,7 +1013,8 @@ def release_check_text(data: dict) -> str:
         return ("never run against this figures file: run `python tools/figures.py --check --all` before a "
                 "release")
     return (f"`python tools/figures.py --check --all` on {r['date'][:10]} at {r['commit'][:10]}: "
-            f"{len(r['groups'])} groups recomputed in {r['duration_s']:.0f} s, {r['result']}")
+            f"{len(r['groups'])} groups recomputed in {r['duration_s']:.0f} s, {len(r.get('agreed', []))} of "
+            f"them agree with the file: {r['result']}")
 
 
 def _release_digest(r: dict) -> str:
@@ -1138,13 +1191,89 @@ def history_note() -> str | None:
     return None
 
 
+def _not_an_ancestor(commit: str) -> str | None:
+    """Why ``commit`` is not an ancestor of HEAD in this repository, or None (history assumed: see
+    :func:`history_note`)."""
+    if not re.fullmatch(r"[0-9a-f]{40}", commit):
+        return f"{commit!r} is not a commit"
+    if _git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
+        return f"{commit[:12]} is no commit of this repository"
+    if _git("merge-base", "--is-ancestor", commit, "HEAD").returncode != 0:
+        return f"{commit[:12]} is not an ancestor of HEAD"
+    return None
+
+
+def _glob_regex(glob: str) -> re.Pattern:
+    """A path glob of :attr:`Group.inputs`: ``**`` spans directories, ``*`` and ``?`` stay within a name."""
+    parts = re.split(r"(\*\*|\*|\?)", glob)
+    wild = {"**": ".*", "*": "[^/]*", "?": "[^/]"}
+    return re.compile("".join(wild.get(x, re.escape(x)) for x in parts) + r"\Z")
+
+
+def matching(paths: list[str], globs: tuple[str, ...]) -> list[str]:
+    """The paths a group's inputs name (``!glob`` takes paths out again)."""
+    keep = [_glob_regex(g) for g in globs if not g.startswith("!")]
+    drop = [_glob_regex(g[1:]) for g in globs if g.startswith("!")]
+    return [p for p in paths if any(k.match(p) for k in keep) and not any(d.match(p) for d in drop)]
+
+
+def changed_since(commit: str) -> list[str]:
+    """Every path that differs between ``commit`` and the working tree: changed in later commits,
+    staged or not, and untracked files git does not ignore."""
+    diff = _git("diff", "--name-only", "--no-renames", "-z", commit, "--")
+    if diff.returncode != 0:
+        raise RuntimeError(f"git diff {commit}: {diff.stderr.strip()}")
+    untracked = _git("ls-files", "--others", "--exclude-standard", "-z").stdout
+    return sorted((set(diff.stdout.split("\0")) | set(untracked.split("\0"))) - {""})
+
+
+def stale_groups(data: dict) -> dict[str, str]:
+    """The file's groups that cannot pass ``--check`` unless recomputed, and why: their provenance
+    commit is not an ancestor of HEAD (or this checkout cannot tell), or one of their declared inputs
+    changed since it. A group whose commit and inputs say nothing changed is not recomputed: the check
+    then holds its content (digest) and the docs to the file, and only a recompute (the CI rotation,
+    the release check) would see a figure rewritten with a commit after its last input change."""
+    note = history_note()
+    declared = {g.name: g for g in GROUPS}
+    changes: dict[str, list[str]] = {}
+    out = {}
+    for name, g in data.get("groups", {}).items():
+        if name not in declared:
+            continue  # provenance_problems names it; there is nothing to recompute it with
+        commit = str((g.get("provenance") or {}).get("commit", ""))
+        why = note or _not_an_ancestor(commit)
+        if why:
+            out[name] = why if note else f"provenance commit {why}"
+            continue
+        if commit not in changes:
+            changes[commit] = changed_since(commit)
+        hit = matching(changes[commit], declared[name].inputs)
+        if hit:
+            out[name] = (f"{len(hit)} of its inputs changed since {commit[:10]} ({', '.join(hit[:3])}"
+                         + (", ...)" if len(hit) > 3 else ")"))
+    return out
+
+
+def rotation_group() -> Group:
+    """The slow group this commit's CI run recomputes (``rotation=True``): the next one per commit,
+    counted along HEAD's history, so each is recomputed once in any run of that many commits; in a
+    clone without history, HEAD's hash picks it."""
+    rotating = [g for g in GROUPS if g.rotation]
+    count = _git("rev-list", "--count", "HEAD").stdout.strip()
+    n = int(count) if history_note() is None and count.isdigit() else int(_git("rev-parse", "HEAD").stdout, 16)
+    return rotating[n % len(rotating)]
+
+
 def provenance_problems(data: dict) -> list[str]:
     """Groups whose content is not what the tool wrote (digest) or whose commit is not HEAD's ancestor;
     commits are not looked at when :func:`history_note` says this checkout cannot show them."""
     out = []
     note = history_note()
+    declared = {g.name for g in GROUPS}
     for name, g in data.get("groups", {}).items():
         prov = g.get("provenance") or {}
+        if name not in declared:  # nothing would ever recompute it
+            out.append(f"{FIGURES_FILE.name}: group {name}: no such group in tools/figures.py")
         if g.get("digest") != digest(g):
             out.append(f"{FIGURES_FILE.name}: group {name}: its content is not what tools/figures.py wrote "
                        f"(digest mismatch: edited by hand?); recompute it: python tools/figures.py --only {name}")
@@ -1155,20 +1284,11 @@ def provenance_problems(data: dict) -> list[str]:
             out.append(f"{FIGURES_FILE.name}: group {name}: provenance commit {commit!r} is not a commit "
                        "(computed from uncommitted files is not reproducible: commit, then compute)")
             continue
-        if note is not None:
-            continue
-        if _git("cat-file", "-e", f"{commit}^{{commit}}").returncode != 0:
-            out.append(f"{FIGURES_FILE.name}: group {name}: provenance commit {commit[:12]} is no commit of this "
-                       "repository")
-        elif _git("merge-base", "--is-ancestor", commit, "HEAD").returncode != 0:
-            out.append(f"{FIGURES_FILE.name}: group {name}: provenance commit {commit[:12]} is not an ancestor "
-                       "of HEAD")
+        if note is None and (why := _not_an_ancestor(commit)):
+            out.append(f"{FIGURES_FILE.name}: group {name}: provenance commit {why}")
     release = data.get("release_check")
-    if release and note is None and (
-        not re.fullmatch(r"[0-9a-f]{40}", str(release.get("commit", "")))
-        or _git("merge-base", "--is-ancestor", release["commit"], "HEAD").returncode != 0
-    ):
-        out.append(f"{FIGURES_FILE.name}: release_check: commit {release.get('commit')!r} is not an ancestor of HEAD")
+    if release and note is None and (why := _not_an_ancestor(str(release.get("commit", "")))):
+        out.append(f"{FIGURES_FILE.name}: release_check: commit {why}")
     return out
 
 
@@ -1195,6 +1315,58 @@ def drift(stored: dict, fresh: dict) -> list[str]:
     return out
 
 
+def check(data: dict, only: list[str] | None = None, every: bool = False) -> int:
+    """``--check``: the docs against the file, each group's digest and commit, and every group that
+    cannot pass without it recomputed (:func:`stale_groups`), or the groups named (``only``), or all
+    of them (``every``: the release check, whose record the file keeps and README.md shows)."""
+    bad = disagreements(data) + provenance_problems(data) + unmarked_growth(data)
+    note = history_note()
+    if note:
+        print(f"figures: {note}")
+    stale = stale_groups(data)
+    published = [g for g in GROUPS if g.name in data.get("groups", {})]
+    chosen = published if every else [g for g in published if (g.name in only if only else g.name in stale)]
+    for g in GROUPS:
+        if g.name not in data.get("groups", {}):
+            print(f"figures: {g.name}: never computed, nothing of it is published")
+        elif g.name in stale:
+            print(f"figures: {g.name}: {stale[g.name]}: "
+                  + ("recomputing" if g in chosen else "NOT recomputed here (outside --only)"), flush=True)
+    t0 = time.perf_counter()
+    differ = {}
+    for g in chosen:  # one at a time: a producer that fails is a difference, and the others still run
+        try:
+            differ[g.name] = drift(data, compute([g]))
+        except (RuntimeError, OSError, subprocess.SubprocessError, ValueError, KeyError) as exc:
+            differ[g.name] = [f"{g.name}: its producer failed: {str(exc).strip()[:1000]}"]
+    bad += [line for lines in differ.values() for line in lines]
+    if every:  # the record the docs show (README.md, "Published figures")
+        record = {
+            "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
+            "commit": _commit(),
+            "groups": [g.name for g in chosen],
+            "agreed": [name for name, lines in differ.items() if not lines],
+            "duration_s": round(time.perf_counter() - t0, 1),
+        }
+        record["result"] = ("every figure and table cell within tolerance" if len(record["agreed"]) == len(chosen)
+                            else f"{len(chosen) - len(record['agreed'])} groups differ: "
+                            + ", ".join(name for name, lines in differ.items() if lines))
+        record["digest"] = _release_digest(record)
+        data["release_check"] = record
+        save(data)
+        render(data)
+    unchecked = sorted(set(stale) - {g.name for g in chosen})
+    if bad:
+        print("\n".join(bad))
+    elif unchecked:
+        print(f"figures: the {len(chosen)} groups recomputed agree with {FIGURES_FILE.name}; NOT checked: "
+              f"{', '.join(unchecked)} (their inputs changed: `python tools/figures.py --check` recomputes them)")
+    else:
+        print(f"figures: every published figure agrees with {FIGURES_FILE.name} ({len(chosen)} groups "
+              f"recomputed{': ' + ', '.join(g.name for g in chosen) if chosen else ''})")
+    return 1 if bad else 0
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     mode = ap.add_mutually_exclusive_group()
@@ -1202,11 +1374,15 @@ def main(argv: list[str] | None = None) -> int:
     mode.add_argument("--render", action="store_true", help="rewrite the docs from the figures file")
     mode.add_argument("--check", action="store_true",
                       help="exit 1 where a doc disagrees with the figures file, a group is not what the tool wrote "
-                           "or its commit is not an ancestor of HEAD; with --all or --only, also recompute")
+                           "or its commit is not an ancestor of HEAD, or a group recomputed differs; recomputes "
+                           "every group whose declared inputs changed since its commit (see --stale)")
+    mode.add_argument("--stale", action="store_true",
+                      help="list the groups --check would recompute, and why (nothing is computed)")
     ap.add_argument("--only", nargs="+", metavar="GROUP", choices=[g.name for g in GROUPS],
                     help="compute (or with --check, recompute and compare) these groups only")
     ap.add_argument("--all", action="store_true",
-                    help="with --check: recompute every group and compare figures and table cells (the release check)")
+                    help="with --check: recompute every group and compare figures and table cells (the release "
+                         "check; its record is kept in the file and shown in README.md)")
     mode.add_argument("--unmarked", action="store_true",
                       help="list every decimal of README.md and docs/ outside a figure marker, lower the ledger "
                            "where a page has fewer (exit 1 where a page has more)")
@@ -1229,30 +1405,15 @@ def main(argv: list[str] | None = None) -> int:
               f"{sum(ledger.values())}" + (f" (lowered on {', '.join(sorted(lowered))})" if lowered else ""))
         return 1 if grew else 0
     if args.check:
-        bad = disagreements(data) + provenance_problems(data) + unmarked_growth(data)
-        note = history_note()
-        if note:
-            print(f"figures: {note}")
-        if args.all or args.only:
-            chosen = [g for g in GROUPS if args.all or g.name in args.only]
-            t0 = time.perf_counter()
-            differ = drift(data, compute(chosen))
-            bad += differ
-            if args.all:  # the record the docs show (README.md, "Published figures")
-                record = {
-                    "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-                    "commit": _commit(),
-                    "groups": [g.name for g in chosen],
-                    "duration_s": round(time.perf_counter() - t0, 1),
-                    "result": "every figure and table cell within tolerance" if not differ
-                    else f"{len(differ)} differences",
-                }
-                record["digest"] = _release_digest(record)
-                data["release_check"] = record
-                save(data)
-                render(data)
-        print("\n".join(bad) if bad else f"figures: every published figure agrees with {FIGURES_FILE.name}")
-        return 1 if bad else 0
+        return check(data, args.only, args.all)
+    if args.stale:
+        durations = {name: g["provenance"]["duration_s"] for name, g in data.get("groups", {}).items()}
+        stale = stale_groups(data)
+        for name, why in stale.items():
+            print(f"{name}: {why} (last computed in {durations[name]:.0f} s)")
+        print(f"figures: {len(stale)} of {len(durations)} groups to recompute (they took "
+              f"{sum(durations[n] for n in stale):.0f} s when last computed)")
+        return 0
     if args.render:
         for p in render(data):
             print(f"rendered {p.relative_to(ROOT)}")
