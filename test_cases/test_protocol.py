@@ -47,6 +47,13 @@ def _variables(od):
                 yield var, var.subindex
 
 
+def _read_only(profile):
+    """An object only read: a role that is only read and shares its object with no action (0x1003:00
+    read as fault_count and written with 0 as clear_faults is written, as CiA 301 defines it)."""
+    return next(o for o in profile.objects.values()
+                if o.role in ROLES and ROLES[o.role].access == "r" and profile.action_on(o) is None)
+
+
 def _probe(od, profile, kind):
     """A request the profile (or the EDS) says must be refused with ``kind``'s abort code."""
     variables = list(_variables(od))
@@ -59,7 +66,7 @@ def _probe(od, profile, kind):
         sub = max(obj.subindices) + 1
         return f"read 0x{obj.index:04X}:{sub:02X}", lambda sdo: sdo.upload(obj.index, sub)
     if kind == "read-only":  # a role the profile says is only read
-        obj = next(o for o in profile.objects.values() if o.role in ROLES and ROLES[o.role].access == "r")
+        obj = _read_only(profile)
         return f"write {obj.label()} ({obj.role})", lambda sdo: sdo.download(obj.index, obj.subindex, obj.pack_le(0))
     if kind == "write-only":
         var, sub = next(((v, s) for v, s in variables if v.access_type == "wo"), (None, None))
@@ -162,7 +169,7 @@ def _sil_probe(link, kind):
                 return f"read 0x{obj.index:04X}:{sub:02X}", answer
         pytest.fail(f"every sub-index of 0x{obj.index:04X} answered with data")
     if kind == "read-only":
-        obj = next(o for o in profile.objects.values() if o.role in ROLES and ROLES[o.role].access == "r")
+        obj = _read_only(profile)
         return f"write {obj.label()} ({obj.role})", link.od_write(obj.index, obj.subindex, obj.pack_le(0))
     if kind == "value range":
         obj = profile.get("strategy")

@@ -21,11 +21,12 @@ E35 = DATA / "canopen-e35.eds"
 SAMPLE = DATA / "canopen-sample.eds"
 #: every role a draft may guess on each public file: a real match of meaning, nothing else
 #: (e35's 0x6042 "vl target velocity" and 0x6044 "vl velocity actual value" are CiA 402's
-#: velocity-mode set point and actual speed)
+#: velocity-mode set point and actual speed; clear_faults is 0x1003:00 written with 0, as CiA 301
+#: defines it, where the EDS says the number of errors is writable)
 EXPECTED_ROLES = {
-    CANOPENNODE: {"fault_code", "fault_count"},
-    E35: {"fault_code", "fault_count", "speed_setpoint", "speed_actual"},
-    SAMPLE: {"fault_code", "fault_count"},
+    CANOPENNODE: {"fault_code", "fault_count", "clear_faults"},
+    E35: {"fault_code", "fault_count", "clear_faults", "speed_setpoint", "speed_actual"},
+    SAMPLE: {"fault_code", "fault_count", "clear_faults"},
 }
 
 

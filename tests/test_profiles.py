@@ -4,6 +4,7 @@ and tested end to end (hil dut serve --profile, a raw Modbus client, hil dut che
 import json
 import math
 import os
+import re
 import struct
 import subprocess
 import sys
@@ -363,3 +364,123 @@ def test_the_foreign_modbus_profile_over_rtu():
         link.close()
         dev.close()
         line.close()
+
+
+# --- one object, two roles: a role only read and an action, as CiA 301's 0x1003:00 ----------------
+CIA301 = ROOT / "tests" / "data" / "cia301-error-history.toml"
+CANOPEN_HEAD = HEAD.replace('"modbus"', '"canopen"')
+
+
+def test_hil_dut_check_accepts_the_cia301_error_history(capsys):
+    """fault_count and clear_faults both on 0x1003:00, as CiA 301 defines the object: the profile
+    loads, the device serves it, hil dut check reads the count and lists the clear, never writing it."""
+    from hil.cli import main
+
+    assert main(["dut", "check", "--dut", f"virtual:canopen,profile={CIA301}"]) == 0
+    out = capsys.readouterr().out
+    assert re.search(r"^fault_count +0x1003:00 +0  0 none$", out, re.M), out
+    assert re.search(r"^clear_faults +0x1003:00 +\(action: 0, not written\)$", out, re.M), out
+
+
+def test_the_cia301_clear_empties_the_history_through_0x1003_00():
+    """Two latched faults read 2 at 0x1003:00; clear_faults is an SDO download of 0 to 0x1003:00 (seen on
+    the bus) and the same object then reads 0; the standard's own write of 0 clears it again, any other
+    value is refused with CiA 301's 0x06090030 and clears nothing."""
+    from canopen.sdo.exceptions import SdoAbortedError
+
+    from bldc.contract import Fault
+    from hil.controller.virtual import VirtualController
+    from hil.dut.canopen_device import CanopenDevice
+    from hil.dut.canopen_link import CanopenLink
+    from plant_models import paper_bench
+
+    channel = f"cia301-{os.getpid()}"
+    controller = VirtualController(paper_bench().motor)
+    dev = CanopenDevice(controller, node_id=9, channel=channel, profile=str(CIA301))
+    link = CanopenLink(node_id=9, channel=channel, profile=str(CIA301))
+    downloads = []  # SDO requests the device received: (command, index, sub-index, data)
+    dev.network.subscribe(0x600 + 9, lambda cid, data, ts: downloads.append(struct.unpack("<BHBI", bytes(data))))
+
+    def count() -> int:
+        return link.node.sdo.upload(0x1003, 0)[0]
+
+    try:
+        controller.raise_fault(Fault.ILLEGAL_HALL_CODE, 0.0)
+        controller.raise_fault(Fault.MISSING_EDGE, 0.0)
+        assert count() == 2 and link.read_role("fault_count") == [2]
+        assert struct.unpack("<I", link.node.sdo.upload(0x1003, 1)[:4])[0] == 0xFF02  # newest first, the device's code
+        assert link.faults() == [Fault.MISSING_EDGE, Fault.ILLEGAL_HALL_CODE]
+        downloads.clear()
+        link.act("clear_faults")
+        assert [(i, s, v) for c, i, s, v in downloads if c >> 5 == 1] == [(0x1003, 0, 0)]
+        assert count() == 0 and link.read_role("fault_count") == [0] and link.faults() == []
+        controller.raise_fault(Fault.MISSING_EDGE, 0.0)
+        with pytest.raises(SdoAbortedError) as refused:
+            link.node.sdo.download(0x1003, 0, b"\x01")
+        assert refused.value.code == 0x06090030 and count() == 1
+        link.node.sdo.download(0x1003, 0, b"\x00")
+        assert count() == 0
+    finally:
+        link.close()
+        dev.close()
+
+
+def test_a_modbus_count_cleared_by_writing_0_to_it(tmp_path):
+    """The Modbus form: one holding register read as fault_count and written with 0 as clear_faults."""
+    from bldc.contract import Fault
+    from hil.controller.virtual import VirtualController
+    from hil.dut.link import LinkError
+    from hil.dut.modbus_device import ModbusDevice
+    from hil.dut.modbus_link import ModbusLink
+    from plant_models import paper_bench
+
+    path = _write(tmp_path, HEAD + "[objects.fault_count]\ntable='holding'\naddress=20\ntype='uint16'\n"
+                  "[objects.clear_faults]\ntable='holding'\naddress=20\ntype='uint16'\nwrite=0\n"
+                  "[objects.fault_code]\ntable='holding'\naddress=21\ntype='uint16'\ncount=4\n"
+                  "[faults]\nsource=['register']\n")
+    controller = VirtualController(paper_bench().motor)
+    dev = ModbusDevice(controller, profile=str(path))
+    link = ModbusLink(port=dev.port, profile=str(path))
+    try:
+        controller.raise_fault(Fault.ILLEGAL_HALL_CODE, 0.0)
+        assert link.read(20, 2) == [1, Fault.ILLEGAL_HALL_CODE]
+        with pytest.raises(LinkError, match="exception code 03"):
+            link.write(20, [1])
+        link.act("clear_faults")
+        assert link.read(20, 1) == [0] and link.faults() == []
+    finally:
+        link.close()
+        dev.close()
+
+
+@pytest.mark.parametrize(
+    "body, message",
+    [
+        (CANOPEN_HEAD + "[objects.fault_count]\nindex=0x1003\ntype='uint8'\n"
+         "[objects.error_register]\nindex=0x1003\ntype='uint8'\n",
+         r"\[objects.error_register\]: 0x1003:00 overlaps \[objects.fault_count\]: two read roles on one object"),
+        (CANOPEN_HEAD + "[objects.calibration_apply]\nindex=0x2011\ntype='uint8'\nwrite=1\n"
+         "[objects.clear_faults]\nindex=0x2011\ntype='uint8'\nwrite=1\n",
+         r"\[objects.clear_faults\]: 0x2011:00 overlaps \[objects.calibration_apply\]: two written roles on one"),
+        (HEAD + "[objects.speed_actual]\ntable='holding'\naddress=4\ntype='uint16'\n"
+         "[objects.fault_count]\ntable='holding'\naddress=4\ntype='uint16'\n",
+         r"\[objects.fault_count\]: holding 4 overlaps \[objects.speed_actual\]: two read roles on one object"),
+        (HEAD + "[objects.heartbeat_period]\ntable='holding'\naddress=4\ntype='uint16'\n"
+         "[objects.clear_faults]\ntable='holding'\naddress=4\ntype='uint16'\nwrite=0\n",
+         r"\[objects.clear_faults\]: holding 4 overlaps \[objects.heartbeat_period\]: two written roles on one"),
+        (HEAD + "[objects.fault_count]\ntable='holding'\naddress=4\ntype='uint32'\n"
+         "[objects.clear_faults]\ntable='holding'\naddress=5\ntype='uint16'\nwrite=0\n",
+         r"\[objects.clear_faults\]: holding 5 overlaps \[objects.fault_count\], and a role and an action share an "
+         r"object only whole"),
+        (CANOPEN_HEAD + "[objects.fault_count]\nindex=0x1003\ntype='uint8'\n"
+         "[objects.reset]\nindex=0x1003\ntype='uint8'\nwrite=0\n",
+         r"\[objects.reset\]: CiA 301's 0x1003:00 is written with 0 to clear the error history"),
+    ],
+    ids=["canopen-two-read", "canopen-two-written", "modbus-two-read", "modbus-two-written", "modbus-part",
+         "cia301-not-clear"],
+)
+def test_two_read_or_two_written_roles_on_one_object_are_refused_in_one_line(tmp_path, body, message):
+    with pytest.raises(ProfileError) as info:
+        load_profile(_write(tmp_path, body))
+    assert re.search(message, str(info.value)) and "\n" not in str(info.value), str(info.value)
+    assert str(info.value).startswith(str(tmp_path / "p.toml"))

@@ -220,9 +220,7 @@ class CanopenDevice:
         it, with no receive thread of its own (hil.dut.virtual_can: a host in the same process)."""
         self.profile = bound_profile("canopen", profile, controller.motor.pole_pairs, node_id)
         self.roles = VirtualRoles(controller, self.profile)
-        self._cells = {
-            (o.index, o.subindex_of(k)): (o, k) for o in self.profile.objects.values() for k in range(o.count)
-        }
+        self._reads, self._writes = self.profile.cell_map()  # (index, sub) -> (object, element)
 
         warm_up()  # ready before the boot-up message, as firmware is
         self.controller = controller
@@ -312,7 +310,7 @@ class CanopenDevice:
 
     # --- the profile's objects: the controller's roles, encoded as the profile says -----------------
     def _on_read(self, index: int, subindex: int, od):
-        cell = self._cells.get((index, subindex))
+        cell = self._reads.get((index, subindex))
         if cell is None:
             return None  # an object of CiA 301's (0x1000, a record's highest sub-index): its default
         obj, k = cell
@@ -321,7 +319,7 @@ class CanopenDevice:
         return obj.to_raw(self.roles.read(obj.role, obj.count)[k], self.profile.pole_pairs, saturate=True)
 
     def _on_write(self, index: int, subindex: int, od, data) -> None:
-        obj, k = self._cells[(index, subindex)]
+        obj, k = self._writes[(index, subindex)]
         raw = od.decode_raw(data)
         try:
             if obj.is_action:

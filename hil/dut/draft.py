@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import re
 
-from .profile import CALIBRATION_ROLES, CANOPEN_DEFAULTS, CANOPEN_TYPE_CODES, FORMAT, ROLES
+from .profile import CALIBRATION_ROLES, CANOPEN_DEFAULTS, CANOPEN_TYPE_CODES, ERROR_FIELD, FORMAT, ROLES
 
 _SPEED, _SET = ("speed", "velocity"), ("setpoint", "target", "demand", "reference", "command", "commanded")
 #: role -> phrases; a phrase is a tuple of parts, a part a tuple of words any one of which is that part
@@ -41,8 +41,6 @@ PHRASES: dict[str, tuple[tuple[tuple[str, ...], ...], ...]] = {
     "band_projections": ((("band",), ("projection", "projections")),),
     "last_predicted_commutation": ((("predicted",), ("commutation",)),),
 }
-#: CiA 301's pre-defined error field: sub 0 the number of errors, subs 1.. the codes, newest first
-ERROR_FIELD = 0x1003
 #: words of a record's (or an object's) name that make a calibration role its read-back
 _APPLIED = ("applied", "active", "readback")
 
@@ -145,6 +143,11 @@ def draft_from_eds(path: str) -> str:
     if "fault_code" in found:
         out += ["", "[objects.fault_count]  # GUESS: the pre-defined error field's count",
                 f"index = 0x{ERROR_FIELD:04X}", "subindex = 0", 'type = "uint8"']
+        count = getattr(od[ERROR_FIELD], "subindices", {}).get(0)
+        if "clear_faults" not in found and count is not None and _access_allows("clear_faults", count.access_type):
+            # the same object, as CiA 301 defines it: written with 0, it clears the history
+            out += ["", "[objects.clear_faults]  # GUESS: CiA 301 clears the error history on 0 written to 0x1003:00",
+                    f"index = 0x{ERROR_FIELD:04X}", "subindex = 0", 'type = "uint8"', "write = 0"]
     for e in extra:
         key = re.sub(r"[^a-z0-9]+", "_", e["name"].lower()).strip("_")[:40] or f"{e['index']:04x}"
         why = f"also matches {e['also']} (taken above)" if "also" in e else "no role guessed"

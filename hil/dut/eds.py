@@ -23,7 +23,7 @@ import re
 from dataclasses import dataclass
 from pathlib import Path
 
-from .profile import CANOPEN_TYPE_CODES, PROFILES_DIR, ROLES, Profile, cob_id
+from .profile import CANOPEN_TYPE_CODES, ERROR_FIELD, PROFILES_DIR, ROLES, Profile, cob_id
 
 #: the virtual controller's EDS, generated from its shipped profile (profiles/virtual-canopen.toml)
 SHIPPED_EDS = PROFILES_DIR / "virtual-canopen.eds"
@@ -93,7 +93,7 @@ def object_dictionary(profile: Profile, node_id: int = 1, identity: DeviceIdenti
 
     def mapped(o, k: int):
         access = {"r": "ro", "rw": "rw", "w": "wo"}[ROLES[o.role].access if o.role in ROLES else "r"]
-        if (o.index, o.subindex_of(k)) == (0x1003, 0):
+        if (o.index, o.subindex_of(k)) == (ERROR_FIELD, 0):
             access = "rw"  # CiA 301: writing 0 to the number of errors clears the history
         zero = False if o.type == "bool" else (0.0 if o.type.startswith("float") else 0)
         default = identity_defaults.get(o.role, zero)
@@ -104,9 +104,12 @@ def object_dictionary(profile: Profile, node_id: int = 1, identity: DeviceIdenti
         return var
 
     by_index: dict[int, dict[int, object]] = {}
-    for o in profile.objects.values():
-        for k in range(o.count):
-            by_index.setdefault(o.index, {})[o.subindex_of(k)] = mapped(o, k)
+    reads, writes = profile.cell_map()
+    for (index, sub), (o, k) in reads.items():
+        var = mapped(o, k)
+        if writes[(index, sub)][0] is not o:  # a role read and an action written on one object (named by the role)
+            var.access_type = "rw"
+        by_index.setdefault(index, {})[sub] = var
     fixed = {0x1000: _variable(CIA301_NAMES[0x1000], 0x1000, 0, TYPE_CODES["uint32"], "ro", identity.device_type)}
     if identity.firmware:
         fixed[0x100A] = _variable(CIA301_NAMES[0x100A], 0x100A, 0, VISIBLE_STRING, "const", identity.firmware)

@@ -404,11 +404,9 @@ class RegisterMap:
 
     def __init__(self, profile: Profile):
         self.profile = profile
-        self._cells: dict[tuple[str, int], tuple] = {}
-        for obj in profile.objects.values():
-            for k in range(obj.count):
-                for w in range(obj.registers):
-                    self._cells[(obj.table, obj.address_of(k) + w)] = (obj, k, w)
+        # (table, address) -> (object, element, word), as read and as written (Profile.cell_map)
+        self._reads, self._writes = ({cell: (o, *divmod(i, o.registers)) for cell, (o, i) in cells.items()}
+                                     for cells in profile.cell_map())
 
     def cells(self, table: str, address: int, count: int, mailbox, write: bool) -> list | None:
         """The cells of ``count`` registers from ``address``, or None when one is not in the map
@@ -425,7 +423,7 @@ class RegisterMap:
                         return None
                     out.append(("reply", a - rep))
                     continue
-            cell = self._cells.get((table, a))
+            cell = (self._writes if write else self._reads).get((table, a))
             if cell is None:
                 return None
             if write and not (cell[0].role in ROLES and "w" in ROLES[cell[0].role].access):

@@ -139,6 +139,9 @@ CANOPEN_DEFAULTS = {
     "error_register": (0x1001, 0, "uint8"),
     "heartbeat_period": (0x1017, 0, "uint16"),
 }
+#: CiA 301's pre-defined error field: sub 0 the number of errors in the history (written with 0 to
+#: clear it), subs 1.. the codes, newest first
+ERROR_FIELD = 0x1003
 #: roles that are protocol services on CANopen when not listed (NMT reset node: reset application)
 CANOPEN_SERVICES = ("reset",)
 
@@ -209,6 +212,12 @@ class DeviceObject:
     @property
     def is_action(self) -> bool:
         return self.write is not None
+
+    def cells(self) -> tuple:
+        """The registers (table, address) or sub-indices (index, sub-index) the object takes."""
+        if self.index is None:
+            return tuple((self.table, a) for a in range(self.address, self.end))
+        return tuple((self.index, self.subindex_of(k)) for k in range(self.count))
 
     # --- values -----------------------------------------------------------------------------------
     def _unit_factor(self, unit: str, pole_pairs: int) -> float:
@@ -331,6 +340,24 @@ class Profile:
 
     def get(self, role: str) -> DeviceObject | None:
         return self.objects.get(role)
+
+    def cell_map(self) -> tuple[dict, dict]:
+        """Each register (table, address) or sub-index (index, sub-index) -> (object, the cell's
+        position in its ``cells()``), as read and as written: one object, except where a role only
+        read and an action share one (CiA 301's 0x1003:00: the number of errors, and 0 written
+        clears them), which is read as the role and written as the action."""
+        reads, writes = {}, {}
+        for o in self.objects.values():
+            for i, cell in enumerate(o.cells()):
+                (writes if o.is_action else reads)[cell] = (o, i)
+                (reads if o.is_action else writes).setdefault(cell, (o, i))
+        return reads, writes
+
+    def action_on(self, obj: DeviceObject) -> DeviceObject | None:
+        """The action that shares ``obj``'s object, if one does (a write of the object is that
+        action: CiA 301's 0x1003:00, read as fault_count, written with 0 as clear_faults)."""
+        return next((o for o in self.objects.values() if o.is_action and o is not obj and o.cells() == obj.cells()),
+                    None)
 
     def framework_fault(self, device_code: int) -> int:
         """The framework's fault code of a device code (an unmapped code is kept as the device gives it)."""
@@ -541,19 +568,39 @@ def _object(role: str, table, where: str, protocol: str, word_order: str) -> Dev
     return DeviceObject(role, where, **kw)
 
 
+def _kind(o: DeviceObject) -> str:
+    """What a role does with its object: "read" (only read; a device's own x_ object too), "action"
+    (a fixed value written) or "read-write"."""
+    if o.is_action:
+        return "action"
+    return "read" if o.role not in ROLES or ROLES[o.role].access == "r" else "read-write"
+
+
 def _check_overlaps(objects: dict[str, DeviceObject], where: str) -> None:
-    """Two roles on one register (or one sub-index) is a typo in a map, never intended."""
+    """Two roles on one register (or one sub-index) are a typo in a map, never intended, except
+    a role only read and an action on the very same object, where the device's standard or manual
+    gives the object a meaning each way: CiA 301's 0x1003:00 is read for the number of errors in
+    the history and written with 0 to clear it. Two read roles, or two written ones (an action,
+    a read-write role), on one object stay refused."""
     seen: dict = {}
     for o in objects.values():
-        keys = (
-            [(o.table, a) for a in range(o.address, o.end)]
-            if o.index is None
-            else [(o.index, o.subindex_of(k)) for k in range(o.count)]
-        )
-        for key in keys:
-            if key in seen and seen[key] != o.role:
-                raise ProfileError(o.where, f"{o.label()} overlaps [objects.{seen[key]}]")
-            seen[key] = o.role
+        if o.is_action and (o.index, o.subindex) == (ERROR_FIELD, 0) and (o.role, o.write) != ("clear_faults", 0):
+            raise ProfileError(o.where, "CiA 301's 0x1003:00 is written with 0 to clear the error history: only "
+                                        "clear_faults with write = 0 goes there")
+        for key in o.cells():
+            prev = seen.setdefault(key, o)
+            if prev is o:
+                continue
+            kinds = {_kind(prev), _kind(o)}
+            here = f"{o.label()} overlaps [objects.{prev.role}]"
+            if kinds != {"read", "action"}:
+                what = "written" if "action" in kinds else "read"
+                raise ProfileError(o.where, f"{here}: two {what} roles on one object (only a role that is only read "
+                                            f"and an action may share one, as CiA 301's 0x1003:00)")
+            if o.cells() != prev.cells() or o.type != prev.type and None not in (o.type, prev.type):
+                raise ProfileError(o.where, f"{here}, and a role and an action share an object only whole: the same "
+                                            f"{'index, sub-index' if o.index is not None else 'table, address'}, "
+                                            f"type and count")
 
 
 #: the framework's mailbox (hil-edge/2, docs/controller.md): the edge message's header takes the

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from hil.sil.build import (CXX_SUFFIXES, HEADER_DIR, BuildSpec, SilBuildError, Toolchain, cache_key, cached_build,
-                           compiler_version, language_flags, run_compiler, std_flags)
+                           compiler_version, language_flags, run_compiler, std_flags, with_fetched)
 
 from .target import Core, Target
 
@@ -134,6 +134,7 @@ def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, s
     """The ELF of ``spec`` for ``target``'s core (built now, or taken from the cache). The linker
     drops what nothing references, as a firmware's release link does, but the ``hil-sil/1``
     exports and the functions named in ``keep``."""
+    spec, _ = with_fetched(spec)  # the sources a [fetch] names, checked against their blobs
     core = target.core
     z = zig()
     cc, cxx = (*z, "cc"), (*z, "c++")

@@ -22,6 +22,7 @@ def resolve_library(spec) -> tuple[Path, Path | None, str]:
     """The shared library of a ``sil:`` DUT (built when PATH is a folder), the profile its
     ``sil.toml`` names (None for a library), and one line on how it was obtained."""
     from .build import SilBuildError, build, read_build_spec
+    from .sources import SourcesError
 
     path = Path(spec.options["path"])
     if not path.is_dir():
@@ -33,9 +34,11 @@ def resolve_library(spec) -> tuple[Path, Path | None, str]:
         extra.append((name.strip(), value.strip()))
     try:
         built = build(build_spec, tuple(extra), prefer=spec.options["compiler"])
-    except SilBuildError as exc:
+    except (SilBuildError, SourcesError) as exc:
         raise LinkError(str(exc)) from None
     how = f"{'cached build' if built.cached else 'built'} {built.key} with {built.toolchain}"
+    if built.fetched:
+        how += f"; sources of {built.fetched}"
     return built.library, build_spec.profile, how
 
 

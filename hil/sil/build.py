@@ -10,6 +10,10 @@ source and header the build can see (the listed sources, every file under the in
 the framework's ``hil_sil.h``), the defines, the flags and the extra defines of the DUT string. A
 changed source or setting rebuilds; an unchanged one does not. ``HIL_SIL_CACHE`` moves the cache
 (default ``~/.cache/bldc-hil/sil``).
+
+Sources from another repository are fetched, never copied into the firmware folder: the file's
+``[fetch]`` names the repository, the commit and each file's git blob (hil.sil.sources), and the
+build takes them from a checkout (``HIL_SIL_SOURCES``), the cache (``sources/`` in it) or git.
 """
 
 from __future__ import annotations
@@ -23,10 +27,12 @@ import shutil
 import subprocess
 import sys
 import tempfile
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from bldc.tomlfile import TomlError, load_toml
+
+from .sources import FetchSpec, expand, fetched_tree, read_fetch
 
 FORMAT = "hil-sil-build/1"
 #: the framework's own header folder, on every build's include path (``#include "hil_sil.h"``)
@@ -36,7 +42,7 @@ CXX_SUFFIXES = (".cc", ".cpp", ".cxx")
 HEADER_SUFFIXES = (".h", ".hh", ".hpp", ".hxx", ".inc", ".inl")
 #: ``target`` is processor in the loop's (``hil.pil.target``): accepted here and ignored
 _SCHEMA = {"format": None, "sources": None, "include": None, "defines": None, "flags": None, "profile": None,
-           "target": None}
+           "target": None, "fetch": {"url": None, "commit": None, "files": None, "sources": None, "include": None}}
 
 
 class SilBuildError(RuntimeError):
@@ -53,6 +59,7 @@ class BuildSpec:
     defines: tuple[tuple[str, str], ...]  #: (NAME, VALUE); VALUE "" = -D NAME
     flags: tuple[str, ...]
     profile: Path | None
+    fetch: FetchSpec | None = None  #: sources taken from another repository (hil.sil.sources)
 
     @property
     def folder(self) -> Path:
@@ -113,7 +120,9 @@ def read_build_spec(path: str | Path) -> BuildSpec:
         profile = (folder / profile).resolve()
         if not profile.is_file():
             raise TomlError(where, f"{data['profile']!r}: no such file in {folder}", key="profile")
-    return BuildSpec(path.resolve(), tuple(sources), tuple(include), tuple(pairs), tuple(strings("flags")), profile)
+    fetch = read_fetch(data["fetch"], where) if "fetch" in data else None
+    return BuildSpec(path.resolve(), tuple(sources), tuple(include), tuple(pairs), tuple(strings("flags")), profile,
+                     fetch)
 
 
 @dataclass(frozen=True)
@@ -169,6 +178,22 @@ def cache_root() -> Path:
     return Path(os.environ.get("HIL_SIL_CACHE") or Path.home() / ".cache" / "bldc-hil" / "sil")
 
 
+def fetch_sources(spec: BuildSpec) -> tuple[Path, str]:
+    """The folder of the files ``spec``'s ``[fetch]`` names, checked and kept in the build cache's
+    ``sources/``, and one line on where they came from (hil.sil.sources)."""
+    return fetched_tree(spec.fetch, cache_root() / "sources")
+
+
+def with_fetched(spec: BuildSpec) -> tuple[BuildSpec, str]:
+    """``spec`` with the sources and include folders of its ``[fetch]`` added (each file checked
+    against its blob), and where they came from ("" without a ``[fetch]``)."""
+    if spec.fetch is None:
+        return spec, ""
+    tree, fetched = fetch_sources(spec)
+    sources, include = expand(spec.fetch, tree, C_SUFFIXES + CXX_SUFFIXES)
+    return replace(spec, sources=sources + spec.sources, include=spec.include + include), fetched
+
+
 def std_flags(flags: tuple[str, ...], cxx: bool) -> list[str]:
     """The default standard of the language, unless ``flags`` give one of that language."""
     mine = [f for f in flags if f.startswith("-std=") and (("++" in f) == cxx)]
@@ -207,11 +232,15 @@ class Built:
     toolchain: str
     cached: bool
     log: list[str] = field(default_factory=list)
+    fetched: str = ""  #: where the sources of ``[fetch]`` came from (empty: none)
 
 
 def build(spec: BuildSpec, extra_defines: tuple[tuple[str, str], ...] = (), prefer: str = "auto") -> Built:
-    """The shared library of ``spec`` (built now, or taken from the cache)."""
+    """The shared library of ``spec`` (built now, or taken from the cache); the sources of its
+    ``[fetch]`` are taken first, each checked against its blob (``hil.sil.sources.SourcesError``
+    when they cannot be had or differ)."""
     tc = toolchain(prefer)
+    spec, fetched = with_fetched(spec)
     key = cache_key(spec, tc, extra_defines)
 
     def make(work: Path, log: list[str]) -> None:
@@ -230,7 +259,7 @@ def build(spec: BuildSpec, extra_defines: tuple[tuple[str, str], ...] = (), pref
         run_compiler(cmd, spec, log, "linking")
 
     library, cached, log = cached_build(key, "firmware.so", make)
-    return Built(library, key, tc.describe(), cached, log)
+    return Built(library, key, tc.describe(), cached, log, fetched)
 
 
 def cached_build(key: str, product: str, make) -> tuple[Path, bool, list[str]]:

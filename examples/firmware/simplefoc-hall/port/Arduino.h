@@ -1,7 +1,8 @@
-// Arduino.h for SimpleFOC's vendored Hall sensor on the PC: the few Arduino core functions
-// ../vendor/src needs, provided by the firmware-in-the-loop port (sil_board.cc), so that no
-// vendored file is edited. The pins are the Hall capture channels (0 A, 1 B, 2 C); micros() is the
-// SIL capture timer's count at the running interrupt, in microseconds since power-on.
+// Arduino.h for SimpleFOC's Hall sensor on the PC: the few Arduino core functions its sources
+// (fetched by sil.toml's [fetch], never copied here) need, provided by the firmware-in-the-loop
+// port (sil_board.cc), so that none of them is edited. The pins are the Hall capture channels
+// (0 A, 1 B, 2 C); micros() is the SIL capture timer's count at the running interrupt, in
+// microseconds since power-on.
 #ifndef SIMPLEFOC_HALL_SIL_ARDUINO_H
 #define SIMPLEFOC_HALL_SIL_ARDUINO_H
 

@@ -1,6 +1,6 @@
 // The board under SimpleFOC's Hall sensor on the firmware-in-the-loop interface: the Hall pins,
 // the interrupts Arduino's attachInterrupt() hooks onto them, and the microsecond clock micros()
-// reads. Arduino.h (the shim the vendored sources include) declares the Arduino side of it.
+// reads. Arduino.h (the shim SimpleFOC's sources include) declares the Arduino side of it.
 #ifndef SIMPLEFOC_HALL_SIL_BOARD_H
 #define SIMPLEFOC_HALL_SIL_BOARD_H
 

@@ -1,8 +1,9 @@
 // SimpleFOC's HallSensor in the loop (hil-sil/1): its Hall interrupts fed from the capture
 // channels, six-step commutation from the electrical angle it reports, a speed PI on the duty
-// from the velocity it reports. The estimator is SimpleFOC's, unmodified (../vendor); what is
-// here is what a SimpleFOC user writes around it (the motor's zero electric angle, the drive, the
-// speed loop) plus the object dictionary the framework reaches it through.
+// from the velocity it reports. The estimator is SimpleFOC's, unmodified and fetched, never copied
+// here (sil.toml's [fetch]); what is here is what a SimpleFOC user writes around it (the motor's
+// zero electric angle, the drive, the speed loop) plus the object dictionary the framework reaches
+// it through.
 #include <cmath>
 #include <cstdint>
 #include <cstring>
@@ -11,7 +12,7 @@
 #include "hil_sil.h"
 #include "hil_sil_util.h"
 #include "sil_board.h"
-#include "../vendor/src/sensors/HallSensor.h"
+#include "sensors/HallSensor.h"  // SimpleFOC's src/, on the include path by sil.toml's [fetch]
 
 namespace {
 
