@@ -227,8 +227,9 @@ def cmd_trend(args) -> int:
     store = _open(args)
     try:
         ident = args.dut
-        if not ident or "=" not in ident:
-            matches = [k for k in store.identities(args.budget) if not ident or ident in k]
+        known = store.identities(args.budget)
+        if ident not in known:
+            matches = [k for k in known if not ident or ident in k]
             if len(matches) != 1:
                 raise ValueError(f"{len(matches)} controllers measured {args.budget}"
                                  + (f": give --dut one of {', '.join(matches)}" if matches else f" in {store.shown}"))
