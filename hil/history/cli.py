@@ -184,14 +184,12 @@ def cmd_diff(args) -> int:
     store = _open(args)
     try:
         a, b = store.find(args.run_a), store.find(args.run_b)
-        spreads = {}
-        idents = {d["dut"]: d["identity_key"] for d in a["duts"]}
-        for m in a["measurements"]:  # each figure's spread over run A's controller's runs before run B
-            ident = idents.get(m["dut"]) or m["identity_key"]
-            key = (m["budget"], comparable_test(m["test"], m["dut"]))
-            if key not in spreads:
-                spreads[key] = [x["measured"] for x in store.series(ident, m["budget"], test=m["test"], last=20,
-                                                                      before=b["started"])]
+        # each figure's spread over the last 20 runs of run A's controller before run B
+        earlier = store.history_of(sorted({m["identity_key"] for m in a["measurements"]}),
+                                   sorted({m["budget"] for m in a["measurements"]}), before=b["started"], last=20)
+        spreads: dict[tuple, list] = {}
+        for x in earlier:
+            spreads.setdefault((x["budget"], comparable_test(x["test"], x.get("dut"))), []).append(x["measured"])
     finally:
         store.close()
     d = diff(a, b, spreads)
@@ -227,9 +225,8 @@ def cmd_trend(args) -> int:
     store = _open(args)
     try:
         ident = args.dut
-        known = store.identities(args.budget)
-        if ident not in known:
-            matches = [k for k in known if not ident or ident in k]
+        if not ident or not store.series(ident, args.budget, last=1):
+            matches = [k for k in store.identities(args.budget) if not ident or ident in k]
             if len(matches) != 1:
                 raise ValueError(f"{len(matches)} controllers measured {args.budget}"
                                  + (f": give --dut one of {', '.join(matches)}" if matches else f" in {store.shown}"))

@@ -411,7 +411,8 @@ class Store:
                 if not ids:
                     continue
                 q = (sa.select(r.c.id.label("run"), r.c.uuid, r.c.started, r.c.verdict.label("run_verdict"),
-                               m.c.identity_key, m.c.test, m.c.requirement, m.c.budget, m.c.measured, m.c.limit_value,
+                               m.c.identity_key, m.c.test, m.c.dut, m.c.requirement, m.c.budget, m.c.measured,
+                               m.c.limit_value,
                                m.c.margin, m.c.unit, m.c.verdict, m.c.limit_kind, m.c.interval_low,
                                m.c.interval_high, d.c.build)
                      .select_from(m.join(r, r.c.id == m.c.run_id)
