@@ -620,8 +620,14 @@ def cmd_qualify(args) -> int:
         print(f"hil qualify: {len(args.only or catalogue)} defects against {args.dut}, {args.workers} at a time; "
               f"reports in {args.out}/")
         # each run is recorded in the results history as a qualify run (its pytest reads the environment)
-        os.environ.update({**_history_env(args), "HIL_RUN_KIND": "qualify"})
-        result = _under_compile_ahead(qualify, args)
+        scoped = {**_history_env(args), "HIL_RUN_KIND": "qualify"}
+        before = {k: os.environ.get(k) for k in scoped}
+        os.environ.update(scoped)
+        try:
+            result = _under_compile_ahead(qualify, args)
+        finally:
+            for k, v in before.items():
+                os.environ.pop(k, None) if v is None else os.environ.__setitem__(k, v)
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
