@@ -410,6 +410,10 @@ def cmd_campaign(args) -> int:
     )
     for key, path in result.paths.items():
         print(f"  {key}: {path}")
+    from .history.hook import record_campaign
+
+    for line in record_campaign(result, args.history, args.station):
+        print(line, file=sys.stderr if "warning" in line else sys.stdout)
     if s["fail"]:
         print(f"  {s['fail']} failing point(s) saved for hil replay in {Path(out) / 'replays'}")
     return 130 if s["interrupted"] else (1 if s["error"] else 0)
@@ -615,7 +619,15 @@ def cmd_qualify(args) -> int:
         args.suite = str(suite if suite.is_dir() else suite.parent)
         print(f"hil qualify: {len(args.only or catalogue)} defects against {args.dut}, {args.workers} at a time; "
               f"reports in {args.out}/")
-        result = _under_compile_ahead(qualify, args)
+        # each run is recorded in the results history as a qualify run (its pytest reads the environment)
+        scoped = {**_history_env(args), "HIL_RUN_KIND": "qualify"}
+        before = {k: os.environ.get(k) for k in scoped}
+        os.environ.update(scoped)
+        try:
+            result = _under_compile_ahead(qualify, args)
+        finally:
+            for k, v in before.items():
+                os.environ.pop(k, None) if v is None else os.environ.__setitem__(k, v)
     except (OSError, ValueError, TypeError) as exc:
         print(f"hil qualify: {exc}", file=sys.stderr)
         return 2
@@ -718,6 +730,7 @@ def cmd_acceptance(args) -> int:
         **os.environ,
         "PYTHONPATH": os.pathsep.join([root, *filter(None, [os.environ.get("PYTHONPATH")])]),
         "HIL_COMMAND": " ".join([program, *sys.argv[1:]]),
+        **_history_env(args),
     }  # what the report names as the run's command
     # the numba code compiled once, in this process, while pytest starts; its workers wait for it
     # and load it from the cache instead of each compiling it (hil/compile_ahead.py)
@@ -960,6 +973,8 @@ def _parser_campaign(sub) -> None:
     )
     grammar.add_workers(p, "workers of the local cluster (default auto: one per core; 0: in this process)")
     grammar.add_progress(p)
+    grammar.add_history(p)
+    grammar.add_station(p)
     p.set_defaults(func=cmd_campaign)
 
 
@@ -1034,6 +1049,8 @@ def _parser_acceptance(sub) -> None:
     )
     grammar.add_deprecated(p, "-n", dest="workers", new="-j/--workers", type=grammar.workers)
     p.add_argument("--suite", help="the acceptance suite: a directory or test file (default: ./test_cases)")
+    grammar.add_history(p)
+    grammar.add_station(p)
     p.add_argument("pytest_args", nargs=argparse.REMAINDER, help="further pytest arguments after --")
     p.set_defaults(func=cmd_acceptance)
 
@@ -1062,6 +1079,8 @@ def _parser_qualify(sub) -> None:
                    help="run each defect without -x on the tests of the requirements that name its class: the "
                         "sensitivity table (requirement x defect, caught by its own budget, with the margin)")
     p.add_argument("--table", help="write the sensitivity table (markdown) here")
+    grammar.add_history(p)
+    grammar.add_station(p)
     p.set_defaults(func=cmd_qualify)
 
 
@@ -1079,6 +1098,24 @@ def _parser_effects(sub) -> None:
     p = sub.add_parser("effects", help="list the effect library with units and bounds")
     p.add_argument("--markdown", action="store_true", help="print the Markdown reference (docs/effects.md)")
     p.set_defaults(func=cmd_effects)
+
+
+def _parser_history(sub) -> None:
+    from .history.cli import add_parser  # the results history (docs/history.md)
+
+    add_parser(sub)
+
+
+def _history_env(args) -> dict:
+    """``--history`` and ``--station`` as the environment the runs a command starts read (hil.history.location)."""
+    from .history.location import HISTORY_ENV, STATION_ENV
+
+    env = {}
+    if getattr(args, "history", None):
+        env[HISTORY_ENV] = args.history
+    if getattr(args, "station", None):
+        env[STATION_ENV] = args.station
+    return env
 
 
 def _parser_signals(sub) -> None:
@@ -1105,6 +1142,7 @@ COMMAND_PARSERS = (
     _parser_qualify,
     _parser_replay,
     _parser_signals,
+    _parser_history,
     _parser_effects,
 )
 

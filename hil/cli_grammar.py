@@ -138,6 +138,19 @@ def add_plant_source(p, plant_help: str = "plant TOML file") -> None:
     add_preset(g)
 
 
+def add_history(p) -> None:
+    """``--history URL``: the results history (docs/history.md): an SQLite file, ``sqlite:///PATH``,
+    ``postgresql+psycopg://...`` or ``off``; default ``HIL_HISTORY``, else the user's own file."""
+    p.add_argument("--history", metavar="URL", help="the results history: an SQLite file, sqlite:///PATH, "
+                   "postgresql+psycopg://USER@HOST/DB or off (default: HIL_HISTORY, else the user's history.sqlite)")
+
+
+def add_station(p) -> None:
+    """``--station NAME``: the station's name in the results history (default: HIL_STATION, else the host)."""
+    p.add_argument("--station", metavar="NAME", help="the station's name in the results history (default: "
+                   "HIL_STATION, else the host name)")
+
+
 def add_recording(p, extra: str = "", *, nargs=None) -> None:
     """The positional RECORDING: the same forms in every command (``hil.cli.load_recording``)."""
     p.add_argument("recording", metavar="RECORDING", nargs=nargs, help=RECORDING_HELP + (f"; {extra}" if extra else ""))
@@ -145,6 +158,6 @@ def add_recording(p, extra: str = "", *, nargs=None) -> None:
 
 __all__ = [
     "DEFAULT_PRESET", "Deprecated", "MOVED_COMMANDS", "PRESET_NAMES", "RECORDING_HELP", "STRATEGY_HELP",
-    "add_deprecated", "add_json", "add_out", "add_plant_source", "add_preset", "add_progress", "add_recording",
-    "add_strategy", "add_workers", "deprecated", "modernize", "strategy", "workers",
+    "add_deprecated", "add_history", "add_json", "add_out", "add_plant_source", "add_preset", "add_progress",
+    "add_recording", "add_station", "add_strategy", "add_workers", "deprecated", "modernize", "strategy", "workers",
 ]

@@ -99,6 +99,17 @@ def pytest_addoption(parser):
     group.addoption(
         "--hil-report-dir", default=None, help="write HTML/JSON/JUnit compliance reports there, test by test"
     )
+    group.addoption(
+        "--hil-history",
+        default=None,
+        metavar="URL",
+        help="record the run in this results history: an SQLite file, sqlite:///PATH, postgresql+psycopg://..., "
+        "or off (default: HIL_HISTORY, else the user's history.sqlite: docs/history.md)",
+    )
+    group.addoption(
+        "--hil-station", default=None, metavar="NAME", help="the station's name in the history (default: HIL_STATION, "
+        "else the host name)"
+    )
     parser.addini(
         "hil_dut", "controller spec(s), shell-separated, used when --hil-dut is not given", type="args", default=[]
     )
@@ -117,6 +128,9 @@ def pytest_addoption(parser):
     # read as text and parsed here: pytest's own "int" ini type names neither the key nor the file
     # when the value is not an integer (pytest 9.2: "invalid literal for int() with base 10")
     parser.addini("hil_seed", "base seed (an integer) used when --hil-seed is not given", type="string", default="0")
+    parser.addini("hil_history", "results history URL or SQLite file (relative to the ini file) or off, used when "
+                  "--hil-history and HIL_HISTORY are not given", type="string", default="")
+    parser.addini("hil_station", "the station's name in the results history", type="string", default="")
     parser.addini(
         "hil_report_dir",
         "report directory (relative to the ini file) used when --hil-report-dir is not given",
@@ -242,8 +256,26 @@ def pytest_configure(config):
         phases=[Phase.explicit, Phase.reuse, Phase.generate, Phase.target],
         suppress_health_check=[HealthCheck.too_slow, HealthCheck.function_scoped_fixture, HealthCheck.data_too_large],
     )
-    if report_dir and not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
-        config.pluginmanager.register(HilReporter(config, Path(report_dir)), "hil-reporter")
+    if not hasattr(config, "workerinput"):  # under xdist only the controlling process writes
+        # without a report directory the reporter only keeps the records, for the history, until the
+        # session is known to use the plugin (it then loads what it needs)
+        config.pluginmanager.register(HilReporter(config, Path(report_dir) if report_dir else None), "hil-reporter")
+
+
+def _history(config):
+    """The run's results history (hil.history.hook; docs/history.md): ``--hil-history`` over
+    ``HIL_HISTORY`` over the ini key ``hil_history`` (a path in it relative to the ini file)."""
+    import os
+
+    from .history.hook import RunHistory
+    from .history.location import HISTORY_ENV, OFF
+
+    setting = config.getoption("--hil-history")
+    if not setting and not os.environ.get(HISTORY_ENV):
+        setting = config.getini("hil_history").strip() or None
+        if setting and "://" not in setting and setting.lower() not in OFF and config.inipath is not None:
+            setting = str(config.inipath.parent / setting)
+    return RunHistory(setting, config.getoption("--hil-station") or config.getini("hil_station").strip() or None)
 
 
 def _check_configuration(config, report_dir) -> None:
@@ -577,6 +609,10 @@ def hil_dut(hil_dut_spec, hil_plant_config, pytestconfig):
         pytest.exit(f"hil: {exc}", returncode=3)
     try:
         dut.identity = dut.link.identity()
+        from .history.record import dut_build
+
+        # the firmware build's content hash and the profile's, for the results history
+        dut.build = {"spec": hil_dut_spec.text, **dut_build(dut.link)}
         if controller is not None:  # the report names the seeded defect beside the identity
             dut.identity["seeded defect"] = pytestconfig.getoption("--hil-defect")
     except LinkError as exc:
@@ -595,7 +631,8 @@ def hil_link(hil_dut, request):
     whose requirements need what the DUT's device profile lacks is skipped as "not testable with
     this profile" (the report's verdict, never a pass)."""
     request.node.user_properties.append(
-        (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity})
+        (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity,
+                                   "build": getattr(hil_dut, "build", {})})
     )
     _require_testable(request.node, hil_dut.link)
     hil_dut.link.reset()
@@ -800,19 +837,30 @@ def hil_evidence(request, tmp_path):
 
 # --- reports --------------------------------------------------------------------------------------
 class HilReporter:
-    """Collects phase reports into one record per test and hands it to the ReportWriter."""
+    """Collects phase reports into one record per test and hands it to the ReportWriter; at the end
+    the run is recorded in the results history (hil.history). Without a report directory nothing is
+    written but the history, and only for a session that used the plugin."""
 
-    def __init__(self, config, directory: Path):
+    def __init__(self, config, directory: Path | None):
         self.config = config
+        self.directory = directory
         self.pending: dict[str, list] = {}
-        budgets = _budgets(config)
-        self.writer = ReportWriter(
-            directory,
+        self.history = _history(config)  #: standard library only until the run ends
+        self.records: list[dict] = []  #: without a report directory: the records, until the end
+        self.collected: set[str] = set()
+        self.used = False
+        self.writer = self._writer() if directory is not None else None
+        if self.writer is not None:
+            self.writer.render()  # an empty report exists from the start
+
+    def _writer(self) -> ReportWriter:
+        budgets = _budgets(self.config)
+        return ReportWriter(
+            self.directory,
             session=self._session_info(budgets),
             requirements=budgets.requirement_titles(),
             waivers=budgets.waivers,
         )
-        self.writer.render()  # an empty report exists from the start
 
     def _session_info(self, budgets) -> dict:
         from importlib import metadata
@@ -837,43 +885,73 @@ class HilReporter:
             "hypothesis_seed": config.getoption("hypothesis_seed", None),
             "xdist_workers": getattr(config.option, "numprocesses", None),
             "versions": versions,
+            **self.history.session_info(),
         }
         if budgets.source != "defaults":
             info["budgets_sha256"] = file_sha256(budgets.source)
         return info
 
+    def _add(self, record: dict) -> None:
+        if self.writer is not None:
+            self.writer.add(record)
+        else:
+            self.records.append(record)
+
     def pytest_collection_finish(self, session):
-        self.writer.expect(item.nodeid for item in session.items)
+        self.used = self.used or _explicit(self.config) or any(map(_uses_plugin, session.items))
+        self.collected |= {item.nodeid for item in session.items}
+        if self.writer is not None:
+            self.writer.expect(item.nodeid for item in session.items)
 
     @pytest.hookimpl(optionalhook=True)
     def pytest_xdist_node_collection_finished(self, node, ids):
-        self.writer.expect(ids)
+        self.collected |= set(ids)
+        if self.writer is not None:
+            self.writer.expect(ids)
 
     def pytest_runtest_logreport(self, report):
         self.pending.setdefault(report.nodeid, []).append(report)
         if report.when == "teardown" or report.when not in ("setup", "call"):
-            self.writer.add(self._record(report.nodeid, self.pending.pop(report.nodeid)))
+            self._add(self._record(report.nodeid, self.pending.pop(report.nodeid)))
 
     def pytest_sessionfinish(self, session, exitstatus):
         for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)
-            self.writer.add(self._record(nodeid, reports))
+            self._add(self._record(nodeid, reports))
         self.pending.clear()
+        if self.writer is None:
+            # under xdist the controller collects nothing: a test that used the plugin left its trace
+            traced = any(r["requirements"] or r["measurements"] or r["dut"] for r in self.records)
+            if not (self.used or traced) or self.history.url is None:
+                return
+            self.writer = self._writer()
+            self.writer.expect(self.collected)
+            for record in self.records:
+                self.writer.add(record)
+        # the trends and regressions go into the last rendering of the report; the run is recorded after it
+        self.writer.history = self.history.look_back(self.writer.content())
         self.writer.finish(
             {
                 "finished": datetime.datetime.now().astimezone().isoformat(timespec="seconds"),
                 "exit_status": int(exitstatus),
             }
         )
+        self.history.record(self.writer.content(), self.directory)
 
     def pytest_terminal_summary(self, terminalreporter):
-        content = self.writer.content()
-        terminalreporter.write_sep("-", f"HIL verdict {content['verdict']}: {self.writer.paths['html']}")
-        for reason in content["verdict_reasons"]:
-            terminalreporter.write_line(f"  {reason}")
-        for w in content["waivers"]:
-            unused = "" if w["tests_waived"] else " [waives nothing in this run]"
-            label = "OUT OF SCOPE" if w.get("kind") == "out of scope" else "WAIVED"
-            terminalreporter.write_line(f"  {label} {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
+        if self.writer is None:
+            return
+        if self.directory is not None:
+            content = self.writer.content()
+            terminalreporter.write_sep("-", f"HIL verdict {content['verdict']}: {self.writer.paths['html']}")
+            for reason in content["verdict_reasons"]:
+                terminalreporter.write_line(f"  {reason}")
+            for w in content["waivers"]:
+                unused = "" if w["tests_waived"] else " [waives nothing in this run]"
+                label = "OUT OF SCOPE" if w.get("kind") == "out of scope" else "WAIVED"
+                terminalreporter.write_line(
+                    f"  {label} {w['requirement']} (owner {w['owner']}): {w['reason']}{unused}")
+        for line in self.history.summary_lines():
+            terminalreporter.write_line(line)
 
     @staticmethod
     def _record(nodeid: str, reports: list) -> dict:
@@ -957,6 +1035,8 @@ class HilReporter:
                 record["evidence"].append(value)
             elif kind == "dut":
                 record["dut"], record["dut_identity"] = value["id"], value["identity"]
+                if value.get("build"):
+                    record["dut_build"] = value["build"]
             elif kind == "doc":
                 record["doc"] = value
             elif kind == "traffic":

@@ -160,18 +160,22 @@ def traffic_total(counts: list[dict]) -> dict:
 
 @dataclass
 class ReportWriter:
-    directory: Path
+    directory: Path | None  #: None: nothing written (a run kept only for the results history)
     session: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)  #: id -> title (budgets and the catalogue)
     basename: str = "hil-report"
     waivers: tuple = ()  #: hil.budgets.Waiver, from the budgets in force
+    #: the run's figures against the device's earlier runs (hil.history: trends, regressions), or None
+    history: dict | None = None
 
     def __post_init__(self):
-        self.directory = Path(self.directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
         self.records: list[dict] = []
-        self.jsonl = self.directory / "results.jsonl"
-        self.jsonl.write_text("")  # a new run starts a new log
+        self.jsonl = None
+        if self.directory is not None:
+            self.directory = Path(self.directory)
+            self.directory.mkdir(parents=True, exist_ok=True)
+            self.jsonl = self.directory / "results.jsonl"
+            self.jsonl.write_text("")  # a new run starts a new log
         self.complete = False
         self.incomplete_reason = "the run has not finished (still running, or stopped before its end)"
         self.collected: set[str] | None = None
@@ -193,6 +197,8 @@ class ReportWriter:
 
     def add(self, record: dict) -> None:
         self.records.append(record)
+        if self.jsonl is None:
+            return
         with open(self.jsonl, "a") as f:
             f.write(json.dumps(record) + "\n")
             f.flush()
@@ -269,6 +275,7 @@ class ReportWriter:
         for r in self.records:
             if r.get("dut") and r.get("dut_identity"):
                 duts.setdefault(r["dut"], r["dut_identity"])
+        builds = {r["dut"]: r["dut_build"] for r in self.records if r.get("dut") and r.get("dut_build")}
         traffic: dict[str, list] = {}
         for r in self.records:
             if r.get("dut") and r.get("traffic"):
@@ -298,11 +305,14 @@ class ReportWriter:
             "counts": counts,
             "session": self.session,
             "duts": duts,
+            # each DUT's spec, firmware build hash and profile hash (hil.history.record.dut_build)
+            "dut_builds": builds,
             # what the edges moved on each DUT's link, with the bus time (hil.dut.traffic)
             "traffic": {dut: traffic_total(counts) for dut, counts in traffic.items()},
             "waivers": waivers,
             "traceability": matrix,
             "tests": tests,
+            "history": self.history,
         }
 
     def _judged(self, record: dict) -> dict:
@@ -359,6 +369,8 @@ class ReportWriter:
 
     # --- rendering -------------------------------------------------------------------------------
     def render(self) -> None:
+        if self.directory is None:
+            return
         content = self.content()
         atomic_write(self.paths["json"], json.dumps(content, indent=1, default=str))
         atomic_write(self.paths["junit"], junit_xml(content))

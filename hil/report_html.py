@@ -133,6 +133,8 @@ def matrix_rows(content: dict) -> list[dict]:
                         "test_span": len(ms),
                         "m": m,
                         "label": short_label(t["nodeid"], t.get("dut", "")),
+                        "nodeid": t["nodeid"],
+                        "test_dut": t.get("dut", ""),
                         "anchor": anchor(t["nodeid"]),
                     }
                 )
@@ -156,6 +158,26 @@ def _num(v) -> str:
     return f"{v:.4g}"
 
 
+def trend_cell(history: dict | None, dut: str, m: dict, nodeid: str) -> markupsafe.Markup:
+    """A measurement's small trend: the same figure over the device's last runs (hil.history), this
+    run's as the dot (red when it is a regression); its runs and figures on hover."""
+    import markupsafe
+
+    from .history.compare import sparkline, trend_key
+
+    if not history:
+        return markupsafe.Markup("")
+    past = history.get("trends", {}).get(trend_key(dut, m["budget"], nodeid), [])
+    alarm = any(r["test"] == nodeid and r["budget"] == m["budget"] and r["dut"] == dut
+                for r in history.get("regressions", []))
+    svg = sparkline([p["measured"] for p in past] + [m.get("measured")], alarm=alarm)
+    if not svg:
+        return markupsafe.Markup('<span class="muted">first run</span>' if not past else "")
+    title = "; ".join(f"run {p['run']} ({p['build'] or '-'}): {_num(p['measured'])}" for p in past)
+    return markupsafe.Markup('<span title="{}">{}</span>').format(f"{title}; this run: {_num(m.get('measured'))}",
+                                                                  markupsafe.Markup(svg))
+
+
 def html(content: dict, directory: Path, verdicts: tuple[str, ...]) -> str:
     import jinja2
     import markupsafe
@@ -175,6 +197,7 @@ def html(content: dict, directory: Path, verdicts: tuple[str, ...]) -> str:
     # identifiers may break after an underscore or a dot, nowhere else
     env.filters["soft"] = lambda v: markupsafe.Markup("<wbr>").join(re.split(r"(?<=[_.])", str(v)))
     env.globals["FOLD_CHARS"] = FOLD_CHARS
+    env.globals["trend"] = lambda dut, m, nodeid: trend_cell(content.get("history"), dut, m, nodeid)
     return env.get_template("report.html.j2").render(
         **content, summary=summary(content, verdicts), rows=matrix_rows(content)
     )

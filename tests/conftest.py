@@ -66,7 +66,11 @@ def _is_worker(config) -> bool:
 def pytest_configure(config):
     """In the session's first process (the xdist controller, or the one process): the run directory,
     and the numba code compiled once, ahead, in two processes (hil/compile_ahead.py), for every
-    worker and for the default acceptance run; the workers (spawned later) inherit both."""
+    worker and for the default acceptance run; the workers (spawned later) inherit both. Every run
+    the tests start is recorded in a results history of this session's own (docs/history.md), never
+    in the user's or a team's."""
+    if not _is_worker(config):
+        os.environ["HIL_HISTORY"] = str(Path(tempfile.mkdtemp(prefix="hil-test-history-")) / "history.sqlite")
     if _is_worker(config) or config.option.collectonly:
         return
     from hil.compile_ahead import CompileAhead

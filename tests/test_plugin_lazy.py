@@ -18,7 +18,8 @@ import hil.dut.spec  # noqa: F401
 ROOT = Path(__file__).resolve().parents[1]
 
 #: what loading the plugin must not import in a session that does not use it
-HEAVY = ("numpy", "scipy", "numba", "plant_models", "hil.dut", "hil.budgets", "hil.bench", "can", "canopen", "pymodbus")
+HEAVY = ("numpy", "scipy", "numba", "plant_models", "hil.dut", "hil.budgets", "hil.bench", "can", "canopen", "pymodbus",
+         "sqlalchemy")
 
 TRIVIAL = "def test_trivial():\n    assert 1 + 1 == 2\n"
 
