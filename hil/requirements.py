@@ -239,8 +239,8 @@ _REGISTRY = (
         budgets=(DefaultBudget(
             'sage_husa_over_kf_angle_rms', 'ratio',
             description=(
-                "Sage-Husa commutation angle RMS over the tuned Kalman filter's, same scenario (issue 4: no worse by "
-                'more than 5 %)'
+                "Sage-Husa commutation angle RMS over the tuned Kalman filter's on one operating profile (mean over "
+                'its seeds), each profile judged on its own: no worse than the KF beyond the ratio\'s sampling error'
             ),
             **derived('sage_husa_over_kf_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
         ),),

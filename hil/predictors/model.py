@@ -15,8 +15,8 @@ friction. The paper's Eq. 8 has no friction term, but its M(n) is regressed on t
 motor's measured current and speed (Section 4.4), so the load it predicts holds the friction at
 each speed; a model built from stated motor parameters (``from_plant``) states it separately.
 Left out, it is an acceleration the model always over-predicts (p B w_m / J: 3-5 rad/s^2 e at
-5000-9500 rpm on the paper bench), which a filter with little process noise follows with a lag. Eq. 10 observes speed and
-current: Z_k = H X_k + V_k, H = [[1, 0, 0], [0, 0, 1]].
+5000-9500 rpm on the paper bench), which a filter with little process noise follows with a lag.
+Eq. 10 observes speed and current: Z_k = H X_k + V_k, H = [[1, 0, 0], [0, 0, 1]].
 """
 
 from __future__ import annotations
@@ -61,7 +61,8 @@ class MotorModel:
         k = np.interp(n_rpm, speeds, kt)
         mm = np.interp(n_rpm, speeds, m)
         w_m = w_e / self.pole_pairs
-        return self.pole_pairs * (k * current_a - mm * w_m * w_m - self.friction_n_m_s_per_rad * w_m) / self.inertia_kg_m2
+        load = mm * w_m * w_m + self.friction_n_m_s_per_rad * w_m
+        return self.pole_pairs * (k * current_a - load) / self.inertia_kg_m2
 
     @classmethod
     def from_plant(cls, motor) -> "MotorModel":
