@@ -737,7 +737,7 @@ def predict_next_s(s, accel_per_amp, decel_load):
 
 @njit(cache=True)
 def coefficients(w_e, fp, tables):
-    """Eq. 8 in electrical speed at w_e: (p K_T(n) / J, p (M(n) w_m^2 + B w_m) / J), K_T and M
+    """Eq. 8 in electrical speed at w_e: p K_T(n) / J, p M(n) w_m^2 / J (+ p B w_m / J), K_T and M
     interpolated in the identified tables (rows: speed rpm, K_T, M; clamped at their ends), B the
     friction (``model.MotorModel``)."""
     pp = fp[FP.POLE_PAIRS]
