@@ -86,6 +86,18 @@ BAND_STANDARD_ERRORS = 3.0
 FRACTION_MARGINAL_SHARE = 0.7
 Z_P99_ABS = NormalDist().inv_cdf(0.995)  # 2.5758
 
+#: REQ-PRED-002 (statistics conventions, stated): a Sage-Husa exactly as good as the KF fails one of
+#: the requirement's operating profiles by chance in at most 1 % of runs, split evenly over its
+#: three profiles (Bonferroni: each profile at 1 % / 3, one-sided)
+PRED_002_FALSE_FAIL = 0.01
+PRED_002_PROFILES = 3
+#: the acceptance design REQ-PRED-002's default limit is stated for (test_cases/test_sage_husa.py):
+#: six seeds of the paper's seven set points 5000-10,000 rpm (Section 4.4), 0.4 s judged on each;
+#: each profile's own limit is derived for the commutations it actually judged
+PRED_002_SEEDS = 6
+PRED_002_HOLD_S = 0.4
+PAPER_SETPOINTS_RPM = tuple(5000.0 + 5000.0 * i / 6 for i in range(7))
+
 #: example choices (no outside source; the user's own specification sets these)
 EXAMPLE_TORQUE_RIPPLE_ALLOWANCE = 0.01  # from commutation timing: chosen in the earlier S1, cited nothing
 EXAMPLE_EXCESS_CURRENT_REMOVED = 0.5  # of raw Hall commutation's excess current, the speed loop taken out
@@ -133,6 +145,47 @@ def current_limit_for(range_a: float, switch_rating_a: float, where: str = "the 
         "datasheet); a current beyond the sensors' range is not seen, so not controlled",
         f"min({range_a:g} A, {switch_rating_a:g} A) = {limit:g} A", limit, 0.9 * limit,
         sensor_range_a=range_a, switch_rating_a=switch_rating_a)
+
+
+def paper_profile_commutations() -> int:
+    """The commutations REQ-PRED-002's paper profile judges at most, by its design: six edges per
+    electrical turn at each set point, held 0.4 s, over six seeds (the rotor reaches a set point
+    after a while at the current limit, so a run judges fewer: each profile's own count sets its
+    limit, ``sage_husa_over_kf_limit_for``)."""
+    per_seed = sum(rpm / 60.0 * 6 * PAPER_POLE_PAIRS * PRED_002_HOLD_S for rpm in PAPER_SETPOINTS_RPM)
+    return int(round(PRED_002_SEEDS * per_seed))
+
+
+def ratio_allowance(commutations: int, profiles: int = PRED_002_PROFILES,
+                    false_fail: float = PRED_002_FALSE_FAIL) -> float:
+    """The sampling error allowed on a ratio of two commutation-error RMS values, each over
+    ``commutations`` errors: the RMS of n independent zero-mean Gaussian errors has a relative
+    standard error of 1 / sqrt(2 n) (var(s^2) = 2 sigma^4 / n, halved for the root); the ratio of two
+    independent ones sqrt(1 / (2 n) + 1 / (2 n)) = 1 / sqrt(n). A one-step predictor's errors are
+    independent from edge to edge when it is optimal (its innovations are white: Kailath 1968), and
+    the two filters' errors on one run share the edges' noise, which can only shrink the ratio's
+    error, so this is at most its sampling error. z: one-sided, ``false_fail`` shared by ``profiles``."""
+    z = NormalDist().inv_cdf(1.0 - false_fail / profiles)
+    return z / math.sqrt(commutations)
+
+
+def sage_husa_over_kf_limit_for(commutations: int, where: str = "the paper profile's by design") -> "Derivation":
+    """REQ-PRED-002's limit on one operating profile whose Sage-Husa and KF runs each judged
+    ``commutations`` commutations: no worse than the KF (the paper's claim, Table 5) beyond the
+    ratio's own sampling error (``ratio_allowance``)."""
+    allowance = ratio_allowance(commutations)
+    z = NormalDist().inv_cdf(1.0 - PRED_002_FALSE_FAIL / PRED_002_PROFILES)
+    mape = PAPER_TABLE5_TIME_MAPE
+    return _d(
+        "sage_husa_over_kf_angle_rms", "paper",
+        f"Table 5: Sage-Husa's commutation time MAPE {mape['sage_husa']} against the KF's {mape['kf']} "
+        f"({mape['sage_husa'] / mape['kf']:.3f}; Section 4.4: 14.7 % better): the method is no worse than the KF. "
+        "Plus the ratio's sampling error: the RMS of n independent Gaussian errors has a relative standard error "
+        "1 / sqrt(2 n), a ratio of two 1 / sqrt(n); one-sided, a 1 % chance of a false fail shared by the "
+        f"requirement's {PRED_002_PROFILES} profiles; n = {commutations} commutations ({where})",
+        f"1 + {z:.3f} / sqrt({commutations}) = {1.0 + allowance:.4f}", 1.0 + allowance, 1.0,
+        paper_ratio=mape["sage_husa"] / mape["kf"], commutations=commutations, z=z,
+        false_fail=PRED_002_FALSE_FAIL, profiles=PRED_002_PROFILES, was=1.05)
 
 
 def spread(values) -> float:
@@ -293,11 +346,7 @@ def _derivations() -> list[Derivation]:
             "Table 5: MAPE of the commutation time, Sage-Husa 0.0066 (KF 0.0077, pre-calibration 0.0087)",
             "the Sage-Husa predictor at least as accurate as the paper's: 0.0066 = 0.66 % of the interval",
             mape_sh * 100.0, 0.5, was=1.0, mape=mape_sh))
-    out.append(_d(
-        "sage_husa_over_kf_angle_rms", "example",
-        "the customer's requirement of this project's issue 4 (Sage-Husa no worse than the KF by more than 5 %; "
-        "no outside source). The paper claims more: Table 5, 0.0066 / 0.0077 = 0.857 on the commutation time",
-        "1 + 0.05 = 1.05", 1.05, 1.0, allowance=0.05))
+    out.append(sage_husa_over_kf_limit_for(paper_profile_commutations()))
     reg = PAPER_TABLE5_REGULATION_SPEED_MAPE
     out.append(_d(
         "sage_husa_over_precalibration_regulation_rms", "paper",

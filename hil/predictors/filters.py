@@ -82,6 +82,7 @@ PARAM_TABLE = (
     ("R_MATCH_HI", "variance match: interval variance / S of the angle above this replaces R_theta (0 = off)"),
     ("R_MATCH_LO", "variance match: interval variance / S of the angle below this replaces R_theta"),
     ("CUSUM_H", "edge-noise change detector threshold (0 = off)"),
+    ("FRICTION", "viscous friction B (N m s/rad): Eq. 8's load is M(n) w_m^2 + B w_m"),
 )
 
 
@@ -736,13 +737,14 @@ def predict_next_s(s, accel_per_amp, decel_load):
 
 @njit(cache=True)
 def coefficients(w_e, fp, tables):
-    """Eq. 8 in electrical speed at w_e: (p K_T(n) / J, p M(n) w_m^2 / J), K_T and M interpolated
-    in the identified tables (rows: speed rpm, K_T, M; clamped at their ends)."""
+    """Eq. 8 in electrical speed at w_e: p K_T(n) / J, p M(n) w_m^2 / J (+ p B w_m / J), K_T and M
+    interpolated in the identified tables (rows: speed rpm, K_T, M; clamped at their ends), B the
+    friction (``model.MotorModel``)."""
     pp = fp[FP.POLE_PAIRS]
     n_rpm = w_e / pp * 60.0 / (2.0 * math.pi)
     w_m = w_e / pp
     return (pp * np.interp(n_rpm, tables[0], tables[1]) / fp[FP.J],
-            pp * np.interp(n_rpm, tables[0], tables[2]) * w_m * w_m / fp[FP.J])
+            pp * (np.interp(n_rpm, tables[0], tables[2]) * w_m * w_m + fp[FP.FRICTION] * w_m) / fp[FP.J])
 
 
 @njit(cache=True, inline="always")

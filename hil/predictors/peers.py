@@ -321,7 +321,7 @@ class VbAkfPredictor:
         self.model = model
         self.q0_diag, self.r0_diag, self.p0_diag = tuple(map(float, q0_diag)), tuple(map(float, r0_diag)), p0_diag
         self.tau, self.rho, self.iterations, self.use_current = float(tau), float(rho), int(iterations), use_current
-        self.fp = FilterSettings().params(False, model.pole_pairs, model.inertia_kg_m2)
+        self.fp = FilterSettings().params(False, model.pole_pairs, model.inertia_kg_m2, model.friction_n_m_s_per_rad)
         speed, kt, m = model.arrays()
         self.tables = np.ascontiguousarray(np.vstack((speed, kt, m)), dtype=float)
 

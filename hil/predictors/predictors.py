@@ -88,7 +88,8 @@ class FilterSettings:
         if not self.huber_c > 0:
             raise ValueError(f"huber_c must be > 0, got {self.huber_c!r}")
 
-    def params(self, adaptive: bool, pole_pairs: int, inertia_kg_m2: float) -> np.ndarray:
+    def params(self, adaptive: bool, pole_pairs: int, inertia_kg_m2: float,
+               friction_n_m_s_per_rad: float = 0.0) -> np.ndarray:
         """The filter's parameter vector (layout ``filters.PARAM_TABLE``)."""
         fp = np.zeros(F.N_FPARAMS)
         fp[F.FP.B] = self.forgetting_b
@@ -100,6 +101,7 @@ class FilterSettings:
         fp[F.FP.ADAPTIVE] = float(self.adapt_mask) if adaptive else 0.0
         fp[F.FP.POLE_PAIRS] = pole_pairs
         fp[F.FP.J] = inertia_kg_m2
+        fp[F.FP.FRICTION] = friction_n_m_s_per_rad
         fp[F.FP.DIVERGENCE_RUN] = self.divergence_run
         fp[F.FP.R_B] = self.r_forgetting_b
         fp[F.FP.R_INTERVAL] = self.r_interval
@@ -147,7 +149,7 @@ class _KalmanCore:
         self.speed_tab, self.kt_tab, self.m_tab = model.arrays()
         #: rows speed (rpm), K_T, M: one array, one argument of the compiled call
         self.tables = np.ascontiguousarray(np.vstack((self.speed_tab, self.kt_tab, self.m_tab)), dtype=float)
-        self.fp = settings.params(self.adaptive, model.pole_pairs, model.inertia_kg_m2)
+        self.fp = settings.params(self.adaptive, model.pole_pairs, model.inertia_kg_m2, model.friction_n_m_s_per_rad)
         self.reset()
 
     def reset(self) -> None:

@@ -37,6 +37,7 @@ typedef struct {
     float r_i_floor, r_match_hi, r_match_lo, cusum_h;
     float accel_per_amp;   /* p K_T / J */
     float load_per_wm2;    /* p M / J */
+    float load_per_wm;     /* p B / J (friction) */
 } filter_params_t;
 
 typedef struct {

@@ -99,9 +99,10 @@ void filter_init(filter_t *f, const filter_vector_t *v, int adaptive)
         fp->r_match_lo = 0.0f;
     }
 #endif
-    /* MotorModel.from_plant: K_T = 3 ke per ampere of mean |i|, M the fan coefficient */
+    /* MotorModel.from_plant: K_T = 3 ke per ampere of mean |i|, M the fan coefficient, B the friction */
     fp->accel_per_amp = (float)POLE_PAIRS * (3.0f * MOTOR_KE_V_S) / MOTOR_J_KG_M2;
     fp->load_per_wm2 = (float)POLE_PAIRS * MOTOR_FAN / MOTOR_J_KG_M2;
+    fp->load_per_wm = (float)POLE_PAIRS * MOTOR_FRICTION / MOTOR_J_KG_M2;
     filter_restart(f);
 }
 
@@ -613,7 +614,7 @@ static float filter_edge(filter_t *f, float dt, float current)
     }
     w_m = f->x[0] / (float)POLE_PAIRS;
     f->coef[0] = f->fp.accel_per_amp;
-    f->coef[1] = f->fp.load_per_wm2 * w_m * w_m;
+    f->coef[1] = f->fp.load_per_wm2 * w_m * w_m + f->fp.load_per_wm * w_m; /* Eq. 8's load: fan and friction */
     return predict_next_s(f, f->coef[0], f->coef[1]);
 }
 
