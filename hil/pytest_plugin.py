@@ -34,6 +34,7 @@ from pathlib import Path
 import pytest
 
 # the report's record format: standard library only (the plant, links and budgets load on use)
+from .dut.kinds import firmware_kinds
 from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
@@ -65,7 +66,8 @@ def pytest_addoption(parser):
         help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
         "canopen:interface=..,channel=..,node=.., "
         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=.. (each with profile=FILE for the "
-        "device's own map: docs/device-profiles.md); default: virtual",
+        f"device's own map: docs/device-profiles.md), {', '.join(k + ':FIRMWARE' for k in firmware_kinds())} "
+        "(hil/dut/kinds.py); default: virtual",
     )
     group.addoption(
         "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
@@ -221,7 +223,8 @@ def pytest_configure(config):
         "markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)"
     )
     config.addinivalue_line(
-        "markers", "dut_protocol(name): the test is a probe of that protocol only (canopen, modbus, sil); it is "
+        "markers", "dut_protocol(name): the test is a probe of that protocol only (canopen, modbus, sil: a firmware's "
+        "dictionary, sil: and pil: alike); it is "
         "not collected for a DUT that speaks another",
     )
     report_dir = _option(config, "report_dir")
@@ -255,7 +258,7 @@ def _check_configuration(config, report_dir) -> None:
     specs = dut_specs(config)
     workers = config.getoption("numprocesses", None)
     # a firmware in the loop is opened once per worker too, each in its own process, like a virtual controller
-    real = [s.text for s in specs if not s.is_virtual and s.kind != "sil"]
+    real = [s.text for s in specs if not s.local]
     if controller and workers and real:
         raise pytest.UsageError(
             f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "

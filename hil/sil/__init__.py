@@ -18,6 +18,39 @@ from ..dut.link import LinkError
 SIL_NODE_ID = 5
 
 
+def check_options(text: str, options: dict) -> None:
+    """A firmware path that is neither a shared library nor a folder with a readable sil.toml, or a
+    bad option, is refused before anything is built (``hil.dut.kinds``: sil's and pil's check). The
+    profile is checked after this by ``hil.dut.spec``."""
+    from ..dut.spec import DutSpecError
+
+    path = Path(options["path"])
+    if not path.exists():
+        raise DutSpecError(f"--hil-dut {text!r}: {path}: no such file or folder")
+    if path.is_dir():
+        from bldc.tomlfile import TomlError
+
+        from .build import SilBuildError, read_build_spec
+
+        try:
+            read_build_spec(path)
+        except (SilBuildError, TomlError) as exc:
+            raise DutSpecError(f"--hil-dut {text!r}: {exc}") from None
+    elif options["define"]:
+        raise DutSpecError(f"--hil-dut {text!r}: define= needs a firmware folder with a sil.toml, not a library")
+    if not options["hang"] > 0:
+        raise DutSpecError(f"--hil-dut {text!r}: hang must be positive (seconds of wall time)")
+    if "compiler" in options and options["compiler"] not in ("auto", "system", "ziglang"):
+        raise DutSpecError(f"--hil-dut {text!r}: compiler must be auto, system or ziglang")
+
+
+def open_dut(spec, motor, controller=None):
+    """The opened ``sil:`` or ``pil:`` DUT (``hil.dut.kinds``); ``controller`` is the virtual kind's."""
+    from ..dut.spec import Dut
+
+    return Dut(spec, open_sil(spec, motor))
+
+
 def resolve_library(spec) -> tuple[Path, Path | None, str]:
     """The shared library of a ``sil:`` DUT (built when PATH is a folder), the profile its
     ``sil.toml`` names (None for a library), and one line on how it was obtained."""

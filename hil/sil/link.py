@@ -188,6 +188,9 @@ class SilLink(RoleLink):
     """A ControllerLink to firmware in the loop (module docstring)."""
 
     name = "sil"
+    #: its interrupts see the plant's Hall pins (``hil.dut.link.edge_hook_kind``); a firmware kind's
+    #: link (``hil.dut.kinds``: ``firmware``)
+    edges_through_pins = True
 
     def __init__(self, library: Path, profile, *, hang_s: float = 1.0, wrap_at_s: float = 0.25,
                  label: str | None = None):
