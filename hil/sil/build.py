@@ -34,7 +34,9 @@ HEADER_DIR = Path(__file__).resolve().parent / "include"
 C_SUFFIXES = (".c",)
 CXX_SUFFIXES = (".cc", ".cpp", ".cxx")
 HEADER_SUFFIXES = (".h", ".hh", ".hpp", ".hxx", ".inc", ".inl")
-_SCHEMA = {"format": None, "sources": None, "include": None, "defines": None, "flags": None, "profile": None}
+#: ``target`` is processor in the loop's (``hil.pil.target``): accepted here and ignored
+_SCHEMA = {"format": None, "sources": None, "include": None, "defines": None, "flags": None, "profile": None,
+           "target": None}
 
 
 class SilBuildError(RuntimeError):
@@ -178,11 +180,13 @@ def _language_flags(flags: tuple[str, ...], cxx: bool) -> list[str]:
     return [f for f in flags if not (f.startswith("-std=") and (("++" in f) != cxx))]
 
 
-def _key(spec: BuildSpec, tc: Toolchain, extra_defines: tuple[tuple[str, str], ...]) -> str:
+def _key(spec: BuildSpec, tc: Toolchain, extra_defines: tuple[tuple[str, str], ...], salt: dict | None = None) -> str:
+    """The cache key of a build; ``salt`` adds what another kind of build depends on (hil.pil.build:
+    the core, the target's flags and memory sizes, its support files)."""
     h = hashlib.sha256()
     h.update(json.dumps({"format": FORMAT, "cc": tc.cc, "cxx": tc.cxx, "version": tc.version,
                          "defines": spec.defines, "extra": extra_defines, "flags": spec.flags,
-                         "include": [str(p) for p in spec.include]}, sort_keys=True).encode())
+                         "include": [str(p) for p in spec.include], **(salt or {})}, sort_keys=True).encode())
     files = set(spec.sources)
     for d in (*spec.include, HEADER_DIR):
         files |= {p for p in d.rglob("*") if p.is_file() and p.suffix in HEADER_SUFFIXES}
@@ -208,14 +212,8 @@ def build(spec: BuildSpec, extra_defines: tuple[tuple[str, str], ...] = (), pref
     """The shared library of ``spec`` (built now, or taken from the cache)."""
     tc = toolchain(prefer)
     key = _key(spec, tc, extra_defines)
-    out_dir = cache_root() / key
-    library = out_dir / "firmware.so"
-    if library.is_file():
-        return Built(library, key, tc.describe(), True)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    work = Path(tempfile.mkdtemp(prefix=f"{key}-", dir=out_dir.parent))
-    log: list[str] = []
-    try:
+
+    def make(work: Path, log: list[str]) -> None:
         objects, any_cxx = [], False
         common = ["-fPIC", "-fvisibility=default", f"-I{HEADER_DIR}", *(f"-I{p}" for p in spec.include)]
         common += [f"-D{n}" if v == "" else f"-D{n}={v}" for n, v in (*spec.defines, *extra_defines)]
@@ -227,20 +225,37 @@ def build(spec: BuildSpec, extra_defines: tuple[tuple[str, str], ...] = (), pref
                    *_language_flags(spec.flags, cxx), "-c", str(src), "-o", str(obj)]
             _run(cmd, spec, log, f"compiling {src}")
             objects.append(str(obj))
-        link = work / "firmware.so"
-        cmd = [*(tc.cxx if any_cxx else tc.cc), "-shared", *objects, "-o", str(link), "-lm"]
+        cmd = [*(tc.cxx if any_cxx else tc.cc), "-shared", *objects, "-o", str(work / "firmware.so"), "-lm"]
         _run(cmd, spec, log, "linking")
+
+    library, cached, log = cached_build(key, "firmware.so", make)
+    return Built(library, key, tc.describe(), cached, log)
+
+
+def cached_build(key: str, product: str, make) -> tuple[Path, bool, list[str]]:
+    """``cache_root() / key / product``: taken from the cache, or made by ``make(work, log)`` in a
+    fresh folder that is then renamed into place (atomic: a concurrent build of the same key either
+    wins or finds the other's). Returns the product, whether it was cached, and the commands run."""
+    out_dir = cache_root() / key
+    product_path = out_dir / product
+    if product_path.is_file():
+        return product_path, True, []
+    out_dir.parent.mkdir(parents=True, exist_ok=True)
+    work = Path(tempfile.mkdtemp(prefix=f"{key}-", dir=out_dir.parent))
+    log: list[str] = []
+    try:
+        make(work, log)
         (work / "build.log").write_text("\n".join(log) + "\n")
         try:
-            os.rename(work, out_dir)  # atomic: a concurrent build of the same key either wins or finds ours
+            os.rename(work, out_dir)
         except OSError:
-            if not library.is_file():
+            if not product_path.is_file():
                 raise
             shutil.rmtree(work, ignore_errors=True)
     except BaseException:
         shutil.rmtree(work, ignore_errors=True)
         raise
-    return Built(library, key, tc.describe(), False, log)
+    return product_path, False, log
 
 
 def _run(cmd: list[str], spec: BuildSpec, log: list[str], what: str) -> None:
