@@ -29,6 +29,7 @@ GROUP_OF_PREFIX = {
     "hil.dut.link": "link",
     "hil.dut": "dut",
     "hil.sil": "dut",  # a firmware in the loop is one more kind of DUT
+    "hil.pil": "dut",  # and so is a processor in the loop
     "hil.recording": "recording",
     "hil.traces": "recording",
     "hil.linebemf": "recording",

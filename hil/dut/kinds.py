@@ -114,6 +114,15 @@ _DECLARED = (
                 "(docs/firmware-in-the-loop.md)",
         forms=("sil:firmware/reference", "sil:build/libpump.so,profile=pump.toml"),
     ),
+    DutKind(
+        # target: the [target] table's file, for an ELF linked elsewhere (a folder's is in its sil.toml)
+        "pil", _keys(**_FIRMWARE, target=(str, "")),
+        protocol="sil", profile_form="canopen", opener="hil.sil:open_dut", check="hil.sil:check_options",
+        path_first=True, firmware=True, local=True,
+        summary="the same firmware built for its Cortex-M part and run on an emulated core: a folder whose "
+                "sil.toml has a [target] table, or an ELF with target=FILE.toml (docs/processor-in-the-loop.md)",
+        forms=("pil:firmware/reference", "pil:build/pump.elf,target=target.toml"),
+    ),
 )
 #: every kind, by name, in the order ``--help`` lists them
 KINDS = MappingProxyType({k.name: k for k in _DECLARED})
