@@ -65,7 +65,7 @@ SECTIONS
   .text : {{ *(.text .text.*) *(.rodata .rodata.*) . = ALIGN(4); }} > FLASH
   .ARM.extab : {{ *(.ARM.extab* .gnu.linkonce.armextab.*) }} > FLASH
   .ARM.exidx : {{ *(.ARM.exidx* .gnu.linkonce.armexidx.*) }} > FLASH
-  .init_array : {{ __init_array_start = .; KEEP(*(SORT(.init_array.*))) KEEP(*(.init_array)) __init_array_end = .; }} > FLASH
+  .init_array : {{ KEEP(*(SORT(.init_array.*))) KEEP(*(.init_array)) }} > FLASH
   .data : {{ . = ALIGN(4); *(.data .data.*) . = ALIGN(4); }} > RAM AT > FLASH
   .bss (NOLOAD) : {{ *(.bss .bss.* COMMON) . = ALIGN(8); __bss_end = .; }} > RAM
   ASSERT(__bss_end <= __stack_bottom, "RAM: .data and .bss reach into the main stack (ram_bytes - stack_bytes)")
@@ -129,8 +129,11 @@ class _Where:
         return self.path.parent
 
 
-def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, str], ...] = ()) -> BuiltElf:
-    """The ELF of ``spec`` for ``target``'s core (built now, or taken from the cache)."""
+def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, str], ...] = (),
+              keep: tuple[str, ...] = ()) -> BuiltElf:
+    """The ELF of ``spec`` for ``target``'s core (built now, or taken from the cache). The linker
+    drops what nothing references, as a firmware's release link does, but the ``hil-sil/1``
+    exports and the functions named in ``keep``."""
     from hil.sil.build import Toolchain
 
     core = target.core
@@ -138,7 +141,7 @@ def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, s
     cc, cxx = (*z, "cc"), (*z, "c++")
     tc = Toolchain(cc, cxx, _version(cc), "ziglang")
     script = linker_script(target)
-    salt = {"pil": core.name, "target_flags": target.flags, "script": script,
+    salt = {"pil": core.name, "target_flags": target.flags, "script": script, "keep": keep,
             "support": hashlib.sha256(SUPPORT.read_bytes()).hexdigest()}
     key = "pil-" + _key(spec, tc, extra_defines, salt)
     support = support_object(core)
@@ -158,9 +161,9 @@ def build_elf(spec: BuildSpec, target: Target, extra_defines: tuple[tuple[str, s
             _run(cmd, spec, log, f"compiling {src} for {core.name}")
             objects.append(str(obj))
         (work / "target.ld").write_text(script)
-        keep = [f"-Wl,-u,{name}" for name in EXPORTS]
+        kept = [f"-Wl,-u,{name}" for name in (*EXPORTS, *keep)]
         cmd = [*tc.cc, "-target", f"thumb-freestanding-{core.zig_abi}", f"-mcpu={core.zig_cpu}", "-g",
-               "-nostartfiles", "-Wl,--gc-sections", *keep, "-T", str(work / "target.ld"), *objects, str(support),
+               "-nostartfiles", "-Wl,--gc-sections", *kept, "-T", str(work / "target.ld"), *objects, str(support),
                "-o", str(work / "firmware.elf")]
         _run(cmd, spec, log, f"linking for {core.name}")
 

@@ -88,6 +88,16 @@ SOFT_FLOAT = re.compile(
 _FAULT_KINDS = ("HardFault", "UsageFault", "BusFault", "MemManage")
 
 
+#: per ELF (path, size, mtime): its DWARF line table, and the instructions checked at run time
+_LINES: dict = {}
+_CHECKS: dict = {}
+
+
+def _elf_key(path: str) -> tuple:
+    st = Path(path).stat()
+    return (str(Path(path).resolve()), st.st_size, st.st_mtime_ns)
+
+
 class ProcessorFinding(RuntimeError):
     """What the core met while running firmware: the kind, the cause, where (function, source
     line, pc), when (the cycle counter) and in which call. One line as text."""
@@ -181,7 +191,11 @@ class Core:
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
         self.stats: dict[str, CallStats] = defaultdict(CallStats)
         self.stack_high_water = 0  #: the deepest stack of any call (bytes below the top of RAM)
-        self._checks = self._static_checks()
+        key = (*_elf_key(self.elf), target.flash_bytes)
+        if key not in _CHECKS:  # one disassembly per ELF, not per core
+            _CHECKS.clear()
+            _CHECKS[key] = self._static_checks()
+        self._checks = _CHECKS[key]
         uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
         uc.hook_add(unicorn.UC_HOOK_MEM_INVALID, self._on_invalid)
         uc.hook_add(unicorn.UC_HOOK_INTR, self._on_interrupt)
@@ -316,7 +330,11 @@ class Core:
     def source_line(self, pc: int) -> str | None:
         """file:line of ``pc`` from the DWARF line table (None without one)."""
         if self._lines is None:
-            self._lines = self._read_lines()
+            key = _elf_key(self.elf)
+            if key not in _LINES:  # parsed once per ELF (a fresh core after every fault reads the same)
+                _LINES.clear()
+                _LINES[key] = self._read_lines()
+            self._lines = _LINES[key]
         addresses, places = self._lines
         k = bisect.bisect_right(addresses, pc) - 1
         return places[k] if k >= 0 and places[k] else None

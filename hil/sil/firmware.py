@@ -52,6 +52,38 @@ class FirmwareInfo:
         return dict(self.__dict__)
 
 
+def check_info(path: str, info: FirmwareInfo) -> None:
+    """Refuse an impossible ``hil_sil_describe`` answer in one line naming the field (every kind of
+    firmware: a library here, an ELF on an emulated core in hil.pil.firmware)."""
+    checks = (
+        ("abi", info.abi == ABI, f"must be {ABI} (hil-sil/{ABI})"),
+        ("timer_bits", info.timer_bits in (16, 32), "must be 16 or 32"),
+        ("timer_hz", info.timer_hz > 0, "must be positive"),
+        ("control_hz", 0 < info.control_hz <= info.timer_hz, "must be positive and at most timer_hz"),
+        ("amps_per_count", math.isfinite(info.amps_per_count) and info.amps_per_count > 0,
+         "must be positive and finite"),
+        ("pole_pairs", info.pole_pairs >= 1, "must be at least 1"),
+    )
+    for field_name, ok, rule in checks:
+        if not ok:
+            raise SilInterfaceError(
+                f"{path}: hil_sil_describe gave {field_name} = {getattr(info, field_name)!r}: {rule}")
+
+
+def check_exports(path: str, has) -> dict[str, bool]:
+    """The optional exports ``path`` has (``has(name)``), after refusing a missing required one
+    or half of the compare unit, in one line."""
+    missing = [name for name in REQUIRED if not has(name)]
+    if missing:
+        raise SilInterfaceError(f"{path}: missing export{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
+    found = {name: has(name) for name in OPTIONAL}
+    if found["hil_sil_compare"] != found["hil_sil_compare_isr"]:
+        one, other = ("hil_sil_compare", "hil_sil_compare_isr") if found["hil_sil_compare"] else (
+            "hil_sil_compare_isr", "hil_sil_compare")
+        raise SilInterfaceError(f"{path}: exports {one} but not {other} (the compare unit needs both)")
+    return found
+
+
 class Firmware:
     """The exports of one loaded library, typed."""
 
@@ -60,14 +92,7 @@ class Firmware:
             self.lib = lib = ctypes.CDLL(path)
         except OSError as exc:
             raise SilInterfaceError(f"{path}: cannot be loaded: {exc}") from None
-        missing = [name for name in REQUIRED if not hasattr(lib, name)]
-        if missing:
-            raise SilInterfaceError(f"{path}: missing export{'s' if len(missing) > 1 else ''} {', '.join(missing)}")
-        has = {name: hasattr(lib, name) for name in OPTIONAL}
-        if has["hil_sil_compare"] != has["hil_sil_compare_isr"]:
-            one, other = ("hil_sil_compare", "hil_sil_compare_isr") if has["hil_sil_compare"] else (
-                "hil_sil_compare_isr", "hil_sil_compare")
-            raise SilInterfaceError(f"{path}: exports {one} but not {other} (the compare unit needs both)")
+        has = check_exports(path, lambda name: hasattr(lib, name))
         u8, u16, u32, i16p = ctypes.c_uint8, ctypes.c_uint16, ctypes.c_uint32, ctypes.POINTER(ctypes.c_int16)
         lib.hil_sil_describe.argtypes, lib.hil_sil_describe.restype = [ctypes.POINTER(_Info)], None
         lib.hil_sil_reset.argtypes, lib.hil_sil_reset.restype = [u8], None
@@ -107,20 +132,7 @@ class Firmware:
         name = raw.name.decode("utf-8", "replace") if raw.name else ""
         info = FirmwareInfo(int(raw.abi), name, int(raw.timer_hz), int(raw.timer_bits), int(raw.control_hz),
                             float(raw.amps_per_count), int(raw.pole_pairs), self.has_compare, self.has_emcy)
-        checks = (
-            ("abi", info.abi == ABI, f"must be {ABI} (hil-sil/{ABI})"),
-            ("timer_bits", info.timer_bits in (16, 32), "must be 16 or 32"),
-            ("timer_hz", info.timer_hz > 0, "must be positive"),
-            ("control_hz", 0 < info.control_hz <= info.timer_hz, "must be positive and at most timer_hz"),
-            ("amps_per_count", math.isfinite(info.amps_per_count) and info.amps_per_count > 0,
-             "must be positive and finite"),
-            ("pole_pairs", info.pole_pairs >= 1, "must be at least 1"),
-        )
-        for field_name, ok, rule in checks:
-            if not ok:
-                raise SilInterfaceError(
-                    f"{self.path}: hil_sil_describe gave {field_name} = {getattr(info, field_name)!r}: {rule}"
-                )
+        check_info(self.path, info)
         return info
 
     def reset(self, levels: int) -> None:

@@ -1,0 +1,151 @@
+"""The ``hil-sil/1`` exports of an ELF on an emulated Cortex-M core, with the interface of
+``hil.sil.firmware.Firmware``: what drives a library drives this (``hil.sil.peripherals``).
+
+The interrupts run as interrupts (exception entry and return charged, their cycles in
+``stats()``); ``describe``, ``reset`` and the object dictionary run as thread-mode calls; the
+outputs the framework reads after every interrupt (``gates``, ``duty``, ``compare``, ``emcy``) are
+what the hardware's registers would show, so their cycles are given back (they take no time of the
+firmware's). ``core`` is the emulated core, for a scheduler that preempts (``Core.begin``/``run``).
+"""
+
+from __future__ import annotations
+
+import array
+import struct
+from pathlib import Path
+
+import numpy as np
+
+from hil.sil.firmware import FirmwareInfo, SilInterfaceError, check_exports, check_info
+
+from .core import ADC_BASE, SCRATCH_BASE, SCRATCH_BYTES, Core
+from .target import Target
+
+#: hil_sil_info as the AAPCS lays it out on a 32-bit ARM (docs/firmware-in-the-loop.md)
+_INFO = struct.Struct("<IIIB3xIfB3x")
+#: interrupt kinds, as ``stats()`` names them
+KINDS = ("hall", "compare", "control")
+
+
+class PilFirmware:
+    """The exports of ``elf`` on a fresh core of ``target``."""
+
+    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int | None = None):
+        self.path = str(elf)
+        self.target = target
+        self.core = core = Core(elf, target, **({"budget_cycles": budget_cycles} if budget_cycles else {}))
+        has = check_exports(self.path, core.has)
+        self.has_compare, self.has_emcy = has["hil_sil_compare"], has["hil_sil_emcy"]
+        self.compare_isr = self._compare_isr if self.has_compare else None
+        self.adc = array.array("h", [0, 0, 0])  #: the ADC's result registers, written before every interrupt
+        self.last_cycles = 0  #: cycles of the last call, exception entry and return included for an interrupt
+        self._constructors()
+
+    def _constructors(self) -> None:
+        """C++ static constructors (``.init_array``), run once as a start-up routine would."""
+        section = self.core._elffile.get_section_by_name(".init_array")
+        if section is None or section["sh_size"] == 0:
+            return
+        for pointer in struct.unpack(f"<{section['sh_size'] // 4}I", section.data()):
+            name = self.core.function_at(pointer & ~1)
+            if name is not None:
+                self._run(name)
+
+    def _run(self, symbol: str, *args, interrupt: bool = False, label: str | None = None) -> int:
+        value = self.core.call(symbol, *args, interrupt=interrupt, label=label)
+        self.last_cycles = self.core.last_cycles
+        return value
+
+    def _read(self, symbol: str, *args) -> int:
+        """An output register read (no time of the firmware's)."""
+        return self.core.call(symbol, *args, charge=False)
+
+    def _adc(self) -> int:
+        self.core.write(ADC_BASE, self.adc.tobytes())
+        return ADC_BASE
+
+    # --- hil-sil/1 ---------------------------------------------------------------------------------
+    def describe(self) -> FirmwareInfo:
+        self.core.write(SCRATCH_BASE, bytes(_INFO.size))
+        self._run("hil_sil_describe", SCRATCH_BASE)
+        abi, name, timer_hz, bits, control_hz, amps, pole_pairs = _INFO.unpack(self.core.read(SCRATCH_BASE,
+                                                                                             _INFO.size))
+        info = FirmwareInfo(abi, self.core.read_cstring(name) if name else "", timer_hz, bits, control_hz,
+                            float(amps), pole_pairs, self.has_compare, self.has_emcy)
+        check_info(self.path, info)
+        return info
+
+    def reset(self, levels: int) -> None:
+        self._run("hil_sil_reset", levels & 0xFF)
+
+    def hall_isr(self, count: int, pin: int, levels: int, adc=None) -> None:
+        self._run("hil_sil_hall_isr", count, pin & 0xFF, levels & 0xFF, self._adc(), interrupt=True, label="hall")
+
+    def control_isr(self, count: int, adc=None) -> None:
+        self._run("hil_sil_control_isr", count, self._adc(), interrupt=True, label="control")
+
+    def _compare_isr(self, count: int) -> None:
+        self._run("hil_sil_compare_isr", count, interrupt=True, label="compare")
+
+    def gates(self) -> int:
+        return self._read("hil_sil_gates") & 0xFF
+
+    def duty(self) -> int:
+        return self._read("hil_sil_duty") & 0xFFFF
+
+    def compare(self) -> int | None:
+        """The armed compare count, or None."""
+        if not self._read("hil_sil_compare", SCRATCH_BASE) & 0xFFFFFFFF:
+            return None
+        return struct.unpack("<I", self.core.read(SCRATCH_BASE, 4))[0]
+
+    def emcy(self) -> int | None:
+        """One EMCY code popped from the firmware's queue, or None."""
+        if not self.has_emcy or not self._read("hil_sil_emcy", SCRATCH_BASE) & 0xFFFFFFFF:
+            return None
+        return struct.unpack("<H", self.core.read(SCRATCH_BASE, 2))[0]
+
+    def od_read(self, index: int, sub: int, size: int) -> bytes | int:
+        """The object's bytes, or the (negative) SDO abort code."""
+        if size > SCRATCH_BYTES:
+            raise ValueError(f"an object-dictionary read of {size} bytes (at most {SCRATCH_BYTES})")
+        self.core.write(SCRATCH_BASE, bytes(max(size, 1)))
+        n = _signed(self._run("hil_sil_od_read", index & 0xFFFF, sub & 0xFF, SCRATCH_BASE, size))
+        if n < 0:
+            return n
+        if n > size:
+            raise SilInterfaceError(f"hil_sil_od_read(0x{index:04X}, {sub}) returned {n} bytes into a buffer of {size}")
+        return self.core.read(SCRATCH_BASE, n)
+
+    def od_write(self, index: int, sub: int, data: bytes) -> int:
+        if len(data) > SCRATCH_BYTES:
+            raise ValueError(f"an object-dictionary write of {len(data)} bytes (at most {SCRATCH_BYTES})")
+        self.core.write(SCRATCH_BASE, bytes(data))
+        return _signed(self._run("hil_sil_od_write", index & 0xFFFF, sub & 0xFF, SCRATCH_BASE, len(data)))
+
+    # --- what the core measured --------------------------------------------------------------------------
+    def stats(self) -> dict:
+        """Per interrupt kind: calls, cycles (median, p99, max, and in microseconds at clock_hz), the
+        soft floating-point routines it called by name, its stack high-water mark; and the firmware's
+        flash and RAM, the stack's high-water mark against stack_bytes."""
+        core, clock = self.core, self.target.clock_hz
+        kinds = {}
+        for kind in KINDS:
+            s = core.stats.get(kind)
+            if s is None or not s.calls:
+                continue
+            c = np.asarray(s.cycles, dtype=float)
+            figures = {"median": float(np.median(c)), "p99": float(np.percentile(c, 99)), "max": float(c.max())}
+            kinds[kind] = {"calls": s.calls, "cycles": figures,
+                           "us": {k: v / clock * 1e6 for k, v in figures.items()},
+                           "soft_float": dict(sorted(s.soft_float.items())), "stack_bytes": s.stack_bytes}
+        t = self.target
+        return {"cpu": t.cpu, "clock_hz": clock, "interrupts": kinds,
+                "stack": {"high_water_bytes": core.stack_high_water, "stack_bytes": t.stack_bytes},
+                "flash": {"used_bytes": core.flash_used, "flash_bytes": t.flash_bytes},
+                "ram": {"used_bytes": core.ram_used, "ram_bytes": t.ram_bytes},
+                "cycles": core.cycles, "instructions": core.instructions}
+
+
+def _signed(value: int) -> int:
+    return value - (1 << 32) if value & 0x8000_0000 else value
