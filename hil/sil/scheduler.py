@@ -76,7 +76,7 @@ class TimedPeripherals(Peripherals):
         self._exit_cycles = table.exception_return
         self._tail_cycles = getattr(table, "tail_chain", TAIL_CHAIN_CYCLES)
         self._stack: list[_Call] = []
-        self._pending: list[_Call] = []
+        self._queued: list[_Call] = []
         self._seq = 0
         self._anchor_t, self._anchor_c = 0.0, 0
         self._busy_since: float | None = None
@@ -106,15 +106,15 @@ class TimedPeripherals(Peripherals):
         kind = _KIND[event]
         key = (kind, args[0]) if event == HALL else kind
         values = tuple(tuple(int(v) for v in a) if hasattr(a, "__len__") else a for a in args)
-        busy = [c for c in self._stack if c.key == key] + [c for c in self._pending if c.key == key]
+        busy = [c for c in self._stack if c.key == key] + [c for c in self._queued if c.key == key]
         if busy:
             self._overrun(busy[0], kind, t_s)
-            if event != HALL and busy[0] in self._pending:
+            if event != HALL and busy[0] in self._queued:
                 self.lost[kind] += 1
                 return  # its pending bit is set already: this instance is lost
         self._last_event[key] = t_s
         self._seq += 1
-        self._pending.append(_Call(event, self.priority[event], self._seq, t_s, count, values, key))
+        self._queued.append(_Call(event, self.priority[event], self._seq, t_s, count, values, key))
 
     def _overrun(self, running: _Call, kind: str, t_s: float) -> None:
         self.overrun_count += 1
@@ -122,21 +122,27 @@ class TimedPeripherals(Peripherals):
             return
         started = running in self._stack
         cycles = int(self.core.cycles - running.start_cycle) if started else 0
-        period = t_s - self._last_event.get(running.key, running.t_event_s)
+        top = self._stack[-1] if self._stack else None
+        # the control interrupt's period is its rate's; a Hall channel's or the compare's, the time
+        # since the instance still running or pending
+        period = self.control_period_s if running.event == CONTROL else t_s - running.t_event_s
         self.overruns.append({
             "interrupt": kind + (f" (pin {'ABC'[running.key[1]]})" if running.event == HALL else ""),
             "t_s": t_s, "count": self.count(t_s), "state": "running" if started else "pending",
             "cycles": cycles, "us": cycles / self.clock_hz * 1e6, "period_s": period,
+            # what kept it from finishing: the interrupt running at that instant, and its cycles so far
+            "running": _KIND[top.event] if top is not None else "",
+            "running_cycles": int(self.core.cycles - top.start_cycle) if top is not None else 0,
         })
 
     def _dispatch(self, t_s: float, tail: bool = False) -> None:
         """Start the pending interrupts that may run at ``t_s``: the most urgent one when nothing
         runs, or when it preempts the running one (a strictly lower priority number)."""
-        while self._pending:
-            best = min(self._pending, key=lambda c: (c.priority, c.event, c.seq))
+        while self._queued:
+            best = min(self._queued, key=lambda c: (c.priority, c.event, c.seq))
             if self._stack and best.priority >= self._stack[-1].priority:
                 return
-            self._pending.remove(best)
+            self._queued.remove(best)
             self._start(best, t_s, tail and not self._stack)
             tail = False
 
@@ -169,7 +175,7 @@ class TimedPeripherals(Peripherals):
         self.response_s[kind].append(t_s - call.t_event_s)
         self._outputs(call.event, t_s, call.count)
         if not self._stack:
-            if self._pending:
+            if self._queued:
                 self._dispatch(t_s, tail=True)
             else:
                 self._account_busy(self._busy_since, t_s)
@@ -252,8 +258,22 @@ class TimedPeripherals(Peripherals):
                 self._returned(t_cpu)
             else:
                 self._dispatch(t_cpu)
-                if t_plant >= t_stop_s:
+                if t_plant >= t_stop_s - _EPS_S:  # the plant's instant may round a hair below the stop
                     return
+
+    def finish(self) -> None:
+        """Before a power cycle or the next bench: the interrupts still running (a run ends at its
+        instant, mid-interrupt perhaps) run to their returns on the core, and the pending ones are
+        dropped, so that the core's next call starts from thread mode."""
+        from hil.pil.core import ProcessorFinding
+
+        try:
+            while self._stack:
+                self.core.run()
+                self._stack.pop()
+        except ProcessorFinding as exc:
+            raise FirmwareFault(f"{exc} (finishing the interrupts of the last run)") from None
+        self._queued.clear()
 
     # --- what the schedule measured ------------------------------------------------------------------
     def figures(self) -> dict:

@@ -99,6 +99,7 @@ class _Worker:
         """``hil_sil_reset`` with the pins as the plant holds them (the last run's; before any
         run, A high and B, C low: a legal Hall state)."""
         levels = self.periph.pins if self.periph is not None else 0b001
+        self._finish()
         self._enter(RESET, *self._now())
         self.fw.reset(levels)
         self._leave()
@@ -121,6 +122,7 @@ class _Worker:
         from .scheduler import peripherals_for
 
         if self.periph is not None:
+            self._finish()
             self._keep_figures()
         self.periph = peripherals_for(self.fw)(self.fw, self.info, sim, seed=seed, wrap_at_s=wrap_at_s,
                                                record=self.record)
@@ -162,6 +164,12 @@ class _Worker:
         figures = getattr(self.periph, "figures", None)
         if figures is not None:
             self._schedules.append(figures())
+
+    def _finish(self) -> None:
+        """The interrupts a timed run left running end before a power cycle or a new bench."""
+        finish = getattr(self.periph, "finish", None)
+        if finish is not None:
+            finish()
 
     def op_processor(self):
         """``pil:``: the core's figures (``PilFirmware.stats``: per interrupt its calls, cycles and soft
