@@ -183,13 +183,14 @@ class TimedPeripherals(Peripherals):
         else:
             self._dispatch(t_s)
 
-    def _account_busy(self, t0: float, t1: float) -> None:
+    def _account_busy(self, t0: float, t1: float, into: dict | None = None) -> None:
         """The CPU was busy from ``t0`` to ``t1``: its share of each control period it overlaps."""
+        into = self.busy_by_period if into is None else into
         period = self.control_period_s
         k = math.floor(t0 / period)
         while t0 < t1:
             end = min(t1, (k + 1) * period)
-            self.busy_by_period[k] = self.busy_by_period.get(k, 0.0) + (end - t0)
+            into[k] = into.get(k, 0.0) + (end - t0)
             t0, k = end, k + 1
 
     # --- the run -------------------------------------------------------------------------------------
@@ -286,10 +287,13 @@ class TimedPeripherals(Peripherals):
                 out[kind] = {"calls": int(a.size), "response_s": {
                     "median": float(np.median(a)), "p99": float(np.percentile(a, 99)), "max": float(a.max())}}
         period = self.control_period_s
-        loads = [b / period for b in self.busy_by_period.values()]
+        busy = dict(self.busy_by_period)
+        if self._busy_since is not None:  # still busy: up to the plant's instant
+            self._account_busy(self._busy_since, self.sim.t_s, busy)
+        loads = [b / period for b in busy.values()]
         return {"interrupts": out, "overruns": self.overruns, "overrun_count": self.overrun_count,
                 "lost": dict(self.lost), "worst_load": max(loads, default=0.0),
-                "mean_load": (sum(self.busy_by_period.values()) / (len(loads) * period)) if loads else 0.0,
+                "mean_load": (sum(busy.values()) / (len(loads) * period)) if loads else 0.0,
                 "periods": len(loads), "plant_rollbacks": self.plant_rollbacks,
                 "priorities": {_KIND[e]: p for e, p in self.priority.items()}}
 
