@@ -236,3 +236,28 @@ def test_the_reference_firmware_runs_closed_loop_on_the_emulated_core(tmp_path, 
     assert core["interrupts"]["control"]["cycles"]["median"] > TABLE.exception_entry + TABLE.exception_return
     assert 0.0 < schedule["worst_load"] <= 1.0 + 1e-9
     assert 0 < core["stack"]["high_water_bytes"] < core["stack"]["stack_bytes"]
+
+
+def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fresh_core(tmp_path, monkeypatch):
+    """The six-step test firmware's seeded null write at its 5000th control interrupt (t = 0.25 s):
+    on the part a BusFault, named with its function, source line, simulated instant and counter; the
+    next bench runs on a freshly loaded core."""
+    from hil.bench import LockstepBench
+    from hil.dut.spec import open_dut
+    from hil.sil.link import FirmwareFault
+
+    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
+    sixstep = Path(__file__).parent / "data" / "sil" / "sixstep"
+    config = PlantConfig()
+    duty = steady_state(config.motor, 6000.0)["duty"]
+    with open_dut(parse_dut(f"pil:{sixstep},target={REFERENCE / 'sil.toml'},define=SIXSTEP_CRASH"),
+                  MotorParameters()) as dut:
+        bench = LockstepBench(config, dut.link, initial_speed_rpm=6000.0, duty=duty, seed=1)
+        fault = (r"BusFault in hil_sil_control_isr \(sixstep\.cc:\d+\) at pc 0x[0-9A-F]+: .*write to 0x00000000.* "
+                 r"at t = 0\.2500\d+ s \(counter \d+\)")
+        with pytest.raises(FirmwareFault, match=fault):
+            bench.sim.run_until(0.26)
+        dut.link.reset()
+        again = LockstepBench(config, dut.link, initial_speed_rpm=6000.0, duty=duty, seed=1)
+        again.sim.run_until(0.02)
+        assert again.sim.interrupts["control"] >= 399

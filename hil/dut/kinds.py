@@ -116,7 +116,10 @@ _DECLARED = (
     ),
     DutKind(
         # target: the [target] table's file, for an ELF linked elsewhere (a folder's is in its sil.toml)
-        "pil", _keys(**_FIRMWARE, target=(str, "")),
+        # hang: only a safety net of the process here (60 s of wall time): a call that runs past its
+        # cycle budget is the core's hang (hil.pil.core.ProcessorHang), in simulated time, and naming
+        # a fault reads the ELF's line table (seconds) before the finding comes back
+        "pil", _keys(**{**_FIRMWARE, "hang": (float, 60.0)}, target=(str, "")),
         protocol="sil", profile_form="canopen", opener="hil.sil:open_dut", check="hil.sil:check_options",
         path_first=True, firmware=True, local=True,
         summary="the same firmware built for its Cortex-M part and run on an emulated core: a folder whose "

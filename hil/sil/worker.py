@@ -132,9 +132,12 @@ class _Worker:
         t0 = self.periph.sim.t_s
         try:
             self.periph.run_until(t_s)
-        finally:
-            self.simulated_s += self.periph.sim.t_s - t0
-            self._drain_emcy()
+        except BaseException:
+            if getattr(self.fw, "core", None) is None:  # a core that met a fault takes no further call
+                self._drain_emcy()
+            raise
+        self.simulated_s += self.periph.sim.t_s - t0
+        self._drain_emcy()
         log, self.periph.injector.log = self.periph.injector.log, []
         return self.periph.sim.t_s, self.periph.interrupts, log
 
