@@ -97,6 +97,14 @@ PRED_002_PROFILES = 3
 PRED_002_SEEDS = 6
 PRED_002_HOLD_S = 0.4
 PAPER_SETPOINTS_RPM = tuple(5000.0 + 5000.0 * i / 6 for i in range(7))
+#: C. L. Liu and J. W. Layland, "Scheduling Algorithms for Multiprogramming in a Hard-Real-Time
+#: Environment", J. ACM 20(1), 46-61 (1973): a periodic task's deadline is its next request (the end
+#: of its period), and n tasks under rate-monotonic priorities all meet their deadlines when their
+#: utilisation is at most n (2^(1/n) - 1) (their Theorem 5). The hil-sil/1 interrupts are three tasks:
+#: the Hall capture, the compare unit, the control interrupt
+RM_TASKS = 3
+#: a Hall sensor set gives six edges per electrical turn (three sensors, two edges each)
+HALL_EDGES_PER_TURN_E = 6
 
 #: example choices (no outside source; the user's own specification sets these)
 EXAMPLE_TORQUE_RIPPLE_ALLOWANCE = 0.01  # from commutation timing: chosen in the earlier S1, cited nothing
@@ -209,6 +217,16 @@ def paper_raw_edge_errors_deg_e() -> list[float]:
     install = [absolute + r - PAPER_TABLE3_WEIGHTED_DEG[0] for r in PAPER_TABLE3_WEIGHTED_DEG]
     poles = [0.0] + [-p / 100.0 * PAPER_PERCENT_BASE_DEG_E for p in PAPER_TABLE2_WEIGHTED_PERCENT]
     return [i + p for p in poles for i in install]
+
+
+def liu_layland_bound(n: int) -> float:
+    """Liu and Layland's least upper bound of the utilisation of n rate-monotonic tasks (Theorem 5)."""
+    return n * (2.0 ** (1.0 / n) - 1.0)
+
+
+def min_hall_interval_s(rpm: float, pole_pairs: int) -> float:
+    """The shortest interval between two Hall edges (of any sensor) at ``rpm``: 60 / (rpm p 6)."""
+    return 60.0 / (rpm * pole_pairs * HALL_EDGES_PER_TURN_E)
 
 
 def rms(values) -> float:
@@ -457,6 +475,51 @@ def _derivations() -> list[Derivation]:
         "denominator is physics from the motor parameters: fan and friction torque over 2 ke, 0.74 A per phase "
         "at 5100 rpm on the paper pump); a quarter more current is 56 % more copper loss",
         "1 + 0.25 = 1.25 (1.25^2 = 1.56)", 1.25, 1.15, allowance=0.25))
+    out += _processor_derivations()
+    return out
+
+
+def _processor_derivations() -> list[Derivation]:
+    """The part's requirements (REQ-PIL-*, processor in the loop): deadlines, load, memory."""
+    out: list[Derivation] = []
+    hall_s = min_hall_interval_s(PAPER_TOP_SPEED_RPM, PAPER_POLE_PAIRS)  # 0.5 ms
+    for kind, why in (("hall", "the Hall capture interrupt"),
+                      ("compare", "the compare interrupt (one commutation per Hall interval)")):
+        out.append(_d(
+            f"{kind}_isr_response_s", "physics",
+            f"{why} finishes before the next Hall edge can come: the shortest Hall interval at the paper's top "
+            "speed, 10,000 rpm with 2 pole pairs (Sections 4.1, 4.3), six edges per electrical turn; a deadline at "
+            "the next request as Liu and Layland (J. ACM 20(1), 1973) define it",
+            "60 / (10,000 x 2 x 6) = 0.5 ms from the event to the return", hall_s, 0.8 * hall_s,
+            top_speed_rpm=PAPER_TOP_SPEED_RPM, pole_pairs=PAPER_POLE_PAIRS, edges_per_turn=HALL_EDGES_PER_TURN_E))
+    out.append(_d(
+        "control_isr_response_over_period", "physics",
+        "the control interrupt finishes before its next request: Liu and Layland (J. ACM 20(1), 1973), Section 3, "
+        "a periodic task's deadline is the end of its period (1 / control_hz, the firmware's own rate)",
+        "worst (return - event) / (1 / control_hz) <= 1", 1.0, 0.8))
+    out.append(_d(
+        "interrupt_overruns", "physics",
+        "an interrupt still running or pending when its own next instance is due has missed the deadline Liu "
+        "and Layland (J. ACM 20(1), 1973) set at the next request",
+        "no overrun: 0", 0.0, None))
+    bound = liu_layland_bound(RM_TASKS)
+    out.append(_d(
+        "cpu_load_worst", "physics",
+        "Liu and Layland (J. ACM 20(1), 1973), Theorem 5: n periodic tasks under rate-monotonic priorities meet "
+        "every deadline when their utilisation is at most n (2^(1/n) - 1); the hil-sil/1 interrupts are n = 3 "
+        "tasks (Hall capture, compare, control)",
+        f"3 x (2^(1/3) - 1) = {bound:.4f} of the CPU, the worst of any control period", bound, 0.8 * bound,
+        tasks=RM_TASKS))
+    for name, what, marginal in (
+        ("stack_high_water_fraction", "the deepest stack of any call over the part's main stack (stack_bytes)", 0.75),
+        ("flash_used_fraction", "the ELF's code and constants over the part's flash (flash_bytes)", 0.9),
+        ("ram_used_fraction", "the ELF's .data and .bss plus the main stack over the part's RAM (ram_bytes)", 0.9),
+    ):
+        out.append(_d(
+            name, "physics",
+            f"{what}: the part's memory map as its datasheet gives it, declared in the firmware's [target] table; "
+            "beyond it the stack writes into the data below it, the code does not fit",
+            "used / available <= 1", 1.0, marginal))
     return out
 
 

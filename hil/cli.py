@@ -10,6 +10,7 @@ import sys
 from pathlib import Path
 
 from . import cli_grammar as grammar
+from .dut.kinds import firmware_kinds, kinds_help
 
 # nothing heavy at the top (tests/test_cli_grammar.py): ``hil --help`` builds every parser without
 # numpy, numba, scipy or the plant; each command imports what it runs
@@ -754,7 +755,7 @@ def default_workers(duts: list[str]) -> str:
     from .dut.spec import DutSpecError, parse_dut
 
     try:
-        virtual = all(parse_dut(d).is_virtual or parse_dut(d).kind == "sil" for d in duts)
+        virtual = all(parse_dut(d).local for d in duts)
     except DutSpecError:
         return "0"  # pytest names the bad spec
     cores = min(os.cpu_count() or 1, 4)
@@ -1012,7 +1013,8 @@ def _parser_dut(sub) -> None:
     q = ds.add_parser(
         "check", help="read every object of a DUT's profile once (writes nothing); which requirements it makes testable"
     )
-    q.add_argument("--dut", required=True, help="controller spec with profile=FILE, or sil:FIRMWARE (hil/dut/spec.py)")
+    q.add_argument("--dut", required=True, help="controller spec with profile=FILE, or a firmware in the loop: "
+                   f"{', '.join(k + ':FIRMWARE' for k in firmware_kinds())} (hil/dut/kinds.py)")
     grammar.add_preset(q, "the motor (its pole pairs)")
     q.set_defaults(func=cmd_dut_check)
     q = ds.add_parser("profile", help="draft a device profile from an EDS, every guess marked")
@@ -1030,7 +1032,7 @@ def _parser_acceptance(sub) -> None:
     p.add_argument(
         "--dut", action="append",
         help="controller spec (repeatable; default: virtual:canopen; --dut virtual:modbus for the Modbus TCP "
-             "link); sil:FIRMWARE for C firmware in the loop (docs/firmware-in-the-loop.md)"
+             f"link); {kinds_help()}"
     )
     p.add_argument("--plant", metavar="TOML", help="plant TOML (default: the paper-bench preset)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")
@@ -1061,8 +1063,9 @@ def _parser_qualify(sub) -> None:
         help="qualify the acceptance suite: run it against each seeded firmware defect of the built-in controller",
     )
     p.add_argument("--dut", default="virtual:modbus",
-                   help="the built-in controller's form (default: virtual:modbus), or sil:DIR: a firmware folder and "
-                        "the seeded defects of its defects.toml")
+                   help="the built-in controller's form (default: virtual:modbus), or "
+                        f"{' or '.join(k + ':DIR' for k in firmware_kinds())}: a firmware folder and the seeded "
+                        "defects of its defects.toml")
     p.add_argument("--defects", help="a Python file of further @defect classes (hil.qualify.defects)")
     p.add_argument("--only", help="comma-separated defect names (default: the whole catalogue)")
     p.add_argument("--budgets", help="budgets TOML over the defaults")

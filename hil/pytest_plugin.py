@@ -34,6 +34,7 @@ from pathlib import Path
 import pytest
 
 # the report's record format: standard library only (the plant, links and budgets load on use)
+from .dut.kinds import firmware_kinds
 from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
@@ -65,7 +66,8 @@ def pytest_addoption(parser):
         help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
         "canopen:interface=..,channel=..,node=.., "
         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=.. (each with profile=FILE for the "
-        "device's own map: docs/device-profiles.md); default: virtual",
+        f"device's own map: docs/device-profiles.md), {', '.join(k + ':FIRMWARE' for k in firmware_kinds())} "
+        "(hil/dut/kinds.py); default: virtual",
     )
     group.addoption(
         "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"
@@ -235,7 +237,12 @@ def pytest_configure(config):
         "markers", "requirement(*ids): ties the test to requirement IDs (traceability matrix in the HIL report)"
     )
     config.addinivalue_line(
-        "markers", "dut_protocol(name): the test is a probe of that protocol only (canopen, modbus, sil); it is "
+        "markers", "processor: the test measures the part a firmware runs on (pil:); its link's core and interrupt "
+        "figures go into the report's processor section",
+    )
+    config.addinivalue_line(
+        "markers", "dut_protocol(name): the test is a probe of that protocol only (canopen, modbus, sil: a firmware's "
+        "dictionary, sil: and pil: alike); it is "
         "not collected for a DUT that speaks another",
     )
     report_dir = _option(config, "report_dir")
@@ -287,7 +294,7 @@ def _check_configuration(config, report_dir) -> None:
     specs = dut_specs(config)
     workers = config.getoption("numprocesses", None)
     # a firmware in the loop is opened once per worker too, each in its own process, like a virtual controller
-    real = [s.text for s in specs if not s.is_virtual and s.kind != "sil"]
+    real = [s.text for s in specs if not s.local]
     if controller and workers and real:
         raise pytest.UsageError(
             f"hil: -n {workers} would open the controller {real[0]} once per xdist worker; "
@@ -634,10 +641,16 @@ def hil_link(hil_dut, request):
         (PROPERTY_PREFIX + "dut", {"id": hil_dut.spec.id, "identity": hil_dut.identity,
                                    "build": getattr(hil_dut, "build", {})})
     )
+    _require_applicable(request.node, hil_dut.spec.kind)
     _require_testable(request.node, hil_dut.link)
     hil_dut.link.reset()
     before = _traffic(hil_dut.link)
     yield hil_dut.link
+    if request.node.get_closest_marker("processor") is not None and hasattr(hil_dut.link, "processor"):
+        # what the emulated core and the interrupt schedule measured (pil:): the report's processor section
+        figures = hil_dut.link.processor()
+        if figures is not None:
+            request.node.user_properties.append((PROPERTY_PREFIX + "processor", figures))
     if before is not None:  # what this test's edges moved on the link, summed per DUT in the report
         from .dut.traffic import traffic_delta
 
@@ -650,6 +663,21 @@ def _traffic(link) -> dict | None:
     """The link's traffic counts so far (``hil.dut.traffic``), or None for a link without a bus."""
     traffic = getattr(link, "traffic", None)
     return traffic.as_dict() if traffic is not None else None
+
+
+def _require_applicable(item, kind: str) -> None:
+    """Skip ``item`` when none of its requirements applies to a DUT of ``kind`` (a requirement of
+    the part, REQ-PIL-*, on anything but ``pil:``): "not applicable" in the report, never a pass.
+    When only some do not apply, the test runs for the others."""
+    from .requirements import not_applicable
+
+    rids = traced_requirements(item)
+    lacking = not_applicable(rids, kind)
+    if lacking:
+        reason = f"not applicable to a {kind} DUT: {', '.join(lacking)} judge the part a firmware runs on (pil:)"
+        item.user_properties.append((PROPERTY_PREFIX + "not_applicable", {"reason": reason, "requirements": lacking}))
+        if set(lacking) >= rids:
+            pytest.skip(reason)
 
 
 def _require_testable(item, link) -> None:
@@ -1015,6 +1043,7 @@ class HilReporter:
             "worker": _worker_id(reports[-1]),
             "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
             "not_testable": None,
+            "not_applicable": None,
             #: why a failed or errored test did (failure_kind): "budget" (only budgets were missed:
             #: each requirement has its own budgets' verdict), "assertion" (a check failed),
             #: "device failure", "not judged" or "error"; "" otherwise
@@ -1041,6 +1070,10 @@ class HilReporter:
                 record["doc"] = value
             elif kind == "traffic":
                 record["traffic"] = value
+            elif kind == "processor":
+                record["processor"] = value
+            elif kind == "not_applicable":
+                record["not_applicable"] = value
             elif kind == "not_testable":
                 # kept whatever the outcome: a test that ran for its other requirements judged
                 # nothing of these (hil.report.test_status), so its pass or failure is not theirs

@@ -48,7 +48,8 @@ _EXIT_NAMES = {2: "interrupted", 3: "internal error", 4: "usage error"}
 #: outcomes that are evidence of a defect: a failure, a known failure (xfail), an unexpected pass
 _FAILING = ("failed", "xfailed", "xpassed")
 #: test and requirement verdicts, the worst first
-VERDICTS = ("fail", "error", "waived", "not testable", "not tested", "out of scope", "marginal", "pass")
+VERDICTS = ("fail", "error", "waived", "not testable", "not tested", "out of scope", "not applicable", "marginal",
+            "pass")
 #: a requirement verdict that leaves the run short of PASS (besides fail and error)
 _UNANSWERED = ("not tested", "not testable")
 
@@ -67,6 +68,11 @@ def test_status(test: dict, rid: str | None = None) -> str:
     (the plugin turns a skip that hides an unreachable controller into an error), or ``not
     testable`` for a requirement the device's profile lacks what it needs for."""
     lacking = test.get("not_testable") or {}  # the requirements the device's profile cannot show
+    elsewhere = test.get("not_applicable") or {}  # the requirements of another kind of DUT (REQ-PIL-*)
+    if elsewhere and test["outcome"] != "error" and (
+        (rid is not None and rid in elsewhere.get("requirements", ())) or (rid is None and test["outcome"] == "skipped")
+    ):
+        return "not applicable"
     if rid is not None and rid in lacking.get("requirements", ()) and test["outcome"] != "error":
         # a test that ran for its other requirements judged nothing of this one
         return "not testable"
@@ -129,9 +135,11 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
         w = find_waiver(waivers, rid, None)
         if w is not None:
             return ("out of scope" if w.kind == "out of scope" else "waived"), w
-        return ("not testable" if "not testable" in statuses else "not tested"), None
+        if "not testable" in statuses:
+            return "not testable", None
+        return ("not applicable" if "not applicable" in statuses else "not tested"), None
     worst = min(statuses, key=VERDICTS.index)
-    if worst in _UNANSWERED:  # skipped beside passing ones: the skips do not apply to this DUT
+    if worst in (*_UNANSWERED, "not applicable"):  # skipped beside passing ones: the skips do not apply to this DUT
         worst = "marginal" if "marginal" in statuses else "pass"
     return worst, (used if worst == "waived" else None)
 
@@ -156,6 +164,32 @@ def traffic_total(counts: list[dict]) -> dict:
         total["frames_per_edge"] = round(frames / max(total["edges"], 1), 2)
         total["stuffing"] = "worst case"
     return total
+
+
+def processor_summary(figures: dict) -> dict:
+    """The report's processor section of one ``pil:`` DUT from its link's figures
+    (``SilLink.processor``): per interrupt its calls, cycles (median, p99, max, and in us) and worst
+    response; the worst CPU load of any control period and the overruns; the stack, flash and RAM;
+    the soft floating-point routines each interrupt ran, by name, with calls per simulated second."""
+    core = figures["core"]
+    schedules = figures.get("schedules") or [{}]
+    seconds = figures.get("simulated_s") or 0.0
+    interrupts = {}
+    for kind, c in core.get("interrupts", {}).items():
+        worst = max((s.get("interrupts", {}).get(kind, {}).get("response_s", {}).get("max", 0.0) for s in schedules),
+                    default=0.0)
+        interrupts[kind] = {
+            "calls": c["calls"], "cycles": c["cycles"], "us": c["us"], "worst_response_us": worst * 1e6,
+            "soft_float": [{"routine": name, "calls": n, "per_s": n / seconds if seconds else None}
+                           for name, n in sorted(c.get("soft_float", {}).items(), key=lambda kv: -kv[1])],
+        }
+    overruns = [o for s in schedules for o in s.get("overruns", [])]
+    return {
+        "cpu": core["cpu"], "clock_hz": core["clock_hz"], "simulated_s": seconds, "interrupts": interrupts,
+        "worst_load": max((s.get("worst_load", 0.0) for s in schedules), default=0.0),
+        "overrun_count": sum(s.get("overrun_count", 0) for s in schedules), "overruns": overruns[:20],
+        "stack": core["stack"], "flash": core["flash"], "ram": core["ram"],
+    }
 
 
 @dataclass
@@ -249,7 +283,8 @@ class ReportWriter:
                 w = find_waiver(self.waivers, rid, t["nodeid"]) if status == "fail" else None
                 # a test that ran for its other requirements says why it could not show this one;
                 # its message and figures are theirs
-                lacking = t.get("not_testable") if status == "not testable" else None
+                lacking = (t.get("not_testable") if status == "not testable" else
+                           t.get("not_applicable") if status == "not applicable" else None)
                 rows.append(
                     {
                         "nodeid": t["nodeid"],
@@ -280,6 +315,10 @@ class ReportWriter:
         for r in self.records:
             if r.get("dut") and r.get("traffic"):
                 traffic.setdefault(r["dut"], []).append(r["traffic"])
+        processor = {}  # pil: what the emulated core and the interrupt schedule measured, per DUT
+        for r in self.records:
+            if r.get("dut") and r.get("processor"):
+                processor[r["dut"]] = processor_summary(r["processor"])
         verdict, reasons = self._overall(tests, matrix)
         counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
         waivers = [
@@ -309,6 +348,9 @@ class ReportWriter:
             "dut_builds": builds,
             # what the edges moved on each DUT's link, with the bus time (hil.dut.traffic)
             "traffic": {dut: traffic_total(counts) for dut, counts in traffic.items()},
+            # processor in the loop: per interrupt its calls and cycles, the load, the stack, flash, RAM
+            # and the soft floating-point routines run inside interrupts (hil.sil.scheduler, hil.pil)
+            "processor": processor,
             "waivers": waivers,
             "traceability": matrix,
             "tests": tests,

@@ -65,6 +65,16 @@ class Requirement:
     #: the defect classes it exists to catch (``DEFECT_CLASSES``): ``hil qualify`` seeds defects of
     #: each class and its sensitivity table shows, per requirement, which its own budgets catch
     judges: tuple[str, ...] = ()
+    #: the DUT kinds it applies to (``hil.dut.kinds``); empty: every kind. A requirement of the part
+    #: (its interrupts' time, its stack) means nothing for a firmware on the PC or a device on a bus:
+    #: there it is "not applicable", neither passed nor failed
+    kinds: tuple[str, ...] = ()
+
+
+def not_applicable(requirements, kind: str) -> list[str]:
+    """The requirements among ``requirements`` that do not apply to a DUT of ``kind``."""
+    return sorted(r for r in set(requirements) if (req := REQUIREMENTS.get(r)) is not None and req.kinds
+                  and kind not in req.kinds)
 
 
 #: the defect classes a requirement names (``Requirement.judges``); each seeded defect of
@@ -527,6 +537,53 @@ _REGISTRY = (
     ),
 )
 
+_PIL_TEST = ("`test_processor.py`: the paper's deviations calibrated, Sage-Husa at 8000 rpm on the emulated core; "
+             "the interrupt schedule's responses, overruns and CPU load, the core's stack and the ELF's sizes")
+_PIL_DOC = "processor-in-the-loop.md#requirements-of-the-part"
+_REGISTRY += (
+    Requirement(
+        "REQ-PIL-001", "Every interrupt finishes within its period on the part (no overrun)",
+        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        budgets=(
+            DefaultBudget('control_isr_response_over_period', 'ratio',
+                          description='worst time from a control interrupt\'s request to its return, over the '
+                                      'control period (1 / control_hz)',
+                          **derived('control_isr_response_over_period')),  # hil/budget_sources.py
+            DefaultBudget('hall_isr_response_s', 's',
+                          description='worst time from a Hall edge to its interrupt\'s return (preemption and '
+                                      'waiting included)',
+                          **derived('hall_isr_response_s')),  # hil/budget_sources.py
+            DefaultBudget('compare_isr_response_s', 's',
+                          description='worst time from a compare match to its interrupt\'s return',
+                          **derived('compare_isr_response_s')),  # hil/budget_sources.py
+            DefaultBudget('interrupt_overruns', 'count',
+                          description='interrupts still running or pending when their own next instance was due',
+                          **derived('interrupt_overruns')),  # hil/budget_sources.py
+        ),
+    ),
+    Requirement(
+        "REQ-PIL-002", "The worst CPU load over any control period is within the rate-monotonic schedulability bound",
+        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        budgets=(DefaultBudget('cpu_load_worst', 'fraction',
+                               description='the share of the worst control period the CPU spent in interrupts',
+                               **derived('cpu_load_worst')),),  # hil/budget_sources.py
+    ),
+    Requirement(
+        "REQ-PIL-003", "The stack stays within stack_bytes; code and data fit the part's flash and RAM",
+        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        budgets=(
+            DefaultBudget('stack_high_water_fraction', 'fraction',
+                          description='the deepest stack of any call over stack_bytes',
+                          **derived('stack_high_water_fraction')),  # hil/budget_sources.py
+            DefaultBudget('flash_used_fraction', 'fraction', description='flash used over flash_bytes',
+                          **derived('flash_used_fraction')),  # hil/budget_sources.py
+            DefaultBudget('ram_used_fraction', 'fraction',
+                          description='.data, .bss and the main stack over ram_bytes',
+                          **derived('ram_used_fraction')),  # hil/budget_sources.py
+        ),
+    ),
+)
+
 #: the registry by ID, in the order above
 REQUIREMENTS: dict[str, Requirement] = {r.id: r for r in _REGISTRY}
 
@@ -573,6 +630,7 @@ def _needs_in_words(req: Requirement) -> str:
     parts += (["the fault_code role or EMCY"] if req.fault_source == "any"
               else [f"fault source {req.fault_source}"] if req.fault_source else [])
     parts += [f"uses {_roles_in_words(req.uses)} when present"] if req.uses else []
+    parts += [f"a {' or '.join(k + ':' for k in req.kinds)} DUT (other kinds: not applicable)"] if req.kinds else []
     return "; ".join(parts) or "–"
 
 

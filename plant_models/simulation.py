@@ -368,16 +368,43 @@ class Simulation:
                     self._flush()
                 return edge
             if reason == L.STOP_NOISE:
-                self.noise[:] = self.rng.standard_normal(self.noise.size)
+                # a new array, not written in place: a checkpoint may hold the one before
+                self.noise = self.rng.standard_normal(self.noise.size)
                 self.ist[L.I_NOISE] = 0
                 continue
             self._flush()  # STOP_FULL
 
+    _LOGS = (("_edges", "_edge_chunks", L.I_N_EDGES), ("_ideal", "_ideal_chunks", L.I_N_IDEAL),
+             ("_samples", "_sample_chunks", L.I_N_SAMPLES), ("_comm", "_comm_chunks", L.I_N_COMM))
+
+    def checkpoint(self) -> tuple:
+        """The plant's state now, for :meth:`restore`: a source that steps the plant ahead and may
+        find it went too far (a firmware's interrupt returned, and its outputs took effect, before
+        the instant the plant reached: ``hil.sil.peripherals``). Small copies (the state vectors,
+        the edges in flight, the current ring); the logs by their counts, the noise by reference."""
+        logs = tuple((getattr(self, buf), len(getattr(self, chunks))) for buf, chunks, _ in self._LOGS)
+        return (self.st.copy(), self.ist.copy(), self.pending.copy(), self.current_ring.copy(), self.noise,
+                self.rng.bit_generator.state, self._samples_flushed, logs)
+
+    def restore(self, checkpoint: tuple) -> None:
+        """Back to a :meth:`checkpoint` of this run taken since the last command was scheduled: the
+        same steps from there give the same run."""
+        st, ist, pending, ring, noise, rng_state, flushed, logs = checkpoint
+        for (name, chunks_name, idx), (buf, n_chunks) in zip(self._LOGS, logs):
+            chunks = getattr(self, chunks_name)
+            if len(chunks) > n_chunks:  # flushed since: the rows the checkpoint counted are in the first new chunk
+                n = int(ist[idx])
+                buf[:n] = chunks[n_chunks][:n]
+                del chunks[n_chunks:]
+            setattr(self, name, buf)
+        self.st[:], self.ist[:], self.pending[:], self.current_ring[:] = st, ist, pending, ring
+        self.noise = noise
+        self.rng.bit_generator.state = rng_state
+        self._samples_flushed = flushed
+
     def _flush(self):
-        for name, chunks, idx in (
-            ("_edges", self._edge_chunks, L.I_N_EDGES), ("_ideal", self._ideal_chunks, L.I_N_IDEAL),
-            ("_samples", self._sample_chunks, L.I_N_SAMPLES), ("_comm", self._comm_chunks, L.I_N_COMM),
-        ):
+        for name, chunks_name, idx in self._LOGS:
+            chunks = getattr(self, chunks_name)
             n = int(self.ist[idx])
             if not n:
                 continue

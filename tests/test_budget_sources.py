@@ -67,6 +67,16 @@ BY_HAND = {
     "edge_noise_estimate_log_scatter_low": round(math.sqrt(2 / (8000 / 60 * 12 * 0.4)) / 2, 3),
     # Table 5, regulation stage: speed MAPE 0.37 % over 0.75 %, to 2 places
     "sage_husa_over_precalibration_regulation_rms": round(0.37 / 0.75, 2),
+    # processor in the loop: the shortest Hall interval at 10,000 rpm, 2 pole pairs, six edges a turn
+    "hall_isr_response_s": 60 / (10_000 * 2 * 6),
+    "compare_isr_response_s": 60 / (10_000 * 2 * 6),
+    "control_isr_response_over_period": 1.0,
+    "interrupt_overruns": 0.0,
+    # Liu and Layland (1973), Theorem 5, three tasks
+    "cpu_load_worst": 3 * (2 ** (1 / 3) - 1),
+    "stack_high_water_fraction": 1.0,
+    "flash_used_fraction": 1.0,
+    "ram_used_fraction": 1.0,
 }
 
 

@@ -11,7 +11,8 @@
   drafted from an EDS);
 - protocol codecs both sides share: ``canopen_codec`` (CiA 301 codes), ``modbus_codec`` (the edge
   mailbox's words, function codes, exception rules);
-- ``spec`` (``--dut`` specifications, parsed and opened) and ``can_interfaces``.
+- ``kinds`` (the DUT kinds, one declaration each), ``spec`` (``--dut`` specifications, parsed and
+  opened by their kind) and ``can_interfaces``.
 
 Import the module you need; this package imports nothing, so ``hil.dut.link`` stays light.
 """

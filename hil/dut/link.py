@@ -53,7 +53,7 @@ def link_has(link, *roles: str) -> bool:
 def edge_hook_kind(link) -> str:
     """How edges reach ``link``'s controller: its profile's edge hook, or ``pins`` for a firmware in
     the loop (its interrupts see the plant's Hall pins; the profile's hook is ignored there)."""
-    return "pins" if getattr(link, "name", "") == "sil" else link.profile.edge_hook.kind
+    return "pins" if getattr(link, "edges_through_pins", False) else link.profile.edge_hook.kind
 
 
 def verify_calibration(written: Corrections, read_back: Corrections, tolerance: dict[str, float] | None = None) -> None:

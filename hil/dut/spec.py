@@ -4,18 +4,14 @@ A DUT is configuration (labgrid's idea): one string says where the controller is
 reach it, and ``open_dut`` gives the one ``ControllerLink`` the acceptance suite uses.
 
     virtual                      the built-in virtual controller over CANopen (python-can ``virtual``)
-    virtual:canopen              the same, said explicitly
     virtual:modbus               the built-in virtual controller over Modbus TCP on 127.0.0.1
-    virtual:in-process           the built-in virtual controller called directly (no protocol)
     canopen:interface=pcan,channel=PCAN_USBBUS1,node=5,bitrate=500000,eds=my.eds
-    canopen:interface=socketcand,channel=can0,host=127.0.0.1,port=29536,node=5   (hil dut serve, or a socketcand daemon)
-    modbus-tcp:host=192.168.0.10,port=502,unit=1
-    modbus-rtu:port=/dev/ttyUSB0,baud=115200,unit=1
     modbus-tcp:host=192.168.0.10,profile=acme-p3.toml        (the device's own register map: docs/device-profiles.md)
-    sil:firmware/reference                                   (C firmware in the loop: a folder with a sil.toml,
-    sil:build/libpump.so,profile=pump.toml                    or a shared library; docs/firmware-in-the-loop.md)
-    virtual:modbus,profile=acme-p3.toml                      (the virtual controller served under that map)
+    sil:firmware/reference                                   (C firmware in the loop: docs/firmware-in-the-loop.md)
+    pil:firmware/reference                                   (the same on an emulated Cortex-M core:
+                                                              docs/processor-in-the-loop.md)
 
+Each kind, its keys and how it opens is one declaration in ``hil.dut.kinds``.
 Every protocol form takes ``profile=FILE``, a device profile (``hil-device-profile/1``) mapping the
 framework's roles to the device's objects; without one, the virtual controller's own map.
 Every form takes ``timeout=SECONDS`` (default 1.0): a controller that stops answering fails
@@ -32,36 +28,11 @@ from bldc.motor import MotorParameters
 
 from .can_interfaces import unknown_can_interface
 
-KINDS = ("virtual", "canopen", "modbus-tcp", "modbus-rtu", "sil")
-VIRTUAL_TRANSPORTS = ("canopen", "modbus", "in-process")
-#: keys each kind accepts, with a converter and a default (None: required)
-_KEYS = {
-    "virtual": {"timeout": (float, 1.0), "node": (int, 5), "unit": (int, 1), "profile": (str, "")},
-    "canopen": {
-        "interface": (str, None),
-        "channel": (str, None),
-        "node": (int, 5),
-        "bitrate": (int, 0),
-        "eds": (str, ""),
-        "host": (str, ""),
-        "port": (int, 0),
-        "timeout": (float, 1.0),
-        "profile": (str, ""),
-    },
-    "modbus-tcp": {
-        "host": (str, None), "port": (int, 502), "unit": (int, 1), "timeout": (float, 1.0), "profile": (str, "")
-    },
-    "modbus-rtu": {
-        "port": (str, None), "baud": (int, 115200), "unit": (int, 1), "timeout": (float, 1.0), "profile": (str, "")
-    },
-    # sil:PATH: the path comes first; hang: the wall time an interrupt may take; wrap_at: the
-    # simulated instant of the timer's (first) wrap; define: extra -D NAME[=VALUE] for a folder's
-    # build, joined by '+' (the seeded defects' switches); compiler: auto, system or ziglang
-    "sil": {
-        "path": (str, None), "profile": (str, ""), "timeout": (float, 1.0), "hang": (float, 1.0),
-        "wrap_at": (float, 0.25), "define": (str, ""), "compiler": (str, "auto"),
-    },
-}
+from .kinds import KINDS as DECLARED
+from .kinds import DutKind
+
+KINDS = tuple(DECLARED)
+VIRTUAL_TRANSPORTS = DECLARED["virtual"].transports
 _channels = itertools.count()
 
 
@@ -77,17 +48,33 @@ class DutSpec:
     text: str = "virtual"
 
     @property
+    def declaration(self) -> DutKind:
+        """The kind's declaration (``hil.dut.kinds``)."""
+        return DECLARED[self.kind]
+
+    @property
     def is_virtual(self) -> bool:
         return self.kind == "virtual"
 
     @property
+    def firmware(self) -> bool:
+        """A firmware in the loop (sil:, pil:): its pins close the loop, its defects are a defects.toml."""
+        return self.declaration.firmware
+
+    @property
+    def local(self) -> bool:
+        """Opened once per xdist worker (a virtual controller or a firmware in its own process)."""
+        return self.declaration.local
+
+    @property
     def protocol(self) -> str:
         """``canopen``, ``modbus``, ``in-process`` or ``sil``: which conformance tests apply."""
-        if self.is_virtual:
-            return self.transport
-        if self.kind == "sil":
-            return "sil"
-        return "canopen" if self.kind == "canopen" else "modbus"
+        return self.declaration.protocol or self.transport
+
+    @property
+    def profile_form(self) -> str:
+        """The form its device profile takes: ``canopen``, ``modbus`` (``in-process``: none)."""
+        return self.declaration.profile_form or self.transport
 
     @property
     def id(self) -> str:
@@ -99,23 +86,24 @@ def parse_dut(text: str) -> DutSpec:
     text = (text or "virtual").strip()
     head, _, rest = text.partition(":")
     kind = head.strip().lower()
-    if kind not in KINDS:
+    if kind not in DECLARED:
         raise DutSpecError(f"--hil-dut {text!r}: unknown kind {kind!r} (use one of {', '.join(KINDS)})")
+    declared = DECLARED[kind]
     transport = ""
-    if kind == "virtual":
+    if declared.transports:
         first, _, more = rest.partition(",")
         if first and "=" not in first:
             transport, rest = first.strip().lower(), more
         else:
-            transport = "canopen"
-        if transport not in VIRTUAL_TRANSPORTS:
+            transport = declared.transports[0]
+        if transport not in declared.transports:
             raise DutSpecError(
-                f"--hil-dut {text!r}: unknown virtual transport {transport!r} (use one of "
-                f"{', '.join(VIRTUAL_TRANSPORTS)})"
+                f"--hil-dut {text!r}: unknown {kind} transport {transport!r} (use one of "
+                f"{', '.join(declared.transports)})"
             )
-    keys = _KEYS[kind]
+    keys = declared.keys
     options = {}
-    if kind == "sil":
+    if declared.path_first:
         first, _, more = rest.partition(",")
         if first.strip() and "=" not in first:
             options["path"], rest = first.strip(), more
@@ -137,15 +125,19 @@ def parse_dut(text: str) -> DutSpec:
             options[key] = default
     if not options["timeout"] > 0:
         raise DutSpecError(f"--hil-dut {text!r}: timeout must be positive")
-    if kind == "canopen" and (why := unknown_can_interface(options["interface"])):
-        raise DutSpecError(f"--hil-dut {text!r}: {why}")
-    if kind == "sil":
-        _check_sil(text, options)
-    elif options["profile"]:
-        _check_profile(text, kind, transport, options["profile"])
+    spec = DutSpec(kind, transport, options, text)
+    declared.validate(text, options)
+    if options["profile"]:
+        check_profile(text, spec.profile_form, options["profile"])
     if options.get("eds"):
         _check_eds(text, options["eds"])
-    return DutSpec(kind, transport, options, text)
+    return spec
+
+
+def check_canopen(text: str, options: dict) -> None:
+    """An interface python-can does not know is refused before anything opens."""
+    if why := unknown_can_interface(options["interface"]):
+        raise DutSpecError(f"--hil-dut {text!r}: {why}")
 
 
 def _check_eds(text: str, path: str) -> None:
@@ -158,34 +150,7 @@ def _check_eds(text: str, path: str) -> None:
         raise DutSpecError(f"--hil-dut {text!r}: eds {exc}") from None
 
 
-def _check_sil(text: str, options: dict) -> None:
-    """A firmware path that is neither a shared library nor a folder with a readable sil.toml, a
-    profile that cannot be read or is not in CANopen form, or a bad option is refused before
-    anything is built."""
-    from pathlib import Path
-
-    path = Path(options["path"])
-    if not path.exists():
-        raise DutSpecError(f"--hil-dut {text!r}: {path}: no such file or folder")
-    if path.is_dir():
-        from ..sil.build import SilBuildError, read_build_spec
-        from bldc.tomlfile import TomlError
-
-        try:
-            read_build_spec(path)
-        except (SilBuildError, TomlError) as exc:
-            raise DutSpecError(f"--hil-dut {text!r}: {exc}") from None
-    elif options["define"]:
-        raise DutSpecError(f"--hil-dut {text!r}: define= needs a firmware folder with a sil.toml, not a library")
-    if not options["hang"] > 0:
-        raise DutSpecError(f"--hil-dut {text!r}: hang must be positive (seconds of wall time)")
-    if options["compiler"] not in ("auto", "system", "ziglang"):
-        raise DutSpecError(f"--hil-dut {text!r}: compiler must be auto, system or ziglang")
-    if options["profile"]:
-        _check_profile(text, "sil", "", options["profile"])
-
-
-def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
+def check_profile(text: str, protocol: str, path: str) -> None:
     """A profile that cannot be read, or is for the other protocol, is refused before anything opens."""
     from bldc.tomlfile import TomlError
 
@@ -195,8 +160,6 @@ def _check_profile(text: str, kind: str, transport: str, path: str) -> None:
         profile = load_profile(path)
     except (ProfileError, TomlError) as exc:
         raise DutSpecError(f"--hil-dut {text!r}: profile {exc}") from None
-    # a firmware in the loop is described in its CANopen form (its object dictionary)
-    protocol = transport if kind == "virtual" else ("canopen" if kind in ("canopen", "sil") else "modbus")
     if protocol == "in-process":
         raise DutSpecError(f"--hil-dut {text!r}: the in-process link has no object dictionary for a profile")
     if profile.protocol != protocol:
@@ -229,44 +192,42 @@ class Dut:
 
 def open_dut(spec: DutSpec | str, motor: MotorParameters, controller=None) -> Dut:
     """Open the controller; for ``virtual`` serve ``controller`` (default: the reference controller
-    built for ``motor``)."""
+    built for ``motor``). How each kind opens is its declaration's (``hil.dut.kinds``)."""
     spec = parse_dut(spec) if isinstance(spec, str) else spec
+    return spec.declaration.open(spec, motor, controller)
+
+
+def _profile_args(spec: DutSpec, motor: MotorParameters) -> dict:
+    return {"profile": spec.options["profile"] or None, "pole_pairs": motor.pole_pairs}
+
+
+def open_canopen(spec: DutSpec, motor: MotorParameters, controller=None) -> Dut:
+    from .canopen_link import CanopenLink
+
     o = spec.options
-    profile = {"profile": o["profile"] or None, "pole_pairs": motor.pole_pairs}
-    if spec.kind == "canopen":
-        from .canopen_link import CanopenLink
+    bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
+    return Dut(spec, CanopenLink(node_id=o["node"], interface=o["interface"], channel=o["channel"],
+                                 eds=o["eds"] or None, timeout_s=o["timeout"], **_profile_args(spec, motor), **bus))
 
-        bus = {k: o[k] for k in ("bitrate", "host", "port") if o[k]}
-        return Dut(
-            spec,
-            CanopenLink(
-                node_id=o["node"],
-                interface=o["interface"],
-                channel=o["channel"],
-                eds=o["eds"] or None,
-                timeout_s=o["timeout"],
-                profile=o["profile"] or None,
-                pole_pairs=motor.pole_pairs,
-                **bus,
-            ),
-        )
-    if spec.kind == "sil":
-        from ..sil import open_sil
 
-        return Dut(spec, open_sil(spec, motor))
-    if spec.kind == "modbus-tcp":
-        from .modbus_link import ModbusLink
+def open_modbus(spec: DutSpec, motor: MotorParameters, controller=None) -> Dut:
+    """modbus-tcp (host, port) or modbus-rtu (a serial port and its baud rate)."""
+    from .modbus_link import ModbusLink
 
-        link = ModbusLink(host=o["host"], port=o["port"], unit=o["unit"], timeout_s=o["timeout"], **profile)
-        return Dut(spec, link)
-    if spec.kind == "modbus-rtu":
-        from .modbus_link import ModbusLink
+    o = spec.options
+    where = {"host": o["host"], "port": o["port"]} if spec.kind == "modbus-tcp" else {
+        "serial_port": o["port"], "baudrate": o["baud"]}
+    return Dut(spec, ModbusLink(unit=o["unit"], timeout_s=o["timeout"], **where, **_profile_args(spec, motor)))
 
-        link = ModbusLink(unit=o["unit"], timeout_s=o["timeout"], serial_port=o["port"], baudrate=o["baud"], **profile)
-        return Dut(spec, link)
+
+def open_virtual(spec: DutSpec, motor: MotorParameters, controller=None) -> Dut:
+    """The built-in controller (or ``controller``), called in-process or served over its protocol
+    in this process."""
     from ..controller.virtual import VirtualController
     from .in_process import InProcessLink
 
+    o = spec.options
+    profile = _profile_args(spec, motor)
     controller = controller if controller is not None else VirtualController(motor)
     if spec.transport == "in-process":
         return Dut(spec, InProcessLink(controller))

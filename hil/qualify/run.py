@@ -99,7 +99,7 @@ def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tupl
     from ..dut.spec import parse_dut
 
     spec = parse_dut(dut)
-    if spec.kind == "sil":  # a firmware in the loop: its own profile; its pins close the loop
+    if spec.firmware:  # a firmware in the loop: its own profile; its pins close the loop
         from ..sil.build import read_build_spec
 
         path = spec.options.get("profile") or (
@@ -243,7 +243,7 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     from ..requirements import DEFECT_CLASSES
 
     spec = parse_dut(dut)
-    if spec.kind != "sil":
+    if not spec.firmware:
         return {}
     path = Path(spec.options["path"]) / "defects.toml"
     if not path.is_file():

@@ -18,22 +18,57 @@ from ..dut.link import LinkError
 SIL_NODE_ID = 5
 
 
+def check_options(text: str, options: dict) -> None:
+    """A firmware path that is neither a shared library nor a folder with a readable sil.toml, or a
+    bad option, is refused before anything is built (``hil.dut.kinds``: sil's and pil's check). The
+    profile is checked after this by ``hil.dut.spec``."""
+    from ..dut.spec import DutSpecError
+
+    path = Path(options["path"])
+    if not path.exists():
+        raise DutSpecError(f"--hil-dut {text!r}: {path}: no such file or folder")
+    if path.is_dir():
+        from bldc.tomlfile import TomlError
+
+        from .build import SilBuildError, read_build_spec
+
+        try:
+            read_build_spec(path)
+        except (SilBuildError, TomlError) as exc:
+            raise DutSpecError(f"--hil-dut {text!r}: {exc}") from None
+    elif options["define"]:
+        raise DutSpecError(f"--hil-dut {text!r}: define= needs a firmware folder with a sil.toml, not a "
+                           f"{'library' if 'target' not in options else 'linked ELF'}")
+    if not options["hang"] > 0:
+        raise DutSpecError(f"--hil-dut {text!r}: hang must be positive (seconds of wall time)")
+    if "compiler" in options and options["compiler"] not in ("auto", "system", "ziglang"):
+        raise DutSpecError(f"--hil-dut {text!r}: compiler must be auto, system or ziglang")
+    if "target" in options:  # pil: the part it runs on
+        from .processor import check_target
+
+        check_target(text, path, options)
+
+
+def open_dut(spec, motor, controller=None):
+    """The opened ``sil:`` or ``pil:`` DUT (``hil.dut.kinds``); ``controller`` is the virtual kind's."""
+    from ..dut.spec import Dut
+
+    return Dut(spec, open_sil(spec, motor))
+
+
 def resolve_library(spec) -> tuple[Path, Path | None, str]:
     """The shared library of a ``sil:`` DUT (built when PATH is a folder), the profile its
     ``sil.toml`` names (None for a library), and one line on how it was obtained."""
     from .build import SilBuildError, build, read_build_spec
     from .sources import SourcesError
+    from .processor import extra_defines
 
     path = Path(spec.options["path"])
     if not path.is_dir():
         return path.resolve(), None, f"library {path}"
     build_spec = read_build_spec(path)
-    extra = []
-    for part in filter(None, spec.options["define"].split("+")):
-        name, _, value = part.partition("=")
-        extra.append((name.strip(), value.strip()))
     try:
-        built = build(build_spec, tuple(extra), prefer=spec.options["compiler"])
+        built = build(build_spec, extra_defines(spec), prefer=spec.options["compiler"])
     except (SilBuildError, SourcesError) as exc:
         raise LinkError(str(exc)) from None
     how = f"{'cached build' if built.cached else 'built'} {built.key} with {built.toolchain}"
@@ -43,13 +78,21 @@ def resolve_library(spec) -> tuple[Path, Path | None, str]:
 
 
 def open_sil(spec, motor):
-    """The SilLink of a ``sil:`` DUT, refused in one line when the library breaks the interface,
-    the profile cannot be read or the firmware is configured for other pole pairs than ``motor``."""
+    """The SilLink of a ``sil:`` or ``pil:`` DUT, refused in one line when the firmware breaks the
+    interface, the profile cannot be read or the firmware is configured for other pole pairs than
+    ``motor``. ``pil:`` runs the firmware built for its part on an emulated core (``hil.sil.processor``)."""
     from ..dut.profile import ProfileError, bound_profile
     from .firmware import SilInterfaceError
     from .link import SilLink
 
-    library, built_profile, how = resolve_library(spec)
+    label = f"{spec.kind}:{spec.options['path']}"
+    target = None
+    if spec.kind == "pil":
+        from .processor import resolve_elf
+
+        library, target, built_profile, how = resolve_elf(spec)
+    else:
+        library, built_profile, how = resolve_library(spec)
     profile_path = spec.options["profile"] or built_profile
     try:
         # a firmware in the loop has no bus: its profile's edge hook is ignored, and a $NODEID in it is
@@ -57,18 +100,18 @@ def open_sil(spec, motor):
         profile = bound_profile("canopen", str(profile_path) if profile_path else None, motor.pole_pairs,
                                 node_id=SIL_NODE_ID)
     except ProfileError as exc:
-        raise LinkError(f"sil:{spec.options['path']}: profile {exc}") from None
+        raise LinkError(f"{label}: profile {exc}") from None
     try:
         link = SilLink(library, profile, hang_s=spec.options["hang"], wrap_at_s=spec.options["wrap_at"],
-                       label=f"SIL firmware {spec.options['path']}")
+                       label=f"{spec.kind.upper()} firmware {spec.options['path']}", kind=spec.kind, target=target)
     except SilInterfaceError as exc:
-        raise LinkError(f"sil:{spec.options['path']}: {exc}") from None
+        raise LinkError(f"{label}: {exc}") from None
     link.build = how
     _drop_absent_defaults(link)
     if link.info.pole_pairs != motor.pole_pairs:
         link.close()
         raise LinkError(
-            f"sil:{spec.options['path']}: the firmware is configured for {link.info.pole_pairs} pole pairs "
+            f"{label}: the firmware is configured for {link.info.pole_pairs} pole pairs "
             f"(hil_sil_describe), the plant has {motor.pole_pairs}"
         )
     return link

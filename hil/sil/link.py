@@ -43,8 +43,10 @@ class FirmwareFault(LinkError):
 class SilProcess:
     """One firmware instance in its own process."""
 
-    def __init__(self, library: Path, label: str, hang_s: float):
+    def __init__(self, library: Path, label: str, hang_s: float, kind: str = "sil", target: Path | None = None):
         self.library, self.label, self.hang_s = library, label, hang_s
+        #: the firmware kind (sil: a shared library; pil: an ELF on an emulated core of ``target``)
+        self.kind, self.target = kind, target
         self.proc = None
         self.info: FirmwareInfo | None = None
         self.starts = 0
@@ -63,7 +65,7 @@ class SilProcess:
         from_child_r, from_child_w = os.pipe()
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "hil.sil.worker", str(to_child_r), str(from_child_w), record_file,
-             str(self.library)],
+             str(self.library), self.kind, str(self.target or "")],
             pass_fds=(to_child_r, from_child_w), cwd=os.getcwd(), env={**os.environ, "PYTHONPATH": _python_path()},
         )
         os.close(to_child_r)
@@ -187,14 +189,19 @@ def _python_path() -> str:
 class SilLink(RoleLink):
     """A ControllerLink to firmware in the loop (module docstring)."""
 
-    name = "sil"
+    name = "sil"  #: the firmware kind: sil, or pil (set per link)
+    #: its interrupts see the plant's Hall pins (``hil.dut.link.edge_hook_kind``); a firmware kind's
+    #: link (``hil.dut.kinds``: ``firmware``)
+    edges_through_pins = True
 
     def __init__(self, library: Path, profile, *, hang_s: float = 1.0, wrap_at_s: float = 0.25,
-                 label: str | None = None):
+                 label: str | None = None, kind: str = "sil", target: Path | None = None):
         self.library = Path(library)
-        self.process = SilProcess(self.library, label or f"SIL firmware {self.library}", hang_s)
+        self.name = kind
+        self.process = SilProcess(self.library, label or f"{kind.upper()} firmware {self.library}", hang_s, kind,
+                                  target)
         self.info: FirmwareInfo = self.process.call("info")
-        self.where = f"SIL firmware {self.info.name!r} ({self.library})"
+        self.where = f"{kind.upper()} firmware {self.info.name!r} ({self.library})"
         self.process.label = self.where
         self.profile = profile
         self.wrap_at_s = wrap_at_s
@@ -277,6 +284,11 @@ class SilLink(RoleLink):
                 f"{self.info.pole_pairs} (hil_sil_describe)"
             )
         return RemoteSimulation(self, config, seed, sim_kwargs, wiring)
+
+    def processor(self) -> dict | None:
+        """What the emulated core and the interrupt schedule measured in this firmware's process so
+        far (``pil:``; None for ``sil:``, whose interrupts take no time): ``hil.sil.worker.op_processor``."""
+        return self.process.call("processor")
 
     def close(self) -> None:
         self.process.close()

@@ -38,6 +38,8 @@ from .firmware import Firmware, FirmwareInfo
 EVENTS = ("", "hil_sil_hall_isr", "hil_sil_compare_isr", "hil_sil_control_isr", "hil_sil_reset",
           "hil_sil_od_read", "hil_sil_od_write", "hil_sil_describe")
 HALL, COMPARE, CONTROL, RESET, OD_READ, OD_WRITE, DESCRIBE = range(1, 8)
+#: the interrupts by event, as ``interrupts`` and a target's ``priorities`` name them
+_KIND = {HALL: "hall", COMPARE: "compare", CONTROL: "control"}
 SHOOT_THROUGH = -100
 
 
@@ -125,6 +127,7 @@ class Peripherals:
         self._pending: list[dict] = []
         self.next_pin_s = math.inf
         self.interrupts = {"hall": 0, "compare": 0, "control": 0}
+        self._isr = {HALL: fw.hall_isr, COMPARE: fw.compare_isr, CONTROL: fw.control_isr}
         self._enter(RESET, 0.0, self.count(0.0))  # every run starts from a power cycle, the pins as they are
         self.fw.reset(self.pins)
         self._outputs(RESET, 0.0, self.count(0.0))
@@ -220,7 +223,7 @@ class Peripherals:
 
     # --- the run --------------------------------------------------------------------------------------
     def run_until(self, t_stop_s: float) -> None:
-        sim, fw = self.sim, self.fw
+        sim = self.sim
         while True:
             target = min(t_stop_s, self.next_control_s, self.compare_s, self.next_pin_s)
             edge = sim.step_until(target)
@@ -229,26 +232,31 @@ class Peripherals:
                 continue
             if self.next_pin_s <= target + _EPS_S:
                 self._pins_due(self.next_pin_s)
-            if self.compare_s <= target + _EPS_S:
-                t = self.compare_s
-                count = self.compare_count
-                self.compare_s = math.inf  # fired; left armed at this count it comes round one wrap later
-                self._enter(COMPARE, t, count)
-                fw.compare_isr(count)
-                self.interrupts["compare"] += 1
-                self._outputs(COMPARE, t, count)
-            if self.next_control_s <= target + _EPS_S:
-                t = self.next_control_s
-                count = self.count(t)
-                self._convert_now()
-                self._enter(CONTROL, t, count)
-                fw.control_isr(count, fw.adc)
-                self.interrupts["control"] += 1
-                self._outputs(CONTROL, t, count)
-                self.control_k += 1
-                self.next_control_s = self.control_k * self.control_period_s
+            self._timers_due(target)
             if target >= t_stop_s:
                 return
+
+    def _timers_due(self, target: float) -> None:
+        """The compare and control interrupts due at ``target`` (the plant is there)."""
+        if self.compare_s <= target + _EPS_S:
+            t = self.compare_s
+            count = self.compare_count
+            self.compare_s = math.inf  # fired; left armed at this count it comes round one wrap later
+            self._raise(COMPARE, t, count, ())
+        if self.next_control_s <= target + _EPS_S:
+            t = self.next_control_s
+            self._convert_now()
+            self._raise(CONTROL, t, self.count(t), (self.fw.adc,))
+            self.control_k += 1
+            self.next_control_s = self.control_k * self.control_period_s
+
+    def _raise(self, event: int, t_s: float, count: int, args: tuple) -> None:
+        """An interrupt at ``t_s``: here it runs at once, to completion, in zero time, and its outputs
+        are in force from ``t_s`` (``hil.sil.scheduler`` gives it the time a processor takes)."""
+        self._enter(event, t_s, count)
+        self._isr[event](count, *args)
+        self.interrupts[_KIND[event]] += 1
+        self._outputs(event, t_s, count)
 
     def _hall(self, edges: list[dict]) -> None:
         """The Hall interrupts of the pin changes at this instant: each plant edge through the
@@ -293,10 +301,7 @@ class Peripherals:
             else:  # jitter placed the change before its emission: the current at the change
                 sensed = self.sim.adc_conversions_at(np.array([t_c]))[0]  # through the sensors' gain and offset
                 self._convert([(sensed[k] - self._offset[k]) / self._gain[k] for k in range(3)])
-            self._enter(HALL, now, count)
-            fw.hall_isr(count, int(e["sensor"]), self.pins, fw.adc)
-            self.interrupts["hall"] += 1
-            self._outputs(HALL, now, count)
+            self._raise(HALL, now, count, (int(e["sensor"]), self.pins, fw.adc))
 
     # --- what the plant did ----------------------------------------------------------------------------
     def commutations(self) -> Commutations:

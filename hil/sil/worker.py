@@ -13,14 +13,39 @@ import traceback
 
 import numpy as np
 
-from .firmware import Firmware, SilInterfaceError
+from .firmware import SilInterfaceError
 from .peripherals import DESCRIBE, OD_READ, OD_WRITE, RESET, FirmwareFault, Peripherals, enter_call, leave_call
 
 
+def load_firmware(kind: str, library: str, target: str):
+    """The firmware of this process: a shared library (``sil``, ctypes) or an ELF on an emulated core
+    of the ``[target]`` in ``target`` (``pil``, ``hil.sil.processor``)."""
+    if kind == "pil":
+        from .processor import processor_firmware
+
+        return processor_firmware(library, target)
+    from .firmware import Firmware
+
+    return Firmware(library)
+
+
+def firmware_faults(kind: str) -> tuple[type, ...]:
+    """What a call into this kind of firmware raises when the firmware broke (its state can no longer
+    be trusted: the process ends, the parent names it, the next request gets a fresh firmware)."""
+    faults: tuple[type, ...] = (FirmwareFault, SilInterfaceError)
+    if kind == "pil":
+        from hil.pil.core import ProcessorFinding
+
+        faults += (ProcessorFinding,)
+    return faults
+
+
 class _Worker:
-    def __init__(self, library: str, record: np.ndarray):
+    def __init__(self, library: str, record: np.ndarray, kind: str = "sil", target: str = ""):
         self.record = record
-        self.fw = Firmware(library)
+        self.fw = load_firmware(kind, library, target)
+        self.simulated_s = 0.0  #: simulated time this process's benches ran (the soft-float rates' base)
+        self._schedules: list[dict] = []  #: the finished benches' schedules (pil:)
         self._enter(DESCRIBE)
         self.info = self.fw.describe()
         self._leave()
@@ -74,6 +99,7 @@ class _Worker:
         """``hil_sil_reset`` with the pins as the plant holds them (the last run's; before any
         run, A high and B, C low: a legal Hall state)."""
         levels = self.periph.pins if self.periph is not None else 0b001
+        self._finish()
         self._enter(RESET, *self._now())
         self.fw.reset(levels)
         self._leave()
@@ -93,14 +119,25 @@ class _Worker:
         sim = Simulation(config, _Source(), seed=seed, **sim_kwargs)
         self._drain_emcy()
         self.emcy = []
-        self.periph = Peripherals(self.fw, self.info, sim, seed=seed, wrap_at_s=wrap_at_s, record=self.record)
+        from .scheduler import peripherals_for
+
+        if self.periph is not None:
+            self._finish()
+            self._keep_figures()
+        self.periph = peripherals_for(self.fw)(self.fw, self.info, sim, seed=seed, wrap_at_s=wrap_at_s,
+                                               record=self.record)
         return sim.t_s
 
     def op_run_until(self, t_s: float):
+        t0 = self.periph.sim.t_s
         try:
             self.periph.run_until(t_s)
-        finally:
-            self._drain_emcy()
+        except BaseException:
+            if getattr(self.fw, "core", None) is None:  # a core that met a fault takes no further call
+                self._drain_emcy()
+            raise
+        self.simulated_s += self.periph.sim.t_s - t0
+        self._drain_emcy()
         log, self.periph.injector.log = self.periph.injector.log, []
         return self.periph.sim.t_s, self.periph.interrupts, log
 
@@ -126,12 +163,38 @@ class _Worker:
     def op_commutations(self):
         return self.periph.commutations()
 
+    def _keep_figures(self) -> None:
+        figures = getattr(self.periph, "figures", None)
+        if figures is not None:
+            self._schedules.append(figures())
 
-def main(conn, record: np.ndarray, library: str) -> None:
+    def _finish(self) -> None:
+        """The interrupts a timed run left running end before a power cycle or a new bench."""
+        finish = getattr(self.periph, "finish", None)
+        if finish is not None:
+            finish()
+
+    def op_processor(self):
+        """``pil:``: the core's figures (``PilFirmware.stats``: per interrupt its calls, cycles and soft
+        floating-point routines, the stack, flash and RAM) and every bench's schedule
+        (``TimedPeripherals.figures``) since this process started; None for a firmware without a core."""
+        if getattr(self.fw, "core", None) is None:
+            return None
+        schedules = list(self._schedules)
+        if self.periph is not None and hasattr(self.periph, "figures"):
+            schedules.append(self.periph.figures())
+        return {"core": self.fw.stats(), "schedules": schedules, "simulated_s": self.simulated_s}
+
+
+def main(conn, record: np.ndarray, library: str, kind: str = "sil", target: str = "") -> None:
     """The process's loop: one request, one answer, until ``close`` or the parent goes away."""
     try:
-        worker = _Worker(library, record)
+        faults = firmware_faults(kind)
+        worker = _Worker(library, record, kind, target)
     except SilInterfaceError as exc:
+        conn.send(("interface", str(exc)))
+        return
+    except faults as exc:  # pil: a fault in a C++ constructor or hil_sil_describe
         conn.send(("interface", str(exc)))
         return
     except BaseException as exc:  # noqa: BLE001 (sent to the parent, which raises it)
@@ -148,7 +211,7 @@ def main(conn, record: np.ndarray, library: str) -> None:
             return
         try:
             result = getattr(worker, f"op_{op}")(*args)
-        except (FirmwareFault, SilInterfaceError) as exc:
+        except faults as exc:
             conn.send(("fault", str(exc)))
             return  # the firmware's state can no longer be trusted: the next request gets a new process
         except BaseException as exc:  # noqa: BLE001
@@ -193,10 +256,10 @@ def _portable(exc: BaseException) -> BaseException:
         return RuntimeError(f"{type(exc).__name__}: {exc}\n{''.join(traceback.format_exception(exc))}")
 
 
-if __name__ == "__main__":  # python -m hil.sil.worker READ_FD WRITE_FD RECORD_FILE LIBRARY (hil.sil.link starts it)
+if __name__ == "__main__":  # python -m hil.sil.worker READ_FD WRITE_FD RECORD_FILE LIBRARY KIND TARGET (hil.sil.link)
     import sys
     from multiprocessing.connection import Connection
 
-    read_fd, write_fd, record_file, library_path = sys.argv[1:5]
+    read_fd, write_fd, record_file, library_path, firmware_kind, target_file = (sys.argv[1:7] + ["sil", ""])[:6]
     main(_Duplex(Connection(int(read_fd), writable=False), Connection(int(write_fd), readable=False)),
-         np.memmap(record_file, dtype=np.float64, mode="r+", shape=(5,)), library_path)
+         np.memmap(record_file, dtype=np.float64, mode="r+", shape=(5,)), library_path, firmware_kind, target_file)
