@@ -159,7 +159,7 @@ class _InMilliamps:
         return getattr(self._predictor, name)
 
 
-@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A", "edge-current")
+@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A", "model-input")
 class PredictorMilliamps(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
@@ -168,13 +168,26 @@ class PredictorMilliamps(VirtualController):
 
 
 @defect("predictor-current-phase-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed as the sum "
-        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "edge-current")
+        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "model-input")
 class PredictorCurrentPhaseSum(VirtualController):
     def capture(self, edge):
         # the cycle accumulators summed over the phases and divided by the conversions alone
         # (hil.controller.adc.cycle_mean_current_a divides by three times them)
         if edge.get("adc_cycle_conversions"):
             edge = {**edge, "adc_cycle_sums_a": 3.0 * np.asarray(edge["adc_cycle_sums_a"], dtype=float)}
+        return super().capture(edge)
+
+
+@defect("predictor-current-signed-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed from the "
+        "signed sum of the three phases' accumulators, |sum(i)|, not the sum of their magnitudes, sum(|i|): about "
+        "0 A in a star winding (the phase currents sum to zero), so Eq. 8 sees no current", "model-input")
+class PredictorCurrentSignedSum(VirtualController):
+    def capture(self, edge):
+        # abs(sum(sums_a)) where hil.controller.adc.cycle_mean_current_a takes sum(abs(sums_a)): the
+        # accumulators handed on as their signed sum in one phase, the other two empty
+        if edge.get("adc_cycle_conversions"):
+            sums = np.asarray(edge["adc_cycle_sums_a"], dtype=float)
+            edge = {**edge, "adc_cycle_sums_a": np.array([sums.sum(), 0.0, 0.0])}
         return super().capture(edge)
 
 
