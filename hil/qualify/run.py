@@ -342,6 +342,9 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
         # the tests of the requirements that name its class, every one of them (no -x); a firmware
         # defect (a compile-time switch in the DUT) as a catalogue one
         cmd += ["--hil-requirements", ",".join(naming(defect_class))]
+    elif sensitive and defect is None and getattr(args, "control_requirements", None):
+        # the control needs to pass where the defects are judged, and nowhere else
+        cmd += ["--hil-requirements", ",".join(args.control_requirements)]
     cmd += suite_files(Path(args.suite))
     started = time.monotonic()
     note = ""
@@ -370,9 +373,8 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
     if caught_by == "error":
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
     elif caught_by is None and uncounted:
-        note = (note + "; " if note else "") + (
-            "only checks of requirements with budgets failed (" + ", ".join(sorted({u["requirement"] for u in uncounted}))
-            + "): no catch")
+        owners = ", ".join(sorted({u["requirement"] for u in uncounted}))
+        note = (note + "; " if note else "") + f"only checks of requirements with budgets failed ({owners}): no catch"
     elif caught_by == "not judged":
         note = (note + "; " if note else "") + "a setup check failed (the scenario did not provoke what it judges)"
     ran = sorted({r for t in report.get("tests", []) if t.get("outcome") in ("passed", "failed")
@@ -471,6 +473,11 @@ def qualify(args, progress=print) -> Qualification:
     for rid, why in out_of_scope.items():
         progress(f"out of scope: {rid}: {why}")
     control = "the firmware as built" if args.firmware_defects else "the built-in controller as shipped"
+    classes = [catalogue[n].defect_class for n in names]
+    # with --sensitivity each defect runs the requirements that name its class: the control runs their
+    # union (all of the suite when a defect has no class, whose run is the whole suite)
+    args.control_requirements = (sorted({r for c in classes for r in naming(c)})
+                                 if all(classes) and names else None)
     jobs = [("control", control, None)] + [(n, catalogue[n].description, n) for n in names]
     started = time.monotonic()
     with ThreadPoolExecutor(max_workers=max(int(args.workers), 1)) as pool:
