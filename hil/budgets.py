@@ -70,6 +70,10 @@ class Verdict:
         return asdict(self)
 
     def message(self) -> str:
+        if self.judgement != "budget":  # a judged check (hil.requirements.JudgedCheck): its bound is no budget
+            return (f"{self.judgement} check {self.budget} ({self.requirement}): measured {self.measured:.6g} "
+                    f"{self.unit}, bound {'at most' if self.limit_kind == 'max' else 'at least'} {self.limit:.6g} "
+                    f"{self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}")
         rel = (
             ("exceeds" if self.limit_kind == "max" else "falls short of")
             if self.verdict == "fail" and self.margin < 0
@@ -82,6 +86,21 @@ class Verdict:
         )
 
     limit_kind: str = "max"
+    #: "budget" (the customer's limit), or the kind of a judged check that is no budget: "back-to-back"
+    #: (against the reference implementation, its tolerance the run's seed-to-seed spread) or "physics"
+    #: (what any correct predictor obeys); hil.requirements.JudgedCheck
+    judgement: str = "budget"
+
+
+def judged(check, measured: float, bound: float) -> Verdict:
+    """The verdict of a judged check (``hil.requirements.JudgedCheck``) whose bound the run computed:
+    pass or fail (no marginal band), never a pass for a measurement that is not a finite number."""
+    if not isinstance(measured, (int, float)) or not math.isfinite(measured) or not math.isfinite(bound):
+        return Verdict(check.name, check.requirement, float(measured), float(bound), check.unit, float("-inf"),
+                       "fail", check.kind_of_limit, check.judgement)
+    margin = (bound - measured) if check.kind_of_limit == "max" else (measured - bound)
+    return Verdict(check.name, check.requirement, float(measured), float(bound), check.unit, float(margin),
+                   "fail" if margin < 0 else "pass", check.kind_of_limit, check.judgement)
 
 
 class BudgetExceeded(AssertionError):

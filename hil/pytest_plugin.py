@@ -713,6 +713,12 @@ def _require_testable(item, link) -> None:
 def hil_bench(hil_link, hil_plant_config, hil_seed):
     """Factory: ``hil_bench(strategy, corrections=None, effects=(), speed_rpm=6000, filter_settings=None)``
     -> a LockstepBench of the plant (with ``effects`` injected) and the controller, configured through the link."""
+    return bench_factory(hil_link, hil_plant_config, hil_seed)
+
+
+def bench_factory(hil_link, hil_plant_config, hil_seed):
+    """``hil_bench``'s factory for any link: a back-to-back check runs the reference implementation
+    (``reference_link``) on benches made exactly as the controller's are."""
     from bldc.contract import Strategy
     from bldc.motor import steady_state
 
@@ -767,6 +773,25 @@ def hil_bench(hil_link, hil_plant_config, hil_seed):
     return make
 
 
+def reference_link(motor):
+    """The reference implementation of the paper's method for a back-to-back check: the built-in
+    controller as shipped, in-process (hil.requirements.JUDGEMENTS)."""
+    from .controller.virtual import VirtualController
+    from .dut.in_process import InProcessLink
+
+    return InProcessLink(VirtualController(motor))
+
+
+def declares_the_papers_method(link) -> bool:
+    """Whether the controller declares the paper's method: its profile's strategy role offers the
+    Sage-Husa predictor (a link without a profile, the built-in controller in-process, is it)."""
+    profile = getattr(link, "profile", None)
+    if profile is None:
+        return True
+    strategy = profile.get("strategy")
+    return strategy is not None and "sage_husa" in (strategy.values or {})
+
+
 @pytest.fixture(scope="session")
 def hil_budgets(pytestconfig):
     """The accuracy budgets: --hil-budgets TOML over the built-in defaults."""
@@ -780,24 +805,45 @@ def hil_budget(hil_budgets, request):
     and JUnit property), and fail the test on a fail with a message naming the budget."""
 
     def check(name: str, measured: float, scenario=None):
-        from .budgets import BudgetExceeded
-
-        v = hil_budgets.check(name, measured, scenario)
-        # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
-        props = request.node.user_properties
-        if ("requirement", v.requirement) not in props:
-            # tied to the test by this budget alone: the test's other checks are not its evidence
-            props.append((PROPERTY_PREFIX + "budget_only", v.requirement))
-        props.append((f"budget:{name}", json.dumps(v.as_dict())))
-        props.append(("requirement", v.requirement))
-        if v.verdict == "fail":
-            if _in_hypothesis_example():
-                raise BudgetExceeded(v)  # hypothesis finds and shrinks a failing example by its exception
-            # the test goes on, so each requirement it traces to is judged by its own budgets and
-            # checks; pytest_runtest_call fails it with every missed budget once the body returns
-        return v
+        return _record_verdict(request.node, hil_budgets.check(name, measured, scenario))
 
     return check
+
+
+def _record_verdict(node, v):
+    """Record a budget's or a judged check's verdict on the test ``node`` (its report record and
+    JUnit properties); a miss fails the test once its body has returned (``pytest_runtest_call``)."""
+    from .budgets import BudgetExceeded
+
+    # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
+    props = node.user_properties
+    if ("requirement", v.requirement) not in props:
+        # tied to the test by this budget alone: the test's other checks are not its evidence
+        props.append((PROPERTY_PREFIX + "budget_only", v.requirement))
+    props.append((f"budget:{v.budget}", json.dumps(v.as_dict())))
+    props.append(("requirement", v.requirement))
+    if v.verdict == "fail":
+        if _in_hypothesis_example():
+            raise BudgetExceeded(v)  # hypothesis finds and shrinks a failing example by its exception
+        # the test goes on, so each requirement it traces to is judged by its own budgets and
+        # checks; pytest_runtest_call fails it with every missed budget once the body returns
+    return v
+
+
+@pytest.fixture
+def hil_judge(request):
+    """``hil_judge(name, measured, bound)``: a judged check of the requirement registry
+    (``hil.requirements.JudgedCheck``: back-to-back against the reference, or physics) whose bound
+    the test computed by the check's stated rule; recorded and failing as a missed budget does, and
+    named by its judgement in the report and in ``hil qualify``."""
+
+    def judge(name: str, measured: float, bound: float):
+        from .budgets import judged
+        from .requirements import JUDGED_CHECKS
+
+        return _record_verdict(request.node, judged(JUDGED_CHECKS[name], measured, bound))
+
+    return judge
 
 
 class Evidence:

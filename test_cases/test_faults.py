@@ -117,7 +117,7 @@ def test_filter_guard_trip_raises_its_fault(calibrate, hil_bench, hil_link, hil_
     )
 
 
-@pytest.mark.requirement("REQ-CAL-005")
+@pytest.mark.requirement("REQ-CAL-006")
 def test_invalid_calibration_is_refused(calibrate, hil_link, hil_plant_config, hil_evidence):
     good = calibrate(hil_plant_config.suite_deviations(DEVIATIONS))
     bad = good.__class__.from_json_dict(good.to_json_dict())

@@ -129,7 +129,7 @@ def test_heartbeat_period_matches_0x1017(hil_dut, hil_link, hil_budget, hil_evid
 
 
 @pytest.mark.dut_protocol("canopen")
-@pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-005")
+@pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-006")
 def test_refused_calibration_sends_emcy_and_sets_0x1001(hil_link, calibrate, hil_evidence):
     bad = calibrate(())
     bad = bad.__class__.from_json_dict({**bad.to_json_dict(), "conditioning_delay_s": {"rise": 1e-3, "fall": 0.0}})
@@ -203,7 +203,7 @@ def test_object_dictionary_abort_codes_of_a_firmware(kind, hil_link, hil_evidenc
 
 
 @pytest.mark.dut_protocol("sil")
-@pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-005")
+@pytest.mark.requirement("REQ-PROT-002", "REQ-CAL-006")
 def test_refused_calibration_sends_emcy_and_sets_0x1001_on_a_firmware(hil_link, calibrate, hil_evidence):
     """A firmware in the loop: the refused table's EMCY (``hil_sil_emcy``), the error register and
     the newest latched fault, as on the bus (its heartbeat is a bus service: judged on a CAN bench)."""

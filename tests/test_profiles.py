@@ -275,7 +275,7 @@ def test_the_foreign_canopen_profile_served_over_socketcand_is_checked_and_confo
         content = json.loads((tmp_path / "a" / "hil-report.json").read_text())
         verdicts = {req["id"]: req["verdict"] for req in content["traceability"] if req["traced"]}
         assert verdicts == {"REQ-PROT-001": "pass", "REQ-PROT-002": "pass", "REQ-PROT-003": "pass",
-                            "REQ-CAL-005": "pass"}, verdicts
+                            "REQ-CAL-006": "pass"}, verdicts
         assert r.returncode == 0 and content["verdict"] == "PASS"
     finally:
         proc.terminate()

@@ -90,7 +90,7 @@ def test_qualify_lists_its_catalogue():
 
 def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_path):
     """A small suite (the fault tests): the control PASSes, a controller that validates no table is
-    caught by REQ-CAL-005, and one that never limits its current is not (the fault tests do
+    caught by REQ-CAL-006 (its fault code), and one that never limits its current is not (the fault tests do
     not step the speed): a survivor, and the exit status says so."""
     suite = tmp_path / "suite"
     suite.mkdir()
@@ -104,8 +104,8 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
     assert result["control_verdict"] == "PASS"
     assert result["out_of_scope"] == {"REQ-PROT-002": result["out_of_scope"]["REQ-PROT-002"]}
     mutants = {m["name"]: m for m in result["mutants"]}
-    assert mutants["no-table-validation"]["killed"] and "REQ-CAL-005" in mutants["no-table-validation"]["killed_by"]
-    assert mutants["no-table-validation"]["caught_by"] == "check"  # REQ-CAL-005's pass/fail check
+    assert mutants["no-table-validation"]["killed_by"] == ["REQ-CAL-006"]
+    assert mutants["no-table-validation"]["caught_by"] == "check"  # REQ-CAL-006 has no budget: its check counts
     assert not mutants["current-limit-not-enforced"]["killed"]
     assert mutants["current-limit-not-enforced"]["caught_by"] is None and result["errored"] == []
     assert result["detection"] == {"killed": 1, "total": 2, "ratio": 0.5}
@@ -177,8 +177,8 @@ def test_a_test_that_errors_is_a_finding_not_a_catch():
 
     errored = {"tests": [test("a", "passed"), test("b", "failed", "error"), test("c", "error", "error")]}
     assert what_caught(errored)[:3] == ("error", [], ["b", "c"])
-    judged = {"tests": [test("b", "failed", "error"), test("d", "failed", "assertion", ("REQ-ROB-002",))]}
-    assert what_caught(judged)[:3] == ("check", ["REQ-ROB-002"], ["b", "d"])
+    judged = {"tests": [test("b", "failed", "error"), test("d", "failed", "assertion", ("REQ-FLT-002",))]}
+    assert what_caught(judged)[:3] == ("check", ["REQ-FLT-002"], ["b", "d"])
     assert what_caught({"tests": [test("a", "passed")]})[:3] == (None, [], [])
 
 
@@ -251,9 +251,55 @@ def test_the_sensitivity_table_is_per_requirement_and_defect():
         ("REQ-SPD-001", "speed-loop-integral-x10", True, -0.29),
         ("REQ-SPD-001", "speed-loop-proportional-x0.1", False, 0.05)]
     table = sensitivity_markdown({"sensitivity": cells})
-    assert ("| `speed-loop-integral-x10` | speed-loop | REQ-SPD-001 | yes | **caught** | speed_step_decay_ratio | "
-            "-0.29 |") in table
+    assert ("| `speed-loop-integral-x10` | speed-loop | REQ-SPD-001 | yes | **caught** | budget speed_step_decay_ratio "
+            "| -0.29 |") in table
     assert "| `speed-loop-proportional-x0.1` | speed-loop | REQ-SPD-001 | yes | missed | – | +0.05 |" in table
+
+
+def _report(*tests):
+    return {"tests": [{"nodeid": nodeid, "outcome": outcome, "failed_by": failed_by, "requirements": list(reqs),
+                       "measurements": list(ms)} for nodeid, outcome, failed_by, reqs, ms in tests]}
+
+
+def test_only_a_budget_a_judged_check_a_device_failure_or_a_budgetless_requirements_check_is_a_catch():
+    """The counting rule on synthetic outcomes: a plain assertion in a test of requirements that
+    have budgets (REQ-ROB-001, REQ-CAL-005) catches nothing and the defect survives; the same
+    assertion in a test of a requirement without budgets (REQ-FLT-002: its fault code) is a catch;
+    a failed judged check is a catch named by its judgement; a requirement whose budget and check
+    both failed is labelled by the budget in the sensitivity table."""
+    from hil.qualify.run import Run, checks_not_counted, sensitivity, sensitivity_rows, what_caught
+
+    checks_only = _report(("t::search", "failed", "assertion", ("REQ-ROB-001",),
+                           [_verdict("any_deviations_commutation_angle_p99", "REQ-ROB-001", "pass", 0.3)]),
+                          ("t::readback", "failed", "assertion", ("REQ-CAL-005",), []))
+    assert what_caught(checks_only) == (None, [], ["t::search", "t::readback"], [])
+    assert checks_not_counted(checks_only) == [{"requirement": "REQ-ROB-001", "test": "t::search"},
+                                               {"requirement": "REQ-CAL-005", "test": "t::readback"}]
+    code = _report(("t::fault", "failed", "assertion", ("REQ-FLT-002", "REQ-ROB-002"),
+                    [_verdict("recovered_commutation_angle_p99", "REQ-ROB-002", "pass", 0.6)]))
+    caught_by, killed_by, _, catches = what_caught(code)
+    assert (caught_by, killed_by) == ("check", ["REQ-FLT-002"])
+    assert [c["by"] for c in catches] == ["check"]
+    b2b = {**_verdict("sage_husa_rms_against_reference", "REQ-PRED-001", "fail", -0.15), "judgement": "back-to-back"}
+    physics = {**_verdict("commutation_error_growth_with_current", "REQ-PRED-006", "fail", -0.09),
+               "judgement": "physics"}
+    judged = _report(("t::b2b", "failed", "budget", ("REQ-PRED-001",), [b2b]),
+                     ("t::reg", "failed", "budget", ("REQ-PRED-006",), [physics]))
+    caught_by, killed_by, _, catches = what_caught(judged)
+    assert (caught_by, killed_by) == ("back-to-back", ["REQ-PRED-001", "REQ-PRED-006"])
+    assert sorted(c["by"] for c in catches) == ["back-to-back sage_husa_rms_against_reference",
+                                                "physics commutation_error_growth_with_current"]
+    both = _report(("t::search", "failed", "assertion", ("REQ-ROB-001",),
+                    [_verdict("any_deviations_commutation_angle_p99", "REQ-ROB-001", "fail", -1.2)]))
+    caught_by, killed_by, _, catches = what_caught(both)
+    run = Run("table-never-applied", "", "FAIL", True, caught_by, killed_by, catches=catches,
+              defect_class="calibration-table")
+    (cell,) = [c for c in sensitivity([run]) if c["requirement"] == "REQ-ROB-001"]
+    assert cell["caught"] and cell["by"] == "budget any_deviations_commutation_angle_p99"
+    uncounted = Run("delay-applied-at-90-percent", "", "FAIL", False, None, defect_class="calibration-table",
+                    checks_not_counted=checks_not_counted(checks_only), requirements_run=["REQ-ROB-001"])
+    (row,) = [r for r in sensitivity_rows({"sensitivity": sensitivity([uncounted])}) if r[2] == "REQ-ROB-001"]
+    assert row[4] == "missed (a check failed: not counted, the requirement has budgets)" and row[5] == "–"
 
 
 def test_every_requirement_names_the_defects_it_judges_and_every_defect_has_a_class():
@@ -396,6 +442,26 @@ def test_a_wrong_current_input_of_the_predictor_fails_req_pred_006_alone(name, t
         assert "REQ-PRED-006" in failed and failed <= {"REQ-PRED-001", "REQ-PRED-006"}, report["verdict_reasons"]
     else:
         assert failed == set(), report["verdict_reasons"]
+
+
+def test_the_signed_sum_current_passes_every_budget_and_fails_both_judged_checks(tmp_path):
+    """The built-in controller with Eq. 8's cycle current from the signed sum of the phases (about
+    0 A) triples Sage-Husa's error and stays inside every budget of REQ-PRED-001 and REQ-PRED-006
+    (Table 5's budgets sit far above what the method reaches here); the judged checks beside them
+    fail it: back-to-back against the reference, and the error's growth with the current."""
+    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+           "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa.py"),
+           "-k", "meets_its or constant_speed or back_to_back", "--hil-defect", "predictor-current-signed-sum"]
+    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    report = json.loads((tmp_path / "hil-report.json").read_text())
+    failed = {(m["judgement"], m["budget"]) for t in report["tests"] for m in t["measurements"]
+              if m["verdict"] == "fail"}
+    assert failed == {("back-to-back", "sage_husa_rms_against_reference"),
+                      ("physics", "commutation_error_growth_with_current")}, report["verdict_reasons"]
+    from hil.qualify.run import what_caught
+
+    caught_by, killed_by, _, _ = what_caught(report)
+    assert (caught_by, killed_by) == ("back-to-back", ["REQ-PRED-001", "REQ-PRED-006"])
 
 
 def test_the_report_tells_a_setup_check_and_a_device_failure_and_runs_only_the_requirements_asked(tmp_path):

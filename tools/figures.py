@@ -832,16 +832,12 @@ def produce_qualify(work: Path) -> Run:
         "defects": Figure(d["total"], fmt="{}"),
         "wall_s": Figure(run.last_command_s, "s", "{:.0f}", reproducible=False),
     }
-    rows = [["defect", "class", "requirement", "names the class", "verdict", "by", "margin"]]
-    for c in result["sensitivity"]:
-        rows.append([f"`{c['defect']}`", c["defect_class"] or "-", c["requirement"], "yes" if c["named"] else "no",
-                     "**caught**" if c["caught"] else ("missed" if c["ran"] else "not run"),
-                     (c["by"] or "-").removeprefix("budget "),
-                     "-" if c["margin"] is None else f"{c['margin']:+.3g}"])
-    run.tables["sensitivity"] = rows
+    from hil.qualify.run import CATCH_LABELS, SENSITIVITY_COLUMNS, sensitivity_rows
+
+    run.tables["sensitivity"] = [SENSITIVITY_COLUMNS] + sensitivity_rows(result)
     run.tables["outcomes"] = [["defect", "caught by", "what caught it", "requirements"]] + [
         [f"`{m['name']}`", m["caught_by"] or "survived",
-         "; ".join(sorted({c["by"].removeprefix("budget ") for c in m["catches"]})) or "-",
+         "; ".join(sorted({CATCH_LABELS.get(c["by"], c["by"]) for c in m["catches"]})) or "-",
          ", ".join(m["killed_by"]) or "-"] for m in result["mutants"]]
     return run
 

@@ -159,7 +159,7 @@ class _InMilliamps:
         return getattr(self._predictor, name)
 
 
-@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A", "edge-current")
+@defect("predictor-fed-milliamperes", "the predictor's current input in mA where Eq. 8 wants A", "model-input")
 class PredictorMilliamps(VirtualController):
     def _build_logic(self, speed_loop) -> None:
         super()._build_logic(speed_loop)
@@ -167,18 +167,42 @@ class PredictorMilliamps(VirtualController):
             self._logic.predictor = _InMilliamps(self._logic.predictor)
 
 
-@defect("predictor-current-phase-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed as the sum "
-        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "edge-current")
-class PredictorCurrentPhaseSum(VirtualController):
+class CycleCurrentScaled(VirtualController):
+    """Eq. 8's cycle-mean current input ``scale`` times what the controller's ADC measured (the
+    model-input class's magnitude: ``tools/power_defects.py`` sweeps it)."""
+
+    scale: float = 1.0
+
     def capture(self, edge):
-        # the cycle accumulators summed over the phases and divided by the conversions alone
-        # (hil.controller.adc.cycle_mean_current_a divides by three times them)
         if edge.get("adc_cycle_conversions"):
-            edge = {**edge, "adc_cycle_sums_a": 3.0 * np.asarray(edge["adc_cycle_sums_a"], dtype=float)}
+            edge = {**edge, "adc_cycle_sums_a": self.scale * np.asarray(edge["adc_cycle_sums_a"], dtype=float)}
         return super().capture(edge)
 
 
-class _GateLatency(VirtualController):
+@defect("predictor-current-phase-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed as the sum "
+        "of the three phases' mean |i|, not their mean (three times the current K_T is defined for)", "model-input")
+class PredictorCurrentPhaseSum(CycleCurrentScaled):
+    # the cycle accumulators summed over the phases and divided by the conversions alone
+    # (hil.controller.adc.cycle_mean_current_a divides by three times them)
+    scale: float = 3.0
+
+
+@defect("predictor-current-signed-sum", "the predictor's current input (Eq. 8's cycle mean |i|) computed from the "
+        "signed sum of the three phases' accumulators, |sum(i)|, not the sum of their magnitudes, sum(|i|): about "
+        "0 A in a star winding (the phase currents sum to zero), so Eq. 8 sees no current", "model-input")
+class PredictorCurrentSignedSum(VirtualController):
+    def capture(self, edge):
+        # abs(sum(sums_a)) where hil.controller.adc.cycle_mean_current_a takes sum(abs(sums_a)): the
+        # accumulators handed on as their signed sum in one phase, the other two empty
+        if edge.get("adc_cycle_conversions"):
+            sums = np.asarray(edge["adc_cycle_sums_a"], dtype=float)
+            edge = {**edge, "adc_cycle_sums_a": np.array([sums.sum(), 0.0, 0.0])}
+        return super().capture(edge)
+
+
+class GateLatency(VirtualController):
+    """Commands ``latency_s`` late (the commutation-timing class's magnitude: ``tools/power_defects.py``)."""
+
     latency_s: float = 0.0
 
     def capture(self, edge):
@@ -187,12 +211,12 @@ class _GateLatency(VirtualController):
 
 
 @defect("gate-latency-5us", "5 us of gate-driver latency not compensated", "commutation-timing")
-class GateLatency5(_GateLatency):
+class GateLatency5(GateLatency):
     latency_s: float = 5e-6
 
 
 @defect("gate-latency-25us", "25 us of gate-driver latency not compensated", "commutation-timing")
-class GateLatency25(_GateLatency):
+class GateLatency25(GateLatency):
     latency_s: float = 25e-6
 
 

@@ -2,18 +2,23 @@
 
 The control run (the built-in controller as shipped) must PASS; each defect then runs the same
 suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). What the run saw
-(``what_caught``), test by test from its HIL report:
+(``what_caught``), test by test from its HIL report. A catch is one of:
 
 * a failed **budget** (a measurement whose verdict is fail): caught by that budget's requirement,
   whichever test's marker measured it;
-* a failed pass/fail **check** (an assertion with no failed budget): caught by the test's
-  requirements that have no budget of their own (a pass/fail requirement), else by those of its
-  requirements none of whose budgets passed in it;
+* a failed **judged check** (hil.requirements.JudgedCheck: back-to-back against the reference, or
+  physics), its requirement's as a budget's is, labelled by its judgement;
 * a **device failure** (the controller signalled its own failure on valid input: a Modbus
   exception 04, an SDO abort 0x08000000 or 0x06060000; hil.judging): a failed requirement, the
   test's;
-* **not judged** (a setup check found that the scenario did not provoke what the test judges) and
-  **error** (anything else): nothing caught, a finding to fix.
+* a failed **check** (an assertion that is no budget) of a requirement that has no budget (a
+  pass/fail requirement, judged by its fault code, say).
+
+Nothing else is a catch: a plain assertion in a test of a requirement that has budgets is listed
+(``checks_not_counted``) and catches nothing, so a requirement is credited only with what its own
+budgets, judged checks or device failures saw. **not judged** (a setup check found that the
+scenario did not provoke what the test judges) and **error** (anything else) catch nothing
+either: findings to fix.
 
 With ``--sensitivity`` each defect runs without ``-x``, restricted to the tests of the
 requirements that name its class (``hil.requirements``, ``judges``), and the result holds the
@@ -66,8 +71,9 @@ class Run:
     duration_s: float = 0.0
     report: str = ""
     note: str = ""
-    #: what failed, one entry per requirement and cause: requirement, by ("budget NAME", "check",
-    #: "device failure"), margin (budgets), test
+    #: what failed, one entry per requirement and cause: requirement, by ("budget NAME",
+    #: "back-to-back NAME", "physics NAME", "device failure", "check"), margin (budgets, judged
+    #: checks), test
     catches: list[dict] = field(default_factory=list)
     #: every budget judged in the run: requirement, budget, verdict, margin, test
     measurements: list[dict] = field(default_factory=list)
@@ -75,10 +81,22 @@ class Run:
     #: the requirements of every test that ran to a verdict (passed or failed): a pass/fail
     #: requirement that ran and passed has no measurement to show for it
     requirements_run: list[str] = field(default_factory=list)
+    #: assertions that failed in tests of requirements with budgets: evidence, never a catch
+    checks_not_counted: list[dict] = field(default_factory=list)
 
 
-#: what caught a defect, the strongest evidence first
-CATCH_KINDS = ("budget", "check", "device failure")
+#: what caught a defect, the strongest evidence first: a customer's budget, a judged check
+#: (hil.requirements.JUDGEMENTS), a device's own signal, a pass/fail requirement's check
+CATCH_KINDS = ("budget", "back-to-back", "physics", "device failure", "check")
+
+
+#: the sensitivity table's words for the catches that carry no name
+CATCH_LABELS = {"check": "check (no budget)", "device failure": "device failure"}
+
+
+def _catch_kind(by: str) -> str:
+    """The kind of a catch's label: "budget NAME" -> "budget", "back-to-back NAME" -> "back-to-back"."""
+    return next((k for k in CATCH_KINDS if by == k or by.startswith(k + " ")), by)
 
 
 def suite_files(suite: Path) -> list[str]:
@@ -132,12 +150,24 @@ def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tupl
 def what_caught(report: dict, registry: dict | None = None) -> tuple[str | None, list[str], list[str], list[dict]]:
     """From a run's HIL report: ``caught_by`` (``CATCH_KINDS``, "not judged", "error" or None), the
     requirements that caught the defect, every failed or errored test, and the catches (requirement,
-    by, margin, test). Module docstring: a budget's failure is its requirement's, whatever test
-    measured it; a setup check or an error catches nothing."""
+    by, margin, test). Module docstring: a budget's or a judged check's failure is its
+    requirement's, whatever test measured it; a check catches only for a requirement without
+    budgets; a setup check or an error catches nothing."""
+    return _judged(report, registry)[:4]
+
+
+def checks_not_counted(report: dict, registry: dict | None = None) -> list[dict]:
+    """The failed assertions of a run that are no catch: checks in tests of requirements that
+    have budgets (requirement, test)."""
+    return _judged(report, registry)[4]
+
+
+def _judged(report: dict, registry: dict | None):
     if registry is None:
         from ..requirements import REQUIREMENTS as registry
     failed = [t for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
     catches: list[dict] = []
+    uncounted: list[dict] = []
     kinds = set()
     for t in failed:
         kind = t.get("failed_by") or "error"
@@ -145,30 +175,35 @@ def what_caught(report: dict, registry: dict | None = None) -> tuple[str | None,
         measurements = t.get("measurements", [])
         if kind in ("assertion", "budget"):
             over = [m for m in measurements if m.get("verdict") == "fail"]
-            catches += [{"requirement": m["requirement"], "by": f"budget {m['budget']}", "margin": m["margin"],
-                         "test": t["nodeid"]} for m in over]
+            catches += [{"requirement": m["requirement"], "by": f"{m.get('judgement', 'budget')} {m['budget']}",
+                         "margin": m["margin"], "test": t["nodeid"]} for m in over]
             if kind == "budget" or (over and "budget_only" not in t):
                 continue  # only budgets missed (a report of an older version: its first miss raised)
-            # a check failed: it belongs to the requirements the test is tied to by more than a budget
+            # a check failed: a catch of the requirements the test is tied to by more than a budget
+            # that have no budget of their own; for the others it is evidence, never a catch
             reqs = [r for r in t.get("requirements", []) if r not in t.get("budget_only", ())]
-            passfail = [r for r in reqs if r in registry and not registry[r].budgets]
-            passed = {m["requirement"] for m in measurements if m.get("verdict") != "fail"}
-            owners = passfail or [r for r in reqs if r not in passed] or reqs
-            catches += [{"requirement": r, "by": "check", "margin": None, "test": t["nodeid"]} for r in owners]
+            for r in reqs:
+                if r in registry and not registry[r].budgets:
+                    catches.append({"requirement": r, "by": "check", "margin": None, "test": t["nodeid"]})
+                else:
+                    uncounted.append({"requirement": r, "test": t["nodeid"]})
         elif kind == "device failure":
             catches += [{"requirement": r, "by": "device failure", "margin": None, "test": t["nodeid"]}
                         for r in t.get("requirements", [])]
-    by = {c["by"].split(" ")[0] if c["by"].startswith("budget") else c["by"] for c in catches}
+    by = {_catch_kind(c["by"]) for c in catches}
     caught_by = next((k for k in CATCH_KINDS if k in by), None)
     if caught_by is None and failed:
-        caught_by = "not judged" if kinds == {"not judged"} else "error"
-    return caught_by, sorted({c["requirement"] for c in catches}), [t["nodeid"] for t in failed], catches
+        caught_by = ("not judged" if kinds == {"not judged"} else
+                     None if uncounted and kinds <= {"assertion", "budget", "not judged"} else "error")
+    return caught_by, sorted({c["requirement"] for c in catches}), [t["nodeid"] for t in failed], catches, uncounted
 
 
 def judged_measurements(report: dict) -> list[dict]:
-    """Every budget verdict of a run: requirement, budget, verdict, margin, test."""
-    return [{"requirement": m["requirement"], "budget": m["budget"], "verdict": m["verdict"], "margin": m["margin"],
-             "test": t["nodeid"]} for t in report.get("tests", []) for m in t.get("measurements", [])]
+    """Every budget's and judged check's verdict of a run: requirement, budget, judgement, verdict,
+    margin, test."""
+    return [{"requirement": m["requirement"], "budget": m["budget"], "judgement": m.get("judgement", "budget"),
+             "verdict": m["verdict"], "margin": m["margin"], "test": t["nodeid"]}
+            for t in report.get("tests", []) for m in t.get("measurements", [])]
 
 
 def naming(defect_class: str, registry: dict | None = None) -> list[str]:
@@ -180,7 +215,8 @@ def naming(defect_class: str, registry: dict | None = None) -> list[str]:
 
 def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
     """The sensitivity table: one cell per (requirement, defect) where the requirement names the
-    defect's class or caught it. ``caught`` by its own budget or check; ``by`` and ``margin`` (the
+    defect's class or caught it. ``caught`` by its own budget, judged check, device failure, or, for
+    a requirement without budgets, its check; ``by`` (what failed, the strongest) and ``margin`` (the
     failed budget's, else the smallest margin of its budgets in the run: how close it came);
     ``ran`` False when no test of the requirement ran (the run stopped earlier, or was restricted)."""
     if registry is None:
@@ -188,7 +224,9 @@ def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
     cells = []
     for m in mutants:
         named = naming(m.defect_class, registry)
-        caught = {c["requirement"]: c for c in m.catches}
+        caught: dict[str, dict] = {}
+        for c in sorted(m.catches, key=lambda c: CATCH_KINDS.index(_catch_kind(c["by"]))):
+            caught.setdefault(c["requirement"], c)  # its strongest: a failed budget before a check
         for rid in named + [r for r in sorted(caught) if r not in named]:
             mine = [x for x in m.measurements if x["requirement"] == rid]
             c = caught.get(rid)
@@ -196,25 +234,38 @@ def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
             ran = bool(mine) or c is not None or rid in m.requirements_run
             cells.append({"requirement": rid, "defect": m.name, "defect_class": m.defect_class,
                           "named": rid in named, "caught": c is not None, "by": c["by"] if c else None,
-                          "margin": margin, "ran": ran})
+                          "margin": margin, "ran": ran,
+                          # a check of a requirement with budgets failed: shown, never counted
+                          "check_not_counted": c is None and any(u["requirement"] == rid
+                                                                 for u in m.checks_not_counted)})
     return cells
 
 
-def sensitivity_markdown(result: dict) -> str:
-    """The sensitivity table of a ``hil qualify`` result as markdown, one row per (defect,
-    requirement) cell of ``sensitivity``: whether the requirement names the defect's class, what
-    caught it (the failed budget and its margin, a check, a device failure) or, missed, its budgets'
-    smallest margin in the run ("not run" where none of its tests ran)."""
-    rows = ["| defect | class | requirement | names the class | verdict | by | margin |",
-            "|---|---|---|---|---|---|---|"]
+SENSITIVITY_COLUMNS = ["defect", "class", "requirement", "names the class", "verdict", "by", "margin"]
+
+
+def sensitivity_rows(result: dict) -> list[list[str]]:
+    """The sensitivity table of a ``hil qualify`` result, one row (``SENSITIVITY_COLUMNS``) per
+    (defect, requirement) cell of ``sensitivity``: whether the requirement names the defect's class,
+    what caught it (a budget and its margin, a judged check, a device failure, the check of a
+    requirement without budgets) or, missed, its budgets' smallest margin in the run ("not run"
+    where none of its tests ran; a failed check of a requirement with budgets is said, and is no
+    catch)."""
+    rows = []
     for c in result.get("sensitivity") or []:
-        verdict = "caught" if c["caught"] else ("missed" if c["ran"] else "not run")
-        by = (c["by"] or "").removeprefix("budget ")
-        margin = "" if c["margin"] is None else f"{c['margin']:+.3g}"
-        rows.append(f"| `{c['defect']}` | {c['defect_class'] or '–'} | {c['requirement']} | "
-                    f"{'yes' if c['named'] else 'no'} | {'**caught**' if c['caught'] else verdict} | {by or '–'} | "
-                    f"{margin or '–'} |")
-    return "\n".join(rows) + "\n"
+        verdict = "**caught**" if c["caught"] else ("missed" if c["ran"] else "not run")
+        if c.get("check_not_counted"):
+            verdict += " (a check failed: not counted, the requirement has budgets)"
+        by = CATCH_LABELS.get(c["by"] or "", c["by"] or "")
+        rows.append([f"`{c['defect']}`", c["defect_class"] or "–", c["requirement"], "yes" if c["named"] else "no",
+                     verdict, by or "–", "–" if c["margin"] is None else f"{c['margin']:+.3g}"])
+    return rows
+
+
+def sensitivity_markdown(result: dict) -> str:
+    """``sensitivity_rows`` as a markdown table."""
+    lines = ["| " + " | ".join(SENSITIVITY_COLUMNS) + " |", "|" + "---|" * len(SENSITIVITY_COLUMNS)]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in sensitivity_rows(result)]) + "\n"
 
 
 FIRMWARE_DEFECTS_FORMAT = "bldc-hil-firmware-defects/1"
@@ -291,6 +342,9 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
         # the tests of the requirements that name its class, every one of them (no -x); a firmware
         # defect (a compile-time switch in the DUT) as a catalogue one
         cmd += ["--hil-requirements", ",".join(naming(defect_class))]
+    elif sensitive and defect is None and getattr(args, "control_requirements", None):
+        # the control needs to pass where the defects are judged, and nowhere else
+        cmd += ["--hil-requirements", ",".join(args.control_requirements)]
     cmd += suite_files(Path(args.suite))
     started = time.monotonic()
     note = ""
@@ -308,7 +362,7 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
                    note=note or f"the run wrote no report: {tail}", defect_class=defect_class)
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
-    caught_by, failed_reqs, failed_tests, catches = what_caught(report)
+    caught_by, failed_reqs, failed_tests, catches, uncounted = _judged(report, None)
     if caught_by == "not judged" and defect is not None and not sensitive and stop_at_first:
         # -x stopped at a setup check (the scenario did not provoke what that test judges): no
         # verdict on the defect, so the whole suite runs, and what catches it there is the catch
@@ -318,12 +372,15 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
         return again
     if caught_by == "error":
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
+    elif caught_by is None and uncounted:
+        owners = ", ".join(sorted({u["requirement"] for u in uncounted}))
+        note = (note + "; " if note else "") + f"only checks of requirements with budgets failed ({owners}): no catch"
     elif caught_by == "not judged":
         note = (note + "; " if note else "") + "a setup check failed (the scenario did not provoke what it judges)"
     ran = sorted({r for t in report.get("tests", []) if t.get("outcome") in ("passed", "failed")
                   for r in t.get("requirements", [])})
     return Run(name, description, verdict, caught_by in CATCH_KINDS, caught_by, failed_reqs, failed_tests, duration,
-               str(report_json), note, catches, judged_measurements(report), defect_class, ran)
+               str(report_json), note, catches, judged_measurements(report), defect_class, ran, uncounted)
 
 
 @dataclass
@@ -416,6 +473,11 @@ def qualify(args, progress=print) -> Qualification:
     for rid, why in out_of_scope.items():
         progress(f"out of scope: {rid}: {why}")
     control = "the firmware as built" if args.firmware_defects else "the built-in controller as shipped"
+    classes = [catalogue[n].defect_class for n in names]
+    # with --sensitivity each defect runs the requirements that name its class: the control runs their
+    # union (all of the suite when a defect has no class, whose run is the whole suite)
+    args.control_requirements = (sorted({r for c in classes for r in naming(c)})
+                                 if all(classes) and names else None)
     jobs = [("control", control, None)] + [(n, catalogue[n].description, n) for n in names]
     started = time.monotonic()
     with ThreadPoolExecutor(max_workers=max(int(args.workers), 1)) as pool:

@@ -12,6 +12,7 @@
    HIL_DEFECT_TABLE_NEVER_APPLIED            table accepted and read back, commutation runs on an empty one
    HIL_DEFECT_CURRENT_SAMPLED_AT_CAPTURE     edge current read at the capture, not one delay before it
    HIL_DEFECT_PREDICTOR_FED_MILLIAMPERES     the predictor's current input in mA where Eq. 8 wants A
+   HIL_DEFECT_PREDICTOR_CURRENT_SIGNED_SUM   the predictor's cycle current |a + b + c| (about 0 A), not |a| + |b| + |c|
    HIL_DEFECT_GATE_LATENCY_5US               5 us of gate-driver latency not compensated
    HIL_DEFECT_GATE_LATENCY_25US              25 us of gate-driver latency not compensated
    HIL_DEFECT_SAGE_HUSA_RUNS_KF              the Sage-Husa strategy runs the fixed-noise Kalman filter
@@ -66,6 +67,8 @@
 #define DEFECT_NAME "current-sampled-at-capture"
 #elif defined(HIL_DEFECT_PREDICTOR_FED_MILLIAMPERES)
 #define DEFECT_NAME "predictor-fed-milliamperes"
+#elif defined(HIL_DEFECT_PREDICTOR_CURRENT_SIGNED_SUM)
+#define DEFECT_NAME "predictor-current-signed-sum"
 #elif defined(HIL_DEFECT_GATE_LATENCY_25US)
 #define DEFECT_NAME "gate-latency-25us"
 #elif defined(HIL_DEFECT_GATE_LATENCY_5US)

@@ -839,8 +839,14 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
 #endif
     adc_push(t, adc); /* the conversion the capture triggers */
     if (cycle_n > 0u) {
+#if defined(HIL_DEFECT_PREDICTOR_CURRENT_SIGNED_SUM)
+        /* the signed sum of the phases, |a + b + c|: about 0 in a star winding */
+        cycle_a = fabsf((float)cycle_sum[0] + (float)cycle_sum[1] + (float)cycle_sum[2]) /
+                  (3.0f * (float)cycle_n) * AMPS_PER_COUNT;
+#else
         cycle_a = (fabsf((float)cycle_sum[0]) + fabsf((float)cycle_sum[1]) + fabsf((float)cycle_sum[2])) /
                   (3.0f * (float)cycle_n) * AMPS_PER_COUNT;
+#endif
     }
     cycle_sum[0] = cycle_sum[1] = cycle_sum[2] = 0;
     cycle_n = 0u;
