@@ -34,7 +34,6 @@ from pathlib import Path
 import pytest
 
 # the report's record format: standard library only (the plant, links and budgets load on use)
-from .dut.kinds import firmware_kinds
 from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
@@ -66,8 +65,8 @@ def pytest_addoption(parser):
         help="controller under test (repeatable): virtual[:canopen|modbus|in-process], "
         "canopen:interface=..,channel=..,node=.., "
         "modbus-tcp:host=..,port=..,unit=.., modbus-rtu:port=..,baud=..,unit=.. (each with profile=FILE for the "
-        f"device's own map: docs/device-profiles.md), {', '.join(k + ':FIRMWARE' for k in firmware_kinds())} "
-        "(hil/dut/kinds.py); default: virtual",
+        "device's own map: docs/device-profiles.md), or a firmware kind's KIND:FIRMWARE (every kind is one "
+        "declaration of hil/dut/kinds.py; hil acceptance --help lists them); default: virtual",
     )
     group.addoption(
         "--hil-plant", default=None, help="plant TOML (motor, circuit, effects); default: paper-bench preset"

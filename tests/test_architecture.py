@@ -44,6 +44,8 @@ GROUP_OF_PREFIX = {
     "hil.report_html": "verdicts",
     "hil.progress": "verdicts",
     "hil.plots": "verdicts",
+    "hil.history.compare": "verdicts",  # a figure against its past runs: plain arithmetic the report draws
+    "hil.history": "entry",  # the results store: a run's records, written and read by the commands
     "hil.experiments": "experiments",
     "hil.gap": "gap",
     "hil.signals": "signals",
