@@ -122,6 +122,10 @@ DEFECT_CLASSES = {
     "current-limit": "the phase current not held within the controller's limit",
     "speed-loop": "the speed loop's gains or structure wrong (commissioning errors)",
     "protocol": "an answer that is not the standard's (identity, SDO abort and Modbus exception codes, heartbeat)",
+    "processor-time": "an interrupt too slow for the part: a double routine in software, an interrupt that holds "
+                      "a more urgent one off (seen only on the part: pil:)",
+    "processor-memory": "the part's memory broken: a stack beyond stack_bytes, an unaligned 64-bit access, code "
+                        "or data that does not fit (seen only on the part: pil:)",
 }
 
 #: role groups (hil.dut.profile roles) several requirements need
@@ -604,7 +608,7 @@ _PIL_DOC = "processor-in-the-loop.md#requirements-of-the-part"
 _REGISTRY += (
     Requirement(
         "REQ-PIL-001", "Every interrupt finishes within its period on the part (no overrun)",
-        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        _PIL_TEST, _PIL_DOC, _BENCH, edge_hook=True, kinds=("pil",), judges=("processor-time",),
         budgets=(
             DefaultBudget('control_isr_response_over_period', 'ratio',
                           description='worst time from a control interrupt\'s request to its return, over the '
@@ -624,14 +628,14 @@ _REGISTRY += (
     ),
     Requirement(
         "REQ-PIL-002", "The worst CPU load over any control period is within the rate-monotonic schedulability bound",
-        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        _PIL_TEST, _PIL_DOC, _BENCH, edge_hook=True, kinds=("pil",), judges=("processor-time",),
         budgets=(DefaultBudget('cpu_load_worst', 'fraction',
                                description='the share of the worst control period the CPU spent in interrupts',
                                **derived('cpu_load_worst')),),  # hil/budget_sources.py
     ),
     Requirement(
         "REQ-PIL-003", "The stack stays within stack_bytes; code and data fit the part's flash and RAM",
-        _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
+        _PIL_TEST, _PIL_DOC, _BENCH, edge_hook=True, kinds=("pil",), judges=("processor-memory",),
         budgets=(
             DefaultBudget('stack_high_water_fraction', 'fraction',
                           description='the deepest stack of any call over stack_bytes',
