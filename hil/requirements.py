@@ -623,7 +623,7 @@ _REGISTRY += (
         ),
     ),
     Requirement(
-        "REQ-PIL-002", "The worst CPU load over any control period is within the rate-monotonic schedulability bound",
+        "REQ-PIL-002", "The worst CPU load over the longest interrupt period is within the rate-monotonic bound",
         _PIL_TEST, _PIL_DOC, edge_hook=True, uses=_BENCH, kinds=("pil",),
         budgets=(DefaultBudget('cpu_load_worst', 'fraction',
                                description='the share of the worst control period the CPU spent in interrupts',
