@@ -508,7 +508,10 @@ def _processor_derivations() -> list[Derivation]:
         "Liu and Layland (J. ACM 20(1), 1973), Theorem 5: n periodic tasks under rate-monotonic priorities meet "
         "every deadline when their utilisation is at most n (2^(1/n) - 1); the hil-sil/1 interrupts are n = 3 "
         "tasks (Hall capture, compare, control)",
-        f"3 x (2^(1/3) - 1) = {bound:.4f} of the CPU, the worst of any control period", bound, 0.8 * bound,
+        f"3 x (2^(1/3) - 1) = {bound:.4f} of the CPU: the busy share of the worst window as long as the set's "
+        "longest period (the Hall edge interval at the plant's top speed, 60 / (rpm x pole pairs x 6); a "
+        "window of one control period that one Hall interrupt fills is busy under any schedule)",
+        bound, 0.8 * bound,
         tasks=RM_TASKS))
     for name, what, marginal in (
         ("stack_high_water_fraction", "the deepest stack of any call over the part's main stack (stack_bytes)", 0.75),

@@ -291,8 +291,21 @@ class TimedPeripherals(Peripherals):
         if self._busy_since is not None:  # still busy: up to the plant's instant
             self._account_busy(self._busy_since, self.sim.t_s, busy)
         loads = [b / period for b in busy.values()]
+        # Liu and Layland bound a utilisation: each task's time over its period, the longest period of
+        # the set included. The Hall interrupt's period is the edge interval at the plant's top speed
+        # (six edges per electrical turn); a window of one control period that a Hall interrupt fills
+        # is busy whatever the schedule, so the load judged is the worst over a window that long
+        cfg = self.sim.config
+        hall_period_s = 60.0 / (cfg.operating.top_speed_rpm * cfg.motor.pole_pairs * 6)
+        window = max(1, math.ceil(hall_period_s / period - 1e-9))
+        first, last = (min(busy), max(busy)) if busy else (0, -1)
+        per = np.array([busy.get(k, 0.0) for k in range(first, last + 1)])
+        window = min(window, per.size) or 1  # a run shorter than the window: its whole span
+        windowed = float(np.convolve(per, np.ones(window), mode="valid").max() / (window * period)) if per.size \
+            else 0.0
         return {"interrupts": out, "overruns": self.overruns, "overrun_count": self.overrun_count,
-                "lost": dict(self.lost), "worst_load": max(loads, default=0.0),
+                "lost": dict(self.lost), "worst_load": windowed, "worst_load_window_s": window * period,
+                "worst_load_one_period": max(loads, default=0.0),
                 "mean_load": (sum(busy.values()) / (len(loads) * period)) if loads else 0.0,
                 "periods": len(loads), "plant_rollbacks": self.plant_rollbacks,
                 "priorities": {_KIND[e]: p for e, p in self.priority.items()}}
