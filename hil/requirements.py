@@ -630,8 +630,8 @@ _REGISTRY += (
         "REQ-PIL-002", "The worst CPU load over the longest interrupt period is within the rate-monotonic bound",
         _PIL_TEST, _PIL_DOC, _BENCH, edge_hook=True, kinds=("pil",), judges=("processor-time",),
         budgets=(DefaultBudget('cpu_load_worst', 'fraction',
-                               description='the share of the worst window as long as the longest interrupt period (the Hall '
-                                             'interval at top speed) the CPU spent in interrupts',
+                               description='the share of the worst window as long as the longest interrupt period '
+                                           '(the Hall interval at top speed) the CPU spent in interrupts',
                                **derived('cpu_load_worst')),),  # hil/budget_sources.py
     ),
     Requirement(
