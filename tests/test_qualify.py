@@ -64,8 +64,11 @@ def test_a_users_defects_file_joins_the_catalogue(tmp_path):
     try:
         assert load_defects(f) == ["test-speed-gain-x10"]
         assert CATALOGUE["test-speed-gain-x10"].controller(MOTOR).kp_per_rpm == 1e-3
+        assert load_defects(f) == ["test-speed-gain-x10"]  # imported once (hil qualify --defects loads it twice)
+        copy = tmp_path / "copy.py"
+        copy.write_text(f.read_text())
         with pytest.raises(ValueError, match="registered twice"):
-            load_defects(f)
+            load_defects(copy)
     finally:
         CATALOGUE.pop("test-speed-gain-x10", None)
     empty = tmp_path / "empty.py"

@@ -66,16 +66,25 @@ def defect(name: str, description: str, defect_class: str = ""):
     return register
 
 
+#: the defects files imported in this process, by resolved path, and the names each registered
+_LOADED: dict[Path, list[str]] = {}
+
+
 def load_defects(path: str | Path) -> list[str]:
-    """Import a user's defects file (its ``@defect`` classes join the catalogue); their names."""
+    """Import a user's defects file (its ``@defect`` classes join the catalogue); their names. A file
+    already imported is not imported again (``hil qualify --defects`` loads it for its list and its
+    runs in one process)."""
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"defects file {path} does not exist")
+    if path.resolve() in _LOADED and all(n in CATALOGUE for n in _LOADED[path.resolve()]):
+        return list(_LOADED[path.resolve()])
     before = set(CATALOGUE)
     spec = importlib.util.spec_from_file_location(f"hil_user_defects_{path.stem}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     added = [n for n in CATALOGUE if n not in before]
+    _LOADED[path.resolve()] = added
     if not added:
         raise ValueError(f"defects file {path} registers no defect (decorate VirtualController subclasses "
                          "with @defect)")
