@@ -52,7 +52,9 @@ reused: the caller makes a new one.
 from __future__ import annotations
 
 import bisect
+import ctypes
 import math
+import mmap
 import re
 import struct
 from collections import Counter, defaultdict
@@ -68,6 +70,7 @@ from unicorn import arm_const as U
 
 from hil.sil.firmware import SilInterfaceError
 
+from . import native
 from .build import FLASH_BASE, RAM_BASE
 from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler
 from .target import Target
@@ -86,11 +89,20 @@ SOFT_FLOAT = re.compile(
     r"|(add|sub|mul|div|neg)[sd]f3|extendsfdf2|truncdfsf2|fix(uns)?[sd]f[sd]i|float(un)?[sd]i[sd]f"
     r"|(eq|ne|lt|le|gt|ge|unord|cmp)[sd]f2)$")
 _FAULT_KINDS = ("HardFault", "UsageFault", "BusFault", "MemManage")
+#: who charges the blocks and checks the instructions: C (hil.pil.native; Python where its host build
+#: fails) or Python (the reference implementation)
+HOOKS = ("native", "python")
 
 
 #: per ELF (path, size, mtime): its DWARF line table, and the instructions checked at run time
 _LINES: dict = {}
 _CHECKS: dict = {}
+#: per ELF and core: the blocks in flash decoded so far, by (address, size), for the next core of the same
+#: ELF (a fresh core after every finding, one per test); the last few ELFs are kept
+_DECODED: dict = {}
+_DECODED_ELVES = 4
+#: the registers ``begin`` sets, by the number of word arguments: r0.. (AAPCS), SP, LR
+_CALL_REGISTERS = tuple((*(U.UC_ARM_REG_R0 + k for k in range(n)), U.UC_ARM_REG_SP, U.UC_ARM_REG_LR) for n in range(5))
 
 
 def _elf_key(path: str) -> tuple:
@@ -155,7 +167,8 @@ class CallStats:
 class Core:
     """One emulated core of ``target`` with ``elf`` loaded (module docstring)."""
 
-    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int = BUDGET_CYCLES):
+    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int = BUDGET_CYCLES,
+                 hooks: str = "native"):
         from elftools.elf.elffile import ELFFile
 
         from .build import check_elf
@@ -179,6 +192,7 @@ class Core:
         self._map(ram_exec, data_end)
         self._load()
         self.md = disassembler()
+        self._regs = native.Registers(uc)
         self._blocks: dict[int, Block] = {}
         self._softfloat_entries = self._soft_float_entries()
         self._lines: tuple[list[int], list[str]] | None = None
@@ -198,11 +212,23 @@ class Core:
             _CHECKS.clear()
             _CHECKS[key] = self._static_checks()
         self._checks = _CHECKS[key]
-        uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
+        key = (*_elf_key(self.elf), spec.name)
+        if key not in _DECODED and len(_DECODED) >= _DECODED_ELVES:
+            del _DECODED[next(iter(_DECODED))]
+        self._decoded = _DECODED.setdefault(key, {})
+        self._flash = (FLASH_BASE, FLASH_BASE + target.flash_bytes)  # code there never changes: decoded once
+        if hooks not in HOOKS:
+            raise ValueError(f"hooks must be one of {', '.join(HOOKS)}, got {hooks!r}")
+        lib = native.library() if hooks == "native" else None
+        #: the block hook and instruction checks in C (hil.pil.native), or None: Python's (the reference)
+        self._native = native.NativeHooks(lib, self) if lib is not None else None
+        self.hooks = "native" if self._native is not None else "python"
+        if self._native is None:
+            uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
+            for address, check in self._checks.items():
+                uc.hook_add(unicorn.UC_HOOK_CODE, self._on_check, check, address, address)
         uc.hook_add(unicorn.UC_HOOK_MEM_INVALID, self._on_invalid)
         uc.hook_add(unicorn.UC_HOOK_INTR, self._on_interrupt)
-        for address, check in self._checks.items():
-            uc.hook_add(unicorn.UC_HOOK_CODE, self._on_check, check, address, address)
 
     # --- the ELF ----------------------------------------------------------------------------------
     def _read_symbols(self) -> None:
@@ -253,17 +279,28 @@ class Core:
         up = lambda n: -(-n // PAGE) * PAGE  # noqa: E731
         uc.mem_map(FLASH_BASE, up(self.target.flash_bytes), R | X)
         ram_prot = R | W | (X if ram_exec else 0)
+        # RAM is host memory of ours (uc_mem_map_ptr), so that the stack's paint is read and renewed in
+        # place after every call (through uc_mem_read and uc_mem_write it was a copy of kilobytes each way)
+        self._ram_buffer = mmap.mmap(-1, up(self.ram_top) - RAM_BASE)
+        self._ram = np.frombuffer(self._ram_buffer, dtype=np.uint8)
+        host = ctypes.addressof(ctypes.c_char.from_buffer(self._ram_buffer))
+
+        def ram(lo: int, hi: int) -> None:
+            uc.mem_map_ptr(lo, hi - lo, ram_prot, host + lo - RAM_BASE)
+
         guard_hi = self.stack_bottom // PAGE * PAGE
         guard_lo = guard_hi - PAGE
         if guard_lo >= up(data_end):
-            uc.mem_map(RAM_BASE, guard_lo - RAM_BASE, ram_prot) if guard_lo > RAM_BASE else None
-            uc.mem_map(guard_hi, up(self.ram_top) - guard_hi, ram_prot)
+            ram(RAM_BASE, guard_lo) if guard_lo > RAM_BASE else None
+            ram(guard_hi, up(self.ram_top))
             self.guard = (guard_lo, guard_hi)
             self._paint_lo = guard_hi
         else:  # no room for a guard: painting alone finds an overflow, after the call
-            uc.mem_map(RAM_BASE, up(self.ram_top) - RAM_BASE, ram_prot)
+            ram(RAM_BASE, up(self.ram_top))
             self.guard = None
             self._paint_lo = max(-(-data_end // 8) * 8, RAM_BASE)
+        lo = self._paint_lo - RAM_BASE
+        self._paint = self._ram[lo:lo + 4 * ((self.ram_top - self._paint_lo) // 4)].view("<u4")
         uc.mem_map(MAGIC_RETURN, PAGE, R | X)
         uc.mem_write(MAGIC_RETURN, b"\xfe\xe7" * (PAGE // 2))  # b . (never executed: emulation stops first)
         uc.mem_map(ADC_BASE, PAGE, R | W)
@@ -279,7 +316,7 @@ class Core:
             if seg["p_paddr"] != seg["p_vaddr"] and seg["p_filesz"]:
                 self.uc.mem_write(seg["p_paddr"], data)
             self.uc.mem_write(seg["p_vaddr"], data + bytes(seg["p_memsz"] - seg["p_filesz"]))
-        self.uc.mem_write(self._paint_lo, struct.pack("<I", PAINT) * ((self.ram_top - self._paint_lo) // 4))
+        self._paint[:] = PAINT
 
     def _soft_float_entries(self) -> dict[int, str]:
         entries: dict[int, str] = {}
@@ -425,8 +462,7 @@ class Core:
             self._write_frame(sp, (0, 0, 0, 0, 0, 0xFFFFFFFF, MAGIC_RETURN, 0x01000000))
         else:
             sp = self.ram_top
-        regs = [(U.UC_ARM_REG_R0 + k, int(a) & 0xFFFFFFFF) for k, a in enumerate(args)]
-        uc.reg_write_batch(regs + [(U.UC_ARM_REG_SP, sp), (U.UC_ARM_REG_LR, MAGIC_RETURN | 1)])
+        self._regs.write(_CALL_REGISTERS[len(args)], (*(int(a) & 0xFFFFFFFF for a in args), sp, MAGIC_RETURN | 1))
         if interrupt and charge:
             self.cycles += self.table.exception_entry
         self._frames.append(frame)
@@ -441,13 +477,22 @@ class Core:
         frame = self._frames[-1]
         self._stop_at = min(until_cycle, frame.hang_at)
         self._frame = frame
+        n = self._native
+        if n is not None:
+            n.push(frame)
+        error = None
         try:
             self.uc.emu_start(frame.pc | 1, MAGIC_RETURN)
         except unicorn.UcError as exc:
-            self._fault = self._fault or self._from_uc_error(exc)
+            error = exc
+        if n is not None:
+            n.pull(frame)
+            n.raise_error()
+        if error is not None:
+            self._fault = self._fault or self._from_uc_error(error)
         if self._fault is not None:
             raise self._fault
-        pc = self.uc.reg_read(U.UC_ARM_REG_PC)
+        pc = self._regs.read(U.UC_ARM_REG_PC)
         if pc != MAGIC_RETURN:
             frame.pc = pc
             if self.cycles >= frame.hang_at:
@@ -460,7 +505,7 @@ class Core:
         return True
 
     def _returned(self, frame: _Frame) -> None:
-        self._result = self.uc.reg_read(U.UC_ARM_REG_R0)
+        self._result = self._regs.read(U.UC_ARM_REG_R0)
         self._frames.pop()
         if frame.interrupt and frame.charge:
             self.cycles += self.table.exception_return + (self.table.lazy_fp_return if frame.lazy_stacked else 0)
@@ -493,18 +538,18 @@ class Core:
     def _stack_check(self, frame: _Frame) -> None:
         """The deepest painted word the calls since the last check overwrote: the high-water mark
         (repainted for the next call); below the stack's bottom, a StackOverflow."""
-        size = self.ram_top - self._paint_lo
-        words = np.frombuffer(bytes(self.uc.mem_read(self._paint_lo, size)), dtype="<u4")
-        touched = np.flatnonzero(words != PAINT)
-        if touched.size == 0:
+        words = self._paint
+        touched = words != PAINT
+        k = int(touched.argmax())
+        if not touched[k]:
             return
-        deepest = self._paint_lo + 4 * int(touched[0])
+        deepest = self._paint_lo + 4 * k
         depth = self.ram_top - deepest
         self.stack_high_water = max(self.stack_high_water, depth)
         if frame.interrupt or frame.label in self.stats:
             s = self.stats[frame.label]
             s.stack_bytes = max(s.stack_bytes, depth)
-        self.uc.mem_write(deepest, struct.pack("<I", PAINT) * ((self.ram_top - deepest) // 4))
+        words[k:] = PAINT
         if deepest < self.stack_bottom:
             self._fault = self._finding(
                 StackOverflow, "StackOverflow", f"the stack reached {depth} bytes below the top of RAM, "
@@ -531,13 +576,33 @@ class Core:
             self._special(b)
 
     def _decode(self, address: int, size: int) -> Block:
-        b = decode_block(self.md, bytes(self.uc.mem_read(address, size)), address, self.table,
-                         self.spec.hard_float)
-        name = self._softfloat_entries.get(address)
-        if name is not None:
-            b.softfloat, b.special = name, True
+        b = self._decoded.get((address, size))
+        if b is None:
+            b = decode_block(self.md, bytes(self.uc.mem_read(address, size)), address, self.table,
+                             self.spec.hard_float)
+            name = self._softfloat_entries.get(address)
+            if name is not None:
+                b.softfloat, b.special = name, True
+            if self._flash[0] <= address < self._flash[1]:
+                self._decoded[(address, size)] = b
         self._blocks[address] = b
+        if self._native is not None:
+            self._native.insert(b)
         return b
+
+    def _native_block(self, address: int, size: int) -> None:
+        """The C block hook met a block it has no entry for (or one with a fault): Python's hook."""
+        n, frame = self._native, self._frame
+        n.pull(frame)
+        self._on_block(self.uc, address, size, None)
+        n.push(frame)
+
+    def _native_check(self, address: int, size: int, index: int) -> None:
+        """A C check failed: Python's names the fault."""
+        n, frame = self._native, self._frame
+        n.pull(frame)
+        self._on_check(self.uc, address, size, n.checks[index][1])
+        n.push(frame)
 
     def _special(self, b: Block) -> None:
         frame = self._frame
