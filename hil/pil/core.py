@@ -57,6 +57,7 @@ import math
 import mmap
 import re
 import struct
+import weakref
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -103,6 +104,15 @@ _DECODED: dict = {}
 _DECODED_ELVES = 4
 #: the registers ``begin`` sets, by the number of word arguments: r0.. (AAPCS), SP, LR
 _CALL_REGISTERS = tuple((*(U.UC_ARM_REG_R0 + k for k in range(n)), U.UC_ARM_REG_SP, U.UC_ARM_REG_LR) for n in range(5))
+#: the exception frame's registers (and SP, below which it goes) of a call an interrupt preempts
+_STACKED_REGISTERS = (U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_ARM_REG_R3, U.UC_ARM_REG_R12,
+                      U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP)
+#: the registers ``run`` reads when the emulation stops: where (a return, or a pause), and the result
+_AFTER_REGISTERS = (U.UC_ARM_REG_PC, U.UC_ARM_REG_R0)
+
+
+def _keep(*_) -> None:
+    """A finalizer that only holds its arguments until its object goes."""
 
 
 def _elf_key(path: str) -> tuple:
@@ -137,7 +147,7 @@ class ProcessorHang(ProcessorFinding):
     """A call that ran past its cycle budget."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Frame:
     symbol: str
     address: int
@@ -279,14 +289,16 @@ class Core:
         up = lambda n: -(-n // PAGE) * PAGE  # noqa: E731
         uc.mem_map(FLASH_BASE, up(self.target.flash_bytes), R | X)
         ram_prot = R | W | (X if ram_exec else 0)
-        # RAM is host memory of ours (uc_mem_map_ptr), so that the stack's paint is read and renewed in
-        # place after every call (through uc_mem_read and uc_mem_write it was a copy of kilobytes each way)
+        # RAM, the ADC's registers and the scratch buffers are host memory of ours (uc_mem_map_ptr): the
+        # stack's paint is read and renewed in place after every call, the ADC written before every
+        # interrupt without a copy through uc_mem_read / uc_mem_write
+        self._host: list[tuple[int, int, mmap.mmap, int]] = []  #: (low, high, buffer, offset in it)
+        weakref.finalize(uc, _keep, self._host)  # the memory outlives the engine that maps it
         self._ram_buffer = mmap.mmap(-1, up(self.ram_top) - RAM_BASE)
         self._ram = np.frombuffer(self._ram_buffer, dtype=np.uint8)
-        host = ctypes.addressof(ctypes.c_char.from_buffer(self._ram_buffer))
 
         def ram(lo: int, hi: int) -> None:
-            uc.mem_map_ptr(lo, hi - lo, ram_prot, host + lo - RAM_BASE)
+            self._map_host(lo, hi, ram_prot, self._ram_buffer, lo - RAM_BASE)
 
         guard_hi = self.stack_bottom // PAGE * PAGE
         guard_lo = guard_hi - PAGE
@@ -303,8 +315,20 @@ class Core:
         self._paint = self._ram[lo:lo + 4 * ((self.ram_top - self._paint_lo) // 4)].view("<u4")
         uc.mem_map(MAGIC_RETURN, PAGE, R | X)
         uc.mem_write(MAGIC_RETURN, b"\xfe\xe7" * (PAGE // 2))  # b . (never executed: emulation stops first)
-        uc.mem_map(ADC_BASE, PAGE, R | W)
-        uc.mem_map(SCRATCH_BASE, SCRATCH_BYTES, R | W)
+        self._map_host(ADC_BASE, ADC_BASE + PAGE, R | W, mmap.mmap(-1, PAGE), 0)
+        self._map_host(SCRATCH_BASE, SCRATCH_BASE + SCRATCH_BYTES, R | W, mmap.mmap(-1, SCRATCH_BYTES), 0)
+
+    def _map_host(self, lo: int, hi: int, prot: int, buffer: mmap.mmap, offset: int) -> None:
+        host = ctypes.addressof(ctypes.c_char.from_buffer(buffer, offset))
+        self.uc.mem_map_ptr(lo, hi - lo, prot, host)
+        self._host.append((lo, hi, buffer, offset))
+
+    def _host_span(self, address: int, size: int) -> tuple[mmap.mmap, int] | None:
+        """The host buffer and offset of ``size`` bytes at ``address``, when one host mapping holds them."""
+        for lo, hi, buffer, offset in self._host:
+            if lo <= address and address + size <= hi:
+                return buffer, offset + address - lo
+        return None
 
     def _load(self) -> None:
         """The PT_LOAD segments: code and .data's image into flash, .data into RAM (the copy a
@@ -404,10 +428,20 @@ class Core:
 
     # --- memory helpers ---------------------------------------------------------------------------------
     def read(self, address: int, size: int) -> bytes:
-        return bytes(self.uc.mem_read(address, size))
+        span = self._host_span(address, size)
+        if span is None:  # flash, or across mappings, or unmapped (Unicorn's error)
+            return bytes(self.uc.mem_read(address, size))
+        buffer, k = span
+        return buffer[k:k + size]
 
     def write(self, address: int, data: bytes) -> None:
-        self.uc.mem_write(address, bytes(data))
+        data = bytes(data)
+        span = self._host_span(address, len(data))
+        if span is None:
+            self.uc.mem_write(address, data)
+            return
+        buffer, k = span
+        buffer[k:k + len(data)] = data
 
     def read_cstring(self, address: int, limit: int = 256) -> str:
         """A NUL-terminated string in emulated memory (flash or RAM)."""
@@ -442,7 +476,9 @@ class Core:
             raise RuntimeError(f"{self.elf}: this core met {type(self._fault).__name__}; make a new Core")
         if len(args) > 4:
             raise ValueError("at most four word arguments (r0-r3)")
-        address = self.symbol(symbol)
+        address = self._symbols.get(symbol)
+        if address is None:
+            address = self.symbol(symbol)  # the error naming it
         uc = self.uc
         frame = _Frame(symbol, address, interrupt, label or symbol, self.cycles, self.cycles + self.budget_cycles,
                        charge, self.instructions, pc=address)
@@ -450,9 +486,7 @@ class Core:
             outer = self._frames[-1]
             outer.prev = self._prev
             outer.saved = uc.context_save()
-            r0, r1, r2, r3, r12, lr, pc, xpsr, sp = uc.reg_read_batch(
-                [U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_ARM_REG_R3, U.UC_ARM_REG_R12,
-                 U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP])
+            r0, r1, r2, r3, r12, lr, pc, xpsr, sp = self._regs.read(_STACKED_REGISTERS)
             frame.fp_frame = self.spec.hard_float and outer.uses_fp
             words = 26 if frame.fp_frame else 8
             sp = (sp - 4 * words) & ~7  # STKALIGN: the frame is 8-byte aligned
@@ -469,7 +503,7 @@ class Core:
         self._prev = START
 
     def _write_frame(self, sp: int, words) -> None:
-        self.uc.mem_write(sp, struct.pack("<8I", *(int(w) & 0xFFFFFFFF for w in words)))
+        self.write(sp, struct.pack("<8I", *(int(w) & 0xFFFFFFFF for w in words)))
 
     def run(self, until_cycle: float = math.inf) -> bool:
         """Run the innermost call until it returns (True) or ``cycles`` reaches ``until_cycle``
@@ -492,7 +526,7 @@ class Core:
             self._fault = self._fault or self._from_uc_error(error)
         if self._fault is not None:
             raise self._fault
-        pc = self._regs.read(U.UC_ARM_REG_PC)
+        pc, r0 = self._regs.read(_AFTER_REGISTERS)
         if pc != MAGIC_RETURN:
             frame.pc = pc
             if self.cycles >= frame.hang_at:
@@ -501,11 +535,11 @@ class Core:
                     f"({self.instructions} instructions so far)", pc)
                 raise self._fault
             return False
-        self._returned(frame)
+        self._returned(frame, r0)
         return True
 
-    def _returned(self, frame: _Frame) -> None:
-        self._result = self._regs.read(U.UC_ARM_REG_R0)
+    def _returned(self, frame: _Frame, r0: int) -> None:
+        self._result = r0
         self._frames.pop()
         if frame.interrupt and frame.charge:
             self.cycles += self.table.exception_return + (self.table.lazy_fp_return if frame.lazy_stacked else 0)

@@ -118,6 +118,14 @@ def library() -> ctypes.CDLL | None:
     return lib
 
 
+def _release(lib, uclib, pointer: int, uc_ref, uch, hooks: list[int]) -> None:
+    """The C state freed, its hooks first taken off an engine that outlives them."""
+    if uc_ref() is not None:
+        for handle in hooks:
+            uclib.uc_hook_del(uch, ctypes.c_size_t(handle))
+    lib.pil_free(pointer)
+
+
 class NativeHooks:
     """The C block hook and instruction checks of one ``hil.pil.core.Core``."""
 
@@ -126,24 +134,23 @@ class NativeHooks:
 
         uclib = _uclib()
         self.lib, self.core = lib, core
-        self.error: BaseException | None = None  #: what a call back into Python raised (re-raised by ``pull``)
-        # the callbacks hold only a weak reference to the core: a Core is freed when nothing else holds it
-        ref = weakref.ref(core)
-        self._slow_block = _SLOW_BLOCK(lambda address, size: self._guard(ref, "_native_block", address, size))
-        self._slow_check = _SLOW_CHECK(lambda address, size, k: self._guard(ref, "_native_check", address, size, k))
+        self.error: BaseException | None = None  #: what a call back into Python raised (``raise_error``)
+        self._slow_block = _SLOW_BLOCK(lambda address, size: self._guard(core._native_block, address, size))
+        self._slow_check = _SLOW_CHECK(lambda address, size, k: self._guard(core._native_check, address, size, k))
         addr = lambda f: ctypes.cast(f, ctypes.c_void_p).value  # noqa: E731
         pointer = lib.pil_new(addr(uclib.uc_emu_stop), addr(uclib.uc_reg_read), addr(self._slow_block),
                               addr(self._slow_check), core.table.lazy_fp_stacking)
         if not pointer:
             raise MemoryError("hil.pil: the native block hook's state")
-        self._finalizer = weakref.finalize(self, lib.pil_free, pointer)
+        self._hooks: list[int] = []
+        self._finalizer = weakref.finalize(self, _release, lib, uclib, pointer, weakref.ref(core.uc), core.uc._uch,
+                                           self._hooks)
         self.pointer = pointer
         self.state = s = _State.from_address(pointer)
         self._shared = (ctypes.c_int64 * len(_SHARED)).from_address(pointer)
         self._counts = s.softfloat_counts
         self._names: list[str] = []  #: soft-float routine by index
         self._index: dict[str, int] = {}
-        self._hooks: list[int] = []
         uch = core.uc._uch
         self._add(uclib, uch, unicorn.UC_HOOK_BLOCK, lib.pil_block_hook, pointer, 1, 0)
         self.checks = list(core._checks.items())
@@ -162,16 +169,15 @@ class NativeHooks:
             raise unicorn.UcError(status)
         self._hooks.append(handle.value)
 
-    def _guard(self, ref, method: str, *args) -> None:
-        """A call back from C: an exception is kept for ``pull`` and stops the emulation (a ctypes
-        callback cannot raise through C)."""
-        core = ref()
+    def _guard(self, method, *args) -> None:
+        """A call back from C: an exception is kept for ``raise_error`` and stops the emulation (a
+        ctypes callback cannot raise through C)."""
         try:
-            getattr(core, method)(*args)
+            method(*args)
         except BaseException as exc:  # noqa: BLE001  (re-raised after uc_emu_start returns)
             if self.error is None:
                 self.error = exc
-            core.uc.emu_stop()
+            self.core.uc.emu_stop()
 
     # --- the table ------------------------------------------------------------------------------------
     def insert(self, b) -> None:
@@ -191,7 +197,9 @@ class NativeHooks:
         """The core's counters and the running call, into C (before uc_emu_start, after Python's hook)."""
         core = self.core
         stop, prev = core._stop_at, core._prev
-        self._shared[0:9] = (core.cycles, core.instructions, _INF if stop >= _INF else max(math.ceil(stop), 0),
+        if stop.__class__ is not int:  # a float (inf, or a fraction of a cycle): the next whole cycle
+            stop = _INF if stop >= _INF else math.ceil(stop)
+        self._shared[0:9] = (core.cycles, core.instructions, min(max(stop, 0), _INF),
                              prev.fallthrough, prev.taken_extra, frame.charge, frame.uses_fp, frame.fp_frame,
                              frame.lazy_stacked)
 
@@ -231,30 +239,32 @@ class Registers:
         except ImportError:
             self._lib = None
         self._uch = uc._uch
-        self._word = ctypes.c_uint32()
-        self._word_ref = ctypes.byref(self._word)
         self._batches: dict[tuple[int, ...], tuple] = {}
 
-    def read(self, reg: int) -> int:
-        """A 32-bit core register (R0-R12, SP, LR, PC, xPSR)."""
+    def read(self, regs: tuple[int, ...]) -> list[int]:
+        """32-bit core registers (R0-R12, SP, LR, PC, xPSR) in one call."""
         if self._lib is None:
-            return self.uc.reg_read(reg)
-        status = self._lib.uc_reg_read(self._uch, reg, self._word_ref)
+            return self.uc.reg_read_batch(list(regs))
+        ids, words, pointers = self._batch(regs)
+        status = self._lib.uc_reg_read_batch(self._uch, ids, pointers, len(regs))
         if status != unicorn.UC_ERR_OK:
             raise unicorn.UcError(status)
-        return self._word.value
+        return words[:]
+
+    def _batch(self, regs: tuple[int, ...]) -> tuple:
+        batch = self._batches.get(regs)
+        if batch is None:
+            words = (ctypes.c_uint32 * len(regs))()
+            pointers = (ctypes.c_void_p * len(regs))(*(ctypes.addressof(words) + 4 * k for k in range(len(regs))))
+            batch = self._batches[regs] = ((ctypes.c_int32 * len(regs))(*regs), words, pointers)
+        return batch
 
     def write(self, regs: tuple[int, ...], values) -> None:
         """32-bit core registers ``regs`` set to ``values`` in one call."""
         if self._lib is None:
             self.uc.reg_write_batch(list(zip(regs, values)))
             return
-        batch = self._batches.get(regs)
-        if batch is None:
-            words = (ctypes.c_uint32 * len(regs))()
-            pointers = (ctypes.c_void_p * len(regs))(*(ctypes.addressof(words) + 4 * k for k in range(len(regs))))
-            batch = self._batches[regs] = ((ctypes.c_int32 * len(regs))(*regs), words, pointers)
-        ids, words, pointers = batch
+        ids, words, pointers = self._batch(regs)
         words[:] = values
         status = self._lib.uc_reg_write_batch(self._uch, ids, pointers, len(regs))
         if status != unicorn.UC_ERR_OK:
