@@ -73,7 +73,7 @@ from hil.sil.firmware import SilInterfaceError
 
 from . import native
 from .build import FLASH_BASE, RAM_BASE
-from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler
+from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler, row
 from .target import Target
 
 PAGE = 0x400  #: Unicorn's page on ARM (mappings are multiples of it)
@@ -98,8 +98,8 @@ HOOKS = ("native", "python")
 #: per ELF (path, size, mtime): its DWARF line table, and the instructions checked at run time
 _LINES: dict = {}
 _CHECKS: dict = {}
-#: per ELF and core: the blocks in flash decoded so far, by (address, size), for the next core of the same
-#: ELF (a fresh core after every finding, one per test); the last few ELFs are kept
+#: per ELF, core and hook path: the blocks in flash decoded so far, by (address, size), for the next core of
+#: the same ELF (a fresh core after every finding, one per test); the last few are kept
 _DECODED: dict = {}
 _DECODED_ELVES = 4
 #: the registers ``begin`` sets, by the number of word arguments: r0.. (AAPCS), SP, LR
@@ -217,22 +217,22 @@ class Core:
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
         self.stats: dict[str, CallStats] = defaultdict(CallStats)
         self.stack_high_water = 0  #: the deepest stack of any call (bytes below the top of RAM)
-        key = (*_elf_key(self.elf), target.flash_bytes)
+        key = (*_elf_key(self.elf), target.flash_bytes, spec.name)
         if key not in _CHECKS:  # one disassembly per ELF, not per core
             _CHECKS.clear()
-            _CHECKS[key] = self._static_checks()
-        self._checks = _CHECKS[key]
-        key = (*_elf_key(self.elf), spec.name)
-        if key not in _DECODED and len(_DECODED) >= _DECODED_ELVES:
-            del _DECODED[next(iter(_DECODED))]
-        self._decoded = _DECODED.setdefault(key, {})
-        self._flash = (FLASH_BASE, FLASH_BASE + target.flash_bytes)  # code there never changes: decoded once
+            _CHECKS[key] = self._sweep()
+        self._checks, self._rows = _CHECKS[key]
         if hooks not in HOOKS:
             raise ValueError(f"hooks must be one of {', '.join(HOOKS)}, got {hooks!r}")
         lib = native.library() if hooks == "native" else None
         #: the block hook and instruction checks in C (hil.pil.native), or None: Python's (the reference)
         self._native = native.NativeHooks(lib, self) if lib is not None else None
         self.hooks = "native" if self._native is not None else "python"
+        key = (*_elf_key(self.elf), spec.name, self.hooks)  # each path decodes for itself
+        if key not in _DECODED and len(_DECODED) >= _DECODED_ELVES:
+            del _DECODED[next(iter(_DECODED))]
+        self._decoded = _DECODED.setdefault(key, {})
+        self._flash = (FLASH_BASE, FLASH_BASE + target.flash_bytes)  # code there never changes: decoded once
         if self._native is None:
             uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
             for address, check in self._checks.items():
@@ -349,16 +349,19 @@ class Core:
                 entries.setdefault(start, name)
         return entries
 
-    def _static_checks(self) -> dict[int, tuple]:
-        """The instructions whose faults Unicorn does not raise, found by disassembling every
-        function once: (kind, registers) by address."""
+    def _sweep(self) -> tuple[dict[int, tuple], dict[int, tuple]]:
+        """Every function in flash disassembled once: the instructions whose faults Unicorn does not
+        raise, (kind, registers) by address; and every instruction's cost row (hil.pil.cycles.row),
+        from which the native path sums a block it first meets (``decode_block``'s ``known``)."""
         checks: dict[int, tuple] = {}
+        rows: dict[int, tuple] = {}
         flash_end = FLASH_BASE + self.target.flash_bytes
         for start, end, _ in self._functions:
             if not FLASH_BASE <= start < flash_end:
                 continue
             code = bytes(self.uc.mem_read(start, min(end, flash_end) - start))
             for insn in self.md.disasm(code, start):
+                rows[insn.address] = row(insn, self.table)
                 name = insn.insn_name()
                 # Capstone's register numbers are not Unicorn's: by name (r0..r12, sb, sl, fp, ip, sp, lr)
                 uc_reg = lambda r: getattr(U, f"UC_ARM_REG_{insn.reg_name(r).upper()}")  # noqa: E731
@@ -372,7 +375,7 @@ class Core:
                 elif name in MULTIPLES_CHECKED:
                     if insn.reg_name(insn.operands[0].reg) != "sp":
                         checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic)
-        return checks
+        return checks, rows
 
     # --- symbols and source lines -----------------------------------------------------------------------
     def symbol(self, name: str) -> int:
@@ -612,8 +615,9 @@ class Core:
     def _decode(self, address: int, size: int) -> Block:
         b = self._decoded.get((address, size))
         if b is None:
+            # the native path sums what the sweep decoded in full; Python's (the reference) decodes in full
             b = decode_block(self.md, bytes(self.uc.mem_read(address, size)), address, self.table,
-                             self.spec.hard_float)
+                             self.spec.hard_float, self._rows if self._native is not None else None)
             name = self._softfloat_entries.get(address)
             if name is not None:
                 b.softfloat, b.special = name, True
