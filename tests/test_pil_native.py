@@ -10,6 +10,8 @@ measured must be equal, not close.
 
 from __future__ import annotations
 
+from dataclasses import astuple
+
 import pytest
 from test_pil_core import REFERENCE, _target, m0plus, m4f, snippet_folder  # noqa: F401  (fixtures)
 
@@ -92,3 +94,26 @@ def test_native_and_python_hooks_report_the_same_finding(m4f, function, args):  
             core.call(function, *args, interrupt=True, label="control")
         said[hooks] = (before, str(info.value), core.cycles, core.instructions, core.stack_high_water)
     assert said["native"] == said["python"]
+
+
+@pytest.mark.parametrize("cpu", ["cortex-m4f", "cortex-m0plus"])
+def test_a_block_summed_from_the_sweep_is_the_block_decoded_in_full(cpu):
+    """The native path's first sight of a block sums the cost rows of the ELF's sweep; blocks
+    starting at every fifth instruction of the reference firmware, one to six instructions long,
+    come out field for field as the full decode makes them."""
+    from hil.pil.cycles import _known_rows, decode_block
+
+    target = _target(cpu, flash_bytes=1 << 20, ram_bytes=196608, stack_bytes=4096)
+    core = Core(build_elf(read_build_spec(REFERENCE), target).elf, target)
+    rows = core._rows
+    starts = sorted(rows)
+    compared = summed_from_rows = 0
+    for i in range(0, len(starts) - 6, 5):
+        a, last = starts[i], starts[i + i % 6]  # one to six instructions
+        code = core.read(a, last + rows[last][1] - a)
+        full = decode_block(core.md, code, a, core.table, core.spec.hard_float)
+        summed = decode_block(core.md, code, a, core.table, core.spec.hard_float, rows)
+        assert astuple(summed) == astuple(full), hex(a)
+        compared += 1
+        summed_from_rows += _known_rows(core.md, code, a, rows) is not None
+    assert compared > 1000 and summed_from_rows > 0.9 * compared  # the rows were used, not the fallback

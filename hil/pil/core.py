@@ -24,7 +24,9 @@ the lazy FP stacking when it preempts a context that used the FPU and uses the F
 **Cycles.** Each translated block is decoded once with Capstone into its cycle cost
 (hil.pil.cycles), cached by address, and charged by a block hook; ``cycles`` is a global
 monotonic counter, ``instructions`` beside it. Nothing depends on the host's speed: the same
-calls give the same cycles everywhere.
+calls give the same cycles everywhere. The hook and the instruction checks run in C
+(hil.pil.native, ``hooks="native"``, the default) with Python's own (``_on_block``, ``_on_check``:
+``hooks="python"``) as the reference they equal, and the fallback where the C build fails.
 
 **Memory.** Flash at 0x08000000 (read, execute), RAM at 0x20000000 (read, write; execute only
 where the ELF places code in RAM), the stack at the top of RAM; a 1 KiB guard below the stack
