@@ -101,7 +101,7 @@ def library() -> ctypes.CDLL | None:
     except (SilBuildError, OSError, ImportError) as exc:
         first = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         warnings.warn(f"hil.pil: the native block hook is not available ({first}); cycles are counted by the "
-                      "Python hook (same figures, about 100 times slower)", RuntimeWarning, stacklevel=3)
+                      "Python hook (the same figures, slower)", RuntimeWarning, stacklevel=3)
         return None
     v, u64, u32 = ctypes.c_void_p, ctypes.c_uint64, ctypes.c_uint32
     lib.pil_new.restype = v
