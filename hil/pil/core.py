@@ -24,7 +24,9 @@ the lazy FP stacking when it preempts a context that used the FPU and uses the F
 **Cycles.** Each translated block is decoded once with Capstone into its cycle cost
 (hil.pil.cycles), cached by address, and charged by a block hook; ``cycles`` is a global
 monotonic counter, ``instructions`` beside it. Nothing depends on the host's speed: the same
-calls give the same cycles everywhere.
+calls give the same cycles everywhere. The hook and the instruction checks run in C
+(hil.pil.native, ``hooks="native"``, the default) with Python's own (``_on_block``, ``_on_check``:
+``hooks="python"``) as the reference they equal, and the fallback where the C build fails.
 
 **Memory.** Flash at 0x08000000 (read, execute), RAM at 0x20000000 (read, write; execute only
 where the ELF places code in RAM), the stack at the top of RAM; a 1 KiB guard below the stack
@@ -52,9 +54,12 @@ reused: the caller makes a new one.
 from __future__ import annotations
 
 import bisect
+import ctypes
 import math
+import mmap
 import re
 import struct
+import weakref
 from collections import Counter, defaultdict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -68,8 +73,9 @@ from unicorn import arm_const as U
 
 from hil.sil.firmware import SilInterfaceError
 
+from . import native
 from .build import FLASH_BASE, RAM_BASE
-from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler
+from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler, row
 from .target import Target
 
 PAGE = 0x400  #: Unicorn's page on ARM (mappings are multiples of it)
@@ -86,11 +92,29 @@ SOFT_FLOAT = re.compile(
     r"|(add|sub|mul|div|neg)[sd]f3|extendsfdf2|truncdfsf2|fix(uns)?[sd]f[sd]i|float(un)?[sd]i[sd]f"
     r"|(eq|ne|lt|le|gt|ge|unord|cmp)[sd]f2)$")
 _FAULT_KINDS = ("HardFault", "UsageFault", "BusFault", "MemManage")
+#: who charges the blocks and checks the instructions: C (hil.pil.native; Python where its host build
+#: fails) or Python (the reference implementation)
+HOOKS = ("native", "python")
 
 
 #: per ELF (path, size, mtime): its DWARF line table, and the instructions checked at run time
 _LINES: dict = {}
 _CHECKS: dict = {}
+#: per ELF, core and hook path: the blocks in flash decoded so far, by (address, size), for the next core of
+#: the same ELF (a fresh core after every finding, one per test); the last few are kept
+_DECODED: dict = {}
+_DECODED_ELVES = 4
+#: the registers ``begin`` sets, by the number of word arguments: r0.. (AAPCS), SP, LR
+_CALL_REGISTERS = tuple((*(U.UC_ARM_REG_R0 + k for k in range(n)), U.UC_ARM_REG_SP, U.UC_ARM_REG_LR) for n in range(5))
+#: the exception frame's registers (and SP, below which it goes) of a call an interrupt preempts
+_STACKED_REGISTERS = (U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_ARM_REG_R3, U.UC_ARM_REG_R12,
+                      U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP)
+#: the registers ``run`` reads when the emulation stops: where (a return, or a pause), and the result
+_AFTER_REGISTERS = (U.UC_ARM_REG_PC, U.UC_ARM_REG_R0)
+
+
+def _keep(*_) -> None:
+    """A finalizer that only holds its arguments until its object goes."""
 
 
 def _elf_key(path: str) -> tuple:
@@ -125,7 +149,7 @@ class ProcessorHang(ProcessorFinding):
     """A call that ran past its cycle budget."""
 
 
-@dataclass
+@dataclass(slots=True)
 class _Frame:
     symbol: str
     address: int
@@ -155,7 +179,8 @@ class CallStats:
 class Core:
     """One emulated core of ``target`` with ``elf`` loaded (module docstring)."""
 
-    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int = BUDGET_CYCLES):
+    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int = BUDGET_CYCLES,
+                 hooks: str = "native"):
         from elftools.elf.elffile import ELFFile
 
         from .build import check_elf
@@ -179,6 +204,7 @@ class Core:
         self._map(ram_exec, data_end)
         self._load()
         self.md = disassembler()
+        self._regs = native.Registers(uc)
         self._blocks: dict[int, Block] = {}
         self._softfloat_entries = self._soft_float_entries()
         self._lines: tuple[list[int], list[str]] | None = None
@@ -193,16 +219,28 @@ class Core:
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
         self.stats: dict[str, CallStats] = defaultdict(CallStats)
         self.stack_high_water = 0  #: the deepest stack of any call (bytes below the top of RAM)
-        key = (*_elf_key(self.elf), target.flash_bytes)
+        key = (*_elf_key(self.elf), target.flash_bytes, spec.name)
         if key not in _CHECKS:  # one disassembly per ELF, not per core
             _CHECKS.clear()
-            _CHECKS[key] = self._static_checks()
-        self._checks = _CHECKS[key]
-        uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
+            _CHECKS[key] = self._sweep()
+        self._checks, self._rows = _CHECKS[key]
+        if hooks not in HOOKS:
+            raise ValueError(f"hooks must be one of {', '.join(HOOKS)}, got {hooks!r}")
+        lib = native.library() if hooks == "native" else None
+        #: the block hook and instruction checks in C (hil.pil.native), or None: Python's (the reference)
+        self._native = native.NativeHooks(lib, self) if lib is not None else None
+        self.hooks = "native" if self._native is not None else "python"
+        key = (*_elf_key(self.elf), spec.name, self.hooks)  # each path decodes for itself
+        if key not in _DECODED and len(_DECODED) >= _DECODED_ELVES:
+            del _DECODED[next(iter(_DECODED))]
+        self._decoded = _DECODED.setdefault(key, {})
+        self._flash = (FLASH_BASE, FLASH_BASE + target.flash_bytes)  # code there never changes: decoded once
+        if self._native is None:
+            uc.hook_add(unicorn.UC_HOOK_BLOCK, self._on_block)
+            for address, check in self._checks.items():
+                uc.hook_add(unicorn.UC_HOOK_CODE, self._on_check, check, address, address)
         uc.hook_add(unicorn.UC_HOOK_MEM_INVALID, self._on_invalid)
         uc.hook_add(unicorn.UC_HOOK_INTR, self._on_interrupt)
-        for address, check in self._checks.items():
-            uc.hook_add(unicorn.UC_HOOK_CODE, self._on_check, check, address, address)
 
     # --- the ELF ----------------------------------------------------------------------------------
     def _read_symbols(self) -> None:
@@ -253,21 +291,46 @@ class Core:
         up = lambda n: -(-n // PAGE) * PAGE  # noqa: E731
         uc.mem_map(FLASH_BASE, up(self.target.flash_bytes), R | X)
         ram_prot = R | W | (X if ram_exec else 0)
+        # RAM, the ADC's registers and the scratch buffers are host memory of ours (uc_mem_map_ptr): the
+        # stack's paint is read and renewed in place after every call, the ADC written before every
+        # interrupt without a copy through uc_mem_read / uc_mem_write
+        self._host: list[tuple[int, int, mmap.mmap, int]] = []  #: (low, high, buffer, offset in it)
+        weakref.finalize(uc, _keep, self._host)  # the memory outlives the engine that maps it
+        self._ram_buffer = mmap.mmap(-1, up(self.ram_top) - RAM_BASE)
+        self._ram = np.frombuffer(self._ram_buffer, dtype=np.uint8)
+
+        def ram(lo: int, hi: int) -> None:
+            self._map_host(lo, hi, ram_prot, self._ram_buffer, lo - RAM_BASE)
+
         guard_hi = self.stack_bottom // PAGE * PAGE
         guard_lo = guard_hi - PAGE
         if guard_lo >= up(data_end):
-            uc.mem_map(RAM_BASE, guard_lo - RAM_BASE, ram_prot) if guard_lo > RAM_BASE else None
-            uc.mem_map(guard_hi, up(self.ram_top) - guard_hi, ram_prot)
+            ram(RAM_BASE, guard_lo) if guard_lo > RAM_BASE else None
+            ram(guard_hi, up(self.ram_top))
             self.guard = (guard_lo, guard_hi)
             self._paint_lo = guard_hi
         else:  # no room for a guard: painting alone finds an overflow, after the call
-            uc.mem_map(RAM_BASE, up(self.ram_top) - RAM_BASE, ram_prot)
+            ram(RAM_BASE, up(self.ram_top))
             self.guard = None
             self._paint_lo = max(-(-data_end // 8) * 8, RAM_BASE)
+        lo = self._paint_lo - RAM_BASE
+        self._paint = self._ram[lo:lo + 4 * ((self.ram_top - self._paint_lo) // 4)].view("<u4")
         uc.mem_map(MAGIC_RETURN, PAGE, R | X)
         uc.mem_write(MAGIC_RETURN, b"\xfe\xe7" * (PAGE // 2))  # b . (never executed: emulation stops first)
-        uc.mem_map(ADC_BASE, PAGE, R | W)
-        uc.mem_map(SCRATCH_BASE, SCRATCH_BYTES, R | W)
+        self._map_host(ADC_BASE, ADC_BASE + PAGE, R | W, mmap.mmap(-1, PAGE), 0)
+        self._map_host(SCRATCH_BASE, SCRATCH_BASE + SCRATCH_BYTES, R | W, mmap.mmap(-1, SCRATCH_BYTES), 0)
+
+    def _map_host(self, lo: int, hi: int, prot: int, buffer: mmap.mmap, offset: int) -> None:
+        host = ctypes.addressof(ctypes.c_char.from_buffer(buffer, offset))
+        self.uc.mem_map_ptr(lo, hi - lo, prot, host)
+        self._host.append((lo, hi, buffer, offset))
+
+    def _host_span(self, address: int, size: int) -> tuple[mmap.mmap, int] | None:
+        """The host buffer and offset of ``size`` bytes at ``address``, when one host mapping holds them."""
+        for lo, hi, buffer, offset in self._host:
+            if lo <= address and address + size <= hi:
+                return buffer, offset + address - lo
+        return None
 
     def _load(self) -> None:
         """The PT_LOAD segments: code and .data's image into flash, .data into RAM (the copy a
@@ -279,7 +342,7 @@ class Core:
             if seg["p_paddr"] != seg["p_vaddr"] and seg["p_filesz"]:
                 self.uc.mem_write(seg["p_paddr"], data)
             self.uc.mem_write(seg["p_vaddr"], data + bytes(seg["p_memsz"] - seg["p_filesz"]))
-        self.uc.mem_write(self._paint_lo, struct.pack("<I", PAINT) * ((self.ram_top - self._paint_lo) // 4))
+        self._paint[:] = PAINT
 
     def _soft_float_entries(self) -> dict[int, str]:
         entries: dict[int, str] = {}
@@ -288,16 +351,19 @@ class Core:
                 entries.setdefault(start, name)
         return entries
 
-    def _static_checks(self) -> dict[int, tuple]:
-        """The instructions whose faults Unicorn does not raise, found by disassembling every
-        function once: (kind, registers) by address."""
+    def _sweep(self) -> tuple[dict[int, tuple], dict[int, tuple]]:
+        """Every function in flash disassembled once: the instructions whose faults Unicorn does not
+        raise, (kind, registers) by address; and every instruction's cost row (hil.pil.cycles.row),
+        from which the native path sums a block it first meets (``decode_block``'s ``known``)."""
         checks: dict[int, tuple] = {}
+        rows: dict[int, tuple] = {}
         flash_end = FLASH_BASE + self.target.flash_bytes
         for start, end, _ in self._functions:
             if not FLASH_BASE <= start < flash_end:
                 continue
             code = bytes(self.uc.mem_read(start, min(end, flash_end) - start))
             for insn in self.md.disasm(code, start):
+                rows[insn.address] = row(insn, self.table)
                 name = insn.insn_name()
                 # Capstone's register numbers are not Unicorn's: by name (r0..r12, sb, sl, fp, ip, sp, lr)
                 uc_reg = lambda r: getattr(U, f"UC_ARM_REG_{insn.reg_name(r).upper()}")  # noqa: E731
@@ -311,7 +377,7 @@ class Core:
                 elif name in MULTIPLES_CHECKED:
                     if insn.reg_name(insn.operands[0].reg) != "sp":
                         checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic)
-        return checks
+        return checks, rows
 
     # --- symbols and source lines -----------------------------------------------------------------------
     def symbol(self, name: str) -> int:
@@ -367,10 +433,20 @@ class Core:
 
     # --- memory helpers ---------------------------------------------------------------------------------
     def read(self, address: int, size: int) -> bytes:
-        return bytes(self.uc.mem_read(address, size))
+        span = self._host_span(address, size)
+        if span is None:  # flash, or across mappings, or unmapped (Unicorn's error)
+            return bytes(self.uc.mem_read(address, size))
+        buffer, k = span
+        return buffer[k:k + size]
 
     def write(self, address: int, data: bytes) -> None:
-        self.uc.mem_write(address, bytes(data))
+        data = bytes(data)
+        span = self._host_span(address, len(data))
+        if span is None:
+            self.uc.mem_write(address, data)
+            return
+        buffer, k = span
+        buffer[k:k + len(data)] = data
 
     def read_cstring(self, address: int, limit: int = 256) -> str:
         """A NUL-terminated string in emulated memory (flash or RAM)."""
@@ -405,7 +481,9 @@ class Core:
             raise RuntimeError(f"{self.elf}: this core met {type(self._fault).__name__}; make a new Core")
         if len(args) > 4:
             raise ValueError("at most four word arguments (r0-r3)")
-        address = self.symbol(symbol)
+        address = self._symbols.get(symbol)
+        if address is None:
+            address = self.symbol(symbol)  # the error naming it
         uc = self.uc
         frame = _Frame(symbol, address, interrupt, label or symbol, self.cycles, self.cycles + self.budget_cycles,
                        charge, self.instructions, pc=address)
@@ -413,9 +491,7 @@ class Core:
             outer = self._frames[-1]
             outer.prev = self._prev
             outer.saved = uc.context_save()
-            r0, r1, r2, r3, r12, lr, pc, xpsr, sp = uc.reg_read_batch(
-                [U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_ARM_REG_R3, U.UC_ARM_REG_R12,
-                 U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP])
+            r0, r1, r2, r3, r12, lr, pc, xpsr, sp = self._regs.read(_STACKED_REGISTERS)
             frame.fp_frame = self.spec.hard_float and outer.uses_fp
             words = 26 if frame.fp_frame else 8
             sp = (sp - 4 * words) & ~7  # STKALIGN: the frame is 8-byte aligned
@@ -425,15 +501,14 @@ class Core:
             self._write_frame(sp, (0, 0, 0, 0, 0, 0xFFFFFFFF, MAGIC_RETURN, 0x01000000))
         else:
             sp = self.ram_top
-        regs = [(U.UC_ARM_REG_R0 + k, int(a) & 0xFFFFFFFF) for k, a in enumerate(args)]
-        uc.reg_write_batch(regs + [(U.UC_ARM_REG_SP, sp), (U.UC_ARM_REG_LR, MAGIC_RETURN | 1)])
+        self._regs.write(_CALL_REGISTERS[len(args)], (*(int(a) & 0xFFFFFFFF for a in args), sp, MAGIC_RETURN | 1))
         if interrupt and charge:
             self.cycles += self.table.exception_entry
         self._frames.append(frame)
         self._prev = START
 
     def _write_frame(self, sp: int, words) -> None:
-        self.uc.mem_write(sp, struct.pack("<8I", *(int(w) & 0xFFFFFFFF for w in words)))
+        self.write(sp, struct.pack("<8I", *(int(w) & 0xFFFFFFFF for w in words)))
 
     def run(self, until_cycle: float = math.inf) -> bool:
         """Run the innermost call until it returns (True) or ``cycles`` reaches ``until_cycle``
@@ -441,13 +516,22 @@ class Core:
         frame = self._frames[-1]
         self._stop_at = min(until_cycle, frame.hang_at)
         self._frame = frame
+        n = self._native
+        if n is not None:
+            n.push(frame)
+        error = None
         try:
             self.uc.emu_start(frame.pc | 1, MAGIC_RETURN)
         except unicorn.UcError as exc:
-            self._fault = self._fault or self._from_uc_error(exc)
+            error = exc
+        if n is not None:
+            n.pull(frame)
+            n.raise_error()
+        if error is not None:
+            self._fault = self._fault or self._from_uc_error(error)
         if self._fault is not None:
             raise self._fault
-        pc = self.uc.reg_read(U.UC_ARM_REG_PC)
+        pc, r0 = self._regs.read(_AFTER_REGISTERS)
         if pc != MAGIC_RETURN:
             frame.pc = pc
             if self.cycles >= frame.hang_at:
@@ -456,11 +540,11 @@ class Core:
                     f"({self.instructions} instructions so far)", pc)
                 raise self._fault
             return False
-        self._returned(frame)
+        self._returned(frame, r0)
         return True
 
-    def _returned(self, frame: _Frame) -> None:
-        self._result = self.uc.reg_read(U.UC_ARM_REG_R0)
+    def _returned(self, frame: _Frame, r0: int) -> None:
+        self._result = r0
         self._frames.pop()
         if frame.interrupt and frame.charge:
             self.cycles += self.table.exception_return + (self.table.lazy_fp_return if frame.lazy_stacked else 0)
@@ -493,18 +577,18 @@ class Core:
     def _stack_check(self, frame: _Frame) -> None:
         """The deepest painted word the calls since the last check overwrote: the high-water mark
         (repainted for the next call); below the stack's bottom, a StackOverflow."""
-        size = self.ram_top - self._paint_lo
-        words = np.frombuffer(bytes(self.uc.mem_read(self._paint_lo, size)), dtype="<u4")
-        touched = np.flatnonzero(words != PAINT)
-        if touched.size == 0:
+        words = self._paint
+        touched = words != PAINT
+        k = int(touched.argmax())
+        if not touched[k]:
             return
-        deepest = self._paint_lo + 4 * int(touched[0])
+        deepest = self._paint_lo + 4 * k
         depth = self.ram_top - deepest
         self.stack_high_water = max(self.stack_high_water, depth)
         if frame.interrupt or frame.label in self.stats:
             s = self.stats[frame.label]
             s.stack_bytes = max(s.stack_bytes, depth)
-        self.uc.mem_write(deepest, struct.pack("<I", PAINT) * ((self.ram_top - deepest) // 4))
+        words[k:] = PAINT
         if deepest < self.stack_bottom:
             self._fault = self._finding(
                 StackOverflow, "StackOverflow", f"the stack reached {depth} bytes below the top of RAM, "
@@ -531,13 +615,34 @@ class Core:
             self._special(b)
 
     def _decode(self, address: int, size: int) -> Block:
-        b = decode_block(self.md, bytes(self.uc.mem_read(address, size)), address, self.table,
-                         self.spec.hard_float)
-        name = self._softfloat_entries.get(address)
-        if name is not None:
-            b.softfloat, b.special = name, True
+        b = self._decoded.get((address, size))
+        if b is None:
+            # the native path sums what the sweep decoded in full; Python's (the reference) decodes in full
+            b = decode_block(self.md, bytes(self.uc.mem_read(address, size)), address, self.table,
+                             self.spec.hard_float, self._rows if self._native is not None else None)
+            name = self._softfloat_entries.get(address)
+            if name is not None:
+                b.softfloat, b.special = name, True
+            if self._flash[0] <= address < self._flash[1]:
+                self._decoded[(address, size)] = b
         self._blocks[address] = b
+        if self._native is not None:
+            self._native.insert(b)
         return b
+
+    def _native_block(self, address: int, size: int) -> None:
+        """The C block hook met a block it has no entry for (or one with a fault): Python's hook."""
+        n, frame = self._native, self._frame
+        n.pull(frame)
+        self._on_block(self.uc, address, size, None)
+        n.push(frame)
+
+    def _native_check(self, address: int, size: int, index: int) -> None:
+        """A C check failed: Python's names the fault."""
+        n, frame = self._native, self._frame
+        n.pull(frame)
+        self._on_check(self.uc, address, size, n.checks[index][1])
+        n.push(frame)
 
     def _special(self, b: Block) -> None:
         frame = self._frame

@@ -138,25 +138,52 @@ class Block:
 START = Block(0, 0, 0, 0, -1, 0, 0, False)
 
 
-def decode_block(md: capstone.Cs, code: bytes, address: int, t: CycleTable, has_fpu: bool) -> Block:
+def row(insn, t: CycleTable) -> tuple[int, int, str, str, int, int, bool]:
+    """What a block's cost needs of one decoded instruction: (address, size, mnemonic, operands,
+    cycles when not taken, extra when taken, FP)."""
+    c, taken = insn_cycles(insn, t)
+    return insn.address, insn.size, insn.mnemonic, insn.op_str, c, taken, is_fp(insn.insn_name())
+
+
+def decode_block(md: capstone.Cs, code: bytes, address: int, t: CycleTable, has_fpu: bool,
+                 known: dict[int, tuple] | None = None) -> Block:
+    """The block of ``code`` at ``address``, each instruction decoded in full by Capstone (tens of
+    microseconds an instruction in Python). ``known``: rows (``row``) by address from a full decode
+    of the ELF's functions made before (hil.pil.core's sweep); a block whose light decode (address,
+    size, mnemonic, operand text: a few microseconds an instruction) finds every instruction there,
+    decoded alike, is summed from those rows instead. Decoded alike means the same encoding (the
+    same bytes at the same address) shown the same way: the text carries the decoder's context
+    (the condition an IT block adds) and every operand ``insn_cycles`` reads."""
+    rows = _known_rows(md, code, address, known) if known else None
+    if rows is None:
+        rows = [row(insn, t) for insn in md.disasm(code, address)]
     cycles = count = taken = 0
     fp = False
     fault = None
     end = address
     first_wide = None
-    for insn in md.disasm(code, address):
-        c, taken = insn_cycles(insn, t)
+    for a, size, mnemonic, op_str, c, taken, insn_fp in rows:
         cycles += c
         count += 1
-        end = insn.address + insn.size
+        end = a + size
         if first_wide is None:
-            first_wide = insn.size == 4 and address % 4 == 2
-        if is_fp(insn.insn_name()):
+            first_wide = size == 4 and address % 4 == 2
+        if insn_fp:
             fp = True
             if not has_fpu and fault is None:
-                fault = ("UsageFault", f"NOCP: floating-point instruction {insn.mnemonic} {insn.op_str} on a core "
-                                       "without an FPU", insn.address)
+                fault = ("UsageFault", f"NOCP: floating-point instruction {mnemonic} {op_str} on a core "
+                                       "without an FPU", a)
     if end != address + len(code) and fault is None:
         fault = ("UsageFault", "UNDEFINSTR: an instruction Capstone cannot decode", end)
     return Block(address, len(code), cycles, count, address + len(code), taken,
                  t.wide_target if first_wide else 0, fp, special=fp or fault is not None, fault=fault)
+
+
+def _known_rows(md: capstone.Cs, code: bytes, address: int, known: dict[int, tuple]) -> list[tuple] | None:
+    rows = []
+    for a, size, mnemonic, op_str in md.disasm_lite(code, address):
+        r = known.get(a)
+        if r is None or r[1] != size or r[2] != mnemonic or r[3] != op_str:
+            return None
+        rows.append(r)
+    return rows

@@ -30,10 +30,11 @@ KINDS = ("hall", "compare", "control")
 class PilFirmware:
     """The exports of ``elf`` on a fresh core of ``target``."""
 
-    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int | None = None):
+    def __init__(self, elf: str | Path, target: Target, *, budget_cycles: int | None = None, hooks: str = "native"):
         self.path = str(elf)
         self.target = target
-        self.core = core = Core(elf, target, **({"budget_cycles": budget_cycles} if budget_cycles else {}))
+        self.core = core = Core(elf, target, hooks=hooks,
+                                **({"budget_cycles": budget_cycles} if budget_cycles else {}))
         has = check_exports(self.path, core.has)
         self.has_compare, self.has_emcy = has["hil_sil_compare"], has["hil_sil_emcy"]
         self.compare_isr = self._compare_isr if self.has_compare else None
