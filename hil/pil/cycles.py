@@ -54,6 +54,12 @@ def _reg_list_has_pc(insn) -> bool:
     return any(op.type == A.ARM_OP_REG and op.reg == A.ARM_REG_PC for op in insn.operands)
 
 
+
+#: instruction classes of one fixed cost, in the order they are tried: (mnemonics, the cycle-table field)
+_FIXED_COST = ((_STORES, "store"), (DUALS, "dual"), (DIVIDES, "div"), (frozenset({"mul"}), "mul"),
+               (frozenset({"mla", "mls"}), "mla"), (_MULL, "mull"), (_SYSREG, "sysreg"), (_BARRIERS, "barrier"),
+               (_OTHER, "other"))
+
 def insn_cycles(insn, t: CycleTable) -> tuple[int, int]:
     """(cycles when not taken, extra when it transfers control) of one decoded instruction."""
     name = insn.insn_name()
@@ -68,24 +74,9 @@ def insn_cycles(insn, t: CycleTable) -> tuple[int, int]:
         return t.multiple + regs, 0
     if name in _LOADS:
         return (t.load, t.taken + t.load_pc) if _writes_pc(insn) else (t.load, 0)
-    if name in _STORES:
-        return t.store, 0
-    if name in DUALS:
-        return t.dual, 0
-    if name in DIVIDES:
-        return t.div, 0
-    if name == "mul":
-        return t.mul, 0
-    if name in ("mla", "mls"):
-        return t.mla, 0
-    if name in _MULL:
-        return t.mull, 0
-    if name in _SYSREG:
-        return t.sysreg, 0
-    if name in _BARRIERS:
-        return t.barrier, 0
-    if name in _OTHER:
-        return t.other, 0
+    for names, field in _FIXED_COST:
+        if name in names:
+            return getattr(t, field), 0
     if is_fp(name):
         mnemonic = insn.mnemonic
         if name in ("vdiv", "vsqrt"):
