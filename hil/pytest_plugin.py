@@ -95,6 +95,13 @@ def pytest_addoption(parser):
         help="run only the tests traced to these requirements (comma-separated; hil qualify --sensitivity)",
     )
     group.addoption(
+        "--hil-first",
+        default=None,
+        metavar="IDS",
+        help="run the tests traced to these requirements first, the rest after in their order (comma-separated; "
+        "hil qualify: a defect's own requirements, so that -x stops at its catch)",
+    )
+    group.addoption(
         "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
     )
     group.addoption(
@@ -522,9 +529,13 @@ def _protocol_applies(item) -> bool:
     return mark is None or spec is None or spec.protocol == mark.args[0]
 
 
+def _requirement_ids(config, option: str) -> set[str] | None:
+    text = config.getoption(option, None)
+    return {w.strip() for w in text.split(",") if w.strip()} if text else None
+
+
 def pytest_collection_modifyitems(config, items):
-    wanted = config.getoption("--hil-requirements", None)
-    wanted = {w.strip() for w in wanted.split(",") if w.strip()} if wanted else None
+    wanted = _requirement_ids(config, "--hil-requirements")
     keep, drop = [], []
     for item in items:
         applies = _protocol_applies(item) and (wanted is None or traced_requirements(item) & wanted)
@@ -532,6 +543,9 @@ def pytest_collection_modifyitems(config, items):
     if drop:
         config.hook.pytest_deselected(items=drop)
         items[:] = keep
+    first = _requirement_ids(config, "--hil-first")
+    if first:  # a stable sort: the named requirements' tests ahead, each group in the suite's order
+        items.sort(key=lambda item: not traced_requirements(item) & first)
 
 
 @pytest.hookimpl(tryfirst=True)

@@ -508,3 +508,40 @@ def test_lost_edge_against_last_sector_is_caught_by_a_healthy_run_with_uneven_se
     from hil.qualify.run import what_caught
 
     assert what_caught(report)[:2] == ("check", ["REQ-FLT-005"])
+
+
+def test_a_defect_runs_the_tests_of_its_own_requirements_first_and_the_rest_after(tmp_path, monkeypatch):
+    """``hil qualify`` (with -x) gives each defect ``--hil-first`` with the requirements that name its
+    class; the plugin then runs their tests ahead of the rest, each group in the suite's order, and
+    drops none."""
+    import argparse
+
+    from hil.qualify import run as qrun
+
+    (tmp_path / "test_order.py").write_text(
+        "import pytest\n\n"
+        "@pytest.mark.requirement('REQ-FLT-001')\ndef test_a(): pass\n\n"
+        "@pytest.mark.requirement('REQ-PRED-003')\ndef test_b(): pass\n\n"
+        "def test_c(): pass\n\n"
+        "@pytest.mark.requirement('REQ-CAL-002', 'REQ-FLT-002')\ndef test_d(): pass\n"
+    )
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--collect-only",
+                        "test_order.py", "--hil-first", "REQ-CAL-002,REQ-PRED-003"],
+                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
+    order = [line.split("::")[-1] for line in r.stdout.splitlines() if "::" in line]
+    assert order == ["test_b", "test_d", "test_a", "test_c"], r.stdout + r.stderr
+
+    seen = []
+    monkeypatch.setattr(subprocess, "run",
+                        lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 1, "", ""))
+    args = argparse.Namespace(report_dir=str(tmp_path / "r"), dut="virtual:in-process", seed=0, budgets=None,
+                              defects=None, suite=str(ROOT / "test_cases"), sensitivity=False)
+    defect = "pole-table-one-pole-off"
+    qrun._run(defect, "", defect, args)
+    wanted = qrun.naming(CATALOGUE[defect].defect_class)
+    assert "REQ-CAL-002" in wanted and "-x" in seen[0]
+    assert seen[0][seen[0].index("--hil-first") + 1] == ",".join(wanted)
+    seen.clear()
+    qrun._run("control", "", None, args)
+    assert "--hil-first" not in seen[0]

@@ -342,6 +342,10 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
         # the tests of the requirements that name its class, every one of them (no -x); a firmware
         # defect (a compile-time switch in the DUT) as a catalogue one
         cmd += ["--hil-requirements", ",".join(naming(defect_class))]
+    elif not sensitive and naming(defect_class):
+        # the tests of the requirements that name its class run first: -x stops at the catch there
+        # instead of after every test ahead of it in the suite (the rest still run when none fails)
+        cmd += ["--hil-first", ",".join(naming(defect_class))]
     elif sensitive and defect is None and getattr(args, "control_requirements", None):
         # the control needs to pass where the defects are judged, and nowhere else
         cmd += ["--hil-requirements", ",".join(args.control_requirements)]
