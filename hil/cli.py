@@ -1079,7 +1079,7 @@ def _parser_qualify(sub) -> None:
     grammar.add_json(p, "the result")
     p.add_argument("--list", action="store_true", help="list the defects and exit")
     p.add_argument("--sensitivity", action="store_true",
-                   help="run each defect without -x on the tests of the requirements that name its class: the "
+                   help="run each defect to the end on the tests of the requirements that name its class: the "
                         "sensitivity table (requirement x defect, caught by its own budget, with the margin)")
     p.add_argument("--table", help="write the sensitivity table (markdown) here")
     grammar.add_history(p)

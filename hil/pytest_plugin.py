@@ -99,7 +99,15 @@ def pytest_addoption(parser):
         default=None,
         metavar="IDS",
         help="run the tests traced to these requirements first, the rest after in their order (comma-separated; "
-        "hil qualify: a defect's own requirements, so that -x stops at its catch)",
+        "hil qualify: a defect's own requirements, so that the run stops at its catch early)",
+    )
+    group.addoption(
+        "--hil-stop-at-catch",
+        action="store_true",
+        default=False,
+        help="stop the session after the first test whose failure is a catch (a failed budget or judged check, a "
+        "device failure, a check of a requirement without budgets); a setup check, an error or a check of a "
+        "requirement with budgets does not stop it (hil qualify)",
     )
     group.addoption(
         "--hil-budgets", default=None, help="budgets TOML (named limits traced to requirements); default: built-in"
@@ -985,6 +993,7 @@ class HilReporter:
             self.records.append(record)
 
     def pytest_collection_finish(self, session):
+        self.session = session
         self.used = self.used or _explicit(self.config) or any(map(_uses_plugin, session.items))
         self.collected |= {item.nodeid for item in session.items}
         if self.writer is not None:
@@ -999,7 +1008,24 @@ class HilReporter:
     def pytest_runtest_logreport(self, report):
         self.pending.setdefault(report.nodeid, []).append(report)
         if report.when == "teardown" or report.when not in ("setup", "call"):
-            self._add(self._record(report.nodeid, self.pending.pop(report.nodeid)))
+            record = self._record(report.nodeid, self.pending.pop(report.nodeid))
+            self._add(record)
+            self._stop_at_catch(record)
+
+    def _stop_at_catch(self, record: dict) -> None:
+        """With --hil-stop-at-catch: end the session after a test whose failure is a catch (pytest's
+        -x would also stop at a setup check or at a check that counts for nothing, and the defect's
+        real catch, later in the suite, would never run)."""
+        session = getattr(self, "session", None)
+        if session is None or record["outcome"] not in ("failed", "error"):
+            return
+        if not self.config.getoption("--hil-stop-at-catch", False):
+            return
+        from .qualify.run import CATCH_KINDS, what_caught
+
+        caught_by, requirements, _, _ = what_caught({"tests": [record]})
+        if caught_by in CATCH_KINDS:
+            session.shouldstop = f"--hil-stop-at-catch: {record['nodeid']} caught it ({', '.join(requirements)})"
 
     def pytest_sessionfinish(self, session, exitstatus):
         for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)

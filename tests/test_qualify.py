@@ -116,23 +116,29 @@ def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_pa
     assert "caught 1 of 2 defects (50 %)" in r.stdout
 
 
-def test_a_setup_check_that_stops_the_first_run_is_no_verdict_the_whole_suite_runs(tmp_path):
-    """-x stops a defect's run at its first failing test; when that is a setup check (the scenario
-    did not provoke what the test judges), the defect is not judged by it: the whole suite runs,
-    and a later test's failed budget is the catch."""
+def test_a_defect_run_goes_past_a_setup_check_and_stops_at_its_catch(tmp_path):
+    """A setup check (the scenario did not provoke what the test judges) is no verdict on the defect:
+    the run goes on past it (pytest's -x would have ended it there), a later test's failed budget is
+    the catch, and the run stops after that test (a test after it never runs)."""
     suite = tmp_path / "suite"
     suite.mkdir()
     (suite / "test_a_setup.py").write_text(
         "import pytest\nfrom hil.judging import not_judged\n\n"
-        "@pytest.mark.requirement('REQ-FLT-004')\n"
+        "@pytest.mark.requirement('REQ-PRED-001')\n"
         "def test_guards(request, hil_evidence):\n"
-        "    not_judged(request.config.getoption('--hil-defect') is None, 'the guards never fired')\n"
+        "    not_judged(request.config.getoption('--hil-defect') is None, 'the scenario never provoked it')\n"
     )
     (suite / "test_b_budget.py").write_text(
         "import pytest\n\n"
         "@pytest.mark.requirement('REQ-COMM-001')\n"
         "def test_commutation(request, hil_budget):\n"
         "    hil_budget('commutation_angle_p99', 0.9 if request.config.getoption('--hil-defect') else 0.1)\n"
+    )
+    (suite / "test_c_after.py").write_text(
+        "import pytest\n\n"
+        "@pytest.mark.requirement('REQ-FLT-001')\n"
+        "def test_after(request, hil_evidence):\n"
+        "    assert request.config.getoption('--hil-defect') is None, 'ran after the catch'\n"
     )
     out = tmp_path / "q.json"
     r = _hil("qualify", "--suite", str(suite), "--only", "gate-latency-25us", "-o", str(tmp_path / "reports"),
@@ -141,7 +147,9 @@ def test_a_setup_check_that_stops_the_first_run_is_no_verdict_the_whole_suite_ru
     assert result["control_verdict"] == "PASS", r.stdout + r.stderr
     (mutant,) = result["mutants"]
     assert mutant["killed"] and mutant["caught_by"] == "budget" and mutant["killed_by"] == ["REQ-COMM-001"], mutant
-    assert "stopped at a setup check" in mutant["note"] and r.returncode == 0
+    ran = [t["nodeid"].split("::")[-1] for t in json.loads(Path(mutant["report"]).read_text())["tests"]
+           if t["outcome"] != "skipped"]
+    assert ran == ["test_guards", "test_commutation"] and r.returncode == 0, ran
 
 
 def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
@@ -540,7 +548,7 @@ def test_a_defect_runs_the_tests_of_its_own_requirements_first_and_the_rest_afte
     defect = "pole-table-one-pole-off"
     qrun._run(defect, "", defect, args)
     wanted = qrun.naming(CATALOGUE[defect].defect_class)
-    assert "REQ-CAL-002" in wanted and "-x" in seen[0]
+    assert "REQ-CAL-002" in wanted and "--hil-stop-at-catch" in seen[0] and "-x" not in seen[0]
     assert seen[0][seen[0].index("--hil-first") + 1] == ",".join(wanted)
     seen.clear()
     qrun._run("control", "", None, args)

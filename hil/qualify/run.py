@@ -1,8 +1,11 @@
 """``hil qualify``: the acceptance suite run against each seeded firmware defect.
 
 The control run (the built-in controller as shipped) must PASS; each defect then runs the same
-suite with ``--hil-defect NAME`` and stops at its first failing test (``-x``). What the run saw
-(``what_caught``), test by test from its HIL report. A catch is one of:
+suite with ``--hil-defect NAME``, the tests of the requirements that name its class first
+(``--hil-first``), and stops after the first test whose failure is a catch (``--hil-stop-at-catch``;
+not ``-x``, which would also stop at a setup check or at a check that counts for nothing, before
+the real catch ran). What the run saw (``what_caught``), test by test from its HIL report. A catch
+is one of:
 
 * a failed **budget** (a measurement whose verdict is fail): caught by that budget's requirement,
   whichever test's marker measured it;
@@ -20,7 +23,7 @@ budgets, judged checks or device failures saw. **not judged** (a setup check fou
 scenario did not provoke what the test judges) and **error** (anything else) catch nothing
 either: findings to fix.
 
-With ``--sensitivity`` each defect runs without ``-x``, restricted to the tests of the
+With ``--sensitivity`` each defect runs to the end, restricted to the tests of the
 requirements that name its class (``hil.requirements``, ``judges``), and the result holds the
 sensitivity table: requirement x defect -> caught by that requirement's own budget or check, with
 the margin (``sensitivity_markdown``). Without a control run that PASSes there is no detection
@@ -319,15 +322,15 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     return out
 
 
-def _run(name: str, description: str, defect: str | None, args, stop_at_first: bool = True) -> Run:
+def _run(name: str, description: str, defect: str | None, args) -> Run:
     report_dir = Path(args.report_dir) / (defect or "control")
     firmware = getattr(args, "firmware_defects", None) or {}
     dut = args.dut + (f",define={firmware[defect].define}" if defect in firmware else "")
     sensitive = bool(getattr(args, "sensitivity", False))
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", dut,
            "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
-    if not sensitive and stop_at_first:
-        cmd.insert(4, "-x")
+    if not sensitive:
+        cmd.append("--hil-stop-at-catch")  # not -x: a setup check or an uncounted check is no catch
     if args.budgets:
         cmd += ["--hil-budgets", args.budgets]
     if defect is None:
@@ -343,7 +346,7 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
         # defect (a compile-time switch in the DUT) as a catalogue one
         cmd += ["--hil-requirements", ",".join(naming(defect_class))]
     elif not sensitive and naming(defect_class):
-        # the tests of the requirements that name its class run first: -x stops at the catch there
+        # the tests of the requirements that name its class run first: the run stops at the catch there
         # instead of after every test ahead of it in the suite (the rest still run when none fails)
         cmd += ["--hil-first", ",".join(naming(defect_class))]
     elif sensitive and defect is None and getattr(args, "control_requirements", None):
@@ -367,13 +370,6 @@ def _run(name: str, description: str, defect: str | None, args, stop_at_first: b
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
     caught_by, failed_reqs, failed_tests, catches, uncounted = _judged(report, None)
-    if caught_by == "not judged" and defect is not None and not sensitive and stop_at_first:
-        # -x stopped at a setup check (the scenario did not provoke what that test judges): no
-        # verdict on the defect, so the whole suite runs, and what catches it there is the catch
-        again = _run(name, description, defect, args, stop_at_first=False)
-        again.note = ((again.note + "; ") if again.note else "") + (
-            f"the first run stopped at a setup check ({', '.join(failed_tests)}); the whole suite then ran")
-        return again
     if caught_by == "error":
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
     elif caught_by is None and uncounted:
