@@ -114,6 +114,7 @@ def main() -> int:
     from hil.history.hook import RunHistory
     from hil.history.location import resolve, shown
     from hil.history.store import Store
+    from hil.record import TestRecord
     from hil.report import ReportWriter
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-history-"))
@@ -131,7 +132,7 @@ def main() -> int:
                                                  "dut": "canopen:interface=pcan", "host": "bench-1",
                                                  "command": "hil acceptance"})
     for t in tests:
-        writer.records.append(t)
+        writer.records.append(TestRecord.from_json(t))
     writer.finish({"exit_status": 0})
     render_s = timed(writer.render, 3)
 

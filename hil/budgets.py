@@ -41,6 +41,7 @@ from pathlib import Path
 from bldc.params import ConfigError
 from bldc.tomlfile import ANY_KEY, load_toml
 
+from .record import Verdict
 from .requirements import REQUIREMENTS
 
 
@@ -54,42 +55,6 @@ class Budget:
     marginal: float | None = None
     description: str = ""
     limit_source: str = ""  #: where the limit's value comes from (hil.requirements.DefaultBudget)
-
-
-@dataclass(frozen=True)
-class Verdict:
-    budget: str
-    requirement: str
-    measured: float
-    limit: float
-    unit: str
-    margin: float          #: how far inside the limit (negative: outside), in the budget's unit
-    verdict: str           #: "pass", "marginal" or "fail"
-
-    def as_dict(self) -> dict:
-        return asdict(self)
-
-    def message(self) -> str:
-        if self.judgement != "budget":  # a judged check (hil.requirements.JudgedCheck): its bound is no budget
-            return (f"{self.judgement} check {self.budget} ({self.requirement}): measured {self.measured:.6g} "
-                    f"{self.unit}, bound {'at most' if self.limit_kind == 'max' else 'at least'} {self.limit:.6g} "
-                    f"{self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}")
-        rel = (
-            ("exceeds" if self.limit_kind == "max" else "falls short of")
-            if self.verdict == "fail" and self.margin < 0
-            else "is within"
-        )
-        side = "at most" if self.limit_kind == "max" else "at least"
-        return (
-            f"{self.budget} ({self.requirement}): measured {self.measured:.6g} {self.unit} {rel} the limit of "
-            f"{side} {self.limit:.6g} {self.unit} (margin {self.margin:+.3g} {self.unit}): {self.verdict.upper()}"
-        )
-
-    limit_kind: str = "max"
-    #: "budget" (the customer's limit), or the kind of a judged check that is no budget: "back-to-back"
-    #: (against the reference implementation, its tolerance the run's seed-to-seed spread) or "physics"
-    #: (what any correct predictor obeys); hil.requirements.JudgedCheck
-    judgement: str = "budget"
 
 
 def judged(check, measured: float, bound: float) -> Verdict:

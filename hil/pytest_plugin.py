@@ -34,7 +34,8 @@ from pathlib import Path
 import pytest
 
 # the report's record format: standard library only (the plant, links and budgets load on use)
-from .report import OUTCOME_ORDER, PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
+from .record import FailedBy, Outcome, Status, TestRecord, Unanswerable, Verdict
+from .report import PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
@@ -385,13 +386,8 @@ def _in_hypothesis_example() -> bool:
 def _missed_budgets(item) -> list:
     """The budgets ``hil_budget`` recorded as missed on ``item`` (its ``budget:`` properties, the
     record the report reads too)."""
-    recorded = [json.loads(v) for k, v in item.user_properties if str(k).startswith("budget:")]
-    missed = [m for m in recorded if m["verdict"] == "fail"]
-    if not missed:  # a session that never used the plugin loads nothing heavy (tests/test_plugin_lazy.py)
-        return []
-    from .budgets import Verdict
-
-    return [Verdict(**m) for m in missed]
+    recorded = [Verdict.from_dict(json.loads(v)) for k, v in item.user_properties if str(k).startswith("budget:")]
+    return [m for m in recorded if m.verdict == Status.FAIL]
 
 
 @pytest.hookimpl(wrapper=True)
@@ -421,7 +417,7 @@ def pytest_runtest_makereport(item, call):
         # a judged figure that missed its bound (an assertion, a budget, pytest.fail) or a test
         # that could not judge (any other exception): only the first is evidence against the DUT
         kind = failure_kind(exc)
-        rep.user_properties.append((PROPERTY_PREFIX + "failed_by", kind))
+        rep.user_properties.append((PROPERTY_PREFIX + "failed_by", kind.value))  # plain data: xdist sends it
         if not hasattr(rep, "wasxfail"):
             _apply_waiver(item, rep, kind)
     if (
@@ -449,13 +445,13 @@ def pytest_runtest_makereport(item, call):
     return rep
 
 
-def _apply_waiver(item, rep, kind: str) -> None:
+def _apply_waiver(item, rep, kind: FailedBy) -> None:
     """A failure that a waiver in the budgets covers under every requirement the test traces to
     (under every requirement whose budget it missed, when it missed only budgets) becomes a skip
     whose reason is the waiver (pytest's exit status, its own JUnit and the HIL report then agree);
     the failure itself travels on to the HIL report, which shows it beside the waiver. Docs:
     docs/budgets.md, Waivers."""
-    if kind == "budget":
+    if kind == FailedBy.BUDGET:
         rids = {v.requirement for v in _missed_budgets(item)}
     else:
         rids = {str(v) for k, v in item.user_properties if k == "requirement"}
@@ -471,7 +467,7 @@ def _apply_waiver(item, rep, kind: str) -> None:
     rep.longrepr = (str(path), (line or 0) + 1, f"WAIVED ({waiver.requirement}, owner {waiver.owner}): {waiver.reason}")
 
 
-def failure_kind(exc: BaseException) -> str:
+def failure_kind(exc: BaseException) -> FailedBy:
     """"budget" when only budgets were missed (``hil_budget``: each requirement the test traces to
     then has the verdict of its own budgets); "assertion" for any other assertion, pytest.fail, or
     a group of only those (a search that found several failures); "device failure" when the
@@ -485,17 +481,17 @@ def failure_kind(exc: BaseException) -> str:
     budgets = (BudgetExceeded, BudgetsExceeded)
     if isinstance(exc, BaseExceptionGroup):
         if exc.split(budgets)[1] is None:
-            return "budget"
+            return FailedBy.BUDGET
         if exc.split(judged)[1] is None:
-            return "assertion"
-        return "not judged" if exc.split(NotJudged)[1] is None else "error"
+            return FailedBy.ASSERTION
+        return FailedBy.NOT_JUDGED if exc.split(NotJudged)[1] is None else FailedBy.ERROR
     if isinstance(exc, budgets):
-        return "budget"
+        return FailedBy.BUDGET
     if isinstance(exc, judged):
-        return "assertion"
+        return FailedBy.ASSERTION
     if isinstance(exc, NotJudged):
-        return "not judged"
-    return "device failure" if device_failure(exc) else "error"
+        return FailedBy.NOT_JUDGED
+    return FailedBy.DEVICE_FAILURE if device_failure(exc) else FailedBy.ERROR
 
 
 def _unreachable(exc: BaseException):
@@ -941,7 +937,7 @@ class HilReporter:
         self.directory = directory
         self.pending: dict[str, list] = {}
         self.history = _history(config)  #: standard library only until the run ends
-        self.records: list[dict] = []  #: without a report directory: the records, until the end
+        self.records: list[TestRecord] = []  #: without a report directory: the records, until the end
         self.collected: set[str] = set()
         self.used = False
         self.writer = self._writer() if directory is not None else None
@@ -1017,15 +1013,15 @@ class HilReporter:
         -x would also stop at a setup check or at a check that counts for nothing, and the defect's
         real catch, later in the suite, would never run)."""
         session = getattr(self, "session", None)
-        if session is None or record["outcome"] not in ("failed", "error"):
+        if session is None or record.outcome not in (Outcome.FAILED, Outcome.ERROR):
             return
         if not self.config.getoption("--hil-stop-at-catch", False):
             return
         from .qualify.run import CATCH_KINDS, what_caught
 
-        caught_by, requirements, _, _ = what_caught({"tests": [record]})
+        caught_by, requirements, _, _ = what_caught({"tests": [record.to_json()]})
         if caught_by in CATCH_KINDS:
-            session.shouldstop = f"--hil-stop-at-catch: {record['nodeid']} caught it ({', '.join(requirements)})"
+            session.shouldstop = f"--hil-stop-at-catch: {record.nodeid} caught it ({', '.join(requirements)})"
 
     def pytest_sessionfinish(self, session, exitstatus):
         for nodeid, reports in list(self.pending.items()):  # a test whose teardown never came (a crashed worker)
@@ -1033,7 +1029,7 @@ class HilReporter:
         self.pending.clear()
         if self.writer is None:
             # under xdist the controller collects nothing: a test that used the plugin left its trace
-            traced = any(r["requirements"] or r["measurements"] or r["dut"] for r in self.records)
+            traced = any(r.requirements or r.measurements or r.dut for r in self.records)
             if not (self.used or traced) or self.history.url is None:
                 return
             self.writer = self._writer()
@@ -1067,103 +1063,73 @@ class HilReporter:
             terminalreporter.write_line(line)
 
     @staticmethod
-    def _record(nodeid: str, reports: list) -> dict:
-        outcome, message, details, duration, xfail_reason, failed_by = "passed", "", "", 0.0, "", ""
+    def _record(nodeid: str, reports: list) -> TestRecord:
+        outcome, message, details, duration, xfail_reason = Outcome.PASSED, "", "", 0.0, ""
+        failed_by = FailedBy.NOTHING
         props: list = []
         for r in reports:
             duration += getattr(r, "duration", 0.0)
             props = list(getattr(r, "user_properties", props)) or props
+            own = dict((str(k), v) for k, v in getattr(r, "user_properties", ()))
             phase = None
             if hasattr(r, "wasxfail"):
-                phase = "xfailed" if r.skipped else ("xpassed" if r.passed else None)
+                phase = Outcome.XFAILED if r.skipped else (Outcome.XPASSED if r.passed else None)
                 xfail_reason = str(r.wasxfail).removeprefix("reason: ")
                 message = message or xfail_reason
             if phase is None:
                 if r.failed:
-                    unreachable = any(
-                        str(k) == PROPERTY_PREFIX + "unreachable" for k, _ in getattr(r, "user_properties", ())
-                    )
+                    unreachable = PROPERTY_PREFIX + "unreachable" in own
                     # a setup check that found the scenario did not provoke what the test judges: no
                     # evidence either way (hil.judging.not_judged)
-                    unjudged = any(
-                        str(k) == PROPERTY_PREFIX + "failed_by" and v == "not judged"
-                        for k, v in getattr(r, "user_properties", ())
-                    )
-                    phase = "failed" if r.when == "call" and not unreachable and not unjudged else "error"
+                    unjudged = own.get(PROPERTY_PREFIX + "failed_by") == FailedBy.NOT_JUDGED
+                    phase = Outcome.FAILED if r.when == "call" and not unreachable and not unjudged else Outcome.ERROR
                 elif r.skipped:
-                    phase = "skipped"
+                    phase = Outcome.SKIPPED
                 else:
-                    phase = "passed"
-            waived = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(
-                PROPERTY_PREFIX + "waived_failure"
-            )
-            if (
-                waived is not None
-            ):  # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
-                phase = "failed"
-            if OUTCOME_ORDER.index(phase) < OUTCOME_ORDER.index(outcome):
+                    phase = Outcome.PASSED
+            waived = own.get(PROPERTY_PREFIX + "waived_failure")
+            if waived is not None:
+                # a failure the plugin reported to pytest as a waived skip: the report keeps the failure
+                phase = Outcome.FAILED
+            if phase.worse_than(outcome):
                 outcome = phase
-                failed_by = dict((str(k), v) for k, v in getattr(r, "user_properties", ())).get(
-                    PROPERTY_PREFIX + "failed_by", "error" if phase in ("failed", "error") else ""
-                )
+                failing = phase in (Outcome.FAILED, Outcome.ERROR)
+                failed_by = FailedBy(own.get(PROPERTY_PREFIX + "failed_by", FailedBy.ERROR if failing else ""))
                 if waived is not None:
                     message, details = waived["message"], waived["details"]
                 elif r.failed or r.skipped:
                     message, details = _failure_text(r)
-        record = {
-            "nodeid": nodeid,
-            "outcome": outcome,
-            "duration_s": round(duration, 3),
-            "message": message,
-            "details": details,
-            "requirements": [],
-            #: the requirements tied to the test only by a budget it measured: judged by their
-            #: budgets alone, whatever the test's other checks found
-            "budget_only": [],
-            "measurements": [],
-            "evidence": [],
-            "dut": "",
-            "dut_identity": {},
-            "doc": "",
-            "worker": _worker_id(reports[-1]),
-            "xfail_reason": xfail_reason if outcome in ("xfailed", "xpassed") else "",
-            "not_testable": None,
-            "not_applicable": None,
-            #: why a failed or errored test did (failure_kind): "budget" (only budgets were missed:
-            #: each requirement has its own budgets' verdict), "assertion" (a check failed),
-            #: "device failure", "not judged" or "error"; "" otherwise
-            "failed_by": failed_by if outcome in ("failed", "error") else "",
-        }
+        record = TestRecord(
+            nodeid, outcome, round(duration, 3), message, details,
+            worker=_worker_id(reports[-1]),
+            xfail_reason=xfail_reason if outcome in (Outcome.XFAILED, Outcome.XPASSED) else "",
+            failed_by=failed_by if outcome in (Outcome.FAILED, Outcome.ERROR) else FailedBy.NOTHING,
+        )
         for key, value in props:
             key = str(key)
-            if key == PROPERTY_PREFIX + "budget_only" and value not in record["budget_only"]:
-                record["budget_only"].append(value)
-            elif key == "requirement" and value not in record["requirements"]:
-                record["requirements"].append(value)
+            if key == PROPERTY_PREFIX + "budget_only" and value not in record.budget_only:
+                record.budget_only.append(value)
+            elif key == "requirement" and value not in record.requirements:
+                record.requirements.append(value)
             elif key.startswith("budget:"):
-                record["measurements"].append(json.loads(value))
+                record.measurements.append(Verdict.from_dict(json.loads(value)))
             if not key.startswith(PROPERTY_PREFIX):
                 continue
             kind = key[len(PROPERTY_PREFIX) :]
             if kind == "evidence":
-                record["evidence"].append(value)
+                record.evidence.append(value)
             elif kind == "dut":
-                record["dut"], record["dut_identity"] = value["id"], value["identity"]
-                if value.get("build"):
-                    record["dut_build"] = value["build"]
+                record.dut, record.dut_identity = value["id"], value["identity"]
+                record.dut_build = value.get("build") or None
             elif kind == "doc":
-                record["doc"] = value
-            elif kind == "traffic":
-                record["traffic"] = value
-            elif kind == "processor":
-                record["processor"] = value
-            elif kind == "not_applicable":
-                record["not_applicable"] = value
-            elif kind == "not_testable":
+                record.doc = value
+            elif kind in ("traffic", "processor"):
+                setattr(record, kind, value)
+            elif kind in ("not_applicable", "not_testable"):
                 # kept whatever the outcome: a test that ran for its other requirements judged
-                # nothing of these (hil.report.test_status), so its pass or failure is not theirs
-                record["not_testable"] = value
-        json.dumps(record)  # everything in a record is plain data
+                # nothing of these (TestRecord.status), so its pass or failure is not theirs
+                setattr(record, kind, Unanswerable.from_json(value))
+        json.dumps(record.to_json())  # everything in a record is plain data
         return record
 
 

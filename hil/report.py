@@ -26,11 +26,12 @@ import xml.etree.ElementTree as ET
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from .record import Outcome, Status, TestRecord
 from .report_html import html  # the HTML report's presentation (labels, summary, matrix rows)
 
 PROPERTY_PREFIX = "hil:"
 #: the worst first: a test's outcome is the worst of its phases
-OUTCOME_ORDER = ("failed", "error", "xpassed", "xfailed", "skipped", "passed")
+OUTCOME_ORDER = tuple(Outcome)
 
 
 def atomic_write(path: Path, text: str | bytes) -> None:
@@ -45,53 +46,20 @@ def atomic_write(path: Path, text: str | bytes) -> None:
 #: pytest exit statuses after which every collected test has had its say
 _FINISHED_EXIT = {0: "ok", 1: "tests failed", 5: "no tests collected"}
 _EXIT_NAMES = {2: "interrupted", 3: "internal error", 4: "usage error"}
-#: outcomes that are evidence of a defect: a failure, a known failure (xfail), an unexpected pass
-_FAILING = ("failed", "xfailed", "xpassed")
 #: test and requirement verdicts, the worst first
-VERDICTS = ("fail", "error", "waived", "not testable", "not tested", "out of scope", "not applicable", "marginal",
-            "pass")
+VERDICTS = tuple(Status)
 #: a requirement verdict that leaves the run short of PASS (besides fail and error)
-_UNANSWERED = ("not tested", "not testable")
+_UNANSWERED = (Status.NOT_TESTED, Status.NOT_TESTABLE)
 
 
-def _relevant(test: dict, rid: str | None) -> list[dict]:
-    """A test's measurements of ``rid``'s budgets; a test tied to ``rid`` by its marker only
-    answers for it with all of its measurements."""
-    ms = test["measurements"]
-    return ([m for m in ms if m["requirement"] == rid] or ms) if rid else ms
+def test_status(test: TestRecord | dict, rid: str | None = None) -> Status:
+    """One test's verdict (for requirement ``rid``, or overall): ``TestRecord.status``; a record
+    read from a saved report (a dict) is read as a ``TestRecord`` first."""
+    return _typed(test).status(rid)
 
 
-def test_status(test: dict, rid: str | None = None) -> str:
-    """One test's verdict (for requirement ``rid``, or overall): fail, error, not tested, marginal or pass.
-
-    A known failure (xfail) and an unexpected pass (xpass) are ``fail``; a skip is ``not tested``
-    (the plugin turns a skip that hides an unreachable controller into an error), or ``not
-    testable`` for a requirement the device's profile lacks what it needs for."""
-    lacking = test.get("not_testable") or {}  # the requirements the device's profile cannot show
-    elsewhere = test.get("not_applicable") or {}  # the requirements of another kind of DUT (REQ-PIL-*)
-    if elsewhere and test["outcome"] != "error" and (
-        (rid is not None and rid in elsewhere.get("requirements", ())) or (rid is None and test["outcome"] == "skipped")
-    ):
-        return "not applicable"
-    if rid is not None and rid in lacking.get("requirements", ()) and test["outcome"] != "error":
-        # a test that ran for its other requirements judged nothing of this one
-        return "not testable"
-    if test["outcome"] == "error":
-        return "error"
-    if test["outcome"] == "failed" and rid is not None and (
-        test.get("failed_by") == "budget" or rid in test.get("budget_only", ())
-    ):
-        # the failure was only missed budgets, or ``rid`` is tied to the test by its budgets alone:
-        # ``rid`` is judged by its own budgets (one with none here was judged by the test's checks,
-        # which all held)
-        verdicts = {m["verdict"] for m in test["measurements"] if m["requirement"] == rid}
-        return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
-    if test["outcome"] in _FAILING:
-        return "fail"
-    if test["outcome"] == "skipped":
-        return "not testable" if lacking and rid is None else "not tested"
-    verdicts = {m["verdict"] for m in _relevant(test, rid)}
-    return "fail" if "fail" in verdicts else ("marginal" if "marginal" in verdicts else "pass")
+def _typed(test: TestRecord | dict) -> TestRecord:
+    return test if isinstance(test, TestRecord) else TestRecord.from_json(test)
 
 
 def find_waiver(waivers, rid: str, nodeid: str | None):
@@ -112,7 +80,7 @@ def test_waiver(waivers, requirements, nodeid: str):
     return found[0] if found and all(found) else None
 
 
-def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, object]:
+def requirement_verdict(rid: str, tests: list[TestRecord | dict], waivers=()) -> tuple[Status, object]:
     """(verdict, waiver or None) of requirement ``rid`` from the tests traced to it.
 
     pass only when every traced test passed (skips aside) and at least one did; marginal when one
@@ -122,26 +90,23 @@ def requirement_verdict(rid: str, tests: list[dict], waivers=()) -> tuple[str, o
     profile lacks what its tests need), or waived / out of scope under an entry of the budgets file
     for the whole requirement."""
     statuses, used = [], None
-    for t in tests:
-        s = test_status(t, rid)
-        if s == "fail" and (w := find_waiver(waivers, rid, t["nodeid"])) is not None:
-            s, used = "waived", used or w
+    for t in map(_typed, tests):
+        s = t.status(rid)
+        if s == Status.FAIL and (w := find_waiver(waivers, rid, t.nodeid)) is not None:
+            s, used = Status.WAIVED, used or w
         statuses.append(s)
-    if (
-        not any(s in ("pass", "marginal", "waived") for s in statuses)
-        and "fail" not in statuses
-        and "error" not in statuses
-    ):
+    answered = {Status.PASS, Status.MARGINAL, Status.WAIVED, Status.FAIL, Status.ERROR}
+    if not answered & set(statuses):
         w = find_waiver(waivers, rid, None)
         if w is not None:
-            return ("out of scope" if w.kind == "out of scope" else "waived"), w
-        if "not testable" in statuses:
-            return "not testable", None
-        return ("not applicable" if "not applicable" in statuses else "not tested"), None
-    worst = min(statuses, key=VERDICTS.index)
-    if worst in (*_UNANSWERED, "not applicable"):  # skipped beside passing ones: the skips do not apply to this DUT
-        worst = "marginal" if "marginal" in statuses else "pass"
-    return worst, (used if worst == "waived" else None)
+            return (Status.OUT_OF_SCOPE if w.kind == "out of scope" else Status.WAIVED), w
+        if Status.NOT_TESTABLE in statuses:
+            return Status.NOT_TESTABLE, None
+        return (Status.NOT_APPLICABLE if Status.NOT_APPLICABLE in statuses else Status.NOT_TESTED), None
+    worst = Status.worst(statuses)
+    if worst in (*_UNANSWERED, Status.NOT_APPLICABLE):  # skipped beside passing ones: the skips do not apply here
+        worst = Status.MARGINAL if Status.MARGINAL in statuses else Status.PASS
+    return worst, (used if worst == Status.WAIVED else None)
 
 
 def traffic_total(counts: list[dict]) -> dict:
@@ -203,7 +168,7 @@ class ReportWriter:
     history: dict | None = None
 
     def __post_init__(self):
-        self.records: list[dict] = []
+        self.records: list[TestRecord] = []
         self.jsonl = None
         if self.directory is not None:
             self.directory = Path(self.directory)
@@ -229,12 +194,12 @@ class ReportWriter:
             "junit": self.directory / f"{self.basename}-junit.xml",
         }
 
-    def add(self, record: dict) -> None:
+    def add(self, record: TestRecord) -> None:
         self.records.append(record)
         if self.jsonl is None:
             return
         with open(self.jsonl, "a") as f:
-            f.write(json.dumps(record) + "\n")
+            f.write(json.dumps(record.to_json()) + "\n")
             f.flush()
             os.fsync(f.fileno())
         self.render()
@@ -249,7 +214,7 @@ class ReportWriter:
         and every collected test reported."""
         self.session = {**self.session, **summary}
         status = int(summary.get("exit_status", 0))
-        missing = sorted((self.collected or set()) - {r["nodeid"] for r in self.records})
+        missing = sorted((self.collected or set()) - {r.nodeid for r in self.records})
         if status not in _FINISHED_EXIT:
             self.incomplete_reason = f"pytest stopped with exit status {status} ({_EXIT_NAMES.get(status, 'unknown')})"
         elif missing:
@@ -262,16 +227,15 @@ class ReportWriter:
 
     # --- content ---------------------------------------------------------------------------------
     def content(self) -> dict:
-        counts = {k: 0 for k in OUTCOME_ORDER}
+        counts = {str(k): 0 for k in OUTCOME_ORDER}
         for r in self.records:
-            counts[r["outcome"]] = counts.get(r["outcome"], 0) + 1
+            counts[r.outcome] += 1
         tests = [self._judged(r) for r in self.records]
         reqs: dict[str, dict] = {
             rid: {"id": rid, "title": title, "tests": []} for rid, title in self.requirements.items()
         }
         for r in self.records:
-            ids = set(r["requirements"]) | {m["requirement"] for m in r["measurements"]}
-            for rid in sorted(ids):
+            for rid in sorted(r.traced):
                 reqs.setdefault(rid, {"id": rid, "title": "", "tests": []})["tests"].append(r)
         matrix = []
         for rid in sorted(reqs):
@@ -279,20 +243,20 @@ class ReportWriter:
             verdict, waiver = requirement_verdict(rid, traced, self.waivers)
             rows = []
             for t in traced:
-                status = test_status(t, rid)
-                w = find_waiver(self.waivers, rid, t["nodeid"]) if status == "fail" else None
+                status = t.status(rid)
+                w = find_waiver(self.waivers, rid, t.nodeid) if status == Status.FAIL else None
                 # a test that ran for its other requirements says why it could not show this one;
                 # its message and figures are theirs
-                lacking = (t.get("not_testable") if status == "not testable" else
-                           t.get("not_applicable") if status == "not applicable" else None)
+                lacking = (t.not_testable if status == Status.NOT_TESTABLE else
+                           t.not_applicable if status == Status.NOT_APPLICABLE else None)
                 rows.append(
                     {
-                        "nodeid": t["nodeid"],
-                        "dut": t.get("dut", ""),
-                        "outcome": t["outcome"],
-                        "verdict": "waived" if w else status,
-                        "message": lacking["reason"] if lacking else t["message"],
-                        "measurements": [] if lacking else _relevant(t, rid),
+                        "nodeid": t.nodeid,
+                        "dut": t.dut,
+                        "outcome": t.outcome,
+                        "verdict": Status.WAIVED if w else status,
+                        "message": lacking.reason if lacking else t.message,
+                        "measurements": [] if lacking else [m.as_dict() for m in t.relevant(rid)],
                         "waiver": w.as_dict() if w else None,
                     }
                 )
@@ -308,19 +272,19 @@ class ReportWriter:
             )
         duts = {}
         for r in self.records:
-            if r.get("dut") and r.get("dut_identity"):
-                duts.setdefault(r["dut"], r["dut_identity"])
-        builds = {r["dut"]: r["dut_build"] for r in self.records if r.get("dut") and r.get("dut_build")}
+            if r.dut and r.dut_identity:
+                duts.setdefault(r.dut, r.dut_identity)
+        builds = {r.dut: r.dut_build for r in self.records if r.dut and r.dut_build}
         traffic: dict[str, list] = {}
         for r in self.records:
-            if r.get("dut") and r.get("traffic"):
-                traffic.setdefault(r["dut"], []).append(r["traffic"])
+            if r.dut and r.traffic:
+                traffic.setdefault(r.dut, []).append(r.traffic)
         processor = {}  # pil: what the emulated core and the interrupt schedule measured, per DUT
         for r in self.records:
-            if r.get("dut") and r.get("processor"):
-                processor[r["dut"]] = processor_summary(r["processor"])
+            if r.dut and r.processor:
+                processor[r.dut] = processor_summary(r.processor)
         verdict, reasons = self._overall(tests, matrix)
-        counts["waived"] = sum(t["verdict"] == "waived" for t in tests)
+        counts["waived"] = sum(t["verdict"] == Status.WAIVED for t in tests)
         waivers = [
             {
                 **w.as_dict(),
@@ -357,22 +321,22 @@ class ReportWriter:
             "history": self.history,
         }
 
-    def _judged(self, record: dict) -> dict:
-        """The record with its verdict (``test_status``, or waived under ``test_waiver``)."""
-        status, waiver = test_status(record), None
-        if status == "fail":
-            rids = set(record["requirements"]) | {m["requirement"] for m in record["measurements"]}
-            if (waiver := test_waiver(self.waivers, rids, record["nodeid"])) is not None:
-                status = "waived"
-        return {**record, "verdict": status, "waiver": waiver.as_dict() if waiver else None}
+    def _judged(self, record: TestRecord) -> dict:
+        """The record as the JSON report writes it, with its verdict (``TestRecord.status``, or
+        waived under ``test_waiver``)."""
+        status, waiver = record.status(), None
+        if status == Status.FAIL:
+            if (waiver := test_waiver(self.waivers, record.traced, record.nodeid)) is not None:
+                status = Status.WAIVED
+        return {**record.to_json(), "verdict": status, "waiver": waiver.as_dict() if waiver else None}
 
     def _overall(self, tests: list[dict], matrix: list[dict]) -> tuple[str, list[str]]:
         """PASS only when at least one test ran, the run is complete and every traced requirement
         is pass, marginal or waived; otherwise FAIL, INCOMPLETE or NO TESTS, each with its reasons."""
         reasons = []
         for t in tests:
-            if t["verdict"] in ("fail", "error"):
-                what = {"xfailed": "known failure (xfail)", "xpassed": "unexpected pass (xpass)"}.get(
+            if t["verdict"] in (Status.FAIL, Status.ERROR):
+                what = {Outcome.XFAILED: "known failure (xfail)", Outcome.XPASSED: "unexpected pass (xpass)"}.get(
                     t["outcome"], t["outcome"]
                 )
                 # control characters written out: a reason is printed on terminals and shown in HTML
@@ -382,22 +346,22 @@ class ReportWriter:
                     )
                 )
         for r in matrix:
-            if r["traced"] and r["verdict"] in ("fail", "error", *_UNANSWERED):
-                why = next((t["message"] for t in r["tests"] if t["verdict"] == "not testable"), "")
+            if r["traced"] and r["verdict"] in (Status.FAIL, Status.ERROR, *_UNANSWERED):
+                why = next((t["message"] for t in r["tests"] if t["verdict"] == Status.NOT_TESTABLE), "")
                 # "with this profile" explains a requirement no test could show, never a failure
-                profile = " with this profile" if why and r["verdict"] == "not testable" else ""
+                profile = " with this profile" if why and r["verdict"] == Status.NOT_TESTABLE else ""
                 reasons.append(f"{r['id']}: {r['verdict']}{profile}")
         if not self.complete:
             reasons.append(f"incomplete: {self.incomplete_reason}")
-        ran = [t for t in tests if t["outcome"] != "skipped"]
+        ran = [t for t in tests if t["outcome"] != Outcome.SKIPPED]
         if not ran and self.complete:
             reasons.append(
                 f"no test ran ({len(tests)} reported, all skipped)"
                 if tests
                 else "no test was collected (or every one was deselected)"
             )
-        failing = any(t["verdict"] in ("fail", "error") for t in tests) or any(
-            r["traced"] and r["verdict"] in ("fail", "error") for r in matrix
+        failing = any(t["verdict"] in (Status.FAIL, Status.ERROR) for t in tests) or any(
+            r["traced"] and r["verdict"] in (Status.FAIL, Status.ERROR) for r in matrix
         )
         if failing:
             return "FAIL", reasons
@@ -450,7 +414,7 @@ def junit_xml(content: dict) -> bytes:
         {
             "name": "hil",
             "tests": str(len(tests) + incomplete),
-            "failures": str(n["fail"]),
+            "failures": str(n[Status.FAIL]),
             "errors": str(n["error"] + incomplete),
             "skipped": str(n["waived"] + n["not tested"]),
             "time": f"{sum(t['duration_s'] for t in tests):.3f}",
@@ -497,7 +461,7 @@ def junit_xml(content: dict) -> bytes:
             if e["kind"] == "value":
                 _element(cp, "property", name=f"value:{e['name']}", value=f"{e['value']} {e.get('unit', '')}".strip())
         message = t["message"][:500]
-        if t["verdict"] == "waived":
+        if t["verdict"] == Status.WAIVED:
             w = t["waiver"]
             _element(
                 case,
@@ -505,7 +469,7 @@ def junit_xml(content: dict) -> bytes:
                 f"{t['outcome']}: {t['message']}\n\n{t['details']}".strip(),
                 message=f"WAIVED ({w['requirement']}, owner {w['owner']}): {w['reason']}"[:1000],
             )
-        elif t["verdict"] == "fail" and t["outcome"] == "xfailed":
+        elif t["verdict"] == Status.FAIL and t["outcome"] == Outcome.XFAILED:
             why = f" ({t['xfail_reason']})" if t.get("xfail_reason") else ""
             _element(
                 case,
@@ -514,7 +478,7 @@ def junit_xml(content: dict) -> bytes:
                 message=f"known failure, marked xfail{why}: {message}"[:1000],
                 type="xfail",
             )
-        elif t["verdict"] == "fail" and t["outcome"] == "xpassed":
+        elif t["verdict"] == Status.FAIL and t["outcome"] == Outcome.XPASSED:
             _element(
                 case,
                 "failure",
@@ -522,11 +486,11 @@ def junit_xml(content: dict) -> bytes:
                 "the mark no longer matches the controller"[:1000],
                 type="xpass",
             )
-        elif t["verdict"] == "fail":
+        elif t["verdict"] == Status.FAIL:
             _element(case, "failure", t["details"], message=message or "failed")
-        elif t["verdict"] == "error":
+        elif t["verdict"] == Status.ERROR:
             _element(case, "error", t["details"], message=message or "error")
-        elif t["verdict"] == "not tested":
+        elif t["verdict"] == Status.NOT_TESTED:
             _element(case, "skipped", message=message)
     if incomplete:
         case = _element(suite, "testcase", classname="hil", name="run incomplete", time="0")

@@ -473,13 +473,15 @@ def test_requirement_verdict_table(tests, waiver_tests, verdict):
 def test_the_report_sums_each_duts_edge_traffic_and_shows_it_beside_the_controllers(tmp_path):
     """Each test's traffic (the plugin's per-test share of the link's counts) adds up per DUT into
     the report's top-level ``traffic``, bus time included, and the HTML shows it."""
+    from hil.record import TestRecord
     from hil.report import ReportWriter
 
     def record(name, dut, traffic):
-        return {"nodeid": f"t.py::{name}", "outcome": "passed", "duration_s": 1.0, "message": "", "details": "",
+        return TestRecord.from_json({"nodeid": f"t.py::{name}", "outcome": "passed", "duration_s": 1.0,
+                                     "message": "", "details": "",
                 "requirements": [], "measurements": [], "evidence": [], "dut": dut,
                 "dut_identity": {"vendor_id": 1}, "doc": "", "worker": "", "xfail_reason": "",
-                "not_testable": None, "traffic": traffic}
+                "not_testable": None, "traffic": traffic})
 
     on_can = {"protocol": "canopen", "edges": 10, "frames_to_device": 100, "frames_from_device": 12,
            "bytes_to_device": 800, "bytes_from_device": 96, "bus_time_s": {"can_1mbit": 0.01512, "can_fd_5mbit": 0.004}}
