@@ -585,3 +585,31 @@ def test_search(p99, hil_budget):
     # limit (a deferred miss would have let every example pass, and the test fail unshrunk at its end)
     assert "Failing test case" in test["details"] and test["failed_by"] == "budget", test["details"][-800:]
     assert re.search(r"p99=1\.0,", test["details"]), test["details"][-800:]
+
+
+def test_a_saved_report_of_an_earlier_version_reads_as_typed_records_with_the_same_verdicts():
+    """Every test of two reports written before the record was a dataclass reads as a TestRecord,
+    writes back the same keys and values, and has the same verdict, per test and per requirement
+    (tests/data/results/README.md)."""
+    from pathlib import Path
+
+    from hil.record import FailedBy, Outcome, Status, TestRecord
+    from hil.report import requirement_verdict
+
+    saved = json.loads((Path(__file__).parent / "data" / "results" / "hil-report-records-ca11662.json").read_text())
+    kinds = set()
+    for name, report in saved["reports"].items():
+        records = [TestRecord.from_json(t) for t in report["tests"]]
+        for t, r in zip(report["tests"], records):
+            written = r.to_json()
+            assert {k: written[k] for k in t if k in written} == {k: t[k] for k in written if k in t}, t["nodeid"]
+            assert set(t) - set(written) <= {"verdict", "waiver"}, t["nodeid"]  # what the report adds to a record
+            assert r.status() == Status(t["verdict"]), t["nodeid"]
+            kinds.add((r.outcome, r.failed_by))
+        for req in report["traceability"]:
+            traced = [r for r in records if req["id"] in r.traced]
+            if req["verdict"] in ("out of scope", "waived") or not traced:
+                continue  # the budgets file's entries are not saved with the records
+            assert requirement_verdict(req["id"], traced)[0] == Status(req["verdict"]), (name, req)
+    assert {(Outcome.FAILED, FailedBy.ASSERTION), (Outcome.PASSED, FailedBy.NOTHING),
+            (Outcome.SKIPPED, FailedBy.NOTHING)} <= kinds, kinds
