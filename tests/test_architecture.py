@@ -40,6 +40,7 @@ GROUP_OF_PREFIX = {
     "hil.budgets": "verdicts",
     "hil.budget_sources": "verdicts",
     "hil.requirements": "verdicts",
+    "hil.record": "verdicts",
     "hil.report": "verdicts",
     "hil.report_html": "verdicts",
     "hil.progress": "verdicts",
