@@ -255,36 +255,43 @@ def _memory_stays_flat(server: Served) -> None:
 
 
 def test_slow_loris_connections_are_closed_and_capped(served_server):
+    """Four slow clients at once (each timed from its own connection, so the waits overlap): a
+    command begun and never finished and a silent raw-mode client on socketcand, half an ADU and
+    silence on Modbus; each closed within its timeout, the socketcand ones told to the operator."""
+    from concurrent.futures import ThreadPoolExecutor
+
     co_port, mb_port = served_server.co_port, served_server.mb_port
-    # a command begun and never finished: closed after the partial timeout (5 s)
-    c = Cand(co_port)
-    half_sent = "127.0.0.1:%d" % c.sock.getsockname()[1]
-    c.sock.sendall(b"< send 60")
-    t = closed_within(c.sock, 10.0)
-    c.close()
-    print(f"\nsocketcand: half-sent command closed after {t:.1f} s")
-    assert t is not None and 4.0 <= t <= 7.0, t
-    # a raw-mode client that sends nothing: closed after the idle timeout
-    c = Cand(co_port)
-    idle = "127.0.0.1:%d" % c.sock.getsockname()[1]
-    t = closed_within(c.sock, IDLE_S + 4.0)
-    c.close()
-    print(f"socketcand: idle raw-mode client closed after {t:.1f} s (idle timeout {IDLE_S} s)")
-    assert t is not None and t <= IDLE_S + 2.0, t
+    half = Cand(co_port)  # a command begun and never finished: closed after the partial timeout (5 s)
+    half_sent = "127.0.0.1:%d" % half.sock.getsockname()[1]
+    half.sock.sendall(b"< send 60")
+    quiet = Cand(co_port)  # a raw-mode client that sends nothing: closed after the idle timeout
+    idle = "127.0.0.1:%d" % quiet.sock.getsockname()[1]
+    mb_half = socket.create_connection(("127.0.0.1", mb_port))  # half an ADU
+    mb_half.sendall(mbap(struct.pack(">BHH", 3, 0, 1))[:5])
+    mb_idle = socket.create_connection(("127.0.0.1", mb_port))  # silence
+    waits = {"socketcand half-sent command": (half.sock, 10.0),
+             "socketcand idle raw-mode client": (quiet.sock, IDLE_S + 4.0),
+             "Modbus half-sent ADU": (mb_half, 10.0), "Modbus idle connection": (mb_idle, IDLE_S + 4.0)}
+    try:
+        with ThreadPoolExecutor(len(waits)) as pool:
+            closed = dict(zip(waits, pool.map(lambda w: closed_within(*w), waits.values())))
+    finally:
+        half.close()
+        quiet.close()
+        mb_half.close()
+        mb_idle.close()
+    print("\n" + "\n".join(f"{what}: closed after {t:.1f} s" if t is not None else f"{what}: still open"
+                           for what, t in closed.items()))
+    t = closed["socketcand half-sent command"]
+    assert t is not None and 4.0 <= t <= 7.0, closed
+    t = closed["socketcand idle raw-mode client"]
+    assert t is not None and t <= IDLE_S + 2.0, closed
+    assert closed["Modbus half-sent ADU"] is not None and closed["Modbus half-sent ADU"] <= 7.0, closed
+    assert closed["Modbus idle connection"] is not None and closed["Modbus idle connection"] <= IDLE_S + 2.0, closed
     # the operator is told why, one line each, naming the client
     for line in (f"client {half_sent} closed: a command begun did not end within 5 s",
                  f"client {idle} closed: nothing sent for {IDLE_S:g} s"):
         assert served_server.logged(line), (line, served_server.log_tail())
-    # the same for Modbus: half an ADU, then silence
-    with socket.create_connection(("127.0.0.1", mb_port)) as s:
-        s.sendall(mbap(struct.pack(">BHH", 3, 0, 1))[:5])
-        t = closed_within(s, 10.0)
-        print(f"Modbus: half-sent ADU closed after {t:.1f} s")
-        assert t is not None and t <= 7.0, t
-    with socket.create_connection(("127.0.0.1", mb_port)) as s:
-        t = closed_within(s, IDLE_S + 4.0)
-        print(f"Modbus: idle connection closed after {t:.1f} s")
-        assert t is not None and t <= IDLE_S + 2.0, t
 
 
 def test_connections_are_capped_and_freed(served):
