@@ -60,8 +60,8 @@ def cmd_recording_check(args) -> int:
 
 
 def cmd_recording_import(args) -> int:
-    from .recording import write_recording
-    from .signals.hall import capture_recording, parse_channels, read_hall_capture, step_summary
+    from .recording.format import write_recording
+    from .recording.hall import capture_recording, parse_channels, read_hall_capture, step_summary
 
     cap = read_hall_capture(
         args.capture,
@@ -94,7 +94,8 @@ def cmd_recording_import(args) -> int:
 def cmd_plant_simulate(args) -> int:
     from plant_models.kinematic import OperatingPoint
 
-    from .recording import record_kinematic, write_recording
+    from .recording.drivers import record_kinematic
+    from .recording.format import write_recording
 
     config = _plant(args)
     profile = [OperatingPoint(args.duration_s, rpm, args.current_a) for rpm in args.speeds_rpm]
@@ -108,7 +109,7 @@ def cmd_calibrate(args) -> int:
     from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
     from .calibration.ordinary import Circuit
-    from .recording import write_recording
+    from .recording.format import write_recording
 
     if args.campaign:
         config = _plant(args)
@@ -272,8 +273,8 @@ def cmd_gap_diagnose(args) -> int:
 
     from plant_models import PlantConfig
 
-    from .signals.capture import CAPTURE_FORMATS
-    from .traces import TRACE_FORMATS, TraceMapping, read_trace
+    from .recording.capture import CAPTURE_FORMATS
+    from .recording.traces import TRACE_FORMATS, TraceMapping, read_trace
 
     path = Path(args.recording)
     # a suffix both tables read (.csv, .txt) is a trace here: the gap diagnosis wants its segments
@@ -452,7 +453,7 @@ def cmd_dut_serve(args) -> int:
 def cmd_dut_check(args) -> int:
     """Read every readable object of the DUT's profile once (writes nothing) and say which
     requirements the profile makes testable; 1 when the device refuses an object."""
-    from .requirements import REQUIREMENTS, missing_needs
+    from .verdicts.requirements import REQUIREMENTS, missing_needs
     from .dut.link import LinkError, edge_hook_kind
     from .dut.profile import ROLES
     from .dut.spec import open_dut
@@ -682,10 +683,10 @@ def _under_compile_ahead(run, *args):
 def cmd_acceptance(args) -> int:
     import subprocess
 
-    from .report import ReportWriter
+    from .verdicts.report import ReportWriter
 
     suite = find_suite(args.suite)
-    # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
+    # progress lines (hil.verdicts.progress) instead of dots: count, elapsed time, outcome and name per test
     # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
     argv = [
         str(suite),
@@ -694,7 +695,7 @@ def cmd_acceptance(args) -> int:
         "-p",
         "no:benchmark",
         "-p",
-        "hil.progress",
+        "hil.verdicts.progress",
         "-q",
         "-o",
         "console_output_style=classic",
@@ -779,9 +780,9 @@ def acceptance_exit(pytest_status: int, report_json: Path) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .budgets import Budgets
+    from .verdicts.budgets import Budgets
     from .dut.spec import open_dut
-    from .stimulus import Stimulus, run
+    from .bench.stimulus import Stimulus, run
 
     stim = Stimulus.load(args.file)
     budgets = Budgets.from_toml(args.budgets) if args.budgets else Budgets.defaults()

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.recording import Recording
+from hil.recording.format import Recording
 
 from .capture import Capture, GateMapping, _csv_header, capture_format
 from .errors import SignalError

@@ -28,15 +28,9 @@ import numpy as np
 
 from bldc.tomlfile import load_toml
 
-from .recording import (
-    MAX_TABLE_BYTES,
-    Recording,
-    RecordingError,
-    _checked_size,
-    _lines,
-    read_meta_file,
-    write_recording,
-)
+from .reader import MAX_TABLE_BYTES, _checked_size, _lines, read_meta_file
+from .format import Recording, write_recording
+from .errors import RecordingError
 
 
 @dataclass(frozen=True)
@@ -123,7 +117,7 @@ def _open_csv(path: Path) -> _Table:
 
 #: the trace table formats by file suffix (lower case), the file types read as traces: the one
 #: place a new trace format is registered (the Hall capture formats, logic levels without a mapping, are
-#: ``hil.signals.capture.CAPTURE_FORMATS``)
+#: ``hil.recording.capture.CAPTURE_FORMATS``)
 TRACE_FORMATS = {
     ".mf4": _open_mdf, ".mdf": _open_mdf, ".dat": _open_mdf,
     ".parquet": _open_parquet, ".pq": _open_parquet,

@@ -1,5 +1,5 @@
 """Real-bench signals: stimulus an instrument can play (VCD, CSV) and gate captures scored against truth."""
 
-from .errors import SignalError
+from ..recording.errors import SignalError
 
 __all__ = ["SignalError"]

@@ -29,9 +29,9 @@ import numpy as np
 
 from bldc.units import rpm_to_deg_e_per_s
 
-from .capture import Capture, GateMapping
+from ..recording.capture import Capture, GateMapping
 from .commutations import DEFAULT_HOLD_OFF_S, Extracted, extract
-from .errors import SignalError
+from ..recording.errors import SignalError
 
 
 @dataclass

@@ -48,8 +48,9 @@ from ..calibration.ordinary import (
     ordinary_calibration,
 )
 from ..calibration.result import Calibration
-from ..recording import Recording, read_recording
-from ..stats import OUTLIER_SD, chi2_test, inliers
+from ..recording.format import Recording
+from ..recording.reader import read_recording
+from ..calibration.stats import OUTLIER_SD, chi2_test, inliers
 
 #: residual lags whose autocorrelation the twin check compares
 ACF_LAGS = 12
@@ -61,12 +62,12 @@ RIPPLE_REF_HZ_E = 10.0
 
 def load_capture(path: str | Path, pole_pairs: int | None = None) -> Recording:
     """A recording directory (hil-recording/1), or a capture file (any format of
-    ``hil.signals.capture.CAPTURE_FORMATS``) read as ``hil recording import`` reads it."""
-    from ..signals.capture import is_capture_file, known_formats
+    ``hil.recording.capture.CAPTURE_FORMATS``) read as ``hil recording import`` reads it."""
+    from ..recording.capture import is_capture_file, known_formats
 
     path = Path(path)
     if is_capture_file(path):
-        from ..signals.hall import capture_recording, read_hall_capture
+        from ..recording.hall import capture_recording, read_hall_capture
 
         rec = capture_recording(read_hall_capture(path), pole_pairs, source=path.name)
         rec.path = path
