@@ -23,14 +23,6 @@ def _plant(args):
     return PlantConfig.from_toml(args.plant) if getattr(args, "plant", None) else PRESETS[args.preset]()
 
 
-def load_recording(path, pole_pairs: int | None = None):
-    """A RECORDING argument, the same forms in every command (docs/cli.md): a hil-recording/1
-    directory, or a Hall capture file read as ``hil recording import`` reads it."""
-    from .twin.capture import load_capture
-
-    return load_capture(path, pole_pairs)
-
-
 def cmd_demo(args) -> int:
     from .demo import print_demo, run_demo
 
@@ -39,6 +31,8 @@ def cmd_demo(args) -> int:
 
 
 def cmd_recording_check(args) -> int:
+    from .recording.load import load_recording
+
     rec = load_recording(args.recording)
     form = "hil-recording/1" if Path(args.recording).is_dir() else "Hall capture"
     channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
@@ -110,6 +104,7 @@ def cmd_calibrate(args) -> int:
     from .calibration.campaign import CalibrationCampaign
     from .calibration.ordinary import Circuit
     from .recording.format import write_recording
+    from .recording.load import load_recording
 
     if args.campaign:
         config = _plant(args)
@@ -246,6 +241,7 @@ def cmd_table5(args) -> int:
 
 def cmd_predictors_compare(args) -> int:
     from .experiments import peers
+    from .recording.load import load_recording
 
     if args.recording and args.scenario:
         raise ValueError("give a RECORDING or --scenario, not both")
@@ -273,29 +269,9 @@ def cmd_gap_diagnose(args) -> int:
 
     from plant_models import PlantConfig
 
-    from .recording.capture import CAPTURE_FORMATS
-    from .recording.traces import TRACE_FORMATS, TraceMapping, read_trace
+    from .recording.load import TraceFiles, load_recording
 
-    path = Path(args.recording)
-    # a suffix both tables read (.csv, .txt) is a trace here: the gap diagnosis wants its segments
-    captures_only = [s for s in CAPTURE_FORMATS if s not in TRACE_FORMATS]
-    if path.is_dir() or (path.suffix.lower() in captures_only and not args.meta):  # RECORDING's own forms
-        rec = load_recording(args.recording)
-    else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        if not path.exists():
-            raise ValueError(f"{path}: no such file or directory")
-        if path.suffix.lower() not in TRACE_FORMATS:
-            raise ValueError(
-                f"{path}: not a recording or a trace file (a hil-recording/1 directory, a Hall capture "
-                f"{' or '.join(captures_only)}, or a trace: {', '.join(TRACE_FORMATS)})"
-            )
-        if not args.meta:
-            raise ValueError(
-                f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping "
-                "MAP.toml"
-            )
-        mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
-        rec = read_trace(args.recording, mapping, args.meta)
+    rec = load_recording(args.recording, traces=TraceFiles(args.meta, args.mapping))
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
     print(format_text(d, str(args.recording)))

@@ -110,11 +110,11 @@ def _write_toy(path, t_s, sensor, rising):
 
 @pytest.fixture
 def toy_format(monkeypatch):
-    from hil.recording import capture
+    from hil.recording.capture import CaptureFormat
+    from hil.recording.formats import FORMATS, FileFormat
 
-    fmt = capture.CaptureFormat("toy", "toy text", _toy_read, lambda path, time_column: list(_TOY_CHANNELS),
-                                _toy_time_base)
-    monkeypatch.setitem(capture.CAPTURE_FORMATS, ".toy", fmt)
+    fmt = CaptureFormat("toy", "toy text", _toy_read, lambda path, time_column: list(_TOY_CHANNELS), _toy_time_base)
+    monkeypatch.setitem(FORMATS, ".toy", FileFormat(capture=fmt))
     return fmt
 
 
@@ -131,7 +131,8 @@ def kinematic_run():
 def test_a_toy_capture_format_registered_in_the_table_alone_is_read_by_the_recording_import(
     tmp_path, toy_format, kinematic_run
 ):
-    from hil.cli import load_recording, main
+    from hil.cli import main
+    from hil.recording.load import load_recording
     from hil.recording.reader import read_recording
 
     rec = kinematic_run
@@ -147,13 +148,13 @@ def test_a_toy_capture_format_registered_in_the_table_alone_is_read_by_the_recor
 
 
 def test_an_unregistered_suffix_is_refused_with_the_registered_ones(tmp_path):
-    from hil.recording.capture import Capture
     from hil.recording.errors import SignalError
+    from hil.recording.formats import open_capture
 
     path = tmp_path / "bench.toy"
     path.write_text("0.0 000\n")
     with pytest.raises(SignalError, match=r"unknown capture format '\.toy' \(VCD \.vcd, .*CSV \.csv/\.txt\)"):
-        Capture(path)
+        open_capture(path)
 
 
 # --- a toy predictor: the next edge one mean of the last two sector times after this one ---------------

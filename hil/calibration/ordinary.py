@@ -30,7 +30,6 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
-from .stats import BIC_MIN, bic_gain, inliers
 from .corrections import SENSORS, Corrections
 from .result import (
     ORDINARY_METHOD,
@@ -43,6 +42,7 @@ from .result import (
     Refusal,
     Stationarity,
 )
+from .stats import BIC_MIN, bic_gain, inliers
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
     bic_weight,

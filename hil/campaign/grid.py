@@ -22,10 +22,10 @@ import numpy as np
 from bldc.motor import steady_state
 
 from ..bench import stimulus
-from ..verdicts.budgets import Budget, Budgets
+from ..bench.stimulus import Stimulus
 from ..controller.virtual import VirtualController
 from ..dut.in_process import InProcessLink
-from ..bench.stimulus import Stimulus
+from ..verdicts.budgets import Budget, Budgets
 from .spec import CampaignSpec, point_fault, point_plant
 
 

@@ -50,9 +50,9 @@ from bldc.tomlfile import ANY_KEY, load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 
-from ..verdicts.budgets import Budgets
-from ..dut.faults import WIRING_FAULTS, wiring_fault_from_dict
 from ..bench.stimulus import DEFAULT_BUDGETS, METRICS
+from ..dut.faults import WIRING_FAULTS, wiring_fault_from_dict
+from ..verdicts.budgets import Budgets
 
 #: operating-point axes (not effect parameters)
 OPERATING_AXES = ("speed_rpm", "load_scale", "strategy", "fault_hold_s")
