@@ -17,7 +17,9 @@ from pathlib import Path
 
 from bldc.motor import steady_state
 from hil.gap import diagnose
-from hil.recording import read_recording, record_electrical, record_kinematic, write_recording
+from hil.recording.drivers import record_electrical, record_kinematic
+from hil.recording.format import write_recording
+from hil.recording.reader import read_recording
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint

@@ -114,8 +114,8 @@ def main() -> int:
     from hil.history.hook import RunHistory
     from hil.history.location import resolve, shown
     from hil.history.store import Store
-    from hil.record import TestRecord
-    from hil.report import ReportWriter
+    from hil.verdicts.record import TestRecord
+    from hil.verdicts.report import ReportWriter
 
     tmp = Path(tempfile.mkdtemp(prefix="bench-history-"))
     url = resolve(args.history or str(tmp / "history.sqlite"))

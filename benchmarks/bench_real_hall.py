@@ -20,8 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.recording import write_recording
-from hil.signals.hall import HallCapture, capture_recording
+from hil.recording.format import write_recording
+from hil.recording.hall import HallCapture, capture_recording
 
 ROOT = Path(__file__).resolve().parents[1]
 SPINDLE = ROOT / "tests" / "data" / "real-hall" / "20260618-spindle-hw.vcd"

@@ -38,7 +38,7 @@ def main() -> None:
 
     from bldc.contract import Strategy
     from bldc.motor import steady_state
-    from hil.bench import LockstepBench
+    from hil.bench.lockstep import LockstepBench
     from hil.calibration.campaign import CalibrationCampaign
     from hil.calibration.fit import fit_corrections
     from hil.controller.virtual import VirtualController

@@ -10,7 +10,8 @@ load. The plant's ground truth is not written: a bench has none. Run from the re
 
 from pathlib import Path
 
-from hil.recording import record_kinematic, write_recording
+from hil.recording.drivers import record_kinematic
+from hil.recording.format import write_recording
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 

@@ -23,14 +23,6 @@ def _plant(args):
     return PlantConfig.from_toml(args.plant) if getattr(args, "plant", None) else PRESETS[args.preset]()
 
 
-def load_recording(path, pole_pairs: int | None = None):
-    """A RECORDING argument, the same forms in every command (docs/cli.md): a hil-recording/1
-    directory, or a Hall capture file read as ``hil recording import`` reads it."""
-    from .twin.capture import load_capture
-
-    return load_capture(path, pole_pairs)
-
-
 def cmd_demo(args) -> int:
     from .demo import print_demo, run_demo
 
@@ -39,6 +31,8 @@ def cmd_demo(args) -> int:
 
 
 def cmd_recording_check(args) -> int:
+    from .recording.load import load_recording
+
     rec = load_recording(args.recording)
     form = "hil-recording/1" if Path(args.recording).is_dir() else "Hall capture"
     channels = ", ".join(k for k in (rec.samples or ()) if k not in ("t_s", "segment"))
@@ -60,8 +54,8 @@ def cmd_recording_check(args) -> int:
 
 
 def cmd_recording_import(args) -> int:
-    from .recording import write_recording
-    from .signals.hall import capture_recording, parse_channels, read_hall_capture, step_summary
+    from .recording.format import write_recording
+    from .recording.hall import capture_recording, parse_channels, read_hall_capture, step_summary
 
     cap = read_hall_capture(
         args.capture,
@@ -94,7 +88,8 @@ def cmd_recording_import(args) -> int:
 def cmd_plant_simulate(args) -> int:
     from plant_models.kinematic import OperatingPoint
 
-    from .recording import record_kinematic, write_recording
+    from .recording.drivers import record_kinematic
+    from .recording.format import write_recording
 
     config = _plant(args)
     profile = [OperatingPoint(args.duration_s, rpm, args.current_a) for rpm in args.speeds_rpm]
@@ -108,7 +103,8 @@ def cmd_calibrate(args) -> int:
     from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
     from .calibration.ordinary import Circuit
-    from .recording import write_recording
+    from .recording.format import write_recording
+    from .recording.load import load_recording
 
     if args.campaign:
         config = _plant(args)
@@ -245,6 +241,7 @@ def cmd_table5(args) -> int:
 
 def cmd_predictors_compare(args) -> int:
     from .experiments import peers
+    from .recording.load import load_recording
 
     if args.recording and args.scenario:
         raise ValueError("give a RECORDING or --scenario, not both")
@@ -272,29 +269,9 @@ def cmd_gap_diagnose(args) -> int:
 
     from plant_models import PlantConfig
 
-    from .signals.capture import CAPTURE_FORMATS
-    from .traces import TRACE_FORMATS, TraceMapping, read_trace
+    from .recording.load import TraceFiles, load_recording
 
-    path = Path(args.recording)
-    # a suffix both tables read (.csv, .txt) is a trace here: the gap diagnosis wants its segments
-    captures_only = [s for s in CAPTURE_FORMATS if s not in TRACE_FORMATS]
-    if path.is_dir() or (path.suffix.lower() in captures_only and not args.meta):  # RECORDING's own forms
-        rec = load_recording(args.recording)
-    else:  # a trace file (MDF4, CSV, Parquet) with its mapping and meta.json
-        if not path.exists():
-            raise ValueError(f"{path}: no such file or directory")
-        if path.suffix.lower() not in TRACE_FORMATS:
-            raise ValueError(
-                f"{path}: not a recording or a trace file (a hil-recording/1 directory, a Hall capture "
-                f"{' or '.join(captures_only)}, or a trace: {', '.join(TRACE_FORMATS)})"
-            )
-        if not args.meta:
-            raise ValueError(
-                f"{args.recording}: a trace file needs --meta META.json (motor and segments) and usually --mapping "
-                "MAP.toml"
-            )
-        mapping = TraceMapping.from_toml(args.mapping) if args.mapping else TraceMapping()
-        rec = read_trace(args.recording, mapping, args.meta)
+    rec = load_recording(args.recording, traces=TraceFiles(args.meta, args.mapping))
     model = PlantConfig.from_toml(args.model) if args.model else None
     d = diagnose(rec, model)
     print(format_text(d, str(args.recording)))
@@ -452,7 +429,7 @@ def cmd_dut_serve(args) -> int:
 def cmd_dut_check(args) -> int:
     """Read every readable object of the DUT's profile once (writes nothing) and say which
     requirements the profile makes testable; 1 when the device refuses an object."""
-    from .requirements import REQUIREMENTS, missing_needs
+    from .verdicts.requirements import REQUIREMENTS, missing_needs
     from .dut.link import LinkError, edge_hook_kind
     from .dut.profile import ROLES
     from .dut.spec import open_dut
@@ -682,10 +659,10 @@ def _under_compile_ahead(run, *args):
 def cmd_acceptance(args) -> int:
     import subprocess
 
-    from .report import ReportWriter
+    from .verdicts.report import ReportWriter
 
     suite = find_suite(args.suite)
-    # progress lines (hil.progress) instead of dots: count, elapsed time, outcome and name per test
+    # progress lines (hil.verdicts.progress) instead of dots: count, elapsed time, outcome and name per test
     # (pytest-benchmark, if installed, has nothing to do here and warns under xdist)
     argv = [
         str(suite),
@@ -694,7 +671,7 @@ def cmd_acceptance(args) -> int:
         "-p",
         "no:benchmark",
         "-p",
-        "hil.progress",
+        "hil.verdicts.progress",
         "-q",
         "-o",
         "console_output_style=classic",
@@ -779,9 +756,9 @@ def acceptance_exit(pytest_status: int, report_json: Path) -> int:
 
 
 def cmd_replay(args) -> int:
-    from .budgets import Budgets
+    from .verdicts.budgets import Budgets
     from .dut.spec import open_dut
-    from .stimulus import Stimulus, run
+    from .bench.stimulus import Stimulus, run
 
     stim = Stimulus.load(args.file)
     budgets = Budgets.from_toml(args.budgets) if args.budgets else Budgets.defaults()

@@ -22,7 +22,7 @@ DEFAULT_PRESET = "paper-bench+deviations"
 #: how ``--help`` names the strategies (a sentence; the names themselves are ``bldc.contract``'s)
 STRATEGY_HELP = "by name: raw, corrected, kf or sage_husa"
 
-#: what a RECORDING argument accepts, the same in every command (``hil.cli.load_recording`` reads it)
+#: what a RECORDING argument accepts, the same in every command (``hil.recording.load.load_recording`` reads it)
 RECORDING_HELP = "a hil-recording/1 directory, or a Hall capture file (VCD, sigrok .sr, CSV)"
 
 #: commands that moved under a noun: old words -> new words (one release, then the old go)
@@ -152,7 +152,7 @@ def add_station(p) -> None:
 
 
 def add_recording(p, extra: str = "", *, nargs=None) -> None:
-    """The positional RECORDING: the same forms in every command (``hil.cli.load_recording``)."""
+    """The positional RECORDING: the same forms in every command (``hil.recording.load.load_recording``)."""
     p.add_argument("recording", metavar="RECORDING", nargs=nargs, help=RECORDING_HELP + (f"; {extra}" if extra else ""))
 
 

@@ -118,7 +118,7 @@ def compile_numba_code(part: str | None = None) -> None:
         from bldc.contract import Strategy
         from plant_models import paper_bench
 
-        from .bench import LockstepBench
+        from .bench.lockstep import LockstepBench
         from .controller.virtual import VirtualController
         from .dut.in_process import InProcessLink
 

@@ -10,8 +10,9 @@ from bldc.hall import SENSORS
 from bldc.motor import steady_state
 from plant_models import RawHallCommutation, Simulation, paper_bench
 
-from .plots import pyplot, save
-from .recording import Segment, motor_meta, recording_from_edges, write_recording
+from .recording.drivers import motor_meta, recording_from_edges
+from .recording.format import Segment, write_recording
+from .verdicts.plots import pyplot, save
 
 
 def edge_error_table(edges, pole_pairs: int) -> list[dict]:

@@ -34,8 +34,8 @@ from pathlib import Path
 import pytest
 
 # the report's record format: standard library only (the plant, links and budgets load on use)
-from .record import FailedBy, Outcome, Status, TestRecord, Unanswerable, Verdict
-from .report import PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
+from .verdicts.record import FailedBy, Outcome, Status, TestRecord, Unanswerable, Verdict
+from .verdicts.report import PROPERTY_PREFIX, ReportWriter, file_sha256, test_waiver
 
 #: the signal-injection fixture (hil_signals) and its options live in their own plugin module
 pytest_plugins = ["hil.signals.fixtures"]
@@ -232,7 +232,7 @@ def _plant_config(config):
 def _budgets(config):
     """The budgets in force (--hil-budgets over the defaults), read once per session."""
     if _BUDGETS not in config.stash:
-        from .budgets import Budgets
+        from .verdicts.budgets import Budgets
 
         path = _option(config, "budgets")
         config.stash[_BUDGETS] = Budgets.from_toml(path) if path else Budgets.defaults()
@@ -397,7 +397,7 @@ def pytest_runtest_call(item):
     result = yield
     missed = _missed_budgets(item)
     if missed:
-        from .budgets import BudgetsExceeded
+        from .verdicts.budgets import BudgetsExceeded
 
         raise BudgetsExceeded(missed)
     return result
@@ -471,11 +471,11 @@ def failure_kind(exc: BaseException) -> FailedBy:
     """"budget" when only budgets were missed (``hil_budget``: each requirement the test traces to
     then has the verdict of its own budgets); "assertion" for any other assertion, pytest.fail, or
     a group of only those (a search that found several failures); "device failure" when the
-    controller signalled its own failure on valid input (hil.judging: a Modbus exception 04, an
+    controller signalled its own failure on valid input (hil.verdicts.judging: a Modbus exception 04, an
     SDO abort 0x08000000 or 0x06060000); "not judged" for a setup check that found the scenario
-    did not provoke what the test judges (hil.judging.NotJudged); "error" for anything else."""
-    from .budgets import BudgetExceeded, BudgetsExceeded
-    from .judging import NotJudged, device_failure
+    did not provoke what the test judges (hil.verdicts.judging.NotJudged); "error" for anything else."""
+    from .verdicts.budgets import BudgetExceeded, BudgetsExceeded
+    from .verdicts.judging import NotJudged, device_failure
 
     judged = (AssertionError, pytest.fail.Exception)
     budgets = (BudgetExceeded, BudgetsExceeded)
@@ -686,7 +686,7 @@ def _require_applicable(item, kind: str) -> None:
     """Skip ``item`` when none of its requirements applies to a DUT of ``kind`` (a requirement of
     the part, REQ-PIL-*, on anything but ``pil:``): "not applicable" in the report, never a pass.
     When only some do not apply, the test runs for the others."""
-    from .requirements import not_applicable
+    from .verdicts.requirements import not_applicable
 
     rids = traced_requirements(item)
     lacking = not_applicable(rids, kind)
@@ -699,7 +699,7 @@ def _require_applicable(item, kind: str) -> None:
 
 def _require_testable(item, link) -> None:
     """Skip ``item`` when the link's profile lacks a role, the edge hook or the fault source every
-    one of its requirements needs (hil.requirements); a link without a profile has everything. When
+    one of its requirements needs (hil.verdicts.requirements); a link without a profile has everything. When
     only some lack it, the test runs and judges the others (``item.hil_not_testable`` names the
     lacking ones, which the report lists as not testable)."""
     item.hil_not_testable = set()
@@ -707,7 +707,7 @@ def _require_testable(item, link) -> None:
     if profile is None:
         return
     from .dut.link import edge_hook_kind
-    from .requirements import missing_needs
+    from .verdicts.requirements import missing_needs
 
     rids = {str(v) for k, v in item.user_properties if k == "requirement"}
     for mark in item.iter_markers("requirement"):
@@ -739,10 +739,10 @@ def bench_factory(hil_link, hil_plant_config, hil_seed):
     from bldc.contract import Strategy
     from bldc.motor import steady_state
 
-    from .bench import acceptance_max_step_s, make_bench
+    from .bench.lockstep import acceptance_max_step_s, make_bench
     from .dut.link import link_has
-    from .progress import note
-    from .requirements import CALIBRATION
+    from .verdicts.progress import note
+    from .verdicts.requirements import CALIBRATION
 
     benches = 0
 
@@ -758,7 +758,7 @@ def bench_factory(hil_link, hil_plant_config, hil_seed):
         nonlocal benches
         config = (config or hil_plant_config).with_effects(*effects)
         # a controller without the calibration roles or the strategy role is judged with its own
-        # calibration and strategy: nothing downloaded, nothing set (hil.requirements, ``uses``)
+        # calibration and strategy: nothing downloaded, nothing set (hil.verdicts.requirements, ``uses``)
         download = corrections is not None and link_has(hil_link, *CALIBRATION)
         set_strategy = link_has(hil_link, "strategy")
         note(
@@ -792,7 +792,7 @@ def bench_factory(hil_link, hil_plant_config, hil_seed):
 
 def reference_link(motor):
     """The reference implementation of the paper's method for a back-to-back check: the built-in
-    controller as shipped, in-process (hil.requirements.JUDGEMENTS)."""
+    controller as shipped, in-process (hil.verdicts.requirements.JUDGEMENTS)."""
     from .controller.virtual import VirtualController
     from .dut.in_process import InProcessLink
 
@@ -830,7 +830,7 @@ def hil_budget(hil_budgets, request):
 def _record_verdict(node, v):
     """Record a budget's or a judged check's verdict on the test ``node`` (its report record and
     JUnit properties); a miss fails the test once its body has returned (``pytest_runtest_call``)."""
-    from .budgets import BudgetExceeded
+    from .verdicts.budgets import BudgetExceeded
 
     # plain JUnit properties, so pytest's own --junitxml carries them to CI systems too
     props = node.user_properties
@@ -850,13 +850,13 @@ def _record_verdict(node, v):
 @pytest.fixture
 def hil_judge(request):
     """``hil_judge(name, measured, bound)``: a judged check of the requirement registry
-    (``hil.requirements.JudgedCheck``: back-to-back against the reference, or physics) whose bound
+    (``hil.verdicts.requirements.JudgedCheck``: back-to-back against the reference, or physics) whose bound
     the test computed by the check's stated rule; recorded and failing as a missed budget does, and
     named by its judgement in the report and in ``hil qualify``."""
 
     def judge(name: str, measured: float, bound: float):
-        from .budgets import judged
-        from .requirements import JUDGED_CHECKS
+        from .verdicts.budgets import judged
+        from .verdicts.requirements import JUDGED_CHECKS
 
         return _record_verdict(request.node, judged(JUDGED_CHECKS[name], measured, bound))
 
@@ -897,7 +897,7 @@ class Evidence:
 
     def figure(self, name: str, fig) -> Path:
         """Save a matplotlib figure as PNG (embedded in the HTML report) and attach it."""
-        from .plots import save
+        from .verdicts.plots import save
 
         path = save(fig, self._figure_dir / figure_file_name(self._node.nodeid, name), dpi=90)
         rel = path.relative_to(self._report_dir).as_posix() if self._report_dir else str(path)

@@ -7,7 +7,7 @@ knows the true rotor angle of every commutation, and every figure is scored agai
 import pytest
 
 from hil.calibration.campaign import station_corrections
-from hil.progress import note
+from hil.verdicts.progress import note
 
 
 @pytest.fixture(scope="session")

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
-from hil.bench import p99_abs as p99
-from hil.bench import rms
-from hil.budget_sources import fraction_removed_for
+from hil.bench.lockstep import p99_abs as p99
+from hil.bench.lockstep import rms
+from hil.verdicts.budget_sources import fraction_removed_for
 from hil.calibration.corrections import SENSORS, Corrections
-from hil.plots import commutation_error_figure
+from hil.verdicts.plots import commutation_error_figure
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
 
@@ -127,7 +127,7 @@ def test_calibration_removes_the_deviation(deviation, calibrate, hil_bench, hil_
     corrected = runs["corrected"]
     truth = Corrections.from_plant(plant.with_effects(*effects))
     # what the scenario's edges carry, by the plant's truth table (never the controller's raw run):
-    # REQ-CAL-005's limit for this scenario (hil/budget_sources.py, fraction_removed_for)
+    # REQ-CAL-005's limit for this scenario (hil/verdicts/budget_sources.py, fraction_removed_for)
     e = bench.sim.edges()
     keep = e.t_capture_s >= judged_from_s
     raw_truth_deg_e = rms(truth.correction_deg_e(e.sensor[keep], e.rising[keep], e.pole[keep], e.speed_rpm[keep],

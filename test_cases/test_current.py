@@ -25,9 +25,9 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
-from hil.budget_sources import current_limit_for
+from hil.verdicts.budget_sources import current_limit_for
 from hil.experiments import speed_step as S
-from hil.judging import not_judged
+from hil.verdicts.judging import not_judged
 from hil.experiments.table5 import scenario_plant
 
 STEP_FROM_RPM, STEP_TO_RPM = 5000.0, 5500.0

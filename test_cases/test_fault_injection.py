@@ -22,11 +22,11 @@ from hypothesis import example, given, seed, target
 from hypothesis import strategies as st
 from hypothesis.stateful import RuleBasedStateMachine, initialize, rule, run_state_machine_as_test
 
-from hil.faults import wiring_fault_strategy
-from hil.judging import not_judged
-from hil.progress import note
+from hil.dut.faults import wiring_fault_strategy
+from hil.verdicts.judging import not_judged
+from hil.verdicts.progress import note
 from hil.pytest_plugin import hil_settings
-from hil.stimulus import Stimulus, replay_path, run
+from hil.bench.stimulus import Stimulus, replay_path, run
 from plant_models import effects as fx
 
 #: examples each search runs in the default run: enough that "any calibrated deviation set meets

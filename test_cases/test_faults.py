@@ -1,6 +1,6 @@
 """Fault handling: each wiring fault must give the fault the controller promises, and nothing else.
 
-The faults act on the captured-edge stream between the plant and the link (``hil.faults``), so
+The faults act on the captured-edge stream between the plant and the link (``hil.dut.faults``), so
 the plant's ground truth is untouched and any controller can be judged. The run commutates on
 corrected edges with the paper-sized deviations calibrated; after the fault is switched off,
 the commutation must be back within budget.
@@ -10,10 +10,10 @@ import pytest
 
 from bldc.contract import Fault, Strategy
 from hil.dut.link import LinkError
-from hil.faults import HallSpike, LostEdge, SensorDropout
-from hil.judging import not_judged
+from hil.dut.faults import HallSpike, LostEdge, SensorDropout
+from hil.verdicts.judging import not_judged
 from hil.predictors import FilterSettings
-from hil.stimulus import Stimulus, run
+from hil.bench.stimulus import Stimulus, run
 from plant_models.effects import effect_from_mapping
 from plant_models.plant import paper_bench
 

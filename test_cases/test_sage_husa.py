@@ -13,11 +13,11 @@ import numpy as np
 import pytest
 
 from bldc.contract import FILTER_COUNTERS, Strategy
-from hil.bench import p99_abs, rms
+from hil.bench.lockstep import p99_abs, rms
 from hil.controller.virtual import VirtualController
 from hil.experiments.closed_loop import commutation_time_mape_pct
 from hil.experiments.table5 import SETPOINTS_RPM, scenario_plant
-from hil.plots import commutation_error_figure
+from hil.verdicts.plots import commutation_error_figure
 from hil.predictors import FilterSettings
 
 HOLD_S = 0.4
@@ -144,7 +144,7 @@ def test_sage_husa_is_the_papers_method_back_to_back_with_the_reference(calibrat
     and set points. The tolerance is what the seed alone moves one run's RMS, measured here; the
     budgets (Table 5) sit several times above what the method reaches on this bench, so a wrong
     model input that triples the error passes them and fails this."""
-    from hil.budget_sources import BAND_STANDARD_ERRORS
+    from hil.verdicts.budget_sources import BAND_STANDARD_ERRORS
     from hil.pytest_plugin import bench_factory, declares_the_papers_method, reference_link
 
     if not declares_the_papers_method(hil_link):
@@ -185,7 +185,7 @@ def test_sage_husa_beats_the_constant_speed_rule_through_the_speed_steps(calibra
     speed). Judged on REQ-PRED-001's runs, the 0.12 s after each step. Physics beside the budget:
     the error of a correct predictor does not move with the phase current (the armature term
     removes the current's shift of the edges, Eq. 8's current term the acceleration)."""
-    from hil.budget_sources import table3_repeatability_deg_e
+    from hil.verdicts.budget_sources import table3_repeatability_deg_e
 
     _, traces, judged_from_s, _, currents = run_strategies(
         calibrate, hil_bench, hil_link, hil_plant_config, (Strategy.SAGE_HUSA, Strategy.CORRECTED)
@@ -233,7 +233,7 @@ def test_sage_husa_is_no_worse_than_the_tuned_kf(calibrate, hil_bench, hil_plant
     pumps (docs/sage-husa.md, "Peers"), over held-out seeds on each of three operating profiles;
     each profile is a verdict of its own (a pooled ratio would let a profile where Sage-Husa is
     far ahead carry one where it is behind), its limit derived for the commutations it judged."""
-    from hil.budget_sources import sage_husa_over_kf_limit_for
+    from hil.verdicts.budget_sources import sage_husa_over_kf_limit_for
     from hil.experiments.controller_tuning import PROFILES
 
     corrections = calibrate(hil_plant_config.suite_deviations(SCENARIO_EFFECTS))

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
-from hil.bench import p99_abs, rms
+from hil.bench.lockstep import p99_abs, rms
 from plant_models import effects as fx
 from plant_models.plant import paper_installation_offsets_deg_e, paper_pole_offsets_deg_e
 

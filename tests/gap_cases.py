@@ -12,7 +12,7 @@ from plant_models.kinematic import OperatingPoint
 def temperatures_confounded():
     """Pump load over a narrow speed range, the winding 80 K warm: a resistance change (follows
     current) and a back-EMF change (follows speed) explain nearly the same. A sampled recording."""
-    from hil.recording import record_electrical
+    from hil.recording.drivers import record_electrical
 
     config = paper_bench().with_effects(
         fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7), fx.WindingTemperature(80.0)
@@ -23,7 +23,7 @@ def temperatures_confounded():
 
 def tiny_installation_offset():
     """0.02 deg e of installation offset through 100 turns at a 0.1 us timer, no jitter."""
-    from hil.recording import record_kinematic
+    from hil.recording.drivers import record_kinematic
 
     config = paper_bench().with_effects(fx.InstallationOffset((0.02, -0.02, 0.0)), fx.TimerQuantization(1e-7))
     ops = [OperatingPoint(100 * 60 / rpm, rpm, direction=d) for rpm in (2000.0, 4000.0) for d in (1, -1)]
@@ -33,7 +33,7 @@ def tiny_installation_offset():
 def armature_lag_confounded():
     """Forward only, the current tied to speed by the pump load over a narrow speed range, an
     armature lag of 0.2 deg e/A: the lag (~ w^2) and a conditioning delay (~ w) are then alike."""
-    from hil.recording import record_kinematic
+    from hil.recording.drivers import record_kinematic
 
     m = paper_bench().motor
     ops = [

@@ -14,7 +14,7 @@ def test_the_default_acceptance_passes_every_requirement(default_acceptance):
     run, reports = default_acceptance
     content = json.loads((reports / "hil-report.json").read_text())
     traced = {r["id"]: r["verdict"] for r in content["traceability"] if r["traced"]}
-    from hil.requirements import not_applicable
+    from hil.verdicts.requirements import not_applicable
 
     # the requirements of a part (its interrupts, its stack) mean nothing for the virtual controller:
     # those, and only those, are "not applicable"
@@ -28,7 +28,7 @@ def test_the_default_acceptance_passes_every_requirement(default_acceptance):
         + "\n".join(problems)
     )
     assert run.returncode == 0, f"PASS, yet hil acceptance exited {run.returncode}"
-    from hil.requirements import REQUIREMENTS
+    from hil.verdicts.requirements import REQUIREMENTS
 
     # every requirement of the catalogue is answered over CANopen (none silently left out)
     assert set(traced) == set(REQUIREMENTS), sorted(set(REQUIREMENTS) ^ set(traced))
@@ -41,7 +41,7 @@ def test_every_listed_budget_is_measured(default_acceptance):
     ``hil_budget`` fails here, named with its requirement)."""
     _, reports = default_acceptance
     content = json.loads((reports / "hil-report.json").read_text())
-    from hil.requirements import REQUIREMENTS
+    from hil.verdicts.requirements import REQUIREMENTS
 
     measured = {m["budget"] for t in content["tests"] for m in t["measurements"]}
     answered = {r["id"] for r in content["traceability"] if r["traced"] and r["verdict"] != "not applicable"}

@@ -17,34 +17,23 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGES = ("bldc", "hil", "plant_models")
 
-#: module prefix -> group, the longest prefix wins (the rows of the table in docs/architecture.md)
+#: module prefix -> group, the longest prefix wins (the rows of the table in docs/architecture.md);
+#: a group with a folder of its own under hil/ is that folder's prefix
 GROUP_OF_PREFIX = {
     "bldc": "vocabulary",
     "hil.cli_grammar": "vocabulary",
-    "hil.stats": "vocabulary",
     "plant_models": "plant",
     "hil.predictors": "predictors",
     "hil.calibration.corrections": "corrections",
     "hil.controller": "controller",
     "hil.dut.link": "link",
-    "hil.dut": "dut",
+    "hil.dut": "dut",  # the wiring faults (hil.dut.faults) too: they act on the way to the device
     "hil.sil": "dut",  # a firmware in the loop is one more kind of DUT
     "hil.pil": "dut",  # and a processor in the loop
     "hil.recording": "recording",
-    "hil.traces": "recording",
-    "hil.linebemf": "recording",
     "hil.calibration": "calibration",
-    "hil.faults": "faults",
     "hil.bench": "bench",
-    "hil.stimulus": "bench",
-    "hil.budgets": "verdicts",
-    "hil.budget_sources": "verdicts",
-    "hil.requirements": "verdicts",
-    "hil.record": "verdicts",
-    "hil.report": "verdicts",
-    "hil.report_html": "verdicts",
-    "hil.progress": "verdicts",
-    "hil.plots": "verdicts",
+    "hil.verdicts": "verdicts",
     "hil.history.compare": "verdicts",  # a figure against its past runs: plain arithmetic the report draws
     "hil.history": "entry",  # the results store: a run's records, written and read by the commands
     "hil.experiments": "experiments",
@@ -59,7 +48,7 @@ GROUP_OF_PREFIX = {
     "hil": "entry",
 }
 _BELOW_BENCH = {"vocabulary", "plant", "predictors", "corrections", "controller", "link", "dut", "recording",
-                "calibration", "faults"}
+                "calibration"}
 _BELOW_BESIDE = _BELOW_BENCH | {"bench", "verdicts"}
 #: group -> the groups it may import (besides itself)
 MAY_IMPORT = {
@@ -69,11 +58,9 @@ MAY_IMPORT = {
     "corrections": {"vocabulary"},
     "controller": {"vocabulary", "corrections", "predictors"},
     "link": {"vocabulary", "corrections"},
-    # faults: the wiring faults act on a firmware's pins in its own process (hil.sil)
-    "dut": {"vocabulary", "plant", "predictors", "corrections", "controller", "link", "faults"},
+    "dut": {"vocabulary", "plant", "predictors", "corrections", "controller", "link"},
     "recording": {"vocabulary", "plant"},
     "calibration": {"vocabulary", "corrections", "recording", "plant"},
-    "faults": {"vocabulary"},
     "bench": _BELOW_BENCH,
     "verdicts": {"vocabulary"},
     "experiments": _BELOW_BESIDE,
@@ -83,6 +70,9 @@ MAY_IMPORT = {
     "qualify": _BELOW_BESIDE,
     "entry": set(GROUP_OF_PREFIX.values()),
 }
+#: the modules that stay loose in hil/ (entry points and the command line's words): every other
+#: module lives in the folder of its group
+MAX_LOOSE_MODULES = 8
 
 
 def group(module: str) -> str:
@@ -147,6 +137,16 @@ def test_the_top_level_packages_import_downwards_only():
 def test_every_module_has_a_room():
     for module in MODULES:
         assert group(module) in MAY_IMPORT, module
+
+
+def test_the_folders_show_the_groups():
+    """A group of more than one module is a folder under hil/: few modules stay loose beside them."""
+    loose = sorted(p.name for p in (ROOT / "hil").glob("*.py"))
+    assert len(loose) <= MAX_LOOSE_MODULES, f"{len(loose)} loose modules in hil/: {', '.join(loose)}"
+    # each folder-group's prefix is a folder (the table above names no module that has moved out)
+    for prefix in GROUP_OF_PREFIX:
+        path = ROOT / Path(*prefix.split("."))
+        assert path.is_dir() or path.with_suffix(".py").is_file(), f"{prefix} is neither a folder nor a module"
 
 
 def test_no_import_goes_where_the_architecture_page_does_not_allow():

@@ -1,5 +1,5 @@
 """Every default budget's limit recomputed by hand from the inputs its derivation states
-(hil/budget_sources.py, docs/budgets.md "Sources"): the arithmetic, not the words."""
+(hil/verdicts/budget_sources.py, docs/budgets.md "Sources"): the arithmetic, not the words."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from hil import budget_sources as bs
-from hil.budgets import Budgets
+from hil.verdicts import budget_sources as bs
+from hil.verdicts.budgets import Budgets
 
 #: budget -> the limit recomputed here from the paper's printed values and the stated parameters
 #: (written out again, not imported, so a changed input or formula in the module shows here)

@@ -6,8 +6,8 @@ import pytest
 
 from pathlib import Path
 
-from hil.budgets import Budget, BudgetExceeded, Budgets
-from hil.requirements import DOCS, GENERATED, REQUIREMENTS, rendered
+from hil.verdicts.budgets import Budget, BudgetExceeded, Budgets
+from hil.verdicts.requirements import DOCS, GENERATED, REQUIREMENTS, rendered
 from plant_models import ConfigError
 
 SUITE = Path(__file__).resolve().parents[1] / "test_cases"
@@ -16,7 +16,7 @@ SUITE = Path(__file__).resolve().parents[1] / "test_cases"
 def test_verdicts_and_margins():
     b = Budgets.defaults()
     assert b.check("commutation_angle_p99", 0.3).verdict == "pass"
-    v = b.check("commutation_angle_p99", 0.55)  # limit 0.6 (hil/budget_sources.py), marginal beyond 0.4
+    v = b.check("commutation_angle_p99", 0.55)  # limit 0.6 (hil/verdicts/budget_sources.py), marginal beyond 0.4
     assert v.verdict == "marginal" and v.margin == pytest.approx(0.05)
     v = b.check("commutation_angle_p99", 0.72)
     assert v.verdict == "fail" and v.margin == pytest.approx(-0.12)
@@ -124,9 +124,9 @@ def test_the_defaults_are_the_registrys_budgets_each_under_its_requirement():
 
 
 def test_every_default_budget_takes_limit_and_source_from_its_derivation():
-    """One place (hil/budget_sources.py): each default's limit, marginal bound and source are its
+    """One place (hil/verdicts/budget_sources.py): each default's limit, marginal bound and source are its
     derivation's; the arithmetic itself is recomputed in tests/test_budget_sources.py."""
-    from hil.budget_sources import DERIVATIONS
+    from hil.verdicts.budget_sources import DERIVATIONS
 
     defaults = Budgets.defaults().budgets
     assert set(defaults) == set(DERIVATIONS), "a default budget without a derivation, or one without a budget"
@@ -191,9 +191,10 @@ def test_every_requirements_doc_anchor_is_a_heading_of_its_page():
 @pytest.mark.parametrize("page", sorted(GENERATED))
 def test_the_docs_tables_are_the_registrys(page):
     """docs/acceptance.md's requirement table and docs/budgets.md's defaults are generated from the
-    registry (``python -m hil.requirements`` rewrites them)."""
+    registry (``python -m hil.verdicts.requirements`` rewrites them)."""
     text = (DOCS / page).read_text()
-    assert rendered(page, text) == text, f"docs/{page} differs from the registry: run python -m hil.requirements"
+    assert rendered(page, text) == text, (
+        f"docs/{page} differs from the registry: run python -m hil.verdicts.requirements")
 
 
 WAIVER = '[[waiver]]\nrequirement = "REQ-ROB-002"\nreason = "recovery needs 80 ms"\nowner = "controls team"\n'

@@ -11,7 +11,8 @@ from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.corrections import Corrections
 from hil.calibration.fit import CalibrationError, fit_corrections
 from hil.calibration.steps import pole_offsets, relative_deviation, weighted_over_speeds
-from hil.recording import record_kinematic, write_recording
+from hil.recording.drivers import record_kinematic
+from hil.recording.format import write_recording
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint

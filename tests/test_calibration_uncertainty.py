@@ -12,7 +12,7 @@ import pytest
 from hil.calibration import uncertainty
 from hil.calibration.ordinary import Effects, fit_ordinary, hall_steps
 from hil.experiments.calibration_coverage import Z, correlated_capture, coverage_study, half_split
-from hil.signals.hall import read_hall_capture
+from hil.recording.hall import read_hall_capture
 
 DATA = Path(__file__).parent / "data" / "real-hall"
 #: the reduced coverage study: 60 captures from this seed (some 10 s of CPU)

@@ -19,7 +19,7 @@ from hil.campaign import dispatch, load_spec, read_table, run_campaign
 from hil.campaign.envelope import margin_grid
 from hil.campaign.grid import point_seed, point_stimulus, points, run_point
 from hil.campaign.scheduler import TaskError
-from hil.stimulus import Stimulus
+from hil.bench.stimulus import Stimulus
 
 #: raw Hall commutation with installation offsets: the commutation lands where the sensor's edge
 #: is, so its error against the plant's true rotor angle is the offset itself (deg e), plus the
@@ -137,9 +137,9 @@ def test_grid_order_and_seeds(tmp_path):
 def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
     table = read_table(serial_run.paths["table"])
     assert len(table) == 6 and set(table["verdict"]) <= {"pass", "marginal", "fail"}
-    from hil.budgets import Budgets
+    from hil.verdicts.budgets import Budgets
 
-    limit = Budgets.defaults()["commutation_angle_p99"].limit  # the default (hil/budget_sources.py): 0.6 deg e
+    limit = Budgets.defaults()["commutation_angle_p99"].limit  # the default (hil/verdicts/budget_sources.py): 0.6 deg e
     for _, row in table.iterrows():
         offset = row["installation_offset.offset_deg_e"]  # sensor A's, the largest of the pattern
         assert abs(row["angle_p99_deg_e"] - offset) < 0.05, row
@@ -147,10 +147,10 @@ def test_measured_angle_error_is_the_offset_and_failures_replay(serial_run):
         assert row["verdict"] == ("fail" if offset > limit else "pass")
     failing = table[table["verdict"] == "fail"]
     assert len(failing) == 2
-    from hil.budgets import Budgets
+    from hil.verdicts.budgets import Budgets
     from hil.controller.virtual import VirtualController
     from hil.dut.in_process import InProcessLink
-    from hil.stimulus import run
+    from hil.bench.stimulus import run
 
     for _, row in failing.iterrows():
         stim = Stimulus.load(row["replay"])
@@ -211,18 +211,18 @@ def test_a_raising_job_comes_back_with_its_traceback_on_the_cluster(loopback_clu
 
 
 def test_a_point_that_raises_is_an_error_row_and_the_campaign_goes_on(tmp_path, monkeypatch):
-    import hil.stimulus
+    import hil.bench.stimulus
 
     spec = load_spec(write_spec(tmp_path))
     bad_seed = points(spec)[3]["seed"]
-    real = hil.stimulus.run
+    real = hil.bench.stimulus.run
 
     def flaky(stim, link, budgets):
         if stim.seed == bad_seed:
             raise RuntimeError("controller firmware assertion")
         return real(stim, link, budgets)
 
-    monkeypatch.setattr(hil.stimulus, "run", flaky)
+    monkeypatch.setattr(hil.bench.stimulus, "run", flaky)
     result = run_campaign(spec, tmp_path / "out", scheduler="serial", progress=False)
     table = read_table(result.paths["table"])
     assert len(table) == 6 and list(table["verdict"]).count("error") == 1
@@ -236,10 +236,10 @@ def test_a_point_that_raises_is_an_error_row_and_the_campaign_goes_on(tmp_path, 
 
 
 def test_ctrl_c_leaves_a_valid_partial_table(tmp_path, monkeypatch):
-    import hil.stimulus
+    import hil.bench.stimulus
 
     spec = load_spec(write_spec(tmp_path))
-    real, calls = hil.stimulus.run, []
+    real, calls = hil.bench.stimulus.run, []
 
     def interrupted_at_the_third(stim, link, budgets):
         calls.append(stim.seed)
@@ -247,7 +247,7 @@ def test_ctrl_c_leaves_a_valid_partial_table(tmp_path, monkeypatch):
             raise KeyboardInterrupt
         return real(stim, link, budgets)
 
-    monkeypatch.setattr(hil.stimulus, "run", interrupted_at_the_third)
+    monkeypatch.setattr(hil.bench.stimulus, "run", interrupted_at_the_third)
     result = run_campaign(spec, tmp_path / "out", scheduler="serial", progress=False)
     assert result.info.interrupted
     table = read_table(tmp_path / "out" / "points.parquet")
@@ -315,7 +315,7 @@ def test_strategy_names_are_the_contracts_and_the_old_spelling_still_reads(tmp_p
     """bldc.contract spells the strategies once (sage_husa); a spec or a replay written with
     "sage-husa" reads as sage_husa, and an unknown name is refused naming the known ones."""
     from bldc.contract import STRATEGY_NAMES, Strategy
-    from hil.stimulus import Stimulus
+    from hil.bench.stimulus import Stimulus
 
     assert list(STRATEGY_NAMES) == ["raw", "corrected", "kf", "sage_husa"]
     spec = load_spec(write_spec(tmp_path, SPEC.replace('strategy = "raw"', 'strategy = "sage-husa"')))

@@ -13,7 +13,7 @@ from canopen.sdo.exceptions import SdoAbortedError
 
 from bldc.contract import ADC_PERIOD_S, Fault, Strategy
 from bldc.motor import steady_state
-from hil.bench import LockstepBench
+from hil.bench.lockstep import LockstepBench
 from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_device import CanopenDevice
@@ -338,7 +338,7 @@ def test_the_short_window_gives_the_full_windows_commutations_to_the_bit(correct
     """The controller reads the same two conversions around its delay whatever the window's
     length: the closed loop with the window reaching only as far as the table is the one with
     the bound's full window, commutation for commutation."""
-    import hil.bench
+    import hil.bench.lockstep
     from bldc.contract import MAX_CONDITIONING_DELAY_S
 
     def run():
@@ -350,7 +350,7 @@ def test_the_short_window_gives_the_full_windows_commutations_to_the_bit(correct
         return c.t_s, c.error_deg_e
 
     short = run()
-    monkeypatch.setattr(hil.bench, "adc_reach_s", lambda link: MAX_CONDITIONING_DELAY_S)
+    monkeypatch.setattr(hil.bench.lockstep, "adc_reach_s", lambda link: MAX_CONDITIONING_DELAY_S)
     full = run()
     assert short[0].size > 300
     np.testing.assert_array_equal(short[0], full[0])

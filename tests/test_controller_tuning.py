@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from bldc.contract import Strategy
-from hil.bench import rms
+from hil.bench.lockstep import rms
 from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink

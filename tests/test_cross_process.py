@@ -12,7 +12,7 @@ import pytest
 
 from bldc.contract import Strategy
 from bldc.motor import steady_state
-from hil.bench import LockstepBench
+from hil.bench.lockstep import LockstepBench
 from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.canopen_link import CanopenLink

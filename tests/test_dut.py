@@ -22,7 +22,7 @@ from bldc.contract import (
     encode_reply,
 )
 from bldc.motor import steady_state
-from hil.bench import LinkSource, LockstepBench
+from hil.bench.lockstep import LinkSource, LockstepBench
 from hil.calibration.campaign import station_corrections
 from hil.calibration.corrections import Corrections
 from hil.controller.adc import edge_currents
@@ -252,7 +252,7 @@ def test_the_window_reaches_what_the_profile_declares_else_the_downloaded_table_
     from types import SimpleNamespace
 
     from bldc.contract import MAX_CONDITIONING_DELAY_S
-    from hil.bench import adc_reach_s
+    from hil.bench.lockstep import adc_reach_s
     from hil.dut.profile import shipped
 
     profile = shipped("modbus")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from bldc.motor import steady_speed_rpm, steady_state
-from hil.linebemf import falling_zero_crossings, line_bemf
+from hil.calibration.linebemf import falling_zero_crossings, line_bemf
 from plant_models import OracleCommutation, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
 

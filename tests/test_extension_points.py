@@ -93,7 +93,7 @@ def _toy_read(cap, chunk):
 
 
 def _toy_time_base(cap, t_s):
-    from hil.signals.capture import time_step
+    from hil.recording.capture import time_step
 
     return time_step(t_s, 1e-9), "the greatest common step of the toy file's times (printed in ns)"
 
@@ -110,17 +110,17 @@ def _write_toy(path, t_s, sensor, rising):
 
 @pytest.fixture
 def toy_format(monkeypatch):
-    from hil.signals import capture
+    from hil.recording.capture import CaptureFormat
+    from hil.recording.formats import FORMATS, FileFormat
 
-    fmt = capture.CaptureFormat("toy", "toy text", _toy_read, lambda path, time_column: list(_TOY_CHANNELS),
-                                _toy_time_base)
-    monkeypatch.setitem(capture.CAPTURE_FORMATS, ".toy", fmt)
+    fmt = CaptureFormat("toy", "toy text", _toy_read, lambda path, time_column: list(_TOY_CHANNELS), _toy_time_base)
+    monkeypatch.setitem(FORMATS, ".toy", FileFormat(capture=fmt))
     return fmt
 
 
 @pytest.fixture
 def kinematic_run():
-    from hil.recording import record_kinematic
+    from hil.recording.drivers import record_kinematic
 
     # the capture timer ticks in whole microseconds: the time base the import finds
     config = paper_bench().with_effects(fx.InstallationOffset((1.0, -0.5, 0.3)), fx.EdgeJitter(time_rms_s=1e-6),
@@ -131,8 +131,9 @@ def kinematic_run():
 def test_a_toy_capture_format_registered_in_the_table_alone_is_read_by_the_recording_import(
     tmp_path, toy_format, kinematic_run
 ):
-    from hil.cli import load_recording, main
-    from hil.recording import read_recording
+    from hil.cli import main
+    from hil.recording.load import load_recording
+    from hil.recording.reader import read_recording
 
     rec = kinematic_run
     path = tmp_path / "bench.toy"
@@ -147,13 +148,13 @@ def test_a_toy_capture_format_registered_in_the_table_alone_is_read_by_the_recor
 
 
 def test_an_unregistered_suffix_is_refused_with_the_registered_ones(tmp_path):
-    from hil.signals.capture import Capture
-    from hil.signals.errors import SignalError
+    from hil.recording.errors import SignalError
+    from hil.recording.formats import open_capture
 
     path = tmp_path / "bench.toy"
     path.write_text("0.0 000\n")
     with pytest.raises(SignalError, match=r"unknown capture format '\.toy' \(VCD \.vcd, .*CSV \.csv/\.txt\)"):
-        Capture(path)
+        open_capture(path)
 
 
 # --- a toy predictor: the next edge one mean of the last two sector times after this one ---------------

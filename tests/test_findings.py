@@ -34,11 +34,11 @@ import pytest
 from test_sensor_layer import assert_no_chatter
 
 from bldc.motor import steady_state
-from hil.budgets import Budgets
+from hil.verdicts.budgets import Budgets
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
-from hil.stimulus import Stimulus, run
+from hil.bench.stimulus import Stimulus, run
 from plant_models import RawHallCommutation, Simulation
 
 DATA = Path(__file__).parent / "data"

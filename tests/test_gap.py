@@ -14,7 +14,9 @@ from hil.gap.candidates import CANDIDATES
 from hil.gap.samples import EFFECT_DOMAIN
 from hil.gap.synthetic import KNOWN_MODEL, param_error
 from hil.gap.validate import make_case, run_validation
-from hil.recording import read_recording, record_kinematic, write_recording
+from hil.recording.reader import read_recording
+from hil.recording.drivers import record_kinematic
+from hil.recording.format import write_recording
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
@@ -116,7 +118,7 @@ def test_recording_without_samples_says_what_it_cannot_assess():
 
 
 def test_sampled_diagnosis_survives_the_written_format(tmp_path):
-    from hil.recording import read_recording
+    from hil.recording.reader import read_recording
 
     rec, _ = make_case(["magnet_temperature"], snr=3.0, seed=4)
     back = read_recording(write_recording(rec, tmp_path / "rec"))
@@ -161,7 +163,7 @@ def test_single_segment_cannot_measure_shrink_but_still_ranks_and_localises():
 
 
 def test_single_segment_with_samples_cannot_measure_shrink_but_still_fits():
-    from hil.recording import record_electrical
+    from hil.recording.drivers import record_electrical
 
     config = paper_bench().with_effects(
         fx.MagnetTemperature(20.0), fx.EdgeJitter(time_rms_s=1e-6), fx.TimerQuantization(1e-7)
@@ -243,7 +245,7 @@ def delay_case():
 
 @pytest.mark.parametrize("ext", ["csv", "parquet", "mf4"])
 def test_trace_formats_give_the_same_diagnosis(tmp_path, delay_case, ext):
-    from hil.traces import TraceMapping, read_trace, write_level_trace, write_meta
+    from hil.recording.traces import TraceMapping, read_trace, write_level_trace, write_meta
 
     rec, truth = delay_case
     meta = write_meta(rec, tmp_path / "meta.json")
@@ -256,7 +258,7 @@ def test_trace_formats_give_the_same_diagnosis(tmp_path, delay_case, ext):
 
 
 def test_trace_cli_with_mapping_and_errors(tmp_path, delay_case, capsys):
-    from hil.traces import write_level_trace, write_meta
+    from hil.recording.traces import write_level_trace, write_meta
 
     rec, _ = delay_case
     meta = write_meta(rec, tmp_path / "meta.json")
@@ -285,7 +287,7 @@ def test_trace_cli_with_mapping_and_errors(tmp_path, delay_case, capsys):
 def test_edge_table_mapping(tmp_path, delay_case):
     import csv
 
-    from hil.traces import TraceMapping, read_trace, write_meta
+    from hil.recording.traces import TraceMapping, read_trace, write_meta
 
     rec, _ = delay_case
     meta = write_meta(rec, tmp_path / "meta.json")
@@ -309,7 +311,7 @@ def test_edge_table_mapping(tmp_path, delay_case):
     lines = path.read_text().splitlines()
     lines[4] = lines[4].replace(",F,", ",X,").replace(",R,", ",X,")
     path.write_text("\n".join(lines) + "\n")
-    from hil.recording import RecordingError
+    from hil.recording.errors import RecordingError
 
     with pytest.raises(RecordingError, match=r"edges.csv, line 5, column pol"):
         read_trace(path, m, meta)
@@ -318,7 +320,7 @@ def test_edge_table_mapping(tmp_path, delay_case):
 def test_sampled_diagnosis_needs_only_the_motor_keys_of_the_format(tmp_path):
     """A bench elsewhere writes only the format's motor keys (no friction, no flat-top width);
     an unknown friction is a drift the speed residual removes, and the cogging is still fitted."""
-    from hil.recording import read_recording
+    from hil.recording.reader import read_recording
 
     rec, truth = make_case(["cogging_torque"], snr=4.0, seed=11)
     path = write_recording(rec, tmp_path / "rec")
@@ -509,7 +511,7 @@ def test_engine_gives_a_tie_within_noise_to_fewer_parameters():
 
 def test_engine_names_a_rival_confounded_only_when_its_refit_earns_nothing():
     from hil.gap.selection import confounded_rivals
-    from hil.stats import BIC_MIN
+    from hil.calibration.stats import BIC_MIN
 
     sel = _toy_engine({"a": (1000.0, 1), "b": (950.0, 1)})
     assert sel.fitted == ["a"]

@@ -21,7 +21,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-import hil.budgets  # noqa: F401  (loaded before the in-process pytest runs below: pytester drops what a run imports)
+import hil.verdicts.budgets  # noqa: F401  (loaded before the in-process pytest runs below: pytester drops what a run imports)
 import hil.pytest_plugin  # noqa: F401
 from hil.cli import main
 from hil.history import store as store_module

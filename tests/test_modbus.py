@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 
 from bldc.contract import Fault, Strategy
 from bldc.motor import steady_state
-from hil.bench import LockstepBench
+from hil.bench.lockstep import LockstepBench
 from hil.calibration.campaign import station_corrections
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink

@@ -16,7 +16,7 @@ from bldc.motor import MotorParameters, steady_state
 from hil.dut.kinds import KINDS
 from hil.dut.spec import DutSpecError, parse_dut
 from hil.pil.target import CORES, Target
-from hil import report
+from hil.verdicts import report
 from hil.sil.firmware import FirmwareInfo
 from hil.sil.peripherals import GATE_TABLE, Peripherals
 from hil.sil.scheduler import TAIL_CHAIN_CYCLES, TimedPeripherals, peripherals_for
@@ -215,7 +215,7 @@ def test_a_requirement_of_the_part_is_not_applicable_to_another_kind_never_passe
 def test_the_reference_firmware_runs_closed_loop_on_the_emulated_core(tmp_path, monkeypatch):
     """30 ms at 6000 rpm: the gates commutate the plant, every interrupt kind ran with its cycles,
     and the schedule measured a load (the figures themselves are the report's, docs/processor-in-the-loop.md)."""
-    from hil.bench import LockstepBench
+    from hil.bench.lockstep import LockstepBench
     from hil.dut.spec import open_dut
 
     monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
@@ -242,7 +242,7 @@ def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fres
     """The six-step test firmware's seeded null write at its 5000th control interrupt (t = 0.25 s):
     on the part a BusFault, named with its function, source line, simulated instant and counter; the
     next bench runs on a freshly loaded core."""
-    from hil.bench import LockstepBench
+    from hil.bench.lockstep import LockstepBench
     from hil.dut.spec import open_dut
     from hil.sil.link import FirmwareFault
 

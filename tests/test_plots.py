@@ -3,7 +3,7 @@ and file names that read from the front."""
 
 import numpy as np
 
-from hil.plots import commutation_error_figure, pyplot
+from hil.verdicts.plots import commutation_error_figure, pyplot
 from hil.pytest_plugin import figure_file_name
 
 

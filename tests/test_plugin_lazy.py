@@ -12,14 +12,14 @@ import pytest
 
 # loaded before the in-process runs below (pytester drops modules a run imported, and numpy
 # cannot be imported twice in one process)
-import hil.bench  # noqa: F401
+import hil.bench.lockstep  # noqa: F401
 import hil.dut.spec  # noqa: F401
 
 ROOT = Path(__file__).resolve().parents[1]
 
 #: what loading the plugin must not import in a session that does not use it
-HEAVY = ("numpy", "scipy", "numba", "plant_models", "hil.dut", "hil.budgets", "hil.bench", "can", "canopen", "pymodbus",
-         "sqlalchemy")
+HEAVY = ("numpy", "scipy", "numba", "plant_models", "hil.dut", "hil.verdicts.budgets", "hil.bench", "can", "canopen",
+         "pymodbus", "sqlalchemy")
 
 TRIVIAL = "def test_trivial():\n    assert 1 + 1 == 2\n"
 

@@ -1,5 +1,5 @@
 """REQ-PRED-002's per-profile design (test_cases/test_sage_husa.py): each operating profile is its own
-verdict, its limit derived for the commutations it judged (hil/budget_sources.py), so a profile where
+verdict, its limit derived for the commutations it judged (hil/verdicts/budget_sources.py), so a profile where
 Sage-Husa is far ahead can no longer carry one where it is behind, as the pooled ratio did."""
 
 import importlib.util
@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from hil.budget_sources import sage_husa_over_kf_limit_for
-from hil.budgets import Budgets
+from hil.verdicts.budget_sources import sage_husa_over_kf_limit_for
+from hil.verdicts.budgets import Budgets
 
 ROOT = Path(__file__).resolve().parents[1]
 #: (profile, seed, Sage-Husa RMS, KF RMS, Sage-Husa commutations, KF commutations): the shape of

@@ -11,8 +11,9 @@ import pytest
 
 from hil.cli import main as hil_main
 from hil.experiments import peers
-from hil.recording import Recording, Segment, read_recording, write_recording
-from hil.signals.vcd import VcdReader
+from hil.recording.format import Recording, Segment, write_recording
+from hil.recording.reader import read_recording
+from hil.recording.vcd import VcdReader
 
 SPINDLE = Path(__file__).parent / "data" / "real-hall" / "20260618-spindle-hw.vcd"
 CONTRACT = ("name", "angle_rms_deg_e", "angle_p99_deg_e", "angle_max_deg_e", "us_per_edge", "settings")
@@ -154,7 +155,7 @@ def test_a_recording_with_currents_runs_the_model_filters(tmp_path):
     from plant_models import paper_bench
     from plant_models.kinematic import OperatingPoint
 
-    from hil.recording import record_electrical
+    from hil.recording.drivers import record_electrical
 
     rec = record_electrical(paper_bench(with_deviations=True), [OperatingPoint(1.0, 7000.0)], seed=3)
     write_recording(rec, tmp_path / "r")

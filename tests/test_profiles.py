@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from hil.requirements import REQUIREMENTS
+from hil.verdicts.requirements import REQUIREMENTS
 from hil.dut.draft import draft_from_eds
 from hil.dut.eds import SHIPPED_EDS as EDS_PATH
 from hil.dut.eds import read_eds
@@ -97,11 +97,11 @@ def test_a_draft_from_the_shipped_eds_finds_every_object_of_the_shipped_profile(
 
 def test_every_role_a_requirement_needs_exists():
     from hil.dut.profile import CALIBRATION_ROLES, COUNTERS, FILTER_ROLES
-    from hil.requirements import ROLE_GROUPS
+    from hil.verdicts.requirements import ROLE_GROUPS
 
     for rid, req in REQUIREMENTS.items():
         assert req.roles and set(req.roles) <= set(ROLES), rid
-    # the registry's role groups (hil.requirements may not import hil.dut) are the profile's
+    # the registry's role groups (hil.verdicts.requirements may not import hil.dut) are the profile's
     assert ROLE_GROUPS["calibration"] == (*CALIBRATION_ROLES, "calibration_apply")
     assert (ROLE_GROUPS["filter settings"], ROLE_GROUPS["filter counters"]) == (FILTER_ROLES, COUNTERS)
 
@@ -216,8 +216,8 @@ def _record(nodeid, outcome, requirements, not_testable=None):
 
 
 def test_not_testable_is_never_pass_and_out_of_scope_never_hides_a_failure(tmp_path):
-    from hil.budgets import Budgets
-    from hil.report import requirement_verdict
+    from hil.verdicts.budgets import Budgets
+    from hil.verdicts.report import requirement_verdict
 
     skipped = _record("t::heartbeat", "skipped", ["REQ-PROT-002", "REQ-CAL-005"],
                       {"reason": "lacks heartbeat_period", "requirements": ["REQ-PROT-002"]})
@@ -235,7 +235,7 @@ def test_not_testable_is_never_pass_and_out_of_scope_never_hides_a_failure(tmp_p
 
 def test_an_out_of_scope_entry_is_parsed_strictly(tmp_path):
     from bldc.params import ConfigError
-    from hil.budgets import Budgets
+    from hil.verdicts.budgets import Budgets
 
     with pytest.raises(ConfigError, match=r"\[\[out_of_scope\]\]\[0\]\.tests"):
         Budgets.from_toml(_write(tmp_path, '[[out_of_scope]]\nrequirement = "REQ-PROT-002"\nreason = "r"\n'

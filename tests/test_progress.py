@@ -1,9 +1,9 @@
-"""Progress of a long run (hil.progress) and the acceptance command's fresh pytest process."""
+"""Progress of a long run (hil.verdicts.progress) and the acceptance command's fresh pytest process."""
 
 import re
 
 from hil.cli import main
-from hil.report_html import printable, short_label
+from hil.verdicts.report_html import printable, short_label
 
 pytest_plugins = ["pytester"]
 
@@ -11,7 +11,7 @@ pytest_plugins = ["pytester"]
 def test_each_finished_test_prints_count_elapsed_outcome_and_label(pytester):
     pytester.makepyfile(test_run="""
         import pytest
-        from hil.progress import note
+        from hil.verdicts.progress import note
 
         def test_long_one():
             note("calibration campaign: step one")
@@ -26,7 +26,7 @@ def test_each_finished_test_prints_count_elapsed_outcome_and_label(pytester):
             pass
     """)
     result = pytester.runpytest(
-        "-p", "hil.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider"
+        "-p", "hil.verdicts.progress", "-q", "-o", "console_output_style=classic", "-p", "no:cacheprovider"
     )
     out = result.stdout.str()
     lines = [line for line in out.splitlines() if re.match(r"\[\d/3 +\d+:\d\d\]", line)]
@@ -79,7 +79,7 @@ def test_a_waived_failure_reads_waived(pytester):
     )
     result = pytester.runpytest(
         "-p",
-        "hil.progress",
+        "hil.verdicts.progress",
         "-q",
         "-o",
         "console_output_style=classic",
@@ -91,13 +91,13 @@ def test_a_waived_failure_reads_waived(pytester):
     assert re.search(r"^\[1/1 +\d+:\d\d\] waived +known defect", result.stdout.str(), re.M), result.stdout.str()
 
 
-# --- counted work: hil.progress.Meter (campaigns, gap validation, signal export) --------------
+# --- counted work: hil.verdicts.progress.Meter (campaigns, gap validation, signal export) --------------
 
 
 def test_a_meter_into_a_log_prints_a_line_per_tenth():
     import io
 
-    from hil.progress import Meter
+    from hil.verdicts.progress import Meter
 
     out = io.StringIO()
     meter = Meter("recordings diagnosed", 100, stream=out)
@@ -128,7 +128,7 @@ class _Terminal:
 def test_a_meter_on_a_terminal_moves_between_results_and_ends_its_line(monkeypatch):
     """One line redrawn in place; while no result arrives, ``tick`` redraws it (elapsed and time
     left move); closing ends the line."""
-    from hil import progress
+    from hil.verdicts import progress
 
     clock = [100.0]
     monkeypatch.setattr(progress.time, "monotonic", lambda: clock[0])

@@ -23,8 +23,10 @@ from hil.calibration.ordinary import (
 )
 from hil.cli import main
 from hil.gap.diagnose import Diagnosis
-from hil.recording import RecordingError, read_recording, write_recording
-from hil.signals.hall import capture_recording, read_hall_capture
+from hil.recording.errors import RecordingError
+from hil.recording.reader import read_recording
+from hil.recording.format import write_recording
+from hil.recording.hall import capture_recording, read_hall_capture
 
 DATA = Path(__file__).parent / "data" / "real-hall"
 SPINDLE = DATA / "20260618-spindle-hw.vcd"
@@ -325,7 +327,7 @@ def test_calibrate_chooses_the_route_and_refuses_a_bad_pole_table_on_both():
     ``Calibration``; the 24 deg e pole table is refused on both (never in the table)."""
     from hil.calibration import calibrate
     from hil.calibration.route import Calibration
-    from hil.recording import Recording, Segment
+    from hil.recording.format import Recording, Segment
 
     big = np.array([0.0, 2.0, -1.5, 1.0, -0.5, 1.5, -1.0, -1.5]) * 12.0
     t, s, r = synthetic_run(pole_deg_e=big, pole_pairs=4, direction=1)
@@ -370,7 +372,7 @@ def test_steady_windows_taken_as_segments_get_their_humps_refused(tmp_path, caps
     """The issue's first try: the hoverboard's speed cycles cut into 0.5 s windows taken as steady
     segments (lines relabelled to run forward) give pole offsets far beyond +-10 deg e; they are
     refused, never written."""
-    from hil.recording import Segment
+    from hil.recording.format import Segment
 
     cap = read_hall_capture(HBOARD)
     rec = capture_recording(cap, pole_pairs=15)

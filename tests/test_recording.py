@@ -6,7 +6,10 @@ import shutil
 import numpy as np
 import pytest
 
-from hil.recording import RecordingError, read_recording, record_kinematic, write_recording
+from hil.recording.drivers import record_kinematic
+from hil.recording.errors import RecordingError
+from hil.recording.format import write_recording
+from hil.recording.reader import read_recording
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 
@@ -260,7 +263,8 @@ def test_a_2_gib_edges_file_streams_in_bounded_memory_when_the_cap_is_lifted(wri
 
     sparse(written / "edges.csv", 2 << 30)
     code = (
-        "import resource, sys\nfrom hil.recording import RecordingError, read_recording\n"
+        "import resource, sys\nfrom hil.recording.errors import RecordingError\n"
+        "from hil.recording.reader import read_recording\n"
         "peak = lambda: resource.getrusage(resource.RUSAGE_SELF).ru_maxrss // 1024\nbefore = peak()\n"
         "try:\n    read_recording(sys.argv[1], max_table_bytes=1 << 40)\nexcept RecordingError as e:\n    print(e)\n"
         "print(peak() - before)\n"

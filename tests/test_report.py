@@ -50,9 +50,9 @@ def test_report_escapes_markup_and_traces_requirements(pytester):
     assert req["REQ-X-001"]["verdict"] == "pass" and len(req["REQ-X-001"]["tests"]) == 2
     assert req["REQ-COMM-001"]["verdict"] == "fail"
     failing = next(t for t in content["tests"] if t["nodeid"].endswith("test_fails"))
-    from hil.requirements import REQUIREMENTS
+    from hil.verdicts.requirements import REQUIREMENTS
 
-    # the default limit, derived from its source (hil/budget_sources.py)
+    # the default limit, derived from its source (hil/verdicts/budget_sources.py)
     limit = next(b.limit for r in REQUIREMENTS.values() for b in r.budgets if b.name == "commutation_angle_p99")
     assert f"measured 0.7 deg_e exceeds the limit of at most {limit:g} deg_e" in failing["message"]
     xml = (pytester.path / "rep" / "hil-report-junit.xml").read_text()
@@ -113,7 +113,7 @@ def test_bad_dut_spec_and_bad_budgets_are_usage_errors_naming_the_cause(pytester
 
 def test_replay_of_a_dead_controller_names_it(tmp_path, capsys):
     from hil.cli import main
-    from hil.stimulus import Stimulus
+    from hil.bench.stimulus import Stimulus
 
     path = Stimulus("deviations").save(tmp_path / "s.json")
     assert main(["replay", str(path), "--dut", "modbus-tcp:host=127.0.0.1,port=1,timeout=0.3"]) == 3
@@ -181,7 +181,7 @@ def test_a_known_failure_is_never_a_pass_and_hostile_messages_keep_the_junit_wel
 def test_xml_safe_writes_out_every_character_xml_forbids():
     import xml.etree.ElementTree as ET
 
-    from hil.report import xml_safe
+    from hil.verdicts.report import xml_safe
 
     forbidden = "".join(map(chr, [*range(0x00, 0x09), 0x0B, 0x0C, *range(0x0E, 0x20), 0xD800, 0xDFFF, 0xFFFE, 0xFFFF]))
     element = ET.Element("x", message=xml_safe(forbidden + "\t\n ok é \U0001f600"))
@@ -462,8 +462,8 @@ def _t(nodeid, outcome, *measured):
     ],
 )
 def test_requirement_verdict_table(tests, waiver_tests, verdict):
-    from hil.budgets import Waiver
-    from hil.report import requirement_verdict
+    from hil.verdicts.budgets import Waiver
+    from hil.verdicts.report import requirement_verdict
 
     waivers = [] if waiver_tests is None else [Waiver("REQ-R-001", "reason", "owner", tuple(waiver_tests))]
     got, waiver = requirement_verdict("REQ-R-001", tests, waivers)
@@ -473,8 +473,8 @@ def test_requirement_verdict_table(tests, waiver_tests, verdict):
 def test_the_report_sums_each_duts_edge_traffic_and_shows_it_beside_the_controllers(tmp_path):
     """Each test's traffic (the plugin's per-test share of the link's counts) adds up per DUT into
     the report's top-level ``traffic``, bus time included, and the HTML shows it."""
-    from hil.record import TestRecord
-    from hil.report import ReportWriter
+    from hil.verdicts.record import TestRecord
+    from hil.verdicts.report import ReportWriter
 
     def record(name, dut, traffic):
         return TestRecord.from_json({"nodeid": f"t.py::{name}", "outcome": "passed", "duration_s": 1.0,
@@ -552,7 +552,7 @@ def test_each_requirement_of_a_test_has_its_own_verdict(pytester):
     pytester.makepyfile(test_two=TWO_REQUIREMENTS)
     pytester.runpytest("--hil-report-dir", "rep").assert_outcomes(passed=1, failed=3)
     tests = {t["nodeid"].split("[")[1].rstrip("]"): t for t in report(pytester)["tests"]}
-    from hil.report import test_status
+    from hil.verdicts.report import test_status
 
     verdicts = {k: (t["failed_by"], test_status(t, "REQ-FLT-001"), test_status(t, "REQ-ROB-002"))
                 for k, t in tests.items()}
@@ -593,8 +593,8 @@ def test_a_saved_report_of_an_earlier_version_reads_as_typed_records_with_the_sa
     (tests/data/results/README.md)."""
     from pathlib import Path
 
-    from hil.record import FailedBy, Outcome, Status, TestRecord
-    from hil.report import requirement_verdict
+    from hil.verdicts.record import FailedBy, Outcome, Status, TestRecord
+    from hil.verdicts.report import requirement_verdict
 
     saved = json.loads((Path(__file__).parent / "data" / "results" / "hil-report-records-ca11662.json").read_text())
     kinds = set()

@@ -70,10 +70,10 @@ def _saved(name: str) -> dict:
 def test_an_ordinary_run_calibration_writes_the_saved_json(name, capture, circuit):
     from hil.calibration import calibrate
     from hil.calibration.ordinary import Circuit
-    from hil.twin.capture import load_capture
+    from hil.recording.load import load_recording
 
     source = f"tests/data/real-hall/{capture}"
-    cal = calibrate(load_capture(ROOT / source), circuit=Circuit(**circuit), source=source)
+    cal = calibrate(load_recording(ROOT / source), circuit=Circuit(**circuit), source=source)
     now = json.loads(json.dumps(cal.to_json()))
     assert cal.to_json_dict() == cal.to_json()  # the former name, kept
     assert differences(_saved(name), now) == []
@@ -95,9 +95,9 @@ def test_a_campaign_calibration_writes_the_saved_json():
 def test_a_gap_diagnosis_writes_the_saved_json():
     """``hil gap diagnose tests/data/real-hall/20250615-new-slow.vcd --json``: the ordinary-run route."""
     from hil.gap import diagnose
-    from hil.twin.capture import load_capture
+    from hil.recording.load import load_recording
 
-    d = diagnose(load_capture(ROOT / "tests" / "data" / "real-hall" / "20250615-new-slow.vcd"), None)
+    d = diagnose(load_recording(ROOT / "tests" / "data" / "real-hall" / "20250615-new-slow.vcd"), None)
     now = json.loads(json.dumps(d.to_json()))
     assert differences(_saved("gap-diagnosis-ordinary-new-slow.json"), now) == []
 

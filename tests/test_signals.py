@@ -376,7 +376,7 @@ def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(
     chopped) is reported at the midpoint of that off-interval, so within half the off-time of the
     true instant, and counted; every other commutation (of the unchopped side, during an on-time,
     of a carrier restarted at commutation, of complementary PWM with dead time) stays exact."""
-    from hil.signals.capture import Capture
+    from hil.recording.formats import open_capture
     from hil.signals.commutations import extract
 
     pwm_hz = 20e3
@@ -390,7 +390,7 @@ def test_commutation_hidden_in_off_time_is_located_at_its_midpoint(
         complementary=complementary,
         dead_time_s=0.5e-6,
     )
-    ex = extract(Capture(tmp_path / "gates.vcd"))
+    ex = extract(open_capture(tmp_path / "gates.vcd"))
     t_c, s_c = ex.commutations
     made = np.array([t for t, _ in plan[1:]])
     assert np.array_equal(s_c, [s for _, s in plan[1:]])
@@ -487,7 +487,7 @@ def test_loopback_matches_the_lockstep_bench(tmp_path, deterministic_plant, stra
     every commutation where the gates made it."""
     from bldc.contract import Strategy
     from bldc.motor import steady_state
-    from hil.bench import LockstepBench
+    from hil.bench.lockstep import LockstepBench
     from hil.controller.virtual import VirtualController
     from hil.dut.in_process import InProcessLink
     from hil.signals.export import ExportSettings, export
@@ -598,10 +598,11 @@ def test_sigrok_csv_export_scores_the_same_as_its_vcd(ideal_stimulus, loopback_g
 
 def test_csv_capture_with_mapping_and_inverted_channels(ideal_stimulus, loopback_gates, tmp_path):
     """A change-list CSV (Saleae-like: "Time [s]", channels by other names, two active-low)."""
-    from hil.signals.capture import GATES, Capture
+    from hil.recording.capture import GATES
+    from hil.recording.formats import open_capture
 
     rows = []
-    for t, s in Capture(loopback_gates).states():
+    for t, s in open_capture(loopback_gates).states():
         for ti, si in zip(t.tolist(), s.tolist()):
             bits = [(si >> j) & 1 for j in range(6)]
             bits[1] ^= 1  # AL wired through an inverting driver
@@ -619,8 +620,8 @@ def test_csv_capture_with_mapping_and_inverted_channels(ideal_stimulus, loopback
 
 # --- hold-off and PWM --------------------------------------------------------------------------------------------
 def _gates_vcd(path: Path, events: list[tuple[float, str, int]], end_s: float) -> Path:
-    from hil.signals.capture import GATES
-    from hil.signals.vcd import Timescale, VcdWriter
+    from hil.recording.capture import GATES
+    from hil.recording.vcd import Timescale, VcdWriter
 
     w = VcdWriter(path, Timescale(1, "ns"), list(GATES))
     w.initial([0] * 6)
@@ -635,7 +636,7 @@ def _gates_vcd(path: Path, events: list[tuple[float, str, int]], end_s: float) -
 
 
 def test_glitch_on_the_floating_phase_is_not_a_commutation(tmp_path):
-    from hil.signals.capture import Capture
+    from hil.recording.formats import open_capture
     from hil.signals.commutations import extract
 
     ev = [(0.0, "CL", 1), (0.0, "BH", 1)]  # sector 4: B high, C low
@@ -643,7 +644,7 @@ def test_glitch_on_the_floating_phase_is_not_a_commutation(tmp_path):
     ev += [(600e-6, "CL", 0), (600e-6, "AL", 1)]  # commutation to sector 5: B high, A low
     for k in range(40):  # B's high side chopped at 20 kHz throughout
         ev += [(k * 50e-6 + 25e-6, "BH", 0), (k * 50e-6 + 50e-6 - 1e-9, "BH", 1)]
-    ex = extract(Capture(_gates_vcd(tmp_path / "g.vcd", ev, 2e-3)))
+    ex = extract(open_capture(_gates_vcd(tmp_path / "g.vcd", ev, 2e-3)))
     t, s = ex.commutations
     assert ex.glitches == 1
     assert t.tolist() == pytest.approx([600e-6]) and s.tolist() == [5]
@@ -661,7 +662,7 @@ def test_stimulus_hall_edges_are_the_plant_edges_within_half_a_sample(tmp_path):
     truth instants are where the trajectory reaches 60 n deg e."""
     from hil.signals.export import ExportSettings, _chunk_edges, export
     from hil.signals.trajectory import Trajectory
-    from hil.signals.vcd import VcdReader
+    from hil.recording.vcd import VcdReader
     from plant_models import paper_bench
 
     fs = 250e3
@@ -699,7 +700,7 @@ def test_csv_is_the_vcd_sampled(tmp_path):
     """stimulus.csv holds, at every sample, the values the VCD defines there."""
     import pandas as pd
 
-    from hil.signals.vcd import VcdReader
+    from hil.recording.vcd import VcdReader
 
     argv = ["signals", "export", "--out", str(tmp_path), "--duration-s", "0.05", "--sample-rate-hz", "200000",
             "--seed", "3"]
@@ -741,7 +742,7 @@ def test_chunk_seams_do_not_change_the_stimulus(tmp_path, monkeypatch):
 
 
 def test_timescale_is_the_sample_period():
-    from hil.signals.vcd import Timescale
+    from hil.recording.vcd import Timescale
 
     assert Timescale.for_sample_rate(1e6) == (Timescale(1, "us"), 1)
     assert Timescale.for_sample_rate(2e6) == (Timescale(100, "ns"), 5)
@@ -770,7 +771,7 @@ def test_bad_inputs_name_the_file_and_place(tmp_path, ideal_stimulus, capsys):
 def test_vcd_reader_blocks_do_not_change_the_changes(ideal_stimulus, monkeypatch, block_bytes):
     """Reading in small blocks (tokens and value/identifier pairs cut at every place) gives the
     same changes as reading the file whole."""
-    from hil.signals.vcd import VcdReader
+    from hil.recording.vcd import VcdReader
 
     names = ["HA", "HB", "HC", "IA", "IB", "IC"]
     whole = [np.concatenate(a) for a in zip(*VcdReader(ideal_stimulus / "stimulus.vcd").changes(names))]
@@ -845,7 +846,8 @@ def test_every_commutation_and_no_pwm_edge_is_found(first, steps, gaps_us, pwm_h
 def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
     """A capture that dumps the six gates as one bus (``gates[5:0]``, bit 0 = AH) scores the
     same as six wires, mapped as gates[0] ... gates[5]."""
-    from hil.signals.capture import GATES, Capture
+    from hil.recording.capture import GATES
+    from hil.recording.formats import open_capture
 
     lines = [
         "$timescale 1 us $end",
@@ -854,7 +856,7 @@ def test_gates_as_bits_of_a_vector(ideal_stimulus, loopback_gates, tmp_path):
         "$upscope $end",
         "$enddefinitions $end",
     ]
-    for t, s in Capture(loopback_gates).states():
+    for t, s in open_capture(loopback_gates).states():
         for ti, si in zip(t.tolist(), s.tolist()):
             lines += [f"#{round(ti * 1e6)}", f"b{si:b} !"]
     bus = tmp_path / "bus.vcd"

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from bldc.motor import MotorParameters, steady_state
-from hil.bench import LockstepBench
+from hil.bench.lockstep import LockstepBench
 from hil.dut.link import LinkError
 from hil.dut.spec import DutSpecError, open_dut, parse_dut
 from hil.sil.build import SilBuildError, build, read_build_spec

@@ -10,8 +10,8 @@ import pytest
 
 from bldc.contract import Strategy
 from bldc.motor import steady_state
-from hil.bench import LockstepBench, acceptance_max_step_s
-from hil.budgets import Budgets
+from hil.bench.lockstep import LockstepBench, acceptance_max_step_s
+from hil.verdicts.budgets import Budgets
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
 from hil.experiments import speed_step as S

@@ -3,8 +3,9 @@
 import numpy as np
 import pytest
 
-from hil.recording import RecordingError, record_kinematic
-from hil.traces import TraceMapping, read_trace, write_level_trace, write_meta
+from hil.recording.errors import RecordingError
+from hil.recording.drivers import record_kinematic
+from hil.recording.traces import TraceMapping, read_trace, write_level_trace, write_meta
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 

@@ -279,11 +279,11 @@ def test_after_a_fault_a_many_pole_rotor_is_realigned_while_its_speed_recovers(t
     compares. The hub's pole pattern is once per turn (eccentricity), which such a trend mimics; the
     alignment compares the sector times about their trend, so the commutation recovers (REQ-ROB-002's
     budget); compared raw, it kept a neighbouring alignment and a 5-8 deg e error."""
-    from hil.budgets import Budgets
+    from hil.verdicts.budgets import Budgets
     from hil.controller.virtual import VirtualController
     from hil.dut.in_process import InProcessLink
-    from hil.faults import SensorDropout
-    from hil.stimulus import Stimulus, run
+    from hil.dut.faults import SensorDropout
+    from hil.bench.stimulus import Stimulus, run
     from plant_models.plant import paper_bench
 
     # the base as a user's file: its motor taken as written (a pump motor at 3 % of its speed, whose
@@ -319,10 +319,10 @@ def test_what_the_suite_found_on_the_twins_passes_its_replay(replay, what):
     """The stimuli the acceptance suite saved when it found two of the built-in controller's defects
     on the shipped motors' twins (docs/twin.md), replayed against the controller: each now meets its
     budget."""
-    from hil.budgets import Budgets
+    from hil.verdicts.budgets import Budgets
     from hil.controller.virtual import VirtualController
     from hil.dut.in_process import InProcessLink
-    from hil.stimulus import Stimulus, run
+    from hil.bench.stimulus import Stimulus, run
 
     stimulus = Stimulus.load(REPLAYS / replay)
     outcome = run(stimulus, InProcessLink(VirtualController(stimulus.plant_config().motor)), Budgets.defaults())

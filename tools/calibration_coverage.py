@@ -21,7 +21,7 @@ from pathlib import Path
 
 from hil.calibration.ordinary import hall_steps, ordinary_calibration
 from hil.experiments.calibration_coverage import Z, coverage_study, half_split
-from hil.signals.hall import read_hall_capture
+from hil.recording.hall import read_hall_capture
 
 ROOT = Path(__file__).resolve().parents[1]
 CAPTURES = sorted((ROOT / "tests" / "data" / "real-hall").glob("*.vcd"))

@@ -1079,8 +1079,9 @@ def disagreements(data: dict, computing: frozenset[str] = frozenset()) -> list[s
 
 #: a decimal number in prose or a table (what ``unmarked_numbers`` counts)
 DECIMAL = re.compile(r"(?<![\w.])\d+\.\d+(?![\w.])")
-#: the requirement registry's generated tables (hil/requirements.py): limits and sources, not measurements
-GENERATED_MARK = re.compile(r"<!-- generated from hil/requirements\.py.*?<!-- end of the generated table -->", re.S)
+#: the requirement registry's generated tables (hil/verdicts/requirements.py): limits and sources, not measurements
+GENERATED_MARK = re.compile(r"<!-- generated from hil/verdicts/requirements\.py.*?<!-- end of the generated table -->",
+                            re.S)
 
 
 def unmarked_numbers(text: str) -> list[tuple[int, str]]:

@@ -13,7 +13,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bldc.motor import steady_state
-from hil.recording import Recording, record_electrical, record_kinematic
+from hil.recording.drivers import record_electrical, record_kinematic
+from hil.recording.format import Recording
 from plant_models import PlantConfig
 from plant_models.kinematic import OperatingPoint
 

@@ -21,7 +21,7 @@ import numpy as np
 
 from bldc.hall import SENSOR_POSITION_DEG_E
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
-from hil.recording import Recording
+from hil.recording.format import Recording
 
 from .corrections import SENSORS, Corrections
 from .steps import (

@@ -30,7 +30,6 @@ from scipy.sparse import linalg as sparse_linalg
 from bldc import edges
 from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
-from ..stats import BIC_MIN, bic_gain, inliers
 from .corrections import SENSORS, Corrections
 from .result import (
     ORDINARY_METHOD,
@@ -43,6 +42,7 @@ from .result import (
     Refusal,
     Stationarity,
 )
+from .stats import BIC_MIN, bic_gain, inliers
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
     bic_weight,
@@ -279,7 +279,7 @@ def fit_ordinary(
         solved = (s_mat, e_cols, w, resid)
         # noise per speed band: quantisation and jitter grow differently with speed
         sigma = _band_sigma(resid, tau, keep, tick_s)
-        # outliers (a missed edge, a bump): beyond the project's cut (hil.stats), left out of the next pass
+        # outliers (a missed edge, a bump): beyond the project's cut (hil.calibration.stats), left out of the next pass
         new_keep = inliers(resid, sigma)
         outliers = int(np.sum(~new_keep))
         keep = new_keep
@@ -454,7 +454,7 @@ def choose_pole_pairs(
     A magnet's pole boundaries repeat every mechanical turn (6 p edges); without the motor's
     pole count, each candidate p is fitted on the same trajectory splines as ``base`` and the
     smallest BIC kept, provided it beats the model without pole offsets by a clear margin
-    (``hil.stats.BIC_MIN``, with the noise of ``base``)."""
+    (``hil.calibration.stats.BIC_MIN``, with the noise of ``base``)."""
     n_edges = int(steps.used().sum())
     best: tuple[int | None, float] = (None, 0.0)
     for p in range(2, max_pole_pairs + 1):

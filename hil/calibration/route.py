@@ -33,7 +33,7 @@ __all__ = ["ROUTES", "Calibration", "Circuit", "calibrate"]
 
 
 def calibrate(rec, *, circuit: Circuit | None = None, source: str = "") -> Calibration:
-    """The project's calibration of ``rec`` (a ``hil.recording.Recording``), by the route its
+    """The project's calibration of ``rec`` (a ``hil.recording.format.Recording``), by the route its
     content allows (module docstring)."""
     circuit = circuit or Circuit()
     source = source or str(rec.path or "recording")

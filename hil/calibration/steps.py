@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from bldc.units import rpm_to_deg_e_per_s
-from hil.linebemf import falling_zero_crossings, line_bemf
+from hil.calibration.linebemf import falling_zero_crossings, line_bemf
 
 #: paper Section 4.2: weights of the three calibration speeds, in the order of Tables 2-4
 PAPER_SPEED_WEIGHTS = (0.5, 0.3, 0.2)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..plots import pyplot, save
+from ..verdicts.plots import pyplot, save
 
 
 def _positions(values: list) -> tuple[np.ndarray, np.ndarray, list[str] | None]:

@@ -1,6 +1,6 @@
 """The point grid: every combination of the axes' values, its seed, its stimulus, and one run.
 
-A point is a ``hil.stimulus.Stimulus``: the campaign runs it through ``hil.stimulus.run`` on the
+A point is a ``hil.bench.stimulus.Stimulus``: the campaign runs it through ``hil.bench.stimulus.run`` on the
 lockstep bench against a fresh in-process virtual controller, and a failing point is saved as
 that very stimulus, so ``hil replay`` re-runs exactly what the campaign ran.
 
@@ -21,11 +21,11 @@ import numpy as np
 
 from bldc.motor import steady_state
 
-from .. import stimulus
-from ..budgets import Budget, Budgets
+from ..bench import stimulus
+from ..bench.stimulus import Stimulus
 from ..controller.virtual import VirtualController
 from ..dut.in_process import InProcessLink
-from ..stimulus import Stimulus
+from ..verdicts.budgets import Budget, Budgets
 from .spec import CampaignSpec, point_fault, point_plant
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from jinja2 import Environment, select_autoescape
 
-from ..report import atomic_write
+from ..verdicts.report import atomic_write
 
 #: at most this many failing points are listed (the table has them all)
 MAX_LISTED = 200

@@ -18,7 +18,7 @@ Failure handling:
 * Ctrl-C (KeyboardInterrupt) cancels what is left and returns with ``interrupted = True``; every
   result received so far has been handed to ``on_result``.
 
-The progress (``hil.progress.Meter`` on stderr) shows count, share, rate and time left; on a
+The progress (``hil.verdicts.progress.Meter`` on stderr) shows count, share, rate and time left; on a
 terminal it is redrawn every half second whether or not a job finished, so it never sits still
 while work goes on, and a log gets a line per tenth of the jobs.
 """
@@ -36,7 +36,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any, Callable
 
 if TYPE_CHECKING:
-    from ..progress import Meter
+    from ..verdicts.progress import Meter
 
 #: how long a remote scheduler may take to show a first worker before the run is refused
 WORKER_WAIT_S = 60.0
@@ -110,7 +110,7 @@ def dispatch(fn: Callable, jobs: list, on_result: Callable[[int, Any], None], *,
              workers: int | None = None, label: str = "jobs", progress: bool = True) -> DispatchInfo:
     """Run ``fn`` over ``jobs`` on ``scheduler``; ``workers`` sizes a local cluster (default: the cores);
     ``label`` names the jobs in the progress line (and the Dask task keys)."""
-    from ..progress import Meter  # here: a Dask worker importing this module for _call needs no progress
+    from ..verdicts.progress import Meter  # here: a Dask worker importing this module for _call needs no progress
 
     scheduler = scheduler or "local"
     info = DispatchInfo(scheduler)

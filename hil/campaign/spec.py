@@ -9,7 +9,7 @@
     run_s = 0.1                   # judged hold after the 0.1 s settle (deviations)
     repeats = 1                   # seeds per grid cell
 
-    [campaign.budgets]            # budget name = metric it judges (hil.stimulus.METRICS)
+    [campaign.budgets]            # budget name = metric it judges (hil.bench.stimulus.METRICS)
     commutation_angle_p99 = "angle_p99"
 
     [fixed]                       # what every point shares
@@ -50,9 +50,9 @@ from bldc.tomlfile import ANY_KEY, load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.effects import EFFECTS, effect_from_mapping
 
-from ..budgets import Budgets
-from ..faults import WIRING_FAULTS, wiring_fault_from_dict
-from ..stimulus import DEFAULT_BUDGETS, METRICS
+from ..bench.stimulus import DEFAULT_BUDGETS, METRICS
+from ..dut.faults import WIRING_FAULTS, wiring_fault_from_dict
+from ..verdicts.budgets import Budgets
 
 #: operating-point axes (not effect parameters)
 OPERATING_AXES = ("speed_rpm", "load_scale", "strategy", "fault_hold_s")

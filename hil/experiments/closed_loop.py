@@ -20,7 +20,7 @@ from bldc.contract import FILTER_COUNTERS, Strategy, edge_as_received, filter_ve
 from bldc.motor import steady_state
 from bldc.units import rpm_to_deg_e_per_s
 
-from ..bench import acceptance_max_step_s, make_bench, own_plant, rms
+from ..bench.lockstep import acceptance_max_step_s, make_bench, own_plant, rms
 from ..calibration.campaign import station_corrections
 from ..calibration.corrections import corrected_edge_times
 from ..controller.adc import edge_currents

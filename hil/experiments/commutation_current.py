@@ -30,7 +30,7 @@ from bldc.motor import speed_loop_gain_scale, steady_state
 from plant_models import OracleCommutation, RawHallCommutation, Simulation
 from plant_models.layout import S_OMEGA_M, S_THETA_M
 
-from ..bench import acceptance_max_step_s
+from ..bench.lockstep import acceptance_max_step_s
 
 
 @dataclass(frozen=True)

@@ -46,7 +46,7 @@ import numpy as np
 from bldc.contract import Strategy
 from plant_models import paper_bench
 
-from ..bench import rms
+from ..bench.lockstep import rms
 from ..calibration.campaign import station_corrections
 from ..controller.virtual import VirtualController
 from ..dut.in_process import InProcessLink

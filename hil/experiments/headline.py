@@ -12,7 +12,7 @@ from plant_models import Simulation, paper_bench
 
 from ..calibration.campaign import station_corrections
 from ..controller.commutation import HallCommutation, SpeedPI
-from ..plots import pyplot, save
+from ..verdicts.plots import pyplot, save
 
 #: paper Section 4.3: after correction the speed MSE fell by 92.0 % and the mean phase current by 62.8 %
 PAPER_SPEED_MSE_REDUCTION = 0.920

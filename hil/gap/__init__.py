@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hil.recording import Recording
+from hil.recording.format import Recording
 
 from .diagnose import Diagnosis, diagnose_segments
 from .ordinary import diagnose_ordinary

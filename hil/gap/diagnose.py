@@ -22,9 +22,9 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import nnls
 
-from hil.recording import Recording
+from hil.recording.format import Recording
 
-from ..stats import chi2_p_value
+from ..calibration.stats import chi2_p_value
 from .candidates import CANDIDATES
 from .fitting import cell_rms
 from .fitting import wls as _wls

@@ -30,7 +30,7 @@ from typing import Callable
 import numpy as np
 
 from bldc.hall import SENSOR_POSITION_DEG_E
-from hil.recording import record_kinematic
+from hil.recording.drivers import record_kinematic
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling

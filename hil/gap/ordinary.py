@@ -38,10 +38,10 @@ from hil.calibration.ordinary import (
     fit_ordinary,
     hall_steps,
 )
-from hil.recording import Recording
+from hil.recording.format import Recording
 
-from ..plots import pyplot
-from ..stats import chi2_p_value, inliers
+from ..verdicts.plots import pyplot
+from ..calibration.stats import chi2_p_value, inliers
 from .diagnose import Diagnosis, RankedEffect
 from .relevance import Relevance, edge_relevance
 from .result import (

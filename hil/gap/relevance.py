@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 FRACTION = 0.1                    #: share of a budget an effect must reach to matter
-COMMUTATION_ANGLE_BUDGET_DEG_E = 0.5  #: hil.budgets default commutation_angle_p99
+COMMUTATION_ANGLE_BUDGET_DEG_E = 0.5  #: hil.verdicts.budgets default commutation_angle_p99
 SPEED_BUDGET = 0.01               #: relative speed at a fixed duty
 INDUCTANCE_TOLERANCE = 0.10       #: relative inductance
 TORQUE_RIPPLE_BUDGET = 0.10       #: peak ripple / load torque

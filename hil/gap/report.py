@@ -14,7 +14,7 @@ import numpy as np
 from jinja2 import Environment, select_autoescape
 from markupsafe import Markup
 
-from ..plots import pyplot
+from ..verdicts.plots import pyplot
 from .candidates import CANDIDATES
 from .diagnose import Diagnosis, _design, build_cells
 from .fitting import wls as _wls

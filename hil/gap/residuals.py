@@ -14,7 +14,7 @@ import numpy as np
 from bldc.hall import SENSOR_POSITION_DEG_E
 from hil.calibration.fit import edge_errors_from_encoder, segment_speed_deg_e_s
 from hil.calibration.steps import wrap180
-from hil.recording import Recording
+from hil.recording.format import Recording
 
 
 @dataclass

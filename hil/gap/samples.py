@@ -37,9 +37,9 @@ from scipy.optimize import minimize_scalar
 from bldc.edges import electrical_speed_hz
 from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from bldc.units import rpm_to_rad_per_s
-from hil.recording import Recording
+from hil.recording.format import Recording
 
-from ..stats import chi2_p_value
+from ..calibration.stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
 from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance

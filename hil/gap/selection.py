@@ -5,12 +5,12 @@ of an ordinary run) states its candidates as fits it can make; this module decid
 of rules:
 
 - one significance level (``ALPHA``) for the gap, the remainder and the stop of the selection;
-- one BIC rule (``hil.stats.bic_gain`` >= ``BIC_MIN``) and one physical-bounds check (the route's);
+- one BIC rule (``hil.calibration.stats.bic_gain`` >= ``BIC_MIN``) and one physical-bounds check (the route's);
 - one parsimony rule: candidates whose explained chi-square is equal within noise to the best
   one are tied, and the tie goes to the fewest new parameters;
 - one confounding rule with its refit check: a rival that alone explains at least
   ``CONFOUND_RATIO`` as much as an accepted effect and earns nothing once the accepted set is in;
-- one outlier cut (``hil.stats.inliers``: ``OUTLIER_SD`` robust standard deviations, the
+- one outlier cut (``hil.calibration.stats.inliers``: ``OUTLIER_SD`` robust standard deviations, the
   calibration's and the twin's too);
 - one held-out shrink with its interval from a bootstrap over blocks (operating points or
   stretches of time): residuals correlated inside a block stay together, so the interval holds
@@ -25,8 +25,8 @@ from typing import Callable
 
 import numpy as np
 
-# the outlier cut and the BIC rule are the project's (hil.stats), shared with the calibration and the twin
-from ..stats import BIC_MIN, bic_gain
+# the outlier cut and the BIC rule are the project's (hil.calibration.stats), shared with the calibration and the twin
+from ..calibration.stats import BIC_MIN, bic_gain
 
 #: significance of a gap against its noise floor, of a remainder after the accepted effects, and
 #: the selection's stop. 1e-3: a diagnosis tests dozens to hundreds of cells per recording and a

@@ -13,7 +13,8 @@ import numpy as np
 
 from bldc.motor import steady_state
 from bldc.units import edges_per_s, rpm_to_deg_e_per_s
-from hil.recording import Recording, record_electrical
+from hil.recording.drivers import record_electrical
+from hil.recording.format import Recording
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint, simulate_edges

@@ -24,7 +24,8 @@ import numpy as np
 
 from bldc.units import rpm_to_deg_e_per_s
 from hil.campaign.scheduler import TaskError, dispatch
-from hil.recording import Recording, record_kinematic
+from hil.recording.format import Recording
+from hil.recording.drivers import record_kinematic
 from plant_models import PlantConfig, paper_bench
 from plant_models import effects as fx
 

@@ -9,7 +9,7 @@ from pathlib import Path
 def trend_figure(trend: dict, path: str | Path) -> Path:
     """One budget's figure over the runs of one controller: a line per test that measured it, the
     limit dashed, each point coloured by its verdict, a build's first run marked on the axis."""
-    from ..plots import pyplot, save
+    from ..verdicts.plots import pyplot, save
 
     plt = pyplot()
     fig, ax = plt.subplots(figsize=(8.5, 3.8))
@@ -47,7 +47,7 @@ def trend_page(trend: dict, png: Path, path: str | Path) -> Path:
     """The trend as one self-contained page."""
     import jinja2
 
-    from ..report import atomic_write
+    from ..verdicts.report import atomic_write
 
     template = jinja2.Environment(autoescape=True).from_string(
         "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'><title>{{ t.budget }} trend</title>"

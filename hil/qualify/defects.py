@@ -38,7 +38,7 @@ class Defect:
     name: str
     description: str
     controller: type[VirtualController]
-    #: the defect class (hil.requirements.DEFECT_CLASSES): the requirements that name it must catch it
+    #: the defect class (hil.verdicts.requirements.DEFECT_CLASSES): the requirements that name it must catch it
     defect_class: str = ""
 
 
@@ -47,8 +47,8 @@ CATALOGUE: dict[str, Defect] = {}
 
 def defect(name: str, description: str, defect_class: str = ""):
     """Register a controller class as the seeded defect ``name`` (a VirtualController subclass) of
-    ``defect_class`` (one of hil.requirements.DEFECT_CLASSES; a user's defect may leave it empty)."""
-    from ..requirements import DEFECT_CLASSES
+    ``defect_class`` (one of hil.verdicts.requirements.DEFECT_CLASSES; a user's defect may leave it empty)."""
+    from ..verdicts.requirements import DEFECT_CLASSES
 
     if defect_class and defect_class not in DEFECT_CLASSES:
         raise ValueError(f"defect {name!r}: unknown defect class {defect_class!r}; known: {', '.join(DEFECT_CLASSES)}")

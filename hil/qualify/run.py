@@ -9,10 +9,10 @@ is one of:
 
 * a failed **budget** (a measurement whose verdict is fail): caught by that budget's requirement,
   whichever test's marker measured it;
-* a failed **judged check** (hil.requirements.JudgedCheck: back-to-back against the reference, or
+* a failed **judged check** (hil.verdicts.requirements.JudgedCheck: back-to-back against the reference, or
   physics), its requirement's as a budget's is, labelled by its judgement;
 * a **device failure** (the controller signalled its own failure on valid input: a Modbus
-  exception 04, an SDO abort 0x08000000 or 0x06060000; hil.judging): a failed requirement, the
+  exception 04, an SDO abort 0x08000000 or 0x06060000; hil.verdicts.judging): a failed requirement, the
   test's;
 * a failed **check** (an assertion that is no budget) of a requirement that has no budget (a
   pass/fail requirement, judged by its fault code, say).
@@ -24,7 +24,7 @@ scenario did not provoke what the test judges) and **error** (anything else) cat
 either: findings to fix.
 
 With ``--sensitivity`` each defect runs to the end, restricted to the tests of the
-requirements that name its class (``hil.requirements``, ``judges``), and the result holds the
+requirements that name its class (``hil.verdicts.requirements``, ``judges``), and the result holds the
 sensitivity table: requirement x defect -> caught by that requirement's own budget or check, with
 the margin (``sensitivity_markdown``). Without a control run that PASSes there is no detection
 figure.
@@ -89,7 +89,7 @@ class Run:
 
 
 #: what caught a defect, the strongest evidence first: a customer's budget, a judged check
-#: (hil.requirements.JUDGEMENTS), a device's own signal, a pass/fail requirement's check
+#: (hil.verdicts.requirements.JUDGEMENTS), a device's own signal, a pass/fail requirement's check
 CATCH_KINDS = ("budget", "back-to-back", "physics", "device failure", "check")
 
 
@@ -113,9 +113,9 @@ def suite_files(suite: Path) -> list[str]:
 
 def out_of_scope_budgets(dut: str, budgets: str | None, directory: Path) -> tuple[str | None, dict[str, str]]:
     """A budgets file that takes out of scope each requirement the DUT form's profile cannot show
-    (hil.requirements: the Modbus controller has no heartbeat and no EMCY), over the
+    (hil.verdicts.requirements: the Modbus controller has no heartbeat and no EMCY), over the
     user's ``budgets``; its path (None when nothing is out of scope) and the requirements with why."""
-    from ..requirements import REQUIREMENTS, missing_needs
+    from ..verdicts.requirements import REQUIREMENTS, missing_needs
     from ..dut.profile import load_profile, shipped
     from ..dut.spec import parse_dut
 
@@ -167,7 +167,7 @@ def checks_not_counted(report: dict, registry: dict | None = None) -> list[dict]
 
 def _judged(report: dict, registry: dict | None):
     if registry is None:
-        from ..requirements import REQUIREMENTS as registry
+        from ..verdicts.requirements import REQUIREMENTS as registry
     failed = [t for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
     catches: list[dict] = []
     uncounted: list[dict] = []
@@ -212,7 +212,7 @@ def judged_measurements(report: dict) -> list[dict]:
 def naming(defect_class: str, registry: dict | None = None) -> list[str]:
     """The requirements that name ``defect_class`` among the defects they judge."""
     if registry is None:
-        from ..requirements import REQUIREMENTS as registry
+        from ..verdicts.requirements import REQUIREMENTS as registry
     return [r.id for r in registry.values() if defect_class and defect_class in r.judges]
 
 
@@ -223,7 +223,7 @@ def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
     failed budget's, else the smallest margin of its budgets in the run: how close it came);
     ``ran`` False when no test of the requirement ran (the run stopped earlier, or was restricted)."""
     if registry is None:
-        from ..requirements import REQUIREMENTS as registry
+        from ..verdicts.requirements import REQUIREMENTS as registry
     cells = []
     for m in mutants:
         named = naming(m.defect_class, registry)
@@ -282,7 +282,7 @@ class FirmwareDefect:
     define: str
     description: str
     requirements: tuple[str, ...] = ()
-    #: its class (``hil.requirements.DEFECT_CLASSES``; defects.toml's optional ``class``), "" when unclassed
+    #: its class (``hil.verdicts.requirements.DEFECT_CLASSES``; defects.toml's optional ``class``), "" when unclassed
     defect_class: str = ""
 
 
@@ -294,7 +294,7 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     from bldc.tomlfile import TomlError, load_toml
 
     from ..dut.spec import parse_dut
-    from ..requirements import DEFECT_CLASSES
+    from ..verdicts.requirements import DEFECT_CLASSES
 
     spec = parse_dut(dut)
     if not spec.firmware:

@@ -35,7 +35,7 @@ def _command(args) -> str:
 
 
 def cmd_export(args) -> int:
-    from .errors import SignalError
+    from ..recording.errors import SignalError
     from .export import ExportSettings, export, ideal, load_effects
     from .trajectory import parse_profile
 
@@ -70,7 +70,7 @@ def cmd_export(args) -> int:
         deviations=not args.no_deviations,
     )
 
-    from ..progress import Meter
+    from ..verdicts.progress import Meter
 
     progress = Meter("chunks written", enabled=args.progress)
     res = export(args.out, settings, progress)
@@ -90,7 +90,7 @@ def cmd_export(args) -> int:
 
 
 def _mapping(args):
-    from .capture import GateMapping
+    from ..recording.capture import GateMapping
 
     if args.mapping and args.channels:
         raise ValueError("give --mapping or --channels, not both")

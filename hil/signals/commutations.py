@@ -386,7 +386,7 @@ class Extractor:
 
 
 def extract(capture, hold_off_s: float = DEFAULT_HOLD_OFF_S) -> Extracted:
-    """Commutations of a :class:`~hil.signals.capture.Capture` (streamed)."""
+    """Commutations of a :class:`~hil.recording.capture.Capture` (streamed)."""
     ex = Extractor(hold_off_s)
     for t, s in capture.states():
         ex.resolution_s = capture.sample_period_s or 0.0  # known once the reader has started

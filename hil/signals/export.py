@@ -32,10 +32,10 @@ from plant_models.effects import effect_from_mapping
 from plant_models.kinematic import OperatingPoint, simulate_edges
 from plant_models.plant import CurrentSensorParameters
 
+from ..recording.errors import SignalError
+from ..recording.vcd import Timescale, VcdWriter
 from .currents import CurrentTables, tabulate
-from .errors import SignalError
 from .trajectory import Trajectory
-from .vcd import Timescale, VcdWriter
 
 FORMAT = "hil-signals/1"
 HALL_NAMES = ("HA", "HB", "HC")

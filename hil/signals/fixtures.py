@@ -51,7 +51,7 @@ class SignalBench:
             sample_rate_hz: float = 1e6) -> SignalRun:
         """Export (plant with ``effects``), play into the virtual controller with ``strategy`` and
         ``corrections``, capture its gates, score. With a bench capture: score that."""
-        from .capture import GateMapping
+        from ..recording.capture import GateMapping
         from .score import score
 
         mapping = GateMapping.from_toml(self.mapping) if self.mapping else None

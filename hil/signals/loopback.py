@@ -22,9 +22,9 @@ import numpy as np
 
 from bldc.hall import SECTOR_PHASES
 
-from .capture import GATES
-from .errors import SignalError
-from .vcd import VcdReader, VcdWriter
+from ..recording.capture import GATES
+from ..recording.errors import SignalError
+from ..recording.vcd import VcdReader, VcdWriter
 
 
 @dataclass
@@ -151,7 +151,7 @@ def run_loopback(stimulus_dir: str | Path, link, out_vcd: str | Path, pwm_freque
             gates.apply(c.at_s, c.sector, c.duty)
         gates.render(until_s)
 
-    # the cycle-mean |i| the lockstep bench gives the controller (hil/bench.py): the integral of the
+    # the cycle-mean |i| the lockstep bench gives the controller (hil/bench/lockstep.py): the integral of the
     # phases' mean |i| over time, carried across chunks, differenced between consecutive Hall edges
     integral_as, integral_t_s, last_abs_a = 0.0, 0.0, 0.0
     edge_integral_as, edge_t_s = 0.0, 0.0

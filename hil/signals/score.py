@@ -29,9 +29,10 @@ import numpy as np
 
 from bldc.units import rpm_to_deg_e_per_s
 
-from .capture import Capture, GateMapping
+from ..recording.capture import GateMapping
+from ..recording.errors import SignalError
+from ..recording.formats import open_capture
 from .commutations import DEFAULT_HOLD_OFF_S, Extracted, extract
-from .errors import SignalError
 
 
 @dataclass
@@ -280,7 +281,7 @@ def score(
             f"{hold_off_s * 1e6:g} us is not shorter than the shortest sector of the stimulus "
             f"({shortest * 1e6:.1f} us); two commutations would fall in one window",
         )
-    cap = Capture(capture_path, mapping)
+    cap = open_capture(capture_path, mapping)
     ex = extract(cap, hold_off_s)
     return score_extracted(truth, ex, hold_off_s)
 

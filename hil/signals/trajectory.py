@@ -14,7 +14,7 @@ import numpy as np
 
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
-from .errors import SignalError
+from ..recording.errors import SignalError
 
 
 def parse_profile(text: str) -> list[tuple[float, float]]:

@@ -3,7 +3,7 @@ of its own (``hil.sil.worker``), reached through its object dictionary and its p
 
 Roles go through the firmware's object dictionary as the device profile (CANopen form) maps them,
 exactly as on a CAN bench (``RoleLink``). Edges do not go through any message: a
-``hil.bench.LockstepBench`` of this link runs its plant (``simulation()``) beside the firmware,
+``hil.bench.lockstep.LockstepBench`` of this link runs its plant (``simulation()``) beside the firmware,
 whose interrupts see the Hall pins, the ADC and
 the timer, and whose gates drive the plant's inverter. Commutation is judged from the gates.
 
@@ -277,7 +277,7 @@ class SilLink(RoleLink):
 
     def simulation(self, config, seed: int, wiring=None, **sim_kwargs) -> "RemoteSimulation":
         """The plant of a bench, run in the firmware's process beside its peripherals
-        (``hil.bench.LockstepBench`` asks for it); ``wiring``: the faults' injector, acting on the pins."""
+        (``hil.bench.lockstep.LockstepBench`` asks for it); ``wiring``: the faults' injector, acting on the pins."""
         if config.motor.pole_pairs != self.info.pole_pairs:
             raise LinkError(
                 f"{self.where}: the plant has {config.motor.pole_pairs} pole pairs, the firmware is configured for "

@@ -28,7 +28,7 @@ import numpy as np
 
 from bldc.contract import Command
 from bldc.hall import SECTOR_HIGH_PHASE, SECTOR_LOW_PHASE, pin_mask
-from hil.faults import FaultInjector
+from hil.dut.faults import FaultInjector
 from plant_models import layout as L
 from plant_models.simulation import Commutations, Simulation
 
@@ -260,7 +260,7 @@ class Peripherals:
 
     def _hall(self, edges: list[dict]) -> None:
         """The Hall interrupts of the pin changes at this instant: each plant edge through the
-        wiring faults (``hil.faults.FaultInjector``, the same faults every link's edge stream
+        wiring faults (``hil.dut.faults.FaultInjector``, the same faults every link's edge stream
         gets), then one interrupt per changed pin in the order A, B, C, each reading the levels
         after all of them changed. A change the faults move later (a spike) waits for its instant."""
         sim = self.sim

@@ -142,8 +142,8 @@ class _Worker:
         return self.periph.sim.t_s, self.periph.interrupts, log
 
     def op_wiring(self, action: str, fault: dict):
-        """Switch a wiring fault on or off between the plant and the pins (``hil.faults``)."""
-        from hil.faults import wiring_fault_from_dict
+        """Switch a wiring fault on or off between the plant and the pins (``hil.dut.faults``)."""
+        from hil.dut.faults import wiring_fault_from_dict
 
         injector = self.periph.injector
         (injector.switch_on if action == "on" else injector.switch_off)(wiring_fault_from_dict(fault))

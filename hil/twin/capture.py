@@ -48,8 +48,9 @@ from ..calibration.ordinary import (
     ordinary_calibration,
 )
 from ..calibration.result import Calibration
-from ..recording import Recording, read_recording
-from ..stats import OUTLIER_SD, chi2_test, inliers
+from ..calibration.stats import OUTLIER_SD, chi2_test, inliers
+from ..recording.format import Recording
+from ..recording.load import load_recording
 
 #: residual lags whose autocorrelation the twin check compares
 ACF_LAGS = 12
@@ -57,23 +58,6 @@ ACF_LAGS = 12
 DEFAULT_BASE = "paper-bench"
 #: the reference electrical speed of the calibration's ripple columns (ordinary.effect_columns)
 RIPPLE_REF_HZ_E = 10.0
-
-
-def load_capture(path: str | Path, pole_pairs: int | None = None) -> Recording:
-    """A recording directory (hil-recording/1), or a capture file (any format of
-    ``hil.signals.capture.CAPTURE_FORMATS``) read as ``hil recording import`` reads it."""
-    from ..signals.capture import is_capture_file, known_formats
-
-    path = Path(path)
-    if is_capture_file(path):
-        from ..signals.hall import capture_recording, read_hall_capture
-
-        rec = capture_recording(read_hall_capture(path), pole_pairs, source=path.name)
-        rec.path = path
-        return rec
-    if not path.exists():
-        raise ConfigError(str(path), f"no such recording directory or capture file ({known_formats()})")
-    return read_recording(path)
 
 
 def load_base(base: str | None) -> PlantConfig:
@@ -587,7 +571,7 @@ def from_capture(recording: str | Path, base: str | None = None, pole_pairs: int
             validate(OperatingRange(top_speed_rpm=float(top_speed_rpm)))
         except ConfigError as exc:
             raise ConfigError("--top-speed-rpm", str(exc).split(": ", 1)[1]) from None
-    rec = load_capture(recording, pole_pairs)
+    rec = load_recording(recording, pole_pairs)
     base_name = base or DEFAULT_BASE
     base_config = load_base(base)
     if top_speed_rpm is None and base_name not in PRESETS and "operating" in load_toml(Path(base_name)):

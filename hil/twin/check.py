@@ -22,7 +22,8 @@ from ..calibration.corrections import SENSORS
 from ..calibration.ordinary import speed_hz_e
 from ..calibration.result import Estimate
 from ..experiments import peers
-from .capture import UNCALIBRATABLE, CaptureAnalysis, analyse, load_capture, uncalibratable_effects
+from ..recording.load import load_recording
+from .capture import UNCALIBRATABLE, CaptureAnalysis, analyse, uncalibratable_effects
 from .replay import twin_recording
 from .result import (
     RATIO_BAND,
@@ -186,7 +187,7 @@ def twin_check(recording: str | Path, plant: str | Path, seed: int = 0, take_on:
     for c in take_on or ():
         if c not in CANDIDATES and c not in UNCALIBRATABLE:
             raise ValueError(f"--take-on: unknown addition {c!r} (known: {', '.join([*CANDIDATES, *UNCALIBRATABLE])})")
-    rec = load_capture(recording, config.motor.pole_pairs)
+    rec = load_recording(recording, config.motor.pole_pairs)
     log(f"{recording}: calibrating the capture ({len(rec)} edges)")
     real = analyse(rec, config.motor.pole_pairs, source=str(recording))
     if real.pole_pairs is not None and real.pole_pairs != config.motor.pole_pairs:

@@ -18,7 +18,7 @@ from plant_models import PlantConfig
 from plant_models.edgelog import EdgeLog
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
-from ..recording import Recording
+from ..recording.format import Recording
 from .capture import CaptureAnalysis
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from bldc.contract import Strategy
 from bldc.motor import steady_state
-from hil.bench import acceptance_max_step_s, make_bench
+from hil.bench.lockstep import acceptance_max_step_s, make_bench
 from hil.dut.spec import open_dut
 from plant_models import effects as fx
 from plant_models import paper_bench

@@ -5,11 +5,11 @@ explains it, what a device profile must offer for a test to show it (roles, the 
 source) and its default budgets (limit, marginal bound, unit, and where the limit comes from).
 Everything else derives from it:
 
-- the built-in budgets (``hil.budgets.Budgets.defaults``) and the report's requirement titles;
+- the built-in budgets (``hil.verdicts.budgets.Budgets.defaults``) and the report's requirement titles;
 - "not testable with this profile" (``missing_needs``: the plugin's skip, ``hil qualify``'s
   out-of-scope entries, ``hil dut check``);
 - the requirement table of docs/acceptance.md and the defaults table of docs/budgets.md
-  (``python -m hil.requirements`` rewrites them; tests/test_budgets.py holds the docs to them).
+  (``python -m hil.verdicts.requirements`` rewrites them; tests/test_budgets.py holds the docs to them).
 
 Adding a requirement is one entry here and its test in test_cases/ (marked
 ``@pytest.mark.requirement("REQ-...")``, or parametrised with the ID).
@@ -161,7 +161,7 @@ _LEARN_DOC = "sage-husa.md#what-the-filter-learns"
 _COMMUTATION_P99 = DefaultBudget(
     'commutation_angle_p99', 'deg_e',
     description='p99 commutation angle error after calibration (paper 4.3 scenario)',
-    **derived('commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
+    **derived('commutation_angle_p99'),  # limit, marginal, limit_source: budget_sources.py
 )
 
 
@@ -172,7 +172,7 @@ def _corrected(deviation: str, what: str) -> DefaultBudget:
     return replace(_COMMUTATION_P99, name=name,
                    description=f"p99 commutation angle error after calibration, {what} alone (paper 4.3 scenario, "
                                "8000 rpm)",
-                   **derived(name))  # commutation_angle_p99's limit (hil/budget_sources.py)
+                   **derived(name))  # commutation_angle_p99's limit (hil/verdicts/budget_sources.py)
 
 
 _REGISTRY = (
@@ -182,7 +182,7 @@ _REGISTRY = (
         budgets=(_corrected('installation', 'the installation offsets'), DefaultBudget(
             'installation_offset_error', 'deg_e',
             description='calibrated installation offsets against truth',
-            **derived('installation_offset_error'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('installation_offset_error'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table',),
     ),
@@ -192,7 +192,7 @@ _REGISTRY = (
         budgets=(_corrected('pole', 'the magnet-pole offsets'), DefaultBudget(
             'pole_offset_error', 'deg_e',
             description='calibrated pole offsets against truth',
-            **derived('pole_offset_error'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('pole_offset_error'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table',),
     ),
@@ -202,7 +202,7 @@ _REGISTRY = (
         budgets=(_corrected('conditioning_delay', 'the conditioning delays'), DefaultBudget(
             'conditioning_delay_error', 's',
             description='calibrated rise and fall delays against truth',
-            **derived('conditioning_delay_error'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('conditioning_delay_error'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table',),
     ),
@@ -212,7 +212,7 @@ _REGISTRY = (
         budgets=(_corrected('armature_reaction', 'the armature reaction'), DefaultBudget(
             'armature_slope_error', 'fraction',
             description='calibrated armature-reaction slope, relative error',
-            **derived('armature_slope_error'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('armature_slope_error'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table',),
     ),
@@ -226,7 +226,7 @@ _REGISTRY = (
             'calibrated_fraction_removed', 'fraction',
             kind='min',
             description='share of the raw commutation angle RMS that the downloaded calibration removes',
-            **derived('calibrated_fraction_removed'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('calibrated_fraction_removed'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table',),
     ),
@@ -257,14 +257,14 @@ _REGISTRY = (
                 description=(
                     "RMS commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"
                 ),
-                **derived('sage_husa_commutation_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('sage_husa_commutation_angle_rms'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'sage_husa_commutation_angle_p99', 'deg_e',
                 description=(
                     "p99 commutation angle error of the Sage-Husa predictor in the paper's speed-step scenario"
                 ),
-                **derived('sage_husa_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('sage_husa_commutation_angle_p99'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'sage_husa_commutation_time_mape', '%',
@@ -273,14 +273,14 @@ _REGISTRY = (
                     'commutation instants, over the ideal commutation interval (60 deg e), paper scenario (1 % is 0.6'
                     ' deg e)'
                 ),
-                **derived('sage_husa_commutation_time_mape'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('sage_husa_commutation_time_mape'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'commutation_time_mape', 'percent',
                 description=(
                     'MAPE of the predicted commutation instant over the ideal interval (paper Table 5 scenario)'
                 ),
-                **derived('commutation_time_mape'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('commutation_time_mape'),  # limit, marginal, limit_source: budget_sources.py
             ),
         ),
         # predictor-model: its budgets and its back-to-back check let sage-husa-runs-kf through (a KF
@@ -292,8 +292,8 @@ _REGISTRY = (
             "next two), minus the reference implementation's on the same plant, calibration, filter settings, "
             "seeds and set points, absolute",
             "three times the seed-to-seed standard deviation of one run's RMS, both implementations' seeds pooled, "
-            "measured in the same run (hil.budget_sources.BAND_STANDARD_ERRORS): a controller that declares the "
-            "paper's method commutates as its reference does, within what the seed alone moves",
+            "measured in the same run (hil.verdicts.budget_sources.BAND_STANDARD_ERRORS): a controller that "
+            "declares the paper's method commutates as its reference does, within what the seed alone moves",
         ),),
     ),
     Requirement(
@@ -308,7 +308,7 @@ _REGISTRY = (
                 "Sage-Husa commutation angle RMS over the tuned Kalman filter's on one operating profile (mean over "
                 'its seeds), each profile judged on its own: no worse than the KF beyond the ratio\'s sampling error'
             ),
-            **derived('sage_husa_over_kf_angle_rms'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('sage_husa_over_kf_angle_rms'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         # predictor-model: a KF in Sage-Husa's place scores the KF's own figure, by construction
         judges=('noise-learning',),
@@ -326,7 +326,7 @@ _REGISTRY = (
                 'edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects (a '
                 'filter that adapts nothing stays at R0 = 0)'
             ),
-            **derived('learned_edge_noise_ratio'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('learned_edge_noise_ratio'),  # limit, marginal, limit_source: budget_sources.py
         ),
         DefaultBudget(
             'learned_edge_noise_ratio_high', 'ratio',
@@ -334,7 +334,7 @@ _REGISTRY = (
                 'edge-angle noise variance the Sage-Husa filter learned, over the variance the plant injects, from '
                 'the upper side (a runaway estimate grows past it)'
             ),
-            **derived('learned_edge_noise_ratio_high'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('learned_edge_noise_ratio_high'),  # limit, marginal, limit_source: budget_sources.py
         ),
         DefaultBudget(
             'edge_noise_estimate_low', 'ratio',
@@ -343,7 +343,7 @@ _REGISTRY = (
                 'lowest R_theta read back over the true edge-angle noise variance, converged, through 3-9-3 us jitter'
                 ' at 8000 rpm'
             ),
-            **derived('edge_noise_estimate_low'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('edge_noise_estimate_low'),  # limit, marginal, limit_source: budget_sources.py
         ),
         DefaultBudget(
             'edge_noise_estimate_high', 'ratio',
@@ -351,7 +351,7 @@ _REGISTRY = (
                 'highest R_theta read back over the true edge-angle noise variance, converged, through 3-9-3 us '
                 'jitter at 8000 rpm'
             ),
-            **derived('edge_noise_estimate_high'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('edge_noise_estimate_high'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('noise-learning', 'predictor-model'),
     ),
@@ -364,7 +364,7 @@ _REGISTRY = (
                 'edges from a step of the edge jitter (3 to 9 us, 9 to 3 us) until R_theta stays within the '
                 'REQ-PRED-003 band of the truth'
             ),
-            **derived('edge_noise_tracking_edges'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('edge_noise_tracking_edges'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('noise-learning',),
     ),
@@ -377,7 +377,7 @@ _REGISTRY = (
                 "standard deviation of ln R_theta about each steady phase's mean, polled every 5 ms while the jitter "
                 'is steady'
             ),
-            **derived('edge_noise_estimate_log_scatter'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('edge_noise_estimate_log_scatter'),  # limit, marginal, limit_source: budget_sources.py
         ),
         DefaultBudget(
             'edge_noise_estimate_log_scatter_low', 'ln ratio',
@@ -386,7 +386,7 @@ _REGISTRY = (
                 "standard deviation of ln R_theta about each steady phase's mean, from below: an estimate of a "
                 'random noise that does not move is not estimating it (a frozen R scatters by 0)'
             ),
-            **derived('edge_noise_estimate_log_scatter_low'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('edge_noise_estimate_log_scatter_low'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('noise-learning',),
     ),
@@ -416,7 +416,7 @@ _REGISTRY = (
                 "Sage-Husa's commutation angle RMS over the pre-calibration rule's, the 0.12 s after each set-point "
                 "step of the paper scenario, same plant and seed"
             ),
-            **derived('sage_husa_over_precalibration_regulation_rms'),  # hil/budget_sources.py
+            **derived('sage_husa_over_precalibration_regulation_rms'),  # hil/verdicts/budget_sources.py
         ),),
     ),
     Requirement(
@@ -432,7 +432,7 @@ _REGISTRY = (
         budgets=(DefaultBudget(
             'heartbeat_period_error', 'fraction',
             description='mean heartbeat period against 0x1017 (CiA 301), relative',
-            **derived('heartbeat_period_error'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('heartbeat_period_error'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('protocol', 'fault-handling'),
     ),
@@ -481,7 +481,7 @@ _REGISTRY = (
                 'p99 commutation angle error, corrected, for any drawn set of calibratable deviations (property '
                 'search)'
             ),
-            **derived('any_deviations_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('any_deviations_commutation_angle_p99'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table', 'edge-current'),
     ),
@@ -496,7 +496,7 @@ _REGISTRY = (
                 'p99 commutation angle error in the 30 ms before the end of a 60 ms recovery window after a wiring '
                 'fault'
             ),
-            **derived('recovered_commutation_angle_p99'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('recovered_commutation_angle_p99'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('fault-handling',),
     ),
@@ -511,7 +511,7 @@ _REGISTRY = (
                 "peak phase current (plant truth) through a 5000 to 5500 rpm step of the controller's own speed loop:"
                 " the smaller of the plant's current-sensor range and switch rating (its TOML's; the paper bench's)"
             ),
-            **derived('phase_current_peak_a'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('phase_current_peak_a'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('current-limit',),
     ),
@@ -532,7 +532,7 @@ _REGISTRY = (
                 "speed at the same set point, 5000/5700/7000 rpm x 3 seeds, pump load, paper-sized deviations, "
                 "worst case"
             ),
-            **derived('raw_excess_current_removed'),  # limit, marginal, limit_source: hil/budget_sources.py
+            **derived('raw_excess_current_removed'),  # limit, marginal, limit_source: budget_sources.py
         ),),
         judges=('calibration-table', 'commutation-timing'),
     ),
@@ -554,7 +554,7 @@ _REGISTRY = (
                     'first overshoot of the true speed (averaged over a turn) past the set point of a 2 % set-point '
                     'step, over the step'
                 ),
-                **derived('speed_step_overshoot'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_step_overshoot'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'speed_step_decay_ratio', 'ratio',
@@ -562,7 +562,7 @@ _REGISTRY = (
                     'second overshoot over the first (same direction, one period of ringing later), 2 % set-point '
                     'step; 0 when the speed does not pass the set point twice by more than 5 % of the step'
                 ),
-                **derived('speed_step_decay_ratio'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_step_decay_ratio'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'speed_step_settling_s', 's',
@@ -570,7 +570,7 @@ _REGISTRY = (
                     'time from a 2 % set-point step until the true speed (averaged over a turn) stays within +-10 % '
                     'of the step (inside the overshoot limit)'
                 ),
-                **derived('speed_step_settling_s'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_step_settling_s'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'speed_hold_current_over_load', 'ratio',
@@ -578,7 +578,7 @@ _REGISTRY = (
                     'mean phase |i| over the last 0.3 s of holding the new set point, over the mean |i| its load '
                     'needs there (physics: fan and friction torque over 2 ke, two phases of three conducting)'
                 ),
-                **derived('speed_hold_current_over_load'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_hold_current_over_load'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'speed_limited_step_overshoot', 'fraction',
@@ -587,7 +587,7 @@ _REGISTRY = (
                     'current-limited 10 % step (5000 to 5500 rpm, REQ-CUR-001\'s), over the step: the integral must '
                     'not wind up through the ramp'
                 ),
-                **derived('speed_limited_step_overshoot'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_limited_step_overshoot'),  # limit, marginal, limit_source: budget_sources.py
             ),
             DefaultBudget(
                 'speed_load_step_recovery_s', 's',
@@ -596,7 +596,7 @@ _REGISTRY = (
                     '(averaged over a turn) stays within 0.2 % of the set point (the settling band\'s width); inf when '
                     'it never returns (no integral action)'
                 ),
-                **derived('speed_load_step_recovery_s'),  # limit, marginal, limit_source: hil/budget_sources.py
+                **derived('speed_load_step_recovery_s'),  # limit, marginal, limit_source: budget_sources.py
             ),
         ),
     ),
@@ -613,17 +613,17 @@ _REGISTRY += (
             DefaultBudget('control_isr_response_over_period', 'ratio',
                           description='worst time from a control interrupt\'s request to its return, over the '
                                       'control period (1 / control_hz)',
-                          **derived('control_isr_response_over_period')),  # hil/budget_sources.py
+                          **derived('control_isr_response_over_period')),  # hil/verdicts/budget_sources.py
             DefaultBudget('hall_isr_response_s', 's',
                           description='worst time from a Hall edge to its interrupt\'s return (preemption and '
                                       'waiting included)',
-                          **derived('hall_isr_response_s')),  # hil/budget_sources.py
+                          **derived('hall_isr_response_s')),  # hil/verdicts/budget_sources.py
             DefaultBudget('compare_isr_response_s', 's',
                           description='worst time from a compare match to its interrupt\'s return',
-                          **derived('compare_isr_response_s')),  # hil/budget_sources.py
+                          **derived('compare_isr_response_s')),  # hil/verdicts/budget_sources.py
             DefaultBudget('interrupt_overruns', 'count',
                           description='interrupts still running or pending when their own next instance was due',
-                          **derived('interrupt_overruns')),  # hil/budget_sources.py
+                          **derived('interrupt_overruns')),  # hil/verdicts/budget_sources.py
         ),
     ),
     Requirement(
@@ -632,7 +632,7 @@ _REGISTRY += (
         budgets=(DefaultBudget('cpu_load_worst', 'fraction',
                                description='the share of the worst window as long as the longest interrupt period '
                                            '(the Hall interval at top speed) the CPU spent in interrupts',
-                               **derived('cpu_load_worst')),),  # hil/budget_sources.py
+                               **derived('cpu_load_worst')),),  # hil/verdicts/budget_sources.py
     ),
     Requirement(
         "REQ-PIL-003", "The stack stays within stack_bytes; code and data fit the part's flash and RAM",
@@ -640,12 +640,12 @@ _REGISTRY += (
         budgets=(
             DefaultBudget('stack_high_water_fraction', 'fraction',
                           description='the deepest stack of any call over stack_bytes',
-                          **derived('stack_high_water_fraction')),  # hil/budget_sources.py
+                          **derived('stack_high_water_fraction')),  # hil/verdicts/budget_sources.py
             DefaultBudget('flash_used_fraction', 'fraction', description='flash used over flash_bytes',
-                          **derived('flash_used_fraction')),  # hil/budget_sources.py
+                          **derived('flash_used_fraction')),  # hil/verdicts/budget_sources.py
             DefaultBudget('ram_used_fraction', 'fraction',
                           description='.data, .bss and the main stack over ram_bytes',
-                          **derived('ram_used_fraction')),  # hil/budget_sources.py
+                          **derived('ram_used_fraction')),  # hil/verdicts/budget_sources.py
         ),
     ),
 )
@@ -680,7 +680,7 @@ def missing_needs(requirements, has_role, edge_hook: str, fault_sources) -> list
 
 
 # --- the docs' tables -----------------------------------------------------------------------------
-DOCS = Path(__file__).resolve().parent.parent / "docs"
+DOCS = Path(__file__).resolve().parents[2] / "docs"
 
 
 def _roles_in_words(roles: tuple[str, ...]) -> str:
@@ -735,7 +735,8 @@ def budgets_table() -> str:
 
 #: page -> (the generated table's function); the table sits between these two lines of the page
 GENERATED = {"acceptance.md": requirements_table, "budgets.md": budgets_table}
-BEGIN = "<!-- generated from hil/requirements.py by `python -m hil.requirements`: edit the registry, not this table -->"
+BEGIN = ("<!-- generated from hil/verdicts/requirements.py by `python -m hil.verdicts.requirements`: "
+         "edit the registry, not this table -->")
 END = "<!-- end of the generated table -->"
 
 

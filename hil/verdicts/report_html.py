@@ -163,7 +163,7 @@ def trend_cell(history: dict | None, dut: str, m: dict, nodeid: str) -> markupsa
     run's as the dot (red when it is a regression); its runs and figures on hover."""
     import markupsafe
 
-    from .history.compare import sparkline, trend_key
+    from ..history.compare import sparkline, trend_key
 
     if not history:
         return markupsafe.Markup("")

@@ -25,7 +25,7 @@ A budgets TOML file holds one table per budget and any number of ``[[waiver]]`` 
     owner = "name or role"
 
 The built-in defaults are each requirement's default budgets in the requirement registry
-(``hil.requirements``); a file is laid over them. Checking a measurement
+(``hil.verdicts.requirements``); a file is laid over them. Checking a measurement
 gives a Verdict (measured, limit, margin, pass / marginal / fail); asserting it raises
 BudgetExceeded with a message a person understands.
 """
@@ -54,11 +54,11 @@ class Budget:
     kind: str = "max"
     marginal: float | None = None
     description: str = ""
-    limit_source: str = ""  #: where the limit's value comes from (hil.requirements.DefaultBudget)
+    limit_source: str = ""  #: where the limit's value comes from (hil.verdicts.requirements.DefaultBudget)
 
 
 def judged(check, measured: float, bound: float) -> Verdict:
-    """The verdict of a judged check (``hil.requirements.JudgedCheck``) whose bound the run computed:
+    """The verdict of a judged check (``hil.verdicts.requirements.JudgedCheck``) whose bound the run computed:
     pass or fail (no marginal band), never a pass for a measurement that is not a finite number."""
     if not isinstance(measured, (int, float)) or not math.isfinite(measured) or not math.isfinite(bound):
         return Verdict(check.name, check.requirement, float(measured), float(bound), check.unit, float("-inf"),
@@ -210,12 +210,12 @@ class Budgets:
 
     @classmethod
     def defaults(cls) -> "Budgets":
-        """The built-in budgets: each requirement's default budgets in the registry (hil.requirements)."""
+        """The built-in budgets: each requirement's default budgets in the registry (hil.verdicts.requirements)."""
         budgets = {}
         for req in REQUIREMENTS.values():
             for b in req.budgets:
                 table = {k: v for k, v in asdict(b).items() if k != "name"} | {"requirement": req.id}
-                budgets[b.name] = _budget(b.name, table, None, f"hil/requirements.py: {req.id}: {b.name}")
+                budgets[b.name] = _budget(b.name, table, None, f"hil/verdicts/requirements.py: {req.id}: {b.name}")
         return cls(budgets, "defaults")
 
     @classmethod
@@ -244,7 +244,7 @@ class Budgets:
         return cls(budgets, str(path), tuple(waivers))
 
     def check(self, name: str, measured: float, scenario=None) -> Verdict:
-        """``measured`` against budget ``name``. ``scenario``: a ``hil.budget_sources.Derivation`` of
+        """``measured`` against budget ``name``. ``scenario``: a ``hil.verdicts.budget_sources.Derivation`` of
         this budget for the scenario the figure comes from (REQ-CAL-005's share removed depends on
         how much the scenario had to remove); it sets the limit where the budget is the built-in
         default, and a user's own limit (a budgets file) stands."""

@@ -7,7 +7,7 @@ a pipe::
 
       45/100 campaign points (45%), 3.61/s, 12 s elapsed, about 15 s left
 
-The pytest plugin (``-p hil.progress``; ``hil acceptance`` loads it): instead of pytest's dots,
+The pytest plugin (``-p hil.verdicts.progress``; ``hil acceptance`` loads it): instead of pytest's dots,
 each finished test prints one line with its count, the elapsed time, its outcome and a short
 label::
 

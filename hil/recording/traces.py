@@ -22,21 +22,16 @@ import csv
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from bldc.tomlfile import load_toml
 
-from .recording import (
-    MAX_TABLE_BYTES,
-    Recording,
-    RecordingError,
-    _checked_size,
-    _lines,
-    read_meta_file,
-    write_recording,
-)
+from .errors import RecordingError
+from .format import Recording, write_recording
+from .formats import open_trace
+from .reader import read_meta_file
+from .tables import TraceTable
 
 
 @dataclass(frozen=True)
@@ -65,86 +60,7 @@ class TraceMapping:
         return m
 
 
-class _Table:
-    """Column access with the file named in every error."""
-
-    def __init__(self, path: Path, columns: dict[str, np.ndarray] | None = None, signals: Any = None):
-        self.path, self.columns, self.signals = path, columns, signals
-
-    def channel(self, name: str, numeric: bool = True) -> tuple[np.ndarray, np.ndarray | None]:
-        """(values, own timestamps or None)."""
-        if self.signals is not None:  # MDF4: each channel has its own time base
-            try:
-                sig = self.signals.get(name)
-            except Exception:  # asammdf raises MdfException for unknown channels
-                raise RecordingError(self.path, None, name, "channel not found in the MDF file") from None
-            values, stamps = np.asarray(sig.samples), np.asarray(sig.timestamps, dtype=float)
-        else:
-            if name not in self.columns:
-                raise RecordingError(self.path, 1, name, f"missing column (have: {', '.join(self.columns)})")
-            values, stamps = self.columns[name], None
-        if numeric:
-            try:
-                values = values.astype(float)
-            except (TypeError, ValueError):
-                raise RecordingError(self.path, None, name, "not numeric") from None
-            bad = np.nonzero(~np.isfinite(values))[0]
-            if bad.size:
-                raise RecordingError(self.path, int(bad[0]) + 2 if self.signals is None else None, name,
-                                     f"non-finite value at row {int(bad[0])}")
-        return values, stamps
-
-
-def _open_mdf(path: Path) -> _Table:
-    from asammdf import MDF
-
-    return _Table(path, signals=MDF(str(path)))
-
-
-def _open_parquet(path: Path) -> _Table:
-    import pandas as pd
-
-    frame = pd.read_parquet(path)
-    return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
-
-
-def _open_csv(path: Path) -> _Table:
-    import pandas as pd
-
-    for _ in _lines(path, MAX_TABLE_BYTES):  # line length, NUL bytes, UTF-8: refused at their line
-        pass
-    try:
-        frame = pd.read_csv(path, skipinitialspace=True, encoding="utf-8-sig")
-    except (pd.errors.ParserError, ValueError) as exc:
-        raise RecordingError(path, None, None, f"not a readable CSV: {' '.join(str(exc).split())[:200]}") from None
-    frame.columns = [str(c).strip() for c in frame.columns]
-    return _Table(path, columns={c: frame[c].to_numpy() for c in frame.columns})
-
-
-#: the trace table formats by file suffix (lower case), the file types read as traces: the one
-#: place a new trace format is registered (the Hall capture formats, logic levels without a mapping, are
-#: ``hil.signals.capture.CAPTURE_FORMATS``)
-TRACE_FORMATS = {
-    ".mf4": _open_mdf, ".mdf": _open_mdf, ".dat": _open_mdf,
-    ".parquet": _open_parquet, ".pq": _open_parquet,
-    ".csv": _open_csv, ".txt": _open_csv,
-}
-
-
-def _open(path: Path) -> _Table:
-    suffix = path.suffix.lower()
-    if not path.is_file():
-        raise RecordingError(path, None, None, "missing file")
-    _checked_size(path, MAX_TABLE_BYTES)
-    opener = TRACE_FORMATS.get(suffix)
-    if opener is None:
-        raise RecordingError(
-            path, None, None, f"unknown trace format {suffix!r} (MDF4 .mf4, Parquet .parquet, CSV .csv)"
-        )
-    return opener(path)
-
-
-def _edges_from_levels(table: _Table, m: TraceMapping):
+def _edges_from_levels(table: TraceTable, m: TraceMapping):
     times, sensors, rising = [], [], []
     t_shared = None if table.signals is not None else table.channel(m.time)[0] * m.time_scale
     for x, name in enumerate(m.hall):
@@ -163,7 +79,7 @@ def _edges_from_levels(table: _Table, m: TraceMapping):
     return t[order], np.concatenate(sensors)[order], np.concatenate(rising)[order]
 
 
-def _edges_from_table(table: _Table, m: TraceMapping):
+def _edges_from_table(table: TraceTable, m: TraceMapping):
     t = table.channel(m.time)[0] * m.time_scale
     sensor_raw = table.channel(m.sensor, numeric=False)[0]
     edge_raw = table.channel(m.edge, numeric=False)[0]
@@ -191,7 +107,7 @@ def read_trace(path: str | Path, mapping: TraceMapping, meta_path: str | Path) -
     path = Path(path)
     meta_path = Path(meta_path)
     motor, segments, tick, extra = read_meta_file(meta_path)
-    table = _open(path)
+    table = open_trace(path)
     t, sensor, rising = (_edges_from_levels if mapping.kind == "levels" else _edges_from_table)(table, mapping)
     ref = None
     if mapping.ref_angle_mech_deg:

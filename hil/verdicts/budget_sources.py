@@ -1,6 +1,6 @@
 """Where every default budget's limit comes from, computed in one place (docs/budgets.md, "Sources").
 
-Each built-in budget of the requirement registry (``hil.requirements``) takes its limit, its
+Each built-in budget of the requirement registry (``hil.verdicts.requirements``) takes its limit, its
 marginal bound and its ``limit_source`` text from :func:`derived`. A derivation is one of:
 
 - ``paper``: a table, section or figure of the paper (Wang, Cheng, Yin, Sensors 2023, 23, 6604,
@@ -534,6 +534,6 @@ def derived(budget: str) -> dict:
     try:
         d = DERIVATIONS[budget]
     except KeyError:
-        raise KeyError(f"no derivation for the default budget {budget!r}: add it to hil/budget_sources.py "
+        raise KeyError(f"no derivation for the default budget {budget!r}: add it to hil/verdicts/budget_sources.py "
                        "(docs/budgets.md, 'Sources')") from None
     return {"limit": d.limit, "marginal": d.marginal, "limit_source": d.source}

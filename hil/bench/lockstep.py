@@ -16,7 +16,7 @@ from bldc.contract import ADC_PERIOD_S, MAX_ADC_SAMPLES, MAX_CONDITIONING_DELAY_
 from bldc.motor import MotorParameters
 from plant_models import PlantConfig, Simulation
 
-from .dut.link import ControllerLink
+from ..dut.link import ControllerLink
 
 #: plant step bound of acceptance runs: the armature reaction follows the instantaneous current,
 #: which moves fast right after a commutation, and a coarser step would blur it
@@ -155,7 +155,7 @@ class LockstepBench:
 def own_plant(link):
     """(the link's plant factory, the wiring faults' injector or None) when ``link`` runs the plant
     itself (a firmware in the loop: ``hil.sil``; its ``simulation(config, seed, wiring=..., **sim
-    options)``), possibly inside a ``hil.faults.FaultInjector``, whose faults then act on the
+    options)``), possibly inside a ``hil.dut.faults.FaultInjector``, whose faults then act on the
     firmware's pins; None when the bench sends the link every edge."""
     wrapped = getattr(link, "mirror", False) is not False and getattr(link, "link", None)
     if wrapped and callable(getattr(wrapped, "simulation", None)):

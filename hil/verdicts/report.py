@@ -163,7 +163,7 @@ class ReportWriter:
     session: dict = field(default_factory=dict)
     requirements: dict = field(default_factory=dict)  #: id -> title (budgets and the catalogue)
     basename: str = "hil-report"
-    waivers: tuple = ()  #: hil.budgets.Waiver, from the budgets in force
+    waivers: tuple = ()  #: hil.verdicts.budgets.Waiver, from the budgets in force
     #: the run's figures against the device's earlier runs (hil.history: trends, regressions), or None
     history: dict | None = None
 

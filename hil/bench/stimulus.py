@@ -20,11 +20,11 @@ from bldc.motor import steady_state
 from plant_models import PlantConfig
 from plant_models.effects import effect_from_mapping
 
-from .bench import acceptance_max_step_s, make_bench, p99_abs, rms
-from .dut.link import link_has
-from .dut.profile import CALIBRATION_ROLES
-from .calibration.campaign import station_corrections
-from .faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
+from .lockstep import acceptance_max_step_s, make_bench, p99_abs, rms
+from ..dut.link import link_has
+from ..dut.profile import CALIBRATION_ROLES
+from ..calibration.campaign import station_corrections
+from ..dut.faults import WIRING_FAULTS, FaultInjector, wiring_fault_from_dict
 
 FORMAT = "hil-stimulus/1"
 #: what a run measures, per kind (deg electrical): the commutation angle error's p99, RMS and

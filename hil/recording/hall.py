@@ -1,4 +1,4 @@
-"""Hall-line captures in: a logic analyser's file in any format of ``capture.CAPTURE_FORMATS`` (VCD,
+"""Hall-line captures in: a logic analyser's file in any capture format of ``formats.FORMATS`` (VCD,
 sigrok session .sr, CSV), as an ordinary-run recording (``hil recording import``).
 
 The three Hall lines are read with the same readers as the gate captures (:class:`Capture`), each
@@ -18,10 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
-from hil.recording import Recording
-
-from .capture import Capture, GateMapping, _csv_header, capture_format
+from .capture import GateMapping, _csv_header
 from .errors import SignalError
+from .format import Recording
+from .formats import capture_format, open_capture
 
 HALL_SIGNALS = ("A", "B", "C")
 #: the wire names looked for first; else the capture's first three channels
@@ -80,7 +80,7 @@ def read_hall_capture(
 ) -> HallCapture:
     """The Hall edges of a capture file (VCD, sigrok .sr, CSV with a time or sample-index column)."""
     path = Path(path)
-    probe = Capture(path)  # checks the file and its kind
+    probe = open_capture(path)  # checks the file and its kind
     chosen = channels or default_channels(path, time_column)
     time_scale = None
     if probe.format.time_column and sample_rate_hz:
@@ -100,7 +100,7 @@ def read_hall_capture(
         active_low=active_low,
         signals=HALL_SIGNALS,
     )
-    cap = Capture(path, mapping)
+    cap = open_capture(path, mapping)
     ts, ss = [], []
     for t, s in cap.states():
         ts.append(t)

@@ -1,7 +1,7 @@
 """Logic-analyser captures of the six gate signals (and the three Hall lines): VCD, sigrok
-session (.sr), CSV with time. Every format is one :class:`CaptureFormat` in :data:`CAPTURE_FORMATS`
-(suffix -> reader); the gate import, the Hall import (``hil recording import``, ``hall.py``) and every
-command that takes a RECORDING read a capture file through that table alone.
+session (.sr), CSV with time. Every format is one :class:`CaptureFormat`, given its suffixes in
+``formats.FORMATS``; the gate import, the Hall import (``hil recording import``, ``hall.py``) and every
+command that takes a RECORDING open a capture file through that table alone (``formats.open_capture``).
 
 Every reader yields the capture as a stream of state changes in bounded chunks: ``(t_s, state)``
 arrays where ``state`` packs the six gates (bit 0 AH, 1 AL, 2 BH, 3 BL, 4 CH, 5 CL; 1 = switch
@@ -95,14 +95,13 @@ class GateMapping:
 
 
 class Capture:
-    """A capture file; iterate :meth:`states` for the change stream."""
+    """A capture file read in its format; iterate :meth:`states` for the change stream
+    (``formats.open_capture`` opens one by its suffix)."""
 
-    def __init__(self, path: str | Path, mapping: GateMapping | None = None):
+    def __init__(self, path: str | Path, fmt: "CaptureFormat", mapping: GateMapping | None = None):
         self.path = Path(path)
         self.mapping = mapping or GateMapping()
-        if not self.path.is_file():
-            raise SignalError(str(path), "missing capture file")
-        self.format = capture_format(self.path)
+        self.format = fmt
         self.kind = self.format.name
         self.end_s: float | None = None
         self.start_s: float | None = None
@@ -468,34 +467,7 @@ class CaptureFormat:
     time_column: bool = False
 
 
-_CSV = CaptureFormat("csv", "CSV", Capture._csv, _csv_channels, _csv_time_base, time_column=True)
-
-#: every capture format by file suffix (lower case): the one place a new format is registered
-CAPTURE_FORMATS: dict[str, CaptureFormat] = {
-    ".vcd": CaptureFormat("vcd", "VCD", Capture._vcd, _vcd_channels, _vcd_time_base),
-    ".sr": CaptureFormat("sigrok", "sigrok session", Capture._sigrok, _sigrok_channels, _sigrok_time_base),
-    ".csv": _CSV,
-    ".txt": _CSV,
-}
-
-
-def known_formats() -> str:
-    """The registered formats as messages name them: "VCD .vcd, sigrok session .sr, CSV .csv/.txt"."""
-    by_label: dict[str, list[str]] = {}
-    for suffix, fmt in CAPTURE_FORMATS.items():
-        by_label.setdefault(fmt.label, []).append(suffix)
-    return ", ".join(f"{label} {'/'.join(suffixes)}" for label, suffixes in by_label.items())
-
-
-def capture_format(path: Path) -> CaptureFormat:
-    """The format of a capture file, by its suffix; unknown suffixes are refused with the known ones."""
-    suffix = path.suffix.lower()
-    fmt = CAPTURE_FORMATS.get(suffix)
-    if fmt is None:
-        raise SignalError(str(path), f"unknown capture format {suffix!r} ({known_formats()})")
-    return fmt
-
-
-def is_capture_file(path: Path) -> bool:
-    """A file whose suffix a registered capture format reads."""
-    return path.is_file() and path.suffix.lower() in CAPTURE_FORMATS
+#: the capture formats (``formats.FORMATS`` gives each its file suffixes)
+VCD = CaptureFormat("vcd", "VCD", Capture._vcd, _vcd_channels, _vcd_time_base)
+SIGROK = CaptureFormat("sigrok", "sigrok session", Capture._sigrok, _sigrok_channels, _sigrok_time_base)
+CSV = CaptureFormat("csv", "CSV", Capture._csv, _csv_channels, _csv_time_base, time_column=True)
