@@ -383,9 +383,9 @@ def test_tiny_effect_is_detected_but_below_practical_relevance():
 
 def test_every_knob_is_a_full_sentence():
     from hil.gap.diagnose import knob
-    from hil.gap.samples import SAMPLE_EFFECTS
+    from hil.gap.samples import EFFECT_DOMAIN
 
-    names = list(CANDIDATES) + ["edge_jitter", *SAMPLE_EFFECTS]
+    names = list(CANDIDATES) + ["edge_jitter", *EFFECT_DOMAIN]
     for i, a in enumerate(names):
         for b in names[i + 1 :]:
             text = knob(a, b)

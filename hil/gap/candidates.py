@@ -71,4 +71,4 @@ CANDIDATES: Mapping[str, Candidate] = _Candidates()
 
 #: Library effects with no mean edge-angle signature are diagnosed elsewhere: edge_jitter as a
 #: variance effect (diagnose._noise_gap), the electrical and mechanical ones from the sampled
-#: signals (samples.py); dead_time leaves no trace in the format's signals (samples.NO_TRACE).
+#: signals (samples.py); dead_time leaves no trace in the format's signals (its declared ``no_trace``).
