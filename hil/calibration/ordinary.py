@@ -642,6 +642,119 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
     return out
 
 
+@dataclass
+class _RippleChoice:
+    """Whether the run's model carries the sector-locked speed ripple, and the fit it chose."""
+
+    fit: Fit
+    ripple: bool
+    other_weight: float  #: the weight of the model not taken (uncertainty.with_model_choice)
+    other_what: str
+
+
+def _choose_ripple(steps: HallSteps, tick_s: float | None, kc: float, fit: Fit) -> _RippleChoice:
+    """The rotor's speed ripple locked to the sectors (commutation torque ripple, largest at low
+    speed) would bias the static offsets by its mean over the run: modelled when the capture shows
+    it (BIC) and where the run can tell it (1/speed^2) from the delay (speed) and the constant angle
+    (their standard errors may grow by half at most), never written as a correction."""
+    ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
+    n_used = int(steps.used().sum())
+    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
+    ripple = ripple_gain > BIC_MIN
+    ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
+    # standard errors that hold under correlated residuals, and under the ripple model not taken
+    # where the data do not rule it out (uncertainty.py)
+    ripple_weight = bic_weight(ripple_gain)
+    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
+    other_what = (
+        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
+    )
+    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
+    return _RippleChoice(with_model_choice(robust_fit(fit), other, other_weight, other_what), bool(ripple),
+                         other_weight, other_what)
+
+
+def _rise_fall(fit: Fit, steps: HallSteps, lo: float, hi: float, ratio: float) -> tuple[Estimate, Estimate]:
+    """The rise-minus-fall asymmetry as a delay (time) and as a constant angle; neither where the
+    run's speed range cannot tell them apart."""
+    d_val, d_se = fit.get("delay_diff_s")
+    asym = _by_direction(
+        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
+    )
+    delay = Estimate(d_val, d_se)
+    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
+    if ratio < MIN_SPEED_RATIO:
+        why = (
+            f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
+            "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
+        )
+        delay = Estimate(None, None, reason=why)
+        angle = Estimate(None, None, reason=why)
+    return delay, angle
+
+
+def _installation(fit: Fit, steps: HallSteps) -> tuple[dict[str, float], dict[str, float | None]]:
+    """Installation offsets (relative: sum zero), both edges of a sensor alike, and their errors."""
+    inst, inst_se = {}, {}
+    for x, name in enumerate(SENSORS):
+        labels = list(SENSOR_LABELS[x])
+        r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
+        inst[name], inst_se[name] = r if r else (0.0, None)
+    return inst, inst_se
+
+
+def _pole_table(steps: HallSteps, tick_s: float | None, kc: float, pole_pairs: int,
+                choice: _RippleChoice) -> tuple[list[float], list[float], Fit]:
+    """The pole offsets (two sum-zero sets: N and S boundaries), their errors, and their fit."""
+    ripple = choice.ripple
+    pf = robust_fit(fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc))
+    if choice.other_weight >= MODEL_WEIGHT_IGNORED:
+        pf_other = fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc)
+        pf = with_model_choice(pf, pf_other, choice.other_weight, choice.other_what)
+    z = sum_zero_basis(pole_pairs)
+    table = np.zeros(2 * pole_pairs)
+    se = np.zeros(2 * pole_pairs)
+    for parity in (0, 1):
+        keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
+        for i in range(pole_pairs):
+            table[2 * i + parity], se[2 * i + parity] = pf.combination(dict(zip(keys, z[i])))
+    return [float(v) for v in table], [float(v) for v in se], pf
+
+
+def _widen(stationarity: Stationarity, delay: Estimate, angle: Estimate, inst_se: dict, poles_se: list) -> None:
+    """Widen the errors of the figures whose halves disagree beyond their errors (they drifted
+    during the capture), in place (docs/real-captures.md)."""
+    for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
+        drift = stationarity.figures.get(key)
+        if drift and drift.widen_by and item.stderr is not None:
+            item.stderr_stationary = item.stderr
+            item.stderr = float(np.hypot(item.stderr, drift.widen_by))
+    for x in SENSORS:
+        drift = stationarity.figures.get(f"installation_offset_deg_e.{x}")
+        if drift and drift.widen_by and inst_se.get(x) is not None:
+            inst_se[x] = float(np.hypot(inst_se[x], drift.widen_by))
+    for j in range(len(poles_se)):
+        drift = stationarity.figures.get(f"pole_offset_deg_e.{j}")
+        if drift and drift.widen_by:
+            poles_se[j] = float(np.hypot(poles_se[j], drift.widen_by))
+
+
+#: what capture times cannot give, whatever the capture
+UNDETERMINED = {
+    "conditioning_delay_s": (
+        "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
+        "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
+        "difference on the later polarity and 0 on the other"
+    ),
+    "armature_reaction_deg_e_per_a": "needs a reference angle and phase currents",
+    "hysteresis_common_lag": "a lag common to every edge is invisible without an encoder",
+}
+INSTALLATION_UNDETERMINED = (
+    "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
+    "terminal voltages (Line-BEMF)"
+)
+
+
 def ordinary_calibration(
     steps: HallSteps,
     *,
@@ -656,65 +769,26 @@ def ordinary_calibration(
     circuit = circuit or Circuit()
     refused: list[Refusal] = []
     undetermined: dict[str, str] = {}
-    kc, fit = choose_knots(steps, tick_s)
-    # the rotor's speed ripple locked to the sectors (commutation torque ripple, largest at low
-    # speed) would bias the static offsets by its mean over the run: modelled when the capture
-    # shows it (BIC), never written as a correction
-    ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
-    n_used = int(steps.used().sum())
-    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
-    ripple = ripple_gain > BIC_MIN
-    # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
-    # constant angle: their standard errors may grow by half at most
-    ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
-    # standard errors that hold under correlated residuals, and under the ripple model not taken
-    # where the data do not rule it out (uncertainty.py)
-    ripple_weight = bic_weight(ripple_gain)
-    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
-    other_what = (
-        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
-    )
-    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
-    fit = with_model_choice(robust_fit(fit), other, other_weight, other_what)
+    kc, fit0 = choose_knots(steps, tick_s)
+    choice = _choose_ripple(steps, tick_s, kc, fit0)
+    fit, ripple = choice.fit, choice.ripple
     used = steps.used()
     f_hz = speed_hz_e(steps)
     lo, hi = (float(v) for v in np.percentile(f_hz[used], [5, 95]))
     top = float(np.percentile(f_hz[used], 99))
     ratio = hi / lo if lo > 0 else float("inf")
-    n_fwd, n_rev = int(np.sum(steps.direction[used] > 0)), int(np.sum(steps.direction[used] < 0))
-    # the rise-minus-fall asymmetry, as a delay (time) and as a constant angle
-    d_val, d_se = fit.get("delay_diff_s")
-    asym = _by_direction(
-        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
-    )
-    delay = Estimate(d_val, d_se)
-    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
-    if ratio < MIN_SPEED_RATIO:
-        why = (
-            f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
-            "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
-        )
-        delay = Estimate(None, None, reason=why)
-        angle = Estimate(None, None, reason=why)
+    delay, angle = _rise_fall(fit, steps, lo, hi, ratio)
     bound_s, bound_why = delay_bound_s(circuit, top)
     refusal = delay_refusal("rise_fall_delay_difference_s", delay.value, bound_s, bound_why)
     if refusal:
         refused.append(refusal)
         delay = Estimate(None, None, reason=refusal.reason, fitted=delay.value)
-    # installation offsets (relative: sum zero), both edges of a sensor alike
-    inst, inst_se = {}, {}
-    for x, name in enumerate(SENSORS):
-        labels = list(SENSOR_LABELS[x])
-        r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
-        inst[name], inst_se[name] = r if r else (0.0, None)
+    inst, inst_se = _installation(fit, steps)
     refusal = installation_refusal(inst)
     if refusal:
         refused.append(refusal)
         inst = dict.fromkeys(SENSORS, 0.0)
-    undetermined["installation_offset_deg_e"] = (
-        "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
-        "terminal voltages (Line-BEMF)"
-    )
+    undetermined["installation_offset_deg_e"] = INSTALLATION_UNDETERMINED
     # pole offsets: the pole count, stated or found
     p_source = "stated in the recording (motor.pole_pairs)" if pole_pairs else ""
     if not pole_pairs:
@@ -723,22 +797,7 @@ def ordinary_calibration(
     poles_se: list[float] = []
     table_fit = fit
     if pole_pairs:
-        pf = robust_fit(
-            fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
-        )
-        if other_weight >= MODEL_WEIGHT_IGNORED:
-            pf_other = fit_ordinary(
-                steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
-            )
-            pf = with_model_choice(pf, pf_other, other_weight, other_what)
-        z = sum_zero_basis(pole_pairs)
-        table = np.zeros(2 * pole_pairs)
-        se = np.zeros(2 * pole_pairs)
-        for parity in (0, 1):
-            keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
-            for i in range(pole_pairs):
-                table[2 * i + parity], se[2 * i + parity] = pf.combination(dict(zip(keys, z[i])))
-        poles, poles_se = [float(v) for v in table], [float(v) for v in se]
+        poles, poles_se, pf = _pole_table(steps, tick_s, kc, pole_pairs, choice)
         refusal = pole_table_refusal(poles)
         if refusal:
             refused.append(refusal)
@@ -747,30 +806,12 @@ def ordinary_calibration(
             table_fit = pf
     else:
         undetermined["pole_offset_deg_e"] = p_source
-    # stationarity: the same model on each half of the used edges; a figure whose halves disagree
-    # beyond their errors drifted during the capture, and its error says so (docs/real-captures.md)
+    # stationarity: the same model on each half of the used edges
     stationarity = _stationarity(steps, Effects(ripple=ripple), tick_s, kc, pole_pairs if poles else None)
-    for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
-        drift = stationarity.figures.get(key)
-        if drift and drift.widen_by and item.stderr is not None:
-            item.stderr_stationary = item.stderr
-            item.stderr = float(np.hypot(item.stderr, drift.widen_by))
-    for x in SENSORS:
-        drift = stationarity.figures.get(f"installation_offset_deg_e.{x}")
-        if drift and drift.widen_by and inst_se.get(x) is not None:
-            inst_se[x] = float(np.hypot(inst_se[x], drift.widen_by))
-    for j in range(len(poles_se)):
-        drift = stationarity.figures.get(f"pole_offset_deg_e.{j}")
-        if drift and drift.widen_by:
-            poles_se[j] = float(np.hypot(poles_se[j], drift.widen_by))
-    undetermined["conditioning_delay_s"] = (
-        "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
-        "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
-        "difference on the later polarity and 0 on the other"
-    )
-    undetermined["armature_reaction_deg_e_per_a"] = "needs a reference angle and phase currents"
-    undetermined["hysteresis_common_lag"] = "a lag common to every edge is invisible without an encoder"
+    _widen(stationarity, delay, angle, inst_se, poles_se)
+    undetermined.update(UNDETERMINED)
     d_table = delay.value or 0.0
+    n_fwd, n_rev = int(np.sum(steps.direction[used] > 0)), int(np.sum(steps.direction[used] < 0))
     assumptions = OrdinaryAssumptions(
         pole_pairs=pole_pairs,
         pole_pairs_source=p_source,
