@@ -107,7 +107,7 @@ def cmd_plant_simulate(args) -> int:
 def cmd_calibrate(args) -> int:
     from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
-    from .calibration.ordinary import Circuit
+    from .calibration.refusals import Circuit
     from .recording import write_recording
 
     if args.campaign:

@@ -28,7 +28,6 @@ from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
 from bldc import edges
-from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
 from ..stats import BIC_MIN, bic_gain, inliers
 from .corrections import SENSORS, Corrections
@@ -42,6 +41,14 @@ from .result import (
     OrdinaryFindings,
     Refusal,
     Stationarity,
+)
+from .refusals import (
+    POLE_OFFSET_BOUND_DEG_E,
+    Circuit,
+    delay_bound_s,
+    delay_refusal,
+    installation_refusal,
+    pole_table_refusal,
 )
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
@@ -65,15 +72,6 @@ KNOT_CYCLES = 4
 #: the speed range (highest over lowest 5-95 % electrical speed) below which a delay (growing
 #: with speed) and a constant angle cannot be told apart
 MIN_SPEED_RATIO = 1.5
-#: the controller's table bound on a pole offset (its physics: bldc/contract.py)
-POLE_OFFSET_BOUND_DEG_E = MAX_POLE_TABLE_OFFSET_DEG_E
-#: default bound on a conditioning delay when the circuit is not stated: open-collector Hall
-#: outputs with a pull-up into a filter capacitor and cable capacitance are measured at 130-270 us
-#: (rise minus fall); 1 ms covers a 10 kOhm pull-up into 33 nF (3 RC to cross a 95 % threshold)
-DEFAULT_DELAY_MAX_S = 1e-3
-#: a delay must stay well inside one sector at the top speed: beyond half a sector the captured
-#: edges of a 60 deg e sector would reorder before the next one
-DELAY_SECTOR_FRACTION = 0.5
 
 
 class OrdinaryRunError(ValueError):
@@ -421,26 +419,6 @@ def independent_delay(steps: HallSteps) -> IndependentDelay | None:
     )
 
 
-@dataclass
-class Circuit:
-    """What the user says about the conditioning circuit (all optional)."""
-
-    pullup_ohm: float | None = None
-    filter_farad: float | None = None
-    delay_max_s: float | None = None
-
-    def bound_s(self) -> tuple[float, str]:
-        if self.delay_max_s is not None:
-            return self.delay_max_s, f"stated maximum {self.delay_max_s * 1e6:.0f} us"
-        if self.pullup_ohm is not None and self.filter_farad is not None:
-            rc = self.pullup_ohm * self.filter_farad
-            return 3.0 * rc, f"3 RC of the stated circuit (R {self.pullup_ohm:.3g} Ohm, C {self.filter_farad:.3g} F)"
-        return DEFAULT_DELAY_MAX_S, (
-            f"default {DEFAULT_DELAY_MAX_S * 1e6:.0f} us (open-collector Hall outputs with pull-up and filter "
-            "capacitor; state the circuit to narrow it)"
-        )
-
-
 def choose_pole_pairs(
     steps: HallSteps,
     tick_s: float | None,
@@ -488,7 +466,6 @@ RIPPLE_SE_GROWTH = 1.5
 #: trajectory knot spacings tried (electrical cycles between knots); the smallest BIC is kept
 KNOT_CYCLE_CHOICES = (2, 3, 4, 6, 8)
 #: beyond half a sector an "installation offset" is a wiring or labelling error, not an offset
-INSTALLATION_BOUND_DEG_E = 30.0
 RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
 SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
 
@@ -541,51 +518,6 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     # depends on the direction), the error is scaled up by the Birge ratio (the PDG's scale factor)
     birge = np.sqrt(max(1.0, float(np.sum(w * (v - mean) ** 2)) / max(v.size - 1, 1)))
     return mean, float(birge / np.sqrt(np.sum(w)))
-
-
-def pole_table_refusal(poles: list[float]) -> Refusal | None:
-    """The refusal of a pole table with an entry beyond the controller's bound, or None. A table
-    with a hole would be worse than none: the whole table is refused."""
-    out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
-    if not out:
-        return None
-    return Refusal(
-        "pole_offset_deg_e",
-        f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
-        f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is not the "
-        "motor's, or a speed change inside a segment taken as steady); the table is not written",
-    )
-
-
-def installation_refusal(inst: dict[str, float]) -> Refusal | None:
-    """The refusal of installation offsets beyond half a sector (a wiring or labelling error), or None."""
-    bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
-    if not bad:
-        return None
-    return Refusal(
-        "installation_offset_deg_e",
-        f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
-        f"+-{INSTALLATION_BOUND_DEG_E:.0f}: a wiring or channel-mapping error, not an offset",
-    )
-
-
-def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> Refusal | None:
-    """The refusal of a conditioning delay beyond its bound (``Circuit.bound_s``, or half a sector
-    at the top speed), or None."""
-    if value_s is None or abs(value_s) <= bound_s:
-        return None
-    return Refusal(field, f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})")
-
-
-def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
-    """The bound on a conditioning delay: the circuit's, or half a sector at the top speed if tighter."""
-    bound_s, bound_why = circuit.bound_s()
-    sector_s = 1.0 / (6.0 * top_hz_e)
-    if DELAY_SECTOR_FRACTION * sector_s < bound_s:
-        return DELAY_SECTOR_FRACTION * sector_s, (
-            f"half a sector at the top speed {top_hz_e:.0f} Hz electrical ({sector_s * 1e6:.0f} us per sector)"
-        )
-    return bound_s, bound_why
 
 
 #: halves of a capture that disagree by more than this many standard errors: it is not stationary
