@@ -58,9 +58,14 @@ LIMITS = {"max_periods_per_rev": MECHANICAL_BINS // 2}
 REFERENCE = "hall_reference_offset"
 
 
+#: the residuals of the sampled signals, in the order their effects are listed, reported and validated
+DOMAINS = ("voltage", "speed")
+
+
 class _SampleEffects(Mapping):
     """The registered effects that declare a sample signature (``Effect.sample_signature``), each
-    with the residual it shows in ("voltage" or "speed"), in the registry's order; read on each use."""
+    with the residual it shows in ("voltage" or "speed"): by domain (``DOMAINS``), then in the
+    registry's order; read on each use."""
 
     def __getitem__(self, name: str) -> str:
         cls = EFFECTS.get(name)
@@ -70,7 +75,8 @@ class _SampleEffects(Mapping):
         return sig.domain
 
     def __iter__(self) -> Iterator[str]:
-        return (name for name, cls in EFFECTS.items() if cls.sample_signature() is not None)
+        domain = {name: sig.domain for name, cls in EFFECTS.items() if (sig := cls.sample_signature()) is not None}
+        return iter(sorted(domain, key=lambda name: DOMAINS.index(domain[name])))  # stable: registry order within
 
     def __len__(self) -> int:
         return sum(1 for _ in self)
@@ -464,11 +470,10 @@ def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
             lambda c, se, m: True,
         )
     }
-    for name, cls in EFFECTS.items():
-        sig = cls.sample_signature()
-        if sig is not None:
-            out[name] = SampleCandidate(name, sig.domain, _block(sig, motor), sig.params, sig.physical,
-                                        tuple(sig.grid(motor, LIMITS)), sig.n_coef, sig.refine, sig)
+    for name in EFFECT_DOMAIN:
+        sig = EFFECTS[name].sample_signature()
+        out[name] = SampleCandidate(name, sig.domain, _block(sig, motor), sig.params, sig.physical,
+                                    tuple(sig.grid(motor, LIMITS)), sig.n_coef, sig.refine, sig)
     return out
 
 
