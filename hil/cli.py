@@ -102,7 +102,7 @@ def cmd_plant_simulate(args) -> int:
 def cmd_calibrate(args) -> int:
     from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
-    from .calibration.ordinary import Circuit
+    from .calibration.refusals import Circuit
     from .recording.format import write_recording
     from .recording.load import load_recording
 
@@ -498,6 +498,30 @@ def cmd_plant_check(args) -> int:
     return 0
 
 
+def effect_routes(cls) -> list[str]:
+    """Where the house meets an effect, read from its declaration (``plant_models.effects.Effect``)."""
+    routes = []
+    if cls.edge_signature() is not None:
+        routes.append("diagnosed from its mean edge-angle signature (a recording with a reference)")
+    if cls.validation == "jitter":
+        routes.append("diagnosed as edge noise (a variance)")
+    if cls.ordinary is not None:
+        routes.append(f"diagnosed from capture times alone (an ordinary run: {cls.ordinary.meaning})")
+    sig = cls.sample_signature()
+    if sig is not None:
+        routes.append(f"diagnosed from the sampled signals ({sig.domain} residual; relevant against the "
+                      f"{sig.budget} budget: {sig.disturbs})")
+    if cls.no_trace:
+        routes.append("not diagnosed: " + cls.no_trace)
+    if cls.validation is not None:
+        routes.append(f"validated by the {cls.validation!r} law (`hil gap validate`)")
+    if cls.from_base_in_twin():
+        why = f": {cls.capture_blind}" if cls.capture_blind else " (with the motor)"
+        routes.append(f"a twin from a Hall capture takes it from its base plant{why}")
+    routes.append(f"swept by a campaign axis `{cls.name}.<parameter>`")
+    return routes
+
+
 def effects_markdown() -> str:
     """The effect library as a Markdown reference (docs/effects.md is generated from this)."""
     import inspect
@@ -521,6 +545,7 @@ def effects_markdown() -> str:
             f"{fp.get('knob', '-')}.",
             "",
         ]
+        lines += [f"Routes: {'; '.join(effect_routes(cls))}.", ""]
         lines += ["| parameter | unit | bounds | default | meaning |", "|---|---|---|---|---|"]
         for row in describe(cls):
             lines.append(

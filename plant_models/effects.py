@@ -55,6 +55,57 @@ class EdgeSignature:
     needs_encoder: bool = False
 
 
+@dataclass(frozen=True)
+class OrdinarySignature:
+    """How the gap diagnosis of an ordinary run (``hil.gap.ordinary``: capture times alone, no
+    encoder) fits an effect: the column set of the calibration's joint fit it switches on
+    (a flag of ``hil.calibration.ordinary.Effects``), and how its fitted coefficients are reported."""
+
+    #: the ``Effects`` flag: "install", "switching", "delay", "ripple", or "pole_pairs" (a candidate
+    #: only when the pole count is stated or found)
+    columns: str
+    coefficients: str  #: the fit's coefficient names start with this (``scalar``: are this)
+    key: str  #: the name its parameters are reported under
+    meaning: str  #: what the parameters describe (the JSON rows' ``meaning``)
+    scalar: bool = False  #: one coefficient, reported as a number
+    #: the ordinary run's own experiment against another candidate (by name; the pair in this
+    #: order), where capture times alone make it a speed sweep
+    knobs: Mapping[str, str] = dataclasses.field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class SampleSignature:
+    """How the gap diagnosis fits an effect with no edge-angle signature to a sampled signal's
+    residual (``hil.gap.samples``): a block of columns, linear given a shape parameter (a grid
+    is profiled), and the floor of practical relevance it is judged against.
+
+    ``columns(rows, shape, motor)`` gives per-row columns (n_rows, k) per unit coefficient from the
+    residual's rows; the engine averages them into the residual's cells. In the ``voltage``
+    domain a column is a line-to-line voltage (V), from the rows ``i`` (line current), ``e`` (line
+    back-EMF), ``i0x``, ``i1x``, ``i0y``, ``i1y`` (the phase currents of the pair at an interval's
+    two ends) and ``h`` (its length, s); in the ``speed`` domain it is a torque (N m), from
+    ``theta_m`` (mechanical angle, rad) and ``t`` (s), which the engine turns into the speed it
+    takes away exactly as the residual was made. ``motor`` is the nominal motor (resistance_ohm,
+    inductance_h, ke_v_s_per_rad, pole_pairs, ...). ``params(coef, shape, motor)`` maps the
+    coefficients to the effect's parameters, ``physical(coef, stderr, motor)`` says whether a fit
+    is inside the effect's bounds, ``grid(motor, limits)`` the shape parameters to profile
+    (``limits``: what the domain resolves, ``max_periods_per_rev``)."""
+
+    domain: str  #: "voltage" or "speed"
+    columns: Callable[[Mapping[str, np.ndarray], Any, Any], np.ndarray]
+    params: Callable[[np.ndarray, Any, Any], dict]
+    physical: Callable[[np.ndarray, np.ndarray, Any], bool]
+    #: practical relevance (``hil.gap.relevance``): the budget the effect disturbs (a key of
+    #: ``BUDGETS``), what it disturbs in words, and how much (params, motor, operating envelope)
+    budget: str
+    disturbs: str
+    disturbance: Callable[[Mapping[str, Any], Any, Any], float]
+    grid: Callable[[Any, Mapping[str, float]], tuple] = lambda motor, limits: (None,)
+    n_coef: int = 1  #: fitted coefficients (0: the column enters with coefficient 1, only its shape is fitted)
+    refine: bool = False  #: the shape parameter refined by a bounded search around the best grid point
+    constants: tuple[str, ...] = ()  #: parameters stated, not fitted (no standard error)
+
+
 def bounds_of(cls: type, field_name: str) -> tuple[float | None, float | None]:
     """(low, high) of an effect field, as its ``bounded`` metadata states them."""
     for f in dataclasses.fields(cls):
@@ -109,6 +160,14 @@ class Effect:
     magnitude_field: ClassVar[str] = ""
     #: the parameters the validation compares, fitted against injected (:meth:`params_vector`)
     vector_fields: ClassVar[tuple[str, ...]] = ()
+    #: its part in the diagnosis of an ordinary run (capture times alone); None: not a candidate there
+    ordinary: ClassVar[OrdinarySignature | None] = None
+    #: why the recorded signals (hil-recording/1) hold no trace of it, where none do
+    no_trace: ClassVar[str | None] = None
+    #: why capture times cannot tell it: a twin made from a Hall capture (``hil.twin.capture``) takes
+    #: it from its base plant as it is, and says so. The electrical and mechanical ones are taken from
+    #: the base too (with the motor); the others are measured, or show in what the twin measures
+    capture_blind: ClassVar[str | None] = None
 
     def contribute(self, plant: CompiledPlant) -> None:  # pragma: no cover - abstract
         raise NotImplementedError
@@ -127,6 +186,17 @@ class Effect:
         """Its mean edge-angle signature as the gap diagnosis fits it; None: it leaves none (or is
         diagnosed elsewhere: edge jitter as a variance, the electrical ones from the samples)."""
         return None
+
+    @classmethod
+    def sample_signature(cls) -> SampleSignature | None:
+        """How the gap diagnosis fits it to a sampled signal (voltage equation, speed); None: it
+        leaves no trace there (or a mean edge-angle one)."""
+        return None
+
+    @classmethod
+    def from_base_in_twin(cls) -> bool:
+        """Whether a twin made from a Hall capture takes it from its base plant (see ``capture_blind``)."""
+        return cls.capture_blind is not None or cls.layer in ("electrical", "mechanical")
 
     @classmethod
     def unit_draw(cls, rng: np.random.Generator, pole_pairs: int) -> "Effect":
@@ -181,6 +251,9 @@ class InstallationOffset(Effect):
     )
     validation: ClassVar[str] = "edge"
     vector_fields: ClassVar[tuple[str, ...]] = ("offset_deg_e",)
+    ordinary: ClassVar[OrdinarySignature] = OrdinarySignature(
+        "install", "inst_", "relative_offset_contrasts_deg_e", "per sensor, sum zero"
+    )
     offset_deg_e: tuple[float, float, float] = bounded(
         (0.0, 0.0, 0.0), low=-10.0, high=10.0, unit="deg_e", length=3,
         doc="offset of sensors A, B, C; positive = edges trail",
@@ -231,6 +304,9 @@ class PoleOffset(Effect):
     }
     validation: ClassVar[str] = "edge"
     vector_fields: ClassVar[tuple[str, ...]] = ("offset_deg_e",)
+    ordinary: ClassVar[OrdinarySignature] = OrdinarySignature(
+        "pole_pairs", "pole_", "pole_offset_contrasts_deg_e", "per pole boundary, sum zero"
+    )
     offset_deg_e: tuple[float, ...] = bounded(
         (0.0, 0.0, 0.0, 0.0), low=-5.0, high=5.0, unit="deg_e",
         doc="shift of the boundary starting each magnet pole; length 2 * pole_pairs",
@@ -408,6 +484,14 @@ class ConditioningDelay(Effect):
     }
     validation: ClassVar[str] = "edge"
     vector_fields: ClassVar[tuple[str, ...]] = ("rise_delay_s", "fall_delay_s")
+    ordinary: ClassVar[OrdinarySignature] = OrdinarySignature(
+        "delay", "delay_diff_s", "rise_minus_fall_delay_s",
+        "rising edges' delay minus falling edges' delay, constant in time", scalar=True,
+        knobs={
+            "hysteresis": "a speed sweep: a delay grows with speed, asymmetric switching points do not",
+            "torque_ripple": "a speed sweep at another load: the ripple falls with 1/speed^2",
+        },
+    )
     rise_delay_s: float = bounded(
         0.0, low=0.0, high=MAX_CONDITIONING_DELAY_S, unit="s", doc="delay of captured rising edges"
     )
@@ -477,6 +561,7 @@ class ArmatureReaction(Effect):
     knob_shows: ClassVar[str] = "armature reaction follows the phase current, not the speed"
     validation: ClassVar[str] = "edge"
     vector_fields: ClassVar[tuple[str, ...]] = ("slope_deg_e_per_a",)
+    capture_blind: ClassVar[str] = "needs phase currents and a reference angle"
     slope_deg_e_per_a: float = bounded(0.0, low=-2.0, high=2.0, unit="deg_e/A", doc="edge lag per ampere")
     table_current_a: tuple[float, ...] = bounded((), low=0.0, high=1e3, unit="A", doc="table currents")
     table_offset_deg_e: tuple[float, ...] = bounded(
@@ -554,6 +639,13 @@ class Hysteresis(Effect):
     }
     validation: ClassVar[str] = "edge"
     vector_fields: ClassVar[tuple[str, ...]] = ("lag_deg_e",)
+    #: capture times alone cannot see a lag common to every edge: what an ordinary run fits under this
+    #: name is each sensor's rise minus fall, constant in angle (its asymmetric switching points)
+    ordinary: ClassVar[OrdinarySignature] = OrdinarySignature(
+        "switching", "switch_", "rise_minus_fall_deg_e", "per sensor and direction, rise minus fall, constant in angle",
+        knobs={"torque_ripple": "a speed sweep: the ripple falls with 1/speed^2, switching points stay"},
+    )
+    capture_blind: ClassVar[str] = "a lag common to every edge is invisible without an encoder"
     lag_deg_e: float = bounded(0.0, low=0.0, high=5.0, unit="deg_e", doc="switching lag after the field zero")
 
     @classmethod
@@ -778,6 +870,42 @@ class CoggingTorque(Effect):
     periods_per_rev: int = bounded(12, low=1, high=96, unit="1/rev", integer=True, doc="cogging periods per turn")
     phase_rad: float = bounded(0.0, low=0.0, high=2 * math.pi, unit="rad", doc="phase")
 
+    @staticmethod
+    def possible_orders(pole_pairs: int, max_order: int) -> tuple[int, ...]:
+        """Cogging periods per turn a three-phase motor with ``2 p`` poles can have.
+
+        The cogging fundamental is lcm(slots, poles) per turn; magnet and slot imperfections add
+        harmonics at multiples of the pole count and of the slot count, and a three-phase stator's
+        slot count is a multiple of 3. Other orders (for example p, the electrical frequency) are
+        ripple of another cause: an offset of a current sensor makes a torque error at exactly the
+        electrical frequency in the speed residual."""
+        return tuple(n for n in range(1, max_order + 1) if n % (2 * pole_pairs) == 0 or n % 3 == 0)
+
+    @classmethod
+    def sample_signature(cls):
+        high = bounds_of(cls, "amplitude_n_m")[1]
+
+        def columns(rows, order, motor):
+            th = rows["theta_m"]  # A sin(n theta + phi) = a sin(n theta) + b cos(n theta)
+            return np.column_stack([np.sin(order * th), np.cos(order * th)])
+
+        return SampleSignature(
+            "speed",
+            columns,
+            lambda c, n, m: {
+                "amplitude_n_m": float(np.hypot(*c)),
+                "periods_per_rev": int(n),
+                "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi)),
+            },
+            lambda c, se, m: bool(np.hypot(*c) <= high + 3 * np.hypot(*se)),
+            budget="torque",
+            disturbs="peak cogging torque",
+            disturbance=lambda params, motor, env: float(params["amplitude_n_m"]),
+            grid=lambda motor, limits: cls.possible_orders(motor.pole_pairs, int(limits["max_periods_per_rev"])),
+            n_coef=2,
+            constants=("phase_rad",),
+        )
+
     @classmethod
     def unit_draw(cls, rng, pole_pairs):
         return cls(0.01, int(rng.choice([6, 8, 12, 18, 24])), float(rng.uniform(0, 2 * math.pi)))
@@ -829,6 +957,35 @@ class WindingTemperature(Effect):
     alpha_per_k: float = bounded(0.00393, low=0.0, high=0.01, unit="1/K", doc="resistance temperature coefficient")
 
     @classmethod
+    def sample_signature(cls):
+        alpha = cls().alpha_per_k  # the library's copper coefficient: the fit gives dR, the rise follows
+        low, high = bounds_of(cls, "temperature_rise_k")
+
+        def physical(c, se, m):
+            k = m.resistance_ohm * alpha
+            return bool(low - 3 * se[0] / k <= c[0] / k <= high + 3 * se[0] / k)
+
+        def disturbance(params, motor, env):
+            # at a fixed duty, u = 2 R I + 2 k_e w: a resistance change dR moves the speed by dR I / k_e
+            return float(np.max(np.abs(params["resistance_delta_ohm"]) * env.current_a
+                                / (motor.ke_v_s_per_rad * np.maximum(env.speed_rad_s, 1e-9))))
+
+        return SampleSignature(
+            "voltage",
+            lambda rows, _, m: rows["i"][:, None],  # dR times the line current
+            lambda c, _, m: {
+                "temperature_rise_k": float(c[0] / (m.resistance_ohm * alpha)),
+                "alpha_per_k": alpha,
+                "resistance_delta_ohm": float(c[0]),
+            },
+            physical,
+            budget="speed",
+            disturbs="relative speed change at a fixed duty (most sensitive operating point)",
+            disturbance=disturbance,
+            constants=("alpha_per_k",),
+        )
+
+    @classmethod
     def unit_draw(cls, rng, pole_pairs):
         return cls(10.0)  # a heat soak: the -40 K bound would cap a cold draw near SNR 1
 
@@ -860,6 +1017,26 @@ class MagnetTemperature(Effect):
     alpha_br_per_k: float = bounded(-0.0012, low=-0.005, high=0.0, unit="1/K", doc="remanence temperature coefficient")
 
     @classmethod
+    def sample_signature(cls):
+        alpha = cls().alpha_br_per_k  # the library's NdFeB coefficient: the fit gives dk_e / k_e
+        low, high = bounds_of(cls, "temperature_rise_k")
+        return SampleSignature(
+            "voltage",
+            lambda rows, _, m: rows["e"][:, None],  # the relative k_e change times the line back-EMF
+            lambda c, _, m: {
+                "temperature_rise_k": float(c[0] / alpha),
+                "alpha_br_per_k": alpha,
+                "ke_delta_v_s_per_rad": float(c[0] * m.ke_v_s_per_rad),
+            },
+            lambda c, se, m: bool(low - 3 * se[0] / abs(alpha) <= c[0] / alpha <= high + 3 * se[0] / abs(alpha)),
+            budget="speed",
+            disturbs="relative speed change at a fixed duty",
+            # speed per duty goes as 1 / k_e
+            disturbance=lambda params, motor, env: abs(params["ke_delta_v_s_per_rad"]) / motor.ke_v_s_per_rad,
+            constants=("alpha_br_per_k",),
+        )
+
+    @classmethod
     def unit_draw(cls, rng, pole_pairs):
         return cls(float(rng.choice([-1, 1]) * 10.0))
 
@@ -883,6 +1060,10 @@ class DeadTime(Effect):
         "scales_with": "PWM frequency and supply voltage",
         "knob": "f_pwm, V_dc",
     }
+    no_trace: ClassVar[str] = (
+        "no trace in the recorded signals: the terminal voltages already carry the dead-time loss and the duty "
+        "is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"
+    )
     dead_time_s: float = bounded(0.0, low=0.0, high=5e-6, unit="s", doc="dead time per switching event")
 
     def contribute(self, plant):
@@ -911,6 +1092,47 @@ class Saturation(Effect):
     vector_fields: ClassVar[tuple[str, ...]] = ("saturation_current_a",)
     saturation_current_a: float = bounded(20.0, low=0.1, high=1e3, unit="A", doc="knee current")
     min_inductance_fraction: float = bounded(1.0, low=0.1, high=1.0, unit="1", doc="floor of L(i)/L (1 = none)")
+
+    @staticmethod
+    def flux_deficit(i: np.ndarray, inductance_h: float, knee_a: float, floor: float) -> np.ndarray:
+        """Psi(i) - L i for L(i) = L max(floor, 1 / (1 + (i / knee)^2)) (Psi = integral of L(i) di)."""
+        i_floor = knee_a * math.sqrt(1.0 / floor - 1.0)
+        a = np.abs(i)
+        psi = np.where(
+            a <= i_floor, knee_a * np.arctan(a / knee_a), knee_a * math.atan(i_floor / knee_a) + floor * (a - i_floor)
+        )
+        return inductance_h * (np.sign(i) * psi - i)
+
+    @classmethod
+    def sample_signature(cls):
+        # the knee is fitted over the library's range with L(i)/L floored at its lower bound
+        floor = bounds_of(cls, "min_inductance_fraction")[0]
+        knee_low, knee_high = bounds_of(cls, "saturation_current_a")
+
+        def columns(rows, knee_a, m):
+            def deficit(i):
+                return cls.flux_deficit(i, m.inductance_h, knee_a, floor)
+
+            # the line pair's flux deficit change over the interval, as a voltage
+            d = deficit(rows["i1x"]) - deficit(rows["i0x"]) - deficit(rows["i1y"]) + deficit(rows["i0y"])
+            return (d / rows["h"])[:, None]
+
+        def disturbance(params, motor, env):
+            knee, fl = params["saturation_current_a"], params["min_inductance_fraction"]
+            return 1.0 - max(fl, 1.0 / (1.0 + (env.max_current_a / knee) ** 2))
+
+        return SampleSignature(
+            "voltage",
+            columns,
+            lambda c, knee, m: {"saturation_current_a": float(knee), "min_inductance_fraction": floor},
+            lambda c, se, m: True,
+            budget="inductance",
+            disturbs="inductance drop at the largest measured current",
+            disturbance=disturbance,
+            grid=lambda motor, limits: tuple(np.geomspace(knee_low, knee_high, 41)),
+            n_coef=0,
+            refine=True,
+        )
 
     @classmethod
     def unit_draw(cls, rng, pole_pairs):

@@ -276,7 +276,7 @@ def test_the_segment_route_applies_the_stated_delay_bound():
     (rise about 6.6 us) are kept under the default bound and refused, with the reason, under a
     stated 1 us maximum; the refused delay is 0 in the table, never the fitted value."""
     from hil.calibration import calibrate as calibrate_recording
-    from hil.calibration.ordinary import Circuit
+    from hil.calibration.refusals import Circuit
 
     config = paper_bench().with_effects(fx.ConditioningDelay(rise_delay_s=6.6e-6, fall_delay_s=0.5e-6), *NOISE)
     rec = CalibrationCampaign(turns_per_point=40).run(config, seed=3)
@@ -297,7 +297,7 @@ def test_the_station_calibrates_through_the_front_door():
     where the bare fit would have written it."""
     from hil.calibration import calibrate as calibrate_recording
     from hil.calibration.campaign import station_calibration, station_corrections
-    from hil.calibration.ordinary import Circuit
+    from hil.calibration.refusals import Circuit
 
     config = paper_bench().with_effects(fx.ConditioningDelay(rise_delay_s=6.6e-6, fall_delay_s=0.5e-6), *NOISE)
     campaign = CalibrationCampaign(turns_per_point=40)

@@ -1,6 +1,8 @@
 """Each extension point is one place (docs/architecture.md, "Where a new thing goes"): a toy effect,
 a toy predictor and a toy capture format, each registered in its one table and nowhere else, are
-diagnosed, compared and read by the code that never heard of them."""
+diagnosed, compared and read by the code that never heard of them. The toy effect goes through
+every route an effect has: diagnosed by the gap engine on a recording that carries it, made by a
+twin, swept by a campaign, listed by ``hil effects`` and documented from its declaration."""
 
 from __future__ import annotations
 
@@ -17,31 +19,33 @@ from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
 
 
-# --- a toy effect: every rising edge leads by a constant angle, falling edges untouched ----------------
+# --- a toy effect: every falling edge trails by a constant angle, rising edges untouched ---------------
 
 @dataclass(frozen=True)
-class RisingLead(fx.Effect):
-    """Rising edges lead by ``lead_deg_e`` in either direction of rotation; falling ones do not move."""
+class FallingLag(fx.Effect):
+    """Falling edges trail by ``lag_deg_e`` in either direction of rotation; rising ones do not move."""
 
-    name: ClassVar[str] = "rising_lead"
+    name: ClassVar[str] = "falling_lag"
     layer: ClassVar[str] = "sensor"
     fingerprint: ClassVar[Mapping[str, str]] = {
-        "signature": "rising edges lead, falling edges do not",
+        "signature": "falling edges trail, rising edges do not",
         "scales_with": "nothing (constant in angle)",
         "knob": "-",
     }
     knob_record: ClassVar[str] = "a segment in reverse"
-    knob_shows: ClassVar[str] = "a rising lead moves the rising edges alone, in either direction"
+    knob_shows: ClassVar[str] = "a falling lag moves the falling edges alone, in either direction"
     validation: ClassVar[str] = "edge"
-    vector_fields: ClassVar[tuple[str, ...]] = ("lead_deg_e",)
-    lead_deg_e: float = bounded(0.0, low=0.0, high=10.0, unit="deg_e", doc="lead of every rising edge")
+    vector_fields: ClassVar[tuple[str, ...]] = ("lag_deg_e",)
+    #: a toy's twin takes it from its base (what the twin measures is the library's effects)
+    capture_blind: ClassVar[str] = "a toy the twin does not measure"
+    lag_deg_e: float = bounded(0.0, low=0.0, high=10.0, unit="deg_e", doc="lag of every falling edge")
 
     @classmethod
     def edge_signature(cls):
         return fx.EdgeSignature(
-            lambda c: -np.asarray(c["rising"], dtype=float)[:, None],  # a lead is a negative (trailing) error
-            lambda k: {"lead_deg_e": float(k[0])},
-            fx.not_below(cls, "lead_deg_e"),
+            lambda c: (1.0 - np.asarray(c["rising"], dtype=float))[:, None],
+            lambda k: {"lag_deg_e": float(k[0])},
+            fx.not_below(cls, "lag_deg_e"),
         )
 
     @classmethod
@@ -49,11 +53,12 @@ class RisingLead(fx.Effect):
         return cls(1.0)
 
     def contribute(self, plant):
-        # a switching asymmetry of -lead (rising edges lead by half, falling trail by half, both
-        # ways) and a common lead of half: rising edges lead by all of it, falling ones stay
-        half = -0.5 * self.lead_deg_e
+        # a hysteresis of half the lag (every edge trails by it, both ways) and a switching asymmetry
+        # of minus the lag (rising edges lead by half, falling trail by half, both ways): falling edges
+        # trail by all of it, rising ones stay (the plants' hysteresis is a band: never negative)
+        half = 0.5 * self.lag_deg_e
         parity = np.where(np.arange(2 * plant.pole_pairs) % 2 == 0, 1.0, -1.0)
-        plant.switch_offset_deg_e = plant.switch_offset_deg_e + half * parity[None, :, None]
+        plant.switch_offset_deg_e = plant.switch_offset_deg_e - half * parity[None, :, None]
         plant.hysteresis_deg_e += half
 
 
@@ -63,15 +68,88 @@ def test_a_toy_effect_registered_in_the_library_alone_is_drawn_and_diagnosed(mon
     from hil.gap.synthetic import KNOWN_MODEL, param_error
     from hil.gap.validate import effect_names, make_case
 
-    assert "rising_lead" not in CANDIDATES
-    monkeypatch.setitem(fx.EFFECTS, RisingLead.name, RisingLead)
-    assert "rising_lead" in CANDIDATES and "rising_lead" in effect_names()  # diagnosed, and validated
-    rec, truth = make_case(["rising_lead"], 8.0, seed=3)  # the validation's own draw and scaling
-    assert isinstance(truth[0], RisingLead) and truth[0].lead_deg_e > 0
+    assert "falling_lag" not in CANDIDATES
+    monkeypatch.setitem(fx.EFFECTS, FallingLag.name, FallingLag)
+    assert "falling_lag" in CANDIDATES and "falling_lag" in effect_names()  # diagnosed, and validated
+    rec, truth = make_case(["falling_lag"], 8.0, seed=3)  # the validation's own draw and scaling
+    assert isinstance(truth[0], FallingLag) and truth[0].lag_deg_e > 0
     d = diagnose_segments(rec, KNOWN_MODEL)
-    assert d.significant and d.accepted[0].effect == "rising_lead", d.ranking
+    assert d.significant and d.accepted[0].effect == "falling_lag", d.ranking
     assert param_error(truth[0], d.accepted[0]) < 0.2
-    assert "a rising lead moves the rising edges alone" in knob("rising_lead", "conditioning_delay")
+    assert "a falling lag moves the falling edges alone" in knob("falling_lag", "conditioning_delay")
+
+
+@pytest.fixture
+def toy_effect(monkeypatch):
+    monkeypatch.setitem(fx.EFFECTS, FallingLag.name, FallingLag)
+    return FallingLag
+
+
+def test_a_toy_effect_is_made_by_a_twin_from_its_declaration(toy_effect, tmp_path):
+    """A twin from a Hall capture takes from its base what its declaration says capture times cannot
+    tell: the toy is in the twin's plant, as the base has it, named as assumed, and its TOML reads back."""
+    from hil.twin.capture import analyse, twin_from_capture, twin_toml
+    from plant_models import PlantConfig
+
+    from hil.recording.drivers import record_kinematic
+
+    # a speed ramp, as a twin's capture is (the calibration tells a delay from a constant angle by it)
+    config = paper_bench().with_effects(fx.InstallationOffset((1.0, -0.5, 0.3)), fx.EdgeJitter(time_rms_s=1e-6))
+    rec = record_kinematic(config, [OperatingPoint(0.4, 2000.0, 1.0, end_speed_rpm=8000.0, id="ramp")], seed=5)
+    base = paper_bench().with_effects(FallingLag(2.5))
+    twin = twin_from_capture(analyse(rec, pole_pairs=2), base, "toy base")
+    assert twin.config.effect("falling_lag") == FallingLag(2.5) and "falling_lag" in twin.from_base
+    assert ("falling_lag", "from the base: a toy the twin does not measure") in twin.assumed
+    text = twin_toml(twin, "bench.toy", "toy base")
+    assert '[[effects]]  # assumed: from the base\nname = "falling_lag"\nlag_deg_e = 2.5' in text
+    (tmp_path / "twin.toml").write_text(text)
+    assert PlantConfig.from_toml(tmp_path / "twin.toml").effect("falling_lag") == FallingLag(2.5)
+
+
+def test_a_toy_effect_is_swept_by_a_campaign(toy_effect, tmp_path):
+    """A campaign axis on the toy's parameter: with raw Hall commutation the commutation lands on the
+    sensor's edge, so the worst commutation error against the plant's true angle is the lag itself."""
+    from hil.campaign import load_spec, read_table, run_campaign
+
+    spec_path = tmp_path / "spec.toml"
+    spec_path.write_text('''
+[campaign]
+name = "toy"
+seed = 1
+run_s = 0.06
+[campaign.budgets]
+commutation_angle_p99 = "angle_p99"
+[fixed]
+strategy = "raw"
+speed_rpm = 4000.0
+[[axis]]
+name = "falling_lag.lag_deg_e"
+values = [0.5, 2.0]
+''')
+    result = run_campaign(load_spec(spec_path), tmp_path / "out", scheduler="serial", progress=False)
+    table = read_table(result.paths["table"])
+    assert list(table["falling_lag.lag_deg_e"]) == [0.5, 2.0]
+    for _, row in table.iterrows():
+        assert abs(row["angle_p99_deg_e"] - row["falling_lag.lag_deg_e"]) < 0.05, row
+
+
+def test_a_toy_effect_is_listed_and_documented_from_its_declaration(toy_effect, capsys):
+    from hil.cli import effects_markdown, main
+
+    assert main(["effects"]) == 0
+    listed = capsys.readouterr().out
+    assert "falling_lag  [sensor]  falling edges trail, rising edges do not" in listed
+    assert "lag_deg_e" in listed and "lag of every falling edge" in listed
+    doc = effects_markdown()
+    section = doc[doc.index("## `falling_lag` (sensor)"):]
+    assert "Falling edges trail by ``lag_deg_e``" in section
+    assert "| `lag_deg_e` | deg_e | [0.0, 10.0] | `0.0` | lag of every falling edge |" in section
+    routes = section[section.index("Routes: "):].splitlines()[0]
+    for route in ("diagnosed from its mean edge-angle signature", "validated by the 'edge' law",
+                  "a twin from a Hall capture takes it from its base plant: a toy the twin does not measure",
+                  "swept by a campaign axis `falling_lag.<parameter>`"):
+        assert route in routes, routes
+    assert "capture times alone" not in routes and "sampled signals" not in routes  # it declares neither
 
 
 # --- a toy capture format: a text file of "time levels" lines, levels as three 0/1 characters ----------

@@ -385,9 +385,9 @@ def test_tiny_effect_is_detected_but_below_practical_relevance():
 
 def test_every_knob_is_a_full_sentence():
     from hil.gap.diagnose import knob
-    from hil.gap.samples import SAMPLE_EFFECTS
+    from hil.gap.samples import EFFECT_DOMAIN
 
-    names = list(CANDIDATES) + ["edge_jitter", *SAMPLE_EFFECTS]
+    names = list(CANDIDATES) + ["edge_jitter", *EFFECT_DOMAIN]
     for i, a in enumerate(names):
         for b in names[i + 1 :]:
             text = knob(a, b)
@@ -399,14 +399,15 @@ def test_every_knob_is_a_full_sentence():
 def test_a_confounded_pair_s_knob_follows_the_selection_s_order_and_the_route():
     """A tie at selection names the kept effect first in its knob (the JSON lists the pair sorted);
     an ordinary run has its own knob for some pairs (capture times alone: a speed sweep)."""
-    from hil.gap.result import ORDINARY_KNOBS, ORDINARY_ROUTE, Confounded, knob
+    from hil.gap.result import ORDINARY_ROUTE, Confounded, knob, ordinary_knob
 
     tie = Confounded(["installation_offset", "pole_offset"], ("pole_offset", "installation_offset"))
     assert knob("pole_offset", "installation_offset") != knob("installation_offset", "pole_offset")
     assert tie.knob("segments") == knob("pole_offset", "installation_offset")
     assert Confounded(tie.names).knob("segments") == knob("installation_offset", "pole_offset")
     pair = Confounded(["conditioning_delay", "hysteresis"])
-    assert pair.knob(ORDINARY_ROUTE) == ORDINARY_KNOBS["conditioning_delay/hysteresis"]
+    assert pair.knob(ORDINARY_ROUTE) == ordinary_knob("conditioning_delay", "hysteresis")
+    assert pair.knob(ORDINARY_ROUTE).startswith("a speed sweep: a delay grows with speed")
     assert pair.knob("segments") == knob("conditioning_delay", "hysteresis")
 
 

@@ -69,7 +69,7 @@ def _saved(name: str) -> dict:
 )
 def test_an_ordinary_run_calibration_writes_the_saved_json(name, capture, circuit):
     from hil.calibration import calibrate
-    from hil.calibration.ordinary import Circuit
+    from hil.calibration.refusals import Circuit
     from hil.recording.load import load_recording
 
     source = f"tests/data/real-hall/{capture}"
@@ -83,7 +83,7 @@ def test_an_ordinary_run_calibration_writes_the_saved_json(name, capture, circui
 def test_a_campaign_calibration_writes_the_saved_json():
     from hil.calibration import calibrate
     from hil.calibration.campaign import CalibrationCampaign
-    from hil.calibration.ordinary import Circuit
+    from hil.calibration.refusals import Circuit
     from plant_models import PRESETS
 
     rec = CalibrationCampaign(turns_per_point=40).run(PRESETS["paper-bench+deviations"](), seed=3)

@@ -28,7 +28,6 @@ from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
 from bldc import edges
-from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
 
 from .corrections import SENSORS, Corrections
 from .result import (
@@ -43,6 +42,14 @@ from .result import (
     Stationarity,
 )
 from .stats import BIC_MIN, bic_gain, inliers
+from .refusals import (
+    POLE_OFFSET_BOUND_DEG_E,
+    Circuit,
+    delay_bound_s,
+    delay_refusal,
+    installation_refusal,
+    pole_table_refusal,
+)
 from .uncertainty import (
     MODEL_WEIGHT_IGNORED,
     bic_weight,
@@ -65,15 +72,6 @@ KNOT_CYCLES = 4
 #: the speed range (highest over lowest 5-95 % electrical speed) below which a delay (growing
 #: with speed) and a constant angle cannot be told apart
 MIN_SPEED_RATIO = 1.5
-#: the controller's table bound on a pole offset (its physics: bldc/contract.py)
-POLE_OFFSET_BOUND_DEG_E = MAX_POLE_TABLE_OFFSET_DEG_E
-#: default bound on a conditioning delay when the circuit is not stated: open-collector Hall
-#: outputs with a pull-up into a filter capacitor and cable capacitance are measured at 130-270 us
-#: (rise minus fall); 1 ms covers a 10 kOhm pull-up into 33 nF (3 RC to cross a 95 % threshold)
-DEFAULT_DELAY_MAX_S = 1e-3
-#: a delay must stay well inside one sector at the top speed: beyond half a sector the captured
-#: edges of a 60 deg e sector would reorder before the next one
-DELAY_SECTOR_FRACTION = 0.5
 
 
 class OrdinaryRunError(ValueError):
@@ -421,26 +419,6 @@ def independent_delay(steps: HallSteps) -> IndependentDelay | None:
     )
 
 
-@dataclass
-class Circuit:
-    """What the user says about the conditioning circuit (all optional)."""
-
-    pullup_ohm: float | None = None
-    filter_farad: float | None = None
-    delay_max_s: float | None = None
-
-    def bound_s(self) -> tuple[float, str]:
-        if self.delay_max_s is not None:
-            return self.delay_max_s, f"stated maximum {self.delay_max_s * 1e6:.0f} us"
-        if self.pullup_ohm is not None and self.filter_farad is not None:
-            rc = self.pullup_ohm * self.filter_farad
-            return 3.0 * rc, f"3 RC of the stated circuit (R {self.pullup_ohm:.3g} Ohm, C {self.filter_farad:.3g} F)"
-        return DEFAULT_DELAY_MAX_S, (
-            f"default {DEFAULT_DELAY_MAX_S * 1e6:.0f} us (open-collector Hall outputs with pull-up and filter "
-            "capacitor; state the circuit to narrow it)"
-        )
-
-
 def choose_pole_pairs(
     steps: HallSteps,
     tick_s: float | None,
@@ -488,7 +466,6 @@ RIPPLE_SE_GROWTH = 1.5
 #: trajectory knot spacings tried (electrical cycles between knots); the smallest BIC is kept
 KNOT_CYCLE_CHOICES = (2, 3, 4, 6, 8)
 #: beyond half a sector an "installation offset" is a wiring or labelling error, not an offset
-INSTALLATION_BOUND_DEG_E = 30.0
 RISE_LABELS = {1: (0, 2, 4), -1: (1, 3, 5)}  #: which boundaries a sensor crosses rising, per direction
 SENSOR_LABELS = {0: (0, 3), 1: (2, 5), 2: (1, 4)}  #: A, B, C
 
@@ -541,51 +518,6 @@ def _by_direction(fit: Fit, steps: HallSteps, make) -> tuple[float, float] | Non
     # depends on the direction), the error is scaled up by the Birge ratio (the PDG's scale factor)
     birge = np.sqrt(max(1.0, float(np.sum(w * (v - mean) ** 2)) / max(v.size - 1, 1)))
     return mean, float(birge / np.sqrt(np.sum(w)))
-
-
-def pole_table_refusal(poles: list[float]) -> Refusal | None:
-    """The refusal of a pole table with an entry beyond the controller's bound, or None. A table
-    with a hole would be worse than none: the whole table is refused."""
-    out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
-    if not out:
-        return None
-    return Refusal(
-        "pole_offset_deg_e",
-        f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
-        f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is not the "
-        "motor's, or a speed change inside a segment taken as steady); the table is not written",
-    )
-
-
-def installation_refusal(inst: dict[str, float]) -> Refusal | None:
-    """The refusal of installation offsets beyond half a sector (a wiring or labelling error), or None."""
-    bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
-    if not bad:
-        return None
-    return Refusal(
-        "installation_offset_deg_e",
-        f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
-        f"+-{INSTALLATION_BOUND_DEG_E:.0f}: a wiring or channel-mapping error, not an offset",
-    )
-
-
-def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> Refusal | None:
-    """The refusal of a conditioning delay beyond its bound (``Circuit.bound_s``, or half a sector
-    at the top speed), or None."""
-    if value_s is None or abs(value_s) <= bound_s:
-        return None
-    return Refusal(field, f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})")
-
-
-def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
-    """The bound on a conditioning delay: the circuit's, or half a sector at the top speed if tighter."""
-    bound_s, bound_why = circuit.bound_s()
-    sector_s = 1.0 / (6.0 * top_hz_e)
-    if DELAY_SECTOR_FRACTION * sector_s < bound_s:
-        return DELAY_SECTOR_FRACTION * sector_s, (
-            f"half a sector at the top speed {top_hz_e:.0f} Hz electrical ({sector_s * 1e6:.0f} us per sector)"
-        )
-    return bound_s, bound_why
 
 
 #: halves of a capture that disagree by more than this many standard errors: it is not stationary
@@ -642,6 +574,119 @@ def _stationarity(steps: HallSteps, eff: Effects, tick_s: float | None, kc: floa
     return out
 
 
+@dataclass
+class _RippleChoice:
+    """Whether the run's model carries the sector-locked speed ripple, and the fit it chose."""
+
+    fit: Fit
+    ripple: bool
+    other_weight: float  #: the weight of the model not taken (uncertainty.with_model_choice)
+    other_what: str
+
+
+def _choose_ripple(steps: HallSteps, tick_s: float | None, kc: float, fit: Fit) -> _RippleChoice:
+    """The rotor's speed ripple locked to the sectors (commutation torque ripple, largest at low
+    speed) would bias the static offsets by its mean over the run: modelled when the capture shows
+    it (BIC) and where the run can tell it (1/speed^2) from the delay (speed) and the constant angle
+    (their standard errors may grow by half at most), never written as a correction."""
+    ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
+    n_used = int(steps.used().sum())
+    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
+    ripple = ripple_gain > BIC_MIN
+    ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
+    # standard errors that hold under correlated residuals, and under the ripple model not taken
+    # where the data do not rule it out (uncertainty.py)
+    ripple_weight = bic_weight(ripple_gain)
+    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
+    other_what = (
+        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
+    )
+    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
+    return _RippleChoice(with_model_choice(robust_fit(fit), other, other_weight, other_what), bool(ripple),
+                         other_weight, other_what)
+
+
+def _rise_fall(fit: Fit, steps: HallSteps, lo: float, hi: float, ratio: float) -> tuple[Estimate, Estimate]:
+    """The rise-minus-fall asymmetry as a delay (time) and as a constant angle; neither where the
+    run's speed range cannot tell them apart."""
+    d_val, d_se = fit.get("delay_diff_s")
+    asym = _by_direction(
+        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
+    )
+    delay = Estimate(d_val, d_se)
+    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
+    if ratio < MIN_SPEED_RATIO:
+        why = (
+            f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
+            "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
+        )
+        delay = Estimate(None, None, reason=why)
+        angle = Estimate(None, None, reason=why)
+    return delay, angle
+
+
+def _installation(fit: Fit, steps: HallSteps) -> tuple[dict[str, float], dict[str, float | None]]:
+    """Installation offsets (relative: sum zero), both edges of a sensor alike, and their errors."""
+    inst, inst_se = {}, {}
+    for x, name in enumerate(SENSORS):
+        labels = list(SENSOR_LABELS[x])
+        r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
+        inst[name], inst_se[name] = r if r else (0.0, None)
+    return inst, inst_se
+
+
+def _pole_table(steps: HallSteps, tick_s: float | None, kc: float, pole_pairs: int,
+                choice: _RippleChoice) -> tuple[list[float], list[float], Fit]:
+    """The pole offsets (two sum-zero sets: N and S boundaries), their errors, and their fit."""
+    ripple = choice.ripple
+    pf = robust_fit(fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc))
+    if choice.other_weight >= MODEL_WEIGHT_IGNORED:
+        pf_other = fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc)
+        pf = with_model_choice(pf, pf_other, choice.other_weight, choice.other_what)
+    z = sum_zero_basis(pole_pairs)
+    table = np.zeros(2 * pole_pairs)
+    se = np.zeros(2 * pole_pairs)
+    for parity in (0, 1):
+        keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
+        for i in range(pole_pairs):
+            table[2 * i + parity], se[2 * i + parity] = pf.combination(dict(zip(keys, z[i])))
+    return [float(v) for v in table], [float(v) for v in se], pf
+
+
+def _widen(stationarity: Stationarity, delay: Estimate, angle: Estimate, inst_se: dict, poles_se: list) -> None:
+    """Widen the errors of the figures whose halves disagree beyond their errors (they drifted
+    during the capture), in place (docs/real-captures.md)."""
+    for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
+        drift = stationarity.figures.get(key)
+        if drift and drift.widen_by and item.stderr is not None:
+            item.stderr_stationary = item.stderr
+            item.stderr = float(np.hypot(item.stderr, drift.widen_by))
+    for x in SENSORS:
+        drift = stationarity.figures.get(f"installation_offset_deg_e.{x}")
+        if drift and drift.widen_by and inst_se.get(x) is not None:
+            inst_se[x] = float(np.hypot(inst_se[x], drift.widen_by))
+    for j in range(len(poles_se)):
+        drift = stationarity.figures.get(f"pole_offset_deg_e.{j}")
+        if drift and drift.widen_by:
+            poles_se[j] = float(np.hypot(poles_se[j], drift.widen_by))
+
+
+#: what capture times cannot give, whatever the capture
+UNDETERMINED = {
+    "conditioning_delay_s": (
+        "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
+        "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
+        "difference on the later polarity and 0 on the other"
+    ),
+    "armature_reaction_deg_e_per_a": "needs a reference angle and phase currents",
+    "hysteresis_common_lag": "a lag common to every edge is invisible without an encoder",
+}
+INSTALLATION_UNDETERMINED = (
+    "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
+    "terminal voltages (Line-BEMF)"
+)
+
+
 def ordinary_calibration(
     steps: HallSteps,
     *,
@@ -656,65 +701,26 @@ def ordinary_calibration(
     circuit = circuit or Circuit()
     refused: list[Refusal] = []
     undetermined: dict[str, str] = {}
-    kc, fit = choose_knots(steps, tick_s)
-    # the rotor's speed ripple locked to the sectors (commutation torque ripple, largest at low
-    # speed) would bias the static offsets by its mean over the run: modelled when the capture
-    # shows it (BIC), never written as a correction
-    ripple_fit = fit_ordinary(steps, Effects(ripple=True), tick_s=tick_s, knot_cycles=kc)
-    n_used = int(steps.used().sum())
-    ripple_gain = bic_gain(-_chi2(ripple_fit, fit), len(ripple_fit.names) - len(fit.names), n_used)
-    ripple = ripple_gain > BIC_MIN
-    # ... and only where the run can tell the ripple (1/speed^2) from the delay (speed) and the
-    # constant angle: their standard errors may grow by half at most
-    ripple = ripple and ripple_fit.get("delay_diff_s")[1] <= RIPPLE_SE_GROWTH * fit.get("delay_diff_s")[1]
-    # standard errors that hold under correlated residuals, and under the ripple model not taken
-    # where the data do not rule it out (uncertainty.py)
-    ripple_weight = bic_weight(ripple_gain)
-    other_weight = 1.0 - ripple_weight if ripple else ripple_weight
-    other_what = (
-        "not modelling the sector-locked speed ripple" if ripple else "modelling the sector-locked speed ripple"
-    )
-    fit, other = (ripple_fit, fit) if ripple else (fit, ripple_fit)
-    fit = with_model_choice(robust_fit(fit), other, other_weight, other_what)
+    kc, fit0 = choose_knots(steps, tick_s)
+    choice = _choose_ripple(steps, tick_s, kc, fit0)
+    fit, ripple = choice.fit, choice.ripple
     used = steps.used()
     f_hz = speed_hz_e(steps)
     lo, hi = (float(v) for v in np.percentile(f_hz[used], [5, 95]))
     top = float(np.percentile(f_hz[used], 99))
     ratio = hi / lo if lo > 0 else float("inf")
-    n_fwd, n_rev = int(np.sum(steps.direction[used] > 0)), int(np.sum(steps.direction[used] < 0))
-    # the rise-minus-fall asymmetry, as a delay (time) and as a constant angle
-    d_val, d_se = fit.get("delay_diff_s")
-    asym = _by_direction(
-        fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
-    )
-    delay = Estimate(d_val, d_se)
-    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
-    if ratio < MIN_SPEED_RATIO:
-        why = (
-            f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
-            "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
-        )
-        delay = Estimate(None, None, reason=why)
-        angle = Estimate(None, None, reason=why)
+    delay, angle = _rise_fall(fit, steps, lo, hi, ratio)
     bound_s, bound_why = delay_bound_s(circuit, top)
     refusal = delay_refusal("rise_fall_delay_difference_s", delay.value, bound_s, bound_why)
     if refusal:
         refused.append(refusal)
         delay = Estimate(None, None, reason=refusal.reason, fitted=delay.value)
-    # installation offsets (relative: sum zero), both edges of a sensor alike
-    inst, inst_se = {}, {}
-    for x, name in enumerate(SENSORS):
-        labels = list(SENSOR_LABELS[x])
-        r = _by_direction(fit, steps, lambda sgn, z, labels=labels: z[labels].mean(0))
-        inst[name], inst_se[name] = r if r else (0.0, None)
+    inst, inst_se = _installation(fit, steps)
     refusal = installation_refusal(inst)
     if refusal:
         refused.append(refusal)
         inst = dict.fromkeys(SENSORS, 0.0)
-    undetermined["installation_offset_deg_e"] = (
-        "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
-        "terminal voltages (Line-BEMF)"
-    )
+    undetermined["installation_offset_deg_e"] = INSTALLATION_UNDETERMINED
     # pole offsets: the pole count, stated or found
     p_source = "stated in the recording (motor.pole_pairs)" if pole_pairs else ""
     if not pole_pairs:
@@ -723,22 +729,7 @@ def ordinary_calibration(
     poles_se: list[float] = []
     table_fit = fit
     if pole_pairs:
-        pf = robust_fit(
-            fit_ordinary(steps, Effects(pole_pairs=pole_pairs, ripple=ripple), tick_s=tick_s, knot_cycles=kc)
-        )
-        if other_weight >= MODEL_WEIGHT_IGNORED:
-            pf_other = fit_ordinary(
-                steps, Effects(pole_pairs=pole_pairs, ripple=not ripple), tick_s=tick_s, knot_cycles=kc
-            )
-            pf = with_model_choice(pf, pf_other, other_weight, other_what)
-        z = sum_zero_basis(pole_pairs)
-        table = np.zeros(2 * pole_pairs)
-        se = np.zeros(2 * pole_pairs)
-        for parity in (0, 1):
-            keys = [f"pole_{parity}_{j}" for j in range(pole_pairs - 1)]
-            for i in range(pole_pairs):
-                table[2 * i + parity], se[2 * i + parity] = pf.combination(dict(zip(keys, z[i])))
-        poles, poles_se = [float(v) for v in table], [float(v) for v in se]
+        poles, poles_se, pf = _pole_table(steps, tick_s, kc, pole_pairs, choice)
         refusal = pole_table_refusal(poles)
         if refusal:
             refused.append(refusal)
@@ -747,30 +738,12 @@ def ordinary_calibration(
             table_fit = pf
     else:
         undetermined["pole_offset_deg_e"] = p_source
-    # stationarity: the same model on each half of the used edges; a figure whose halves disagree
-    # beyond their errors drifted during the capture, and its error says so (docs/real-captures.md)
+    # stationarity: the same model on each half of the used edges
     stationarity = _stationarity(steps, Effects(ripple=ripple), tick_s, kc, pole_pairs if poles else None)
-    for key, item in (("rise_fall_delay_difference_s", delay), ("rise_fall_angle_asymmetry_deg_e", angle)):
-        drift = stationarity.figures.get(key)
-        if drift and drift.widen_by and item.stderr is not None:
-            item.stderr_stationary = item.stderr
-            item.stderr = float(np.hypot(item.stderr, drift.widen_by))
-    for x in SENSORS:
-        drift = stationarity.figures.get(f"installation_offset_deg_e.{x}")
-        if drift and drift.widen_by and inst_se.get(x) is not None:
-            inst_se[x] = float(np.hypot(inst_se[x], drift.widen_by))
-    for j in range(len(poles_se)):
-        drift = stationarity.figures.get(f"pole_offset_deg_e.{j}")
-        if drift and drift.widen_by:
-            poles_se[j] = float(np.hypot(poles_se[j], drift.widen_by))
-    undetermined["conditioning_delay_s"] = (
-        "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
-        "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
-        "difference on the later polarity and 0 on the other"
-    )
-    undetermined["armature_reaction_deg_e_per_a"] = "needs a reference angle and phase currents"
-    undetermined["hysteresis_common_lag"] = "a lag common to every edge is invisible without an encoder"
+    _widen(stationarity, delay, angle, inst_se, poles_se)
+    undetermined.update(UNDETERMINED)
     d_table = delay.value or 0.0
+    n_fwd, n_rev = int(np.sum(steps.direction[used] > 0)), int(np.sum(steps.direction[used] < 0))
     assumptions = OrdinaryAssumptions(
         pole_pairs=pole_pairs,
         pole_pairs_source=p_source,

@@ -7,7 +7,7 @@ It chooses the route itself:
 * **ordinary run** (a capture of the Hall lines alone: no segments, or no forward segment without
   an encoder; ``ordinary.ordinary_calibration``).
 
-Both routes apply the same bounds and refusals (``ordinary``'s ``pole_table_refusal``,
+Both routes apply the same bounds and refusals (``refusals``: ``pole_table_refusal``,
 ``installation_refusal``, ``delay_refusal`` with ``delay_bound_s``): a value beyond its physical
 bound is refused with the reason and never written as a table entry. Both return a
 typed ``Calibration`` (``result``), whose ``to_json()`` is what ``hil calibrate --json`` writes (the
@@ -18,15 +18,8 @@ from __future__ import annotations
 
 from .corrections import SENSORS
 from .fit import fit_corrections
-from .ordinary import (
-    Circuit,
-    delay_bound_s,
-    delay_refusal,
-    hall_steps,
-    installation_refusal,
-    ordinary_calibration,
-    pole_table_refusal,
-)
+from .ordinary import hall_steps, ordinary_calibration
+from .refusals import Circuit, delay_bound_s, delay_refusal, installation_refusal, pole_table_refusal
 from .result import ROUTES, Calibration, Refusal
 
 __all__ = ["ROUTES", "Calibration", "Circuit", "calibrate"]

@@ -15,7 +15,7 @@ from typing import Callable
 
 import numpy as np
 
-from plant_models.effects import EFFECTS, Effect
+from plant_models.effects import EFFECTS, Effect, OrdinarySignature
 
 
 @dataclass(frozen=True)
@@ -71,4 +71,40 @@ CANDIDATES: Mapping[str, Candidate] = _Candidates()
 
 #: Library effects with no mean edge-angle signature are diagnosed elsewhere: edge_jitter as a
 #: variance effect (diagnose._noise_gap), the electrical and mechanical ones from the sampled
-#: signals (samples.py); dead_time leaves no trace in the format's signals (samples.NO_TRACE).
+#: signals (samples.py); dead_time leaves no trace in the format's signals (its declared ``no_trace``).
+
+
+#: beyond the effect library: the rotor's speed ripple locked to the six-step commutation (the
+#: commutation torque ripple over J w^2), largest at low speed. It moves the rotor, not a sensor,
+#: and no plant effect makes it (the electrical plant's commutation ripple is its physics, not a
+#: deviation to switch on), so it is a candidate of the ordinary run alone, where capture times
+#: must tell it from the sensors' effects (it is accepted on real captures: docs/real-captures.md)
+ROTOR_MOTION = {
+    "torque_ripple": OrdinarySignature(
+        "ripple", "ripple_", "angle_at_10_hz_e_contrasts_deg_e",
+        "per sensor boundary, sum zero, falls with 1/speed^2: the rotor's sector-locked speed ripple",
+    ),
+}
+
+
+class _OrdinaryCandidates(Mapping):
+    """The ordinary run's candidates (capture times alone): the registered effects that declare an
+    ``ordinary`` signature, in the registry's order, then the rotor's motion (ROTOR_MOTION); read
+    on each use."""
+
+    def __getitem__(self, name: str) -> OrdinarySignature:
+        cls = EFFECTS.get(name)
+        sig = cls.ordinary if cls is not None else ROTOR_MOTION.get(name)
+        if sig is None:
+            raise KeyError(name)
+        return sig
+
+    def __iter__(self) -> Iterator[str]:
+        yield from (name for name, cls in EFFECTS.items() if cls.ordinary is not None)
+        yield from ROTOR_MOTION
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+ORDINARY_CANDIDATES: Mapping[str, OrdinarySignature] = _OrdinaryCandidates()

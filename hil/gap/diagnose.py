@@ -23,6 +23,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from hil.recording.format import Recording
+from plant_models.effects import EFFECTS
 
 from ..calibration.stats import chi2_p_value
 from .candidates import CANDIDATES
@@ -43,7 +44,7 @@ from .result import (
     gap_metric,
     knob,
 )
-from .samples import NO_TRACE, SAMPLE_EFFECTS, DomainDiagnosis, diagnose_samples
+from .samples import EFFECT_DOMAIN, DomainDiagnosis, diagnose_samples
 from .selection import (
     ALPHA,
     BlockSums,
@@ -515,11 +516,11 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
     domains = diagnose_samples(rec, model, edge_error_deg_e)
     d.samples = domains
     assessed = {n for dom in domains.values() for n in dom.first_scores}
-    d.not_assessed = [f"{n}: {reason}" for n, reason in NO_TRACE.items()]
+    d.not_assessed = [f"{n}: {cls.no_trace}" for n, cls in EFFECTS.items() if cls.no_trace]
     d.not_assessed += [
         f"{n}: needs samples.csv with phase currents and terminal voltages (speed and the reference encoder for "
         "cogging)"
-        for n in SAMPLE_EFFECTS
+        for n in EFFECT_DOMAIN
         if n not in assessed
     ]
     if not domains:

@@ -5,13 +5,15 @@ The model a simulation makes of such a capture is an ideal motor with ideal sens
 the RMS over edges of the systematic edge-angle residual (cell means per held-out stretch,
 sensor boundary, direction and speed band, less their noise), in electrical degrees.
 
-The candidates are the effects capture times can see, each a set of columns of the joint fit of
-:mod:`hil.calibration.ordinary`: ``installation_offset`` (per sensor, both edges alike),
-``hysteresis`` (per sensor, rise minus fall, constant in angle: asymmetric switching points),
-``conditioning_delay`` (rise minus fall, constant in time: grows with speed), ``pole_offset``
-(per magnet pole, when the pole count is stated or found) and ``torque_ripple`` (beyond the
-effect library: the rotor's speed ripple locked to the six-step commutation, an angle per sector
-boundary falling with 1/speed^2; it is the rotor that moves, so calibration never corrects it).
+The candidates are the effects capture times can see, each declaring its set of columns of the
+joint fit of :mod:`hil.calibration.ordinary` (``Effect.ordinary``; ``hil.gap.candidates``
+reads them): ``installation_offset`` (per sensor, both edges alike), ``hysteresis`` (per sensor,
+rise minus fall, constant in angle: asymmetric switching points), ``conditioning_delay`` (rise
+minus fall, constant in time: grows with speed), ``pole_offset`` (per magnet pole, when the pole
+count is stated or found), and ``torque_ripple`` (beyond the effect library,
+``candidates.ROTOR_MOTION``: the rotor's speed ripple locked to the six-step commutation, an
+angle per sector boundary falling with 1/speed^2; it is the rotor that moves, so calibration
+never corrects it).
 They are chosen by the selection engine (hil.gap.selection); for the held-out check the gap
 test, knots, pole count, effects and values are chosen on every other stretch of time alone and
 judged on the stretches held out, where only the trajectory is refitted. What capture times
@@ -42,6 +44,7 @@ from hil.recording.format import Recording
 
 from ..verdicts.plots import pyplot
 from ..calibration.stats import chi2_p_value, inliers
+from .candidates import ORDINARY_CANDIDATES
 from .diagnose import Diagnosis, RankedEffect
 from .relevance import Relevance, edge_relevance
 from .result import (
@@ -80,14 +83,6 @@ N_SPEED_BANDS = 4
 #: two estimates this correlated cannot be told apart by this capture
 CONFOUND_CORR = 0.9
 
-CANDIDATE_EFFECTS = {
-    "installation_offset": Effects(static=False, delay=False, install=True),
-    "hysteresis": Effects(static=False, delay=False, switching=True),
-    "conditioning_delay": Effects(static=False, delay=True),
-    # beyond the effect library's list: the rotor's speed ripple locked to the six-step
-    # commutation (torque ripple over J w^2), largest at low speed; it moves the rotor, not a sensor
-    "torque_ripple": Effects(static=False, delay=False, ripple=True),
-}
 NOT_ASSESSED = [
     "a lag common to every edge (the common part of hysteresis and of the conditioning delays, armature "
     "reaction at a load that follows speed): invisible in capture times; needs an encoder",
@@ -100,20 +95,19 @@ NOT_ASSESSED = [
 
 
 def _merge(names: list[str], pole_pairs: int | None) -> Effects:
+    """The calibration's fit with the column sets the candidates ``names`` declare switched on."""
     e = Effects(static=False, delay=False)
     for n in names:
-        if n == "pole_offset":
-            e = replace(e, pole_pairs=pole_pairs)
-        else:
-            c = CANDIDATE_EFFECTS[n]
-            e = replace(
-                e,
-                install=e.install or c.install,
-                switching=e.switching or c.switching,
-                delay=e.delay or c.delay,
-                ripple=e.ripple or c.ripple,
-            )
+        flag = ORDINARY_CANDIDATES[n].columns
+        e = replace(e, pole_pairs=pole_pairs) if flag == "pole_pairs" else replace(e, **{flag: True})
     return e
+
+
+def candidate_names(pole_pairs: int | None) -> list[str]:
+    """The ordinary run's candidates in the order they are tried: those a pole count enables last."""
+    names = list(ORDINARY_CANDIDATES)
+    needs_poles = [n for n in names if ORDINARY_CANDIDATES[n].columns == "pole_pairs"]
+    return [n for n in names if n not in needs_poles] + (needs_poles if pole_pairs else [])
 
 
 def _stretched(steps: HallSteps, n: int) -> tuple[HallSteps, np.ndarray]:
@@ -174,23 +168,13 @@ def _chi2(fit: Fit, ref: Fit) -> tuple[float, int]:
 
 
 def _params(name: str, fit: Fit) -> tuple[dict, dict]:
-    """The effect's parameters and their standard errors, named with their units."""
-
-    def pick(prefix):
-        got = [(k, *fit.get(k)) for k in fit.names if k.startswith(prefix)]
-        return {k: float(v) for k, v, _ in got}, {k: float(e) for k, _, e in got}
-
-    if name == "conditioning_delay":
-        v, e = fit.get("delay_diff_s")
-        return {"rise_minus_fall_delay_s": v}, {"rise_minus_fall_delay_s": e}
-    prefix, key = {
-        "hysteresis": ("switch_", "rise_minus_fall_deg_e"),
-        "torque_ripple": ("ripple_", "angle_at_10_hz_e_contrasts_deg_e"),
-        "installation_offset": ("inst_", "relative_offset_contrasts_deg_e"),
-        "pole_offset": ("pole_", "pole_offset_contrasts_deg_e"),
-    }[name]
-    v, e = pick(prefix)
-    return {key: v}, {key: e}
+    """The effect's parameters and their standard errors, named with their units (its declaration)."""
+    sig = ORDINARY_CANDIDATES[name]
+    if sig.scalar:
+        v, e = fit.get(sig.coefficients)
+        return {sig.key: v}, {sig.key: e}
+    got = [(k, *fit.get(k)) for k in fit.names if k.startswith(sig.coefficients)]
+    return {sig.key: {k: float(v) for k, v, _ in got}}, {sig.key: {k: float(e) for k, _, e in got}}
 
 
 @dataclass
@@ -222,7 +206,7 @@ def _pipeline(
     pole_pairs, p_note = stated_pole_pairs, "stated in the recording"
     if not pole_pairs:
         pole_pairs, p_note = choose_pole_pairs(choice, tick, base, kc)
-    names = list(CANDIDATE_EFFECTS) + (["pole_offset"] if pole_pairs else [])
+    names = candidate_names(pole_pairs)
 
     def fit(effects: list[str]) -> Fit:
         return fit_ordinary(steps, _merge(effects, pole_pairs), tick_s=tick, knot_cycles=kc)

@@ -22,8 +22,11 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
+
+from plant_models.effects import SampleSignature
 
 FRACTION = 0.1                    #: share of a budget an effect must reach to matter
 COMMUTATION_ANGLE_BUDGET_DEG_E = 0.5  #: hil.verdicts.budgets default commutation_angle_p99
@@ -87,60 +90,39 @@ class OperatingEnvelope:
     max_current_a: float
 
 
-def sample_relevance(name: str, params: dict, motor, env: OperatingEnvelope) -> Relevance:
-    """Floor test of a sampled-signal effect's fitted parameters (``motor``: NominalMotor)."""
-    if name == "winding_temperature":
-        # at a fixed duty, u = 2 R I + 2 k_e w: a resistance change dR moves the speed by dR I / k_e
-        rel = float(
-            np.max(
-                np.abs(params["resistance_delta_ohm"])
-                * env.current_a
-                / (motor.ke_v_s_per_rad * np.maximum(env.speed_rad_s, 1e-9))
-            )
-        )
-        return Relevance(
-            rel,
-            FRACTION * SPEED_BUDGET,
-            "1",
-            "relative speed change at a fixed duty (most sensitive operating point); "
-            f"floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget",
-        )
-    if name == "magnet_temperature":
-        rel = abs(params["ke_delta_v_s_per_rad"]) / motor.ke_v_s_per_rad  # speed per duty goes as 1 / k_e
-        return Relevance(
-            float(rel),
-            FRACTION * SPEED_BUDGET,
-            "1",
-            f"relative speed change at a fixed duty; floor {FRACTION:.0%} of a {SPEED_BUDGET:.0%} speed budget",
-        )
-    if name == "saturation":
-        knee, floor = params["saturation_current_a"], params["min_inductance_fraction"]
-        drop = 1.0 - max(floor, 1.0 / (1.0 + (env.max_current_a / knee) ** 2))
-        return Relevance(
-            float(drop),
-            FRACTION * INDUCTANCE_TOLERANCE,
-            "1",
-            "inductance drop at the largest measured current; "
-            f"floor {FRACTION:.0%} of a {INDUCTANCE_TOLERANCE:.0%} inductance tolerance",
-        )
-    if name == "cogging_torque":
-        top = float(np.max(env.load_torque_n_m)) if env.load_torque_n_m.size else 0.0
-        return Relevance(
-            float(params["amplitude_n_m"]),
-            FRACTION * TORQUE_RIPPLE_BUDGET * top,
-            "N m",
-            f"peak cogging torque; floor {FRACTION:.0%} of a {TORQUE_RIPPLE_BUDGET:.0%} torque-ripple budget of the "
-            "largest load torque",
-        )
-    raise KeyError(name)
+@dataclass(frozen=True)
+class Budget:
+    """A budget a sampled-signal effect disturbs (``SampleSignature.budget`` names it): its share
+    of a reference (1, or a figure of the recording's operating envelope), in ``unit``."""
+
+    share: float
+    unit: str
+    words: str  #: the budget as the floor's meaning names it
+    reference: Callable[[OperatingEnvelope], float] | None = None  #: None: the share is the budget
 
 
-def possible_cogging_orders(pole_pairs: int, max_order: int) -> tuple[int, ...]:
-    """Cogging periods per turn a three-phase motor with ``2 p`` poles can have.
+def _largest_load_torque(env: OperatingEnvelope) -> float:
+    return float(np.max(env.load_torque_n_m)) if env.load_torque_n_m.size else 0.0
 
-    The cogging fundamental is lcm(slots, poles) per turn; magnet and slot imperfections add
-    harmonics at multiples of the pole count and of the slot count, and a three-phase stator's
-    slot count is a multiple of 3. Other orders (for example p, the electrical frequency) are
-    ripple of another cause: an offset of a current sensor makes a torque error at exactly the
-    electrical frequency in the speed residual."""
-    return tuple(n for n in range(1, max_order + 1) if n % (2 * pole_pairs) == 0 or n % 3 == 0)
+
+BUDGETS = {
+    "speed": Budget(SPEED_BUDGET, "1", f"{SPEED_BUDGET:.0%} speed budget"),
+    "inductance": Budget(INDUCTANCE_TOLERANCE, "1", f"{INDUCTANCE_TOLERANCE:.0%} inductance tolerance"),
+    "torque": Budget(TORQUE_RIPPLE_BUDGET, "N m", f"{TORQUE_RIPPLE_BUDGET:.0%} torque-ripple budget of the largest "
+                     "load torque", _largest_load_torque),
+}
+
+
+def sample_relevance(sig: SampleSignature, params: dict, motor, env: OperatingEnvelope) -> Relevance:
+    """Floor test of a sampled-signal effect's fitted parameters (``motor``: NominalMotor): what its
+    declaration says it disturbs, against ``FRACTION`` of that budget."""
+    budget = BUDGETS[sig.budget]
+    floor = FRACTION * budget.share
+    if budget.reference is not None:
+        floor = floor * budget.reference(env)
+    return Relevance(
+        float(sig.disturbance(params, motor, env)),
+        floor,
+        budget.unit,
+        f"{sig.disturbs}; floor {FRACTION:.0%} of a {budget.words}",
+    )

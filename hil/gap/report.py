@@ -19,7 +19,7 @@ from .candidates import CANDIDATES
 from .diagnose import Diagnosis, _design, build_cells
 from .fitting import wls as _wls
 from .residuals import model_prediction, residuals
-from .result import ORDINARY_MEANING, ORDINARY_ROUTE, FittedEffect, SplitHalf
+from .result import ORDINARY_ROUTE, FittedEffect, SplitHalf, ordinary_meaning
 
 #: the HTML lives in hil/templates (package data), beside the compliance report's
 TEMPLATES = Path(__file__).resolve().parent.parent / "templates"
@@ -326,7 +326,7 @@ def write_html(path, name, rec, diagnosis: Diagnosis, model=None) -> Path:
         segment_ids=rec.segment_ids,
         repeatability=repeatability_rows(diagnosis.repeatability),
         params_table=lambda a: Markup(
-            params.render(a=a, meaning=ORDINARY_MEANING.get(a.effect) if ordinary else None, rows=param_rows(a))
+            params.render(a=a, meaning=ordinary_meaning(a.effect) if ordinary else None, rows=param_rows(a))
         ),
     )
     path = Path(path)

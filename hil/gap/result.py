@@ -11,6 +11,7 @@ from dataclasses import asdict, dataclass, field
 
 from plant_models.effects import EFFECTS
 
+from .candidates import ORDINARY_CANDIDATES
 from .relevance import Relevance
 
 #: a parameter's value: a number, one per sensor or pole, or named contrasts
@@ -18,21 +19,16 @@ ParamValue = float | list[float] | dict[str, float]
 
 ORDINARY_ROUTE = "ordinary run"
 
-#: what the parameters of an effect an ordinary run fits describe (its JSON rows' ``meaning``)
-ORDINARY_MEANING = {
-    "hysteresis": "per sensor and direction, rise minus fall, constant in angle",
-    "torque_ripple": "per sensor boundary, sum zero, falls with 1/speed^2: the rotor's sector-locked speed ripple",
-    "installation_offset": "per sensor, sum zero",
-    "pole_offset": "per pole boundary, sum zero",
-    "conditioning_delay": "rising edges' delay minus falling edges' delay, constant in time",
-}
+def ordinary_meaning(name: str) -> str | None:
+    """What the parameters of an effect an ordinary run fits describe (its JSON rows' ``meaning``)."""
+    sig = ORDINARY_CANDIDATES.get(name)
+    return sig.meaning if sig else None
 
-#: an ordinary run's own knobs: capture times alone, so the experiment is a speed sweep
-ORDINARY_KNOBS = {
-    "conditioning_delay/hysteresis": "a speed sweep: a delay grows with speed, asymmetric switching points do not",
-    "conditioning_delay/torque_ripple": "a speed sweep at another load: the ripple falls with 1/speed^2",
-    "hysteresis/torque_ripple": "a speed sweep: the ripple falls with 1/speed^2, switching points stay",
-}
+
+def ordinary_knob(a: str, b: str) -> str | None:
+    """An ordinary run's own knob for the pair (capture times alone: the experiment is a speed sweep)."""
+    sig = ORDINARY_CANDIDATES.get(a)
+    return sig.knobs.get(b) if sig else None
 
 
 @dataclass(frozen=True)
@@ -135,7 +131,7 @@ class Confounded:
 
     def knob(self, route: str) -> str:
         """The experiment that separates them (an ordinary run has its own for some pairs)."""
-        own = ORDINARY_KNOBS.get("/".join(self.names)) if route == ORDINARY_ROUTE else None
+        own = ordinary_knob(*self.names) if route == ORDINARY_ROUTE else None
         return own or knob(*(self.knob_order or self.names))
 
 
@@ -157,8 +153,9 @@ class FittedEffect:
         out: dict = {"effect": self.effect, "params": self.params}
         if self.stderr is not None:
             out["stderr"] = self.stderr
-        if route == ORDINARY_ROUTE and self.effect in ORDINARY_MEANING:
-            out["meaning"] = ORDINARY_MEANING[self.effect]
+        meaning = ordinary_meaning(self.effect) if route == ORDINARY_ROUTE else None
+        if meaning:
+            out["meaning"] = meaning
         if self.relevance is not None:
             out["relevance"] = self.relevance.to_json()
         return out

@@ -26,6 +26,7 @@ duty is not part of the format.
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -38,36 +39,51 @@ from bldc.edges import electrical_speed_hz
 from bldc.hall import BEMF_ZERO_DEG_E, SENSOR_POSITION_DEG_E, trapezoid
 from bldc.units import rpm_to_rad_per_s
 from hil.recording.format import Recording
+from plant_models.effects import EFFECTS, SampleSignature
 
 from ..calibration.stats import chi2_p_value
 from .fitting import cell_rms
 from .fitting import wls as _wls
-from .relevance import OperatingEnvelope, possible_cogging_orders, sample_relevance
+from .relevance import OperatingEnvelope, sample_relevance
 from .result import FittedEffect, HeldOut, OrderSpectrum, SampleLocalisation, SegmentResidual, gap_metric
 from .selection import ALPHA, BlockSums, Selection, Trial, confounded_rivals, forward_select, heldout_shrink
 
-ALPHA_CU_PER_K = 0.00393     #: copper (the library's default)
-ALPHA_BR_PER_K = -0.0012     #: NdFeB remanence (the library's default)
-SATURATION_FLOOR = 0.1       #: L(i)/L floor assumed when fitting the knee (the library's lower bound)
 ELECTRICAL_BINS = 12         #: 30 deg_e per voltage cell
 MECHANICAL_BINS = 96         #: speed cells per turn: cogging orders up to 48 are resolved
-MAX_COGGING_ORDER = 48
 JUMP_FRACTION = 0.08         #: a terminal-voltage step above this share of V_dc marks a switching event
 RAIL_TOLERANCE = 0.02        #: a terminal this close to the highest / lowest (share of their spread) sits at that rail
-#: the residual in which each sampled-signal effect shows
+#: what the cells resolve, for the shape grids of the effects' sample signatures
+LIMITS = {"max_periods_per_rev": MECHANICAL_BINS // 2}
 #: nuisance of the voltage residual without an encoder: the Hall reference's common angle offset
 REFERENCE = "hall_reference_offset"
-EFFECT_DOMAIN = {
-    "winding_temperature": "voltage",
-    "magnet_temperature": "voltage",
-    "saturation": "voltage",
-    "cogging_torque": "speed",
-}
-SAMPLE_EFFECTS = tuple(EFFECT_DOMAIN)
-NO_TRACE = {
-    "dead_time": "no trace in the recorded signals: the terminal voltages already carry the dead-time loss "
-    "and the duty is not in hil-recording/1; record the duty (or V_dc and f_pwm changes) to see it"
-}
+
+
+#: the residuals of the sampled signals, in the order their effects are listed, reported and validated
+DOMAINS = ("voltage", "speed")
+
+
+class _SampleEffects(Mapping):
+    """The registered effects that declare a sample signature (``Effect.sample_signature``), each
+    with the residual it shows in ("voltage" or "speed"): by domain (``DOMAINS``), then in the
+    registry's order; read on each use."""
+
+    def __getitem__(self, name: str) -> str:
+        cls = EFFECTS.get(name)
+        sig = cls.sample_signature() if cls is not None else None
+        if sig is None:
+            raise KeyError(name)
+        return sig.domain
+
+    def __iter__(self) -> Iterator[str]:
+        domain = {name: sig.domain for name, cls in EFFECTS.items() if (sig := cls.sample_signature()) is not None}
+        return iter(sorted(domain, key=lambda name: DOMAINS.index(domain[name])))  # stable: registry order within
+
+    def __len__(self) -> int:
+        return sum(1 for _ in self)
+
+
+#: the residual in which each sampled-signal effect shows
+EFFECT_DOMAIN: Mapping[str, str] = _SampleEffects()
 
 
 @dataclass(frozen=True)
@@ -111,16 +127,6 @@ class NominalMotor:
             float(m.get("friction_n_m_s_per_rad", 0.0)),
             float(m["supply_v"]),
         )
-
-
-def flux_deficit(i: np.ndarray, inductance_h: float, knee_a: float, floor: float = SATURATION_FLOOR) -> np.ndarray:
-    """Psi(i) - L i for L(i) = L max(floor, 1 / (1 + (i / knee)^2)) (Psi = integral of L(i) di)."""
-    i_floor = knee_a * math.sqrt(1.0 / floor - 1.0)
-    a = np.abs(i)
-    psi = np.where(
-        a <= i_floor, knee_a * np.arctan(a / knee_a), knee_a * math.atan(i_floor / knee_a) + floor * (a - i_floor)
-    )
-    return inductance_h * (np.sign(i) * psi - i)
 
 
 # --- residuals -----------------------------------------------------------------------------
@@ -280,11 +286,8 @@ def voltage_residuals(
     r = {k: np.concatenate(v) for k, v in rows.items()}
     if r["y"].size == 0:
         return None
-    regs = {
-        "winding_temperature": r["i"],
-        "magnet_temperature": r["e"],
-        "_sat_i": np.column_stack([r["i0x"], r["i1x"], r["i0y"], r["i1y"], r["h"]]),
-    }
+    # the rows the effects' sample signatures read (SampleSignature)
+    regs = {k: r[k] for k in ("i", "e", "i0x", "i1x", "i0y", "i1y", "h")}
     if hall_reference:
         regs[REFERENCE] = r["ed"]
     return SampleResiduals("voltage", "V", r["y"], r["segment"], r["bin"], r["replicate"], regs)
@@ -326,8 +329,8 @@ def speed_residuals(
     if not ys:
         return None
     regs = {
-        "_theta_m": np.concatenate(th_rows),
-        "_t": np.concatenate(t_rows),
+        "theta_m": np.concatenate(th_rows),
+        "t": np.concatenate(t_rows),
         "_integration_error": np.concatenate(err_rows),
     }
     return SampleResiduals(
@@ -421,28 +424,7 @@ class SampleCandidate:
     n_coef: int = 1  #: fitted coefficients (0: the column enters with coefficient 1, only its shape is fitted)
     #: shape parameters refined by a bounded scalar search around the best grid point
     refine: bool = False
-
-
-def _winding_columns(r, cells, _):
-    return cells.average(r.regressors["winding_temperature"])[:, None]
-
-
-def _magnet_columns(r, cells, _):
-    return cells.average(r.regressors["magnet_temperature"])[:, None]
-
-
-def _saturation_columns(motor: NominalMotor):
-    def columns(r, cells, knee_a):
-        i0x, i1x, i0y, i1y, h = r.regressors["_sat_i"].T
-        d = (
-            flux_deficit(i1x, motor.inductance_h, knee_a)
-            - flux_deficit(i0x, motor.inductance_h, knee_a)
-            - flux_deficit(i1y, motor.inductance_h, knee_a)
-            + flux_deficit(i0y, motor.inductance_h, knee_a)
-        ) / h
-        return cells.average(d)[:, None]
-
-    return columns
+    signature: SampleSignature | None = None  #: the effect's declaration (None: the Hall reference's nuisance)
 
 
 def _detrend(t: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -451,88 +433,48 @@ def _detrend(t: np.ndarray, y: np.ndarray) -> np.ndarray:
     return y - np.polyval(np.polyfit(tc, y, 2), tc)
 
 
-def _cogging_columns(motor: NominalMotor):
-    def columns(r, cells, order):
-        # the speed the cogging torque A sin(n theta + phi) takes away, integrated along the
-        # measured trajectory exactly as the residual was: -(1/J) int sin / cos, detrended
-        th, t = r.regressors["_theta_m"], r.regressors["_t"]
-        a = np.empty_like(th)
-        b = np.empty_like(th)
-        for k in np.unique(r.segment):
-            sel = r.segment == k
-            a[sel] = _detrend(
-                t[sel], -cumulative_trapezoid(np.sin(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2
+def _speed_taken(r: SampleResiduals, torque: np.ndarray, motor: NominalMotor) -> np.ndarray:
+    """The speed a torque column takes away, integrated along the measured trajectory exactly as
+    the residual was: -(1/J) int torque dt per segment, detrended."""
+    t = r.regressors["t"]
+    out = np.empty_like(torque)
+    for k in np.unique(r.segment):
+        sel = r.segment == k
+        for j in range(torque.shape[1]):
+            out[sel, j] = _detrend(
+                t[sel], -cumulative_trapezoid(torque[sel, j], t[sel], initial=0.0) / motor.inertia_kg_m2
             )
-            b[sel] = _detrend(
-                t[sel], -cumulative_trapezoid(np.cos(order * th[sel]), t[sel], initial=0.0) / motor.inertia_kg_m2
-            )
-        return np.column_stack([cells.average(a), cells.average(b)])
+    return out
+
+
+def _block(sig: SampleSignature, motor: NominalMotor):
+    """The cell design block of an effect's declared per-row columns."""
+
+    def columns(r, cells, shape):
+        x = sig.columns(r.regressors, shape, motor)
+        if r.domain == "speed":
+            x = _speed_taken(r, x, motor)
+        return np.column_stack([cells.average(x[:, j]) for j in range(x.shape[1])])
 
     return columns
 
 
 def sample_candidates(motor: NominalMotor) -> dict[str, SampleCandidate]:
-    r0, ke0 = motor.resistance_ohm, motor.ke_v_s_per_rad
-    return {
+    """The Hall reference's nuisance, then every registered effect's sample signature."""
+    out = {
         REFERENCE: SampleCandidate(
             REFERENCE,
             "voltage",
             lambda r, cells, _: cells.average(r.regressors[REFERENCE])[:, None],
             lambda c, _, m: {"offset_deg_e": float(c[0])},
             lambda c, se, m: True,
-        ),
-        "winding_temperature": SampleCandidate(
-            "winding_temperature",
-            EFFECT_DOMAIN["winding_temperature"],
-            _winding_columns,
-            lambda c, _, m: {
-                "temperature_rise_k": float(c[0] / (m.resistance_ohm * ALPHA_CU_PER_K)),
-                "alpha_per_k": ALPHA_CU_PER_K,
-                "resistance_delta_ohm": float(c[0]),
-            },
-            lambda c, se, m: bool(
-                -40 - 3 * se[0] / (r0 * ALPHA_CU_PER_K)
-                <= c[0] / (r0 * ALPHA_CU_PER_K)
-                <= 150 + 3 * se[0] / (r0 * ALPHA_CU_PER_K)
-            ),
-        ),
-        "magnet_temperature": SampleCandidate(
-            "magnet_temperature",
-            EFFECT_DOMAIN["magnet_temperature"],
-            _magnet_columns,
-            lambda c, _, m: {
-                "temperature_rise_k": float(c[0] / ALPHA_BR_PER_K),
-                "alpha_br_per_k": ALPHA_BR_PER_K,
-                "ke_delta_v_s_per_rad": float(c[0] * ke0),
-            },
-            lambda c, se, m: bool(
-                -40 - 3 * se[0] / abs(ALPHA_BR_PER_K) <= c[0] / ALPHA_BR_PER_K <= 150 + 3 * se[0] / abs(ALPHA_BR_PER_K)
-            ),
-        ),
-        "saturation": SampleCandidate(
-            "saturation",
-            EFFECT_DOMAIN["saturation"],
-            _saturation_columns(motor),
-            lambda c, knee, m: {"saturation_current_a": float(knee), "min_inductance_fraction": SATURATION_FLOOR},
-            lambda c, se, m: True,
-            grid=tuple(np.geomspace(0.1, 1000.0, 41)),
-            n_coef=0,
-            refine=True,
-        ),
-        "cogging_torque": SampleCandidate(
-            "cogging_torque",
-            EFFECT_DOMAIN["cogging_torque"],
-            _cogging_columns(motor),
-            lambda c, n, m: {
-                "amplitude_n_m": float(np.hypot(*c)),
-                "periods_per_rev": int(n),
-                "phase_rad": float(np.mod(np.arctan2(c[1], c[0]), 2 * np.pi)),
-            },
-            lambda c, se, m: bool(np.hypot(*c) <= 0.1 + 3 * np.hypot(*se)),
-            grid=possible_cogging_orders(motor.pole_pairs, MAX_COGGING_ORDER),
-            n_coef=2,
-        ),
+        )
     }
+    for name in EFFECT_DOMAIN:
+        sig = EFFECTS[name].sample_signature()
+        out[name] = SampleCandidate(name, sig.domain, _block(sig, motor), sig.params, sig.physical,
+                                    tuple(sig.grid(motor, LIMITS)), sig.n_coef, sig.refine, sig)
+    return out
 
 
 # --- fitting and selection -----------------------------------------------------------------
@@ -739,7 +681,7 @@ def _rows(cands, fit: _Fit, names, shapes, motor, env):
             continue
         coef, se = _own(fit, cands, n)
         params = cands[n].params(coef, s, motor)
-        rel = sample_relevance(n, params, motor, env) if env is not None else None
+        rel = sample_relevance(cands[n].signature, params, motor, env) if env is not None else None
         row = FittedEffect(n, params, _stderr(cands[n], coef, se, s, motor), rel)
         (accepted_rows if row.relevant else below).append(row)
     return accepted_rows, below
@@ -753,7 +695,7 @@ def _stderr(cand, coef, se, shape, motor) -> dict:
     lo, hi = cand.params(coef - se, shape, motor), cand.params(coef + se, shape, motor)
     out = {}
     for k, v in cand.params(coef, shape, motor).items():
-        if isinstance(v, float) and k not in ("alpha_per_k", "alpha_br_per_k") and not k.startswith("phase"):
+        if isinstance(v, float) and k not in cand.signature.constants:
             out[k] = abs(hi[k] - lo[k]) / 2.0
     return out
 

@@ -34,7 +34,6 @@ from .diagnose import diagnose_segments
 from .field_causes import plan_field_cases, run_field_case
 from .samples import (
     EFFECT_DOMAIN,
-    SAMPLE_EFFECTS,
     NominalMotor,
     _angles,
     _speed_rad_s,
@@ -61,7 +60,7 @@ def edge_effects() -> tuple[str, ...]:
 
 def effect_names() -> tuple[str, ...]:
     """Every effect the validation withholds: the edge effects, then the sampled-signal ones."""
-    return edge_effects() + SAMPLE_EFFECTS
+    return edge_effects() + tuple(EFFECT_DOMAIN)
 
 
 SAMPLE_OUT_OF_LIBRARY = ("current_offset", "current_gain")
@@ -101,7 +100,7 @@ def make_case(
     when an effect or ``ool`` needs the sampled signals, or when ``electrical`` asks for it."""
     base = base or paper_bench()
     if electrical is None:
-        electrical = any(n in SAMPLE_EFFECTS for n in effects_withheld) or ool in SAMPLE_OUT_OF_LIBRARY
+        electrical = any(n in EFFECT_DOMAIN for n in effects_withheld) or ool in SAMPLE_OUT_OF_LIBRARY
     rng = np.random.default_rng(seed)
     noise = [fx.EdgeJitter(time_rms_s=JITTER_S)]
     ops = profile(base)
@@ -411,7 +410,7 @@ def _run_case(job) -> dict:
         perr = param_error(truth[0], hit) if hit else None
         if type(truth[0]).validation == "jitter":
             shrink = d.noise_gap.heldout_shrink
-        elif truth[0].name in SAMPLE_EFFECTS:
+        elif truth[0].name in EFFECT_DOMAIN:
             domain = d.samples.get(EFFECT_DOMAIN[truth[0].name])
             shrink = domain.heldout_shrink if domain else None
     return {

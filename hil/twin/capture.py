@@ -308,6 +308,8 @@ class Twin:
     analysis: CaptureAnalysis
     #: measured effects no calibration table holds, left out of the plant (UNCALIBRATABLE)
     left_out: list[fx.Effect] = field(default_factory=list)
+    #: the effects taken from the base as they are (the rest are measured)
+    from_base: list[str] = field(default_factory=list)
 
 
 def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
@@ -316,8 +318,6 @@ def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
     return min(max(v, lo), hi)
 
 
-#: the effects a controller's calibration table can hold: a twin's default plant
-TABLE_EFFECTS = ("installation_offset", "pole_offset", "switching_asymmetry", "conditioning_delay")
 #: what a capture shows that no calibration table holds, each with the option that adds it to the
 #: plant (docs/twin.md, "Why the default twin is what a table holds")
 UNCALIBRATABLE = {"sensor_pole_offset": "--with-sensor-pole-pattern", "switching_asymmetry": "--with-sensor-asymmetry",
@@ -342,14 +342,14 @@ def uncalibratable_effects(an: CaptureAnalysis, pole_pairs: int,
     out: dict[str, fx.Effect] = {}
     pattern = an.extra.get("sensor_pole_offset", {})
     if pattern.get("kept") and len(pattern["table_deg_e"]) == 6 * pole_pairs:
-        lim = fx.SensorPoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
+        lim = fx.bounds_of(fx.SensorPoleOffset, "offset_deg_e")[1]
         out["sensor_pole_offset"] = fx.SensorPoleOffset(offset_deg_e=tuple(
             _clip(v, -lim, lim, f"sensor_pole_offset_deg_e[{j}]", notes) for j, v in enumerate(pattern["table_deg_e"])))
     out["switching_asymmetry"] = fx.SwitchingAsymmetry(
         rise_minus_fall_deg_e=tuple(an.asymmetry_deg_e[s][0] for s in SENSORS))
     nm = an.noise
-    lim_t = fx.EdgeJitter.__dataclass_fields__["time_rms_s"].metadata["high"]
-    lim_a = fx.EdgeJitter.__dataclass_fields__["angle_rms_deg_e"].metadata["high"]
+    lim_t = fx.bounds_of(fx.EdgeJitter, "time_rms_s")[1]
+    lim_a = fx.bounds_of(fx.EdgeJitter, "angle_rms_deg_e")[1]
     out["edge_jitter"] = fx.EdgeJitter(
         time_rms_s=_clip(nm.time_rms_s, 0.0, lim_t, "edge_jitter.time_rms_s", notes),
         angle_rms_deg_e=_clip(nm.angle_rms_deg_e, 0.0, lim_a, "edge_jitter.angle_rms_deg_e", notes),
@@ -377,6 +377,179 @@ def suite_speed_notes(pole_pairs: int, delay_s: float, top_speed_rpm: float, cap
     return notes
 
 
+@dataclass
+class _Making:
+    """A twin in the making: its effects and what it says of each (measured, assumed, notes)."""
+
+    base: PlantConfig
+    base_name: str
+    effects: list[fx.Effect] = field(default_factory=list)
+    measured: list[tuple[str, str]] = field(default_factory=list)
+    assumed: list[tuple[str, str]] = field(default_factory=list)
+    notes: list[str] = field(default_factory=list)
+    from_base: list[str] = field(default_factory=list)  #: the effects taken from the base as they are
+
+    def take(self, effect: fx.Effect) -> None:
+        self.effects.append(effect)
+        self.from_base.append(effect.name)
+
+
+def _pole_pairs(an: CaptureAnalysis, m: _Making) -> int:
+    """The capture's pole pairs, or the base's when it shows no pole pattern."""
+    p = an.pole_pairs or m.base.motor.pole_pairs
+    if an.pole_pairs:
+        m.measured.append(("motor.pole_pairs", f"{p} ({an.calibration.ordinary.assumptions.pole_pairs_source})"))
+    else:
+        m.assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
+    return int(p)
+
+
+def _installation_offset(an: CaptureAnalysis, m: _Making) -> None:
+    """The capture's relative offsets around the base's mean (capture times give only differences)."""
+    base_inst = m.base.effect("installation_offset")
+    mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
+    rel = an.calibration.corrections.installation_offset_deg_e
+    lim = fx.bounds_of(fx.InstallationOffset, "offset_deg_e")[1]
+    inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", m.notes) for s in SENSORS)
+    m.effects.append(fx.InstallationOffset(offset_deg_e=inst))
+    m.measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
+    m.assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base "
+                      f"({m.base_name}); capture times give only differences (an encoder or Line-BEMF gives the rest)"))
+
+
+def _pole_offset(an: CaptureAnalysis, p: int, m: _Making) -> None:
+    """The calibration's pole table, when it holds one for ``p`` pole pairs."""
+    cal = an.calibration
+    poles = cal.corrections.pole_offset_deg_e
+    if not (poles and len(poles) == 2 * p):
+        m.notes.append("no pole offsets: " + cal.undetermined.get("pole_offset_deg_e", "refused by the calibration"))
+        return
+    lim = fx.bounds_of(fx.PoleOffset, "offset_deg_e")[1]
+    m.effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", m.notes)
+                                                      for j, v in enumerate(poles))))
+    m.measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
+                       "(sum zero per polarity: pole 0 is where the capture starts)"))
+
+
+def _beyond_table(an: CaptureAnalysis, p: int, m: _Making) -> dict[str, fx.Effect]:
+    """The sensor-pole pattern (where it stands out) and the switching asymmetry, as effects; returns
+    every measured deviation no table holds (the edge noise's is added by ``_edge_jitter``)."""
+    beyond_table = uncalibratable_effects(an, p, m.notes)
+    if "sensor_pole_offset" in beyond_table:
+        pattern = an.extra.get("sensor_pole_offset", {})
+        m.effects.append(beyond_table["sensor_pole_offset"])
+        m.measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
+                           f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
+                           f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
+    asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
+    m.effects.append(beyond_table["switching_asymmetry"])
+    m.measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
+                       ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
+                       f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
+    return beyond_table
+
+
+def _conditioning_delay(an: CaptureAnalysis, m: _Making) -> float:
+    """The rise-minus-fall delay on the later polarity over the base's common part; returns the difference (s)."""
+    d = an.calibration.ordinary.rise_fall_delay_difference_s
+    d_value = d.value if d.value is not None else 0.0
+    if d.value is None:
+        m.notes.append(f"rise-minus-fall delay not determined ({d.reason}): the twin has none beyond the base's")
+    base_delay = m.base.effect("conditioning_delay")
+    common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
+    rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
+    m.effects.append(fx.ConditioningDelay(rise_delay_s=rise, fall_delay_s=fall))
+    m.measured.append(("conditioning_delay (rise minus fall)", f"{d_value * 1e6:+.1f} us"))
+    m.assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({m.base_name}): a lag "
+                      "of every edge is a time shift of the trajectory, invisible without an encoder"))
+    return d_value
+
+
+def _edge_jitter(an: CaptureAnalysis, beyond_table: dict[str, fx.Effect], m: _Making) -> None:
+    nm = an.noise
+    m.effects.append(beyond_table["edge_jitter"])
+    m.measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
+                       f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
+                       "the timer's quantisation)"))
+
+
+def _timer(an: CaptureAnalysis, capture_tick_in_plant: bool, m: _Making) -> None:
+    """The capture's tick in the plant when asked; else the base's timer (the capture's is the instrument's)."""
+    if an.tick_s and capture_tick_in_plant:
+        m.effects.append(fx.TimerQuantization(tick_s=an.tick_s))
+        m.measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling, kept in the "
+                           "plant: the controller sees edges this coarse)"))
+    elif an.tick_s:
+        base_tick = m.base.effect("timer_quantization")
+        if base_tick:
+            m.take(base_tick)
+        m.measured.append(("capture timer tick (the instrument's)", f"{an.tick_s * 1e6:.4g} us: `hil twin check` "
+                           "samples the twin at it; not the controller's capture timer, so not a plant effect here "
+                           "(`--capture-tick-in-plant` keeps it)"))
+    else:
+        m.notes.append("the capture states no timer tick")
+
+
+def _capture_blind(m: _Making) -> None:
+    """What capture times cannot tell, from the base as it is: each effect that declares so
+    (``Effect.from_base_in_twin``); those with a declared reason are named, present or not."""
+    for cls in fx.EFFECTS.values():
+        if cls.capture_blind is None:
+            continue
+        e = m.base.effect(cls.name)
+        m.assumed.append((cls.name, f"{'from the base' if e else 'none (the base has none)'}: {cls.capture_blind}"))
+    for e in m.base.effects:
+        if e.from_base_in_twin() and e.name not in {x.name for x in m.effects}:
+            m.take(e)
+
+
+def _top_speed(an: CaptureAnalysis, p: int, top_speed_rpm: float | None, m: _Making) -> float:
+    """Where the suite's speeds end: the given top speed, or the capture's own (95th percentile)."""
+    speeds = an.calibration.ordinary.assumptions.speed_range_hz_e
+    m.notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
+                   "extrapolates (a delay grows with speed, the jitter model holds)")
+    if top_speed_rpm is None:
+        top_speed_rpm = speeds[1] / p * 60.0
+        m.measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (the capture's top speed, 95th "
+                           "percentile; --top-speed-rpm states the motor's own)"))
+    else:
+        m.measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (given)"))
+    return top_speed_rpm
+
+
+def _motor(p: int, top_speed_rpm: float, rewind_base: bool, m: _Making):
+    """The base motor on ``p`` pole pairs, rewound for ``top_speed_rpm`` when the base is a stand-in."""
+    base = m.base
+    if not rewind_base:
+        m.assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                          f"from the base ({m.base_name}): capture times say nothing of them"))
+        return dataclasses.replace(base.motor, pole_pairs=p)
+    k = base.operating.top_speed_rpm / top_speed_rpm
+    m.assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
+                      f"the base's ({m.base_name}, top {base.operating.top_speed_rpm:.0f} rpm) rewound for a "
+                      f"{top_speed_rpm:.0f} rpm top on {p} pole pairs: ke x {k:.3g}, J and friction x "
+                      f"{k * k:.3g}, fan load x {k ** 3:.3g}, L x {k * base.motor.pole_pairs / p:.3g} (per unit "
+                      "of its top speed, supply and current the base motor: its duty, current and dynamics at "
+                      "its top are the twin's at its own); R, supply as the base: capture times say nothing of "
+                      "them"))
+    return rewound(base.motor, k, p)
+
+
+def _leave_out(an: CaptureAnalysis, with_: tuple[str, ...], m: _Making) -> list[fx.Effect]:
+    """Take the measured deviations no table holds out of the plant unless ``with_`` names them (the
+    switching asymmetry's common part stays); returns those left out."""
+    left_out = [e for e in m.effects if e.name in UNCALIBRATABLE and e.name not in with_]
+    held = {"switching_asymmetry": common_switching_asymmetry(an)}
+    m.effects = [e if e.name not in UNCALIBRATABLE or e.name in with_ else held[e.name]
+                 for e in m.effects if e.name not in UNCALIBRATABLE or e.name in with_ or e.name in held]
+    for e in left_out:
+        what = f"{e.name} beyond {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else e.name
+        m.notes.append(f"measured but NOT in this plant: {what} (no calibration table holds it; "
+                       f"`{UNCALIBRATABLE[e.name]}` adds it, and `hil twin check` names it as a difference the twin "
+                       "lacks)")
+    return left_out
+
+
 def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
                       capture_tick_in_plant: bool = False, with_: tuple[str, ...] = (),
                       top_speed_rpm: float | None = None, rewind_base: bool = False) -> Twin:
@@ -386,131 +559,29 @@ def twin_from_capture(an: CaptureAnalysis, base: PlantConfig, base_name: str,
     ``rewind_base`` (a preset base: a stand-in, not this motor) the base motor is rewound for that top
     speed (``bldc.motor.rewound``): the base pump's duty, current and dynamics at its top speed are
     the twin's at its own, where a pump motor run at 3 % of its speed would idle at 1 % duty. By default
-    only the deviations a calibration table can hold (TABLE_EFFECTS); ``with_`` names the measured
-    deviations no table holds (UNCALIBRATABLE) that the plant carries too. Each one left out is
-    listed in ``Twin.left_out`` (and in the TOML), and ``hil twin check`` names it as a difference."""
+    only the deviations a calibration table can hold; ``with_`` names the measured deviations no
+    table holds (UNCALIBRATABLE) that the plant carries too. Each one left out is listed in
+    ``Twin.left_out`` (and in the TOML), and ``hil twin check`` names it as a difference."""
     unknown = set(with_) - set(UNCALIBRATABLE)
     if unknown:
         raise ValueError(f"unknown addition(s) {', '.join(sorted(unknown))} (known: {', '.join(UNCALIBRATABLE)})")
-    cal = an.calibration
-    measured, assumed, notes = [], [], []
-    p = an.pole_pairs or base.motor.pole_pairs
-    motor = dataclasses.replace(base.motor, pole_pairs=int(p))
-    if an.pole_pairs:
-        measured.append(("motor.pole_pairs", f"{p} ({cal.ordinary.assumptions.pole_pairs_source})"))
-    else:
-        assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
-    effects: list[fx.Effect] = []
-    # installation offsets: the capture's relative ones around the base's mean
-    base_inst = base.effect("installation_offset")
-    mean_abs = float(np.mean(base_inst.offset_deg_e)) if base_inst else 0.0
-    rel = cal.corrections.installation_offset_deg_e
-    lim = fx.InstallationOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
-    inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", notes) for s in SENSORS)
-    effects.append(fx.InstallationOffset(offset_deg_e=inst))
-    measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
-    assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base ({base_name}); "
-                    "capture times give only differences (an encoder or Line-BEMF gives the rest)"))
-    poles = cal.corrections.pole_offset_deg_e
-    if poles and len(poles) == 2 * p:
-        lim = fx.PoleOffset.__dataclass_fields__["offset_deg_e"].metadata["high"]
-        effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", notes)
-                                                        for j, v in enumerate(poles))))
-        measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
-                         "(sum zero per polarity: pole 0 is where the capture starts)"))
-    else:
-        notes.append("no pole offsets: " + cal.undetermined.get("pole_offset_deg_e", "refused by the calibration"))
-    pattern = an.extra.get("sensor_pole_offset", {})
-    beyond_table = uncalibratable_effects(an, p, notes)
-    if "sensor_pole_offset" in beyond_table:
-        effects.append(beyond_table["sensor_pole_offset"])
-        measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
-                         f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
-                         f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
-    asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
-    effects.append(beyond_table["switching_asymmetry"])
-    measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
-                     ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
-                     f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
-    d = cal.ordinary.rise_fall_delay_difference_s
-    d_value = d.value if d.value is not None else 0.0
-    if d.value is None:
-        notes.append(f"rise-minus-fall delay not determined ({d.reason}): the twin has none beyond the base's")
-    base_delay = base.effect("conditioning_delay")
-    common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
-    rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
-    effects.append(fx.ConditioningDelay(rise_delay_s=rise, fall_delay_s=fall))
-    measured.append(("conditioning_delay (rise minus fall)", f"{d_value * 1e6:+.1f} us"))
-    assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({base_name}): a lag of "
-                    "every edge is a time shift of the trajectory, invisible without an encoder"))
-    nm = an.noise
-    effects.append(beyond_table["edge_jitter"])
-    measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
-                     f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
-                     "the timer's quantisation)"))
-    if an.tick_s and capture_tick_in_plant:
-        effects.append(fx.TimerQuantization(tick_s=an.tick_s))
-        measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling, kept in the "
-                         "plant: the controller sees edges this coarse)"))
-    elif an.tick_s:
-        base_tick = base.effect("timer_quantization")
-        if base_tick:
-            effects.append(base_tick)
-        measured.append(("capture timer tick (the instrument's)", f"{an.tick_s * 1e6:.4g} us: `hil twin check` "
-                         "samples the twin at it; not the controller's capture timer, so not a plant effect here "
-                         "(`--capture-tick-in-plant` keeps it)"))
-    else:
-        notes.append("the capture states no timer tick")
-    # what the capture cannot tell, from the base
-    arm = base.effect("armature_reaction")
-    if arm:
-        effects.append(arm)
-    assumed.append(("armature_reaction", f"{'from the base' if arm else 'none (the base has none)'}: needs phase "
-                    "currents and a reference angle"))
-    hyst = base.effect("hysteresis")
-    if hyst:
-        effects.append(hyst)
-    assumed.append(("hysteresis (common lag)", f"{'from the base' if hyst else 'none (the base has none)'}: "
-                    "a lag common to every edge is invisible without an encoder"))
-    for e in base.effects:
-        if e.layer in ("electrical", "mechanical") and e.name not in {x.name for x in effects}:
-            effects.append(e)
-    # the top speed: where the suite's speeds end; the delay there against half a sector
-    speeds = cal.ordinary.assumptions.speed_range_hz_e
-    notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
-                 "extrapolates (a delay grows with speed, the jitter model holds)")
-    if top_speed_rpm is None:
-        top_speed_rpm = speeds[1] / p * 60.0
-        measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (the capture's top speed, 95th percentile; "
-                         "--top-speed-rpm states the motor's own)"))
-    else:
-        measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (given)"))
-    if rewind_base:
-        k = base.operating.top_speed_rpm / top_speed_rpm
-        motor = rewound(base.motor, k, int(p))
-        assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
-                        f"the base's ({base_name}, top {base.operating.top_speed_rpm:.0f} rpm) rewound for a "
-                        f"{top_speed_rpm:.0f} rpm top on {p} pole pairs: ke x {k:.3g}, J and friction x "
-                        f"{k * k:.3g}, fan load x {k ** 3:.3g}, L x {k * base.motor.pole_pairs / p:.3g} (per unit "
-                        "of its top speed, supply and current the base motor: its duty, current and dynamics at "
-                        "its top are the twin's at its own); R, supply as the base: capture times say nothing of "
-                        "them"))
-    else:
-        assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
-                        f"from the base ({base_name}): capture times say nothing of them"))
-    notes += suite_speed_notes(int(p), d_value, top_speed_rpm, speeds[1])
-    left_out = [(e, UNCALIBRATABLE[e.name]) for e in effects if e.name in UNCALIBRATABLE and e.name not in with_]
-    held = {"switching_asymmetry": common_switching_asymmetry(an)}
-    effects = [e if e.name not in UNCALIBRATABLE or e.name in with_ else held[e.name]
-               for e in effects if e.name not in UNCALIBRATABLE or e.name in with_ or e.name in held]
-    for e, option in left_out:
-        what = f"{e.name} beyond {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else e.name
-        notes.append(f"measured but NOT in this plant: {what} (no calibration table holds it; `{option}` "
-                     "adds it, and `hil twin check` names it as a difference the twin lacks)")
+    m = _Making(base, base_name)
+    p = _pole_pairs(an, m)
+    _installation_offset(an, m)
+    _pole_offset(an, p, m)
+    beyond_table = _beyond_table(an, p, m)
+    d_value = _conditioning_delay(an, m)
+    _edge_jitter(an, beyond_table, m)
+    _timer(an, capture_tick_in_plant, m)
+    _capture_blind(m)
+    top_speed_rpm = _top_speed(an, p, top_speed_rpm, m)
+    motor = _motor(p, top_speed_rpm, rewind_base, m)
+    m.notes += suite_speed_notes(p, d_value, top_speed_rpm, an.calibration.ordinary.assumptions.speed_range_hz_e[1])
+    left_out = _leave_out(an, with_, m)
     name = f"twin of {Path(str(an.rec.path or 'capture')).name}"
     config = PlantConfig(motor=motor, inverter=base.inverter, current_sensor=base.current_sensor,
-                         effects=tuple(effects), name=name, operating=OperatingRange(top_speed_rpm=top_speed_rpm))
-    return Twin(config, measured, assumed, notes, an, left_out=[e for e, _ in left_out])
+                         effects=tuple(m.effects), name=name, operating=OperatingRange(top_speed_rpm=top_speed_rpm))
+    return Twin(config, m.measured, m.assumed, m.notes, an, left_out=left_out, from_base=m.from_base)
 
 
 # --- TOML ------------------------------------------------------------------------------------
@@ -549,14 +620,9 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     lines += ["", "[current_sensor]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.current_sensor).items()]
     lines += ["", "[operating]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.operating).items()]
-    measured_names = {"installation_offset", "pole_offset", "sensor_pole_offset", "switching_asymmetry",
-                      "conditioning_delay", "edge_jitter"}
-    if twin.analysis.tick_s and any(e.name == "timer_quantization" and e.tick_s == twin.analysis.tick_s
-                                    for e in c.effects):
-        measured_names.add("timer_quantization")
     for e in c.effects:
         d = e.to_dict()
-        tag = "measured" if e.name in measured_names else "assumed: from the base"
+        tag = "assumed: from the base" if e.name in twin.from_base else "measured"
         lines += ["", f"[[effects]]  # {tag}"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()]
     return "\n".join(lines) + "\n"
