@@ -143,6 +143,8 @@ def _strategy(where: str, v: Any) -> str:
 
 
 def _axis(where: str, t: dict, kind: str) -> Axis:
+    """One ``[[axis]]``: what it sweeps, its values (numbers within the axis's bounds, or strategy
+    names) and, for a list parameter of an effect, its pattern."""
     name = t.get("name")
     if not isinstance(name, str) or not name:
         raise ConfigError(
@@ -150,6 +152,25 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
             "required (an effect parameter such as installation_offset.offset_deg_e, or one of "
             f"{', '.join(OPERATING_AXES)}, or fault.<param>)",
         )
+    values = _axis_values(where, t, name)
+    if name.startswith("fault") and kind != "fault_sequence":
+        raise ConfigError(f"{where}.name", f'{name!r} sweeps a wiring fault: set [campaign] kind = "fault_sequence"')
+    pattern = None
+    if "pattern" in t:
+        p = t["pattern"]
+        if not isinstance(p, list) or not p:
+            raise ConfigError(f"{where}.pattern", "must be a non-empty list of numbers")
+        pattern = tuple(_number(f"{where}.pattern[{i}]", v) for i, v in enumerate(p))
+    axis = Axis(name, values, pattern)
+    if axis.effect is not None:
+        _check_effect_parameter(where, name, pattern)
+    elif pattern is not None:
+        raise ConfigError(f"{where}.pattern", f"{name} is not a list parameter: no pattern")
+    return axis
+
+
+def _axis_values(where: str, t: dict, name: str) -> tuple:
+    """An axis's ``values`` or ``linspace``: distinct, within the bounds of the operating axes."""
     if ("values" in t) == ("linspace" in t):
         raise ConfigError(where, "give exactly one of 'values' or 'linspace'")
     if "linspace" in t:
@@ -183,39 +204,31 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
     if name in ("load_scale",):
         for i, v in enumerate(values):
             _number(f"{where}.values[{i}]", v, 0.0, 10.0)
-    if name.startswith("fault") and kind != "fault_sequence":
-        raise ConfigError(f"{where}.name", f'{name!r} sweeps a wiring fault: set [campaign] kind = "fault_sequence"')
-    pattern = None
-    if "pattern" in t:
-        p = t["pattern"]
-        if not isinstance(p, list) or not p:
-            raise ConfigError(f"{where}.pattern", "must be a non-empty list of numbers")
-        pattern = tuple(_number(f"{where}.pattern[{i}]", v) for i, v in enumerate(p))
-    axis = Axis(name, values, pattern)
-    if axis.effect is not None:
-        effect, _, param = name.partition(".")
-        cls = EFFECTS.get(effect)
-        if cls is None:
-            raise ConfigError(
-                f"{where}.name",
-                f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
-                f"({', '.join(OPERATING_AXES)})",
-            )
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        if param not in fields:
-            raise ConfigError(
-                f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})"
-            )
-        is_list = "tuple" in str(fields[param].type)
-        if is_list and pattern is None:
-            raise ConfigError(
-                f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)"
-            )
-        if not is_list and pattern is not None:
-            raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
-    elif pattern is not None:
-        raise ConfigError(f"{where}.pattern", f"{name} is not a list parameter: no pattern")
-    return axis
+    return values
+
+
+def _check_effect_parameter(where: str, name: str, pattern: tuple[float, ...] | None) -> None:
+    """``effect.param`` names a parameter of a known effect; a list parameter has a pattern, a number none."""
+    effect, _, param = name.partition(".")
+    cls = EFFECTS.get(effect)
+    if cls is None:
+        raise ConfigError(
+            f"{where}.name",
+            f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
+            f"({', '.join(OPERATING_AXES)})",
+        )
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if param not in fields:
+        raise ConfigError(
+            f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})"
+        )
+    is_list = "tuple" in str(fields[param].type)
+    if is_list and pattern is None:
+        raise ConfigError(
+            f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)"
+        )
+    if not is_list and pattern is not None:
+        raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
 
 
 def load_spec(path: str | Path) -> CampaignSpec:
