@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -176,9 +177,11 @@ class _Stream:
 
 @dataclass
 class _Files:
+    """The files a stimulus is written into as it is generated (stimulus.csv: None when not written)."""
+
     vcd: VcdWriter
-    truth: object
-    csv: object | None
+    truth: TextIO
+    csv: TextIO | None
 
     def close(self, end_tick: int) -> None:
         self.vcd.close(end_tick)
