@@ -83,6 +83,8 @@ MAGIC_RETURN = 0x1FFF_0000  #: LR of every call: emulation stops when a call ret
 ADC_BASE = 0x4001_2000  #: the ADC's result registers (int16[3]), a peripheral region
 SCRATCH_BASE = 0x3000_0000  #: the framework's buffers for pointer arguments (not the firmware's RAM)
 SCRATCH_BYTES = 0x1_0000
+#: the framework's own code (``Core.load_framework_code``): a page beside MAGIC_RETURN, outside the firmware's map
+FRAMEWORK_CODE = MAGIC_RETURN + PAGE
 PAINT = 0xA5A5A5A5  #: the stack paint
 #: default budget of one call: 2e6 cycles, 12 ms at 168 MHz, 240 periods of a 20 kHz control interrupt
 BUDGET_CYCLES = 2_000_000
@@ -217,6 +219,9 @@ class Core:
         self._bad_access: tuple[int, int] | None = None
         self._result = 0
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
+        #: how many times firmware code ran as the firmware's own (a charged call started or resumed): what
+        #: it last left in memory is current while this stands still (``hil.pil.firmware``'s output cache)
+        self.firmware_runs = 0
         self.stats: dict[str, CallStats] = defaultdict(CallStats)
         self.stack_high_water = 0  #: the deepest stack of any call (bytes below the top of RAM)
         key = (*_elf_key(self.elf), target.flash_bytes, spec.name)
@@ -463,6 +468,19 @@ class Core:
             out += chunk
         return out.decode("utf-8", "replace")
 
+    def load_framework_code(self, name: str, code: bytes) -> int:
+        """Thumb code of the framework's own (``hil.pil.firmware``: the output registers read in one
+        call), mapped read-only and executable at FRAMEWORK_CODE and callable as ``name``; its address."""
+        if len(code) > PAGE:
+            raise ValueError(f"framework code {name} of {len(code)} bytes (at most {PAGE})")
+        self.uc.mem_map(FRAMEWORK_CODE, PAGE, unicorn.UC_PROT_READ | unicorn.UC_PROT_EXEC)
+        self.uc.mem_write(FRAMEWORK_CODE, bytes(code))
+        self._symbols[name] = FRAMEWORK_CODE
+        k = bisect.bisect_right(self._function_starts, FRAMEWORK_CODE)
+        self._functions.insert(k, (FRAMEWORK_CODE, FRAMEWORK_CODE + len(code), name))
+        self._function_starts.insert(k, FRAMEWORK_CODE)
+        return FRAMEWORK_CODE
+
     # --- calls ------------------------------------------------------------------------------------------
     @property
     def active(self) -> int:
@@ -516,6 +534,7 @@ class Core:
         frame = self._frames[-1]
         self._stop_at = min(until_cycle, frame.hang_at)
         self._frame = frame
+        self.firmware_runs += frame.charge
         n = self._native
         if n is not None:
             n.push(frame)
