@@ -31,9 +31,9 @@ def main() -> int:
     parser.add_argument("--json", help="write the figures here")
     args = parser.parse_args()
     builds = {}
-    for name in (SIL, PIL):  # the first build of each, apart (the runs then take the cached build)
+    for name in (SIL, PIL):  # each build apart (cached when built before): the runs then take the cached build
         builds[name] = timed([PYTHON, "-m", "hil", "dut", "check", "--dut", PEERS[name]], ROOT)
-        print(line(f"first build and check, {name}", builds[name]), flush=True)
+        print(line(f"build (cached when built before) and check, {name}", builds[name]), flush=True)
     rows = {}
     for name, dut in PEERS.items():
         reports = Path(tempfile.mkdtemp(prefix="bench-pil-"))
