@@ -20,12 +20,13 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import re
-import resource
 import subprocess
 import sys
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -43,11 +44,14 @@ def _hil(*args: str) -> subprocess.CompletedProcess:
 
 
 def _acceptance(dut: str, seed: int, out: Path) -> tuple[dict, dict]:
-    """One ``hil acceptance`` run: its report, and its wall and CPU seconds (the command and its children)."""
-    before, t0 = resource.getrusage(resource.RUSAGE_CHILDREN), time.monotonic()
-    _hil("acceptance", "--dut", dut, "--seed", str(seed), "--out", str(out))
-    after = resource.getrusage(resource.RUSAGE_CHILDREN)
-    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    """One ``hil acceptance`` run: its report, and its wall and CPU seconds (the command and the children it
+    waited for, from its own ``wait4``: other runs of this tool go on beside it)."""
+    t0 = time.monotonic()
+    proc = subprocess.Popen([sys.executable, "-m", "hil", "acceptance", "--dut", dut, "--seed", str(seed), "--out",
+                             str(out)], cwd=ROOT, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, _, usage = os.wait4(proc.pid, 0)
+    proc.returncode = 0  # reaped here, not by Popen
+    cpu = usage.ru_utime + usage.ru_stime
     return json.loads((out / "hil-report.json").read_text()), {"wall_s": time.monotonic() - t0, "cpu_s": cpu}
 
 
@@ -120,17 +124,20 @@ def main() -> int:
     work = Path(args.work or tempfile.mkdtemp(prefix="pil-compare-"))
     defects = part_defects()
     out: dict = {"seeds": seeds, "defects": {}, "reports": {"sil": [], "pil": []}, "times": {}}
-    for kind, dut in DUTS.items():
+
+    def accept(kind: str) -> None:
         for seed in seeds[kind]:
-            report, spent = _acceptance(dut, seed, work / f"acceptance-{kind}-{seed}")
+            report, spent = _acceptance(DUTS[kind], seed, work / f"acceptance-{kind}-{seed}")
             out["reports"][kind].append(report)
             out["times"][f"{kind} seed {seed}"] = spent
+
+    def qualify(kind: str) -> None:
         # the defects of the part, through each (hil qualify: its control run, then each defect)
         q = work / f"qualify-{kind}"
-        done = _hil("qualify", "--dut", dut, "--only", ",".join(defects), "--seed", str(seeds["pil"][0]), "--json",
-                    str(q / "qualify.json"), "--out", str(q))
+        done = _hil("qualify", "--dut", DUTS[kind], "--only", ",".join(defects), "--seed", str(seeds["pil"][0]),
+                    "--json", str(q / "qualify.json"), "--out", str(q))
         if not (q / "qualify.json").is_file():
-            raise RuntimeError(f"hil qualify --dut {dut} wrote no result:\n{done.stdout[-2000:]}\n"
+            raise RuntimeError(f"hil qualify --dut {DUTS[kind]} wrote no result:\n{done.stdout[-2000:]}\n"
                                f"{done.stderr[-2000:]}")
         result = json.loads((q / "qualify.json").read_text())
         out[f"qualify_{kind}"] = {"control_verdict": result["control_verdict"],
@@ -140,19 +147,31 @@ def main() -> int:
             out["defects"].setdefault(m["name"], {"class": m["defect_class"], "kinds": m["kinds"]})[kind] = {
                 "verdict": m["verdict"], "caught": m["killed"], "expected": m["expected"],
                 "catches": m["catches"], "failed_tests": m["failed_tests"]}
+
+    def m0plus() -> None:
+        m0 = work / "m0plus"
+        subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist",
+                        "--hil-dut", M0PLUS, "--hil-seed", str(seeds["pil"][0]), "--hil-report-dir", str(m0),
+                        *M0PLUS_TESTS], cwd=ROOT, capture_output=True, text=True)
+        report = json.loads((m0 / "hil-report.json").read_text())
+        out["m0plus"] = {"dut": M0PLUS, "verdict": report.get("verdict"), "requirements": verdicts(report),
+                         "measurements": [{**m, "test": t["nodeid"]} for t in report["tests"]
+                                          for m in t["measurements"]],
+                         "failures": [{"test": t["nodeid"], "failed_by": t["failed_by"],
+                                       "message": t["message"][:400]}
+                                      for t in report["tests"] if t["outcome"] in ("failed", "error")],
+                         "processor": report.get("processor", {})}
+
+    # the runs are independent: side by side on the machine (the acceptance runs' times are then taken
+    # under the same load, sil: beside pil:)
+    with ThreadPoolExecutor(max_workers=4) as pool:
+        jobs = [pool.submit(accept, "sil"), pool.submit(qualify, "sil"), pool.submit(accept, "pil"),
+                pool.submit(lambda: (qualify("pil"), m0plus()))]
+        for job in jobs:
+            job.result()
     out["rows"] = side_by_side(out["reports"])
     out["verdicts"] = {k: [r.get("verdict", "?") for r in rs] for k, rs in out["reports"].items()}
     out["processor"] = out["reports"]["pil"][0].get("processor", {})
-    m0 = work / "m0plus"
-    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "no:xdist", "--hil-dut",
-                    M0PLUS, "--hil-seed", str(seeds["pil"][0]), "--hil-report-dir", str(m0), *M0PLUS_TESTS], cwd=ROOT,
-                   capture_output=True, text=True)
-    report = json.loads((m0 / "hil-report.json").read_text())
-    out["m0plus"] = {"dut": M0PLUS, "verdict": report.get("verdict"), "requirements": verdicts(report),
-                     "measurements": [{**m, "test": t["nodeid"]} for t in report["tests"] for m in t["measurements"]],
-                     "failures": [{"test": t["nodeid"], "failed_by": t["failed_by"], "message": t["message"][:400]}
-                                  for t in report["tests"] if t["outcome"] in ("failed", "error")],
-                     "processor": report.get("processor", {})}
     del out["reports"]
     print(f"verdicts: sil {out['verdicts']['sil']}; pil {out['verdicts']['pil']}; cortex-m0plus "
           f"{out['m0plus']['verdict']}")

@@ -75,7 +75,7 @@ from hil.sil.firmware import SilInterfaceError
 
 from . import native
 from .build import FLASH_BASE, RAM_BASE
-from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler, row
+from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, SINGLES_V6M, START, Block, decode_block, disassembler, row
 from .target import Target
 
 PAGE = 0x400  #: Unicorn's page on ARM (mappings are multiples of it)
@@ -358,8 +358,9 @@ class Core:
 
     def _sweep(self) -> tuple[dict[int, tuple], dict[int, tuple]]:
         """Every function in flash disassembled once: the instructions whose faults Unicorn does not
-        raise, (kind, registers) by address; and every instruction's cost row (hil.pil.cycles.row),
-        from which the native path sums a block it first meets (``decode_block``'s ``known``)."""
+        raise, (kind, base register, offset, mnemonic, index register or 0, alignment mask) by address;
+        and every instruction's cost row (hil.pil.cycles.row), from which the native path sums a block it
+        first meets (``decode_block``'s ``known``)."""
         checks: dict[int, tuple] = {}
         rows: dict[int, tuple] = {}
         flash_end = FLASH_BASE + self.target.flash_bytes
@@ -374,14 +375,22 @@ class Core:
                 uc_reg = lambda r: getattr(U, f"UC_ARM_REG_{insn.reg_name(r).upper()}")  # noqa: E731
                 if name in DIVIDES:
                     regs = [op.reg for op in insn.operands if op.type == CS_OP_REG]
-                    checks[insn.address] = ("div", uc_reg(regs[-1]), 0, insn.mnemonic)
+                    checks[insn.address] = ("div", uc_reg(regs[-1]), 0, insn.mnemonic, 0, 0)
                 elif name in DUALS:
                     mem = next(op for op in insn.operands if op.type == CS_OP_MEM)
                     post = insn.operands[-1].type == CS_OP_IMM
-                    checks[insn.address] = ("dual", uc_reg(mem.mem.base), 0 if post else mem.mem.disp, insn.mnemonic)
+                    checks[insn.address] = ("dual", uc_reg(mem.mem.base), 0 if post else mem.mem.disp, insn.mnemonic,
+                                            0, 3)
                 elif name in MULTIPLES_CHECKED:
                     if insn.reg_name(insn.operands[0].reg) != "sp":
-                        checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic)
+                        checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic, 0, 3)
+                elif self.spec.v6m and name in SINGLES_V6M:
+                    mem = next((op for op in insn.operands if op.type == CS_OP_MEM), None)
+                    # SP is word aligned by the procedure call standard; a literal's address by the encoding
+                    if mem is not None and insn.reg_name(mem.mem.base) not in ("sp", "pc"):
+                        index = uc_reg(mem.mem.index) if mem.mem.index else 0
+                        checks[insn.address] = ("single", uc_reg(mem.mem.base), mem.mem.disp, insn.mnemonic, index,
+                                                SINGLES_V6M[name])
         return checks, rows
 
     # --- symbols and source lines -----------------------------------------------------------------------
@@ -678,16 +687,19 @@ class Core:
             self.stats[frame.label].soft_float[b.softfloat] += 1
 
     def _on_check(self, uc, address, size, check):
-        kind, reg, offset, mnemonic = check
+        kind, reg, offset, mnemonic, index, mask = check
         value = uc.reg_read(reg)
         if kind == "div":
             if value == 0:
                 self._stop(self._fault_finding("UsageFault", f"DIVBYZERO: {mnemonic} by zero (CCR.DIV_0_TRP set)",
                                                address))
-        elif (value + offset) & 3:
-            self._stop(self._fault_finding(
-                "UsageFault", f"UNALIGNED: {mnemonic} at address 0x{(value + offset) & 0xFFFFFFFF:08X} (LDRD, STRD, "
-                "LDM and STM need word alignment)", address))
+            return
+        at = (value + offset + (uc.reg_read(index) if index else 0)) & 0xFFFFFFFF
+        if at & mask:
+            why = ("ARMv6-M has no unaligned access: LDR and STR need word, LDRH, STRH and LDRSH halfword "
+                   "alignment" if kind == "single" else "LDRD, STRD, LDM and STM need word alignment")
+            self._stop(self._fault_finding("UsageFault", f"UNALIGNED: {mnemonic} at address 0x{at:08X} ({why})",
+                                           address))
 
     def _on_invalid(self, uc, access, address, size, value, _):
         self._bad_access = (access, address)
