@@ -652,6 +652,10 @@ def cmd_qualify(args) -> int:
     if result.survivors:
         print("survivors (findings: add the requirement that catches them, or state why harmless): "
               + ", ".join(result.survivors))
+    if result.by_design:  # defects.toml's kinds: another kind of DUT must catch them
+        print("not this kind's catch by design (shown, not counted): "
+              + ", ".join(f"{m.name} ({m.verdict}; {', '.join(k + ':' for k in m.kinds)} catches it)"
+                          for m in result.by_design))
     if args.json:
         Path(args.json).parent.mkdir(parents=True, exist_ok=True)
         Path(args.json).write_text(json.dumps(out, indent=2) + "\n")

@@ -75,6 +75,8 @@ float lib_op(float x) { return sinf(x) + sqrtf(x) + atan2f(x, 2.0f) + fmodf(x, 0
 
 void bus_fault(void) { *(volatile uint32_t *)0x60000000u = 1u; /* @BUS */ }
 int64_t load64(const int64_t *p) { return *p; /* @DUAL */ }
+uint32_t load32(const volatile uint32_t *p, uint32_t k) { return p[k]; /* @WORD */ }
+int32_t load16(const volatile int16_t *p) { return *p; /* @HALF */ }
 uint32_t divide(uint32_t a, uint32_t b) { return a / b; /* @DIV */ }
 void trap(void) { __builtin_trap(); /* @UDF */ }
 void jump_to_ram(void) { ((void (*)(void))(0x20000101u))(); /* @XN */ }
@@ -93,7 +95,7 @@ uint32_t deep(uint32_t n)
 
 
 SNIPPET_FUNCTIONS = ("seq_m4", "loop5", "count_to", "peek", "float_op", "double_op", "lib_op", "bus_fault", "load64",
-                     "divide", "trap", "jump_to_ram", "spin", "deep")
+                     "load32", "load16", "divide", "trap", "jump_to_ram", "spin", "deep")
 
 
 def _line(marker: str, cpu: str = "cortex-m4f") -> int:
@@ -311,6 +313,27 @@ def test_every_fault_is_a_hardfault_on_armv6m(m0plus):
         core.call("bus_fault")
     assert info.value.kind == "HardFault" and "BusFault on ARMv7-M; PRECISERR" in info.value.cause
     assert info.value.source_line == f"snippet.c:{_line('BUS', 'cortex-m0plus')}"
+
+
+@pytest.mark.parametrize("hooks", ["native", "python"])
+@pytest.mark.parametrize("function, args, at, mnemonic, marker", [
+    ("load32", (RAM_BASE + 2, 1), RAM_BASE + 6, "ldr", "WORD"),  # a register offset: [r0, r1, lsl #2]
+    ("load16", (RAM_BASE + 1,), RAM_BASE + 1, "ldrsh", "HALF"),
+])
+def test_an_unaligned_single_load_is_a_hardfault_on_armv6m_and_allowed_on_armv7m(m0plus, m4f, hooks, function, args,
+                                                                                at, mnemonic, marker):
+    """ARMv6-M has no unaligned access (its Architecture Reference Manual, A3.2): an LDR, STR, LDRH, STRH
+    or LDRSH at an address not a multiple of its size is a HardFault, named with its ARMv7-M cause; an
+    aligned one runs; ARMv7-M allows it (UNALIGN_TRP clear)."""
+    core = Core(m0plus, _target("cortex-m0plus"), hooks=hooks)
+    with pytest.raises(ProcessorFault) as info:
+        core.call(function, *args)
+    f = info.value
+    assert f.kind == "HardFault" and f.function == function
+    assert f"UsageFault on ARMv7-M; UNALIGNED: {mnemonic} at address 0x{at:08X}" in f.cause
+    assert f.source_line == f"snippet.c:{_line(marker, 'cortex-m0plus')}"
+    Core(m0plus, _target("cortex-m0plus"), hooks=hooks).call(function, RAM_BASE, *args[1:])
+    Core(m4f, _target("cortex-m4f"), hooks=hooks).call(function, *args)
 
 
 def test_a_fault_leaves_the_core_unusable(m4f):

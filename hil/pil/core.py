@@ -75,7 +75,7 @@ from hil.sil.firmware import SilInterfaceError
 
 from . import native
 from .build import FLASH_BASE, RAM_BASE
-from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, START, Block, decode_block, disassembler, row
+from .cycles import DIVIDES, DUALS, MULTIPLES_CHECKED, SINGLES_V6M, START, Block, decode_block, disassembler, row
 from .target import Target
 
 PAGE = 0x400  #: Unicorn's page on ARM (mappings are multiples of it)
@@ -83,6 +83,8 @@ MAGIC_RETURN = 0x1FFF_0000  #: LR of every call: emulation stops when a call ret
 ADC_BASE = 0x4001_2000  #: the ADC's result registers (int16[3]), a peripheral region
 SCRATCH_BASE = 0x3000_0000  #: the framework's buffers for pointer arguments (not the firmware's RAM)
 SCRATCH_BYTES = 0x1_0000
+#: the framework's own code (``Core.load_framework_code``): a page beside MAGIC_RETURN, outside the firmware's map
+FRAMEWORK_CODE = MAGIC_RETURN + PAGE
 PAINT = 0xA5A5A5A5  #: the stack paint
 #: default budget of one call: 2e6 cycles, 12 ms at 168 MHz, 240 periods of a 20 kHz control interrupt
 BUDGET_CYCLES = 2_000_000
@@ -217,6 +219,9 @@ class Core:
         self._bad_access: tuple[int, int] | None = None
         self._result = 0
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
+        #: how many times firmware code ran as the firmware's own (a charged call started or resumed): what
+        #: it last left in memory is current while this stands still (``hil.pil.firmware``'s output cache)
+        self.firmware_runs = 0
         self.stats: dict[str, CallStats] = defaultdict(CallStats)
         self.stack_high_water = 0  #: the deepest stack of any call (bytes below the top of RAM)
         key = (*_elf_key(self.elf), target.flash_bytes, spec.name)
@@ -353,8 +358,9 @@ class Core:
 
     def _sweep(self) -> tuple[dict[int, tuple], dict[int, tuple]]:
         """Every function in flash disassembled once: the instructions whose faults Unicorn does not
-        raise, (kind, registers) by address; and every instruction's cost row (hil.pil.cycles.row),
-        from which the native path sums a block it first meets (``decode_block``'s ``known``)."""
+        raise, (kind, base register, offset, mnemonic, index register or 0, alignment mask) by address;
+        and every instruction's cost row (hil.pil.cycles.row), from which the native path sums a block it
+        first meets (``decode_block``'s ``known``)."""
         checks: dict[int, tuple] = {}
         rows: dict[int, tuple] = {}
         flash_end = FLASH_BASE + self.target.flash_bytes
@@ -369,14 +375,22 @@ class Core:
                 uc_reg = lambda r: getattr(U, f"UC_ARM_REG_{insn.reg_name(r).upper()}")  # noqa: E731
                 if name in DIVIDES:
                     regs = [op.reg for op in insn.operands if op.type == CS_OP_REG]
-                    checks[insn.address] = ("div", uc_reg(regs[-1]), 0, insn.mnemonic)
+                    checks[insn.address] = ("div", uc_reg(regs[-1]), 0, insn.mnemonic, 0, 0)
                 elif name in DUALS:
                     mem = next(op for op in insn.operands if op.type == CS_OP_MEM)
                     post = insn.operands[-1].type == CS_OP_IMM
-                    checks[insn.address] = ("dual", uc_reg(mem.mem.base), 0 if post else mem.mem.disp, insn.mnemonic)
+                    checks[insn.address] = ("dual", uc_reg(mem.mem.base), 0 if post else mem.mem.disp, insn.mnemonic,
+                                            0, 3)
                 elif name in MULTIPLES_CHECKED:
                     if insn.reg_name(insn.operands[0].reg) != "sp":
-                        checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic)
+                        checks[insn.address] = ("multiple", uc_reg(insn.operands[0].reg), 0, insn.mnemonic, 0, 3)
+                elif self.spec.v6m and name in SINGLES_V6M:
+                    mem = next((op for op in insn.operands if op.type == CS_OP_MEM), None)
+                    # SP is word aligned by the procedure call standard; a literal's address by the encoding
+                    if mem is not None and insn.reg_name(mem.mem.base) not in ("sp", "pc"):
+                        index = uc_reg(mem.mem.index) if mem.mem.index else 0
+                        checks[insn.address] = ("single", uc_reg(mem.mem.base), mem.mem.disp, insn.mnemonic, index,
+                                                SINGLES_V6M[name])
         return checks, rows
 
     # --- symbols and source lines -----------------------------------------------------------------------
@@ -463,6 +477,19 @@ class Core:
             out += chunk
         return out.decode("utf-8", "replace")
 
+    def load_framework_code(self, name: str, code: bytes) -> int:
+        """Thumb code of the framework's own (``hil.pil.firmware``: the output registers read in one
+        call), mapped read-only and executable at FRAMEWORK_CODE and callable as ``name``; its address."""
+        if len(code) > PAGE:
+            raise ValueError(f"framework code {name} of {len(code)} bytes (at most {PAGE})")
+        self.uc.mem_map(FRAMEWORK_CODE, PAGE, unicorn.UC_PROT_READ | unicorn.UC_PROT_EXEC)
+        self.uc.mem_write(FRAMEWORK_CODE, bytes(code))
+        self._symbols[name] = FRAMEWORK_CODE
+        k = bisect.bisect_right(self._function_starts, FRAMEWORK_CODE)
+        self._functions.insert(k, (FRAMEWORK_CODE, FRAMEWORK_CODE + len(code), name))
+        self._function_starts.insert(k, FRAMEWORK_CODE)
+        return FRAMEWORK_CODE
+
     # --- calls ------------------------------------------------------------------------------------------
     @property
     def active(self) -> int:
@@ -516,6 +543,7 @@ class Core:
         frame = self._frames[-1]
         self._stop_at = min(until_cycle, frame.hang_at)
         self._frame = frame
+        self.firmware_runs += frame.charge
         n = self._native
         if n is not None:
             n.push(frame)
@@ -659,16 +687,19 @@ class Core:
             self.stats[frame.label].soft_float[b.softfloat] += 1
 
     def _on_check(self, uc, address, size, check):
-        kind, reg, offset, mnemonic = check
+        kind, reg, offset, mnemonic, index, mask = check
         value = uc.reg_read(reg)
         if kind == "div":
             if value == 0:
                 self._stop(self._fault_finding("UsageFault", f"DIVBYZERO: {mnemonic} by zero (CCR.DIV_0_TRP set)",
                                                address))
-        elif (value + offset) & 3:
-            self._stop(self._fault_finding(
-                "UsageFault", f"UNALIGNED: {mnemonic} at address 0x{(value + offset) & 0xFFFFFFFF:08X} (LDRD, STRD, "
-                "LDM and STM need word alignment)", address))
+            return
+        at = (value + offset + (uc.reg_read(index) if index else 0)) & 0xFFFFFFFF
+        if at & mask:
+            why = ("ARMv6-M has no unaligned access: LDR and STR need word, LDRH, STRH and LDRSH halfword "
+                   "alignment" if kind == "single" else "LDRD, STRD, LDM and STM need word alignment")
+            self._stop(self._fault_finding("UsageFault", f"UNALIGNED: {mnemonic} at address 0x{at:08X} ({why})",
+                                           address))
 
     def _on_invalid(self, uc, access, address, size, value, _):
         self._bad_access = (access, address)

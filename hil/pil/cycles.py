@@ -33,6 +33,10 @@ _OTHER = {"it", "hint", "nop", "cpsid", "cpsie", "cps", "wfi", "wfe", "yield", "
 DIVIDES = {"udiv", "sdiv"}
 DUALS = {"ldrd", "strd"}
 MULTIPLES_CHECKED = {"ldm", "ldmdb", "stm", "stmdb"}
+#: single loads and stores that need alignment on ARMv6-M, which has no unaligned access at all (the
+#: ARMv6-M Architecture Reference Manual, A3.2: an unaligned LDR, STR, LDRH, STRH or LDRSH is a HardFault;
+#: ARMv7-M allows them): the mask of their address's bits that must be zero
+SINGLES_V6M = {"ldr": 3, "str": 3, "ldrh": 1, "strh": 1, "ldrsh": 1}
 
 
 def disassembler() -> capstone.Cs:

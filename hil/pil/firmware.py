@@ -5,7 +5,11 @@ The interrupts run as interrupts (exception entry and return charged, their cycl
 ``stats()``); ``describe``, ``reset`` and the object dictionary run as thread-mode calls; the
 outputs the framework reads after every interrupt (``gates``, ``duty``, ``compare``, ``emcy``) are
 what the hardware's registers would show, so their cycles are given back (they take no time of the
-firmware's). ``core`` is the emulated core, for a scheduler that preempts (``Core.begin``/``run``).
+firmware's). They are read in one emulated call, not four: a few lines of Thumb of the framework's
+own (``_outputs_code``) call the four exports in turn and leave their answers in the scratch
+region; the answers stand until firmware code runs again (``Core.firmware_runs``), and an EMCY code
+that call popped is handed out first by ``emcy()``. ``core`` is the emulated core, for a scheduler
+that preempts (``Core.begin``/``run``).
 """
 
 from __future__ import annotations
@@ -25,6 +29,46 @@ from .target import Target
 _INFO = struct.Struct("<IIIB3xIfB3x")
 #: interrupt kinds, as ``stats()`` names them
 KINDS = ("hall", "compare", "control")
+#: where the output read leaves its answers (the last 32 bytes of the scratch region): the return
+#: values of hil_sil_gates, _duty, _compare, _emcy, then the count _compare wrote and the code _emcy wrote
+OUTPUTS = SCRATCH_BASE + SCRATCH_BYTES - 32
+_OUTPUTS = struct.Struct("<IIIIIH")
+#: the framework's output read, as ``Core.load_framework_code`` names it
+OUTPUTS_SYMBOL = "hil_pil_outputs"
+
+
+def _outputs_code(getters: list[tuple[int, int | None]]) -> bytes:
+    """Thumb code (ARMv6-M's subset, so every core runs it) that calls each ``(address, argument)`` in
+    turn (r0 = argument when there is one) and stores its r0 at OUTPUTS + 4 k:
+
+        push {r4, lr}; ldr r4, =OUTPUTS
+        [ldr r0, =argument]; ldr r3, =address | 1; blx r3; str r0, [r4, #4k]   (per getter)
+        pop {r4, pc}
+        literals
+    """
+    literals: list[int] = [OUTPUTS]
+    body: list[tuple[str, int]] = [("ldr r4", 0)]
+    for k, (address, argument) in enumerate(getters):
+        if argument is not None:
+            body.append(("ldr r0", len(literals)))
+            literals.append(argument)
+        body += [("ldr r3", len(literals)), ("blx r3", 0), ("str", k)]
+        literals.append(address | 1)
+    n = 1 + len(body) + 1  # push, the body, pop: halfwords
+    pool = (2 * n + 3) // 4 * 4  # the literal pool, word aligned after the code
+    out = [0xB510]  # push {r4, lr}
+    for i, (op, arg) in enumerate(body):
+        at = 2 * (1 + i)
+        if op.startswith("ldr"):
+            offset = pool + 4 * arg - ((at + 4) & ~3)  # LDR (literal): Align(PC, 4) + imm8 * 4
+            out.append({"ldr r0": 0x4800, "ldr r3": 0x4B00, "ldr r4": 0x4C00}[op] | offset // 4)
+        elif op == "blx r3":
+            out.append(0x4798)
+        else:  # str r0, [r4, #4k]
+            out.append(0x6020 | arg << 6)
+    out.append(0xBD10)  # pop {r4, pc}
+    code = struct.pack(f"<{len(out)}H", *out)
+    return code.ljust(pool, b"\0") + struct.pack(f"<{len(literals)}I", *literals)
 
 
 class PilFirmware:
@@ -40,6 +84,13 @@ class PilFirmware:
         self.compare_isr = self._compare_isr if self.has_compare else None
         self.adc = array.array("h", [0, 0, 0])  #: the ADC's result registers, written before every interrupt
         self.last_cycles = 0  #: cycles of the last call, exception entry and return included for an interrupt
+        getters = [(core.symbol("hil_sil_gates"), None), (core.symbol("hil_sil_duty"), None)]
+        getters += [(core.symbol("hil_sil_compare"), OUTPUTS + 16)] if self.has_compare else []
+        getters += [(core.symbol("hil_sil_emcy"), OUTPUTS + 20)] if self.has_emcy else []
+        core.load_framework_code(OUTPUTS_SYMBOL, _outputs_code(getters))
+        self._outputs: tuple | None = None
+        self._outputs_at = -1  #: core.firmware_runs when the outputs were read
+        self._emcy_popped: list[int] = []  #: EMCY codes the output read popped, not handed out yet
         self._constructors()
 
     def _constructors(self) -> None:
@@ -90,21 +141,37 @@ class PilFirmware:
     def _compare_isr(self, count: int) -> None:
         self._run("hil_sil_compare_isr", count, interrupt=True, label="compare")
 
+    def _read_outputs(self) -> tuple:
+        """gates, duty, compare's answer, emcy's answer, the compare count, the EMCY code: read in one
+        call unless no firmware code ran since the last read."""
+        if self._outputs_at != self.core.firmware_runs:
+            self.core.call(OUTPUTS_SYMBOL, charge=False)
+            out = _OUTPUTS.unpack(self.core.read(OUTPUTS, _OUTPUTS.size))
+            if not self.has_compare:  # the slots shift: compare's were never called
+                out = (out[0], out[1], 0, out[2], 0, out[5])
+            if self.has_emcy and out[3]:
+                self._emcy_popped.append(out[5])
+            self._outputs, self._outputs_at = out, self.core.firmware_runs
+        return self._outputs
+
     def gates(self) -> int:
-        return self._read("hil_sil_gates") & 0xFF
+        return self._read_outputs()[0] & 0xFF
 
     def duty(self) -> int:
-        return self._read("hil_sil_duty") & 0xFFFF
+        return self._read_outputs()[1] & 0xFFFF
 
     def compare(self) -> int | None:
         """The armed compare count, or None."""
-        if not self._read("hil_sil_compare", SCRATCH_BASE) & 0xFFFFFFFF:
-            return None
-        return struct.unpack("<I", self.core.read(SCRATCH_BASE, 4))[0]
+        out = self._read_outputs()
+        return out[4] if out[2] else None
 
     def emcy(self) -> int | None:
-        """One EMCY code popped from the firmware's queue, or None."""
-        if not self.has_emcy or not self._read("hil_sil_emcy", SCRATCH_BASE) & 0xFFFFFFFF:
+        """One EMCY code popped from the firmware's queue (the output read's first), or None."""
+        if not self.has_emcy:
+            return None
+        if self._emcy_popped:
+            return self._emcy_popped.pop(0)
+        if not self._read("hil_sil_emcy", SCRATCH_BASE) & 0xFFFFFFFF:
             return None
         return struct.unpack("<H", self.core.read(SCRATCH_BASE, 2))[0]
 

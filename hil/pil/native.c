@@ -63,10 +63,12 @@ typedef struct {
 
 typedef struct {
     pil_state *state;
-    uint32_t kind;   /* 0: a divide (the divisor is zero); 1: word alignment of register + offset */
+    uint32_t kind;   /* 0: a divide (the divisor is zero); 1: alignment of register + offset [+ index] */
     int32_t reg;     /* Unicorn's register number */
     uint32_t offset;
     uint32_t index;  /* which check, for Python */
+    int32_t index_reg; /* Unicorn's number of the index register, 0 when none */
+    uint32_t mask;   /* the address bits that must be zero: 3 a word, 1 a halfword */
 } pil_check;
 
 static inline uint64_t pil_slot(uint32_t key, uint64_t mask)
@@ -206,7 +208,13 @@ PIL_EXPORT void pil_check_hook(void *uc, uint64_t address, uint32_t size, void *
     } value;
     value.wide = 0;
     c->state->reg_read(uc, c->reg, &value);
-    int bad = c->kind == 0 ? value.word == 0 : ((value.word + c->offset) & 3u) != 0;
+    uint32_t at = value.word + c->offset;
+    if (c->kind != 0 && c->index_reg != 0) {
+        value.wide = 0;
+        c->state->reg_read(uc, c->index_reg, &value);
+        at += value.word;
+    }
+    int bad = c->kind == 0 ? value.word == 0 : (at & c->mask) != 0;
     if (bad)
         c->state->slow_check(address, size, c->index);
 }

@@ -60,7 +60,8 @@ class _Check(ctypes.Structure):
     """``pil_check`` of native.c: one checked instruction."""
 
     _fields_ = [("state", ctypes.c_void_p), ("kind", ctypes.c_uint32), ("reg", ctypes.c_int32),
-                ("offset", ctypes.c_uint32), ("index", ctypes.c_uint32)]
+                ("offset", ctypes.c_uint32), ("index", ctypes.c_uint32), ("index_reg", ctypes.c_int32),
+                ("mask", ctypes.c_uint32)]
 
 
 _SLOW_BLOCK = ctypes.CFUNCTYPE(None, ctypes.c_uint64, ctypes.c_uint32)
@@ -155,10 +156,11 @@ class NativeHooks:
         self._add(uclib, uch, unicorn.UC_HOOK_BLOCK, lib.pil_block_hook, pointer, 1, 0)
         self.checks = list(core._checks.items())
         self._check_records = (_Check * max(len(self.checks), 1))()
-        for k, (address, (kind, reg, offset, _)) in enumerate(self.checks):
+        for k, (address, (kind, reg, offset, _, index_reg, mask)) in enumerate(self.checks):
             rec = self._check_records[k]
             rec.state, rec.kind, rec.reg, rec.offset, rec.index = pointer, 0 if kind == "div" else 1, reg, \
                 offset & 0xFFFFFFFF, k
+            rec.index_reg, rec.mask = index_reg, mask
             self._add(uclib, uch, unicorn.UC_HOOK_CODE, lib.pil_check_hook, ctypes.addressof(rec), address, address)
 
     def _add(self, uclib, uch, kind: int, function, user: int, begin: int, end: int) -> None:

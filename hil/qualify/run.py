@@ -11,6 +11,10 @@ is one of:
   whichever test's marker measured it;
 * a failed **judged check** (hil.verdicts.requirements.JudgedCheck: back-to-back against the reference, or
   physics), its requirement's as a budget's is, labelled by its judgement;
+* a **processor fault** (``pil:``: the emulated core met a HardFault, UsageFault, BusFault,
+  MemManage, a stack overflow or a hang, ``hil.pil.core``): the part's own failure, a failed
+  requirement of the test that met it, labelled by the fault and where ("processor fault
+  UsageFault in ctl_hall_isr (control.c:837)");
 * a **device failure** (the controller signalled its own failure on valid input: a Modbus
   exception 04, an SDO abort 0x08000000 or 0x06060000; hil.verdicts.judging): a failed requirement, the
   test's;
@@ -28,6 +32,13 @@ requirements that name its class (``hil.verdicts.requirements``, ``judges``), an
 sensitivity table: requirement x defect -> caught by that requirement's own budget or check, with
 the margin (``sensitivity_markdown``). Without a control run that PASSes there is no detection
 figure.
+
+**Defects of one kind of DUT.** A firmware defect may name the DUT kinds that must catch it
+(defects.toml's ``kinds``: a 32-bit overflow, a ``double`` in an interrupt, a stack or an unaligned
+access show only on the part, ``["pil"]``). On another kind (``sil:``) it still runs, the whole
+suite, and is shown with its verdict, passing as expected: "not a sil: catch by
+design", never a survivor, and outside the detection figure, which counts the defects this kind
+must catch.
 """
 
 from __future__ import annotations
@@ -41,12 +52,15 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+from ..sil.link import processor_fault
 from .defects import CATALOGUE, load_defects
 
 #: the acceptance suite's files, cheapest and most discriminating first (the property searches last;
 #: the current and speed-loop tests before them, or a speed-loop defect costs the whole suite)
 SUITE_ORDER = (
     "test_protocol.py",
+    # the part's deadlines, load and memory: seconds on pil:, not applicable (at once) elsewhere
+    "test_processor.py",
     "test_faults.py",
     "test_calibration_recovery.py",
     "test_live_calibration.py",
@@ -86,11 +100,15 @@ class Run:
     requirements_run: list[str] = field(default_factory=list)
     #: assertions that failed in tests of requirements with budgets: evidence, never a catch
     checks_not_counted: list[dict] = field(default_factory=list)
+    #: the DUT kinds that must catch the defect (defects.toml's ``kinds``; empty: every kind)
+    kinds: list[str] = field(default_factory=list)
+    #: whether this run's DUT kind must catch it; False: run and shown, "not a catch by design"
+    expected: bool = True
 
 
 #: what caught a defect, the strongest evidence first: a customer's budget, a judged check
 #: (hil.verdicts.requirements.JUDGEMENTS), a device's own signal, a pass/fail requirement's check
-CATCH_KINDS = ("budget", "back-to-back", "physics", "device failure", "check")
+CATCH_KINDS = ("budget", "back-to-back", "physics", "processor fault", "device failure", "check")
 
 
 #: the sensitivity table's words for the catches that carry no name
@@ -191,7 +209,10 @@ def _judged(report: dict, registry: dict | None):
                 else:
                     uncounted.append({"requirement": r, "test": t["nodeid"]})
         elif kind == "device failure":
-            catches += [{"requirement": r, "by": "device failure", "margin": None, "test": t["nodeid"]}
+            # the emulated core's fault (pil:) is named; another device failure is the device's answer
+            fault = processor_fault(t.get("message", ""))
+            by = f"processor fault {fault}" if fault else "device failure"
+            catches += [{"requirement": r, "by": by, "margin": None, "test": t["nodeid"]}
                         for r in t.get("requirements", [])]
     by = {_catch_kind(c["by"]) for c in catches}
     caught_by = next((k for k in CATCH_KINDS if k in by), None)
@@ -238,6 +259,8 @@ def sensitivity(mutants: list[Run], registry: dict | None = None) -> list[dict]:
             cells.append({"requirement": rid, "defect": m.name, "defect_class": m.defect_class,
                           "named": rid in named, "caught": c is not None, "by": c["by"] if c else None,
                           "margin": margin, "ran": ran,
+                          # a defect this DUT kind is not meant to catch: shown, never a miss
+                          "by_design": not m.expected, "kinds": m.kinds,
                           # a check of a requirement with budgets failed: shown, never counted
                           "check_not_counted": c is None and any(u["requirement"] == rid
                                                                  for u in m.checks_not_counted)})
@@ -257,6 +280,8 @@ def sensitivity_rows(result: dict) -> list[list[str]]:
     rows = []
     for c in result.get("sensitivity") or []:
         verdict = "**caught**" if c["caught"] else ("missed" if c["ran"] else "not run")
+        if c.get("by_design") and not c["caught"]:
+            verdict = f"not caught here by design (a defect {', '.join(k + ':' for k in c['kinds'])} catches)"
         if c.get("check_not_counted"):
             verdict += " (a check failed: not counted, the requirement has budgets)"
         by = CATCH_LABELS.get(c["by"] or "", c["by"] or "")
@@ -284,15 +309,23 @@ class FirmwareDefect:
     requirements: tuple[str, ...] = ()
     #: its class (``hil.verdicts.requirements.DEFECT_CLASSES``; defects.toml's optional ``class``), "" when unclassed
     defect_class: str = ""
+    #: the DUT kinds that must catch it (defects.toml's optional ``kinds``, firmware kinds of
+    #: ``hil.dut.kinds``); empty: every kind. A defect only the part shows is ``("pil",)``
+    kinds: tuple[str, ...] = ()
+
+    def expected_on(self, kind: str) -> bool:
+        """Whether a DUT of ``kind`` must catch it."""
+        return not self.kinds or kind in self.kinds
 
 
 def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
     """The seeded defects of a ``sil:DIR`` firmware: ``DIR/defects.toml`` (format
     ``bldc-hil-firmware-defects/1``: ``[[defect]]`` tables of name, define, description,
-    requirements, and optionally class, a ``DEFECT_CLASSES`` key), or {} for any other DUT. Errors
-    name the file, the table and the key."""
+    requirements, and optionally class, a ``DEFECT_CLASSES`` key, and kinds, the firmware kinds that
+    must catch it), or {} for any other DUT. Errors name the file, the table and the key."""
     from bldc.tomlfile import TomlError, load_toml
 
+    from ..dut.kinds import firmware_kinds
     from ..dut.spec import parse_dut
     from ..verdicts.requirements import DEFECT_CLASSES
 
@@ -304,7 +337,7 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
         raise ValueError(f"{path}: no such file: a firmware's seeded defects are listed there "
                          "(docs/firmware-in-the-loop.md)")
     schema = {"format": None, "defect": [{"name": None, "define": None, "description": None, "requirements": None,
-                                   "class": None}]}
+                                   "class": None, "kinds": None}]}
     data = load_toml(path, schema)
     if data.get("format") != FIRMWARE_DEFECTS_FORMAT:
         raise TomlError(path, f"must be {FIRMWARE_DEFECTS_FORMAT!r}", key="format")
@@ -317,8 +350,12 @@ def firmware_defects(dut: str) -> dict[str, FirmwareDefect]:
         if not isinstance(defect_class, str) or (defect_class and defect_class not in DEFECT_CLASSES):
             raise TomlError(path, f"must be one of {', '.join(DEFECT_CLASSES)}", table=f"[[defect]][{i}]",
                             key="class")
+        kinds = d.get("kinds", [])
+        if not isinstance(kinds, list) or any(k not in firmware_kinds() for k in kinds):
+            raise TomlError(path, f"must be a list of DUT kinds among {', '.join(firmware_kinds())}",
+                            table=f"[[defect]][{i}]", key="kinds")
         out[d["name"]] = FirmwareDefect(d["name"], d["define"], d["description"], tuple(d.get("requirements", ())),
-                                        defect_class)
+                                        defect_class, tuple(kinds))
     return out
 
 
@@ -327,6 +364,12 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     firmware = getattr(args, "firmware_defects", None) or {}
     dut = args.dut + (f",define={firmware[defect].define}" if defect in firmware else "")
     sensitive = bool(getattr(args, "sensitivity", False))
+    kinds = list(firmware[defect].kinds) if defect in firmware else []
+    # a defect this kind of DUT is not meant to catch (a defect of the part on sil:) runs the whole suite,
+    # unrestricted, to its first catch: shown passing (or caught after all), never a miss
+    expected = defect not in firmware or firmware[defect].expected_on(_kind(args.dut))
+    if not expected:
+        sensitive = False
     cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", dut,
            "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
     if not sensitive:
@@ -366,10 +409,14 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     if not report_json.is_file():
         tail = " | ".join(output.strip().splitlines()[-3:])
         return Run(name, description, "no report", False, None, duration_s=duration, report=str(report_json),
-                   note=note or f"the run wrote no report: {tail}", defect_class=defect_class)
+                   note=note or f"the run wrote no report: {tail}", defect_class=defect_class, kinds=kinds,
+                   expected=expected)
     report = json.loads(report_json.read_text())
     verdict = report.get("verdict", "no verdict")
     caught_by, failed_reqs, failed_tests, catches, uncounted = _judged(report, None)
+    if not expected:
+        note = (note + "; " if note else "") + (
+            f"not a {_kind(args.dut)}: catch by design (a defect {', '.join(k + ':' for k in kinds)} must catch)")
     if caught_by == "error":
         note = (note + "; " if note else "") + "a test errored (nothing was caught): a finding to fix, not a catch"
     elif caught_by is None and uncounted:
@@ -380,7 +427,14 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     ran = sorted({r for t in report.get("tests", []) if t.get("outcome") in ("passed", "failed")
                   for r in t.get("requirements", [])})
     return Run(name, description, verdict, caught_by in CATCH_KINDS, caught_by, failed_reqs, failed_tests, duration,
-               str(report_json), note, catches, judged_measurements(report), defect_class, ran, uncounted)
+               str(report_json), note, catches, judged_measurements(report), defect_class, ran, uncounted, kinds,
+               expected)
+
+
+def _kind(dut: str) -> str:
+    from ..dut.spec import parse_dut
+
+    return parse_dut(dut).kind
 
 
 @dataclass
@@ -401,8 +455,19 @@ class Qualification:
         return self.control.verdict == "PASS"
 
     @property
+    def judged(self) -> list[Run]:
+        """The defects this kind of DUT must catch (module docstring: defects of one kind)."""
+        return [m for m in self.mutants if m.expected]
+
+    @property
+    def by_design(self) -> list[Run]:
+        """The defects this kind of DUT is not meant to catch (a defect of the part on sil:): run,
+        shown, never a survivor and outside the detection figure."""
+        return [m for m in self.mutants if not m.expected]
+
+    @property
     def killed(self) -> list[Run]:
-        return [m for m in self.mutants if m.killed]
+        return [m for m in self.judged if m.killed]
 
     @property
     def errored(self) -> list[str]:
@@ -414,13 +479,13 @@ class Qualification:
 
     @property
     def survivors(self) -> list[str]:
-        return [m.name for m in self.mutants if not m.killed and m.caught_by not in ("error", "not judged")]
+        return [m.name for m in self.judged if not m.killed and m.caught_by not in ("error", "not judged")]
 
     @property
     def detection_ratio(self) -> float | None:
         """Killed over all defects; None without a passing control run (against a failing control
         a "caught" defect may be the control's own failure) or without defects."""
-        return len(self.killed) / len(self.mutants) if self.control_passed and self.mutants else None
+        return len(self.killed) / len(self.judged) if self.control_passed and self.judged else None
 
     def requirements(self) -> dict[str, list[str]]:
         """Requirement -> the defects its failure caught."""
@@ -442,7 +507,7 @@ class Qualification:
             "mutants": [asdict(m) for m in self.mutants],
             "detection": {
                 "killed": len(self.killed),
-                "total": len(self.mutants),
+                "total": len(self.judged),
                 "ratio": self.detection_ratio,
             } if self.control_passed else None,
             "no_detection_because": None if self.control_passed else (
@@ -453,6 +518,9 @@ class Qualification:
             "sensitivity": sensitivity(self.mutants),
             "requirements": self.requirements(),
             "survivors": self.survivors,
+            #: defect -> its verdict here, for the defects this DUT kind is not meant to catch
+            "not_this_kind": {m.name: {"verdict": m.verdict, "kinds": m.kinds, "caught_by": m.caught_by}
+                              for m in self.by_design},
             "duration_s": self.duration_s,
         }
 
@@ -475,9 +543,12 @@ def qualify(args, progress=print) -> Qualification:
     control = "the firmware as built" if args.firmware_defects else "the built-in controller as shipped"
     classes = [catalogue[n].defect_class for n in names]
     # with --sensitivity each defect runs the requirements that name its class: the control runs their
-    # union (all of the suite when a defect has no class, whose run is the whole suite)
+    # union (all of the suite when a defect has no class, or this kind is not meant to catch it: those
+    # runs are the whole suite)
+    kind = _kind(args.dut)
+    by_design = [n for n in names if n in args.firmware_defects and not args.firmware_defects[n].expected_on(kind)]
     args.control_requirements = (sorted({r for c in classes for r in naming(c)})
-                                 if all(classes) and names else None)
+                                 if all(classes) and names and not by_design else None)
     jobs = [("control", control, None)] + [(n, catalogue[n].description, n) for n in names]
     started = time.monotonic()
     with ThreadPoolExecutor(max_workers=max(int(args.workers), 1)) as pool:
@@ -488,6 +559,7 @@ def qualify(args, progress=print) -> Qualification:
             runs.append(run)
             caught = ", ".join(run.killed_by) or "-"
             state = "control" if run.name == "control" else (
+                ("caught" if run.killed else "passes") if not run.expected else
                 "killed" if run.killed else {"error": "ERRORED", "not judged": "NOT JUDGED"}.get(run.caught_by,
                                                                                            "SURVIVED"))
             progress(f"{run.name:<34} {state:<9} {run.verdict:<9} {run.duration_s:6.1f} s  caught by: {caught}"

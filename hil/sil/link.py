@@ -15,6 +15,7 @@ next request starts a freshly loaded firmware.
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -38,6 +39,22 @@ START_TIMEOUT_S = 120.0
 class FirmwareFault(LinkError):
     """The firmware crashed, hung or broke the interface; the message names the event, the
     simulated instant and the counter."""
+
+
+#: how a processor fault of the emulated core (pil:) is told in a FirmwareFault's message, before the
+#: finding's own text (``hil.pil.core.ProcessorFinding``: "UsageFault in ctl_hall_isr (control.c:837)
+#: at pc ...")
+PROCESSOR_FAULT = "processor fault: "
+_PROCESSOR_FAULT = re.compile(re.escape(PROCESSOR_FAULT) + r"(\w+) in (\S+)(?: \(([^)]*)\))?")
+
+
+def processor_fault(message: str) -> str | None:
+    """A failure message's processor fault as "KIND in FUNCTION (FILE:LINE)" (a test's ``message``
+    in the HIL report), or None when it names none."""
+    m = _PROCESSOR_FAULT.search(message or "")
+    if m is None:
+        return None
+    return f"{m[1]} in {m[2]}" + (f" ({m[3]})" if m[3] else "")
 
 
 class SilProcess:
@@ -94,6 +111,13 @@ class SilProcess:
         if status == "fault":
             self._stop()
             raise FirmwareFault(f"{self.label}: {value}")
+        if status == "processor fault":
+            # the part's own failure on valid input, as a device's general-error answer is
+            # (hil.judging): it fails the requirement of the test that met it
+            self._stop()
+            fault = FirmwareFault(f"{self.label}: {PROCESSOR_FAULT}{value}")
+            fault.device_failure = True
+            raise fault
         raise value
 
     def _wait(self, op: str, limit_s: float | None):

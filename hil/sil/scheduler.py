@@ -49,6 +49,13 @@ _ADC_SLOT = {CONTROL: 0, HALL: 1}
 MAX_OVERRUNS = 100
 
 
+def _processor(fault: FirmwareFault, finding) -> FirmwareFault:
+    """``fault`` marked as the core's ``finding`` (its kind: UsageFault, StackOverflow, Hang ...): the
+    worker reports it as a processor fault, the device's own failure (``hil.sil.link``)."""
+    fault.processor = finding.kind
+    return fault
+
+
 @dataclass
 class _Call:
     """An interrupt instance: pending (not started) or on the stack (running or preempted)."""
@@ -201,7 +208,7 @@ class TimedPeripherals(Peripherals):
             self._run(t_stop_s)
         except ProcessorFinding as exc:
             t = self._time(exc.cycles) if self._stack else self.sim.t_s
-            raise FirmwareFault(f"{exc} at t = {t:.9f} s (counter {self.count(t)})") from None
+            raise _processor(FirmwareFault(f"{exc} at t = {t:.9f} s (counter {self.count(t)})"), exc) from None
 
     def _plant_to(self, t_s: float) -> None:
         """The plant to ``t_s`` with the outputs in force; its Hall edges meanwhile are pending."""
@@ -273,7 +280,7 @@ class TimedPeripherals(Peripherals):
                 self.core.run()
                 self._stack.pop()
         except ProcessorFinding as exc:
-            raise FirmwareFault(f"{exc} (finishing the interrupts of the last run)") from None
+            raise _processor(FirmwareFault(f"{exc} (finishing the interrupts of the last run)"), exc) from None
         self._queued.clear()
 
     # --- what the schedule measured ------------------------------------------------------------------

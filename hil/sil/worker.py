@@ -9,6 +9,7 @@ reset firmware.
 
 from __future__ import annotations
 
+import sys
 import traceback
 
 import numpy as np
@@ -38,6 +39,15 @@ def firmware_faults(kind: str) -> tuple[type, ...]:
 
         faults += (ProcessorFinding,)
     return faults
+
+
+def processor_finding(exc: BaseException) -> str | None:
+    """The kind of the emulated core's finding ``exc`` is or carries (UsageFault, StackOverflow,
+    Hang ...; ``hil.pil.core.ProcessorFinding``, or a ``FirmwareFault`` the scheduler made of one), else None."""
+    core = sys.modules.get("hil.pil.core")  # imported by a pil: worker only
+    if core is not None and isinstance(exc, core.ProcessorFinding):
+        return exc.kind
+    return getattr(exc, "processor", None)
 
 
 class _Worker:
@@ -212,7 +222,8 @@ def main(conn, record: np.ndarray, library: str, kind: str = "sil", target: str 
         try:
             result = getattr(worker, f"op_{op}")(*args)
         except faults as exc:
-            conn.send(("fault", str(exc)))
+            # a finding of the emulated core (pil:) is the device's own failure, named as such
+            conn.send(("processor fault" if processor_finding(exc) else "fault", str(exc)))
             return  # the firmware's state can no longer be trusted: the next request gets a new process
         except BaseException as exc:  # noqa: BLE001
             conn.send(("error", _portable(exc)))

@@ -33,9 +33,10 @@
    HIL_DEFECT_TORN_TABLE      apply hands the table to the 1 kHz background task, which copies one value per tick into
                               the table the ISRs read (torn reads for 10 ms)
 
-   The third group passes on a PC (sil:) and shows only on the part (pil:):
+   The third group passes on a PC (sil:) and shows only on the part (pil:; defects.toml's kinds = ["pil"]):
    HIL_DEFECT_TIME_PRODUCT_OVERFLOW   the conditioning delay to ticks as unsigned long ns x TIMER_HZ: wraps at 32 bits
-   HIL_DEFECT_DOUBLE_IN_CONTROL_ISR   a double-precision low pass (exp every period) in the 20 kHz control interrupt
+   HIL_DEFECT_DOUBLE_IN_CONTROL_ISR   a double-precision low pass (exp of the measured interval every period) in the
+                                      20 kHz control interrupt
    HIL_DEFECT_STACK_HUNGRY_ISR        a 4.4 kB local buffer in the Hall interrupt
    HIL_DEFECT_UNALIGNED_64BIT_ACCESS  the capture time stored through an int64_t pointer one byte into a record (STRD)
 */

@@ -935,16 +935,21 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
 
 #if defined(HIL_DEFECT_DOUBLE_IN_CONTROL_ISR)
 static double current_lp_a[3]; /* a low-passed phase current nobody needs at 20 kHz */
+static int64_t current_lp_at = -1; /* the previous control interrupt's instant, in timer ticks */
+#define CURRENT_LP_TAU_S 1e-3
 #endif
 
 void ctl_control_isr(uint32_t count, const int16_t adc[3])
 {
     int64_t now = tb_at(count);
 #if defined(HIL_DEFECT_DOUBLE_IN_CONTROL_ISR)
-    {   /* a first-order low pass in double, its coefficient recomputed every period: on a PC two
-           instructions, on a Cortex-M4F (single-precision FPU) software exp, multiplies and adds */
-        double alpha = 1.0 - exp(-1.0 / ((double)CONTROL_HZ * 1e-3));
+    {   /* a first-order low pass in double, its coefficient recomputed every period from the
+           measured interval since the last one: on a PC a few instructions, on a Cortex-M4F
+           (single-precision FPU) a software exp, a divide, multiplies and adds */
+        double dt_s = current_lp_at < 0 ? 1.0 / CONTROL_HZ : (double)(now - current_lp_at) / (double)TIMER_HZ;
+        double alpha = 1.0 - exp(-dt_s / CURRENT_LP_TAU_S);
         int k;
+        current_lp_at = now;
         for (k = 0; k < 3; k++) current_lp_a[k] += alpha * ((double)adc[k] * (double)AMPS_PER_COUNT - current_lp_a[k]);
     }
 #endif
