@@ -1080,7 +1080,7 @@ class HilReporter:
                 if r.failed:
                     unreachable = PROPERTY_PREFIX + "unreachable" in own
                     # a setup check that found the scenario did not provoke what the test judges: no
-                    # evidence either way (hil.judging.not_judged)
+                    # evidence either way (hil.verdicts.judging.not_judged)
                     unjudged = own.get(PROPERTY_PREFIX + "failed_by") == FailedBy.NOT_JUDGED
                     phase = Outcome.FAILED if r.when == "call" and not unreachable and not unjudged else Outcome.ERROR
                 elif r.skipped:

@@ -41,7 +41,7 @@ def test_a_bad_kinds_list_names_the_table_and_the_key(tmp_path):
 
 
 def _bench(dut: str):
-    from hil.bench import LockstepBench
+    from hil.bench.lockstep import LockstepBench
     from hil.dut.spec import open_dut, parse_dut
 
     config = PlantConfig()
@@ -55,7 +55,7 @@ def test_the_unaligned_store_is_a_named_usage_fault_on_the_part_and_passes_on_th
     interrupt takes a UsageFault (UNALIGNED) at its STRD, named with the function and the source line;
     the plugin calls it a device failure (the part's own) and qualify's catch is labelled by the fault.
     The same source built for the PC runs the same 20 ms without a word."""
-    from hil.judging import device_failure
+    from hil.verdicts.judging import device_failure
     from hil.pytest_plugin import failure_kind
     from hil.sil.link import FirmwareFault
 
@@ -106,7 +106,7 @@ def test_a_defect_another_kind_must_catch_is_shown_never_a_survivor_nor_in_the_d
                               suite=str(REFERENCE.parent.parent / "test_cases"), sensitivity=True,
                               firmware_defects=qrun.firmware_defects(f"sil:{REFERENCE}"))
     r = qrun._run("double-in-control-isr", "d", "double-in-control-isr", args)
-    assert not r.expected and r.kinds == ["pil"] and "-x" in seen[0] and "--hil-requirements" not in seen[0]
+    assert not r.expected and r.kinds == ["pil"] and "--hil-stop-at-catch" in seen[0] and "--hil-requirements" not in seen[0]
     args.dut = f"pil:{REFERENCE}"
     r = qrun._run("double-in-control-isr", "d", "double-in-control-isr", args)
     assert r.expected and seen[1][seen[1].index("--hil-requirements") + 1] == "REQ-PIL-001,REQ-PIL-002"

@@ -113,7 +113,7 @@ class SilProcess:
             raise FirmwareFault(f"{self.label}: {value}")
         if status == "processor fault":
             # the part's own failure on valid input, as a device's general-error answer is
-            # (hil.judging): it fails the requirement of the test that met it
+            # (hil.verdicts.judging): it fails the requirement of the test that met it
             self._stop()
             fault = FirmwareFault(f"{self.label}: {PROCESSOR_FAULT}{value}")
             fault.device_failure = True
