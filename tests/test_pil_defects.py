@@ -106,7 +106,8 @@ def test_a_defect_another_kind_must_catch_is_shown_never_a_survivor_nor_in_the_d
                               suite=str(REFERENCE.parent.parent / "test_cases"), sensitivity=True,
                               firmware_defects=qrun.firmware_defects(f"sil:{REFERENCE}"))
     r = qrun._run("double-in-control-isr", "d", "double-in-control-isr", args)
-    assert not r.expected and r.kinds == ["pil"] and "--hil-stop-at-catch" in seen[0] and "--hil-requirements" not in seen[0]
+    assert not r.expected and r.kinds == ["pil"]
+    assert "--hil-stop-at-catch" in seen[0] and "--hil-requirements" not in seen[0]
     args.dut = f"pil:{REFERENCE}"
     r = qrun._run("double-in-control-isr", "d", "double-in-control-isr", args)
     assert r.expected and seen[1][seen[1].index("--hil-requirements") + 1] == "REQ-PIL-001,REQ-PIL-002"
