@@ -403,15 +403,16 @@ def cmd_campaign(args) -> int:
 
 def _print_cause_confusion(report, min_snr: float) -> None:
     """Field generator: rows are the physical causes (with the effect that should explain them)."""
-    from .gap.field_causes import CAUSE_EFFECT
+    from plant_models.hall_field import FIELD_CAUSES
 
     single = [c for c in report.cases if c["kind"] == "single" and c["snr"] >= min_snr]
-    cols = sorted({c["top1"] for c in single} | set(CAUSE_EFFECT.values()))
+    cols = sorted({c["top1"] for c in single} | {cause.explained_by.name for cause in FIELD_CAUSES})
     print(f"field causes at SNR >= {min_snr:g} (rows: withheld cause -> expected effect; columns: top-1 accepted):")
     print(" " * 44 + "".join(f"{c[:10]:>11}" for c in cols))
-    for cause, effect in CAUSE_EFFECT.items():
-        row = [c["top1"] for c in single if c["cause"][0] == cause]
-        print(f"{cause + ' -> ' + effect:<44}" + "".join(f"{row.count(c):>11}" for c in cols))
+    for cause in FIELD_CAUSES:
+        row = [c["top1"] for c in single if c["cause"][0] == cause.name]
+        label = f"{cause.name} -> {cause.explained_by.name}"
+        print(f"{label:<44}" + "".join(f"{row.count(c):>11}" for c in cols))
 
 
 def cmd_dut_serve(args) -> int:

@@ -37,7 +37,7 @@ import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
-from typing import Any, ClassVar, Mapping
+from typing import Any, Callable, ClassVar, Mapping
 
 import numpy as np
 from scipy.optimize import brentq
@@ -45,7 +45,17 @@ from scipy.optimize import brentq
 from bldc.hall import SENSOR_POSITION_DEG_E
 from bldc.params import ConfigError, bounded, from_mapping, validate
 
-from .effects import EFFECTS, ConditioningCircuit, Effect
+from .effects import (
+    EFFECTS,
+    ArmatureReaction,
+    ConditioningCircuit,
+    ConditioningDelay,
+    Eccentricity,
+    Effect,
+    Hysteresis,
+    InstallationOffset,
+    PoleOffset,
+)
 
 #: mechanical harmonics of the magnetisation kept in the field sum (per pole pair)
 HARMONICS_PER_POLE_PAIR = 80
@@ -416,3 +426,188 @@ def _tables(hf: HallField, pole_pairs: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 EFFECTS[HallField.name] = HallField
+
+
+# --- causes: the field model's physical parameters, each with the library effect that explains it ---
+#
+# ``hil gap validate --generator field`` withholds these (docs/gap.md, "Causes and the library
+# effects that explain them"). A cause declares its physical parameter, the library effect that
+# should explain it, how a case draws it (its fixed parts from the case's random generator, then a
+# size factor the validation scales to the drawn signal-to-noise), and the magnitude of that effect
+# its parameter implies by first-order physics. R_s is the sensor radius (ring radius plus air gap);
+# dB/dtheta the ring field's slope at its zero crossings (mT per deg_e).
+
+#: temperature coefficient of the Hall switching points drawn with a hysteresis band (an
+#: uncompensated CMOS Hall latch drifts by about -0.1 %/K)
+THRESHOLD_TC_PER_K = -0.001
+
+
+class FieldCause:
+    """One physical cause of the field model, declared once: every route that withholds or
+    scores it reads this."""
+
+    name: ClassVar[str] = ""
+    #: the physical parameter drawn (words, for the tables)
+    parameter: ClassVar[str] = ""
+    #: the library effect that should explain it
+    explained_by: ClassVar[type[Effect]] = Effect
+
+    def draw(self, rng: np.random.Generator, pole_pairs: int) -> Callable[[float], HallField]:
+        """Draw the case's fixed parts; returns size factor -> field model (factor 1: the unit size)."""
+        raise NotImplementedError
+
+    def implied(self, hf: HallField, pole_pairs: int) -> Effect:
+        """The library effect with the magnitude ``hf``'s physical parameter implies."""
+        raise NotImplementedError
+
+
+def _sensor_radius_mm(hf: HallField) -> float:
+    return hf.ring.radius_mm + hf.sensors.air_gap_mm
+
+
+def _nominal_slope_mt_per_deg_e(pole_pairs: int) -> float:
+    return HallField().model(pole_pairs).slope_mt_per_deg_e()
+
+
+class _RingOffsetCause(FieldCause):
+    """A ring or axis off centre: a size in mm (0.05 mm per unit, within the ring's bounds)
+    towards an angle drawn uniformly."""
+
+    offset_field: ClassVar[str] = ""
+    angle_field: ClassVar[str] = ""
+
+    def draw(self, rng, pole_pairs):
+        angle = float(rng.uniform(0.0, 360.0))
+        return lambda s: HallField(
+            ring=MagnetRing(**{self.offset_field: float(np.clip(0.05 * s, 0.0, 0.5)), self.angle_field: angle})
+        )
+
+
+class DynamicEccentricityCause(_RingOffsetCause):
+    """Ring centre off the rotation axis by e (mm): eccentricity of amplitude ``p e / R_s`` (rad, as deg_e)."""
+
+    name = "dynamic_eccentricity"
+    parameter = "ring centre off the axis, e (mm)"
+    explained_by = Eccentricity
+
+    offset_field = "eccentricity_mm"
+    angle_field = "eccentricity_angle_deg"
+
+    def implied(self, hf, pole_pairs):
+        return Eccentricity(math.degrees(pole_pairs * hf.ring.eccentricity_mm / _sensor_radius_mm(hf)), 0.0)
+
+
+class StaticEccentricityCause(_RingOffsetCause):
+    """Rotation axis off the stator centre by e (mm) towards gamma: an installation offset of
+    ``p (e / R_s) sin(phi_x - gamma)`` per sensor (phi_x: the sensor's stator angle)."""
+
+    name = "static_eccentricity"
+    parameter = "rotation axis off the stator centre, e (mm), towards gamma"
+    explained_by = InstallationOffset
+
+    offset_field = "static_offset_mm"
+    angle_field = "static_offset_angle_deg"
+
+    def implied(self, hf, pole_pairs):
+        phi = np.radians(SENSOR_POSITION_DEG_E / pole_pairs)
+        gamma = math.radians(hf.ring.static_offset_angle_deg)
+        shift_rad = pole_pairs * hf.ring.static_offset_mm / _sensor_radius_mm(hf) * np.sin(phi - gamma)
+        return InstallationOffset(tuple(float(v) for v in np.degrees(shift_rad)))
+
+
+class PoleMagnetisationCause(FieldCause):
+    """Per-pole remanence and boundary placement: a pole offset where the ring's own field
+    crosses zero, per pole boundary (field geometry, all sensors alike)."""
+
+    name = "pole_magnetisation"
+    parameter = "per-pole remanence and boundary placement"
+    explained_by = PoleOffset
+
+    def draw(self, rng, pole_pairs):
+        rem = rng.uniform(-1.0, 1.0, 2 * pole_pairs)
+        err = rng.uniform(-1.0, 1.0, 2 * pole_pairs)
+        return lambda s: HallField(
+            ring=MagnetRing(
+                pole_remanence=tuple(float(np.clip(1.0 + 0.02 * s * r, 0.8, 1.2)) for r in rem),
+                boundary_error_deg_m=tuple(float(np.clip(0.05 * s * e, -2.0, 2.0)) for e in err),
+            )
+        )
+
+    def implied(self, hf, pole_pairs):
+        zero = HallField(ring=hf.ring).model(pole_pairs).switch_table_deg_e()[:, :, 0].mean(axis=0)
+        return PoleOffset(tuple(float(v) for v in zero))
+
+
+class HysteresisBandCause(FieldCause):
+    """B_op = -B_rp = b / 2 (mT) at a temperature rise dT: hysteresis of
+    ``(b / 2) (1 + tc dT) / (dB/dtheta (1 + alpha_Br dT))``."""
+
+    name = "hysteresis_band"
+    parameter = "B_op = -B_rp = b / 2 (mT) at a temperature"
+    explained_by = Hysteresis
+
+    def draw(self, rng, pole_pairs):
+        dt = float(rng.uniform(-20.0, 80.0))
+
+        def make(s):
+            b = float(np.clip(2.0 * s, 0.0, 100.0))
+            return HallField(
+                sensors=HallSwitches(
+                    operate_mt=(b / 2,) * 3, release_mt=(-b / 2,) * 3, threshold_tc_per_k=THRESHOLD_TC_PER_K
+                ),
+                temperature_rise_k=dt,
+            )
+
+        return make
+
+    def implied(self, hf, pole_pairs):
+        sen, dt = hf.sensors, hf.temperature_rise_k
+        nominal = _nominal_slope_mt_per_deg_e(pole_pairs)
+        b_half = 0.5 * (sen.operate_mt[0] - sen.release_mt[0]) * (1 + sen.threshold_tc_per_k * dt)
+        return Hysteresis(b_half / (nominal * (1 + hf.ring.alpha_br_per_k * dt)))
+
+
+class StatorFieldCause(FieldCause):
+    """Stator coupling k (mT/A) along the sensor's phase axis: armature reaction of
+    ``2.25 k / (dB/dtheta)`` per A of mean abs(i)."""
+
+    name = "stator_field"
+    parameter = "coupling (mT/A)"
+    explained_by = ArmatureReaction
+
+    def draw(self, rng, pole_pairs):
+        sign = float(rng.choice([-1.0, 1.0]))  # a sensor on the phase axis's far side sees the field reversed: it leads
+        return lambda s: HallField(stator=StatorCoupling(float(np.clip(sign * s, -20.0, 20.0))))
+
+    def implied(self, hf, pole_pairs):
+        return ArmatureReaction(2.25 * hf.stator.coupling_mt_per_a / _nominal_slope_mt_per_deg_e(pole_pairs))
+
+
+class OutputFilterCause(FieldCause):
+    """Pull-up and filter capacitor of an open-collector output: a conditioning delay of the
+    circuit's RC crossing times."""
+
+    name = "output_filter"
+    parameter = "pull-up and filter capacitor"
+    explained_by = ConditioningDelay
+
+    def draw(self, rng, pole_pairs):
+        r2 = float(rng.uniform(2.2e3, 10e3))
+        ratio = float(rng.uniform(0.3, 1.0))
+        return lambda s: HallField(
+            output=ConditioningCircuit(r2_ohm=r2, r1_ohm=ratio * 50.0, c1_f=float(np.clip(1e-9 * s, 1e-12, 1e-6)))
+        )
+
+    def implied(self, hf, pole_pairs):
+        return ConditioningDelay(*hf.output.delays_s())
+
+
+#: every field cause, in the order the validation plans its cases (its seeds depend on it)
+FIELD_CAUSES: tuple[FieldCause, ...] = (
+    DynamicEccentricityCause(),
+    StaticEccentricityCause(),
+    PoleMagnetisationCause(),
+    HysteresisBandCause(),
+    StatorFieldCause(),
+    OutputFilterCause(),
+)

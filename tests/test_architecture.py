@@ -348,8 +348,10 @@ def test_the_contract_states_no_device_address():
     assert not re.findall(r"0x2[0-9A-Fa-f]{3}|(?:Modbus|holding) registers? \d", text)
 
 
-#: the modules the private-name rule reads: the packages and the tools
-_PRIVATE_RULE_MODULES = {**MODULES, **{f"tools.{p.stem}": p for p in sorted((ROOT / "tools").glob("*.py"))}}
+#: the modules the private-name rule reads: the packages and the tools (tools/published's modules too)
+_PRIVATE_RULE_MODULES = {**MODULES, **{
+    ".".join(("tools", *p.relative_to(ROOT / "tools").with_suffix("").parts)).removesuffix(".__init__"): p
+    for p in sorted((ROOT / "tools").rglob("*.py"))}}
 
 
 def room(module: str) -> str:

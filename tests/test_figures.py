@@ -20,15 +20,22 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _figures_module():
-    spec = importlib.util.spec_from_file_location("hil_figures_tool", ROOT / "tools" / "figures.py")
+def _figures_package():
+    """tools/published, the package of ``python tools/figures.py`` (tools/ is no package of the
+    repository: loaded from its path, as the script finds it beside itself)."""
+    package = ROOT / "tools" / "published"
+    spec = importlib.util.spec_from_file_location("published", package / "__init__.py",
+                                                  submodule_search_locations=[str(package)])
     mod = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = mod  # dataclasses look their module up while the tool is being loaded
+    sys.modules[spec.name] = mod  # its modules import each other, and dataclasses look their module up
     spec.loader.exec_module(mod)
     return mod
 
 
-figures = _figures_module()
+_figures_package()
+#: the engine (the file, the checks, the command line); its groups come from the producers' modules
+figures = importlib.import_module("published.engine")
+common = importlib.import_module("published.producers.common")
 
 
 #: the groups tools/figures.py is computing while this suite runs inside its measurement
@@ -221,7 +228,7 @@ def test_input_globs():
     assert figures.matching(paths, ("hil/**",)) == ["hil/cli.py", "hil/gap/fit.py"]
     assert figures.matching(paths, ("**", "!docs/figures.json", "!docs/*.md")) == [
         "hil/cli.py", "hil/gap/fit.py", "docs/img/a.png", "README.md"]
-    assert figures.matching(["tests/data/real-hall/a.vcd"], (figures.ALL_CAPTURES,)) == ["tests/data/real-hall/a.vcd"]
+    assert figures.matching(["tests/data/real-hall/a.vcd"], (common.ALL_CAPTURES,)) == ["tests/data/real-hall/a.vcd"]
 
 
 def _root_commit() -> str:
@@ -302,6 +309,24 @@ def test_every_group_declares_the_code_it_runs():
         assert paths and set(figures.matching(paths, g.inputs)) == set(paths), (
             f"{g.name}: runs or reads {sorted(set(paths) - set(figures.matching(paths, g.inputs)))}, not among its "
             "inputs")
+
+
+def test_every_group_declares_its_producer_and_every_producer_is_listed():
+    """A change to a producer makes its own groups stale: every group's inputs name the module its
+    producer is in and the producers' shared module, never the engine's (an engine edit recomputes
+    nothing but the test suite's group, which reads everything); every producer module is in the list."""
+    import inspect
+
+    producers = ROOT / "tools" / "published" / "producers"
+    listed = {inspect.getsourcefile(g.produce) for g in figures.GROUPS}
+    engine = [str((ROOT / "tools" / "published" / f).relative_to(ROOT)) for f in ("engine.py", "model.py")]
+    for g in figures.GROUPS:
+        own = [str(Path(f).relative_to(ROOT)) for f in (inspect.getsourcefile(g.produce), common.__file__)]
+        assert figures.matching(own, g.inputs) == own, f"{g.name}: its producer's code is not among its inputs"
+        assert g.inputs[0] == "**" or figures.matching(engine, g.inputs) == [], g.name
+    modules = {str(p) for p in producers.glob("*.py") if p.name not in ("__init__.py", "common.py")}
+    assert modules == listed, f"producer modules not in producers/__init__.py's GROUPS: {sorted(modules - listed)}"
+    assert len({g.name for g in figures.GROUPS}) == len(figures.GROUPS)
 
 
 def _copy_of_the_pages(tmp_path: Path, monkeypatch) -> None:

@@ -14,7 +14,7 @@ import pytest
 from bldc.hall import SENSOR_POSITION_DEG_E
 from plant_models import ConfigError, PlantConfig, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
-from plant_models.hall_field import HallField, HallSwitches, MagnetRing, StatorCoupling
+from plant_models.hall_field import FIELD_CAUSES, HallField, HallSwitches, MagnetRing, StatorCoupling
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
 P = 2
@@ -116,6 +116,25 @@ def test_open_collector_delays_come_from_the_circuit():
     np.testing.assert_allclose(delay[e.rising], rise, rtol=1e-9)
     np.testing.assert_allclose(delay[~e.rising], fall, rtol=1e-9)
     assert rise > fall > 0
+
+
+def test_each_field_cause_is_declared_once_with_the_effect_and_magnitude_first_order_physics_implies():
+    """The declarations ``hil gap validate --generator field`` iterates: one per cause, each drawing a
+    field model whose implied magnitude is the library effect it names; two magnitudes against the
+    first-order formulas computed here (ring centre e: p e / R_s; stator coupling k: 2.25 k / slope)."""
+    assert len({c.name for c in FIELD_CAUSES}) == len(FIELD_CAUSES) == 6
+    implied = {}
+    for cause in FIELD_CAUSES:
+        assert cause.parameter and fx.EFFECTS[cause.explained_by.name] is cause.explained_by
+        hf = cause.draw(np.random.default_rng(0), P)(1.0)
+        assert hf != HallField(), cause.name  # the unit size is a deviation
+        implied[cause.name] = effect = cause.implied(hf, P)
+        assert type(effect) is cause.explained_by
+        effect.check(P, cause.name)  # within the effect's own bounds
+    r_s = HallField().ring.radius_mm + HallField().sensors.air_gap_mm
+    assert implied["dynamic_eccentricity"].amplitude_deg_e == pytest.approx(math.degrees(P * 0.05 / r_s), rel=1e-12)
+    coupling = abs(implied["stator_field"].slope_deg_e_per_a)
+    assert coupling == pytest.approx(2.25 * 1.0 / abs(slope_mt_per_deg_e()), rel=0.01)
 
 
 def test_electrical_plant_switches_where_the_kinematic_generator_does():

@@ -143,6 +143,8 @@ def _strategy(where: str, v: Any) -> str:
 
 
 def _axis(where: str, t: dict, kind: str) -> Axis:
+    """One ``[[axis]]``: what it sweeps, its values (numbers within the axis's bounds, or strategy
+    names) and, for a list parameter of an effect, its pattern."""
     name = t.get("name")
     if not isinstance(name, str) or not name:
         raise ConfigError(
@@ -150,6 +152,25 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
             "required (an effect parameter such as installation_offset.offset_deg_e, or one of "
             f"{', '.join(OPERATING_AXES)}, or fault.<param>)",
         )
+    values = _axis_values(where, t, name)
+    if name.startswith("fault") and kind != "fault_sequence":
+        raise ConfigError(f"{where}.name", f'{name!r} sweeps a wiring fault: set [campaign] kind = "fault_sequence"')
+    pattern = None
+    if "pattern" in t:
+        p = t["pattern"]
+        if not isinstance(p, list) or not p:
+            raise ConfigError(f"{where}.pattern", "must be a non-empty list of numbers")
+        pattern = tuple(_number(f"{where}.pattern[{i}]", v) for i, v in enumerate(p))
+    axis = Axis(name, values, pattern)
+    if axis.effect is not None:
+        _check_effect_parameter(where, name, pattern)
+    elif pattern is not None:
+        raise ConfigError(f"{where}.pattern", f"{name} is not a list parameter: no pattern")
+    return axis
+
+
+def _axis_values(where: str, t: dict, name: str) -> tuple:
+    """An axis's ``values`` or ``linspace``: distinct, within the bounds of the operating axes."""
     if ("values" in t) == ("linspace" in t):
         raise ConfigError(where, "give exactly one of 'values' or 'linspace'")
     if "linspace" in t:
@@ -183,39 +204,31 @@ def _axis(where: str, t: dict, kind: str) -> Axis:
     if name in ("load_scale",):
         for i, v in enumerate(values):
             _number(f"{where}.values[{i}]", v, 0.0, 10.0)
-    if name.startswith("fault") and kind != "fault_sequence":
-        raise ConfigError(f"{where}.name", f'{name!r} sweeps a wiring fault: set [campaign] kind = "fault_sequence"')
-    pattern = None
-    if "pattern" in t:
-        p = t["pattern"]
-        if not isinstance(p, list) or not p:
-            raise ConfigError(f"{where}.pattern", "must be a non-empty list of numbers")
-        pattern = tuple(_number(f"{where}.pattern[{i}]", v) for i, v in enumerate(p))
-    axis = Axis(name, values, pattern)
-    if axis.effect is not None:
-        effect, _, param = name.partition(".")
-        cls = EFFECTS.get(effect)
-        if cls is None:
-            raise ConfigError(
-                f"{where}.name",
-                f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
-                f"({', '.join(OPERATING_AXES)})",
-            )
-        fields = {f.name: f for f in dataclasses.fields(cls)}
-        if param not in fields:
-            raise ConfigError(
-                f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})"
-            )
-        is_list = "tuple" in str(fields[param].type)
-        if is_list and pattern is None:
-            raise ConfigError(
-                f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)"
-            )
-        if not is_list and pattern is not None:
-            raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
-    elif pattern is not None:
-        raise ConfigError(f"{where}.pattern", f"{name} is not a list parameter: no pattern")
-    return axis
+    return values
+
+
+def _check_effect_parameter(where: str, name: str, pattern: tuple[float, ...] | None) -> None:
+    """``effect.param`` names a parameter of a known effect; a list parameter has a pattern, a number none."""
+    effect, _, param = name.partition(".")
+    cls = EFFECTS.get(effect)
+    if cls is None:
+        raise ConfigError(
+            f"{where}.name",
+            f"unknown effect {effect!r} (known: {', '.join(EFFECTS)}) and not an operating axis "
+            f"({', '.join(OPERATING_AXES)})",
+        )
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    if param not in fields:
+        raise ConfigError(
+            f"{where}.name", f"effect {effect!r} has no parameter {param!r} (has: {', '.join(fields)})"
+        )
+    is_list = "tuple" in str(fields[param].type)
+    if is_list and pattern is None:
+        raise ConfigError(
+            f"{where}.pattern", f"{name} is a list parameter: give pattern = [...] (the point's value times it)"
+        )
+    if not is_list and pattern is not None:
+        raise ConfigError(f"{where}.pattern", f"{name} is a single number: no pattern")
 
 
 def load_spec(path: str | Path) -> CampaignSpec:
@@ -232,7 +245,18 @@ def load_spec(path: str | Path) -> CampaignSpec:
 def parse_spec(data: dict, path: Path) -> CampaignSpec:
     """Validate the values of a SPEC whose keys ``load_toml`` checked against ``SCHEMA``; errors
     name the key (``load_spec`` prefixes the file)."""
-    c = _table("campaign", data.get("campaign", {}))
+    campaign = _campaign(_table("campaign", data.get("campaign", {})), path)
+    fixed = _fixed(_table("fixed", data.get("fixed", {})), campaign["kind"], campaign["plant"])
+    axes = _axes(data.get("axis", []), campaign["kind"])
+    spec = CampaignSpec(
+        path=str(path), **campaign, **fixed, axes=axes, map=_map(data.get("map"), axes, campaign["checked"]), raw=data
+    )
+    _check_axis_values(spec)
+    return spec
+
+
+def _campaign(c: dict, path: Path) -> dict[str, Any]:
+    """``[campaign]``: the SPEC's name, seed, kind, plant, budgets and run length (CampaignSpec's fields)."""
     name = c.get("name", path.stem)
     if not isinstance(name, str):
         raise ConfigError("campaign.name", "must be a string")
@@ -242,25 +266,42 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     kind = c.get("kind", "deviations")
     if kind not in KINDS:
         raise ConfigError("campaign.kind", f"must be one of {', '.join(KINDS)}, got {kind!r}")
-    plant_ref = c.get("plant", "paper-bench")
-    if not isinstance(plant_ref, str):
+    plant = _plant(c.get("plant", "paper-bench"), path)
+    budgets_file, budgets = _budgets(c.get("budgets_file"), path)
+    checked = _checked_budgets(c.get("budgets", DEFAULT_BUDGETS[kind]), kind, budgets)
+    run_s = _number("campaign.run_s", c.get("run_s", 0.1), 0.06, 10.0)
+    repeats = c.get("repeats", 1)
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ConfigError("campaign.repeats", f"must be an integer >= 1, got {repeats!r}")
+    return dict(name=name, seed=seed, kind=kind, plant=plant, budgets=budgets, checked=dict(checked), run_s=run_s,
+                repeats=repeats, budgets_file=budgets_file)
+
+
+def _plant(ref: Any, path: Path) -> PlantConfig:
+    """``campaign.plant``: a preset's name, or a plant TOML file relative to the SPEC."""
+    if not isinstance(ref, str):
         raise ConfigError("campaign.plant", "must be a preset name or a plant TOML path")
-    if plant_ref in PRESETS:
-        plant = PRESETS[plant_ref]()
-    else:
-        plant_path = path.parent / plant_ref
-        if not plant_path.is_file():
-            raise ConfigError("campaign.plant", f"neither a preset ({', '.join(PRESETS)}) nor a file: {plant_path}")
-        plant = PlantConfig.from_toml(plant_path)
-    budgets_file = c.get("budgets_file")
-    if budgets_file is not None:
-        if not isinstance(budgets_file, str) or not (path.parent / budgets_file).is_file():
-            raise ConfigError("campaign.budgets_file", f"no such file: {path.parent / str(budgets_file)}")
-        budgets_file = str(path.parent / budgets_file)
-        budgets = Budgets.from_toml(budgets_file)
-    else:
-        budgets = Budgets.defaults()
-    checked = c.get("budgets", DEFAULT_BUDGETS[kind])
+    if ref in PRESETS:
+        return PRESETS[ref]()
+    plant_path = path.parent / ref
+    if not plant_path.is_file():
+        raise ConfigError("campaign.plant", f"neither a preset ({', '.join(PRESETS)}) nor a file: {plant_path}")
+    return PlantConfig.from_toml(plant_path)
+
+
+def _budgets(budgets_file: Any, path: Path) -> tuple[str | None, Budgets]:
+    """``campaign.budgets_file`` (relative to the SPEC) as a path, and the budgets: its own over the
+    defaults, or the defaults."""
+    if budgets_file is None:
+        return None, Budgets.defaults()
+    if not isinstance(budgets_file, str) or not (path.parent / budgets_file).is_file():
+        raise ConfigError("campaign.budgets_file", f"no such file: {path.parent / str(budgets_file)}")
+    budgets_file = str(path.parent / budgets_file)
+    return budgets_file, Budgets.from_toml(budgets_file)
+
+
+def _checked_budgets(checked: Any, kind: str, budgets: Budgets) -> dict:
+    """``[campaign.budgets]``: budget name -> the metric of the kind it judges; each a known budget."""
     _table("campaign.budgets", checked)
     if not checked:
         raise ConfigError("campaign.budgets", "name at least one budget")
@@ -272,16 +313,23 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
                 f"campaign.budgets.{b}",
                 f"metric must be one of {', '.join(METRICS[kind])} for kind {kind!r}, got {metric!r}",
             )
-    run_s = _number("campaign.run_s", c.get("run_s", 0.1), 0.06, 10.0)
-    repeats = c.get("repeats", 1)
-    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
-        raise ConfigError("campaign.repeats", f"must be an integer >= 1, got {repeats!r}")
+    return checked
 
-    f = _table("fixed", data.get("fixed", {}))
-    speed = _number("fixed.speed_rpm", f.get("speed_rpm", 6000.0), 100.0, 30000.0)
-    load = _number("fixed.load_scale", f.get("load_scale", 1.0), 0.0, 10.0)
-    strategy = _strategy("fixed.strategy", f.get("strategy", "corrected"))
-    effects = f.get("effects", [])
+
+def _fixed(f: dict, kind: str, plant: PlantConfig) -> dict[str, Any]:
+    """``[fixed]``: what every point shares (CampaignSpec's ``fixed_*`` fields)."""
+    return dict(
+        fixed_speed_rpm=_number("fixed.speed_rpm", f.get("speed_rpm", 6000.0), 100.0, 30000.0),
+        fixed_load_scale=_number("fixed.load_scale", f.get("load_scale", 1.0), 0.0, 10.0),
+        fixed_strategy=_strategy("fixed.strategy", f.get("strategy", "corrected")),
+        fixed_effects=_fixed_effects(f.get("effects", []), plant),
+        fixed_fault=_fixed_fault(f.get("fault"), kind),
+        fixed_fault_hold_s=_number("fixed.fault_hold_s", f.get("fault_hold_s", 0.02), 0.0, 10.0),
+    )
+
+
+def _fixed_effects(effects: Any, plant: PlantConfig) -> tuple[dict, ...]:
+    """``fixed.effects``: effect tables, each valid on the plant, no effect twice."""
     if not isinstance(effects, list):
         raise ConfigError("fixed.effects", "must be a list of effect tables")
     for i, e in enumerate(effects):
@@ -291,23 +339,31 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     names = [e["name"] for e in effects]
     if len(set(names)) != len(names):
         raise ConfigError("fixed.effects", "an effect appears twice")
-    fault = f.get("fault")
-    if fault is not None:
-        if kind != "fault_sequence":
-            raise ConfigError("fixed.fault", 'a wiring fault needs [campaign] kind = "fault_sequence"')
-        if isinstance(fault, str):
-            fault = {"name": fault}
-        try:
-            wiring_fault_from_dict(_table("fixed.fault", fault))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError("fixed.fault", f"not a wiring fault: {exc}") from None
-    elif kind == "fault_sequence":
-        raise ConfigError(
-            "fixed.fault", 'a fault_sequence campaign names its fault, e.g. fault = { name = "hall_spike" }'
-        )
-    hold = _number("fixed.fault_hold_s", f.get("fault_hold_s", 0.02), 0.0, 10.0)
+    return tuple(effects)
 
-    raw_axes = data.get("axis", [])
+
+def _fixed_fault(fault: Any, kind: str) -> dict | None:
+    """``fixed.fault``: the wiring fault a ``fault_sequence`` campaign switches (a name or a table),
+    and none otherwise."""
+    if fault is None:
+        if kind == "fault_sequence":
+            raise ConfigError(
+                "fixed.fault", 'a fault_sequence campaign names its fault, e.g. fault = { name = "hall_spike" }'
+            )
+        return None
+    if kind != "fault_sequence":
+        raise ConfigError("fixed.fault", 'a wiring fault needs [campaign] kind = "fault_sequence"')
+    if isinstance(fault, str):
+        fault = {"name": fault}
+    try:
+        wiring_fault_from_dict(_table("fixed.fault", fault))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError("fixed.fault", f"not a wiring fault: {exc}") from None
+    return fault
+
+
+def _axes(raw_axes: Any, kind: str) -> tuple[Axis, ...]:
+    """``[[axis]]``: at least one, none swept twice."""
     if not isinstance(raw_axes, list) or not raw_axes:
         raise ConfigError("axis", "at least one [[axis]] table")
     axes = tuple(_axis(f"axis[{i}]", _table(f"axis[{i}]", t), kind) for i, t in enumerate(raw_axes))
@@ -315,53 +371,38 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
     for i, n in enumerate(seen):
         if n in seen[:i]:
             raise ConfigError(f"axis[{i}].name", f"{n!r} is swept twice")
+    return axes
 
-    m = data.get("map")
-    mapspec = None
-    if m is not None:
-        _table("map", m)
-        for key in ("x", "y"):
-            if m.get(key) not in seen:
-                raise ConfigError(f"map.{key}", f"must name a swept axis ({', '.join(seen)}), got {m.get(key)!r}")
-        if m["x"] == m["y"]:
-            raise ConfigError("map.y", "x and y must differ")
-        mb = m.get("budget", next(iter(checked)))
-        if mb not in checked:
-            raise ConfigError("map.budget", f"must be one of the checked budgets ({', '.join(checked)}), got {mb!r}")
-        mapspec = MapSpec(m["x"], m["y"], mb)
-    elif len(axes) >= 2:
-        mapspec = MapSpec(axes[0].name, axes[1].name, next(iter(checked)))
 
-    spec = CampaignSpec(
-        str(path),
-        name,
-        seed,
-        kind,
-        plant,
-        budgets,
-        dict(checked),
-        speed,
-        load,
-        strategy,
-        tuple(effects),
-        fault,
-        hold,
-        axes,
-        mapspec,
-        run_s,
-        repeats,
-        budgets_file,
-        data,
-    )
-    # every axis value must give a valid plant or fault: out-of-bounds values fail here, naming the axis
-    for i, a in enumerate(axes):
+def _map(m: Any, axes: tuple[Axis, ...], checked: dict) -> MapSpec | None:
+    """``[map]``: two swept axes and a checked budget; without it, the first two axes and the first
+    budget (none for one axis)."""
+    seen = [a.name for a in axes]
+    if m is None:
+        return MapSpec(axes[0].name, axes[1].name, next(iter(checked))) if len(axes) >= 2 else None
+    _table("map", m)
+    for key in ("x", "y"):
+        if m.get(key) not in seen:
+            raise ConfigError(f"map.{key}", f"must name a swept axis ({', '.join(seen)}), got {m.get(key)!r}")
+    if m["x"] == m["y"]:
+        raise ConfigError("map.y", "x and y must differ")
+    mb = m.get("budget", next(iter(checked)))
+    if mb not in checked:
+        raise ConfigError("map.budget", f"must be one of the checked budgets ({', '.join(checked)}), got {mb!r}")
+    return MapSpec(m["x"], m["y"], mb)
+
+
+def _check_axis_values(spec: CampaignSpec) -> None:
+    """Every axis value must give a valid plant or fault: out-of-bounds values fail here, naming the axis."""
+    for i, a in enumerate(spec.axes):
         if a.name.startswith("fault."):
             for j, v in enumerate(a.values):
                 try:
                     wiring_fault_from_dict(point_fault(spec, {a.name: v}))
                 except (KeyError, TypeError, ValueError) as exc:
                     raise ConfigError(
-                        f"axis[{i}].name", f"{a.name} = {v:g} is not a parameter of fault {fault['name']!r}: {exc}"
+                        f"axis[{i}].name",
+                        f"{a.name} = {v:g} is not a parameter of fault {spec.fixed_fault['name']!r}: {exc}",
                     ) from None
         if a.effect is not None:
             for j, v in enumerate(a.values):
@@ -369,7 +410,6 @@ def parse_spec(data: dict, path: Path) -> CampaignSpec:
                     point_plant(spec, {a.name: v})
                 except ConfigError as exc:
                     raise ConfigError(f"axis[{i}].values[{j}]", f"{a.name} = {v:g}: {exc}") from None
-    return spec
 
 
 def _effect_tables(spec: CampaignSpec, coords: dict) -> list[dict]:

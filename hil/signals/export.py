@@ -21,6 +21,7 @@ import time
 from dataclasses import dataclass, field
 from importlib import metadata
 from pathlib import Path
+from typing import TextIO
 
 import numpy as np
 
@@ -127,19 +128,75 @@ def _time_format(sample_rate_hz: float) -> str:
     return "%." + str(max(int(math.ceil(math.log10(sample_rate_hz))), 0) + 1) + "f"
 
 
-def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> ExportResult:
-    wall0 = time.perf_counter()
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    res = ExportResult(out)
+@dataclass
+class _Plan:
+    """What the settings fix before the first sample: the trajectory, the sampling and its VCD
+    timescale, the analog decimation, the current tables and sensors, and the CSV's fate."""
+
+    out: Path
+    settings: ExportSettings
+    traj: Trajectory
+    fs: float
+    timescale: Timescale
+    ticks_per_sample: int
+    n_samples: int
+    decim: int
+    analog_rate: float
+    tables: CurrentTables | None
+    gain: np.ndarray
+    offset: np.ndarray
+    n_chunks: int
+    write_csv: bool
+    csv_skipped_reason: str
+
+    @property
+    def config(self) -> PlantConfig:
+        return self.settings.config
+
+    def chunk_span(self, c: int) -> tuple[float, float]:
+        return c * CHUNK_S, min((c + 1) * CHUNK_S, self.settings.duration_s)
+
+    def last(self, c: int) -> bool:
+        return c == self.n_chunks - 1
+
+
+@dataclass
+class _Stream:
+    """What the chunks carry to the next: events and truth rows not yet written, the pin edge of each
+    sector boundary, how far the files are written, and the values held at that point."""
+
+    hall_now: list[int]
+    carry_ev: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (sample index, variable, value)
+    carry_truth: list[np.ndarray] = field(default_factory=list)
+    pin_of_n: dict[int, tuple[int, int, int]] = field(default_factory=dict)
+    written_until: int = 0  # samples before this are in the files
+    analog_now: np.ndarray | None = None
+    last_volts: np.ndarray | None = None
+    n_next: int = 0  # next sector boundary index
+
+
+@dataclass
+class _Files:
+    """The files a stimulus is written into as it is generated (stimulus.csv: None when not written)."""
+
+    vcd: VcdWriter
+    truth: TextIO
+    csv: TextIO | None
+
+    def close(self, end_tick: int) -> None:
+        self.vcd.close(end_tick)
+        self.truth.close()
+        if self.csv is not None:
+            self.csv.close()
+
+
+def _plan(out: Path, settings: ExportSettings) -> _Plan:
     config = settings.config
-    pp = config.motor.pole_pairs
-    traj = Trajectory(settings.breakpoints, settings.duration_s, pp, settings.start_angle_deg_e)
+    traj = Trajectory(settings.breakpoints, settings.duration_s, config.motor.pole_pairs, settings.start_angle_deg_e)
     fs = float(settings.sample_rate_hz)
     timescale, ticks_per_sample = Timescale.for_sample_rate(fs)
     n_samples = int(round(settings.duration_s * fs))
     decim = max(int(round(fs / settings.analog_rate_hz)), 1)
-    analog_rate = fs / decim
     tables: CurrentTables | None = None
     if settings.currents:
         tables = tabulate(
@@ -148,163 +205,214 @@ def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> Expo
             seed=settings.seed,
         )
     cs = config.current_sensor
-    gain = 1.0 + np.asarray(cs.gain_error)
-    offset = np.asarray(cs.offset_a)
+    write_csv, csv_skipped_reason = _csv_choice(settings, n_samples)
+    return _Plan(
+        out=out, settings=settings, traj=traj, fs=fs, timescale=timescale,
+        ticks_per_sample=ticks_per_sample, n_samples=n_samples, decim=decim, analog_rate=fs / decim, tables=tables,
+        gain=1.0 + np.asarray(cs.gain_error), offset=np.asarray(cs.offset_a),
+        n_chunks=max(int(math.ceil(settings.duration_s / CHUNK_S)), 1), write_csv=write_csv,
+        csv_skipped_reason=csv_skipped_reason,
+    )
 
-    # the CSV is optional above a size threshold
+
+def _csv_choice(settings: ExportSettings, n_samples: int) -> tuple[bool, str]:
+    """Whether stimulus.csv is written, and why not: it is optional above a size threshold."""
     csv_estimate = n_samples * csv_row_bytes(settings)
-    write_csv = settings.write_csv
-    if write_csv and csv_estimate > settings.csv_max_bytes:
-        write_csv = False
-        res.csv_skipped_reason = (
+    if settings.write_csv and csv_estimate > settings.csv_max_bytes:
+        return False, (
             f"stimulus.csv skipped: {n_samples} samples would take about {csv_estimate / 1e9:.1f} GB, above the "
             f"{settings.csv_max_bytes / 1e9:.1f} GB limit (--csv-max-bytes); stimulus.vcd has the same signals"
         )
-    elif not write_csv:
-        res.csv_skipped_reason = "stimulus.csv not written (--no-csv)"
+    if not settings.write_csv:
+        return False, "stimulus.csv not written (--no-csv)"
+    return True, ""
 
-    # Hall levels at t = 0 from the first edge of each sensor (its opposite); a sensor that never
-    # switches keeps its ideal level
 
+def _initial_hall_levels(settings: ExportSettings, first) -> list[int]:
+    """Hall levels at t = 0 from the first edge of each sensor (its opposite); a sensor that never
+    switches keeps its ideal level."""
     levels = hall_state(settings.start_angle_deg_e).astype(np.int64).tolist()
-    first = _chunk_edges(config, traj, 0, min(CHUNK_S, settings.duration_s), settings, tables)
     for x in range(3):
         mine = np.nonzero(first.sensor == x)[0]
         if mine.size:
             levels[x] = 0 if first.rising[mine[0]] else 1
+    return levels
 
+
+def _open_files(plan: _Plan) -> _Files:
+    settings, out = plan.settings, plan.out
     reals = list(CURRENT_NAMES) if settings.currents else []
     comment = (f"bldc-hil stimulus: Hall pins HA HB HC (1 = high), phase-current sensor outputs IA IB IC in volts; "
-               f"sample rate {fs:g} Hz; plant {config.name} ({config.config_hash()}); seed {settings.seed}")
+               f"sample rate {plan.fs:g} Hz; plant {plan.config.name} ({plan.config.config_hash()}); "
+               f"seed {settings.seed}")
     vcd = VcdWriter(
-        out / "stimulus.vcd", timescale, list(HALL_NAMES), reals, scope="stimulus", comment=comment, real_format="%.6g"
+        out / "stimulus.vcd", plan.timescale, list(HALL_NAMES), reals, scope="stimulus", comment=comment,
+        real_format="%.6g"
     )
-    n_chunks = max(int(math.ceil(settings.duration_s / CHUNK_S)), 1)
-    last_volts = None
-    csv_file = open(out / "stimulus.csv", "w", newline="\n") if write_csv else None
+    csv_file = open(out / "stimulus.csv", "w", newline="\n") if plan.write_csv else None
     if csv_file is not None:
         csv_file.write(
             "t_s," + ",".join(HALL_NAMES) + ("," + ",".join(CURRENT_NAMES) if settings.currents else "") + "\n"
         )
     truth_file = open(out / "truth.csv", "w", newline="\n")
     truth_file.write(",".join(TRUTH_COLUMNS) + "\n")
-    tfmt = _time_format(fs)
+    return _Files(vcd, truth_file, csv_file)
 
-    carry_ev = np.zeros((0, 3))          # (sample index, variable, value) not yet written
-    carry_truth: list[np.ndarray] = []   # truth rows not yet written
-    pin_of_n: dict[int, tuple[int, int, int]] = {}
-    written_until = 0                    # samples before this are in the files
-    hall_now = list(levels)
-    analog_now = None
-    n_next = int(math.floor(settings.start_angle_deg_e / 60.0)) + 1  # next sector boundary index
-    for c in range(n_chunks):
-        ta = c * CHUNK_S
-        tb = min((c + 1) * CHUNK_S, settings.duration_s)
-        log = first if c == 0 else _chunk_edges(config, traj, ta, tb, settings, tables, chunk=c)
-        res.n_edges += len(log)
-        # Hall pin changes, quantised to the nearest sample (|error| <= half a sample period)
-        idx = np.rint(log.t_conditioned_s * fs).astype(np.int64)
-        keep = (idx >= 0) & (idx < n_samples)
-        ev = [np.column_stack([idx[keep], log.sensor[keep].astype(float), log.rising[keep].astype(float)])]
-        n_edge = 3 * log.boundary + 2 * log.sensor  # the sector boundary each edge announces (60 n deg e)
-        for n, i, x, r in zip(n_edge.tolist(), idx.tolist(), log.sensor.tolist(), log.rising.tolist()):
-            pin_of_n[n] = (i, x, int(r))
-        # analog updates every `decim` samples, only where a value changed (after the LSB)
-        k0 = int(math.ceil(ta * fs / decim)) * decim
-        k1 = min(int(math.ceil(tb * fs / decim)) * decim, n_samples)
-        if settings.currents and k1 > k0:
-            ks = np.arange(k0, k1, decim)
-            t = ks / fs
-            theta_m = traj.angle_deg_e(t) / pp
-            amps = tables.currents_a(theta_m, traj.speed_rpm(t))
-            meas = amps.T * gain + offset
-            if cs.noise_rms_a > 0:
-                meas = meas + cs.noise_rms_a * np.random.default_rng(_seed(settings.seed, 2, c)).standard_normal(
-                    meas.shape
-                )
-            volts = (
-                np.rint((settings.current_zero_v + settings.current_v_per_a * meas) / settings.analog_lsb_v)
-                * settings.analog_lsb_v
-            )
-            if last_volts is None:
-                last_volts = volts[0].copy()
-                analog_now = volts[0].copy()
-            prev = np.vstack([last_volts, volts[:-1]])
-            changed = volts != prev
-            rows, cols = np.nonzero(changed)
-            ev.append(np.column_stack([ks[rows], 3 + cols, volts[rows, cols]]))
-            last_volts = volts[-1].copy()
-        # truth: every sector boundary the rotor crosses in this chunk
-        th_b = float(traj.angle_deg_e(tb))
-        n_hi = int(math.floor(th_b / 60.0)) if c == n_chunks - 1 else int(math.ceil(th_b / 60.0)) - 1
-        if n_hi >= n_next:
-            ns = np.arange(n_next, n_hi + 1)
-            t_id = traj.time_at_deg_e(60.0 * ns)
-            ok = t_id <= settings.duration_s
-            ns, t_id = ns[ok], t_id[ok]
-            carry_truth.append(
-                np.column_stack([ns, t_id, np.mod(ns, 6), 60.0 * ns, 60.0 * ns / pp, traj.speed_rpm(t_id)])
-            )
-            n_next = int(ns[-1]) + 1 if ns.size else n_next
-        # write everything before the guard
-        fresh = np.concatenate(ev)
-        if fresh.size and fresh[:, 0].min() < written_until:
-            raise SignalError(
-                "export",
-                f"an edge at sample {int(fresh[:, 0].min())} arrived after samples up to {written_until} were "
-                f"written (conditioning delay plus jitter beyond the {GUARD_S * 1e3:g} ms chunk guard)",
-            )
-        events = np.concatenate([carry_ev, fresh])
-        events = events[np.lexsort((events[:, 1], events[:, 0]))]
-        limit = n_samples if c == n_chunks - 1 else int(math.floor((tb - GUARD_S) * fs))
-        now = events[:, 0] < limit
-        batch, carry_ev = events[now], events[~now]
-        if c == 0:
-            init = list(map(float, levels)) + (list(map(float, analog_now)) if settings.currents else [])
-            vcd.initial(init)
-            # the tick-0 analog values are in $dumpvars
-            batch = batch[~((batch[:, 0] == 0) & (batch[:, 1] >= 3))]
-        vcd.changes((batch[:, 0] * ticks_per_sample).astype(np.int64), batch[:, 1].astype(np.int64), batch[:, 2])
-        if csv_file is not None and limit > written_until:
-            # (updates hall_now and analog_now to the values at `limit`)
-            _write_csv_rows(
-                csv_file,
-                written_until,
-                limit,
-                batch,
-                hall_now,
-                analog_now if settings.currents else None,
-                decim,
-                fs,
-                tfmt,
-            )
-        written_until = max(written_until, limit)
-        # truth rows whose ideal instant is written
-        if carry_truth:
-            tr = np.concatenate(carry_truth)
-            # a row waits until its Hall edge (within 30 deg e of it) has surely been generated
-            done = (tr[:, 3] < float(traj.angle_deg_e(tb)) - 30.0) | (c == n_chunks - 1)
-            _write_truth(truth_file, tr[done], pin_of_n, fs)
-            res.n_commutations += int(done.sum())
-            carry_truth = [tr[~done]]
-            oldest = int(tr[~done, 0].min()) if (~done).any() else n_next
-            for n in [n for n in pin_of_n if n < oldest - 12]:
-                del pin_of_n[n]
-        if progress:
-            progress(c + 1, n_chunks)
-    vcd.close(n_samples * ticks_per_sample)
-    truth_file.close()
-    if csv_file is not None:
-        csv_file.close()
+
+def _hall_events(plan: _Plan, log, stream: _Stream) -> np.ndarray:
+    """A chunk's Hall pin changes, quantised to the nearest sample (|error| <= half a sample period),
+    as (sample, sensor, level); the pin edge of each sector boundary is remembered for the truth."""
+    idx = np.rint(log.t_conditioned_s * plan.fs).astype(np.int64)
+    keep = (idx >= 0) & (idx < plan.n_samples)
+    ev = np.column_stack([idx[keep], log.sensor[keep].astype(float), log.rising[keep].astype(float)])
+    n_edge = 3 * log.boundary + 2 * log.sensor  # the sector boundary each edge announces (60 n deg e)
+    for n, i, x, r in zip(n_edge.tolist(), idx.tolist(), log.sensor.tolist(), log.rising.tolist()):
+        stream.pin_of_n[n] = (i, x, int(r))
+    return ev
+
+
+def _analog_events(plan: _Plan, c: int, stream: _Stream) -> np.ndarray | None:
+    """A chunk's current-sensor outputs as (sample, 3 + phase, volts): updated every ``decim`` samples,
+    only where a value changed (after the LSB); None without currents or samples."""
+    settings = plan.settings
+    ta, tb = plan.chunk_span(c)
+    k0 = int(math.ceil(ta * plan.fs / plan.decim)) * plan.decim
+    k1 = min(int(math.ceil(tb * plan.fs / plan.decim)) * plan.decim, plan.n_samples)
+    if not settings.currents or k1 <= k0:
+        return None
+    ks = np.arange(k0, k1, plan.decim)
+    t = ks / plan.fs
+    theta_m = plan.traj.angle_deg_e(t) / plan.config.motor.pole_pairs
+    amps = plan.tables.currents_a(theta_m, plan.traj.speed_rpm(t))
+    meas = amps.T * plan.gain + plan.offset
+    cs = plan.config.current_sensor
+    if cs.noise_rms_a > 0:
+        meas = meas + cs.noise_rms_a * np.random.default_rng(_seed(settings.seed, 2, c)).standard_normal(meas.shape)
+    volts = (
+        np.rint((settings.current_zero_v + settings.current_v_per_a * meas) / settings.analog_lsb_v)
+        * settings.analog_lsb_v
+    )
+    if stream.last_volts is None:
+        stream.last_volts = volts[0].copy()
+        stream.analog_now = volts[0].copy()
+    prev = np.vstack([stream.last_volts, volts[:-1]])
+    changed = volts != prev
+    rows, cols = np.nonzero(changed)
+    stream.last_volts = volts[-1].copy()
+    return np.column_stack([ks[rows], 3 + cols, volts[rows, cols]])
+
+
+def _collect_truth(plan: _Plan, c: int, stream: _Stream) -> None:
+    """Every sector boundary the rotor crosses in chunk ``c``, as truth rows waiting to be written."""
+    traj, pp = plan.traj, plan.config.motor.pole_pairs
+    th_b = float(traj.angle_deg_e(plan.chunk_span(c)[1]))
+    n_hi = int(math.floor(th_b / 60.0)) if plan.last(c) else int(math.ceil(th_b / 60.0)) - 1
+    if n_hi >= stream.n_next:
+        ns = np.arange(stream.n_next, n_hi + 1)
+        t_id = traj.time_at_deg_e(60.0 * ns)
+        ok = t_id <= plan.settings.duration_s
+        ns, t_id = ns[ok], t_id[ok]
+        stream.carry_truth.append(
+            np.column_stack([ns, t_id, np.mod(ns, 6), 60.0 * ns, 60.0 * ns / pp, traj.speed_rpm(t_id)])
+        )
+        stream.n_next = int(ns[-1]) + 1 if ns.size else stream.n_next
+
+
+def _write_signals(plan: _Plan, c: int, fresh: np.ndarray, stream: _Stream, files: _Files, levels: list[int]) -> None:
+    """Every event before chunk ``c``'s guard into the VCD and the CSV; the rest waits for the next
+    chunk (a conditioned edge may land after the chunk whose rotor angle produced it)."""
+    settings, fs = plan.settings, plan.fs
+    if fresh.size and fresh[:, 0].min() < stream.written_until:
+        raise SignalError(
+            "export",
+            f"an edge at sample {int(fresh[:, 0].min())} arrived after samples up to {stream.written_until} were "
+            f"written (conditioning delay plus jitter beyond the {GUARD_S * 1e3:g} ms chunk guard)",
+        )
+    events = np.concatenate([stream.carry_ev, fresh])
+    events = events[np.lexsort((events[:, 1], events[:, 0]))]
+    limit = plan.n_samples if plan.last(c) else int(math.floor((plan.chunk_span(c)[1] - GUARD_S) * fs))
+    now = events[:, 0] < limit
+    batch, stream.carry_ev = events[now], events[~now]
+    if c == 0:
+        init = list(map(float, levels)) + (list(map(float, stream.analog_now)) if settings.currents else [])
+        files.vcd.initial(init)
+        # the tick-0 analog values are in $dumpvars
+        batch = batch[~((batch[:, 0] == 0) & (batch[:, 1] >= 3))]
+    files.vcd.changes(
+        (batch[:, 0] * plan.ticks_per_sample).astype(np.int64), batch[:, 1].astype(np.int64), batch[:, 2]
+    )
+    if files.csv is not None and limit > stream.written_until:
+        # (updates hall_now and analog_now to the values at `limit`)
+        _write_csv_rows(
+            files.csv,
+            stream.written_until,
+            limit,
+            batch,
+            stream.hall_now,
+            stream.analog_now if settings.currents else None,
+            plan.decim,
+            fs,
+            _time_format(fs),
+        )
+    stream.written_until = max(stream.written_until, limit)
+
+
+def _flush_truth(plan: _Plan, c: int, stream: _Stream, files: _Files, res: ExportResult) -> None:
+    """The truth rows whose Hall edge (within 30 deg e of the boundary) has surely been generated."""
+    if not stream.carry_truth:
+        return
+    tr = np.concatenate(stream.carry_truth)
+    done = (tr[:, 3] < float(plan.traj.angle_deg_e(plan.chunk_span(c)[1])) - 30.0) | plan.last(c)
+    _write_truth(files.truth, tr[done], stream.pin_of_n, plan.fs)
+    res.n_commutations += int(done.sum())
+    stream.carry_truth = [tr[~done]]
+    oldest = int(tr[~done, 0].min()) if (~done).any() else stream.n_next
+    for n in [n for n in stream.pin_of_n if n < oldest - 12]:
+        del stream.pin_of_n[n]
+
+
+def _list_files(plan: _Plan, res: ExportResult) -> None:
+    """The sizes and names of what was written; a stale CSV from an earlier export must not pass for
+    this one."""
+    out = plan.out
     res.vcd_bytes = (out / "stimulus.vcd").stat().st_size
     res.files = ["stimulus.vcd", "truth.csv", "meta.json"]
-    if write_csv:
+    if plan.write_csv:
         res.csv_bytes = (out / "stimulus.csv").stat().st_size
         res.files.insert(1, "stimulus.csv")
     elif (out / "stimulus.csv").exists():
-        (out / "stimulus.csv").unlink()  # a stale CSV from an earlier export must not pass for this one
+        (out / "stimulus.csv").unlink()
+
+
+def export(out_dir: str | Path, settings: ExportSettings, progress=None) -> ExportResult:
+    """Generate the stimulus chunk by chunk into ``out_dir``: stimulus.vcd, stimulus.csv (unless too
+    large or not wanted), truth.csv and meta.json."""
+    wall0 = time.perf_counter()
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    plan = _plan(out, settings)
+    res = ExportResult(plan.out, csv_skipped_reason=plan.csv_skipped_reason)
+    first = _chunk_edges(plan.config, plan.traj, 0, min(CHUNK_S, settings.duration_s), settings, plan.tables)
+    levels = _initial_hall_levels(settings, first)
+    files = _open_files(plan)
+    stream = _Stream(hall_now=list(levels), n_next=int(math.floor(settings.start_angle_deg_e / 60.0)) + 1)
+    for c in range(plan.n_chunks):
+        ta, tb = plan.chunk_span(c)
+        log = first if c == 0 else _chunk_edges(plan.config, plan.traj, ta, tb, settings, plan.tables, chunk=c)
+        res.n_edges += len(log)
+        ev = [_hall_events(plan, log, stream)]
+        analog = _analog_events(plan, c, stream)
+        if analog is not None:
+            ev.append(analog)
+        _collect_truth(plan, c, stream)
+        _write_signals(plan, c, np.concatenate(ev), stream, files, levels)
+        _flush_truth(plan, c, stream, files, res)
+        if progress:
+            progress(c + 1, plan.n_chunks)
+    files.close(plan.n_samples * plan.ticks_per_sample)
+    _list_files(plan, res)
     res.wall_s = time.perf_counter() - wall0
-    _write_meta(out, settings, res, timescale, ticks_per_sample, analog_rate, tables)
+    _write_meta(plan.out, settings, res, plan.timescale, plan.ticks_per_sample, plan.analog_rate, plan.tables)
     return res
 
 
