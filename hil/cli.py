@@ -100,6 +100,8 @@ def cmd_plant_simulate(args) -> int:
 
 
 def cmd_calibrate(args) -> int:
+    from bldc.reasons import words
+
     from .calibration import calibrate
     from .calibration.campaign import CalibrationCampaign
     from .calibration.refusals import Circuit
@@ -120,8 +122,8 @@ def cmd_calibrate(args) -> int:
     else:
         _print_segment_calibration(args.recording, cal.corrections)
     for r in cal.refused:
-        print(f"  REFUSED {r.field}: {r.reason}", file=sys.stderr)
-    for quantity, why in cal.undetermined.items():
+        print(f"  REFUSED {r.field}: {words(r.reason)}", file=sys.stderr)
+    for quantity, why in cal.corrections.undetermined_words().items():
         print(f"  could not determine {quantity}: {why}", file=sys.stderr)
     if args.json:
         _write_json(args.json, cal.to_json())
@@ -148,13 +150,15 @@ def _print_segment_calibration(recording, corr) -> None:
 
 def _print_ordinary_calibration(recording, cal) -> None:
     """An ordinary run's calibration (a typed ``hil.calibration.result.Calibration``) for the reader."""
+    from bldc.reasons import words
+
     from .calibration.result import Estimate
 
     o, a, corr = cal.ordinary, cal.ordinary.assumptions, cal.corrections
 
     def pm(e, scale=1.0, unit=""):
         if e.value is None:
-            return f"not given: {e.reason}"
+            return f"not given: {words(e.reason)}"
         return f"{e.value * scale:+.4g} +- {e.stderr * scale:.2g}{unit}"
 
     print(f"{recording}: {corr.info['method']}")
@@ -167,7 +171,7 @@ def _print_ordinary_calibration(recording, cal) -> None:
         f"  removed: {a.glitches_removed} glitch(es), {a.invalid_states_dropped} invalid-state edge(s), "
         f"{a.stalls_split} stall(s) split, {a.reversals} reversal(s) split, {a.outlier_edges} outlier(s)"
     )
-    print(f"  timer_tick_s: {a.timer_tick_s or 'unknown'}; pole pairs: {a.pole_pairs_source}")
+    print(f"  timer_tick_s: {a.timer_tick_s or 'unknown'}; pole pairs: {words(a.pole_pairs_source)}")
     print(f"  rise_fall_delay_difference_s:    {pm(o.rise_fall_delay_difference_s, 1e6, ' us')}")
     print(f"  rise_fall_angle_asymmetry_deg_e: {pm(o.rise_fall_angle_asymmetry_deg_e, 1.0, ' deg e')}")
     print(f"  standard errors: {o.stderr_method()}")
@@ -182,7 +186,7 @@ def _print_ordinary_calibration(recording, cal) -> None:
     print(f"  installation_offset_deg_e (relative): {', '.join(f'{k} {v:+.3f}' for k, v in inst.items())}")
     poles = corr.pole_offset_deg_e
     print(f"  pole_offset_deg_e: {', '.join(f'{v:+.3f}' for v in poles) if poles else 'none'}")
-    print(f"  delay bound: {a.delay_bound_s * 1e6:.0f} us ({a.delay_bound_why})")
+    print(f"  delay bound: {a.delay_bound_s * 1e6:.0f} us ({words(a.delay_bound_why)})")
 
 
 def cmd_compare_correction(args) -> int:

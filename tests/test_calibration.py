@@ -7,6 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from bldc.reasons import Reason, words
 from hil.calibration.campaign import CalibrationCampaign
 from hil.calibration.corrections import Corrections
 from hil.calibration.fit import CalibrationError, fit_corrections
@@ -156,7 +157,8 @@ def test_missing_segments_name_the_quantity(tmp_path):
     config = paper_bench().with_effects(fx.ConditioningDelay(6e-6, 1e-6), fx.ArmatureReaction(0.3), *NOISE)
     one_speed = record_kinematic(config, [OperatingPoint(0.1, 3000.0, 1.0)], seed=1)
     got = fit_corrections(one_speed)
-    assert "conditioning_delay_s" in got.undetermined and "several speeds" in got.undetermined["conditioning_delay_s"]
+    why = got.undetermined["conditioning_delay_s"]
+    assert why.code == "CAL-051" and why.numbers["speeds"] == 1 and "several speeds" in words(why)
     assert "armature_reaction_deg_e_per_a" in got.undetermined
     # the others are still written
     from hil.cli import main
@@ -177,7 +179,8 @@ def test_current_following_speed_is_reported_as_confounded():
     config = paper_bench().with_effects(fx.ConditioningDelay(6e-6, 1e-6), fx.ArmatureReaction(0.3), *NOISE)
     ops = [OperatingPoint(0.05, rpm, rpm / 1000.0) for rpm in (3000.0, 5000.0, 7000.0, 9000.0)]
     got = fit_corrections(record_kinematic(config, ops, seed=1))
-    assert "cannot be told apart" in got.undetermined["armature_reaction_deg_e_per_a"]
+    why = got.undetermined["armature_reaction_deg_e_per_a"]
+    assert why.code == "CAL-053" and "cannot be told apart" in words(why)
 
 
 def test_too_few_edges_refused(tmp_path):
@@ -285,7 +288,9 @@ def test_the_segment_route_applies_the_stated_delay_bound():
     assert kept.corrections.conditioning_delay_s["rise"] == pytest.approx(6.6e-6, abs=1e-6)
     cal = calibrate_recording(rec, circuit=Circuit(delay_max_s=1e-6))
     assert [r.field for r in cal.refused] == ["conditioning_delay_s.rise"]
-    assert "stated maximum 1 us" in cal.refused[0].reason
+    why = cal.refused[0].reason
+    assert why.code == "CAL-003" and why.numbers["bound_why"] == Reason("CAL-010", {"bound_us": 1.0})
+    assert "stated maximum 1 us" in words(why)
     assert cal.corrections.conditioning_delay_s["rise"] == 0.0
     assert cal.to_json_dict()["conditioning_delay_s"]["rise"] == 0.0
 

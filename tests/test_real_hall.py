@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from bldc.reasons import words
 from hil.calibration.ordinary import (
     Circuit,
     Effects,
@@ -191,7 +192,8 @@ def test_a_stated_delay_bound_refuses_the_delay(spindle):
     cap, steps, _ = spindle
     cal = ordinary_calibration(steps, tick_s=cap.timer_tick_s, pole_pairs=2, circuit=Circuit(delay_max_s=50e-6))
     d = cal.ordinary.rise_fall_delay_difference_s
-    assert d.value is None and d.stderr is None and "50 us" in d.reason
+    assert d.value is None and d.stderr is None and d.reason.code == "CAL-003"
+    assert d.reason.numbers["bound_us"] == pytest.approx(50.0) and "50 us" in words(d.reason)
     assert [r.field for r in cal.refused] == ["rise_fall_delay_difference_s"]
     assert 110e-6 < d.fitted < 160e-6
 

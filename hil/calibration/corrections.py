@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from bldc.reasons import Reason, words
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 
 SENSORS = ("A", "B", "C")
@@ -29,7 +30,7 @@ class Corrections:
     conditioning_delay_s: dict[str, float] = field(default_factory=lambda: {"rise": 0.0, "fall": 0.0})
     armature_reaction_deg_e_per_a: float = 0.0
     #: quantities the data could not determine, with the reason (left at 0 in the tables)
-    undetermined: dict[str, str] = field(default_factory=dict)
+    undetermined: dict[str, Reason] = field(default_factory=dict)
     #: one-sigma uncertainties of the fitted quantities (same keys as the JSON)
     uncertainty: dict[str, Any] = field(default_factory=dict)
     #: conditioning delay angle versus speed, per polarity, for interpolation (paper Fig. 7a)
@@ -66,13 +67,17 @@ class Corrections:
             + self.armature_reaction_deg_e_per_a * current_a
         )
 
+    def undetermined_words(self) -> dict[str, str]:
+        """``undetermined`` as the JSON holds it: quantity -> the reason's sentence."""
+        return {quantity: words(why) for quantity, why in self.undetermined.items()}
+
     def to_json_dict(self) -> dict[str, Any]:
         return {
             "installation_offset_deg_e": dict(self.installation_offset_deg_e),
             "pole_offset_deg_e": list(self.pole_offset_deg_e),
             "conditioning_delay_s": dict(self.conditioning_delay_s),
             "armature_reaction_deg_e_per_a": self.armature_reaction_deg_e_per_a,
-            "undetermined": dict(self.undetermined),
+            "undetermined": self.undetermined_words(),
             "uncertainty": self.uncertainty,
             "conditioning_delay_table": self.delay_table,
             "info": self.info,
@@ -91,7 +96,7 @@ class Corrections:
             pole_offset_deg_e=[float(v) for v in data["pole_offset_deg_e"]],
             conditioning_delay_s={k: float(data["conditioning_delay_s"][k]) for k in ("rise", "fall")},
             armature_reaction_deg_e_per_a=float(data["armature_reaction_deg_e_per_a"]),
-            undetermined=dict(data.get("undetermined", {})),
+            undetermined={q: Reason.from_json(why) for q, why in data.get("undetermined", {}).items()},
             uncertainty=dict(data.get("uncertainty", {})),
             delay_table=dict(data.get("conditioning_delay_table", {})),
             info=dict(data.get("info", {})),

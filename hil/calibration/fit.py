@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from bldc.hall import SENSOR_POSITION_DEG_E
+from bldc.reasons import Reason
 from bldc.units import deg_e_per_s_to_rpm, rpm_to_deg_e_per_s
 from hil.recording.format import Recording
 
@@ -82,7 +83,7 @@ class DesignMatrix:
 
     columns: np.ndarray  #: (edges, parameters)
     names: list[tuple[str, int]]  #: (kind, index) of each column: inst / pole / rise / fall / arm
-    undetermined: dict[str, str]
+    undetermined: dict[str, Reason]
 
 
 def design_matrix(
@@ -94,7 +95,7 @@ def design_matrix(
     n_poles = 2 * rec.pole_pairs
     direction = np.array([s.direction_sign for s in rec.segments])[rec.segment].astype(float)
     current = np.array([s.mean_phase_current_a for s in rec.segments])[rec.segment]
-    undetermined: dict[str, str] = {}
+    undetermined: dict[str, Reason] = {}
     cols, names = [], []
     for x, name in enumerate(SENSORS):
         if not np.any(rec.sensor == x):
@@ -103,9 +104,7 @@ def design_matrix(
         names.append(("inst", x))
     poles_seen = np.unique(pole)
     if poles_seen.size < n_poles:
-        undetermined["pole_offset_deg_e"] = (
-            f"edges of only {poles_seen.size} of {n_poles} poles; record whole mechanical turns"
-        )
+        undetermined["pole_offset_deg_e"] = Reason("CAL-050", {"poles_seen": int(poles_seen.size), "poles": n_poles})
     else:
         for j in range(1, n_poles):
             cols.append(direction * (pole == j))
@@ -114,9 +113,8 @@ def design_matrix(
     speeds = np.unique(np.round(w_seg[np.unique(rec.segment)], 3))
     spread = (speeds.max() - speeds.min()) / speeds.max() if speeds.size else 0.0
     if speeds.size < 2 or spread < min_speed_spread:
-        undetermined["conditioning_delay_s"] = (
-            f"needs segments at several speeds (spread >= {min_speed_spread:.0%} of the highest); "
-            f"got {speeds.size} speed(s), spread {spread:.0%}: a constant delay is indistinguishable from an offset"
+        undetermined["conditioning_delay_s"] = Reason(
+            "CAL-051", {"min_spread": min_speed_spread, "speeds": int(speeds.size), "spread": float(spread)}
         )
     else:
         cols += [w * rec.rising, w * ~rec.rising]
@@ -125,18 +123,15 @@ def design_matrix(
     seg_used = np.unique(rec.segment)
     i_seg = np.array([rec.segments[k].mean_phase_current_a for k in seg_used])
     w_used = w_seg[seg_used]
-    reason = None
+    reason: Reason | None = None
     if np.ptp(i_seg) < 0.1:
-        reason = f"mean phase current varies by only {np.ptp(i_seg):.3g} A across segments; add loaded operating points"
+        reason = Reason("CAL-052", {"current_spread_a": float(np.ptp(i_seg))})
     elif "conditioning_delay_s" not in undetermined:
         basis = np.column_stack([np.ones_like(w_used), w_used])
         coef, *_ = np.linalg.lstsq(basis, i_seg, rcond=None)
         resid = i_seg - basis @ coef
         if np.sqrt(np.mean(resid**2)) < 0.02 * np.ptp(i_seg):
-            reason = (
-                "current moves together with speed (linearly), so armature reaction and conditioning delay "
-                "cannot be told apart; add a load change at a fixed speed"
-            )
+            reason = Reason("CAL-053")
     if reason:
         undetermined["armature_reaction_deg_e_per_a"] = reason
     else:
@@ -244,10 +239,7 @@ def fit_corrections(rec: Recording, min_speed_spread: float = 0.3) -> Correction
 def fit_from_times(rec: Recording) -> Corrections:
     """The paper's route without an encoder: Eq. 2 and Eq. 6 from capture times, Eq. 3-5 from samples."""
     p = rec.pole_pairs
-    undetermined: dict[str, str] = {
-        "armature_reaction_deg_e_per_a": "needs a reference angle (ref_angle_mech_deg); the paper uses a "
-        "magneto-electric position sensor for it",
-    }
+    undetermined = {"armature_reaction_deg_e_per_a": Reason("CAL-060")}
     fwd = [k for k, s in enumerate(rec.segments) if s.direction == "forward"]
     order = sorted(fwd, key=lambda k: rec.segments[k].speed_rpm)
     rel_by_speed, pole_by_speed, abs_by_speed, speeds = [], [], [], []
@@ -300,15 +292,9 @@ def fit_from_times(rec: Recording) -> Corrections:
         method = "paper route: Eq. 2 and Eq. 6 from capture times, Eq. 3-5 Line-BEMF from samples"
     else:
         inst = rel
-        undetermined["installation_offset_deg_e"] = (
-            "only relative deviations (Eq. 2, sum zero) could be determined: the absolute reference needs "
-            "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)"
-        )
+        undetermined["installation_offset_deg_e"] = Reason("CAL-061")
         method = "paper route: Eq. 2 and Eq. 6 from capture times"
     out.installation_offset_deg_e = dict(zip(SENSORS, map(float, inst)))
-    undetermined["conditioning_delay_s"] = (
-        "needs a reference angle (encoder) at several speeds, or the raw sensor "
-        "channel beside the conditioned one; capture times alone see only rise-fall differences"
-    )
+    undetermined["conditioning_delay_s"] = Reason("CAL-062")
     out.info = {"method": method, "speeds_rpm": speeds[:3], "edges": int(len(rec))}
     return out

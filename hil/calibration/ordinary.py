@@ -28,6 +28,7 @@ from scipy import interpolate, linalg, sparse, stats
 from scipy.sparse import linalg as sparse_linalg
 
 from bldc import edges
+from bldc.reasons import Reason
 
 from .corrections import SENSORS, Corrections
 from .result import (
@@ -426,7 +427,7 @@ def choose_pole_pairs(
     knot_cycles: float,
     max_pole_pairs: int = 24,
     ripple: bool = False,
-) -> tuple[int | None, str]:
+) -> tuple[int | None, Reason]:
     """The pole-pair count whose pole-offset pattern the capture shows best (BIC), if any.
 
     A magnet's pole boundaries repeat every mechanical turn (6 p edges); without the motor's
@@ -446,11 +447,8 @@ def choose_pole_pairs(
         if gain > max(best[1], BIC_MIN):
             best = (p, gain)
     if best[0] is None:
-        return None, "no pole pattern stands out (no pole count is assumed; pole offsets not determined)"
-    return best[0], (
-        f"{best[0]} pole pairs assumed: the pole-offset pattern that explains the capture best (BIC gain "
-        f"{best[1]:.0f}); give motor.pole_pairs to state it"
-    )
+        return None, Reason("CAL-021")
+    return best[0], Reason("CAL-022", {"pole_pairs": best[0], "bic_gain": float(best[1])})
 
 
 def _chi2(f: Fit, noise: Fit) -> float:
@@ -614,12 +612,10 @@ def _rise_fall(fit: Fit, steps: HallSteps, lo: float, hi: float, ratio: float) -
         fit, steps, lambda sgn, z: sgn * (z[list(RISE_LABELS[sgn])].mean(0) - z[list(RISE_LABELS[-sgn])].mean(0))
     )
     delay = Estimate(d_val, d_se)
-    angle = Estimate(*asym) if asym else Estimate(None, None, reason="no static offsets fitted")
+    angle = Estimate(*asym) if asym else Estimate(None, None, reason=Reason("CAL-030"))
     if ratio < MIN_SPEED_RATIO:
-        why = (
-            f"the capture spans {lo:.1f}-{hi:.1f} Hz electrical (ratio {ratio:.2f} < {MIN_SPEED_RATIO}): a delay "
-            "(grows with speed) and a constant angle cannot be told apart; record a speed ramp"
-        )
+        why = Reason("CAL-031", {"low_hz_e": lo, "high_hz_e": hi, "speed_ratio": ratio,
+                                 "min_speed_ratio": MIN_SPEED_RATIO})
         delay = Estimate(None, None, reason=why)
         angle = Estimate(None, None, reason=why)
     return delay, angle
@@ -673,18 +669,13 @@ def _widen(stationarity: Stationarity, delay: Estimate, angle: Estimate, inst_se
 
 #: what capture times cannot give, whatever the capture
 UNDETERMINED = {
-    "conditioning_delay_s": (
-        "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
-        "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the "
-        "difference on the later polarity and 0 on the other"
-    ),
-    "armature_reaction_deg_e_per_a": "needs a reference angle and phase currents",
-    "hysteresis_common_lag": "a lag common to every edge is invisible without an encoder",
+    "conditioning_delay_s": Reason("CAL-040"),
+    "armature_reaction_deg_e_per_a": Reason("CAL-041"),
+    "hysteresis_common_lag": Reason("CAL-042"),
 }
-INSTALLATION_UNDETERMINED = (
-    "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
-    "terminal voltages (Line-BEMF)"
-)
+INSTALLATION_UNDETERMINED = Reason("CAL-043")
+#: the pole-pair count's source when the recording states it
+STATED_POLE_PAIRS = Reason("CAL-020")
 
 
 def ordinary_calibration(
@@ -700,7 +691,7 @@ def ordinary_calibration(
     determined and not refused); ``to_json()`` is what ``hil calibrate`` writes (docs/calibration.md)."""
     circuit = circuit or Circuit()
     refused: list[Refusal] = []
-    undetermined: dict[str, str] = {}
+    undetermined: dict[str, Reason] = {}
     kc, fit0 = choose_knots(steps, tick_s)
     choice = _choose_ripple(steps, tick_s, kc, fit0)
     fit, ripple = choice.fit, choice.ripple
@@ -722,7 +713,7 @@ def ordinary_calibration(
         inst = dict.fromkeys(SENSORS, 0.0)
     undetermined["installation_offset_deg_e"] = INSTALLATION_UNDETERMINED
     # pole offsets: the pole count, stated or found
-    p_source = "stated in the recording (motor.pole_pairs)" if pole_pairs else ""
+    p_source = STATED_POLE_PAIRS
     if not pole_pairs:
         pole_pairs, p_source = choose_pole_pairs(steps, tick_s, fit, kc, ripple=ripple)
     poles: list[float] = []

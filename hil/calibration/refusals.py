@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from bldc.contract import MAX_POLE_TABLE_OFFSET_DEG_E
+from bldc.reasons import Reason
 
 from .corrections import SENSORS
 from .result import Refusal
@@ -31,16 +32,13 @@ class Circuit:
     filter_farad: float | None = None
     delay_max_s: float | None = None
 
-    def bound_s(self) -> tuple[float, str]:
+    def bound_s(self) -> tuple[float, Reason]:
         if self.delay_max_s is not None:
-            return self.delay_max_s, f"stated maximum {self.delay_max_s * 1e6:.0f} us"
+            return self.delay_max_s, Reason("CAL-010", {"bound_us": self.delay_max_s * 1e6})
         if self.pullup_ohm is not None and self.filter_farad is not None:
             rc = self.pullup_ohm * self.filter_farad
-            return 3.0 * rc, f"3 RC of the stated circuit (R {self.pullup_ohm:.3g} Ohm, C {self.filter_farad:.3g} F)"
-        return DEFAULT_DELAY_MAX_S, (
-            f"default {DEFAULT_DELAY_MAX_S * 1e6:.0f} us (open-collector Hall outputs with pull-up and filter "
-            "capacitor; state the circuit to narrow it)"
-        )
+            return 3.0 * rc, Reason("CAL-011", {"pullup_ohm": self.pullup_ohm, "filter_farad": self.filter_farad})
+        return DEFAULT_DELAY_MAX_S, Reason("CAL-012", {"bound_us": DEFAULT_DELAY_MAX_S * 1e6})
 
 
 def pole_table_refusal(poles: list[float]) -> Refusal | None:
@@ -49,12 +47,8 @@ def pole_table_refusal(poles: list[float]) -> Refusal | None:
     out = [j for j, v in enumerate(poles) if abs(v) > POLE_OFFSET_BOUND_DEG_E]
     if not out:
         return None
-    return Refusal(
-        "pole_offset_deg_e",
-        f"pole(s) {', '.join(map(str, out))} at {', '.join(f'{poles[j]:+.1f}' for j in out)} deg e, "
-        f"beyond the controller's bound +-{POLE_OFFSET_BOUND_DEG_E:.0f} deg e (a pole count that is not the "
-        "motor's, or a speed change inside a segment taken as steady); the table is not written",
-    )
+    return Refusal("pole_offset_deg_e", Reason("CAL-001", {
+        "poles": out, "offsets_deg_e": [float(poles[j]) for j in out], "bound_deg_e": POLE_OFFSET_BOUND_DEG_E}))
 
 
 def installation_refusal(inst: dict[str, float]) -> Refusal | None:
@@ -62,27 +56,23 @@ def installation_refusal(inst: dict[str, float]) -> Refusal | None:
     bad = [n for n in SENSORS if abs(inst[n]) > INSTALLATION_BOUND_DEG_E]
     if not bad:
         return None
-    return Refusal(
-        "installation_offset_deg_e",
-        f"{', '.join(f'{n} {inst[n]:+.1f}' for n in bad)} deg e beyond "
-        f"+-{INSTALLATION_BOUND_DEG_E:.0f}: a wiring or channel-mapping error, not an offset",
-    )
+    return Refusal("installation_offset_deg_e", Reason("CAL-002", {
+        "offsets_deg_e": {n: float(inst[n]) for n in bad}, "bound_deg_e": INSTALLATION_BOUND_DEG_E}))
 
 
-def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: str) -> Refusal | None:
+def delay_refusal(field: str, value_s: float | None, bound_s: float, bound_why: Reason) -> Refusal | None:
     """The refusal of a conditioning delay beyond its bound (``Circuit.bound_s``, or half a sector
     at the top speed), or None."""
     if value_s is None or abs(value_s) <= bound_s:
         return None
-    return Refusal(field, f"{value_s * 1e6:.1f} us is beyond the bound {bound_s * 1e6:.0f} us ({bound_why})")
+    return Refusal(field, Reason("CAL-003", {"value_us": value_s * 1e6, "bound_us": bound_s * 1e6,
+                                             "bound_why": bound_why}))
 
 
-def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, str]:
+def delay_bound_s(circuit: Circuit, top_hz_e: float) -> tuple[float, Reason]:
     """The bound on a conditioning delay: the circuit's, or half a sector at the top speed if tighter."""
     bound_s, bound_why = circuit.bound_s()
     sector_s = 1.0 / (6.0 * top_hz_e)
     if DELAY_SECTOR_FRACTION * sector_s < bound_s:
-        return DELAY_SECTOR_FRACTION * sector_s, (
-            f"half a sector at the top speed {top_hz_e:.0f} Hz electrical ({sector_s * 1e6:.0f} us per sector)"
-        )
+        return DELAY_SECTOR_FRACTION * sector_s, Reason("CAL-013", {"top_hz_e": top_hz_e, "sector_us": sector_s * 1e6})
     return bound_s, bound_why

@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from bldc.edges import HallSteps
+from bldc.reasons import Reason, words
 
 from .corrections import Corrections
 
@@ -36,10 +37,10 @@ class Refusal:
     """A fitted value beyond its physical bound: never written as a table entry (neutral there)."""
 
     field: str  #: the JSON key (with ``.rise``/``.fall`` for a delay polarity)
-    reason: str  #: the value, the bound and what a value beyond it means
+    reason: Reason  #: the value, the bound and what a value beyond it means
 
     def to_json(self) -> dict:
-        return {"field": self.field, "reason": self.reason}
+        return {"field": self.field, "reason": words(self.reason)}
 
 
 @dataclass
@@ -48,14 +49,14 @@ class Estimate:
 
     value: float | None
     stderr: float | None
-    reason: str | None = None  #: why ``value`` is None
+    reason: Reason | None = None  #: why ``value`` is None
     fitted: float | None = None  #: refused: the value the fit gave (never in the table)
     stderr_stationary: float | None = None  #: widened for drift: the standard error before
 
     def to_json(self) -> dict:
         out: dict = {"value": self.value, "stderr": self.stderr}
         if self.reason is not None:
-            out["reason"] = self.reason
+            out["reason"] = words(self.reason)
         if self.fitted is not None:
             out["fitted"] = self.fitted
         if self.stderr_stationary is not None:
@@ -142,7 +143,7 @@ class OrdinaryAssumptions:
     """What an ordinary-run calibration assumed or found about the capture."""
 
     pole_pairs: int | None
-    pole_pairs_source: str  #: stated, found (with its BIC gain) or not found, and why
+    pole_pairs_source: Reason  #: stated, found (with its BIC gain) or not found, and why
     timer_tick_s: float | None
     forward_edges: int  #: used edges turning forward
     reverse_edges: int
@@ -162,7 +163,7 @@ class OrdinaryAssumptions:
     ripple_modelled: bool  #: the sector-locked speed ripple was modelled
     trajectory_residual_rms_deg_e: float
     delay_bound_s: float
-    delay_bound_why: str  #: where the delay bound comes from (the circuit, or half a sector)
+    delay_bound_why: Reason  #: where the delay bound comes from (the circuit, or half a sector)
     pole_offset_bound_deg_e: float
 
     @property
@@ -190,7 +191,7 @@ class OrdinaryAssumptions:
     def to_json(self) -> dict:
         return {
             "pole_pairs": self.pole_pairs,
-            "pole_pairs_source": self.pole_pairs_source,
+            "pole_pairs_source": words(self.pole_pairs_source),
             "timer_tick_s": self.timer_tick_s,
             "direction": self.direction(),
             "edges": self.edges,
@@ -210,7 +211,7 @@ class OrdinaryAssumptions:
             "sector_locked_speed_ripple": self.sector_locked_speed_ripple(),
             "trajectory_residual_rms_deg_e": self.trajectory_residual_rms_deg_e,
             "delay_bound_s": self.delay_bound_s,
-            "delay_bound": self.delay_bound_why,
+            "delay_bound": words(self.delay_bound_why),
             "pole_offset_bound_deg_e": self.pole_offset_bound_deg_e,
             "bounds_note": (
                 "these bounds judge a calibration; the acceptance suite's fault draws (REQ-ROB-001) keep the "
@@ -250,7 +251,7 @@ class Calibration:
     table_fit: Fit | None = None  #: ordinary run: the fit of the effects the table holds
 
     @property
-    def undetermined(self) -> dict[str, str]:
+    def undetermined(self) -> dict[str, Reason]:
         """What the data could not determine, with the reason (left neutral in the table)."""
         return self.corrections.undetermined
 
@@ -269,7 +270,7 @@ class Calibration:
             "rise_fall_delay_difference_s": o.rise_fall_delay_difference_s.to_json(),
             "rise_fall_angle_asymmetry_deg_e": o.rise_fall_angle_asymmetry_deg_e.to_json(),
             "refused": refused,
-            "undetermined": dict(c.undetermined),
+            "undetermined": c.undetermined_words(),
             "uncertainty": c.uncertainty,
             "stderr_method": o.stderr_method(),
             "stationarity": o.stationarity.to_json(),

@@ -27,6 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bldc.edges import electrical_speed_hz
+from bldc.reasons import words
 from hil.calibration.ordinary import (
     MIN_RUN_EDGES,
     SENSOR_OF_BOUNDARY,
@@ -205,7 +206,8 @@ def _pipeline(
     kc, base = choose_knots(choice, tick)  # the calibration's model: the pole search sees the same
     pole_pairs, p_note = stated_pole_pairs, "stated in the recording"
     if not pole_pairs:
-        pole_pairs, p_note = choose_pole_pairs(choice, tick, base, kc)
+        pole_pairs, found = choose_pole_pairs(choice, tick, base, kc)
+        p_note = words(found)
     names = candidate_names(pole_pairs)
 
     def fit(effects: list[str]) -> Fit:

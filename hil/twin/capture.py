@@ -30,6 +30,7 @@ from scipy import optimize
 
 from bldc.motor import rewound
 from bldc.params import ConfigError, validate
+from bldc.reasons import words
 from bldc.tomlfile import load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.plant import OperatingRange
@@ -398,7 +399,7 @@ def _pole_pairs(an: CaptureAnalysis, m: _Making) -> int:
     """The capture's pole pairs, or the base's when it shows no pole pattern."""
     p = an.pole_pairs or m.base.motor.pole_pairs
     if an.pole_pairs:
-        m.measured.append(("motor.pole_pairs", f"{p} ({an.calibration.ordinary.assumptions.pole_pairs_source})"))
+        m.measured.append(("motor.pole_pairs", f"{p} ({words(an.calibration.ordinary.assumptions.pole_pairs_source)})"))
     else:
         m.assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
     return int(p)
@@ -422,7 +423,8 @@ def _pole_offset(an: CaptureAnalysis, p: int, m: _Making) -> None:
     cal = an.calibration
     poles = cal.corrections.pole_offset_deg_e
     if not (poles and len(poles) == 2 * p):
-        m.notes.append("no pole offsets: " + cal.undetermined.get("pole_offset_deg_e", "refused by the calibration"))
+        why = cal.undetermined.get("pole_offset_deg_e")
+        m.notes.append("no pole offsets: " + (words(why) if why else "refused by the calibration"))
         return
     lim = fx.bounds_of(fx.PoleOffset, "offset_deg_e")[1]
     m.effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", m.notes)
@@ -454,7 +456,7 @@ def _conditioning_delay(an: CaptureAnalysis, m: _Making) -> float:
     d = an.calibration.ordinary.rise_fall_delay_difference_s
     d_value = d.value if d.value is not None else 0.0
     if d.value is None:
-        m.notes.append(f"rise-minus-fall delay not determined ({d.reason}): the twin has none beyond the base's")
+        m.notes.append(f"rise-minus-fall delay not determined ({words(d.reason)}): the twin has none beyond the base's")
     base_delay = m.base.effect("conditioning_delay")
     common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
     rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)

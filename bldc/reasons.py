@@ -1,0 +1,121 @@
+"""Why a figure is not given, refused or bounded: a ``Reason`` is a numbered code with its numbers,
+and ``words`` is the one place that turns it into the sentence a reader sees.
+
+The results keep the code and the numbers (a program can test ``reason.code`` and read
+``reason.numbers["bound_us"]`` instead of searching a sentence); the JSON, the command line and
+the twin's notes show ``words(reason)``. The wording of every code is in ``WORDING``, here once, so
+a sentence is changed in one place and a saved file, which holds the sentence, still reads: a plain
+string read back is a ``Reason`` of the code ``FREE_TEXT`` (``Reason.from_json``).
+
+This module is in ``bldc`` (the vocabulary every group may import) because the correction table
+(``hil.calibration.corrections``, which imports nothing else of ours) holds reasons too.
+
+A template is ``str.format`` text over the numbers' names (units in the names: ``_us``,
+``_deg_e``, ``_hz_e``); ``words`` formats a list number item by item and a dict number as
+``key value`` pairs, each with the field's format spec, joined by ", ", and a nested ``Reason``
+by its own words.
+"""
+
+from __future__ import annotations
+
+import string
+from dataclasses import dataclass, field
+from typing import Any
+
+#: the code of a sentence read back from a saved file (its only number: ``text``)
+FREE_TEXT = "TXT-000"
+
+#: code -> wording template: the only table of reasons (CAL: calibration)
+WORDING: dict[str, str] = {
+    FREE_TEXT: "{text}",
+    # refusals: a fitted value beyond its physical bound (hil.calibration.refusals)
+    "CAL-001": "pole(s) {poles} at {offsets_deg_e:+.1f} deg e, beyond the controller's bound +-{bound_deg_e:.0f} "
+    "deg e (a pole count that is not the motor's, or a speed change inside a segment taken as steady); the table "
+    "is not written",
+    "CAL-002": "{offsets_deg_e:+.1f} deg e beyond +-{bound_deg_e:.0f}: a wiring or channel-mapping error, not an "
+    "offset",
+    "CAL-003": "{value_us:.1f} us is beyond the bound {bound_us:.0f} us ({bound_why})",
+    # where the conditioning-delay bound comes from
+    "CAL-010": "stated maximum {bound_us:.0f} us",
+    "CAL-011": "3 RC of the stated circuit (R {pullup_ohm:.3g} Ohm, C {filter_farad:.3g} F)",
+    "CAL-012": "default {bound_us:.0f} us (open-collector Hall outputs with pull-up and filter capacitor; state the "
+    "circuit to narrow it)",
+    "CAL-013": "half a sector at the top speed {top_hz_e:.0f} Hz electrical ({sector_us:.0f} us per sector)",
+    # where the pole-pair count comes from
+    "CAL-020": "stated in the recording (motor.pole_pairs)",
+    "CAL-021": "no pole pattern stands out (no pole count is assumed; pole offsets not determined)",
+    "CAL-022": "{pole_pairs} pole pairs assumed: the pole-offset pattern that explains the capture best (BIC gain "
+    "{bic_gain:.0f}); give motor.pole_pairs to state it",
+    # an ordinary run's figures not given
+    "CAL-030": "no static offsets fitted",
+    "CAL-031": "the capture spans {low_hz_e:.1f}-{high_hz_e:.1f} Hz electrical (ratio {speed_ratio:.2f} < "
+    "{min_speed_ratio}): a delay (grows with speed) and a constant angle cannot be told apart; record a speed ramp",
+    # what capture times cannot give, whatever the capture (the ordinary-run route)
+    "CAL-040": "capture times give only the rise-minus-fall difference (rise_fall_delay_difference_s); the common "
+    "part needs an encoder or the raw Hall line beside the conditioned one. The table holds the difference on the "
+    "later polarity and 0 on the other",
+    "CAL-041": "needs a reference angle and phase currents",
+    "CAL-042": "a lag common to every edge is invisible without an encoder",
+    "CAL-043": "only relative offsets (sum zero) from capture times; the absolute reference needs an encoder or "
+    "terminal voltages (Line-BEMF)",
+    # what a segments recording with an encoder could not determine (hil.calibration.fit)
+    "CAL-050": "edges of only {poles_seen} of {poles} poles; record whole mechanical turns",
+    "CAL-051": "needs segments at several speeds (spread >= {min_spread:.0%} of the highest); got {speeds} speed(s), "
+    "spread {spread:.0%}: a constant delay is indistinguishable from an offset",
+    "CAL-052": "mean phase current varies by only {current_spread_a:.3g} A across segments; add loaded operating "
+    "points",
+    "CAL-053": "current moves together with speed (linearly), so armature reaction and conditioning delay cannot be "
+    "told apart; add a load change at a fixed speed",
+    # the paper's route from capture times (no encoder)
+    "CAL-060": "needs a reference angle (ref_angle_mech_deg); the paper uses a magneto-electric position sensor for "
+    "it",
+    "CAL-061": "only relative deviations (Eq. 2, sum zero) could be determined: the absolute reference needs "
+    "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)",
+    "CAL-062": "needs a reference angle (encoder) at several speeds, or the raw sensor channel beside the conditioned "
+    "one; capture times alone see only rise-fall differences",
+}
+
+#: code -> the names of the numbers its wording uses
+NUMBERS_OF: dict[str, frozenset[str]] = {
+    code: frozenset(name for _, name, _, _ in string.Formatter().parse(template) if name)
+    for code, template in WORDING.items()
+}
+
+
+@dataclass(frozen=True)
+class Reason:
+    """A code of ``WORDING`` and the numbers its wording needs (exactly those)."""
+
+    code: str
+    numbers: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.code not in WORDING:
+            raise KeyError(f"reason code {self.code!r} is not in bldc.reasons.WORDING")
+        if set(self.numbers) != NUMBERS_OF[self.code]:
+            raise ValueError(f"reason {self.code}: numbers {sorted(self.numbers)}, its wording needs "
+                             f"{sorted(NUMBERS_OF[self.code])}")
+
+    @classmethod
+    def from_json(cls, saved: str) -> "Reason":
+        """A reason as a saved file holds it (its sentence): free text, worded as it was."""
+        return cls(FREE_TEXT, {"text": saved})
+
+
+class _Renderer(string.Formatter):
+    def format_field(self, value: Any, format_spec: str) -> str:
+        if isinstance(value, Reason):
+            return words(value)
+        if isinstance(value, dict):
+            return ", ".join(f"{k} {self.format_field(v, format_spec)}" for k, v in value.items())
+        if isinstance(value, (list, tuple)):
+            return ", ".join(self.format_field(v, format_spec) for v in value)
+        return format(value, format_spec)
+
+
+_RENDERER = _Renderer()
+
+
+def words(reason: Reason) -> str:
+    """The sentence of ``reason``: its code's wording with its numbers."""
+    return _RENDERER.vformat(WORDING[reason.code], (), reason.numbers)
