@@ -196,7 +196,11 @@ def test_a_qualify_result_writes_the_saved_json(tmp_path, monkeypatch):
     result = R.qualify(args, progress=lambda line: None)
     now = json.loads(json.dumps(result.to_json()))
     saved = _saved("qualify-canned-runs.json")
-    assert differences({**saved, "duration_s": 0.0}, {**now, "duration_s": 0.0}) == []
+    # keys a later version added, and only those: the defects of one kind of DUT (the part's, on pil:;
+    # docs/qualify.md); a reader of the saved file does without them
+    later = ("not_this_kind", "expected", "kinds", "by_design")
+    changed = differences({**saved, "duration_s": 0.0}, {**now, "duration_s": 0.0})
+    assert [d for d in changed if not (d.endswith(": added") and d[:-len(": added")].rsplit("/", 1)[-1] in later)] == []
     assert result.survivors == saved["survivors"] and result.errored == saved["errored"]
     assert result.requirements() == saved["requirements"]
     assert result.detection_ratio == saved["detection"]["ratio"]

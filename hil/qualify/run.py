@@ -184,42 +184,43 @@ def checks_not_counted(report: dict, registry: dict | None = None) -> list[dict]
 
 
 def _judged(report: dict, registry: dict | None):
+    from ..verdicts.record import FailedBy, Outcome, Status, TestRecord
+
     if registry is None:
         from ..verdicts.requirements import REQUIREMENTS as registry
-    failed = [t for t in report.get("tests", []) if t.get("outcome") in ("failed", "error")]
+    saved = [t for t in report.get("tests", []) if t.get("outcome") in (Outcome.FAILED, Outcome.ERROR)]
+    failed = [TestRecord.from_json(t) for t in saved]
     catches: list[dict] = []
     uncounted: list[dict] = []
     kinds = set()
-    for t in failed:
-        kind = t.get("failed_by") or "error"
+    for t, as_saved in zip(failed, saved):
+        kind = t.failed_by or FailedBy.ERROR
         kinds.add(kind)
-        measurements = t.get("measurements", [])
-        if kind in ("assertion", "budget"):
-            over = [m for m in measurements if m.get("verdict") == "fail"]
-            catches += [{"requirement": m["requirement"], "by": f"{m.get('judgement', 'budget')} {m['budget']}",
-                         "margin": m["margin"], "test": t["nodeid"]} for m in over]
-            if kind == "budget" or (over and "budget_only" not in t):
+        if kind in (FailedBy.ASSERTION, FailedBy.BUDGET):
+            over = [m for m in t.measurements if m.verdict == Status.FAIL]
+            catches += [{"requirement": m.requirement, "by": f"{m.judgement} {m.budget}", "margin": m.margin,
+                         "test": t.nodeid} for m in over]
+            if kind == FailedBy.BUDGET or (over and "budget_only" not in as_saved):
                 continue  # only budgets missed (a report of an older version: its first miss raised)
             # a check failed: a catch of the requirements the test is tied to by more than a budget
             # that have no budget of their own; for the others it is evidence, never a catch
-            reqs = [r for r in t.get("requirements", []) if r not in t.get("budget_only", ())]
-            for r in reqs:
+            for r in (r for r in t.requirements if r not in t.budget_only):
                 if r in registry and not registry[r].budgets:
-                    catches.append({"requirement": r, "by": "check", "margin": None, "test": t["nodeid"]})
+                    catches.append({"requirement": r, "by": "check", "margin": None, "test": t.nodeid})
                 else:
-                    uncounted.append({"requirement": r, "test": t["nodeid"]})
-        elif kind == "device failure":
+                    uncounted.append({"requirement": r, "test": t.nodeid})
+        elif kind == FailedBy.DEVICE_FAILURE:
             # the emulated core's fault (pil:) is named; another device failure is the device's answer
-            fault = processor_fault(t.get("message", ""))
+            fault = processor_fault(t.message)
             by = f"processor fault {fault}" if fault else "device failure"
-            catches += [{"requirement": r, "by": by, "margin": None, "test": t["nodeid"]}
-                        for r in t.get("requirements", [])]
+            catches += [{"requirement": r, "by": by, "margin": None, "test": t.nodeid} for r in t.requirements]
     by = {_catch_kind(c["by"]) for c in catches}
     caught_by = next((k for k in CATCH_KINDS if k in by), None)
     if caught_by is None and failed:
-        caught_by = ("not judged" if kinds == {"not judged"} else
-                     None if uncounted and kinds <= {"assertion", "budget", "not judged"} else "error")
-    return caught_by, sorted({c["requirement"] for c in catches}), [t["nodeid"] for t in failed], catches, uncounted
+        caught_by = ("not judged" if kinds == {FailedBy.NOT_JUDGED} else
+                     None if uncounted and kinds <= {FailedBy.ASSERTION, FailedBy.BUDGET, FailedBy.NOT_JUDGED}
+                     else "error")
+    return caught_by, sorted({c["requirement"] for c in catches}), [t.nodeid for t in failed], catches, uncounted
 
 
 def judged_measurements(report: dict) -> list[dict]:
