@@ -33,12 +33,18 @@ def _scenario_seeds(result: dict) -> list[int]:
     return [int(x) for x in re.findall(r"\d+", text.split("]")[0])]
 
 
-def produce_pump_predictors(work: Path) -> Run:
+def _compare(work: Path, scenario: str) -> tuple[Run, dict]:
+    """``hil predictors compare --scenario SCENARIO``: the run (its command and seeds) and its JSON."""
     run = Run()
-    out = work / "pumps.json"
-    run_hil(run, work, "predictors", "compare", "--scenario", "pumps", "--json", str(out))
+    out = work / f"{scenario}.json"
+    run_hil(run, work, "predictors", "compare", "--scenario", scenario, "--json", str(out))
     result = json.loads(out.read_text())
     run.seeds = _scenario_seeds(result)
+    return run, result
+
+
+def produce_pump_predictors(work: Path) -> Run:
+    run, result = _compare(work, "pumps")
     columns = (("angle_rms_deg_e", "mean RMS"), ("angle_rms_median_deg_e", "median RMS"),
                ("angle_p99_deg_e", "mean p99"), ("angle_max_deg_e", "max"))
     run.tables["predictors"] = _predictor_table(run, result, columns, 0.005)
@@ -62,11 +68,7 @@ def produce_pump_predictors(work: Path) -> Run:
 
 
 def produce_paper_predictors(work: Path) -> Run:
-    run = Run()
-    out = work / "paper.json"
-    run_hil(run, work, "predictors", "compare", "--scenario", "paper", "--json", str(out))
-    result = json.loads(out.read_text())
-    run.seeds = _scenario_seeds(result)
+    run, result = _compare(work, "paper")
     columns = (("angle_rms_deg_e", "RMS"), ("angle_p99_deg_e", "p99"), ("angle_max_deg_e", "max"))
     run.tables["predictors"] = _predictor_table(run, result, columns, 0.003)
     return run
