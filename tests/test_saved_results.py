@@ -5,44 +5,14 @@ same values (numbers to rounding), the legacy alias keys included."""
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import pytest
 
 import gap_cases
+from saved_json import differences, key_paths, saved_file
 
 ROOT = Path(__file__).resolve().parents[1]
-SAVED = ROOT / "tests" / "data" / "results"
-
-
-def differences(saved, now, where: str = "") -> list[str]:
-    """Where ``now`` differs from ``saved``: a key missing or added, a type, a string, a number
-    beyond rounding, a list's length."""
-    if isinstance(saved, dict) and isinstance(now, dict):
-        out = [f"{where}/{k}: missing" for k in saved.keys() - now.keys()]
-        out += [f"{where}/{k}: added" for k in now.keys() - saved.keys()]
-        for k in saved.keys() & now.keys():
-            out += differences(saved[k], now[k], f"{where}/{k}")
-        return out
-    if isinstance(saved, list) and isinstance(now, list):
-        if len(saved) != len(now):
-            return [f"{where}: {len(saved)} items saved, {len(now)} now"]
-        return [d for i, (a, b) in enumerate(zip(saved, now)) for d in differences(a, b, f"{where}[{i}]")]
-    numbers = (int, float)
-    if isinstance(saved, numbers) and isinstance(now, numbers) and not isinstance(saved, bool):
-        ok = math.isclose(saved, now, rel_tol=1e-9, abs_tol=1e-15) or (math.isnan(saved) and math.isnan(now))
-        return [] if ok else [f"{where}: {saved!r} saved, {now!r} now"]
-    return [] if saved == now and type(saved) is type(now) else [f"{where}: {saved!r} saved, {now!r} now"]
-
-
-def key_paths(obj, where: str = "") -> set[str]:
-    """Every key path of ``obj`` (a list's items merged under ``[]``): the shape a reader relies on."""
-    if isinstance(obj, dict):
-        return {p for k, v in obj.items() for p in {f"{where}/{k}"} | key_paths(v, f"{where}/{k}")}
-    if isinstance(obj, list):
-        return {p for item in obj for p in key_paths(item, f"{where}[]")}
-    return set()
 
 
 def test_the_comparison_sees_a_renamed_key_and_a_changed_value():
@@ -54,10 +24,6 @@ def test_the_comparison_sees_a_renamed_key_and_a_changed_value():
     assert differences(saved, {"a": {"value": 1.0, "reason": "y"}, "b": [1], "c": None})
     assert differences(saved, {"a": {"value": 1.0, "reason": "x"}, "b": [1, 2], "c": 0.0})
     assert key_paths({"a": [{"x": 1}, {"y": 2}]}) == {"/a", "/a[]/x", "/a[]/y"}
-
-
-def _saved(name: str) -> dict:
-    return json.loads((SAVED / name).read_text())
 
 
 @pytest.mark.parametrize(
@@ -76,7 +42,7 @@ def test_an_ordinary_run_calibration_writes_the_saved_json(name, capture, circui
     cal = calibrate(load_recording(ROOT / source), circuit=Circuit(**circuit), source=source)
     now = json.loads(json.dumps(cal.to_json()))
     assert cal.to_json_dict() == cal.to_json()  # the former name, kept
-    assert differences(_saved(name), now) == []
+    assert differences(saved_file(name), now) == []
     assert now["independent_estimate"] == now["method_cross_check"]  # the legacy alias key
 
 
@@ -89,7 +55,7 @@ def test_a_campaign_calibration_writes_the_saved_json():
     rec = CalibrationCampaign(turns_per_point=40).run(PRESETS["paper-bench+deviations"](), seed=3)
     cal = calibrate(rec, circuit=Circuit(delay_max_s=1e-6))
     now = json.loads(json.dumps(cal.to_json()))
-    assert differences(_saved("calibration-segments-campaign-refused.json"), now) == []
+    assert differences(saved_file("calibration-segments-campaign-refused.json"), now) == []
 
 
 def test_a_gap_diagnosis_writes_the_saved_json():
@@ -99,7 +65,7 @@ def test_a_gap_diagnosis_writes_the_saved_json():
 
     d = diagnose(load_recording(ROOT / "tests" / "data" / "real-hall" / "20250615-new-slow.vcd"), None)
     now = json.loads(json.dumps(d.to_json()))
-    assert differences(_saved("gap-diagnosis-ordinary-new-slow.json"), now) == []
+    assert differences(saved_file("gap-diagnosis-ordinary-new-slow.json"), now) == []
 
 
 def _sampled_confounded():
@@ -131,30 +97,7 @@ def test_a_segments_gap_diagnosis_writes_the_saved_json(name, case):
     rec, model = case()
     d = diagnose(rec, {"known": KNOWN_MODEL, "paper_bench": paper_bench(), None: None}[model])
     now = json.loads(json.dumps(d.to_json()))
-    assert differences(_saved(name), now) == []
-
-
-def _with_paths(obj, paths: dict[str, str]):
-    """``obj`` with each of ``paths`` replaced by its value in every string."""
-    if isinstance(obj, dict):
-        return {k: _with_paths(v, paths) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_with_paths(v, paths) for v in obj]
-    if isinstance(obj, str):
-        for old, new in paths.items():
-            obj = obj.replace(old, new)
-    return obj
-
-
-def test_a_twin_check_writes_the_saved_json(spindle_check):
-    """``hil twin check`` of the spindle capture against its twin: the same keys and values (the
-    twin's replay is seeded), the paths aside: the saved file names the capture as the README's
-    command does and the twin where it was written."""
-    now = json.loads(json.dumps(spindle_check))
-    saved = _saved("twin-check-spindle.json")
-    assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
-    paths = {now["recording"]: saved["recording"], now["twin"]: saved["twin"]}
-    assert differences(saved, _with_paths(now, paths)) == []
+    assert differences(saved_file(name), now) == []
 
 
 #: the runs of the saved qualify result (tests/data/results/qualify-canned-runs.json), canned: a
@@ -195,7 +138,7 @@ def test_a_qualify_result_writes_the_saved_json(tmp_path, monkeypatch):
                            report_dir=str(tmp_path), workers=1, seed=0)
     result = R.qualify(args, progress=lambda line: None)
     now = json.loads(json.dumps(result.to_json()))
-    saved = _saved("qualify-canned-runs.json")
+    saved = saved_file("qualify-canned-runs.json")
     # keys a later version added, and only those: the defects of one kind of DUT (the part's, on pil:;
     # docs/qualify.md); a reader of the saved file does without them
     later = ("not_this_kind", "expected", "kinds", "by_design")

@@ -3,6 +3,7 @@ them; the delay bounds from real hardware; the effects the twin needs."""
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -19,6 +20,7 @@ from hil.controller.virtual import validate_corrections
 from plant_models import PlantConfig
 from plant_models import effects as fx
 from plant_models.kinematic import OperatingPoint, simulate_edges
+from saved_json import differences, key_paths, saved_file, with_paths
 
 DATA = Path(__file__).parent / "data" / "real-hall"
 SPINDLE = DATA / "20260618-spindle-hw.vcd"
@@ -327,3 +329,14 @@ def test_what_the_suite_found_on_the_twins_passes_its_replay(replay, what):
     stimulus = Stimulus.load(REPLAYS / replay)
     outcome = run(stimulus, InProcessLink(VirtualController(stimulus.plant_config().motor)), Budgets.defaults())
     assert outcome.ok, f"{what}: {outcome.message}"
+
+
+def test_a_twin_check_writes_the_saved_json(spindle_check):
+    """``hil twin check`` of the spindle capture against its twin: the same keys and values (the
+    twin's replay is seeded), the paths aside: the saved file names the capture as the README's
+    command does and the twin where it was written."""
+    now = json.loads(json.dumps(spindle_check))
+    saved = saved_file("twin-check-spindle.json")
+    assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
+    paths = {now["recording"]: saved["recording"], now["twin"]: saved["twin"]}
+    assert differences(saved, with_paths(now, paths)) == []
