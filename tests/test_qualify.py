@@ -152,6 +152,26 @@ def test_a_defect_run_goes_past_a_setup_check_and_stops_at_its_catch(tmp_path):
     assert ran == ["test_guards", "test_commutation"] and r.returncode == 0, ran
 
 
+def test_a_forked_run_has_its_arguments_environment_and_exit_code_and_is_killed_past_its_limit(tmp_path):
+    """hil qualify's runs are forked from one warm process (hil.qualify.forked): each gets the
+    environment it is given, not the warm process's, pytest's exit code and output, and a run past
+    its limit is killed and says so (None)."""
+    from hil.qualify.forked import FORKED, run_pytest
+
+    assert FORKED == (sys.platform != "win32")
+    test = tmp_path / "test_env.py"
+    test.write_text("import os, time\n\n"
+                    "def test_env():\n    print('mark is', os.environ.get('HIL_Q_MARK'))\n"
+                    "    assert os.environ.get('HIL_Q_MARK') == 'x'\n\n"
+                    "def test_sleep():\n    time.sleep(float(os.environ.get('HIL_Q_SLEEP', '0')))\n")
+    args = ["-q", "-s", "-p", "no:cacheprovider", str(test)]
+    code, output = run_pytest(args, 120.0, {**os.environ, "HIL_Q_MARK": "x"})
+    assert code == 0 and "mark is x" in output and "2 passed" in output, output
+    code, output = run_pytest(args, 120.0, {k: v for k, v in os.environ.items() if k != "HIL_Q_MARK"})
+    assert code == 1 and "mark is None" in output and "1 failed, 1 passed" in output, output
+    assert run_pytest(args + ["-k", "sleep"], 2.0, {**os.environ, "HIL_Q_SLEEP": "60"}) == (None, "")
+
+
 def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
     r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "-o", str(tmp_path))
     assert r.returncode == 2 and "built-in controller" in r.stderr
@@ -541,8 +561,7 @@ def test_a_defect_runs_the_tests_of_its_own_requirements_first_and_the_rest_afte
     assert order == ["test_b", "test_d", "test_a", "test_c"], r.stdout + r.stderr
 
     seen = []
-    monkeypatch.setattr(subprocess, "run",
-                        lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 1, "", ""))
+    monkeypatch.setattr(qrun, "run_pytest", lambda cmd, timeout_s, env=None: seen.append(cmd) or (1, ""))
     args = argparse.Namespace(report_dir=str(tmp_path / "r"), dut="virtual:in-process", seed=0, budgets=None,
                               defects=None, suite=str(ROOT / "test_cases"), sensitivity=False)
     defect = "pole-table-one-pole-off"

@@ -45,8 +45,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
@@ -54,6 +52,7 @@ from pathlib import Path
 
 from ..sil.link import processor_fault
 from .defects import CATALOGUE, load_defects
+from .forked import run_pytest
 
 #: the acceptance suite's files, cheapest and most discriminating first (the property searches last;
 #: the current and speed-loop tests before them, or a speed-loop defect costs the whole suite)
@@ -371,8 +370,8 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     expected = defect not in firmware or firmware[defect].expected_on(_kind(args.dut))
     if not expected:
         sensitive = False
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", dut,
-           "--hil-report-dir", str(report_dir), "--hil-seed", str(args.seed)]
+    cmd = ["-q", "-p", "no:cacheprovider", "--hil-dut", dut, "--hil-report-dir", str(report_dir),
+           "--hil-seed", str(args.seed)]
     if not sensitive:
         cmd.append("--hil-stop-at-catch")  # not -x: a setup check or an uncounted check is no catch
     if args.budgets:
@@ -399,12 +398,9 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     cmd += suite_files(Path(args.suite))
     started = time.monotonic()
     note = ""
-    try:
-        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=RUN_TIMEOUT_S,
-                              env={**os.environ, "PYTHONUNBUFFERED": "1"})
-        output = proc.stdout + proc.stderr
-    except subprocess.TimeoutExpired:
-        output, note = "", f"stopped after {RUN_TIMEOUT_S:.0f} s"
+    code, output = run_pytest(cmd, RUN_TIMEOUT_S, {**os.environ, "PYTHONUNBUFFERED": "1"})
+    if code is None:
+        note = f"stopped after {RUN_TIMEOUT_S:.0f} s"
     duration = time.monotonic() - started
     report_json = report_dir / "hil-report.json"
     if not report_json.is_file():
