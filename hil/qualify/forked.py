@@ -7,7 +7,7 @@ SciPy, numba and the plant's compiled code from its cache, python-can with asamm
 pytest and the plugin): about six seconds a run on the 2-core reference machine, forty-odd runs.
 Here the runs are forked from one process that has done that once: multiprocessing's
 ``forkserver`` start method, started on the first run with ``PRELOAD`` imported (its
-``hil.qualify.warm`` loads the numba code), and each child runs ``pytest.main`` with the run's
+``hil.preloaded`` loads the numba code), and each child runs ``pytest.main`` with the run's
 arguments, environment and working directory, its output to a file, and ends with pytest's exit
 code. A run past its time limit is killed, as a ``subprocess`` timeout killed it before.
 
@@ -27,7 +27,7 @@ from pathlib import Path
 #: what the warm process imports once, for every run forked from it (an ImportError skips a module)
 PRELOAD = ("numpy", "numpy.fft", "scipy.linalg", "scipy.optimize", "scipy.signal", "scipy.stats", "numba", "can",
            "canopen", "pymodbus", "hypothesis", "pytest", "hil.pytest_plugin", "hil.dut.spec", "hil.verdicts.report",
-           "hil.controller.virtual", "plant_models.simulation", "hil.qualify.warm")
+           "hil.controller.virtual", "plant_models.simulation", "hil.preloaded")
 FORKED = "forkserver" in multiprocessing.get_all_start_methods()
 _context = None
 
