@@ -77,6 +77,11 @@ class _StandInCore:
     def __init__(self, body_cycles: dict, on_return):
         self.body, self.on_return = body_cycles, on_return
         self.cycles, self.frames, self.returns = 0, [], []
+        self.mask_cycles: dict = {}  #: per interrupt, its body's first cycles with PRIMASK set
+
+    def masked(self, priority) -> bool:
+        label, left = self.frames[-1]
+        return self.body[label] - left < self.mask_cycles.get(label, 0)
 
     def write(self, address, data):
         pass
@@ -175,6 +180,24 @@ def test_a_more_urgent_interrupt_preempts_and_an_equal_one_waits_and_is_tail_cha
     compare_return_s = control_return_s - (10 - TAIL_CHAIN_CYCLES) / CLOCK_HZ + (500 + 10) / CLOCK_HZ
     assert math.isclose(q.figures()["interrupts"]["compare"]["response_s"]["max"], compare_return_s - 60e-6,
                         rel_tol=1e-6)
+
+
+def test_a_masked_interrupt_waits_for_the_unmask_and_then_preempts():
+    """The control interrupt (50 us, 3000 cycles) runs its first 1500 with PRIMASK set: the compare
+    due at 60 us waits until the unmask, at 50 us + (12 + 1500) cycles, and preempts there (within
+    a basic block: the stand-in's is one cycle); the control's return moves by the compare's time."""
+    body = {"control": 3000, "compare": 500}
+    fw = _StandInFirmware(body, {"hall": 0, "compare": 0, "control": 1}, compare_at=600)
+    fw.core.mask_cycles = {"control": 1500}
+    p = _run(fw, 99e-6)
+    f = p.figures()
+    assert [r[0] for r in fw.core.returns] == ["compare", "control"]
+    unmask_s = 50e-6 + (12 + 1500) / CLOCK_HZ
+    assert f["interrupts"]["compare"]["response_s"]["max"] == pytest.approx(
+        unmask_s + (12 + 500 + 10) / CLOCK_HZ - 60e-6, abs=2 / CLOCK_HZ)
+    assert f["interrupts"]["control"]["response_s"]["max"] == pytest.approx(
+        (12 + 3000 + 10 + 12 + 500 + 10) / CLOCK_HZ, abs=2 / CLOCK_HZ)
+    assert f["masked_waits"] > 0
 
 
 def test_an_interrupt_still_running_at_its_next_instance_is_an_overrun_naming_it_its_cycles_and_period():

@@ -113,6 +113,8 @@ _STACKED_REGISTERS = (U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_AR
                       U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP)
 #: the registers ``run`` reads when the emulation stops: where (a return, or a pause), and the result
 _AFTER_REGISTERS = (U.UC_ARM_REG_PC, U.UC_ARM_REG_R0)
+#: the exception mask registers (ARMv6-M has PRIMASK alone; Unicorn reads the others as 0 there)
+_MASK_REGISTERS = (U.UC_ARM_REG_PRIMASK, U.UC_ARM_REG_FAULTMASK, U.UC_ARM_REG_BASEPRI)
 
 
 def _keep(*_) -> None:
@@ -499,6 +501,14 @@ class Core:
     def result(self) -> int:
         """r0 of the last call that returned (unsigned 32 bits)."""
         return self._result
+
+    def masked(self, priority: int) -> bool:
+        """Whether the code running now keeps an interrupt of NVIC ``priority`` pending: PRIMASK or
+        FAULTMASK set (``CPSID i``, ``CPSID f``), or BASEPRI non-zero and not above ``priority`` (the
+        architecture's rule: BASEPRI masks every exception whose priority value is at least it).
+        Unicorn executes CPSID, CPSIE, MRS and MSR of these registers; the scheduler asks here."""
+        primask, faultmask, basepri = self._regs.read(_MASK_REGISTERS)
+        return bool(primask & 1 or faultmask & 1 or (basepri & 0xFF and priority >= basepri & 0xFF))
 
     def begin(self, symbol: str, args=(), *, interrupt: bool = False, label: str | None = None,
               charge: bool = True) -> None:
