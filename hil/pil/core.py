@@ -601,7 +601,7 @@ class Core:
             self.uc.context_restore(outer.saved)
             outer.saved = None
             self._prev = outer.prev
-        else:
+        elif frame.charge:  # a framework read's few words are found by the next charged call's check
             self._stack_check(frame)
 
     def call(self, symbol: str, *args, interrupt: bool = False, label: str | None = None,

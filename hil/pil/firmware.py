@@ -91,6 +91,9 @@ class PilFirmware:
         self._outputs: tuple | None = None
         self._outputs_at = -1  #: core.firmware_runs when the outputs were read
         self._emcy_popped: list[int] = []  #: EMCY codes the output read popped, not handed out yet
+        #: core.firmware_runs when the EMCY queue was last found empty: it stays empty until firmware code
+        #: runs again (the output read after every interrupt finds it so; no second call to ask again)
+        self._emcy_empty_at = -1
         self._constructors()
 
     def _constructors(self) -> None:
@@ -151,6 +154,8 @@ class PilFirmware:
                 out = (out[0], out[1], 0, out[2], 0, out[5])
             if self.has_emcy and out[3]:
                 self._emcy_popped.append(out[5])
+            elif self.has_emcy:
+                self._emcy_empty_at = self.core.firmware_runs
             self._outputs, self._outputs_at = out, self.core.firmware_runs
         return self._outputs
 
@@ -166,12 +171,17 @@ class PilFirmware:
         return out[4] if out[2] else None
 
     def emcy(self) -> int | None:
-        """One EMCY code popped from the firmware's queue (the output read's first), or None."""
+        """One EMCY code popped from the firmware's queue (the output read's first), or None (no call
+        when the queue was found empty and no firmware code ran since)."""
         if not self.has_emcy:
             return None
+        self._read_outputs()  # the first code after firmware code ran comes with the outputs
         if self._emcy_popped:
             return self._emcy_popped.pop(0)
+        if self._emcy_empty_at == self.core.firmware_runs:
+            return None
         if not self._read("hil_sil_emcy", SCRATCH_BASE) & 0xFFFFFFFF:
+            self._emcy_empty_at = self.core.firmware_runs
             return None
         return struct.unpack("<H", self.core.read(SCRATCH_BASE, 2))[0]
 
