@@ -81,6 +81,8 @@ class TimedPeripherals(Peripherals):
         self.priority = {event: int(target.priorities.get(kind, 0)) for event, kind in _KIND.items()}
         table = self.core.table
         self._exit_cycles = table.exception_return
+        #: the framework's output read an interrupt returns into (one emulated call per interrupt)
+        self._then = getattr(fw, "isr_tail", None)
         self._tail_cycles = getattr(table, "tail_chain", TAIL_CHAIN_CYCLES)
         self._stack: list[_Call] = []
         self._queued: list[_Call] = []
@@ -174,7 +176,7 @@ class TimedPeripherals(Peripherals):
         self._enter(event, t_s, call.count)
         c0 = core.cycles
         call.start_cycle = c0
-        core.begin(EVENTS[event], (call.count, *args), interrupt=True, label=_KIND[event])
+        core.begin(EVENTS[event], (call.count, *args), interrupt=True, label=_KIND[event], then=self._then)
         if tail:  # tail-chained: the return's and the entry's cycles are one tail-chain
             self._anchor_t = t_s - (self._exit_cycles - self._tail_cycles) / self.clock_hz
             self._anchor_c = core.cycles
