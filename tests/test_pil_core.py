@@ -47,6 +47,9 @@ __attribute__((naked)) int seq_m4(int a, int b, int *p)
         "bx lr\n");
 }
 
+/* BASEPRI (ARMv7-M only): interrupts of priority value v and above wait */
+void basepri(uint32_t v) { __asm volatile("msr basepri, %0" : : "r"(v) : "memory"); }
+
 /* a loop of five: movs, adds, cmp, bne (taken 4 times: 1 + P = 2), bx lr */
 __attribute__((naked)) int loop5(void)
 {
@@ -81,6 +84,8 @@ uint32_t divide(uint32_t a, uint32_t b) { return a / b; /* @DIV */ }
 void trap(void) { __builtin_trap(); /* @UDF */ }
 void jump_to_ram(void) { ((void (*)(void))(0x20000101u))(); /* @XN */ }
 void spin(void) { for (;;) { ticks++; } }
+void irq_off(void) { __asm volatile("cpsid i" : : : "memory"); }
+void irq_on(void) { __asm volatile("cpsie i" : : : "memory"); }
 uint32_t deep(uint32_t n)
 {
     volatile uint8_t frame[64];
@@ -95,7 +100,8 @@ uint32_t deep(uint32_t n)
 
 
 SNIPPET_FUNCTIONS = ("seq_m4", "loop5", "count_to", "peek", "float_op", "double_op", "lib_op", "bus_fault", "load64",
-                     "load32", "load16", "divide", "trap", "jump_to_ram", "spin", "deep")
+                     "load32", "load16", "divide", "trap", "jump_to_ram", "spin", "deep", "basepri", "irq_off",
+                     "irq_on")
 
 
 def _line(marker: str, cpu: str = "cortex-m4f") -> int:
@@ -251,6 +257,26 @@ def test_a_preempting_interrupt_runs_between_and_the_preempted_call_ends_as_alon
     assert core.run() is True and core.result() == 200
     assert core.last_cycles == alone_cycles + hall_cycles  # the preempted call's own cycles plus the interrupt's
     assert core.stack_high_water >= alone_stack + 32  # the interrupt's frame below the paused call's stack
+
+
+def test_primask_and_basepri_mask_interrupts_as_the_architecture_says(m4f, m0plus):
+    """CPSID i masks every priority until CPSIE i; BASEPRI v masks priority values v and above, and
+    0 masks none (ARMv7-M Architecture Reference Manual, B1.5.4). ARMv6-M has PRIMASK alone."""
+    core = Core(m4f, _target("cortex-m4f"))
+    assert not core.masked(0)
+    core.call("irq_off")
+    assert core.masked(0) and core.masked(255)
+    core.call("irq_on")
+    assert not core.masked(0)
+    core.call("basepri", 0x20)
+    assert core.masked(0x20) and core.masked(0x40) and not core.masked(0x1F)
+    core.call("basepri", 0)
+    assert not core.masked(255)
+    m0 = Core(m0plus, _target("cortex-m0plus"))
+    m0.call("irq_off")
+    assert m0.masked(0)
+    m0.call("irq_on")
+    assert not m0.masked(0)
 
 
 def _object(core: Core, name: str) -> int:

@@ -113,6 +113,8 @@ _STACKED_REGISTERS = (U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_AR
                       U.UC_ARM_REG_LR, U.UC_ARM_REG_PC, U.UC_ARM_REG_XPSR, U.UC_ARM_REG_SP)
 #: the registers ``run`` reads when the emulation stops: where (a return, or a pause), and the result
 _AFTER_REGISTERS = (U.UC_ARM_REG_PC, U.UC_ARM_REG_R0)
+#: the exception mask registers (ARMv6-M has PRIMASK alone; Unicorn reads the others as 0 there)
+_MASK_REGISTERS = (U.UC_ARM_REG_PRIMASK, U.UC_ARM_REG_FAULTMASK, U.UC_ARM_REG_BASEPRI)
 
 
 def _keep(*_) -> None:
@@ -216,6 +218,13 @@ class Core:
         self._stop_at = math.inf
         self._prev = START
         self._fault: ProcessorFinding | None = None
+        #: the framework's code (``load_framework_code``): [lo, hi), or (-1, -1) before any is loaded
+        self._framework = (-1, -1)
+        #: (cycles, instructions) where the running call reached the framework's code (its tail: the
+        #: output read an interrupt returns into, ``begin(then=...)``), else None; given back at its return
+        self._tail: tuple[int, int] | None = None
+        #: ``firmware_runs`` when a call last ran the framework's output read at its end (``then``)
+        self.outputs_ran_at = -1
         self._bad_access: tuple[int, int] | None = None
         self._result = 0
         self.last_cycles = 0  #: cycles of the last call that returned, with exception entry and return
@@ -484,6 +493,7 @@ class Core:
             raise ValueError(f"framework code {name} of {len(code)} bytes (at most {PAGE})")
         self.uc.mem_map(FRAMEWORK_CODE, PAGE, unicorn.UC_PROT_READ | unicorn.UC_PROT_EXEC)
         self.uc.mem_write(FRAMEWORK_CODE, bytes(code))
+        self._framework = (FRAMEWORK_CODE, FRAMEWORK_CODE + PAGE)
         self._symbols[name] = FRAMEWORK_CODE
         k = bisect.bisect_right(self._function_starts, FRAMEWORK_CODE)
         self._functions.insert(k, (FRAMEWORK_CODE, FRAMEWORK_CODE + len(code), name))
@@ -500,10 +510,21 @@ class Core:
         """r0 of the last call that returned (unsigned 32 bits)."""
         return self._result
 
+    def masked(self, priority: int) -> bool:
+        """Whether the code running now keeps an interrupt of NVIC ``priority`` pending: PRIMASK or
+        FAULTMASK set (``CPSID i``, ``CPSID f``), or BASEPRI non-zero and not above ``priority`` (the
+        architecture's rule: BASEPRI masks every exception whose priority value is at least it).
+        Unicorn executes CPSID, CPSIE, MRS and MSR of these registers; the scheduler asks here."""
+        primask, faultmask, basepri = self._regs.read(_MASK_REGISTERS)
+        return bool(primask & 1 or faultmask & 1 or (basepri & 0xFF and priority >= basepri & 0xFF))
+
     def begin(self, symbol: str, args=(), *, interrupt: bool = False, label: str | None = None,
-              charge: bool = True) -> None:
+              charge: bool = True, then: int | None = None) -> None:
         """Start a call of ``symbol`` (module docstring); ``charge=False``: a framework read whose
-        cycles are given back when it returns."""
+        cycles are given back when it returns. ``then``: an address in the framework's code the call
+        returns into (its LR) instead of returning at once: code of the framework's own that runs
+        within the same emulated call (the output read after an interrupt), its cycles and
+        instructions given back, never paused (only stopped at the call's budget)."""
         if self._fault is not None:
             raise RuntimeError(f"{self.elf}: this core met {type(self._fault).__name__}; make a new Core")
         if len(args) > 4:
@@ -528,7 +549,9 @@ class Core:
             self._write_frame(sp, (0, 0, 0, 0, 0, 0xFFFFFFFF, MAGIC_RETURN, 0x01000000))
         else:
             sp = self.ram_top
-        self._regs.write(_CALL_REGISTERS[len(args)], (*(int(a) & 0xFFFFFFFF for a in args), sp, MAGIC_RETURN | 1))
+        self._regs.write(_CALL_REGISTERS[len(args)],
+                         (*(int(a) & 0xFFFFFFFF for a in args), sp, (MAGIC_RETURN if then is None else then) | 1))
+        self._tail = None
         if interrupt and charge:
             self.cycles += self.table.exception_entry
         self._frames.append(frame)
@@ -574,6 +597,10 @@ class Core:
     def _returned(self, frame: _Frame, r0: int) -> None:
         self._result = r0
         self._frames.pop()
+        if self._tail is not None:  # what the framework's code ran is no time of the firmware's
+            self.cycles, self.instructions = self._tail
+            self._tail = None
+            self.outputs_ran_at = self.firmware_runs
         if frame.interrupt and frame.charge:
             self.cycles += self.table.exception_return + (self.table.lazy_fp_return if frame.lazy_stacked else 0)
         spent = self.cycles - frame.start_cycle
@@ -591,7 +618,7 @@ class Core:
             self.uc.context_restore(outer.saved)
             outer.saved = None
             self._prev = outer.prev
-        else:
+        elif frame.charge:  # a framework read's few words are found by the next charged call's check
             self._stack_check(frame)
 
     def call(self, symbol: str, *args, interrupt: bool = False, label: str | None = None,
@@ -626,10 +653,12 @@ class Core:
 
     # --- hooks --------------------------------------------------------------------------------------------
     def _on_block(self, uc, address, size, _):
+        if self._tail is None and self._framework[0] <= address < self._framework[1]:
+            self._tail = (self.cycles, self.instructions)  # the firmware's part of the call ends here
         b = self._blocks.get(address)
         if b is None or b.size != size:
             b = self._decode(address, size)
-        if self.cycles >= self._stop_at:
+        if self.cycles >= (self._stop_at if self._tail is None else self._frame.hang_at):
             uc.emu_stop()  # this block has not run: it is charged when the call resumes
             return
         prev = self._prev
@@ -678,12 +707,13 @@ class Core:
             kind, cause, pc = b.fault
             self._stop(self._fault_finding(kind, cause, pc))
             return
+        charge = frame.charge and self._tail is None
         if b.fp:
             frame.uses_fp = True
-            if frame.fp_frame and not frame.lazy_stacked and frame.charge:
+            if frame.fp_frame and not frame.lazy_stacked and charge:
                 frame.lazy_stacked = True  # the FP context is pushed at the handler's first FP instruction
                 self.cycles += self.table.lazy_fp_stacking
-        if b.softfloat is not None and frame.charge:
+        if b.softfloat is not None and charge:
             self.stats[frame.label].soft_float[b.softfloat] += 1
 
     def _on_check(self, uc, address, size, check):

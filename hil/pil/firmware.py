@@ -22,7 +22,7 @@ import numpy as np
 
 from hil.sil.firmware import FirmwareInfo, SilInterfaceError, check_exports, check_info
 
-from .core import ADC_BASE, SCRATCH_BASE, SCRATCH_BYTES, Core
+from .core import ADC_BASE, FRAMEWORK_CODE, MAGIC_RETURN, SCRATCH_BASE, SCRATCH_BYTES, Core
 from .target import Target
 
 #: hil_sil_info as the AAPCS lays it out on a 32-bit ARM (docs/firmware-in-the-loop.md)
@@ -71,6 +71,16 @@ def _outputs_code(getters: list[tuple[int, int | None]]) -> bytes:
     return code.ljust(pool, b"\0") + struct.pack(f"<{len(literals)}I", *literals)
 
 
+def _tail_code(read: int) -> bytes:
+    """Thumb code an interrupt returns into (its LR, ``Core.begin(then=...)``): the output read at
+    ``read``, then the end of the emulated call (MAGIC_RETURN), so that an interrupt and the read of
+    what it left are one call, not two (word aligned; ARMv6-M's subset):
+
+        ldr r3, =read | 1; blx r3; ldr r3, =MAGIC_RETURN | 1; bx r3; literals
+    """
+    return struct.pack("<4H2I", 0x4B01, 0x4798, 0x4B01, 0x4718, read | 1, MAGIC_RETURN | 1)
+
+
 class PilFirmware:
     """The exports of ``elf`` on a fresh core of ``target``."""
 
@@ -87,10 +97,17 @@ class PilFirmware:
         getters = [(core.symbol("hil_sil_gates"), None), (core.symbol("hil_sil_duty"), None)]
         getters += [(core.symbol("hil_sil_compare"), OUTPUTS + 16)] if self.has_compare else []
         getters += [(core.symbol("hil_sil_emcy"), OUTPUTS + 20)] if self.has_emcy else []
-        core.load_framework_code(OUTPUTS_SYMBOL, _outputs_code(getters))
+        read = _outputs_code(getters)
+        tail_at = (len(read) + 3) // 4 * 4
+        core.load_framework_code(OUTPUTS_SYMBOL, read.ljust(tail_at, b"\0") + _tail_code(FRAMEWORK_CODE))
+        #: where an interrupt the scheduler starts returns to (``Core.begin(then=...)``): the output read
+        self.isr_tail = FRAMEWORK_CODE + tail_at
         self._outputs: tuple | None = None
         self._outputs_at = -1  #: core.firmware_runs when the outputs were read
         self._emcy_popped: list[int] = []  #: EMCY codes the output read popped, not handed out yet
+        #: core.firmware_runs when the EMCY queue was last found empty: it stays empty until firmware code
+        #: runs again (the output read after every interrupt finds it so; no second call to ask again)
+        self._emcy_empty_at = -1
         self._constructors()
 
     def _constructors(self) -> None:
@@ -145,12 +162,15 @@ class PilFirmware:
         """gates, duty, compare's answer, emcy's answer, the compare count, the EMCY code: read in one
         call unless no firmware code ran since the last read."""
         if self._outputs_at != self.core.firmware_runs:
-            self.core.call(OUTPUTS_SYMBOL, charge=False)
+            if self.core.outputs_ran_at != self.core.firmware_runs:  # not read at the interrupt's return
+                self.core.call(OUTPUTS_SYMBOL, charge=False)
             out = _OUTPUTS.unpack(self.core.read(OUTPUTS, _OUTPUTS.size))
             if not self.has_compare:  # the slots shift: compare's were never called
                 out = (out[0], out[1], 0, out[2], 0, out[5])
             if self.has_emcy and out[3]:
                 self._emcy_popped.append(out[5])
+            elif self.has_emcy:
+                self._emcy_empty_at = self.core.firmware_runs
             self._outputs, self._outputs_at = out, self.core.firmware_runs
         return self._outputs
 
@@ -166,12 +186,17 @@ class PilFirmware:
         return out[4] if out[2] else None
 
     def emcy(self) -> int | None:
-        """One EMCY code popped from the firmware's queue (the output read's first), or None."""
+        """One EMCY code popped from the firmware's queue (the output read's first), or None (no call
+        when the queue was found empty and no firmware code ran since)."""
         if not self.has_emcy:
             return None
+        self._read_outputs()  # the first code after firmware code ran comes with the outputs
         if self._emcy_popped:
             return self._emcy_popped.pop(0)
+        if self._emcy_empty_at == self.core.firmware_runs:
+            return None
         if not self._read("hil_sil_emcy", SCRATCH_BASE) & 0xFFFFFFFF:
+            self._emcy_empty_at = self.core.firmware_runs
             return None
         return struct.unpack("<H", self.core.read(SCRATCH_BASE, 2))[0]
 

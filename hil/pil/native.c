@@ -49,6 +49,14 @@ typedef struct {
     int64_t charge, uses_fp, fp_frame, lazy_stacked; /* the running _Frame's */
     int64_t softfloat_dirty;  /* a soft-float count changed since Python last read them */
     int64_t lazy_fp_stacking; /* CycleTable.lazy_fp_stacking */
+    /* the framework's code (Core.load_framework_code): a call that reaches it (an interrupt returning
+       into the output read its `then` named, or the output read itself) is in its tail from there:
+       the cycles and instructions at that point are kept (Core gives back what the tail ran), and
+       the tail is not paused, only stopped at the call's hang budget */
+    int64_t framework_lo, framework_hi;
+    int64_t tail_cycles;       /* -1: not in the tail */
+    int64_t tail_instructions;
+    int64_t hang_at;           /* the running call's budget (Core._frame.hang_at) */
     int64_t softfloat_counts[PIL_SOFT_FLOAT_MAX];
     /* the host's functions */
     pil_uc_emu_stop emu_stop;
@@ -116,6 +124,8 @@ PIL_EXPORT pil_state *pil_new(void *emu_stop, void *reg_read, void *slow_block, 
     s->slow_check = (pil_slow_check)slow_check;
     s->lazy_fp_stacking = lazy_fp_stacking;
     s->prev_fallthrough = -1;
+    s->tail_cycles = -1;
+    s->framework_lo = s->framework_hi = -1;
     return s;
 }
 
@@ -170,12 +180,17 @@ PIL_EXPORT int pil_insert(pil_state *s, uint64_t address, uint32_t size, uint32_
 PIL_EXPORT void pil_block_hook(void *uc, uint64_t address, uint32_t size, void *user)
 {
     pil_state *s = user;
+    if (s->tail_cycles < 0 && (int64_t)address >= s->framework_lo && (int64_t)address < s->framework_hi) {
+        s->tail_cycles = s->cycles; /* the firmware's part of the call ends here */
+        s->tail_instructions = s->instructions;
+        s->charge = 0;
+    }
     const pil_block *b = pil_find(s, address);
     if (b == NULL || b->size != size || (b->flags & PIL_PYTHON)) {
         s->slow_block(address, size);
         return;
     }
-    if (s->cycles >= s->stop_at) {
+    if (s->cycles >= (s->tail_cycles < 0 ? s->stop_at : s->hang_at)) {
         s->emu_stop(uc); /* this block has not run: it is charged when the call resumes */
         return;
     }

@@ -42,7 +42,8 @@ _SUFFIX = {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
 
 #: the leading int64 fields of ``pil_state``, in order (Python reads and writes them as one array)
 _SHARED = ("cycles", "instructions", "stop_at", "prev_fallthrough", "prev_taken_extra", "charge", "uses_fp",
-           "fp_frame", "lazy_stacked", "softfloat_dirty", "lazy_fp_stacking")
+           "fp_frame", "lazy_stacked", "softfloat_dirty", "lazy_fp_stacking", "framework_lo", "framework_hi",
+           "tail_cycles", "tail_instructions", "hang_at")
 _INF = (1 << 63) - 1  #: stop_at of a call that runs to its end (INT64_MAX)
 
 
@@ -202,8 +203,12 @@ class NativeHooks:
         if stop.__class__ is not int:  # a float (inf, or a fraction of a cycle): the next whole cycle
             stop = _INF if stop >= _INF else math.ceil(stop)
         self._shared[0:9] = (core.cycles, core.instructions, min(max(stop, 0), _INF),
-                             prev.fallthrough, prev.taken_extra, frame.charge, frame.uses_fp, frame.fp_frame,
-                             frame.lazy_stacked)
+                             prev.fallthrough, prev.taken_extra, frame.charge and core._tail is None, frame.uses_fp,
+                             frame.fp_frame, frame.lazy_stacked)
+        tail = core._tail
+        hang = frame.hang_at
+        self._shared[11:16] = (*core._framework, *(tail if tail is not None else (-1, 0)),
+                               _INF if hang >= _INF else math.ceil(hang))
 
     def pull(self, frame) -> None:
         """C's counters back into the core and the running call (after uc_emu_start, before Python's
@@ -211,6 +216,8 @@ class NativeHooks:
         core = self.core
         core.cycles, core.instructions, _, fallthrough, taken_extra, _, uses_fp, _, lazy_stacked, dirty = \
             self._shared[0:10]
+        tail_cycles, tail_instructions = self._shared[13:15]
+        core._tail = (tail_cycles, tail_instructions) if tail_cycles >= 0 else None
         prev = core._prev
         if prev.fallthrough != fallthrough or prev.taken_extra != taken_extra:
             core._prev = Block(0, 0, 0, 0, fallthrough, taken_extra, 0, False)

@@ -81,12 +81,18 @@ class TimedPeripherals(Peripherals):
         self.priority = {event: int(target.priorities.get(kind, 0)) for event, kind in _KIND.items()}
         table = self.core.table
         self._exit_cycles = table.exception_return
+        #: the framework's output read an interrupt returns into (one emulated call per interrupt)
+        self._then = getattr(fw, "isr_tail", None)
         self._tail_cycles = getattr(table, "tail_chain", TAIL_CHAIN_CYCLES)
         self._stack: list[_Call] = []
         self._queued: list[_Call] = []
         self._seq = 0
         self._anchor_t, self._anchor_c = 0.0, 0
         self._busy_since: float | None = None
+        #: a pending interrupt would preempt but the running code masks it (PRIMASK, BASEPRI): the
+        #: core then runs a basic block at a time, so that it is taken at the block after the unmask
+        self._masked = False
+        self.masked_waits = 0
         self._last_event: dict = {}
         #: what the schedule measured (``figures``)
         self.overruns: list[dict] = []
@@ -145,9 +151,13 @@ class TimedPeripherals(Peripherals):
     def _dispatch(self, t_s: float, tail: bool = False) -> None:
         """Start the pending interrupts that may run at ``t_s``: the most urgent one when nothing
         runs, or when it preempts the running one (a strictly lower priority number)."""
+        self._masked = False
         while self._queued:
             best = min(self._queued, key=lambda c: (c.priority, c.event, c.seq))
             if self._stack and best.priority >= self._stack[-1].priority:
+                return
+            if self._stack and self.core.masked(best.priority):
+                self._masked = True  # the running code masks it: taken once it unmasks (``_run``)
                 return
             self._queued.remove(best)
             self._start(best, t_s, tail and not self._stack)
@@ -166,7 +176,7 @@ class TimedPeripherals(Peripherals):
         self._enter(event, t_s, call.count)
         c0 = core.cycles
         call.start_cycle = c0
-        core.begin(EVENTS[event], (call.count, *args), interrupt=True, label=_KIND[event])
+        core.begin(EVENTS[event], (call.count, *args), interrupt=True, label=_KIND[event], then=self._then)
         if tail:  # tail-chained: the return's and the entry's cycles are one tail-chain
             self._anchor_t = t_s - (self._exit_cycles - self._tail_cycles) / self.clock_hz
             self._anchor_c = core.cycles
@@ -237,6 +247,9 @@ class TimedPeripherals(Peripherals):
                     return
                 continue
             t_timer = max(t_timer, sim.t_s)
+            if self._masked:  # a block at a time until the running code unmasks the pending interrupt
+                self.masked_waits += 1
+                t_timer = max(sim.t_s, min(t_timer, self._time(core.cycles + 1)))
             if hall_priority < self._stack[-1].priority:
                 # a Hall edge would preempt: the plant first, to its next event, with the old outputs
                 checkpoint = sim.checkpoint()
@@ -314,7 +327,7 @@ class TimedPeripherals(Peripherals):
                 "lost": dict(self.lost), "worst_load": windowed, "worst_load_window_s": window * period,
                 "worst_load_one_period": max(loads, default=0.0),
                 "mean_load": (sum(busy.values()) / (len(loads) * period)) if loads else 0.0,
-                "periods": len(loads), "plant_rollbacks": self.plant_rollbacks,
+                "periods": len(loads), "plant_rollbacks": self.plant_rollbacks, "masked_waits": self.masked_waits,
                 "priorities": {_KIND[e]: p for e, p in self.priority.items()}}
 
 

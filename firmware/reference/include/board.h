@@ -12,4 +12,29 @@ void board_compare_arm(uint32_t count);  /* the compare fires when the counter n
 void board_compare_disarm(void);
 void board_emcy_send(uint16_t code);     /* queue one EMCY frame (0x0000: error reset) */
 
+/* Interrupts off for a few lines, around what interrupts of different priorities share (the
+   command queue and the compare unit, the time base, the ADC ring, the cycle accumulators): on the
+   part the control and compare interrupts preempt the Hall interrupt (and control preempts compare),
+   so an update one of them makes part-way through another's is a data race. PRIMASK is saved and
+   restored, so sections nest. A PC build (sil:) runs its interrupts one at a time: nothing to do. */
+static inline uint32_t board_irq_lock(void)
+{
+#if defined(__ARM_ARCH)
+    uint32_t primask;
+    __asm volatile("mrs %0, primask\n\tcpsid i" : "=r"(primask) : : "memory");
+    return primask;
+#else
+    return 0u;
+#endif
+}
+
+static inline void board_irq_unlock(uint32_t primask)
+{
+#if defined(__ARM_ARCH)
+    __asm volatile("msr primask, %0" : : "r"(primask) : "memory");
+#else
+    (void)primask;
+#endif
+}
+
 #endif /* BOARD_H */

@@ -43,7 +43,7 @@ static uint8_t tb_valid;
 /* the 64-bit time of a counter value: the last one seen plus the counter's step since, taken
    modulo the width and signed (a capture latched a little before the last interrupt's count is a
    little in the past, not a wrap ahead); the clock advances to the newest count */
-static int64_t tb_at(uint32_t count)
+static int64_t tb_advance(uint32_t count)
 {
     int64_t delta, t;
     count &= TIMER_MASK;
@@ -78,6 +78,15 @@ static int64_t tb_at(uint32_t count)
 #else
     return t;
 #endif
+}
+
+/* every interrupt advances the clock: one at a time (board_irq_lock) */
+static int64_t tb_at(uint32_t count)
+{
+    uint32_t primask = board_irq_lock();
+    int64_t t = tb_advance(count);
+    board_irq_unlock(primask);
+    return t;
 }
 
 static float seconds(int64_t ticks)
@@ -170,7 +179,7 @@ static void run_due(int64_t now, int64_t lead);
 
 /* a command from ``at`` on (Python: Command(at_s, sector, duty)); made now when due (within
    ``lead`` of ``now``), else queued for the compare unit; queued ones now due are made too */
-static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
+static void queue_command(int64_t now, int64_t at, int sector, float duty, int64_t lead)
 {
     command_t c;
     int i;
@@ -206,6 +215,15 @@ static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
     rearm(now);
 }
 
+/* the command queue and the compare unit are the Hall, compare and control interrupts' at once:
+   each change of them runs with interrupts off (board_irq_lock) */
+static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
+{
+    uint32_t primask = board_irq_lock();
+    queue_command(now, at, sector, duty, lead);
+    board_irq_unlock(primask);
+}
+
 static void run_due(int64_t now, int64_t lead)
 {
     while (n_queue > 0 && queue[0].at - now <= lead) {
@@ -230,6 +248,7 @@ static uint32_t cycle_n;
 static void adc_push(int64_t t, const int16_t adc[3])
 {
     int at;
+    uint32_t primask = board_irq_lock();
     if (adc_n < ADC_RING) {
         at = (adc_head + adc_n) % ADC_RING;
         adc_n++;
@@ -241,6 +260,7 @@ static void adc_push(int64_t t, const int16_t adc[3])
     adc_ring[at].i[0] = adc[0];
     adc_ring[at].i[1] = adc[1];
     adc_ring[at].i[2] = adc[2];
+    board_irq_unlock(primask);
 }
 
 /* The mean |i| moves from one level to another at each commutation, in a ramp of about 9 us on
@@ -814,6 +834,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     uint8_t rising, motion = 1u;
     float current_a, cycle_a = -1.0f, delay_s = 0.0f;
     int sector;
+    uint32_t primask;
 
     if (pin > 2u) return;
 #ifdef FW_DEBUG
@@ -838,6 +859,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     }
 #endif
     adc_push(t, adc); /* the conversion the capture triggers */
+    primask = board_irq_lock(); /* the control interrupt adds to the accumulators */
     if (cycle_n > 0u) {
 #if defined(HIL_DEFECT_PREDICTOR_CURRENT_SIGNED_SUM)
         /* the signed sum of the phases, |a + b + c|: about 0 in a star winding */
@@ -850,6 +872,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
     }
     cycle_sum[0] = cycle_sum[1] = cycle_sum[2] = 0;
     cycle_n = 0u;
+    board_irq_unlock(primask);
     if (L.has_last_t && t <= L.last_t) { /* a capture stamp that does not increase */
         fault_raise(FAULT_CAPTURE_TIMING);
         return;
@@ -942,6 +965,7 @@ static int64_t current_lp_at = -1; /* the previous control interrupt's instant, 
 void ctl_control_isr(uint32_t count, const int16_t adc[3])
 {
     int64_t now = tb_at(count);
+    uint32_t primask;
 #if defined(HIL_DEFECT_DOUBLE_IN_CONTROL_ISR)
     {   /* a first-order low pass in double, its coefficient recomputed every period from the
            measured interval since the last one: on a PC a few instructions, on a Cortex-M4F
@@ -954,10 +978,12 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
     }
 #endif
     adc_push(now, adc);
+    primask = board_irq_lock();
     cycle_sum[0] += adc[0];
     cycle_sum[1] += adc[1];
     cycle_sum[2] += adc[2];
     cycle_n++;
+    board_irq_unlock(primask);
 #if defined(HIL_DEFECT_TORN_TABLE)
     /* the 1 kHz background task (every CONTROL_HZ / 1000th control interrupt) copies one value per
        tick: the Hall ISR reads a half-copied table for CAL_N_VALUES ms */
@@ -967,18 +993,22 @@ void ctl_control_isr(uint32_t count, const int16_t adc[3])
         torn_copy_at++;
     }
 #endif
+    primask = board_irq_lock();
 #if !defined(HIL_DEFECT_LATE_COMPARE)
     run_due(now, COMPARE_LEAD_TICKS); /* a command too far ahead to arm when it was made */
 #endif
     rearm(now);
+    board_irq_unlock(primask);
 }
 
 void ctl_compare_isr(uint32_t count)
 {
     int64_t now = tb_at(count);
+    uint32_t primask;
 #ifdef FW_DEBUG
     fprintf(stderr, "compare now=%lld q=%d head=%lld\n", (long long)now, n_queue, n_queue ? (long long)queue[0].at : 0LL);
 #endif
+    primask = board_irq_lock();
 #if defined(HIL_DEFECT_LATE_COMPARE)
     if (late_armed && ((uint32_t)late.at & TIMER_MASK) == (count & TIMER_MASK)) {
         late_armed = 0u;
@@ -987,6 +1017,7 @@ void ctl_compare_isr(uint32_t count)
 #endif
     run_due(now, COMPARE_LEAD_TICKS);
     rearm(now);
+    board_irq_unlock(primask);
 }
 
 /* ---- configuration ------------------------------------------------------------------------- */
