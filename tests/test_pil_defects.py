@@ -7,7 +7,6 @@ kind not meant to catch a defect shows it, never as a survivor and outside the d
 from __future__ import annotations
 
 import argparse
-import subprocess
 from pathlib import Path
 
 import pytest
@@ -100,8 +99,7 @@ def test_a_defect_another_kind_must_catch_is_shown_never_a_survivor_nor_in_the_d
 
     # on sil: the defect runs the whole suite with -x, even under --sensitivity
     seen = []
-    monkeypatch.setattr(subprocess, "run",
-                        lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 1, "", ""))
+    monkeypatch.setattr(qrun, "run_pytest", lambda cmd, timeout_s, env=None: seen.append(cmd) or (1, ""))
     args = argparse.Namespace(report_dir=str(tmp_path), dut=f"sil:{REFERENCE}", seed=0, budgets=None, defects=None,
                               suite=str(REFERENCE.parent.parent / "test_cases"), sensitivity=True,
                               firmware_defects=qrun.firmware_defects(f"sil:{REFERENCE}"))

@@ -290,7 +290,6 @@ def test_a_firmware_defect_has_an_optional_class_that_the_sensitivity_run_uses(t
     """defects.toml's optional ``class`` (a DEFECT_CLASSES key) is the defect's class: hil qualify
     --sensitivity builds it (define=) and runs the tests of the requirements naming its class, no -x."""
     import argparse
-    import subprocess
 
     from hil.qualify import run as qrun
 
@@ -308,8 +307,7 @@ def test_a_firmware_defect_has_an_optional_class_that_the_sensitivity_run_uses(t
         qrun.firmware_defects(f"sil:{folder}")
 
     seen = []
-    monkeypatch.setattr(subprocess, "run",
-                        lambda cmd, **kw: seen.append(cmd) or subprocess.CompletedProcess(cmd, 1, "", ""))
+    monkeypatch.setattr(qrun, "run_pytest", lambda cmd, timeout_s, env=None: seen.append(cmd) or (1, ""))
     args = argparse.Namespace(report_dir=str(tmp_path / "r"), dut=f"sil:{folder}", seed=0, budgets=None, defects=None,
                               suite=str(REFERENCE.parent.parent / "test_cases"), sensitivity=True,
                               firmware_defects={"x": qrun.FirmwareDefect("x", "HIL_DEFECT_X", "y", (), "speed-loop")})
