@@ -21,6 +21,15 @@
 #ifndef TIMER_HZ
 #define TIMER_HZ 10000000u
 #endif
+/* The compare interrupt's latency, in ticks: from the match to its gates taking effect (exception
+   entry and the interrupt's work up to its gate write). The firmware cannot read the counter when it
+   writes the gates, so it arms each command this much before its instant: the gates then change at
+   the instant the firmware records for the commutation (the ADC's transient model of the current at
+   a Hall edge, hence the armature correction, is anchored there). 0 on a PC build (sil: runs an
+   interrupt in zero time); a target's build sets it (sil.toml's [target] flags). */
+#ifndef COMPARE_LATENCY_TICKS
+#define COMPARE_LATENCY_TICKS 0
+#endif
 #define TIMER_HALF ((TIMER_MASK >> 1) + 1u)   /* the farthest ahead a compare can be armed */
 #define SECONDS_PER_TICK (1.0f / (float)TIMER_HZ)
 

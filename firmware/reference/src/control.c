@@ -103,6 +103,12 @@ typedef struct {
 
 #define QUEUE 8
 #define COMPARE_LEAD_TICKS 1  /* an instant this close is made now: an arm at the counter fires a wrap late */
+/* The compare unit is armed COMPARE_LATENCY_TICKS (fw_config.h) before a command's instant, so that
+   its gates change at that instant, the one apply() records for the ADC's transient segments */
+static int64_t arm_at(const command_t *c)
+{
+    return c->at - (int64_t)COMPARE_LATENCY_TICKS;
+}
 /* The Hall interrupt knows its capture's count, not the counter's present value: when edge noise
    places the conditioned edge before the physical switch (noise beyond the conditioning delay),
    the capture was latched before the interrupt could run. An instant that close after the capture
@@ -157,9 +163,9 @@ static void apply(const command_t *c)
 static void rearm(int64_t now)
 {
     if (n_queue > 0) {
-        int64_t ahead = queue[0].at - now;
+        int64_t ahead = arm_at(&queue[0]) - now;
         if (ahead > COMPARE_LEAD_TICKS && ahead < (int64_t)TIMER_HALF) {
-            board_compare_arm((uint32_t)queue[0].at & TIMER_MASK);
+            board_compare_arm((uint32_t)arm_at(&queue[0]) & TIMER_MASK);
 #if defined(HIL_DEFECT_LATE_COMPARE)
             late_armed = 0u;
 #endif
@@ -186,7 +192,7 @@ static void queue_command(int64_t now, int64_t at, int sector, float duty, int64
     c.at = at + (int64_t)DEFECT_GATE_LATENCY_TICKS;
     c.sector = (int8_t)sector;
     c.duty = duty;
-    if (c.at - now <= lead) {
+    if (arm_at(&c) - now <= lead) {
 #if defined(HIL_DEFECT_LATE_COMPARE)
         late = c;      /* armed for an instant already due: the compare fires a wrap later */
         late_armed = 1u;
@@ -226,7 +232,7 @@ static void emit(int64_t now, int64_t at, int sector, float duty, int64_t lead)
 
 static void run_due(int64_t now, int64_t lead)
 {
-    while (n_queue > 0 && queue[0].at - now <= lead) {
+    while (n_queue > 0 && arm_at(&queue[0]) - now <= lead) {
         int i;
         apply(&queue[0]);
         for (i = 1; i < n_queue; i++) queue[i - 1] = queue[i];
