@@ -25,7 +25,7 @@ from typing import Any
 #: the code of a sentence read back from a saved file (its only number: ``text``)
 FREE_TEXT = "TXT-000"
 
-#: code -> wording template: the only table of reasons (CAL: calibration)
+#: code -> wording template: the only table of reasons (CAL: calibration, GAP: gap diagnosis, TWIN: twin)
 WORDING: dict[str, str] = {
     FREE_TEXT: "{text}",
     # refusals: a fitted value beyond its physical bound (hil.calibration.refusals)
@@ -73,6 +73,51 @@ WORDING: dict[str, str] = {
     "ref_angle_mech_deg or samples with u_a..u_c and i_a..i_c (Line-BEMF, Eq. 3-5)",
     "CAL-062": "needs a reference angle (encoder) at several speeds, or the raw sensor channel beside the conditioned "
     "one; capture times alone see only rise-fall differences",
+    # GAP: the gap diagnosis (hil.gap). What an effect's fitted magnitude is judged by (Relevance.meaning)
+    "GAP-001": "RMS commutation-angle shift over the recording's edges; floor {fraction:.0%} of the "
+    "{budget_deg_e} deg_e budget",
+    "GAP-002": "RMS commutation-angle jitter over the recording's edges; floor {fraction:.0%} of the "
+    "{budget_deg_e} deg_e budget",
+    "GAP-003": "{disturbs}; floor {fraction:.0%} of a {budget_share:.0%} {budget}",
+    # what a diagnosis does not assess (Diagnosis.not_assessed)
+    "GAP-010": "{effect}: {no_trace}",
+    "GAP-011": "{effect}: needs samples.csv with phase currents and terminal voltages (speed and the reference "
+    "encoder for cogging)",
+    "GAP-012": "a lag common to every edge (the common part of hysteresis and of the conditioning delays, armature "
+    "reaction at a load that follows speed): invisible in capture times; needs an encoder",
+    "GAP-013": "the absolute installation offset (only offsets relative to each other, summing to zero): needs an "
+    "encoder or terminal voltages (Line-BEMF)",
+    "GAP-014": "armature_reaction, winding and magnet temperature, dead time, saturation: need phase currents or "
+    "voltages",
+    "GAP-015": "cogging torque and eccentricity: move the rotor, not the sensors; with capture times alone they are "
+    "part of the speed trajectory (a once-per-turn pattern shows as pole offsets)",
+    "GAP-016": "pole_offset: {pole_note}",
+    "GAP-017": "--model: not used for an ordinary run (capture times only): the model is an ideal motor with ideal "
+    "sensors on a smooth speed trajectory",
+    "GAP-018": "candidates: an ordinary run has its own list (the effects capture times can see)",
+    # where a diagnosis's pole-pair count comes from (found: CAL-021, CAL-022)
+    "GAP-020": "stated in the recording",
+    # how the held-out gap was measured, or why not (HeldOut)
+    "GAP-030": "no effect accepted",
+    "GAP-031": "held-out shrink cannot be measured: the recording has a single segment",
+    "GAP-032": "every detected edge effect is below practical relevance",
+    "GAP-033": "every detected effect is below practical relevance",
+    "GAP-034": "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments",
+    "GAP-035": "held-out shrink cannot be measured: no operating point is predicted from the others",
+    "GAP-036": "held-out shrink cannot be measured: {error}",
+    "GAP-037": "the training stretches alone chose no effect",
+    "GAP-038": "leave-one-operating-point-out over {segments} segments: the gap test, the effect choice and the fit "
+    "see only the other segments; interval: 5-95 % bootstrap over segments",
+    "GAP-039": "leave-one-operating-point-out over {segments} segments: the gap test, the effect choice, shape "
+    "parameters and fit see only the other segments; interval: 5-95 % bootstrap over segments",
+    "GAP-040": "{held_out}; on {segments_choosing_nothing} of them the other segments chose no effect",
+    "GAP-041": "{stretches} equal stretches of the run (by edge count): on the odd ones alone the gap test, the knot "
+    "spacing ({knot_cycles:g} electrical cycles), the pole pairs ({pole_pairs}), the effects ({effects}) and their "
+    "values were chosen; they are judged on the even ones with only the speed trajectory refitted there; gap there "
+    "before {gap_before_deg_e:.3g} deg e; interval: 5-95 % bootstrap over the {held_out_stretches} held-out "
+    "stretches",
+    "GAP-042": "{held_out}; the chosen effects do not hold on the held-out stretches (the gap grew): treat them as "
+    "not established by this capture",
 }
 
 #: code -> the names of the numbers its wording uses

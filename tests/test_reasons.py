@@ -5,6 +5,8 @@ written before the codes) reads back as free text worded exactly as it was."""
 from __future__ import annotations
 
 import json
+import re
+from pathlib import Path
 
 import pytest
 
@@ -23,7 +25,7 @@ def test_every_code_renders_with_its_numbers(code):
 
 
 def test_the_codes_are_numbered_and_each_wording_is_used_once():
-    assert all(code == FREE_TEXT or (code.startswith("CAL-") and code[4:].isdigit()) for code in WORDING)
+    assert all(code == FREE_TEXT or re.fullmatch(r"(CAL|GAP|TWIN)-\d{3}", code) for code in WORDING)
     assert len(set(WORDING.values())) == len(WORDING)
 
 
@@ -61,3 +63,13 @@ def test_a_free_text_reason_from_an_old_file_round_trips(tmp_path):
     assert read.to_json_dict()["undetermined"] == data["undetermined"]
     assert Reason.from_json("any {braces} kept") == Reason(FREE_TEXT, {"text": "any {braces} kept"})
     assert words(Reason.from_json("any {braces} kept")) == "any {braces} kept"
+
+
+def test_every_code_the_gap_diagnosis_and_the_twin_use_is_worded():
+    """The codes written in hil/gap and hil/twin (and the calibration codes they reuse) are all in
+    WORDING, so each of their sentences is worded there and nowhere else."""
+    root = Path(__file__).resolve().parents[1] / "hil"
+    used = {code for folder in ("gap", "twin") for path in (root / folder).glob("*.py")
+            for code in re.findall(r"\"((?:CAL|GAP|TWIN)-\d{3})\"", path.read_text(encoding="utf-8"))}
+    assert {c[:3] for c in used} >= {"GAP"}
+    assert used <= set(WORDING), sorted(used - set(WORDING))
