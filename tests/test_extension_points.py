@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from bldc.params import bounded
+from bldc.reasons import words
 from plant_models import effects as fx
 from plant_models import paper_bench
 from plant_models.kinematic import OperatingPoint
@@ -99,7 +100,8 @@ def test_a_toy_effect_is_made_by_a_twin_from_its_declaration(toy_effect, tmp_pat
     base = paper_bench().with_effects(FallingLag(2.5))
     twin = twin_from_capture(analyse(rec, pole_pairs=2), base, "toy base")
     assert twin.config.effect("falling_lag") == FallingLag(2.5) and "falling_lag" in twin.from_base
-    assert ("falling_lag", "from the base: a toy the twin does not measure") in twin.assumed
+    assert ("falling_lag", "from the base: a toy the twin does not measure") in [(what, words(how)) for what, how in
+                                                                             twin.assumed]
     text = twin_toml(twin, "bench.toy", "toy base")
     assert '[[effects]]  # assumed: from the base\nname = "falling_lag"\nlag_deg_e = 2.5' in text
     (tmp_path / "twin.toml").write_text(text)

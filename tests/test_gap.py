@@ -8,6 +8,7 @@ import pytest
 
 import gap_cases
 
+from bldc.reasons import words
 from hil.cli import main
 from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
@@ -99,7 +100,8 @@ def test_sampled_null_recording_is_not_significant_and_dead_time_leaves_no_trace
     )
     d = diagnose(record_electrical_case(config, profile(config), 5), KNOWN_MODEL)
     assert not d.significant
-    assert any(n.startswith("dead_time: no trace") for n in d.not_assessed)
+    assert any(n.code == "GAP-010" and n.numbers["effect"] == "dead_time" for n in d.not_assessed)
+    assert any(words(n).startswith("dead_time: no trace") for n in d.not_assessed)
 
 
 @pytest.mark.parametrize("kind", ["current_offset", "current_gain"])
@@ -113,7 +115,8 @@ def test_recording_without_samples_says_what_it_cannot_assess():
     rec, _ = make_case([], snr=1.0, seed=1)
     d = diagnose(rec, KNOWN_MODEL)
     assert d.samples == {}
-    missing = {n.split(":")[0] for n in d.not_assessed}
+    missing = {n.numbers["effect"] for n in d.not_assessed}
+    assert {n.code for n in d.not_assessed} == {"GAP-010", "GAP-011"}
     assert missing == {"dead_time", "winding_temperature", "magnet_temperature", "saturation", "cogging_torque"}
 
 

@@ -5,6 +5,9 @@ written before the codes) reads back as free text worded exactly as it was."""
 from __future__ import annotations
 
 import json
+import re
+import string
+from pathlib import Path
 
 import pytest
 
@@ -23,7 +26,7 @@ def test_every_code_renders_with_its_numbers(code):
 
 
 def test_the_codes_are_numbered_and_each_wording_is_used_once():
-    assert all(code == FREE_TEXT or (code.startswith("CAL-") and code[4:].isdigit()) for code in WORDING)
+    assert all(code == FREE_TEXT or re.fullmatch(r"(CAL|GAP|TWIN)-\d{3}", code) for code in WORDING)
     assert len(set(WORDING.values())) == len(WORDING)
 
 
@@ -61,3 +64,36 @@ def test_a_free_text_reason_from_an_old_file_round_trips(tmp_path):
     assert read.to_json_dict()["undetermined"] == data["undetermined"]
     assert Reason.from_json("any {braces} kept") == Reason(FREE_TEXT, {"text": "any {braces} kept"})
     assert words(Reason.from_json("any {braces} kept")) == "any {braces} kept"
+
+
+def test_every_code_the_gap_diagnosis_and_the_twin_use_is_worded():
+    """The codes written in hil/gap and hil/twin (and the calibration codes they reuse) are all in
+    WORDING, so each of their sentences is worded there and nowhere else."""
+    root = Path(__file__).resolve().parents[1] / "hil"
+    used = {code for folder in ("gap", "twin") for path in (root / folder).glob("*.py")
+            for code in re.findall(r"[\"']((?:CAL|GAP|TWIN)-\d{3})[\"']", path.read_text(encoding="utf-8"))}
+    assert {c.split("-")[0] for c in used} == {"GAP", "TWIN"} and len(used) > 60
+    assert used <= set(WORDING), sorted(used - set(WORDING))
+
+
+def _worded(text: str) -> bool:
+    """Whether ``text`` is the wording of some code (free text aside) with some numbers."""
+    def pattern(template):
+        return "".join(re.escape(lit) + ("(.*?)" if name is not None else "")
+                       for lit, name, _, _ in string.Formatter().parse(template))
+    return any(re.fullmatch(pattern(t), text, re.DOTALL) for c, t in WORDING.items() if c != FREE_TEXT)
+
+
+def test_a_gap_diagnosis_json_holds_only_worded_sentences():
+    """The sentences a diagnosis stores (what it does not assess, the pole pairs' source, the
+    held-out method, each relevance floor's meaning) are each the wording of a code."""
+    from hil.gap import diagnose
+    from hil.gap.synthetic import KNOWN_MODEL
+    from hil.gap.validate import make_case
+
+    data = diagnose(make_case(["conditioning_delay"], snr=3.0, seed=101)[0], KNOWN_MODEL).to_json()
+    sentences = data["not_assessed"] + [data["pole_pairs_source"], data["heldout_note"]] + [
+        a["relevance"]["meaning"] for a in data["accepted"] + data["below_relevance"] if "relevance" in a]
+    assert len(sentences) >= 8 and any("relevance" in a for a in data["accepted"])
+    assert [s for s in sentences if not _worded(s)] == []
+    assert not _worded("a sentence no code words")

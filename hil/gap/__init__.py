@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from bldc.reasons import Reason
 from hil.recording.format import Recording
 
 from .diagnose import Diagnosis, diagnose_segments
@@ -21,10 +22,7 @@ def diagnose(rec: Recording, model=None, candidates: list[str] | None = None) ->
 
     notes = []
     if model is not None:
-        notes.append(
-            "--model: not used for an ordinary run (capture times only): the model is an ideal motor with ideal "
-            "sensors on a smooth speed trajectory"
-        )
+        notes.append(Reason("GAP-017"))
     if candidates is not None:
-        notes.append("candidates: an ordinary run has its own list (the effects capture times can see)")
+        notes.append(Reason("GAP-018"))
     return diagnose_ordinary(rec, hall_steps(rec.t_s, rec.sensor, rec.rising), notes)

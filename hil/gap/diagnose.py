@@ -22,6 +22,7 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import nnls
 
+from bldc.reasons import Reason, words
 from hil.recording.format import Recording
 from plant_models.effects import EFFECTS
 
@@ -40,6 +41,7 @@ from .result import (
     RegionResidual,
     SplitHalf,
     Confounded,
+    STATED_IN_RECORDING,
     HeldOut,
     gap_metric,
     knob,
@@ -185,7 +187,7 @@ class Diagnosis:
     noise_floor_deg_e: dict[str, float] = field(default_factory=dict)  #: per segment id (ordinary: one figure)
     p_value: float = 1.0
     reference: str = "encoder"
-    not_assessed: list[str] = field(default_factory=list)
+    not_assessed: list[Reason] = field(default_factory=list)  #: what this route cannot assess, and why
     noise_gap: NoiseGap | None = None  #: None: an ordinary run (no per-segment noise to test)
     samples: dict[str, DomainDiagnosis] = field(default_factory=dict)  #: per sampled domain (voltage, speed)
     below_relevance: list[FittedEffect] = field(default_factory=list)  #: detected, fitted, too small to matter
@@ -194,7 +196,7 @@ class Diagnosis:
     #: "segments" (a recording with operating points) or "ordinary run" (capture times only)
     route: str = "segments"
     pole_pairs: int | None = None
-    pole_pairs_source: str = "stated in the recording"
+    pole_pairs_source: Reason = STATED_IN_RECORDING  #: stated, found (with its BIC gain) or not found
     knot_cycles: float | None = None  #: an ordinary run's trajectory knot spacing (electrical cycles)
     remainder_p_value: float | None = None  #: the remainder after the kept effects, against the noise floor
     repeatability: SplitHalf | None = None  #: an ordinary run's split-half figures
@@ -213,7 +215,7 @@ class Diagnosis:
         return {
             "route": self.route,
             "pole_pairs": self.pole_pairs,
-            "pole_pairs_source": self.pole_pairs_source,
+            "pole_pairs_source": words(self.pole_pairs_source),
             "knot_cycles": self.knot_cycles,
             "remainder_p_value": self.remainder_p_value,
             "repeatability": self.repeatability.to_json() if self.repeatability else {},
@@ -234,7 +236,7 @@ class Diagnosis:
             "reference": self.reference,
             "noise_floor_deg_e": self.noise_floor_deg_e,
             "localisation": self.localisation.to_json() if self.localisation else {},
-            "not_assessed": self.not_assessed,
+            "not_assessed": [words(n) for n in self.not_assessed],
             "noise_gap": self.noise_gap.to_json() if self.noise_gap else {},
             "samples": {k: v.to_json() for k, v in self.samples.items()},
             "below_relevance": [b.to_json(self.route) for b in self.below_relevance],
@@ -516,13 +518,9 @@ def _add_samples(d: Diagnosis, rec: Recording, model, edge_error_deg_e: np.ndarr
     domains = diagnose_samples(rec, model, edge_error_deg_e)
     d.samples = domains
     assessed = {n for dom in domains.values() for n in dom.first_scores}
-    d.not_assessed = [f"{n}: {cls.no_trace}" for n, cls in EFFECTS.items() if cls.no_trace]
-    d.not_assessed += [
-        f"{n}: needs samples.csv with phase currents and terminal voltages (speed and the reference encoder for "
-        "cogging)"
-        for n in EFFECT_DOMAIN
-        if n not in assessed
-    ]
+    d.not_assessed = [Reason("GAP-010", {"effect": n, "no_trace": cls.no_trace}) for n, cls in EFFECTS.items()
+                      if cls.no_trace]
+    d.not_assessed += [Reason("GAP-011", {"effect": n}) for n in EFFECT_DOMAIN if n not in assessed]
     if not domains:
         return
     edge_rows = len(d.accepted) + len(d.below_relevance)

@@ -27,7 +27,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from bldc.edges import electrical_speed_hz
-from bldc.reasons import words
+from bldc.reasons import Reason
 from hil.calibration.ordinary import (
     MIN_RUN_EDGES,
     SENSOR_OF_BOUNDARY,
@@ -49,6 +49,7 @@ from .candidates import ORDINARY_CANDIDATES
 from .diagnose import Diagnosis, RankedEffect
 from .relevance import Relevance, edge_relevance
 from .result import (
+    STATED_IN_RECORDING,
     ORDINARY_ROUTE,
     Confounded,
     HeldOut,
@@ -84,15 +85,8 @@ N_SPEED_BANDS = 4
 #: two estimates this correlated cannot be told apart by this capture
 CONFOUND_CORR = 0.9
 
-NOT_ASSESSED = [
-    "a lag common to every edge (the common part of hysteresis and of the conditioning delays, armature "
-    "reaction at a load that follows speed): invisible in capture times; needs an encoder",
-    "the absolute installation offset (only offsets relative to each other, summing to zero): needs an encoder "
-    "or terminal voltages (Line-BEMF)",
-    "armature_reaction, winding and magnet temperature, dead time, saturation: need phase currents or voltages",
-    "cogging torque and eccentricity: move the rotor, not the sensors; with capture times alone they are part "
-    "of the speed trajectory (a once-per-turn pattern shows as pole offsets)",
-]
+#: what capture times cannot show: a common lag, the absolute offset, the sampled-signal effects, the rotor's own
+NOT_ASSESSED = [Reason("GAP-012"), Reason("GAP-013"), Reason("GAP-014"), Reason("GAP-015")]
 
 
 def _merge(names: list[str], pole_pairs: int | None) -> Effects:
@@ -184,7 +178,7 @@ class _Pipeline:
 
     knot_cycles: float
     pole_pairs: int | None
-    pole_note: str
+    pole_note: Reason  #: where the pole pairs come from (stated, found, or none found)
     names: list[str]
     sel: Selection
     relevance: dict[str, Relevance]
@@ -204,10 +198,9 @@ def _pipeline(
     """Knots, pole pairs and effects chosen on the used edges of ``steps`` alone, by the engine;
     the knots and the pole count on ``choice`` (the same edges, in whole runs where it can)."""
     kc, base = choose_knots(choice, tick)  # the calibration's model: the pole search sees the same
-    pole_pairs, p_note = stated_pole_pairs, "stated in the recording"
+    pole_pairs, p_note = stated_pole_pairs, STATED_IN_RECORDING
     if not pole_pairs:
-        pole_pairs, found = choose_pole_pairs(choice, tick, base, kc)
-        p_note = words(found)
+        pole_pairs, p_note = choose_pole_pairs(choice, tick, base, kc)
     names = candidate_names(pole_pairs)
 
     def fit(effects: list[str]) -> Fit:
@@ -247,7 +240,7 @@ def _pipeline(
     return _Pipeline(kc, pole_pairs, p_note, names, sel, relevance, f0, fit_set(sel.fitted), p0, single_gap)
 
 
-def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None = None) -> Diagnosis:
+def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[Reason] | None = None) -> Diagnosis:
     """The diagnosis of an ordinary run (one result type with the segments route)."""
     tick = rec.timer_tick_s
     f_hz = electrical_speed_hz(steps.t_s, window_sectors=2, run=steps.run)
@@ -300,7 +293,7 @@ def diagnose_ordinary(rec: Recording, steps: HallSteps, notes: list[str] | None 
             confounded.append(pair)
     not_assessed = list(NOT_ASSESSED) + list(notes or [])
     if not whole.pole_pairs:
-        not_assessed.append(f"pole_offset: {whole.pole_note}")
+        not_assessed.append(Reason("GAP-016", {"pole_note": whole.pole_note}))
     bic_alone = {n: round(t.delta_bic, 1) for n, t in sel.first.items()}
     return Diagnosis(
         significant=significant,

@@ -26,6 +26,7 @@ from typing import Callable
 
 import numpy as np
 
+from bldc.reasons import Reason, words
 from plant_models.effects import SampleSignature
 
 FRACTION = 0.1                    #: share of a budget an effect must reach to matter
@@ -42,14 +43,15 @@ class Relevance:
     value: float
     floor: float
     unit: str
-    meaning: str
+    meaning: Reason  #: what the value is and what its floor is a share of (worded by bldc.reasons)
 
     @property
     def relevant(self) -> bool:
         return bool(self.value >= self.floor)
 
     def to_json(self) -> dict:
-        return {"value": float(self.value), "floor": float(self.floor), "unit": self.unit, "meaning": self.meaning}
+        return {"value": float(self.value), "floor": float(self.floor), "unit": self.unit,
+                "meaning": words(self.meaning)}
 
 
 def angle_floor_deg_e() -> float:
@@ -63,8 +65,7 @@ def edge_relevance(shift_deg_e: np.ndarray, weight: np.ndarray) -> Relevance:
         rms,
         angle_floor_deg_e(),
         "deg_e",
-        f"RMS commutation-angle shift over the recording's edges; floor {FRACTION:.0%} of the "
-        f"{COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget",
+        Reason("GAP-001", {"fraction": FRACTION, "budget_deg_e": COMMUTATION_ANGLE_BUDGET_DEG_E}),
     )
 
 
@@ -74,8 +75,7 @@ def jitter_relevance(time_rms_s: float, angle_rms_deg_e: float, w_e_deg_s: np.nd
         float(math.sqrt(np.sum(weight * var) / max(np.sum(weight), 1e-300))),
         angle_floor_deg_e(),
         "deg_e",
-        f"RMS commutation-angle jitter over the recording's edges; floor {FRACTION:.0%} of the "
-        f"{COMMUTATION_ANGLE_BUDGET_DEG_E} deg_e budget",
+        Reason("GAP-002", {"fraction": FRACTION, "budget_deg_e": COMMUTATION_ANGLE_BUDGET_DEG_E}),
     )
 
 
@@ -97,7 +97,7 @@ class Budget:
 
     share: float
     unit: str
-    words: str  #: the budget as the floor's meaning names it
+    name: str  #: the budget as the floor's meaning names it, after its share
     reference: Callable[[OperatingEnvelope], float] | None = None  #: None: the share is the budget
 
 
@@ -106,10 +106,10 @@ def _largest_load_torque(env: OperatingEnvelope) -> float:
 
 
 BUDGETS = {
-    "speed": Budget(SPEED_BUDGET, "1", f"{SPEED_BUDGET:.0%} speed budget"),
-    "inductance": Budget(INDUCTANCE_TOLERANCE, "1", f"{INDUCTANCE_TOLERANCE:.0%} inductance tolerance"),
-    "torque": Budget(TORQUE_RIPPLE_BUDGET, "N m", f"{TORQUE_RIPPLE_BUDGET:.0%} torque-ripple budget of the largest "
-                     "load torque", _largest_load_torque),
+    "speed": Budget(SPEED_BUDGET, "1", "speed budget"),
+    "inductance": Budget(INDUCTANCE_TOLERANCE, "1", "inductance tolerance"),
+    "torque": Budget(TORQUE_RIPPLE_BUDGET, "N m", "torque-ripple budget of the largest load torque",
+                     _largest_load_torque),
 }
 
 
@@ -124,5 +124,6 @@ def sample_relevance(sig: SampleSignature, params: dict, motor, env: OperatingEn
         float(sig.disturbance(params, motor, env)),
         floor,
         budget.unit,
-        f"{sig.disturbs}; floor {FRACTION:.0%} of a {budget.words}",
+        Reason("GAP-003", {"disturbs": sig.disturbs, "fraction": FRACTION, "budget_share": budget.share,
+                           "budget": budget.name}),
     )

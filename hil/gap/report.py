@@ -14,6 +14,8 @@ import numpy as np
 from jinja2 import Environment, select_autoescape
 from markupsafe import Markup
 
+from bldc.reasons import words
+
 from ..verdicts.plots import pyplot
 from .candidates import CANDIDATES
 from .diagnose import Diagnosis, _design, build_cells
@@ -112,7 +114,7 @@ def format_text(d: Diagnosis, name: str) -> str:
         f"{'SIGNIFICANT' if d.significant else 'within the noise floor'} (p = {d.p_value:.2g})"
     )
     if d.route == ORDINARY_ROUTE:
-        lines.append(f"  pole pairs: {d.pole_pairs_source}")
+        lines.append(f"  pole pairs: {words(d.pole_pairs_source)}")
     for dname, dom in d.samples.items():
         measured = dom.heldout_shrink is not None and dom.accepted
         shrink = f", held-out shrink {dom.heldout_shrink:.1%}" if measured else ""
@@ -132,7 +134,7 @@ def format_text(d: Diagnosis, name: str) -> str:
         rel = b.relevance  # below relevance: judged against its floor, so it has one
         lines.append(
             f"  detected, below practical relevance: {b.effect} ({rel.value:.3g} < floor {rel.floor:.3g} {rel.unit}: "
-            f"{rel.meaning})"
+            f"{words(rel.meaning)})"
         )
     for c in d.confounded:
         lines.append(f"  confounded: {' / '.join(c.names)}; knob: {c.knob(d.route)}")
@@ -159,7 +161,7 @@ def format_text(d: Diagnosis, name: str) -> str:
             )
         failed = f"no split-half figure: {rep.failure}" if rep.failure else "no figure"
         lines.append(f"  split-half repeatability: {'; '.join(parts) or failed}")
-    lines += [f"  not assessed: {n}" for n in d.not_assessed]
+    lines += [f"  not assessed: {words(n)}" for n in d.not_assessed]
     return "\n".join(lines)
 
 
@@ -297,6 +299,7 @@ def write_html(path, name, rec, diagnosis: Diagnosis, model=None) -> Path:
     """The HTML report of ``diagnosis`` of ``rec`` (either route)."""
     env = Environment(autoescape=select_autoescape(default=True))
     env.filters["sig"] = sig
+    env.filters["words"] = words
     params = env.from_string(PARAMS_TEMPLATE)
     loc = diagnosis.localisation
     spectrum = []

@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
+from bldc.reasons import Reason, words
 from plant_models.effects import EFFECTS
 
 from .candidates import ORDINARY_CANDIDATES
@@ -18,6 +19,8 @@ from .relevance import Relevance
 ParamValue = float | list[float] | dict[str, float]
 
 ORDINARY_ROUTE = "ordinary run"
+#: where a diagnosis's pole-pair count comes from when the recording states it
+STATED_IN_RECORDING = Reason("GAP-020")
 
 def ordinary_meaning(name: str) -> str | None:
     """What the parameters of an effect an ordinary run fits describe (its JSON rows' ``meaning``)."""
@@ -50,45 +53,38 @@ class HeldOut:
     gap_before_deg_e: float | None = None  #: the gap on the held-out stretches before the effects
     shrink: float | None = None  #: the held-out shrink (a gap that grew is said so)
 
-    def text(self) -> str:
+    def as_reason(self) -> Reason | None:
+        """The held-out method or why there is none, as a reason (None: not reached)."""
+        samples = self.domain != "edges"
+        plain = {"no effect accepted": "GAP-030", "single segment": "GAP-031",
+                 "below relevance": "GAP-033" if samples else "GAP-032", "noise only": "GAP-034",
+                 "unpredicted": "GAP-035", "training chose none": "GAP-037"}
         k = self.kind
-        if k == "no effect accepted":
-            return "no effect accepted"
-        if k == "single segment":
-            return "held-out shrink cannot be measured: the recording has a single segment"
-        if k == "below relevance":
-            what = "edge effect" if self.domain == "edges" else "effect"
-            return f"every detected {what} is below practical relevance"
-        if k == "noise only":
-            return "the gap is in the noise only: shrink of the excess noise (RMS, deg_e) on held-out segments"
-        if k == "unpredicted":
-            return "held-out shrink cannot be measured: no operating point is predicted from the others"
+        if k in plain:
+            return Reason(plain[k])
         if k == "not measurable":
-            return f"held-out shrink cannot be measured: {self.reason}"
-        if k == "training chose none":
-            return "the training stretches alone chose no effect"
+            return Reason("GAP-036", {"error": self.reason})
         if k == "leave one out":
-            choice = "the effect choice and the fit" if self.domain == "edges" else (
-                "the effect choice, shape parameters and fit")
-            text = (f"leave-one-operating-point-out over {self.segments} segments: the gap test, {choice} see only "
-                    "the other segments; interval: 5-95 % bootstrap over segments")
+            held = Reason("GAP-039" if samples else "GAP-038", {"segments": self.segments})
             if self.segments_choosing_nothing:
-                text += f"; on {self.segments_choosing_nothing} of them the other segments chose no effect"
-            return text
+                held = Reason("GAP-040", {"held_out": held,
+                                          "segments_choosing_nothing": self.segments_choosing_nothing})
+            return held
         if k == "stretches":
-            text = (
-                f"{self.stretches} equal stretches of the run (by edge count): on the odd ones alone the gap test, "
-                f"the knot spacing ({self.knot_cycles:g} electrical cycles), the pole pairs "
-                f"({self.pole_pairs or 'none'}), the effects ({', '.join(self.chosen)}) and their values were "
-                "chosen; they are judged on the even ones with only the speed trajectory refitted there; gap there "
-                f"before {self.gap_before_deg_e:.3g} deg e; interval: 5-95 % bootstrap over the {self.segments} "
-                "held-out stretches"
-            )
+            held = Reason("GAP-041", {
+                "stretches": self.stretches, "knot_cycles": self.knot_cycles, "pole_pairs": self.pole_pairs or "none",
+                "effects": list(self.chosen), "gap_before_deg_e": self.gap_before_deg_e,
+                "held_out_stretches": self.segments,
+            })
             if self.shrink is not None and self.shrink <= 0:
-                text += ("; the chosen effects do not hold on the held-out stretches (the gap grew): treat them "
-                         "as not established by this capture")
-            return text
-        return ""
+                held = Reason("GAP-042", {"held_out": held})
+            return held
+        return None
+
+    def text(self) -> str:
+        """The reason worded (the JSON's ``heldout_note``; "" when not reached)."""
+        why = self.as_reason()
+        return words(why) if why else ""
 
 
 def gap_metric(route: str, sampled: tuple[str, str] | None = None) -> str:

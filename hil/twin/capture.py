@@ -30,7 +30,7 @@ from scipy import optimize
 
 from bldc.motor import rewound
 from bldc.params import ConfigError, validate
-from bldc.reasons import words
+from bldc.reasons import Reason, words
 from bldc.tomlfile import load_toml
 from plant_models import PRESETS, PlantConfig
 from plant_models.plant import OperatingRange
@@ -139,7 +139,7 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
 
     r = fit.residual_s
     if not p:
-        return None, r, {"kept": False, "reason": "no pole count: no mechanical turn to fold the residuals over"}
+        return None, r, {"kept": False, "reason": Reason("TWIN-040")}
     tau = fit.tau_s_per_deg
     keep = inliers(r, fit.sigma_s)
     m = steps.boundary[fit.index]
@@ -173,10 +173,9 @@ def sensor_pole_pattern(fit: Fit, steps: HallSteps, p: int | None) -> tuple[np.n
     test = {"chi2": chi2, "positions": 6 * p, "p_value": p_value, "rms_deg_e": float(np.sqrt(np.mean(means**2))),
             "fast_over_slow_slope": slope}
     if p_value >= PATTERN_P_VALUE:
-        return None, r, {"kept": False, "reason": f"p-value {p_value:.2g}: not beyond the noise", **test}
+        return None, r, {"kept": False, "reason": Reason("TWIN-041", {"p_value": p_value}), **test}
     if not PATTERN_SLOPE[0] <= slope <= PATTERN_SLOPE[1]:  # (nan: not seen in one half)
-        return None, r, {"kept": False, "reason": f"the faster half shows {slope:.2f} times the slower half's "
-                         "pattern: it changes with speed (the rotor's motion, not the sensors)", **test}
+        return None, r, {"kept": False, "reason": Reason("TWIN-042", {"slope": slope}), **test}
     probe = np.arange(6 * p)
     where = SENSOR_OF_BOUNDARY[probe % 3] * 2 * p + pole_of_boundary(probe, p)
     grid = np.zeros(6 * p)
@@ -303,9 +302,9 @@ def noise_model(
 @dataclass
 class Twin:
     config: PlantConfig
-    measured: list[tuple[str, str]]  #: (what, from the capture)
-    assumed: list[tuple[str, str]]  #: (what, from the base and why)
-    notes: list[str]
+    measured: list[tuple[str, Reason]]  #: (what, from the capture)
+    assumed: list[tuple[str, Reason]]  #: (what, from the base and why)
+    notes: list[Reason]
     analysis: CaptureAnalysis
     #: measured effects no calibration table holds, left out of the plant (UNCALIBRATABLE)
     left_out: list[fx.Effect] = field(default_factory=list)
@@ -313,9 +312,9 @@ class Twin:
     from_base: list[str] = field(default_factory=list)
 
 
-def _clip(v: float, lo: float, hi: float, what: str, notes: list[str]) -> float:
+def _clip(v: float, lo: float, hi: float, what: str, notes: list[Reason]) -> float:
     if v < lo or v > hi:
-        notes.append(f"{what}: {v:.4g} clipped to the effect library's bound [{lo:g}, {hi:g}]")
+        notes.append(Reason("TWIN-029", {"what": what, "value": v, "low": lo, "high": hi}))
     return min(max(v, lo), hi)
 
 
@@ -327,6 +326,8 @@ UNCALIBRATABLE = {"sensor_pole_offset": "--with-sensor-pole-pattern", "switching
 #: (the pole table's two polarities hold it; the per-sensor rest no table of the built-in controller
 #: holds: installation per sensor, offset per pole, delay per polarity)
 PARTLY_HELD = {"switching_asymmetry": "the part common to the three sensors"}
+#: what a twin takes of the base's motor and drive (the key of its assumed line)
+MOTOR_ASSUMED = "motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors"
 
 
 def common_switching_asymmetry(an: CaptureAnalysis) -> fx.SwitchingAsymmetry:
@@ -336,7 +337,7 @@ def common_switching_asymmetry(an: CaptureAnalysis) -> fx.SwitchingAsymmetry:
 
 
 def uncalibratable_effects(an: CaptureAnalysis, pole_pairs: int,
-                           notes: list[str] | None = None) -> dict[str, fx.Effect]:
+                           notes: list[Reason] | None = None) -> dict[str, fx.Effect]:
     """The capture's deviations no calibration table holds (UNCALIBRATABLE), as effects: its
     residual pattern per sensor and pole (where it stands out) and its edge noise."""
     notes = [] if notes is None else notes
@@ -358,23 +359,20 @@ def uncalibratable_effects(an: CaptureAnalysis, pole_pairs: int,
     return out
 
 
-def suite_speed_notes(pole_pairs: int, delay_s: float, top_speed_rpm: float, capture_top_hz_e: float) -> list[str]:
+def suite_speed_notes(pole_pairs: int, delay_s: float, top_speed_rpm: float,
+                      capture_top_hz_e: float) -> list[Reason]:
     """Where the acceptance suite runs on this twin (the paper pump's speeds as fractions of the
     twin's top speed, ``PlantConfig.suite_speed_rpm``): its top electrical speed against the capture's,
     and the delay there against half a sector (beyond it an edge is captured after the middle of
     the next sector, and no table can place it)."""
     top_hz_e = top_speed_rpm / 60.0 * pole_pairs
     half_sector_s = 0.5 / (6.0 * top_hz_e)
-    notes = [f"the acceptance suite runs at the paper pump's speeds as fractions of this motor's top, "
-             f"{top_speed_rpm:.0f} rpm ({top_hz_e:.0f} Hz electrical), each window holding as many electrical "
-             f"periods; there the {abs(delay_s) * 1e6:.0f} us delay is {abs(delay_s) / (2 * half_sector_s):.2f} "
-             "of a sector"]
+    notes = [Reason("TWIN-026", {"top_speed_rpm": top_speed_rpm, "top_hz_e": top_hz_e, "delay_us": abs(delay_s) * 1e6,
+                                 "delay_sectors": abs(delay_s) / (2 * half_sector_s)})]
     if top_hz_e > 1.5 * capture_top_hz_e:
-        notes.append(f"the top speed is {top_hz_e / capture_top_hz_e:.1f} times the capture's: the suite judges "
-                     "the twin where the capture never ran it")
+        notes.append(Reason("TWIN-027", {"top_ratio": top_hz_e / capture_top_hz_e}))
     if abs(delay_s) > half_sector_s:
-        notes.append("the delay is beyond half a sector at the top speed (the physical limit): the suite cannot "
-                     "judge this twin there; state a lower --top-speed-rpm (docs/twin.md)")
+        notes.append(Reason("TWIN-028"))
     return notes
 
 
@@ -385,9 +383,9 @@ class _Making:
     base: PlantConfig
     base_name: str
     effects: list[fx.Effect] = field(default_factory=list)
-    measured: list[tuple[str, str]] = field(default_factory=list)
-    assumed: list[tuple[str, str]] = field(default_factory=list)
-    notes: list[str] = field(default_factory=list)
+    measured: list[tuple[str, Reason]] = field(default_factory=list)
+    assumed: list[tuple[str, Reason]] = field(default_factory=list)
+    notes: list[Reason] = field(default_factory=list)
     from_base: list[str] = field(default_factory=list)  #: the effects taken from the base as they are
 
     def take(self, effect: fx.Effect) -> None:
@@ -399,9 +397,10 @@ def _pole_pairs(an: CaptureAnalysis, m: _Making) -> int:
     """The capture's pole pairs, or the base's when it shows no pole pattern."""
     p = an.pole_pairs or m.base.motor.pole_pairs
     if an.pole_pairs:
-        m.measured.append(("motor.pole_pairs", f"{p} ({words(an.calibration.ordinary.assumptions.pole_pairs_source)})"))
+        m.measured.append(("motor.pole_pairs", Reason("TWIN-001", {
+            "pole_pairs": p, "source": an.calibration.ordinary.assumptions.pole_pairs_source})))
     else:
-        m.assumed.append(("motor.pole_pairs", f"{p} from the base: the capture shows no pole pattern"))
+        m.assumed.append(("motor.pole_pairs", Reason("TWIN-002", {"pole_pairs": p})))
     return int(p)
 
 
@@ -413,9 +412,10 @@ def _installation_offset(an: CaptureAnalysis, m: _Making) -> None:
     lim = fx.bounds_of(fx.InstallationOffset, "offset_deg_e")[1]
     inst = tuple(_clip(rel[s] + mean_abs, -lim, lim, f"installation_offset_deg_e.{s}", m.notes) for s in SENSORS)
     m.effects.append(fx.InstallationOffset(offset_deg_e=inst))
-    m.measured.append(("installation_offset (relative)", ", ".join(f"{s} {rel[s]:+.3f}" for s in SENSORS) + " deg e"))
-    m.assumed.append(("installation_offset (absolute: the mean)", f"{mean_abs:+.3f} deg e from the base "
-                      f"({m.base_name}); capture times give only differences (an encoder or Line-BEMF gives the rest)"))
+    m.measured.append(("installation_offset (relative)",
+                       Reason("TWIN-003", {"offsets_deg_e": {s: rel[s] for s in SENSORS}})))
+    m.assumed.append(("installation_offset (absolute: the mean)",
+                      Reason("TWIN-004", {"mean_deg_e": mean_abs, "base": m.base_name})))
 
 
 def _pole_offset(an: CaptureAnalysis, p: int, m: _Making) -> None:
@@ -424,13 +424,13 @@ def _pole_offset(an: CaptureAnalysis, p: int, m: _Making) -> None:
     poles = cal.corrections.pole_offset_deg_e
     if not (poles and len(poles) == 2 * p):
         why = cal.undetermined.get("pole_offset_deg_e")
-        m.notes.append("no pole offsets: " + (words(why) if why else "refused by the calibration"))
+        m.notes.append(Reason("TWIN-005", {"why": why}) if why else Reason("TWIN-006"))
         return
     lim = fx.bounds_of(fx.PoleOffset, "offset_deg_e")[1]
     m.effects.append(fx.PoleOffset(offset_deg_e=tuple(_clip(v, -lim, lim, f"pole_offset_deg_e[{j}]", m.notes)
                                                       for j, v in enumerate(poles))))
-    m.measured.append(("pole_offset", f"{len(poles)} poles, within +-{max(abs(v) for v in poles):.2f} deg e "
-                       "(sum zero per polarity: pole 0 is where the capture starts)"))
+    m.measured.append(("pole_offset", Reason("TWIN-007", {"poles": len(poles),
+                                                          "max_deg_e": max(abs(v) for v in poles)})))
 
 
 def _beyond_table(an: CaptureAnalysis, p: int, m: _Making) -> dict[str, fx.Effect]:
@@ -440,14 +440,12 @@ def _beyond_table(an: CaptureAnalysis, p: int, m: _Making) -> dict[str, fx.Effec
     if "sensor_pole_offset" in beyond_table:
         pattern = an.extra.get("sensor_pole_offset", {})
         m.effects.append(beyond_table["sensor_pole_offset"])
-        m.measured.append(("sensor_pole_offset", f"a pattern of {6 * p} edges per mechanical turn in the residuals, "
-                           f"constant in angle, {pattern['rms_deg_e']:.2f} deg e RMS (chi-square p-value "
-                           f"{pattern['p_value']:.1g}); measured in the capture's direction, applied in both"))
+        m.measured.append(("sensor_pole_offset", Reason("TWIN-008", {
+            "edges_per_turn": 6 * p, "rms_deg_e": pattern["rms_deg_e"], "p_value": pattern["p_value"]})))
     asym = {s: an.asymmetry_deg_e[s][0] for s in SENSORS}
     m.effects.append(beyond_table["switching_asymmetry"])
-    m.measured.append(("switching_asymmetry (rise minus fall, constant in angle)",
-                       ", ".join(f"{s} {asym[s]:+.3f}" for s in SENSORS) + f" deg e (common part "
-                       f"{common_switching_asymmetry(an).rise_minus_fall_deg_e[0]:+.3f})"))
+    m.measured.append(("switching_asymmetry (rise minus fall, constant in angle)", Reason("TWIN-009", {
+        "asymmetry_deg_e": asym, "common_deg_e": common_switching_asymmetry(an).rise_minus_fall_deg_e[0]})))
     return beyond_table
 
 
@@ -456,40 +454,37 @@ def _conditioning_delay(an: CaptureAnalysis, m: _Making) -> float:
     d = an.calibration.ordinary.rise_fall_delay_difference_s
     d_value = d.value if d.value is not None else 0.0
     if d.value is None:
-        m.notes.append(f"rise-minus-fall delay not determined ({words(d.reason)}): the twin has none beyond the base's")
+        m.notes.append(Reason("TWIN-010", {"why": d.reason}))
     base_delay = m.base.effect("conditioning_delay")
     common = min(base_delay.rise_delay_s, base_delay.fall_delay_s) if base_delay else 0.0
     rise, fall = common + max(d_value, 0.0), common + max(-d_value, 0.0)
     m.effects.append(fx.ConditioningDelay(rise_delay_s=rise, fall_delay_s=fall))
-    m.measured.append(("conditioning_delay (rise minus fall)", f"{d_value * 1e6:+.1f} us"))
-    m.assumed.append(("conditioning_delay (common part)", f"{common * 1e6:.1f} us from the base ({m.base_name}): a lag "
-                      "of every edge is a time shift of the trajectory, invisible without an encoder"))
+    m.measured.append(("conditioning_delay (rise minus fall)", Reason("TWIN-011", {"delay_us": d_value * 1e6})))
+    m.assumed.append(("conditioning_delay (common part)",
+                      Reason("TWIN-012", {"common_us": common * 1e6, "base": m.base_name})))
     return d_value
 
 
 def _edge_jitter(an: CaptureAnalysis, beyond_table: dict[str, fx.Effect], m: _Making) -> None:
     nm = an.noise
     m.effects.append(beyond_table["edge_jitter"])
-    m.measured.append(("edge_jitter", f"{nm.kind}: time {nm.time_rms_s * 1e6:.2f} us RMS, angle "
-                       f"{nm.angle_rms_deg_e:.3f} deg e RMS, AR(1) coefficient {nm.correlation:.3f} (residuals less "
-                       "the timer's quantisation)"))
+    m.measured.append(("edge_jitter", Reason("TWIN-013", {
+        "kind": nm.kind, "time_rms_us": nm.time_rms_s * 1e6, "angle_rms_deg_e": nm.angle_rms_deg_e,
+        "correlation": nm.correlation})))
 
 
 def _timer(an: CaptureAnalysis, capture_tick_in_plant: bool, m: _Making) -> None:
     """The capture's tick in the plant when asked; else the base's timer (the capture's is the instrument's)."""
     if an.tick_s and capture_tick_in_plant:
         m.effects.append(fx.TimerQuantization(tick_s=an.tick_s))
-        m.measured.append(("timer_quantization", f"{an.tick_s * 1e6:.4g} us (the capture's sampling, kept in the "
-                           "plant: the controller sees edges this coarse)"))
+        m.measured.append(("timer_quantization", Reason("TWIN-014", {"tick_us": an.tick_s * 1e6})))
     elif an.tick_s:
         base_tick = m.base.effect("timer_quantization")
         if base_tick:
             m.take(base_tick)
-        m.measured.append(("capture timer tick (the instrument's)", f"{an.tick_s * 1e6:.4g} us: `hil twin check` "
-                           "samples the twin at it; not the controller's capture timer, so not a plant effect here "
-                           "(`--capture-tick-in-plant` keeps it)"))
+        m.measured.append(("capture timer tick (the instrument's)", Reason("TWIN-015", {"tick_us": an.tick_s * 1e6})))
     else:
-        m.notes.append("the capture states no timer tick")
+        m.notes.append(Reason("TWIN-016"))
 
 
 def _capture_blind(m: _Making) -> None:
@@ -499,7 +494,7 @@ def _capture_blind(m: _Making) -> None:
         if cls.capture_blind is None:
             continue
         e = m.base.effect(cls.name)
-        m.assumed.append((cls.name, f"{'from the base' if e else 'none (the base has none)'}: {cls.capture_blind}"))
+        m.assumed.append((cls.name, Reason("TWIN-017" if e else "TWIN-018", {"capture_blind": cls.capture_blind})))
     for e in m.base.effects:
         if e.from_base_in_twin() and e.name not in {x.name for x in m.effects}:
             m.take(e)
@@ -508,14 +503,12 @@ def _capture_blind(m: _Making) -> None:
 def _top_speed(an: CaptureAnalysis, p: int, top_speed_rpm: float | None, m: _Making) -> float:
     """Where the suite's speeds end: the given top speed, or the capture's own (95th percentile)."""
     speeds = an.calibration.ordinary.assumptions.speed_range_hz_e
-    m.notes.append(f"the capture spans {speeds[0]:.0f}-{speeds[1]:.0f} Hz electrical (5-95 %); beyond it the twin "
-                   "extrapolates (a delay grows with speed, the jitter model holds)")
+    m.notes.append(Reason("TWIN-019", {"low_hz_e": speeds[0], "high_hz_e": speeds[1]}))
     if top_speed_rpm is None:
         top_speed_rpm = speeds[1] / p * 60.0
-        m.measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (the capture's top speed, 95th "
-                           "percentile; --top-speed-rpm states the motor's own)"))
+        m.measured.append(("operating.top_speed_rpm", Reason("TWIN-020", {"top_speed_rpm": top_speed_rpm})))
     else:
-        m.measured.append(("operating.top_speed_rpm", f"{top_speed_rpm:.0f} (given)"))
+        m.measured.append(("operating.top_speed_rpm", Reason("TWIN-021", {"top_speed_rpm": top_speed_rpm})))
     return top_speed_rpm
 
 
@@ -523,17 +516,13 @@ def _motor(p: int, top_speed_rpm: float, rewind_base: bool, m: _Making):
     """The base motor on ``p`` pole pairs, rewound for ``top_speed_rpm`` when the base is a stand-in."""
     base = m.base
     if not rewind_base:
-        m.assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
-                          f"from the base ({m.base_name}): capture times say nothing of them"))
+        m.assumed.append((MOTOR_ASSUMED, Reason("TWIN-022", {"base": m.base_name})))
         return dataclasses.replace(base.motor, pole_pairs=p)
     k = base.operating.top_speed_rpm / top_speed_rpm
-    m.assumed.append(("motor (R, L, ke, J, friction, fan load, supply), inverter, current sensors",
-                      f"the base's ({m.base_name}, top {base.operating.top_speed_rpm:.0f} rpm) rewound for a "
-                      f"{top_speed_rpm:.0f} rpm top on {p} pole pairs: ke x {k:.3g}, J and friction x "
-                      f"{k * k:.3g}, fan load x {k ** 3:.3g}, L x {k * base.motor.pole_pairs / p:.3g} (per unit "
-                      "of its top speed, supply and current the base motor: its duty, current and dynamics at "
-                      "its top are the twin's at its own); R, supply as the base: capture times say nothing of "
-                      "them"))
+    m.assumed.append((MOTOR_ASSUMED, Reason("TWIN-023", {
+        "base": m.base_name, "base_top_rpm": base.operating.top_speed_rpm, "top_speed_rpm": top_speed_rpm,
+        "pole_pairs": p, "ke_factor": k, "j_factor": k * k, "fan_factor": k ** 3,
+        "l_factor": k * base.motor.pole_pairs / p})))
     return rewound(base.motor, k, p)
 
 
@@ -545,10 +534,9 @@ def _leave_out(an: CaptureAnalysis, with_: tuple[str, ...], m: _Making) -> list[
     m.effects = [e if e.name not in UNCALIBRATABLE or e.name in with_ else held[e.name]
                  for e in m.effects if e.name not in UNCALIBRATABLE or e.name in with_ or e.name in held]
     for e in left_out:
-        what = f"{e.name} beyond {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else e.name
-        m.notes.append(f"measured but NOT in this plant: {what} (no calibration table holds it; "
-                       f"`{UNCALIBRATABLE[e.name]}` adds it, and `hil twin check` names it as a difference the twin "
-                       "lacks)")
+        m.notes.append(Reason("TWIN-025", {"effect": e.name, "held_part": PARTLY_HELD[e.name],
+                                           "option": UNCALIBRATABLE[e.name]}) if e.name in PARTLY_HELD
+                       else Reason("TWIN-024", {"effect": e.name, "option": UNCALIBRATABLE[e.name]}))
     return left_out
 
 
@@ -601,21 +589,27 @@ def _toml_value(v) -> str:
     return str(v)
 
 
+def _left_out_line(e: fx.Effect) -> Reason:
+    """A measured effect the plant leaves out, as the TOML's comment names it: the option that adds it, its values."""
+    if e.name in PARTLY_HELD:
+        return Reason("TWIN-036", {"effect": e.name, "option": UNCALIBRATABLE[e.name], "held_part": PARTLY_HELD[e.name],
+                                   "params": e.to_dict()})
+    return Reason("TWIN-035", {"effect": e.name, "option": UNCALIBRATABLE[e.name], "params": e.to_dict()})
+
+
 def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     """The plant TOML of ``twin``, with what was measured and what was assumed as comments."""
     c = twin.config
-    lines = [f"# Plant twin of the Hall capture {source}, written by `hil twin from-capture`.",
-             f"# Base (what the capture cannot tell): {base_name}.", "#", "# MEASURED from the capture:"]
-    lines += [f"#   {what}: {how}" for what, how in twin.measured]
-    lines += ["#", "# ASSUMED (from the base; a capture of Hall times alone cannot tell them):"]
-    lines += [f"#   {what}: {how}" for what, how in twin.assumed]
+    lines = [f"# {words(Reason('TWIN-030', {'source': source}))}",
+             f"# {words(Reason('TWIN-031', {'base': base_name}))}", "#", f"# {words(Reason('TWIN-032'))}"]
+    lines += [f"#   {what}: {words(how)}" for what, how in twin.measured]
+    lines += ["#", f"# {words(Reason('TWIN-033'))}"]
+    lines += [f"#   {what}: {words(how)}" for what, how in twin.assumed]
     if twin.left_out:
-        lines += ["#", "# MEASURED BUT LEFT OUT (no calibration table holds them; the option adds them):"]
-        lines += [f"#   {e.name} ({UNCALIBRATABLE[e.name]})"
-                  + (f", the plant holds {PARTLY_HELD[e.name]}" if e.name in PARTLY_HELD else "")
-                  + f": {e.to_dict()}" for e in twin.left_out]
+        lines += ["#", f"# {words(Reason('TWIN-034'))}"]
+        lines += [f"#   {words(_left_out_line(e))}" for e in twin.left_out]
     if twin.notes:
-        lines += ["#", "# NOTES:"] + [f"#   {n}" for n in twin.notes]
+        lines += ["#", f"# {words(Reason('TWIN-037'))}"] + [f"#   {words(n)}" for n in twin.notes]
     lines += ["", f"name = {_toml_value(c.name)}", "", "[motor]"]
     lines += [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.motor).items()]
     lines += ["", "[inverter]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.inverter).items()]
@@ -624,8 +618,8 @@ def twin_toml(twin: Twin, source: str, base_name: str) -> str:
     lines += ["", "[operating]"] + [f"{k} = {_toml_value(v)}" for k, v in dataclasses.asdict(c.operating).items()]
     for e in c.effects:
         d = e.to_dict()
-        tag = "assumed: from the base" if e.name in twin.from_base else "measured"
-        lines += ["", f"[[effects]]  # {tag}"]
+        tag = Reason("TWIN-038") if e.name in twin.from_base else Reason("TWIN-039")
+        lines += ["", f"[[effects]]  # {words(tag)}"]
         lines += [f"{k} = {_toml_value(v)}" for k, v in d.items()]
     return "\n".join(lines) + "\n"
 

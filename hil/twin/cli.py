@@ -13,6 +13,8 @@ from .. import cli_grammar as grammar
 def cmd_plant_from_capture(args) -> int:
     from plant_models import PlantConfig
 
+    from bldc.reasons import words
+
     from .capture import UNCALIBRATABLE, from_capture
 
     with_ = tuple(name for name, option in UNCALIBRATABLE.items()
@@ -25,15 +27,15 @@ def cmd_plant_from_capture(args) -> int:
     print(f"{args.recording}: twin plant written to {args.out}")
     print("  measured from the capture:")
     for what, how in twin.measured:
-        print(f"    {what}: {how}")
+        print(f"    {what}: {words(how)}")
     print(f"  assumed (from the base {args.base or 'paper-bench'}):")
     for what, how in twin.assumed:
-        print(f"    {what}: {how}")
+        print(f"    {what}: {words(how)}")
     print("  measured but left out (no calibration table holds them):"
           + "".join(f"\n    {e.name} ({UNCALIBRATABLE[e.name]} adds it)" for e in twin.left_out) if twin.left_out
           else "  left out: nothing")
     for note in twin.notes:
-        print(f"  note: {note}", file=sys.stderr)
+        print(f"  note: {words(note)}", file=sys.stderr)
     return 0
 
 
