@@ -59,6 +59,12 @@ FINDINGS = PLANT_FINDINGS + [
     # saturates at ARMATURE_SHIFT_LIMIT_DEG_E now)
     "finding-pole-alignment-under-startup-current.json",
     "finding-startup-armature-runaway.json",
+    # REQ-ROB-001's search at seed 1 (12.6 deg e p99): a start-up edge 63 deg e late (32 A at 1.94 deg
+    # e/A) left a first interval of a third of a sector as the lost-edge reference, and every later
+    # sector read as two lost edges although the Hall code stepped one: the edge count ran three per
+    # edge and the pole corrections went to the wrong poles. A one-sector Hall step now counts 1 + 6k
+    # sectors, and the interval then replaces the reference (tests/test_controller_lost_edges.py)
+    "finding-startup-interval-as-lost-edge-reference.json",
 ]
 
 

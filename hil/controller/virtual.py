@@ -241,6 +241,7 @@ class VirtualController:
         sector = sector_of_levels(self._bits)
         self._sensors_seen.add(int(edge["sensor"]))
         rotor_motion = True
+        one_step = False  # the Hall code stepped one sector forward from a known state
         if len(self._sensors_seen) == 3:  # the Hall state is known once every sensor has switched
             if sector < 0:
                 self.raise_fault(Fault.ILLEGAL_HALL_CODE, t)
@@ -251,6 +252,7 @@ class VirtualController:
                 self._edge_lost(t)  # a skipped sector, or a step against the direction of rotation
             elif self._sector is not None:
                 self._normal_steps += 1
+                one_step = True
             self._sector = sector if sector >= 0 else self._sector
         self._edges_since_motion += 1
         if rotor_motion:
@@ -259,10 +261,22 @@ class VirtualController:
                 ref, ratio = self._reference_interval_s()
                 if ref is not None and dt > ratio * ref:
                     self._edge_lost(t)  # an interval of two or more sectors
+                    sectors = round(dt / ref)
+                    if one_step:
+                        # the Hall code stepped one sector: edges lost in between can only be whole
+                        # electrical periods (each sensor's two edges), 1 + 6 k sectors, and the time
+                        # picks k. Read as round(dt / ref) instead, a reference too short (a start-up
+                        # edge moved 63 deg e by 32 A of armature reaction left one of 20 deg e) had
+                        # every later sector counted as three, the edge count ran 3 per edge and the
+                        # pole corrections went to the wrong poles (+-12.6 deg e) for good
+                        sectors = 1 + 6 * max(round((dt / ref - 1.0) / 6.0), 0)
                     # keep the edge count (and the pole assignment) right: sectors that passed
                     # minus the edges that did arrive
-                    self._logic.count_lost_edges(max(round(dt / ref) - self._edges_since_motion, 0))
-                    dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
+                    self._logic.count_lost_edges(max(sectors - self._edges_since_motion, 0))
+                    if sectors > 1:
+                        dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
+                    # else the interval is one sector, measured: it replaces the reference it exceeded
+                    # (which, put back in its own place unmeasured, would never have been corrected)
                 elif ref is not None and dt * ratio < ref:
                     # far shorter than its reference (the rotor cannot speed up that much in one
                     # sector): a glitch that read as a step, e.g. a spike on a Hall state left

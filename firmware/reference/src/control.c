@@ -837,7 +837,7 @@ static void edge_lost(void)
 void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc[3])
 {
     int64_t t = tb_at(count);
-    uint8_t rising, motion = 1u;
+    uint8_t rising, motion = 1u, one_step = 0u; /* one_step: the Hall code stepped one sector forward */
     float current_a, cycle_a = -1.0f, delay_s = 0.0f;
     int sector;
     uint32_t primask;
@@ -916,6 +916,7 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
             edge_lost(); /* a skipped sector, or a step against the direction of rotation */
         } else if (L.sector >= 0) {
             L.normal_steps++;
+            one_step = 1u;
         }
         if (sector >= 0) L.sector = (int8_t)sector;
     }
@@ -926,11 +927,19 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
             uint8_t measured = 1u;
             if (reference_interval(&ref, &ratio)) {
                 if (dt > ratio * ref) {
-                    long lost = lroundf(dt / ref) - (long)L.edges_since_motion;
+                    /* the Hall code stepped one sector: edges lost in between can only be whole
+                       electrical periods, 1 + 6 k sectors, and the time picks k (read as
+                       round(dt / ref), a reference too short counted every later sector as several
+                       for good: the edge count, and the pole corrections with it, ran away) */
+                    long sectors = one_step ? 1L + 6L * lroundf(fmaxf((dt / ref - 1.0f) / 6.0f, 0.0f))
+                                            : lroundf(dt / ref);
+                    long lost = sectors - (long)L.edges_since_motion;
                     edge_lost();
                     if (lost > 0) L.edge_index += (int32_t)lost; /* count_lost_edges */
-                    dt = ref;
-                    measured = 0u;
+                    if (sectors > 1L) { /* the interval of one sector stays the reference (not measured) */
+                        dt = ref;
+                        measured = 0u;
+                    } /* else one sector, measured: it replaces the reference it exceeded */
                 } else if (dt * ratio < ref) { /* a glitch that read as a step */
                     dt = ref;
                     measured = 0u;
