@@ -85,6 +85,17 @@ def _hil(*args, cwd=ROOT, timeout=900):
                           timeout=timeout)
 
 
+def _pytest(args: list[str], cwd: Path = ROOT, timeout_s: float = 600.0) -> str:
+    """A pytest session of its own (``-q``, no cache), forked from the warm process ``hil qualify``
+    forks its runs from (hil/qualify/forked.py): its output; a run past ``timeout_s`` fails the test."""
+    from hil.qualify.forked import run_pytest
+
+    code, output = run_pytest(["-q", "-p", "no:cacheprovider", *args], timeout_s,
+                              {**os.environ, "PYTHONPATH": str(ROOT)}, cwd=cwd)
+    assert code is not None, f"pytest {' '.join(map(str, args))} ran past {timeout_s:.0f} s and was killed"
+    return output
+
+
 def test_qualify_lists_its_catalogue():
     r = _hil("qualify", "--list")
     assert r.returncode == 0, r.stderr
@@ -383,9 +394,7 @@ def test_the_report_says_whether_a_test_failed_an_assertion_or_errored(tmp_path)
         "@pytest.mark.requirement('REQ-COMM-001')\n"
         "def test_passes(hil_budget):\n    hil_budget('commutation_angle_p99', 0.1)\n"
     )
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_kinds.py",
-                    "--hil-report-dir", "rep"], cwd=tmp_path, env=env, capture_output=True, timeout=300)
+    _pytest(["test_kinds.py", "--hil-report-dir", "rep"], cwd=tmp_path, timeout_s=300)
     report = json.loads((tmp_path / "rep" / "hil-report.json").read_text())
     tests = {t["nodeid"].split("::")[-1]: t for t in report["tests"]}
     assert {k: (t["outcome"], t["failed_by"]) for k, t in tests.items()} == {
@@ -409,11 +418,11 @@ def test_broken_adaptation_fails_a_requirement_on_what_sage_husa_learns(name, tm
     """Each defect of Sage-Husa's noise adaptation fails, by an assertion on a budget, the
     requirements on its edge-noise estimate against the plant's truth; the shipped controller
     passes them."""
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+    cmd = ["--hil-dut", "virtual:in-process",
            "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa_learning.py")]
     if name is not None:
         cmd += ["--hil-defect", name]
-    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    _pytest(cmd)
     report = json.loads((tmp_path / "hil-report.json").read_text())
     failed = {r for t in report["tests"] if t["outcome"] == "failed" and t["failed_by"] in ("assertion", "budget")
               for r in t["requirements"]}
@@ -461,12 +470,12 @@ def test_a_wrong_current_input_of_the_predictor_fails_req_pred_006_alone(name, t
     (hil/verdicts/budget_sources.py), REQ-PRED-001's commutation-time MAPE limit is Table 5's 0.66 % and
     catches it too, narrowly (0.69 %): REQ-PRED-006 must fail, and nothing but the two may. (The
     shipped controller passes both: the acceptance suite, run by this test command, holds that.)"""
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+    cmd = ["--hil-dut", "virtual:in-process",
            "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa.py"),
            "-k", "meets_its or constant_speed"]
     if name is not None:
         cmd += ["--hil-defect", name]
-    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    _pytest(cmd)
     report = json.loads((tmp_path / "hil-report.json").read_text())
     failed = {m["requirement"] for t in report["tests"] for m in t["measurements"] if m["verdict"] == "fail"}
     if name:
@@ -480,10 +489,10 @@ def test_the_signed_sum_current_passes_every_budget_and_fails_both_judged_checks
     0 A) triples Sage-Husa's error and stays inside every budget of REQ-PRED-001 and REQ-PRED-006
     (Table 5's budgets sit far above what the method reaches here); the judged checks beside them
     fail it: back-to-back against the reference, and the error's growth with the current."""
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+    cmd = ["--hil-dut", "virtual:in-process",
            "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_sage_husa.py"),
            "-k", "meets_its or constant_speed or back_to_back", "--hil-defect", "predictor-current-signed-sum"]
-    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    _pytest(cmd)
     report = json.loads((tmp_path / "hil-report.json").read_text())
     failed = {(m["judgement"], m["budget"]) for t in report["tests"] for m in t["measurements"]
               if m["verdict"] == "fail"}
@@ -513,10 +522,8 @@ def test_the_report_tells_a_setup_check_and_a_device_failure_and_runs_only_the_r
         "@pytest.mark.requirement('REQ-SPD-001')\n"
         "def test_other(hil_evidence):\n    pass\n"
     )
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_kinds.py",
-                    "--hil-report-dir", "rep", "--hil-requirements", "REQ-FLT-004,REQ-FLT-001,REQ-FLT-003"],
-                   cwd=tmp_path, env=env, capture_output=True, timeout=300)
+    _pytest(["test_kinds.py", "--hil-report-dir", "rep", "--hil-requirements", "REQ-FLT-004,REQ-FLT-001,REQ-FLT-003"],
+            cwd=tmp_path, timeout_s=300)
     report = json.loads((tmp_path / "rep" / "hil-report.json").read_text())
     tests = {t["nodeid"].split("::")[-1]: (t["outcome"], t["failed_by"]) for t in report["tests"]}
     assert tests == {"test_setup": ("error", "not judged"), "test_device": ("failed", "device failure"),
@@ -526,10 +533,10 @@ def test_the_report_tells_a_setup_check_and_a_device_failure_and_runs_only_the_r
 def test_lost_edge_against_last_sector_is_caught_by_a_healthy_run_with_uneven_sectors(tmp_path):
     """The defect raises 0xFF02 on a healthy plant whose calibrated sectors are uneven: REQ-FLT-005's
     check fails (a judged assertion, no error), on the uneven plant only."""
-    cmd = [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--hil-dut", "virtual:in-process",
+    cmd = ["--hil-dut", "virtual:in-process",
            "--hil-report-dir", str(tmp_path), str(ROOT / "test_cases" / "test_faults.py"), "-k", "healthy",
            "--hil-defect", "lost-edge-against-last-sector"]
-    subprocess.run(cmd, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, capture_output=True, timeout=600)
+    _pytest(cmd)
     report = json.loads((tmp_path / "hil-report.json").read_text())
     outcomes = {t["nodeid"].split("-")[-1].rstrip("]"): (t["outcome"], t["failed_by"]) for t in report["tests"]}
     assert outcomes == {"deviations": ("passed", ""), "sectors": ("failed", "assertion")}, outcomes
@@ -553,12 +560,10 @@ def test_a_defect_runs_the_tests_of_its_own_requirements_first_and_the_rest_afte
         "def test_c(): pass\n\n"
         "@pytest.mark.requirement('REQ-CAL-002', 'REQ-FLT-002')\ndef test_d(): pass\n"
     )
-    env = {**os.environ, "PYTHONPATH": str(ROOT)}
-    r = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "--collect-only",
-                        "test_order.py", "--hil-first", "REQ-CAL-002,REQ-PRED-003"],
-                       cwd=tmp_path, env=env, capture_output=True, text=True, timeout=120)
-    order = [line.split("::")[-1] for line in r.stdout.splitlines() if "::" in line]
-    assert order == ["test_b", "test_d", "test_a", "test_c"], r.stdout + r.stderr
+    output = _pytest(["--collect-only", "test_order.py", "--hil-first", "REQ-CAL-002,REQ-PRED-003"], cwd=tmp_path,
+                     timeout_s=120)
+    order = [line.split("::")[-1] for line in output.splitlines() if "::" in line]
+    assert order == ["test_b", "test_d", "test_a", "test_c"], output
 
     seen = []
     monkeypatch.setattr(qrun, "run_pytest", lambda cmd, timeout_s, env=None: seen.append(cmd) or (1, ""))

@@ -61,21 +61,23 @@ def _pytest_child(args: list[str], output: str, env: dict[str, str], cwd: str) -
         os._exit(code)
 
 
-def run_pytest(args: list[str], timeout_s: float, env: dict[str, str] | None = None) -> tuple[int | None, str]:
-    """One pytest session with ``args``: (its exit code, its output), the exit code None when it ran
-    past ``timeout_s`` and was killed."""
+def run_pytest(args: list[str], timeout_s: float, env: dict[str, str] | None = None,
+               cwd: str | os.PathLike | None = None) -> tuple[int | None, str]:
+    """One pytest session with ``args`` in ``cwd`` (default: this process's directory): (its exit code,
+    its output), the exit code None when it ran past ``timeout_s`` and was killed."""
     env = dict(os.environ if env is None else env)
+    cwd = os.fspath(cwd) if cwd is not None else os.getcwd()
     if not FORKED:
         try:
             proc = subprocess.run([sys.executable, "-m", "pytest", *args], capture_output=True, text=True,
-                                  timeout=timeout_s, env=env)
+                                  timeout=timeout_s, env=env, cwd=cwd)
         except subprocess.TimeoutExpired:
             return None, ""
         return proc.returncode, proc.stdout + proc.stderr
     fd, output = tempfile.mkstemp(prefix="hil-qualify-run-", suffix=".txt")
     os.close(fd)
     try:
-        child = _forkserver().Process(target=_pytest_child, args=(list(args), output, env, os.getcwd()))
+        child = _forkserver().Process(target=_pytest_child, args=(list(args), output, env, cwd))
         child.start()
         child.join(timeout_s)
         if child.is_alive():
