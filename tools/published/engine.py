@@ -69,8 +69,10 @@ producer's module.
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import hashlib
 import json
+import multiprocessing
 import os
 import platform
 import re
@@ -137,6 +139,41 @@ def compute(groups: list[Group]) -> dict[str, dict]:
             out[g.name]["digest"] = digest(json.loads(json.dumps(out[g.name])))
             print(f"figures: {g.name}: {len(run.figures)} figures in {dt:.0f} s", flush=True)
     return out
+
+
+def _compute_one(name: str) -> dict[str, dict]:
+    """:func:`compute` of the group ``name`` (in a worker process of :func:`compute_each`)."""
+    return compute([g for g in GROUPS if g.name == name])
+
+
+def compute_each(groups: list[Group], jobs: int, last_s: dict[str, float]) -> dict[str, dict | str]:
+    """Each group computed on its own: its entry, or why its producer failed (the others still run).
+    ``jobs`` > 1: that many groups at once, each in a fresh process, the longest first (by ``last_s``,
+    their durations when last computed) so the last to finish is a short one; a group's figures do
+    not depend on what runs beside it, its wall time does (its provenance keeps the load)."""
+    failures = (RuntimeError, OSError, subprocess.SubprocessError, ValueError, KeyError)
+    out: dict[str, dict | str] = {}
+    if jobs <= 1:
+        for g in groups:
+            try:
+                out.update(compute([g]))
+            except failures as exc:
+                out[g.name] = f"{g.name}: its producer failed: {str(exc).strip()[:1000]}"
+        return out
+    order = sorted(groups, key=lambda g: -last_s.get(g.name, 0.0))
+    with concurrent.futures.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn")) as pool:
+        futures = {pool.submit(_compute_one, g.name): g.name for g in order}
+        for done in concurrent.futures.as_completed(futures):
+            try:
+                out.update(done.result())
+            except (*failures, concurrent.futures.process.BrokenProcessPool) as exc:
+                out[futures[done]] = f"{futures[done]}: its producer failed: {str(exc).strip()[:1000]}"
+    return {g.name: out[g.name] for g in groups}  # the file's order, not the finishing order
+
+
+def last_durations(data: dict) -> dict[str, float]:
+    """Each group's duration when last computed (s), from its provenance."""
+    return {name: float(g.get("provenance", {}).get("duration_s", 0.0)) for name, g in data.get("groups", {}).items()}
 
 
 def load() -> dict:
@@ -483,18 +520,15 @@ def drift(stored: dict, fresh: dict) -> list[str]:
     return out
 
 
-def _recompute_and_compare(data: dict, chosen: list[Group]) -> dict[str, list[str]]:
-    """Each chosen group recomputed and compared with the file: its differences (none: it agrees)."""
-    differ = {}
-    for g in chosen:  # one at a time: a producer that fails is a difference, and the others still run
-        try:
-            differ[g.name] = drift(data, compute([g]))
-        except (RuntimeError, OSError, subprocess.SubprocessError, ValueError, KeyError) as exc:
-            differ[g.name] = [f"{g.name}: its producer failed: {str(exc).strip()[:1000]}"]
-    return differ
+def _recompute_and_compare(data: dict, chosen: list[Group], jobs: int = 1) -> dict[str, list[str]]:
+    """Each chosen group recomputed and compared with the file: its differences (none: it agrees); a
+    producer that fails is a difference, and the others still run."""
+    fresh = compute_each(chosen, jobs, last_durations(data))
+    return {name: [entry] if isinstance(entry, str) else drift(data, {name: entry}) for name, entry in fresh.items()}
 
 
-def _record_release_check(data: dict, chosen: list[Group], differ: dict[str, list[str]], duration_s: float) -> None:
+def _record_release_check(data: dict, chosen: list[Group], differ: dict[str, list[str]], duration_s: float,
+                          jobs: int = 1) -> None:
     """``--check --all``: the record the docs show (README.md, "Published figures"), kept in the file."""
     record = {
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
@@ -502,6 +536,7 @@ def _record_release_check(data: dict, chosen: list[Group], differ: dict[str, lis
         "groups": [g.name for g in chosen],
         "agreed": [name for name, lines in differ.items() if not lines],
         "duration_s": round(duration_s, 1),
+        "jobs": max(jobs, 1),
     }
     record["result"] = ("every figure and table cell within tolerance" if len(record["agreed"]) == len(chosen)
                         else f"{len(chosen) - len(record['agreed'])} groups differ: "
@@ -512,7 +547,7 @@ def _record_release_check(data: dict, chosen: list[Group], differ: dict[str, lis
     render(data)
 
 
-def check(data: dict, only: list[str] | None = None, every: bool = False) -> int:
+def check(data: dict, only: list[str] | None = None, every: bool = False, jobs: int = 1) -> int:
     """``--check``: the docs against the file, each group's digest and commit, and every group that
     cannot pass without it recomputed (:func:`stale_groups`), or the groups named (``only``), or all
     of them (``every``: the release check, whose record the file keeps and README.md shows)."""
@@ -530,10 +565,10 @@ def check(data: dict, only: list[str] | None = None, every: bool = False) -> int
             print(f"figures: {g.name}: {stale[g.name]}: "
                   + ("recomputing" if g in chosen else "NOT recomputed here (outside --only)"), flush=True)
     t0 = time.perf_counter()
-    differ = _recompute_and_compare(data, chosen)
+    differ = _recompute_and_compare(data, chosen, jobs)
     bad += [line for lines in differ.values() for line in lines]
     if every:
-        _record_release_check(data, chosen, differ, time.perf_counter() - t0)
+        _record_release_check(data, chosen, differ, time.perf_counter() - t0, jobs)
     unchecked = sorted(set(stale) - {g.name for g in chosen})
     if bad:
         print("\n".join(bad))
@@ -565,6 +600,9 @@ def _parser() -> argparse.ArgumentParser:
     ap.add_argument("--all", action="store_true",
                     help="with --check: recompute every group and compare figures and table cells (the release "
                          "check; its record is kept in the file and shown in README.md)")
+    ap.add_argument("-j", "--jobs", type=int, default=1, metavar="N",
+                    help="compute (or recompute) N groups at once, each in a process of its own, the longest "
+                         "first (default 1; the figures do not depend on it, the groups' wall times do)")
     mode.add_argument("--unmarked", action="store_true",
                       help="list every decimal of README.md and docs/ outside a figure marker, lower the ledger "
                            "where a page has fewer (exit 1 where a page has more)")
@@ -605,11 +643,19 @@ def _render_pages(data: dict) -> int:
     return 0
 
 
-def _compute_and_write(data: dict, chosen: list[Group], quick: bool) -> int:
+def _compute_and_write(data: dict, chosen: list[Group], quick: bool, jobs: int = 1) -> int:
     """Compute the chosen groups; ``quick``: compare them with the file (exit 1 on drift), otherwise
     write them into the file and render the pages."""
     t0 = time.perf_counter()
-    fresh = compute(chosen)
+    if jobs > 1:
+        each = compute_each(chosen, jobs, last_durations(data))
+        failed = [entry for entry in each.values() if isinstance(entry, str)]
+        if failed:  # nothing written: the file keeps only what one run of the tool computed in full
+            print("\n".join(failed))
+            return 1
+        fresh = {name: entry for name, entry in each.items() if not isinstance(entry, str)}
+    else:
+        fresh = compute(chosen)
     if quick:
         bad = drift(data, fresh)
         print("\n".join(bad) if bad else f"figures: {len(chosen)} quick groups reproduce within tolerance "
@@ -632,7 +678,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.unmarked:
         return _list_unmarked(data)
     if args.check:
-        return check(data, args.only, args.all)
+        return check(data, args.only, args.all, args.jobs)
     if args.stale:
         return _list_stale(data)
     if args.render:
@@ -641,4 +687,6 @@ def main(argv: list[str] | None = None) -> int:
         chosen = [g for g in GROUPS if g.name in args.only]
     else:
         chosen = [g for g in GROUPS if g.quick or not args.quick]
-    return _compute_and_write(data, chosen, args.quick)
+    if args.jobs < 1:
+        ap.error(f"-j {args.jobs}: give a number of groups at once, 1 or more")
+    return _compute_and_write(data, chosen, args.quick, args.jobs)
