@@ -295,6 +295,57 @@ def test_an_interrupt_and_the_read_of_what_it_left_are_one_emulated_call_with_th
     assert seen[0] == seen[1] == seen[2]
 
 
+def test_the_reference_firmwares_compare_changes_the_gates_at_the_commands_instant(tmp_path, monkeypatch):
+    """The reference firmware on the emulated M4F, 30 ms at 10000 rpm: the compare interrupt, at the
+    highest priority (sil.toml), is never preempted; on its path that disarms the unit (every
+    commutation here), started at its match, its gates change within half a timer tick of the
+    command's instant, the match plus COMPARE_LATENCY_TICKS (the target's flags): the firmware
+    arms in whole ticks, so the nearest whole tick to the path's response is at most half a tick off."""
+    from hil.pil.firmware import PilFirmware
+    from hil.pil.target import read_target
+    from hil.sil.peripherals import COMPARE
+    from hil.sil.processor import resolve_elf
+
+    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
+    elf, target_file, *_ = resolve_elf(parse_dut(f"pil:{REFERENCE}"))
+    target = read_target(target_file)
+    latency_ticks = next(int(f.split("=")[1]) for f in target.flags if f.startswith("-DCOMPARE_LATENCY_TICKS="))
+    calls = []  #: per compare call: (event to start s, event to return s, preempted, armed after its return)
+
+    class Recording(TimedPeripherals):
+        def _start(self, call, t_s, tail):
+            for running in self._stack:
+                running.preempted = True
+            call.started_s = t_s
+            super()._start(call, t_s, tail)
+
+        def _returned(self, t_s):
+            call = self._stack[-1]
+            super()._returned(t_s)
+            if call.event == COMPARE:
+                calls.append((call.started_s - call.t_event_s, t_s - call.t_event_s,
+                              getattr(call, "preempted", False), self.compare_count is not None))
+
+    config = PlantConfig()
+    rpm = 10000.0
+
+    class Source:
+        mode, latency_s = L.MODE_EXTERNAL, 0.0
+
+    fw = PilFirmware(elf, target)
+    info = fw.describe()
+    fw.reset(0b001)
+    fw.od_write(0x2001, 0, np.float32(rpm).tobytes())  # the speed set point
+    sim = Simulation(config, Source(), duty=steady_state(config.motor, rpm)["duty"], initial_speed_rpm=rpm, seed=1)
+    Recording(fw, info, sim, seed=1, wrap_at_s=0.0).run_until(0.03)
+    assert len(calls) >= 30  # 10000 rpm, 2 pole pairs: 2000 commutations a second
+    assert not any(preempted for _, _, preempted, _ in calls)
+    tick_s = 1.0 / info.timer_hz
+    late_s = [response - latency_ticks * tick_s for wait, response, _, armed in calls if wait == 0.0 and not armed]
+    assert len(late_s) >= 0.9 * len(calls)
+    assert max(abs(x) for x in late_s) <= 0.5 * tick_s, f"gates {min(late_s) * 1e6:+.3f}..{max(late_s) * 1e6:+.3f} us"
+
+
 def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fresh_core(tmp_path, monkeypatch):
     """The six-step test firmware's seeded null write at its 5000th control interrupt (t = 0.25 s):
     on the part a BusFault, named with its function, source line, simulated instant and counter; the

@@ -13,6 +13,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from unicorn import arm_const as U
 from unicorn.arm_const import UC_ARM_REG_S0
 
 from bldc.tomlfile import TomlError
@@ -257,6 +258,23 @@ def test_a_preempting_interrupt_runs_between_and_the_preempted_call_ends_as_alon
     assert core.run() is True and core.result() == 200
     assert core.last_cycles == alone_cycles + hall_cycles  # the preempted call's own cycles plus the interrupt's
     assert core.stack_high_water >= alone_stack + 32  # the interrupt's frame below the paused call's stack
+
+
+def test_an_interrupt_taken_within_an_it_block_starts_outside_it_and_the_return_restores_it(m4f):
+    """Exception entry stacks xPSR and clears its IT bits (ARMv7-M Architecture Reference Manual,
+    B1.5.6): a handler begun on a call paused just after an IT instruction runs its own first
+    instructions unconditionally. Found on the reference firmware: the Hall interrupt paused after
+    ``it lo`` in filter_update, and the control interrupt's first PUSH ran as that block's
+    conditional instruction (skipped), its POP then loading a stacked word into LR (a BusFault)."""
+    core = Core(m4f, _target("cortex-m4f"))
+    core.begin("count_to", (200,))
+    assert core.run(until_cycle=core.cycles + 300) is False  # paused part-way
+    # the pause as if just after ``it ne`` with Z set: the one instruction left in the block would be skipped
+    it_ne_one_left, z_and_thumb = 0x1800, 0x41000000
+    core.uc.reg_write(U.UC_ARM_REG_XPSR, z_and_thumb | it_ne_one_left)
+    core.begin("deep", (2,), interrupt=True, label="hall")
+    assert core.run() is True and core.result() == 3  # its PUSH ran: 2 + deep(1) = 3
+    assert core.uc.reg_read(U.UC_ARM_REG_XPSR) & 0x0600FC00 == it_ne_one_left  # the paused call's, back
 
 
 def test_primask_and_basepri_mask_interrupts_as_the_architecture_says(m4f, m0plus):

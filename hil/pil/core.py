@@ -115,6 +115,12 @@ _STACKED_REGISTERS = (U.UC_ARM_REG_R0, U.UC_ARM_REG_R1, U.UC_ARM_REG_R2, U.UC_AR
 _AFTER_REGISTERS = (U.UC_ARM_REG_PC, U.UC_ARM_REG_R0)
 #: the exception mask registers (ARMv6-M has PRIMASK alone; Unicorn reads the others as 0 there)
 _MASK_REGISTERS = (U.UC_ARM_REG_PRIMASK, U.UC_ARM_REG_FAULTMASK, U.UC_ARM_REG_BASEPRI)
+#: xPSR's IT bits (EPSR.IT[1:0] at 26:25, IT[7:2] at 15:10): the state of an IT block part-way done.
+#: Exception entry stacks them with xPSR and clears them, the handler starting outside any IT block
+#: (ARMv7-M Architecture Reference Manual, ARM DDI 0403, B1.5.6 "Exception entry behavior"); a call
+#: begun on a core paused just after an IT instruction would otherwise run its first instructions as
+#: that block's conditional ones (a PUSH skipped, its POP then loading a stacked word into LR)
+_XPSR_IT_BITS = 0x0600FC00
 
 
 def _keep(*_) -> None:
@@ -551,6 +557,9 @@ class Core:
             sp = self.ram_top
         self._regs.write(_CALL_REGISTERS[len(args)],
                          (*(int(a) & 0xFFFFFFFF for a in args), sp, (MAGIC_RETURN if then is None else then) | 1))
+        xpsr = int(uc.reg_read(U.UC_ARM_REG_XPSR))
+        if xpsr & _XPSR_IT_BITS:  # a pause within an IT block (stacked above with xPSR; the return restores it)
+            uc.reg_write(U.UC_ARM_REG_XPSR, xpsr & ~_XPSR_IT_BITS)
         self._tail = None
         if interrupt and charge:
             self.cycles += self.table.exception_entry

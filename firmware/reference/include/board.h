@@ -14,7 +14,7 @@ void board_emcy_send(uint16_t code);     /* queue one EMCY frame (0x0000: error 
 
 /* Interrupts off for a few lines, around what interrupts of different priorities share (the
    command queue and the compare unit, the time base, the ADC ring, the cycle accumulators): on the
-   part the control and compare interrupts preempt the Hall interrupt (and control preempts compare),
+   part the compare and control interrupts preempt the Hall interrupt (and compare preempts control),
    so an update one of them makes part-way through another's is a data race. PRIMASK is saved and
    restored, so sections nest. A PC build (sil:) runs its interrupts one at a time: nothing to do. */
 static inline uint32_t board_irq_lock(void)
