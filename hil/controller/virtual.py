@@ -260,7 +260,6 @@ class VirtualController:
                 dt, measured = t - self._last_t, True
                 ref, ratio = self._reference_interval_s()
                 if ref is not None and dt > ratio * ref:
-                    self._edge_lost(t)  # an interval of two or more sectors
                     sectors = round(dt / ref)
                     if one_step:
                         # the Hall code stepped one sector: edges lost in between can only be whole
@@ -270,13 +269,20 @@ class VirtualController:
                         # every later sector counted as three, the edge count ran 3 per edge and the
                         # pole corrections went to the wrong poles (+-12.6 deg e) for good
                         sectors = 1 + 6 * max(round((dt / ref - 1.0) / 6.0), 0)
-                    # keep the edge count (and the pole assignment) right: sectors that passed
-                    # minus the edges that did arrive
-                    self._logic.count_lost_edges(max(sectors - self._edges_since_motion, 0))
-                    if sectors > 1:
-                        dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
-                    # else the interval is one sector, measured: it replaces the reference it exceeded
-                    # (which, put back in its own place unmeasured, would never have been corrected)
+                    if not one_step or sectors > 1:
+                        self._edge_lost(t)  # an interval of two or more sectors
+                        # keep the edge count (and the pole assignment) right: sectors that passed
+                        # minus the edges that did arrive
+                        self._logic.count_lost_edges(max(sectors - self._edges_since_motion, 0))
+                        if sectors > 1:
+                            dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
+                    # else a one-sector step the time reads as no whole period more: no edge was lost
+                    # (the sector is slow, or its reference short: a start-up sector one turn back,
+                    # shortened by its current's armature lag). Read as a lost edge, it raised a
+                    # false MISSING_EDGE and restarted the count, the references and the pole
+                    # alignment (the reference firmware, REQ-ROB-001 at --hil-seed 1). Measured, the
+                    # interval replaces the reference it exceeded (which, put back in its own place
+                    # unmeasured, would never have been corrected)
                 elif ref is not None and dt * ratio < ref:
                     # far shorter than its reference (the rotor cannot speed up that much in one
                     # sector): a glitch that read as a step, e.g. a spike on a Hall state left
