@@ -614,8 +614,8 @@ static void sync_poles(void)
     if (L.pole_shift >= 0 || L.hist_n < 2 * N + 1) return;
     /* a turn whose edges saw more current than the speed loop's limit is no turn of the motor under
        control (a start-up's late commutations run to tens of amperes): there the linear armature
-       correction is extrapolated past where it holds (the sensors' shift saturates: the library's steepest
-       2 deg e/A reaches the sensors' 30 deg e saturation at 15 A), errs by tens of degrees and
+       correction is extrapolated past where it holds (the sensors' shift saturates at 30 deg e,
+       which the library's steepest 2 deg e/A reaches at 15 A), errs by tens of degrees and
        outweighs pole offsets a few degrees apart. Scored anyway (edges at up to 88 A), the
        alignment took the wrong electrical period for good (REQ-ROB-001, --hil-seed 3: 6.1 deg e
        p99). The alignment waits for a turn within the limit */
