@@ -79,9 +79,11 @@ FIRMWARE_FINDINGS = [
     # edges at up to 55 A, far past the current limit, where the linear armature correction does not
     # hold. It waits for a turn within the limit (both controllers)
     "finding-firmware-pole-alignment-over-current-limit.json",
-    # --hil-seed 1 (0.609 deg e p99 and a MISSING_EDGE at start-up): a one-sector Hall step 1.4 times
-    # its start-up reference read as a lost edge (both controllers now take it as a slow sector); and
-    # the edge current read through a 13 us commutation transient at 10,000 rpm, 0.49 A high
+    # --hil-seed 1 (0.609 deg e p99 and a MISSING_EDGE at start-up): a start-up sector shortened by
+    # 22 A of armature lag was the same-sector reference a turn later, and a normal sector read 1.4
+    # times it as a lost edge (an interval with an edge beyond the current limit is no reference now,
+    # both controllers); and the edge current read through a 13 us commutation transient at 10,000
+    # rpm, 0.49 A high
     "finding-firmware-slow-sector-read-as-lost-edge.json",
 ]
 FIRMWARE = Path(__file__).parent.parent / "firmware" / "reference"

@@ -207,6 +207,7 @@ class VirtualController:
         self._normal_steps = 6  # Hall steps in a row since the last lost edge
         self._resync_pending = False
         self._last_t: float | None = None
+        self._last_current_a = 0.0  #: the current at the last motion edge
         #: the last mechanical turn's sector intervals, oldest first (the missing-edge references), each
         #: with whether it was measured (False: a reference put in place of an interval that spanned
         #: lost edges, or of a glitch)
@@ -260,6 +261,7 @@ class VirtualController:
                 dt, measured = t - self._last_t, True
                 ref, ratio = self._reference_interval_s()
                 if ref is not None and dt > ratio * ref:
+                    self._edge_lost(t)  # an interval of two or more sectors
                     sectors = round(dt / ref)
                     if one_step:
                         # the Hall code stepped one sector: edges lost in between can only be whole
@@ -269,20 +271,13 @@ class VirtualController:
                         # every later sector counted as three, the edge count ran 3 per edge and the
                         # pole corrections went to the wrong poles (+-12.6 deg e) for good
                         sectors = 1 + 6 * max(round((dt / ref - 1.0) / 6.0), 0)
-                    if not one_step or sectors > 1:
-                        self._edge_lost(t)  # an interval of two or more sectors
-                        # keep the edge count (and the pole assignment) right: sectors that passed
-                        # minus the edges that did arrive
-                        self._logic.count_lost_edges(max(sectors - self._edges_since_motion, 0))
-                        if sectors > 1:
-                            dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
-                    # else a one-sector step the time reads as no whole period more: no edge was lost
-                    # (the sector is slow, or its reference short: a start-up sector one turn back,
-                    # shortened by its current's armature lag). Read as a lost edge, it raised a
-                    # false MISSING_EDGE and restarted the count, the references and the pole
-                    # alignment (the reference firmware, REQ-ROB-001 at --hil-seed 1). Measured, the
-                    # interval replaces the reference it exceeded (which, put back in its own place
-                    # unmeasured, would never have been corrected)
+                    # keep the edge count (and the pole assignment) right: sectors that passed
+                    # minus the edges that did arrive
+                    self._logic.count_lost_edges(max(sectors - self._edges_since_motion, 0))
+                    if sectors > 1:
+                        dt, measured = ref, False  # the interval of one sector stays the reference (not measured)
+                    # else the interval is one sector, measured: it replaces the reference it exceeded
+                    # (which, put back in its own place unmeasured, would never have been corrected)
                 elif ref is not None and dt * ratio < ref:
                     # far shorter than its reference (the rotor cannot speed up that much in one
                     # sector): a glitch that read as a step, e.g. a spike on a Hall state left
@@ -290,8 +285,17 @@ class VirtualController:
                     # read as lost edges, the edge count ran away and the corrections with it
                     dt, measured = ref, False
                     self._intervals.clear()  # a step that was not a sector: the history is out of line
+                if max(edge.get("current_a", 0.0), self._last_current_a) > self.current_limit_a:
+                    # an edge of it saw more current than the speed loop's limit (a start-up's late
+                    # commutations): its time moved by an armature lag the motor under control never
+                    # has, so the interval is no measurement of its sector for the next turn (a
+                    # start-up sector shortened by 22 A, the same-sector reference a turn later, read
+                    # a normal sector as a lost edge in the reference firmware: a false MISSING_EDGE,
+                    # REQ-ROB-001 at --hil-seed 1)
+                    measured = False
                 self._intervals.append((dt, measured))
             self._last_t = t
+            self._last_current_a = edge.get("current_a", 0.0)
             self._edges_since_motion = 0
         if self._resync_pending and self._normal_steps >= 6:
             # a full electrical period of normal Hall steps after lost edges: the edge count is

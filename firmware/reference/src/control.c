@@ -489,6 +489,7 @@ static struct {
     uint8_t resync_pending;
     uint8_t has_last_t;
     int64_t last_t;
+    float last_current_a;  /* the current at the last motion edge */
     float iv_dt[EDGES_PER_TURN];
     uint8_t iv_measured[EDGES_PER_TURN];
     int iv_n, iv_head;
@@ -961,29 +962,32 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
                        for good: the edge count, and the pole corrections with it, ran away) */
                     long sectors = one_step ? 1L + 6L * lroundf(fmaxf((dt / ref - 1.0f) / 6.0f, 0.0f))
                                             : lroundf(dt / ref);
-                    if (!one_step || sectors > 1L) {
-                        long lost = sectors - (long)L.edges_since_motion;
-                        edge_lost();
-                        if (lost > 0) L.edge_index += (int32_t)lost; /* count_lost_edges */
-                        if (sectors > 1L) { /* the interval of one sector stays the reference (not measured) */
-                            dt = ref;
-                            measured = 0u;
-                        }
-                    } /* else a one-sector step that the time reads as no whole period more: no edge
-                         was lost (the interval is slow, or its reference short: a start-up sector
-                         one turn back, shortened by its current's armature lag); measured, it
-                         replaces the reference it exceeded. Read as a lost edge, it raised a false
-                         0xFF02 and restarted the count, the references and the pole alignment */
+                    long lost = sectors - (long)L.edges_since_motion;
+                    edge_lost();
+                    if (lost > 0) L.edge_index += (int32_t)lost; /* count_lost_edges */
+                    if (sectors > 1L) { /* the interval of one sector stays the reference (not measured) */
+                        dt = ref;
+                        measured = 0u;
+                    } /* else one sector, measured: it replaces the reference it exceeded */
                 } else if (dt * ratio < ref) { /* a glitch that read as a step */
                     dt = ref;
                     measured = 0u;
                     iv_clear();
                 }
             }
+            if (current_a > CURRENT_LIMIT_A || L.last_current_a > CURRENT_LIMIT_A) {
+                /* an edge of it saw more current than the speed loop's limit (a start-up's late
+                   commutations): its time moved by an armature lag the motor under control never
+                   has, so the interval is no measurement of its sector for the next turn (a start-up
+                   sector shortened by 22 A, the same-sector reference a turn later, read a normal
+                   sector as a lost edge: a false 0xFF02, REQ-ROB-001 at --hil-seed 1) */
+                measured = 0u;
+            }
             iv_push(dt, measured);
         }
         L.has_last_t = 1u;
         L.last_t = t;
+        L.last_current_a = current_a;
         L.edges_since_motion = 0;
     }
     if (L.resync_pending && L.normal_steps >= 6) {
