@@ -76,8 +76,8 @@ FIRMWARE_FINDINGS = [
     # alignment learned in it took the wrong electrical period. The guard reads the captured interval
     "finding-firmware-startup-guard-on-corrected-interval.json",
     # --hil-seed 3 (6.13 deg e p99 once the guard was fixed): the pole alignment scored a turn with
-    # edges at up to 55 A, far past the current limit, where the linear armature correction does not
-    # hold. It waits for a turn within the limit (both controllers)
+    # edges at tens of amperes, far past the current limit, where the linear armature correction does
+    # not hold. It waits for a turn within the limit (both controllers)
     "finding-firmware-pole-alignment-over-current-limit.json",
     # --hil-seed 1 (0.609 deg e p99 and a MISSING_EDGE at start-up): a start-up sector shortened by
     # 22 A of armature lag was the same-sector reference a turn later, and a normal sector read 1.4

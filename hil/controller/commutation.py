@@ -96,7 +96,7 @@ class HallCommutation:
             # linear armature correction is extrapolated past where it holds (the library's steepest
             # 2 deg e/A reaches the sensors' 30 deg e saturation at 15 A), errs by tens of degrees
             # and outweighs pole offsets a few degrees apart. The reference firmware scored such a
-            # turn (edges at up to 88 A) and took the wrong electrical period for good (REQ-ROB-001
+            # turn (edges at tens of amperes) and took the wrong electrical period for good (REQ-ROB-001
             # at --hil-seed 3). The alignment waits for a turn within the limit
             return
         best, best_var = 0, math.inf

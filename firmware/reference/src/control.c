@@ -617,9 +617,10 @@ static void sync_poles(void)
        control (a start-up's late commutations run to tens of amperes): there the linear armature
        correction is extrapolated past where it holds (the sensors' shift saturates at 30 deg e,
        which the library's steepest 2 deg e/A reaches at 15 A), errs by tens of degrees and
-       outweighs pole offsets a few degrees apart. Scored anyway (edges at up to 88 A), the
-       alignment took the wrong electrical period for good (REQ-ROB-001, --hil-seed 3: 6.1 deg e
-       p99). The alignment waits for a turn within the limit */
+       outweighs pole offsets a few degrees apart. Scored anyway (edges at tens of amperes), the
+       alignment took the wrong electrical period for good (REQ-ROB-001, --hil-seed 3 once the
+       start-up guard read the captured interval: 6.1 deg e p99). It waits for a turn within the
+       limit */
     for (k = 1; k <= N + 1; k++)
         if (hist_back(k)->current_a > CURRENT_LIMIT_A) return;
     first = hist_back(N + 1);
