@@ -38,6 +38,7 @@ from hil.verdicts.budgets import Budgets
 from hil.controller.commutation import HallCommutation, SpeedPI
 from hil.controller.virtual import VirtualController
 from hil.dut.in_process import InProcessLink
+from hil.dut.spec import open_dut
 from hil.bench.stimulus import Stimulus, run
 from plant_models import RawHallCommutation, Simulation
 
@@ -66,13 +67,45 @@ FINDINGS = PLANT_FINDINGS + [
     # sectors, and the interval then replaces the reference (tests/test_controller_lost_edges.py)
     "finding-startup-interval-as-lost-edge-reference.json",
 ]
+#: REQ-ROB-001's search through sil:firmware/reference (each the search's shrunk draw; reproduce with
+#: ``hil replay FILE --dut sil:firmware/reference``), replayed on both controllers
+FIRMWARE_FINDINGS = [
+    # --hil-seed 2 (7.34 deg e p99): the start-up bounce guard measured the armature-corrected interval,
+    # which 26 A at 1.9 deg e/A shortened below half a sector at the top set point; the commutation the
+    # correction said was due waited for the next (late) edge, the current ran to 130 A and the pole
+    # alignment learned in it took the wrong electrical period. The guard reads the captured interval
+    "finding-firmware-startup-guard-on-corrected-interval.json",
+    # --hil-seed 3 (6.13 deg e p99 once the guard was fixed): the pole alignment scored a turn with
+    # edges at tens of amperes, far past the current limit, where the linear armature correction does
+    # not hold. It waits for a turn within the limit (both controllers)
+    "finding-firmware-pole-alignment-over-current-limit.json",
+    # --hil-seed 1 (0.609 deg e p99 and a MISSING_EDGE at start-up): a start-up sector shortened by
+    # 22 A of armature lag was the same-sector reference a turn later, and a normal sector read 1.4
+    # times it as a lost edge (an interval with an edge beyond the current limit is no reference now,
+    # both controllers); and the edge current read through a 13 us commutation transient at 10,000
+    # rpm, 0.49 A high
+    "finding-firmware-slow-sector-read-as-lost-edge.json",
+]
+FIRMWARE = Path(__file__).parent.parent / "firmware" / "reference"
 
 
-@pytest.mark.parametrize("name", FINDINGS)
+@pytest.mark.parametrize("name", FINDINGS + FIRMWARE_FINDINGS)
 def test_finding_replays_within_budget(name):
     stim = Stimulus.load(DATA / name)
     outcome = run(stim, InProcessLink(VirtualController(stim.plant_config().motor)), Budgets.defaults())
     assert outcome.ok, outcome.message
+
+
+@pytest.mark.parametrize("name", FIRMWARE_FINDINGS)
+def test_firmware_finding_replays_within_budget_without_a_fault_code(name):
+    """Through the reference firmware: within the budget, and no fault code (nothing is injected in a
+    deviation run: any code is a false alarm, REQ-FLT-005)."""
+    stim = Stimulus.load(DATA / name)
+    with open_dut(f"sil:{FIRMWARE}", stim.plant_config().motor) as dut:
+        outcome = run(stim, dut.link, Budgets.defaults())
+        codes = dut.link.faults()
+    assert outcome.ok, outcome.message
+    assert codes == [], [hex(c) for c in codes]
 
 
 @pytest.mark.parametrize("name", [n for n in PLANT_FINDINGS if Stimulus.load(DATA / n).kind == "deviations"])

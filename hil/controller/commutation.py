@@ -90,6 +90,15 @@ class HallCommutation:
         if self._pole_shift is not None or len(self._history) < 2 * n + 1:
             return
         t, sensor, rising, count, current = (np.array(v) for v in zip(*self._history[-(n + 1):]))
+        if self.current_limit_a is not None and np.max(current) > self.current_limit_a:
+            # a turn whose edges saw more current than the speed loop's limit is no turn of the
+            # motor under control (a start-up's late commutations run to tens of amperes): there the
+            # linear armature correction is extrapolated past where it holds (the library's steepest
+            # 2 deg e/A reaches the sensors' 30 deg e saturation at 15 A), errs by tens of degrees
+            # and outweighs pole offsets a few degrees apart. The reference firmware scored such a
+            # turn (edges at tens of amperes) and took the wrong electrical period for good (REQ-ROB-001
+            # at --hil-seed 3). The alignment waits for a turn within the limit
+            return
         best, best_var = 0, math.inf
         # the edges as corrected for everything the table holds: a real delay left in (133 us on a
         # spindle) makes the sectors far less even than a small pole table does, and so does the

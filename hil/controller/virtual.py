@@ -207,6 +207,7 @@ class VirtualController:
         self._normal_steps = 6  # Hall steps in a row since the last lost edge
         self._resync_pending = False
         self._last_t: float | None = None
+        self._last_current_a = 0.0  #: the current at the last motion edge
         #: the last mechanical turn's sector intervals, oldest first (the missing-edge references), each
         #: with whether it was measured (False: a reference put in place of an interval that spanned
         #: lost edges, or of a glitch)
@@ -284,8 +285,17 @@ class VirtualController:
                     # read as lost edges, the edge count ran away and the corrections with it
                     dt, measured = ref, False
                     self._intervals.clear()  # a step that was not a sector: the history is out of line
+                if max(edge.get("current_a", 0.0), self._last_current_a) > self.current_limit_a:
+                    # an edge of it saw more current than the speed loop's limit (a start-up's late
+                    # commutations): its time moved by an armature lag the motor under control never
+                    # has, so the interval is no measurement of its sector for the next turn (a
+                    # start-up sector shortened by 22 A, the same-sector reference a turn later, read
+                    # a normal sector as a lost edge in the reference firmware: a false MISSING_EDGE,
+                    # REQ-ROB-001 at --hil-seed 1)
+                    measured = False
                 self._intervals.append((dt, measured))
             self._last_t = t
+            self._last_current_a = edge.get("current_a", 0.0)
             self._edges_since_motion = 0
         if self._resync_pending and self._normal_steps >= 6:
             # a full electrical period of normal Hall steps after lost edges: the edge count is

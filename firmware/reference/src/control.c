@@ -414,12 +414,24 @@ static float adc_current_at(int64_t t)
             transient_mean_abs(lo_at, i0, seconds(t - lo), &m, &ext)) {
             int64_t end = lo + (int64_t)(ext * (float)TIMER_HZ) + ADC_RAMP_TICKS / 9;
             const conversion_t *near = 0;
+            const conversion_t *clean = 0; /* the segment's first conversion after the transient */
             if (end < lo + ADC_RAMP_TICKS) end = lo + ADC_RAMP_TICKS;
             if (end > hi) end = hi;
-            if (t < end) {
-                for (j = 0; j < adc_n; j++) { /* the conversion within the transient nearest t (the capture's) */
+            for (j = 0; j < adc_n; j++) {
+                const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
+                if (c->t >= end && c->t < hi && (!clean || c->t < clean->t)) clean = c;
+            }
+            /* within the transient, or after it but before the segment's first conversion after it:
+               the line below would run through a conversion taken within the transient (at 10,000
+               rpm the outgoing current dies 13 us after the commutation, beyond the 9 us ramp) or
+               hold the first conversion after it, tens of microseconds later. Read there, a 13 us
+               transient's dip left the edge current 0.49 A high (1.32 deg e/A: REQ-ROB-001 at
+               --hil-seed 1, sector 1 commutated 0.5 deg e early every electrical period); the model
+               follows the incoming pair's current from the transient's end */
+            if (t < end || !clean || t < clean->t) {
+                for (j = 0; j < adc_n; j++) { /* the conversion within the transient nearest t, or that first one */
                     const conversion_t *c = &adc_ring[(adc_head + j) % ADC_RING];
-                    if (c->t <= lo || c->t >= end) continue;
+                    if (c->t <= lo || (c->t >= end && c != clean)) continue;
                     if (!near || llabs(c->t - t) < llabs(near->t - t)) near = c;
                 }
                 if (near && transient_mean_abs(lo_at, i0, seconds(near->t - lo), &mc, &ec)) {
@@ -477,6 +489,7 @@ static struct {
     uint8_t resync_pending;
     uint8_t has_last_t;
     int64_t last_t;
+    float last_current_a;  /* the current at the last motion edge */
     float iv_dt[EDGES_PER_TURN];
     uint8_t iv_measured[EDGES_PER_TURN];
     int iv_n, iv_head;
@@ -600,6 +613,16 @@ static void sync_poles(void)
     int k, shift, best = 0;
     const hist_t *first;
     if (L.pole_shift >= 0 || L.hist_n < 2 * N + 1) return;
+    /* a turn whose edges saw more current than the speed loop's limit is no turn of the motor under
+       control (a start-up's late commutations run to tens of amperes): there the linear armature
+       correction is extrapolated past where it holds (the sensors' shift saturates at 30 deg e,
+       which the library's steepest 2 deg e/A reaches at 15 A), errs by tens of degrees and
+       outweighs pole offsets a few degrees apart. Scored anyway (edges at tens of amperes), the
+       alignment took the wrong electrical period for good (REQ-ROB-001, --hil-seed 3 once the
+       start-up guard read the captured interval: 6.1 deg e p99). It waits for a turn within the
+       limit */
+    for (k = 1; k <= N + 1; k++)
+        if (hist_back(k)->current_a > CURRENT_LIMIT_A) return;
     first = hist_back(N + 1);
     for (k = 0; k <= N; k++) t_rel[k] = seconds(hist_back(N + 1 - k)->t - first->t);
     w = 360.0f * (float)POLE_PAIRS / t_rel[N];
@@ -765,11 +788,18 @@ static void hc_on_edge(int64_t t, uint8_t x, uint8_t rising, uint8_t levels, flo
         L.has_sched = 1u;
         L.sched_sector = (int8_t)((sector + 1) % 6);
         L.sched_at = at;
-        if (!got && t_corr - L.hc_last_corr_t < MIN_SECTOR_TICKS) {
-            /* not the Python controller's: an interval shorter than half a sector at the highest set
-               point is no sector (a sensor's edge moved back and forth at start-up, before any
-               reference interval); 60 deg e after it would commutate a sector early for a whole
-               sector. Commutated from the pins only; the next edge schedules again */
+        if (!got && t - L.hc_last_t < MIN_SECTOR_TICKS) {
+            /* not the Python controller's: a captured interval shorter than half a sector at the
+               highest set point is no sector (a sensor's edge moved back and forth at start-up,
+               before any reference interval); 60 deg e after it would commutate a sector early for
+               a whole sector. Commutated from the pins only; the next edge schedules again. The
+               captured interval, not the corrected one: the armature correction shortens the
+               corrected interval by slope x current, and at a start-up's tens of amperes (2 deg e/A
+               x 26 A, 49 deg e) a whole sector read as a bounce; withholding the commutation the
+               correction said was due left the winding commutated late until the next edge (which
+               the same current delays), the current ran to 130 A over a mechanical turn and the pole
+               alignment learned in it took the wrong electrical period (REQ-ROB-001, --hil-seed 2:
+               7.34 deg e p99) */
             L.has_sched = 0u;
             L.hc_has_last = 1u;
             L.hc_last_t = t;
@@ -946,10 +976,19 @@ void ctl_hall_isr(uint32_t count, uint8_t pin, uint8_t levels, const int16_t adc
                     iv_clear();
                 }
             }
+            if (current_a > CURRENT_LIMIT_A || L.last_current_a > CURRENT_LIMIT_A) {
+                /* an edge of it saw more current than the speed loop's limit (a start-up's late
+                   commutations): its time moved by an armature lag the motor under control never
+                   has, so the interval is no measurement of its sector for the next turn (a start-up
+                   sector shortened by 22 A, the same-sector reference a turn later, read a normal
+                   sector as a lost edge: a false 0xFF02, REQ-ROB-001 at --hil-seed 1) */
+                measured = 0u;
+            }
             iv_push(dt, measured);
         }
         L.has_last_t = 1u;
         L.last_t = t;
+        L.last_current_a = current_a;
         L.edges_since_motion = 0;
     }
     if (L.resync_pending && L.normal_steps >= 6) {
