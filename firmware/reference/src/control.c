@@ -1124,6 +1124,11 @@ void ctl_power_on(uint8_t levels)
     command_t c;
     tb_valid = 0u;
     n_queue = 0;
+    /* the commutation ring and the outputs as at power-on: a ring kept from before the power cycle
+       holds instants of the previous time base, which the edge current's segments would read */
+    n_switch = switch_head = 0;
+    out_gates = 0u;
+    out_duty = 0.0f;
     adc_n = adc_head = 0;
     cycle_sum[0] = cycle_sum[1] = cycle_sum[2] = 0;
     cycle_n = 0u;
