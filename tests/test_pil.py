@@ -29,6 +29,16 @@ CLOCK_HZ = 100_000_000  #: the stand-in core's clock: 100 cycles a microsecond
 TABLE = CORES["cortex-m4f"].cycles  #: exception entry 12, return 10 cycles
 
 
+@pytest.fixture(scope="module", autouse=True)
+def _cache(tmp_path_factory):
+    """One build cache for the module's firmware runs (each build of the reference firmware takes
+    seconds; the user's cache stays untouched)."""
+    mp = pytest.MonkeyPatch()
+    mp.setenv("HIL_SIL_CACHE", str(tmp_path_factory.mktemp("sil-cache")))
+    yield
+    mp.undo()
+
+
 # --- the kind and its bad input ---------------------------------------------------------------------
 def test_pil_is_one_declaration_beside_sil_and_takes_the_same_keys_and_a_target():
     pil, sil = KINDS["pil"], KINDS["sil"]
@@ -235,13 +245,12 @@ def test_a_requirement_of_the_part_is_not_applicable_to_another_kind_never_passe
 
 
 # --- the reference firmware on the emulated core ----------------------------------------------------------
-def test_the_reference_firmware_runs_closed_loop_on_the_emulated_core(tmp_path, monkeypatch):
+def test_the_reference_firmware_runs_closed_loop_on_the_emulated_core():
     """30 ms at 6000 rpm: the gates commutate the plant, every interrupt kind ran with its cycles,
     and the schedule measured a load (the figures themselves are the report's, docs/processor-in-the-loop.md)."""
     from hil.bench.lockstep import LockstepBench
     from hil.dut.spec import open_dut
 
-    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
     with open_dut(parse_dut(f"pil:{REFERENCE}"), MotorParameters()) as dut:
         config = PlantConfig()
         dut.link.reset()
@@ -261,8 +270,7 @@ def test_the_reference_firmware_runs_closed_loop_on_the_emulated_core(tmp_path, 
     assert 0 < core["stack"]["high_water_bytes"] < core["stack"]["stack_bytes"]
 
 
-def test_an_interrupt_and_the_read_of_what_it_left_are_one_emulated_call_with_the_figures_of_two(tmp_path,
-                                                                                                 monkeypatch):
+def test_an_interrupt_and_the_read_of_what_it_left_are_one_emulated_call_with_the_figures_of_two():
     """The reference firmware, 20 ms at 6000 rpm, in this process: each interrupt returning into the
     framework's output read (one emulated call) gives the same commutations, cycles, instructions,
     per-interrupt cycles and stack as the interrupt and a separate read (two calls), through the C
@@ -271,7 +279,6 @@ def test_an_interrupt_and_the_read_of_what_it_left_are_one_emulated_call_with_th
     from hil.pil.target import read_target
     from hil.sil.processor import resolve_elf
 
-    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
     elf, target_file, *_ = resolve_elf(parse_dut(f"pil:{REFERENCE}"))
     config = PlantConfig()
     duty = steady_state(config.motor, 6000.0)["duty"]
@@ -295,7 +302,7 @@ def test_an_interrupt_and_the_read_of_what_it_left_are_one_emulated_call_with_th
     assert seen[0] == seen[1] == seen[2]
 
 
-def test_the_reference_firmwares_compare_changes_the_gates_at_the_commands_instant(tmp_path, monkeypatch):
+def test_the_reference_firmwares_compare_changes_the_gates_at_the_commands_instant():
     """The reference firmware on the emulated M4F, 30 ms at 10000 rpm: the compare interrupt, at the
     highest priority (sil.toml), is never preempted; on its path that disarms the unit (every
     commutation here), started at its match, its gates change within half a timer tick of the
@@ -306,7 +313,6 @@ def test_the_reference_firmwares_compare_changes_the_gates_at_the_commands_insta
     from hil.sil.peripherals import COMPARE
     from hil.sil.processor import resolve_elf
 
-    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
     elf, target_file, *_ = resolve_elf(parse_dut(f"pil:{REFERENCE}"))
     target = read_target(target_file)
     latency_ticks = next(int(f.split("=")[1]) for f in target.flags if f.startswith("-DCOMPARE_LATENCY_TICKS="))
@@ -346,7 +352,7 @@ def test_the_reference_firmwares_compare_changes_the_gates_at_the_commands_insta
     assert max(abs(x) for x in late_s) <= 0.5 * tick_s, f"gates {min(late_s) * 1e6:+.3f}..{max(late_s) * 1e6:+.3f} us"
 
 
-def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fresh_core(tmp_path, monkeypatch):
+def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fresh_core():
     """The six-step test firmware's seeded null write at its 5000th control interrupt (t = 0.25 s):
     on the part a BusFault, named with its function, source line, simulated instant and counter; the
     next bench runs on a freshly loaded core."""
@@ -354,7 +360,6 @@ def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fres
     from hil.dut.spec import open_dut
     from hil.sil.link import FirmwareFault
 
-    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
     sixstep = Path(__file__).parent / "data" / "sil" / "sixstep"
     config = PlantConfig()
     duty = steady_state(config.motor, 6000.0)["duty"]
@@ -371,7 +376,7 @@ def test_a_processor_fault_fails_the_test_naming_it_and_the_next_run_gets_a_fres
         assert again.sim.interrupts["control"] >= 399
 
 
-def test_a_power_cycle_leaves_nothing_of_the_run_before_it(tmp_path, monkeypatch):
+def test_a_power_cycle_leaves_nothing_of_the_run_before_it():
     """The reference firmware on the emulated M4F: the same 30 ms at 6000 rpm after a power cycle
     commutates at the same instants as after its first power-on (what a run leaves in RAM, but the
     NVM the firmware keeps on purpose, is gone: a commutation ring kept across the power cycle, its
@@ -381,7 +386,6 @@ def test_a_power_cycle_leaves_nothing_of_the_run_before_it(tmp_path, monkeypatch
     from hil.pil.target import read_target
     from hil.sil.processor import resolve_elf
 
-    monkeypatch.setenv("HIL_SIL_CACHE", str(tmp_path))
     elf, target_file, *_ = resolve_elf(parse_dut(f"pil:{REFERENCE}"))
     config = PlantConfig()
     duty = steady_state(config.motor, 6000.0)["duty"]
