@@ -183,6 +183,20 @@ def test_a_forked_run_has_its_arguments_environment_and_exit_code_and_is_killed_
     assert run_pytest(args + ["-k", "sleep"], 2.0, {**os.environ, "HIL_Q_SLEEP": "60"}) == (None, "")
 
 
+def test_a_runs_time_limit_scales_with_its_dut_kind_and_can_be_given():
+    """The limit on one run is a safety net against a hang: a kind whose runs take longer gets a
+    longer one (pil: runs every instruction of the firmware on an emulated core), and
+    ``--run-limit-s`` overrides it."""
+    from types import SimpleNamespace
+
+    from hil.qualify.run import RUN_TIMEOUT_S, run_limit_s
+
+    assert run_limit_s(SimpleNamespace(dut="virtual:modbus", run_limit_s=None)) == RUN_TIMEOUT_S
+    assert run_limit_s(SimpleNamespace(dut="sil:firmware/reference", run_limit_s=None)) == RUN_TIMEOUT_S
+    assert run_limit_s(SimpleNamespace(dut="pil:firmware/reference", run_limit_s=None)) == 4 * RUN_TIMEOUT_S
+    assert run_limit_s(SimpleNamespace(dut="pil:firmware/reference", run_limit_s=90.0)) == 90.0
+
+
 def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
     r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "-o", str(tmp_path))
     assert r.returncode == 2 and "built-in controller" in r.stderr

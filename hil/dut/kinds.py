@@ -48,6 +48,10 @@ class DutKind:
     local: bool = False
     #: ``module:function(text, options)``: further checks of the options, raising DutSpecError
     check: str = ""
+    #: a whole-suite run of this kind takes up to this many times a virtual controller's wall time:
+    #: ``hil qualify``'s limit on one run (a safety net against a hung run, never a verdict on speed)
+    #: scales with it
+    run_time_factor: float = 1.0
 
     def open(self, spec, motor, controller=None):
         return _function(self.opener)(spec, motor, controller)
@@ -122,6 +126,10 @@ _DECLARED = (
         "pil", _keys(**{**_FIRMWARE, "hang": (float, 60.0)}, target=(str, "")),
         protocol="sil", profile_form="canopen", opener="hil.sil:open_dut", check="hil.sil:check_options",
         path_first=True, firmware=True, local=True,
+        # an emulated core runs every instruction of the firmware: a suite run takes about 3x sil:'s wall
+        # time (docs/processor-in-the-loop.md, "Speed"), which took about the virtual controller's; under
+        # the default 1200 s the whole suite on pil: was stopped on a loaded 2-core host (INCOMPLETE)
+        run_time_factor=4.0,
         summary="the same firmware built for its Cortex-M part and run on an emulated core: a folder whose "
                 "sil.toml has a [target] table, or an ELF with target=FILE.toml (docs/processor-in-the-loop.md)",
         forms=("pil:firmware/reference", "pil:build/pump.elf,target=target.toml"),

@@ -69,8 +69,18 @@ SUITE_ORDER = (
     "test_current.py",
     "test_fault_injection.py",
 )
-#: a run that has not finished after this long is stopped and reported as undecided
+#: a run that has not finished after this long (times the DUT kind's ``run_time_factor``, or
+#: ``--run-limit-s``) is stopped and reported as undecided
 RUN_TIMEOUT_S = 1200.0
+
+
+def run_limit_s(args) -> float:
+    """The wall time one run may take before it is stopped: ``--run-limit-s``, else RUN_TIMEOUT_S
+    scaled by the DUT kind's ``run_time_factor`` (``hil.dut.kinds``)."""
+    from ..dut.kinds import KINDS
+
+    given = getattr(args, "run_limit_s", None)
+    return float(given) if given else RUN_TIMEOUT_S * KINDS[_kind(args.dut)].run_time_factor
 
 
 @dataclass
@@ -398,9 +408,10 @@ def _run(name: str, description: str, defect: str | None, args) -> Run:
     cmd += suite_files(Path(args.suite))
     started = time.monotonic()
     note = ""
-    code, output = run_pytest(cmd, RUN_TIMEOUT_S, {**os.environ, "PYTHONUNBUFFERED": "1"})
+    limit_s = run_limit_s(args)
+    code, output = run_pytest(cmd, limit_s, {**os.environ, "PYTHONUNBUFFERED": "1"})
     if code is None:
-        note = f"stopped after {RUN_TIMEOUT_S:.0f} s"
+        note = f"stopped after {limit_s:.0f} s (the run time limit, --run-limit-s)"
     duration = time.monotonic() - started
     report_json = report_dir / "hil-report.json"
     if not report_json.is_file():
