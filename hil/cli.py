@@ -1089,7 +1089,7 @@ def _parser_qualify(sub) -> None:
     p.add_argument("--suite", help="the acceptance suite: a directory (default: ./test_cases)")
     p.add_argument("--run-limit-s", type=float, metavar="S",
                    help="stop a run still going after S seconds of wall time, reported as undecided (default: "
-                        "1200 s times the DUT kind's run time factor: 4 for pil:, whose core runs every instruction)")
+                        "3600 s times the DUT kind's run time factor: 4 for pil:, whose core runs every instruction)")
     grammar.add_json(p, "the result")
     p.add_argument("--list", action="store_true", help="list the defects and exit")
     p.add_argument("--sensitivity", action="store_true",

@@ -128,7 +128,7 @@ _DECLARED = (
         path_first=True, firmware=True, local=True,
         # an emulated core runs every instruction of the firmware: a suite run takes about 3x sil:'s wall
         # time (docs/processor-in-the-loop.md, "Speed"), which took about the virtual controller's; under
-        # the default 1200 s the whole suite on pil: was stopped on a loaded 2-core host (INCOMPLETE)
+        # the former 1200 s the whole suite on pil: was stopped on a loaded 2-core host (INCOMPLETE)
         run_time_factor=4.0,
         summary="the same firmware built for its Cortex-M part and run on an emulated core: a folder whose "
                 "sil.toml has a [target] table, or an ELF with target=FILE.toml (docs/processor-in-the-loop.md)",

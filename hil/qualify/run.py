@@ -70,8 +70,11 @@ SUITE_ORDER = (
     "test_fault_injection.py",
 )
 #: a run that has not finished after this long (times the DUT kind's ``run_time_factor``, or
-#: ``--run-limit-s``) is stopped and reported as undecided
-RUN_TIMEOUT_S = 1200.0
+#: ``--run-limit-s``) is stopped and reported as undecided. A safety net against a hung run, never a
+#: verdict on speed: an hour, about ten times the whole suite's run on a quiet 2-core machine. At
+#: 1200 s the release check's qualify control run (the whole suite, beside other work at a load of
+#: about 8 on 2 cores) was stopped, and its figure read INCOMPLETE where the code passes
+RUN_TIMEOUT_S = 3600.0
 
 
 def run_limit_s(args) -> float:

@@ -528,11 +528,12 @@ def _recompute_and_compare(data: dict, chosen: list[Group], jobs: int = 1) -> di
 
 
 def _record_release_check(data: dict, chosen: list[Group], differ: dict[str, list[str]], duration_s: float,
-                          jobs: int = 1) -> None:
-    """``--check --all``: the record the docs show (README.md, "Published figures"), kept in the file."""
+                          jobs: int = 1, commit: str | None = None) -> None:
+    """``--check --all``: the record the docs show (README.md, "Published figures"), kept in the file;
+    ``commit``: the code checked, as the check began (default: HEAD now)."""
     record = {
         "date": datetime.now(timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-        "commit": _commit(),
+        "commit": commit or _commit(),
         "groups": [g.name for g in chosen],
         "agreed": [name for name, lines in differ.items() if not lines],
         "duration_s": round(duration_s, 1),
@@ -565,10 +566,11 @@ def check(data: dict, only: list[str] | None = None, every: bool = False, jobs: 
             print(f"figures: {g.name}: {stale[g.name]}: "
                   + ("recomputing" if g in chosen else "NOT recomputed here (outside --only)"), flush=True)
     t0 = time.perf_counter()
+    checked = _commit()  # the code checked, taken before the groups run (a run may touch files)
     differ = _recompute_and_compare(data, chosen, jobs)
     bad += [line for lines in differ.values() for line in lines]
     if every:
-        _record_release_check(data, chosen, differ, time.perf_counter() - t0, jobs)
+        _record_release_check(data, chosen, differ, time.perf_counter() - t0, jobs, checked)
     unchecked = sorted(set(stale) - {g.name for g in chosen})
     if bad:
         print("\n".join(bad))
