@@ -623,6 +623,8 @@ def cmd_qualify(args) -> int:
         if args.workers == "auto":
             args.workers = os.cpu_count() or 1
         args.only = [n.strip() for n in args.only.split(",") if n.strip()] if args.only else None
+        if args.run_limit_s is not None and not args.run_limit_s > 0:  # NaN too
+            raise ValueError(f"--run-limit-s {args.run_limit_s:g}: give the seconds a run may take, above 0")
         suite = find_suite(args.suite)
         args.suite = str(suite if suite.is_dir() else suite.parent)
         print(f"hil qualify: {len(args.only or catalogue)} defects against {args.dut}, {args.workers} at a time; "

@@ -202,6 +202,8 @@ def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
     assert r.returncode == 2 and "built-in controller" in r.stderr
     r = _hil("qualify", "--only", "no-such-defect", "-o", str(tmp_path))
     assert r.returncode == 2 and "unknown defect(s) no-such-defect" in r.stderr
+    r = _hil("qualify", "--run-limit-s", "-5", "-o", str(tmp_path))
+    assert r.returncode == 2 and "--run-limit-s -5: give the seconds a run may take, above 0" in r.stderr
 
 
 def test_a_failure_is_an_assertion_only_when_a_judged_bound_was_missed():

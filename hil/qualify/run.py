@@ -83,7 +83,7 @@ def run_limit_s(args) -> float:
     from ..dut.kinds import KINDS
 
     given = getattr(args, "run_limit_s", None)
-    return float(given) if given else RUN_TIMEOUT_S * KINDS[_kind(args.dut)].run_time_factor
+    return float(given) if given is not None else RUN_TIMEOUT_S * KINDS[_kind(args.dut)].run_time_factor
 
 
 @dataclass

@@ -676,6 +676,8 @@ def main(argv: list[str] | None = None) -> int:
     args = ap.parse_args(argv)
     if args.all and not args.check:
         ap.error("--all goes with --check (plain `python tools/figures.py` computes every group)")
+    if args.jobs < 1:
+        ap.error(f"-j {args.jobs}: give a number of groups at once, 1 or more")
     data = load()
     if args.unmarked:
         return _list_unmarked(data)
@@ -689,6 +691,4 @@ def main(argv: list[str] | None = None) -> int:
         chosen = [g for g in GROUPS if g.name in args.only]
     else:
         chosen = [g for g in GROUPS if g.quick or not args.quick]
-    if args.jobs < 1:
-        ap.error(f"-j {args.jobs}: give a number of groups at once, 1 or more")
     return _compute_and_write(data, chosen, args.quick, args.jobs)
