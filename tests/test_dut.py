@@ -262,3 +262,26 @@ def test_the_window_reaches_what_the_profile_declares_else_the_downloaded_table_
     assert adc_reach_s(link) == max(corrections.conditioning_delay_s.values()) > 0
     link.profile = dataclasses.replace(profile, edge_hook=dataclasses.replace(profile.edge_hook, adc_reach_s=30e-6))
     assert adc_reach_s(link) == 30e-6
+
+
+def test_a_set_points_edge_jitter_is_the_plants_from_that_set_point_on(corrections):
+    """REQ-PRED-002's noisy profile changes the edges' jitter with each set point: the edges of the
+    second hold carry the second jitter (plant truth: each edge's stamp error, edge to edge within
+    its class), the first hold's none."""
+    b, _, _ = bench(Strategy.CORRECTED, corrections)
+    with pytest.raises(ValueError, match="1 values for 2 set points"):
+        b.run_setpoints([6000.0, 6000.0], hold_s=0.1, edge_jitter_s=[0.0])
+    jitter_s = 20e-6
+    steps = b.run_setpoints([6000.0, 6000.0], hold_s=0.15, settle_s=0.1, edge_jitter_s=[0.0, jitter_s])
+    assert b.sim.edge_jitter_s == jitter_s
+    e = b.sim.edges()
+    pp = CONFIG.motor.pole_pairs
+    error_s = np.radians(e.stamp_error_deg_e(pp)) / (6000.0 / 60.0 * 2.0 * np.pi * pp)
+    classes = (e.sensor * 2 + e.rising) * pp + e.pole
+    noise_s = []
+    for lo, hi in ((steps[0], steps[1]), (steps[1] + 0.01, np.inf)):
+        keep = (e.t_capture_s >= lo) & (e.t_capture_s < hi)
+        diffs = np.concatenate([np.diff(error_s[keep & (classes == k)]) for k in np.unique(classes)])
+        noise_s.append(float(np.sqrt(np.var(diffs) / 2.0)))
+    assert noise_s[0] < 0.2 * jitter_s  # before: the plant's own (none configured beyond the timer's)
+    assert noise_s[1] == pytest.approx(jitter_s, rel=0.25)  # after: the set point's

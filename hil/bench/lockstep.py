@@ -139,13 +139,20 @@ class LockstepBench:
         c = self.sim.commutations()
         return c.error_deg_e[c.t_s >= since_s]
 
-    def run_setpoints(self, setpoints_rpm, hold_s: float, settle_s: float = 0.5) -> list[float]:
-        """Hold each set point for ``hold_s`` after ``settle_s`` at the first; returns the step instants."""
+    def run_setpoints(self, setpoints_rpm, hold_s: float, settle_s: float = 0.5,
+                      edge_jitter_s=None) -> list[float]:
+        """Hold each set point for ``hold_s`` after ``settle_s`` at the first; returns the step instants.
+        ``edge_jitter_s``, one per set point, sets the plant's Hall edge time jitter (s RMS) as each
+        set point begins (the settling keeps the plant's own)."""
+        if edge_jitter_s is not None and len(edge_jitter_s) != len(setpoints_rpm):
+            raise ValueError(f"edge_jitter_s: {len(edge_jitter_s)} values for {len(setpoints_rpm)} set points")
         self.link.set_speed(setpoints_rpm[0])
         self.sim.run_until(self.sim.t_s + settle_s)
         steps = []
-        for rpm in setpoints_rpm:
+        for k, rpm in enumerate(setpoints_rpm):
             steps.append(self.sim.t_s)
+            if edge_jitter_s is not None:
+                self.sim.set_edge_jitter(edge_jitter_s[k])
             self.link.set_speed(rpm)
             self.sim.run_until(steps[-1] + hold_s)
         return steps

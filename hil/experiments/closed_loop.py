@@ -152,10 +152,11 @@ class _EdgeTap:
 
 def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S,
                 strategy: Strategy = Strategy.SAGE_HUSA, filter_settings=None,
-                setpoints_rpm=SETPOINTS_RPM, settle_s: float = SETTLE_S) -> Recording:
+                setpoints_rpm=SETPOINTS_RPM, settle_s: float = SETTLE_S, edge_jitter_s=None) -> Recording:
     """The scenario through ``link`` (a ControllerLink to a controller for ``config.motor``) with
     ``strategy`` commutating; ``filter_settings`` (b, Q0, R0, P0) written first when given;
-    ``setpoints_rpm``: the operating profile (default: the paper's seven steps)."""
+    ``setpoints_rpm``: the operating profile (default: the paper's seven steps); ``edge_jitter_s``:
+    the edges' jitter from each set point on (default: the plant's own throughout)."""
 
     link.reset()
     if filter_settings is not None:
@@ -174,7 +175,7 @@ def record_link(link, config, corrections, seed: int = 0, hold_s: float = HOLD_S
         seed=seed,
         sim_options={"max_step_s": acceptance_max_step_s(config)},
     )
-    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=hold_s, settle_s=settle_s)
+    steps = bench.run_setpoints(list(setpoints_rpm), hold_s=hold_s, settle_s=settle_s, edge_jitter_s=edge_jitter_s)
     c = bench.sim.commutations()
     status = link.status()
     edges = bench.sim.edges()

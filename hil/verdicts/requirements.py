@@ -298,9 +298,10 @@ _REGISTRY = (
     ),
     Requirement(
         "REQ-PRED-002", "The Sage-Husa predictor is no worse than the fixed-noise Kalman filter",
-        "`test_sage_husa.py`: Sage–Husa and the KF on the same plant and seeds, six seeds on each of three operating "
-        "profiles (the paper's seven set points 5000-10,000 rpm, 3000-6000, 9000-14,000 rpm); each profile its own "
-        "verdict, its limit derived for the commutations it judged",
+        "`test_sage_husa.py`: Sage–Husa and the KF on the same plant and seeds, six seeds on each of four operating "
+        "profiles (the paper's seven set points 5000-10,000 rpm, 3000-6000, 9000-14,000 rpm, and the paper's set "
+        "points with the edge jitter 3 and 9 us in turn); each profile its own verdict, its limit derived for the "
+        "commutations it judged",
         _PRED_DOC, (*_BENCH, *FILTER_SETTINGS), edge_hook=True,
         budgets=(DefaultBudget(
             'sage_husa_over_kf_angle_rms', 'ratio',

@@ -14,8 +14,8 @@ def produce_req_pred_002_spread(work: Path) -> Run:
     profile over ten held-out seeds, in-process (``tools/req_pred_002_spread.py``)."""
     run = Run(seeds=list(range(10)))
     out = run_tool(run, "req_pred_002_spread.py").stdout
-    profiles = re.findall(r"\n(\w+) ([\d,\- ]+rpm), acceptance plant.*?\nSH/KF of the mean RMS ([\d.]+); per seed "
-                          r"([\d.]+)-([\d.]+) .*?SH ahead on (\d+) of (\d+)", out, re.S)
+    profiles = re.findall(r"\n(\w+) ([\d,\- ]+rpm[^\n]*?), acceptance plant.*?\nSH/KF of the mean RMS ([\d.]+); "
+                          r"per seed ([\d.]+)-([\d.]+) .*?SH ahead on (\d+) of (\d+)", out, re.S)
     pooled = re.search(r"pooled SH/KF over (\d+) runs: ([\d.]+); per run ([\d.]+)-([\d.]+); leaving one seed out "
                        r"([\d.]+)-([\d.]+)", out)
     if not profiles or not pooled:
