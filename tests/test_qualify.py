@@ -96,10 +96,12 @@ def _pytest(args: list[str], cwd: Path = ROOT, timeout_s: float = 600.0) -> str:
     return output
 
 
-def test_qualify_lists_its_catalogue():
-    r = _hil("qualify", "--list")
-    assert r.returncode == 0, r.stderr
-    assert all(name in r.stdout for name in CATALOGUE)
+def test_qualify_lists_its_catalogue(capsys):
+    from hil.cli import main
+
+    assert main(["qualify", "--list"]) == 0
+    out = capsys.readouterr().out
+    assert all(name in out for name in CATALOGUE)
 
 
 def test_qualify_runs_the_control_and_each_defect_and_says_what_caught_it(tmp_path):
@@ -197,13 +199,19 @@ def test_a_runs_time_limit_scales_with_its_dut_kind_and_can_be_given():
     assert run_limit_s(SimpleNamespace(dut="pil:firmware/reference", run_limit_s=90.0)) == 90.0
 
 
-def test_qualify_refuses_a_real_controller_and_an_unknown_defect(tmp_path):
-    r = _hil("qualify", "--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1", "-o", str(tmp_path))
-    assert r.returncode == 2 and "built-in controller" in r.stderr
-    r = _hil("qualify", "--only", "no-such-defect", "-o", str(tmp_path))
-    assert r.returncode == 2 and "unknown defect(s) no-such-defect" in r.stderr
-    r = _hil("qualify", "--run-limit-s", "-5", "-o", str(tmp_path))
-    assert r.returncode == 2 and "--run-limit-s -5: give the seconds a run may take, above 0" in r.stderr
+@pytest.mark.parametrize("args, says", [
+    (["--dut", "modbus-tcp:host=127.0.0.1,port=1502,unit=1"], "built-in controller"),
+    (["--only", "no-such-defect"], "unknown defect(s) no-such-defect"),
+    (["--run-limit-s", "-5"], "--run-limit-s -5: give the seconds a run may take, above 0"),
+])
+def test_qualify_refuses_a_real_controller_an_unknown_defect_and_a_run_limit_not_above_0(tmp_path, capsys, args,
+                                                                                          says):
+    """Refused before anything runs (in this process: the CLI's main, as ``python -m hil`` calls it)."""
+    from hil.cli import main
+
+    code = main(["qualify", *args, "-o", str(tmp_path)])
+    assert code == 2 and says in capsys.readouterr().err
+    assert not any(tmp_path.iterdir())  # nothing ran, nothing written
 
 
 def test_a_failure_is_an_assertion_only_when_a_judged_bound_was_missed():
