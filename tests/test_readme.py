@@ -79,4 +79,3 @@ def test_the_plant_snippet_runs():
     exec(compile(block, "docs/plant.md", "exec"), namespace)
     edges = namespace["edges"]
     assert len(edges.capture_error_deg_e) > 500 and namespace["samples"] is not None
-
