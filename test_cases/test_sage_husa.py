@@ -238,9 +238,10 @@ def test_sage_husa_is_no_worse_than_the_tuned_kf(profile, calibrate, hil_bench, 
     """Against the controller's fixed-noise Kalman filter, both from the same tuning on training
     pumps (docs/sage-husa.md, "Peers"), over held-out seeds on each of four operating profiles (the
     fourth, noisy, with an edge noise that changes from set point to set point: where a filter must
-    learn R, and one whose R is stuck falls behind); each profile is a verdict (and a test) of its own (a pooled ratio would let a profile where
-    Sage-Husa is far ahead carry one where it is behind; as tests of their own they run side by side
-    on the suite's workers), its limit derived for the commutations it judged."""
+    learn R, and one whose R is stuck falls behind); each profile is a verdict (and a test) of its
+    own (a pooled ratio would let a profile where Sage-Husa is far ahead carry one where it is behind;
+    as tests of their own they run side by side on the suite's workers), its limit derived for the
+    commutations it judged."""
     from hil.experiments.controller_tuning import PROFILES
     from hil.verdicts.budget_sources import PRED_002_PROFILES, sage_husa_over_kf_limit_for
 
