@@ -56,6 +56,18 @@ class EdgeLog:
         """Angle error of the edge as the controller's timer stamped it, positive = trails."""
         return self.direction * (self.theta_e_stamp_deg(pole_pairs) - self.ideal_angle_deg_e)
 
+    def stamp_noise_variance_rad2(self, pole_pairs: int) -> float:
+        """The variance of the captured edges' angle noise (rad^2, plant truth): each edge's angle
+        error at the instant the timer stamped it, within its class (sensor, polarity, pole), as half
+        the variance of the differences between consecutive edges of the class (a drift of the
+        class's mean over the run, a slowly changing current's lag, is not noise); NaN with fewer
+        than two differences."""
+        error_rad = np.radians(self.stamp_error_deg_e(pole_pairs))
+        classes = self.sensor * 4 * pole_pairs + self.rising * 2 * pole_pairs + self.pole
+        diffs = [np.diff(error_rad[classes == k]) for k in np.unique(classes)]
+        diffs = np.concatenate([d for d in diffs if d.size]) if diffs else np.array([])
+        return float(np.var(diffs) / 2.0) if diffs.size > 1 else float("nan")
+
     def take(self, index) -> "EdgeLog":
         return EdgeLog(**{f.name: getattr(self, f.name)[index] for f in fields(self)})
 

@@ -8,7 +8,7 @@ and the timer quantises the capture. The plant knows those too: each captured ed
 against its ideal edge (at the instant the timer stamped), less its own class's mean (sensor,
 polarity, pole: what a calibration table holds), is the edge's noise; half the variance of its
 edge-to-edge differences within a class is that noise's variance, slow drifts left out
-(``plant_edge_noise_rad2``). A controller can take some of the current's part out (it corrects
+(``EdgeLog.stamp_noise_variance_rad2``). A controller can take some of the current's part out (it corrects
 each edge for the lag at the current it measured there) and none of the jitter, so the truth is
 the interval from the jitter's variance to the plant's whole edge noise. The controller runs
 its Sage-Husa strategy at 8000 rpm with paper-sized deviations calibrated and downloaded; the
@@ -57,22 +57,10 @@ def read_edge_noise_rad2(link) -> float:
 _RUNS: dict = {}
 
 
-def plant_edge_noise_rad2(edges, pole_pairs: int) -> float:
-    """The variance of the captured edges' angle noise (rad^2, plant truth): each edge's angle error
-    at the instant the timer stamped it, within its class (sensor, polarity, pole), as half the
-    variance of the differences between consecutive edges of the class (a drift of the class's
-    mean over the run, a slowly changing current's lag, is not noise)."""
-    error_rad = np.radians(edges.stamp_error_deg_e(pole_pairs))
-    classes = edges.sensor * 4 * pole_pairs + edges.rising * 2 * pole_pairs + edges.pole
-    diffs = [np.diff(error_rad[classes == k]) for k in np.unique(classes)]
-    diffs = np.concatenate([d for d in diffs if d.size]) if diffs else np.array([])
-    return float(np.var(diffs) / 2.0) if diffs.size > 1 else float("nan")
-
-
 def learning_run(calibrate, hil_bench, hil_link, hil_seed, plant) -> np.ndarray:
     """The three phases: per poll, the phase, the edges captured since the phase began, the
     jitter's R_theta, the one read back, and the plant's whole edge noise over the phase (the
-    truth's two ends: ``plant_edge_noise_rad2``)."""
+    truth's two ends: ``EdgeLog.stamp_noise_variance_rad2``)."""
     key = (id(hil_link), hil_seed)
     if key in _RUNS:
         return _RUNS[key]
@@ -94,8 +82,8 @@ def learning_run(calibrate, hil_bench, hil_link, hil_seed, plant) -> np.ndarray:
             bench.sim.run_until(bench.sim.t_s + POLL_S)
             mine.append([phase, bench.sim.edge_count() - edges_at_start, (jitter_s * w_e) ** 2,
                          read_edge_noise_rad2(hil_link)])
-        whole = plant_edge_noise_rad2(bench.sim.edges().take(slice(edges_at_start, None)),
-                                      bench.config.motor.pole_pairs)
+        whole = bench.sim.edges().take(slice(edges_at_start, None)).stamp_noise_variance_rad2(
+            bench.config.motor.pole_pairs)
         polls += [row + [max(whole, row[2])] for row in mine]  # never below the jitter's own
     _RUNS[key] = np.array(polls)
     return _RUNS[key]

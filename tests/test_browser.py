@@ -32,6 +32,8 @@ IMG = ROOT / "docs" / "img"
 
 def screenshot_path(name: str, tmp_path: Path) -> Path:
     return (IMG if os.environ.get("HIL_README_SCREENSHOTS") == "1" else tmp_path) / name
+
+
 WIDTH_PX = 1400
 CHROMIUM = next((p for p in map(shutil.which, ("chromium", "chromium-browser", "google-chrome")) if p), None)
 pytestmark = pytest.mark.skipif(

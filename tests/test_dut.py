@@ -276,12 +276,8 @@ def test_a_set_points_edge_jitter_is_the_plants_from_that_set_point_on(correctio
     assert b.sim.edge_jitter_s == jitter_s
     e = b.sim.edges()
     pp = CONFIG.motor.pole_pairs
-    error_s = np.radians(e.stamp_error_deg_e(pp)) / (6000.0 / 60.0 * 2.0 * np.pi * pp)
-    classes = (e.sensor * 2 + e.rising) * pp + e.pole
-    noise_s = []
-    for lo, hi in ((steps[0], steps[1]), (steps[1] + 0.01, np.inf)):
-        keep = (e.t_capture_s >= lo) & (e.t_capture_s < hi)
-        diffs = np.concatenate([np.diff(error_s[keep & (classes == k)]) for k in np.unique(classes)])
-        noise_s.append(float(np.sqrt(np.var(diffs) / 2.0)))
+    w_e_rad_s = 6000.0 / 60.0 * 2.0 * np.pi * pp
+    noise_s = [math.sqrt(e.take((e.t_capture_s >= lo) & (e.t_capture_s < hi)).stamp_noise_variance_rad2(pp)) / w_e_rad_s
+               for lo, hi in ((steps[0], steps[1]), (steps[1] + 0.01, np.inf))]
     assert noise_s[0] < 0.2 * jitter_s  # before: the plant's own (none configured beyond the timer's)
     assert noise_s[1] == pytest.approx(jitter_s, rel=0.25)  # after: the set point's
