@@ -58,18 +58,30 @@ def simulate_edges(
 ) -> EdgeLog:
     """Captured edges (with ground truth) of ``profile`` run back to back."""
     cp = config.compile()
+    for index, op in enumerate(profile):
+        op.check(index)
+    if not profile:
+        return EdgeLog.empty()
+    if cp.jitter_angle_rms_deg_e == 0 and cp.jitter_time_rms_s == 0:
+        # no random draws: every segment at once (a twin replays a capture as one segment per
+        # edge interval, tens of thousands; one by one they cost some 0.2 ms each)
+        log = _segments_at_once(cp, profile, float(start_angle_deg_e), float(start_time_s))
+    else:
+        log = _segments_one_by_one(cp, profile, seed, float(start_angle_deg_e), float(start_time_s))
+    return _in_time_order(log)
+
+
+def _segments_one_by_one(cp, profile: list[OperatingPoint], seed: int, theta0: float, t0: float) -> EdgeLog:
+    """The segments in turn, the jitter drawn segment by segment (its random stream in that order)."""
     table = cp.switch_table_deg_e()
     rng = np.random.default_rng(seed)
     p = cp.pole_pairs
     n_poles = 2 * p
     logs = []
-    theta0 = float(start_angle_deg_e)
-    t0 = float(start_time_s)
     # the coloured jitter runs on across segment seams (AR(1) over successive captured edges,
     # not restarted at each operating point: a trajectory of many short segments keeps its colour)
     jitter_state = {"angle": None, "time": None}
     for index, op in enumerate(profile):
-        op.check(index)
         d = op.direction
         w0 = rpm_to_deg_e_per_s(op.speed_rpm, p)  # deg_e / s
         w1 = rpm_to_deg_e_per_s(op.end_speed_rpm if op.end_speed_rpm is not None else op.speed_rpm, p)
@@ -131,14 +143,90 @@ def simulate_edges(
             )
         )
         theta0, t0 = theta1, t0 + op.duration_s
-    if not logs:
-        return EdgeLog.empty()
-    log = logs[0] if len(logs) == 1 else EdgeLog.concatenate(logs)
+    return logs[0] if len(logs) == 1 else EdgeLog.concatenate(logs)
+
+
+def _in_time_order(log: EdgeLog) -> EdgeLog:
     # a conditioned edge may overtake its neighbour across a segment seam; keep time order
     # (checked first: reordering copies every column, and almost always nothing overtakes)
     if np.all(log.t_conditioned_s[1:] >= log.t_conditioned_s[:-1]):
         return log
     return log.take(np.argsort(log.t_conditioned_s, kind="stable"))
+
+
+def _segments_at_once(cp, profile: list[OperatingPoint], theta_start: float, t_start: float) -> EdgeLog:
+    """The segments without jitter, all in one set of array operations: the same arithmetic,
+    element by element, as ``_segments_one_by_one`` (the same edges, bit for bit, in its order)."""
+    table = cp.switch_table_deg_e()
+    p = cp.pole_pairs
+    n_poles = 2 * p
+    dur = np.array([op.duration_s for op in profile], dtype=float)
+    d = np.array([op.direction for op in profile], dtype=np.int64)
+    rpm0 = np.array([op.speed_rpm for op in profile], dtype=float)
+    rpm1 = np.array([op.speed_rpm if op.end_speed_rpm is None else op.end_speed_rpm for op in profile], dtype=float)
+    current = np.array([op.mean_phase_current_a for op in profile], dtype=float)
+    w0, w1 = rpm_to_deg_e_per_s(rpm0, p), rpm_to_deg_e_per_s(rpm1, p)
+    acc = (w1 - w0) / dur
+    travel = w0 * dur + 0.5 * acc * dur**2
+    # each segment starts where the one before ended: a running sum, added in the loop's order
+    theta0 = np.add.accumulate(np.concatenate(([theta_start], d * travel)))[:-1]
+    t0 = np.add.accumulate(np.concatenate(([t_start], dur)))[:-1]
+    theta1 = theta0 + d * travel
+    lo, hi = np.minimum(theta0, theta1), np.maximum(theta0, theta1)
+    shift = d * (cp.hysteresis_deg_e + cp.armature_offset_deg_e(current))
+    seg, sensor, boundary, switch = [], [], [], []
+    for x in range(3):
+        base = SENSOR_POSITION_DEG_E[x] + cp.sensor_offset_deg_e[x]
+        k_lo = np.floor((lo - base - 60.0) / 180.0).astype(np.int64)
+        count = np.ceil((hi - base + 60.0) / 180.0).astype(np.int64) + 1 - k_lo  # np.arange(k_lo, that)
+        i = np.repeat(np.arange(dur.size), count)
+        k = k_lo[i] + (np.arange(i.size) - np.repeat(np.cumsum(count) - count, count))
+        sw = 180.0 * k + SENSOR_POSITION_DEG_E[x] + table[x, k % n_poles, np.where(d[i] > 0, 0, 1)] + shift[i]
+        inside = (d[i] * (sw - theta0[i]) >= 0) & (d[i] * (sw - theta1[i]) < 0)
+        seg.append(i[inside])
+        sensor.append(np.full(int(inside.sum()), x, dtype=np.int64))
+        boundary.append(k[inside])
+        switch.append(sw[inside])
+    seg, sensor, boundary, switch = map(np.concatenate, (seg, sensor, boundary, switch))
+    dd, ww, aa = d[seg], w0[seg], acc[seg]
+    tau_raw = _times_at(dd * (switch - theta0[seg]), ww, aa)
+    ideal = 180.0 * boundary + SENSOR_POSITION_DEG_E[sensor]
+    tau_ideal = _times_at(dd * (ideal - theta0[seg]), ww, aa)
+    # the loop's order: segment by segment, by raw time, ties by sensor then boundary (its
+    # stable sort of sensor A's edges, then B's, then C's)
+    order = np.lexsort((boundary, sensor, tau_raw, seg))
+    seg, sensor, boundary, switch, tau_raw, tau_ideal, dd, ww, aa = (
+        a[order] for a in (seg, sensor, boundary, switch, tau_raw, tau_ideal, dd, ww, aa)
+    )
+    rising = (np.where(dd > 0, boundary, boundary - 1) % 2) == 0
+    tau_cond = tau_raw + np.where(rising, cp.rise_delay_s, cp.fall_delay_s)
+    t_cond = t0[seg] + tau_cond
+    t_cap = np.floor(t_cond / cp.timer_tick_s) * cp.timer_tick_s if cp.timer_tick_s > 0 else t_cond.copy()
+    return EdgeLog(
+        t_capture_s=t_cap,
+        t_conditioned_s=t_cond,
+        t_raw_s=t0[seg] + tau_raw,
+        t_ideal_s=t0[seg] + tau_ideal,
+        sensor=sensor,
+        rising=rising,
+        boundary=boundary,
+        pole=boundary % n_poles,
+        direction=dd,
+        theta_e_switch_deg=switch,
+        theta_e_capture_deg=theta0[seg] + dd * (ww * tau_cond + 0.5 * aa * tau_cond**2),
+        speed_rpm=deg_e_per_s_to_rpm(ww + aa * tau_cond, p),
+        mean_abs_current_a=current[seg],
+        segment=seg.astype(np.int64),
+    )
+
+
+def _times_at(travel_deg: np.ndarray, w0: np.ndarray, acc: np.ndarray) -> np.ndarray:
+    """``_time_at`` element by element, each edge with its segment's w0 and acc."""
+    with np.errstate(all="ignore"):  # each branch is computed for every edge, and kept where it holds
+        steady = travel_deg / w0
+        disc = np.maximum(w0 * w0 + 2.0 * acc * travel_deg, 0.0)
+        ramp = 2.0 * travel_deg / (w0 + np.sqrt(disc))
+    return np.where(acc == 0.0, steady, ramp)
 
 
 def _time_at(travel_deg: np.ndarray, w0: float, acc: float) -> np.ndarray:

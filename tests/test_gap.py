@@ -14,7 +14,7 @@ from hil.gap import diagnose
 from hil.gap.candidates import CANDIDATES
 from hil.gap.samples import EFFECT_DOMAIN
 from hil.gap.synthetic import KNOWN_MODEL, param_error
-from hil.gap.validate import make_case, run_validation
+from hil.gap.validate import effect_names, make_case, run_validation
 from hil.recording.reader import read_recording
 from hil.recording.drivers import record_kinematic
 from hil.recording.format import write_recording
@@ -229,10 +229,17 @@ def test_model_toml_and_bad_input(tmp_path, capsys):
 
 
 def test_validation_meets_the_bars_at_snr_3():
-    report = run_validation(per_effect=6, null=20, two=6, out_of_library=12, seed=11)
+    """docs/gap.md's bars at SNR >= 3, on cases drawn at SNR 3-10 (the default's share at SNR >= 3,
+    none drawn to be left out); the two-effect rate has no bar (reported only), so none are drawn.
+    Dead time withheld leaves no trace and must not raise a gap, as a null recording must not: the
+    false-alarm bar holds over both."""
+    report = run_validation(per_effect=5, null=20, two=0, out_of_library=10, seed=11, snr_range=(3.0, 10.0))
     s = report.summary(3.0)
+    assert s["single_cases"] == 5 * len(effect_names()) and s["out_of_library_cases"] == 10
     assert s["top1_rate"] >= 0.9 and s["top3_rate"] >= 0.98
-    assert s["false_alarm_rate"] <= 0.05
+    # the false-alarm bar over both kinds of recording that must raise no gap (5 % of 25: one alarm)
+    alarms = s["false_alarm_rate"] * s["null_cases"] + s["no_trace_alarm_rate"] * s["no_trace_cases"]
+    assert s["null_cases"] + s["no_trace_cases"] == 25 and alarms <= 0.05 * 25 + 1e-9
     assert s["unexplained_rate"] >= 0.9
     assert s["param_within_20pct_rate"] >= 0.8
     assert s["median_heldout_shrink"] >= 0.8
@@ -430,9 +437,9 @@ def test_without_encoder_a_sampled_effect_is_not_what_the_edge_errors_make():
 
 
 def test_field_generator_validation_meets_the_bars():
-    report = run_validation(per_effect=3, null=6, two=0, seed=5, generator="field")
+    report = run_validation(per_effect=2, null=6, two=0, seed=5, generator="field", snr_range=(3.0, 10.0))
     s = report.summary(3.0)
-    assert s["single_cases"] >= 12
+    assert s["single_cases"] == 12
     assert s["top1_rate"] >= 0.9 and s["false_alarm_rate"] <= 0.05 and s["param_within_20pct_rate"] >= 0.8
     assert {c["cause"][0] for c in report.cases if c["kind"] == "single"} == set(
         __import__("hil.gap.field_causes", fromlist=["CAUSES"]).CAUSES

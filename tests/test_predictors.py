@@ -551,13 +551,36 @@ def scenario_run():
     return run_scenario(seed=0)
 
 
+def test_the_oracle_is_the_kf_with_its_r_theta_following_the_true_speed(scenario_run):
+    """The oracle row (published beside the tuned protocols, compare.Oracle) is the fixed-Q KF with
+    R_theta(k) = r_theta (w_k / W_REF)^2: with r_theta about 0 it predicts as the KF with R_theta 0
+    does, and with a real r_theta it does not predict as the KF with that R_theta held constant
+    (the profile runs 5000-10,000 rpm, W_REF 7500)."""
+    from hil.experiments.table5 import score
+
+    run = scenario_run
+
+    def kf_rms(r_theta):
+        kf = KalmanPredictor(MODEL, FilterSettings(q0_diag=(1e3, 1e-9, 1e-2), r0_diag=(r_theta, 1e-2),
+                                                   gate_state_update=False))
+        r = kf.run(run.t_corrected_s, run.mean_current_a)
+        return score(run, "kf", r.pred_t_s, r.speed_rad_s).angle_rms_deg_e
+
+    def oracle_rms(r_theta):
+        return compare.Oracle((1e3, 1e-2, r_theta, 1e-2)).row(run, MODEL, None, 0.0).angle_rms_deg_e
+
+    assert oracle_rms(1e-30) == pytest.approx(kf_rms(1e-30), rel=1e-9)
+    assert abs(oracle_rms(1e-4) - kf_rms(1e-4)) > 1e-3 * kf_rms(1e-4)
+
+
 @pytest.fixture(scope="module")
 def tuned():
-    return compare.run_protocol("tuned", eval_seeds=(0, 3, 4))
+    # the oracle's headroom row is a reference this test judges nothing on (the figures publish it)
+    return compare.run_protocol("tuned", eval_seeds=(0, 3, 4), oracle=False)
 
 
 def test_tuned_protocol_scored_against_ground_truth(tuned):
-    assert set(tuned.rows) == {"sage_husa", "kf", "precal", "oracle"} and len(tuned.rows["kf"]) == 3
+    assert set(tuned.rows) == {"sage_husa", "kf", "precal"} and len(tuned.rows["kf"]) == 3
     m = {name: tuned.metrics(name) for name in tuned.rows}
     # both filters average the edge jitter the pre-calibration predictor passes on: a tenth of
     # a degree electrical is the budget a commutation predictor should meet on this bench

@@ -170,10 +170,13 @@ def test_hil_dut_check_fails_on_an_object_the_device_refuses(served, tmp_path):
 #: hypothesis search) move the frames and objects that REQ-PRED-001 and REQ-CAL-004 move (edges,
 #: strategy, filter settings, the table), REQ-ROB-002's fault-sequence machine the fault objects the
 #: wiring-fault tests move (and REQ-ROB-002 stays judged through their recovery budget), and
-#: REQ-CUR-002's nine calibrated runs the table and strategy the calibration tests move; what
-#: they judge is the controller, which the default acceptance run judges whole
+#: REQ-CUR-002's nine calibrated runs the table and strategy the calibration tests move, and
+#: REQ-PRED-001's back-to-back check (five more paper-scenario runs, three of them the reference's
+#: in-process) the edges and strategy that REQ-PRED-001's budget test moves; what they judge is the
+#: controller, which the default acceptance run judges whole
 FOREIGN_MAP_TESTS = ("not sage_husa_is_no_worse_than_the_tuned_kf and not any_calibrated_deviation_set"
-                     " and not fault_sequences_are_reported and not excess_current_of_raw_commutation")
+                     " and not fault_sequences_are_reported and not excess_current_of_raw_commutation"
+                     " and not back_to_back_with_the_reference")
 #: the requirements of a part (pil:): "not applicable" to a device on a bus, never passed
 OF_A_PART = {rid for rid, req in REQUIREMENTS.items() if req.kinds}
 JUDGED_THROUGH_A_FOREIGN_MAP = set(REQUIREMENTS) - {"REQ-PRED-002", "REQ-ROB-001", "REQ-CUR-002"} - OF_A_PART

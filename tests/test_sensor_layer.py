@@ -1,15 +1,17 @@
 """Each Hall effect produces exactly its predicted per-edge signature (analytic truth)."""
 
 import math
+from dataclasses import fields
 
 import numpy as np
 import pytest
-from hypothesis import given
+from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import brentq
 
 from plant_models import EFFECTS, OracleCommutation, RawHallCommutation, Simulation, paper_bench
 from plant_models import effects as fx
+from plant_models.edgelog import EdgeLog
 from plant_models.kinematic import OperatingPoint, simulate_edges
 
 BASE = paper_bench()
@@ -382,3 +384,43 @@ def test_edge_current_is_the_current_at_the_crossing():
     assert np.max(np.abs(step_start - at_crossing)) > 0.03  # the step start is stale here
     np.testing.assert_allclose(e.mean_abs_current_a, at_crossing, atol=0.003)
     np.testing.assert_allclose(e.switch_error_deg_e, 1.0 + 1.0 * e.mean_abs_current_a, atol=1e-6)
+
+
+# --- many segments at once: the same edges as one segment at a time --------------------------
+
+
+@settings(max_examples=40, deadline=None, derandomize=True, database=None)
+@given(
+    segments=st.lists(
+        st.tuples(st.floats(1e-4, 0.02), st.floats(0.0, 12000.0), st.floats(0.0, 12000.0) | st.none(),
+                  st.floats(0.0, 8.0), st.sampled_from([1, -1])),
+        min_size=1, max_size=60,
+    ),
+    start_deg_e=st.floats(-720.0, 720.0),
+    start_s=st.floats(0.0, 10.0),
+    pole=st.tuples(*[st.floats(-2.0, 2.0)] * 4),
+    tick_s=st.sampled_from([0.0, 1e-7, 33.3e-6]),
+)
+def test_the_segments_at_once_are_the_segments_one_by_one_bit_for_bit(segments, start_deg_e, start_s, pole, tick_s):
+    """Without jitter (no random draws) every segment is computed at once (a twin replays a capture
+    as tens of thousands of one-interval segments); with installation, pole, conditioning-delay,
+    armature (a current per segment), hysteresis and timer effects, ramps and reversals, its edges
+    are the one-by-one loop's, field by field and in the same order."""
+    from plant_models.kinematic import _in_time_order, _segments_at_once, _segments_one_by_one
+
+    config = BASE.with_effects(
+        fx.InstallationOffset((0.7, -0.4, -0.3)), fx.PoleOffset((pole[0], pole[1], -pole[0], -pole[1])),
+        fx.ConditioningDelay(rise_delay_s=40e-6, fall_delay_s=25e-6), fx.ArmatureReaction(slope_deg_e_per_a=0.3),
+        fx.Hysteresis(lag_deg_e=0.5), fx.TimerQuantization(tick_s),
+    )
+    profile = [OperatingPoint(dur, rpm, cur, d, end) for dur, rpm, end, cur, d in segments]
+    cp = config.compile()
+    assert cp.jitter_angle_rms_deg_e == 0 and cp.jitter_time_rms_s == 0
+    at_once = _segments_at_once(cp, profile, start_deg_e, start_s)
+    one_by_one = _segments_one_by_one(cp, profile, 0, start_deg_e, start_s)
+    for f in fields(EdgeLog):
+        a, b = getattr(at_once, f.name), getattr(one_by_one, f.name)
+        assert a.dtype == b.dtype and a.shape == b.shape, f.name
+        np.testing.assert_array_equal(a, b, err_msg=f.name)
+    np.testing.assert_array_equal(simulate_edges(config, profile, 0, start_deg_e, start_s).t_capture_s,
+                                  _in_time_order(one_by_one).t_capture_s)

@@ -94,9 +94,11 @@ def make_field_case(
     return rec, implied, hf
 
 
-def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: int) -> list[tuple]:
-    """(index, kind, causes, snr, seed, electrical) for every case: a quarter of the single
-    causes on the electrical plant (speed ripple, real commutation, the edge currents of six-step)."""
+def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: int,
+                     snr_range: tuple[float, float]) -> list[tuple]:
+    """(index, kind, causes, snr, seed, electrical) for every case, the SNR drawn uniformly from
+    ``snr_range``: a quarter of the single causes on the electrical plant (speed ripple, real
+    commutation, the edge currents of six-step)."""
     plan = []
     for name in CAUSES:
         plan += [("single", [name])] * per_cause
@@ -105,7 +107,7 @@ def plan_field_cases(rng: np.random.Generator, per_cause: int, null: int, two: i
         a, b = rng.choice(CAUSES, 2, replace=False)
         plan.append(("two", [str(a), str(b)]))
     return [
-        (i, kind, names, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)), (i % 4 == 3) and kind != "two")
+        (i, kind, names, float(rng.uniform(*snr_range)), int(rng.integers(0, 2**31)), (i % 4 == 3) and kind != "two")
         for i, (kind, names) in enumerate(plan)
     ]
 

@@ -314,6 +314,8 @@ class ValidationReport:
 
 
 GENERATORS = ("library", "field")
+#: the signal-to-noise ratios the cases are drawn from, uniformly (each case's effect scaled to its draw)
+SNR_RANGE = (1.0, 10.0)
 
 
 def run_validation(
@@ -326,6 +328,7 @@ def run_validation(
     jobs: int = 1,
     generator: str = "library",
     scheduler: str | None = None,
+    snr_range: tuple[float, float] = SNR_RANGE,
 ) -> ValidationReport:
     """Draw the cases (all randomness from ``seed``), diagnose each: in this process (``jobs`` 1),
     on a local Dask cluster of ``jobs`` workers, or on the Dask ``scheduler`` at an address
@@ -333,12 +336,16 @@ def run_validation(
 
     ``generator``: "library" withholds the library's effects (kinematic and electrical plant);
     "field" withholds physical causes of the field-level Hall model (hil.gap.field_causes),
-    ``per_effect`` cases per cause (there is no out-of-library set)."""
+    ``per_effect`` cases per cause (there is no out-of-library set).
+
+    ``snr_range``: the SNRs drawn. A check of the rates at SNR >= 3 alone draws from (3, 10): the
+    cases distributed as the default's share at SNR >= 3 (a uniform draw conditioned on >= 3 is uniform
+    on [3, 10]), none drawn only to be left out of the rates."""
     if generator not in GENERATORS:
         raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
     rng = np.random.default_rng(seed)
     if generator == "field":
-        return _run(plan_field_cases(rng, per_effect, null, two), run_field_case, progress, jobs, scheduler)
+        return _run(plan_field_cases(rng, per_effect, null, two, snr_range), run_field_case, progress, jobs, scheduler)
     plan = []
     names = effect_names()
     for name in names:
@@ -352,7 +359,7 @@ def run_validation(
     # dead time leaves no trace in the format's signals: withheld, it must not raise a gap
     plan += [("no_trace", ["dead_time"], None)] * max(null // 4, 1)
     cases = [
-        (i, kind, names, ool, float(rng.uniform(1.0, 10.0)), int(rng.integers(0, 2**31)))
+        (i, kind, names, ool, float(rng.uniform(*snr_range)), int(rng.integers(0, 2**31)))
         for i, (kind, names, ool) in enumerate(plan)
     ]
     return _run(cases, _run_case, progress, jobs, scheduler)
