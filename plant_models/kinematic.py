@@ -189,9 +189,9 @@ def _segments_at_once(cp, profile: list[OperatingPoint], theta_start: float, t_s
         switch.append(sw[inside])
     seg, sensor, boundary, switch = map(np.concatenate, (seg, sensor, boundary, switch))
     dd, ww, aa = d[seg], w0[seg], acc[seg]
-    tau_raw = _times_at(dd * (switch - theta0[seg]), ww, aa)
+    tau_raw = _time_at(dd * (switch - theta0[seg]), ww, aa)
     ideal = 180.0 * boundary + SENSOR_POSITION_DEG_E[sensor]
-    tau_ideal = _times_at(dd * (ideal - theta0[seg]), ww, aa)
+    tau_ideal = _time_at(dd * (ideal - theta0[seg]), ww, aa)
     # the loop's order: segment by segment, by raw time, ties by sensor then boundary (its
     # stable sort of sensor A's edges, then B's, then C's)
     order = np.lexsort((boundary, sensor, tau_raw, seg))
@@ -216,25 +216,18 @@ def _segments_at_once(cp, profile: list[OperatingPoint], theta_start: float, t_s
         theta_e_capture_deg=theta0[seg] + dd * (ww * tau_cond + 0.5 * aa * tau_cond**2),
         speed_rpm=deg_e_per_s_to_rpm(ww + aa * tau_cond, p),
         mean_abs_current_a=current[seg],
-        segment=seg.astype(np.int64),
+        segment=seg.astype(np.int64, copy=False),
     )
 
 
-def _times_at(travel_deg: np.ndarray, w0: np.ndarray, acc: np.ndarray) -> np.ndarray:
-    """``_time_at`` element by element, each edge with its segment's w0 and acc."""
-    with np.errstate(all="ignore"):  # each branch is computed for every edge, and kept where it holds
+def _time_at(travel_deg: np.ndarray, w0, acc) -> np.ndarray:
+    """Time at which w0 t + acc t^2 / 2 = travel (stable root; w0, travel >= 0); ``w0`` and ``acc``
+    one segment's, or each edge's own (its segment's)."""
+    with np.errstate(all="ignore"):  # both roots are computed for every edge, each kept where it holds
         steady = travel_deg / w0
         disc = np.maximum(w0 * w0 + 2.0 * acc * travel_deg, 0.0)
         ramp = 2.0 * travel_deg / (w0 + np.sqrt(disc))
     return np.where(acc == 0.0, steady, ramp)
-
-
-def _time_at(travel_deg: np.ndarray, w0: float, acc: float) -> np.ndarray:
-    """Time at which w0 t + acc t^2 / 2 = travel (stable root; w0, travel >= 0)."""
-    if acc == 0.0:
-        return travel_deg / w0
-    disc = np.maximum(w0 * w0 + 2.0 * acc * travel_deg, 0.0)
-    return 2.0 * travel_deg / (w0 + np.sqrt(disc))
 
 
 def _ar1(rng: np.random.Generator, n: int, rho: float, state: dict | None = None, key: str = "") -> np.ndarray:
