@@ -245,6 +245,12 @@ def test_validation_meets_the_bars_at_snr_3():
     assert s["median_heldout_shrink"] >= 0.8
 
 
+@pytest.mark.parametrize("snr_range", [(10.0, 3.0), (0.0, 10.0), (3.0, float("inf")), (3.0,)])
+def test_a_wrong_snr_range_is_refused_naming_it(snr_range):
+    with pytest.raises(ValueError, match=r"snr_range: \(lowest, highest\) with 0 < lowest <= highest"):
+        run_validation(per_effect=1, null=0, two=0, out_of_library=0, snr_range=snr_range)
+
+
 # --- other trace formats -----------------------------------------------------------------------
 
 

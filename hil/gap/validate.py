@@ -343,6 +343,8 @@ def run_validation(
     on [3, 10]), none drawn only to be left out of the rates."""
     if generator not in GENERATORS:
         raise ValueError(f"unknown generator {generator!r} (known: {', '.join(GENERATORS)})")
+    if not (len(snr_range) == 2 and 0.0 < snr_range[0] <= snr_range[1] and math.isfinite(snr_range[1])):
+        raise ValueError(f"snr_range: (lowest, highest) with 0 < lowest <= highest, got {snr_range!r}")
     rng = np.random.default_rng(seed)
     if generator == "field":
         return _run(plan_field_cases(rng, per_effect, null, two, snr_range), run_field_case, progress, jobs, scheduler)
