@@ -145,6 +145,10 @@ def test_fault_sequences_are_reported_and_recovered(
     runs = []
     with_fault: set[str] = set()  #: the distinct step sequences in which at least one fault acted
     seen: set[str] = set()  #: every distinct step sequence run
+    #: the failure of each step sequence that failed: Hypothesis runs a failing example again (to
+    #: confirm and shrink it) and must see it fail again; a repeat that passed as "seen" read as a
+    #: flaky controller (FlakyFailure: "produces unreliable results") where the run was deterministic
+    failed: dict[str, AssertionError] = {}
     skipped = [0]  #: draws not run (repeats, and draws after the count was reached)
 
     class FaultSequence(RuleBasedStateMachine):
@@ -173,6 +177,8 @@ def test_fault_sequences_are_reported_and_recovered(
 
         def teardown(self):
             key = json.dumps(self.steps, sort_keys=True)
+            if key in failed:
+                raise failed[key]
             if key in seen or len(with_fault) >= FAULT_SEQUENCE_EXAMPLES:
                 skipped[0] += 1  # a repeat tests nothing new; past the count the search is done
                 return
@@ -200,7 +206,11 @@ def test_fault_sequences_are_reported_and_recovered(
                     outcome.values["recovered_p99_deg_e"],
                 ]
             )
-            judge(stim, outcome, request)
+            try:
+                judge(stim, outcome, request)
+            except AssertionError as exc:
+                failed[key] = exc
+                raise
 
     try:
         run_state_machine_as_test(

@@ -340,3 +340,56 @@ def test_a_twin_check_writes_the_saved_json(spindle_check):
     assert key_paths(now) == key_paths(saved), sorted(key_paths(now) ^ key_paths(saved))
     paths = {now["recording"]: saved["recording"], now["twin"]: saved["twin"]}
     assert differences(saved, with_paths(now, paths)) == []
+
+
+@pytest.fixture(scope="module")
+def spindle_twin_findings(spindle_twin, tmp_path_factory):
+    """The acceptance suite's two open findings on the spindle's twin (docs/twin.md, "The spindle's
+    twin"), run once: REQ-PRED-002 on its noisy profile and REQ-ROB-002's fault sequences, against
+    the built-in controller; the report's tests by name."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path_factory.mktemp("spindle-findings")
+    root = Path(__file__).parent.parent
+    run = subprocess.run(
+        [sys.executable, "-m", "hil", "acceptance", "--plant", str(spindle_twin), "--dut", "virtual:in-process",
+         "-j", "0", "-o", str(out), "--", "-k", "(no_worse and noisy) or fault_sequences"],
+        capture_output=True, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, timeout=900,
+    )
+    report = json.loads((out / "hil-report.json").read_text())
+    tests = {t["nodeid"].rpartition("::")[2]: t for t in report["tests"]}
+    assert len(tests) == 2, (sorted(tests), run.stdout[-3000:])
+    return tests, {r["id"]: r["verdict"] for r in report["traceability"] if r["traced"]}
+
+
+def test_a_failed_fault_sequence_is_reported_as_the_failure_it_is(spindle_twin_findings):
+    """Hypothesis runs a failing example again to confirm and shrink it; the fault-sequence search
+    skipped a sequence it had seen, so the repeat passed and the report said "FlakyFailure: produces
+    unreliable results", as if the controller were not deterministic (its replay fails every time).
+    A failing sequence now fails again: the report names the budget it missed."""
+    tests, _ = spindle_twin_findings
+    test = next(t for name, t in tests.items() if name.startswith("test_fault_sequences"))
+    if test["outcome"] != "failed":
+        pytest.skip("REQ-ROB-002 passes on the spindle's twin: no failed sequence to report")
+    assert test["message"].startswith("AssertionError: recovered_commutation_angle_p99 (REQ-ROB-002)"), test["message"]
+    assert "in FlakyFailure]" not in test["message"] and "errors.FlakyFailure" not in str(test["details"])
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "open finding (docs/twin.md): after a 5 ms sensor dropout the built-in controller's "
+    "commutation on the spindle's twin (its real 133 us delay) is 0.63 deg e p99 in the recovery window, "
+    "against REQ-ROB-002's 0.6 (0.38 on the paper bench)"))
+def test_the_built_in_controller_recovers_from_a_fault_on_the_spindles_twin(spindle_twin_findings):
+    assert spindle_twin_findings[1]["REQ-ROB-002"] == "pass"
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "open finding (docs/twin.md): at a set point step of the noisy profile the speed loop raises the "
+    "current about tenfold within two edges; Sage-Husa's chi-square gate, on angle and current together, "
+    "refuses the step as an outlier edge, the divergence fade then sets the speed state 2.7 rad/s off "
+    "and the edge-noise change detector takes the acceleration for noise (R_theta 60x): one seed's RMS "
+    "is twice the KF's"))
+def test_sage_husa_is_no_worse_than_the_kf_on_the_spindles_twin_with_a_changing_edge_noise(spindle_twin_findings):
+    assert spindle_twin_findings[1]["REQ-PRED-002"] == "pass"
