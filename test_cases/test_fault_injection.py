@@ -144,11 +144,10 @@ def test_fault_sequences_are_reported_and_recovered(
     effects = [e.to_dict() for e in plant.suite_deviations(paper_bench(with_deviations=True).effects)]
     runs = []
     with_fault: set[str] = set()  #: the distinct step sequences in which at least one fault acted
-    seen: set[str] = set()  #: every distinct step sequence run
-    #: the failure of each step sequence that failed: Hypothesis runs a failing example again (to
-    #: confirm and shrink it) and must see it fail again; a repeat that passed as "seen" read as a
-    #: flaky controller (FlakyFailure: "produces unreliable results") where the run was deterministic
-    failed: dict[str, AssertionError] = {}
+    #: every distinct step sequence run, with its failure (None: it passed). Hypothesis runs a failing
+    #: example again to confirm it and must see it fail again; a repeat skipped as seen read as a flaky
+    #: controller (FlakyFailure: "produces unreliable results") where the run was deterministic
+    seen: dict[str, AssertionError | None] = {}
     skipped = [0]  #: draws not run (repeats, and draws after the count was reached)
 
     class FaultSequence(RuleBasedStateMachine):
@@ -177,12 +176,12 @@ def test_fault_sequences_are_reported_and_recovered(
 
         def teardown(self):
             key = json.dumps(self.steps, sort_keys=True)
-            if key in failed:
-                raise failed[key]
+            if seen.get(key) is not None:
+                raise seen[key]
             if key in seen or len(with_fault) >= FAULT_SEQUENCE_EXAMPLES:
                 skipped[0] += 1  # a repeat tests nothing new; past the count the search is done
                 return
-            seen.add(key)
+            seen[key] = None
             note(f"search example {len(with_fault) + 1}/{FAULT_SEQUENCE_EXAMPLES}: fault sequence of "
                  f"{len(self.steps)} steps")
             stim = Stimulus(
@@ -209,7 +208,7 @@ def test_fault_sequences_are_reported_and_recovered(
             try:
                 judge(stim, outcome, request)
             except AssertionError as exc:
-                failed[key] = exc
+                seen[key] = exc
                 raise
 
     try:

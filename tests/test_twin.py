@@ -25,6 +25,7 @@ from saved_json import differences, key_paths, saved_file, with_paths
 DATA = Path(__file__).parent / "data" / "real-hall"
 SPINDLE = DATA / "20260618-spindle-hw.vcd"
 HBOARD = DATA / "20250616-hboard-cycle.vcd"
+ROOT = Path(__file__).parent.parent
 #: the judged bands (issue 34): the twin's rise-minus-fall delay within 10 % of the capture's; the
 #: twin/real commutation-error ratio within 0.67-1.5 for sector hold and the PLL
 DELAY_TOLERANCE = 0.10
@@ -244,28 +245,32 @@ def test_coloured_jitter_keeps_its_colour_across_short_segments():
     assert abs(lag1 - rho) < 0.05 and math.isclose(float(np.std(x)), 1.0, rel_tol=0.15)
 
 
+def acceptance_on(plant: Path, out: Path, *args: str) -> tuple[dict, str]:
+    """``hil acceptance`` against the built-in controller (in-process, one process) on ``plant`` with
+    ``args`` after the fixed ones: its JSON report and its standard output."""
+    import os
+    import subprocess
+    import sys
+
+    run = subprocess.run(
+        [sys.executable, "-m", "hil", "acceptance", "--plant", str(plant), "--dut", "virtual:in-process", "-j", "0",
+         "-o", str(out), *args],
+        capture_output=True, text=True, cwd=ROOT, env={**os.environ, "PYTHONPATH": str(ROOT)}, timeout=900,
+    )
+    return json.loads((out / "hil-report.json").read_text()), run.stdout
+
+
 def test_a_hub_motor_twin_runs_the_suite_with_every_calibration_requirement_passing(tmp_path):
     """The hoverboard's twin (15 pole pairs, a 276 us real delay, a 305 rpm capture top): the suite's
     calibration tests run at the same fractions of its top speed (``PlantConfig.suite_speed_rpm``),
     on its own measured tables and real delay, against the built-in controller, which downloads the
     twin's calibration; every calibration requirement passes and no test errors (issue 34). A
     controller that held too few edges to align a 30-pole table (64 once) fails REQ-CAL-002 here."""
-    import json
-    import os
-    import subprocess
-    import sys
-
     twin = tmp_path / "hub.toml"
     assert main(["twin", "from-capture", str(HBOARD), "-o", str(twin)]) == 0
-    root = Path(__file__).parent.parent
-    run = subprocess.run(
-        [sys.executable, "-m", "hil", "acceptance", "--plant", str(twin), "--dut", "virtual:in-process", "-j", "0",
-         "-o", str(tmp_path / "report"), "--suite", "test_cases/test_calibration_recovery.py"],
-        capture_output=True, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, timeout=900,
-    )
-    report = json.loads((tmp_path / "report" / "hil-report.json").read_text())
+    report, stdout = acceptance_on(twin, tmp_path / "report", "--suite", "test_cases/test_calibration_recovery.py")
     outcomes = {t["nodeid"].rpartition("::")[2]: t["outcome"] for t in report["tests"]}
-    assert len(outcomes) == 5 and set(outcomes.values()) == {"passed"}, (outcomes, run.stdout[-3000:])
+    assert len(outcomes) == 5 and set(outcomes.values()) == {"passed"}, (outcomes, stdout[-3000:])
     verdicts = {r["id"]: r["verdict"] for r in report["traceability"] if r["traced"]}
     calibration = {k: v for k, v in verdicts.items() if k.startswith("REQ-CAL")}
     assert set(calibration) == {f"REQ-CAL-00{k}" for k in range(1, 6)}, verdicts
@@ -347,25 +352,15 @@ def spindle_twin_findings(spindle_twin, tmp_path_factory):
     """The acceptance suite's two open findings on the spindle's twin (docs/twin.md, "The spindle's
     twin"), run once: REQ-PRED-002 on its noisy profile and REQ-ROB-002's fault sequences, against
     the built-in controller; the report's tests by name."""
-    import os
-    import subprocess
-    import sys
-
-    out = tmp_path_factory.mktemp("spindle-findings")
-    root = Path(__file__).parent.parent
-    run = subprocess.run(
-        [sys.executable, "-m", "hil", "acceptance", "--plant", str(spindle_twin), "--dut", "virtual:in-process",
-         "-j", "0", "-o", str(out), "--", "-k", "(no_worse and noisy) or fault_sequences"],
-        capture_output=True, text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root)}, timeout=900,
-    )
-    report = json.loads((out / "hil-report.json").read_text())
+    report, stdout = acceptance_on(spindle_twin, tmp_path_factory.mktemp("spindle-findings"),
+                                   "--", "-k", "(no_worse and noisy) or fault_sequences")
     tests = {t["nodeid"].rpartition("::")[2]: t for t in report["tests"]}
-    assert len(tests) == 2, (sorted(tests), run.stdout[-3000:])
+    assert len(tests) == 2, (sorted(tests), stdout[-3000:])
     return tests, {r["id"]: r["verdict"] for r in report["traceability"] if r["traced"]}
 
 
 def test_a_failed_fault_sequence_is_reported_as_the_failure_it_is(spindle_twin_findings):
-    """Hypothesis runs a failing example again to confirm and shrink it; the fault-sequence search
+    """Hypothesis runs a failing example again to confirm it; the fault-sequence search
     skipped a sequence it had seen, so the repeat passed and the report said "FlakyFailure: produces
     unreliable results", as if the controller were not deterministic (its replay fails every time).
     A failing sequence now fails again: the report names the budget it missed."""
@@ -380,7 +375,7 @@ def test_a_failed_fault_sequence_is_reported_as_the_failure_it_is(spindle_twin_f
 @pytest.mark.xfail(strict=True, reason=(
     "open finding (docs/twin.md): after a 5 ms sensor dropout the built-in controller's commutation on "
     "the spindle's twin is 0.63 deg e p99 in the recovery window, against REQ-ROB-002's 0.6; the same run "
-    "without the fault errs as much there: the window judges a run that has not settled, not the recovery"))
+    "without the fault errs as much there: the window judges the run, not the recovery"))
 def test_the_built_in_controller_recovers_from_a_fault_on_the_spindles_twin(spindle_twin_findings):
     assert spindle_twin_findings[1]["REQ-ROB-002"] == "pass"
 
